@@ -1,0 +1,38 @@
+# audio2pose_ros on a machine without a ROS distro: everything runs from .venv (see README.md).
+.PHONY: setup demo test test-fast lint bench default-model clean
+
+# DDS stays on loopback and each run gets its own domain unless the caller chose one.
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+export ROS_DOMAIN_ID ?= $(shell shuf -i 1-100 -n 1)
+
+VENV_BIN := .venv/bin
+
+# Create/update .venv (ROS 2 wheels, torch, message packages, editable install). Fast when up to date.
+setup:
+	bash support/setup_venv.sh
+
+# Bundled speech -> live node graph -> recorded MCAP bag + offline CSV, with the default model.
+demo: setup
+	$(VENV_BIN)/audio2pose demo
+
+# The whole test suite (unit, DDS integration between processes, CLI, lint).
+test: setup
+	$(VENV_BIN)/python -m pytest
+
+# Everything except the tests marked slow (real-time playback through the node graph).
+test-fast: setup
+	$(VENV_BIN)/python -m pytest -m "not slow"
+
+lint: setup
+	$(VENV_BIN)/ruff check . && $(VENV_BIN)/ruff format --check .
+
+bench: setup
+	$(VENV_BIN)/audio2pose bench
+
+# Rebuild models/default/ (checkpoint and model card) from the bundled speech clips.
+default-model: setup
+	$(VENV_BIN)/audio2pose distill-prosody data/speech/*.wav \
+		-o models/default/default.safetensors --max-epochs 4000
+
+clean:
+	rm -rf .venv out build install log .pytest_cache .ruff_cache .hypothesis

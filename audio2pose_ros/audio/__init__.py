@@ -1,0 +1,46 @@
+"""ROS-free audio front end: PCM decoding (seed 003 section 4.2.2) and features (section 3.2).
+
+:mod:`~audio2pose_ros.audio.pcm` turns audio_common_msgs AudioData bytes into 16 kHz mono
+float32 samples; :mod:`~audio2pose_ros.audio.features` turns samples into LogFB/MFCC features,
+offline or streaming, with per-speaker z-normalisation.
+"""
+
+from audio2pose_ros.audio.features import (
+    FeatureNormalizer,
+    FeatureSpec,
+    StreamingFeatureExtractor,
+    dct_matrix,
+    delta,
+    extract_features,
+    hz_to_mel,
+    mel_filterbank,
+    mel_to_hz,
+)
+from audio2pose_ros.audio.pcm import (
+    InvalidAudio,
+    PcmDecoder,
+    PcmFormat,
+    PolyphaseResampler,
+    UnsupportedAudioFormat,
+    encode_pcm,
+    read_wav,
+)
+
+__all__ = [
+    "FeatureNormalizer",
+    "FeatureSpec",
+    "InvalidAudio",
+    "PcmDecoder",
+    "PcmFormat",
+    "PolyphaseResampler",
+    "StreamingFeatureExtractor",
+    "UnsupportedAudioFormat",
+    "dct_matrix",
+    "delta",
+    "encode_pcm",
+    "extract_features",
+    "hz_to_mel",
+    "mel_filterbank",
+    "mel_to_hz",
+    "read_wav",
+]

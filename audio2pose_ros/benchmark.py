@@ -1,0 +1,112 @@
+"""Per-frame cost of the streaming pipeline, measured on real speech (``audio2pose bench``).
+
+Each 10 ms frame of the online path costs: pushing 160 new samples into the streaming feature
+extractor, z-normalising the frame, one step of the streaming model, mapping back to radians, and
+one step of the motion filter (jitter buffer, Kalman smoothing, limits). Seed 003 section 5.1.2
+reports 10 +- 6 ms for the whole per-frame processing on a laptop; the reference column here is
+the seed's own approach to online features: python_speech_features run on the latest 25 ms window
+for every frame.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from audio2pose_ros.audio.features import StreamingFeatureExtractor
+from audio2pose_ros.models.checkpoint import Checkpoint
+from audio2pose_ros.motion.filter import MotionFilter
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Per-call cost in microseconds."""
+
+    name: str
+    median_us: float
+    p99_us: float
+    calls: int
+
+    @classmethod
+    def of(cls, name: str, samples_ns: list[int]) -> Timing:
+        """Summarise per-call durations in nanoseconds."""
+        values = np.asarray(samples_ns, dtype=np.float64) / 1e3
+        return cls(name, float(np.median(values)), float(np.percentile(values, 99)), len(values))
+
+
+def _time_calls(calls: list[Callable[[], object]]) -> list[int]:
+    durations = []
+    for call in calls:
+        start = time.perf_counter_ns()
+        call()
+        durations.append(time.perf_counter_ns() - start)
+    return durations
+
+
+def streaming_costs(
+    checkpoint: Checkpoint, filt: MotionFilter, signal_16k: np.ndarray, n_frames: int = 3000
+) -> list[Timing]:
+    """Time each stage and the whole online frame on ``n_frames`` frames of ``signal_16k``.
+
+    The signal is repeated as needed. Stages are timed one call at a time, as the nodes run them.
+    """
+    spec = checkpoint.features
+    step = spec.frame_step
+    needed = (n_frames + 4) * step + spec.frame_len
+    audio = np.resize(np.asarray(signal_16k, dtype=np.float32), needed)
+    chunks = [audio[i * step : (i + 1) * step] for i in range(needed // step)]
+
+    extractor = StreamingFeatureExtractor(spec)
+    feature_frames: list[np.ndarray] = []
+    feature_ns = []
+    for chunk in chunks:
+        start = time.perf_counter_ns()
+        out = extractor.push(chunk)
+        feature_ns.append(time.perf_counter_ns() - start)
+        feature_frames.extend(out)
+    frames = np.asarray(feature_frames[:n_frames])
+    normalized = checkpoint.normalizer.apply(frames)
+
+    predictor = checkpoint.model.streaming_predictor()
+    model_ns = _time_calls([lambda f=f: predictor.step(f) for f in normalized])
+    poses = checkpoint.robot.denormalize(np.array([predictor.step(f) for f in normalized]))
+
+    clock = [0.0]
+
+    def filter_step(pose: np.ndarray) -> None:
+        clock[0] += filt.period_s
+        filt.push(pose[None, :], clock[0])
+        filt.tick(clock[0])
+
+    filter_ns = _time_calls([lambda p=p: filter_step(p) for p in poses])
+
+    total_extractor = StreamingFeatureExtractor(spec)
+    total_predictor = checkpoint.model.streaming_predictor()
+
+    def whole_frame(chunk: np.ndarray) -> None:
+        for frame in total_extractor.push(chunk):
+            pose = total_predictor.step(checkpoint.normalizer.apply(frame[None, :])[0])
+            filter_step(checkpoint.robot.denormalize(pose))
+
+    total_ns = _time_calls([lambda c=c: whole_frame(c) for c in chunks[:n_frames]])
+    return [
+        Timing.of("features (push 160 samples)", feature_ns[:n_frames]),
+        Timing.of(f"model step ({checkpoint.model.name})", model_ns),
+        Timing.of("motion filter (push + tick)", filter_ns),
+        Timing.of("whole online frame", total_ns),
+    ]
+
+
+def reference_feature_cost(signal_16k: np.ndarray, n_frames: int = 1000) -> Timing:
+    """python_speech_features.logfbank on the latest 25 ms window, once per frame (seed 4.4.2)."""
+    from python_speech_features import logfbank
+
+    audio = np.resize(np.asarray(signal_16k, dtype=np.float64), (n_frames + 3) * 160)
+    windows = [audio[i * 160 : i * 160 + 400] for i in range(n_frames)]
+    return Timing.of(
+        "python_speech_features.logfbank per 25 ms window",
+        _time_calls([lambda w=w: logfbank(w, 16000, nfft=512) for w in windows]),
+    )

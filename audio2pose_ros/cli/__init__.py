@@ -1,0 +1,1 @@
+"""The ``audio2pose`` command line (graph runner, demo, synthesis, benchmark, model building)."""

@@ -1,0 +1,269 @@
+"""``audio2pose run``: start the node graph as processes, play a WAV into it, record its output.
+
+This is what ``ros2 launch audio2pose_ros pepper.launch.py`` does, for machines without a ROS
+distro: the same three executables, each its own process, with the same parameter file. The
+player publishes audio_common_msgs AudioInfo (latched) and AudioData chunks in real time; the
+recorder writes every command the robot would receive to a rosbag2 (MCAP).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import rclpy
+from audio_common_msgs.msg import AudioData, AudioInfo
+from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+from rclpy.node import Node
+from rclpy.serialization import serialize_message
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+
+from audio2pose_ros.audio.pcm import PcmFormat, encode_pcm, read_wav
+from audio2pose_ros.bag import BagWriter
+from audio2pose_ros.nodes.common import LATCHED_QOS
+from audio2pose_ros.resources import share_path
+
+NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
+RECORDED_TOPICS = {
+    "/joint_angles": (JointAnglesWithSpeed, "naoqi_bridge_msgs/msg/JointAnglesWithSpeed"),
+    "/joint_trajectory_controller/joint_trajectory": (
+        JointTrajectory,
+        "trajectory_msgs/msg/JointTrajectory",
+    ),
+    "/joint_states": (JointState, "sensor_msgs/msg/JointState"),
+}
+AUDIO_TOPIC = "/audio/audio"
+AUDIO_INFO_TOPIC = "/audio/audio_info"
+
+
+def executable_command(name: str) -> list[str]:
+    """The console script ``name`` next to this interpreter, else ``python -m`` its module."""
+    script = Path(sys.executable).parent / name
+    if script.is_file() and os.access(script, os.X_OK):
+        return [str(script)]
+    found = shutil.which(name)
+    if found:
+        return [found]
+    return [sys.executable, "-m", f"audio2pose_ros.nodes.{name}"]
+
+
+@contextmanager
+def node_graph(
+    params_file: Path | None = None,
+    overrides: Sequence[str] = (),
+    log_dir: Path | None = None,
+) -> Iterator[list[subprocess.Popen]]:
+    """Start the three nodes as processes; stop them (SIGINT, then SIGKILL) on exit.
+
+    Args:
+        params_file: ROS parameter YAML (default: the package's config/pepper.yaml).
+        overrides: extra ``name:=value`` parameters for every node.
+        log_dir: where each node's output goes (``<node>.log``); ``None`` inherits the terminal.
+
+    """
+    params = params_file or share_path("config", "pepper.yaml")
+    processes: list[subprocess.Popen] = []
+    logs = []
+    try:
+        for name in NODE_EXECUTABLES:
+            command = [*executable_command(name), "--ros-args", "--params-file", str(params)]
+            for override in overrides:
+                command += ["-p", override]
+            stdout = None
+            if log_dir is not None:
+                log_dir.mkdir(parents=True, exist_ok=True)
+                stdout = (log_dir / f"{name}.log").open("w")
+                logs.append(stdout)
+            processes.append(
+                subprocess.Popen(
+                    command, stdout=stdout, stderr=subprocess.STDOUT if stdout else None
+                )
+            )
+        yield processes
+    finally:
+        for process in processes:
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + 5.0
+        for process in processes:
+            try:
+                process.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+        for log in logs:
+            log.close()
+
+
+@dataclass
+class PlaybackResult:
+    """What a run recorded."""
+
+    audio_s: float
+    chunks_sent: int
+    recorded_s: float
+    counts: dict[str, int] = field(default_factory=dict)
+    bag: Path | None = None
+
+
+class PlayerRecorder(Node):
+    """Publishes a WAV as audio_common_msgs in real time and records the graph's commands."""
+
+    def __init__(self, bag: BagWriter | None) -> None:
+        """Create the audio publishers and one recording subscription per command topic."""
+        super().__init__("audio2pose_player")
+        self.bag = bag
+        self.recording = False
+        self.counts = dict.fromkeys(RECORDED_TOPICS, 0)
+        self.poses_seen = 0
+        self.audio_pub = self.create_publisher(AudioData, AUDIO_TOPIC, 100)
+        self.info_pub = self.create_publisher(AudioInfo, AUDIO_INFO_TOPIC, LATCHED_QOS)
+        self.create_subscription(JointTrajectory, "/raw_trajectory", self._on_pose, 100)
+        for topic, (msg_type, type_name) in RECORDED_TOPICS.items():
+            self.create_subscription(
+                msg_type, topic, self._recorder(topic, type_name), 100, raw=True
+            )
+
+    def _on_pose(self, msg: JointTrajectory) -> None:
+        self.poses_seen += len(msg.points)
+
+    def _recorder(self, topic: str, type_name: str) -> Callable[[bytes], None]:
+        def record(data: bytes) -> None:
+            if not self.recording:
+                return
+            self.counts[topic] += 1
+            if self.bag is not None:
+                self.bag.write(topic, type_name, self.get_clock().now().nanoseconds, data)
+
+        return record
+
+    def publish_audio(self, msg: AudioData | AudioInfo) -> None:
+        """Publish audio or its format, and record it too so the bag can be replayed."""
+        if isinstance(msg, AudioInfo):
+            self.info_pub.publish(msg)
+            topic, type_name = AUDIO_INFO_TOPIC, "audio_common_msgs/msg/AudioInfo"
+        else:
+            self.audio_pub.publish(msg)
+            topic, type_name = AUDIO_TOPIC, "audio_common_msgs/msg/AudioData"
+        if self.recording and self.bag is not None:
+            self.bag.write(
+                topic, type_name, self.get_clock().now().nanoseconds, serialize_message(msg)
+            )
+
+    def spin_until(self, deadline_s: float, done: Callable[[], bool] | None = None) -> bool:
+        """Process callbacks until ``deadline_s`` (monotonic) or until ``done()`` is true."""
+        while time.monotonic() < deadline_s:
+            rclpy.spin_once(self, timeout_sec=0.005)
+            if done is not None and done():
+                return True
+        return done is None
+
+    def warm_up(self, timeout_s: float) -> None:
+        """Send silence until poses come back, so every link of the graph has matched.
+
+        DDS discovery is asymmetric: a node may see our subscription before its own publisher
+        has matched the next node, and samples sent before that are lost. Chunks of 160
+        samples keep the feature extractor aligned to whole 10 ms frames.
+        """
+        silence = AudioData(data=bytes(2 * 160))
+
+        def poses_arrive() -> bool:
+            self.audio_pub.publish(silence)
+            self.spin_until(time.monotonic() + 0.02)
+            return self.poses_seen > 0
+
+        if not self.spin_until(time.monotonic() + timeout_s, poses_arrive):
+            raise TimeoutError(
+                f"the node graph did not answer within {timeout_s} s (see the node logs)"
+            )
+        self.spin_until(time.monotonic() + 0.3)
+
+
+def play_and_record(
+    wav: Path,
+    bag_path: Path | None,
+    chunk_bytes: int = 1024,
+    tail_s: float = 2.0,
+    startup_timeout_s: float = 60.0,
+) -> PlaybackResult:
+    """Play ``wav`` as S16LE mono 16 kHz chunks in real time; record the commands it causes.
+
+    Must run while :func:`node_graph` is up, inside an initialised rclpy context. Recording
+    starts with the first chunk of speech and ends ``tail_s`` after the last one, so the bag
+    also shows the glide back to the neutral pose.
+
+    Raises:
+        TimeoutError: the graph did not come up within ``startup_timeout_s``.
+
+    """
+    samples, _ = read_wav(wav)
+    fmt = PcmFormat(sample_format="S16LE", channels=1, sample_rate_hz=16000, coding_format="wave")
+    payload = encode_pcm(samples, fmt)
+    info = AudioInfo(
+        channels=1, sample_rate=16000, sample_format="S16LE", bitrate=256000, coding_format="wave"
+    )
+    with ExitStack() as stack:
+        bag = stack.enter_context(BagWriter(bag_path)) if bag_path else None
+        node = PlayerRecorder(bag)
+        stack.callback(node.destroy_node)
+        node.publish_audio(info)
+        node.warm_up(startup_timeout_s)
+        node.recording = True
+        node.publish_audio(info)
+        bytes_per_s = 2 * 16000
+        start = time.monotonic()
+        chunks = 0
+        for offset in range(0, len(payload), chunk_bytes):
+            node.spin_until(start + offset / bytes_per_s)
+            node.publish_audio(AudioData(data=payload[offset : offset + chunk_bytes]))
+            chunks += 1
+        node.spin_until(time.monotonic() + tail_s)
+        return PlaybackResult(
+            audio_s=len(samples) / 16000,
+            chunks_sent=chunks,
+            recorded_s=time.monotonic() - start,
+            counts=dict(node.counts),
+            bag=bag_path,
+        )
+
+
+def run_graph(
+    wav: Path | None,
+    record: Path | None,
+    params_file: Path | None,
+    overrides: Sequence[str],
+    log_dir: Path | None,
+) -> PlaybackResult | None:
+    """Start the graph; with ``wav`` play it and return what was recorded, else run until Ctrl-C."""
+    with node_graph(params_file, overrides, log_dir) as processes:
+        if wav is None:
+            try:
+                while all(p.poll() is None for p in processes):
+                    time.sleep(0.2)
+            except KeyboardInterrupt:
+                pass
+            return None
+        with rclpy.init():
+            return play_and_record(wav, record)
+
+
+def summarize(result: PlaybackResult) -> str:
+    """Human-readable summary of a playback."""
+    lines = [
+        f"played {result.audio_s:.2f} s of audio in {result.chunks_sent} chunks; recorded "
+        f"{result.recorded_s:.2f} s (speech and {result.recorded_s - result.audio_s:.1f} s after)"
+    ]
+    for topic, count in result.counts.items():
+        lines.append(f"  {topic}: {count} messages ({count / result.recorded_s:.0f} Hz)")
+    if result.bag is not None:
+        lines.append(f"recorded to {result.bag}")
+    return "\n".join(lines)

@@ -1,0 +1,199 @@
+"""``audio2pose``: the command line of audio2pose_ros.
+
+Verbs: ``run`` (start the node graph, optionally play a WAV and record a bag), ``demo`` (run on
+the bundled speech clip with the default model), ``synth`` (offline synthesis to CSV), ``bench``
+(per-frame cost of the streaming path), ``distill-prosody`` (rebuild the default model). Each verb
+is a function ``command_<verb>(args) -> int``; the library raises typed errors, reported here as
+one line on stderr with exit code 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+DEFAULT_OUT = Path("out")
+
+
+def command_run(args: argparse.Namespace) -> int:
+    """Start the graph as processes; with --play, play a WAV in real time and record commands."""
+    from audio2pose_ros.cli.graph import run_graph, summarize
+
+    if args.record and args.play is None:
+        raise ValueError("--record needs --play (recording stops when the file ends)")
+    if args.record and Path(args.record).exists():
+        raise ValueError(f"{args.record} exists already; rosbag2 output must be a new directory")
+    overrides = [f"model_path:={Path(args.model).resolve()}"] if args.model else []
+    result = run_graph(
+        Path(args.play) if args.play else None,
+        Path(args.record) if args.record else None,
+        Path(args.params_file) if args.params_file else None,
+        overrides,
+        Path(args.log_dir) if args.log_dir else None,
+    )
+    if result is not None:
+        print(summarize(result))
+    return 0
+
+
+def command_demo(args: argparse.Namespace) -> int:
+    """The main job on the embedded defaults: bundled speech through the live graph, plus a CSV."""
+    from audio2pose_ros.cli.graph import run_graph, summarize
+    from audio2pose_ros.resources import bundled_speech_path
+
+    wav = bundled_speech_path()
+    out_dir = Path(args.out) / time.strftime("demo_%Y%m%d_%H%M%S")
+    bag = out_dir / "commands_mcap"
+    print(
+        f"playing {wav.name} (LibriVox, public domain; see data/speech/SOURCES.md) into the "
+        "node graph in real time ...",
+        flush=True,
+    )
+    result = run_graph(wav, bag, None, [], out_dir / "logs")
+    assert result is not None
+    print(summarize(result))
+    csv_path = out_dir / "offline_trajectory.csv"
+    _synthesize_to_csv(wav, csv_path, None, smooth=True)
+    print(f"offline synthesis of the same clip: {csv_path}")
+    print(f"node logs: {out_dir / 'logs'}")
+    print(f"results in {out_dir.resolve()}")
+    return 0
+
+
+def _synthesize_to_csv(wav: Path, out: Path, model: str | None, smooth: bool) -> Path:
+    from audio2pose_ros.audio.pcm import read_wav
+    from audio2pose_ros.models.checkpoint import load_checkpoint
+    from audio2pose_ros.resources import default_checkpoint_path
+    from audio2pose_ros.robot import load_robot
+    from audio2pose_ros.synthesis import synthesize, write_trajectory_csv
+
+    checkpoint = load_checkpoint(model or default_checkpoint_path(), robot=load_robot())
+    signal, _ = read_wav(wav)
+    times, angles = synthesize(checkpoint, signal, smooth=smooth)
+    return write_trajectory_csv(out, times, angles, checkpoint.robot.names)
+
+
+def command_synth(args: argparse.Namespace) -> int:
+    """Offline synthesis of a WAV to a CSV of joint angles at 100 Hz."""
+    out = _synthesize_to_csv(Path(args.wav), Path(args.output), args.model, not args.no_smooth)
+    print(f"wrote {out}")
+    return 0
+
+
+def command_bench(args: argparse.Namespace) -> int:
+    """Print the per-frame cost of each streaming stage on one core."""
+    import torch
+
+    from audio2pose_ros.audio.pcm import read_wav
+    from audio2pose_ros.benchmark import reference_feature_cost, streaming_costs
+    from audio2pose_ros.models.checkpoint import load_checkpoint
+    from audio2pose_ros.motion.filter import MotionFilter
+    from audio2pose_ros.resources import bundled_speech_path, default_checkpoint_path
+    from audio2pose_ros.robot import load_robot
+
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    torch.set_num_threads(1)
+    robot = load_robot()
+    checkpoint = load_checkpoint(args.model or default_checkpoint_path(), robot=robot)
+    signal, _ = read_wav(bundled_speech_path())
+    timings = streaming_costs(checkpoint, MotionFilter(robot), signal, n_frames=args.frames)
+    reference = reference_feature_cost(signal, n_frames=min(args.frames, 1000))
+    print(f"per-frame cost on one core, {args.frames} frames of real speech (10 ms each)")
+    print(f"{'stage':<52}{'median us':>12}{'p99 us':>12}")
+    for timing in [*timings, reference]:
+        print(f"{timing.name:<52}{timing.median_us:>12.1f}{timing.p99_us:>12.1f}")
+    ratio = reference.median_us / timings[0].median_us
+    print(f"streaming features vs python_speech_features per window: {ratio:.0f}x faster (median)")
+    total = timings[-1]
+    print(
+        f"whole online frame: {total.median_us:.1f} us median = "
+        f"{100 * total.median_us / 10_000:.2f} % of the 10 ms frame period"
+    )
+    return 0
+
+
+def command_distill_prosody(args: argparse.Namespace) -> int:
+    """Rebuild the default model: an MLP trained to imitate the prosody rule on the given WAVs."""
+    from audio2pose_ros.cli.model_card import write_prosody_model_card
+    from audio2pose_ros.prosody_distillation import distill_prosody
+    from audio2pose_ros.robot import load_robot
+    from audio2pose_ros.training import TrainSettings
+
+    wavs = [Path(w) for w in args.wavs]
+    checkpoint, report, metrics = distill_prosody(
+        wavs,
+        Path(args.output),
+        load_robot(),
+        validation=args.validation,
+        settings=TrainSettings(seed=args.seed, max_epochs=args.max_epochs),
+    )
+    card = write_prosody_model_card(Path(args.output), checkpoint, report, metrics, wavs)
+    for key, value in metrics.items():
+        print(f"{key}: {value:.2f}")
+    print(f"wrote {args.output} and {card}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with one sub-parser per verb."""
+    parser = argparse.ArgumentParser(prog="audio2pose", description=__doc__.splitlines()[0])
+    verbs = parser.add_subparsers(dest="verb", required=True)
+
+    run = verbs.add_parser("run", help="start the node graph (what pepper.launch.py starts)")
+    run.add_argument("--play", metavar="FILE.wav", help="play this file in real time, then exit")
+    run.add_argument("--record", metavar="OUT", help="record the commands to this rosbag2 (MCAP)")
+    run.add_argument("--model", help="checkpoint for the graph (default: packaged model)")
+    run.add_argument("--params-file", help="ROS parameter YAML (default: config/pepper.yaml)")
+    run.add_argument("--log-dir", help="write each node's output to <dir>/<node>.log")
+    run.set_defaults(func=command_run)
+
+    demo = verbs.add_parser("demo", help="bundled speech -> live graph -> recorded bag and CSV")
+    demo.add_argument("--out", default=str(DEFAULT_OUT), help="output folder (default: out/)")
+    demo.set_defaults(func=command_demo)
+
+    synth = verbs.add_parser("synth", help="offline synthesis of a WAV to CSV (100 Hz, radians)")
+    synth.add_argument("wav", metavar="FILE.wav")
+    synth.add_argument("-o", "--output", required=True, metavar="OUT.csv")
+    synth.add_argument("--model", help="checkpoint (default: packaged model)")
+    synth.add_argument("--no-smooth", action="store_true", help="skip the 4 Hz Butterworth filter")
+    synth.set_defaults(func=command_synth)
+
+    bench = verbs.add_parser("bench", help="per-frame cost of the streaming path")
+    bench.add_argument("--model", help="checkpoint (default: packaged model)")
+    bench.add_argument("--frames", type=int, default=3000, help="frames to time (default 3000)")
+    bench.set_defaults(func=command_bench)
+
+    distill = verbs.add_parser(
+        "distill-prosody", help="train the default model on the prosody rule"
+    )
+    distill.add_argument("wavs", nargs="+", metavar="FILE.wav")
+    distill.add_argument("-o", "--output", required=True, metavar="OUT.safetensors")
+    distill.add_argument(
+        "--validation",
+        nargs="*",
+        default=[],
+        metavar="STEM",
+        help="file stems held out for validation (default: the last file)",
+    )
+    distill.add_argument("--seed", type=int, default=0)
+    distill.add_argument("--max-epochs", type=int, default=500)
+    distill.set_defaults(func=command_distill_prosody)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``audio2pose`` console script."""
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (ValueError, OSError, TimeoutError) as exc:
+        print(f"audio2pose {args.verb}: error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Motion post-processing without ROS: smoothing, joint limits, the online filter, prosody rule."""

@@ -1,0 +1,158 @@
+"""Joint limit enforcement: position, then velocity, then acceleration (applied last, in one place).
+
+Everything that leaves the package for a robot passes :meth:`JointLimiter.enforce`. The order is
+the ros2_control saturation limiter's: clamp the position target into the (margin-shrunk) range,
+limit the velocity needed to reach it, then limit the change of velocity. A braking bound keeps
+the velocity low enough near a position limit that the joint can always stop inside it at the
+acceleration limit, so all three limits hold together from any feasible start.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from audio2pose_ros.robot import RobotDescription
+
+
+@dataclass(frozen=True)
+class LimitSettings:
+    """How much of the robot's published limits the limiter allows.
+
+    Attributes:
+        position_margin_rad: keep this far inside each position limit (rad, default 0.01).
+        velocity_fraction: fraction of each joint's velocity limit (0..1, default 0.5).
+        acceleration_fraction: fraction of each joint's acceleration limit (0..1, default 1.0).
+
+    """
+
+    position_margin_rad: float = 0.01
+    velocity_fraction: float = 0.5
+    acceleration_fraction: float = 1.0
+
+    def __post_init__(self) -> None:
+        """Reject fractions outside (0, 1] and negative margins."""
+        for field in ("velocity_fraction", "acceleration_fraction"):
+            value = getattr(self, field)
+            if not 0.0 < value <= 1.0:
+                raise ValueError(f"{field} must be in (0, 1], got {value}")
+        if self.position_margin_rad < 0.0:
+            raise ValueError(f"position_margin_rad must be >= 0, got {self.position_margin_rad}")
+
+
+@dataclass
+class LimitCounts:
+    """How often each limit changed a command since the last :meth:`reset` (for diagnostics)."""
+
+    non_finite: int = 0
+    position: int = 0
+    velocity: int = 0
+    acceleration: int = 0
+
+    def reset(self) -> None:
+        """Zero all counters."""
+        self.non_finite = self.position = self.velocity = self.acceleration = 0
+
+
+class JointLimiter:
+    """Saturating limiter for a vector of joints, with per-joint limits from a robot description.
+
+    The limiter is stateless apart from its counters: the caller passes the previous commanded
+    position and velocity, so it can be tested without a node.
+    """
+
+    def __init__(self, robot: RobotDescription, settings: LimitSettings | None = None) -> None:
+        """Derive the effective limits from ``robot`` and ``settings``."""
+        self.settings = settings or LimitSettings()
+        margin = self.settings.position_margin_rad
+        half_range = (robot.upper_rad - robot.lower_rad) / 2.0
+        if np.any(margin >= half_range):
+            raise ValueError(f"position_margin_rad {margin} leaves no range for some joint")
+        self.lower_rad = robot.lower_rad + margin
+        self.upper_rad = robot.upper_rad - margin
+        self.max_velocity_rad_s = robot.max_velocity_rad_s * self.settings.velocity_fraction
+        self.max_acceleration_rad_s2 = (
+            robot.max_acceleration_rad_s2 * self.settings.acceleration_fraction
+        )
+        self.counts = LimitCounts()
+
+    def clamp_position(self, positions_rad: np.ndarray) -> np.ndarray:
+        """Clamp positions into the margin-shrunk range (non-finite values become the midpoint)."""
+        positions = np.asarray(positions_rad, dtype=np.float64)
+        middle = (self.lower_rad + self.upper_rad) / 2.0
+        return np.clip(
+            np.where(np.isfinite(positions), positions, middle), self.lower_rad, self.upper_rad
+        )
+
+    def _braking_velocity(self, distance_rad: np.ndarray, dt_s: float) -> np.ndarray:
+        """Largest speed from which the joint can still stop within ``distance_rad``.
+
+        Solves v*dt + v^2 / (2a) = d for v, a conservative bound for a discrete-time stop at
+        deceleration a (the distance covered while braking is at most v^2 / (2a)). Takes any
+        array whose last axis is the joints.
+        """
+        accel = self.max_acceleration_rad_s2
+        distance = np.maximum(distance_rad, 0.0)
+        return accel * (np.sqrt(dt_s * dt_s + 2.0 * distance / accel) - dt_s)
+
+    def enforce(
+        self,
+        desired_rad: np.ndarray,
+        previous_rad: np.ndarray,
+        previous_velocity_rad_s: np.ndarray,
+        dt_s: float,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Return the command closest to ``desired_rad`` that respects every limit.
+
+        Args:
+            desired_rad: (n_joints,) wanted positions; NaN/inf entries hold the previous position.
+            previous_rad: (n_joints,) last commanded positions (inside the limits).
+            previous_velocity_rad_s: (n_joints,) last commanded velocities.
+            dt_s: time since the previous command in seconds; a non-positive or non-finite value
+                means no time has passed, and the previous command is returned unchanged.
+
+        Returns:
+            ``(positions_rad, velocities_rad_s)``, both (n_joints,).
+        """
+        previous = np.asarray(previous_rad, dtype=np.float64)
+        previous_velocity = np.asarray(previous_velocity_rad_s, dtype=np.float64)
+        if not (np.isfinite(dt_s) and dt_s > 0.0):
+            return previous.copy(), previous_velocity.copy()
+        desired = np.asarray(desired_rad, dtype=np.float64)
+        finite = np.isfinite(desired)
+        if not finite.all():
+            self.counts.non_finite += int(np.count_nonzero(~finite))
+            desired = np.where(finite, desired, previous)
+        lower, upper = self.lower_rad, self.upper_rad
+
+        # 1. Position.
+        clamped = np.minimum(np.maximum(desired, lower), upper)
+        self.counts.position += int(np.count_nonzero(clamped != desired))
+
+        # 2. Velocity. Besides the velocity limit, the speed is bounded so that the joint can
+        # still stop at the acceleration limit: before the target (no overshoot and no limit
+        # cycle around it) and before each position limit. One call for all three distances.
+        error = clamped - previous
+        distance = np.abs(error)
+        to_target, to_upper, to_lower = self._braking_velocity(
+            np.stack((distance, upper - previous, previous - lower)), dt_s
+        )
+        with np.errstate(over="ignore"):  # a vanishing dt_s gives inf, bounded just below
+            wanted_speed = distance / dt_s
+        speed = np.minimum(np.minimum(wanted_speed, self.max_velocity_rad_s), to_target)
+        limited = np.minimum(np.maximum(np.copysign(speed, error), -to_lower), to_upper)
+        self.counts.velocity += int(np.count_nonzero(np.abs(limited) < wanted_speed))
+
+        # 3. Acceleration.
+        max_change = self.max_acceleration_rad_s2 * dt_s
+        accelerated = np.minimum(
+            np.maximum(limited, previous_velocity - max_change), previous_velocity + max_change
+        )
+        self.counts.acceleration += int(np.count_nonzero(accelerated != limited))
+
+        # Final guard against rounding: positions never leave the range.
+        unclamped = previous + accelerated * dt_s
+        positions = np.minimum(np.maximum(unclamped, lower), upper)
+        velocities = np.where(positions == unclamped, accelerated, (positions - previous) / dt_s)
+        return positions, velocities

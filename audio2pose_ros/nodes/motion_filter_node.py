@@ -1,0 +1,187 @@
+"""motion_filter_node: raw poses in; smooth, limited commands for naoqi, ros2_control, viewers out.
+
+Subscriptions:
+    raw_trajectory (trajectory_msgs/JointTrajectory): poses from inference_node (any joint order).
+Publications:
+    joint_angles (naoqi_bridge_msgs/JointAnglesWithSpeed): for naoqi_driver (absolute angles).
+    joint_trajectory_controller/joint_trajectory (trajectory_msgs/JointTrajectory): one point,
+        for ros2_control's joint_trajectory_controller.
+    joint_states (sensor_msgs/JointState): the commanded pose, for robot_state_publisher / RViz.
+    /diagnostics (diagnostic_msgs/DiagnosticArray)
+Parameters (defaults in config/pepper.yaml; see MotionFilterSettings and LimitSettings):
+    robot_description, rate_hz, smoothing, kalman_q, kalman_r, lowpass_cutoff_hz,
+    watchdog_timeout_s, max_buffer_s, head_gain, arms_gain, hip_gain, position_margin_rad,
+    velocity_fraction, acceleration_fraction, joint_angles_speed (-1 = velocity_fraction),
+    joint_angles_rate_hz, joint_trajectory_rate_hz, joint_states_rate_hz (0 disables an output).
+
+Every command passes the joint limiter last. Malformed input is dropped with a warning; without
+input the robot glides to the neutral pose.
+"""
+
+from __future__ import annotations
+
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+
+from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+from audio2pose_ros.motion.limits import LimitSettings
+from audio2pose_ros.nodes.common import (
+    DIAGNOSTICS_PERIOD_S,
+    STREAM_QOS,
+    StartupError,
+    diagnostic_array,
+    run_node,
+    trajectory_msg,
+    trajectory_positions,
+)
+from audio2pose_ros.robot import load_robot
+
+WARN_THROTTLE_S = 5.0
+
+
+class MotionFilterNode(Node):
+    """Pace, smooth and limit poses; publish them in three message types."""
+
+    def __init__(self) -> None:
+        """Declare parameters into the core settings, build the filter, wire topics and timers."""
+        super().__init__("motion_filter_node")
+        try:
+            self.robot = load_robot(self.declare_parameter("robot_description", "").value)
+            settings = MotionFilterSettings(**self._declare_from(MotionFilterSettings()))
+            limits = LimitSettings(**self._declare_from(LimitSettings()))
+            self.filter = MotionFilter(self.robot, settings, limits)
+        except (OSError, ValueError) as exc:
+            raise StartupError(str(exc)) from None
+        speed = self.declare_parameter("joint_angles_speed", -1.0).value
+        self.speed = limits.velocity_fraction if speed < 0 else min(float(speed), 1.0)
+        self.input_messages = 0
+        self.dropped_messages = 0
+        self.latency_s = 0.0
+        self.last_problem = ""
+
+        self.create_subscription(JointTrajectory, "raw_trajectory", self.on_raw, STREAM_QOS)
+        self.create_timer(self.filter.period_s, self.on_tick)
+        outputs = {
+            "joint_angles": (JointAnglesWithSpeed, "joint_angles", self.publish_joint_angles),
+            "joint_trajectory": (
+                JointTrajectory,
+                "joint_trajectory_controller/joint_trajectory",
+                self.publish_joint_trajectory,
+            ),
+            "joint_states": (JointState, "joint_states", self.publish_joint_states),
+        }
+        self.publishers_by_output = {}
+        for key, (msg_type, topic, callback) in outputs.items():
+            rate_hz = float(self.declare_parameter(f"{key}_rate_hz", settings.rate_hz).value)
+            if rate_hz > 0:
+                self.publishers_by_output[key] = self.create_publisher(msg_type, topic, 10)
+                self.create_timer(1.0 / rate_hz, callback)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
+
+    def _declare_from(self, defaults: object) -> dict[str, object]:
+        """Declare one parameter per dataclass field, with the dataclass default."""
+        fields = type(defaults).__dataclass_fields__  # type: ignore[attr-defined]
+        return {
+            name: self.declare_parameter(name, getattr(defaults, name)).value for name in fields
+        }
+
+    def now_s(self) -> float:
+        """Node clock in seconds."""
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def on_raw(self, msg: JointTrajectory) -> None:
+        """Queue the poses of one raw trajectory message."""
+        self.input_messages += 1
+        try:
+            poses = trajectory_positions(msg, self.robot.names)
+        except ValueError as exc:
+            self.dropped_messages += 1
+            self.last_problem = f"raw trajectory dropped: {exc}"
+            self.get_logger().warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
+            return
+        now = self.now_s()
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        if stamp > 0:
+            self.latency_s = now - stamp
+        if self.filter.push(poses, time.monotonic()) < len(poses):
+            self.last_problem = "poses with NaN/inf dropped"
+            self.get_logger().warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
+
+    def on_tick(self) -> None:
+        """Advance the filter by one period."""
+        self.filter.tick(time.monotonic())
+
+    def publish_joint_angles(self) -> None:
+        """naoqi_driver command: absolute angles at ``speed`` fraction of max velocity."""
+        msg = JointAnglesWithSpeed()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.joint_names = list(self.robot.names)
+        msg.joint_angles = [float(v) for v in self.filter.position_rad]
+        msg.speed = float(self.speed)
+        msg.relative = 0
+        self.publishers_by_output["joint_angles"].publish(msg)
+
+    def publish_joint_trajectory(self) -> None:
+        """ros2_control command: one point, one filter period ahead."""
+        msg = trajectory_msg(
+            self.robot.names,
+            self.filter.position_rad[None, :],
+            self.filter.period_s,
+            self.filter.velocity_rad_s[None, :],
+        )
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self.publishers_by_output["joint_trajectory"].publish(msg)
+
+    def publish_joint_states(self) -> None:
+        """The commanded pose as a JointState (for robot_state_publisher and viewers)."""
+        msg = JointState()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.name = list(self.robot.names)
+        msg.position = [float(v) for v in self.filter.position_rad]
+        msg.velocity = [float(v) for v in self.filter.velocity_rad_s]
+        self.publishers_by_output["joint_states"].publish(msg)
+
+    def publish_diagnostics(self) -> None:
+        """Input counters, latency, limiter activity and watchdog state."""
+        status, counts = self.filter.status, self.filter.limiter.counts
+        level = DiagnosticStatus.OK
+        if self.dropped_messages or status.rejected:
+            level = DiagnosticStatus.WARN
+        self.diagnostics_pub.publish(
+            diagnostic_array(
+                self,
+                level,
+                "idle: gliding to neutral"
+                if status.watchdog_active
+                else (self.last_problem or "tracking"),
+                {
+                    "input_messages": self.input_messages,
+                    "dropped_messages": self.dropped_messages,
+                    "poses_received": status.received,
+                    "poses_rejected": status.rejected,
+                    "poses_dropped_buffer_full": status.dropped,
+                    "buffer_underruns": status.underruns,
+                    "buffered_poses": status.buffered,
+                    "input_latency_ms": f"{self.latency_s * 1e3:.2f}",
+                    "watchdog_active": status.watchdog_active,
+                    "position_limit_hits": counts.position,
+                    "velocity_limit_hits": counts.velocity,
+                    "acceleration_limit_hits": counts.acceleration,
+                },
+            )
+        )
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run the node until shutdown."""
+    run_node(MotionFilterNode, args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,215 @@
+"""The robot description: driven joints, their order, limits and neutral pose.
+
+One YAML file (``config/pepper_robot.yaml``) is the single source of truth; nodes, models,
+training, the URDF check and the tests all read it through :func:`load_robot`. Angles are radians,
+velocities rad/s, accelerations rad/s^2.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from audio2pose_ros.resources import share_path
+
+DEFAULT_ROBOT_FILE = "pepper_robot.yaml"
+JOINT_GROUPS = ("head", "arms", "hip")
+
+
+class RobotDescriptionError(ValueError):
+    """A robot description file is missing fields or holds inconsistent values."""
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """Limits and neutral position of one joint (all SI units)."""
+
+    name: str
+    group: str
+    min_rad: float
+    max_rad: float
+    max_velocity_rad_s: float
+    max_acceleration_rad_s2: float
+    neutral_rad: float
+
+    def __post_init__(self) -> None:
+        """Reject limits that cannot be satisfied, naming the joint and the values."""
+        if self.group not in JOINT_GROUPS:
+            raise RobotDescriptionError(
+                f"joint {self.name}: group {self.group!r} is not one of {JOINT_GROUPS}"
+            )
+        if not self.min_rad < self.max_rad:
+            raise RobotDescriptionError(
+                f"joint {self.name}: min_rad {self.min_rad} must be below max_rad {self.max_rad}"
+            )
+        if not self.min_rad <= self.neutral_rad <= self.max_rad:
+            raise RobotDescriptionError(
+                f"joint {self.name}: neutral_rad {self.neutral_rad} is outside "
+                f"[{self.min_rad}, {self.max_rad}]"
+            )
+        if self.max_velocity_rad_s <= 0 or self.max_acceleration_rad_s2 <= 0:
+            raise RobotDescriptionError(
+                f"joint {self.name}: velocity and acceleration limits must be positive, got "
+                f"{self.max_velocity_rad_s} rad/s and {self.max_acceleration_rad_s2} rad/s^2"
+            )
+
+
+@dataclass(frozen=True)
+class RobotDescription:
+    """An ordered set of driven joints; the order is the model's output order (seed 003 Table 3.1).
+
+    Array properties are read-only float64 vectors in joint order.
+    """
+
+    name: str
+    joints: tuple[JointLimits, ...]
+
+    def __post_init__(self) -> None:
+        """Reject empty descriptions and duplicated joint names."""
+        if not self.joints:
+            raise RobotDescriptionError(f"robot {self.name}: no joints")
+        names = [j.name for j in self.joints]
+        duplicates = sorted({n for n in names if names.count(n) > 1})
+        if duplicates:
+            raise RobotDescriptionError(f"robot {self.name}: duplicated joints {duplicates}")
+
+    def _vector(self, field: str) -> np.ndarray:
+        values = np.array([getattr(j, field) for j in self.joints], dtype=np.float64)
+        values.flags.writeable = False
+        return values
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Joint names in model order."""
+        return tuple(j.name for j in self.joints)
+
+    @property
+    def n_joints(self) -> int:
+        """Number of driven joints (11 for Pepper)."""
+        return len(self.joints)
+
+    @property
+    def lower_rad(self) -> np.ndarray:
+        """Lower position limits."""
+        return self._vector("min_rad")
+
+    @property
+    def upper_rad(self) -> np.ndarray:
+        """Upper position limits."""
+        return self._vector("max_rad")
+
+    @property
+    def max_velocity_rad_s(self) -> np.ndarray:
+        """Velocity limits."""
+        return self._vector("max_velocity_rad_s")
+
+    @property
+    def max_acceleration_rad_s2(self) -> np.ndarray:
+        """Acceleration limits."""
+        return self._vector("max_acceleration_rad_s2")
+
+    @property
+    def neutral_rad(self) -> np.ndarray:
+        """Neutral (rest) pose."""
+        return self._vector("neutral_rad")
+
+    def group_mask(self, group: str) -> np.ndarray:
+        """Boolean mask of the joints in ``group`` ('head', 'arms' or 'hip')."""
+        if group not in JOINT_GROUPS:
+            raise ValueError(f"unknown joint group {group!r}; expected one of {JOINT_GROUPS}")
+        return np.array([j.group == group for j in self.joints])
+
+    def normalize(self, angles_rad: np.ndarray) -> np.ndarray:
+        """Map angles to [0, 1] by each joint's range: seed 003 eq. 3.14, nu(theta).
+
+        Args:
+            angles_rad: (..., n_joints) angles in radians.
+
+        Returns:
+            Array of the same shape; values inside the limits land in [0, 1].
+
+        """
+        return (np.asarray(angles_rad) - self.lower_rad) / (self.upper_rad - self.lower_rad)
+
+    def denormalize(self, unit: np.ndarray) -> np.ndarray:
+        """Invert :meth:`normalize` (seed 003 section 3.4.2, nu^-1)."""
+        return self.lower_rad + np.asarray(unit) * (self.upper_rad - self.lower_rad)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe form, stored in checkpoints so a model knows the robot it was trained for."""
+        return {
+            "robot": self.name,
+            "joints": [
+                {
+                    "name": j.name,
+                    "group": j.group,
+                    "min_rad": j.min_rad,
+                    "max_rad": j.max_rad,
+                    "max_velocity_rad_s": j.max_velocity_rad_s,
+                    "max_acceleration_rad_s2": j.max_acceleration_rad_s2,
+                    "neutral_rad": j.neutral_rad,
+                }
+                for j in self.joints
+            ],
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], source: str = "<dict>") -> RobotDescription:
+        """Build a description from :meth:`to_dict` output or the YAML file's content."""
+        try:
+            joints = tuple(_joint_from_mapping(j) for j in data["joints"])
+            return cls(name=str(data["robot"]), joints=joints)
+        except (KeyError, TypeError) as exc:
+            raise RobotDescriptionError(f"{source}: malformed robot description ({exc})") from None
+
+    def differences(self, other: RobotDescription, tolerance: float = 1e-6) -> list[str]:
+        """List, in words, how ``other`` differs in joint order and position limits.
+
+        Only what a model depends on is compared: the joint order and the position ranges used
+        for [0, 1] normalisation. Velocity, acceleration and neutral pose may differ freely.
+        """
+        if self.names != other.names:
+            return [f"joint order {list(other.names)} != {list(self.names)}"]
+        problems = []
+        for mine, theirs in zip(self.joints, other.joints, strict=True):
+            if abs(mine.min_rad - theirs.min_rad) > tolerance or (
+                abs(mine.max_rad - theirs.max_rad) > tolerance
+            ):
+                problems.append(
+                    f"{mine.name} range [{theirs.min_rad}, {theirs.max_rad}] != "
+                    f"[{mine.min_rad}, {mine.max_rad}]"
+                )
+        return problems
+
+
+def _joint_from_mapping(entry: Mapping[str, Any]) -> JointLimits:
+    return JointLimits(
+        name=str(entry["name"]),
+        group=str(entry["group"]),
+        min_rad=float(entry["min_rad"]),
+        max_rad=float(entry["max_rad"]),
+        max_velocity_rad_s=float(entry["max_velocity_rad_s"]),
+        max_acceleration_rad_s2=float(entry["max_acceleration_rad_s2"]),
+        neutral_rad=float(entry["neutral_rad"]),
+    )
+
+
+def load_robot(path: str | Path | None = None) -> RobotDescription:
+    """Load a robot description YAML; ``None`` or ``""`` loads the packaged Pepper description.
+
+    Raises:
+        RobotDescriptionError: the file is malformed or its limits are inconsistent.
+        FileNotFoundError: the file does not exist.
+
+    """
+    file = Path(path) if path else share_path("config", DEFAULT_ROBOT_FILE)
+    with file.open(encoding="utf-8") as stream:
+        data = yaml.safe_load(stream)
+    if not isinstance(data, Mapping):
+        raise RobotDescriptionError(f"{file}: expected a mapping with 'robot' and 'joints'")
+    return RobotDescription.from_dict(data, source=str(file))

@@ -1,0 +1,178 @@
+#!/usr/bin/env bash
+# Create or update the project's virtual environment (.venv in the repository root), as run by
+# `make setup`:
+#   1. python3 -m venv .venv (only if missing)
+#   2. pip install -r support/requirements.txt (ROS 2 Kilted wheels, rosidl toolchain, torch, ...)
+#   3. pip install --no-deps --no-build-isolation -e .  (this package, editable)
+#   4. rewrite the ROS wheels' exported CMake files that hard-code the wheel builder's Python and
+#      numpy include paths (/opt/python/cpXY-cpXY/...) to this venv's own paths
+#   5. build support/ros_msgs/{audio_common_msgs,naoqi_bridge_msgs} with plain cmake and install
+#      them into the venv, only where `import <pkg>.msg` fails (a ROS distro provides them via apt)
+#   6. verify that rclpy, both message packages, torch and python_speech_features import
+# A stamp file in .venv records a hash of the inputs; when nothing changed the script only says so.
+# Environment: PYTHON (interpreter used to create the venv, default python3),
+#              AUDIO2POSE_SETUP_FORCE=1 (ignore the stamp and redo every step).
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="$ROOT/.venv"
+SUPPORT="$ROOT/support"
+MSG_SRC="$SUPPORT/ros_msgs"
+MSG_PKGS=(audio_common_msgs naoqi_bridge_msgs)
+STAMP="$VENV/.audio2pose_setup.stamp"
+STATE="$VENV/.audio2pose_setup"
+BOOT_PYTHON="${PYTHON:-python3}"
+
+log() { printf '[setup] %s\n' "$*"; }
+die() { printf '[setup] ERROR: %s\n' "$*" >&2; exit 1; }
+
+# Another venv's ROS bootstrap state must not leak in: the wheels' .pth re-execs the interpreter
+# with LD_LIBRARY_PATH pointing at *its* venv unless this guard is already set.
+unset _ROS_WHEELS_BOOTSTRAP_COMPLETE PYTHONHOME
+export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+
+cd "$ROOT"
+
+# Hash of files (paths relative to the repo root, so the hash does not depend on where it lives).
+hash_files() {
+  local f
+  for f in "$@"; do
+    printf '== %s\n' "${f#"$ROOT"/}"
+    if [[ -f "$f" ]]; then cat "$f"; else printf '(missing)\n'; fi
+  done | sha256sum | cut -d' ' -f1
+}
+msg_files() { find "$MSG_SRC/$1" -type f | LC_ALL=C sort; }
+
+mapfile -t ALL_MSG_FILES < <(find "$MSG_SRC" -type f | LC_ALL=C sort)
+INPUT_HASH="$(
+  {
+    hash_files "$SUPPORT/requirements.txt" "$ROOT/setup.cfg" "$ROOT/setup.py" \
+      "$ROOT/pyproject.toml" "$SUPPORT/setup_venv.sh" "${ALL_MSG_FILES[@]}"
+    "$BOOT_PYTHON" -c 'import sys; print(sys.version)'
+  } | sha256sum | cut -d' ' -f1
+)"
+
+if [[ "${AUDIO2POSE_SETUP_FORCE:-0}" != 1 && -x "$VENV/bin/python" && -f "$STAMP" \
+      && "$(cat "$STAMP")" == "$INPUT_HASH" ]]; then
+  log ".venv is up to date (inputs unchanged; AUDIO2POSE_SETUP_FORCE=1 to redo)"
+  exit 0
+fi
+
+START=$SECONDS
+
+# ---------------------------------------------------------------------------------------------
+log "[1/6] virtual environment: $VENV"
+if [[ ! -x "$VENV/bin/python" ]]; then
+  log "      creating it with $BOOT_PYTHON ($("$BOOT_PYTHON" --version 2>&1))"
+  "$BOOT_PYTHON" -m venv "$VENV"
+else
+  log "      exists"
+fi
+PY="$VENV/bin/python"
+mkdir -p "$STATE"
+rm -f "$STAMP"
+export VIRTUAL_ENV="$VENV"
+export PATH="$VENV/bin:$PATH"
+
+# ---------------------------------------------------------------------------------------------
+log "[2/6] pip install -r support/requirements.txt (first run: a few minutes)"
+# (pipefail: the pipeline fails iff pip fails; the filter only hides noise)
+"$PY" -m pip install --progress-bar off -r "$SUPPORT/requirements.txt" 2>&1 \
+  | { grep -v -E '^(Requirement already satisfied|  Using cached|  Downloading|  Obtaining|WARNING: Location .* is ignored)' || true; } \
+  || die "pip install -r support/requirements.txt failed"
+
+# ---------------------------------------------------------------------------------------------
+log "[3/6] pip install --no-deps --no-build-isolation -e . (audio2pose_ros, editable)"
+"$PY" -m pip install --progress-bar off --quiet --no-deps --no-build-isolation -e "$ROOT" \
+  || die "editable install of audio2pose_ros failed"
+
+# ---------------------------------------------------------------------------------------------
+log "[4/6] pointing the ROS wheels' CMake exports at this venv's Python and numpy headers"
+"$PY" - "$VENV" <<'EOF'
+import pathlib
+import re
+import sys
+import sysconfig
+
+import numpy
+
+venv = pathlib.Path(sys.argv[1])
+py_inc = sysconfig.get_paths()["include"]
+np_inc = numpy.get_include()
+if not (pathlib.Path(py_inc) / "Python.h").is_file():
+    sys.exit(f"[setup] ERROR: {py_inc}/Python.h missing: install the Python development headers "
+             f"(Debian: apt-get install python3-dev, or python{sys.version_info[0]}."
+             f"{sys.version_info[1]}-dev)")
+builder = r"/opt/python/cp3\d+-cp3\d+t?"
+patterns = [
+    (re.compile(builder + r"/lib/python3\.\d+t?/site-packages/numpy/_core/include"), np_inc),
+    (re.compile(builder + r"/include/python3\.\d+t?"), py_inc),
+]
+changed = 0
+leftover = []
+for path in sorted((venv / "share").glob("*/cmake/*.cmake")):
+    text = path.read_text()
+    if "/opt/python/" not in text:
+        continue
+    new = text
+    for rx, repl in patterns:
+        new = rx.sub(lambda _m, r=repl: r, new)
+    if new != text:
+        path.write_text(new)
+        changed += 1
+    if "/opt/python/" in new:
+        leftover.append(path)
+print(f"[setup]       rewrote {changed} file(s) -> {py_inc} ; {np_inc}")
+for path in leftover:
+    print(f"[setup]       WARNING: {path} still mentions /opt/python/", file=sys.stderr)
+EOF
+
+# ---------------------------------------------------------------------------------------------
+log "[5/6] message packages (built only where not importable)"
+BUILD_ROOT=""
+cleanup() { if [[ -n "$BUILD_ROOT" ]]; then rm -rf "$BUILD_ROOT"; fi; }
+trap cleanup EXIT
+for pkg in "${MSG_PKGS[@]}"; do
+  mapfile -t files < <(msg_files "$pkg")
+  pkg_hash="$(hash_files "${files[@]}")"
+  pkg_stamp="$STATE/$pkg.sha256"
+  if "$PY" -c "import $pkg.msg" 2>/dev/null; then
+    if [[ ! -f "$pkg_stamp" ]]; then
+      log "      $pkg: importable (provided elsewhere, e.g. a ROS distro): not building"
+      continue
+    elif [[ "$(cat "$pkg_stamp")" == "$pkg_hash" ]]; then
+      log "      $pkg: already built into .venv from current sources"
+      continue
+    fi
+    log "      $pkg: sources changed since the last build: rebuilding"
+  fi
+  command -v cmake >/dev/null || die "cmake not found (Debian: apt-get install cmake)"
+  command -v c++ >/dev/null || die "C++ compiler not found (Debian: apt-get install g++)"
+  [[ -n "$BUILD_ROOT" ]] || BUILD_ROOT="$(mktemp -d "${TMPDIR:-/tmp}/audio2pose_msgs.XXXXXX")"
+  build_log="$STATE/$pkg.build.log"
+  log "      $pkg: cmake configure + build + install into .venv (~10 s; log: ${build_log#"$ROOT"/})"
+  t0=$SECONDS
+  if ! {
+    cmake -S "$MSG_SRC/$pkg" -B "$BUILD_ROOT/$pkg" \
+      -DCMAKE_PREFIX_PATH="$VENV" -DCMAKE_INSTALL_PREFIX="$VENV" \
+      -DPython3_EXECUTABLE="$PY" -DBUILD_TESTING=OFF -DCMAKE_BUILD_TYPE=Release \
+      && cmake --build "$BUILD_ROOT/$pkg" -j "$(nproc 2>/dev/null || echo 2)" \
+      && cmake --install "$BUILD_ROOT/$pkg"
+  } >"$build_log" 2>&1; then
+    tail -n 40 "$build_log" >&2
+    die "building $pkg failed (full log: $build_log)"
+  fi
+  "$PY" -c "import $pkg.msg" || die "$pkg was built but does not import"
+  printf '%s\n' "$pkg_hash" >"$pkg_stamp"
+  log "      $pkg: done in $((SECONDS - t0)) s"
+done
+
+# ---------------------------------------------------------------------------------------------
+log "[6/6] verifying imports"
+"$PY" -c "import rclpy, audio_common_msgs.msg, naoqi_bridge_msgs.msg, torch, python_speech_features" \
+  || die "import check failed"
+"$PY" -c "import importlib.util, sys; sys.exit(importlib.util.find_spec('audio2pose_ros') is None)" \
+  || die "audio2pose_ros is not importable from .venv (editable install)"
+
+printf '%s\n' "$INPUT_HASH" >"$STAMP"
+log "done in $((SECONDS - START)) s: .venv is ready"

@@ -1,0 +1,43 @@
+"""Shared fixtures: real speech, the robot description, a DDS domain per test run."""
+
+from __future__ import annotations
+
+import os
+import random
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from audio2pose_ros.audio.pcm import read_wav
+from audio2pose_ros.resources import bundled_speech_path, share_path
+from audio2pose_ros.robot import RobotDescription, load_robot
+
+# DDS must never leave loopback here, and parallel runs must not see each other's nodes.
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid()).randint(1, 100)))
+
+SPEECH_DIR = share_path("data", "speech")
+
+
+@pytest.fixture(scope="session")
+def robot() -> RobotDescription:
+    return load_robot()
+
+
+@pytest.fixture(scope="session")
+def speech_path() -> Path:
+    return bundled_speech_path()
+
+
+@pytest.fixture(scope="session")
+def speech(speech_path: Path) -> np.ndarray:
+    """7.1 s of real read speech (LibriVox), 16 kHz mono float32."""
+    samples, rate = read_wav(speech_path)
+    assert rate == 16000
+    return samples
+
+
+@pytest.fixture(scope="session")
+def speech_files() -> list[Path]:
+    return sorted(SPEECH_DIR.glob("*.wav"))

@@ -1,0 +1,142 @@
+"""The audio2pose command: run/record through the live graph, offline synth, bench, errors."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from rosbags.highlevel import AnyReader
+
+from audio2pose_ros.audio.pcm import read_wav
+from audio2pose_ros.cli.graph import executable_command
+
+AUDIO2POSE = executable_command("audio2pose")
+COMMAND_TOPICS = {
+    "/joint_angles",
+    "/joint_trajectory_controller/joint_trajectory",
+    "/joint_states",
+}
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_when_run_plays_and_records_expect_mcap_both_readers_open(
+    tmp_path: Path, robot, speech_files
+):
+    wav = speech_files[1]
+    bag = tmp_path / "bag"
+    result = subprocess.run(
+        [*AUDIO2POSE, "run", "--play", str(wav), "--record", str(bag), "--log-dir", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "/joint_angles:" in result.stdout
+
+    # Independent reader 1: the mcap library with its own ROS 2 decoder.
+    counts: Counter[str] = Counter()
+    angles = []
+    with next(bag.glob("*.mcap")).open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _, channel, _, msg in reader.iter_decoded_messages():
+            counts[channel.topic] += 1
+            if channel.topic == "/joint_angles":
+                assert list(msg.joint_names) == list(robot.names)
+                angles.append(msg.joint_angles)
+    assert set(counts) >= COMMAND_TOPICS
+    assert counts["/audio/audio_info"] == 1
+    assert counts["/audio/audio"] > 0
+    duration_s = len(read_wav(wav)[0]) / 16000
+    assert counts["/joint_angles"] >= 0.9 * 100 * duration_s
+    angles = np.array(angles)
+    assert np.all(angles >= robot.lower_rad - 1e-6)
+    assert np.all(angles <= robot.upper_rad + 1e-6)
+
+    # Independent reader 2: rosbags, from the bag's own metadata and schemas.
+    with AnyReader([bag]) as reader:
+        seen = Counter(conn.topic for conn, _, _ in reader.messages())
+        for conn, _, raw in reader.messages(connections=reader.connections):
+            reader.deserialize(raw, conn.msgtype)  # every message decodes
+    assert seen == counts
+
+
+def test_when_record_without_play_expect_clear_error(tmp_path: Path):
+    result = subprocess.run(
+        [*AUDIO2POSE, "run", "--record", str(tmp_path / "x")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 1
+    assert "--record needs --play" in result.stderr
+
+
+def test_when_synth_wav_expect_csv_at_100hz_within_limits(tmp_path: Path, robot, speech_path):
+    out = tmp_path / "traj.csv"
+    result = subprocess.run(
+        [*AUDIO2POSE, "synth", str(speech_path), "-o", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    with out.open() as stream:
+        rows = list(csv.reader(stream))
+    assert rows[0] == ["time_s", *robot.names]
+    data = np.array(rows[1:], dtype=float)
+    n_samples = len(read_wav(speech_path)[0])
+    assert len(data) == 1 + -(-(n_samples - 400) // 160)  # python_speech_features' frame count
+    np.testing.assert_allclose(np.diff(data[:, 0]), 0.01, atol=1e-3)
+    assert np.all(data[:, 1:] >= robot.lower_rad - 1e-6)
+    assert np.all(data[:, 1:] <= robot.upper_rad + 1e-6)
+    assert np.ptp(data[:, 1:], axis=0).max() > 0.05
+
+
+def test_when_synth_missing_file_expect_error_naming_it(tmp_path: Path):
+    result = subprocess.run(
+        [*AUDIO2POSE, "synth", str(tmp_path / "nope.wav"), "-o", str(tmp_path / "o.csv")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 1
+    assert "nope.wav" in result.stderr
+
+
+def test_when_bench_runs_expect_every_stage_timed():
+    result = subprocess.run(
+        [*AUDIO2POSE, "bench", "--frames", "300"], capture_output=True, text=True, timeout=300
+    )
+    assert result.returncode == 0, result.stderr
+    for stage in (
+        "features",
+        "model step",
+        "motion filter",
+        "whole online frame",
+        "python_speech_features",
+    ):
+        assert stage in result.stdout
+    assert "x faster" in result.stdout
+
+
+def test_when_core_modules_imported_expect_no_ros():
+    code = (
+        "import sys\n"
+        "import audio2pose_ros.audio.features, audio2pose_ros.audio.pcm, audio2pose_ros.robot\n"
+        "import audio2pose_ros.motion.filter, audio2pose_ros.motion.prosody\n"
+        "import audio2pose_ros.models.checkpoint, audio2pose_ros.synthesis\n"
+        "import audio2pose_ros.training, audio2pose_ros.benchmark, audio2pose_ros.bag\n"
+        "bad = [m for m in sys.modules if m.split('.')[0] in ('rclpy', 'rosidl_runtime_py')]\n"
+        "print(bad)\n"
+        "sys.exit(1 if bad else 0)\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr

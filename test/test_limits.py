@@ -1,0 +1,83 @@
+"""Joint limits applied last: position, velocity, acceleration (ros2_control's order)."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
+
+DT = 0.01
+
+
+@pytest.fixture
+def limiter(robot):
+    return JointLimiter(robot, LimitSettings(position_margin_rad=0.01, velocity_fraction=0.5))
+
+
+def test_when_target_beyond_range_expect_clamp_inside_margin(limiter, robot):
+    pos, vel = robot.neutral_rad.copy(), np.zeros(11)
+    for _ in range(2000):  # long enough to reach any target
+        pos, vel = limiter.enforce(robot.upper_rad + 5.0, pos, vel, DT)
+    np.testing.assert_allclose(pos, robot.upper_rad - 0.01, atol=1e-9)
+    assert limiter.counts.position > 0
+
+
+def test_when_jump_requested_expect_velocity_capped(limiter, robot):
+    pos, vel = robot.neutral_rad.copy(), np.zeros(11)
+    target = robot.neutral_rad + 0.5
+    for _ in range(50):
+        new_pos, vel = limiter.enforce(target, pos, vel, DT)
+        assert np.all(np.abs(new_pos - pos) / DT <= limiter.max_velocity_rad_s + 1e-9)
+        pos = new_pos
+    assert limiter.counts.velocity > 0
+
+
+def test_when_nan_or_inf_desired_expect_previous_position_held(limiter, robot):
+    pos = robot.neutral_rad.copy()
+    desired = pos.copy()
+    desired[0], desired[3] = np.nan, np.inf
+    out, vel = limiter.enforce(desired, pos, np.zeros(11), DT)
+    np.testing.assert_allclose(out, pos)
+    np.testing.assert_allclose(vel, 0.0)
+    assert limiter.counts.non_finite == 2
+
+
+def test_when_dt_not_positive_expect_previous_command_unchanged(limiter, robot):
+    pos, vel = robot.neutral_rad.copy(), np.full(11, 0.1)
+    for dt in (0.0, -0.01, float("nan")):
+        out, out_vel = limiter.enforce(robot.upper_rad, pos, vel, dt)
+        np.testing.assert_array_equal(out, pos)
+        np.testing.assert_array_equal(out_vel, vel)
+
+
+def test_when_settings_out_of_range_expect_value_error():
+    with pytest.raises(ValueError, match="velocity_fraction must be in"):
+        LimitSettings(velocity_fraction=1.5)
+    with pytest.raises(ValueError, match="position_margin_rad must be >= 0"):
+        LimitSettings(position_margin_rad=-0.1)
+
+
+finite_or_not = st.one_of(
+    st.floats(min_value=-1e6, max_value=1e6),
+    st.sampled_from([np.nan, np.inf, -np.inf, 1e300, -1e300]),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.lists(st.lists(finite_or_not, min_size=11, max_size=11), min_size=1, max_size=60),
+    st.lists(st.floats(min_value=-0.02, max_value=0.05), min_size=60, max_size=60),
+)
+def test_when_any_input_sequence_expect_all_limits_hold(robot, sequence, dts):
+    limiter = JointLimiter(robot)
+    pos, vel = robot.neutral_rad.copy(), np.zeros(11)
+    for desired, dt in zip(sequence, dts, strict=False):
+        new_pos, new_vel = limiter.enforce(np.array(desired), pos, vel, dt)
+        assert np.all(np.isfinite(new_pos))
+        assert np.all(new_pos >= limiter.lower_rad - 1e-12)
+        assert np.all(new_pos <= limiter.upper_rad + 1e-12)
+        if dt > 0:
+            assert np.all(np.abs(new_vel) <= limiter.max_velocity_rad_s + 1e-9)
+            assert np.all(np.abs(new_vel - vel) / dt <= limiter.max_acceleration_rad_s2 + 1e-6)
+        pos, vel = new_pos, new_vel
