@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
+from audio2pose_ros.motion.limits import MIN_DT_S, JointLimiter, LimitSettings
 
 DT = 0.01
 
@@ -45,7 +45,7 @@ def test_when_nan_or_inf_desired_expect_previous_position_held(limiter, robot):
 
 def test_when_dt_not_positive_expect_previous_command_unchanged(limiter, robot):
     pos, vel = robot.neutral_rad.copy(), np.full(11, 0.1)
-    for dt in (0.0, -0.01, float("nan")):
+    for dt in (0.0, -0.01, float("nan"), 1e-9):
         out, out_vel = limiter.enforce(robot.upper_rad, pos, vel, dt)
         np.testing.assert_array_equal(out, pos)
         np.testing.assert_array_equal(out_vel, vel)
@@ -64,7 +64,7 @@ finite_or_not = st.one_of(
 )
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=2000, deadline=None, derandomize=True)  # reproducible in CI
 @given(
     st.lists(st.lists(finite_or_not, min_size=11, max_size=11), min_size=1, max_size=60),
     st.lists(st.floats(min_value=-0.02, max_value=0.05), min_size=60, max_size=60),
@@ -77,7 +77,7 @@ def test_when_any_input_sequence_expect_all_limits_hold(robot, sequence, dts):
         assert np.all(np.isfinite(new_pos))
         assert np.all(new_pos >= limiter.lower_rad - 1e-12)
         assert np.all(new_pos <= limiter.upper_rad + 1e-12)
-        if dt > 0:
+        if dt >= MIN_DT_S:
             assert np.all(np.abs(new_vel) <= limiter.max_velocity_rad_s + 1e-9)
             assert np.all(np.abs(new_vel - vel) / dt <= limiter.max_acceleration_rad_s2 + 1e-6)
         pos, vel = new_pos, new_vel

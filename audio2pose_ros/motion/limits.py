@@ -15,6 +15,8 @@ import numpy as np
 
 from audio2pose_ros.robot import RobotDescription
 
+MIN_DT_S = 1e-6  # shorter steps are timer noise: velocities over them would only amplify rounding
+
 
 @dataclass(frozen=True)
 class LimitSettings:
@@ -109,15 +111,16 @@ class JointLimiter:
             desired_rad: (n_joints,) wanted positions; NaN/inf entries hold the previous position.
             previous_rad: (n_joints,) last commanded positions (inside the limits).
             previous_velocity_rad_s: (n_joints,) last commanded velocities.
-            dt_s: time since the previous command in seconds; a non-positive or non-finite value
-                means no time has passed, and the previous command is returned unchanged.
+            dt_s: time since the previous command in seconds; a value below ``MIN_DT_S`` or
+                non-finite means no time has passed, and the previous command is returned
+                unchanged.
 
         Returns:
             ``(positions_rad, velocities_rad_s)``, both (n_joints,).
         """
         previous = np.asarray(previous_rad, dtype=np.float64)
         previous_velocity = np.asarray(previous_velocity_rad_s, dtype=np.float64)
-        if not (np.isfinite(dt_s) and dt_s > 0.0):
+        if not (np.isfinite(dt_s) and dt_s >= MIN_DT_S):
             return previous.copy(), previous_velocity.copy()
         desired = np.asarray(desired_rad, dtype=np.float64)
         finite = np.isfinite(desired)
