@@ -7,6 +7,9 @@ from setuptools import find_packages, setup
 PACKAGE = "audio2pose_ros"
 
 setup(
+    # Here, not in setup.cfg: setup.cfg turns it into a SpecifierSet, which colcon's setup.py
+    # introspection (ast.literal_eval of the setup arguments) cannot parse.
+    python_requires=">=3.10",
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),

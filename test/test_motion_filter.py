@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
 
@@ -21,7 +23,7 @@ def run(filt: MotionFilter, poses: np.ndarray, start_s: float = 0.0, extra_ticks
     return np.array(out)
 
 
-def test_when_no_input_ever_expect_neutral_and_watchdog_active(robot):
+def test_when_no_input_ever_expect_neutral_mode(robot):
     filt = MotionFilter(robot)
     out = run(filt, np.empty((0, 11)), extra_ticks=10)
     np.testing.assert_allclose(
@@ -29,7 +31,7 @@ def test_when_no_input_ever_expect_neutral_and_watchdog_active(robot):
         np.clip(robot.neutral_rad, robot.lower_rad + 0.01, robot.upper_rad - 0.01),
         atol=1e-9,
     )
-    assert filt.status.watchdog_active
+    assert filt.status.mode == "neutral"
 
 
 def test_when_input_stops_expect_glide_to_neutral_within_timeout_plus_settling(robot):
@@ -41,7 +43,7 @@ def test_when_input_stops_expect_glide_to_neutral_within_timeout_plus_settling(r
     joint = robot.names.index("LShoulderPitch")
     assert out[199, joint] == pytest.approx(raised[joint], abs=0.02)  # tracked while speaking
     assert out[-1, joint] == pytest.approx(robot.neutral_rad[joint], abs=0.01)  # back at rest
-    assert filt.status.watchdog_active
+    assert filt.status.mode == "neutral"
     steps = np.abs(np.diff(out[:, joint])) / PERIOD
     assert steps.max() <= filt.limiter.max_velocity_rad_s[joint] + 1e-9  # no jump
 
@@ -75,3 +77,178 @@ def test_when_settings_invalid_expect_value_error():
         MotionFilterSettings(smoothing="median")
     with pytest.raises(ValueError, match="arms_gain must be in"):
         MotionFilterSettings(arms_gain=2.0)
+
+
+def raised_pose(robot):
+    pose = robot.neutral_rad.copy()
+    pose[robot.names.index("LShoulderPitch")] -= 0.8
+    pose[robot.names.index("HeadYaw")] += 0.4
+    return pose
+
+
+def test_when_poses_stop_expect_neutral_reached_within_timeout_plus_glide(robot):
+    settings = MotionFilterSettings(watchdog_timeout_s=0.3, neutral_glide_s=0.8)
+    filt = MotionFilter(robot, settings)
+    out = run(filt, np.tile(raised_pose(robot), (200, 1)), extra_ticks=200)
+    # Last pose at tick 199; neutral due by 0.3 s + 0.8 s later = tick 309 (plus one period).
+    np.testing.assert_allclose(out[311], filt.neutral_rad, atol=1e-3)
+    assert filt.status.mode == "neutral"
+
+
+def test_when_voice_silent_expect_glide_to_neutral_although_poses_keep_coming(robot):
+    settings = MotionFilterSettings(silence_timeout_s=0.2, neutral_glide_s=0.5)
+    filt = MotionFilter(robot, settings)
+    pose, t, out = raised_pose(robot), 0.0, []
+    for i in range(300):
+        t += PERIOD
+        filt.set_voice_active(i < 100, t)
+        filt.push(pose[None, :], t)
+        out.append(filt.tick(t)[0].copy())
+    assert np.abs(out[99] - pose).max() < 0.05  # tracking while the voice is active
+    np.testing.assert_allclose(out[-1], filt.neutral_rad, atol=1e-3)  # silent since tick 100
+
+
+def test_when_disabled_expect_neutral_and_queued_motion_discarded(robot):
+    filt = MotionFilter(robot)
+    run(filt, np.tile(raised_pose(robot), (100, 1)))
+    filt.set_enabled(False)
+    out = run(filt, np.tile(raised_pose(robot), (150, 1)), start_s=1.0)
+    np.testing.assert_allclose(out[-1], filt.neutral_rad, atol=1e-3)
+    filt.set_enabled(True)
+    out = run(filt, np.tile(raised_pose(robot), (150, 1)), start_s=2.5)
+    assert np.abs(out[-1] - raised_pose(robot)).max() < 0.05  # resumes
+
+
+def test_when_stop_hold_expect_braking_then_standstill(robot):
+    filt = MotionFilter(robot, MotionFilterSettings(stop_behaviour="hold"))
+    pose = raised_pose(robot)
+    run(filt, np.tile(robot.neutral_rad, (20, 1)))
+    # Start a fast move, then stop in the middle of it.
+    out = run(filt, np.tile(pose, (15, 1)), start_s=0.2)
+    assert np.abs(filt.velocity_rad_s).max() > 0.5
+    filt.set_stop(True)
+    held = run(filt, np.tile(pose, (100, 1)), start_s=0.35)
+    braking_s = filt.limiter.max_velocity_rad_s.max() / filt.limiter.max_acceleration_rad_s2.min()
+    settled = int(np.ceil(braking_s / PERIOD)) + 2
+    assert np.abs(np.diff(held[settled:], axis=0)).max() < 1e-9  # standing still
+    assert np.abs(held[-1] - out[-1]).max() < 0.5  # stopped near where the stop came
+    assert filt.status.mode == "stopped"
+
+
+def test_when_stop_neutral_expect_glide_to_neutral(robot):
+    filt = MotionFilter(robot, MotionFilterSettings(stop_behaviour="neutral", neutral_glide_s=0.5))
+    run(filt, np.tile(raised_pose(robot), (100, 1)))
+    filt.set_stop(True)
+    out = run(filt, np.tile(raised_pose(robot), (100, 1)), start_s=1.0)
+    np.testing.assert_allclose(out[-1], filt.neutral_rad, atol=1e-3)
+
+
+def test_when_head_target_given_expect_head_blended_toward_it_then_released(robot):
+    settings = MotionFilterSettings(head_target_weight=0.5, external_timeout_s=0.3)
+    filt = MotionFilter(robot, settings)
+    yaw = robot.names.index("HeadYaw")
+    t, out = 0.0, []
+    for i in range(300):
+        t += PERIOD
+        if i < 150:
+            filt.set_head_target({"HeadYaw": 1.0}, t)
+        filt.push(robot.neutral_rad[None, :], t)
+        out.append(filt.tick(t)[0].copy())
+    assert out[149][yaw] == pytest.approx(0.5, abs=0.01)  # halfway between generated 0 and 1
+    assert filt.status.head_target_active is False
+    assert out[-1][yaw] == pytest.approx(0.0, abs=0.01)  # target expired: generated motion again
+
+
+def test_when_head_offset_given_expect_added_to_generated_head(robot):
+    filt = MotionFilter(robot)
+    pitch = robot.names.index("HeadPitch")
+    t = 0.0
+    for _ in range(150):
+        t += PERIOD
+        filt.set_head_offset({"HeadPitch": 0.1}, t)
+        filt.push(robot.neutral_rad[None, :], t)
+        filt.tick(t)
+    assert filt.position_rad[pitch] == pytest.approx(robot.neutral_rad[pitch] + 0.1, abs=0.005)
+
+
+def test_when_external_target_names_a_non_head_joint_expect_error(robot):
+    filt = MotionFilter(robot)
+    with pytest.raises(ValueError, match="'LShoulderPitch' is not a head joint"):
+        filt.set_head_target({"LShoulderPitch": 0.0}, 0.0)
+    with pytest.raises(ValueError, match="not finite"):
+        filt.set_head_offset({"HeadYaw": float("nan")}, 0.0)
+
+
+@st.composite
+def event_sequences(draw):
+    n_joints = 11
+    value = st.one_of(
+        st.floats(min_value=-10.0, max_value=10.0),
+        st.sampled_from([np.nan, np.inf, -np.inf, 1e9, -1e9]),
+    )
+    events = []
+    for _ in range(draw(st.integers(min_value=1, max_value=120))):
+        kind = draw(
+            st.sampled_from(
+                [
+                    "pose",
+                    "pose",
+                    "pose",
+                    "tick",
+                    "tick",
+                    "voice",
+                    "enable",
+                    "stop",
+                    "head",
+                    "time_jump",
+                ]
+            )
+        )
+        if kind == "pose":
+            events.append(("pose", draw(st.lists(value, min_size=n_joints, max_size=n_joints))))
+        elif kind in ("voice", "enable", "stop"):
+            events.append((kind, draw(st.booleans())))
+        elif kind == "head":
+            events.append(("head", draw(st.floats(min_value=-5.0, max_value=5.0))))
+        elif kind == "time_jump":
+            events.append(("time_jump", draw(st.floats(min_value=-0.5, max_value=0.5))))
+        else:
+            events.append(("tick", None))
+    return events
+
+
+@settings(max_examples=1500, deadline=None, derandomize=True)  # reproducible in CI
+@given(event_sequences(), st.sampled_from(["kalman", "lowpass", "none"]))
+def test_when_any_event_sequence_expect_output_within_all_limits(robot, events, smoothing):
+    filt = MotionFilter(robot, MotionFilterSettings(smoothing=smoothing))
+    limiter = filt.limiter
+    t, last_tick_t = 0.0, None
+    prev_pos, prev_vel = filt.position_rad.copy(), filt.velocity_rad_s.copy()
+    for kind, payload in events:
+        if kind == "pose":
+            filt.push(np.array([payload]), t)
+        elif kind == "voice":
+            filt.set_voice_active(payload, t)
+        elif kind == "enable":
+            filt.set_enabled(payload)
+        elif kind == "stop":
+            filt.set_stop(payload)
+        elif kind == "head":
+            filt.set_head_target({"HeadYaw": payload, "HeadPitch": -payload}, t)
+        elif kind == "time_jump":
+            t += payload  # out-of-order and bursty timestamps
+        if kind != "tick":
+            continue
+        t += PERIOD
+        pos, vel = filt.tick(t)
+        assert np.all(np.isfinite(pos))
+        assert np.all(pos >= limiter.lower_rad - 1e-12)
+        assert np.all(pos <= limiter.upper_rad + 1e-12)
+        assert np.all(np.abs(vel) <= limiter.max_velocity_rad_s + 1e-9)
+        dt = PERIOD if last_tick_t is None else min(t - last_tick_t, 2 * PERIOD)
+        if dt >= 1e-6:
+            assert np.all(np.abs(vel - prev_vel) / dt <= limiter.max_acceleration_rad_s2 + 1e-6)
+            assert np.all(np.abs(pos - prev_pos) <= limiter.max_velocity_rad_s * dt + 1e-9)
+        if last_tick_t is None or t > last_tick_t:
+            last_tick_t = t
+        prev_pos, prev_vel = pos.copy(), vel.copy()

@@ -6,6 +6,7 @@ Subscriptions:
 Publications:
     features (std_msgs/Float32MultiArray): frames x features, un-normalised, at 100 frames/s
         of audio; dim[1].label names the feature set (e.g. ``logfbank26``).
+    voice_activity (std_msgs/Bool): energy-based voice activity after each audio chunk.
     /diagnostics (diagnostic_msgs/DiagnosticArray)
 
 Parameters
@@ -23,10 +24,11 @@ import numpy as np
 from audio_common_msgs.msg import AudioData, AudioInfo
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
-from std_msgs.msg import Float32MultiArray
+from std_msgs.msg import Bool, Float32MultiArray
 
 from audio2pose_ros.audio.features import StreamingFeatureExtractor
 from audio2pose_ros.audio.pcm import InvalidAudio, PcmDecoder, PcmFormat, UnsupportedAudioFormat
+from audio2pose_ros.audio.vad import EnergyVad
 from audio2pose_ros.checkpoint_format import feature_spec_of
 from audio2pose_ros.nodes.common import (
     AUDIO_QOS,
@@ -56,6 +58,7 @@ class AudioFeaturesNode(Node):
             raise StartupError(str(exc)) from None
         self.label = f"{self.spec.kind}{self.spec.dim}"
         self.extractor = StreamingFeatureExtractor(self.spec)
+        self.vad = EnergyVad()
         self.decoder: PcmDecoder | None = None
         self.format: PcmFormat | None = None
         self.chunks = 0
@@ -64,6 +67,7 @@ class AudioFeaturesNode(Node):
         self.last_problem = ""
 
         self.features_pub = self.create_publisher(Float32MultiArray, "features", STREAM_QOS)
+        self.voice_pub = self.create_publisher(Bool, "voice_activity", STREAM_QOS)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(AudioInfo, "audio/audio_info", self.on_audio_info, LATCHED_QOS)
         self.create_subscription(AudioData, "audio/audio", self.on_audio, AUDIO_QOS)
@@ -87,6 +91,7 @@ class AudioFeaturesNode(Node):
         self.format = fmt
         self.decoder = PcmDecoder(fmt, target_rate_hz=self.spec.sample_rate_hz)
         self.extractor.reset()
+        self.vad.reset()
 
     def on_audio(self, msg: AudioData) -> None:
         """Decode one chunk, push its samples, publish the frames that became complete."""
@@ -107,6 +112,8 @@ class AudioFeaturesNode(Node):
             self.get_logger().warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
             return
         frames = self.extractor.push(samples)
+        if len(samples):
+            self.voice_pub.publish(Bool(data=self.vad.push(samples)))
         if len(frames):
             self.frames_out += len(frames)
             self.features_pub.publish(features_to_msg(np.asarray(frames), self.label))
@@ -125,6 +132,7 @@ class AudioFeaturesNode(Node):
                     "chunks_received": self.chunks,
                     "frames_published": self.frames_out,
                     "dropped_bytes": self.dropped_bytes,
+                    "voice_active": self.vad.active,
                 },
             )
         )

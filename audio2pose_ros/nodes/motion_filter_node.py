@@ -2,6 +2,11 @@
 
 Subscriptions:
     raw_trajectory (trajectory_msgs/JointTrajectory): poses from inference_node (any joint order).
+    voice_activity (std_msgs/Bool): from audio_features_node; silence -> glide to neutral.
+    enable (std_msgs/Bool, latched): False -> glide to neutral and ignore generated motion.
+    stop (std_msgs/Bool, latched): True -> emergency stop ('hold': brake and stay; 'neutral').
+    head_target (sensor_msgs/JointState): absolute HeadYaw/HeadPitch targets, e.g. a look-at.
+    head_offset (sensor_msgs/JointState): HeadYaw/HeadPitch offsets added to the head motion.
 Publications:
     joint_angles (naoqi_bridge_msgs/JointAnglesWithSpeed): for naoqi_driver (absolute angles).
     joint_trajectory_controller/joint_trajectory (trajectory_msgs/JointTrajectory): one point,
@@ -10,9 +15,11 @@ Publications:
     /diagnostics (diagnostic_msgs/DiagnosticArray)
 Parameters (defaults in config/pepper.yaml; see MotionFilterSettings and LimitSettings):
     robot_description, rate_hz, smoothing, kalman_q, kalman_r, lowpass_cutoff_hz,
-    watchdog_timeout_s, max_buffer_s, head_gain, arms_gain, hip_gain, position_margin_rad,
-    velocity_fraction, acceleration_fraction, joint_angles_speed (-1 = velocity_fraction),
-    joint_angles_rate_hz, joint_trajectory_rate_hz, joint_states_rate_hz (0 disables an output).
+    watchdog_timeout_s, silence_timeout_s, neutral_glide_s, stop_behaviour, max_buffer_s,
+    head_gain, arms_gain, hip_gain, head_target_weight, external_timeout_s,
+    position_margin_rad, velocity_fraction, acceleration_fraction,
+    joint_angles_speed (-1 = velocity_fraction), joint_angles_rate_hz,
+    joint_trajectory_rate_hz, joint_states_rate_hz (0 disables an output).
 
 Every command passes the joint limiter last. Malformed input is dropped with a warning; without
 input the robot glides to the neutral pose.
@@ -26,12 +33,14 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.nodes.common import (
     DIAGNOSTICS_PERIOD_S,
+    LATCHED_QOS,
     STREAM_QOS,
     StartupError,
     diagnostic_array,
@@ -62,9 +71,15 @@ class MotionFilterNode(Node):
         self.input_messages = 0
         self.dropped_messages = 0
         self.latency_s = 0.0
+        self.poses_at_last_report = 0
         self.last_problem = ""
 
         self.create_subscription(JointTrajectory, "raw_trajectory", self.on_raw, STREAM_QOS)
+        self.create_subscription(Bool, "voice_activity", self.on_voice, STREAM_QOS)
+        self.create_subscription(Bool, "enable", self.on_enable, LATCHED_QOS)
+        self.create_subscription(Bool, "stop", self.on_stop, LATCHED_QOS)
+        self.create_subscription(JointState, "head_target", self.on_head_target, 10)
+        self.create_subscription(JointState, "head_offset", self.on_head_offset, 10)
         self.create_timer(self.filter.period_s, self.on_tick)
         outputs = {
             "joint_angles": (JointAnglesWithSpeed, "joint_angles", self.publish_joint_angles),
@@ -83,6 +98,10 @@ class MotionFilterNode(Node):
                 self.create_timer(1.0 / rate_hz, callback)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
+        self.get_logger().info(
+            f"{self.robot.n_joints} joints at {settings.rate_hz:.0f} Hz, {settings.smoothing} "
+            f"smoothing, outputs: {', '.join(self.publishers_by_output) or 'none'}"
+        )
 
     def _declare_from(self, defaults: object) -> dict[str, object]:
         """Declare one parameter per dataclass field, with the dataclass default."""
@@ -111,6 +130,44 @@ class MotionFilterNode(Node):
             self.latency_s = now - stamp
         if self.filter.push(poses, time.monotonic()) < len(poses):
             self.last_problem = "poses with NaN/inf dropped"
+            self.get_logger().warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
+
+    def on_voice(self, msg: Bool) -> None:
+        """Voice activity from the features node."""
+        self.filter.set_voice_active(msg.data, time.monotonic())
+
+    def on_enable(self, msg: Bool) -> None:
+        """Enable or disable generated motion."""
+        self.filter.set_enabled(msg.data)
+        self.get_logger().info("enabled" if msg.data else "disabled: gliding to neutral")
+
+    def on_stop(self, msg: Bool) -> None:
+        """Emergency stop on / off."""
+        self.filter.set_stop(msg.data)
+        if msg.data:
+            self.get_logger().warning(f"STOP ({self.filter.settings.stop_behaviour})")
+        else:
+            self.get_logger().info("stop released")
+
+    def _head_values(self, msg: JointState) -> dict[str, float]:
+        if len(msg.name) != len(msg.position):
+            raise ValueError(f"{len(msg.name)} names for {len(msg.position)} positions")
+        return dict(zip(msg.name, (float(p) for p in msg.position), strict=True))
+
+    def on_head_target(self, msg: JointState) -> None:
+        """Absolute head target (e.g. a face tracker's look-at)."""
+        try:
+            self.filter.set_head_target(self._head_values(msg), time.monotonic())
+        except ValueError as exc:
+            self.last_problem = f"head_target ignored: {exc}"
+            self.get_logger().warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
+
+    def on_head_offset(self, msg: JointState) -> None:
+        """Head offset added to the generated head motion."""
+        try:
+            self.filter.set_head_offset(self._head_values(msg), time.monotonic())
+        except ValueError as exc:
+            self.last_problem = f"head_offset ignored: {exc}"
             self.get_logger().warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
 
     def on_tick(self) -> None:
@@ -148,18 +205,18 @@ class MotionFilterNode(Node):
         self.publishers_by_output["joint_states"].publish(msg)
 
     def publish_diagnostics(self) -> None:
-        """Input counters, latency, limiter activity and watchdog state."""
+        """Input rate and counters, latency, mode, limiter activity."""
         status, counts = self.filter.status, self.filter.limiter.counts
+        input_rate_hz = (status.received - self.poses_at_last_report) / DIAGNOSTICS_PERIOD_S
+        self.poses_at_last_report = status.received
         level = DiagnosticStatus.OK
-        if self.dropped_messages or status.rejected:
+        if self.dropped_messages or status.rejected or status.stopped:
             level = DiagnosticStatus.WARN
         self.diagnostics_pub.publish(
             diagnostic_array(
                 self,
                 level,
-                "idle: gliding to neutral"
-                if status.watchdog_active
-                else (self.last_problem or "tracking"),
+                status.mode + (f"; {self.last_problem}" if self.last_problem else ""),
                 {
                     "input_messages": self.input_messages,
                     "dropped_messages": self.dropped_messages,
@@ -169,7 +226,12 @@ class MotionFilterNode(Node):
                     "buffer_underruns": status.underruns,
                     "buffered_poses": status.buffered,
                     "input_latency_ms": f"{self.latency_s * 1e3:.2f}",
-                    "watchdog_active": status.watchdog_active,
+                    "mode": status.mode,
+                    "enabled": status.enabled,
+                    "stopped": status.stopped,
+                    "voice_active": status.voice_active,
+                    "head_target_active": status.head_target_active,
+                    "input_rate_hz": f"{input_rate_hz:.1f}",
                     "position_limit_hits": counts.position,
                     "velocity_limit_hits": counts.velocity,
                     "acceleration_limit_hits": counts.acceleration,

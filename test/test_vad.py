@@ -1,0 +1,38 @@
+"""Energy voice activity detection: speech is active, silence and steady noise are not."""
+
+import numpy as np
+
+from audio2pose_ros.audio.vad import EnergyVad, VadSettings
+
+
+def states(vad: EnergyVad, signal: np.ndarray, chunk: int = 320) -> np.ndarray:
+    return np.array([vad.push(signal[i : i + chunk]) for i in range(0, len(signal), chunk)])
+
+
+def test_when_real_speech_then_silence_expect_active_then_inactive_after_hangover(speech):
+    vad = EnergyVad(VadSettings(hangover_s=0.3))
+    signal = np.concatenate([speech, np.zeros(16000, dtype=np.float32)])
+    active = states(vad, signal)
+    speech_chunks = len(speech) // 320
+    assert active[:speech_chunks].mean() > 0.7  # read speech is mostly voiced or in hangover
+    assert not active[-20:].any()  # 1 s of silence: inactive well before the end
+    assert vad.active is False
+
+
+def test_when_steady_background_noise_expect_inactive_after_floor_adapts():
+    rng = np.random.default_rng(0)
+    noise = (0.01 * rng.standard_normal(16000 * 5)).astype(np.float32)  # -40 dBFS hiss
+    vad = EnergyVad()
+    active = states(vad, noise)
+    # The floor climbs 6 dB/s from -62 dBFS: by 4 s it sits at the hiss and nothing is voice.
+    assert not active[-len(active) // 5 :].any()
+
+
+def test_when_odd_chunk_sizes_expect_same_states_as_whole(speech):
+    whole = EnergyVad()
+    whole.push(speech)
+    chunked = EnergyVad()
+    for i in range(0, len(speech), 77):
+        chunked.push(speech[i : i + 77])
+    assert chunked.active == whole.active
+    assert chunked.noise_floor_dbfs == whole.noise_floor_dbfs
