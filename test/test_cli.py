@@ -140,3 +140,18 @@ def test_when_core_modules_imported_expect_no_ros():
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_when_plot_filter_expect_png_and_figures(tmp_path: Path, speech_files):
+    out = tmp_path / "filter.png"
+    result = subprocess.run(
+        [*AUDIO2POSE, "plot-filter", str(speech_files[1]), "-o", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    figures = dict(line.split(": ") for line in result.stdout.splitlines()[1:])
+    # The filter smooths: the commanded motion is slower than the raw model output.
+    assert float(figures["online_rms_speed_rad_s"]) < float(figures["raw_rms_speed_rad_s"])

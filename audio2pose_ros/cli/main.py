@@ -116,6 +116,52 @@ def command_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _filter_from_params(params_file: Path | None):  # noqa: ANN202 - heavy types imported lazily
+    """A MotionFilter configured like motion_filter_node from a ROS parameter file."""
+    from dataclasses import fields
+
+    import yaml
+
+    from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+    from audio2pose_ros.motion.limits import LimitSettings
+    from audio2pose_ros.resources import share_path
+    from audio2pose_ros.robot import load_robot
+
+    path = params_file or share_path("config", "pepper.yaml")
+    data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+    params = (data.get("motion_filter_node") or {}).get("ros__parameters") or {}
+    shared = (data.get("/**") or {}).get("ros__parameters") or {}
+    robot = load_robot(params.get("robot_description") or shared.get("robot_description"))
+
+    def pick(cls: type) -> object:
+        return cls(**{f.name: params[f.name] for f in fields(cls) if f.name in params})
+
+    return MotionFilter(robot, pick(MotionFilterSettings), pick(LimitSettings))
+
+
+def command_plot_filter(args: argparse.Namespace) -> int:
+    """Draw raw model output against the online motion filter for a speech file."""
+    from audio2pose_ros.audio.pcm import read_wav
+    from audio2pose_ros.filter_plot import plot_raw_vs_filtered
+    from audio2pose_ros.models.checkpoint import load_checkpoint
+    from audio2pose_ros.resources import default_checkpoint_path
+
+    filt = _filter_from_params(Path(args.params_file) if args.params_file else None)
+    checkpoint = load_checkpoint(args.model or default_checkpoint_path(), robot=filt.robot)
+    signal, _ = read_wav(args.wav)
+    figures = plot_raw_vs_filtered(
+        checkpoint,
+        filt,
+        signal,
+        Path(args.output),
+        title=f"{Path(args.wav).name}: raw model output vs filter",
+    )
+    print(f"wrote {args.output}")
+    for key, value in figures.items():
+        print(f"{key}: {value:.3f}")
+    return 0
+
+
 def command_distill_prosody(args: argparse.Namespace) -> int:
     """Rebuild the default model: an MLP trained to imitate the prosody rule on the given WAVs."""
     from audio2pose_ros.cli.model_card import write_prosody_model_card
@@ -166,6 +212,13 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--model", help="checkpoint (default: packaged model)")
     bench.add_argument("--frames", type=int, default=3000, help="frames to time (default 3000)")
     bench.set_defaults(func=command_bench)
+
+    plot = verbs.add_parser("plot-filter", help="PNG of raw model output vs the motion filter")
+    plot.add_argument("wav", metavar="FILE.wav")
+    plot.add_argument("-o", "--output", required=True, metavar="OUT.png")
+    plot.add_argument("--model", help="checkpoint (default: packaged model)")
+    plot.add_argument("--params-file", help="ROS parameter YAML (default: config/pepper.yaml)")
+    plot.set_defaults(func=command_plot_filter)
 
     distill = verbs.add_parser(
         "distill-prosody", help="train the default model on the prosody rule"
