@@ -12,12 +12,12 @@ The nodes read config/pepper.yaml (or ``params_file``). Audio is expected on
 parameter file.
 """
 
+from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
-
-from launch import LaunchDescription
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -25,7 +25,9 @@ def generate_launch_description() -> LaunchDescription:
     params_file = LaunchConfiguration("params_file")
     model_path = LaunchConfiguration("model_path")
     audio_ns = LaunchConfiguration("audio_ns")
-    shared = [params_file, {"model_path": model_path}]
+    # value_type=str: otherwise launch_ros reads the argument as YAML ('' -> None on older
+    # distros, 'true' or '1' -> bool / int for a string parameter).
+    shared = [params_file, {"model_path": ParameterValue(model_path, value_type=str)}]
     return LaunchDescription(
         [
             DeclareLaunchArgument(
