@@ -1,20 +1,32 @@
 """rosbag2 files (MCAP by default) written and read with ``rosbags``, no ROS installation needed.
 
-The type store knows the standard ROS 2 messages plus the two interface packages this graph
-speaks that ``rosbags`` does not ship: audio_common_msgs (ros-drivers/audio_common, ROS 2) and
-naoqi_bridge_msgs/JointAnglesWithSpeed (ros-naoqi). Their definitions below are the upstream
-interface definitions.
+:func:`write_audio_bag` turns a speech signal into a bag of audio as a live microphone delivers
+it, :func:`read_messages` iterates a bag, and :func:`read_bag_audio` decodes its audio for
+offline synthesis. The type store knows the standard ROS 2 messages plus the two interface
+packages this graph speaks that ``rosbags`` does not ship: audio_common_msgs
+(ros-drivers/audio_common, ROS 2) and naoqi_bridge_msgs/JointAnglesWithSpeed (ros-naoqi). Their
+definitions below are the upstream interface definitions.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
+
+from audio2pose_ros.audio.pcm import PcmDecoder, PcmFormat, encode_pcm
+
+S16LE_MONO_16K = PcmFormat(
+    sample_format="S16LE", channels=1, sample_rate_hz=16000, coding_format="wave"
+)
 
 EXTRA_MESSAGE_DEFINITIONS = {
     "audio_common_msgs/msg/AudioData": "uint8[] data\n",
@@ -40,6 +52,10 @@ def typestore() -> Typestore:
         types.update(get_types_from_msg(text, name))
     store.register(types)
     return store
+
+
+class BagError(ValueError):
+    """A bag cannot be read or does not hold what was asked for."""
 
 
 class BagWriter:
@@ -77,3 +93,143 @@ class BagWriter:
             self.counts[topic] = 0
         self._writer.write(self._connections[topic], timestamp_ns, data)
         self.counts[topic] += 1
+
+
+AUDIO_TOPIC = "/audio/audio"
+AUDIO_INFO_TOPIC = "/audio/audio_info"
+AUDIO_DATA_TYPE = "audio_common_msgs/msg/AudioData"
+AUDIO_INFO_TYPE = "audio_common_msgs/msg/AudioInfo"
+AUDIO_INFO_PERIOD_S = 5.0  # audio_capture republishes its latched AudioInfo every 5 s
+
+
+@dataclass(frozen=True)
+class Chunking:
+    """How :func:`write_audio_bag` cuts audio into AudioData messages, like a live capture.
+
+    Sizes are drawn uniformly in [min_bytes, max_bytes] (odd sizes included, so samples split
+    across messages); each message is stamped when its last byte would have been captured, plus
+    a uniform jitter of up to ``jitter_s``.
+    """
+
+    min_bytes: int = 640
+    max_bytes: int = 4096
+    jitter_s: float = 0.002
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class BagMessage:
+    """One stored message: time, topic, type name and CDR bytes."""
+
+    timestamp_ns: int
+    topic: str
+    msgtype: str
+    data: bytes
+
+
+def audio_messages(signal_16k: np.ndarray, chunking: Chunking | None = None) -> list[BagMessage]:
+    """Audio as audio_capture publishes it: S16LE AudioData chunks and periodic AudioInfo.
+
+    Timestamps start at 0 ns (add the recording's start time when writing a bag).
+    """
+    chunking = chunking or Chunking()
+    rng = np.random.default_rng(chunking.seed)
+    payload = encode_pcm(signal_16k, S16LE_MONO_16K)
+    store = typestore()
+    info = store.types[AUDIO_INFO_TYPE](
+        channels=1, sample_rate=16000, sample_format="S16LE", bitrate=256000, coding_format="wave"
+    )
+    info_bytes = bytes(store.serialize_cdr(info, AUDIO_INFO_TYPE))
+    data_cls = store.types[AUDIO_DATA_TYPE]
+    messages, offset, next_info_s = [], 0, 0.0
+    while offset < len(payload):
+        size = int(rng.integers(chunking.min_bytes, chunking.max_bytes + 1))
+        chunk = payload[offset : offset + size]
+        offset += len(chunk)
+        t_s = offset / (2 * 16000) + rng.uniform(0.0, chunking.jitter_s)
+        if t_s >= next_info_s:
+            messages.append(
+                BagMessage(round(next_info_s * 1e9), AUDIO_INFO_TOPIC, AUDIO_INFO_TYPE, info_bytes)
+            )
+            next_info_s += AUDIO_INFO_PERIOD_S
+        msg = data_cls(data=np.frombuffer(chunk, dtype=np.uint8))
+        messages.append(
+            BagMessage(
+                round(t_s * 1e9),
+                AUDIO_TOPIC,
+                AUDIO_DATA_TYPE,
+                bytes(store.serialize_cdr(msg, AUDIO_DATA_TYPE)),
+            )
+        )
+    return messages
+
+
+def write_audio_bag(
+    signal_16k: np.ndarray,
+    out: str | Path,
+    chunking: Chunking | None = None,
+    storage: str = "mcap",
+    start_ns: int = 1_700_000_000_000_000_000,
+) -> int:
+    """Write 16 kHz mono audio to a new bag as :func:`audio_messages` chunks it.
+
+    Returns:
+        The number of AudioData messages.
+    """
+    messages = audio_messages(signal_16k, chunking)
+    with BagWriter(out, storage) as bag:
+        for message in messages:
+            bag.write(message.topic, message.msgtype, start_ns + message.timestamp_ns, message.data)
+    return sum(m.topic == AUDIO_TOPIC for m in messages)
+
+
+def read_messages(bag: str | Path, topics: Iterable[str] | None = None) -> Iterator[BagMessage]:
+    """Messages of a rosbag2 (MCAP or SQLite 3) in time order, optionally only ``topics``.
+
+    Raises:
+        BagError: the bag cannot be opened.
+    """
+    wanted = set(topics) if topics is not None else None
+    try:
+        reader = AnyReader([Path(bag)], default_typestore=typestore())
+        reader.open()
+    except (AnyReaderError, OSError, ValueError) as exc:
+        raise BagError(f"{bag}: cannot open as a rosbag2 ({exc})") from None
+    try:
+        connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
+        for conn, timestamp, data in reader.messages(connections=connections):
+            yield BagMessage(timestamp, conn.topic, conn.msgtype, bytes(data))
+    finally:
+        reader.close()
+
+
+def read_bag_audio(bag: str | Path) -> np.ndarray:
+    """Decode a bag's AudioData as its AudioInfo messages describe, to 16 kHz mono float32.
+
+    A changed AudioInfo switches the decoder (as audio_features_node does); audio before the
+    first AudioInfo cannot be decoded and raises.
+
+    Raises:
+        BagError: no AudioInfo precedes the audio, or the bag holds no audio.
+    """
+    store = typestore()
+    decoder: PcmDecoder | None = None
+    pieces: list[np.ndarray] = []
+    for message in read_messages(bag, (AUDIO_TOPIC, AUDIO_INFO_TOPIC)):
+        msg = store.deserialize_cdr(message.data, message.msgtype)
+        if message.topic == AUDIO_INFO_TOPIC:
+            fmt = PcmFormat.from_audio_info(
+                msg.channels, msg.sample_rate, msg.sample_format, msg.coding_format
+            )
+            if decoder is None or decoder.fmt != fmt:
+                if decoder is not None:
+                    pieces.append(decoder.flush())
+                decoder = PcmDecoder(fmt)
+        elif decoder is None:
+            raise BagError(f"{bag}: AudioData at {message.timestamp_ns} ns before any AudioInfo")
+        else:
+            pieces.append(decoder.feed(bytes(msg.data)))
+    if decoder is None:
+        raise BagError(f"{bag}: no {AUDIO_INFO_TOPIC} / {AUDIO_TOPIC} messages")
+    pieces.append(decoder.flush())
+    return np.concatenate(pieces).astype(np.float32)

@@ -16,19 +16,27 @@ import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack, contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import rclpy
 from audio_common_msgs.msg import AudioData, AudioInfo
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
-from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.audio.pcm import PcmFormat, encode_pcm, read_wav
-from audio2pose_ros.bag import BagWriter
+from audio2pose_ros.audio.pcm import read_wav
+from audio2pose_ros.bag import (
+    AUDIO_INFO_TOPIC,
+    AUDIO_TOPIC,
+    BagError,
+    BagMessage,
+    BagWriter,
+    Chunking,
+    audio_messages,
+    read_messages,
+)
 from audio2pose_ros.nodes.common import LATCHED_QOS
 from audio2pose_ros.resources import share_path
 
@@ -40,9 +48,8 @@ RECORDED_TOPICS = {
         "trajectory_msgs/msg/JointTrajectory",
     ),
     "/joint_states": (JointState, "sensor_msgs/msg/JointState"),
+    "/raw_trajectory": (JointTrajectory, "trajectory_msgs/msg/JointTrajectory"),
 }
-AUDIO_TOPIC = "/audio/audio"
-AUDIO_INFO_TOPIC = "/audio/audio_info"
 
 
 def executable_command(name: str) -> list[str]:
@@ -146,17 +153,13 @@ class PlayerRecorder(Node):
 
         return record
 
-    def publish_audio(self, msg: AudioData | AudioInfo) -> None:
-        """Publish audio or its format, and record it too so the bag can be replayed."""
-        if isinstance(msg, AudioInfo):
-            self.info_pub.publish(msg)
-            topic, type_name = AUDIO_INFO_TOPIC, "audio_common_msgs/msg/AudioInfo"
-        else:
-            self.audio_pub.publish(msg)
-            topic, type_name = AUDIO_TOPIC, "audio_common_msgs/msg/AudioData"
+    def publish_audio(self, message: BagMessage) -> None:
+        """Publish a serialised AudioData / AudioInfo, and record it while recording."""
+        publisher = self.info_pub if message.topic == AUDIO_INFO_TOPIC else self.audio_pub
+        publisher.publish(message.data)
         if self.recording and self.bag is not None:
             self.bag.write(
-                topic, type_name, self.get_clock().now().nanoseconds, serialize_message(msg)
+                message.topic, message.msgtype, self.get_clock().now().nanoseconds, message.data
             )
 
     def spin_until(self, deadline_s: float, done: Callable[[], bool] | None = None) -> bool:
@@ -188,48 +191,51 @@ class PlayerRecorder(Node):
         self.spin_until(time.monotonic() + 0.3)
 
 
+def audio_source(path: Path, chunking: Chunking | None = None) -> list[BagMessage]:
+    """The audio messages to play: a WAV cut like a live capture, or a bag's audio topics."""
+    if path.suffix.lower() == ".wav":
+        samples, _ = read_wav(path)
+        return audio_messages(samples, chunking)
+    messages = list(read_messages(path, (AUDIO_TOPIC, AUDIO_INFO_TOPIC)))
+    if not any(m.topic == AUDIO_TOPIC for m in messages):
+        raise BagError(f"{path}: no {AUDIO_TOPIC} messages to play")
+    start = messages[0].timestamp_ns
+    return [replace(m, timestamp_ns=m.timestamp_ns - start) for m in messages]
+
+
 def play_and_record(
-    wav: Path,
+    messages: Sequence[BagMessage],
     bag_path: Path | None,
-    chunk_bytes: int = 1024,
+    rate: float = 1.0,
     tail_s: float = 2.0,
     startup_timeout_s: float = 60.0,
 ) -> PlaybackResult:
-    """Play ``wav`` as S16LE mono 16 kHz chunks in real time; record the commands it causes.
+    """Publish audio messages with their timing (``rate`` x faster); record what the graph sends.
 
     Must run while :func:`node_graph` is up, inside an initialised rclpy context. Recording
-    starts with the first chunk of speech and ends ``tail_s`` after the last one, so the bag
-    also shows the glide back to the neutral pose.
+    starts with the first message and ends ``tail_s`` after the last one, so the bag also shows
+    the glide back to the neutral pose.
 
     Raises:
         TimeoutError: the graph did not come up within ``startup_timeout_s``.
-
     """
-    samples, _ = read_wav(wav)
-    fmt = PcmFormat(sample_format="S16LE", channels=1, sample_rate_hz=16000, coding_format="wave")
-    payload = encode_pcm(samples, fmt)
-    info = AudioInfo(
-        channels=1, sample_rate=16000, sample_format="S16LE", bitrate=256000, coding_format="wave"
-    )
+    first_info = next((m for m in messages if m.topic == AUDIO_INFO_TOPIC), None)
     with ExitStack() as stack:
         bag = stack.enter_context(BagWriter(bag_path)) if bag_path else None
         node = PlayerRecorder(bag)
         stack.callback(node.destroy_node)
-        node.publish_audio(info)
+        if first_info is not None:
+            node.publish_audio(first_info)
         node.warm_up(startup_timeout_s)
         node.recording = True
-        node.publish_audio(info)
-        bytes_per_s = 2 * 16000
         start = time.monotonic()
-        chunks = 0
-        for offset in range(0, len(payload), chunk_bytes):
-            node.spin_until(start + offset / bytes_per_s)
-            node.publish_audio(AudioData(data=payload[offset : offset + chunk_bytes]))
-            chunks += 1
+        for message in messages:
+            node.spin_until(start + message.timestamp_ns * 1e-9 / rate)
+            node.publish_audio(message)
         node.spin_until(time.monotonic() + tail_s)
         return PlaybackResult(
-            audio_s=len(samples) / 16000,
-            chunks_sent=chunks,
+            audio_s=messages[-1].timestamp_ns * 1e-9 if messages else 0.0,
+            chunks_sent=sum(m.topic == AUDIO_TOPIC for m in messages),
             recorded_s=time.monotonic() - start,
             counts=dict(node.counts),
             bag=bag_path,
@@ -237,15 +243,20 @@ def play_and_record(
 
 
 def run_graph(
-    wav: Path | None,
+    play: Path | None,
     record: Path | None,
     params_file: Path | None,
     overrides: Sequence[str],
     log_dir: Path | None,
+    rate: float = 1.0,
 ) -> PlaybackResult | None:
-    """Start the graph; with ``wav`` play it and return what was recorded, else run until Ctrl-C."""
+    """Start the graph; with ``play`` (a WAV or a bag) play it and return what was recorded.
+
+    Without ``play`` the graph runs until Ctrl-C or until a node exits.
+    """
+    messages = audio_source(play) if play is not None else None
     with node_graph(params_file, overrides, log_dir) as processes:
-        if wav is None:
+        if messages is None:
             try:
                 while all(p.poll() is None for p in processes):
                     time.sleep(0.2)
@@ -253,13 +264,13 @@ def run_graph(
                 pass
             return None
         with rclpy.init():
-            return play_and_record(wav, record)
+            return play_and_record(messages, record, rate=rate)
 
 
 def summarize(result: PlaybackResult) -> str:
     """Human-readable summary of a playback."""
     lines = [
-        f"played {result.audio_s:.2f} s of audio in {result.chunks_sent} chunks; recorded "
+        f"played {result.audio_s:.2f} s of audio in {result.chunks_sent} messages; recorded "
         f"{result.recorded_s:.2f} s (speech and {result.recorded_s - result.audio_s:.1f} s after)"
     ]
     for topic, count in result.counts.items():

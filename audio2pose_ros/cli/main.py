@@ -13,6 +13,7 @@ import argparse
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 DEFAULT_OUT = Path("out")
@@ -33,6 +34,7 @@ def command_run(args: argparse.Namespace) -> int:
         Path(args.params_file) if args.params_file else None,
         overrides,
         Path(args.log_dir) if args.log_dir else None,
+        rate=args.rate,
     )
     if result is not None:
         print(summarize(result))
@@ -63,16 +65,22 @@ def command_demo(args: argparse.Namespace) -> int:
     return 0
 
 
-def _synthesize_to_csv(wav: Path, out: Path, model: str | None, smooth: bool) -> Path:
+def _read_speech(path: Path):  # noqa: ANN202 - numpy imported lazily
+    """16 kHz mono samples of a WAV file, or of a bag's audio topics."""
     from audio2pose_ros.audio.pcm import read_wav
+    from audio2pose_ros.bag import read_bag_audio
+
+    return read_wav(path)[0] if path.suffix.lower() == ".wav" else read_bag_audio(path)
+
+
+def _synthesize_to_csv(wav: Path, out: Path, model: str | None, smooth: bool) -> Path:
     from audio2pose_ros.models.checkpoint import load_checkpoint
     from audio2pose_ros.resources import default_checkpoint_path
     from audio2pose_ros.robot import load_robot
     from audio2pose_ros.synthesis import synthesize, write_trajectory_csv
 
     checkpoint = load_checkpoint(model or default_checkpoint_path(), robot=load_robot())
-    signal, _ = read_wav(wav)
-    times, angles = synthesize(checkpoint, signal, smooth=smooth)
+    times, angles = synthesize(checkpoint, _read_speech(wav), smooth=smooth)
     return write_trajectory_csv(out, times, angles, checkpoint.robot.names)
 
 
@@ -190,7 +198,10 @@ def build_parser() -> argparse.ArgumentParser:
     verbs = parser.add_subparsers(dest="verb", required=True)
 
     run = verbs.add_parser("run", help="start the node graph (what pepper.launch.py starts)")
-    run.add_argument("--play", metavar="FILE.wav", help="play this file in real time, then exit")
+    run.add_argument(
+        "--play", metavar="FILE.wav|BAG", help="play a WAV or a bag's audio in real time, then exit"
+    )
+    run.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
     run.add_argument("--record", metavar="OUT", help="record the commands to this rosbag2 (MCAP)")
     run.add_argument("--model", help="checkpoint for the graph (default: packaged model)")
     run.add_argument("--params-file", help="ROS parameter YAML (default: config/pepper.yaml)")
@@ -202,7 +213,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=command_demo)
 
     synth = verbs.add_parser("synth", help="offline synthesis of a WAV to CSV (100 Hz, radians)")
-    synth.add_argument("wav", metavar="FILE.wav")
+    synth.add_argument("wav", metavar="FILE.wav|BAG", help="a WAV file or a bag with audio")
     synth.add_argument("-o", "--output", required=True, metavar="OUT.csv")
     synth.add_argument("--model", help="checkpoint (default: packaged model)")
     synth.add_argument("--no-smooth", action="store_true", help="skip the 4 Hz Butterworth filter")
@@ -235,7 +246,16 @@ def build_parser() -> argparse.ArgumentParser:
     distill.add_argument("--seed", type=int, default=0)
     distill.add_argument("--max-epochs", type=int, default=500)
     distill.set_defaults(func=command_distill_prosody)
+    for register in _command_modules():
+        register(verbs)
     return parser
+
+
+def _command_modules() -> list[Callable[[argparse._SubParsersAction], None]]:
+    """``register(verbs)`` functions of the verbs that live in their own modules."""
+    from audio2pose_ros.cli import bag_commands
+
+    return [bag_commands.register]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -243,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, OSError, TimeoutError) as exc:
+    except (ValueError, OSError, TimeoutError) as exc:  # includes the library's typed errors
         print(f"audio2pose {args.verb}: error: {exc}", file=sys.stderr)
         return 1
 

@@ -1,0 +1,55 @@
+"""Bags: speech bags from WAV (MCAP and SQLite 3), audio read back, bad bags refused."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from audio2pose_ros.bag import (
+    AUDIO_INFO_TOPIC,
+    AUDIO_TOPIC,
+    BagError,
+    BagWriter,
+    Chunking,
+    audio_messages,
+    read_bag_audio,
+    read_messages,
+    typestore,
+    write_audio_bag,
+)
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_when_wav_written_as_bag_expect_same_audio_back(tmp_path: Path, speech, storage):
+    count = write_audio_bag(speech, tmp_path / "bag", storage=storage)
+    assert count > 10
+    np.testing.assert_array_equal(read_bag_audio(tmp_path / "bag"), speech)
+
+
+def test_when_chunking_expect_odd_sizes_real_time_stamps_and_periodic_info(speech):
+    messages = audio_messages(speech, Chunking(min_bytes=101, max_bytes=999, seed=3))
+    data = [m for m in messages if m.topic == AUDIO_TOPIC]
+    store = typestore()
+    sizes = [len(store.deserialize_cdr(m.data, m.msgtype).data) for m in data]
+    assert any(s % 2 for s in sizes)  # samples split across messages
+    assert max(sizes) <= 999
+    assert sum(sizes) == 2 * len(speech)
+    stamps = np.array([m.timestamp_ns for m in data]) * 1e-9
+    assert stamps[-1] == pytest.approx(len(speech) / 16000, abs=0.01)  # real time
+    infos = [m for m in messages if m.topic == AUDIO_INFO_TOPIC]
+    assert len(infos) == 1 + int(len(speech) / 16000 // 5)  # every 5 s, as audio_capture
+
+
+def test_when_audio_precedes_audio_info_expect_error(tmp_path: Path, speech):
+    messages = audio_messages(speech[:8000])
+    with BagWriter(tmp_path / "bag") as bag:
+        for m in messages:
+            if m.topic == AUDIO_TOPIC:
+                bag.write(m.topic, m.msgtype, m.timestamp_ns + 1, m.data)
+    with pytest.raises(BagError, match="before any AudioInfo"):
+        read_bag_audio(tmp_path / "bag")
+
+
+def test_when_path_is_not_a_bag_expect_error_naming_it(tmp_path: Path):
+    with pytest.raises(BagError, match=r"nothing\.mcap: cannot open as a rosbag2"):
+        list(read_messages(tmp_path / "nothing.mcap"))
