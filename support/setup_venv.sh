@@ -8,7 +8,10 @@
 #      numpy include paths (/opt/python/cpXY-cpXY/...) to this venv's own paths
 #   5. build support/ros_msgs/{audio_common_msgs,naoqi_bridge_msgs} with plain cmake and install
 #      them into the venv, only where `import <pkg>.msg` fails (a ROS distro provides them via apt)
-#   6. verify that rclpy, both message packages, torch and python_speech_features import
+#   6. Debian tools the tests use (check_urdf from liburdfdom-tools): apt-installed when missing,
+#      only as root with apt-get; otherwise the script says what to install (those tests skip)
+#   7. verify that rclpy, both message packages, torch, python_speech_features and the rendering
+#      stack (pybullet, yourdfpy, imageio-ffmpeg) import
 # A stamp file in .venv records a hash of the inputs; when nothing changed the script only says so.
 # Environment: PYTHON (interpreter used to create the venv, default python3),
 #              AUDIO2POSE_SETUP_FORCE=1 (ignore the stamp and redo every step).
@@ -61,7 +64,7 @@ fi
 START=$SECONDS
 
 # ---------------------------------------------------------------------------------------------
-log "[1/6] virtual environment: $VENV"
+log "[1/7] virtual environment: $VENV"
 if [[ ! -x "$VENV/bin/python" ]]; then
   log "      creating it with $BOOT_PYTHON ($("$BOOT_PYTHON" --version 2>&1))"
   "$BOOT_PYTHON" -m venv "$VENV"
@@ -75,19 +78,19 @@ export VIRTUAL_ENV="$VENV"
 export PATH="$VENV/bin:$PATH"
 
 # ---------------------------------------------------------------------------------------------
-log "[2/6] pip install -r support/requirements.txt (first run: a few minutes)"
+log "[2/7] pip install -r support/requirements.txt (first run: a few minutes)"
 # (pipefail: the pipeline fails iff pip fails; the filter only hides noise)
 "$PY" -m pip install --progress-bar off -r "$SUPPORT/requirements.txt" 2>&1 \
   | { grep -v -E '^(Requirement already satisfied|  Using cached|  Downloading|  Obtaining|WARNING: Location .* is ignored)' || true; } \
   || die "pip install -r support/requirements.txt failed"
 
 # ---------------------------------------------------------------------------------------------
-log "[3/6] pip install --no-deps --no-build-isolation -e . (audio2pose_ros, editable)"
+log "[3/7] pip install --no-deps --no-build-isolation -e . (audio2pose_ros, editable)"
 "$PY" -m pip install --progress-bar off --quiet --no-deps --no-build-isolation -e "$ROOT" \
   || die "editable install of audio2pose_ros failed"
 
 # ---------------------------------------------------------------------------------------------
-log "[4/6] pointing the ROS wheels' CMake exports at this venv's Python and numpy headers"
+log "[4/7] pointing the ROS wheels' CMake exports at this venv's Python and numpy headers"
 "$PY" - "$VENV" <<'EOF'
 import pathlib
 import re
@@ -128,7 +131,7 @@ for path in leftover:
 EOF
 
 # ---------------------------------------------------------------------------------------------
-log "[5/6] message packages (built only where not importable)"
+log "[5/7] message packages (built only where not importable)"
 BUILD_ROOT=""
 cleanup() { if [[ -n "$BUILD_ROOT" ]]; then rm -rf "$BUILD_ROOT"; fi; }
 trap cleanup EXIT
@@ -168,9 +171,28 @@ for pkg in "${MSG_PKGS[@]}"; do
 done
 
 # ---------------------------------------------------------------------------------------------
-log "[6/6] verifying imports"
+log "[6/7] Debian tools for the tests (check_urdf)"
+DEBIAN_TOOLS=("check_urdf:liburdfdom-tools")
+for entry in "${DEBIAN_TOOLS[@]}"; do
+  tool="${entry%%:*}" deb="${entry#*:}"
+  if command -v "$tool" >/dev/null; then
+    log "      $tool: found"
+  elif [[ "$(id -u)" == 0 ]] && command -v apt-get >/dev/null; then
+    log "      $tool: apt-get install $deb"
+    apt-cache show "$deb" >/dev/null 2>&1 || apt-get update -qq >/dev/null 2>&1 || true
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$deb" >/dev/null 2>&1 \
+      || log "      WARNING: apt-get install $deb failed; the tests that need $tool will skip"
+  else
+    log "      $tool: missing; install it with: sudo apt-get install $deb (its tests skip meanwhile)"
+  fi
+done
+
+# ---------------------------------------------------------------------------------------------
+log "[7/7] verifying imports"
 "$PY" -c "import rclpy, audio_common_msgs.msg, naoqi_bridge_msgs.msg, torch, python_speech_features" \
   || die "import check failed"
+"$PY" -c "import pybullet, yourdfpy, imageio_ffmpeg; imageio_ffmpeg.get_ffmpeg_exe()" \
+  || die "import check of the rendering stack (pybullet, yourdfpy, imageio-ffmpeg) failed"
 "$PY" -c "import importlib.util, sys; sys.exit(importlib.util.find_spec('audio2pose_ros') is None)" \
   || die "audio2pose_ros is not importable from .venv (editable install)"
 

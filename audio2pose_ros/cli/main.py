@@ -253,9 +253,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _command_modules() -> list[Callable[[argparse._SubParsersAction], None]]:
     """``register(verbs)`` functions of the verbs that live in their own modules."""
-    from audio2pose_ros.cli import bag_commands
+    from audio2pose_ros.cli import bag_commands, render_commands
 
-    return [bag_commands.register]
+    return [bag_commands.register, render_commands.register]
 
 
 def main(argv: list[str] | None = None) -> int:

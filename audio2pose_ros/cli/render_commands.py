@@ -1,0 +1,118 @@
+"""``audio2pose render``: a video (and a Foxglove bag) of what the robot would do for a WAV.
+
+The trajectory comes from offline synthesis with a checkpoint, from a bag recorded by
+``audio2pose run --record``, or, side by side, from two checkpoints or from a checkpoint and a
+data set clip's ground truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from pathlib import Path
+
+from audio2pose_ros.render import RenderSettings
+
+
+def _bag_path(args: argparse.Namespace) -> Path:
+    out = Path(args.output)
+    return Path(args.mcap) if args.mcap else out.with_name(f"{out.stem}_mcap")
+
+
+def command_render(args: argparse.Namespace) -> int:
+    """Render the requested trajectories to an MP4 with audio; write the first one as MCAP."""
+    from audio2pose_ros.audio.pcm import read_wav
+    from audio2pose_ros.foxglove_bag import write_foxglove_bag
+    from audio2pose_ros.kinematics import RobotKinematics
+    from audio2pose_ros.render import render_video
+    from audio2pose_ros.resources import default_checkpoint_path
+    from audio2pose_ros.robot import load_robot
+    from audio2pose_ros.trajectory import (
+        bag_trajectory,
+        clip_trajectory,
+        synthesized_trajectory,
+    )
+
+    if (args.data is None) != (args.clip is None):
+        raise ValueError("--data and --clip go together")
+    if (args.wav is None) == (args.data is None):
+        raise ValueError("give either FILE.wav or --data DIR --clip ID")
+    bag_out = _bag_path(args)
+    if bag_out.exists():
+        raise ValueError(f"{bag_out} exists already; choose another --mcap or remove it")
+    settings = RenderSettings(
+        fps=args.fps,
+        view_width_px=args.view_width,
+        view_height_px=args.view_height,
+        curves_height_px=args.curves_height,
+        side_view=args.side,
+    )
+    robot = load_robot()
+    model = args.model or default_checkpoint_path()
+    if args.data is not None:
+        truth, audio = clip_trajectory(args.data, args.clip, robot)
+        trajectories = [synthesized_trajectory(model, audio, robot), truth]
+    else:
+        audio, _ = read_wav(args.wav)
+        if args.bag:
+            trajectories = [bag_trajectory(args.bag, robot)]
+        else:
+            trajectories = [
+                synthesized_trajectory(c, audio, robot) for c in args.compare or [model]
+            ]
+            if args.compare:  # the two checkpoints may share a file name
+                trajectories = [
+                    replace(t, label=f"{tag}: {t.label}")
+                    for tag, t in zip("AB", trajectories, strict=True)
+                ]
+    kinematics = RobotKinematics()
+    result = render_video(
+        args.output,
+        trajectories,
+        audio,
+        kinematics,
+        {j.name: j.group for j in robot.joints},
+        settings,
+        progress=not args.no_progress,
+    )
+    print(
+        f"wrote {result.path}: {result.n_frames} frames, {result.duration_s:.2f} s at "
+        f"{settings.fps:g} fps, rendered in {result.wall_time_s:.1f} s"
+    )
+    bag = write_foxglove_bag(bag_out, trajectories[0], kinematics)
+    print(f"wrote {bag} (/robot_description, /joint_states, /tf of {trajectories[0].label})")
+    return 0
+
+
+def register(verbs: argparse._SubParsersAction) -> None:
+    """Add the ``render`` verb to the ``audio2pose`` parser."""
+    render = verbs.add_parser(
+        "render", help="video of the robot moving for a WAV (+ MCAP bag for Foxglove)"
+    )
+    render.add_argument("wav", nargs="?", metavar="FILE.wav", help="speech (not with --data)")
+    render.add_argument("-o", "--output", required=True, metavar="OUT.mp4")
+    render.add_argument("--model", help="checkpoint (default: packaged model)")
+    source = render.add_mutually_exclusive_group()
+    source.add_argument("--bag", help="render the joint angles recorded in this rosbag2")
+    source.add_argument(
+        "--compare", nargs=2, metavar=("CKPT_A", "CKPT_B"), help="two models side by side"
+    )
+    source.add_argument("--data", metavar="DIR", help="data set: --model next to a clip's truth")
+    render.add_argument("--clip", metavar="ID", help="clip id in the --data set")
+    render.add_argument("--side", action="store_true", help="add a side view")
+    render.add_argument(
+        "--mcap", metavar="PATH", help="bag directory to write (default: OUT_mcap next to OUT.mp4)"
+    )
+    defaults = RenderSettings()
+    render.add_argument("--fps", type=float, default=defaults.fps, help="frame rate (%(default)s)")
+    render.add_argument(
+        "--view-width", type=int, default=defaults.view_width_px, help="px (%(default)s)"
+    )
+    render.add_argument(
+        "--view-height", type=int, default=defaults.view_height_px, help="px (%(default)s)"
+    )
+    render.add_argument(
+        "--curves-height", type=int, default=defaults.curves_height_px, help="px (%(default)s)"
+    )
+    render.add_argument("--no-progress", action="store_true", help="no progress bar")
+    render.set_defaults(func=command_render)

@@ -1,0 +1,131 @@
+"""Joint trajectories to look at: synthesized, recorded in a bag, or a data set's ground truth.
+
+A :class:`Trajectory` is timed joint angles (seconds, radians) with labels; renderers and bag
+writers sample it at their own rate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from audio2pose_ros.robot import RobotDescription
+
+JOINT_STATES_TOPIC = "/joint_states"
+JOINT_ANGLES_TOPIC = "/joint_angles"
+AUDIO_TOPIC = "/audio/audio"
+
+
+class TrajectoryError(ValueError):
+    """A trajectory source holds no usable joint angles."""
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Joint angles over time.
+
+    Attributes:
+        label: what produced it (shown in videos), e.g. a checkpoint's file name.
+        times_s: (T,) increasing sample times from the start of the audio.
+        angles_rad: (T, J) angles in ``joint_names`` order.
+        joint_names: the J joint names.
+
+    """
+
+    label: str
+    times_s: np.ndarray
+    angles_rad: np.ndarray
+    joint_names: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        """Reject empty or misshapen trajectories."""
+        shape = (len(self.times_s), len(self.joint_names))
+        if self.angles_rad.shape != shape or shape[0] == 0:
+            raise TrajectoryError(
+                f"{self.label}: angles of shape {self.angles_rad.shape}, expected {shape}, T > 0"
+            )
+
+    @property
+    def duration_s(self) -> float:
+        """Time of the last sample."""
+        return float(self.times_s[-1])
+
+    def sample(self, times_s: np.ndarray) -> np.ndarray:
+        """Linearly interpolated angles at ``times_s``: (len(times_s), J); held at both ends."""
+        return np.stack(
+            [np.interp(times_s, self.times_s, column) for column in self.angles_rad.T], axis=1
+        )
+
+
+def synthesized_trajectory(
+    checkpoint_path: str | Path, signal_16k: np.ndarray, robot: RobotDescription
+) -> Trajectory:
+    """Offline synthesis (seed 003 section 4.4.1) of a 16 kHz utterance with a checkpoint."""
+    from audio2pose_ros.models.checkpoint import load_checkpoint
+    from audio2pose_ros.synthesis import synthesize
+
+    checkpoint = load_checkpoint(checkpoint_path, robot=robot)
+    times_s, angles_rad = synthesize(checkpoint, signal_16k)
+    return Trajectory(Path(checkpoint_path).stem, times_s, angles_rad, robot.names)
+
+
+def clip_trajectory(
+    dataset_dir: str | Path, clip_id: str, robot: RobotDescription
+) -> tuple[Trajectory, np.ndarray]:
+    """A data set clip's recorded motion (unobserved angles at neutral) and its 16 kHz audio."""
+    from audio2pose_ros.dataset import MOTION_RATE_HZ, Dataset
+
+    clip = Dataset.open(dataset_dir, robot).load(clip_id)
+    angles_rad = np.where(clip.mask, clip.angles_rad, robot.neutral_rad)
+    times_s = np.arange(clip.n_frames) / MOTION_RATE_HZ
+    return Trajectory(f"ground truth {clip_id}", times_s, angles_rad, robot.names), clip.audio
+
+
+def bag_trajectory(bag_path: str | Path, robot: RobotDescription) -> Trajectory:
+    """Joint angles recorded by ``audio2pose run --record`` (or any rosbag2 with these topics).
+
+    /joint_states (sensor_msgs/JointState) is used when present, else /joint_angles
+    (naoqi_bridge_msgs/JointAnglesWithSpeed). Times count from the first audio message on
+    /audio/audio when the bag has one (the recorder stores the audio it played), else from the
+    first joint message. Joints a message leaves out keep their previous (initially neutral) value.
+
+    Raises:
+        TrajectoryError: the bag has neither topic or no messages on it.
+
+    """
+    from rosbags.highlevel import AnyReader
+
+    from audio2pose_ros.bag import typestore
+
+    with AnyReader([Path(bag_path)], default_typestore=typestore()) as reader:
+        topics = {c.topic: c for c in reader.connections}
+        topic = next((t for t in (JOINT_STATES_TOPIC, JOINT_ANGLES_TOPIC) if t in topics), None)
+        if topic is None:
+            raise TrajectoryError(
+                f"{bag_path}: no {JOINT_STATES_TOPIC} or {JOINT_ANGLES_TOPIC} (topics: "
+                f"{sorted(topics)})"
+            )
+        audio = [topics[AUDIO_TOPIC]] if AUDIO_TOPIC in topics else []
+        start_ns = next((t for _, t, _ in reader.messages(connections=audio)), None)
+        index = {name: i for i, name in enumerate(robot.names)}
+        current = robot.neutral_rad.copy()
+        stamps_ns, rows = [], []
+        for connection, timestamp_ns, raw in reader.messages(connections=[topics[topic]]):
+            msg = reader.deserialize(raw, connection.msgtype)
+            names, values = (
+                (msg.name, msg.position)
+                if topic == JOINT_STATES_TOPIC
+                else (msg.joint_names, msg.joint_angles)
+            )
+            for name, value in zip(names, values, strict=False):
+                if name in index:
+                    current[index[name]] = value
+            stamps_ns.append(timestamp_ns)
+            rows.append(current.copy())
+    if not rows:
+        raise TrajectoryError(f"{bag_path}: no messages on {topic}")
+    stamps = np.asarray(stamps_ns, dtype=np.int64)
+    times_s = (stamps - (start_ns if start_ns is not None else stamps[0])) * 1e-9
+    return Trajectory(f"bag {Path(bag_path).name}", times_s, np.asarray(rows), robot.names)

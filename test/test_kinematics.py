@@ -1,0 +1,98 @@
+"""Forward kinematics of urdf/pepper.urdf: where the head and hands are, and where they go."""
+
+import numpy as np
+import pytest
+
+from audio2pose_ros.kinematics import KinematicsError, RobotKinematics, axis_angle_matrix
+from audio2pose_ros.robot import load_robot
+
+
+@pytest.fixture(scope="module")
+def kinematics():
+    return RobotKinematics()
+
+
+@pytest.fixture(scope="module")
+def neutral():
+    robot = load_robot()
+    return dict(zip(robot.names, robot.neutral_rad.tolist(), strict=True))
+
+
+def position(kinematics, positions, link, frame=None):
+    poses = kinematics.link_poses(positions)
+    pose = poses[link] if frame is None else np.linalg.inv(poses[frame]) @ poses[link]
+    return pose[:3, 3]
+
+
+def test_when_rotating_about_z_by_a_quarter_turn_expect_x_onto_y():
+    rotation = axis_angle_matrix(np.array([0.0, 0.0, 1.0]), np.pi / 2)
+    np.testing.assert_allclose(rotation @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-12)
+
+
+def test_when_in_neutral_pose_expect_head_above_torso_and_hands_below_shoulders(
+    kinematics, neutral
+):
+    head = position(kinematics, neutral, "Head")
+    torso = position(kinematics, neutral, "torso")
+    assert head[2] > torso[2] + 0.15
+    for side, sign in (("l", 1), ("r", -1)):
+        hand = position(kinematics, neutral, f"{side}_gripper")
+        shoulder = position(kinematics, neutral, f"{side.upper()}Shoulder")
+        assert hand[2] < shoulder[2] - 0.2
+        assert sign * hand[1] > 0.1
+
+
+def test_when_head_yaw_is_positive_expect_the_face_turns_to_the_left(kinematics, neutral):
+    straight = kinematics.link_poses(neutral)["Head"][:3, 0]
+    turned = kinematics.link_poses({**neutral, "HeadYaw": 0.5})["Head"][:3, 0]
+    assert abs(straight[1]) < 1e-9
+    assert turned[1] == pytest.approx(np.sin(0.5) * straight[0])  # the horizontal part turns
+
+
+def test_when_head_pitch_is_positive_expect_the_face_looks_down(kinematics, neutral):
+    down = kinematics.link_poses({**neutral, "HeadPitch": 0.4})["Head"][:3, 0]
+    up = kinematics.link_poses({**neutral, "HeadPitch": -0.6})["Head"][:3, 0]
+    assert down[2] < 0 < up[2]
+
+
+def test_when_left_shoulder_pitch_decreases_expect_the_left_hand_forward_and_up(
+    kinematics, neutral
+):
+    hand = [
+        position(kinematics, {**neutral, "LShoulderPitch": pitch}, "l_gripper")
+        for pitch in (np.pi / 2, 0.8, 0.0)
+    ]
+    assert hand[0][2] < hand[1][2] < hand[2][2]
+    assert hand[0][0] < hand[2][0]
+    right = position(kinematics, {**neutral, "LShoulderPitch": 0.0}, "r_gripper")
+    np.testing.assert_allclose(right, position(kinematics, neutral, "r_gripper"))
+
+
+def test_when_shoulder_roll_opens_expect_each_hand_moves_outwards(kinematics, neutral):
+    left = position(kinematics, {**neutral, "LShoulderRoll": 1.0}, "l_gripper")
+    right = position(kinematics, {**neutral, "RShoulderRoll": -1.0}, "r_gripper")
+    assert left[1] > position(kinematics, neutral, "l_gripper")[1] + 0.1
+    assert right[1] < position(kinematics, neutral, "r_gripper")[1] - 0.1
+
+
+def test_when_hip_roll_changes_expect_the_upper_body_tilts_sideways_over_the_base(
+    kinematics, neutral
+):
+    upright = position(kinematics, neutral, "Head", frame="Tibia")
+    left = position(kinematics, {**neutral, "HipRoll": 0.4}, "Head", frame="Tibia")
+    right = position(kinematics, {**neutral, "HipRoll": -0.4}, "Head", frame="Tibia")
+    assert abs(upright[1]) < 1e-9
+    assert left[1] > 0.08
+    assert right[1] < -0.08
+    assert left[2] < upright[2]
+
+
+def test_when_a_joint_is_left_out_expect_its_default_inside_its_limits(kinematics):
+    positions = kinematics.resolve({})
+    assert positions["LHand"] == pytest.approx(0.02)
+    assert positions["HeadYaw"] == 0.0
+
+
+def test_when_naming_an_unknown_joint_expect_an_error_naming_it(kinematics):
+    with pytest.raises(KinematicsError, match="Elbow2"):
+        kinematics.link_poses({"Elbow2": 0.1})
