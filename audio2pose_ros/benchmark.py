@@ -6,6 +6,11 @@ one step of the motion filter (jitter buffer, Kalman smoothing, limits). Seed 00
 reports 10 +- 6 ms for the whole per-frame processing on a laptop; the reference column here is
 the seed's own approach to online features: python_speech_features run on the latest 25 ms window
 for every frame.
+
+:func:`model_costs` compares the model families: for each registered streaming model the cost
+of one ``step`` of its streaming predictor, and for every model the offline throughput of
+:func:`~audio2pose_ros.synthesis.synthesize` (features, model, smoothing) in seconds of audio per
+second. Costs do not depend on the weights, so untrained models of the default sizes are timed.
 """
 
 from __future__ import annotations
@@ -15,10 +20,19 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
-from audio2pose_ros.audio.features import StreamingFeatureExtractor
+from audio2pose_ros.audio.features import (
+    FeatureNormalizer,
+    FeatureSpec,
+    StreamingFeatureExtractor,
+    extract_features,
+)
+from audio2pose_ros.models import MODEL_REGISTRY, build_model
 from audio2pose_ros.models.checkpoint import Checkpoint
 from audio2pose_ros.motion.filter import MotionFilter
+from audio2pose_ros.robot import RobotDescription
+from audio2pose_ros.synthesis import synthesize
 
 
 @dataclass(frozen=True)
@@ -110,3 +124,55 @@ def reference_feature_cost(signal_16k: np.ndarray, n_frames: int = 1000) -> Timi
         "python_speech_features.logfbank per 25 ms window",
         _time_calls([lambda w=w: logfbank(w, 16000, nfft=512) for w in windows]),
     )
+
+
+@dataclass(frozen=True)
+class ModelCost:
+    """Cost of one model family.
+
+    Attributes:
+        name: registry name.
+        step: per-frame cost of the streaming predictor; None for offline-only models.
+        offline_audio_s_per_s: seconds of audio synthesised offline per second of compute.
+
+    """
+
+    name: str
+    step: Timing | None
+    offline_audio_s_per_s: float
+
+
+def model_costs(
+    signal_16k: np.ndarray, robot: RobotDescription, n_frames: int = 2000, repeats: int = 3
+) -> list[ModelCost]:
+    """Time every registered model on ``signal_16k`` (run it on one core for stable numbers).
+
+    Args:
+        signal_16k: speech at 16 kHz; offline throughput is measured on the whole signal.
+        robot: output joints.
+        n_frames: streaming steps timed per model (the signal's frames, repeated).
+        repeats: offline syntheses per model; the fastest counts.
+
+    Returns:
+        One :class:`ModelCost` per registered model, in registry order.
+
+    """
+    spec = FeatureSpec()
+    raw = extract_features(signal_16k, spec)
+    normalizer = FeatureNormalizer.fit(raw)
+    frames = np.resize(normalizer.apply(raw), (n_frames, spec.dim))
+    audio_s = signal_16k.shape[0] / spec.sample_rate_hz
+    costs = []
+    for name in MODEL_REGISTRY:
+        torch.manual_seed(0)
+        model = build_model(name, {"n_features": spec.dim, "n_joints": robot.n_joints}).eval()
+        step = None
+        if model.streaming:
+            step_fn = model.streaming_predictor().step
+            step = Timing.of(name, _time_calls([lambda f=f, s=step_fn: s(f) for f in frames]))
+        checkpoint = Checkpoint(model, spec, normalizer, robot)
+        durations = _time_calls(
+            [lambda c=checkpoint: synthesize(c, signal_16k) for _ in range(repeats)]
+        )
+        costs.append(ModelCost(name, step, audio_s / (min(durations) / 1e9)))
+    return costs

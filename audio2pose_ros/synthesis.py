@@ -3,6 +3,8 @@
 Features of the whole signal are z-normalised with the checkpoint's statistics, the model predicts
 range-normalised poses, nu^-1 maps them back to radians (eq. 3.14), the seed's zero-phase
 5th-order 4 Hz Butterworth filter smooths them, and the result is clamped to the joint limits.
+Every model works here, offline-only ones included; samplers (``model.stochastic``) draw one
+motion with a given seed and temperature, so a synthesis is reproducible.
 """
 
 from __future__ import annotations
@@ -18,16 +20,34 @@ from audio2pose_ros.models.checkpoint import Checkpoint
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
 
 
-def predict_normalized(checkpoint: Checkpoint, signal_16k: np.ndarray) -> np.ndarray:
-    """Raw model output for a whole utterance: (n_frames, n_joints) in [0, 1]."""
+def predict_normalized(
+    checkpoint: Checkpoint, signal_16k: np.ndarray, seed: int = 0, temperature: float = 1.0
+) -> np.ndarray:
+    """Raw model output for a whole utterance: (n_frames, n_joints) in [0, 1].
+
+    Args:
+        checkpoint: loaded model with its features and normalisation.
+        signal_16k: float samples at 16 kHz.
+        seed: seed of a sampler's noise (ignored by deterministic models).
+        temperature: a sampler's noise scale; 0 gives its most likely motion.
+
+    """
     features = extract_features(signal_16k, checkpoint.features)
-    normalized = checkpoint.normalizer.apply(features)
+    normalized = torch.tensor(checkpoint.normalizer.apply(features)[None], dtype=torch.float32)
+    model = checkpoint.model
     with torch.no_grad():
-        return checkpoint.model(torch.tensor(normalized[None], dtype=torch.float32))[0].numpy()
+        if model.stochastic and temperature > 0:
+            generator = torch.Generator().manual_seed(seed)
+            return model.sample(normalized, 1, generator, temperature)[0, 0].numpy()
+        return model(normalized)[0].numpy()
 
 
 def synthesize(
-    checkpoint: Checkpoint, signal_16k: np.ndarray, smooth: bool = True
+    checkpoint: Checkpoint,
+    signal_16k: np.ndarray,
+    smooth: bool = True,
+    seed: int = 0,
+    temperature: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Synthesize joint angles for a whole 16 kHz mono utterance.
 
@@ -35,6 +55,8 @@ def synthesize(
         checkpoint: loaded model with its features, normalisation and robot.
         signal_16k: float samples at 16 kHz in [-1, 1].
         smooth: apply the seed's zero-phase 4 Hz Butterworth low-pass.
+        seed: seed of a sampler's noise (ignored by deterministic models).
+        temperature: a sampler's noise scale; 0 gives its most likely motion.
 
     Returns:
         ``(times_s, angles_rad)``: (n_frames,) frame times from 0 at the feature step, and
@@ -42,7 +64,7 @@ def synthesize(
 
     """
     robot = checkpoint.robot
-    angles = robot.denormalize(predict_normalized(checkpoint, signal_16k))
+    angles = robot.denormalize(predict_normalized(checkpoint, signal_16k, seed, temperature))
     rate_hz = 1.0 / checkpoint.features.step_s
     if smooth:
         angles = butterworth_zero_phase(angles, rate_hz=rate_hz)

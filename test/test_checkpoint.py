@@ -98,3 +98,23 @@ def test_when_loading_packaged_default_expect_it_matches_the_robot(robot):
     checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
     assert checkpoint.model.streaming
     assert "not human motion" in checkpoint.info["trained_on"]
+
+
+@pytest.mark.parametrize("name", ["lstm", "dae_gru", "blstm", "blstm_prior", "cvae", "live"])
+def test_when_any_model_saved_and_loaded_expect_same_output(name, tmp_path, robot):
+    from audio2pose_ros.models import build_model
+
+    torch.manual_seed(0)
+    model = build_model(name, {}).eval()
+    checkpoint = Checkpoint(
+        model=model,
+        features=FeatureSpec(),
+        normalizer=FeatureNormalizer.fit(np.random.default_rng(0).normal(size=(50, 26))),
+        robot=robot,
+    )
+    path = save_checkpoint(tmp_path / f"{name}.safetensors", checkpoint)
+    loaded = load_checkpoint(path, robot=robot)
+    x = torch.randn(1, 40, 26)
+    with torch.no_grad():
+        torch.testing.assert_close(loaded.model(x), model(x))
+    assert loaded.model.streaming == model.streaming

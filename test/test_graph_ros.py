@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import rclpy
 from audio_common_msgs.msg import AudioData, AudioInfo
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -236,19 +236,71 @@ def test_when_audio_is_malformed_expect_logged_skipped_and_node_keeps_running(
     assert "dropped an audio chunk" in log
 
 
-def test_when_checkpoint_tampered_expect_inference_node_exits_with_reason(tmp_path: Path):
+def run_inference_node_until_error(probe: Probe, model: Path, log: Path) -> str:
+    """Start inference_node on ``model``; return its ERROR diagnostics message.
+
+    Asserts that the node stays up (a respawning supervisor would loop on an exit) and
+    publishes no trajectory.
+    """
+    with log.open("w") as stream:
+        process = subprocess.Popen(
+            [*executable_command("inference_node"), "--ros-args", "-p", f"model_path:={model}"],
+            stdout=stream,
+            stderr=subprocess.STDOUT,
+        )
+
+    def error_status():
+        return next(
+            (
+                status
+                for array in probe.received["diagnostics"]
+                for status in array.status
+                if status.level == DiagnosticStatus.ERROR and status.name.endswith("inference_node")
+            ),
+            None,
+        )
+
+    try:
+        probe.wait_until(lambda: error_status() is not None, timeout_s=60)
+        probe.spin_for(2.0)
+        assert process.poll() is None, "the node exited: a respawning supervisor would loop"
+        assert probe.received["raw"] == []
+    finally:
+        process.terminate()
+        process.wait(timeout=10)
+    assert "Traceback" not in log.read_text()
+    return error_status().message
+
+
+def test_when_checkpoint_tampered_expect_idle_node_reporting_error(tmp_path: Path, probe: Probe):
     from audio2pose_ros.resources import default_checkpoint_path
 
     data = bytearray(default_checkpoint_path().read_bytes())
     data[-5] ^= 0x55
     tampered = tmp_path / "tampered.safetensors"
     tampered.write_bytes(bytes(data))
-    result = subprocess.run(
-        [*executable_command("inference_node"), "--ros-args", "-p", f"model_path:={tampered}"],
-        capture_output=True,
-        text=True,
-        timeout=60,
+    message = run_inference_node_until_error(probe, tampered, tmp_path / "node.log")
+    assert "configuration error" in message
+    assert "checksum mismatch" in message
+
+
+def test_when_model_is_offline_only_expect_refusal_pointing_to_synth(
+    tmp_path: Path, probe: Probe, robot
+):
+    from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec
+    from audio2pose_ros.models import build_model
+    from audio2pose_ros.models.checkpoint import Checkpoint, save_checkpoint
+
+    spec = FeatureSpec()
+    model = build_model("cvae", {"n_features": spec.dim, "n_joints": robot.n_joints})
+    path = save_checkpoint(
+        tmp_path / "cvae.safetensors",
+        Checkpoint(
+            model,
+            spec,
+            FeatureNormalizer.fit(np.random.default_rng(0).normal(size=(50, spec.dim))),
+            robot,
+        ),
     )
-    assert result.returncode == 1
-    assert "checksum mismatch" in result.stderr + result.stdout
-    assert "Traceback" not in result.stderr
+    message = run_inference_node_until_error(probe, path, tmp_path / "node.log")
+    assert "audio2pose synth" in message

@@ -96,7 +96,7 @@ def command_bench(args: argparse.Namespace) -> int:
     import torch
 
     from audio2pose_ros.audio.pcm import read_wav
-    from audio2pose_ros.benchmark import reference_feature_cost, streaming_costs
+    from audio2pose_ros.benchmark import model_costs, reference_feature_cost, streaming_costs
     from audio2pose_ros.models.checkpoint import load_checkpoint
     from audio2pose_ros.motion.filter import MotionFilter
     from audio2pose_ros.resources import bundled_speech_path, default_checkpoint_path
@@ -121,6 +121,19 @@ def command_bench(args: argparse.Namespace) -> int:
         f"whole online frame: {total.median_us:.1f} us median = "
         f"{100 * total.median_us / 10_000:.2f} % of the 10 ms frame period"
     )
+    if not args.skip_models:
+        print(
+            f"\nevery model family (untrained weights; cost does not depend on them), "
+            f"{len(signal) / 16000:.1f} s clip"
+        )
+        print(f"{'model':<14}{'step median us':>16}{'step p99 us':>14}{'offline x real time':>22}")
+        for cost in model_costs(signal, robot, n_frames=min(args.frames, 2000)):
+            step = (
+                f"{cost.step.median_us:>16.1f}{cost.step.p99_us:>14.1f}"
+                if cost.step
+                else f"{'offline only':>16}{'':>14}"
+            )
+            print(f"{cost.name:<14}{step}{cost.offline_audio_s_per_s:>22.0f}")
     return 0
 
 
@@ -222,6 +235,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench = verbs.add_parser("bench", help="per-frame cost of the streaming path")
     bench.add_argument("--model", help="checkpoint (default: packaged model)")
     bench.add_argument("--frames", type=int, default=3000, help="frames to time (default 3000)")
+    bench.add_argument("--skip-models", action="store_true", help="skip the per-model table")
     bench.set_defaults(func=command_bench)
 
     plot = verbs.add_parser("plot-filter", help="PNG of raw model output vs the motion filter")
@@ -253,9 +267,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _command_modules() -> list[Callable[[argparse._SubParsersAction], None]]:
     """``register(verbs)`` functions of the verbs that live in their own modules."""
-    from audio2pose_ros.cli import bag_commands, render_commands
+    from audio2pose_ros.cli import bag_commands, model_commands, render_commands
 
-    return [bag_commands.register, render_commands.register]
+    return [model_commands.register, bag_commands.register, render_commands.register]
 
 
 def main(argv: list[str] | None = None) -> int:

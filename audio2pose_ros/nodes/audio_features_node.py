@@ -140,7 +140,7 @@ class AudioFeaturesNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until shutdown."""
-    run_node(AudioFeaturesNode, args)
+    run_node(AudioFeaturesNode, "audio_features_node", args)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -136,19 +135,47 @@ class StartupError(RuntimeError):
     """A node cannot start with its parameters (bad model, robot file, settings)."""
 
 
-def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> None:
+class ConfigurationErrorNode(Node):
+    """Stands in for a node whose configuration is unusable: safe, visible, never restarting.
+
+    It publishes nothing but an ERROR status on /diagnostics every second, so the robot gets no
+    commands from it, operators see why, and a supervisor that respawns crashed processes
+    (``respawn=True`` in a launch file) is not sent into a restart loop.
+    """
+
+    def __init__(self, node_name: str, reason: str) -> None:
+        """Log the reason and start the diagnostics timer."""
+        super().__init__(node_name)
+        self.reason = reason
+        self.get_logger().fatal(f"cannot start: {reason}; idle until restarted with a fix")
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
+
+    def publish_diagnostics(self) -> None:
+        """ERROR status with the reason."""
+        self.diagnostics_pub.publish(
+            diagnostic_array(
+                self,
+                DiagnosticStatus.ERROR,
+                f"configuration error: {self.reason}",
+                {"state": "idle, publishing nothing"},
+            )
+        )
+
+
+def run_node(factory: Callable[[], Node], node_name: str, args: list[str] | None = None) -> None:
     """The ros2/examples main: init, spin until Ctrl-C or shutdown, clean up.
 
-    A :class:`StartupError` is logged and ends the process with exit code 1 (no traceback, no
-    restart loop: the message says what to fix).
+    A :class:`StartupError` (bad model, robot file or settings) does not end the process: the
+    node is replaced by a :class:`ConfigurationErrorNode` that says why on the log and on
+    /diagnostics and publishes nothing else.
     """
     try:
         with rclpy.init(args=args):
             try:
                 node = factory()
             except StartupError as exc:
-                rclpy.logging.get_logger("audio2pose_ros").fatal(f"cannot start: {exc}")
-                sys.exit(1)
+                node = ConfigurationErrorNode(node_name, str(exc))
             rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -28,6 +28,7 @@ from rclpy.node import Node
 from std_msgs.msg import Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
+from audio2pose_ros.models import OfflineOnlyModelError, require_streaming
 from audio2pose_ros.models.checkpoint import load_checkpoint
 from audio2pose_ros.nodes.common import (
     DIAGNOSTICS_PERIOD_S,
@@ -57,11 +58,10 @@ class InferenceNode(Node):
         except (OSError, ValueError) as exc:
             raise StartupError(str(exc)) from None
         model = self.checkpoint.model
-        if not model.streaming:
-            raise StartupError(
-                f"{model_path}: model {model.name!r} needs the whole utterance and cannot run "
-                f"online; use `audio2pose synth FILE.wav --model {model_path}` instead"
-            )
+        try:
+            require_streaming(model, str(model_path))
+        except OfflineOnlyModelError as exc:
+            raise StartupError(str(exc)) from None
         self.predictor = model.streaming_predictor()
         self.robot = robot
         spec = self.checkpoint.features
@@ -140,7 +140,7 @@ class InferenceNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until shutdown."""
-    run_node(InferenceNode, args)
+    run_node(InferenceNode, "inference_node", args)
 
 
 if __name__ == "__main__":

@@ -242,7 +242,7 @@ class MotionFilterNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until shutdown."""
-    run_node(MotionFilterNode, args)
+    run_node(MotionFilterNode, "motion_filter_node", args)
 
 
 if __name__ == "__main__":

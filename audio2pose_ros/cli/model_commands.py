@@ -1,0 +1,105 @@
+"""``audio2pose train`` and ``audio2pose evaluate``: training and comparing pose models.
+
+:func:`register` adds both verbs to the main parser. Each handler is a function
+``command_<verb>(args) -> int``; the library raises typed errors (``ValueError`` subclasses),
+which the main entry point reports as one line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def command_train(args: argparse.Namespace) -> int:
+    """Train a model on a data set folder and write its checkpoint."""
+    from audio2pose_ros.robot import load_robot
+    from audio2pose_ros.training import TrainSettings, train_from_dataset
+
+    settings = TrainSettings(max_epochs=args.max_epochs, seed=args.seed)
+    checkpoint, report = train_from_dataset(
+        Path(args.data),
+        Path(args.output),
+        load_robot(),
+        model_name=args.model,
+        speaker=args.speaker,
+        finetune=Path(args.finetune) if args.finetune else None,
+        settings=settings,
+        resume=args.resume,
+        holdout=args.holdout,
+    )
+    for stage in report.stages:
+        print(
+            f"{stage.name}: {stage.epochs} epochs, best epoch {stage.best_epoch}, "
+            f"validation loss {stage.best_val_loss:.5f}, "
+            f"final learning rate {stage.learning_rate:.0e}"
+        )
+    print(
+        f"wrote {args.output} ({checkpoint.model.name}, {len(checkpoint.info['train_clips'])} "
+        f"training clips, subject-{checkpoint.info['subject']})"
+    )
+    return 0
+
+
+def command_evaluate(args: argparse.Namespace) -> int:
+    """Evaluate checkpoints and baselines on a split; print the table, save PNGs."""
+    from audio2pose_ros.dataset import Dataset
+    from audio2pose_ros.evaluation import evaluate
+    from audio2pose_ros.models.checkpoint import load_checkpoint
+    from audio2pose_ros.robot import load_robot
+
+    robot = load_robot()
+    dataset = Dataset.open(Path(args.data), robot)
+    checkpoints = [(Path(p), load_checkpoint(p, robot=robot)) for p in args.checkpoints]
+    out_dir = Path(args.out) if args.out else None
+    result = evaluate(
+        checkpoints,
+        dataset,
+        robot,
+        split=args.split,
+        out_dir=out_dir,
+        n_samples=args.samples,
+        seed=args.seed,
+        progress=lambda clip: print(f"evaluating {clip} ...", file=sys.stderr, flush=True),
+    )
+    table = result.table()
+    print(table)
+    if out_dir is not None:
+        (out_dir / "metrics.txt").write_text(table + "\n", encoding="utf-8")
+        print(f"wrote {len(result.figures)} figures and metrics.txt to {out_dir}")
+    return 0
+
+
+def register(verbs: argparse._SubParsersAction) -> None:
+    """Add the ``train`` and ``evaluate`` sub-commands to the ``audio2pose`` parser."""
+    from audio2pose_ros.models import MODEL_REGISTRY
+    from audio2pose_ros.training import HOLDOUTS
+
+    train = verbs.add_parser("train", help="train a pose model on a data set folder")
+    train.add_argument("--model", choices=sorted(MODEL_REGISTRY), help="model family")
+    train.add_argument("--data", required=True, metavar="DIR", help="data set folder")
+    train.add_argument("-o", "--output", required=True, metavar="CKPT.safetensors")
+    train.add_argument("--speaker", help="train on this speaker only (subject-dependent)")
+    train.add_argument("--finetune", metavar="CKPT", help="start from this checkpoint")
+    train.add_argument("--max-epochs", type=int, default=500, help="per stage (default 500)")
+    train.add_argument("--seed", type=int, default=0)
+    train.add_argument(
+        "--resume", action="store_true", help="continue from the training state next to -o"
+    )
+    train.add_argument(
+        "--holdout",
+        choices=HOLDOUTS,
+        default="clip",
+        help="without a validation split, hold out clips or whole speakers (default: clip)",
+    )
+    train.set_defaults(func=command_train)
+
+    evaluate = verbs.add_parser("evaluate", help="compare checkpoints and baselines")
+    evaluate.add_argument("checkpoints", nargs="+", metavar="CKPT")
+    evaluate.add_argument("--data", required=True, metavar="DIR", help="data set folder")
+    evaluate.add_argument("--split", default="test", choices=("train", "validation", "test"))
+    evaluate.add_argument("--out", metavar="DIR", help="write one PNG per clip and the table")
+    evaluate.add_argument("--samples", type=int, default=3, help="samples for diversity")
+    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.set_defaults(func=command_evaluate)

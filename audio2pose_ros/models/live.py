@@ -1,0 +1,232 @@
+"""The live model: a causal, autoregressive GRU sampler that streams (this package's own).
+
+Seeds 000 and 003 report averaged, slow motion as the main weakness of MSE regression, which
+collapses the one-to-many speech-to-motion mapping to its mean; seed 002 section 3.3 answers it
+with a CVAE that needs the whole utterance. This model keeps the answer and streams: at frame t a
+GRU reads the audio features x_t and its own previous pose y_{t-1}, and outputs a Gaussian over
+the pose, mean mu_t (sigmoid, in [0, 1]) and standard deviation sigma_t. It samples
+y_t = clip(mu_t + temperature * sigma_t * e_t, 0, 1), where e_t is unit-variance noise that is
+correlated over time, e_t = rho e_{t-1} + sqrt(1 - rho^2) n_t with n_t ~ N(0, I), so samples
+wander smoothly instead of jittering at 100 Hz; temperature 0 gives the deterministic
+``forward``. Conditioning on its own output lets a sample commit to one of several plausible
+motions and continue it.
+
+Training (teacher forcing): the previous ground-truth pose, corrupted with Gaussian noise of
+``input_noise`` so the model does not learn to copy it, is the pose input; the loss is the
+Gaussian negative log-likelihood of the true pose (masked), Adam as in seed 003. The first
+frame's previous pose is a learned start pose.
+Streams: yes (one GRU cell step per frame; the streaming predictor is numpy and samples with a
+settable seed and temperature).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+from scipy import signal
+from torch import nn
+
+from audio2pose_ros.models.base import PoseModel, StreamingPredictor
+from audio2pose_ros.models.recurrent_numpy import CellWeights, gru_step, linear_weights, sigmoid
+
+_MIN_LOG_STD = -7.0  # sigma >= 1e-3 of the joint range: keeps the likelihood finite
+_MAX_LOG_STD = 0.0
+
+
+@dataclass(frozen=True)
+class LiveConfig:
+    """Architecture of :class:`LiveSampler`."""
+
+    n_features: int = 26
+    n_joints: int = 11
+    hidden_units: int = 48
+    input_noise: float = 0.05  # std of the noise on teacher-forced poses, [0, 1] units
+    noise_correlation: float = 0.95  # rho of the sampling noise (0 = white)
+
+
+class LiveSampler(PoseModel):
+    """Autoregressive Gaussian GRU; forward maps (B, T, F) -> (B, T, J) at temperature 0."""
+
+    name: ClassVar[str] = "live"
+    streaming: ClassVar[bool] = True
+    stochastic: ClassVar[bool] = True
+
+    def __init__(self, config: LiveConfig) -> None:
+        """Build the GRU, the Gaussian output layer and the start pose."""
+        super().__init__()
+        if not 0.0 <= config.noise_correlation < 1.0:
+            raise ValueError(f"noise_correlation must be in [0, 1), got {config.noise_correlation}")
+        self.config = config
+        self.gru = nn.GRU(
+            config.n_features + config.n_joints, config.hidden_units, batch_first=True
+        )
+        self.out = nn.Linear(config.hidden_units, 2 * config.n_joints)
+        self.start_pose = nn.Parameter(torch.full((config.n_joints,), 0.5))
+
+    def config_dict(self) -> dict[str, Any]:
+        """Constructor arguments as a dict."""
+        return asdict(self.config)
+
+    def _gaussian(self, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Hidden states -> (mean in [0, 1], log std), each (..., J)."""
+        raw_mean, raw_log_std = self.out(hidden).chunk(2, dim=-1)
+        return torch.sigmoid(raw_mean), raw_log_std.clamp(_MIN_LOG_STD, _MAX_LOG_STD)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        """Free-running at temperature 0: each mean is fed back as the next previous pose."""
+        previous = self.start_pose.expand(features.shape[0], -1)
+        state = None
+        poses = []
+        for t in range(features.shape[1]):
+            step_in = torch.cat([features[:, t], previous], dim=-1)[:, None]  # (B, 1, F + J)
+            hidden, state = self.gru(step_in, state)
+            previous, _ = self._gaussian(hidden[:, 0])
+            poses.append(previous)
+        return torch.stack(poses, dim=1)
+
+    def training_loss(
+        self, features: torch.Tensor, targets: torch.Tensor, mask: torch.Tensor
+    ) -> torch.Tensor:
+        """Masked Gaussian negative log-likelihood under teacher forcing with noisy inputs."""
+        start = self.start_pose.expand(features.shape[0], 1, -1)
+        known = torch.where(mask, targets, start.expand_as(targets))
+        previous = torch.cat([start, known[:, :-1]], dim=1)
+        previous = previous + self.config.input_noise * torch.randn_like(previous)
+        hidden, _ = self.gru(torch.cat([features, previous], dim=-1))  # (B, T, H)
+        mean, log_std = self._gaussian(hidden)
+        nll = 0.5 * ((targets - mean) * torch.exp(-log_std)) ** 2 + log_std
+        weight = mask.to(nll.dtype)
+        return (nll * weight).sum() / weight.sum().clamp_min(1.0)
+
+    def sample(
+        self,
+        features: torch.Tensor,
+        n_samples: int,
+        generator: torch.Generator | None = None,
+        temperature: float = 1.0,
+    ) -> torch.Tensor:
+        """(B, T, F) -> (S, B, T, J); noise from ``generator``, recurrence run in numpy."""
+        batch, n_frames, _ = features.shape
+        core = self._core()
+        white = torch.randn(n_samples * batch, n_frames, self.config.n_joints, generator=generator)
+        x = np.tile(features.detach().cpu().double().numpy(), (n_samples, 1, 1))
+        poses = core.run(x, core.correlate(white.double().numpy()), temperature)
+        return torch.from_numpy(poses).float().view(n_samples, batch, n_frames, -1)
+
+    def _core(self) -> _LiveCore:
+        return _LiveCore(
+            CellWeights.of(self.gru),
+            *linear_weights(self.out),
+            self.start_pose.detach().cpu().double().numpy().copy(),
+            self.config.noise_correlation,
+        )
+
+    def streaming_predictor(self, seed: int = 0, temperature: float = 1.0) -> LivePredictor:
+        """Per-frame sampler; ``temperature`` 0 reproduces ``forward`` frame by frame."""
+        return LivePredictor(self._core(), seed, temperature)
+
+
+class _LiveCore:
+    """The live model's recurrence in numpy, for a batch of N sequences."""
+
+    def __init__(
+        self,
+        cell: CellWeights,
+        w_out: np.ndarray,
+        b_out: np.ndarray,
+        start_pose: np.ndarray,
+        rho: float,
+    ) -> None:
+        self.cell, self.w_out, self.b_out, self.start_pose = cell, w_out, b_out, start_pose
+        self.rho = rho
+        self.innovation = math.sqrt(1.0 - rho * rho)
+
+    def start(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Initial (hidden, previous pose) for ``n`` sequences."""
+        return np.zeros((n, self.cell.w_hh.shape[0])), np.tile(self.start_pose, (n, 1))
+
+    def correlate(self, white: np.ndarray) -> np.ndarray:
+        """(N, T, J) white noise -> unit-variance AR(1) noise e_t = rho e_(t-1) + ... over T."""
+        scaled = white.copy()
+        scaled[:, 0] /= self.innovation  # so that e_0 = white_0, already unit variance
+        return signal.lfilter([self.innovation], [1.0, -self.rho], scaled, axis=1)
+
+    def _output(self, hidden: np.ndarray, noise: np.ndarray, temperature: float) -> np.ndarray:
+        raw = hidden @ self.w_out + self.b_out
+        joints = raw.shape[-1] // 2
+        mean = sigmoid(raw[..., :joints])
+        if not temperature:
+            return mean
+        std = np.exp(np.minimum(np.maximum(raw[..., joints:], _MIN_LOG_STD), _MAX_LOG_STD))
+        return np.minimum(np.maximum(mean + temperature * std * noise, 0.0), 1.0)
+
+    def step(
+        self,
+        x: np.ndarray,
+        state: tuple[np.ndarray, np.ndarray],
+        noise: np.ndarray,
+        temperature: float,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        """(N, F) frame, state, (N, J) unit noise -> (N, J) poses and the new state."""
+        hidden, previous = state
+        hidden = gru_step(self.cell, np.concatenate([x, previous], axis=-1), hidden)
+        pose = self._output(hidden, noise, temperature)
+        return pose, (hidden, pose)
+
+    def run(self, x: np.ndarray, noise: np.ndarray, temperature: float) -> np.ndarray:
+        """(N, T, F) utterances and (N, T, J) unit noise -> (N, T, J) poses.
+
+        The same recurrence as :meth:`step`, with the audio half of the input projection
+        computed for all frames at once.
+        """
+        n, n_frames, n_features = x.shape
+        hidden_units = self.cell.w_hh.shape[0]
+        split = 2 * hidden_units  # reset and update gates | new gate
+        w_pose = self.cell.w_ih[n_features:]
+        audio_gates = x @ self.cell.w_ih[:n_features] + self.cell.b_ih  # (N, T, 3H)
+        hidden, previous = self.start(n)
+        poses = np.empty((n, n_frames, self.start_pose.shape[0]))
+        for t in range(n_frames):
+            gx = audio_gates[:, t] + previous @ w_pose
+            gh = hidden @ self.cell.w_hh + self.cell.b_hh
+            rz = sigmoid(gx[:, :split] + gh[:, :split])
+            new = np.tanh(gx[:, split:] + rz[:, :hidden_units] * gh[:, split:])
+            hidden = new + rz[:, hidden_units:] * (hidden - new)
+            previous = poses[:, t] = self._output(hidden, noise[:, t], temperature)
+        return poses
+
+
+class LivePredictor(StreamingPredictor):
+    """Streaming sampler of :class:`LiveSampler` with a settable seed and temperature."""
+
+    def __init__(self, core: _LiveCore, seed: int = 0, temperature: float = 1.0) -> None:
+        """Start a new utterance with noise from ``numpy.random.default_rng(seed)``."""
+        self._core = core
+        self.temperature = temperature
+        self.seed = seed
+        self.reset()
+
+    def reset(self, seed: int | None = None) -> None:
+        """Forget the state; optionally change the seed of the sampling noise."""
+        if seed is not None:
+            self.seed = seed
+        self._rng = np.random.default_rng(self.seed)
+        hidden, previous = self._core.start(1)
+        self._state = (hidden[0], previous[0])
+        self._noise = self._rng.standard_normal(previous.shape[1])
+        self._first = True
+
+    def step(self, features: np.ndarray) -> np.ndarray:
+        """Sample the pose of one (n_features,) frame."""
+        if not self._first:
+            fresh = self._rng.standard_normal(self._noise.shape[0])
+            self._noise = self._core.rho * self._noise + self._core.innovation * fresh
+        self._first = False
+        pose, self._state = self._core.step(
+            np.asarray(features, dtype=np.float64), self._state, self._noise, self.temperature
+        )
+        return pose
