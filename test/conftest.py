@@ -41,3 +41,15 @@ def speech(speech_path: Path) -> np.ndarray:
 @pytest.fixture(scope="session")
 def speech_files() -> list[Path]:
     return sorted(SPEECH_DIR.glob("*.wav"))
+
+
+@pytest.fixture
+def probe():
+    """A rclpy participant playing audio_capture and recording the graph (test/graph_probe.py)."""
+    import rclpy
+    from graph_probe import Probe
+
+    with rclpy.init():
+        node = Probe()
+        yield node
+        node.destroy_node()

@@ -8,119 +8,20 @@ commands are checked where naoqi_driver / ros2_control would receive them.
 from __future__ import annotations
 
 import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
 from audio_common_msgs.msg import AudioData, AudioInfo
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
-from rclpy.node import Node
-from sensor_msgs.msg import JointState
-from std_msgs.msg import Float32MultiArray
-from trajectory_msgs.msg import JointTrajectory
+from diagnostic_msgs.msg import DiagnosticStatus
+from graph_probe import Probe, diagnostics_of
 
 from audio2pose_ros.audio.pcm import PcmFormat, encode_pcm, read_wav
 from audio2pose_ros.cli.graph import executable_command, node_graph
-from audio2pose_ros.nodes.common import LATCHED_QOS
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 S16 = PcmFormat(sample_format="S16LE", channels=1, sample_rate_hz=16000, coding_format="wave")
-
-
-class Probe(Node):
-    """Publishes audio like audio_capture and records everything the graph sends."""
-
-    def __init__(self) -> None:
-        super().__init__("test_probe")
-        self.audio = self.create_publisher(AudioData, "/audio/audio", 100)
-        self.info = self.create_publisher(AudioInfo, "/audio/audio_info", LATCHED_QOS)
-        self.received: dict[str, list] = {
-            k: [] for k in ("angles", "trajectory", "states", "raw", "features", "diagnostics")
-        }
-        for key, msg_type, topic in (
-            ("angles", JointAnglesWithSpeed, "/joint_angles"),
-            ("trajectory", JointTrajectory, "/joint_trajectory_controller/joint_trajectory"),
-            ("states", JointState, "/joint_states"),
-            ("raw", JointTrajectory, "/raw_trajectory"),
-            ("features", Float32MultiArray, "/features"),
-            ("diagnostics", DiagnosticArray, "/diagnostics"),
-        ):
-            self.create_subscription(msg_type, topic, self.received[key].append, 1000)
-
-    def spin_for(self, seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            rclpy.spin_once(self, timeout_sec=0.005)
-
-    def wait_until(self, condition, timeout_s: float = 60.0) -> None:
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end:
-            if condition():
-                return
-            rclpy.spin_once(self, timeout_sec=0.05)
-        raise TimeoutError("condition not met in time")
-
-    def graph_ready(self) -> bool:
-        return (
-            self.audio.get_subscription_count() > 0
-            and self.count_subscribers("/features") > 0
-            and self.count_subscribers("/raw_trajectory") > 0
-            and self.count_publishers("/joint_angles") > 0
-        )
-
-    def warm_up(self) -> None:
-        """Send silence until poses come back: every link of the graph has matched.
-
-        DDS discovery is asymmetric: our side may see a subscriber before the node's own
-        publisher has matched the next node, and reliable volatile samples sent before that
-        are lost. 160-sample chunks keep the feature extractor aligned to whole frames.
-        """
-        silence = bytes(2 * 160)
-
-        def poses_arrive() -> bool:
-            self.audio.publish(AudioData(data=silence))
-            self.spin_for(0.02)
-            return bool(self.received["raw"]) and bool(self.received["angles"])
-
-        self.wait_until(poses_arrive, timeout_s=60)
-        for _ in range(5):  # make the warm-up longer than one 25 ms window
-            self.audio.publish(AudioData(data=silence))
-        self.spin_for(0.5)
-        for key in self.received:
-            self.received[key].clear()
-
-    def play(self, payload: bytes, chunk_sizes: list[int], bytes_per_s: float) -> int:
-        """Send ``payload`` in chunks of the given sizes (cycled), paced at ``bytes_per_s``."""
-        start, offset, i = time.monotonic(), 0, 0
-        while offset < len(payload):
-            size = chunk_sizes[i % len(chunk_sizes)]
-            due = start + offset / bytes_per_s
-            while time.monotonic() < due:
-                rclpy.spin_once(self, timeout_sec=0.001)
-            self.audio.publish(AudioData(data=payload[offset : offset + size]))
-            offset += size
-            i += 1
-        return i
-
-
-@pytest.fixture
-def probe():
-    with rclpy.init():
-        node = Probe()
-        yield node
-        node.destroy_node()
-
-
-def diagnostics_of(probe: Probe, node_name: str) -> dict[str, str]:
-    for array in reversed(probe.received["diagnostics"]):
-        for status in array.status:
-            if status.name.endswith(node_name):
-                return {kv.key: kv.value for kv in status.values}
-    return {}
 
 
 def test_when_speech_streamed_in_odd_chunks_expect_commands_for_11_joints_within_limits(
@@ -131,7 +32,7 @@ def test_when_speech_streamed_in_odd_chunks_expect_commands_for_11_joints_within
     payload = encode_pcm(samples, S16)
     rng = np.random.default_rng(7)
     chunk_sizes = [int(s) | 1 for s in rng.integers(1, 4000, size=64)]  # odd sizes: split samples
-    with node_graph(log_dir=tmp_path) as processes:
+    with node_graph(log_dir=tmp_path) as graph:
         probe.info.publish(
             AudioInfo(
                 channels=1,
@@ -145,7 +46,8 @@ def test_when_speech_streamed_in_odd_chunks_expect_commands_for_11_joints_within
         probe.warm_up()
         probe.play(payload, chunk_sizes, bytes_per_s=32000)
         probe.spin_for(1.5)
-        assert all(p.poll() is None for p in processes), "a node died"
+        assert not any(graph.restarts.values()), "a node died"
+        assert all(p.poll() is None for p in graph.processes.values())
 
     duration_s = len(samples) / 16000
     raw_points = sum(len(m.points) for m in probe.received["raw"])
@@ -181,7 +83,7 @@ def test_when_audio_is_malformed_expect_logged_skipped_and_node_keeps_running(
     tmp_path: Path, probe: Probe, speech
 ):
     good = encode_pcm(speech[:16000], S16)
-    with node_graph(log_dir=tmp_path) as processes:
+    with node_graph(log_dir=tmp_path) as graph:
         probe.wait_until(probe.graph_ready)
 
         # 1. No AudioInfo yet: audio is dropped and counted in /diagnostics, nothing published.
@@ -226,7 +128,8 @@ def test_when_audio_is_malformed_expect_logged_skipped_and_node_keeps_running(
         floats = speech[:16000].astype("<f4").tobytes()
         probe.play(floats, [1001, 3, 4097], bytes_per_s=64000)  # odd sizes split the floats
         probe.spin_for(1.5)
-        assert all(p.poll() is None for p in processes), "a node died on bad input"
+        assert not any(graph.restarts.values()), "a node died on bad input"
+        assert all(p.poll() is None for p in graph.processes.values())
 
     frames = sum(m.layout.dim[0].size for m in probe.received["features"])
     assert frames == 1 + (16000 - 400) // 160  # exactly one second of audio after the bad bits

@@ -13,6 +13,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack, contextmanager
@@ -63,52 +64,122 @@ def executable_command(name: str) -> list[str]:
     return [sys.executable, "-m", f"audio2pose_ros.nodes.{name}"]
 
 
-@contextmanager
-def node_graph(
-    params_file: Path | None = None,
-    overrides: Sequence[str] = (),
-    log_dir: Path | None = None,
-) -> Iterator[list[subprocess.Popen]]:
-    """Start the three nodes as processes; stop them (SIGINT, then SIGKILL) on exit.
+class NodeSupervisor:
+    """Runs the node processes and respawns one that dies, like ``respawn=True`` in a launch file.
 
-    Args:
-        params_file: ROS parameter YAML (default: the package's config/pepper.yaml).
-        overrides: extra ``name:=value`` parameters for every node.
-        log_dir: where each node's output goes (``<node>.log``); ``None`` inherits the terminal.
-
+    A node that exits is restarted after ``respawn_delay_s`` (its log file is appended to). A node
+    that dies more than ``max_restarts`` times within ``restart_window_s`` is given up on, with a
+    message, rather than restarted forever. Configuration errors do not make nodes exit (see
+    :class:`~audio2pose_ros.nodes.common.ConfigurationErrorNode`), so they never reach here.
     """
-    params = params_file or share_path("config", "pepper.yaml")
-    processes: list[subprocess.Popen] = []
-    logs = []
-    try:
-        for name in NODE_EXECUTABLES:
-            command = [*executable_command(name), "--ros-args", "--params-file", str(params)]
-            for override in overrides:
-                command += ["-p", override]
-            stdout = None
-            if log_dir is not None:
-                log_dir.mkdir(parents=True, exist_ok=True)
-                stdout = (log_dir / f"{name}.log").open("w")
-                logs.append(stdout)
-            processes.append(
-                subprocess.Popen(
-                    command, stdout=stdout, stderr=subprocess.STDOUT if stdout else None
+
+    def __init__(
+        self,
+        commands: dict[str, list[str]],
+        log_dir: Path | None,
+        respawn_delay_s: float = 1.0,
+        max_restarts: int = 5,
+        restart_window_s: float = 60.0,
+    ) -> None:
+        """Remember how to start each node; :meth:`start` starts them."""
+        self.commands = commands
+        self.log_dir = log_dir
+        self.respawn_delay_s = respawn_delay_s
+        self.max_restarts = max_restarts
+        self.restart_window_s = restart_window_s
+        self.processes: dict[str, subprocess.Popen] = {}
+        self.restarts: dict[str, list[float]] = {name: [] for name in commands}
+        self.given_up: set[str] = set()
+        self._stopping = threading.Event()
+        self._thread = threading.Thread(target=self._watch, name="node-supervisor", daemon=True)
+
+    def _spawn(self, name: str, mode: str) -> None:
+        stdout = None
+        if self.log_dir is not None:
+            self.log_dir.mkdir(parents=True, exist_ok=True)
+            stdout = (self.log_dir / f"{name}.log").open(mode)
+        self.processes[name] = subprocess.Popen(
+            self.commands[name], stdout=stdout, stderr=subprocess.STDOUT if stdout else None
+        )
+        if stdout is not None:
+            stdout.close()  # the child holds its own descriptor
+
+    def start(self) -> None:
+        """Start every node and the watchdog thread."""
+        for name in self.commands:
+            self._spawn(name, "w")
+        self._thread.start()
+
+    def _watch(self) -> None:
+        while not self._stopping.wait(0.2):
+            for name, process in list(self.processes.items()):
+                if process.poll() is None or name in self.given_up:
+                    continue
+                now = time.monotonic()
+                recent = [t for t in self.restarts[name] if now - t < self.restart_window_s]
+                if len(recent) >= self.max_restarts:
+                    self.given_up.add(name)
+                    print(
+                        f"audio2pose run: {name} died {len(recent) + 1} times within "
+                        f"{self.restart_window_s:.0f} s; not restarting it again",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                    continue
+                print(
+                    f"audio2pose run: {name} exited with code {process.returncode}; "
+                    f"restarting it in {self.respawn_delay_s:.1f} s",
+                    file=sys.stderr,
+                    flush=True,
                 )
-            )
-        yield processes
-    finally:
-        for process in processes:
+                if self._stopping.wait(self.respawn_delay_s):
+                    return
+                self.restarts[name] = [*recent, now]
+                self._spawn(name, "a")
+
+    def stop(self) -> None:
+        """Stop the watchdog, then the nodes (SIGINT, then SIGKILL after 5 s)."""
+        self._stopping.set()
+        if self._thread.is_alive():
+            self._thread.join()
+        for process in self.processes.values():
             if process.poll() is None:
                 process.send_signal(signal.SIGINT)
         deadline = time.monotonic() + 5.0
-        for process in processes:
+        for process in self.processes.values():
             try:
                 process.wait(timeout=max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait()
-        for log in logs:
-            log.close()
+
+
+@contextmanager
+def node_graph(
+    params_file: Path | None = None,
+    overrides: Sequence[str] = (),
+    log_dir: Path | None = None,
+) -> Iterator[NodeSupervisor]:
+    """Run the three nodes as supervised processes for the duration of the context.
+
+    Args:
+        params_file: ROS parameter YAML (default: the package's config/pepper.yaml).
+        overrides: extra ``name:=value`` parameters for every node.
+        log_dir: where each node's output goes (``<node>.log``); ``None`` inherits the terminal.
+    """
+    params = params_file or share_path("config", "pepper.yaml")
+    commands = {}
+    for name in NODE_EXECUTABLES:
+        command = [*executable_command(name), "--ros-args", "--params-file", str(params)]
+        for override in overrides:
+            command += ["-p", override]
+        commands[name] = command
+    supervisor = NodeSupervisor(commands, log_dir)
+    try:
+        supervisor.start()
+        yield supervisor
+    finally:
+        supervisor.stop()
 
 
 @dataclass
@@ -255,10 +326,10 @@ def run_graph(
     Without ``play`` the graph runs until Ctrl-C or until a node exits.
     """
     messages = audio_source(play) if play is not None else None
-    with node_graph(params_file, overrides, log_dir) as processes:
+    with node_graph(params_file, overrides, log_dir) as supervisor:
         if messages is None:
             try:
-                while all(p.poll() is None for p in processes):
+                while len(supervisor.given_up) < len(NODE_EXECUTABLES):
                     time.sleep(0.2)
             except KeyboardInterrupt:
                 pass

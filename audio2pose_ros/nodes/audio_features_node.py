@@ -52,6 +52,7 @@ class AudioFeaturesNode(Node):
         """Declare parameters, build the extractor, wire topics and the diagnostics timer."""
         super().__init__("audio_features_node")
         model_path = self.declare_parameter("model_path", "").value
+        self.max_chunk_bytes = int(self.declare_parameter("max_chunk_bytes", 1 << 20).value)
         try:
             self.spec = feature_spec_of(model_path or default_checkpoint_path())
         except (OSError, ValueError) as exc:
@@ -95,8 +96,16 @@ class AudioFeaturesNode(Node):
 
     def on_audio(self, msg: AudioData) -> None:
         """Decode one chunk, push its samples, publish the frames that became complete."""
-        data = bytes(msg.data)
         self.chunks += 1
+        if len(msg.data) > self.max_chunk_bytes:
+            self.dropped_bytes += len(msg.data)
+            self.last_problem = (
+                f"dropped an AudioData message of {len(msg.data)} bytes "
+                f"(max_chunk_bytes {self.max_chunk_bytes})"
+            )
+            self.get_logger().warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
+            return
+        data = bytes(msg.data)
         if self.decoder is None:
             self.dropped_bytes += len(data)
             self.last_problem = (

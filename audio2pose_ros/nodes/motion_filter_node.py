@@ -71,6 +71,8 @@ class MotionFilterNode(Node):
         self.input_messages = 0
         self.dropped_messages = 0
         self.latency_s = 0.0
+        self.last_stamp_s = 0.0
+        self.stale_messages = 0
         self.poses_at_last_report = 0
         self.last_problem = ""
 
@@ -127,6 +129,12 @@ class MotionFilterNode(Node):
         now = self.now_s()
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         if stamp > 0:
+            if stamp <= self.last_stamp_s:  # a duplicate or a late, reordered message
+                self.stale_messages += 1
+                self.last_problem = "duplicated or out-of-order raw trajectory dropped"
+                self.get_logger().warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
+                return
+            self.last_stamp_s = stamp
             self.latency_s = now - stamp
         if self.filter.push(poses, time.monotonic()) < len(poses):
             self.last_problem = "poses with NaN/inf dropped"
@@ -220,6 +228,7 @@ class MotionFilterNode(Node):
                 {
                     "input_messages": self.input_messages,
                     "dropped_messages": self.dropped_messages,
+                    "stale_messages_dropped": self.stale_messages,
                     "poses_received": status.received,
                     "poses_rejected": status.rejected,
                     "poses_dropped_buffer_full": status.dropped,

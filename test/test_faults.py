@@ -1,0 +1,242 @@
+"""What the live graph does with what microphones and networks do: each test states it.
+
+All tests run the three real node processes (supervised, as `audio2pose run` runs them) over
+DDS and play audio_capture's part from this process.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from audio_common_msgs.msg import AudioData, AudioInfo
+from graph_probe import Probe, diagnostics_of
+
+from audio2pose_ros.audio.pcm import PcmFormat, encode_pcm
+from audio2pose_ros.cli.graph import node_graph
+from audio2pose_ros.nodes.common import trajectory_msg
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+S16 = PcmFormat(sample_format="S16LE", channels=1, sample_rate_hz=16000, coding_format="wave")
+S16_INFO = AudioInfo(
+    channels=1, sample_rate=16000, sample_format="S16LE", bitrate=256000, coding_format="wave"
+)
+
+
+def frames_published(probe: Probe) -> int:
+    return sum(m.layout.dim[0].size for m in probe.received["features"])
+
+
+def assert_commands_within_limits(probe: Probe, robot) -> None:
+    positions = np.array([m.joint_angles for m in probe.received["angles"]])
+    assert len(positions) > 0
+    assert np.all(np.isfinite(positions))
+    assert np.all(positions >= robot.lower_rad - 1e-6)
+    assert np.all(positions <= robot.upper_rad + 1e-6)
+
+
+def start(probe: Probe) -> None:
+    probe.info.publish(S16_INFO)
+    probe.wait_until(probe.graph_ready)
+    probe.warm_up()
+
+
+def test_when_audio_format_changes_mid_stream_expect_decoding_follows_new_audio_info(
+    tmp_path: Path, probe: Probe, robot, speech
+):
+    """A new AudioInfo restarts decoding in the new format; no node restarts, nothing crashes."""
+    first = speech[:16000]
+    stereo_48k = np.repeat(speech[16000:32000], 3)[:, None].repeat(2, axis=1)  # 1 s, 48 kHz
+    f32 = PcmFormat(sample_format="F32LE", channels=2, sample_rate_hz=48000, coding_format="wave")
+    with node_graph(log_dir=tmp_path) as graph:
+        start(probe)
+        probe.play(encode_pcm(first, S16), [1000], bytes_per_s=32000)
+        probe.spin_for(0.5)
+        before = frames_published(probe)
+        probe.info.publish(
+            AudioInfo(
+                channels=2,
+                sample_rate=48000,
+                sample_format="F32LE",
+                bitrate=0,
+                coding_format="wave",
+            )
+        )
+        probe.spin_for(0.5)
+        probe.play(encode_pcm(stereo_48k, f32), [3003], bytes_per_s=48000 * 8)
+        probe.spin_for(1.0)
+        assert not any(graph.restarts.values())
+    assert before == len(first) // 160  # whole frames of the first part (after the warm-up)
+    # The second second of audio, decoded from 48 kHz stereo float, gives about 100 frames more
+    # (the extractor restarts with the new format, and the resampler holds back 2 ms).
+    assert 95 <= frames_published(probe) - before <= 99
+    assert "F32LE" in (tmp_path / "audio_features_node.log").read_text()
+    assert_commands_within_limits(probe, robot)
+
+
+def test_when_audio_stops_then_arrives_in_a_burst_expect_bounded_buffer_and_recovery(
+    tmp_path: Path, probe: Probe, robot, speech
+):
+    """A gap glides the robot to neutral; a burst is computed in full but the filter keeps only
+    max_buffer_s of it (dropped poses are counted), so latency stays bounded."""
+    payload = encode_pcm(speech[: 4 * 16000], S16)
+    with node_graph(log_dir=tmp_path):
+        start(probe)
+        probe.play(payload[:32000], [2000], bytes_per_s=32000)  # 1 s in real time
+        probe.spin_for(2.5)  # gap: watchdog (0.5 s) + glide (1 s) back to neutral
+        resting = np.array(probe.received["angles"][-1].joint_angles)
+        for offset in range(32000, len(payload), 4000):  # 3 s of audio at once
+            probe.audio.publish(AudioData(data=payload[offset : offset + 4000]))
+        probe.spin_for(2.0)
+    np.testing.assert_allclose(resting, robot.neutral_rad, atol=0.02)
+    assert frames_published(probe) == len(speech[: 4 * 16000]) // 160  # every frame computed
+    filter_diag = diagnostics_of(probe, "motion_filter_node")
+    assert int(filter_diag["poses_dropped_buffer_full"]) > 200  # ~300 burst poses, 30 kept
+    assert_commands_within_limits(probe, robot)
+
+
+def test_when_audio_messages_are_duplicated_or_reordered_expect_processed_as_sent(
+    tmp_path: Path, probe: Probe, robot, speech
+):
+    """AudioData has no stamp or sequence number, so duplicated and swapped chunks cannot be
+    told from audio: they are processed as they arrive, the output stays within limits."""
+    chunks = [encode_pcm(speech[i : i + 800], S16) for i in range(0, 16000, 800)]
+    sent = []
+    for i, chunk in enumerate(chunks):
+        sent.append(chunk)
+        if i % 5 == 0:
+            sent.append(chunk)  # duplicate
+    sent[3], sent[4] = sent[4], sent[3]  # reorder
+    with node_graph(log_dir=tmp_path) as graph:
+        start(probe)
+        for chunk in sent:
+            probe.audio.publish(AudioData(data=chunk))
+            probe.spin_for(0.05)
+        probe.spin_for(1.0)
+        assert not any(graph.restarts.values())
+    assert frames_published(probe) == sum(len(c) for c in sent) // 2 // 160
+    assert_commands_within_limits(probe, robot)
+
+
+def test_when_raw_trajectory_duplicated_or_late_expect_filter_drops_it(
+    tmp_path: Path, probe: Probe, robot
+):
+    """Raw trajectories carry stamps: the filter drops repeats and late ones and counts them."""
+    with node_graph(log_dir=tmp_path):
+        start(probe)
+        publisher = probe.create_publisher(
+            type(trajectory_msg(robot.names, robot.neutral_rad, 0.01)), "/raw_trajectory", 10
+        )
+        probe.wait_until(lambda: publisher.get_subscription_count() > 0)
+        newest = trajectory_msg(robot.names, robot.neutral_rad[None, :], 0.01)
+        newest.header.stamp = probe.get_clock().now().to_msg()
+        older = trajectory_msg(robot.names, robot.neutral_rad[None, :], 0.01)
+        older.header.stamp.sec = newest.header.stamp.sec - 1
+        for msg in (newest, newest, older):
+            publisher.publish(msg)
+            probe.spin_for(0.1)
+        probe.spin_for(1.5)
+    assert int(diagnostics_of(probe, "motion_filter_node")["stale_messages_dropped"]) >= 2
+
+
+def test_when_oversized_audio_messages_arrive_expect_them_dropped_with_warning(
+    tmp_path: Path, probe: Probe, speech
+):
+    """A 10 MB AudioData may not even survive best-effort DDS delivery (a fragmented sample is
+    lost whole); one that arrives above max_chunk_bytes is dropped with a warning and counted.
+    Either way the node keeps running and the audio after it is processed normally."""
+    with node_graph(log_dir=tmp_path, overrides=["max_chunk_bytes:=100000"]) as graph:
+        start(probe)
+        probe.audio.publish(AudioData(data=bytes(10 * 1024 * 1024)))
+        probe.spin_for(1.0)
+        probe.audio.publish(AudioData(data=bytes(300_000)))
+        probe.spin_for(1.0)
+        before = frames_published(probe)
+        probe.play(encode_pcm(speech[:16000], S16), [1024], bytes_per_s=32000)
+        probe.spin_for(1.0)
+        assert not any(graph.restarts.values())
+    assert before == 0
+    assert frames_published(probe) == 100  # the normal second afterwards: 16000 / 160
+    log = (tmp_path / "audio_features_node.log").read_text()
+    assert "dropped an AudioData message of 300000 bytes" in log
+    assert int(diagnostics_of(probe, "audio_features_node")["dropped_bytes"]) >= 300_000
+
+
+def test_when_a_node_is_killed_expect_it_restarted_and_the_graph_recovers(
+    tmp_path: Path, probe: Probe, robot, speech
+):
+    """The supervisor respawns a crashed node; meanwhile the filter glides to neutral, then
+    tracks the restarted node's poses again."""
+    payload = encode_pcm(np.tile(speech, 3), S16)
+    with node_graph(log_dir=tmp_path) as graph:
+        start(probe)
+        victim = graph.processes["inference_node"]
+        probe.play(payload[:32000], [1600], bytes_per_s=32000)
+        os.kill(victim.pid, signal.SIGKILL)
+        kill_time = time.monotonic()
+        offset = 32000
+
+        def poses_again() -> bool:
+            nonlocal offset
+            probe.audio.publish(AudioData(data=payload[offset : offset + 3200]))
+            offset = (offset + 3200) % len(payload)
+            probe.spin_for(0.1)
+            arrived = [
+                m
+                for m in probe.received["raw"]
+                if m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 > 0
+            ]
+            return graph.processes["inference_node"] is not victim and len(arrived) > 0
+
+        probe.received["raw"].clear()
+        probe.wait_until(poses_again, timeout_s=60)
+        recovered_after_s = time.monotonic() - kill_time
+        assert graph.restarts["inference_node"]
+        assert graph.processes["audio_features_node"].poll() is None
+    assert recovered_after_s < 30
+    assert_commands_within_limits(probe, robot)
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise RuntimeError(f"no VmRSS for {pid}")
+
+
+def test_when_30_minutes_of_audio_stream_through_expect_flat_memory(
+    tmp_path: Path, probe: Probe, robot, speech_files
+):
+    """Soak: 30 min of real speech at 25x real time; resident memory of every node stays flat."""
+    from audio2pose_ros.audio.pcm import read_wav
+
+    speech = np.concatenate([read_wav(f)[0] for f in speech_files])
+    total_s, speed = 30 * 60, 25.0
+    chunk = encode_pcm(speech, S16)
+    with node_graph(log_dir=tmp_path) as graph:
+        start(probe)
+        sent_bytes, samples = 0, {}
+        start_time = time.monotonic()
+        while sent_bytes < total_s * 32000:
+            for offset in range(0, len(chunk), 4096):
+                probe.audio.publish(AudioData(data=chunk[offset : offset + 4096]))
+                sent_bytes += len(chunk[offset : offset + 4096])
+                due = start_time + sent_bytes / 32000 / speed
+                while time.monotonic() < due:
+                    probe.spin_for(0.002)
+            for key in probe.received:
+                probe.received[key].clear()  # this process must not grow either
+            fraction = sent_bytes / (total_s * 32000)
+            if not samples and fraction > 0.1:  # after start-up allocations
+                samples["start"] = {n: rss_mb(p.pid) for n, p in graph.processes.items()}
+        samples["end"] = {n: rss_mb(p.pid) for n, p in graph.processes.items()}
+        assert not any(graph.restarts.values())
+    growth = {n: samples["end"][n] - samples["start"][n] for n in samples["end"]}
+    print(f"RSS MB at 10%: {samples['start']}, at end: {samples['end']}")
+    assert all(g < 15.0 for g in growth.values()), growth
+    assert all(v < 400.0 for v in samples["end"].values()), samples["end"]
