@@ -36,6 +36,9 @@ from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
 SIM_JOINT_STATES = "/sim/joint_states"
+# The nodes are respawned when they crash; a configuration error does not crash them (they idle
+# and report it on /diagnostics), so respawning cannot loop.
+RESPAWN_DELAY_S = 2.0
 
 
 def robot_description() -> ParameterValue:
@@ -171,6 +174,8 @@ def generate_launch_description() -> LaunchDescription:
                     ("audio/audio_info", [audio_ns, "/audio_info"]),
                 ],
                 output="screen",
+                respawn=True,
+                respawn_delay=RESPAWN_DELAY_S,
             ),
             Node(
                 package="audio2pose_ros",
@@ -178,6 +183,8 @@ def generate_launch_description() -> LaunchDescription:
                 name="inference_node",
                 parameters=shared,
                 output="screen",
+                respawn=True,
+                respawn_delay=RESPAWN_DELAY_S,
             ),
             Node(
                 package="audio2pose_ros",
@@ -185,6 +192,8 @@ def generate_launch_description() -> LaunchDescription:
                 name="motion_filter_node",
                 parameters=[params_file],
                 output="screen",
+                respawn=True,
+                respawn_delay=RESPAWN_DELAY_S,
             ),
         ]
     )

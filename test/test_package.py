@@ -56,6 +56,7 @@ def test_when_parsing_launch_file_expect_the_three_nodes_named_as_their_executab
     for node in nodes:
         assert node["package"] == "audio2pose_ros"
         assert node["name"] == node["executable"]
+        assert node["respawn"] is True  # safe: configuration errors idle instead of crashing
 
 
 def test_when_reading_parameter_file_expect_only_parameters_the_nodes_declare():
