@@ -252,3 +252,26 @@ def test_when_any_event_sequence_expect_output_within_all_limits(robot, events, 
         if last_tick_t is None or t > last_tick_t:
             last_tick_t = t
         prev_pos, prev_vel = pos.copy(), vel.copy()
+
+
+def test_when_backlog_stands_in_buffer_expect_it_drained_by_skipping(robot):
+    filt = MotionFilter(robot, MotionFilterSettings(backlog_window_s=0.1, max_buffer_s=1.0))
+    t = 0.0
+    filt.push(np.tile(robot.neutral_rad, (20, 1)), t)  # a burst: 20 poses at once
+    for _ in range(100):  # then one pose per tick, as a steady stream
+        t += PERIOD
+        filt.push(robot.neutral_rad[None, :], t)
+        filt.tick(t)
+    assert filt.status.skipped >= 10
+    assert filt.status.buffered <= 1  # the added latency is gone
+
+
+def test_when_poses_arrive_in_chunks_expect_nothing_skipped(robot):
+    filt = MotionFilter(robot, MotionFilterSettings(backlog_window_s=0.5))
+    t = 0.0
+    for tick in range(500):  # 5 poses every 5 ticks: bursty but no standing backlog
+        t += PERIOD
+        if tick % 5 == 0:
+            filt.push(np.tile(robot.neutral_rad, (5, 1)), t)
+        filt.tick(t)
+    assert filt.status.skipped == 0

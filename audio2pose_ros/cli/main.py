@@ -92,7 +92,9 @@ def command_synth(args: argparse.Namespace) -> int:
 
 
 def command_bench(args: argparse.Namespace) -> int:
-    """Print the per-frame cost of each streaming stage on one core."""
+    """Per-frame cost of each streaming stage on one core; with --graph, the live graph too."""
+    import json
+
     import torch
 
     from audio2pose_ros.audio.pcm import read_wav
@@ -102,6 +104,11 @@ def command_bench(args: argparse.Namespace) -> int:
     from audio2pose_ros.resources import bundled_speech_path, default_checkpoint_path
     from audio2pose_ros.robot import load_robot
 
+    results: dict[str, object] = {}
+    if args.graph:  # before pinning this process to one core: the nodes need the machine
+        from audio2pose_ros.cli.graph_bench import bundled_speech, measure_graph, report
+
+        results["graph"] = report(measure_graph(bundled_speech(), duration_s=args.duration))
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     torch.set_num_threads(1)
@@ -110,31 +117,68 @@ def command_bench(args: argparse.Namespace) -> int:
     signal, _ = read_wav(bundled_speech_path())
     timings = streaming_costs(checkpoint, MotionFilter(robot), signal, n_frames=args.frames)
     reference = reference_feature_cost(signal, n_frames=min(args.frames, 1000))
-    print(f"per-frame cost on one core, {args.frames} frames of real speech (10 ms each)")
-    print(f"{'stage':<52}{'median us':>12}{'p99 us':>12}")
-    for timing in [*timings, reference]:
-        print(f"{timing.name:<52}{timing.median_us:>12.1f}{timing.p99_us:>12.1f}")
-    ratio = reference.median_us / timings[0].median_us
-    print(f"streaming features vs python_speech_features per window: {ratio:.0f}x faster (median)")
-    total = timings[-1]
-    print(
-        f"whole online frame: {total.median_us:.1f} us median = "
-        f"{100 * total.median_us / 10_000:.2f} % of the 10 ms frame period"
+    results["stages_us"] = {
+        t.name: {"median": t.median_us, "p99": t.p99_us} for t in [*timings, reference]
+    }
+    results["features_speedup_vs_python_speech_features"] = (
+        reference.median_us / timings[0].median_us
     )
     if not args.skip_models:
+        results["models"] = {
+            cost.name: {
+                "step_median_us": cost.step.median_us if cost.step else None,
+                "step_p99_us": cost.step.p99_us if cost.step else None,
+                "offline_x_real_time": cost.offline_audio_s_per_s,
+            }
+            for cost in model_costs(signal, robot, n_frames=min(args.frames, 2000))
+        }
+    if args.json:
+        print(json.dumps(results, indent=1))
+        return 0
+    _print_bench(results, args.frames, len(signal) / 16000)
+    return 0
+
+
+def _print_bench(results: dict, frames: int, clip_s: float) -> None:
+    print(f"per-frame cost on one core, {frames} frames of real speech (10 ms each)")
+    print(f"{'stage':<52}{'median us':>12}{'p99 us':>12}")
+    for name, timing in results["stages_us"].items():
+        print(f"{name:<52}{timing['median']:>12.1f}{timing['p99']:>12.1f}")
+    ratio = results["features_speedup_vs_python_speech_features"]
+    print(f"streaming features vs python_speech_features per window: {ratio:.0f}x faster (median)")
+    total = results["stages_us"]["whole online frame"]["median"]
+    print(f"whole online frame: {total:.1f} us median = {total / 100:.2f} % of the 10 ms period")
+    if "models" in results:
         print(
             f"\nevery model family (untrained weights; cost does not depend on them), "
-            f"{len(signal) / 16000:.1f} s clip"
+            f"{clip_s:.1f} s clip"
         )
         print(f"{'model':<14}{'step median us':>16}{'step p99 us':>14}{'offline x real time':>22}")
-        for cost in model_costs(signal, robot, n_frames=min(args.frames, 2000)):
+        for name, cost in results["models"].items():
             step = (
-                f"{cost.step.median_us:>16.1f}{cost.step.p99_us:>14.1f}"
-                if cost.step
+                f"{cost['step_median_us']:>16.1f}{cost['step_p99_us']:>14.1f}"
+                if cost["step_median_us"] is not None
                 else f"{'offline only':>16}{'':>14}"
             )
-            print(f"{cost.name:<14}{step}{cost.offline_audio_s_per_s:>22.0f}")
-    return 0
+            print(f"{name:<14}{step}{cost['offline_x_real_time']:>22.0f}")
+    if "graph" in results:
+        graph = results["graph"]
+        print(
+            f"\nlive graph (3 node processes over DDS), {graph['audio_s']:.0f} s of speech in "
+            "10 ms chunks"
+        )
+        for key in ("latency_audio_to_raw_pose", "latency_audio_to_joint_angles"):
+            s = graph[key]
+            print(
+                f"  {key}: p50 {s['p50_ms']:.2f} ms, p99 {s['p99_ms']:.2f} ms, "
+                f"max {s['max_ms']:.2f} ms ({s['n']} chunks)"
+            )
+        print(
+            f"  start-up: first command {graph['startup_first_command_s']:.2f} s, first "
+            f"response to audio {graph['startup_first_response_to_audio_s']:.2f} s"
+        )
+        for node, cpu in graph["cpu_ms_per_frame"].items():
+            print(f"  {node}: {cpu:.3f} ms CPU per frame, {graph['rss_mb'][node]:.0f} MB resident")
 
 
 def _filter_from_params(params_file: Path | None):  # noqa: ANN202 - heavy types imported lazily
@@ -236,6 +280,15 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--model", help="checkpoint (default: packaged model)")
     bench.add_argument("--frames", type=int, default=3000, help="frames to time (default 3000)")
     bench.add_argument("--skip-models", action="store_true", help="skip the per-model table")
+    bench.add_argument(
+        "--graph",
+        action="store_true",
+        help="also run the live graph: latency, CPU, memory, start-up",
+    )
+    bench.add_argument(
+        "--duration", type=float, default=60.0, help="seconds of speech for --graph (default 60)"
+    )
+    bench.add_argument("--json", action="store_true", help="print the figures as JSON")
     bench.set_defaults(func=command_bench)
 
     plot = verbs.add_parser("plot-filter", help="PNG of raw model output vs the motion filter")

@@ -60,6 +60,8 @@ class MotionFilterSettings:
         neutral_glide_s: duration of the glide to the neutral pose (s).
         stop_behaviour: on an emergency stop, 'hold' (brake and stay) or 'neutral' (glide).
         max_buffer_s: poses queued beyond this much motion are dropped, oldest first (s).
+        backlog_window_s: when the buffer never ran empty after a tick during this whole window,
+            the poses it never went below are skipped, so a standing backlog (latency) drains (s).
         head_gain: scale of head motion around neutral (0 = head still, 1 = as generated).
         arms_gain: scale of arm motion around neutral.
         hip_gain: scale of hip motion around neutral.
@@ -77,6 +79,7 @@ class MotionFilterSettings:
     neutral_glide_s: float = 1.0
     stop_behaviour: str = "hold"
     max_buffer_s: float = 0.3
+    backlog_window_s: float = 0.5
     head_gain: float = 1.0
     arms_gain: float = 1.0
     hip_gain: float = 1.0
@@ -115,6 +118,7 @@ class FilterStatus:
     rejected: int = 0
     dropped: int = 0
     underruns: int = 0
+    skipped: int = 0
     buffered: int = 0
     enabled: bool = True
     stopped: bool = False
@@ -159,6 +163,9 @@ class MotionFilter:
         self._head = robot.group_mask("head")
         self._queue: deque[np.ndarray] = deque(
             maxlen=max(1, round(self.settings.max_buffer_s * self.settings.rate_hz))
+        )
+        self._depths: deque[int] = deque(
+            maxlen=max(1, round(self.settings.backlog_window_s * self.settings.rate_hz))
         )
         self._smoother = self._make_smoother()
         if self._smoother is not None:
@@ -276,6 +283,13 @@ class MotionFilter:
             self._target = self._queue.popleft()
         else:
             self.status.underruns += 1
+        self._depths.append(len(self._queue))
+        standing = min(self._depths) if len(self._depths) == self._depths.maxlen else 0
+        if standing > 0:  # a standing backlog only adds latency: skip it (the smoother and the
+            for _ in range(standing):  # limits turn the jump in the target into motion)
+                self._queue.popleft()
+            self.status.skipped += standing
+            self._depths.clear()
         scaled = self.neutral_rad + self._gains * (self._target - self.neutral_rad)
         return scaled if self._smoother is None else self._smoother.step(scaled)
 

@@ -28,6 +28,7 @@ input the robot glides to the neutral pose.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
@@ -92,12 +93,16 @@ class MotionFilterNode(Node):
             ),
             "joint_states": (JointState, "joint_states", self.publish_joint_states),
         }
+        # One timer: every output is published right after the tick that computed it, every
+        # n-th tick for a lower rate (one rclpy timer callback costs far more than a tick).
         self.publishers_by_output = {}
+        self.outputs: list[tuple[int, Callable[[], None]]] = []
         for key, (msg_type, topic, callback) in outputs.items():
             rate_hz = float(self.declare_parameter(f"{key}_rate_hz", settings.rate_hz).value)
             if rate_hz > 0:
                 self.publishers_by_output[key] = self.create_publisher(msg_type, topic, 10)
-                self.create_timer(1.0 / rate_hz, callback)
+                self.outputs.append((max(1, round(settings.rate_hz / rate_hz)), callback))
+        self.ticks = 0
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
         self.get_logger().info(
@@ -179,8 +184,12 @@ class MotionFilterNode(Node):
             self.get_logger().warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
 
     def on_tick(self) -> None:
-        """Advance the filter by one period."""
+        """Advance the filter by one period and publish the outputs due at this tick."""
         self.filter.tick(time.monotonic())
+        for every, publish in self.outputs:
+            if self.ticks % every == 0:
+                publish()
+        self.ticks += 1
 
     def publish_joint_angles(self) -> None:
         """naoqi_driver command: absolute angles at ``speed`` fraction of max velocity."""
@@ -233,6 +242,7 @@ class MotionFilterNode(Node):
                     "poses_rejected": status.rejected,
                     "poses_dropped_buffer_full": status.dropped,
                     "buffer_underruns": status.underruns,
+                    "poses_skipped_backlog": status.skipped,
                     "buffered_poses": status.buffered,
                     "input_latency_ms": f"{self.latency_s * 1e3:.2f}",
                     "mode": status.mode,
