@@ -49,6 +49,7 @@ class DAEGRUConfig:
     dropout: float = 0.1  # seed 000 section 5.3
     dae_learning_rate: float = 1e-4  # seed 000 section 5.2
     frames_per_window: int = 16  # frames per training window in stage 2
+    output_stride: int = 5  # predict every 5th frame (seed 000: 20 poses/s), interpolate between
 
 
 class DAEGRU(PoseModel):
@@ -127,8 +128,27 @@ class DAEGRU(PoseModel):
         return code.view(features.shape[0], -1, self.config.code_dim)
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
-        """Speech -> motion code -> decoded poses, for every frame."""
-        return self.decode_poses(self.speech_to_code(features))
+        """Speech -> motion code -> poses every ``output_stride`` frames, interpolated between.
+
+        Seed 000 predicts 20 poses/s; a 61-frame GRU pass for every frame at 100 frames/s would
+        cost five times as much. Decoded poses are interpolated linearly to every frame.
+        """
+        n_frames = features.shape[1]
+        keys = torch.arange(0, n_frames, self.config.output_stride)
+        if keys[-1] != n_frames - 1:
+            keys = torch.cat([keys, torch.tensor([n_frames - 1])])
+        poses = self.decode_poses(self.speech_to_code(features, keys))  # (B, K, J)
+        if len(keys) == n_frames:
+            return poses
+        position = torch.arange(n_frames, dtype=features.dtype)
+        right = torch.searchsorted(keys, torch.arange(n_frames), right=False).clamp(
+            1, len(keys) - 1
+        )
+        left = right - 1
+        weight = ((position - keys[left]) / (keys[right] - keys[left])).to(poses.dtype)[
+            None, :, None
+        ]
+        return poses[:, left] * (1.0 - weight) + poses[:, right] * weight
 
     def _dae_loss(
         self, features: torch.Tensor, targets: torch.Tensor, mask: torch.Tensor
