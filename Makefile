@@ -29,10 +29,10 @@ lint: setup
 bench: setup
 	$(VENV_BIN)/audio2pose bench
 
-# Rebuild models/default/ (checkpoint and model card) from the bundled speech clips.
+TALKING_HEADS ?= ../shared/data/talking_heads
+# Rebuild models/default/ from the shared talking-head clips: import, train, evaluate, model card.
 default-model: setup
-	$(VENV_BIN)/audio2pose distill-prosody data/speech/*.wav \
-		-o models/default/default.safetensors --max-epochs 4000
+	$(VENV_BIN)/audio2pose dataset build-default $(TALKING_HEADS) -o models/default
 
 clean:
 	rm -rf .venv out build install log .pytest_cache .ruff_cache .hypothesis

@@ -19,5 +19,6 @@ setup(
         (f"share/{PACKAGE}/urdf", glob("urdf/*")),
         (f"share/{PACKAGE}/models/default", glob("models/default/*")),
         (f"share/{PACKAGE}/data/speech", glob("data/speech/*")),
+        (f"share/{PACKAGE}/data/video", glob("data/video/*")),
     ],
 )

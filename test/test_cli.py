@@ -155,3 +155,31 @@ def test_when_plot_filter_expect_png_and_figures(tmp_path: Path, speech_files):
     figures = dict(line.split(": ") for line in result.stdout.splitlines()[1:])
     # The filter smooths: the commanded motion is slower than the raw model output.
     assert float(figures["online_rms_speed_rad_s"]) < float(figures["raw_rms_speed_rad_s"])
+
+
+def test_when_distill_prosody_expect_loadable_checkpoint_and_honest_card(
+    tmp_path: Path, robot, speech_files
+):
+    out = tmp_path / "rule.safetensors"
+    result = subprocess.run(
+        [
+            *AUDIO2POSE,
+            "distill-prosody",
+            *map(str, speech_files[:2]),
+            "-o",
+            str(out),
+            "--max-epochs",
+            "30",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    from audio2pose_ros.models.checkpoint import load_checkpoint
+
+    checkpoint = load_checkpoint(out, robot=robot)
+    assert "not human motion" in checkpoint.info["trained_on"]
+    card = (tmp_path / "MODEL_CARD.md").read_text()
+    assert "It was not trained on human motion" in card
+    assert "neutral-pose RMSE deg" in result.stdout

@@ -34,15 +34,12 @@ in `inference_node`.
 `audio2pose_ros.motion.prosody.ProsodyRule`: loudness raises the forearms and nods the head, the
 spectral balance of the voice turns head and hip and makes arm motion asymmetric, smoothed by the
 seed's 4 Hz Butterworth filter. The model learned to reproduce that rule from audio features, so
-the robot moves in time with the voice, in a repetitive, rule-like way. It is a placeholder that
-makes the whole graph work out of the box; a model trained on recorded human head motion replaces
-it when the data importers land (issue "Training data from real recordings").
+the robot moves in time with the voice, in a repetitive, rule-like way, with no learned gesture.
 
-Audio: the five LibriVox read-speech clips bundled in `data/speech/` (Jane Austen, *Sense and
-Sensibility*, chapter 1; public domain; from Debian's pocketsphinx-testdata), 24.7 s in all.
+Audio: {files}. Keep the licences and attribution of these recordings with the model.
 Train clips: {", ".join(checkpoint.info.get("train_clips", []))}.
 Validation clips: {", ".join(checkpoint.info.get("validation_clips", []))}.
-Feature z-normalisation statistics: all five clips (one speaker).
+Feature z-normalisation statistics: all given clips.
 
 ## Training
 Adam, lr 1e-3, masked MSE on range-normalised angles (seed 003 eq. 3.15), early stopping after 10
@@ -57,14 +54,12 @@ epochs without validation improvement; best epoch {report.best_epoch}, validatio
 These numbers say how well the model imitates the rule, nothing about how human-like the motion is.
 
 ## Limits
-One speaker, 25 s of read speech: other voices, noise and music are out of distribution. The
-motion is a deterministic function of loudness and spectral balance, with none of the variety
-of real gesture.
+Voices, noise and music unlike the training audio are out of distribution. The motion is a
+deterministic function of loudness and spectral balance, with none of the variety of real
+gesture.
 
 ## Rebuild
-`make default-model`, which runs `audio2pose distill-prosody data/speech/*.wav
--o models/default/default.safetensors --max-epochs 4000` (clips: {files}).
-Training is seeded and runs on the CPU in about ten seconds.
+`audio2pose distill-prosody {files} -o {checkpoint_path.name}` (seeded; CPU, seconds).
 """
     out = checkpoint_path.parent / "MODEL_CARD.md"
     out.write_text(card, encoding="utf-8")

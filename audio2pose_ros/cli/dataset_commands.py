@@ -1,0 +1,281 @@
+"""``audio2pose dataset ...``: build data sets from recordings, and describe them.
+
+Sub-verbs: ``import-video`` (any video with sound: head by MediaPipe FaceMesh, arms and hip by
+MediaPipe Pose where visible), ``import-openface`` (OpenFace 2.0 CSV + its audio),
+``import-bvh`` (BVH mocap + its audio, through a skeleton mapping), ``info`` and
+``build-default`` (rebuild the default model from the shared clips, end to end). Importers take
+files or folders; a file that fails is reported with its name and the reason, the others are
+imported, and the exit code is 1 when any failed. :func:`register` adds the verb to the main
+parser.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+VIDEO_SUFFIXES = (".mp4", ".mpg", ".mpeg", ".mov", ".avi", ".mkv", ".webm", ".m4v")
+AUDIO_SUFFIXES = (".wav", ".flac", ".mp3", ".ogg", ".m4a", *VIDEO_SUFFIXES)
+
+
+def _expand(paths: list[str], suffixes: tuple[str, ...]) -> list[Path]:
+    """Files as given, plus the files with one of ``suffixes`` inside given folders (sorted)."""
+    files: list[Path] = []
+    for name in paths:
+        path = Path(name)
+        if path.is_dir():
+            files += sorted(p for p in path.iterdir() if p.suffix.lower() in suffixes)
+        else:
+            files.append(path)
+    return files
+
+
+def _clip_id(path: Path) -> str:
+    """A safe clip id from a file name."""
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", path.stem).lstrip(".") or "clip"
+
+
+def _paired_audio(path: Path, audio_dir: str | None) -> Path:
+    """The recording whose audio goes with a CSV / BVH file: same stem, audio or video suffix."""
+    from audio2pose_ros.importers import ImporterError
+
+    folder = Path(audio_dir) if audio_dir else path.parent
+    for suffix in AUDIO_SUFFIXES:
+        for candidate in (folder / (path.stem + suffix), folder / (path.stem + suffix.upper())):
+            if candidate.is_file() and candidate != path:
+                return candidate
+    raise ImporterError(
+        f"{path}: no audio next to it ({path.stem}.wav / .mp4 / ... in {folder}); use --audio-dir"
+    )
+
+
+def _run_import(
+    args: argparse.Namespace,
+    files: list[Path],
+    import_one: Callable[[Path, object], tuple[object, dict[str, np.ndarray]]],
+) -> int:
+    """Import every file into the data set, reporting failures per file; exit code 1 if any."""
+    from tqdm import tqdm
+
+    from audio2pose_ros.dataset import ClipInfo, Dataset, DatasetError
+    from audio2pose_ros.importers import ImporterError
+    from audio2pose_ros.importers.extras import save_extras
+    from audio2pose_ros.robot import load_robot
+
+    if not files:
+        raise ValueError("no input files")
+    robot = load_robot()
+    out = Path(args.output)
+    dataset = Dataset.open(out, robot) if (out / "index.json").exists() else None
+    dataset = dataset or Dataset.create(out, robot)
+    failures: list[str] = []
+    progress = tqdm(files, desc=f"dataset {args.dataset_verb}", unit="file", file=sys.stderr)
+    for path in progress:
+        progress.set_postfix_str(path.name)
+        info = ClipInfo(
+            clip_id=_clip_id(path),
+            speaker=args.speaker or path.stem,
+            source=args.source or path.name,
+            licence=args.licence,
+            split=args.split,
+        )
+        try:
+            clip, extras = import_one(path, info)
+            dataset.add(clip, robot)
+            save_extras(dataset, info.clip_id, extras)
+        except (ImporterError, DatasetError, OSError) as exc:
+            failures.append(f"{path}: {exc}" if str(path) not in str(exc) else str(exc))
+            progress.write(f"FAILED {failures[-1]}", file=sys.stderr)
+    progress.close()
+    print(f"{len(files) - len(failures)} of {len(files)} files imported into {out}")
+    for failure in failures:
+        print(f"  failed: {failure}", file=sys.stderr)
+    return 1 if failures else 0
+
+
+def command_import_video(args: argparse.Namespace) -> int:
+    """Import video files (audio track + face + visible upper body)."""
+    from audio2pose_ros.importers.video import VideoImportSettings, VideoTracks, import_video
+    from audio2pose_ros.robot import load_robot
+
+    robot = load_robot()
+    settings = VideoImportSettings(mirror=args.mirror, centre=not args.no_centre, body=args.body)
+    totals = {"frames": 0, "faces": 0, "seconds": 0.0}
+
+    def count(tracks: VideoTracks) -> None:
+        totals["frames"] += tracks.times_s.size
+        totals["faces"] += int(tracks.face_found.sum())
+        totals["seconds"] += tracks.seconds
+
+    code = _run_import(
+        args,
+        _expand(args.inputs, VIDEO_SUFFIXES),
+        lambda path, info: import_video(path, info, robot, settings, on_tracks=count),
+    )
+    if totals["frames"]:
+        print(
+            f"tracked {totals['frames']} video frames at "
+            f"{totals['frames'] / max(totals['seconds'], 1e-9):.1f} frames/s; face found in "
+            f"{100.0 * totals['faces'] / totals['frames']:.1f} %"
+        )
+    return code
+
+
+def command_import_openface(args: argparse.Namespace) -> int:
+    """Import OpenFace 2.0 CSV files with their audio."""
+    from audio2pose_ros.importers.media import read_audio
+    from audio2pose_ros.importers.openface import OpenFaceImportSettings, import_openface
+    from audio2pose_ros.robot import load_robot
+
+    robot = load_robot()
+    settings = OpenFaceImportSettings(
+        min_confidence=args.min_confidence,
+        face_id=args.face_id,
+        mirror=args.mirror,
+        centre=not args.no_centre,
+    )
+    return _run_import(
+        args,
+        _expand(args.inputs, (".csv",)),
+        lambda path, info: import_openface(
+            path, read_audio(_paired_audio(path, args.audio_dir)), info, robot, settings
+        ),
+    )
+
+
+def command_import_bvh(args: argparse.Namespace) -> int:
+    """Import BVH files with their audio through a skeleton mapping."""
+    from audio2pose_ros.importers.bvh import import_bvh, load_mappings
+    from audio2pose_ros.importers.media import read_audio
+    from audio2pose_ros.robot import load_robot
+
+    robot = load_robot()
+    mappings = load_mappings(args.mappings)
+    if args.skeleton not in mappings:
+        raise ValueError(f"unknown skeleton {args.skeleton!r}; known: {sorted(mappings)}")
+    return _run_import(
+        args,
+        _expand(args.inputs, (".bvh",)),
+        lambda path, info: import_bvh(
+            path,
+            read_audio(_paired_audio(path, args.audio_dir)),
+            info,
+            robot,
+            mappings[args.skeleton],
+            args.mirror,
+        ),
+    )
+
+
+def command_info(args: argparse.Namespace) -> int:
+    """Print a data set's clips, speakers, splits, durations and observed joint groups."""
+    from audio2pose_ros.dataset import AUDIO_RATE_HZ, SPLITS, Dataset
+    from audio2pose_ros.robot import JOINT_GROUPS, load_robot
+
+    robot = load_robot()
+    dataset = Dataset.open(Path(args.data), robot)
+    print(f"{dataset.root}: {len(dataset.clips)} clips, {len(dataset.speakers)} speakers")
+    print(f"{'clip':<27} {'speaker':<23} {'split':<10} {'seconds':>7}  observed (head/arms/hip)")
+    totals = dict.fromkeys(SPLITS, 0.0)
+    for info in dataset.clips:
+        clip = dataset.load(info.clip_id)
+        seconds = clip.audio.size / AUDIO_RATE_HZ
+        totals[info.split] += seconds
+        observed = " / ".join(
+            f"{100.0 * clip.mask[:, robot.group_mask(g)].mean():.0f}%" for g in JOINT_GROUPS
+        )
+        print(f"{info.clip_id:<27} {info.speaker:<23} {info.split:<10} {seconds:>7.1f}  {observed}")
+    print("seconds per split: " + ", ".join(f"{s} {totals[s]:.1f}" for s in SPLITS))
+    for licence in sorted({c.licence for c in dataset.clips}):
+        count = sum(c.licence == licence for c in dataset.clips)
+        print(f"licence: {licence} ({count} clips)")
+    return 0
+
+
+def command_build_default(args: argparse.Namespace) -> int:
+    """Rebuild the default model from the shared talking-head clips (import, train, evaluate)."""
+    from audio2pose_ros.default_model import build_default_model
+    from audio2pose_ros.robot import load_robot
+
+    out = Path(args.output)
+    result = build_default_model(
+        Path(args.clips),
+        out,
+        Path(args.work_dir) if args.work_dir else out / "work",
+        load_robot(),
+        arms=args.arms,
+        max_epochs=args.max_epochs,
+        seed=args.seed,
+    )
+    print(result.table)
+    print(f"wrote {result.checkpoint} and {result.model_card}")
+    return 0
+
+
+def _common_import_options(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("inputs", nargs="+", metavar="FILE_OR_DIR", help=what)
+    parser.add_argument("-o", "--output", required=True, metavar="DATASET", help="data set folder")
+    parser.add_argument("--speaker", help="speaker of every clip (default: each file's stem)")
+    parser.add_argument("--source", help="where the recordings come from (default: file name)")
+    parser.add_argument(
+        "--licence", required=True, help="licence / attribution kept with every clip"
+    )
+    parser.add_argument("--split", default="train", choices=("train", "validation", "test"))
+    parser.add_argument(
+        "--mirror", action="store_true", help="exchange left and right (mirror image)"
+    )
+
+
+def register(verbs: argparse._SubParsersAction) -> None:
+    """Add the ``dataset`` verb and its sub-verbs to the ``audio2pose`` parser."""
+    dataset = verbs.add_parser("dataset", help="import recordings into a data set; describe one")
+    sub = dataset.add_subparsers(dest="dataset_verb", required=True)
+
+    video = sub.add_parser("import-video", help="videos with sound: head, and arms if visible")
+    _common_import_options(video, "video files or folders of them")
+    video.add_argument(
+        "--no-centre",
+        action="store_true",
+        help="keep head angles relative to the camera (default: median pose -> neutral)",
+    )
+    video.add_argument(
+        "--no-body", dest="body", action="store_false", help="head only (skip MediaPipe Pose)"
+    )
+    video.set_defaults(func=command_import_video)
+
+    openface = sub.add_parser("import-openface", help="OpenFace 2.0 CSVs + their audio")
+    _common_import_options(openface, "CSV files or folders of them")
+    openface.add_argument("--audio-dir", help="folder of the audio (default: next to each CSV)")
+    openface.add_argument("--min-confidence", type=float, default=0.0)
+    openface.add_argument("--face-id", type=int, help="face to use (default: the first row's)")
+    openface.add_argument(
+        "--no-centre", action="store_true", help="keep head angles relative to the camera"
+    )
+    openface.set_defaults(func=command_import_openface)
+
+    bvh = sub.add_parser("import-bvh", help="BVH mocap + audio, through a skeleton mapping")
+    _common_import_options(bvh, "BVH files or folders of them")
+    bvh.add_argument("--skeleton", required=True, help="mapping name (config/bvh_mappings.yaml)")
+    bvh.add_argument("--mappings", metavar="YAML", help="your own mappings file")
+    bvh.add_argument("--audio-dir", help="folder of the audio (default: next to each BVH)")
+    bvh.set_defaults(func=command_import_bvh)
+
+    build = sub.add_parser(
+        "build-default", help="rebuild the default model from the shared talking-head clips"
+    )
+    build.add_argument("clips", metavar="CLIPS_DIR", help="../shared/data/talking_heads")
+    build.add_argument("-o", "--output", required=True, metavar="DIR", help="checkpoint + card")
+    build.add_argument("--work-dir", help="scratch data sets (default: <output>/work)")
+    build.add_argument("--arms", choices=("prosody", "neutral"), default="prosody")
+    build.add_argument("--max-epochs", type=int, default=2000)
+    build.add_argument("--seed", type=int, default=0)
+    build.set_defaults(func=command_build_default)
+
+    info = sub.add_parser("info", help="clips, speakers, splits and observed joints")
+    info.add_argument("data", metavar="DATASET")
+    info.set_defaults(func=command_info)

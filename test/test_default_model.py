@@ -1,0 +1,46 @@
+"""The default model's data: split by clip, attribution, procedural fill of unobserved joints."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from audio2pose_ros.audio.features import FeatureSpec, extract_features
+from audio2pose_ros.dataset import Clip, ClipInfo, Dataset, expected_frames
+from audio2pose_ros.default_model import TEST_CLIPS, clip_info, fill_unobserved
+from audio2pose_ros.motion.prosody import prosody_trajectory
+
+
+def test_when_naming_the_shared_clips_expect_grid_attribution_and_held_out_clips():
+    grid = clip_info(Path("grid_sbwe5n.mpg"))
+    assert (grid.split, grid.speaker) == ("test", "grid_sbwe5n")
+    assert "CC BY 4.0" in grid.licence
+    assert "Cooke" in grid.licence
+    obama = clip_info(Path("obama_weekly_address_8.mp4"))
+    assert (obama.split, obama.speaker) == ("train", "obama")
+    assert "public domain" in obama.licence
+    assert {clip_info(Path(f"{c}.x")).split for c in TEST_CLIPS} == {"test"}
+
+
+@pytest.mark.parametrize("arms", ["prosody", "neutral"])
+def test_when_filling_unobserved_joints_expect_the_head_kept_and_the_rest_from_the_rule(
+    tmp_path, robot, speech_path, arms
+):
+    from audio2pose_ros.audio.pcm import read_wav
+
+    audio = read_wav(speech_path)[0][:48000]
+    n = expected_frames(audio.size)
+    angles = np.tile(robot.neutral_rad, (n, 1))
+    head = robot.group_mask("head")
+    angles[:, head] += 0.05
+    mask = np.zeros_like(angles, dtype=bool)
+    mask[:, head] = True
+    source = Dataset.create(tmp_path / "src", robot)
+    source.add(Clip(ClipInfo("a", "s", "src", "CC0"), audio, angles, mask), robot)
+    filled = fill_unobserved(source, tmp_path / "filled", robot, arms).load("a")
+    assert filled.mask.all()
+    np.testing.assert_allclose(filled.angles_rad[:, head], angles[:, head], atol=1e-6)
+    rule = prosody_trajectory(extract_features(audio, FeatureSpec()), robot)
+    expected = rule if arms == "prosody" else np.broadcast_to(robot.neutral_rad, rule.shape)
+    np.testing.assert_allclose(filled.angles_rad[:, ~head], expected[:n, ~head], atol=1e-5)
+    assert "filled by the" in Dataset.open(tmp_path / "filled").clips[0].source
