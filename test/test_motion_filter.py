@@ -275,3 +275,20 @@ def test_when_poses_arrive_in_chunks_expect_nothing_skipped(robot):
             filt.push(np.tile(robot.neutral_rad, (5, 1)), t)
         filt.tick(t)
     assert filt.status.skipped == 0
+
+
+def test_when_tracking_resumes_after_silence_expect_no_stale_poses_replayed(robot):
+    filt = MotionFilter(robot, MotionFilterSettings(silence_timeout_s=0.1))
+    stale = raised_pose(robot)
+    t = 0.0
+    filt.set_voice_active(False, t)
+    for _ in range(50):  # the model keeps producing poses of silence
+        t += PERIOD
+        filt.push(stale[None, :], t)
+        filt.tick(t)
+    filt.set_voice_active(True, t)
+    t += PERIOD
+    filt.push(robot.neutral_rad[None, :], t)  # speech starts
+    filt.tick(t)
+    assert filt.status.buffered == 0
+    np.testing.assert_allclose(filt.position_rad, filt.neutral_rad, atol=1e-3)

@@ -42,7 +42,11 @@ def command_run(args: argparse.Namespace) -> int:
 
 
 def command_demo(args: argparse.Namespace) -> int:
-    """The main job on the embedded defaults: bundled speech through the live graph, plus a CSV."""
+    """The main job on the embedded defaults: bundled speech through the live graph.
+
+    Writes the recorded commands (MCAP), a video of the robot performing them with the speech,
+    the filter plot and the offline trajectory of the same clip, and says where they are.
+    """
     from audio2pose_ros.cli.graph import run_graph, summarize
     from audio2pose_ros.resources import bundled_speech_path
 
@@ -55,13 +59,32 @@ def command_demo(args: argparse.Namespace) -> int:
         flush=True,
     )
     result = run_graph(wav, bag, None, [], out_dir / "logs")
-    assert result is not None
+    if result is None:
+        raise RuntimeError("the graph ran without playing the clip")
     print(summarize(result))
-    csv_path = out_dir / "offline_trajectory.csv"
-    _synthesize_to_csv(wav, csv_path, None, smooth=True)
-    print(f"offline synthesis of the same clip: {csv_path}")
-    print(f"node logs: {out_dir / 'logs'}")
-    print(f"results in {out_dir.resolve()}")
+    video = out_dir / "robot.mp4"
+    render_command = [
+        "render",
+        str(wav),
+        "--bag",
+        str(bag),
+        "-o",
+        str(video),
+        "--side",
+        "--no-progress",
+    ]
+    if main(render_command) != 0:
+        return 1
+    plot = out_dir / "filter.png"
+    if main(["plot-filter", str(wav), "-o", str(plot)]) != 0:
+        return 1
+    csv_path = _synthesize_to_csv(wav, out_dir / "offline_trajectory.csv", None, smooth=True)
+    print(f"\nresults in {out_dir.resolve()}:")
+    print(f"  {video.name}: the robot performing the recorded commands, with the speech")
+    print(f"  {plot.name}: raw model output against the motion filter, per joint")
+    print(f"  {bag.name}/: rosbag2 (MCAP) of every command and of the audio (Foxglove, rosbags)")
+    print(f"  {csv_path.name}: offline synthesis of the same clip (100 Hz, radians)")
+    print("  logs/: the three nodes' output")
     return 0
 
 

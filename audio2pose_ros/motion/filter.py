@@ -116,7 +116,7 @@ class FilterStatus:
     mode: str = "neutral"
     received: int = 0
     rejected: int = 0
-    dropped: int = 0
+    dropped: int = 0  # buffer overflow, or generated while not tracking (stale)
     underruns: int = 0
     skipped: int = 0
     buffered: int = 0
@@ -317,8 +317,10 @@ class MotionFilter:
             desired = self._compose_head(self._track(), now_s)
             status.mode = "tracking"
         else:
-            if status.stopped or not status.enabled:
-                self._queue.clear()
+            # Poses generated meanwhile (of silence, or while disabled or stopped) are stale:
+            # replaying them when tracking resumes would only add latency and wrong motion.
+            status.dropped += len(self._queue)
+            self._queue.clear()
             desired = self._compose_head(self._glide(now_s), now_s)
             status.mode = "neutral"
         status.buffered = len(self._queue)

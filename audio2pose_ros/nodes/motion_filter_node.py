@@ -240,7 +240,7 @@ class MotionFilterNode(Node):
                     "stale_messages_dropped": self.stale_messages,
                     "poses_received": status.received,
                     "poses_rejected": status.rejected,
-                    "poses_dropped_buffer_full": status.dropped,
+                    "poses_dropped": status.dropped,
                     "buffer_underruns": status.underruns,
                     "poses_skipped_backlog": status.skipped,
                     "buffered_poses": status.buffered,
