@@ -190,6 +190,11 @@ class MotionFilter:
             return CausalLowPass(n, self.settings.rate_hz, self.settings.lowpass_cutoff_hz)
         return None
 
+    @property
+    def buffered(self) -> int:
+        """Poses waiting in the jitter buffer now."""
+        return len(self._queue)
+
     # --- inputs -------------------------------------------------------------------------------
 
     def push(self, poses_rad: np.ndarray, now_s: float) -> int:

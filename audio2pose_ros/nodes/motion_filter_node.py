@@ -52,6 +52,8 @@ from audio2pose_ros.nodes.common import (
 from audio2pose_ros.robot import load_robot
 
 WARN_THROTTLE_S = 5.0
+MIN_TICK_SPACING = 0.3  # of a period: an arriving pose is commanded at once if the last tick
+# is at least this long ago (keeps the command rate bounded and dt meaningful for the limits)
 
 
 class MotionFilterNode(Node):
@@ -83,7 +85,10 @@ class MotionFilterNode(Node):
         self.create_subscription(Bool, "stop", self.on_stop, LATCHED_QOS)
         self.create_subscription(JointState, "head_target", self.on_head_target, 10)
         self.create_subscription(JointState, "head_offset", self.on_head_offset, 10)
-        self.create_timer(self.filter.period_s, self.on_tick)
+        self.period_ns = round(self.filter.period_s * 1e9)
+        self.tick_timer = self.create_timer(self.filter.period_s, self.on_timer)
+        self.last_tick_s = -1.0
+        self.last_tick_starved = True
         outputs = {
             "joint_angles": (JointAnglesWithSpeed, "joint_angles", self.publish_joint_angles),
             "joint_trajectory": (
@@ -141,9 +146,21 @@ class MotionFilterNode(Node):
                 return
             self.last_stamp_s = stamp
             self.latency_s = now - stamp
-        if self.filter.push(poses, time.monotonic()) < len(poses):
+        was_waiting = self.filter.buffered == 0
+        arrival_s = time.monotonic()
+        if self.filter.push(poses, arrival_s) < len(poses):
             self.last_problem = "poses with NaN/inf dropped"
             self.get_logger().warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
+        # The clock follows the input: a pose that finds the buffer empty is commanded at once
+        # (if the last tick is MIN_TICK_SPACING periods ago, or had no pose to command), and the
+        # timer then waits 1.5 periods, or one if poses remain queued. A steady stream is served
+        # on arrival; the timer ticks when input is late or comes several poses at a time.
+        spaced = arrival_s - self.last_tick_s >= MIN_TICK_SPACING * self.filter.period_s
+        if was_waiting and (spaced or self.last_tick_starved):
+            self.on_tick()
+            queued = self.filter.buffered > 0
+            self.tick_timer.timer_period_ns = self.period_ns if queued else self.period_ns * 3 // 2
+            self.tick_timer.reset()
 
     def on_voice(self, msg: Bool) -> None:
         """Voice activity from the features node."""
@@ -183,9 +200,18 @@ class MotionFilterNode(Node):
             self.last_problem = f"head_offset ignored: {exc}"
             self.get_logger().warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
 
+    def on_timer(self) -> None:
+        """The fallback clock: tick, and return to the nominal period."""
+        if self.tick_timer.timer_period_ns != self.period_ns:
+            self.tick_timer.timer_period_ns = self.period_ns
+        self.on_tick()
+
     def on_tick(self) -> None:
         """Advance the filter by one period and publish the outputs due at this tick."""
-        self.filter.tick(time.monotonic())
+        self.last_tick_s = time.monotonic()
+        underruns = self.filter.status.underruns
+        self.filter.tick(self.last_tick_s)
+        self.last_tick_starved = self.filter.status.underruns > underruns
         for every, publish in self.outputs:
             if self.ticks % every == 0:
                 publish()
