@@ -53,3 +53,44 @@ def test_when_audio_precedes_audio_info_expect_error(tmp_path: Path, speech):
 def test_when_path_is_not_a_bag_expect_error_naming_it(tmp_path: Path):
     with pytest.raises(BagError, match=r"nothing\.mcap: cannot open as a rosbag2"):
         list(read_messages(tmp_path / "nothing.mcap"))
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_when_bag_replayed_faster_expect_every_message_published_in_order(tmp_path, speech, probe):
+    import subprocess
+    import time
+
+    from audio2pose_ros.cli.graph import executable_command
+
+    bag = tmp_path / "bag"
+    write_audio_bag(speech[:32000], bag)  # 2 s of speech
+    expected = [m for m in read_messages(bag) if m.topic == AUDIO_TOPIC]
+    received = []
+    from audio_common_msgs.msg import AudioData
+
+    probe.create_subscription(AudioData, AUDIO_TOPIC, received.append, 1000)
+    replay = subprocess.Popen(
+        [
+            *executable_command("audio2pose"),
+            "bag",
+            "replay",
+            str(bag),
+            "--rate",
+            "4",
+            "--wait-s",
+            "2",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 60
+    while replay.poll() is None and time.monotonic() < deadline:
+        probe.spin_for(0.05)
+    probe.spin_for(0.5)
+    assert replay.returncode == 0
+    assert "replayed" in replay.stdout.read()
+    store = typestore()
+    assert [bytes(m.data) for m in received] == [
+        bytes(store.deserialize_cdr(m.data, m.msgtype).data) for m in expected
+    ]
