@@ -79,7 +79,7 @@ class MotionFilterSettings:
     neutral_glide_s: float = 1.0
     stop_behaviour: str = "hold"
     max_buffer_s: float = 0.3
-    backlog_window_s: float = 0.5
+    backlog_window_s: float = 0.2
     head_gain: float = 1.0
     arms_gain: float = 1.0
     hip_gain: float = 1.0

@@ -52,7 +52,7 @@ from audio2pose_ros.nodes.common import (
 from audio2pose_ros.robot import load_robot
 
 WARN_THROTTLE_S = 5.0
-MIN_TICK_SPACING = 0.3  # of a period: an arriving pose is commanded at once if the last tick
+MIN_TICK_SPACING = 0.1  # of a period: an arriving pose is commanded at once if the last tick
 # is at least this long ago (keeps the command rate bounded and dt meaningful for the limits)
 
 
