@@ -22,11 +22,7 @@ from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from audio2pose_ros.audio.pcm import PcmDecoder, PcmFormat, encode_pcm
-
-S16LE_MONO_16K = PcmFormat(
-    sample_format="S16LE", channels=1, sample_rate_hz=16000, coding_format="wave"
-)
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmDecoder, PcmFormat, encode_pcm
 
 EXTRA_MESSAGE_DEFINITIONS = {
     "audio_common_msgs/msg/AudioData": "uint8[] data\n",
@@ -136,9 +132,7 @@ def audio_messages(signal_16k: np.ndarray, chunking: Chunking | None = None) -> 
     rng = np.random.default_rng(chunking.seed)
     payload = encode_pcm(signal_16k, S16LE_MONO_16K)
     store = typestore()
-    info = store.types[AUDIO_INFO_TYPE](
-        channels=1, sample_rate=16000, sample_format="S16LE", bitrate=256000, coding_format="wave"
-    )
+    info = store.types[AUDIO_INFO_TYPE](**S16LE_MONO_16K.audio_info_fields())
     info_bytes = bytes(store.serialize_cdr(info, AUDIO_INFO_TYPE))
     data_cls = store.types[AUDIO_DATA_TYPE]
     messages, offset, next_info_s = [], 0, 0.0

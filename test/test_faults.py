@@ -16,16 +16,15 @@ import pytest
 from audio_common_msgs.msg import AudioData, AudioInfo
 from graph_probe import Probe, diagnostics_of
 
-from audio2pose_ros.audio.pcm import PcmFormat, encode_pcm
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmFormat, encode_pcm
 from audio2pose_ros.cli.graph import node_graph
+from audio2pose_ros.cli.graph_bench import rss_mb
 from audio2pose_ros.nodes.common import trajectory_msg
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
-S16 = PcmFormat(sample_format="S16LE", channels=1, sample_rate_hz=16000, coding_format="wave")
-S16_INFO = AudioInfo(
-    channels=1, sample_rate=16000, sample_format="S16LE", bitrate=256000, coding_format="wave"
-)
+S16 = S16LE_MONO_16K
+S16_INFO = AudioInfo(**S16.audio_info_fields())
 
 
 def frames_published(probe: Probe) -> int:
@@ -58,15 +57,7 @@ def test_when_audio_format_changes_mid_stream_expect_decoding_follows_new_audio_
         probe.play(encode_pcm(first, S16), [1000], bytes_per_s=32000)
         probe.spin_for(0.5)
         before = frames_published(probe)
-        probe.info.publish(
-            AudioInfo(
-                channels=2,
-                sample_rate=48000,
-                sample_format="F32LE",
-                bitrate=0,
-                coding_format="wave",
-            )
-        )
+        probe.info.publish(AudioInfo(**f32.audio_info_fields()))
         probe.spin_for(0.5)
         probe.play(encode_pcm(stereo_48k, f32), [3003], bytes_per_s=48000 * 8)
         probe.spin_for(1.0)
@@ -200,13 +191,6 @@ def test_when_a_node_is_killed_expect_it_restarted_and_the_graph_recovers(
         assert graph.processes["audio_features_node"].poll() is None
     assert recovered_after_s < 30
     assert_commands_within_limits(probe, robot)
-
-
-def rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    raise RuntimeError(f"no VmRSS for {pid}")
 
 
 def test_when_30_minutes_of_audio_stream_through_expect_flat_memory(

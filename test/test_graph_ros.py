@@ -16,12 +16,12 @@ from audio_common_msgs.msg import AudioData, AudioInfo
 from diagnostic_msgs.msg import DiagnosticStatus
 from graph_probe import Probe, diagnostics_of
 
-from audio2pose_ros.audio.pcm import PcmFormat, encode_pcm, read_wav
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm, read_wav
 from audio2pose_ros.cli.graph import executable_command, node_graph
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
-S16 = PcmFormat(sample_format="S16LE", channels=1, sample_rate_hz=16000, coding_format="wave")
+S16 = S16LE_MONO_16K
 
 
 def test_when_speech_streamed_in_odd_chunks_expect_commands_for_11_joints_within_limits(
@@ -33,15 +33,7 @@ def test_when_speech_streamed_in_odd_chunks_expect_commands_for_11_joints_within
     rng = np.random.default_rng(7)
     chunk_sizes = [int(s) | 1 for s in rng.integers(1, 4000, size=64)]  # odd sizes: split samples
     with node_graph(log_dir=tmp_path) as graph:
-        probe.info.publish(
-            AudioInfo(
-                channels=1,
-                sample_rate=16000,
-                sample_format="S16LE",
-                bitrate=256000,
-                coding_format="wave",
-            )
-        )
+        probe.info.publish(AudioInfo(**S16.audio_info_fields()))
         probe.wait_until(probe.graph_ready)
         probe.warm_up()
         probe.play(payload, chunk_sizes, bytes_per_s=32000)

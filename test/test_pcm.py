@@ -245,3 +245,14 @@ def test_when_read_wav_at_16k_expect_exact_int16_over_32768():
         raw = np.frombuffer(w.readframes(w.getnframes()), dtype="<i2")
     assert rate == 16000
     np.testing.assert_array_equal(samples, raw.astype(np.float32) / 32768.0)
+
+
+def test_when_format_written_as_audio_info_expect_from_audio_info_gives_it_back():
+    from audio2pose_ros.audio.pcm import S16LE_MONO_16K
+
+    fields = S16LE_MONO_16K.audio_info_fields()
+    assert fields["bitrate"] == 256000  # 16 kHz x 16 bit x 1 channel, as audio_capture reports
+    fields.pop("bitrate")
+    assert PcmFormat.from_audio_info(**fields) == S16LE_MONO_16K
+    stereo = PcmFormat("F32LE", 2, 48000)
+    assert stereo.audio_info_fields()["bitrate"] == 48000 * 2 * 4 * 8

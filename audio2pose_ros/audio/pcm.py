@@ -137,6 +137,19 @@ class PcmFormat:
             coding_format=coding_format,
         )
 
+    def audio_info_fields(self) -> dict[str, int | str]:
+        """The fields of an audio_common_msgs/AudioInfo describing this format.
+
+        The inverse of :meth:`from_audio_info`; ``bitrate`` is that of uncompressed PCM.
+        """
+        return {
+            "channels": self.channels,
+            "sample_rate": self.sample_rate_hz,
+            "sample_format": self.sample_format,
+            "bitrate": self.sample_rate_hz * self.frame_bytes * 8,
+            "coding_format": self.coding_format,
+        }
+
     @property
     def dtype(self) -> np.dtype:
         """Numpy dtype of one sample of one channel."""
@@ -151,6 +164,9 @@ class PcmFormat:
     def frame_bytes(self) -> int:
         """Bytes of one frame (one sample of every channel)."""
         return self.bytes_per_sample * self.channels
+
+
+S16LE_MONO_16K = PcmFormat()  # audio_capture's default: S16LE, mono, 16 kHz, wave
 
 
 def _as_bytes(data: object) -> bytes:

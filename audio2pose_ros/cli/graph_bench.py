@@ -28,7 +28,7 @@ from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.audio.pcm import PcmFormat, encode_pcm, read_wav
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm, read_wav
 from audio2pose_ros.cli.graph import node_graph
 from audio2pose_ros.nodes.common import LATCHED_QOS
 from audio2pose_ros.resources import share_path
@@ -36,7 +36,6 @@ from audio2pose_ros.robot import load_robot
 
 CHUNK_SAMPLES = 160  # one 10 ms frame step (seed 003 section 4.2.2)
 MATCH_TOLERANCE_RAD = 1e-5  # float32 /joint_angles against float64 raw poses
-S16 = PcmFormat(sample_format="S16LE", channels=1, sample_rate_hz=16000, coding_format="wave")
 
 
 @dataclass
@@ -96,12 +95,14 @@ class _Player(Node):
             rclpy.spin_once(self, timeout_sec=min(wait, 0.002))
 
 
-def _cpu_s(pid: int) -> float:
+def cpu_s(pid: int) -> float:
+    """CPU time (user + system, s) a process has used."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / 100.0  # utime + stime, in clock ticks of 10 ms
 
 
-def _rss_mb(pid: int) -> float:
+def rss_mb(pid: int) -> float:
+    """Resident memory of a process (MB)."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
             return int(line.split()[1]) / 1024
@@ -111,21 +112,13 @@ def _rss_mb(pid: int) -> float:
 def measure_graph(speech_16k: np.ndarray, duration_s: float = 60.0) -> GraphFigures:
     """Run the graph on ``duration_s`` of ``speech_16k`` (repeated) and measure it."""
     audio = np.resize(speech_16k, int(duration_s * 16000) // CHUNK_SAMPLES * CHUNK_SAMPLES)
-    payload = encode_pcm(audio, S16)
+    payload = encode_pcm(audio, S16LE_MONO_16K)
     step = 2 * CHUNK_SAMPLES
     with tempfile.TemporaryDirectory() as tmp, rclpy.init():
         player = _Player()
         launched = time.monotonic()
         with node_graph(_bench_params(Path(tmp)), log_dir=Path(tmp) / "logs") as graph:
-            player.info.publish(
-                AudioInfo(
-                    channels=1,
-                    sample_rate=16000,
-                    sample_format="S16LE",
-                    bitrate=256000,
-                    coding_format="wave",
-                )
-            )
+            player.info.publish(AudioInfo(**S16LE_MONO_16K.audio_info_fields()))
             while not player.commands:
                 player.spin_until(time.monotonic() + 0.01)
             first_command = time.monotonic() - launched
@@ -139,7 +132,7 @@ def measure_graph(speech_16k: np.ndarray, duration_s: float = 60.0) -> GraphFigu
             player.spin_until(time.monotonic() + 0.5)
             player.raw.clear()
             player.commands.clear()
-            cpu_start = {n: _cpu_s(p.pid) for n, p in graph.processes.items()}
+            cpu_start = {n: cpu_s(p.pid) for n, p in graph.processes.items()}
             sent: list[float] = []
             start = time.monotonic()
             for j, offset in enumerate(range(0, len(payload), step)):
@@ -147,8 +140,8 @@ def measure_graph(speech_16k: np.ndarray, duration_s: float = 60.0) -> GraphFigu
                 sent.append(time.monotonic())
                 player.audio.publish(AudioData(data=payload[offset : offset + step]))
             player.spin_until(time.monotonic() + 1.0)
-            cpu = {n: _cpu_s(p.pid) - cpu_start[n] for n, p in graph.processes.items()}
-            rss = {n: _rss_mb(p.pid) for n, p in graph.processes.items()}
+            cpu = {n: cpu_s(p.pid) - cpu_start[n] for n, p in graph.processes.items()}
+            rss = {n: rss_mb(p.pid) for n, p in graph.processes.items()}
         player.destroy_node()
 
     n = min(len(sent), len(player.raw))
