@@ -1,0 +1,28 @@
+"""The errors audio2pose_ros raises on purpose: bad input, bad files, bad configuration.
+
+Every error the package raises for something a user can fix derives from
+:class:`Audio2PoseError`. The command line turns exactly these into one clear line (exit status
+1, or 2 for :class:`UsageError`); anything else is a bug and is reported as one, with its
+traceback under ``--debug``. Nodes treat :class:`ConfigurationError` at start-up as "do not
+restart me" (see ``audio2pose_ros.nodes.common.EXIT_CONFIGURATION_ERROR``).
+"""
+
+from __future__ import annotations
+
+__all__ = ["Audio2PoseError", "ConfigurationError", "InputError", "UsageError"]
+
+
+class Audio2PoseError(Exception):
+    """Base of every expected error: the message names the file, value or option at fault."""
+
+
+class ConfigurationError(Audio2PoseError):
+    """A parameter, setting or robot description is unusable (fix the configuration)."""
+
+
+class InputError(Audio2PoseError):
+    """Data handed to the package (a file, a message, a sample) cannot be used."""
+
+
+class UsageError(Audio2PoseError):
+    """A command-line option or combination of options is invalid (exit status 2)."""
