@@ -1,0 +1,136 @@
+"""Declare a node's parameters from their ParameterSpecs; validate at start-up and at run time.
+
+Each :class:`~audio2pose_ros.parameters.ParameterSpec` becomes one declared parameter with a
+ParameterDescriptor (description, type, range, read_only, and the allowed values in words as
+``additional_constraints``). Values are validated by the spec, not by rclpy's static typing, so
+that an integer is accepted where a float is meant (``arms_gain: 0``) and every refusal names the
+parameter, the value and the allowed range in one line:
+
+- at start-up, :class:`NodeParameters` raises :class:`~audio2pose_ros.errors.ConfigurationError`
+  (``run_node`` turns it into one log line and exit status ``EXIT_CONFIGURATION_ERROR``);
+- at run time, ``ros2 param set`` / set_parameters goes through an on-set callback that validates
+  and hands the new values to the node's ``apply`` callback. ``successful=True`` means the change
+  takes effect from the node's next tick; a refusal carries the reason. Read-only parameters are
+  refused by rclpy itself.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Iterable, Mapping
+
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+    SetParametersResult,
+)
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.parameters import ParameterSpec, ParameterValue
+
+__all__ = ["NodeParameters", "descriptor_of"]
+
+_TYPES = {
+    bool: ParameterType.PARAMETER_BOOL,
+    int: ParameterType.PARAMETER_INTEGER,
+    float: ParameterType.PARAMETER_DOUBLE,
+    str: ParameterType.PARAMETER_STRING,
+}
+
+
+def descriptor_of(spec: ParameterSpec) -> ParameterDescriptor:
+    """The ParameterDescriptor advertised for ``spec`` (``ros2 param describe`` shows it)."""
+    descriptor = ParameterDescriptor(
+        name=spec.name,
+        type=_TYPES[spec.kind],
+        description=spec.description + (f" ({spec.unit})" if spec.unit else ""),
+        additional_constraints=f"allowed: {spec.allowed()}",
+        read_only=spec.read_only,
+        # Typing is checked by the spec, which also accepts an integer for a float.
+        dynamic_typing=True,
+    )
+    if spec.kind is float and (spec.minimum is not None or spec.maximum is not None):
+        low = -sys.float_info.max if spec.minimum is None else float(spec.minimum)
+        high = sys.float_info.max if spec.maximum is None else float(spec.maximum)
+        descriptor.floating_point_range = [FloatingPointRange(from_value=low, to_value=high)]
+    elif spec.kind is int and (spec.minimum is not None or spec.maximum is not None):
+        low_i = -(2**63) if spec.minimum is None else int(spec.minimum)
+        high_i = 2**63 - 1 if spec.maximum is None else int(spec.maximum)
+        descriptor.integer_range = [IntegerRange(from_value=low_i, to_value=high_i, step=0)]
+    return descriptor
+
+
+class NodeParameters:
+    """The declared, validated parameters of one node.
+
+    Attributes:
+        values: the current validated value of every parameter, by name.
+    """
+
+    def __init__(
+        self,
+        node: Node,
+        specs: Iterable[ParameterSpec],
+        apply: Callable[[Mapping[str, ParameterValue]], None] | None = None,
+    ) -> None:
+        """Declare every spec and validate its start-up value (override, file or default).
+
+        Args:
+            node: the node that owns the parameters.
+            specs: the parameters; names must be unique.
+            apply: called at run time with the changed, validated values (only the parameters
+                that are not read-only reach it). It may raise ConfigurationError to refuse a
+                combination of values; it must not leave the node half-changed when it does.
+                Without ``apply`` every parameter is effectively read-only and run-time changes
+                are refused.
+
+        Raises:
+            ConfigurationError: a start-up value is refused (the message names it).
+        """
+        self.node = node
+        self.specs = {spec.name: spec for spec in specs}
+        self._apply = apply
+        overrides = getattr(node, "_parameter_overrides", {})
+        self.values: dict[str, ParameterValue] = {}
+        for name, spec in self.specs.items():
+            if name in overrides:  # validate first: our message beats rclpy's range message
+                spec.validate(overrides[name].value)
+            try:
+                value = node.declare_parameter(name, spec.default, descriptor_of(spec)).value
+            except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
+                raise ConfigurationError(f"parameter {name}: {exc}") from None
+            self.values[name] = spec.validate(value)
+        node.add_on_set_parameters_callback(self._on_set)
+
+    def __getitem__(self, name: str) -> ParameterValue:
+        """Current value of parameter ``name``."""
+        return self.values[name]
+
+    def _on_set(self, parameters: list[Parameter]) -> SetParametersResult:
+        changes: dict[str, ParameterValue] = {}
+        try:
+            for parameter in parameters:
+                spec = self.specs.get(parameter.name)
+                if spec is None:
+                    continue  # not ours (e.g. use_sim_time)
+                if spec.read_only or self._apply is None:
+                    raise ConfigurationError(
+                        f"parameter {spec.name} cannot change while the node runs"
+                    )
+                changes[spec.name] = spec.validate(parameter.value)
+            if changes and self._apply is not None:
+                self._apply(changes)
+        except ConfigurationError as exc:
+            self.node.get_logger().warning(f"parameter change refused: {exc}")
+            return SetParametersResult(successful=False, reason=str(exc))
+        self.values.update(changes)
+        if changes:
+            self.node.get_logger().info(
+                "parameters changed: " + ", ".join(f"{k}={v!r}" for k, v in changes.items())
+            )
+        return SetParametersResult(successful=True)
