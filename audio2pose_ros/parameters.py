@@ -132,7 +132,10 @@ def param(
     read_only: bool = False,
     unit: str = "",
 ) -> dict[str, Any]:
-    """Field metadata for a settings dataclass: ``x: float = field(default=1.0, metadata=param(...))``."""
+    """Field metadata for a settings dataclass field declared as a node parameter.
+
+    Use: ``rate_hz: float = field(default=100.0, metadata=param("...", minimum=1.0))``.
+    """
     return {
         _METADATA_KEY: {
             "description": description,
