@@ -18,6 +18,7 @@ from audio2pose_ros.audio.pcm import (
     encode_pcm,
     read_wav,
 )
+from audio2pose_ros.errors import InputError
 from audio2pose_ros.resources import bundled_speech_path
 
 
@@ -138,8 +139,15 @@ def test_when_resampler_delay_known_expect_output_held_back_until_flush():
     [
         ("sample_format", {"sample_format": "S24LE"}, r"sample_format 'S24LE'.*S16LE, S32LE"),
         ("coding_format", {"coding_format": "mp3"}, r"coding_format 'mp3'.*'wave'"),
-        ("channels", {"channels": 3}, r"channels 3.*1 \(mono\) or 2"),
-        ("sample_rate", {"sample_rate": 0}, r"sample_rate 0.*integer Hz"),
+        ("channels", {"channels": 0}, r"channels 0.*1\.\.16"),
+        ("channels", {"channels": 255}, r"channels 255.*1\.\.16"),
+        ("channels", {"channels": True}, r"channels True"),
+        ("sample_rate", {"sample_rate": 0}, r"sample_rate 0.*integer Hz in 8000\.\.192000"),
+        ("sample_rate", {"sample_rate": 1}, r"sample_rate 1;"),
+        ("sample_rate", {"sample_rate": 7999}, r"sample_rate 7999;"),
+        ("sample_rate", {"sample_rate": 192001}, r"sample_rate 192001;"),
+        ("sample_rate", {"sample_rate": 383999}, r"sample_rate 383999;"),
+        ("sample_format", {"sample_format": "\x00garbage\xff"}, r"unsupported sample_format"),
     ],
 )
 def test_when_audio_info_field_unsupported_expect_unsupported_audio_format(field, kwargs, match):
@@ -147,7 +155,8 @@ def test_when_audio_info_field_unsupported_expect_unsupported_audio_format(field
     info.update(kwargs)
     with pytest.raises(UnsupportedAudioFormat, match=match):
         PcmFormat.from_audio_info(**info)
-    assert issubclass(UnsupportedAudioFormat, ValueError), field
+    assert issubclass(UnsupportedAudioFormat, InputError), field
+    assert not issubclass(UnsupportedAudioFormat, ValueError), field
 
 
 def test_when_audio_info_strings_in_other_case_expect_accepted_and_normalised():

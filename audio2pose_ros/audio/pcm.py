@@ -11,25 +11,49 @@ Samples are float32 in the nominal range [-1, 1): integer formats are scaled by 
 scale (S16LE by 2**15, S32LE by 2**31, U8 by 2**7 around 128); the decoder's output is clipped
 to [-1, 1) so float input and filter overshoot cannot leave it.
 
+Limits (what an AudioInfo, a WAV header or an AudioBuffer may claim):
+
+- sample rates :data:`MIN_SAMPLE_RATE_HZ` .. :data:`MAX_SAMPLE_RATE_HZ` (8 kHz, the lowest
+  telephony rate, to 192 kHz, the highest rate of USB Audio Class 2 interfaces and of ALSA's
+  common hardware). Above 16 kHz the features only see the band below 8 kHz anyway; below
+  8 kHz the upper mel bands would be empty. At the target rate of 16 kHz one input sample gives
+  at most two output samples, so the output of a message is bounded by its size;
+- the resampling filter has at most :data:`MAX_FILTER_TAPS` coefficients (4 MiB). Every
+  standard rate (8000, 11025, 12000, 16000, 22050, 24000, 32000, 44056, 44100, 48000, 64000,
+  88200, 96000, 176400, 192000 Hz) fits; a rate such as 47999 Hz, whose ratio to 16 kHz does
+  not reduce, would need three million taps and is refused;
+- 1 .. :data:`MAX_CHANNELS` interleaved channels (Pepper's head has 4 microphones, common
+  microphone arrays 4 to 8);
+- uncompressed PCM only: ``coding_format`` ``"wave"`` or ``""`` (audio_capture's default,
+  mp3, is refused: start it with ``format:=wave``).
+
 The module is ROS-free: callers pass AudioInfo's fields to :meth:`PcmFormat.from_audio_info`
 and AudioData's ``data`` (anything bytes-like) to :meth:`PcmDecoder.feed`.
 """
 
 from __future__ import annotations
 
+import functools
 import math
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 from os import PathLike
+from pathlib import Path
 
 import numpy as np
+
+from audio2pose_ros.errors import InputError
 
 TARGET_RATE_HZ = 16000  # seed 003 section 4.2.2: audio is downsampled to f_s = 16 kHz
 
 SUPPORTED_SAMPLE_FORMATS: tuple[str, ...] = ("S16LE", "S32LE", "F32LE", "U8")
 SUPPORTED_CODING_FORMATS: tuple[str, ...] = ("wave", "")
-SUPPORTED_CHANNELS: tuple[int, ...] = (1, 2)
-MAX_SAMPLE_RATE_HZ = 384000
+MIN_SAMPLE_RATE_HZ = 8000  # lowest accepted input rate (telephony)
+MAX_SAMPLE_RATE_HZ = 192000  # highest accepted input rate (USB Audio Class 2, ALSA hardware)
+MAX_CHANNELS = 16  # interleaved channels accepted (Pepper: 4, microphone arrays: 4 to 8)
+MAX_FILTER_TAPS = 1 << 19  # resampling filter coefficients (float64: 4 MiB)
+_BLOCK_VALUES = 1 << 20  # input values gathered per vectorised resampler block (8 MiB)
 
 # numpy dtype and bytes per sample of each supported sample format (all little-endian).
 _DTYPES: dict[str, np.dtype] = {
@@ -43,12 +67,12 @@ _DTYPES: dict[str, np.dtype] = {
 _MAX_SAMPLE = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
 
 
-class UnsupportedAudioFormat(ValueError):  # noqa: N818 (name fixed by the node API)
-    """An AudioInfo field names a format this decoder cannot handle."""
+class UnsupportedAudioFormat(InputError):  # noqa: N818 (name fixed by the node API)
+    """An AudioInfo field or a WAV header names a format this decoder cannot handle."""
 
 
-class InvalidAudio(ValueError):  # noqa: N818 (name fixed by the node API)
-    """Audio data that cannot be decoded as samples (for example NaN or inf in F32LE)."""
+class InvalidAudio(InputError):  # noqa: N818 (name fixed by the node API)
+    """Audio data that cannot be decoded as samples (NaN or inf in F32LE, a broken WAV file)."""
 
 
 @dataclass(frozen=True)
@@ -58,8 +82,9 @@ class PcmFormat:
     Attributes:
         sample_format: one of :data:`SUPPORTED_SAMPLE_FORMATS` (case-insensitive, stored upper
             case; default ``"S16LE"``).
-        channels: number of interleaved channels, 1 or 2 (default 1).
-        sample_rate_hz: frames per second (Hz, default 16000).
+        channels: number of interleaved channels, 1 .. :data:`MAX_CHANNELS` (default 1).
+        sample_rate_hz: frames per second, integer Hz in :data:`MIN_SAMPLE_RATE_HZ` ..
+            :data:`MAX_SAMPLE_RATE_HZ` (default 16000).
         coding_format: ``"wave"`` or ``""`` (raw PCM; case-insensitive, stored lower case;
             default ``"wave"``). Compressed codings such as ``"mp3"`` are rejected.
 
@@ -88,19 +113,24 @@ class PcmFormat:
                 f"unsupported coding_format {self.coding_format!r}; supported: 'wave' "
                 "(uncompressed PCM) or '' (raw PCM)"
             )
-        if isinstance(self.channels, bool) or self.channels not in SUPPORTED_CHANNELS:
+        channels = self.channels
+        if (
+            isinstance(channels, bool)
+            or not isinstance(channels, int | np.integer)
+            or not 1 <= channels <= MAX_CHANNELS
+        ):
             raise UnsupportedAudioFormat(
-                f"unsupported channels {self.channels!r}; supported: 1 (mono) or 2 (stereo)"
+                f"unsupported channels {channels!r}; supported: 1..{MAX_CHANNELS}"
             )
         rate = self.sample_rate_hz
         if (
             isinstance(rate, bool)
-            or not isinstance(rate, (int, np.integer))
-            or not 0 < rate <= MAX_SAMPLE_RATE_HZ
+            or not isinstance(rate, int | np.integer)
+            or not MIN_SAMPLE_RATE_HZ <= rate <= MAX_SAMPLE_RATE_HZ
         ):
             raise UnsupportedAudioFormat(
                 f"unsupported sample_rate {rate!r}; supported: integer Hz in "
-                f"1..{MAX_SAMPLE_RATE_HZ}"
+                f"{MIN_SAMPLE_RATE_HZ}..{MAX_SAMPLE_RATE_HZ}"
             )
         object.__setattr__(self, "sample_format", sample_format)
         object.__setattr__(self, "coding_format", coding_format)
@@ -118,7 +148,7 @@ class PcmFormat:
         """Build a format from the fields of an audio_common_msgs/AudioInfo message.
 
         Args:
-            channels: ``AudioInfo.channels`` (1 or 2).
+            channels: ``AudioInfo.channels`` (1 .. :data:`MAX_CHANNELS`).
             sample_rate: ``AudioInfo.sample_rate`` (Hz).
             sample_format: ``AudioInfo.sample_format`` (e.g. ``"S16LE"``).
             coding_format: ``AudioInfo.coding_format`` (``"wave"``/``"WAVE"`` or ``""``).
@@ -190,6 +220,39 @@ def _to_float(raw: np.ndarray, sample_format: str) -> np.ndarray:
     return raw.astype(np.float64)
 
 
+def resampler_taps(in_rate_hz: int, out_rate_hz: int) -> int:
+    """Coefficients of :class:`PolyphaseResampler`'s filter for these rates (1 when equal)."""
+    g = math.gcd(int(in_rate_hz), int(out_rate_hz))
+    up, down = out_rate_hz // g, in_rate_hz // g
+    if up == down == 1:
+        return 1
+    delay = math.ceil(PolyphaseResampler.ZERO_CROSSINGS * max(up, down) / down)
+    return 2 * delay * down + 1
+
+
+@functools.lru_cache(maxsize=8)
+def _polyphase_filter(up: int, down: int) -> tuple[int, np.ndarray]:
+    """``(delay_samples, poly)`` of the low-pass for ``up / down`` (read-only, cached).
+
+    Cached because a stream whose format flips between a few rates would otherwise design the
+    same filter again for every message.
+    """
+    max_rate = max(up, down)
+    delay_samples = math.ceil(PolyphaseResampler.ZERO_CROSSINGS * max_rate / down)
+    half_len = delay_samples * down  # group delay in up-rate samples
+    taps = np.arange(-half_len, half_len + 1, dtype=np.float64)
+    cutoff = PolyphaseResampler.ROLLOFF * 0.5 / max_rate  # cycles per up-rate sample
+    h = 2.0 * cutoff * np.sinc(2.0 * cutoff * taps)
+    h *= np.kaiser(taps.size, PolyphaseResampler.KAISER_BETA)
+    h *= up / h.sum()  # unit DC gain after zero-stuffing by `up`
+    n_taps = -(-h.size // up)
+    h = np.concatenate([h, np.zeros(n_taps * up - h.size)])
+    # poly[p, j] = h[j * up + p], reversed along j so it pairs with ascending input.
+    poly = h.reshape(n_taps, up).T[:, ::-1].copy()
+    poly.flags.writeable = False
+    return delay_samples, poly
+
+
 class PolyphaseResampler:
     """Streaming rational-ratio resampler (polyphase Kaiser-windowed-sinc FIR, delay-compensated).
 
@@ -204,20 +267,36 @@ class PolyphaseResampler:
     A whole signal of ``n`` input samples gives ``ceil(n * up / down)`` output samples from
     :meth:`process` plus :meth:`flush`, independent of how it was chunked (to rounding error).
 
+    Memory: the filter has at most :data:`MAX_FILTER_TAPS` coefficients, and the temporary
+    array of a vectorised block holds at most about :data:`_BLOCK_VALUES` values, whatever the
+    size of the input.
+
     Args:
         in_rate_hz: input sample rate (Hz).
         out_rate_hz: output sample rate (Hz).
+
+    Raises:
+        UnsupportedAudioFormat: a rate is not positive, or the filter for this ratio would
+            have more than :data:`MAX_FILTER_TAPS` coefficients.
 
     """
 
     ZERO_CROSSINGS = 32  # sinc zero crossings per side: sets the filter length and transition
     ROLLOFF = 0.96  # cut-off as a fraction of the lower of the two Nyquist frequencies
     KAISER_BETA = 8.0  # about 80 dB stop-band attenuation
-    BLOCK = 4096  # outputs computed per vectorised block (bounds temporary memory)
 
     def __init__(self, in_rate_hz: int, out_rate_hz: int) -> None:
         if in_rate_hz <= 0 or out_rate_hz <= 0:
-            raise ValueError(f"rates must be positive, got {in_rate_hz} -> {out_rate_hz} Hz")
+            raise UnsupportedAudioFormat(
+                f"rates must be positive, got {in_rate_hz} -> {out_rate_hz} Hz"
+            )
+        n_taps = resampler_taps(in_rate_hz, out_rate_hz)
+        if n_taps > MAX_FILTER_TAPS:
+            raise UnsupportedAudioFormat(
+                f"unsupported sample_rate {in_rate_hz}: resampling it to {out_rate_hz} Hz needs "
+                f"a {n_taps}-tap filter (at most {MAX_FILTER_TAPS}); use a standard rate such as "
+                "16000, 44100 or 48000 Hz"
+            )
         g = math.gcd(int(in_rate_hz), int(out_rate_hz))
         self.in_rate_hz = int(in_rate_hz)
         self.out_rate_hz = int(out_rate_hz)
@@ -227,17 +306,8 @@ class PolyphaseResampler:
             self.delay_samples = 0
             self._poly = np.ones((1, 1))
         else:
-            max_rate = max(self.up, self.down)
-            self.delay_samples = math.ceil(self.ZERO_CROSSINGS * max_rate / self.down)
-            half_len = self.delay_samples * self.down  # group delay in up-rate samples
-            taps = np.arange(-half_len, half_len + 1, dtype=np.float64)
-            cutoff = self.ROLLOFF * 0.5 / max_rate  # cycles per up-rate sample
-            h = 2.0 * cutoff * np.sinc(2.0 * cutoff * taps) * np.kaiser(taps.size, self.KAISER_BETA)
-            h *= self.up / h.sum()  # unit DC gain after zero-stuffing by `up`
-            n_taps = -(-h.size // self.up)
-            h = np.concatenate([h, np.zeros(n_taps * self.up - h.size)])
-            # _poly[p, j] = h[j * up + p], reversed along j so it pairs with ascending input.
-            self._poly = h.reshape(n_taps, self.up).T[:, ::-1].copy()
+            self.delay_samples, self._poly = _polyphase_filter(self.up, self.down)
+        self._block = max(1, _BLOCK_VALUES // self.taps_per_phase)
         self.reset()
 
     @property
@@ -267,8 +337,8 @@ class PolyphaseResampler:
         out = np.empty(m1 - m0)
         taps = self.taps_per_phase
         lane = np.arange(taps)
-        for b0 in range(m0, m1, self.BLOCK):
-            b1 = min(b0 + self.BLOCK, m1)
+        for b0 in range(m0, m1, self._block):
+            b1 = min(b0 + self._block, m1)
             k = (np.arange(b0, b1, dtype=np.int64) + self.delay_samples) * self.down
             newest = k // self.up
             phase = k - newest * self.up
@@ -347,16 +417,42 @@ class PcmDecoder:
     history and everything already output) is unchanged, as if those frames never arrived; the
     bytes are consumed, so the bytes of a trailing incomplete frame are kept and the frame
     alignment of later data is preserved. The caller can log the error and go on feeding.
+    Finite F32LE samples are clipped to [-1, 1] before resampling, so that one wild value
+    (1e38) cannot ring through the filter into its neighbours.
 
     Args:
         fmt: the format of the incoming bytes.
         target_rate_hz: output sample rate (Hz, default 16000, seed 003 section 4.2.2).
+        channels: indices of the interleaved channels to average (each in
+            ``0 .. fmt.channels - 1``, no repeats); None averages all of them (seed 003).
+
+    Raises:
+        UnsupportedAudioFormat: a channel index does not exist in ``fmt``, or the resampler
+            for ``fmt.sample_rate_hz`` would be too large (see :class:`PolyphaseResampler`).
 
     """
 
-    def __init__(self, fmt: PcmFormat, target_rate_hz: int = TARGET_RATE_HZ) -> None:
+    def __init__(
+        self,
+        fmt: PcmFormat,
+        target_rate_hz: int = TARGET_RATE_HZ,
+        channels: Sequence[int] | None = None,
+    ) -> None:
         self._fmt = fmt
         self._target_rate_hz = int(target_rate_hz)
+        if channels is not None:
+            selected = tuple(int(c) for c in channels)
+            if not selected or len(set(selected)) != len(selected):
+                raise UnsupportedAudioFormat(
+                    f"channel selection {list(channels)} must name distinct channels"
+                )
+            if not all(0 <= c < fmt.channels for c in selected):
+                raise UnsupportedAudioFormat(
+                    f"channel selection {list(selected)} does not exist in audio with "
+                    f"{fmt.channels} channel(s) (indices 0..{fmt.channels - 1})"
+                )
+            channels = None if selected == tuple(range(fmt.channels)) else selected
+        self._channels: tuple[int, ...] | None = channels
         self._resampler = PolyphaseResampler(fmt.sample_rate_hz, self._target_rate_hz)
         self._pending = b""
 
@@ -369,6 +465,15 @@ class PcmDecoder:
     def target_rate_hz(self) -> int:
         """Output sample rate (Hz)."""
         return self._target_rate_hz
+
+    @property
+    def channels(self) -> tuple[int, ...] | None:
+        """Indices of the averaged channels, or None when all channels are averaged."""
+        return self._channels
+
+    def frames_in(self, n_bytes: int) -> int:
+        """Complete frames that a :meth:`feed` of ``n_bytes`` more bytes would decode."""
+        return (len(self._pending) + n_bytes) // self._fmt.frame_bytes
 
     @property
     def pending_bytes(self) -> int:
@@ -410,8 +515,13 @@ class PcmDecoder:
                 f"dropped {usable // frame_bytes} frame(s), decoder state unchanged"
             )
         samples = _to_float(raw, self._fmt.sample_format)
+        if self._fmt.sample_format == "F32LE":
+            np.clip(samples, -1.0, 1.0, out=samples)
         if self._fmt.channels > 1:
-            samples = samples.reshape(-1, self._fmt.channels).mean(axis=1)
+            frames = samples.reshape(-1, self._fmt.channels)
+            if self._channels is not None:
+                frames = frames[:, self._channels]
+            samples = frames.mean(axis=1)
         return self._finish(self._resampler.process(samples))
 
     def flush(self) -> np.ndarray:
@@ -477,15 +587,117 @@ def encode_pcm(samples: np.ndarray, fmt: PcmFormat) -> bytes:
     return out.astype(fmt.dtype).tobytes()
 
 
+WAV_BLOCK_FRAMES = 1 << 16  # frames decoded per step by read_wav (bounds its temporaries)
+
+_WAVE_FORMAT_PCM = 0x0001
+_WAVE_FORMAT_IEEE_FLOAT = 0x0003
+_WAVE_FORMAT_EXTENSIBLE = 0xFFFE
+
+
+@dataclass(frozen=True)
+class _WavLayout:
+    """The ``fmt `` chunk of a WAV file (fields as the RIFF/WAVE specification names them)."""
+
+    format_tag: int
+    channels: int
+    sample_rate_hz: int
+    block_align: int
+    bits_per_sample: int
+
+
+def _wav_chunks(raw: bytes) -> tuple[_WavLayout, memoryview]:
+    """Walk the RIFF chunks of a WAV file held in ``raw``: its ``fmt `` layout and its samples.
+
+    A chunk that claims more bytes than the file holds is cut at the end of the file, so
+    nothing larger than the file is ever referenced.
+
+    Raises:
+        InvalidAudio: not RIFF/WAVE, or no well-formed ``fmt `` or ``data`` chunk (without
+            the path; :func:`read_wav` adds it).
+
+    """
+    if len(raw) < 12 or raw[:4] != b"RIFF" or raw[8:12] != b"WAVE":
+        raise InvalidAudio(f"not a RIFF/WAVE file ({len(raw)} bytes, starts {raw[:12]!r})")
+    view = memoryview(raw)
+    layout: _WavLayout | None = None
+    data: memoryview | None = None
+    pos = 12
+    while pos + 8 <= len(raw) and (layout is None or data is None):
+        chunk_id, size = raw[pos : pos + 4], struct.unpack_from("<I", raw, pos + 4)[0]
+        body = view[pos + 8 : min(pos + 8 + size, len(raw))]
+        if chunk_id == b"fmt ":
+            if len(body) < 16:
+                raise InvalidAudio(f"'fmt ' chunk of {len(body)} bytes (at least 16 needed)")
+            tag, channels, rate, _, block_align, bits = struct.unpack_from("<HHIIHH", body)
+            if tag == _WAVE_FORMAT_EXTENSIBLE and len(body) >= 26:
+                tag = struct.unpack_from("<H", body, 24)[0]  # first field of SubFormat
+            layout = _WavLayout(tag, channels, rate, block_align, bits)
+        elif chunk_id == b"data":
+            data = body
+        pos += 8 + size + (size & 1)  # chunks are padded to an even size
+    if layout is None:
+        raise InvalidAudio("no 'fmt ' chunk")
+    if data is None:
+        raise InvalidAudio("no 'data' chunk")
+    return layout, data
+
+
+def _wav_samples(layout: _WavLayout, data: memoryview) -> tuple[PcmFormat, np.ndarray]:
+    """The PcmFormat of a WAV layout and its (n_frames, channels) samples in that format.
+
+    24-bit samples are left-aligned in int32 (read as S32LE), 64-bit floats become float32.
+
+    Raises:
+        UnsupportedAudioFormat: the sample type, channel count or rate is not supported.
+
+    """
+    kinds = {
+        (_WAVE_FORMAT_PCM, 8): ("U8", "u1"),
+        (_WAVE_FORMAT_PCM, 16): ("S16LE", "<i2"),
+        (_WAVE_FORMAT_PCM, 24): ("S32LE", "V3"),
+        (_WAVE_FORMAT_PCM, 32): ("S32LE", "<i4"),
+        (_WAVE_FORMAT_IEEE_FLOAT, 32): ("F32LE", "<f4"),
+        (_WAVE_FORMAT_IEEE_FLOAT, 64): ("F32LE", "<f8"),
+    }
+    kind = kinds.get((layout.format_tag, layout.bits_per_sample))
+    if kind is None:
+        raise UnsupportedAudioFormat(
+            f"unsupported WAV sample type (format tag {layout.format_tag:#06x}, "
+            f"{layout.bits_per_sample} bits); supported: 8/16/24/32-bit integer PCM, "
+            "32/64-bit float"
+        )
+    sample_format, stored = kind
+    fmt = PcmFormat(sample_format, layout.channels, layout.sample_rate_hz, "wave")
+    sample_bytes = np.dtype(stored).itemsize
+    if layout.block_align != sample_bytes * layout.channels:
+        raise UnsupportedAudioFormat(
+            f"block_align {layout.block_align} does not match {layout.channels} channel(s) of "
+            f"{layout.bits_per_sample}-bit samples ({sample_bytes * layout.channels} expected)"
+        )
+    n_frames = len(data) // layout.block_align  # a truncated last frame is dropped
+    values = np.frombuffer(data, dtype=stored, count=n_frames * layout.channels)
+    if stored == "V3":  # 24-bit: place the three bytes in the top of a little-endian int32
+        wide = np.zeros((values.size, 4), dtype=np.uint8)
+        wide[:, 1:] = np.frombuffer(values.tobytes(), dtype=np.uint8).reshape(-1, 3)
+        values = wide.view("<i4").reshape(-1)
+    return fmt, values.astype(fmt.dtype, copy=False).reshape(n_frames, layout.channels)
+
+
 def read_wav(
     path: str | PathLike[str], target_rate_hz: int = TARGET_RATE_HZ
 ) -> tuple[np.ndarray, int]:
     """Read a WAV file as float32 mono at the target rate (seed 003 section 4.2.2).
 
-    The file is decoded by :class:`PcmDecoder` (same scaling, channel averaging and resampler
-    as the streaming path) and flushed, so the result is delay-compensated and has
+    The file is decoded by :class:`PcmDecoder` (same scaling, channel averaging, resampler and
+    limits as the streaming path) and flushed, so the result is delay-compensated and has
     ``ceil(n * target_rate_hz / original_rate)`` samples. 8-, 16-, 24- and 32-bit integer and
-    32/64-bit float WAVs are read; more than two channels are averaged first.
+    32/64-bit float WAVs (WAVE_FORMAT_EXTENSIBLE too) with 1 .. :data:`MAX_CHANNELS` channels
+    at :data:`MIN_SAMPLE_RATE_HZ` .. :data:`MAX_SAMPLE_RATE_HZ` are read.
+
+    Memory is bounded by the file's size: the file is read once, chunk sizes that its header
+    claims are cut at the end of the file, and the samples are decoded
+    :data:`WAV_BLOCK_FRAMES` frames at a time; the result holds at most two float32 samples
+    per input frame. Peak use is about three times the file's size plus a few MiB.
 
     Args:
         path: WAV file.
@@ -495,35 +707,26 @@ def read_wav(
         ``(samples, original_rate)``: (n,) float32 samples in [-1, 1) and the file's rate (Hz).
 
     Raises:
-        UnsupportedAudioFormat: the WAV sample type is not supported.
-        InvalidAudio: the file holds NaN or inf samples.
+        InputError: the file cannot be read.
+        UnsupportedAudioFormat: the WAV's sample type, channel count or rate is not supported.
+        InvalidAudio: the file is not a well-formed WAV, holds no samples, or holds NaN or inf.
+        Every message starts with the file's path.
 
     """
-    from scipy.io import wavfile  # local import: only needed for files
-
-    rate, data = wavfile.read(path)
-    data = np.asarray(data)
-    if data.ndim == 1:
-        data = data[:, None]
-    if data.dtype == np.float64:
-        data = data.astype(np.float32)
-    kinds = {
-        np.dtype(np.uint8): "U8",
-        np.dtype(np.int16): "S16LE",
-        np.dtype(np.int32): "S32LE",  # scipy left-aligns 24-bit samples in int32
-        np.dtype(np.float32): "F32LE",
-    }
-    sample_format = kinds.get(np.dtype(data.dtype).newbyteorder("="))
-    if sample_format is None:
-        raise UnsupportedAudioFormat(
-            f"unsupported WAV sample type {data.dtype} in {path}; supported: 8/16/24/32-bit "
-            "integer, 32/64-bit float"
-        )
-    if data.shape[1] > 2:
-        mono = _to_float(data, sample_format).mean(axis=1).astype(np.float32)
-        data, sample_format = mono[:, None], "F32LE"
-    fmt = PcmFormat(sample_format, data.shape[1], int(rate), "wave")
-    decoder = PcmDecoder(fmt, target_rate_hz)
-    payload = np.ascontiguousarray(data, dtype=fmt.dtype).tobytes()
-    samples = np.concatenate([decoder.feed(payload), decoder.flush()])
-    return samples, int(rate)
+    try:
+        raw = Path(path).read_bytes()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read WAV file: {exc.strerror or exc}") from None
+    try:
+        fmt, frames = _wav_samples(*_wav_chunks(raw))
+        decoder = PcmDecoder(fmt, target_rate_hz)
+        if frames.shape[0] == 0:
+            raise InvalidAudio("the WAV file holds no samples")
+        pieces = [
+            decoder.feed(frames[start : start + WAV_BLOCK_FRAMES].tobytes())
+            for start in range(0, frames.shape[0], WAV_BLOCK_FRAMES)
+        ]
+    except InputError as exc:
+        raise type(exc)(f"{path}: {exc}") from None
+    pieces.append(decoder.flush())
+    return np.concatenate(pieces), fmt.sample_rate_hz
