@@ -7,7 +7,8 @@
 #   4. rewrite the ROS wheels' exported CMake files that hard-code the wheel builder's Python and
 #      numpy include paths (/opt/python/cpXY-cpXY/...) to this venv's own paths
 #   5. build support/ros_msgs/{audio_common_msgs,naoqi_bridge_msgs} with plain cmake and install
-#      them into the venv, only where `import <pkg>.msg` fails (a ROS distro provides them via apt)
+#      them into the venv, only where one of their messages (every msg/*.msg of the copy, e.g.
+#      naoqi_bridge_msgs.msg.AudioBuffer) does not import (a ROS distro provides them via apt)
 #   6. Debian tools the tests use (check_urdf from liburdfdom-tools): apt-installed when missing,
 #      only as root with apt-get; otherwise the script says what to install (those tests skip)
 #   7. verify that rclpy, both message packages, torch, python_speech_features and the rendering
@@ -45,6 +46,13 @@ hash_files() {
   done | sha256sum | cut -d' ' -f1
 }
 msg_files() { find "$MSG_SRC/$1" -type f | LC_ALL=C sort; }
+# `from <pkg>.msg import A, B`: every message of our copy must import, not only the package.
+msg_import() {
+  local names
+  names="$(find "$MSG_SRC/$1/msg" -name '*.msg' -printf '%f\n' | sed 's/\.msg$//' | LC_ALL=C sort \
+    | paste -sd, - | sed 's/,/, /g')"
+  printf 'from %s.msg import %s' "$1" "$names"
+}
 
 mapfile -t ALL_MSG_FILES < <(find "$MSG_SRC" -type f | LC_ALL=C sort)
 INPUT_HASH="$(
@@ -139,7 +147,7 @@ for pkg in "${MSG_PKGS[@]}"; do
   mapfile -t files < <(msg_files "$pkg")
   pkg_hash="$(hash_files "${files[@]}")"
   pkg_stamp="$STATE/$pkg.sha256"
-  if "$PY" -c "import $pkg.msg" 2>/dev/null; then
+  if "$PY" -c "$(msg_import "$pkg")" 2>/dev/null; then
     if [[ ! -f "$pkg_stamp" ]]; then
       log "      $pkg: importable (provided elsewhere, e.g. a ROS distro): not building"
       continue
@@ -165,7 +173,7 @@ for pkg in "${MSG_PKGS[@]}"; do
     tail -n 40 "$build_log" >&2
     die "building $pkg failed (full log: $build_log)"
   fi
-  "$PY" -c "import $pkg.msg" || die "$pkg was built but does not import"
+  "$PY" -c "$(msg_import "$pkg")" || die "$pkg was built but does not import"
   printf '%s\n' "$pkg_hash" >"$pkg_stamp"
   log "      $pkg: done in $((SECONDS - t0)) s"
 done
@@ -189,8 +197,10 @@ done
 
 # ---------------------------------------------------------------------------------------------
 log "[7/7] verifying imports"
-"$PY" -c "import rclpy, audio_common_msgs.msg, naoqi_bridge_msgs.msg, torch, python_speech_features" \
-  || die "import check failed"
+"$PY" -c "import rclpy, torch, python_speech_features" || die "import check failed"
+for pkg in "${MSG_PKGS[@]}"; do
+  "$PY" -c "$(msg_import "$pkg")" || die "import check of $pkg failed"
+done
 "$PY" -c "import pybullet, yourdfpy, imageio_ffmpeg; imageio_ffmpeg.get_ffmpeg_exe()" \
   || die "import check of the rendering stack (pybullet, yourdfpy, imageio-ffmpeg) failed"
 "$PY" -c "import importlib.util, sys; sys.exit(importlib.util.find_spec('audio2pose_ros') is None)" \
