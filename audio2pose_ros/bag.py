@@ -23,6 +23,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmDecoder, PcmFormat, encode_pcm
+from audio2pose_ros.errors import InputError
 
 EXTRA_MESSAGE_DEFINITIONS = {
     "audio_common_msgs/msg/AudioData": "uint8[] data\n",
@@ -50,7 +51,7 @@ def typestore() -> Typestore:
     return store
 
 
-class BagError(ValueError):
+class BagError(InputError):
     """A bag cannot be read or does not hold what was asked for."""
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from audio2pose_ros.errors import InputError
 from audio2pose_ros.robot import RobotDescription
 
 FORMAT_VERSION = 1
@@ -31,7 +32,7 @@ INDEX_FILE = "index.json"
 FRAME_TOLERANCE = 3  # motion may be this many frames longer or shorter than the audio's grid
 
 
-class DatasetError(ValueError):
+class DatasetError(InputError):
     """A data set or clip is missing, malformed or made for other joints."""
 
 
@@ -124,8 +125,12 @@ class Dataset:
             clips = [ClipInfo(**entry) for entry in index["clips"]]
         except FileNotFoundError:
             raise DatasetError(f"{path}: no {INDEX_FILE}; not a data set folder") from None
-        except (ValueError, KeyError, TypeError) as exc:
+        except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, DatasetError) as exc:
             raise DatasetError(f"{path / INDEX_FILE}: malformed index ({exc})") from None
+        except OSError as exc:
+            raise DatasetError(
+                f"{path / INDEX_FILE}: cannot read ({exc.strerror or exc})"
+            ) from None
         if version != FORMAT_VERSION:
             raise DatasetError(f"{path}: data set format {version}, expected {FORMAT_VERSION}")
         if robot is not None and names != robot.names:

@@ -23,6 +23,7 @@ import numpy as np
 from audio2pose_ros import metrics
 from audio2pose_ros.audio.features import FeatureSpec, extract_features
 from audio2pose_ros.dataset import AUDIO_RATE_HZ, MOTION_RATE_HZ, Clip, Dataset
+from audio2pose_ros.errors import InputError
 from audio2pose_ros.models.checkpoint import Checkpoint
 from audio2pose_ros.robot import RobotDescription
 from audio2pose_ros.synthesis import synthesize
@@ -43,7 +44,7 @@ COLUMNS = (
 )
 
 
-class EvaluationError(ValueError):
+class EvaluationError(InputError):
     """Nothing to evaluate: an empty split, or checkpoints made for another robot."""
 
 

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.resources import share_path
 
 if TYPE_CHECKING:
@@ -23,7 +24,7 @@ DEFAULT_URDF_FILE = "pepper.urdf"
 MOVABLE_TYPES = ("revolute", "continuous", "prismatic")
 
 
-class KinematicsError(ValueError):
+class KinematicsError(ConfigurationError):
     """The URDF is malformed or a joint configuration names unknown joints."""
 
 

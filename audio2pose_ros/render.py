@@ -9,6 +9,7 @@ copy of that background and goes to ffmpeg (imageio-ffmpeg's binary), which muxe
 from __future__ import annotations
 
 import ctypes
+import math
 import os
 import subprocess
 import sys
@@ -22,11 +23,14 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.kinematics import RobotKinematics
 from audio2pose_ros.trajectory import Trajectory
 
 AUDIO_RATE_HZ = 16000
 VIEWS = ("front", "side")
+MAX_FPS = 240.0  # video frame rate cap (Hz)
+MAX_VIEW_PX = 4096  # largest view or panel side in pixels
 BACKGROUND_RGB = (214, 222, 235)
 CURSOR_RGB = (220, 30, 30)
 CAMERA_TARGET_M = (0.0, 0.0, -0.2)  # between the wheels (z -0.82) and the raised hands (z 0.45)
@@ -38,7 +42,7 @@ JOINT_GROUPS = ("head", "arms", "hip")
 GROUND_LINK = "Tibia"  # Pepper's wheeled base: kept still while the hips move the body above it
 
 
-class RenderError(OSError):
+class RenderError(InputError):
     """ffmpeg failed or there is nothing to render."""
 
 
@@ -65,12 +69,14 @@ class RenderSettings:
 
     def __post_init__(self) -> None:
         """Reject sizes x264 cannot encode (yuv420p needs even dimensions)."""
-        if self.fps <= 0:
-            raise ValueError(f"fps must be positive, got {self.fps}")
+        if not (math.isfinite(self.fps) and 0 < self.fps <= MAX_FPS):
+            raise ConfigurationError(f"fps must be a finite positive number, got {self.fps}")
         for name in ("view_width_px", "view_height_px", "curves_height_px"):
             value = getattr(self, name)
-            if value < 32 or value % 2:
-                raise ValueError(f"{name} must be an even number of at least 32, got {value}")
+            if not 32 <= value <= MAX_VIEW_PX or value % 2:
+                raise ConfigurationError(
+                    f"{name} must be an even number in [32, {MAX_VIEW_PX}], got {value}"
+                )
 
     @property
     def views(self) -> tuple[str, ...]:

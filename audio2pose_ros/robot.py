@@ -3,10 +3,18 @@
 One YAML file (``config/pepper_robot.yaml``) is the single source of truth; nodes, models,
 training, the URDF check and the tests all read it through :func:`load_robot`. Angles are radians,
 velocities rad/s, accelerations rad/s^2.
+
+A description is validated when it is loaded, whatever its source (file or checkpoint header):
+every field present with its type (numbers as YAML numbers, not strings), limits finite,
+``min_rad < max_rad``, the neutral pose inside, velocity and acceleration limits positive and
+finite, joint names unique, at most :data:`MAX_JOINTS` joints and a file of at most
+:data:`MAX_FILE_BYTES`. Any refusal is a :class:`RobotDescriptionError` (a
+:class:`~audio2pose_ros.errors.ConfigurationError`) naming the file, the joint and the field.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,13 +23,23 @@ from typing import Any
 import numpy as np
 import yaml
 
+from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.resources import share_path
 
 DEFAULT_ROBOT_FILE = "pepper_robot.yaml"
 JOINT_GROUPS = ("head", "arms", "hip")
+MAX_FILE_BYTES = 1 << 20  # a robot description YAML; Pepper's is 2 KB
+MAX_JOINTS = 64
+_NUMBER_FIELDS = (
+    "min_rad",
+    "max_rad",
+    "max_velocity_rad_s",
+    "max_acceleration_rad_s2",
+    "neutral_rad",
+)
 
 
-class RobotDescriptionError(ValueError):
+class RobotDescriptionError(ConfigurationError):
     """A robot description file is missing fields or holds inconsistent values."""
 
 
@@ -39,6 +57,11 @@ class JointLimits:
 
     def __post_init__(self) -> None:
         """Reject limits that cannot be satisfied, naming the joint and the values."""
+        for field in _NUMBER_FIELDS:
+            if not math.isfinite(getattr(self, field)):
+                raise RobotDescriptionError(
+                    f"joint {self.name}: {field} {getattr(self, field)} is not finite"
+                )
         if self.group not in JOINT_GROUPS:
             raise RobotDescriptionError(
                 f"joint {self.name}: group {self.group!r} is not one of {JOINT_GROUPS}"
@@ -73,6 +96,10 @@ class RobotDescription:
         """Reject empty descriptions and duplicated joint names."""
         if not self.joints:
             raise RobotDescriptionError(f"robot {self.name}: no joints")
+        if len(self.joints) > MAX_JOINTS:
+            raise RobotDescriptionError(
+                f"robot {self.name}: {len(self.joints)} joints, at most {MAX_JOINTS} allowed"
+            )
         names = [j.name for j in self.joints]
         duplicates = sorted({n for n in names if names.count(n) > 1})
         if duplicates:
@@ -159,13 +186,39 @@ class RobotDescription:
         }
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any], source: str = "<dict>") -> RobotDescription:
-        """Build a description from :meth:`to_dict` output or the YAML file's content."""
+    def from_dict(cls, data: object, source: str = "<dict>") -> RobotDescription:
+        """Build a validated description from :meth:`to_dict` output or the YAML file's content.
+
+        Raises:
+            RobotDescriptionError: a field is missing or has the wrong type, or the limits are
+                inconsistent; the message names ``source``, the joint and the field.
+        """
+        if not isinstance(data, Mapping):
+            raise RobotDescriptionError(
+                f"{source}: expected a mapping with 'robot' and 'joints', got {type(data).__name__}"
+            )
+        name, joints = data.get("robot"), data.get("joints")
+        if not isinstance(name, str) or not name:
+            raise RobotDescriptionError(f"{source}: field robot must be a non-empty string")
+        if not isinstance(joints, list):
+            raise RobotDescriptionError(f"{source}: field joints must be a list of joints")
+        if len(joints) > MAX_JOINTS:
+            raise RobotDescriptionError(
+                f"{source}: {len(joints)} joints, at most {MAX_JOINTS} allowed"
+            )
         try:
-            joints = tuple(_joint_from_mapping(j) for j in data["joints"])
-            return cls(name=str(data["robot"]), joints=joints)
-        except (KeyError, TypeError) as exc:
-            raise RobotDescriptionError(f"{source}: malformed robot description ({exc})") from None
+            return cls(
+                name=name,
+                joints=tuple(
+                    _joint_from_mapping(entry, f"{source}: joints[{i}]")
+                    for i, entry in enumerate(joints)
+                ),
+            )
+        except RobotDescriptionError as exc:
+            message = str(exc)
+            raise RobotDescriptionError(
+                message if message.startswith(source) else f"{source}: {message}"
+            ) from None
 
     def differences(self, other: RobotDescription, tolerance: float = 1e-6) -> list[str]:
         """List, in words, how ``other`` differs in joint order and position limits.
@@ -187,29 +240,70 @@ class RobotDescription:
         return problems
 
 
-def _joint_from_mapping(entry: Mapping[str, Any]) -> JointLimits:
+def _joint_from_mapping(entry: object, where: str) -> JointLimits:
+    """One joint from its mapping, every field checked for presence and type."""
+    if not isinstance(entry, Mapping):
+        raise RobotDescriptionError(f"{where}: expected a mapping, got {type(entry).__name__}")
+    label = f"{where} ({entry['name']})" if isinstance(entry.get("name"), str) else where
+    values: dict[str, Any] = {}
+    for field in ("name", "group", *_NUMBER_FIELDS):
+        if field not in entry:
+            raise RobotDescriptionError(f"{label}: field {field} is missing")
+        value = entry[field]
+        if field in _NUMBER_FIELDS:
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise RobotDescriptionError(
+                    f"{label}: field {field} must be a number, got {value!r:.40}"
+                )
+            values[field] = float(value)
+        elif not isinstance(value, str) or not value:
+            raise RobotDescriptionError(
+                f"{label}: field {field} must be a non-empty string, got {value!r:.40}"
+            )
+        else:
+            values[field] = value
+    unknown = sorted(str(k) for k in entry if k not in values)
+    if unknown:
+        raise RobotDescriptionError(f"{label}: unknown fields {unknown[:5]}")
     return JointLimits(
-        name=str(entry["name"]),
-        group=str(entry["group"]),
-        min_rad=float(entry["min_rad"]),
-        max_rad=float(entry["max_rad"]),
-        max_velocity_rad_s=float(entry["max_velocity_rad_s"]),
-        max_acceleration_rad_s2=float(entry["max_acceleration_rad_s2"]),
-        neutral_rad=float(entry["neutral_rad"]),
+        name=values["name"],
+        group=values["group"],
+        min_rad=values["min_rad"],
+        max_rad=values["max_rad"],
+        max_velocity_rad_s=values["max_velocity_rad_s"],
+        max_acceleration_rad_s2=values["max_acceleration_rad_s2"],
+        neutral_rad=values["neutral_rad"],
     )
 
 
 def load_robot(path: str | Path | None = None) -> RobotDescription:
-    """Load a robot description YAML; ``None`` or ``""`` loads the packaged Pepper description.
+    """Load and validate a robot description YAML; ``None`` or ``""`` loads the packaged Pepper.
 
     Raises:
-        RobotDescriptionError: the file is malformed or its limits are inconsistent.
-        FileNotFoundError: the file does not exist.
+        RobotDescriptionError: the file is missing, unreadable, larger than
+            :data:`MAX_FILE_BYTES`, not YAML, malformed, or its limits are inconsistent (the
+            message names the file and the field).
 
     """
     file = Path(path) if path else share_path("config", DEFAULT_ROBOT_FILE)
-    with file.open(encoding="utf-8") as stream:
-        data = yaml.safe_load(stream)
-    if not isinstance(data, Mapping):
-        raise RobotDescriptionError(f"{file}: expected a mapping with 'robot' and 'joints'")
+    try:
+        with file.open("rb") as stream:
+            raw = stream.read(MAX_FILE_BYTES + 1)
+    except FileNotFoundError:
+        raise RobotDescriptionError(f"{file}: robot description file not found") from None
+    except IsADirectoryError:
+        raise RobotDescriptionError(f"{file}: is a directory, not a robot description") from None
+    except OSError as exc:
+        raise RobotDescriptionError(f"{file}: cannot read ({exc.strerror or exc})") from None
+    if len(raw) > MAX_FILE_BYTES:
+        raise RobotDescriptionError(f"{file}: larger than {MAX_FILE_BYTES} bytes")
+    try:
+        data = yaml.safe_load(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise RobotDescriptionError(f"{file}: not UTF-8 text") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or type(exc).__name__
+        raise RobotDescriptionError(f"{file}: not valid YAML{where} ({problem})") from None
     return RobotDescription.from_dict(data, source=str(file))

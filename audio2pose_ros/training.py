@@ -32,6 +32,7 @@ from tqdm import tqdm
 
 from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec, extract_features
 from audio2pose_ros.dataset import Clip, Dataset
+from audio2pose_ros.errors import InputError
 from audio2pose_ros.models import FitStage, PoseModel, build_model
 from audio2pose_ros.models.base import masked_mse
 from audio2pose_ros.models.checkpoint import Checkpoint, load_checkpoint, save_checkpoint
@@ -42,7 +43,7 @@ _STATE_KEY = "audio2pose_train_state"
 HOLDOUTS = ("clip", "speaker")
 
 
-class TrainingError(ValueError):
+class TrainingError(InputError):
     """Training cannot start or resume: empty splits, unknown speaker, mismatched state."""
 
 
@@ -334,13 +335,12 @@ def train_model(
         resume: continue from ``state_path`` if it exists.
 
     Raises:
-        ValueError: when either split is empty.
-        TrainingError: a state file that belongs to another model.
+        TrainingError: either split is empty, or a state file belongs to another model.
 
     """
     settings = settings or TrainSettings()
     if not train or not validation:
-        raise ValueError("training needs at least one training and one validation utterance")
+        raise TrainingError("training needs at least one training and one validation utterance")
     recipe = model.recipe
     patience = settings.patience if settings.patience is not None else recipe.patience
     torch.manual_seed(settings.seed)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from audio2pose_ros.errors import InputError
 from audio2pose_ros.robot import RobotDescription
 
 JOINT_STATES_TOPIC = "/joint_states"
@@ -18,7 +19,7 @@ JOINT_ANGLES_TOPIC = "/joint_angles"
 AUDIO_TOPIC = "/audio/audio"
 
 
-class TrajectoryError(ValueError):
+class TrajectoryError(InputError):
     """A trajectory source holds no usable joint angles."""
 
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models import (
     MODEL_REGISTRY,
     OfflineOnlyModelError,
@@ -15,7 +16,13 @@ from audio2pose_ros.models import (
 )
 from audio2pose_ros.models.mlp import FramewiseMLP, MLPConfig
 from audio2pose_ros.models.span import recombine_spans, span_loss
-from audio2pose_ros.training import TrainSettings, Utterance, evaluate_loss, train_model
+from audio2pose_ros.training import (
+    TrainingError,
+    TrainSettings,
+    Utterance,
+    evaluate_loss,
+    train_model,
+)
 
 sys.path.insert(0, str(Path(__file__).parent))
 from synthetic_motion import mean_baseline_mse
@@ -41,10 +48,27 @@ def test_when_streaming_predictor_expect_same_output_as_torch_forward():
 
 
 def test_when_unknown_model_or_config_expect_clear_error():
-    with pytest.raises(ValueError, match="unknown model 'transformer'"):
+    with pytest.raises(ConfigurationError, match="unknown model 'transformer'"):
         build_model("transformer", {})
-    with pytest.raises(ValueError, match="bad config"):
+    with pytest.raises(ConfigurationError, match=r"unknown config keys \['n_layers'\]"):
         build_model("mlp", {"n_layers": 3})
+
+
+@pytest.mark.parametrize(
+    ("config", "problem"),
+    [
+        ({"hidden_units": 10**9}, r"hidden_units=1000000000 is outside \[0, 1024\]"),
+        ({"hidden_layers": 2.5}, "hidden_layers=2.5 is not an integer"),
+        ({"hidden_units": "8"}, "hidden_units='8' is not an integer"),
+        ({"dropout": float("nan")}, "dropout=nan is not finite"),
+        ({"dropout": [0.1]}, r"dropout=\[0.1\] is not a number"),
+    ],
+)
+def test_when_config_value_is_absurd_expect_configuration_error_before_any_allocation(
+    config, problem
+):
+    with pytest.raises(ConfigurationError, match=problem):
+        build_model("mlp", config)
 
 
 def synthetic_utterances(n: int, frames: int, seed: int) -> list[Utterance]:
@@ -96,9 +120,9 @@ def test_when_targets_masked_expect_masked_values_ignored():
     assert report.best_val_loss < 0.1
 
 
-def test_when_split_empty_expect_value_error():
+def test_when_split_empty_expect_training_error():
     model = FramewiseMLP(MLPConfig())
-    with pytest.raises(ValueError, match="at least one training and one validation"):
+    with pytest.raises(TrainingError, match="at least one training and one validation"):
         train_model(model, [], synthetic_utterances(1, 10, 0))
 
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import yaml
 
-from audio2pose_ros.robot import RobotDescriptionError, load_robot
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.robot import MAX_FILE_BYTES, RobotDescriptionError, load_robot
 
 SEED_TABLE_3_1 = {  # name: (lower, upper) in rad, in the seed's order theta_1..theta_11
     "HeadPitch": (-0.7068, 0.4451),
@@ -69,7 +70,9 @@ def test_when_limits_inverted_expect_error_naming_joint(tmp_path: Path):
 def test_when_field_missing_expect_error_naming_file(tmp_path: Path):
     bad = tmp_path / "robot.yaml"
     bad.write_text("robot: r\njoints:\n  - {name: J1, group: head}\n")
-    with pytest.raises(RobotDescriptionError, match=r"robot\.yaml: malformed robot description"):
+    with pytest.raises(
+        RobotDescriptionError, match=r"robot\.yaml: joints\[0\] \(J1\): field min_rad is missing"
+    ):
         load_robot(bad)
 
 
@@ -81,3 +84,68 @@ def test_when_comparing_changed_ranges_expect_differences_listed(robot, tmp_path
     other = load_robot(robot_file)
     assert robot.differences(other) == ["HeadPitch range [-0.7068, 0.637045] != [-0.7068, 0.4451]"]
     assert robot.differences(robot) == []
+
+
+JOINT = (
+    "{name: J1, group: head, min_rad: -1.0, max_rad: 1.0, max_velocity_rad_s: 1.0, "
+    "max_acceleration_rad_s2: 1.0, neutral_rad: 0.0}"
+)
+
+
+@pytest.mark.parametrize(
+    ("edit", "problem"),
+    [
+        (("min_rad: -1.0", "min_rad: -.inf"), r"joint J1: min_rad -inf is not finite"),
+        (("max_rad: 1.0", "max_rad: .nan"), r"joint J1: max_rad nan is not finite"),
+        (("neutral_rad: 0.0", "neutral_rad: 2.0"), r"neutral_rad 2\.0 is outside"),
+        (("max_velocity_rad_s: 1.0", "max_velocity_rad_s: .inf"), "max_velocity_rad_s inf is not"),
+        (("max_acceleration_rad_s2: 1.0", "max_acceleration_rad_s2: -1"), "must be positive"),
+        (("max_rad: 1.0", "max_rad: '1.0'"), r"\(J1\): field max_rad must be a number, got '1\.0'"),
+        (("max_rad: 1.0", "max_rad: [1.0]"), r"field max_rad must be a number, got \[1\.0\]"),
+        (("group: head", "group: [head]"), r"field group must be a non-empty string"),
+        (("max_rad: 1.0", "max_rad: true"), r"field max_rad must be a number, got True"),
+    ],
+)
+def test_when_a_joint_field_is_unusable_expect_configuration_error_naming_file_and_field(
+    tmp_path: Path, edit: tuple[str, str], problem: str
+):
+    bad = tmp_path / "robot.yaml"
+    bad.write_text(f"robot: r\njoints:\n  - {JOINT.replace(*edit)}\n")
+    with pytest.raises(ConfigurationError, match=r"robot\.yaml: .*" + problem):
+        load_robot(bad)
+
+
+@pytest.mark.parametrize(
+    ("text", "problem"),
+    [
+        ("- 1\n- 2\n", "expected a mapping with 'robot' and 'joints', got list"),
+        ("robot: r\njoints: {a: 1}\n", "field joints must be a list"),
+        ("robot: r\njoints: [1, 2]\n", r"joints\[0\]: expected a mapping, got int"),
+        (f"robot: r\njoints: [{JOINT}, {JOINT}]\n", r"robot r: duplicated joints \['J1'\]"),
+        ("robot: [r]\njoints: []\n", "field robot must be a non-empty string"),
+        ("robot: r\njoints: [\n", r"not valid YAML at line \d"),
+        ("", "expected a mapping with 'robot' and 'joints', got NoneType"),
+    ],
+)
+def test_when_the_yaml_is_malformed_expect_configuration_error_naming_the_file(
+    tmp_path: Path, text: str, problem: str
+):
+    bad = tmp_path / "robot.yaml"
+    bad.write_text(text)
+    with pytest.raises(ConfigurationError, match=r"robot\.yaml: " + problem):
+        load_robot(bad)
+
+
+def test_when_the_file_is_huge_missing_or_a_directory_expect_one_line(tmp_path: Path):
+    huge = tmp_path / "huge.yaml"
+    huge.write_bytes(b"#" * (MAX_FILE_BYTES + 1))
+    with pytest.raises(
+        ConfigurationError, match=rf"huge\.yaml: larger than {MAX_FILE_BYTES} bytes"
+    ):
+        load_robot(huge)
+    with pytest.raises(
+        ConfigurationError, match=r"missing\.yaml: robot description file not found"
+    ):
+        load_robot(tmp_path / "missing.yaml")
+    with pytest.raises(ConfigurationError, match="is a directory"):
+        load_robot(tmp_path)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from audio2pose_ros.dataset import AUDIO_RATE_HZ, MOTION_RATE_HZ, Clip, ClipInfo, expected_frames
+from audio2pose_ros.errors import InputError
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
 from audio2pose_ros.robot import RobotDescription
 
@@ -29,7 +30,7 @@ MAX_GAP_S = 0.25  # unobserved stretches up to this long are interpolated and co
 _MIRROR_NEGATED = ("HeadYaw", "HipRoll", "ShoulderRoll", "ElbowRoll", "ElbowYaw")
 
 
-class ImporterError(ValueError):
+class ImporterError(InputError):
     """A source file cannot be imported; the message names the file and the reason."""
 
 

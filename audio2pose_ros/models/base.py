@@ -23,10 +23,12 @@ import numpy as np
 import torch
 from torch import nn
 
+from audio2pose_ros.errors import ConfigurationError
+
 LossFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
 
 
-class OfflineOnlyModelError(ValueError):
+class OfflineOnlyModelError(ConfigurationError):
     """A model that needs the whole utterance was asked to run online."""
 
 

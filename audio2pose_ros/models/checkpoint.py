@@ -7,6 +7,13 @@ ranges) and free-form training information. Loading never executes code (safeten
 tensors and strings), and a SHA-256 digest over header and tensors detects files changed after
 saving. A checkpoint whose joints, ranges or features differ from what the caller expects is
 refused with a message that lists the differences.
+
+Loading checks, in this order and before any tensor is read: the container and header structure
+and sizes (:func:`~audio2pose_ros.checkpoint_format.read_checkpoint_file`), the digest, the
+model config (:func:`~audio2pose_ros.models.build_model`), and that the file holds exactly the
+tensors the model has, with its shapes and dtype (the model is first built on torch's ``meta``
+device, which allocates nothing). Weights must be finite; the normalisation statistics must
+fit the features.
 """
 
 from __future__ import annotations
@@ -27,12 +34,16 @@ from audio2pose_ros.checkpoint_format import (
     FORMAT_VERSION,
     HEADER_KEY,
     CheckpointError,
-    read_metadata,
+    CheckpointFile,
+    digest_update,
+    parse_section,
+    read_checkpoint_file,
+    verify_digest,
 )
-
-__all__ = ["Checkpoint", "CheckpointError", "load_checkpoint", "save_checkpoint"]
 from audio2pose_ros.models import PoseModel, build_model
 from audio2pose_ros.robot import RobotDescription
+
+__all__ = ["Checkpoint", "CheckpointError", "load_checkpoint", "save_checkpoint"]
 
 
 @dataclass
@@ -50,9 +61,7 @@ def _digest(header: str, tensors: dict[str, torch.Tensor]) -> str:
     sha = hashlib.sha256(header.encode("utf-8"))
     for name in sorted(tensors):
         tensor = tensors[name].detach().cpu().contiguous()
-        sha.update(name.encode("utf-8"))
-        sha.update(str(tuple(tensor.shape)).encode("ascii"))
-        sha.update(tensor.numpy().tobytes())
+        digest_update(sha, name, tuple(tensor.shape), tensor.numpy().tobytes())
     return sha.hexdigest()
 
 
@@ -95,32 +104,25 @@ def load_checkpoint(
             version, or does not match ``robot`` / ``features`` (the message lists what differs).
 
     """
-    file = Path(path)
-    header, header_text, digest = read_metadata(file)
-    try:
-        tensors = load_file(str(file))
-    except (SafetensorError, OSError, ValueError) as exc:
-        raise CheckpointError(f"{file}: unreadable tensors ({exc})") from None
-    if _digest(header_text, tensors) != digest:
+    file = read_checkpoint_file(path)
+    verify_digest(file)
+    stored_robot = parse_section(
+        file, "robot", lambda data: RobotDescription.from_dict(data, source=f"{file.path} robot")
+    )
+    stored_features = parse_section(file, "features", FeatureSpec.from_dict)
+    normalizer = parse_section(file, "normalizer", FeatureNormalizer.from_dict)
+    if normalizer.mean.shape != (stored_features.dim,):
         raise CheckpointError(
-            f"{file}: checksum mismatch, the file was modified after it was saved; retrain or "
-            "restore the original file"
+            f"{file.path}: normalizer has {normalizer.mean.size} means and deviations, the "
+            f"features have {stored_features.dim} dimensions"
         )
-
-    try:
-        stored_robot = RobotDescription.from_dict(header["robot"], source=str(file))
-        stored_features = FeatureSpec.from_dict(header["features"])
-        normalizer = FeatureNormalizer.from_dict(header["normalizer"])
-        model = build_model(header["model"]["name"], header["model"]["config"])
-        model.load_state_dict(tensors)
-    except (ValueError, RuntimeError, KeyError, TypeError) as exc:
-        raise CheckpointError(f"{file}: inconsistent checkpoint ({exc})") from None
+    model = _model_for(file)
     model_dims = model.config_dict()
     if model_dims.get("n_joints") != stored_robot.n_joints or (
         model_dims.get("n_features") != stored_features.dim
     ):
         raise CheckpointError(
-            f"{file}: model maps {model_dims.get('n_features')} features to "
+            f"{file.path}: model maps {model_dims.get('n_features')} features to "
             f"{model_dims.get('n_joints')} joints, but the header describes "
             f"{stored_features.dim} features and {stored_robot.n_joints} joints"
         )
@@ -128,7 +130,7 @@ def load_checkpoint(
         differences = robot.differences(stored_robot)
         if differences:
             raise CheckpointError(
-                f"{file}: made for other joints than the configured robot: "
+                f"{file.path}: made for other joints than the configured robot: "
                 + "; ".join(differences)
             )
     if features is not None and stored_features != features:
@@ -137,12 +139,54 @@ def load_checkpoint(
             for key, value in stored_features.to_dict().items()
             if features.to_dict().get(key) != value
         ]
-        raise CheckpointError(f"{file}: made for other audio features: " + ", ".join(changed))
+        raise CheckpointError(f"{file.path}: made for other audio features: " + ", ".join(changed))
     model.eval()
     return Checkpoint(
         model=model,
         features=stored_features,
         normalizer=normalizer,
         robot=stored_robot,
-        info=header.get("info", {}),
+        info=file.header.get("info", {}),
     )
+
+
+def _model_for(file: CheckpointFile) -> PoseModel:
+    """Build the header's model and load the file's tensors into it, checking both first.
+
+    The model is first built on the ``meta`` device (no memory) and its state dict compared
+    with the file's tensor entries: same names, same shapes, float32 everywhere. Only then is
+    it built for real and the tensors read; they must be finite.
+    """
+    spec = file.header["model"]
+    with torch.device("meta"):
+        shapes = {
+            name: (tuple(tensor.shape), tensor.dtype)
+            for name, tensor in parse_section(
+                file, "model", lambda m: build_model(m["name"], m["config"])
+            )
+            .state_dict()
+            .items()
+        }
+    missing = sorted(set(shapes) - set(file.tensors))
+    unexpected = sorted(set(file.tensors) - set(shapes))
+    if missing or unexpected:
+        raise CheckpointError(
+            f"{file.path}: tensors do not fit model {spec['name']!r}: missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]}"
+        )
+    for name, (shape, dtype) in shapes.items():
+        if file.tensors[name].shape != shape or dtype != torch.float32:
+            raise CheckpointError(
+                f"{file.path}: tensor {name!r} has shape {list(file.tensors[name].shape)}, "
+                f"model {spec['name']!r} needs {list(shape)} ({dtype})"
+            )
+    model = build_model(spec["name"], spec["config"])
+    try:
+        tensors = load_file(str(file.path))
+    except (SafetensorError, OSError) as exc:
+        raise CheckpointError(f"{file.path}: unreadable tensors ({exc})") from None
+    for name, tensor in tensors.items():
+        if tensor.dtype != torch.float32 or not bool(torch.isfinite(tensor).all()):
+            raise CheckpointError(f"{file.path}: tensor {name!r} is not finite float32")
+    model.load_state_dict(tensors, strict=True)
+    return model

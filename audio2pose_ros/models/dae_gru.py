@@ -30,6 +30,7 @@ import torch
 from torch import nn
 from torch.nn import functional
 
+from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.base import FitStage, PoseModel, masked_mse
 
 
@@ -62,7 +63,7 @@ class DAEGRU(PoseModel):
         """Build the autoencoder and the speech network."""
         super().__init__()
         if config.context_frames % 2 != 1:
-            raise ValueError(f"context_frames must be odd, got {config.context_frames}")
+            raise ConfigurationError(f"context_frames must be odd, got {config.context_frames}")
         self.config = config
         motion_dim = 2 * config.n_joints
         self.encoder = nn.Sequential(

@@ -30,6 +30,7 @@ import torch
 from scipy import signal
 from torch import nn
 
+from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.base import PoseModel, StreamingPredictor
 from audio2pose_ros.models.recurrent_numpy import CellWeights, gru_step, linear_weights, sigmoid
 
@@ -59,7 +60,9 @@ class LiveSampler(PoseModel):
         """Build the GRU, the Gaussian output layer and the start pose."""
         super().__init__()
         if not 0.0 <= config.noise_correlation < 1.0:
-            raise ValueError(f"noise_correlation must be in [0, 1), got {config.noise_correlation}")
+            raise ConfigurationError(
+                f"noise_correlation must be in [0, 1), got {config.noise_correlation}"
+            )
         self.config = config
         self.gru = nn.GRU(
             config.n_features + config.n_joints, config.hidden_units, batch_first=True
