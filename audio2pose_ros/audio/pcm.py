@@ -137,6 +137,13 @@ class PcmFormat:
         object.__setattr__(self, "channels", int(self.channels))
         object.__setattr__(self, "sample_rate_hz", int(rate))
 
+    def __str__(self) -> str:
+        """``S16LE, 2 channel(s), 48000 Hz, wave``: the format in one line."""
+        coding = self.coding_format or "raw"
+        return (
+            f"{self.sample_format}, {self.channels} channel(s), {self.sample_rate_hz} Hz, {coding}"
+        )
+
     @classmethod
     def from_audio_info(
         cls,

@@ -1,125 +1,178 @@
-"""audio_features_node: audio_common_msgs audio in, streaming LogFB/MFCC feature frames out.
+"""audio_features_node: microphone audio in, streaming LogFB/MFCC feature frames out.
 
-Subscriptions:
-    audio/audio (audio_common_msgs/AudioData, best effort): raw PCM chunks of any size.
-    audio/audio_info (audio_common_msgs/AudioInfo, transient local): how to decode the chunks.
+Subscriptions (``input_type`` chooses one of two inputs):
+    audio_common (default):
+        audio/audio (audio_common_msgs/AudioData, best effort): raw PCM chunks of any size.
+        audio/audio_info (audio_common_msgs/AudioInfo, transient local): how to decode them.
+    naoqi:
+        audio/audio (naoqi_bridge_msgs/AudioBuffer, best effort): the robot's microphones as
+        naoqi_driver publishes them (remap it to naoqi_driver's ``audio`` topic).
 Publications:
     features (std_msgs/Float32MultiArray): frames x features, un-normalised, at 100 frames/s
         of audio; dim[1].label names the feature set (e.g. ``logfbank26``).
     voice_activity (std_msgs/Bool): energy-based voice activity after each audio chunk.
-    /diagnostics (diagnostic_msgs/DiagnosticArray)
+    /diagnostics (diagnostic_msgs/DiagnosticArray): a heartbeat every 0.5 s.
 
 Parameters
 ----------
-    model_path (str): checkpoint whose feature specification to compute ('' = packaged default).
+    model_path (str, read-only): checkpoint whose feature specification to compute ('' = the
+        packaged default).
+    input_type, channels, max_chunk_bytes, max_chunk_s, max_audio_s_per_s: see
+        :class:`~audio2pose_ros.audio.source.AudioInputSettings` (``ros2 param describe``
+        shows each with its range). All but input_type and model_path can change live.
 
-Audio that cannot be decoded (no AudioInfo yet, unsupported format, NaN samples) is dropped
-with a throttled warning and counted in /diagnostics; the node keeps running.
-
+Audio that cannot be used (no or a rejected format, a message over a limit, NaN samples) is
+dropped, counted and reported on /diagnostics while it happens; a rejected AudioInfo is
+reported with its reason until a valid AudioInfo arrives, and decoding resumes at once then.
+Any other exception in a callback is caught at the node boundary
+(:meth:`~audio2pose_ros.nodes.common.DiagnosedNode.guarded`) and the node keeps serving.
 """
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Mapping
+
 import numpy as np
 from audio_common_msgs.msg import AudioData, AudioInfo
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rclpy.node import Node
+from diagnostic_msgs.msg import DiagnosticStatus
+from naoqi_bridge_msgs.msg import AudioBuffer
 from std_msgs.msg import Bool, Float32MultiArray
 
 from audio2pose_ros.audio.features import StreamingFeatureExtractor
-from audio2pose_ros.audio.pcm import InvalidAudio, PcmDecoder, PcmFormat, UnsupportedAudioFormat
+from audio2pose_ros.audio.source import AudioInput, AudioInputSettings
 from audio2pose_ros.audio.vad import EnergyVad
 from audio2pose_ros.checkpoint_format import feature_spec_of
+from audio2pose_ros.errors import InputError
 from audio2pose_ros.nodes.common import (
     AUDIO_QOS,
-    DIAGNOSTICS_PERIOD_S,
     LATCHED_QOS,
     STREAM_QOS,
-    StartupError,
-    diagnostic_array,
+    DiagnosedNode,
     features_to_msg,
     run_node,
 )
+from audio2pose_ros.nodes.parameters import NodeParameters
+from audio2pose_ros.parameters import ParameterSpec, ParameterValue, specs_of
 from audio2pose_ros.resources import default_checkpoint_path
 
-WARN_THROTTLE_S = 5.0
+MODEL_PATH = ParameterSpec(
+    name="model_path",
+    default="",
+    description="checkpoint whose feature specification is computed ('' = packaged default)",
+    read_only=True,
+)
+PARAMETERS: tuple[ParameterSpec, ...] = (MODEL_PATH, *specs_of(AudioInputSettings))
+_INPUT_FIELDS = tuple(spec.name for spec in specs_of(AudioInputSettings))
 
 
-class AudioFeaturesNode(Node):
-    """Decode audio chunks as AudioInfo describes them and publish feature frames."""
+class AudioFeaturesNode(DiagnosedNode):
+    """Decode audio messages within limits and publish feature frames."""
 
     def __init__(self) -> None:
-        """Declare parameters, build the extractor, wire topics and the diagnostics timer."""
+        """Declare parameters, build the extractor, wire topics (the heartbeat is the base's).
+
+        Raises:
+            ConfigurationError: a parameter is refused, or ``model_path`` is not a usable
+                checkpoint (the node exits and is not respawned).
+        """
         super().__init__("audio_features_node")
-        model_path = self.declare_parameter("model_path", "").value
-        self.max_chunk_bytes = int(self.declare_parameter("max_chunk_bytes", 1 << 20).value)
-        try:
-            self.spec = feature_spec_of(model_path or default_checkpoint_path())
-        except (OSError, ValueError) as exc:
-            raise StartupError(str(exc)) from None
+        self.params = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
+        self.spec = feature_spec_of(self.params["model_path"] or default_checkpoint_path())
         self.label = f"{self.spec.kind}{self.spec.dim}"
+        self.input = AudioInput(self._input_settings(), target_rate_hz=self.spec.sample_rate_hz)
         self.extractor = StreamingFeatureExtractor(self.spec)
         self.vad = EnergyVad()
-        self.decoder: PcmDecoder | None = None
-        self.format: PcmFormat | None = None
-        self.chunks = 0
         self.frames_out = 0
-        self.dropped_bytes = 0
-        self.last_problem = ""
 
         self.features_pub = self.create_publisher(Float32MultiArray, "features", STREAM_QOS)
         self.voice_pub = self.create_publisher(Bool, "voice_activity", STREAM_QOS)
-        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(AudioInfo, "audio/audio_info", self.on_audio_info, LATCHED_QOS)
-        self.create_subscription(AudioData, "audio/audio", self.on_audio, AUDIO_QOS)
-        self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
-        self.get_logger().info(f"computing {self.label} features ({self.spec.to_dict()})")
+        if self.input.settings.input_type == "naoqi":
+            self.create_subscription(
+                AudioBuffer, "audio/audio", self.guarded(self.on_audio_buffer), AUDIO_QOS
+            )
+        else:
+            self.create_subscription(
+                AudioInfo, "audio/audio_info", self.guarded(self.on_audio_info), LATCHED_QOS
+            )
+            self.create_subscription(
+                AudioData, "audio/audio", self.guarded(self.on_audio_data), AUDIO_QOS
+            )
+        self.get_logger().info(
+            f"computing {self.label} features ({self.spec.to_dict()}) from "
+            f"{self.input.settings.input_type} audio, {self.input.settings.selection.describe()}"
+        )
+
+    def _input_settings(
+        self, changes: Mapping[str, ParameterValue] | None = None
+    ) -> AudioInputSettings:
+        values = {name: self.params[name] for name in _INPUT_FIELDS}
+        values.update({k: v for k, v in (changes or {}).items() if k in _INPUT_FIELDS})
+        return AudioInputSettings(**values)  # type: ignore[arg-type]
+
+    def apply_parameters(self, changes: Mapping[str, ParameterValue]) -> None:
+        """Validate the combination, then apply it from the next message on."""
+        self.input.update_settings(self._input_settings(changes))
+
+    # --- audio_common ---------------------------------------------------------------------------
 
     def on_audio_info(self, msg: AudioInfo) -> None:
-        """Adopt a new audio format; a changed format restarts decoding and features."""
+        """Adopt a new format (a change restarts features); keep a refusal's reason on show."""
         try:
-            fmt = PcmFormat.from_audio_info(
+            changed = self.input.set_audio_info(
                 msg.channels, msg.sample_rate, msg.sample_format, msg.coding_format
             )
-        except UnsupportedAudioFormat as exc:
-            self.decoder, self.format = None, None
-            self.last_problem = f"AudioInfo rejected, audio will be dropped: {exc}"
-            self.get_logger().error(self.last_problem)  # once per AudioInfo (every 5 s at most)
+        except InputError as exc:  # shown by diagnostic_summary until a valid AudioInfo
+            self.get_logger().error(f"{exc}; audio is dropped until a valid AudioInfo arrives")
             return
-        if fmt == self.format:
+        self.clear_problem("format")
+        if changed:
+            self.get_logger().info(f"audio format: {self.input.format}")
+            self._restart()
+
+    def on_audio_data(self, msg: AudioData) -> None:
+        """Decode one AudioData and publish what became available."""
+        try:
+            samples = self.input.decode_audio_data(msg.data)
+        except InputError as exc:
+            self._report_dropped(exc)
             return
-        self.get_logger().info(f"audio format: {fmt}")
-        self.format = fmt
-        self.decoder = PcmDecoder(fmt, target_rate_hz=self.spec.sample_rate_hz)
+        self._publish(samples)
+
+    # --- naoqi ----------------------------------------------------------------------------------
+
+    def on_audio_buffer(self, msg: AudioBuffer) -> None:
+        """Decode one AudioBuffer (its own format) and publish what became available."""
+        try:
+            samples, changed = self.input.decode_audio_buffer(
+                msg.frequency, msg.channel_map, msg.data
+            )
+        except InputError as exc:
+            self._report_dropped(exc)
+            return
+        self.clear_problem("format")
+        if changed:
+            self.get_logger().info(
+                f"audio format: {self.input.format}, channel_map {list(msg.channel_map)}"
+            )
+            self._restart()
+        self._publish(samples)
+
+    # --- shared ---------------------------------------------------------------------------------
+
+    def _restart(self) -> None:
+        """A new stream: forget partial frames and the noise floor."""
         self.extractor.reset()
         self.vad.reset()
 
-    def on_audio(self, msg: AudioData) -> None:
-        """Decode one chunk, push its samples, publish the frames that became complete."""
-        self.chunks += 1
-        if len(msg.data) > self.max_chunk_bytes:
-            self.dropped_bytes += len(msg.data)
-            self.last_problem = (
-                f"dropped an AudioData message of {len(msg.data)} bytes "
-                f"(max_chunk_bytes {self.max_chunk_bytes})"
-            )
-            self.get_logger().warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
+    def _report_dropped(self, exc: InputError) -> None:
+        """Report a dropped message while such drops go on (a refused AudioInfo: the summary)."""
+        if self.input.info_rejected:
             return
-        data = bytes(msg.data)
-        if self.decoder is None:
-            self.dropped_bytes += len(data)
-            self.last_problem = (
-                "no usable AudioInfo received yet on audio/audio_info: dropping audio"
-            )
-            self.get_logger().warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
-            return
-        try:
-            samples = self.decoder.feed(data)
-        except InvalidAudio as exc:
-            self.dropped_bytes += len(data)
-            self.last_problem = f"dropped an audio chunk: {exc}"
-            self.get_logger().warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
-            return
+        key = "format" if self.input.format is None else "audio_dropped"
+        self.report_problem(key, DiagnosticStatus.WARN, str(exc))
+
+    def _publish(self, samples: np.ndarray) -> None:
         frames = self.extractor.push(samples)
         if len(samples):
             self.voice_pub.publish(Bool(data=self.vad.push(samples)))
@@ -127,24 +180,34 @@ class AudioFeaturesNode(Node):
             self.frames_out += len(frames)
             self.features_pub.publish(features_to_msg(np.asarray(frames), self.label))
 
-    def publish_diagnostics(self) -> None:
-        """Publish counters; WARN while audio is being dropped."""
-        level = DiagnosticStatus.WARN if self.dropped_bytes else DiagnosticStatus.OK
-        self.diagnostics_pub.publish(
-            diagnostic_array(
-                self,
-                level,
-                self.last_problem or "ok",
-                {
-                    "format": self.format,
-                    "features": self.label,
-                    "chunks_received": self.chunks,
-                    "frames_published": self.frames_out,
-                    "dropped_bytes": self.dropped_bytes,
-                    "voice_active": self.vad.active,
-                },
-            )
-        )
+    # --- diagnostics ----------------------------------------------------------------------------
+
+    def diagnostic_summary(self) -> tuple[bytes, str]:
+        """ERROR while the declared AudioInfo is refused, else OK with what is decoded.
+
+        Audio dropped for another reason (none yet, a limit) is a reported problem, shown
+        while it happens.
+        """
+        if self.input.info_rejected:
+            return DiagnosticStatus.ERROR, self.input.format_problem
+        if self.input.format is None:
+            return DiagnosticStatus.OK, f"waiting: {self.input.format_problem}"
+        return DiagnosticStatus.OK, f"decoding {self.input.format}"
+
+    def diagnostic_values(self) -> dict[str, object]:
+        """Counters, the format and the limits in force."""
+        settings = dataclasses.asdict(self.input.settings)
+        return {
+            "format": self.input.format or self.input.format_problem,
+            "channels_used": self.input.channels_used or "all",
+            "features": self.label,
+            "chunks_received": self.input.chunks,
+            "chunks_dropped": self.input.dropped_chunks,
+            "dropped_bytes": self.input.dropped_bytes,
+            "frames_published": self.frames_out,
+            "voice_active": self.vad.active,
+            **settings,
+        }
 
 
 def main(args: list[str] | None = None) -> None:
