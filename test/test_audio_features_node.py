@@ -1,0 +1,219 @@
+"""audio_features_node as a real process over DDS: format bombs, recovery, the naoqi microphones,
+parameters and a diagnostics heartbeat that describes the present (issue 11 items 4, 6, 7;
+issue 12 items 6, 11). Each test starts the node alone and plays its publishers from here."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from audio_common_msgs.msg import AudioData, AudioInfo
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from naoqi_bridge_msgs.msg import AudioBuffer
+from rclpy.node import Node
+from std_msgs.msg import Float32MultiArray
+
+from audio2pose_ros.audio.features import FeatureSpec, StreamingFeatureExtractor
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmDecoder, PcmFormat, encode_pcm
+from audio2pose_ros.cli.graph_bench import rss_mb
+from audio2pose_ros.nodes.common import AUDIO_QOS, EXIT_CONFIGURATION_ERROR, LATCHED_QOS
+
+pytestmark = pytest.mark.ros
+
+NODE = "audio_features_node"
+PEPPER_MAP = [3, 5, 0, 2]  # naoqi_driver on Pepper: rear left, rear right, front left, front right
+
+
+class Peer(Node):
+    """Plays audio_capture or naoqi_driver and records features and the node's diagnostics."""
+
+    def __init__(self, naoqi: bool = False) -> None:
+        """Publish AudioBuffer (``naoqi``) or AudioInfo and AudioData on the node's topics."""
+        super().__init__("audio_peer")
+        if naoqi:
+            self.audio = self.create_publisher(AudioBuffer, "audio/audio", AUDIO_QOS)
+        else:
+            self.info = self.create_publisher(AudioInfo, "audio/audio_info", LATCHED_QOS)
+            self.audio = self.create_publisher(AudioData, "audio/audio", AUDIO_QOS)
+        self.frames: list[np.ndarray] = []
+        self.statuses: list[tuple[float, DiagnosticStatus]] = []
+        self.create_subscription(Float32MultiArray, "features", self._on_features, 1000)
+        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 100)
+
+    def _on_features(self, msg: Float32MultiArray) -> None:
+        rows, cols = msg.layout.dim[0].size, msg.layout.dim[1].size
+        self.frames.append(np.asarray(msg.data, dtype=np.float32).reshape(rows, cols))
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.endswith(NODE):
+                self.statuses.append((time.monotonic(), status))
+
+    def spin_for(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            rclpy.spin_once(self, timeout_sec=0.01)
+
+    def wait_until(self, condition: Callable[[], bool], timeout_s: float = 20.0) -> None:
+        end = time.monotonic() + timeout_s
+        while not condition():
+            assert time.monotonic() < end, "timed out"
+            rclpy.spin_once(self, timeout_sec=0.01)
+
+    def latest(self) -> DiagnosticStatus:
+        return self.statuses[-1][1]
+
+    def fresh_status(self) -> DiagnosticStatus:
+        """The first status published from now on (the heartbeat is 0.5 s)."""
+        since = time.monotonic()
+        self.wait_until(lambda: bool(self.statuses) and self.statuses[-1][0] > since, 3.0)
+        return self.latest()
+
+    def n_frames(self) -> int:
+        return sum(f.shape[0] for f in self.frames)
+
+
+def values_of(status: DiagnosticStatus) -> dict[str, str]:
+    return {kv.key: kv.value for kv in status.values}
+
+
+@contextmanager
+def features_node(tmp_path: Path, *parameters: str) -> Iterator[subprocess.Popen]:
+    """The node in its own process (``-p name:=value`` per parameter), stopped afterwards."""
+    args = [sys.executable, "-m", "audio2pose_ros.nodes.audio_features_node", "--ros-args"]
+    for parameter in parameters:
+        args += ["-p", parameter]
+    with (tmp_path / f"{NODE}.log").open("w") as log:
+        process = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, env=os.environ)
+        try:
+            yield process
+        finally:
+            if process.poll() is None:
+                process.terminate()
+                try:
+                    process.wait(10)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+                    process.wait()
+
+
+@pytest.fixture
+def peer(request: pytest.FixtureRequest) -> Iterator[Peer]:
+    """A Peer playing audio_capture, or naoqi_driver when parametrized with "naoqi"."""
+    with rclpy.init():
+        node = Peer(naoqi=getattr(request, "param", "") == "naoqi")
+        yield node
+        node.destroy_node()
+
+
+def test_when_audio_info_claims_bomb_rates_expect_refusal_kept_then_recovery(
+    tmp_path, peer, speech
+):
+    """Rates 1 and 383999 Hz used to try 62 GiB or grow to 2.3 GB; now they are refused, the
+    reason stays on /diagnostics while audio is dropped, and a valid AudioInfo recovers."""
+    with features_node(tmp_path) as process:
+        peer.wait_until(lambda: bool(peer.statuses))
+        baseline_mb = rss_mb(process.pid)
+        dropped = 0
+        for rate in (1, 383999):
+            peer.info.publish(AudioInfo(channels=1, sample_rate=rate, sample_format="S16LE"))
+            peer.spin_for(0.2)
+            for _ in range(3):
+                peer.audio.publish(AudioData(data=bytes(1 << 20)))  # 1 MiB at 1 Hz: 62 GiB
+                peer.spin_for(0.1)
+            status = peer.fresh_status()
+            assert status.level == DiagnosticStatus.ERROR
+            assert f"AudioInfo rejected: unsupported sample_rate {rate}" in status.message
+            assert "no AudioInfo received yet" not in status.message
+            # best effort: 1 MiB messages may be lost on the way, but some reach the node
+            assert int(values_of(status)["chunks_dropped"]) > dropped
+            dropped = int(values_of(status)["chunks_dropped"])
+        assert process.poll() is None
+        assert rss_mb(process.pid) < baseline_mb + 50
+
+        peer.info.publish(AudioInfo(**S16LE_MONO_16K.audio_info_fields()))
+        peer.spin_for(0.3)
+        payload = encode_pcm(speech[:16000], S16LE_MONO_16K)
+        for offset in range(0, len(payload), 3200):
+            peer.audio.publish(AudioData(data=payload[offset : offset + 3200]))
+            peer.spin_for(0.02)
+        peer.wait_until(lambda: peer.n_frames() >= 98)
+        status = peer.fresh_status()
+        assert status.level == DiagnosticStatus.OK
+        assert "decoding S16LE, 1 channel(s), 16000 Hz" in status.message
+        assert int(values_of(status)["chunks_dropped"]) == dropped
+
+
+def test_when_a_message_is_over_a_limit_expect_warn_while_it_happens_then_ok(tmp_path, peer):
+    """A stale WARN disappears once the problem is gone (issue 12 item 6)."""
+    with features_node(tmp_path, "max_chunk_bytes:=4096", "max_chunk_s:=0.1") as process:
+        peer.info.publish(AudioInfo(**S16LE_MONO_16K.audio_info_fields()))
+        peer.wait_until(lambda: bool(peer.statuses) and "decoding" in peer.latest().message)
+        peer.audio.publish(AudioData(data=bytes(5000)))
+        peer.wait_until(lambda: peer.latest().level == DiagnosticStatus.WARN)
+        assert "5000 bytes dropped (max_chunk_bytes 4096)" in peer.latest().message
+        peer.audio.publish(AudioData(data=bytes(4000)))  # 0.125 s of audio
+        peer.wait_until(lambda: "max_chunk_s 0.1" in peer.latest().message)
+        warned_until = time.monotonic()
+        peer.wait_until(lambda: peer.latest().level == DiagnosticStatus.OK, timeout_s=10.0)
+        assert time.monotonic() - warned_until < 7.0  # held a few seconds, not forever
+        assert "dropped" not in peer.latest().message
+        assert process.poll() is None
+
+
+@pytest.mark.parametrize("peer", ["naoqi"], indirect=True)
+def test_when_naoqi_audio_buffer_plays_expect_features_of_the_selected_channel(
+    tmp_path, peer, speech
+):
+    """naoqi_driver's 48 kHz, 4-channel AudioBuffer; channels:=front_left takes channel 2."""
+    one_s = speech[16000:32000]
+    at_48k = np.repeat(one_s, 3)
+    channels = np.zeros((at_48k.size, 4))
+    channels[:, 2] = at_48k  # front left on Pepper
+    channels[:, 0] = 0.5 * np.sign(np.sin(np.arange(at_48k.size)))  # loud noise elsewhere
+    data = np.clip(np.rint(channels * 32768), -32768, 32767).astype(np.int16)
+    decoder = PcmDecoder(PcmFormat("S16LE", 1, 48000))
+    expected = StreamingFeatureExtractor(FeatureSpec()).push(
+        decoder.feed(data[:, 2].astype("<i2").tobytes())
+    )
+    with features_node(tmp_path, "input_type:=naoqi", "channels:=front_left") as process:
+        peer.wait_until(lambda: peer.count_subscribers("audio/audio") > 0)
+        peer.spin_for(0.5)
+        for start in range(0, data.shape[0], 4096):  # naoqi_driver's 4096-frame buffers
+            msg = AudioBuffer(frequency=48000, channel_map=PEPPER_MAP)
+            msg.data = data[start : start + 4096].ravel().tolist()
+            peer.audio.publish(msg)
+            peer.spin_for(0.02)
+        peer.wait_until(lambda: peer.n_frames() >= expected.shape[0])
+        status = peer.fresh_status()
+        assert process.poll() is None
+    frames = np.concatenate(peer.frames)
+    np.testing.assert_allclose(frames[: expected.shape[0]], expected, rtol=0, atol=1e-4)
+    assert status.level == DiagnosticStatus.OK
+    assert values_of(status)["channels_used"] == "(2,)"
+
+
+@pytest.mark.parametrize(
+    ("parameter", "match"),
+    [
+        ("channels:=front_left", "names channels, which only AudioBuffer carries"),
+        ("max_chunk_s:=.nan", "parameter max_chunk_s: value nan is not finite"),
+        ("input_type:=alsa", "parameter input_type: value 'alsa' is not allowed"),
+    ],
+)
+def test_when_a_parameter_is_refused_expect_one_line_and_the_configuration_exit(
+    tmp_path, parameter, match
+):
+    with features_node(tmp_path, parameter) as process:
+        assert process.wait(30) == EXIT_CONFIGURATION_ERROR
+    log = (tmp_path / f"{NODE}.log").read_text()
+    assert match in log
+    assert "Traceback" not in log
