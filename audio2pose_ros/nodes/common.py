@@ -2,13 +2,20 @@
 
 from __future__ import annotations
 
+import functools
+import math
+import sys
+import time
+import traceback
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import rclpy
 from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
@@ -18,6 +25,8 @@ from rclpy.qos import (
 )
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from audio2pose_ros.errors import ConfigurationError
 
 # Audio: best effort matches both reliable and best-effort publishers (audio_capture is reliable);
 # a deep queue absorbs bursts from GStreamer without dropping chunks.
@@ -36,6 +45,13 @@ STREAM_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE
 )
 DIAGNOSTICS_PERIOD_S = 1.0
+HEARTBEAT_PERIOD_S = 0.5  # every node publishes /diagnostics this often, busy or idle
+STALE_AFTER_S = 1.2  # a node not heard from for this long is silent (stopped, frozen or dead)
+PROBLEM_HOLD_S = 5.0  # a reported problem is shown until this long after its last occurrence
+LOG_THROTTLE_S = 5.0  # one log line per problem per this many seconds
+MAX_LOGGED_TRACEBACKS = 5  # callback exceptions beyond this are counted, not printed again
+# sysexits.h EX_CONFIG: the node cannot run with its configuration; never respawn it
+EXIT_CONFIGURATION_ERROR = 78
 
 
 def features_to_msg(frames: np.ndarray, label: str) -> Float32MultiArray:
@@ -131,51 +147,152 @@ def diagnostic_array(
     return array
 
 
-class StartupError(RuntimeError):
-    """A node cannot start with its parameters (bad model, robot file, settings)."""
+class StartupError(ConfigurationError):
+    """A node cannot start with its parameters (bad model, robot file or settings)."""
 
 
-class ConfigurationErrorNode(Node):
-    """Stands in for a node whose configuration is unusable: safe, visible, never restarting.
+@dataclass
+class _Problem:
+    """One current problem of a node: shown on /diagnostics until ``expires_s`` (monotonic)."""
 
-    It publishes nothing but an ERROR status on /diagnostics every second, so the robot gets no
-    commands from it, operators see why, and a supervisor that respawns crashed processes
-    (``respawn=True`` in a launch file) is not sent into a restart loop.
+    level: bytes
+    message: str
+    expires_s: float
+    count: int = 1
+    logged_s: float = -math.inf
+
+
+class DiagnosedNode(Node):
+    """Base of the three nodes: heartbeat, problems that describe the present, a callback boundary.
+
+    - **Heartbeat.** /diagnostics is published every ``HEARTBEAT_PERIOD_S`` (0.5 s) whether or not
+      anything happens, so a supervisor or diagnostic_aggregator notices a silent (stopped,
+      frozen, dead) node within about a second (``STALE_AFTER_S``).
+    - **The present.** :meth:`report_problem` records a problem under a key; it is shown, with how
+      often it happened, until ``hold_s`` after its last report, then it disappears by itself,
+      so a WARN never outlives its cause by more than ``hold_s``; :meth:`clear_problem` ends it.
+    - **Boundary.** :meth:`guarded` wraps a callback: any exception is caught, logged with its
+      traceback (throttled per callback), counted and reported as ERROR; the node keeps serving.
+
+    Subclasses add their figures with :meth:`diagnostic_values` and their own state with
+    :meth:`diagnostic_summary`.
     """
 
-    def __init__(self, node_name: str, reason: str) -> None:
-        """Log the reason and start the diagnostics timer."""
+    def __init__(self, node_name: str) -> None:
+        """Create the /diagnostics publisher and the heartbeat timer."""
         super().__init__(node_name)
-        self.reason = reason
-        self.get_logger().fatal(f"cannot start: {reason}; idle until restarted with a fix")
+        self._problems: dict[str, _Problem] = {}
+        self.callback_errors = 0
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
+        self.create_timer(HEARTBEAT_PERIOD_S, self.guarded(self.publish_diagnostics))
+
+    # --- problems -----------------------------------------------------------------------------
+
+    def report_problem(
+        self, key: str, level: bytes, message: str, hold_s: float = PROBLEM_HOLD_S
+    ) -> None:
+        """Record (or renew) the problem ``key`` and log it, at most once per ``LOG_THROTTLE_S``.
+
+        Args:
+            key: what went wrong, as a stable identifier (e.g. ``"audio_info_rejected"``).
+            level: DiagnosticStatus.WARN or DiagnosticStatus.ERROR.
+            message: one line saying what happened and what was done about it.
+            hold_s: the problem is reported until this long after its last report (s).
+        """
+        now = time.monotonic()
+        problem = self._problems.get(key)
+        if problem is None or problem.expires_s < now:
+            problem = self._problems[key] = _Problem(level, message, now + hold_s, count=0)
+        problem.level, problem.message, problem.expires_s = level, message, now + hold_s
+        problem.count += 1
+        if now - problem.logged_s >= LOG_THROTTLE_S:
+            problem.logged_s = now
+            repeats = f" ({problem.count} times)" if problem.count > 1 else ""
+            if level == DiagnosticStatus.ERROR:
+                self.get_logger().error(message + repeats)
+            else:
+                self.get_logger().warning(message + repeats)
+
+    def clear_problem(self, key: str) -> None:
+        """The problem ``key`` is over (no-op when it is not reported)."""
+        self._problems.pop(key, None)
+
+    def current_problems(self) -> dict[str, tuple[bytes, str, int]]:
+        """Problems reported now: key -> (level, message, occurrences)."""
+        now = time.monotonic()
+        for key in [k for k, p in self._problems.items() if p.expires_s < now]:
+            del self._problems[key]
+        return {k: (p.level, p.message, p.count) for k, p in self._problems.items()}
+
+    # --- exception boundary -------------------------------------------------------------------
+
+    def guarded(self, callback: Callable[..., None]) -> Callable[..., None]:
+        """``callback`` behind the node boundary: an exception is reported, never fatal."""
+        name = getattr(callback, "__name__", "callback")
+
+        @functools.wraps(callback)
+        def boundary(*args: object) -> None:
+            try:
+                callback(*args)
+            except Exception as exc:  # the boundary: a bug or bad input must not kill the node
+                self.callback_errors += 1
+                self.report_problem(
+                    f"exception in {name}",
+                    DiagnosticStatus.ERROR,
+                    f"{name} failed and was skipped: {type(exc).__name__}: {exc}",
+                )
+                if self.callback_errors <= MAX_LOGGED_TRACEBACKS:
+                    self.get_logger().error(traceback.format_exc())
+
+        return boundary
+
+    # --- publication --------------------------------------------------------------------------
+
+    def diagnostic_summary(self) -> tuple[bytes, str]:
+        """The node's own level and one-line state (override; problems are added to it)."""
+        return DiagnosticStatus.OK, "ok"
+
+    def diagnostic_values(self) -> dict[str, object]:
+        """Figures shown as key/values (override)."""
+        return {}
 
     def publish_diagnostics(self) -> None:
-        """ERROR status with the reason."""
-        self.diagnostics_pub.publish(
-            diagnostic_array(
-                self,
-                DiagnosticStatus.ERROR,
-                f"configuration error: {self.reason}",
-                {"state": "idle, publishing nothing"},
-            )
-        )
+        """Publish the heartbeat: the worst of the summary and the current problems."""
+        level, message = self.diagnostic_summary()
+        problems = self.current_problems()
+        values = dict(self.diagnostic_values())
+        values["callback_errors"] = self.callback_errors
+        for key, (problem_level, problem_message, count) in problems.items():
+            level = max(level, problem_level)
+            message += f"; {problem_message}" + (f" ({count}x)" if count > 1 else "")
+            values[f"problem: {key}"] = count
+        self.diagnostics_pub.publish(diagnostic_array(self, level, message, values))
 
 
 def run_node(factory: Callable[[], Node], node_name: str, args: list[str] | None = None) -> None:
-    """The ros2/examples main: init, spin until Ctrl-C or shutdown, clean up.
+    """The ros2/examples main: init, spin until Ctrl-C / SIGTERM / shutdown, clean up.
 
-    A :class:`StartupError` (bad model, robot file or settings) does not end the process: the
-    node is replaced by a :class:`ConfigurationErrorNode` that says why on the log and on
-    /diagnostics and publishes nothing else.
+    A :class:`~audio2pose_ros.errors.ConfigurationError` while the node is built (a refused
+    parameter, a bad model or robot file), or arguments rcl cannot parse (a parameters file with
+    a YAML syntax error, a missing file), end the process with one line on stderr and exit status
+    :data:`EXIT_CONFIGURATION_ERROR`, which ``audio2pose run`` and the launch file never respawn.
     """
     try:
-        with rclpy.init(args=args):
-            try:
-                node = factory()
-            except StartupError as exc:
-                node = ConfigurationErrorNode(node_name, str(exc))
-            rclpy.spin(node)
+        rclpy.init(args=args)  # not `with rclpy.init()`: Humble's init is no context manager
+        try:
+            rclpy.spin(factory())
+        finally:
+            rclpy.try_shutdown()
+    except ConfigurationError as exc:
+        print(f"[{node_name}] configuration error: {exc}", file=sys.stderr, flush=True)
+        raise SystemExit(EXIT_CONFIGURATION_ERROR) from None
+    except rclpy_implementation.RCLError as exc:
+        print(
+            f"[{node_name}] configuration error: ROS arguments refused: "
+            + " ".join(str(exc).split()),
+            file=sys.stderr,
+            flush=True,
+        )
+        raise SystemExit(EXIT_CONFIGURATION_ERROR) from None
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
