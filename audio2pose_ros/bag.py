@@ -6,6 +6,13 @@ offline synthesis. The type store knows the standard ROS 2 messages plus the two
 packages this graph speaks that ``rosbags`` does not ship: audio_common_msgs
 (ros-drivers/audio_common, ROS 2) and naoqi_bridge_msgs/JointAnglesWithSpeed (ros-naoqi). Their
 definitions below are the upstream interface definitions.
+
+Bags are untrusted input. Only the message types in :data:`KNOWN_MESSAGE_TYPES` (what the graph
+publishes, records and consumes) are ever deserialized or replayed; a bag's CDR bytes are
+checked with the type store before they are used, and invalid bytes are a :class:`BagError`
+naming the topic and time. Decoding a bag's audio is capped at :data:`MAX_BAG_AUDIO_S` seconds
+of 16 kHz output, checked before each message is decoded, so an AudioInfo claiming a tiny sample
+rate cannot make a small bag grow into gigabytes.
 """
 
 from __future__ import annotations
@@ -19,11 +26,18 @@ import numpy as np
 from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import StoragePlugin
+from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmDecoder, PcmFormat, encode_pcm
-from audio2pose_ros.errors import InputError
+from audio2pose_ros.audio.pcm import (
+    S16LE_MONO_16K,
+    TARGET_RATE_HZ,
+    PcmDecoder,
+    PcmFormat,
+    encode_pcm,
+)
+from audio2pose_ros.errors import Audio2PoseError, ConfigurationError, InputError
 
 EXTRA_MESSAGE_DEFINITIONS = {
     "audio_common_msgs/msg/AudioData": "uint8[] data\n",
@@ -53,6 +67,53 @@ def typestore() -> Typestore:
 
 class BagError(InputError):
     """A bag cannot be read or does not hold what was asked for."""
+
+
+# The message types this project publishes, records or consumes, and the rclpy module that
+# defines each: nothing else in a bag is deserialized, and replay imports only these modules.
+KNOWN_MESSAGE_TYPES = {
+    "audio_common_msgs/msg/AudioData": "audio_common_msgs.msg",
+    "audio_common_msgs/msg/AudioDataStamped": "audio_common_msgs.msg",
+    "audio_common_msgs/msg/AudioInfo": "audio_common_msgs.msg",
+    "naoqi_bridge_msgs/msg/JointAnglesWithSpeed": "naoqi_bridge_msgs.msg",
+    "trajectory_msgs/msg/JointTrajectory": "trajectory_msgs.msg",
+    "sensor_msgs/msg/JointState": "sensor_msgs.msg",
+    "std_msgs/msg/Float32MultiArray": "std_msgs.msg",
+    "std_msgs/msg/Bool": "std_msgs.msg",
+    "std_msgs/msg/String": "std_msgs.msg",
+    "diagnostic_msgs/msg/DiagnosticArray": "diagnostic_msgs.msg",
+    "tf2_msgs/msg/TFMessage": "tf2_msgs.msg",
+}
+MAX_BAG_AUDIO_S = 4 * 3600.0  # decoded audio per bag: 4 h at 16 kHz is 0.9 GB of float32
+
+
+def check_known_type(msgtype: str, where: str) -> None:
+    """Refuse a message type outside :data:`KNOWN_MESSAGE_TYPES`.
+
+    Raises:
+        BagError: the type is not one this project knows; ``where`` names the bag and topic.
+    """
+    if msgtype not in KNOWN_MESSAGE_TYPES:
+        raise BagError(
+            f"{where}: message type {msgtype!r} is not one this project knows "
+            f"({', '.join(sorted(KNOWN_MESSAGE_TYPES))})"
+        )
+
+
+def deserialize(store: Typestore, message: BagMessage, bag: str | Path) -> Any:
+    """Decode one known message's CDR bytes with ``store``.
+
+    Raises:
+        BagError: the type is unknown, or the bytes are not valid CDR for it (the message names
+            the bag, the topic and the time).
+    """
+    where = f"{bag}: {message.topic} at {message.timestamp_ns} ns"
+    check_known_type(message.msgtype, where)
+    try:
+        return store.deserialize_cdr(message.data, message.msgtype)
+    except (SerdeError, ValueError, IndexError, UnicodeDecodeError) as exc:
+        # rosbags reports truncated or malformed CDR with these; the bytes are the bag's.
+        raise BagError(f"{where}: invalid {message.msgtype} CDR ({exc})") from None
 
 
 class BagWriter:
@@ -97,6 +158,7 @@ AUDIO_INFO_TOPIC = "/audio/audio_info"
 AUDIO_DATA_TYPE = "audio_common_msgs/msg/AudioData"
 AUDIO_INFO_TYPE = "audio_common_msgs/msg/AudioInfo"
 AUDIO_INFO_PERIOD_S = 5.0  # audio_capture republishes its latched AudioInfo every 5 s
+MAX_CHUNK_BYTES = 1 << 20  # largest AudioData payload write_audio_bag cuts
 
 
 @dataclass(frozen=True)
@@ -112,6 +174,18 @@ class Chunking:
     max_bytes: int = 4096
     jitter_s: float = 0.002
     seed: int = 0
+
+    def __post_init__(self) -> None:
+        """Refuse sizes that never finish (0 bytes) or cannot be drawn (min above max)."""
+        if not 1 <= self.min_bytes <= self.max_bytes <= MAX_CHUNK_BYTES:
+            raise ConfigurationError(
+                f"chunk sizes need 1 <= min_bytes ({self.min_bytes}) <= max_bytes "
+                f"({self.max_bytes}) <= {MAX_CHUNK_BYTES}"
+            )
+        if not 0.0 <= self.jitter_s <= 1.0:
+            raise ConfigurationError(f"jitter_s {self.jitter_s} is not in [0, 1] s")
+        if self.seed < 0:
+            raise ConfigurationError(f"seed {self.seed} must not be negative")
 
 
 @dataclass(frozen=True)
@@ -181,17 +255,28 @@ def write_audio_bag(
 def read_messages(bag: str | Path, topics: Iterable[str] | None = None) -> Iterator[BagMessage]:
     """Messages of a rosbag2 (MCAP or SQLite 3) in time order, optionally only ``topics``.
 
+    Only connections whose type is in :data:`KNOWN_MESSAGE_TYPES` are read; with ``topics``
+    given, a wanted topic of another type is refused.
+
     Raises:
-        BagError: the bag cannot be opened.
+        BagError: the bag cannot be opened, or a wanted topic has an unknown type.
     """
     wanted = set(topics) if topics is not None else None
     try:
         reader = AnyReader([Path(bag)], default_typestore=typestore())
         reader.open()
-    except (AnyReaderError, OSError, ValueError) as exc:
+    except (AnyReaderError, OSError, ValueError, KeyError, TypeError) as exc:
+        # rosbags raises these for a missing, unreadable or malformed bag (metadata, MCAP
+        # records, SQLite schema); all are about the file.
         raise BagError(f"{bag}: cannot open as a rosbag2 ({exc})") from None
     try:
         connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
+        if wanted is not None:
+            for connection in connections:
+                check_known_type(connection.msgtype, f"{bag}: {connection.topic}")
+        connections = [c for c in connections if c.msgtype in KNOWN_MESSAGE_TYPES]
+        if not connections:  # rosbags reads every connection when given none
+            return
         for conn, timestamp, data in reader.messages(connections=connections):
             yield BagMessage(timestamp, conn.topic, conn.msgtype, bytes(data))
     finally:
@@ -202,20 +287,29 @@ def read_bag_audio(bag: str | Path) -> np.ndarray:
     """Decode a bag's AudioData as its AudioInfo messages describe, to 16 kHz mono float32.
 
     A changed AudioInfo switches the decoder (as audio_features_node does); audio before the
-    first AudioInfo cannot be decoded and raises.
+    first AudioInfo cannot be decoded and raises. The output is capped at
+    :data:`MAX_BAG_AUDIO_S`: each message's output size is predicted from its byte count and
+    the sample rate before it is decoded.
 
     Raises:
-        BagError: no AudioInfo precedes the audio, or the bag holds no audio.
+        BagError: no AudioInfo precedes the audio, an AudioInfo is unusable, a message is not
+            valid CDR, the decoded audio would exceed the cap, or the bag holds no audio.
     """
     store = typestore()
     decoder: PcmDecoder | None = None
     pieces: list[np.ndarray] = []
+    budget = MAX_BAG_AUDIO_S * TARGET_RATE_HZ  # output samples left
     for message in read_messages(bag, (AUDIO_TOPIC, AUDIO_INFO_TOPIC)):
-        msg = store.deserialize_cdr(message.data, message.msgtype)
+        msg = deserialize(store, message, bag)
         if message.topic == AUDIO_INFO_TOPIC:
-            fmt = PcmFormat.from_audio_info(
-                msg.channels, msg.sample_rate, msg.sample_format, msg.coding_format
-            )
+            try:
+                fmt = PcmFormat.from_audio_info(
+                    msg.channels, msg.sample_rate, msg.sample_format, msg.coding_format
+                )
+            except (Audio2PoseError, ValueError) as exc:  # pcm's format errors
+                raise BagError(
+                    f"{bag}: unusable AudioInfo at {message.timestamp_ns} ns ({exc})"
+                ) from None
             if decoder is None or decoder.fmt != fmt:
                 if decoder is not None:
                     pieces.append(decoder.flush())
@@ -223,6 +317,13 @@ def read_bag_audio(bag: str | Path) -> np.ndarray:
         elif decoder is None:
             raise BagError(f"{bag}: AudioData at {message.timestamp_ns} ns before any AudioInfo")
         else:
+            fmt = decoder.fmt
+            budget -= (len(msg.data) / fmt.frame_bytes + 1) * TARGET_RATE_HZ / fmt.sample_rate_hz
+            if budget < 0:
+                raise BagError(
+                    f"{bag}: its audio at {fmt.sample_rate_hz} Hz decodes to more than "
+                    f"{MAX_BAG_AUDIO_S:g} s at {TARGET_RATE_HZ} Hz"
+                )
             pieces.append(decoder.feed(bytes(msg.data)))
     if decoder is None:
         raise BagError(f"{bag}: no {AUDIO_INFO_TOPIC} / {AUDIO_TOPIC} messages")

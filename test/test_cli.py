@@ -75,7 +75,7 @@ def test_when_record_without_play_expect_clear_error(tmp_path: Path):
         text=True,
         timeout=60,
     )
-    assert result.returncode == 1
+    assert result.returncode == 2  # a usage error
     assert "--record needs --play" in result.stderr
 
 

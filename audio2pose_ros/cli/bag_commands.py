@@ -1,54 +1,110 @@
-"""``audio2pose bag``: make speech bags from WAV files and replay bags into a running graph."""
+"""``audio2pose bag``: make speech bags from WAV files and replay bags into a running graph.
+
+``bag replay`` publishes only the message types this project knows
+(:data:`audio2pose_ros.bag.KNOWN_MESSAGE_TYPES`), after checking every message's CDR bytes, and
+with the QoS a live source offers: ``audio_info`` latched (reliable, transient local, as
+audio_capture publishes it and audio_features_node subscribes to it), everything else reliable
+and volatile with a deep queue, so a replayed bag drives the real graph as a microphone does.
+"""
 
 from __future__ import annotations
 
 import argparse
 import importlib
 import time
-from pathlib import Path
 
-from audio2pose_ros.bag import BagError, Chunking, read_messages, write_audio_bag
+from audio2pose_ros.bag import (
+    AUDIO_INFO_TYPE,
+    KNOWN_MESSAGE_TYPES,
+    MAX_CHUNK_BYTES,
+    BagError,
+    Chunking,
+    check_known_type,
+    deserialize,
+    read_messages,
+    typestore,
+    write_audio_bag,
+)
+from audio2pose_ros.cli.options import (
+    MAX_SEED,
+    bounded_float,
+    bounded_int,
+    input_bag,
+    input_file,
+    new_dir,
+)
+from audio2pose_ros.errors import UsageError
+
+MAX_REPLAY_RATE = 100.0  # --rate: at most 100x the recorded speed
+MAX_WAIT_S = 3600.0
+STREAM_DEPTH = 100  # replay queue depth: absorbs bursts like the graph's own streams
 
 
 def message_class(msgtype: str) -> type:
-    """The rclpy message class for a type name such as ``sensor_msgs/msg/JointState``.
+    """The rclpy message class of a known type name such as ``sensor_msgs/msg/JointState``.
+
+    Only types in :data:`~audio2pose_ros.bag.KNOWN_MESSAGE_TYPES` are imported, from the module
+    that table names; a bag cannot make this process import anything else.
 
     Raises:
-        BagError: the type's package is not importable here.
+        BagError: the type is not a known one, or its package is not installed here.
     """
-    package, kind, name = msgtype.split("/")
+    check_known_type(msgtype, "bag")
+    module = KNOWN_MESSAGE_TYPES[msgtype]
     try:
-        return getattr(importlib.import_module(f"{package}.{kind}"), name)
+        return getattr(importlib.import_module(module), msgtype.rsplit("/", 1)[1])
     except (ImportError, AttributeError):
         raise BagError(f"message type {msgtype} is not available in this environment") from None
+
+
+def replay_qos(msgtype: str):  # noqa: ANN201 - rclpy imported lazily
+    """The QoS a live publisher of ``msgtype`` offers: AudioInfo latched, the rest reliable."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    latched = msgtype == AUDIO_INFO_TYPE
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=1 if latched else STREAM_DEPTH,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+    )
 
 
 def command_from_wav(args: argparse.Namespace) -> int:
     """Write a WAV's audio as AudioData + AudioInfo chunks, as a live capture delivers them."""
     from audio2pose_ros.audio.pcm import read_wav
 
-    if Path(args.output).exists():
-        raise ValueError(f"{args.output} exists already; rosbag2 output must be a new directory")
-    signal, _ = read_wav(args.wav)
+    if args.min_bytes > args.max_bytes:
+        raise UsageError(
+            f"--min-bytes {args.min_bytes} is larger than --max-bytes {args.max_bytes}"
+        )
+    output = new_dir(args.output, "-o")
+    signal, _ = read_wav(input_file(args.wav, "WAV file"))
     chunking = Chunking(min_bytes=args.min_bytes, max_bytes=args.max_bytes, seed=args.seed)
-    count = write_audio_bag(signal, args.output, chunking, storage=args.storage)
-    print(f"wrote {count} AudioData messages ({len(signal) / 16000:.2f} s) to {args.output}")
+    count = write_audio_bag(signal, output, chunking, storage=args.storage)
+    print(f"wrote {count} AudioData messages ({len(signal) / 16000:.2f} s) to {output}")
     return 0
 
 
 def command_replay(args: argparse.Namespace) -> int:
-    """Publish every message of a bag with its recorded timing, ``--rate`` times faster."""
+    """Publish every message of a bag with its recorded timing, ``--rate`` times faster.
+
+    Every message is checked (known type, valid CDR) before the first one is published.
+    """
     import rclpy
 
-    if args.rate <= 0:
-        raise ValueError(f"--rate must be positive, got {args.rate}")
-    messages = list(read_messages(args.bag, args.topics or None))
+    bag = input_bag(args.bag)
+    messages = list(read_messages(bag, args.topics or None))
     if not messages:
-        raise BagError(f"{args.bag}: no messages to replay")
+        raise BagError(f"{bag}: no messages of a known type to replay")
+    store = typestore()
+    for message in messages:
+        deserialize(store, message, bag)
     with rclpy.init():
         node = rclpy.create_node("audio2pose_bag_replay")
         publishers = {
-            m.topic: node.create_publisher(message_class(m.msgtype), m.topic, 100) for m in messages
+            m.topic: node.create_publisher(message_class(m.msgtype), m.topic, replay_qos(m.msgtype))
+            for m in messages
         }
         deadline = time.monotonic() + args.wait_s
         while time.monotonic() < deadline and not all(
@@ -73,23 +129,39 @@ def register(verbs: argparse._SubParsersAction) -> None:
     """Add ``audio2pose bag from-wav`` and ``audio2pose bag replay``."""
     bag = verbs.add_parser("bag", help="speech bags: make from WAV, replay")
     sub = bag.add_subparsers(dest="bag_verb", required=True)
+    chunk_bytes = bounded_int(1, MAX_CHUNK_BYTES)
 
     from_wav = sub.add_parser("from-wav", help="WAV -> rosbag2 of AudioData + AudioInfo")
     from_wav.add_argument("wav", metavar="FILE.wav")
     from_wav.add_argument("-o", "--output", required=True, metavar="BAG")
     from_wav.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
-    from_wav.add_argument("--min-bytes", type=int, default=Chunking.min_bytes)
-    from_wav.add_argument("--max-bytes", type=int, default=Chunking.max_bytes)
-    from_wav.add_argument("--seed", type=int, default=0)
+    from_wav.add_argument(
+        "--min-bytes",
+        type=chunk_bytes,
+        default=Chunking.min_bytes,
+        help=f"smallest AudioData payload, 1 to {MAX_CHUNK_BYTES} (default %(default)s)",
+    )
+    from_wav.add_argument(
+        "--max-bytes",
+        type=chunk_bytes,
+        default=Chunking.max_bytes,
+        help=f"largest AudioData payload, 1 to {MAX_CHUNK_BYTES} (default %(default)s)",
+    )
+    from_wav.add_argument("--seed", type=bounded_int(0, MAX_SEED), default=0)
     from_wav.set_defaults(func=command_from_wav)
 
     replay = sub.add_parser("replay", help="publish a bag with its original timing (or faster)")
     replay.add_argument("bag", metavar="BAG")
-    replay.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1)")
+    replay.add_argument(
+        "--rate",
+        type=bounded_float(0.0, MAX_REPLAY_RATE, low_inclusive=False),
+        default=1.0,
+        help=f"speed factor in (0, {MAX_REPLAY_RATE:g}] (default 1)",
+    )
     replay.add_argument("--topics", nargs="*", help="only these topics")
     replay.add_argument(
         "--wait-s",
-        type=float,
+        type=bounded_float(0.0, MAX_WAIT_S),
         default=10.0,
         help="wait this long for subscribers before starting (default 10)",
     )

@@ -19,6 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from audio2pose_ros.cli.options import MAX_SEED, bounded_float, bounded_int, input_dir
+from audio2pose_ros.errors import Audio2PoseError, UsageError
+
 VIDEO_SUFFIXES = (".mp4", ".mpg", ".mpeg", ".mov", ".avi", ".mkv", ".webm", ".m4v")
 AUDIO_SUFFIXES = (".wav", ".flac", ".mp3", ".ogg", ".m4a", *VIDEO_SUFFIXES)
 
@@ -62,13 +65,12 @@ def _run_import(
     """Import every file into the data set, reporting failures per file; exit code 1 if any."""
     from tqdm import tqdm
 
-    from audio2pose_ros.dataset import ClipInfo, Dataset, DatasetError
-    from audio2pose_ros.importers import ImporterError
+    from audio2pose_ros.dataset import ClipInfo, Dataset
     from audio2pose_ros.importers.extras import save_extras
     from audio2pose_ros.robot import load_robot
 
     if not files:
-        raise ValueError("no input files")
+        raise UsageError("no input files")
     robot = load_robot()
     out = Path(args.output)
     dataset = Dataset.open(out, robot) if (out / "index.json").exists() else None
@@ -88,7 +90,7 @@ def _run_import(
             clip, extras = import_one(path, info)
             dataset.add(clip, robot)
             save_extras(dataset, info.clip_id, extras)
-        except (ImporterError, DatasetError, OSError) as exc:
+        except (Audio2PoseError, OSError) as exc:  # this file failed; go on with the others
             failures.append(f"{path}: {exc}" if str(path) not in str(exc) else str(exc))
             progress.write(f"FAILED {failures[-1]}", file=sys.stderr)
     progress.close()
@@ -157,7 +159,7 @@ def command_import_bvh(args: argparse.Namespace) -> int:
     robot = load_robot()
     mappings = load_mappings(args.mappings)
     if args.skeleton not in mappings:
-        raise ValueError(f"unknown skeleton {args.skeleton!r}; known: {sorted(mappings)}")
+        raise UsageError(f"unknown skeleton {args.skeleton!r}; known: {sorted(mappings)}")
     return _run_import(
         args,
         _expand(args.inputs, (".bvh",)),
@@ -178,7 +180,7 @@ def command_info(args: argparse.Namespace) -> int:
     from audio2pose_ros.robot import JOINT_GROUPS, load_robot
 
     robot = load_robot()
-    dataset = Dataset.open(Path(args.data), robot)
+    dataset = Dataset.open(input_dir(args.data, "data set folder"), robot)
     print(f"{dataset.root}: {len(dataset.clips)} clips, {len(dataset.speakers)} speakers")
     print(f"{'clip':<27} {'speaker':<23} {'split':<10} {'seconds':>7}  observed (head/arms/hip)")
     totals = dict.fromkeys(SPLITS, 0.0)
@@ -204,7 +206,7 @@ def command_build_default(args: argparse.Namespace) -> int:
 
     out = Path(args.output)
     result = build_default_model(
-        Path(args.clips),
+        input_dir(args.clips, "clips folder"),
         out,
         Path(args.work_dir) if args.work_dir else out / "work",
         load_robot(),
@@ -251,8 +253,10 @@ def register(verbs: argparse._SubParsersAction) -> None:
     openface = sub.add_parser("import-openface", help="OpenFace 2.0 CSVs + their audio")
     _common_import_options(openface, "CSV files or folders of them")
     openface.add_argument("--audio-dir", help="folder of the audio (default: next to each CSV)")
-    openface.add_argument("--min-confidence", type=float, default=0.0)
-    openface.add_argument("--face-id", type=int, help="face to use (default: the first row's)")
+    openface.add_argument("--min-confidence", type=bounded_float(0.0, 1.0), default=0.0)
+    openface.add_argument(
+        "--face-id", type=bounded_int(0, 1_000_000), help="face to use (default: the first row's)"
+    )
     openface.add_argument(
         "--no-centre", action="store_true", help="keep head angles relative to the camera"
     )
@@ -272,8 +276,8 @@ def register(verbs: argparse._SubParsersAction) -> None:
     build.add_argument("-o", "--output", required=True, metavar="DIR", help="checkpoint + card")
     build.add_argument("--work-dir", help="scratch data sets (default: <output>/work)")
     build.add_argument("--arms", choices=("prosody", "neutral"), default="prosody")
-    build.add_argument("--max-epochs", type=int, default=2000)
-    build.add_argument("--seed", type=int, default=0)
+    build.add_argument("--max-epochs", type=bounded_int(1, 100_000), default=2000)
+    build.add_argument("--seed", type=bounded_int(0, MAX_SEED), default=0)
     build.set_defaults(func=command_build_default)
 
     info = sub.add_parser("info", help="clips, speakers, splits and observed joints")

@@ -3,8 +3,14 @@
 Verbs: ``run`` (start the node graph, optionally play a WAV and record a bag), ``demo`` (run on
 the bundled speech clip with the default model), ``synth`` (offline synthesis to CSV), ``bench``
 (per-frame cost of the streaming path), ``distill-prosody`` (rebuild the default model). Each verb
-is a function ``command_<verb>(args) -> int``; the library raises typed errors, reported here as
-one line on stderr with exit code 1.
+is a function ``command_<verb>(args) -> int``.
+
+Errors and exit status: the package raises :class:`~audio2pose_ros.errors.Audio2PoseError` for
+what a user can fix, and only those are reported as ``audio2pose <verb>: error: ...``, one line
+on stderr: exit status 2 for a bad option (argparse's own errors included,
+:class:`~audio2pose_ros.errors.UsageError`), 1 for bad data (a file, a bag, a checkpoint).
+Any other exception is a bug: one line ``audio2pose <verb>: internal error (a bug): ...`` and
+exit status 70 (``EX_SOFTWARE``); the traceback is printed only with the global ``--debug``.
 """
 
 from __future__ import annotations
@@ -13,10 +19,28 @@ import argparse
 import os
 import sys
 import time
+import traceback
 from collections.abc import Callable
 from pathlib import Path
 
+from audio2pose_ros.cli.options import (
+    MAX_SEED,
+    OneLineParser,
+    bounded_float,
+    bounded_int,
+    input_bag,
+    input_file,
+    new_dir,
+    output_file,
+    report,
+)
+from audio2pose_ros.errors import Audio2PoseError, InputError, UsageError
+
 DEFAULT_OUT = Path("out")
+EXIT_DATA_ERROR = 1
+EXIT_USAGE_ERROR = 2
+EXIT_INTERNAL_ERROR = 70  # sysexits.h EX_SOFTWARE: a bug
+MAX_PLAYBACK_RATE = 100.0  # --rate: playback at most 100x real time
 
 
 def command_run(args: argparse.Namespace) -> int:
@@ -24,18 +48,19 @@ def command_run(args: argparse.Namespace) -> int:
     from audio2pose_ros.cli.graph import run_graph, summarize
 
     if args.record and args.play is None:
-        raise ValueError("--record needs --play (recording stops when the file ends)")
-    if args.record and Path(args.record).exists():
-        raise ValueError(f"{args.record} exists already; rosbag2 output must be a new directory")
-    overrides = [f"model_path:={Path(args.model).resolve()}"] if args.model else []
-    result = run_graph(
-        Path(args.play) if args.play else None,
-        Path(args.record) if args.record else None,
-        Path(args.params_file) if args.params_file else None,
-        overrides,
-        Path(args.log_dir) if args.log_dir else None,
-        rate=args.rate,
-    )
+        raise UsageError("--record needs --play (recording stops when the file ends)")
+    play = _speech_input(args.play) if args.play else None
+    record = new_dir(args.record, "--record") if args.record else None
+    model = input_file(args.model, "checkpoint") if args.model else None
+    params = input_file(args.params_file, "parameters file") if args.params_file else None
+    log_dir = Path(args.log_dir) if args.log_dir else None
+    if log_dir is not None and log_dir.exists() and not log_dir.is_dir():
+        raise UsageError(f"--log-dir {log_dir}: exists and is not a directory")
+    overrides = [f"model_path:={model.resolve()}"] if model else []
+    try:
+        result = run_graph(play, record, params, overrides, log_dir, rate=args.rate)
+    except TimeoutError as exc:  # the graph did not come up: see its logs, not a bug here
+        raise Audio2PoseError(str(exc)) from None
     if result is not None:
         print(summarize(result))
     return 0
@@ -58,7 +83,10 @@ def command_demo(args: argparse.Namespace) -> int:
         "node graph in real time ...",
         flush=True,
     )
-    result = run_graph(wav, bag, None, [], out_dir / "logs")
+    try:
+        result = run_graph(wav, bag, None, [], out_dir / "logs")
+    except TimeoutError as exc:  # the graph did not come up: see its logs, not a bug here
+        raise Audio2PoseError(str(exc)) from None
     if result is None:
         raise RuntimeError("the graph ran without playing the clip")
     print(summarize(result))
@@ -88,11 +116,18 @@ def command_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _speech_input(name: str) -> Path:
+    """A speech input: a WAV file, or a rosbag2 (a folder, or one .mcap / .db3 file)."""
+    path = Path(name)
+    return input_file(path, "WAV file") if path.suffix.lower() == ".wav" else input_bag(path)
+
+
 def _read_speech(path: Path):  # noqa: ANN202 - numpy imported lazily
     """16 kHz mono samples of a WAV file, or of a bag's audio topics."""
     from audio2pose_ros.audio.pcm import read_wav
     from audio2pose_ros.bag import read_bag_audio
 
+    path = _speech_input(path)
     return read_wav(path)[0] if path.suffix.lower() == ".wav" else read_bag_audio(path)
 
 
@@ -102,9 +137,13 @@ def _synthesize_to_csv(wav: Path, out: Path, model: str | None, smooth: bool) ->
     from audio2pose_ros.robot import load_robot
     from audio2pose_ros.synthesis import synthesize, write_trajectory_csv
 
+    output_file(out, "-o")
     checkpoint = load_checkpoint(model or default_checkpoint_path(), robot=load_robot())
     times, angles = synthesize(checkpoint, _read_speech(wav), smooth=smooth)
-    return write_trajectory_csv(out, times, angles, checkpoint.robot.names)
+    try:
+        return write_trajectory_csv(out, times, angles, checkpoint.robot.names)
+    except OSError as exc:
+        raise InputError(f"{out}: cannot write ({exc.strerror or exc})") from None
 
 
 def command_synth(args: argparse.Namespace) -> int:
@@ -204,6 +243,18 @@ def _print_bench(results: dict, frames: int, clip_s: float) -> None:
             print(f"  {node}: {cpu:.3f} ms CPU per frame, {graph['rss_mb'][node]:.0f} MB resident")
 
 
+MAX_PARAMS_FILE_BYTES = 1 << 20  # a ROS parameters YAML
+
+
+def _section(data: object, key: str, path: Path) -> dict:
+    """``data[key]["ros__parameters"]`` of a ROS parameters file, checked to be mappings."""
+    node = data.get(key) if isinstance(data, dict) else None
+    params = node.get("ros__parameters") if isinstance(node, dict) else None
+    if node is not None and params is not None and not isinstance(params, dict):
+        raise InputError(f"{path}: {key}.ros__parameters must be a mapping")
+    return params or {}
+
+
 def _filter_from_params(params_file: Path | None):  # noqa: ANN202 - heavy types imported lazily
     """A MotionFilter configured like motion_filter_node from a ROS parameter file."""
     from dataclasses import fields
@@ -216,13 +267,28 @@ def _filter_from_params(params_file: Path | None):  # noqa: ANN202 - heavy types
     from audio2pose_ros.robot import load_robot
 
     path = params_file or share_path("config", "pepper.yaml")
-    data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
-    params = (data.get("motion_filter_node") or {}).get("ros__parameters") or {}
-    shared = (data.get("/**") or {}).get("ros__parameters") or {}
-    robot = load_robot(params.get("robot_description") or shared.get("robot_description"))
+    with path.open("rb") as stream:
+        raw = stream.read(MAX_PARAMS_FILE_BYTES + 1)
+    if len(raw) > MAX_PARAMS_FILE_BYTES:
+        raise InputError(f"{path}: larger than {MAX_PARAMS_FILE_BYTES} bytes")
+    try:
+        data = yaml.safe_load(raw.decode("utf-8")) or {}
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a valid YAML parameters file ({exc})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: a parameters file is a mapping of node names")
+    params = _section(data, "motion_filter_node", path)
+    shared = _section(data, "/**", path)
+    robot_file = params.get("robot_description") or shared.get("robot_description") or ""
+    if not isinstance(robot_file, str):
+        raise InputError(f"{path}: robot_description must be a string, got {robot_file!r:.40}")
+    robot = load_robot(robot_file)
 
     def pick(cls: type) -> object:
-        return cls(**{f.name: params[f.name] for f in fields(cls) if f.name in params})
+        try:
+            return cls(**{f.name: params[f.name] for f in fields(cls) if f.name in params})
+        except Audio2PoseError as exc:
+            raise InputError(f"{path}: {exc}") from None
 
     return MotionFilter(robot, pick(MotionFilterSettings), pick(LimitSettings))
 
@@ -234,9 +300,12 @@ def command_plot_filter(args: argparse.Namespace) -> int:
     from audio2pose_ros.models.checkpoint import load_checkpoint
     from audio2pose_ros.resources import default_checkpoint_path
 
-    filt = _filter_from_params(Path(args.params_file) if args.params_file else None)
+    output_file(args.output, "-o")
+    filt = _filter_from_params(
+        input_file(args.params_file, "parameters file") if args.params_file else None
+    )
     checkpoint = load_checkpoint(args.model or default_checkpoint_path(), robot=filt.robot)
-    signal, _ = read_wav(args.wav)
+    signal, _ = read_wav(input_file(args.wav, "WAV file"))
     figures = plot_raw_vs_filtered(
         checkpoint,
         filt,
@@ -257,15 +326,16 @@ def command_distill_prosody(args: argparse.Namespace) -> int:
     from audio2pose_ros.robot import load_robot
     from audio2pose_ros.training import TrainSettings
 
-    wavs = [Path(w) for w in args.wavs]
-    checkpoint, report, metrics = distill_prosody(
+    wavs = [input_file(w, "WAV file") for w in args.wavs]
+    output_file(args.output, "-o")
+    checkpoint, fit_report, metrics = distill_prosody(
         wavs,
         Path(args.output),
         load_robot(),
         validation=args.validation,
         settings=TrainSettings(seed=args.seed, max_epochs=args.max_epochs),
     )
-    card = write_prosody_model_card(Path(args.output), checkpoint, report, metrics, wavs)
+    card = write_prosody_model_card(Path(args.output), checkpoint, fit_report, metrics, wavs)
     for key, value in metrics.items():
         print(f"{key}: {value:.2f}")
     print(f"wrote {args.output} and {card}")
@@ -274,14 +344,21 @@ def command_distill_prosody(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with one sub-parser per verb."""
-    parser = argparse.ArgumentParser(prog="audio2pose", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="audio2pose", description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--debug", action="store_true", help="print the traceback of an internal error"
+    )
     verbs = parser.add_subparsers(dest="verb", required=True)
+    rate = bounded_float(0.0, MAX_PLAYBACK_RATE, low_inclusive=False)
+    seed = bounded_int(0, MAX_SEED)
 
     run = verbs.add_parser("run", help="start the node graph (what pepper.launch.py starts)")
     run.add_argument(
         "--play", metavar="FILE.wav|BAG", help="play a WAV or a bag's audio in real time, then exit"
     )
-    run.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
+    run.add_argument(
+        "--rate", type=rate, default=1.0, help="playback speed factor in (0, 100] (default 1)"
+    )
     run.add_argument("--record", metavar="OUT", help="record the commands to this rosbag2 (MCAP)")
     run.add_argument("--model", help="checkpoint for the graph (default: packaged model)")
     run.add_argument("--params-file", help="ROS parameter YAML (default: config/pepper.yaml)")
@@ -301,7 +378,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench = verbs.add_parser("bench", help="per-frame cost of the streaming path")
     bench.add_argument("--model", help="checkpoint (default: packaged model)")
-    bench.add_argument("--frames", type=int, default=3000, help="frames to time (default 3000)")
+    bench.add_argument(
+        "--frames",
+        type=bounded_int(10, 1_000_000),
+        default=3000,
+        help="frames to time, 10 to 1e6 (default 3000)",
+    )
     bench.add_argument("--skip-models", action="store_true", help="skip the per-model table")
     bench.add_argument(
         "--graph",
@@ -309,7 +391,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="also run the live graph: latency, CPU, memory, start-up",
     )
     bench.add_argument(
-        "--duration", type=float, default=60.0, help="seconds of speech for --graph (default 60)"
+        "--duration",
+        type=bounded_float(1.0, 3600.0),
+        default=60.0,
+        help="seconds of speech for --graph, 1 to 3600 (default 60)",
     )
     bench.add_argument("--json", action="store_true", help="print the figures as JSON")
     bench.set_defaults(func=command_bench)
@@ -333,8 +418,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="STEM",
         help="file stems held out for validation (default: the last file)",
     )
-    distill.add_argument("--seed", type=int, default=0)
-    distill.add_argument("--max-epochs", type=int, default=500)
+    distill.add_argument("--seed", type=seed, default=0)
+    distill.add_argument("--max-epochs", type=bounded_int(1, 100_000), default=500)
     distill.set_defaults(func=command_distill_prosody)
     for register in _command_modules():
         register(verbs)
@@ -353,14 +438,36 @@ def _command_modules() -> list[Callable[[argparse._SubParsersAction], None]]:
     ]
 
 
+def _verb_name(args: argparse.Namespace) -> str:
+    """``audio2pose <verb> [<sub-verb>]`` as typed, for messages."""
+    sub = getattr(args, "bag_verb", None) or getattr(args, "dataset_verb", None)
+    return " ".join(["audio2pose", args.verb, *([sub] if sub else [])])
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``audio2pose`` console script."""
+    """Entry point of the ``audio2pose`` console script; returns the exit status.
+
+    Exit status: 0 done, 1 bad data, 2 bad options, 70 internal error (a bug), 130 Ctrl-C.
+    """
     args = build_parser().parse_args(argv)
+    prog = _verb_name(args)
     try:
         return args.func(args)
-    except (ValueError, OSError, TimeoutError) as exc:  # includes the library's typed errors
-        print(f"audio2pose {args.verb}: error: {exc}", file=sys.stderr)
-        return 1
+    except UsageError as exc:
+        report(prog, f"error: {exc}")
+        return EXIT_USAGE_ERROR
+    except Audio2PoseError as exc:
+        report(prog, f"error: {exc}")
+        return EXIT_DATA_ERROR
+    except KeyboardInterrupt:
+        report(prog, "interrupted")
+        return 130
+    except Exception as exc:
+        if args.debug:
+            traceback.print_exc()
+        hint = "" if args.debug else "; run with --debug for the traceback"
+        report(prog, f"internal error (a bug): {type(exc).__name__}: {exc}{hint}")
+        return EXIT_INTERNAL_ERROR
 
 
 if __name__ == "__main__":

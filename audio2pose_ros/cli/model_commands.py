@@ -1,8 +1,9 @@
 """``audio2pose train`` and ``audio2pose evaluate``: training and comparing pose models.
 
 :func:`register` adds both verbs to the main parser. Each handler is a function
-``command_<verb>(args) -> int``; the library raises typed errors (``ValueError`` subclasses),
-which the main entry point reports as one line.
+``command_<verb>(args) -> int``; the library raises typed errors
+(:class:`~audio2pose_ros.errors.Audio2PoseError`), which the main entry point reports as one
+line.
 """
 
 from __future__ import annotations
@@ -11,15 +12,21 @@ import argparse
 import sys
 from pathlib import Path
 
+from audio2pose_ros.cli.options import MAX_SEED, bounded_int, input_dir, input_file, output_file
+
 
 def command_train(args: argparse.Namespace) -> int:
     """Train a model on a data set folder and write its checkpoint."""
     from audio2pose_ros.robot import load_robot
     from audio2pose_ros.training import TrainSettings, train_from_dataset
 
+    data = input_dir(args.data, "data set folder")
+    output_file(args.output, "-o")
+    if args.finetune:
+        input_file(args.finetune, "checkpoint")
     settings = TrainSettings(max_epochs=args.max_epochs, seed=args.seed)
     checkpoint, report = train_from_dataset(
-        Path(args.data),
+        data,
         Path(args.output),
         load_robot(),
         model_name=args.model,
@@ -50,7 +57,7 @@ def command_evaluate(args: argparse.Namespace) -> int:
     from audio2pose_ros.robot import load_robot
 
     robot = load_robot()
-    dataset = Dataset.open(Path(args.data), robot)
+    dataset = Dataset.open(input_dir(args.data, "data set folder"), robot)
     checkpoints = [(Path(p), load_checkpoint(p, robot=robot)) for p in args.checkpoints]
     out_dir = Path(args.out) if args.out else None
     result = evaluate(
@@ -82,8 +89,13 @@ def register(verbs: argparse._SubParsersAction) -> None:
     train.add_argument("-o", "--output", required=True, metavar="CKPT.safetensors")
     train.add_argument("--speaker", help="train on this speaker only (subject-dependent)")
     train.add_argument("--finetune", metavar="CKPT", help="start from this checkpoint")
-    train.add_argument("--max-epochs", type=int, default=500, help="per stage (default 500)")
-    train.add_argument("--seed", type=int, default=0)
+    train.add_argument(
+        "--max-epochs",
+        type=bounded_int(1, 100_000),
+        default=500,
+        help="per stage, 1 to 100000 (default 500)",
+    )
+    train.add_argument("--seed", type=bounded_int(0, MAX_SEED), default=0)
     train.add_argument(
         "--resume", action="store_true", help="continue from the training state next to -o"
     )
@@ -100,6 +112,8 @@ def register(verbs: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--data", required=True, metavar="DIR", help="data set folder")
     evaluate.add_argument("--split", default="test", choices=("train", "validation", "test"))
     evaluate.add_argument("--out", metavar="DIR", help="write one PNG per clip and the table")
-    evaluate.add_argument("--samples", type=int, default=3, help="samples for diversity")
-    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument(
+        "--samples", type=bounded_int(2, 100), default=3, help="samples for diversity, 2 to 100"
+    )
+    evaluate.add_argument("--seed", type=bounded_int(0, MAX_SEED), default=0)
     evaluate.set_defaults(func=command_evaluate)

@@ -11,7 +11,17 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
-from audio2pose_ros.render import RenderSettings
+from audio2pose_ros.cli.options import (
+    bounded_float,
+    bounded_int,
+    input_bag,
+    input_dir,
+    input_file,
+    new_dir,
+    output_file,
+)
+from audio2pose_ros.errors import UsageError
+from audio2pose_ros.render import MAX_FPS, MAX_VIEW_PX, RenderSettings
 
 
 def _bag_path(args: argparse.Namespace) -> Path:
@@ -34,12 +44,21 @@ def command_render(args: argparse.Namespace) -> int:
     )
 
     if (args.data is None) != (args.clip is None):
-        raise ValueError("--data and --clip go together")
+        raise UsageError("--data and --clip go together")
     if (args.wav is None) == (args.data is None):
-        raise ValueError("give either FILE.wav or --data DIR --clip ID")
-    bag_out = _bag_path(args)
-    if bag_out.exists():
-        raise ValueError(f"{bag_out} exists already; choose another --mcap or remove it")
+        raise UsageError("give either FILE.wav or --data DIR --clip ID")
+    for name in ("view_width", "view_height", "curves_height"):
+        if getattr(args, name) % 2:
+            raise UsageError(f"--{name.replace('_', '-')} {getattr(args, name)} must be even")
+    output_file(args.output, "-o")
+    bag_out = new_dir(_bag_path(args), "--mcap")
+    for checkpoint in [args.model, *(args.compare or [])]:
+        if checkpoint:
+            input_file(checkpoint, "checkpoint")
+    if args.bag:
+        input_bag(args.bag)
+    if args.data:
+        input_dir(args.data, "data set folder")
     settings = RenderSettings(
         fps=args.fps,
         view_width_px=args.view_width,
@@ -53,7 +72,7 @@ def command_render(args: argparse.Namespace) -> int:
         truth, audio = clip_trajectory(args.data, args.clip, robot)
         trajectories = [synthesized_trajectory(model, audio, robot), truth]
     else:
-        audio, _ = read_wav(args.wav)
+        audio, _ = read_wav(input_file(args.wav, "WAV file"))
         if args.bag:
             trajectories = [bag_trajectory(args.bag, robot)]
         else:
@@ -104,15 +123,20 @@ def register(verbs: argparse._SubParsersAction) -> None:
         "--mcap", metavar="PATH", help="bag directory to write (default: OUT_mcap next to OUT.mp4)"
     )
     defaults = RenderSettings()
-    render.add_argument("--fps", type=float, default=defaults.fps, help="frame rate (%(default)s)")
     render.add_argument(
-        "--view-width", type=int, default=defaults.view_width_px, help="px (%(default)s)"
+        "--fps",
+        type=bounded_float(0.0, MAX_FPS, low_inclusive=False),
+        default=defaults.fps,
+        help=f"frame rate in (0, {MAX_FPS:g}] (%(default)s)",
     )
-    render.add_argument(
-        "--view-height", type=int, default=defaults.view_height_px, help="px (%(default)s)"
-    )
-    render.add_argument(
-        "--curves-height", type=int, default=defaults.curves_height_px, help="px (%(default)s)"
-    )
+    px = bounded_int(32, MAX_VIEW_PX)
+    for name, default in (
+        ("--view-width", defaults.view_width_px),
+        ("--view-height", defaults.view_height_px),
+        ("--curves-height", defaults.curves_height_px),
+    ):
+        render.add_argument(
+            name, type=px, default=default, help=f"even px, 32 to {MAX_VIEW_PX} (%(default)s)"
+        )
     render.add_argument("--no-progress", action="store_true", help="no progress bar")
     render.set_defaults(func=command_render)

@@ -1,0 +1,186 @@
+"""Command-line option types and path checks shared by every ``audio2pose`` verb.
+
+Numbers are checked by argparse ``type=`` functions: a value that is not a number, is NaN or
+infinite, or lies outside the option's range ends the command with one line naming the option,
+the value and the allowed range, and exit status 2 (see :class:`OneLineParser`). Paths are
+checked where the command uses them:
+
+- an input must exist and be a regular file (or a directory where one is meant); otherwise an
+  :class:`~audio2pose_ros.errors.InputError` names it (exit status 1). Special files such as
+  ``/dev/zero`` are refused, so reading an input never runs without end;
+- an output must be creatable: its folder exists and it is not a directory (or, for a new
+  folder, does not exist yet); otherwise a :class:`~audio2pose_ros.errors.UsageError` (exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import stat
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import NoReturn
+
+from audio2pose_ros.errors import InputError, UsageError
+
+__all__ = [
+    "MAX_SEED",
+    "OneLineParser",
+    "bounded_float",
+    "bounded_int",
+    "input_bag",
+    "input_dir",
+    "input_file",
+    "new_dir",
+    "output_file",
+]
+
+MAX_SEED = 2**32 - 1  # numpy and torch both accept seeds in [0, 2**32)
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line on stderr (exit status 2), usage in --help."""
+
+    def error(self, message: str) -> NoReturn:
+        """Print ``<prog>: error: <message> (see <prog> --help)`` and exit with status 2."""
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _number(kind: type, text: str) -> float | int:
+    try:
+        return kind(text)
+    except ValueError:
+        what = "an integer" if kind is int else "a number"
+        raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+
+
+def bounded_float(low: float, high: float, low_inclusive: bool = True) -> Callable[[str], float]:
+    """An argparse type: a finite float in [low, high] (or (low, high] when not inclusive)."""
+
+    def parse(text: str) -> float:
+        value = _number(float, text)
+        inside = (value >= low if low_inclusive else value > low) and value <= high
+        if not math.isfinite(value) or not inside:
+            bracket = "[" if low_inclusive else "("
+            raise argparse.ArgumentTypeError(
+                f"{text!r} is not a finite number in {bracket}{low:g}, {high:g}]"
+            )
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+def bounded_int(low: int, high: int) -> Callable[[str], int]:
+    """An argparse type: an integer in [low, high]."""
+
+    def parse(text: str) -> int:
+        value = _number(int, text)
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer in [{low}, {high}]")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+def _stat(path: Path, what: str) -> os.stat_result:
+    try:
+        return path.stat()
+    except FileNotFoundError:
+        raise InputError(f"{path}: {what} not found") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot access {what} ({exc.strerror or exc})") from None
+
+
+def input_file(name: str | os.PathLike[str], what: str = "input file") -> Path:
+    """``name`` as a Path after checking it is an existing, readable regular file.
+
+    Raises:
+        InputError: it does not exist, is a directory or a special file, or is not readable.
+    """
+    path = Path(name)
+    mode = _stat(path, what).st_mode
+    if stat.S_ISDIR(mode):
+        raise InputError(f"{path}: is a directory, expected a {what}")
+    if not stat.S_ISREG(mode):
+        raise InputError(f"{path}: not a regular file, expected a {what}")
+    if not os.access(path, os.R_OK):
+        raise InputError(f"{path}: {what} is not readable (permission denied)")
+    return path
+
+
+def input_dir(name: str | os.PathLike[str], what: str = "input folder") -> Path:
+    """``name`` as a Path after checking it is an existing, readable directory.
+
+    Raises:
+        InputError: it does not exist, is not a directory or is not readable.
+    """
+    path = Path(name)
+    if not stat.S_ISDIR(_stat(path, what).st_mode):
+        raise InputError(f"{path}: not a directory, expected a {what}")
+    if not os.access(path, os.R_OK | os.X_OK):
+        raise InputError(f"{path}: {what} is not readable (permission denied)")
+    return path
+
+
+def input_bag(name: str | os.PathLike[str]) -> Path:
+    """A rosbag2 input: a bag folder, or one storage file (``.mcap`` / ``.db3``).
+
+    Raises:
+        InputError: it does not exist or is neither a readable folder nor a regular file.
+    """
+    path = Path(name)
+    return input_dir(path, "bag folder") if path.is_dir() else input_file(path, "bag")
+
+
+def _writable_parent(path: Path, option: str) -> None:
+    parent = path.parent if str(path.parent) else Path()
+    if not parent.is_dir():
+        raise UsageError(f"{option} {path}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise UsageError(f"{option} {path}: folder {parent} is not writable")
+
+
+def output_file(name: str | os.PathLike[str], option: str) -> Path:
+    """``name`` as a Path after checking a file can be written there (it may be replaced).
+
+    Raises:
+        UsageError: its folder is missing or not writable, or the path is a directory.
+    """
+    path = Path(name)
+    if path.is_dir():
+        raise UsageError(f"{option} {path}: is a directory, expected a file name")
+    _writable_parent(path, option)
+    return path
+
+
+def new_dir(name: str | os.PathLike[str], option: str, parents: bool = False) -> Path:
+    """``name`` as a Path after checking it does not exist yet and can be created.
+
+    Args:
+        name: the folder to create later.
+        option: the option that named it (for the message).
+        parents: when True the folder's own parents may be missing (they are created later).
+
+    Raises:
+        UsageError: it exists already, or its folder is missing or not writable.
+    """
+    path = Path(name)
+    if path.exists():
+        raise UsageError(f"{option} {path}: exists already; give a new folder")
+    if not parents:
+        _writable_parent(path, option)
+    return path
+
+
+def one_line(message: str) -> str:
+    """``message`` with its lines joined by `` | `` (a report is one line on stderr)."""
+    return " | ".join(part.strip() for part in message.splitlines() if part.strip())
+
+
+def report(prog: str, message: str) -> None:
+    """Print ``<prog>: <message>`` as one line on stderr."""
+    print(f"{prog}: {one_line(message)}", file=sys.stderr, flush=True)
