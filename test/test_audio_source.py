@@ -67,7 +67,7 @@ def test_when_audio_info_claims_a_bomb_rate_expect_refused_at_once_with_little_m
 
 def test_when_audio_info_rejected_expect_reason_kept_until_a_valid_one_then_recovery():
     source = audio_input()
-    with pytest.raises(AudioDropped, match="no AudioInfo received yet"):
+    with pytest.raises(AudioDropped, match="no usable AudioInfo received yet"):
         source.decode_audio_data(s16(160))
     with pytest.raises(UnsupportedAudioFormat):
         source.set_audio_info(1, 16000, "S16LE", "mp3")
@@ -118,7 +118,9 @@ def test_when_the_same_audio_info_repeats_expect_no_restart():
 def test_when_message_over_max_chunk_bytes_expect_dropped_before_decoding():
     source = audio_input(max_chunk_bytes=4096)
     source.set_audio_info(**S16_INFO)
-    with pytest.raises(AudioDropped, match=r"4098 bytes dropped \(max_chunk_bytes 4096\)"):
+    with pytest.raises(
+        AudioDropped, match=r"AudioData message of 4098 bytes \(max_chunk_bytes 4096\)"
+    ):
         source.decode_audio_data(s16(2049))
     assert source.decode_audio_data(s16(2048)).size == 2048
 
@@ -126,7 +128,7 @@ def test_when_message_over_max_chunk_bytes_expect_dropped_before_decoding():
 def test_when_message_longer_than_max_chunk_s_expect_dropped_and_next_one_decoded():
     source = audio_input(max_chunk_s=0.5)
     source.set_audio_info(**dict(S16_INFO, sample_rate=8000))  # 8 kHz: output twice the input
-    with pytest.raises(AudioDropped, match=r"0\.501 s dropped \(max_chunk_s 0\.5\)"):
+    with pytest.raises(AudioDropped, match=r"AudioData message of 0\.501 s \(max_chunk_s 0\.5\)"):
         source.decode_audio_data(s16(4008))
     assert source.dropped_bytes == 8016
     out = source.decode_audio_data(s16(4000))
@@ -277,7 +279,7 @@ def test_when_channel_map_changes_expect_restart_flag():
 
 def test_when_audio_buffer_over_max_chunk_bytes_expect_dropped_before_conversion():
     source = audio_input(input_type="naoqi", max_chunk_bytes=1024)
-    with pytest.raises(AudioDropped, match="1032 bytes dropped"):
+    with pytest.raises(AudioDropped, match="dropped an AudioBuffer message of 1032 bytes"):
         source.decode_audio_buffer(48000, PEPPER_MAP, [0] * 516)
 
 

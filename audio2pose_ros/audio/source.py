@@ -299,7 +299,7 @@ class AudioInput:
         self._channel_map: tuple[int, ...] = ()
         self.format: PcmFormat | None = None
         self.format_problem = (
-            "no AudioInfo received yet on audio/audio_info"
+            "no usable AudioInfo received yet on audio/audio_info"
             if settings.input_type == "audio_common"
             else "no AudioBuffer received yet on audio/audio"
         )
@@ -368,10 +368,10 @@ class AudioInput:
             InvalidAudio: the samples are not finite.
         """
         self.chunks += 1
-        self._check_bytes(len(data))
+        self._check_bytes("AudioData", len(data))
         if self._decoder is None:
             raise self._dropped(len(data), AudioDropped(f"audio dropped: {self.format_problem}"))
-        return self._decode(self._decoder, data, len(data))
+        return self._decode("AudioData", self._decoder, data, len(data))
 
     def decode_audio_buffer(
         self, frequency: int, channel_map: Sequence[int], data: Sequence[int] | np.ndarray
@@ -390,7 +390,7 @@ class AudioInput:
         """
         self.chunks += 1
         n_bytes = 2 * len(data)
-        self._check_bytes(n_bytes)
+        self._check_bytes("AudioBuffer", n_bytes)
         channel_map = tuple(int(code) for code in channel_map)
         try:
             if not channel_map:
@@ -410,7 +410,7 @@ class AudioInput:
             )
         assert self._decoder is not None  # adopted above
         samples = np.asarray(data, dtype="<i2")
-        return self._decode(self._decoder, samples.tobytes(), n_bytes), changed
+        return self._decode("AudioBuffer", self._decoder, samples.tobytes(), n_bytes), changed
 
     def _adopt(self, fmt: PcmFormat, channel_map: tuple[int, ...]) -> bool:
         """Switch to ``fmt`` unless already decoding it; True when switched."""
@@ -427,24 +427,25 @@ class AudioInput:
         self._decoder, self.format, self._channel_map = None, None, ()
         self.format_problem = reason
 
-    def _check_bytes(self, n_bytes: int) -> None:
+    def _check_bytes(self, kind: str, n_bytes: int) -> None:
+        """Refuse a ``kind`` message (AudioData, AudioBuffer) over ``max_chunk_bytes``."""
         if n_bytes > self.settings.max_chunk_bytes:
             raise self._dropped(
                 n_bytes,
                 AudioDropped(
-                    f"audio message of {n_bytes} bytes dropped (max_chunk_bytes "
+                    f"dropped an {kind} message of {n_bytes} bytes (max_chunk_bytes "
                     f"{self.settings.max_chunk_bytes})"
                 ),
             )
 
-    def _decode(self, decoder: PcmDecoder, payload: object, n_bytes: int) -> np.ndarray:
+    def _decode(self, kind: str, decoder: PcmDecoder, payload: object, n_bytes: int) -> np.ndarray:
         """Check the duration limits, then decode (the message is counted as dropped if not)."""
         seconds = decoder.frames_in(n_bytes) / decoder.fmt.sample_rate_hz
         if seconds > self.settings.max_chunk_s:
             raise self._dropped(
                 n_bytes,
                 AudioDropped(
-                    f"audio message of {seconds:.3f} s dropped (max_chunk_s "
+                    f"dropped an {kind} message of {seconds:.3f} s (max_chunk_s "
                     f"{self.settings.max_chunk_s:g})"
                 ),
             )
@@ -452,14 +453,16 @@ class AudioInput:
             raise self._dropped(
                 n_bytes,
                 AudioDropped(
-                    f"audio arrives faster than max_audio_s_per_s "
-                    f"{self.settings.max_audio_s_per_s:g}: message of {seconds:.3f} s dropped"
+                    f"dropped an {kind} message of {seconds:.3f} s: audio arrives faster than "
+                    f"max_audio_s_per_s {self.settings.max_audio_s_per_s:g}"
                 ),
             )
         try:
             return decoder.feed(payload)  # type: ignore[arg-type]
         except InvalidAudio as exc:
-            raise self._dropped(n_bytes, exc) from None
+            raise self._dropped(
+                n_bytes, InvalidAudio(f"dropped an audio chunk ({kind}): {exc}")
+            ) from None
 
     def _dropped(self, n_bytes: int, error: InputError) -> InputError:
         """Count a dropped message of ``n_bytes``; return ``error`` for the caller to raise."""
