@@ -5,6 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.motion.limits import MIN_DT_S, JointLimiter, LimitSettings
 
 DT = 0.01
@@ -51,11 +52,13 @@ def test_when_dt_not_positive_expect_previous_command_unchanged(limiter, robot):
         np.testing.assert_array_equal(out_vel, vel)
 
 
-def test_when_settings_out_of_range_expect_value_error():
-    with pytest.raises(ValueError, match="velocity_fraction must be in"):
+def test_when_settings_out_of_range_expect_configuration_error_naming_parameter():
+    with pytest.raises(ConfigurationError, match=r"velocity_fraction: value 1.5 is out of range"):
         LimitSettings(velocity_fraction=1.5)
-    with pytest.raises(ValueError, match="position_margin_rad must be >= 0"):
+    with pytest.raises(ConfigurationError, match=r"position_margin_rad: value -0.1 is out of"):
         LimitSettings(position_margin_rad=-0.1)
+    with pytest.raises(ConfigurationError, match="position_margin_rad: value nan is not finite"):
+        LimitSettings(position_margin_rad=float("nan"))
 
 
 finite_or_not = st.one_of(

@@ -1,38 +1,59 @@
 """The online motion filter: paces raw model poses to a fixed rate, smooths them, limits them.
 
-This is the ROS-free core of ``motion_filter_node``. Raw poses arrive in bursts (one burst per
-audio chunk); :class:`MotionFilter` queues them in a short jitter buffer and, at every
-:meth:`MotionFilter.tick`, produces one command:
+This is the ROS-free core of ``motion_filter_node``, the last stage before the robot. Raw poses
+arrive in bursts (one burst per audio chunk); :class:`MotionFilter` checks them, queues them in
+a short jitter buffer and, at every :meth:`MotionFilter.tick`, produces one command:
 
+0. **Gate** (:class:`~audio2pose_ros.motion.gate.TrackGate`, issue 11 items 1-3). At most
+   ``max_points_per_message`` poses of a message are looked at (the rest are dropped and
+   counted). Non-finite poses, poses outside a joint's range (beyond ``outlier_tolerance_rad``)
+   and poses no joint could reach from the recent track in the time that passed are rejected
+   before the buffer or the smoother sees them; the rest are clamped into the joint ranges. Head
+   targets are checked against the head's range, head offsets against ``max_head_offset_rad``.
 1. **Mode.** It *tracks* the generated motion while poses arrive, the voice is active, the filter
    is enabled and no stop is requested. Otherwise it *glides to the neutral pose* along a
-   minimum-jerk path of ``neutral_glide_s`` that starts where the robot is, or, on an emergency
-   stop with ``stop_behaviour: hold``, brakes to a standstill and *holds*.
+   minimum-jerk path of ``neutral_glide_s`` that starts where the robot is. An emergency stop
+   either brakes to a standstill and *holds* (``stop_behaviour: hold``) or glides to neutral
+   (``neutral``); while stopped nothing else (generated motion, head target or offset) moves it.
 2. **Tracking.** Each joint group is scaled around the neutral pose by its gain, and the pose
    is smoothed causally (seed 003 section 4.4.2: Kalman filter; or a low-pass; or none). When
-   tracking resumes, the smoother restarts from the current pose, so nothing jumps.
+   tracking resumes, the smoother restarts from the commanded pose, so nothing jumps.
 3. **Head composition.** An external head target (a face tracker's look-at) is blended into the
    head joints with ``head_target_weight``, and an external offset is added, for
-   ``external_timeout_s`` after each message, in every mode but an emergency stop.
+   ``external_timeout_s`` after each message, while not stopped.
 4. **Limits last** (:class:`~audio2pose_ros.motion.limits.JointLimiter`): position, velocity,
-   acceleration. Nothing after them changes the command.
+   acceleration, from the first command on (the start pose counts as commanded, at rest).
+5. **Health** (issue 11 item 2). A non-finite wanted pose or smoother state is reset from the
+   last commanded pose; a command that is not finite, leaves the limits or steps further than
+   the velocity limit allows is replaced by the last commanded pose. Either counts as a fault
+   (``FilterStatus.faults``, ``last_fault``) that the node reports as ERROR.
+6. **Gaps** (issue 11 item 3). When ticks stop for more than ``GAP_PERIODS`` periods (a blocked
+   process), the commanded velocity is braked at the acceleration limit over the time that
+   passed and the smoother restarts from the commanded pose at rest: the robot resumes from the
+   pose it was last sent, with no velocity jump.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from audio2pose_ros.errors import ConfigurationError, InputError
+from audio2pose_ros.motion.gate import TrackGate
 from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
 from audio2pose_ros.motion.smoothing import CausalLowPass, KalmanSmoother
+from audio2pose_ros.parameters import param, specs_of, validate_settings
 from audio2pose_ros.robot import JOINT_GROUPS, RobotDescription
 
 SMOOTHING_METHODS = ("kalman", "lowpass", "none")
 STOP_BEHAVIOURS = ("hold", "neutral")
 MODES = ("tracking", "neutral", "stopped")
+GAP_PERIODS = 3.0  # ticks further apart than this many periods are a gap (the process stalled)
+STEP_SLACK_RAD = 1e-9  # rounding allowance of the step check of the health guard
 
 
 def minimum_jerk(fraction: float) -> float:
@@ -45,16 +66,28 @@ def minimum_jerk(fraction: float) -> float:
     return s * s * s * (10.0 - 15.0 * s + 6.0 * s * s)
 
 
+def _gain(group: str) -> dict[str, object]:
+    return param(
+        f"scale of {group} motion around neutral (0 = still, 1 = as generated)",
+        minimum=0.0,
+        maximum=1.0,
+    )
+
+
 @dataclass(frozen=True)
 class MotionFilterSettings:
-    """Settings of :class:`MotionFilter` (defaults are the ones shipped in config/pepper.yaml).
+    """Settings of :class:`MotionFilter`, declared as node parameters (see ``param``).
+
+    Defaults are the ones shipped in config/pepper.yaml. Fields marked read-only in their
+    declaration are fixed at start-up; the others may change while the filter runs
+    (:meth:`MotionFilter.update_settings`).
 
     Attributes:
-        rate_hz: output rate (Hz); seed 003 clocks commands at f_f = 100 Hz.
+        rate_hz: filter clock (Hz); seed 003 clocks commands at f_f = 100 Hz.
         smoothing: 'kalman' (seed 003 section 4.4.2), 'lowpass' (causal Butterworth) or 'none'.
         kalman_q: Kalman process noise (seed value 0.5).
         kalman_r: Kalman measurement noise (seed value 0.01).
-        lowpass_cutoff_hz: cut-off of the causal low-pass (seed value 4 Hz).
+        lowpass_cutoff_hz: cut-off of the causal low-pass (seed value 4 Hz), below rate_hz / 2.
         watchdog_timeout_s: without poses for this long, glide to the neutral pose (s).
         silence_timeout_s: with the voice inactive for this long, glide to neutral (s).
         neutral_glide_s: duration of the glide to the neutral pose (s).
@@ -67,59 +100,186 @@ class MotionFilterSettings:
         hip_gain: scale of hip motion around neutral.
         head_target_weight: weight of an external head target against generated head motion.
         external_timeout_s: an external head target or offset counts for this long (s).
+        outlier_tolerance_rad: slack of the input gate: how far a raw target or head target may
+            lie outside its joint's range (it is clamped) and how much further than the
+            velocity limit allows it may be from the recent track (rad).
+        max_head_offset_rad: largest head offset accepted per joint (rad); larger ones are
+            rejected.
+        max_points_per_message: poses of one message beyond this many are dropped and counted.
     """
 
-    rate_hz: float = 100.0
-    smoothing: str = "kalman"
-    kalman_q: float = 0.5
-    kalman_r: float = 0.01
-    lowpass_cutoff_hz: float = 4.0
-    watchdog_timeout_s: float = 0.5
-    silence_timeout_s: float = 1.0
-    neutral_glide_s: float = 1.0
-    stop_behaviour: str = "hold"
-    max_buffer_s: float = 0.3
-    backlog_window_s: float = 0.2
-    head_gain: float = 1.0
-    arms_gain: float = 1.0
-    hip_gain: float = 1.0
-    head_target_weight: float = 0.8
-    external_timeout_s: float = 0.5
+    rate_hz: float = field(
+        default=100.0,
+        metadata=param(
+            "filter clock (seed 003: 100 Hz)",
+            minimum=1.0,
+            maximum=1000.0,
+            read_only=True,
+            unit="Hz",
+        ),
+    )
+    smoothing: str = field(
+        default="kalman",
+        metadata=param(
+            "causal smoothing of the tracked pose", choices=SMOOTHING_METHODS, read_only=True
+        ),
+    )
+    kalman_q: float = field(
+        default=0.5,
+        metadata=param(
+            "Kalman process noise (seed 003: 0.5)", minimum=1e-9, maximum=1e9, read_only=True
+        ),
+    )
+    kalman_r: float = field(
+        default=0.01,
+        metadata=param(
+            "Kalman measurement noise (seed 003: 0.01)", minimum=1e-9, maximum=1e9, read_only=True
+        ),
+    )
+    lowpass_cutoff_hz: float = field(
+        default=4.0,
+        metadata=param(
+            "cut-off of the causal low-pass, below rate_hz / 2 (seed 003: 4 Hz)",
+            minimum=0.01,
+            maximum=500.0,
+            read_only=True,
+            unit="Hz",
+        ),
+    )
+    watchdog_timeout_s: float = field(
+        default=0.5,
+        metadata=param(
+            "no pose for this long: glide to the neutral pose", minimum=0.01, maximum=60.0, unit="s"
+        ),
+    )
+    silence_timeout_s: float = field(
+        default=1.0,
+        metadata=param(
+            "voice inactive for this long: glide to the neutral pose",
+            minimum=0.01,
+            maximum=600.0,
+            unit="s",
+        ),
+    )
+    neutral_glide_s: float = field(
+        default=1.0,
+        metadata=param(
+            "duration of the minimum-jerk glide to the neutral pose",
+            minimum=0.05,
+            maximum=60.0,
+            unit="s",
+        ),
+    )
+    stop_behaviour: str = field(
+        default="hold",
+        metadata=param(
+            "on stop: hold (brake and stay) or neutral (glide to neutral)", choices=STOP_BEHAVIOURS
+        ),
+    )
+    max_buffer_s: float = field(
+        default=0.3,
+        metadata=param(
+            "jitter buffer bound: queued motion beyond this is dropped",
+            minimum=0.01,
+            maximum=10.0,
+            read_only=True,
+            unit="s",
+        ),
+    )
+    backlog_window_s: float = field(
+        default=0.2,
+        metadata=param(
+            "buffer never empty for this long: skip the standing backlog",
+            minimum=0.01,
+            maximum=10.0,
+            read_only=True,
+            unit="s",
+        ),
+    )
+    head_gain: float = field(default=1.0, metadata=_gain("head"))
+    arms_gain: float = field(default=1.0, metadata=_gain("arm"))
+    hip_gain: float = field(default=1.0, metadata=_gain("hip"))
+    head_target_weight: float = field(
+        default=0.8,
+        metadata=param(
+            "weight of head_target against generated head motion", minimum=0.0, maximum=1.0
+        ),
+    )
+    external_timeout_s: float = field(
+        default=0.5,
+        metadata=param(
+            "head_target / head_offset count this long after a message",
+            minimum=0.01,
+            maximum=60.0,
+            unit="s",
+        ),
+    )
+    outlier_tolerance_rad: float = field(
+        default=0.1,
+        metadata=param(
+            "input gate slack: beyond a joint's range, and beyond the distance the "
+            "velocity limit allows from the recent track, targets are rejected",
+            minimum=0.0,
+            maximum=1.0,
+            unit="rad",
+        ),
+    )
+    max_head_offset_rad: float = field(
+        default=0.5,
+        metadata=param(
+            "largest accepted head_offset per joint", minimum=0.0, maximum=1.0, unit="rad"
+        ),
+    )
+    max_points_per_message: int = field(
+        default=200,
+        metadata=param(
+            "poses of one raw_trajectory message beyond this many are dropped",
+            minimum=1,
+            maximum=10000,
+        ),
+    )
 
     def __post_init__(self) -> None:
-        """Reject settings that would make the filter unsafe or meaningless."""
-        if self.smoothing not in SMOOTHING_METHODS:
-            raise ValueError(f"smoothing {self.smoothing!r} is not one of {SMOOTHING_METHODS}")
-        if self.stop_behaviour not in STOP_BEHAVIOURS:
-            raise ValueError(
-                f"stop_behaviour {self.stop_behaviour!r} is not one of {STOP_BEHAVIOURS}"
+        """Validate every field against its declaration, then the one cross-field rule.
+
+        Raises:
+            ConfigurationError: a value is refused; the message names it and the allowed range.
+        """
+        validate_settings(self)
+        if self.lowpass_cutoff_hz >= self.rate_hz / 2.0:
+            raise ConfigurationError(
+                f"parameter lowpass_cutoff_hz: value {self.lowpass_cutoff_hz!r} is out of range; "
+                f"allowed: below rate_hz / 2 = {self.rate_hz / 2.0:g}"
             )
-        for name in (
-            "rate_hz",
-            "watchdog_timeout_s",
-            "silence_timeout_s",
-            "neutral_glide_s",
-            "max_buffer_s",
-            "external_timeout_s",
-        ):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
-        for name in (*(f"{g}_gain" for g in JOINT_GROUPS), "head_target_weight"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+
+
+LIMIT_SETTINGS = frozenset(f.name for f in dataclasses.fields(LimitSettings))
+READ_ONLY_SETTINGS = tuple(
+    spec.name
+    for spec in (*specs_of(MotionFilterSettings), *specs_of(LimitSettings))
+    if spec.read_only
+)
 
 
 @dataclass
 class FilterStatus:
-    """Counters and state for diagnostics."""
+    """Counters and state for diagnostics (counters count since start)."""
 
     mode: str = "neutral"
-    received: int = 0
-    rejected: int = 0
+    received: int = 0  # poses accepted into the buffer
+    rejected: int = 0  # malformed messages (shape) and poses with NaN/inf
+    out_of_range: int = 0  # poses with a joint outside its range (beyond the tolerance)
+    implausible: int = 0  # poses too far from the recent track for the time that passed
+    truncated: int = 0  # poses beyond max_points_per_message
     dropped: int = 0  # buffer overflow, or generated while not tracking (stale)
     underruns: int = 0
     skipped: int = 0
     buffered: int = 0
+    external_rejected: int = 0  # head targets / offsets refused
+    gaps: int = 0  # ticks more than GAP_PERIODS apart
+    faults: int = 0  # non-finite state or unsafe command replaced by the last commanded pose
+    last_fault: str = ""
+    last_fault_s: float = -np.inf
     enabled: bool = True
     stopped: bool = False
     voice_active: bool = True
@@ -143,24 +303,36 @@ class _External:
 
 
 class MotionFilter:
-    """Jitter buffer, modes, group gains, smoothing, head composition and limits at ``rate_hz``."""
+    """Gate, jitter buffer, modes, gains, smoothing, head composition, limits and health guard."""
 
     def __init__(
         self,
         robot: RobotDescription,
         settings: MotionFilterSettings | None = None,
         limits: LimitSettings | None = None,
+        start_pose_rad: np.ndarray | None = None,
     ) -> None:
-        """Start at rest in the neutral pose."""
+        """Start at rest in ``start_pose_rad`` (the robot's pose), or in the neutral pose.
+
+        Raises:
+            ConfigurationError: the limit settings leave no range for some joint.
+            InputError: the start pose has the wrong size or is not finite.
+        """
         self.robot = robot
         self.settings = settings or MotionFilterSettings()
         self.limiter = JointLimiter(robot, limits)
         self.period_s = 1.0 / self.settings.rate_hz
         self.neutral_rad = self.limiter.clamp_position(robot.neutral_rad)
         self._gains = np.ones(robot.n_joints)
-        for group in JOINT_GROUPS:
-            self._gains[robot.group_mask(group)] = getattr(self.settings, f"{group}_gain")
         self._head = robot.group_mask("head")
+        self.gate = TrackGate(
+            robot.lower_rad,
+            robot.upper_rad,
+            robot.max_velocity_rad_s,
+            self.period_s,
+            self.settings.outlier_tolerance_rad,
+        )
+        self._apply_live_settings()
         self._queue: deque[np.ndarray] = deque(
             maxlen=max(1, round(self.settings.max_buffer_s * self.settings.rate_hz))
         )
@@ -168,19 +340,13 @@ class MotionFilter:
             maxlen=max(1, round(self.settings.backlog_window_s * self.settings.rate_hz))
         )
         self._smoother = self._make_smoother()
-        if self._smoother is not None:
-            self._smoother.reset(self.neutral_rad)
         self.status = FilterStatus()
-        self.position_rad = self.neutral_rad.copy()
-        self.velocity_rad_s = np.zeros(robot.n_joints)
-        self._target = self.neutral_rad.copy()
         self._last_input_s = -np.inf
         self._last_voice_s = -np.inf
         self._voice_reported = False
-        self._last_tick_s: float | None = None
-        self._glide_start: tuple[float, np.ndarray] | None = None
         self._head_target = _External(robot.n_joints)
         self._head_offset = _External(robot.n_joints)
+        self.start_from(self.neutral_rad if start_pose_rad is None else start_pose_rad)
 
     def _make_smoother(self) -> KalmanSmoother | CausalLowPass | None:
         n = self.robot.n_joints
@@ -190,6 +356,58 @@ class MotionFilter:
             return CausalLowPass(n, self.settings.rate_hz, self.settings.lowpass_cutoff_hz)
         return None
 
+    def _apply_live_settings(self) -> None:
+        for group in JOINT_GROUPS:
+            self._gains[self.robot.group_mask(group)] = getattr(self.settings, f"{group}_gain")
+        self.gate.tolerance_rad = self.settings.outlier_tolerance_rad
+
+    def start_from(self, pose_rad: np.ndarray) -> None:
+        """Take ``pose_rad`` as the commanded pose, at rest: the next command starts there.
+
+        Used at start-up with the robot's measured (or last commanded) pose. The pose is clamped
+        into the limits; the buffer, the smoother and the gate's track start from it.
+
+        Raises:
+            InputError: the pose has the wrong size or is not finite.
+        """
+        pose = np.asarray(pose_rad, dtype=np.float64)
+        if pose.shape != (self.robot.n_joints,) or not np.isfinite(pose).all():
+            raise InputError(f"start pose must be {self.robot.n_joints} finite angles, got {pose}")
+        self.position_rad = self.limiter.clamp_position(pose)
+        self.velocity_rad_s = np.zeros(self.robot.n_joints)
+        self._target = self.position_rad.copy()
+        if self._smoother is not None:
+            self._smoother.reset(self.position_rad)
+        self._queue.clear()
+        self._depths.clear()
+        self.gate.reset()
+        self._last_tick_s: float | None = None
+        self._glide_start: tuple[float, np.ndarray] | None = None
+
+    def update_settings(
+        self, settings: MotionFilterSettings, limits: LimitSettings | None = None
+    ) -> None:
+        """Take new settings from the next tick on (``ros2 param set`` at run time).
+
+        Raises:
+            ConfigurationError: a read-only setting differs from the running one.
+        """
+        limits = limits or self.limiter.settings
+        for name in READ_ONLY_SETTINGS:
+            new, running = (
+                (limits, self.limiter.settings)
+                if name in LIMIT_SETTINGS
+                else (settings, self.settings)
+            )
+            if getattr(new, name) != getattr(running, name):
+                raise ConfigurationError(f"parameter {name} cannot change while the node runs")
+        self.settings = settings
+        if limits != self.limiter.settings:
+            counts = self.limiter.counts
+            self.limiter = JointLimiter(self.robot, limits)
+            self.limiter.counts = counts
+        self._apply_live_settings()
+
     @property
     def buffered(self) -> int:
         """Poses waiting in the jitter buffer now."""
@@ -197,27 +415,42 @@ class MotionFilter:
 
     # --- inputs -------------------------------------------------------------------------------
 
+    def points_to_take(self, n_points: int) -> int:
+        """How many of a message's ``n_points`` poses to look at; the rest count as truncated."""
+        cap = self.settings.max_points_per_message
+        if n_points > cap:
+            self.status.truncated += n_points - cap
+            return cap
+        return n_points
+
     def push(self, poses_rad: np.ndarray, now_s: float) -> int:
-        """Queue raw poses (n_frames, n_joints); frames with non-finite values are rejected.
+        """Check raw poses (n_frames, n_joints) and queue those the gate admits.
+
+        Poses beyond ``max_points_per_message`` are dropped first; the gate rejects non-finite,
+        out-of-range and unreachable poses and clamps the rest into the joint ranges.
 
         Returns:
-            The number of frames accepted.
+            The number of poses accepted.
         """
         poses = np.asarray(poses_rad, dtype=np.float64)
         if poses.ndim != 2 or poses.shape[1] != self.robot.n_joints:
             self.status.rejected += 1
             return 0
-        good = np.isfinite(poses).all(axis=1)
-        self.status.rejected += int(np.count_nonzero(~good))
-        for pose in poses[good]:
+        poses = poses[: self.points_to_take(len(poses))]
+        counts = self.gate.counts
+        before = (counts.non_finite, counts.out_of_range, counts.implausible)
+        admitted = self.gate.admit(poses, now_s)
+        self.status.rejected += counts.non_finite - before[0]
+        self.status.out_of_range += counts.out_of_range - before[1]
+        self.status.implausible += counts.implausible - before[2]
+        for pose in admitted:
             if len(self._queue) == self._queue.maxlen:
                 self.status.dropped += 1
             self._queue.append(pose)
-        accepted = int(np.count_nonzero(good))
-        self.status.received += accepted
-        if accepted:
+        self.status.received += len(admitted)
+        if len(admitted):
             self._last_input_s = now_s
-        return accepted
+        return len(admitted)
 
     def set_voice_active(self, active: bool, now_s: float) -> None:
         """Report voice activity; without any report the voice counts as active."""
@@ -234,32 +467,58 @@ class MotionFilter:
         """Request or release the emergency stop (see ``stop_behaviour``)."""
         self.status.stopped = stopped
 
-    def _external(self, values: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    def _external(
+        self, values: Mapping[str, float], lower: np.ndarray, upper: np.ndarray, tolerance: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Head values and their mask; within ``tolerance`` outside [lower, upper] is clamped."""
         array, mask = np.zeros(self.robot.n_joints), np.zeros(self.robot.n_joints, dtype=bool)
         for name, value in values.items():
             if name not in self.robot.names or not self._head[self.robot.names.index(name)]:
-                raise ValueError(f"{name!r} is not a head joint of {self.robot.name}")
-            if not np.isfinite(value):
-                raise ValueError(f"{name}: value {value} is not finite")
+                raise InputError(f"{name!r} is not a head joint of {self.robot.name}")
             index = self.robot.names.index(name)
-            array[index], mask[index] = value, True
+            if not (lower[index] - tolerance <= value <= upper[index] + tolerance):
+                raise InputError(
+                    f"{name}: {value} rad is outside [{lower[index]:g}, {upper[index]:g}] rad"
+                )
+            array[index] = min(max(value, lower[index]), upper[index])
+            mask[index] = True
         return array, mask
 
     def set_head_target(self, values: Mapping[str, float], now_s: float) -> None:
         """Absolute head joint targets (rad), blended with ``head_target_weight``.
 
+        A value up to ``outlier_tolerance_rad`` outside the joint's range is clamped into it.
+
         Raises:
-            ValueError: a name is not a head joint, or a value is not finite.
+            InputError: a name is not a head joint, or a value is not finite or outside the
+                joint's range (the previous target stays in force until it times out).
         """
-        self._head_target.set(*self._external(values), now_s)
+        try:
+            external = self._external(
+                values,
+                self.robot.lower_rad,
+                self.robot.upper_rad,
+                self.settings.outlier_tolerance_rad,
+            )
+        except InputError:
+            self.status.external_rejected += 1
+            raise
+        self._head_target.set(*external, now_s)
 
     def set_head_offset(self, values: Mapping[str, float], now_s: float) -> None:
-        """Head joint offsets (rad) added to the head motion.
+        """Head joint offsets (rad), each at most ``max_head_offset_rad``, added to head motion.
 
         Raises:
-            ValueError: a name is not a head joint, or a value is not finite.
+            InputError: a name is not a head joint, or a value is not finite or larger than
+                ``max_head_offset_rad``.
         """
-        self._head_offset.set(*self._external(values), now_s)
+        limit = np.full(self.robot.n_joints, self.settings.max_head_offset_rad)
+        try:
+            external = self._external(values, -limit, limit, 0.0)
+        except InputError:
+            self.status.external_rejected += 1
+            raise
+        self._head_offset.set(*external, now_s)
 
     # --- output -------------------------------------------------------------------------------
 
@@ -309,32 +568,79 @@ class MotionFilter:
         offset_mask = self._head_offset.active(now_s, timeout)
         return np.where(offset_mask, blended + self._head_offset.values, blended)
 
+    def _fault(self, message: str, now_s: float) -> None:
+        """Record a fault and restart the filter state from the last commanded pose."""
+        self.status.faults += 1
+        self.status.last_fault, self.status.last_fault_s = message, now_s
+        if self._smoother is not None:
+            self._smoother.reset(self.position_rad)
+        if not np.isfinite(self._target).all():
+            self._target = self.position_rad.copy()
+
+    def _resume_after_gap(self, elapsed_s: float) -> None:
+        """No tick for ``elapsed_s``: brake the velocity over that time, restart the smoother."""
+        self.status.gaps += 1
+        braked = np.maximum(
+            np.abs(self.velocity_rad_s) - self.limiter.max_acceleration_rad_s2 * elapsed_s, 0.0
+        )
+        self.velocity_rad_s = np.copysign(braked, self.velocity_rad_s)
+        if self._smoother is not None:
+            self._smoother.reset(self.position_rad)
+
+    def _safe(self, positions: np.ndarray, velocities: np.ndarray, dt_s: float) -> bool:
+        limiter = self.limiter
+        return bool(
+            np.isfinite(positions).all()
+            and np.isfinite(velocities).all()
+            and np.all(positions >= limiter.lower_rad)
+            and np.all(positions <= limiter.upper_rad)
+            and np.all(
+                np.abs(positions - self.position_rad)
+                <= limiter.max_velocity_rad_s * dt_s + STEP_SLACK_RAD
+            )
+        )
+
     def tick(self, now_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Advance one output period and return ``(positions_rad, velocities_rad_s)``."""
         status = self.status
-        stop_and_hold = status.stopped and self.settings.stop_behaviour == "hold"
-        if stop_and_hold:
+        elapsed_s = self.period_s if self._last_tick_s is None else now_s - self._last_tick_s
+        if elapsed_s > GAP_PERIODS * self.period_s:
+            self._resume_after_gap(elapsed_s)
+        if status.stopped:
+            status.dropped += len(self._queue)  # nothing generated meanwhile is replayed later
             self._queue.clear()
-            self._glide_start = None
-            desired = self.position_rad  # the limiter brakes to a standstill and holds there
+            if self.settings.stop_behaviour == "hold":
+                self._glide_start = None
+                desired = self.position_rad  # the limiter brakes to a standstill and holds there
+            else:
+                desired = self._glide(now_s)
             status.mode = "stopped"
+            status.head_target_active = False
         elif self._tracking_allowed(now_s):
             desired = self._compose_head(self._track(), now_s)
             status.mode = "tracking"
         else:
-            # Poses generated meanwhile (of silence, or while disabled or stopped) are stale:
-            # replaying them when tracking resumes would only add latency and wrong motion.
+            # Poses generated meanwhile (of silence, or while disabled) are stale: replaying
+            # them when tracking resumes would only add latency and wrong motion.
             status.dropped += len(self._queue)
             self._queue.clear()
             desired = self._compose_head(self._glide(now_s), now_s)
             status.mode = "neutral"
         status.buffered = len(self._queue)
+        if not np.isfinite(desired).all() or (
+            self._smoother is not None and not self._smoother.is_finite()
+        ):
+            self._fault("non-finite filter state reset from the last commanded pose", now_s)
+            desired = self.position_rad
 
-        dt_s = self.period_s if self._last_tick_s is None else now_s - self._last_tick_s
-        dt_s = min(dt_s, 2.0 * self.period_s)  # a stalled timer must not allow a large jump
+        dt_s = min(elapsed_s, 2.0 * self.period_s)  # a stalled timer must not allow a large jump
         if self._last_tick_s is None or now_s > self._last_tick_s:
             self._last_tick_s = now_s
-        self.position_rad, self.velocity_rad_s = self.limiter.enforce(
+        positions, velocities = self.limiter.enforce(
             desired, self.position_rad, self.velocity_rad_s, dt_s
         )
+        if not self._safe(positions, velocities, max(dt_s, 0.0)):
+            self._fault("unsafe command replaced by the last commanded pose", now_s)
+            positions, velocities = self.position_rad.copy(), np.zeros(self.robot.n_joints)
+        self.position_rad, self.velocity_rad_s = positions, velocities
         return self.position_rad, self.velocity_rad_s

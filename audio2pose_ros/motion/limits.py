@@ -9,10 +9,12 @@ acceleration limit, so all three limits hold together from any feasible start.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.parameters import param, validate_settings
 from audio2pose_ros.robot import RobotDescription
 
 MIN_DT_S = 1e-6  # shorter steps are timer noise: velocities over them would only amplify rounding
@@ -20,27 +22,44 @@ MIN_DT_S = 1e-6  # shorter steps are timer noise: velocities over them would onl
 
 @dataclass(frozen=True)
 class LimitSettings:
-    """How much of the robot's published limits the limiter allows.
+    """How much of the robot's published limits the limiter allows (node parameters).
 
     Attributes:
         position_margin_rad: keep this far inside each position limit (rad, default 0.01).
-        velocity_fraction: fraction of each joint's velocity limit (0..1, default 0.5).
-        acceleration_fraction: fraction of each joint's acceleration limit (0..1, default 1.0).
-
+        velocity_fraction: fraction of each joint's velocity limit (default 0.5).
+        acceleration_fraction: fraction of each joint's acceleration limit (default 1.0).
     """
 
-    position_margin_rad: float = 0.01
-    velocity_fraction: float = 0.5
-    acceleration_fraction: float = 1.0
+    position_margin_rad: float = field(
+        default=0.01,
+        metadata=param(
+            "stay this far inside each position limit of the robot description",
+            minimum=0.0,
+            maximum=0.5,
+            read_only=True,
+            unit="rad",
+        ),
+    )
+    velocity_fraction: float = field(
+        default=0.5,
+        metadata=param(
+            "fraction of each joint's velocity limit that commands may use",
+            minimum=0.01,
+            maximum=1.0,
+        ),
+    )
+    acceleration_fraction: float = field(
+        default=1.0,
+        metadata=param(
+            "fraction of each joint's acceleration limit that commands may use",
+            minimum=0.01,
+            maximum=1.0,
+        ),
+    )
 
     def __post_init__(self) -> None:
-        """Reject fractions outside (0, 1] and negative margins."""
-        for field in ("velocity_fraction", "acceleration_fraction"):
-            value = getattr(self, field)
-            if not 0.0 < value <= 1.0:
-                raise ValueError(f"{field} must be in (0, 1], got {value}")
-        if self.position_margin_rad < 0.0:
-            raise ValueError(f"position_margin_rad must be >= 0, got {self.position_margin_rad}")
+        """Validate every field against its parameter declaration (ConfigurationError)."""
+        validate_settings(self)
 
 
 @dataclass
@@ -65,12 +84,19 @@ class JointLimiter:
     """
 
     def __init__(self, robot: RobotDescription, settings: LimitSettings | None = None) -> None:
-        """Derive the effective limits from ``robot`` and ``settings``."""
+        """Derive the effective limits from ``robot`` and ``settings``.
+
+        Raises:
+            ConfigurationError: the margin leaves no range for some joint.
+        """
         self.settings = settings or LimitSettings()
         margin = self.settings.position_margin_rad
         half_range = (robot.upper_rad - robot.lower_rad) / 2.0
         if np.any(margin >= half_range):
-            raise ValueError(f"position_margin_rad {margin} leaves no range for some joint")
+            raise ConfigurationError(
+                f"parameter position_margin_rad: value {margin} leaves no range for some joint of "
+                f"{robot.name}; allowed: less than {half_range.min():g}"
+            )
         self.lower_rad = robot.lower_rad + margin
         self.upper_rad = robot.upper_rad - margin
         self.max_velocity_rad_s = robot.max_velocity_rad_s * self.settings.velocity_fraction

@@ -67,6 +67,10 @@ class CausalLowPass:
         """Start in steady state at ``pose`` (no transient)."""
         self._state = self._zi_unit[:, :, None] * np.asarray(pose, dtype=np.float64)[None, None, :]
 
+    def is_finite(self) -> bool:
+        """Whether the whole filter state is finite (a NaN/inf state would never recover)."""
+        return bool(np.isfinite(self._state).all())
+
     def step(self, pose: np.ndarray) -> np.ndarray:
         """Filter one (n_joints,) frame and return the smoothed frame."""
         out, self._state = signal.sosfilt(
@@ -108,15 +112,20 @@ class KalmanSmoother:
         self._x = np.zeros_like(self._x)
         self._x[0] = np.asarray(pose, dtype=np.float64)
 
+    def is_finite(self) -> bool:
+        """Whether the whole state (angle, velocity, acceleration) is finite."""
+        return bool(np.isfinite(self._x).all())
+
     def step(self, measurement: np.ndarray) -> np.ndarray:
         """Predict one frame ahead and correct with ``measurement`` (n_joints,).
 
         Joints whose measurement is NaN/inf are predicted only (no correction).
         """
-        x = self._f @ self._x
-        residual = np.asarray(measurement, dtype=np.float64) - x[0]
-        if not np.isfinite(residual).all():
-            residual = np.where(np.isfinite(residual), residual, 0.0)
-        x += self.gain[:, None] * residual
+        with np.errstate(invalid="ignore", over="ignore"):  # callers check is_finite()
+            x = self._f @ self._x
+            residual = np.asarray(measurement, dtype=np.float64) - x[0]
+            if not np.isfinite(residual).all():
+                residual = np.where(np.isfinite(residual), residual, 0.0)
+            x += self.gain[:, None] * residual
         self._x = x
         return x[0].copy()

@@ -1,0 +1,152 @@
+"""Property suite of the motion filter core: whatever arrives, every command is safe.
+
+Hypothesis feeds arbitrary event sequences into MotionFilter: finite values of any size
+(in-range, 90 rad, 1e50, 1e308) and non-finite ones, poses one at a time or in messages of any
+size, time that jumps forwards (gaps up to seconds) and backwards, restarts from any pose, stops,
+head targets and offsets. After every tick the command must be finite, inside the position
+limits, inside the velocity limits, and must not change position or velocity faster than the
+limits allow for the time step (the very first step included). Derandomized: CI runs the same
+examples every time.
+"""
+
+import contextlib
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from audio2pose_ros.errors import InputError
+from audio2pose_ros.motion.filter import GAP_PERIODS, MotionFilter, MotionFilterSettings
+
+PERIOD = 0.01
+N_JOINTS = 11
+
+values = st.one_of(
+    st.floats(min_value=-3.0, max_value=3.0),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.sampled_from([90.0, -90.0, 1e6, 1e50, 1e308, -1e308, np.nan, np.inf, -np.inf]),
+)
+poses = st.lists(values, min_size=N_JOINTS, max_size=N_JOINTS)
+
+
+@st.composite
+def event_sequences(draw):
+    kinds = st.sampled_from(
+        [
+            "pose",
+            "pose",
+            "pose",
+            "message",
+            "tick",
+            "tick",
+            "tick",
+            "voice",
+            "enable",
+            "stop",
+            "head",
+            "offset",
+            "time",
+            "restart",
+        ]
+    )
+    events = []
+    for _ in range(draw(st.integers(min_value=1, max_value=80))):
+        kind = draw(kinds)
+        if kind == "pose":
+            events.append((kind, [draw(poses)]))
+        elif kind == "message":
+            size = draw(st.sampled_from([0, 2, 7, 30, 250]))
+            base = np.array(draw(poses))
+            events.append((kind, np.tile(base, (size, 1)).tolist()))
+        elif kind in ("voice", "enable", "stop"):
+            events.append((kind, draw(st.booleans())))
+        elif kind in ("head", "offset"):
+            events.append((kind, (draw(values), draw(values))))
+        elif kind == "time":
+            events.append((kind, draw(st.sampled_from([-0.5, -0.001, 0.0005, 0.03, 0.2, 2.0]))))
+        elif kind == "restart":
+            events.append((kind, draw(poses)))
+        else:
+            events.append((kind, None))
+    return events
+
+
+def check_command(filt, pos, vel, prev_pos, prev_vel, elapsed):
+    """Every limit holds for this command against the previous one."""
+    limiter = filt.limiter
+    assert np.all(np.isfinite(pos))
+    assert np.all(np.isfinite(vel))
+    assert np.all(pos >= limiter.lower_rad - 1e-12)
+    assert np.all(pos <= limiter.upper_rad + 1e-12)
+    assert np.all(np.abs(vel) <= limiter.max_velocity_rad_s + 1e-9)
+    dt = min(elapsed, 2 * PERIOD)
+    if dt >= 1e-6:
+        assert np.all(np.abs(pos - prev_pos) <= limiter.max_velocity_rad_s * dt + 1e-9)
+        # After a gap the velocity was braked over the whole gap, then limited over dt.
+        allowed = dt + (elapsed if elapsed > GAP_PERIODS * PERIOD else 0.0)
+        assert np.all(np.abs(vel - prev_vel) <= limiter.max_acceleration_rad_s2 * allowed + 1e-6)
+    else:
+        np.testing.assert_array_equal(pos, prev_pos)
+
+
+@settings(max_examples=150, deadline=None, derandomize=True)  # reproducible in CI
+@given(
+    event_sequences(),
+    st.sampled_from(["kalman", "lowpass", "none"]),
+    st.sampled_from(["hold", "neutral"]),
+)
+def test_when_any_input_expect_every_command_finite_and_within_all_limits(
+    robot, events, smoothing, stop_behaviour
+):
+    filt = MotionFilter(
+        robot, MotionFilterSettings(smoothing=smoothing, stop_behaviour=stop_behaviour)
+    )
+    t, last_tick = 0.0, None
+    prev_pos, prev_vel = filt.position_rad.copy(), filt.velocity_rad_s.copy()
+    for kind, payload in events:
+        if kind in ("pose", "message"):
+            filt.push(np.array(payload, dtype=np.float64).reshape(-1, N_JOINTS), t)
+        elif kind == "voice":
+            filt.set_voice_active(payload, t)
+        elif kind == "enable":
+            filt.set_enabled(payload)
+        elif kind == "stop":
+            filt.set_stop(payload)
+        elif kind in ("head", "offset"):
+            setter = filt.set_head_target if kind == "head" else filt.set_head_offset
+            with contextlib.suppress(InputError):
+                setter({"HeadYaw": payload[0], "HeadPitch": payload[1]}, t)
+        elif kind == "time":
+            t += payload
+        elif kind == "restart":
+            start = np.array(payload)
+            if np.isfinite(start).all():
+                filt.start_from(start)
+                last_tick = None
+                prev_pos, prev_vel = filt.position_rad.copy(), filt.velocity_rad_s.copy()
+                # The start pose is the robot's pose clamped into the limits, at rest.
+                assert np.all(np.isfinite(prev_pos))
+                assert np.all(prev_vel == 0)
+        if kind != "tick":
+            continue
+        t += PERIOD
+        elapsed = PERIOD if last_tick is None else t - last_tick
+        pos, vel = filt.tick(t)
+        check_command(filt, pos, vel, prev_pos, prev_vel, elapsed)
+        if last_tick is None or t > last_tick:
+            last_tick = t
+        prev_pos, prev_vel = pos.copy(), vel.copy()
+    assert filt.status.faults == 0  # nothing here should have needed the health guard
+
+
+@settings(max_examples=80, deadline=None, derandomize=True)
+@given(st.lists(poses, min_size=1, max_size=40), st.sampled_from(["kalman", "lowpass", "none"]))
+def test_when_any_values_pass_the_gate_expect_smoother_state_stays_finite(robot, rows, smoothing):
+    filt = MotionFilter(robot, MotionFilterSettings(smoothing=smoothing))
+    t = 0.0
+    for row in rows:
+        t += PERIOD
+        filt.push(np.array([row]), t)
+        filt.tick(t)
+        assert filt._smoother is None or filt._smoother.is_finite()
+        assert np.all(np.isfinite(filt.position_rad))
