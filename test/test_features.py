@@ -21,6 +21,7 @@ from audio2pose_ros.audio.features import (
     mel_to_hz,
 )
 from audio2pose_ros.audio.pcm import PcmDecoder, PcmFormat, encode_pcm, read_wav
+from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.resources import bundled_speech_path
 
 psf = pytest.importorskip("python_speech_features")
@@ -280,7 +281,7 @@ def test_when_spec_through_json_expect_equal_spec():
 
 
 def test_when_from_dict_has_unknown_key_expect_error_naming_it():
-    with pytest.raises(ValueError, match=r"unknown FeatureSpec key\(s\) \['winlen'\]"):
+    with pytest.raises(ConfigurationError, match=r"unknown FeatureSpec key\(s\) \['winlen'\]"):
         FeatureSpec.from_dict({"winlen": 0.025})
 
 
@@ -294,15 +295,30 @@ def test_when_from_dict_has_unknown_key_expect_error_naming_it():
         ({"kind": "mfcc", "numcep": 30}, "numcep"),
         ({"window": "hann"}, "window"),
         ({"nfilt": 2.5}, "nfilt"),
+        # what a hand-made checkpoint header could ask the features node for
+        ({"window_s": float("inf")}, "window_s must be a finite number"),
+        ({"window_s": float("nan")}, "window_s must be a finite number"),
+        ({"step_s": 1e-300}, "cover at least one sample"),
+        ({"window_s": 1e6, "nfft": 1 << 40}, "nfft must be an integer in"),
+        ({"nfilt": 10**9}, "nfilt must be an integer in"),
+        ({"sample_rate_hz": 1}, "sample_rate_hz must be an integer in"),
+        ({"sample_rate_hz": 10**12}, "sample_rate_hz must be an integer in"),
+        ({"delta_n": 10**9}, "delta_n must be an integer in"),
+        ({"ceplifter": float("nan")}, "ceplifter must be a finite number"),
+        ({"lowfreq_hz": float("nan")}, "lowfreq_hz must be a finite number"),
+        ({"highfreq_hz": "8000"}, "highfreq_hz must be a finite number"),
+        ({"append_energy": "yes"}, "append_energy must be true or false"),
+        ({"preemph": float("nan")}, "preemph must be a finite number"),
     ],
 )
-def test_when_spec_invalid_expect_value_error(kwargs, match):
-    with pytest.raises(ValueError, match=match):
+def test_when_spec_invalid_expect_configuration_error_naming_the_field(kwargs, match):
+    with pytest.raises(ConfigurationError, match=match) as caught:
         FeatureSpec(**kwargs)
+    assert not isinstance(caught.value, ValueError)
 
 
 def test_when_unknown_preset_expect_error_listing_presets():
-    with pytest.raises(ValueError, match="logfb26"):
+    with pytest.raises(ConfigurationError, match="logfb26"):
         FeatureSpec.preset("fbank40")
 
 
@@ -334,11 +350,13 @@ def test_when_normalizer_through_json_expect_same_output():
     np.testing.assert_array_equal(again.apply(frames), norm.apply(frames))
 
 
-def test_when_normalizer_dict_or_frames_malformed_expect_value_error():
-    with pytest.raises(ValueError, match=r"exactly the keys \['mean', 'std'\]"):
+def test_when_normalizer_dict_or_frames_malformed_expect_typed_errors():
+    with pytest.raises(ConfigurationError, match=r"exactly the keys \['mean', 'std'\]"):
         FeatureNormalizer.from_dict({"mean": [0.0], "std": [1.0], "var": [1.0]})
-    with pytest.raises(ValueError, match="std must be > 0"):
+    with pytest.raises(ConfigurationError, match="std must be > 0"):
         FeatureNormalizer.from_dict({"mean": [0.0], "std": [0.0]})
+    with pytest.raises(InputError, match="non-finite"):
+        FeatureNormalizer.fit(np.array([[0.0, np.nan]]))
     with pytest.raises(ValueError, match="dimension 2"):
         FeatureNormalizer(mean=np.zeros(2), std=np.ones(2)).apply(np.zeros((3, 26)))
 

@@ -36,6 +36,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from audio2pose_ros.errors import ConfigurationError, InputError
+
 _EPS = float(np.finfo(np.float64).eps)  # replaces zero energies before the log (as the seed's)
 
 _BLOCK_FRAMES = 4096  # frames per vectorised block in extract_features
@@ -287,34 +289,89 @@ class FeatureSpec:
         "mfcc13": {"kind": "mfcc"},
     }
 
+    # Bounds on what a checkpoint's feature section may ask for: the seed's settings sit well
+    # inside them, and they keep the filter bank and per-frame buffers small (nfft 65536 x
+    # nfilt 512 float64 is 128 MiB at most).
+    MAX_SAMPLE_RATE_HZ: ClassVar[int] = 48000
+    MAX_WINDOW_S: ClassVar[float] = 1.0
+    MAX_NFFT: ClassVar[int] = 1 << 16
+    MAX_NFILT: ClassVar[int] = 512
+    MAX_DELTA_N: ClassVar[int] = 100
+
     def __post_init__(self) -> None:
-        """Reject inconsistent settings with a message naming the field."""
+        """Reject inconsistent or out-of-bounds settings with one line naming the field.
+
+        Raises:
+            ConfigurationError: the first field refused.
+        """
         if self.kind not in KINDS:
-            raise ValueError(f"kind must be one of {KINDS}, got {self.kind!r}")
+            raise ConfigurationError(f"FeatureSpec kind must be one of {KINDS}, got {self.kind!r}")
         if self.window not in WINDOWS:
-            raise ValueError(f"window must be one of {WINDOWS}, got {self.window!r}")
-        for name in ("sample_rate_hz", "nfft", "nfilt", "numcep", "delta_order", "delta_n"):
+            raise ConfigurationError(
+                f"FeatureSpec window must be one of {WINDOWS}, got {self.window!r}"
+            )
+        bounds = {
+            "sample_rate_hz": (8000, self.MAX_SAMPLE_RATE_HZ),
+            "nfft": (1, self.MAX_NFFT),
+            "nfilt": (1, self.MAX_NFILT),
+            "numcep": (1, self.MAX_NFILT),
+            "delta_order": (0, 2),
+            "delta_n": (1, self.MAX_DELTA_N),
+        }
+        for name, (low, high) in bounds.items():
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-                raise ValueError(f"{name} must be an integer, got {value!r}")
-        if self.sample_rate_hz <= 0 or self.nfilt < 1 or self.numcep < 1 or self.delta_n < 1:
-            raise ValueError("sample_rate_hz, nfilt, numcep and delta_n must be positive")
-        if self.delta_order not in (0, 1, 2):
-            raise ValueError(f"delta_order must be 0, 1 or 2, got {self.delta_order}")
-        if not (self.window_s > 0 and self.step_s > 0):
-            raise ValueError(f"window_s and step_s must be > 0, got {self.window_s}, {self.step_s}")
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, int | np.integer)
+                or not low <= value <= high
+            ):
+                raise ConfigurationError(
+                    f"FeatureSpec {name} must be an integer in [{low}, {high}], got {value!r}"
+                )
+        reals = {
+            "window_s": self.window_s,
+            "step_s": self.step_s,
+            "lowfreq_hz": self.lowfreq_hz,
+            "highfreq_hz": 0.0 if self.highfreq_hz is None else self.highfreq_hz,
+            "preemph": self.preemph,
+            "ceplifter": self.ceplifter,
+        }
+        for name, value in reals.items():
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, int | float | np.integer | np.floating)
+                or not math.isfinite(value)
+            ):
+                raise ConfigurationError(
+                    f"FeatureSpec {name} must be a finite number, got {value!r}"
+                )
+        if not isinstance(self.append_energy, bool | np.bool_):
+            raise ConfigurationError(
+                f"FeatureSpec append_energy must be true or false, got {self.append_energy!r}"
+            )
+        if not (0 < self.window_s <= self.MAX_WINDOW_S and 0 < self.step_s <= self.MAX_WINDOW_S):
+            raise ConfigurationError(
+                f"FeatureSpec window_s and step_s must be in (0, {self.MAX_WINDOW_S}] s, got "
+                f"{self.window_s}, {self.step_s}"
+            )
         if self.frame_len < 1 or self.frame_step < 1:
-            raise ValueError("window_s and step_s must each cover at least one sample")
+            raise ConfigurationError(
+                "FeatureSpec window_s and step_s must each cover at least one sample"
+            )
         if self.nfft < self.frame_len:
-            raise ValueError(f"nfft ({self.nfft}) must be >= frame_len ({self.frame_len} samples)")
+            raise ConfigurationError(
+                f"FeatureSpec nfft ({self.nfft}) must be >= frame_len ({self.frame_len} samples)"
+            )
         if self.kind == "mfcc" and self.numcep > self.nfilt:
-            raise ValueError(f"numcep ({self.numcep}) must be <= nfilt ({self.nfilt})")
+            raise ConfigurationError(
+                f"FeatureSpec numcep ({self.numcep}) must be <= nfilt ({self.nfilt})"
+            )
         if not 0.0 <= self.preemph < 1.0:
-            raise ValueError(f"preemph must be in [0, 1), got {self.preemph}")
+            raise ConfigurationError(f"FeatureSpec preemph must be in [0, 1), got {self.preemph}")
         nyquist = self.sample_rate_hz / 2.0
         if not 0.0 <= self.lowfreq_hz < self.highfreq <= nyquist:
-            raise ValueError(
-                f"need 0 <= lowfreq_hz < highfreq_hz <= {nyquist} Hz, got "
+            raise ConfigurationError(
+                f"FeatureSpec needs 0 <= lowfreq_hz < highfreq_hz <= {nyquist} Hz, got "
                 f"{self.lowfreq_hz}, {self.highfreq_hz}"
             )
 
@@ -390,13 +447,14 @@ class FeatureSpec:
             The spec.
 
         Raises:
-            ValueError: an unknown key (the message lists the known ones) or a bad value.
+            ConfigurationError: an unknown key (the message lists the known ones) or a bad
+                value.
 
         """
         known = [f.name for f in dataclasses.fields(cls)]
         unknown = sorted(set(data) - set(known))
         if unknown:
-            raise ValueError(f"unknown FeatureSpec key(s) {unknown}; known keys: {known}")
+            raise ConfigurationError(f"unknown FeatureSpec key(s) {unknown}; known keys: {known}")
         return cls(**dict(data))
 
     @classmethod
@@ -410,10 +468,15 @@ class FeatureSpec:
         Returns:
             The spec.
 
+        Raises:
+            ConfigurationError: an unknown preset (the message lists the known ones).
+
         """
         key = name.lower().replace("-", "").replace("_", "")
         if key not in cls.PRESETS:
-            raise ValueError(f"unknown feature preset {name!r}; known: {sorted(cls.PRESETS)}")
+            raise ConfigurationError(
+                f"unknown feature preset {name!r}; known: {sorted(cls.PRESETS)}"
+            )
         return cls(**cls.PRESETS[key])
 
 
@@ -800,11 +863,13 @@ class FeatureNormalizer:
         self.mean = np.asarray(self.mean, dtype=np.float64).reshape(-1)
         self.std = np.asarray(self.std, dtype=np.float64).reshape(-1)
         if self.mean.shape != self.std.shape:
-            raise ValueError(f"mean {self.mean.shape} and std {self.std.shape} differ in shape")
+            raise ConfigurationError(
+                f"normalizer mean {self.mean.shape} and std {self.std.shape} differ in shape"
+            )
         if not (np.isfinite(self.mean).all() and np.isfinite(self.std).all()):
-            raise ValueError("mean and std must be finite")
+            raise ConfigurationError("normalizer mean and std must be finite")
         if (self.std <= 0).any():
-            raise ValueError("std must be > 0")
+            raise ConfigurationError("normalizer std must be > 0")
 
     @property
     def dim(self) -> int:
@@ -826,7 +891,7 @@ class FeatureNormalizer:
         if x.ndim != 2 or x.shape[0] == 0:
             raise ValueError(f"frames must be (n_frames >= 1, dim), got shape {x.shape}")
         if not np.isfinite(x).all():
-            raise ValueError("frames must be finite")
+            raise InputError("cannot fit a normalizer to non-finite feature frames")
         return cls(mean=x.mean(axis=0), std=np.maximum(x.std(axis=0), cls.STD_FLOOR))
 
     def apply(self, frames: np.ndarray) -> np.ndarray:
@@ -859,12 +924,12 @@ class FeatureNormalizer:
             The normaliser.
 
         Raises:
-            ValueError: missing or unknown keys, or bad values.
+            ConfigurationError: missing or unknown keys, or bad values.
 
         """
         keys = set(data)
         if keys != {"mean", "std"}:
-            raise ValueError(
+            raise ConfigurationError(
                 f"FeatureNormalizer dict needs exactly the keys ['mean', 'std'], got {sorted(keys)}"
             )
         return cls(mean=np.asarray(data["mean"]), std=np.asarray(data["std"]))
