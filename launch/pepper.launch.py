@@ -5,69 +5,108 @@ Usage:
     ros2 launch audio2pose_ros pepper.launch.py params_file:=/path/to/my.yaml \
         model_path:=/path/to/model.safetensors audio_ns:=/audio
 
-    ros2 launch audio2pose_ros pepper.launch.py rviz:=true        # + robot_state_publisher, RViz
+    ros2 launch audio2pose_ros pepper.launch.py rviz:=true     # + robot_state_publisher, RViz
     ros2 launch audio2pose_ros pepper.launch.py sim:=gz rviz:=true  # + gz sim with ros2_control
 
 The nodes read config/pepper.yaml (or ``params_file``). Audio is expected on
 ``<audio_ns>/audio`` and ``<audio_ns>/audio_info`` as audio_capture publishes them; commands go to
-/joint_angles (naoqi_driver), /joint_trajectory_controller/joint_trajectory (ros2_control) and
-/joint_states. Without a ROS distro, ``audio2pose run`` starts the same executables with the same
-parameter file.
+/joint_angles (naoqi_driver) and ``controller_topic`` (ros2_control's
+pepper_joint_trajectory_controller); the commanded pose goes to /commanded_joint_states, never to
+/joint_states, which belongs to the robot (naoqi_driver or the simulator). Without a ROS distro,
+``audio2pose run`` starts the same executables with the same parameter file.
+
+Arguments (see ``ros2 launch audio2pose_ros pepper.launch.py --show-args``) are checked before
+any node starts, by :func:`audio2pose_ros.launch_support.plan_launch`; an unusable one stops the
+launch with one line and exit status 1. Booleans accept what launch's IfCondition accepts
+(true/false/1/0, any letter case). ``model_path`` precedence: the launch argument when not empty,
+else the parameters file, else the package default.
+
+Crashed nodes are restarted after 2, 4, 8, 8, 8 s, at most 5 times in a row (a process that ran
+30 s starts a new row; :class:`~audio2pose_ros.launch_support.RespawnBudget`); a node that exits
+with status 78 (it cannot start with its configuration) or one that crashes a 6th time in a row
+stops the launch with one line and exit status 1. This replaces ``respawn=True``, which
+restarts forever on Humble (it has no ``respawn_max_retries``).
 
 Visualisation and simulation (urdf/pepper.urdf, primitive shapes):
-- ``robot_state_publisher:=true`` publishes /robot_description and /tf from the commanded
-  /joint_states; ``rviz:=true`` does too and opens RViz with config/pepper.rviz.
+- ``robot_state_publisher:=true`` (default: the value of ``rviz``) publishes /robot_description
+  and /tf from /commanded_joint_states, for a graph without a robot. On a real robot naoqi_driver
+  publishes them from the measured /joint_states: use ``rviz:=true robot_state_publisher:=false``.
 - ``sim:=gz`` starts gz sim (ros_gz_sim, empty world), spawns the URDF, whose ros2_control block
   loads gz_ros2_control with config/ros2_controllers.yaml, and spawns joint_state_broadcaster and
-  joint_trajectory_controller, which executes the motion filter's trajectories. The simulated
-  joint states go to /sim/joint_states, so robot_state_publisher shows the simulated robot, not the
-  commands.
+  pepper_joint_trajectory_controller, which executes the motion filter's trajectories. The
+  simulated robot publishes /joint_states like a real one; robot_state_publisher shows it.
 """
 
+from __future__ import annotations
+
+import time
 from pathlib import Path
 
 from ament_index_python.packages import get_package_share_directory
-from launch import Action, LaunchDescription
-from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription
-from launch.conditions import IfCondition
-from launch.substitutions import LaunchConfiguration, PathJoinSubstitution, PythonExpression
+from launch import Action, LaunchContext, LaunchDescription
+from launch.actions import (
+    DeclareLaunchArgument,
+    IncludeLaunchDescription,
+    OpaqueFunction,
+    RegisterEventHandler,
+    TimerAction,
+)
+from launch.event_handlers import OnProcessExit
+from launch.events.process import ProcessExited
+from launch.launch_description_sources import PythonLaunchDescriptionSource
+from launch.logging import get_logger
+from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
-from launch_ros.substitutions import FindPackageShare
 
-SIM_JOINT_STATES = "/sim/joint_states"
-# The nodes are respawned when they crash; a configuration error does not crash them (they idle
-# and report it on /diagnostics), so respawning cannot loop.
-RESPAWN_DELAY_S = 2.0
+from audio2pose_ros.launch_support import (
+    ARGUMENTS,
+    CONTROLLER_NAME,
+    CONTROLLER_TOPIC,
+    LaunchPlan,
+    RespawnBudget,
+    plan_launch,
+)
+
+PACKAGE = "audio2pose_ros"
+COMMANDED_JOINT_STATES = "commanded_joint_states"
 
 
-def robot_description() -> ParameterValue:
-    """The URDF text, with the installed share directory where it says $(find audio2pose_ros)."""
-    share = get_package_share_directory("audio2pose_ros")
-    urdf = Path(share, "urdf", "pepper.urdf").read_text(encoding="utf-8")
-    return ParameterValue(urdf.replace("$(find audio2pose_ros)", share), value_type=str)
-
-
-def visualisation_and_simulation() -> list[Action]:
-    """robot_state_publisher, RViz and gz sim + ros2_control, each behind its launch argument."""
-    rsp = LaunchConfiguration("robot_state_publisher")
-    rviz = LaunchConfiguration("rviz")
-    sim = LaunchConfiguration("sim")
-    gz = IfCondition(PythonExpression(["'", sim, "' == 'gz'"]))
-    commanded = IfCondition(
-        PythonExpression(
-            ["('", rsp, "' == 'true' or '", rviz, "' == 'true') and '", sim, "' != 'gz'"]
-        )
-    )
-    description = {"robot_description": robot_description()}
+def declare_arguments() -> list[DeclareLaunchArgument]:
+    """The launch arguments; their values are checked by ``plan_launch`` before anything runs."""
+    share = Path(get_package_share_directory(PACKAGE))
     return [
         DeclareLaunchArgument(
-            "robot_state_publisher",
-            default_value="false",
-            description="Publish /robot_description and /tf from /joint_states (true/false)",
+            "params_file",
+            default_value=str(share / "config" / "pepper.yaml"),
+            description="Parameter file of the three nodes (must exist and parse as YAML)",
         ),
         DeclareLaunchArgument(
-            "rviz", default_value="false", description="Open RViz with config/pepper.rviz"
+            "model_path",
+            default_value="",
+            description="Checkpoint; '' = the params_file's model_path, else the packaged model",
+        ),
+        DeclareLaunchArgument(
+            "audio_ns",
+            default_value="/audio",
+            description="Namespace of the audio topics <audio_ns>/audio and <audio_ns>/audio_info",
+        ),
+        DeclareLaunchArgument(
+            "controller_topic",
+            default_value=CONTROLLER_TOPIC,
+            description="JointTrajectory topic of the ros2_control trajectory controller "
+            f"(Pepper's ros2_control names it {CONTROLLER_NAME}, 50 Hz)",
+        ),
+        DeclareLaunchArgument(
+            "rviz",
+            default_value="false",
+            description="Open RViz with config/pepper.rviz (true/false/1/0)",
+        ),
+        DeclareLaunchArgument(
+            "robot_state_publisher",
+            default_value=LaunchConfiguration("rviz"),
+            description="Publish /robot_description and /tf from /commanded_joint_states when "
+            "there is no robot or simulator (true/false/1/0; default: the value of rviz)",
         ),
         DeclareLaunchArgument(
             "sim",
@@ -75,125 +114,156 @@ def visualisation_and_simulation() -> list[Action]:
             choices=["none", "gz"],
             description="'gz': simulate the robot in gz sim, driven through ros2_control",
         ),
-        Node(
-            package="robot_state_publisher",
-            executable="robot_state_publisher",
-            name="robot_state_publisher",
-            parameters=[description],
-            condition=commanded,
-        ),
-        Node(
-            package="robot_state_publisher",
-            executable="robot_state_publisher",
-            name="robot_state_publisher",
-            parameters=[description, {"use_sim_time": True}],
-            remappings=[("joint_states", SIM_JOINT_STATES)],
-            condition=gz,
-        ),
-        Node(
-            package="rviz2",
-            executable="rviz2",
-            name="rviz2",
-            arguments=[
-                "-d",
-                PathJoinSubstitution([FindPackageShare("audio2pose_ros"), "config", "pepper.rviz"]),
-            ],
-            condition=IfCondition(rviz),
-        ),
-        IncludeLaunchDescription(
-            PathJoinSubstitution([FindPackageShare("ros_gz_sim"), "launch", "gz_sim.launch.py"]),
-            launch_arguments={"gz_args": "-r empty.sdf"}.items(),
-            condition=gz,
-        ),
-        Node(
-            package="ros_gz_bridge",
-            executable="parameter_bridge",
-            name="clock_bridge",
-            arguments=["/clock@rosgraph_msgs/msg/Clock[gz.msgs.Clock"],
-            condition=gz,
-        ),
-        Node(
-            package="ros_gz_sim",
-            executable="create",
-            name="spawn_pepper",
-            arguments=["-topic", "robot_description", "-name", "pepper", "-z", "0.82"],
-            condition=gz,
-        ),
-        Node(
-            package="controller_manager",
-            executable="spawner",
-            name="spawn_joint_state_broadcaster",
-            arguments=[
-                "joint_state_broadcaster",
-                "--controller-ros-args",
-                f"-r /joint_states:={SIM_JOINT_STATES}",
-            ],
-            condition=gz,
-        ),
-        Node(
-            package="controller_manager",
-            executable="spawner",
-            name="spawn_joint_trajectory_controller",
-            arguments=["joint_trajectory_controller"],
-            condition=gz,
-        ),
     ]
 
 
-def generate_launch_description() -> LaunchDescription:
-    """Three nodes sharing one parameter file; audio topics remapped under ``audio_ns``."""
-    params_file = LaunchConfiguration("params_file")
-    model_path = LaunchConfiguration("model_path")
-    audio_ns = LaunchConfiguration("audio_ns")
-    # value_type=str: otherwise launch_ros reads the argument as YAML ('' -> None on older
-    # distros, 'true' or '1' -> bool / int for a string parameter).
-    shared = [params_file, {"model_path": ParameterValue(model_path, value_type=str)}]
-    return LaunchDescription(
-        [
-            *visualisation_and_simulation(),
-            DeclareLaunchArgument(
-                "params_file",
-                default_value=PathJoinSubstitution(
-                    [FindPackageShare("audio2pose_ros"), "config", "pepper.yaml"]
-                ),
-                description="Parameter file for the three nodes",
+class NodeSupervisor:
+    """Starts the package's nodes and restarts a crashed one as a :class:`RespawnBudget` says.
+
+    A node that exits while the launch is not shutting down is restarted after the budget's
+    back-off; when the budget refuses (exit status 78, or too many restarts), the exception
+    raised here ends the launch: launch logs it as one line and exits with status 1.
+    """
+
+    def __init__(self, plan: LaunchPlan) -> None:
+        """Remember the plan; nothing starts before :meth:`start`."""
+        self.plan = plan
+        self.budget = RespawnBudget()
+        self.started_s: dict[str, float] = {}
+
+    def node(self, executable: str) -> Node:
+        """A fresh Node action for one of the package's executables."""
+        parameters: list[object] = [str(self.plan.params_file)]
+        remappings: list[tuple[str, str]] = []
+        if executable in ("audio_features_node", "inference_node"):
+            # value_type=str: launch_ros would otherwise read the text as YAML ('1' -> int).
+            parameters += [
+                {name: ParameterValue(value, value_type=str)}
+                for name, value in self.plan.model_path.items()
+            ]
+        if executable == "audio_features_node":
+            remappings = list(self.plan.audio_topics.items())
+        if executable == "motion_filter_node":
+            remappings = [
+                ("joint_trajectory_controller/joint_trajectory", self.plan.controller_topic)
+            ]
+        return Node(
+            package=PACKAGE,
+            executable=executable,
+            name=executable,
+            parameters=parameters,
+            remappings=remappings,
+            output="screen",
+        )
+
+    def start(self, executable: str, delay_s: float = 0.0) -> list[Action]:
+        """The node and the handler that watches its exit; the node starts in ``delay_s``."""
+        self.started_s[executable] = time.monotonic() + delay_s
+        node = self.node(executable)
+        on_exit = OnProcessExit(
+            target_action=node,
+            on_exit=lambda event, context: self.exited(executable, event, context),
+        )
+        return [RegisterEventHandler(on_exit), node]
+
+    def exited(
+        self, executable: str, event: ProcessExited, context: LaunchContext
+    ) -> list[Action] | None:
+        """Restart ``executable`` after its back-off, or end the launch with one line."""
+        if context.is_shutdown:
+            return None
+        ran_s = time.monotonic() - self.started_s[executable]
+        decision = self.budget.on_exit(executable, event.returncode, ran_s)
+        if not decision.restart:
+            raise decision.error()
+        get_logger(PACKAGE).warning(decision.message)
+        return [
+            TimerAction(period=decision.delay_s, actions=self.start(executable, decision.delay_s))
+        ]
+
+
+def robot_description() -> ParameterValue:
+    """The URDF text, with the installed share directory where it says $(find audio2pose_ros)."""
+    share = get_package_share_directory(PACKAGE)
+    urdf = Path(share, "urdf", "pepper.urdf").read_text(encoding="utf-8")
+    return ParameterValue(urdf.replace(f"$(find {PACKAGE})", share), value_type=str)
+
+
+def visualisation_and_simulation(plan: LaunchPlan) -> list[Action]:
+    """robot_state_publisher, RViz and gz sim + ros2_control, as the plan asks."""
+    actions: list[Action] = []
+    if plan.commanded_state_publisher:
+        actions.append(
+            Node(
+                package="robot_state_publisher",
+                executable="robot_state_publisher",
+                name="robot_state_publisher",
+                parameters=[{"robot_description": robot_description()}],
+                remappings=[("joint_states", COMMANDED_JOINT_STATES)],
+            )
+        )
+    if plan.rviz:
+        share = get_package_share_directory(PACKAGE)
+        actions.append(
+            Node(
+                package="rviz2",
+                executable="rviz2",
+                name="rviz2",
+                arguments=["-d", str(Path(share, "config", "pepper.rviz"))],
+            )
+        )
+    if plan.sim == "gz":
+        gz_launch = Path(get_package_share_directory("ros_gz_sim"), "launch", "gz_sim.launch.py")
+        actions += [
+            IncludeLaunchDescription(
+                PythonLaunchDescriptionSource(str(gz_launch)),
+                launch_arguments={"gz_args": "-r empty.sdf"}.items(),
             ),
-            DeclareLaunchArgument(
-                "model_path", default_value="", description="Checkpoint ('' = packaged default)"
-            ),
-            DeclareLaunchArgument(
-                "audio_ns", default_value="/audio", description="Namespace of the audio topics"
+            # The simulated robot's measured joint states, on /joint_states like a real robot's.
+            Node(
+                package="robot_state_publisher",
+                executable="robot_state_publisher",
+                name="robot_state_publisher",
+                parameters=[{"robot_description": robot_description()}, {"use_sim_time": True}],
             ),
             Node(
-                package="audio2pose_ros",
-                executable="audio_features_node",
-                name="audio_features_node",
-                parameters=shared,
-                remappings=[
-                    ("audio/audio", [audio_ns, "/audio"]),
-                    ("audio/audio_info", [audio_ns, "/audio_info"]),
-                ],
-                output="screen",
-                respawn=True,
-                respawn_delay=RESPAWN_DELAY_S,
+                package="ros_gz_bridge",
+                executable="parameter_bridge",
+                name="clock_bridge",
+                arguments=["/clock@rosgraph_msgs/msg/Clock[gz.msgs.Clock"],
             ),
             Node(
-                package="audio2pose_ros",
-                executable="inference_node",
-                name="inference_node",
-                parameters=shared,
-                output="screen",
-                respawn=True,
-                respawn_delay=RESPAWN_DELAY_S,
+                package="ros_gz_sim",
+                executable="create",
+                name="spawn_pepper",
+                arguments=["-topic", "robot_description", "-name", "pepper", "-z", "0.82"],
             ),
             Node(
-                package="audio2pose_ros",
-                executable="motion_filter_node",
-                name="motion_filter_node",
-                parameters=[params_file],
-                output="screen",
-                respawn=True,
-                respawn_delay=RESPAWN_DELAY_S,
+                package="controller_manager",
+                executable="spawner",
+                name="spawn_joint_state_broadcaster",
+                arguments=["joint_state_broadcaster"],
+            ),
+            Node(
+                package="controller_manager",
+                executable="spawner",
+                name="spawn_trajectory_controller",
+                arguments=[CONTROLLER_NAME],
             ),
         ]
-    )
+    return actions
+
+
+def launch_setup(context: LaunchContext) -> list[Action]:
+    """Check the arguments, then start the graph (and the visualisation the arguments ask for)."""
+    plan = plan_launch({name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS})
+    supervisor = NodeSupervisor(plan)
+    actions = visualisation_and_simulation(plan)
+    for executable in ("audio_features_node", "inference_node", "motion_filter_node"):
+        actions += supervisor.start(executable)
+    return actions
+
+
+def generate_launch_description() -> LaunchDescription:
+    """Declared arguments, then the graph built from their checked values."""
+    return LaunchDescription([*declare_arguments(), OpaqueFunction(function=launch_setup)])
