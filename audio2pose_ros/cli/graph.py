@@ -13,16 +13,21 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import rclpy
+import yaml
 from audio_common_msgs.msg import AudioData, AudioInfo
+from diagnostic_msgs.msg import DiagnosticArray
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+from rclpy.context import Context
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
@@ -38,10 +43,15 @@ from audio2pose_ros.bag import (
     audio_messages,
     read_messages,
 )
-from audio2pose_ros.nodes.common import LATCHED_QOS
+from audio2pose_ros.errors import UsageError
+from audio2pose_ros.nodes.common import EXIT_CONFIGURATION_ERROR, LATCHED_QOS, STALE_AFTER_S
 from audio2pose_ros.resources import share_path
 
 NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
+STATUS_PREFIX = "audio2pose_ros"  # diagnostic status names: "audio2pose_ros: <node name>"
+STARTUP_GRACE_S = 30.0  # a node may take this long to publish its first heartbeat (imports)
+MAX_BACKOFF_S = 16.0  # longest wait before a restart
+WATCH_PERIOD_S = 0.1
 RECORDED_TOPICS = {
     "/joint_angles": (JointAnglesWithSpeed, "naoqi_bridge_msgs/msg/JointAnglesWithSpeed"),
     "/joint_trajectory_controller/joint_trajectory": (
@@ -65,12 +75,18 @@ def executable_command(name: str) -> list[str]:
 
 
 class NodeSupervisor:
-    """Runs the node processes and respawns one that dies, like ``respawn=True`` in a launch file.
+    """Runs the node processes like a launch file would, and restarts them with a bounded budget.
 
-    A node that exits is restarted after ``respawn_delay_s`` (its log file is appended to). A node
-    that dies more than ``max_restarts`` times within ``restart_window_s`` is given up on, with a
-    message, rather than restarted forever. Configuration errors do not make nodes exit (see
-    :class:`~audio2pose_ros.nodes.common.ConfigurationErrorNode`), so they never reach here.
+    - **Crash.** A node that exits is restarted after a back-off that doubles from
+      ``respawn_delay_s`` up to ``MAX_BACKOFF_S``; one that dies more than ``max_restarts`` times
+      within ``restart_window_s`` is given up on, loudly, rather than restarted forever.
+    - **Configuration error.** A node that exits with
+      :data:`~audio2pose_ros.nodes.common.EXIT_CONFIGURATION_ERROR` (a refused parameter, a bad
+      model or robot file, a parameters file rcl cannot parse) is never restarted: the same
+      configuration would fail the same way. Its one-line reason is in its log.
+    - **Silence.** A node whose process is alive but has not published its /diagnostics
+      heartbeat for ``STALE_AFTER_S`` (stopped with SIGSTOP, deadlocked, starved) is reported,
+      killed and restarted like a crashed one (:meth:`heartbeat` feeds the times heard).
     """
 
     def __init__(
@@ -80,6 +96,7 @@ class NodeSupervisor:
         respawn_delay_s: float = 1.0,
         max_restarts: int = 5,
         restart_window_s: float = 60.0,
+        startup_grace_s: float = STARTUP_GRACE_S,
     ) -> None:
         """Remember how to start each node; :meth:`start` starts them."""
         self.commands = commands
@@ -87,11 +104,20 @@ class NodeSupervisor:
         self.respawn_delay_s = respawn_delay_s
         self.max_restarts = max_restarts
         self.restart_window_s = restart_window_s
+        self.startup_grace_s = startup_grace_s
         self.processes: dict[str, subprocess.Popen] = {}
         self.restarts: dict[str, list[float]] = {name: [] for name in commands}
         self.given_up: set[str] = set()
+        self.silences = dict.fromkeys(commands, 0)
+        self._started_s: dict[str, float] = {}
+        self._heard_s: dict[str, float] = {}
+        self._due_s: dict[str, float] = {}  # restart time of a node that is down
+        self._lock = threading.Lock()
         self._stopping = threading.Event()
         self._thread = threading.Thread(target=self._watch, name="node-supervisor", daemon=True)
+
+    def _say(self, message: str) -> None:
+        print(f"audio2pose run: {message}", file=sys.stderr, flush=True)
 
     def _spawn(self, name: str, mode: str) -> None:
         stdout = None
@@ -101,6 +127,8 @@ class NodeSupervisor:
         self.processes[name] = subprocess.Popen(
             self.commands[name], stdout=stdout, stderr=subprocess.STDOUT if stdout else None
         )
+        self._started_s[name] = time.monotonic()
+        self._heard_s.pop(name, None)
         if stdout is not None:
             stdout.close()  # the child holds its own descriptor
 
@@ -110,32 +138,73 @@ class NodeSupervisor:
             self._spawn(name, "w")
         self._thread.start()
 
-    def _watch(self) -> None:
-        while not self._stopping.wait(0.2):
-            for name, process in list(self.processes.items()):
-                if process.poll() is None or name in self.given_up:
-                    continue
-                now = time.monotonic()
-                recent = [t for t in self.restarts[name] if now - t < self.restart_window_s]
-                if len(recent) >= self.max_restarts:
-                    self.given_up.add(name)
-                    print(
-                        f"audio2pose run: {name} died {len(recent) + 1} times within "
-                        f"{self.restart_window_s:.0f} s; not restarting it again",
-                        file=sys.stderr,
-                        flush=True,
-                    )
-                    continue
-                print(
-                    f"audio2pose run: {name} exited with code {process.returncode}; "
-                    f"restarting it in {self.respawn_delay_s:.1f} s",
-                    file=sys.stderr,
-                    flush=True,
-                )
-                if self._stopping.wait(self.respawn_delay_s):
-                    return
-                self.restarts[name] = [*recent, now]
+    def heartbeat(self, name: str) -> None:
+        """``name`` published its diagnostics now (called from a /diagnostics subscriber)."""
+        with self._lock:
+            self._heard_s[name] = time.monotonic()
+
+    def silent_s(self, name: str) -> float:
+        """How long ``name`` has not been heard from (0 while it is starting or down)."""
+        with self._lock:
+            heard = self._heard_s.get(name)
+        if heard is None or name in self._due_s:
+            return 0.0
+        return time.monotonic() - heard
+
+    def _failed(self, name: str, why: str, now: float) -> None:
+        """``name`` is down: schedule its restart, or give up on it."""
+        recent = [t for t in self.restarts[name] if now - t < self.restart_window_s]
+        if len(recent) >= self.max_restarts:
+            self.given_up.add(name)
+            self._say(
+                f"{name} {why}; it failed {len(recent) + 1} times within "
+                f"{self.restart_window_s:.0f} s: giving up on it (see its log)"
+            )
+            return
+        delay = min(self.respawn_delay_s * 2 ** len(recent), MAX_BACKOFF_S)
+        self.restarts[name] = [*recent, now]
+        self._due_s[name] = now + delay
+        self._say(f"{name} {why}; restarting it in {delay:.1f} s")
+
+    def _check(self, name: str, process: subprocess.Popen, now: float) -> None:
+        if name in self.given_up:
+            return
+        due = self._due_s.get(name)
+        if due is not None:
+            if now >= due:
+                del self._due_s[name]
                 self._spawn(name, "a")
+            return
+        code = process.poll()
+        if code == EXIT_CONFIGURATION_ERROR:
+            self.given_up.add(name)
+            self._say(
+                f"{name} refused its configuration (exit status {code}); not restarting it: "
+                "fix the parameter or file named in its log"
+            )
+        elif code is not None:
+            self._failed(name, f"exited with status {code}", now)
+        else:
+            with self._lock:
+                heard = self._heard_s.get(name)
+            started = self._started_s[name]
+            silent = now - heard if heard is not None else now - started - self.startup_grace_s
+            if silent > STALE_AFTER_S:
+                process.kill()  # SIGKILL also ends a stopped (SIGSTOP) process
+                process.wait()
+                self.silences[name] += 1
+                self._failed(name, f"was silent for {silent:.1f} s (no heartbeat)", now)
+
+    def _watch(self) -> None:
+        while not self._stopping.wait(WATCH_PERIOD_S):
+            now = time.monotonic()
+            for name, process in list(self.processes.items()):
+                self._check(name, process, now)
+
+    @property
+    def running(self) -> bool:
+        """True while at least one node is running or will be restarted."""
+        return len(self.given_up) < len(self.commands)
 
     def stop(self) -> None:
         """Stop the watchdog, then the nodes (SIGINT, then SIGKILL after 5 s)."""
@@ -144,6 +213,7 @@ class NodeSupervisor:
             self._thread.join()
         for process in self.processes.values():
             if process.poll() is None:
+                process.send_signal(signal.SIGCONT)  # a stopped process cannot act on SIGINT
                 process.send_signal(signal.SIGINT)
         deadline = time.monotonic() + 5.0
         for process in self.processes.values():
@@ -154,32 +224,105 @@ class NodeSupervisor:
                 process.wait()
 
 
+class HeartbeatMonitor:
+    """Listens to /diagnostics in its own rclpy context and tells a supervisor who is alive.
+
+    Node statuses are named ``audio2pose_ros: <node name>`` (``nodes.common.diagnostic_array``).
+    Runs its own executor thread, so it works beside a player in the default context.
+    """
+
+    def __init__(self, supervisor: NodeSupervisor) -> None:
+        """Start a context, a node subscribed to /diagnostics and a spinning thread."""
+        self.supervisor = supervisor
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = Node("audio2pose_supervisor", context=self.context)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 50)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, name="heartbeat-monitor", daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        with suppress(ExternalShutdownException):
+            self.executor.spin()
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            prefix, _, name = status.name.partition(": ")
+            if prefix == STATUS_PREFIX and name in self.supervisor.commands:
+                self.supervisor.heartbeat(name)
+
+    def close(self) -> None:
+        """Stop spinning and leave the context."""
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+        self._thread.join(timeout=2.0)
+
+
+def overrides_file(overrides: Sequence[str], directory: Path) -> Path:
+    """Write ``name:=value`` overrides as a parameters file that targets each node by name.
+
+    rcl applies node-specific entries after ``/**`` ones, so a plain ``-p name:=value`` (a
+    wildcard) loses against the same name in a node's section of the parameters file. Entries
+    for every node, passed after the parameters file, win: command line over file over defaults.
+
+    Raises:
+        UsageError: an override is not ``name:=value``.
+    """
+    values: dict[str, object] = {}
+    for override in overrides:
+        name, sep, text = override.partition(":=")
+        if not sep or not name.strip():
+            raise UsageError(f"parameter override {override!r} is not name:=value")
+        try:
+            values[name.strip()] = yaml.safe_load(text) if text else ""
+        except yaml.YAMLError:
+            values[name.strip()] = text
+    path = directory / "overrides.yaml"
+    document = {node: {"ros__parameters": dict(values)} for node in NODE_EXECUTABLES}
+    path.write_text(yaml.safe_dump(document), encoding="utf-8")
+    return path
+
+
 @contextmanager
 def node_graph(
     params_file: Path | None = None,
     overrides: Sequence[str] = (),
     log_dir: Path | None = None,
+    monitor: bool = True,
 ) -> Iterator[NodeSupervisor]:
     """Run the three nodes as supervised processes for the duration of the context.
 
     Args:
         params_file: ROS parameter YAML (default: the package's config/pepper.yaml).
-        overrides: extra ``name:=value`` parameters for every node.
+        overrides: ``name:=value`` parameters for every node; they win over the file.
         log_dir: where each node's output goes (``<node>.log``); ``None`` inherits the terminal.
+        monitor: watch the nodes' heartbeats and restart a silent node.
     """
     params = params_file or share_path("config", "pepper.yaml")
-    commands = {}
-    for name in NODE_EXECUTABLES:
-        command = [*executable_command(name), "--ros-args", "--params-file", str(params)]
-        for override in overrides:
-            command += ["-p", override]
-        commands[name] = command
-    supervisor = NodeSupervisor(commands, log_dir)
-    try:
+    with ExitStack() as stack:
+        extra: list[str] = []
+        if overrides:
+            tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="audio2pose_")))
+            extra = ["--params-file", str(overrides_file(overrides, tmp))]
+        commands = {
+            name: [
+                *executable_command(name),
+                "--ros-args",
+                "--params-file",
+                str(params),
+                *extra,
+            ]
+            for name in NODE_EXECUTABLES
+        }
+        supervisor = NodeSupervisor(commands, log_dir)
+        stack.callback(supervisor.stop)
         supervisor.start()
+        if monitor:
+            stack.callback(HeartbeatMonitor(supervisor).close)
         yield supervisor
-    finally:
-        supervisor.stop()
 
 
 @dataclass
@@ -329,7 +472,7 @@ def run_graph(
     with node_graph(params_file, overrides, log_dir) as supervisor:
         if messages is None:
             try:
-                while len(supervisor.given_up) < len(NODE_EXECUTABLES):
+                while supervisor.running:
                     time.sleep(0.2)
             except KeyboardInterrupt:
                 pass

@@ -1,0 +1,128 @@
+"""The node supervisor of `audio2pose run`: bounded restarts, no respawn of configuration errors,
+silent nodes restarted, command-line overrides over the parameters file (real processes)."""
+
+from __future__ import annotations
+
+import itertools
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from audio2pose_ros.cli.graph import NodeSupervisor, executable_command, overrides_file
+from audio2pose_ros.errors import UsageError
+from audio2pose_ros.nodes.common import EXIT_CONFIGURATION_ERROR, STALE_AFTER_S
+
+
+def _python(code: str) -> list[str]:
+    return [sys.executable, "-c", code]
+
+
+def _wait(predicate, timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.05)
+    return predicate()
+
+
+def test_when_node_exits_with_configuration_error_expect_no_restart(tmp_path: Path):
+    supervisor = NodeSupervisor(
+        {"bad": _python(f"import sys; sys.exit({EXIT_CONFIGURATION_ERROR})")},
+        tmp_path,
+        respawn_delay_s=0.05,
+    )
+    supervisor.start()
+    try:
+        assert _wait(lambda: "bad" in supervisor.given_up, 10.0)
+        time.sleep(0.5)
+        assert supervisor.restarts["bad"] == []
+        assert not supervisor.running
+    finally:
+        supervisor.stop()
+
+
+def test_when_node_keeps_crashing_expect_backoff_then_give_up(tmp_path: Path):
+    supervisor = NodeSupervisor(
+        {"crash": _python("import sys; sys.exit(1)")},
+        tmp_path,
+        respawn_delay_s=0.3,
+        max_restarts=3,
+        restart_window_s=60.0,
+    )
+    supervisor.start()
+    try:
+        assert _wait(lambda: "crash" in supervisor.given_up, 20.0)
+        times = supervisor.restarts["crash"]
+        assert len(times) == 3
+        gaps = [b - a for a, b in itertools.pairwise(times)]
+        assert all(later > earlier for earlier, later in itertools.pairwise(gaps))
+    finally:
+        supervisor.stop()
+
+
+def test_when_node_goes_silent_expect_it_killed_and_restarted(tmp_path: Path):
+    supervisor = NodeSupervisor(
+        {"quiet": _python("import time; time.sleep(60)")},
+        tmp_path,
+        respawn_delay_s=0.05,
+        startup_grace_s=30.0,
+    )
+    supervisor.start()
+    try:
+        first = supervisor.processes["quiet"]
+        supervisor.heartbeat("quiet")  # heard once, then never again (like SIGSTOP)
+        assert _wait(lambda: supervisor.silences["quiet"] == 1, STALE_AFTER_S + 2.0)
+        assert first.poll() is not None
+        assert _wait(lambda: supervisor.processes["quiet"] is not first, 2.0)
+        assert supervisor.processes["quiet"].poll() is None
+    finally:
+        supervisor.stop()
+
+
+def test_when_override_is_not_name_value_expect_usage_error(tmp_path: Path):
+    with pytest.raises(UsageError, match="not name:=value"):
+        overrides_file(["rate_hz=50"], tmp_path)
+
+
+def test_overrides_target_each_node_by_name(tmp_path: Path):
+    document = yaml.safe_load(
+        overrides_file(["rate_hz:=50", "smoothing:=none"], tmp_path).read_text()
+    )
+    assert document["motion_filter_node"]["ros__parameters"] == {"rate_hz": 50, "smoothing": "none"}
+    assert set(document) == {"audio_features_node", "inference_node", "motion_filter_node"}
+
+
+@pytest.mark.ros
+def test_when_command_line_and_params_file_disagree_expect_command_line_to_win(tmp_path: Path):
+    """A node-specific model_path in the file is a missing file: the node exits 78 unless the
+    command-line override (the packaged model) wins."""
+    params = tmp_path / "params.yaml"
+    params.write_text(
+        yaml.safe_dump({"inference_node": {"ros__parameters": {"model_path": "/nonexistent.st"}}})
+    )
+    base = [*executable_command("inference_node"), "--ros-args", "--params-file", str(params)]
+    from audio2pose_ros.resources import default_checkpoint_path
+
+    override = overrides_file([f"model_path:={default_checkpoint_path()}"], tmp_path)
+    file_only = subprocess.run(base, capture_output=True, text=True, timeout=60)
+    assert file_only.returncode == EXIT_CONFIGURATION_ERROR
+    assert "/nonexistent.st" in file_only.stderr
+    process = subprocess.Popen(
+        [*base, "--params-file", str(override)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        time.sleep(6.0)
+        alive = process.poll() is None
+    finally:
+        process.terminate()
+        output = process.communicate(timeout=10)[0]
+    assert alive, output
+    assert f"from {default_checkpoint_path()}" in output
