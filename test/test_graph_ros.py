@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from audio_common_msgs.msg import AudioData, AudioInfo
-from diagnostic_msgs.msg import DiagnosticStatus
 from graph_probe import Probe, diagnostics_of
 
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm, read_wav
 from audio2pose_ros.cli.graph import executable_command, node_graph
+from audio2pose_ros.nodes.common import EXIT_CONFIGURATION_ERROR
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -131,57 +131,36 @@ def test_when_audio_is_malformed_expect_logged_skipped_and_node_keeps_running(
     assert "dropped an audio chunk" in log
 
 
-def run_inference_node_until_error(probe: Probe, model: Path, log: Path) -> str:
-    """Start inference_node on ``model``; return its ERROR diagnostics message.
+def run_inference_node_until_error(model: Path) -> str:
+    """Start inference_node on ``model``; return the one line it leaves on exit.
 
-    Asserts that the node stays up (a respawning supervisor would loop on an exit) and
-    publishes no trajectory.
+    Asserts the exit status that supervisors never respawn and that no traceback is shown.
     """
-    with log.open("w") as stream:
-        process = subprocess.Popen(
-            [*executable_command("inference_node"), "--ros-args", "-p", f"model_path:={model}"],
-            stdout=stream,
-            stderr=subprocess.STDOUT,
-        )
-
-    def error_status():
-        return next(
-            (
-                status
-                for array in probe.received["diagnostics"]
-                for status in array.status
-                if status.level == DiagnosticStatus.ERROR and status.name.endswith("inference_node")
-            ),
-            None,
-        )
-
-    try:
-        probe.wait_until(lambda: error_status() is not None, timeout_s=60)
-        probe.spin_for(2.0)
-        assert process.poll() is None, "the node exited: a respawning supervisor would loop"
-        assert probe.received["raw"] == []
-    finally:
-        process.terminate()
-        process.wait(timeout=10)
-    assert "Traceback" not in log.read_text()
-    return error_status().message
+    result = subprocess.run(
+        [*executable_command("inference_node"), "--ros-args", "-p", f"model_path:={model}"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == EXIT_CONFIGURATION_ERROR, result.stderr
+    assert "Traceback" not in result.stderr + result.stdout
+    lines = [line for line in result.stderr.splitlines() if "configuration error" in line]
+    assert len(lines) == 1, result.stderr
+    return lines[0]
 
 
-def test_when_checkpoint_tampered_expect_idle_node_reporting_error(tmp_path: Path, probe: Probe):
+def test_when_checkpoint_tampered_expect_one_line_and_no_respawnable_exit(tmp_path: Path):
     from audio2pose_ros.resources import default_checkpoint_path
 
     data = bytearray(default_checkpoint_path().read_bytes())
     data[-5] ^= 0x55
     tampered = tmp_path / "tampered.safetensors"
     tampered.write_bytes(bytes(data))
-    message = run_inference_node_until_error(probe, tampered, tmp_path / "node.log")
-    assert "configuration error" in message
+    message = run_inference_node_until_error(tampered)
     assert "checksum mismatch" in message
 
 
-def test_when_model_is_offline_only_expect_refusal_pointing_to_synth(
-    tmp_path: Path, probe: Probe, robot
-):
+def test_when_model_is_offline_only_expect_refusal_pointing_to_synth(tmp_path: Path, robot):
     from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec
     from audio2pose_ros.models import build_model
     from audio2pose_ros.models.checkpoint import Checkpoint, save_checkpoint
@@ -197,5 +176,5 @@ def test_when_model_is_offline_only_expect_refusal_pointing_to_synth(
             robot,
         ),
     )
-    message = run_inference_node_until_error(probe, path, tmp_path / "node.log")
+    message = run_inference_node_until_error(path)
     assert "audio2pose synth" in message
