@@ -217,3 +217,38 @@ def test_when_a_parameter_is_refused_expect_one_line_and_the_configuration_exit(
     log = (tmp_path / f"{NODE}.log").read_text()
     assert match in log
     assert "Traceback" not in log
+
+
+def test_when_parameters_described_and_set_live_expect_descriptors_and_validated_changes():
+    """Every parameter has a descriptor; integers pass for floats; live changes are validated
+    (issue 11 item 4): read-only ones are refused, bad values refused with the reason."""
+    from rclpy.parameter import Parameter
+
+    from audio2pose_ros.nodes.audio_features_node import PARAMETERS, AudioFeaturesNode
+
+    with rclpy.init(args=["--ros-args", "-p", "max_chunk_s:=1"]):
+        node = AudioFeaturesNode()
+        try:
+            assert node.get_parameter("max_chunk_s").value == 1.0
+            for spec in PARAMETERS:
+                descriptor = node.describe_parameter(spec.name)
+                assert descriptor.description.startswith(spec.description)
+                assert descriptor.read_only == (spec.name in ("model_path", "input_type"))
+            assert node.describe_parameter("max_chunk_s").floating_point_range[0].to_value == 60.0
+
+            def set_one(name: str, value: object) -> tuple[bool, str]:
+                result = node.set_parameters([Parameter(name, value=value)])[0]
+                return result.successful, result.reason
+
+            assert set_one("channels", "1") == (True, "")
+            assert node.input.settings.channels == "1"
+            ok, reason = set_one("channels", "left")
+            assert not ok
+            assert "parameter channels: value 'left' not understood" in reason
+            ok, reason = set_one("max_chunk_s", float("nan"))
+            assert not ok
+            assert "max_chunk_s" in reason
+            assert set_one("input_type", "naoqi")[0] is False
+            assert node.input.settings.max_chunk_s == 1.0  # refused changes left nothing behind
+        finally:
+            node.destroy_node()

@@ -344,3 +344,12 @@ def test_when_stereo_pcm_encoded_and_decoded_through_the_input_expect_channels_a
     source.set_audio_info(**dict(S16_INFO, channels=2))
     payload = encode_pcm(np.array([[0.5, 0.25], [-0.5, 0.0]]), PcmFormat("S16LE", 2))
     np.testing.assert_allclose(source.decode_audio_data(payload), [0.375, -0.25])
+
+
+def test_when_live_channels_do_not_exist_in_the_current_audio_expect_refused_and_unchanged():
+    source = audio_input()
+    source.set_audio_info(**S16_INFO)
+    with pytest.raises(ConfigurationError, match=r"parameter channels: channels \[1\] selected"):
+        source.update_settings(AudioInputSettings(channels="1"))
+    assert source.settings.channels == "mean"
+    assert source.decode_audio_data(s16(160)).size == 160

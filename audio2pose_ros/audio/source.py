@@ -322,23 +322,24 @@ class AudioInput:
         """Apply new limits or channels from the next message on (input_type cannot change).
 
         Raises:
-            ConfigurationError: ``input_type`` differs from the running one.
+            ConfigurationError: ``input_type`` differs from the running one, or the new
+                channels do not exist in the audio being decoded (nothing is changed then).
         """
         if settings.input_type != self.settings.input_type:
             raise ConfigurationError("parameter input_type cannot change while the node runs")
-        old = self.settings
-        self.settings = settings
+        decoder = self._decoder
+        if settings.channels != self.settings.channels and self.format is not None:
+            try:
+                channels = settings.selection.resolve(self.format.channels, self._channel_map)
+            except UnsupportedAudioFormat as exc:
+                raise ConfigurationError(f"parameter channels: {exc}") from None
+            decoder = PcmDecoder(self.format, self.target_rate_hz, channels)
+        old, self.settings, self._decoder = self.settings, settings, decoder
         if (settings.max_audio_s_per_s, settings.max_chunk_s) != (
             old.max_audio_s_per_s,
             old.max_chunk_s,
         ):
             self._budget = self._make_budget()
-        if settings.channels != old.channels and self.format is not None:
-            fmt, self.format = self.format, None  # rebuilt with the new channels
-            try:
-                self._adopt(fmt, self._channel_map)
-            except UnsupportedAudioFormat as exc:
-                self._reject(str(exc))
 
     def set_audio_info(
         self, channels: int, sample_rate: int, sample_format: str, coding_format: str
