@@ -1,8 +1,9 @@
-"""motion_filter_node over real DDS: watchdog glide, stop, head target, arms off.
+"""motion_filter_node over real DDS: glide, stop, head target, gains, and every unsafe input.
 
 The node runs as its own process (the real executable) with parameters on the command line, as a
-launch file would pass them; this process plays inference_node's part (raw_trajectory) and the
-robot's part (it reads joint_states). Only the robot is missing.
+launch file would pass them; this process plays inference_node's part (raw_trajectory), the
+robot's (it publishes measured joint_states and reads commanded_joint_states) and an operator's
+(stop, head_target, parameters). Only the robot is missing.
 """
 
 from __future__ import annotations
@@ -13,13 +14,16 @@ import time
 import numpy as np
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.cli.graph import executable_command
-from audio2pose_ros.nodes.common import LATCHED_QOS, trajectory_msg
+from audio2pose_ros.nodes.common import EXIT_CONFIGURATION_ERROR, LATCHED_QOS, trajectory_msg
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 PERIOD = 0.01
@@ -31,11 +35,26 @@ class Driver(Node):
         self.raw = self.create_publisher(JointTrajectory, "/raw_trajectory", 100)
         self.stop = self.create_publisher(Bool, "/stop", LATCHED_QOS)
         self.head = self.create_publisher(JointState, "/head_target", 10)
+        self.offset = self.create_publisher(JointState, "/head_offset", 10)
+        self.measured = self.create_publisher(JointState, "/joint_states", 10)
         self.states: list[tuple[float, np.ndarray]] = []
-        self.create_subscription(JointState, "/joint_states", self.on_state, 1000)
+        self.diagnostics: list[dict[str, str]] = []
+        self.create_subscription(JointState, "/commanded_joint_states", self.on_state, 1000)
+        self.create_subscription(DiagnosticArray, "/diagnostics", self.on_diagnostics, 100)
+        self.set_parameters = self.create_client(
+            SetParameters, "/motion_filter_node/set_parameters"
+        )
 
     def on_state(self, msg: JointState) -> None:
         self.states.append((time.monotonic(), np.array(msg.position)))
+
+    def on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.endswith("motion_filter_node"):
+                values = {kv.key: kv.value for kv in status.values}
+                values["message"] = status.message
+                values["level"] = str(int.from_bytes(status.level, "little"))
+                self.diagnostics.append(values)
 
     def spin_for(self, seconds: float, every=None) -> None:
         end, next_call = time.monotonic() + seconds, time.monotonic()
@@ -52,6 +71,23 @@ class Driver(Node):
         assert self.states, "motion_filter_node did not come up"
         self.spin_for(0.5)
 
+    def positions(self) -> np.ndarray:
+        return np.array([p for _, p in self.states])
+
+    def set_parameter(self, name: str, value: object):
+        if isinstance(value, float):
+            pv = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
+        elif isinstance(value, int):
+            pv = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
+        else:
+            pv = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+        assert self.set_parameters.wait_for_service(timeout_sec=10)
+        future = self.set_parameters.call_async(
+            SetParameters.Request(parameters=[Parameter(name=name, value=pv)])
+        )
+        rclpy.spin_until_future_complete(self, future, timeout_sec=10)
+        return future.result().results[0]
+
 
 @pytest.fixture
 def driver():
@@ -63,14 +99,22 @@ def driver():
 
 @pytest.fixture
 def filter_node(tmp_path):
+    """Start motion_filter_node processes (state kept in tmp_path); stop them at the end."""
     processes = []
 
-    def start(**params: object) -> None:
+    def start(**params: object) -> subprocess.Popen:
         command = [*executable_command("motion_filter_node"), "--ros-args"]
-        for key, value in {"joint_states_rate_hz": 100.0, **params}.items():
+        defaults = {
+            "joint_states_rate_hz": 100.0,
+            "startup_timeout_s": 0.3,
+            "state_file": str(tmp_path / "filter_state.json"),
+        }
+        for key, value in {**defaults, **params}.items():
             command += ["-p", f"{key}:={value}"]
-        log = (tmp_path / "motion_filter_node.log").open("w")
-        processes.append(subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT))
+        log = (tmp_path / f"motion_filter_node_{len(processes)}.log").open("w")
+        process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+        processes.append(process)
+        return process
 
     yield start
     for process in processes:
@@ -155,3 +199,173 @@ def test_when_arms_disabled_expect_arms_stay_neutral(driver, filter_node, robot)
     )
     yaw = robot.names.index("HeadYaw")
     assert poses[-1, yaw] == pytest.approx(raised(robot)[yaw], abs=0.05)  # the head still moves
+
+
+def stamped(driver: Driver, robot, poses: np.ndarray, ahead_s: float = 0.0) -> JointTrajectory:
+    msg = trajectory_msg(robot.names, np.atleast_2d(poses), PERIOD)
+    stamp_ns = driver.get_clock().now().nanoseconds + round(ahead_s * 1e9)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+    return msg
+
+
+def stream(driver: Driver, robot, pose: np.ndarray):
+    """Send ``pose`` once per period, stamped like inference_node stamps its output."""
+    return lambda: driver.raw.publish(stamped(driver, robot, pose))
+
+
+def deviation_after(driver: Driver, inject, robot, seconds: float = 1.0) -> float:
+    """Worst distance of any commanded joint from where it rested, after ``inject()``."""
+    rest = driver.states[-1][1]
+    driver.states.clear()
+    inject()
+    driver.spin_for(seconds, every=stream(driver, robot, raised(robot)))
+    return float(np.abs(driver.positions() - rest).max())
+
+
+def test_when_outlier_points_and_head_values_arrive_expect_no_joint_moves_a_tenth_rad(
+    driver, filter_node, robot
+):
+    filter_node()
+    driver.wait_for_node()
+    driver.spin_for(2.0, every=stream(driver, robot, raised(robot)))  # settled on the pose
+    arm, elbow = robot.names.index("LShoulderPitch"), robot.names.index("RElbowRoll")
+    cases = {"90 rad": (arm, 90.0), "1e50 rad": (arm, 1e50), "3 rad spike": (arm, -2.0)}
+    cases["1e308"] = (elbow, 1e308)
+    for label, (joint, value) in cases.items():
+        bad = raised(robot)
+        bad[joint] = value
+        worst = deviation_after(
+            driver, lambda b=bad: driver.raw.publish(stamped(driver, robot, b)), robot
+        )
+        assert worst <= 0.1, label
+    for topic in (driver.head, driver.offset):
+        msg = JointState(name=["HeadYaw"], position=[1e6])
+        assert deviation_after(driver, lambda t=topic, m=msg: t.publish(m), robot) <= 0.1
+    driver.spin_for(1.0, every=stream(driver, robot, raised(robot)))
+    diagnostics = driver.diagnostics[-1]
+    assert int(diagnostics["poses_out_of_range"]) == 3  # 90, 1e50, 1e308
+    assert int(diagnostics["poses_unreachable"]) == 1  # the spike
+    assert int(diagnostics["head_inputs_rejected"]) == 2
+    assert diagnostics["filter_faults"] == "0"
+    assert diagnostics["level"] == "1"  # WARN: inputs were rejected a moment ago
+
+
+def test_when_one_message_is_stamped_far_in_the_future_expect_later_messages_still_used(
+    driver, filter_node, robot
+):
+    filter_node()
+    driver.wait_for_node()
+    driver.spin_for(1.0, every=stream(driver, robot, robot.neutral_rad))
+    driver.raw.publish(stamped(driver, robot, raised(robot), ahead_s=1e6))
+    driver.spin_for(1.5, every=stream(driver, robot, raised(robot)))
+    assert np.abs(driver.states[-1][1] - raised(robot)).max() < 0.05  # still tracking
+    diagnostics = driver.diagnostics[-1]
+    assert diagnostics["future_stamps_rejected"] == "1"
+    assert diagnostics["stale_messages_dropped"] == "0"
+
+
+def test_when_one_message_holds_20000_points_expect_it_capped_and_no_velocity_jump(
+    driver, filter_node, robot
+):
+    filter_node()
+    driver.wait_for_node()
+    driver.spin_for(1.0, every=stream(driver, robot, robot.neutral_rad))
+    huge = stamped(driver, robot, np.tile(raised(robot), (20_000, 1)))
+    driver.states.clear()
+    driver.raw.publish(huge)
+    driver.spin_for(1.5, every=stream(driver, robot, raised(robot)))
+    times, poses = np.array([t for t, _ in driver.states]), driver.positions()
+    speed = np.abs(np.diff(poses, axis=0)) / np.maximum(np.diff(times)[:, None], PERIOD)
+    assert np.all(speed <= 0.5 * robot.max_velocity_rad_s * 1.5)  # limits held (with jitter)
+    assert int(driver.diagnostics[-1]["poses_truncated"]) == 20_000 - 200
+
+
+def test_when_restarted_with_robot_pose_measured_expect_first_command_from_that_pose(
+    driver, filter_node, robot
+):
+    measured = raised(robot)
+    measured[robot.names.index("LShoulderPitch")] = -0.8  # arm up: 2.4 rad from neutral
+
+    def robot_reports_pose() -> None:
+        driver.measured.publish(JointState(name=list(robot.names), position=list(measured)))
+
+    filter_node(startup_timeout_s=5.0)
+    driver.spin_for(0.0)
+    end = time.monotonic() + 60
+    while not driver.states and time.monotonic() < end:
+        driver.spin_for(0.02, every=robot_reports_pose)
+    driver.spin_for(1.0, every=robot_reports_pose)
+    first = driver.states[0][1]
+    assert np.all(np.abs(first - measured) <= 0.5 * robot.max_velocity_rad_s * PERIOD + 0.011)
+    assert driver.diagnostics[-1]["started_from"] == "measured pose"
+
+
+def test_when_stopped_then_restarted_expect_stop_kept_until_released(driver, filter_node, robot):
+    first = filter_node(stop_behaviour="hold")
+    driver.wait_for_node()
+    driver.spin_for(1.0, every=stream(driver, robot, robot.neutral_rad))
+    operator = driver.create_publisher(Bool, "/stop", LATCHED_QOS)  # a one-shot `ros2 topic pub`
+    operator.publish(Bool(data=True))
+    driver.spin_for(0.5)
+    driver.destroy_publisher(operator)
+    driver.destroy_publisher(driver.stop)  # nobody holds the stop any more
+    first.terminate()
+    first.wait(timeout=10)
+    driver.states.clear()
+    filter_node(stop_behaviour="hold")  # respawned, same state file
+    driver.wait_for_node()
+    driver.spin_for(1.5, every=stream(driver, robot, raised(robot)))
+    poses = driver.positions()
+    assert np.abs(poses - poses[0]).max() < 1e-6  # stopped: nothing moves
+    assert driver.diagnostics[-1]["stopped"] == "True"
+    release = driver.create_publisher(Bool, "/stop", LATCHED_QOS)
+    driver.spin_for(0.5)
+    release.publish(Bool(data=False))
+    driver.spin_for(1.5, every=stream(driver, robot, raised(robot)))
+    assert np.abs(driver.states[-1][1] - raised(robot)).max() < 0.05  # released: moves again
+
+
+def test_when_stopped_with_neutral_behaviour_expect_head_target_ignored(driver, filter_node, robot):
+    filter_node(stop_behaviour="neutral", neutral_glide_s=0.3)
+    driver.wait_for_node()
+    driver.stop.publish(Bool(data=True))
+    driver.spin_for(1.0)
+    driver.states.clear()
+
+    def look_away() -> None:
+        driver.head.publish(JointState(name=["HeadYaw"], position=[1.0]))
+
+    driver.spin_for(1.0, every=look_away)
+    yaw = driver.positions()[:, robot.names.index("HeadYaw")]
+    np.testing.assert_allclose(yaw, robot.neutral_rad[robot.names.index("HeadYaw")], atol=1e-6)
+
+
+def test_when_parameters_set_at_run_time_expect_live_effect_or_refusal_with_reason(
+    driver, filter_node, robot
+):
+    filter_node()
+    driver.wait_for_node()
+    result = driver.set_parameter("arms_gain", 0)  # an integer for a float
+    assert result.successful, result.reason
+    driver.spin_for(1.5, every=stream(driver, robot, raised(robot)))
+    arms = robot.group_mask("arms")
+    np.testing.assert_allclose(driver.states[-1][1][arms], robot.neutral_rad[arms], atol=2e-3)
+    refused = driver.set_parameter("watchdog_timeout_s", float("inf"))
+    assert not refused.successful
+    assert "watchdog_timeout_s" in refused.reason
+    assert "0.01" in refused.reason  # the allowed range: rclpy's range check words it
+    assert "60" in refused.reason
+    assert not driver.set_parameter("rate_hz", 50.0).successful  # read-only
+    assert not driver.set_parameter("stop_behaviour", "drop").successful
+
+
+def test_when_a_parameter_is_refused_at_start_up_expect_one_line_and_exit_78(
+    filter_node, tmp_path
+):
+    process = filter_node(kalman_q=".nan")
+    assert process.wait(timeout=60) == EXIT_CONFIGURATION_ERROR
+    log = (tmp_path / "motion_filter_node_0.log").read_text().strip().splitlines()
+    assert log == [
+        "[motion_filter_node] configuration error: parameter kalman_q: value nan is not finite; "
+        "allowed: a finite number in [1e-09, 1e+09]"
+    ]
