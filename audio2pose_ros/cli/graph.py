@@ -24,7 +24,7 @@ from pathlib import Path
 import rclpy
 import yaml
 from audio_common_msgs.msg import AudioData, AudioInfo
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -228,7 +228,9 @@ class HeartbeatMonitor:
     """Listens to /diagnostics in its own rclpy context and tells a supervisor who is alive.
 
     Node statuses are named ``audio2pose_ros: <node name>`` (``nodes.common.diagnostic_array``).
-    Runs its own executor thread, so it works beside a player in the default context.
+    A node silent for ``STALE_AFTER_S`` is reported on /diagnostics under its own name with
+    level STALE until it is heard again, as diagnostic_aggregator would show it. Runs its own
+    executor thread, so it works beside a player in the default context.
     """
 
     def __init__(self, supervisor: NodeSupervisor) -> None:
@@ -238,6 +240,8 @@ class HeartbeatMonitor:
         rclpy.init(context=self.context)
         self.node = Node("audio2pose_supervisor", context=self.context)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 50)
+        self.publisher = self.node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.node.create_timer(WATCH_PERIOD_S * 2, self._report_silent)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._thread = threading.Thread(target=self._spin, name="heartbeat-monitor", daemon=True)
@@ -252,6 +256,24 @@ class HeartbeatMonitor:
             prefix, _, name = status.name.partition(": ")
             if prefix == STATUS_PREFIX and name in self.supervisor.commands:
                 self.supervisor.heartbeat(name)
+
+    def _report_silent(self) -> None:
+        statuses = []
+        for name in self.supervisor.commands:
+            silent = self.supervisor.silent_s(name)
+            if silent > STALE_AFTER_S:
+                statuses.append(
+                    DiagnosticStatus(
+                        level=DiagnosticStatus.STALE,
+                        name=f"{STATUS_PREFIX}: {name}",
+                        message=f"no heartbeat for {silent:.1f} s: restarting the node",
+                        hardware_id="pepper",
+                    )
+                )
+        if statuses:
+            array = DiagnosticArray(status=statuses)
+            array.header.stamp = self.node.get_clock().now().to_msg()
+            self.publisher.publish(array)
 
     def close(self) -> None:
         """Stop spinning and leave the context."""

@@ -428,13 +428,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _command_modules() -> list[Callable[[argparse._SubParsersAction], None]]:
     """``register(verbs)`` functions of the verbs that live in their own modules."""
-    from audio2pose_ros.cli import bag_commands, dataset_commands, model_commands, render_commands
+    from audio2pose_ros.cli import (
+        bag_commands,
+        dataset_commands,
+        fault_commands,
+        model_commands,
+        render_commands,
+    )
 
     return [
         model_commands.register,
         dataset_commands.register,
         bag_commands.register,
         render_commands.register,
+        fault_commands.register,
     ]
 
 
