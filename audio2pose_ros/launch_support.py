@@ -168,7 +168,8 @@ def check_params_file(path: str) -> Path:
 
     Raises:
         ConfigurationError: the file does not exist, cannot be read, is not valid YAML, or is
-            not a mapping of node names to their ``ros__parameters``.
+            not a mapping of node names (nested in namespaces) to their ``ros__parameters``
+            mappings, the layout rcl reads.
 
     """
     file = Path(path.strip()).expanduser()
@@ -187,12 +188,35 @@ def check_params_file(path: str) -> Path:
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise ConfigurationError(f"params_file {file}: not valid YAML{where}: {problem}") from None
+    if content is None:  # empty: rcl accepts it, nothing is set
+        return file
     if not isinstance(content, Mapping):
         raise ConfigurationError(
             f"params_file {file}: expected a mapping of node names to ros__parameters, "
             f"got {type(content).__name__}"
         )
+    _check_node_sections(file, content, "")
     return file
+
+
+def _check_node_sections(file: Path, section: Mapping[object, object], where: str) -> None:
+    """Every key is a namespace / node level or ``ros__parameters``, each a mapping or empty.
+
+    rcl itself accepts a list or a scalar there and ignores it: the parameters the user meant
+    would silently not be set.
+    """
+    for key, value in section.items():
+        inside = f"{where}/{key}" if where else str(key)
+        if value is None:
+            continue
+        if not isinstance(value, Mapping):
+            expected = "parameters" if key == "ros__parameters" else "a node's ros__parameters"
+            raise ConfigurationError(
+                f"params_file {file}: {inside} must be a mapping of {expected}, "
+                f"got {type(value).__name__}"
+            )
+        if key != "ros__parameters":
+            _check_node_sections(file, value, inside)
 
 
 def model_path_override(text: str) -> dict[str, str]:

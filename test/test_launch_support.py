@@ -5,6 +5,7 @@ in support/launch_check.sh (the launch stack built from source); these tests cov
 decisions on every machine.
 """
 
+import re
 import signal
 import subprocess
 import sys
@@ -139,6 +140,38 @@ def test_when_the_params_file_is_not_a_mapping_expect_a_refusal(tmp_path):
     listed.write_text("- motion_filter_node\n")
     with pytest.raises(ConfigurationError, match=r"expected a mapping .* got list"):
         check_params_file(str(listed))
+
+
+@pytest.mark.parametrize(
+    ("text", "where"),
+    [
+        ("motion_filter_node:\n  ros__parameters: [1, 2]\n", "motion_filter_node/ros__parameters"),
+        ("motion_filter_node: 3\n", "motion_filter_node must"),
+        ("/robot:\n  motion_filter_node: [rate_hz]\n", "/robot/motion_filter_node must"),
+    ],
+)
+def test_when_the_params_file_is_not_laid_out_as_rcl_reads_it_expect_the_section_named(
+    tmp_path, text, where
+):
+    # rcl accepts these and sets nothing: the parameters the user meant would be ignored.
+    odd = tmp_path / "odd.yaml"
+    odd.write_text(text)
+    with pytest.raises(ConfigurationError, match=re.escape(where)):
+        check_params_file(str(odd))
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "/robot:\n  motion_filter_node:\n    ros__parameters:\n      rate_hz: 50.0\n",
+        "motion_filter_node:\n  ros__parameters:\n",
+        "",
+    ],
+)
+def test_when_the_params_file_is_one_rcl_reads_expect_it_accepted(tmp_path, text):
+    good = tmp_path / "good.yaml"
+    good.write_text(text)
+    assert check_params_file(str(good)) == good
 
 
 def test_when_the_params_file_is_not_utf8_expect_a_refusal(tmp_path):
