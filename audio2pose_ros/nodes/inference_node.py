@@ -5,113 +5,183 @@ Subscriptions:
 Publications:
     raw_trajectory (trajectory_msgs/JointTrajectory): one point per feature frame, 10 ms apart,
         positions in radians, unsmoothed (motion_filter_node smooths and limits them).
-    /diagnostics (diagnostic_msgs/DiagnosticArray)
+    /diagnostics (diagnostic_msgs/DiagnosticArray): heartbeat every 0.5 s (DiagnosedNode).
 
 Parameters
 ----------
-    model_path (str): checkpoint to run ('' = packaged default). Must be a streaming model.
-    robot_description (str): robot YAML ('' = packaged Pepper); the checkpoint must match it.
+    model_path (str, read-only): checkpoint to run ('' = packaged default). Must be a streaming
+        model.
+    robot_description (str, read-only): robot YAML ('' = packaged Pepper); the checkpoint must
+        match it.
+    feature_limit_sd (float, 1..1000, live): normalised feature values are clamped to
+        +-feature_limit_sd standard deviations of the training data before the model.
 
-A checkpoint that is missing, modified, offline-only or made for other joints stops the node at
-start-up with an error that says why (a launch file then reports the failure; nothing restarts in a
-loop). Feature messages of the wrong shape or with non-finite values are dropped with a warning.
+A checkpoint or robot file that is missing, modified, crafted, offline-only or made for other
+joints is a ConfigurationError at start-up: ``run_node`` prints one line and exits with status
+78, which supervisors never respawn.
 
+Bad input never reaches the model and never stops the node:
+
+- a message of the wrong layout or feature set is dropped and reported;
+- at most :data:`MAX_FRAMES_PER_MESSAGE` frames of one message are used (1 s of audio; the rest
+  is dropped and counted), so one message cannot block the node;
+- after normalisation, non-finite values are replaced by 0 (the training mean) and values
+  beyond +-``feature_limit_sd`` are clamped; both are counted and reported as WARN. The frame
+  is kept, so the output stays one pose per 10 ms frame.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rclpy.node import Node
+from diagnostic_msgs.msg import DiagnosticStatus
 from std_msgs.msg import Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.models import OfflineOnlyModelError, require_streaming
+from audio2pose_ros.models import require_streaming
 from audio2pose_ros.models.checkpoint import load_checkpoint
 from audio2pose_ros.nodes.common import (
-    DIAGNOSTICS_PERIOD_S,
     STREAM_QOS,
-    StartupError,
-    diagnostic_array,
+    DiagnosedNode,
     msg_to_features,
     run_node,
     trajectory_msg,
 )
+from audio2pose_ros.nodes.parameters import NodeParameters
+from audio2pose_ros.parameters import ParameterSpec, ParameterValue
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot import load_robot
 
-WARN_THROTTLE_S = 5.0
+MAX_FRAMES_PER_MESSAGE = 100  # 1 s of 10 ms frames; audio_features_node sends a few per message
+
+PARAMETERS = (
+    ParameterSpec(
+        "model_path",
+        "",
+        "checkpoint to run ('' = packaged default); must be a streaming model",
+        read_only=True,
+    ),
+    ParameterSpec(
+        "robot_description",
+        "",
+        "robot description YAML ('' = packaged Pepper); the checkpoint must match it",
+        read_only=True,
+    ),
+    ParameterSpec(
+        "feature_limit_sd",
+        8.0,
+        "normalised features are clamped to +- this many training standard deviations",
+        minimum=1.0,
+        maximum=1000.0,
+        unit="sd",
+    ),
+)
 
 
-class InferenceNode(Node):
+def sanitize_features(normalized: np.ndarray, limit_sd: float) -> tuple[np.ndarray, int, int]:
+    """Make normalised features safe for the model.
+
+    Args:
+        normalized: (n_frames, n_features) z-normalised features.
+        limit_sd: values are clamped to [-limit_sd, limit_sd].
+
+    Returns:
+        ``(features, n_non_finite, n_clamped)``: a copy with non-finite values replaced by 0
+        (the training mean) and the others clamped, and how many values each rule changed.
+    """
+    finite = np.isfinite(normalized)
+    n_non_finite = int(normalized.size - np.count_nonzero(finite))
+    safe = np.where(finite, normalized, 0.0)
+    n_clamped = int(np.count_nonzero(np.abs(safe) > limit_sd))
+    return np.clip(safe, -limit_sd, limit_sd), n_non_finite, n_clamped
+
+
+class InferenceNode(DiagnosedNode):
     """Run a streaming pose model frame by frame."""
 
     def __init__(self) -> None:
-        """Load and check the model, then wire topics."""
+        """Declare parameters, load and check the model, then wire topics.
+
+        Raises:
+            ConfigurationError: a refused parameter, or an unusable checkpoint or robot file.
+        """
         super().__init__("inference_node")
-        model_path = self.declare_parameter("model_path", "").value or default_checkpoint_path()
-        try:
-            robot = load_robot(self.declare_parameter("robot_description", "").value)
-            self.checkpoint = load_checkpoint(model_path, robot=robot)
-        except (OSError, ValueError) as exc:
-            raise StartupError(str(exc)) from None
+        self.parameters = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
+        model_path = self.parameters["model_path"] or default_checkpoint_path()
+        self.robot = load_robot(self.parameters["robot_description"])
+        self.checkpoint = load_checkpoint(model_path, robot=self.robot)
         model = self.checkpoint.model
-        try:
-            require_streaming(model, str(model_path))
-        except OfflineOnlyModelError as exc:
-            raise StartupError(str(exc)) from None
+        require_streaming(model, str(model_path))
         self.predictor = model.streaming_predictor()
-        self.robot = robot
         spec = self.checkpoint.features
         self.expected_label = f"{spec.kind}{spec.dim}"
         self.period_s = spec.step_s
+        self.limit_sd = float(self.parameters["feature_limit_sd"])
         self.frames_in = 0
         self.frames_dropped = 0
+        self.values_replaced = 0
+        self.values_clamped = 0
         self.compute_s = 0.0
-        self.last_problem = ""
 
         self.trajectory_pub = self.create_publisher(JointTrajectory, "raw_trajectory", STREAM_QOS)
-        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(Float32MultiArray, "features", self.on_features, STREAM_QOS)
-        self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
+        self.create_subscription(
+            Float32MultiArray, "features", self.guarded(self.on_features), STREAM_QOS
+        )
         self.get_logger().info(
             f"streaming model {model.name} from {model_path}, "
             f"expects {self.expected_label} features"
         )
 
-    def on_features(self, msg: Float32MultiArray) -> None:
-        """Normalise, predict each frame, publish one trajectory point per frame.
+    def apply_parameters(self, changes: Mapping[str, ParameterValue]) -> None:
+        """Adopt a validated run-time change (only feature_limit_sd may change)."""
+        if "feature_limit_sd" in changes:
+            self.limit_sd = float(changes["feature_limit_sd"])
 
-        Each kind of bad input has its own warning (rclpy throttles per call site).
-        """
-        log = self.get_logger()
+    def on_features(self, msg: Float32MultiArray) -> None:
+        """Normalise, make safe, predict each frame, publish one trajectory point per frame."""
         try:
             frames, label = msg_to_features(msg)
-        except ValueError as exc:
-            self.last_problem = f"malformed features message dropped: {exc}"
-            log.warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
+        except ValueError as exc:  # msg_to_features refuses a layout that does not fit the data
+            self.report_problem(
+                "malformed", DiagnosticStatus.WARN, f"malformed features message dropped: {exc}"
+            )
             return
         if label != self.expected_label or frames.shape[1] != self.checkpoint.features.dim:
             self.frames_dropped += len(frames)
-            self.last_problem = (
-                f"features {label!r} x{frames.shape[1]} dropped: the model "
-                f"expects {self.expected_label!r}"
+            self.report_problem(
+                "wrong features",
+                DiagnosticStatus.WARN,
+                f"features {label!r} x{frames.shape[1]} dropped: the model expects "
+                f"{self.expected_label!r}",
             )
-            log.warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
             return
-        finite = np.isfinite(frames).all(axis=1)
-        if not finite.all():
-            self.frames_dropped += int(np.count_nonzero(~finite))
-            self.last_problem = "feature frames with NaN/inf dropped"
-            log.warning(self.last_problem, throttle_duration_sec=WARN_THROTTLE_S)
-            frames = frames[finite]
+        if len(frames) > MAX_FRAMES_PER_MESSAGE:
+            self.frames_dropped += len(frames) - MAX_FRAMES_PER_MESSAGE
+            self.report_problem(
+                "too many frames",
+                DiagnosticStatus.WARN,
+                f"a message of {len(frames)} frames: frames beyond {MAX_FRAMES_PER_MESSAGE} "
+                "dropped",
+            )
+            frames = frames[:MAX_FRAMES_PER_MESSAGE]
         if not len(frames):
             return
         start = time.perf_counter()
-        normalized = self.checkpoint.normalizer.apply(frames)
-        poses = np.array([self.predictor.step(frame) for frame in normalized])
+        with np.errstate(invalid="ignore", over="ignore"):  # inf - inf: made safe just below
+            normalized = self.checkpoint.normalizer.apply(frames)
+        safe, replaced, clamped = sanitize_features(normalized, self.limit_sd)
+        if replaced or clamped:
+            self.values_replaced += replaced
+            self.values_clamped += clamped
+            self.report_problem(
+                "feature values",
+                DiagnosticStatus.WARN,
+                f"feature values made safe: {replaced} non-finite replaced by the mean, "
+                f"{clamped} clamped to +-{self.limit_sd:g} sd",
+            )
+        poses = np.array([self.predictor.step(frame) for frame in safe])
         angles = self.robot.denormalize(poses)
         self.compute_s += time.perf_counter() - start
         self.frames_in += len(frames)
@@ -119,27 +189,22 @@ class InferenceNode(Node):
         out.header.stamp = self.get_clock().now().to_msg()
         self.trajectory_pub.publish(out)
 
-    def publish_diagnostics(self) -> None:
-        """Publish frame counters and the mean compute time per frame."""
+    def diagnostic_values(self) -> dict[str, object]:
+        """Frame and value counters and the mean compute time per frame."""
         mean_us = 1e6 * self.compute_s / self.frames_in if self.frames_in else 0.0
-        level = DiagnosticStatus.WARN if self.frames_dropped else DiagnosticStatus.OK
-        self.diagnostics_pub.publish(
-            diagnostic_array(
-                self,
-                level,
-                self.last_problem or "ok",
-                {
-                    "model": self.checkpoint.model.name,
-                    "frames_in": self.frames_in,
-                    "frames_dropped": self.frames_dropped,
-                    "mean_compute_us_per_frame": f"{mean_us:.1f}",
-                },
-            )
-        )
+        return {
+            "model": self.checkpoint.model.name,
+            "frames_in": self.frames_in,
+            "frames_dropped": self.frames_dropped,
+            "feature_values_replaced": self.values_replaced,
+            "feature_values_clamped": self.values_clamped,
+            "feature_limit_sd": self.limit_sd,
+            "mean_compute_us_per_frame": f"{mean_us:.1f}",
+        }
 
 
 def main(args: list[str] | None = None) -> None:
-    """Run the node until shutdown."""
+    """Run the node until shutdown; a configuration error exits with status 78."""
     run_node(InferenceNode, "inference_node", args)
 
 

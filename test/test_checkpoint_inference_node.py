@@ -1,0 +1,104 @@
+"""inference_node with hostile checkpoints and hostile feature frames.
+
+A crafted checkpoint ends the real node process at start-up with one line and exit status 78
+(never respawned); absurd feature values are made safe before the model, counted, and every
+frame still yields one pose inside the joint limits.
+"""
+
+from __future__ import annotations
+
+import struct
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from audio2pose_ros.cli.graph import executable_command
+from audio2pose_ros.nodes.common import EXIT_CONFIGURATION_ERROR, features_to_msg
+
+
+@pytest.fixture
+def node(monkeypatch):
+    """An InferenceNode on the packaged model whose published trajectories are collected."""
+    import rclpy
+
+    from audio2pose_ros.nodes.inference_node import InferenceNode
+
+    with rclpy.init():
+        inference = InferenceNode()
+        published = []
+        monkeypatch.setattr(inference.trajectory_pub, "publish", published.append)
+        inference.published = published
+        yield inference
+        inference.destroy_node()
+
+
+def features(node, frames: np.ndarray):  # a Float32MultiArray
+    spec = node.checkpoint.features
+    return features_to_msg(frames.astype(np.float32), f"{spec.kind}{spec.dim}")
+
+
+@pytest.mark.ros
+def test_when_features_are_non_finite_or_absurd_expect_one_safe_pose_per_frame(node, robot):
+    mean, std = node.checkpoint.normalizer.mean, node.checkpoint.normalizer.std
+    frames = np.tile(mean, (4, 1))
+    frames[1, 3] = np.inf
+    frames[2, 5] = np.nan
+    frames[3, :] = 1e30
+    node.on_features(features(node, frames))
+    (msg,) = node.published
+    poses = np.array([p.positions for p in msg.points])
+    assert poses.shape == (4, robot.n_joints)  # no frame dropped: timing kept
+    assert np.isfinite(poses).all()
+    assert (poses >= robot.lower_rad).all()
+    assert (poses <= robot.upper_rad).all()
+    assert node.values_replaced == 2
+    assert node.values_clamped == frames.shape[1]
+    # The 1e30 frame is treated exactly as a frame at the clamp limit.
+    node.published.clear()
+    node.predictor = node.checkpoint.model.streaming_predictor()
+    limit = np.tile(mean, (4, 1))  # non-finite values become the mean
+    limit[3, :] = mean + node.limit_sd * std
+    node.on_features(features(node, limit))
+    np.testing.assert_allclose(
+        np.array([p.positions for p in node.published[0].points]), poses, atol=1e-5
+    )
+
+
+@pytest.mark.ros
+def test_when_a_message_holds_a_thousand_frames_expect_only_the_cap_used(node):
+    from audio2pose_ros.nodes.inference_node import MAX_FRAMES_PER_MESSAGE
+
+    frames = np.tile(node.checkpoint.normalizer.mean, (1000, 1))
+    node.on_features(features(node, frames))
+    assert len(node.published[0].points) == MAX_FRAMES_PER_MESSAGE
+    assert node.frames_dropped == 1000 - MAX_FRAMES_PER_MESSAGE
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("content", "problem"),
+    [
+        (b"[" * 10_000 + b"]" * 10_000, "nests 10000 levels deep"),
+        (b'{"__metadata__": [1]}', "not an audio2pose checkpoint"),
+    ],
+)
+def test_when_the_checkpoint_is_crafted_expect_one_line_and_exit_78(
+    tmp_path: Path, content: bytes, problem: str
+):
+    model = tmp_path / "crafted.safetensors"
+    model.write_bytes(struct.pack("<Q", len(content)) + content)
+    result = subprocess.run(
+        [*executable_command("inference_node"), "--ros-args", "-p", f"model_path:={model}"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == EXIT_CONFIGURATION_ERROR, result.stderr
+    assert "Traceback" not in result.stderr + result.stdout
+    lines = [line for line in result.stderr.splitlines() if "configuration error" in line]
+    assert len(lines) == 1, result.stderr
+    assert "crafted.safetensors" in lines[0]
+    assert problem in lines[0]
