@@ -353,3 +353,10 @@ def test_when_live_channels_do_not_exist_in_the_current_audio_expect_refused_and
         source.update_settings(AudioInputSettings(channels="1"))
     assert source.settings.channels == "mean"
     assert source.decode_audio_data(s16(160)).size == 160
+
+
+def test_when_audio_info_strings_are_megabytes_long_expect_a_short_message():
+    with pytest.raises(UnsupportedAudioFormat) as caught:
+        audio_input().set_audio_info(1, 16000, "S" * 10_000_000, "wave")
+    assert len(str(caught.value)) < 200
+    assert "(10000002 characters)" in str(caught.value)

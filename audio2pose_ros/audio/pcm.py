@@ -75,6 +75,12 @@ class InvalidAudio(InputError):  # noqa: N818 (name fixed by the node API)
     """Audio data that cannot be decoded as samples (NaN or inf in F32LE, a broken WAV file)."""
 
 
+def short_repr(value: object, limit: int = 40) -> str:
+    """``repr(value)`` cut to ``limit`` characters: a message field may be megabytes long."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
 @dataclass(frozen=True)
 class PcmFormat:
     """Layout of interleaved little-endian PCM bytes (the fields of audio_common_msgs AudioInfo).
@@ -105,12 +111,12 @@ class PcmFormat:
         coding_format = str(self.coding_format).strip().lower()
         if sample_format not in SUPPORTED_SAMPLE_FORMATS:
             raise UnsupportedAudioFormat(
-                f"unsupported sample_format {self.sample_format!r}; "
+                f"unsupported sample_format {short_repr(self.sample_format)}; "
                 f"supported: {', '.join(SUPPORTED_SAMPLE_FORMATS)}"
             )
         if coding_format not in SUPPORTED_CODING_FORMATS:
             raise UnsupportedAudioFormat(
-                f"unsupported coding_format {self.coding_format!r}; supported: 'wave' "
+                f"unsupported coding_format {short_repr(self.coding_format)}; supported: 'wave' "
                 "(uncompressed PCM) or '' (raw PCM)"
             )
         channels = self.channels
@@ -120,7 +126,7 @@ class PcmFormat:
             or not 1 <= channels <= MAX_CHANNELS
         ):
             raise UnsupportedAudioFormat(
-                f"unsupported channels {channels!r}; supported: 1..{MAX_CHANNELS}"
+                f"unsupported channels {short_repr(channels)}; supported: 1..{MAX_CHANNELS}"
             )
         rate = self.sample_rate_hz
         if (
@@ -129,7 +135,7 @@ class PcmFormat:
             or not MIN_SAMPLE_RATE_HZ <= rate <= MAX_SAMPLE_RATE_HZ
         ):
             raise UnsupportedAudioFormat(
-                f"unsupported sample_rate {rate!r}; supported: integer Hz in "
+                f"unsupported sample_rate {short_repr(rate)}; supported: integer Hz in "
                 f"{MIN_SAMPLE_RATE_HZ}..{MAX_SAMPLE_RATE_HZ}"
             )
         object.__setattr__(self, "sample_format", sample_format)

@@ -42,6 +42,7 @@ from audio2pose_ros.audio.pcm import (
     PcmDecoder,
     PcmFormat,
     UnsupportedAudioFormat,
+    short_repr,
 )
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.parameters import param, validate_settings
@@ -114,7 +115,7 @@ class ChannelSelection:
             problem = "names a channel twice"
         if problem:
             raise ConfigurationError(
-                f"parameter channels: value {text!r} {problem}; allowed: 'mean', channel "
+                f"parameter channels: value {short_repr(text)} {problem}; allowed: 'mean', channel "
                 f"indices such as '0' or '0,2', or AudioBuffer channel names such as "
                 f"'front_left,front_right' (names: {', '.join(NAOQI_CHANNELS)})"
             )
