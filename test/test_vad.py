@@ -36,3 +36,10 @@ def test_when_odd_chunk_sizes_expect_same_states_as_whole(speech):
         chunked.push(speech[i : i + 77])
     assert chunked.active == whole.active
     assert chunked.noise_floor_dbfs == whole.noise_floor_dbfs
+
+
+def test_when_nan_and_inf_samples_pushed_expect_finite_floor_and_speech_still_detected(speech):
+    vad = EnergyVad()
+    vad.push(np.array([np.nan, np.inf, -np.inf] * 1000))
+    assert np.isfinite(vad.noise_floor_dbfs)
+    assert states(vad, speech).mean() > 0.5

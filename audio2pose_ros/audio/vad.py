@@ -44,8 +44,14 @@ class EnergyVad:
         self.active = False
 
     def push(self, samples: np.ndarray) -> bool:
-        """Process samples in [-1, 1]; returns :attr:`active` after the last complete hop."""
-        data = np.concatenate((self._pending, np.asarray(samples, dtype=np.float64)))
+        """Process samples in [-1, 1]; returns :attr:`active` after the last complete hop.
+
+        NaN counts as silence and other values are clipped to [-1, 1], so that no input can
+        leave the noise floor non-finite (the decoder already refuses NaN; this is the VAD's
+        own guard for any other caller).
+        """
+        x = np.clip(np.nan_to_num(np.asarray(samples, dtype=np.float64), nan=0.0), -1.0, 1.0)
+        data = np.concatenate((self._pending, x))
         n_hops = data.size // HOP_SAMPLES
         self._pending = data[n_hops * HOP_SAMPLES :]
         if n_hops == 0:
