@@ -110,7 +110,8 @@ class NodeSupervisor:
         self.given_up: set[str] = set()
         self.silences = dict.fromkeys(commands, 0)
         self._started_s: dict[str, float] = {}
-        self._heard_s: dict[str, float] = {}
+        self._heard_s: dict[str, float] = {}  # since the current process started
+        self._last_heard_s: dict[str, float] = {}  # by any process of the node
         self._due_s: dict[str, float] = {}  # restart time of a node that is down
         self._lock = threading.Lock()
         self._stopping = threading.Event()
@@ -141,15 +142,13 @@ class NodeSupervisor:
     def heartbeat(self, name: str) -> None:
         """``name`` published its diagnostics now (called from a /diagnostics subscriber)."""
         with self._lock:
-            self._heard_s[name] = time.monotonic()
+            self._heard_s[name] = self._last_heard_s[name] = time.monotonic()
 
     def silent_s(self, name: str) -> float:
-        """How long ``name`` has not been heard from (0 while it is starting or down)."""
+        """How long ``name`` has not been heard from, across restarts (0 before it ever was)."""
         with self._lock:
-            heard = self._heard_s.get(name)
-        if heard is None or name in self._due_s:
-            return 0.0
-        return time.monotonic() - heard
+            heard = self._last_heard_s.get(name)
+        return 0.0 if heard is None else time.monotonic() - heard
 
     def _failed(self, name: str, why: str, now: float) -> None:
         """``name`` is down: schedule its restart, or give up on it."""
