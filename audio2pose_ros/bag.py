@@ -252,6 +252,31 @@ def write_audio_bag(
     return sum(m.topic == AUDIO_TOPIC for m in messages)
 
 
+def _open_reader(bag: str | Path) -> AnyReader:
+    """An open AnyReader on ``bag``, or a BagError naming it."""
+    try:
+        reader = AnyReader([Path(bag)], default_typestore=typestore())
+        reader.open()
+    except (AnyReaderError, OSError, ValueError, KeyError, TypeError) as exc:
+        # rosbags raises these for a missing, unreadable or malformed bag (metadata, MCAP
+        # records, SQLite schema); all are about the file.
+        raise BagError(f"{bag}: cannot open as a rosbag2 ({exc})") from None
+    return reader
+
+
+def bag_topics(bag: str | Path) -> dict[str, str]:
+    """Topic -> message type name of every connection in a bag (nothing is deserialized).
+
+    Raises:
+        BagError: the bag cannot be opened.
+    """
+    reader = _open_reader(bag)
+    try:
+        return {c.topic: c.msgtype for c in reader.connections}
+    finally:
+        reader.close()
+
+
 def read_messages(bag: str | Path, topics: Iterable[str] | None = None) -> Iterator[BagMessage]:
     """Messages of a rosbag2 (MCAP or SQLite 3) in time order, optionally only ``topics``.
 
@@ -262,13 +287,7 @@ def read_messages(bag: str | Path, topics: Iterable[str] | None = None) -> Itera
         BagError: the bag cannot be opened, or a wanted topic has an unknown type.
     """
     wanted = set(topics) if topics is not None else None
-    try:
-        reader = AnyReader([Path(bag)], default_typestore=typestore())
-        reader.open()
-    except (AnyReaderError, OSError, ValueError, KeyError, TypeError) as exc:
-        # rosbags raises these for a missing, unreadable or malformed bag (metadata, MCAP
-        # records, SQLite schema); all are about the file.
-        raise BagError(f"{bag}: cannot open as a rosbag2 ({exc})") from None
+    reader = _open_reader(bag)
     try:
         connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
         if wanted is not None:

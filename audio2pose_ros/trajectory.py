@@ -14,9 +14,16 @@ import numpy as np
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.robot import RobotDescription
 
+COMMANDED_JOINT_STATES_TOPIC = "/commanded_joint_states"
 JOINT_STATES_TOPIC = "/joint_states"
 JOINT_ANGLES_TOPIC = "/joint_angles"
 AUDIO_TOPIC = "/audio/audio"
+# Topics bag_trajectory reads the commanded pose from, in order of preference, with their type.
+POSE_TOPICS = {
+    COMMANDED_JOINT_STATES_TOPIC: "sensor_msgs/msg/JointState",
+    JOINT_STATES_TOPIC: "sensor_msgs/msg/JointState",
+    JOINT_ANGLES_TOPIC: "naoqi_bridge_msgs/msg/JointAnglesWithSpeed",
+}
 
 
 class TrajectoryError(InputError):
@@ -87,44 +94,43 @@ def clip_trajectory(
 def bag_trajectory(bag_path: str | Path, robot: RobotDescription) -> Trajectory:
     """Joint angles recorded by ``audio2pose run --record`` (or any rosbag2 with these topics).
 
-    /joint_states (sensor_msgs/JointState) is used when present, else /joint_angles
+    The first of :data:`POSE_TOPICS` the bag holds with the expected type is used:
+    /commanded_joint_states or /joint_states (sensor_msgs/JointState), else /joint_angles
     (naoqi_bridge_msgs/JointAnglesWithSpeed). Times count from the first audio message on
     /audio/audio when the bag has one (the recorder stores the audio it played), else from the
-    first joint message. Joints a message leaves out keep their previous (initially neutral) value.
+    first joint message. Joints a message leaves out keep their previous (initially neutral)
+    value; a non-finite value is ignored the same way.
 
     Raises:
-        TrajectoryError: the bag has neither topic or no messages on it.
+        TrajectoryError: the bag has none of the topics or no messages on it.
+        BagError: the bag cannot be read or holds invalid CDR.
 
     """
-    from rosbags.highlevel import AnyReader
+    from audio2pose_ros.bag import bag_topics, deserialize, read_messages, typestore
 
-    from audio2pose_ros.bag import typestore
-
-    with AnyReader([Path(bag_path)], default_typestore=typestore()) as reader:
-        topics = {c.topic: c for c in reader.connections}
-        topic = next((t for t in (JOINT_STATES_TOPIC, JOINT_ANGLES_TOPIC) if t in topics), None)
-        if topic is None:
-            raise TrajectoryError(
-                f"{bag_path}: no {JOINT_STATES_TOPIC} or {JOINT_ANGLES_TOPIC} (topics: "
-                f"{sorted(topics)})"
-            )
-        audio = [topics[AUDIO_TOPIC]] if AUDIO_TOPIC in topics else []
-        start_ns = next((t for _, t, _ in reader.messages(connections=audio)), None)
-        index = {name: i for i, name in enumerate(robot.names)}
-        current = robot.neutral_rad.copy()
-        stamps_ns, rows = [], []
-        for connection, timestamp_ns, raw in reader.messages(connections=[topics[topic]]):
-            msg = reader.deserialize(raw, connection.msgtype)
-            names, values = (
-                (msg.name, msg.position)
-                if topic == JOINT_STATES_TOPIC
-                else (msg.joint_names, msg.joint_angles)
-            )
-            for name, value in zip(names, values, strict=False):
-                if name in index:
-                    current[index[name]] = value
-            stamps_ns.append(timestamp_ns)
-            rows.append(current.copy())
+    present = bag_topics(bag_path)
+    topic = next((t for t in POSE_TOPICS if present.get(t) == POSE_TOPICS[t]), None)
+    if topic is None:
+        raise TrajectoryError(
+            f"{bag_path}: none of {sorted(POSE_TOPICS)} with its type (topics: {sorted(present)})"
+        )
+    start_ns = next((m.timestamp_ns for m in read_messages(bag_path, [AUDIO_TOPIC])), None)
+    store = typestore()
+    index = {name: i for i, name in enumerate(robot.names)}
+    current = robot.neutral_rad.copy()
+    stamps_ns, rows = [], []
+    for message in read_messages(bag_path, [topic]):
+        msg = deserialize(store, message, bag_path)
+        names, values = (
+            (msg.joint_names, msg.joint_angles)
+            if topic == JOINT_ANGLES_TOPIC
+            else (msg.name, msg.position)
+        )
+        for name, value in zip(names, values, strict=False):
+            if name in index and np.isfinite(value):
+                current[index[name]] = value
+        stamps_ns.append(message.timestamp_ns)
+        rows.append(current.copy())
     if not rows:
         raise TrajectoryError(f"{bag_path}: no messages on {topic}")
     stamps = np.asarray(stamps_ns, dtype=np.int64)

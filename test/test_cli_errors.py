@@ -274,3 +274,15 @@ def test_when_a_command_has_a_bug_expect_it_reported_as_a_bug_and_traceback_only
     assert status == cli.EXIT_INTERNAL_ERROR
     assert "Traceback (most recent call last)" in stderr
     assert stderr.splitlines()[-1].startswith("audio2pose synth: internal error (a bug)")
+
+
+def test_when_render_is_given_a_bag_with_invalid_joint_angles_expect_one_line(
+    capsys, tmp_path, speech_path
+):
+    with BagWriter(tmp_path / "bag") as bag:
+        bag.write("/joint_angles", "naoqi_bridge_msgs/msg/JointAnglesWithSpeed", 1, b"\x00\x01")
+    status, stderr = audio2pose(
+        capsys, "render", speech_path, "-o", tmp_path / "v.mp4", "--bag", tmp_path / "bag"
+    )
+    assert status == 1
+    assert_one_line(stderr, "/joint_angles at 1 ns: invalid naoqi_bridge_msgs/msg/JointAngles")
