@@ -210,6 +210,7 @@ def test_when_naoqi_audio_buffer_plays_expect_features_of_the_selected_channel(
         ("channels:=front_left", "names channels, which only AudioBuffer carries"),
         ("max_chunk_s:=.nan", "parameter max_chunk_s: value nan is not finite"),
         ("input_type:=alsa", "parameter input_type: value 'alsa' is not allowed"),
+        ("model_path:=/nonexistent/model.safetensors", "/nonexistent/model.safetensors"),
     ],
 )
 def test_when_a_parameter_is_refused_expect_one_line_and_the_configuration_exit(
