@@ -157,7 +157,7 @@ class MotionFilterSettings:
         metadata=param(
             "voice inactive for this long: glide to the neutral pose",
             minimum=0.01,
-            maximum=600.0,
+            maximum=3600.0,
             unit="s",
         ),
     )

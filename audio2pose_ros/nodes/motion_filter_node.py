@@ -75,6 +75,7 @@ from audio2pose_ros.robot import load_robot
 
 MIN_TICK_SPACING = 0.5  # of a period: an arriving pose is commanded at once if the last tick
 # is at least this long ago (so ticks are never closer than half a period: no bursts)
+STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
 STOP_RELEASE_GRACE_S = 2.0  # after a restart with a saved stop, a stop=false arriving this soon
 # is the latched value from before the restart, not a release
 
@@ -284,7 +285,6 @@ class MotionFilterNode(DiagnosedNode):
         )
         self.create_timer(self.settings.state_save_period_s, guarded(self.save_state))
         self.last_tick_s = -math.inf
-        self.last_tick_starved = True
         self.tick_stamp = self.get_clock().now()
         outputs = {
             "joint_angles": (JointAnglesWithSpeed, "joint_angles", self.publish_joint_angles),
@@ -465,16 +465,21 @@ class MotionFilterNode(DiagnosedNode):
                 f"raw poses rejected before the filter: {status.rejected} non-finite, "
                 f"{status.out_of_range} out of range, {status.implausible} unreachable (total)",
             )
-        # The clock follows the input: a pose that finds the buffer empty is commanded at once
-        # (if the last tick is MIN_TICK_SPACING periods ago, or had no pose to command), and the
-        # timer then waits 1.5 periods, or one if poses remain queued. A steady stream is served
-        # on arrival; the timer ticks when input is late or comes several poses at a time.
-        spaced = arrival_s - self.last_tick_s >= MIN_TICK_SPACING * self.filter.period_s
-        if was_waiting and self.filter.buffered and spaced:
+        # The clock follows the input: a pose that finds the buffer empty is commanded at once,
+        # or MIN_TICK_SPACING periods after the last tick if that is later, and the timer then
+        # waits 1.5 periods, or one if poses remain queued. A steady stream is served on arrival;
+        # the timer ticks when input is late or comes several poses at a time; no two ticks are
+        # closer than MIN_TICK_SPACING periods.
+        if not (was_waiting and self.filter.buffered):
+            return
+        wait_s = self.last_tick_s + MIN_TICK_SPACING * self.filter.period_s - arrival_s
+        if wait_s <= 0:
             self.on_tick()
             queued = self.filter.buffered > 0
             self.tick_timer.timer_period_ns = self.period_ns if queued else self.period_ns * 3 // 2
-            self.tick_timer.reset()
+        else:  # too soon after the last tick: tick as soon as the spacing allows
+            self.tick_timer.timer_period_ns = max(round(wait_s * 1e9), 1)
+        self.tick_timer.reset()
 
     def on_voice(self, msg: Bool) -> None:
         """Voice activity from the features node."""
@@ -542,9 +547,7 @@ class MotionFilterNode(DiagnosedNode):
         self.last_tick_s = time.monotonic()
         self.tick_stamp = self.get_clock().now()
         status = self.filter.status
-        underruns = status.underruns
         self.filter.tick(self.last_tick_s)
-        self.last_tick_starved = status.underruns > underruns
         if status.faults > self.faults_seen:
             self.faults_seen = status.faults
             self.report_problem("filter_fault", DiagnosticStatus.ERROR, status.last_fault)
@@ -595,6 +598,9 @@ class MotionFilterNode(DiagnosedNode):
         status = self.filter.status
         if not self.started:
             return DiagnosticStatus.WARN, "waiting for the robot's pose: commanding nothing"
+        silent_s = time.monotonic() - self.last_tick_s
+        if silent_s > STALLED_PERIODS * self.filter.period_s:
+            return DiagnosticStatus.ERROR, f"no command computed for {silent_s * 1e3:.0f} ms"
         if status.stopped:
             return DiagnosticStatus.WARN, f"STOPPED ({self.filter.settings.stop_behaviour})"
         return DiagnosticStatus.OK, f"{status.mode} (started from the {self.started_from})"
