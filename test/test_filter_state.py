@@ -1,0 +1,87 @@
+"""The filter's memory across restarts (state file) and the stamp check of raw trajectories."""
+
+import json
+
+import numpy as np
+import pytest
+
+from audio2pose_ros.errors import InputError
+from audio2pose_ros.motion.state_file import (
+    FilterMemory,
+    default_state_path,
+    load_memory,
+    save_memory,
+)
+from audio2pose_ros.motion.timing import StampCheck
+
+
+def memory_of(robot, stopped=False):
+    pose = robot.neutral_rad + 0.1
+    return FilterMemory(tuple(robot.names), tuple(float(v) for v in pose), stopped, 1.0e9)
+
+
+def test_when_saved_and_loaded_expect_same_pose_and_stop(tmp_path, robot):
+    path = tmp_path / "deep" / "state.json"
+    save_memory(path, memory_of(robot, stopped=True))
+    assert load_memory(path, robot) == memory_of(robot, stopped=True)
+    assert [p.name for p in path.parent.iterdir()] == ["state.json"]  # no temporary left over
+
+
+def test_when_no_file_expect_none(tmp_path, robot):
+    assert load_memory(tmp_path / "missing.json", robot) is None
+
+
+@pytest.mark.parametrize(
+    ("content", "problem"),
+    [
+        ("{not json", "not a JSON filter state"),
+        ("[1, 2]", "not a filter state file"),
+        ("[" * 100_000, "larger than"),
+        ("[" * 60_000, "not a JSON filter state"),  # nesting deeper than the parser's stack
+        (json.dumps({"format": 1, "joint_names": ["a"], "position_rad": [0.0]}), "joints"),
+    ],
+)
+def test_when_file_is_damaged_or_foreign_expect_input_error_naming_it(
+    tmp_path, robot, content, problem
+):
+    path = tmp_path / "state.json"
+    path.write_text(content)
+    with pytest.raises(InputError, match=problem):
+        load_memory(path, robot)
+
+
+def test_when_saved_angles_not_finite_expect_refused(tmp_path, robot):
+    path = tmp_path / "state.json"
+    save_memory(path, memory_of(robot))
+    data = json.loads(path.read_text())
+    data["position_rad"][3] = float("nan")
+    path.write_text(json.dumps(data))
+    with pytest.raises(InputError, match="finite angles"):
+        load_memory(path, robot)
+
+
+def test_when_ros_home_set_expect_state_under_it(monkeypatch, tmp_path):
+    monkeypatch.setenv("ROS_HOME", str(tmp_path))
+    expected = tmp_path / "audio2pose_ros" / "robot1__motion_filter_node.json"
+    assert default_state_path("/robot1/motion_filter_node") == expected
+
+
+def test_when_one_stamp_is_far_in_the_future_expect_it_rejected_and_later_ones_accepted():
+    check = StampCheck(max_future_s=0.5, max_age_s=5.0)
+    now = 1000.0
+    assert check.check(now, now) == ""
+    assert "ahead of the node clock" in check.check(now + 1e6, now + 0.01)
+    for i in range(1, 10):  # the next messages are not taken for late ones
+        assert check.check(now + 0.01 * i, now + 0.01 * i + 0.002) == ""
+    assert check.counts.future == 1
+    assert check.counts.out_of_order == 0
+
+
+def test_when_stamps_old_duplicated_or_unset_expect_each_handled():
+    check = StampCheck(max_future_s=0.5, max_age_s=5.0)
+    assert "behind the node clock" in check.check(10.0, 100.0)
+    assert check.check(99.0, 100.0) == ""
+    assert "out-of-order" in check.check(99.0, 100.0)
+    assert check.check(0.0, 100.0) == ""  # unstamped: accepted, does not move the order
+    assert (check.counts.too_old, check.counts.out_of_order) == (1, 1)
+    assert np.isclose(check.latency_s, 1.0)
