@@ -300,10 +300,12 @@ def test_when_restarted_with_robot_pose_measured_expect_first_command_from_that_
     assert driver.diagnostics[-1]["started_from"] == "measured pose"
 
 
-def test_when_stopped_then_restarted_expect_stop_kept_until_released(driver, filter_node, robot):
+def test_when_stopped_then_restarted_expect_stop_kept_and_saved_pose_held_until_released(
+    driver, filter_node, robot
+):
     first = filter_node(stop_behaviour="hold")
     driver.wait_for_node()
-    driver.spin_for(1.0, every=stream(driver, robot, robot.neutral_rad))
+    driver.spin_for(1.5, every=stream(driver, robot, raised(robot)))  # the arm is up
     operator = driver.create_publisher(Bool, "/stop", LATCHED_QOS)  # a one-shot `ros2 topic pub`
     operator.publish(Bool(data=True))
     driver.spin_for(0.5)
@@ -312,17 +314,19 @@ def test_when_stopped_then_restarted_expect_stop_kept_until_released(driver, fil
     first.terminate()
     first.wait(timeout=10)
     driver.states.clear()
-    filter_node(stop_behaviour="hold")  # respawned, same state file
+    filter_node(stop_behaviour="hold")  # respawned, same state file, no measured pose
     driver.wait_for_node()
-    driver.spin_for(1.5, every=stream(driver, robot, raised(robot)))
+    driver.spin_for(1.5, every=stream(driver, robot, robot.neutral_rad))
     poses = driver.positions()
+    assert np.abs(poses - raised(robot)).max() < 0.02  # held where it was left, not neutral
     assert np.abs(poses - poses[0]).max() < 1e-6  # stopped: nothing moves
     assert driver.diagnostics[-1]["stopped"] == "True"
+    assert driver.diagnostics[-1]["started_from"] == "saved pose"
     release = driver.create_publisher(Bool, "/stop", LATCHED_QOS)
     driver.spin_for(0.5)
     release.publish(Bool(data=False))
-    driver.spin_for(1.5, every=stream(driver, robot, raised(robot)))
-    assert np.abs(driver.states[-1][1] - raised(robot)).max() < 0.05  # released: moves again
+    driver.spin_for(2.0, every=stream(driver, robot, robot.neutral_rad))
+    assert np.abs(driver.states[-1][1] - robot.neutral_rad).max() < 0.05  # released: moves
 
 
 def test_when_stopped_with_neutral_behaviour_expect_head_target_ignored(driver, filter_node, robot):
@@ -359,9 +363,7 @@ def test_when_parameters_set_at_run_time_expect_live_effect_or_refusal_with_reas
     assert not driver.set_parameter("stop_behaviour", "drop").successful
 
 
-def test_when_a_parameter_is_refused_at_start_up_expect_one_line_and_exit_78(
-    filter_node, tmp_path
-):
+def test_when_a_parameter_is_refused_at_start_up_expect_one_line_and_exit_78(filter_node, tmp_path):
     process = filter_node(kalman_q=".nan")
     assert process.wait(timeout=60) == EXIT_CONFIGURATION_ERROR
     log = (tmp_path / "motion_filter_node_0.log").read_text().strip().splitlines()
