@@ -28,6 +28,7 @@ import hashlib
 import json
 import math
 import re
+import stat
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -210,6 +211,8 @@ def read_checkpoint_file(path: str | Path) -> CheckpointFile:
     """
     file = Path(path)
     try:
+        if not stat.S_ISREG(file.stat().st_mode) and not file.is_dir():
+            raise CheckpointError(f"{file}: not a regular file, expected a checkpoint")
         with file.open("rb") as stream:
             file_bytes = file.stat().st_size
             size = int.from_bytes(stream.read(8), "little")

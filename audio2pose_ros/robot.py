@@ -21,10 +21,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.resources import share_path
+from audio2pose_ros.yaml_files import read_yaml_file
 
 DEFAULT_ROBOT_FILE = "pepper_robot.yaml"
 JOINT_GROUPS = ("head", "arms", "hip")
@@ -286,24 +286,5 @@ def load_robot(path: str | Path | None = None) -> RobotDescription:
 
     """
     file = Path(path) if path else share_path("config", DEFAULT_ROBOT_FILE)
-    try:
-        with file.open("rb") as stream:
-            raw = stream.read(MAX_FILE_BYTES + 1)
-    except FileNotFoundError:
-        raise RobotDescriptionError(f"{file}: robot description file not found") from None
-    except IsADirectoryError:
-        raise RobotDescriptionError(f"{file}: is a directory, not a robot description") from None
-    except OSError as exc:
-        raise RobotDescriptionError(f"{file}: cannot read ({exc.strerror or exc})") from None
-    if len(raw) > MAX_FILE_BYTES:
-        raise RobotDescriptionError(f"{file}: larger than {MAX_FILE_BYTES} bytes")
-    try:
-        data = yaml.safe_load(raw.decode("utf-8"))
-    except UnicodeDecodeError:
-        raise RobotDescriptionError(f"{file}: not UTF-8 text") from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or type(exc).__name__
-        raise RobotDescriptionError(f"{file}: not valid YAML{where} ({problem})") from None
+    data = read_yaml_file(file, "robot description", RobotDescriptionError, MAX_FILE_BYTES)
     return RobotDescription.from_dict(data, source=str(file))

@@ -189,3 +189,14 @@ def test_when_checkpoint_is_refused_expect_a_configuration_error_for_nodes(tmp_p
 def test_when_brackets_sit_inside_strings_expect_them_not_counted():
     assert json_depth('{"a": "[[[[{{{{", "b": [[1]]}') == 3
     assert json_depth('"\\"[[["') == 0
+
+
+@pytest.mark.parametrize("load", LOADERS)
+def test_when_the_path_is_a_device_or_fifo_expect_refused_without_reading(tmp_path, load):
+    import os
+
+    fifo = tmp_path / "model.fifo"
+    os.mkfifo(fifo)  # opening it for reading would block until a writer comes
+    for path in (fifo, Path("/dev/zero")):
+        with pytest.raises(CheckpointError, match="not a regular file, expected a checkpoint"):
+            load(path)

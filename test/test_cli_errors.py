@@ -225,7 +225,7 @@ def test_when_a_bag_names_an_unknown_message_type_expect_it_never_imported(
 @pytest.mark.parametrize(
     ("content", "problem"),
     [
-        ("motion_filter_node: [1, 2\n", "not a valid YAML parameters file"),
+        ("motion_filter_node: [1, 2\n", r"params\.yaml: not valid YAML at line 2"),
         ("- a\n- b\n", "a parameters file is a mapping of node names"),
         ("motion_filter_node:\n  ros__parameters: [1]\n", "ros__parameters must be a mapping"),
         (
@@ -286,3 +286,34 @@ def test_when_render_is_given_a_bag_with_invalid_joint_angles_expect_one_line(
     )
     assert status == 1
     assert_one_line(stderr, "/joint_angles at 1 ns: invalid naoqi_bridge_msgs/msg/JointAngles")
+
+
+@pytest.mark.parametrize(
+    ("mappings", "problem"),
+    [
+        ("cmu: [\n", r"maps\.yaml: not valid YAML at line 2"),
+        ("- 1\n", r"maps\.yaml: expected a mapping of skeleton names"),
+        ("cmu: 3\n", r"maps\.yaml: skeleton 'cmu' needs a 'joints' mapping"),
+        ("/dev/zero", "/dev/zero: not a regular file, expected a skeleton mappings file"),
+    ],
+)
+def test_when_the_bvh_mappings_file_is_unusable_expect_one_line_not_a_bug(
+    capsys, tmp_path, mappings, problem
+):
+    path = Path(mappings) if mappings.startswith("/dev") else tmp_path / "maps.yaml"
+    if path.parent == tmp_path:
+        path.write_text(mappings)
+    (tmp_path / "take.bvh").write_text("HIERARCHY\n")
+    status, stderr = audio2pose(
+        capsys, "dataset", "import-bvh", tmp_path / "take.bvh", "-o", tmp_path / "d",
+        "--licence", "x", "--skeleton", "cmu", "--mappings", path,
+    )  # fmt: skip
+    assert status == 1
+    assert_one_line(stderr, problem)
+
+
+def test_when_demo_out_is_a_file_expect_usage_error_before_starting_anything(capsys, tmp_path):
+    (tmp_path / "file").write_text("")
+    status, stderr = audio2pose(capsys, "demo", "--out", tmp_path / "file")
+    assert status == 2
+    assert_one_line(stderr, "--out .*file: exists and is not a directory")

@@ -149,3 +149,8 @@ def test_when_the_file_is_huge_missing_or_a_directory_expect_one_line(tmp_path: 
         load_robot(tmp_path / "missing.yaml")
     with pytest.raises(ConfigurationError, match="is a directory"):
         load_robot(tmp_path)
+
+
+def test_when_the_robot_file_is_a_device_expect_refused_without_reading():
+    with pytest.raises(ConfigurationError, match="/dev/zero: not a regular file"):
+        load_robot("/dev/zero")

@@ -76,6 +76,8 @@ def command_demo(args: argparse.Namespace) -> int:
     from audio2pose_ros.resources import bundled_speech_path
 
     wav = bundled_speech_path()
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise UsageError(f"--out {args.out}: exists and is not a directory")
     out_dir = Path(args.out) / time.strftime("demo_%Y%m%d_%H%M%S")
     bag = out_dir / "commands_mcap"
     print(
@@ -243,9 +245,6 @@ def _print_bench(results: dict, frames: int, clip_s: float) -> None:
             print(f"  {node}: {cpu:.3f} ms CPU per frame, {graph['rss_mb'][node]:.0f} MB resident")
 
 
-MAX_PARAMS_FILE_BYTES = 1 << 20  # a ROS parameters YAML
-
-
 def _section(data: object, key: str, path: Path) -> dict:
     """``data[key]["ros__parameters"]`` of a ROS parameters file, checked to be mappings."""
     node = data.get(key) if isinstance(data, dict) else None
@@ -259,22 +258,14 @@ def _filter_from_params(params_file: Path | None):  # noqa: ANN202 - heavy types
     """A MotionFilter configured like motion_filter_node from a ROS parameter file."""
     from dataclasses import fields
 
-    import yaml
-
     from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
     from audio2pose_ros.motion.limits import LimitSettings
     from audio2pose_ros.resources import share_path
     from audio2pose_ros.robot import load_robot
+    from audio2pose_ros.yaml_files import read_yaml_file
 
     path = params_file or share_path("config", "pepper.yaml")
-    with path.open("rb") as stream:
-        raw = stream.read(MAX_PARAMS_FILE_BYTES + 1)
-    if len(raw) > MAX_PARAMS_FILE_BYTES:
-        raise InputError(f"{path}: larger than {MAX_PARAMS_FILE_BYTES} bytes")
-    try:
-        data = yaml.safe_load(raw.decode("utf-8")) or {}
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not a valid YAML parameters file ({exc})") from None
+    data = read_yaml_file(path, "parameters", InputError) or {}
     if not isinstance(data, dict):
         raise InputError(f"{path}: a parameters file is a mapping of node names")
     params = _section(data, "motion_filter_node", path)

@@ -26,10 +26,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
-import yaml
 from scipy.spatial.transform import Rotation
 
 from audio2pose_ros.dataset import Clip, ClipInfo
@@ -37,6 +35,7 @@ from audio2pose_ros.importers import head_pose, upper_body
 from audio2pose_ros.importers.common import HEAD_JOINTS, ImporterError, assemble_clip
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot import RobotDescription
+from audio2pose_ros.yaml_files import read_yaml_file
 
 MAPPINGS_FILE = "bvh_mappings.yaml"
 ROLES = (
@@ -215,14 +214,19 @@ def load_mappings(path: str | Path | None = None) -> dict[str, dict[str, str]]:
     """Skeleton mappings: name -> role -> BVH joint (default: ``config/bvh_mappings.yaml``).
 
     Raises:
-        ImporterError: a mapping lacks one of the :data:`ROLES`.
+        ImporterError: the file is missing, not YAML, malformed, or a mapping lacks one of the
+            :data:`ROLES`.
 
     """
     file = Path(path) if path else share_path("config", MAPPINGS_FILE)
-    data: Mapping[str, Any] = yaml.safe_load(file.read_text(encoding="utf-8")) or {}
+    data = read_yaml_file(file, "skeleton mappings", ImporterError) or {}
+    if not isinstance(data, Mapping):
+        raise ImporterError(f"{file}: expected a mapping of skeleton names")
     mappings = {}
     for name, entry in data.items():
-        joints = (entry or {}).get("joints") or {}
+        joints = entry.get("joints") if isinstance(entry, Mapping) else None
+        if not isinstance(joints, Mapping):
+            raise ImporterError(f"{file}: skeleton {name!r} needs a 'joints' mapping")
         missing = [role for role in ROLES if role not in joints]
         if missing:
             raise ImporterError(f"{file}: skeleton {name!r} lacks roles {missing}")

@@ -1,0 +1,66 @@
+"""Small YAML files read as untrusted input: bounded size, regular files, one-line errors.
+
+Robot descriptions, ROS parameter files and BVH skeleton mappings are all a few kilobytes of
+YAML. :func:`read_yaml_file` refuses what is not such a file before parsing it: a missing path,
+a directory, a device or FIFO (reading ``/dev/zero`` would never end), a file above the size
+cap, text that is not UTF-8, and YAML syntax errors (reported with the line).
+"""
+
+from __future__ import annotations
+
+import stat
+from pathlib import Path
+
+import yaml
+
+from audio2pose_ros.errors import Audio2PoseError
+
+__all__ = ["MAX_YAML_BYTES", "read_yaml_file"]
+
+MAX_YAML_BYTES = 1 << 20  # 1 MiB: the packaged YAML files are 1 to 10 KB
+
+
+def read_yaml_file(
+    path: str | Path,
+    what: str,
+    error: type[Audio2PoseError],
+    max_bytes: int = MAX_YAML_BYTES,
+) -> object:
+    """Parse a small YAML file with ``yaml.safe_load``.
+
+    Args:
+        path: the file.
+        what: what the file is, for messages (e.g. ``"robot description"``).
+        error: the error class to raise (it names the file and the problem in one line).
+        max_bytes: larger files are refused before they are parsed.
+
+    Returns:
+        The parsed document (None for an empty file).
+
+    Raises:
+        Audio2PoseError: ``error`` for a missing, special, oversized, non-UTF-8 or invalid file.
+    """
+    file = Path(path)
+    try:
+        mode = file.stat().st_mode
+        if stat.S_ISDIR(mode):
+            raise error(f"{file}: is a directory, expected a {what} file")
+        if not stat.S_ISREG(mode):
+            raise error(f"{file}: not a regular file, expected a {what} file")
+        with file.open("rb") as stream:
+            raw = stream.read(max_bytes + 1)
+    except FileNotFoundError:
+        raise error(f"{file}: {what} file not found") from None
+    except OSError as exc:
+        raise error(f"{file}: cannot read ({exc.strerror or exc})") from None
+    if len(raw) > max_bytes:
+        raise error(f"{file}: larger than {max_bytes} bytes, not a {what} file")
+    try:
+        return yaml.safe_load(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise error(f"{file}: not UTF-8 text, not a {what} file") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or type(exc).__name__
+        raise error(f"{file}: not valid YAML{where} ({problem})") from None
