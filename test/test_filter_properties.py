@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.motion.filter import GAP_PERIODS, MotionFilter, MotionFilterSettings
+from audio2pose_ros.motion.timing import StampCheck
 
 PERIOD = 0.01
 N_JOINTS = 11
@@ -150,3 +151,27 @@ def test_when_any_values_pass_the_gate_expect_smoother_state_stays_finite(robot,
         filt.tick(t)
         assert filt._smoother is None or filt._smoother.is_finite()
         assert np.all(np.isfinite(filt.position_rad))
+
+
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from([0.0, 0.001, 0.01, 0.4, 0.6, 4.0, 6.0, 1e6, 1e9]),
+            st.sampled_from([1.0, -1.0]),
+        ),
+        max_size=30,
+    )
+)
+def test_when_any_stamps_arrive_expect_none_far_off_accepted_and_never_locked_out(offsets):
+    check = StampCheck(max_future_s=0.5, max_age_s=5.0)
+    now = 1e6
+    for offset, sign in offsets:
+        now += 0.01
+        stamp = now + sign * offset
+        if check.check(stamp, now) == "":
+            assert -5.0 <= stamp - now <= 0.5
+    now += 0.01
+    # A message stamped now (or just after the newest one accepted, which is at most
+    # max_future_s ahead) is always used: no stamp can lock later messages out.
+    assert check.check(max(now, check.last_s + 1e-3), now) == ""

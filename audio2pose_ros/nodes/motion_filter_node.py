@@ -350,6 +350,7 @@ class MotionFilterNode(DiagnosedNode):
     def _start(self, pose_rad: np.ndarray, source: str) -> None:
         self.filter.start_from(pose_rad)
         self.started_from = source
+        self.last_tick_s = time.monotonic()  # the stall check counts from here
         self.startup_timer.cancel()
         self.save_state()
 
