@@ -325,7 +325,7 @@ def read_bag_audio(bag: str | Path) -> np.ndarray:
                 fmt = PcmFormat.from_audio_info(
                     msg.channels, msg.sample_rate, msg.sample_format, msg.coding_format
                 )
-            except (Audio2PoseError, ValueError) as exc:  # pcm's format errors
+            except Audio2PoseError as exc:  # pcm refuses the format (UnsupportedAudioFormat)
                 raise BagError(
                     f"{bag}: unusable AudioInfo at {message.timestamp_ns} ns ({exc})"
                 ) from None

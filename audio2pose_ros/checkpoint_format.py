@@ -126,7 +126,7 @@ def _parse_json(text: str, what: str, file: Path) -> object:
         )
     try:
         return json.loads(text)
-    except ValueError as exc:  # json.JSONDecodeError: the file's text, not our code
+    except json.JSONDecodeError as exc:
         raise CheckpointError(f"{file}: {what} is not valid JSON ({exc})") from None
 
 
@@ -305,9 +305,11 @@ def parse_section(
 ) -> T:
     """``parse(header[section])``, with the parser's refusal reported as a CheckpointError.
 
-    The section parsers (``FeatureSpec.from_dict`` and the like) validate their fields and raise
-    ValueError or an :class:`~audio2pose_ros.errors.Audio2PoseError` for a bad value, or
-    TypeError for an unexpected member; for a checkpoint these all mean "bad file".
+    The section parsers (``FeatureSpec.from_dict``, ``build_model`` and the like) raise an
+    :class:`~audio2pose_ros.errors.Audio2PoseError` for a bad value; torch's modules raise
+    ValueError for arguments they refuse (a dropout above 1, a zero-sized recurrent layer), and
+    a value of an unexpected JSON type can raise TypeError inside a constructor. For a
+    checkpoint these all mean "bad file".
     """
     try:
         return parse(checkpoint.header[section])

@@ -317,3 +317,12 @@ def test_when_demo_out_is_a_file_expect_usage_error_before_starting_anything(cap
     status, stderr = audio2pose(capsys, "demo", "--out", tmp_path / "file")
     assert status == 2
     assert_one_line(stderr, "--out .*file: exists and is not a directory")
+
+
+def test_when_replaying_a_bag_with_invalid_cdr_expect_refused_before_publishing(
+    capsys, tmp_path
+):
+    bag = speech_bag(tmp_path / "bag", S16LE_MONO_16K, b"", data=b"\x00\x01\x00\x00\xff")
+    status, stderr = audio2pose(capsys, "bag", "replay", bag, "--wait-s", "0")
+    assert status == 1
+    assert_one_line(stderr, r"bag replay: error: .*/audio/audio at 2 ns: invalid audio_common")
