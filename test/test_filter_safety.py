@@ -195,3 +195,16 @@ def test_when_gain_changed_live_expect_effect_from_next_tick_and_read_only_refus
         filt.update_settings(MotionFilterSettings(rate_hz=50.0))
     with pytest.raises(ConfigurationError, match="position_margin_rad cannot change"):
         filt.update_settings(filt.settings, LimitSettings(position_margin_rad=0.05))
+
+
+def test_when_default_model_speaks_expect_gate_rejects_none_of_its_poses(speech):
+    from audio2pose_ros.filter_plot import online_filter
+    from audio2pose_ros.models.checkpoint import load_checkpoint
+    from audio2pose_ros.resources import default_checkpoint_path
+    from audio2pose_ros.synthesis import predict_normalized
+
+    checkpoint = load_checkpoint(default_checkpoint_path())
+    raw = checkpoint.robot.denormalize(predict_normalized(checkpoint, speech))
+    filt = MotionFilter(checkpoint.robot)
+    online_filter(filt, raw)
+    assert filt.status.received == len(raw)  # the gate stops outliers, not the model's motion

@@ -102,7 +102,10 @@ class MotionFilterSettings:
         external_timeout_s: an external head target or offset counts for this long (s).
         outlier_tolerance_rad: slack of the input gate: how far a raw target or head target may
             lie outside its joint's range (it is clamped) and how much further than the
-            velocity limit allows it may be from the recent track (rad).
+            velocity limit allows it may be from the recent track (rad). The default 0.3 rad
+            passes the default model's largest frame-to-frame jump on the bundled speech (0.25
+            rad beyond the velocity limit); a single accepted spike of that size moves the
+            command about 0.04 rad (Kalman smoothing and limits).
         max_head_offset_rad: largest head offset accepted per joint (rad); larger ones are
             rejected.
         max_points_per_message: poses of one message beyond this many are dropped and counted.
@@ -215,7 +218,7 @@ class MotionFilterSettings:
         ),
     )
     outlier_tolerance_rad: float = field(
-        default=0.1,
+        default=0.3,
         metadata=param(
             "input gate slack: beyond a joint's range, and beyond the distance the "
             "velocity limit allows from the recent track, targets are rejected",
