@@ -208,3 +208,24 @@ def test_when_default_model_speaks_expect_gate_rejects_none_of_its_poses(speech)
     filt = MotionFilter(checkpoint.robot)
     online_filter(filt, raw)
     assert filt.status.received == len(raw)  # the gate stops outliers, not the model's motion
+
+
+def test_when_velocity_fraction_lowered_while_moving_fast_expect_braking_not_a_fault(robot):
+    filt, t = settled_filter(robot, MotionFilterSettings(outlier_tolerance_rad=1.0))
+    filt.update_settings(filt.settings, LimitSettings(velocity_fraction=1.0))
+    far = steady_pose(robot)
+    far[robot.names.index("LShoulderPitch")] = -1.5
+    for _ in range(30):
+        t += PERIOD
+        filt.push(far[None, :], t)
+        filt.tick(t)
+    fast = float(np.abs(filt.velocity_rad_s).max())
+    filt.update_settings(filt.settings, LimitSettings(velocity_fraction=0.1))
+    speeds = []
+    for _ in range(50):
+        t += PERIOD
+        filt.push(far[None, :], t)
+        speeds.append(float(np.abs(filt.tick(t)[1]).max()))
+    assert filt.status.faults == 0
+    assert speeds[0] >= fast - filt.limiter.max_acceleration_rad_s2.max() * PERIOD - 1e-9
+    assert speeds[-1] <= filt.limiter.max_velocity_rad_s.max() + 1e-9  # braked to the new limit

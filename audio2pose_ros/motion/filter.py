@@ -592,15 +592,15 @@ class MotionFilter:
 
     def _safe(self, positions: np.ndarray, velocities: np.ndarray, dt_s: float) -> bool:
         limiter = self.limiter
+        # After a live decrease of velocity_fraction the limiter brakes from the old velocity at
+        # the acceleration limit, so a step may use the previous speed for a few ticks.
+        speed = np.maximum(limiter.max_velocity_rad_s, np.abs(self.velocity_rad_s))
         return bool(
             np.isfinite(positions).all()
             and np.isfinite(velocities).all()
             and np.all(positions >= limiter.lower_rad)
             and np.all(positions <= limiter.upper_rad)
-            and np.all(
-                np.abs(positions - self.position_rad)
-                <= limiter.max_velocity_rad_s * dt_s + STEP_SLACK_RAD
-            )
+            and np.all(np.abs(positions - self.position_rad) <= speed * dt_s + STEP_SLACK_RAD)
         )
 
     def tick(self, now_s: float) -> tuple[np.ndarray, np.ndarray]:
