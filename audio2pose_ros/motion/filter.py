@@ -220,8 +220,9 @@ class MotionFilterSettings:
     outlier_tolerance_rad: float = field(
         default=0.3,
         metadata=param(
-            "input gate slack: beyond a joint's range, and beyond the distance the "
-            "velocity limit allows from the recent track, targets are rejected",
+            "input gate slack: targets up to this far outside a joint's range are clamped, "
+            "further out rejected; targets further from the recent track than the velocity "
+            "limit allows plus this are rejected",
             minimum=0.0,
             maximum=1.0,
             unit="rad",

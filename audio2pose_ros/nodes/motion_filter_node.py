@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+from rclpy.exceptions import InvalidTopicNameException
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
@@ -272,12 +273,18 @@ class MotionFilterNode(DiagnosedNode):
         self.create_subscription(Bool, "stop", guarded(self.on_stop), LATCHED_QOS)
         self.create_subscription(JointState, "head_target", guarded(self.on_head_target), 10)
         self.create_subscription(JointState, "head_offset", guarded(self.on_head_offset), 10)
-        self.create_subscription(
-            JointState,
-            self.settings.measured_joint_states_topic,
-            guarded(self.on_measured),
-            qos_profile_sensor_data,
-        )
+        try:
+            self.create_subscription(
+                JointState,
+                self.settings.measured_joint_states_topic,
+                guarded(self.on_measured),
+                qos_profile_sensor_data,
+            )
+        except (InvalidTopicNameException, ValueError):
+            raise ConfigurationError(
+                f"parameter measured_joint_states_topic: value "
+                f"{self.settings.measured_joint_states_topic!r} is not a valid topic name"
+            ) from None
         self.period_ns = round(self.filter.period_s * 1e9)
         self.tick_timer = self.create_timer(self.filter.period_s, guarded(self.on_timer))
         self.startup_timer = self.create_timer(
