@@ -21,7 +21,7 @@ AUDIO2POSE = executable_command("audio2pose")
 COMMAND_TOPICS = {
     "/joint_angles",
     "/joint_trajectory_controller/joint_trajectory",
-    "/joint_states",
+    "/commanded_joint_states",
 }
 
 
