@@ -66,6 +66,7 @@ ARGUMENTS = (
     "rviz",
     "robot_state_publisher",
     "sim",
+    "diagnostic_aggregator",
 )
 
 # launch.conditions.IfCondition: the expanded text, stripped and lower-cased, must be one of these.
@@ -245,6 +246,7 @@ class LaunchPlan:
         robot_state_publisher: publish /robot_description and /tf from the commanded pose
             (only without a simulator: a simulated or real robot publishes its own).
         sim: ``"none"`` or ``"gz"``.
+        diagnostic_aggregator: start diagnostic_aggregator with config/diagnostic_analyzers.yaml.
 
     """
 
@@ -255,6 +257,7 @@ class LaunchPlan:
     rviz: bool
     robot_state_publisher: bool
     sim: str
+    diagnostic_aggregator: bool
 
     @property
     def audio_topics(self) -> dict[str, str]:
@@ -298,6 +301,9 @@ def plan_launch(arguments: Mapping[str, str]) -> LaunchPlan:
             "robot_state_publisher", arguments["robot_state_publisher"]
         ),
         sim=sim,
+        diagnostic_aggregator=parse_bool(
+            "diagnostic_aggregator", arguments["diagnostic_aggregator"]
+        ),
     )
 
 

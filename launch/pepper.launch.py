@@ -35,6 +35,9 @@ Visualisation and simulation (urdf/pepper.urdf, primitive shapes):
   loads gz_ros2_control with config/ros2_controllers.yaml, and spawns joint_state_broadcaster and
   pepper_joint_trajectory_controller, which executes the motion filter's trajectories. The
   simulated robot publishes /joint_states like a real one; robot_state_publisher shows it.
+
+``diagnostic_aggregator:=true`` starts diagnostic_aggregator with config/diagnostic_analyzers.yaml:
+/diagnostics_agg (and rqt_robot_monitor) shows each node's status, missing or stale ones as such.
 """
 
 from __future__ import annotations
@@ -113,6 +116,12 @@ def declare_arguments() -> list[DeclareLaunchArgument]:
             default_value="none",
             choices=["none", "gz"],
             description="'gz': simulate the robot in gz sim, driven through ros2_control",
+        ),
+        DeclareLaunchArgument(
+            "diagnostic_aggregator",
+            default_value="false",
+            description="Aggregate /diagnostics with config/diagnostic_analyzers.yaml into "
+            "/diagnostics_agg (rqt_robot_monitor) (true/false/1/0)",
         ),
     ]
 
@@ -254,11 +263,26 @@ def visualisation_and_simulation(plan: LaunchPlan) -> list[Action]:
     return actions
 
 
+def diagnostics(plan: LaunchPlan) -> list[Action]:
+    """diagnostic_aggregator with the package's analyzers, when the plan asks for it."""
+    if not plan.diagnostic_aggregator:
+        return []
+    analyzers = Path(get_package_share_directory(PACKAGE), "config", "diagnostic_analyzers.yaml")
+    # No name: the analyzers file is keyed by the aggregator's own node name, "analyzers".
+    return [
+        Node(
+            package="diagnostic_aggregator",
+            executable="aggregator_node",
+            parameters=[str(analyzers)],
+        )
+    ]
+
+
 def launch_setup(context: LaunchContext) -> list[Action]:
     """Check the arguments, then start the graph (and the visualisation the arguments ask for)."""
     plan = plan_launch({name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS})
     supervisor = NodeSupervisor(plan)
-    actions = visualisation_and_simulation(plan)
+    actions = visualisation_and_simulation(plan) + diagnostics(plan)
     for executable in ("audio_features_node", "inference_node", "motion_filter_node"):
         actions += supervisor.start(executable)
     return actions

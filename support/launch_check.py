@@ -34,18 +34,18 @@ def _default_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def stand_in_packages(*packages: str) -> dict[str, str]:
-    """Environment with packages whose executable of the same name only sleeps.
+def stand_in_packages(*executables: str) -> dict[str, str]:
+    """Environment with packages whose executable (``package/executable``) only sleeps.
 
-    robot_state_publisher and rviz2 are not built here; stand-ins on AMENT_PREFIX_PATH show
-    which of them the launch file starts, and with which arguments.
+    robot_state_publisher, rviz2 and diagnostic_aggregator are not built here; stand-ins on
+    AMENT_PREFIX_PATH show which of them the launch file starts, and with which arguments.
     """
     prefix = LOG_DIR / "stand_ins"
-    for package in packages:
+    for package, name in (executable.split("/") for executable in executables):
         index = prefix / "share" / "ament_index" / "resource_index" / "packages"
         index.mkdir(parents=True, exist_ok=True)
         (index / package).touch()
-        executable = prefix / "lib" / package / package
+        executable = prefix / "lib" / package / name
         executable.parent.mkdir(parents=True, exist_ok=True)
         executable.write_text(f"#!{sys.executable}\nimport time\ntime.sleep(600)\n")
         executable.chmod(0o755)
@@ -242,7 +242,11 @@ def scenario_model_path(probe: GraphProbe, checkpoint: Path) -> None:
 
 def scenario_booleans_and_namespaces(probe: GraphProbe) -> None:
     """Items 2, 3, 9: accepted booleans, a trailing-slash namespace, one-line refusals."""
-    env = stand_in_packages("robot_state_publisher", "rviz2")
+    env = stand_in_packages(
+        "robot_state_publisher/robot_state_publisher",
+        "rviz2/rviz2",
+        "diagnostic_aggregator/aggregator_node",
+    )
     for arguments, rsp_expected, rviz_expected in (
         (["rviz:=True"], True, True),
         (["rviz:=1", "robot_state_publisher:=FALSE"], False, True),
@@ -264,6 +268,15 @@ def scenario_booleans_and_namespaces(probe: GraphProbe) -> None:
             f"rviz2 {'started' if rviz else 'not started'}",
         )
         launch.stop()
+    launch = Launch("aggregator", "diagnostic_aggregator:=TRUE", env=env)
+    graph_up(probe, launch)
+    aggregator = [c for c in launch.children().values() if "aggregator_node" in c]
+    check(
+        "issue 11 item 6: diagnostic_aggregator:=TRUE",
+        len(aggregator) == 1 and "config/diagnostic_analyzers.yaml" in aggregator[0],
+        f"started: {aggregator}",
+    )
+    launch.stop()
     launch = Launch("bool_yes", "rviz:=yes")
     status = launch.wait(15.0)
     errors = [line for line in launch.output().splitlines() if "ERROR" in line]

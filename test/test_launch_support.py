@@ -41,6 +41,7 @@ def arguments(**overrides: str) -> dict[str, str]:
         "rviz": "false",
         "robot_state_publisher": "false",
         "sim": "none",
+        "diagnostic_aggregator": "false",
     }
     return {**values, **overrides}
 

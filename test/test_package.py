@@ -95,6 +95,7 @@ def test_when_parsing_launch_file_expect_other_packages_started_only_by_the_plan
         ("ros_gz_bridge", "parameter_bridge"),
         ("ros_gz_sim", "create"),
         ("controller_manager", "spawner"),
+        ("diagnostic_aggregator", "aggregator_node"),
     }
     tree = ast.parse(LAUNCH_FILE.read_text())
     (visualisation,) = [
