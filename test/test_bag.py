@@ -78,8 +78,10 @@ def test_when_bag_replayed_faster_expect_every_message_published_in_order(tmp_pa
             str(bag),
             "--rate",
             "4",
+            "--topics",
+            AUDIO_TOPIC,
             "--wait-s",
-            "2",
+            "30",  # replay starts as soon as this probe's subscription is matched
         ],
         stdout=subprocess.PIPE,
         text=True,
