@@ -363,11 +363,20 @@ def test_when_parameters_set_at_run_time_expect_live_effect_or_refusal_with_reas
     assert not driver.set_parameter("stop_behaviour", "drop").successful
 
 
-def test_when_a_parameter_is_refused_at_start_up_expect_one_line_and_exit_78(filter_node, tmp_path):
-    process = filter_node(kalman_q=".nan")
+@pytest.mark.parametrize(
+    ("name", "value", "line"),
+    [
+        ("kalman_q", ".nan", "value nan is not finite; allowed: a finite number in [1e-09, 1e+09]"),
+        ("rate_hz", "fast", "value 'fast' has the wrong type (str); allowed: a finite number"),
+        ("measured_joint_states_topic", "'bad topic'", "'bad topic' is not a valid topic name"),
+    ],
+)
+def test_when_a_parameter_is_refused_at_start_up_expect_one_line_and_exit_78(
+    filter_node, tmp_path, name, value, line
+):
+    process = filter_node(**{name: value})
     assert process.wait(timeout=60) == EXIT_CONFIGURATION_ERROR
     log = (tmp_path / "motion_filter_node_0.log").read_text().strip().splitlines()
-    assert log == [
-        "[motion_filter_node] configuration error: parameter kalman_q: value nan is not finite; "
-        "allowed: a finite number in [1e-09, 1e+09]"
-    ]
+    assert len(log) == 1
+    assert log[0].startswith(f"[motion_filter_node] configuration error: parameter {name}: ")
+    assert line in log[0]
