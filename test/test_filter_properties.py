@@ -10,6 +10,7 @@ examples every time.
 """
 
 import contextlib
+import dataclasses
 
 import numpy as np
 from hypothesis import given, settings
@@ -48,6 +49,7 @@ def event_sequences(draw):
             "offset",
             "time",
             "restart",
+            "settings",
         ]
     )
     events = []
@@ -67,6 +69,24 @@ def event_sequences(draw):
             events.append((kind, draw(st.sampled_from([-0.5, -0.001, 0.0005, 0.03, 0.2, 2.0]))))
         elif kind == "restart":
             events.append((kind, draw(poses)))
+        elif kind == "settings":  # a live `ros2 param set` of what may change while running
+            unit = st.floats(min_value=0.0, max_value=1.0)
+            events.append(
+                (
+                    kind,
+                    {
+                        "arms_gain": draw(unit),
+                        "head_gain": draw(unit),
+                        "head_target_weight": draw(unit),
+                        "outlier_tolerance_rad": draw(unit),
+                        "max_head_offset_rad": draw(unit),
+                        "stop_behaviour": draw(st.sampled_from(["hold", "neutral"])),
+                        "neutral_glide_s": draw(st.sampled_from([0.05, 0.5, 3.0])),
+                        "watchdog_timeout_s": draw(st.sampled_from([0.01, 0.5, 5.0])),
+                        "max_points_per_message": draw(st.sampled_from([1, 5, 200])),
+                    },
+                )
+            )
         else:
             events.append((kind, None))
     return events
@@ -119,6 +139,8 @@ def test_when_any_input_expect_every_command_finite_and_within_all_limits(
                 setter({"HeadYaw": payload[0], "HeadPitch": payload[1]}, t)
         elif kind == "time":
             t += payload
+        elif kind == "settings":
+            filt.update_settings(dataclasses.replace(filt.settings, **payload))
         elif kind == "restart":
             start = np.array(payload)
             if np.isfinite(start).all():
