@@ -31,6 +31,7 @@ from safetensors.torch import load_file, save_file
 from tqdm import tqdm
 
 from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec, extract_features
+from audio2pose_ros.checkpoint_format import MAX_HEADER_BYTES, MAX_JSON_DEPTH, json_depth
 from audio2pose_ros.dataset import Clip, Dataset
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.models import FitStage, PoseModel, build_model
@@ -252,16 +253,47 @@ def _save_state(
     tmp.replace(path)
 
 
+def _read_state_metadata(path: Path) -> dict[str, Any]:
+    """The JSON metadata of a training state, size and depth checked before parsing."""
+    with path.open("rb") as stream:
+        size = int.from_bytes(stream.read(8), "little")
+        if not 2 <= size <= min(MAX_HEADER_BYTES, path.stat().st_size - 8):
+            raise TrainingError(f"{path}: not a training state (header length {size})")
+        text = stream.read(size).decode("utf-8")
+    if json_depth(text) > MAX_JSON_DEPTH:
+        raise TrainingError(f"{path}: training state header nests too deeply")
+    metadata = json.loads(text)["__metadata__"][_STATE_KEY]
+    if json_depth(metadata) > MAX_JSON_DEPTH:
+        raise TrainingError(f"{path}: training state metadata nests too deeply")
+    meta = json.loads(metadata)
+    if not isinstance(meta, dict):
+        raise TrainingError(f"{path}: training state metadata is not a JSON object")
+    return meta
+
+
 def _load_state(
     path: Path, model: PoseModel
 ) -> tuple[dict[str, torch.Tensor], dict[str, Any], _Progress]:
     try:
+        meta = _read_state_metadata(path)
         tensors = load_file(str(path))
-        with path.open("rb") as stream:
-            size = int.from_bytes(stream.read(8), "little")
-            meta = json.loads(json.loads(stream.read(size))["__metadata__"][_STATE_KEY])
-    except (OSError, ValueError, KeyError, SafetensorError) as exc:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as exc:
+        # TypeError: a JSON value of another type where an object is meant
         raise TrainingError(f"{path}: unreadable training state ({exc})") from None
+    except SafetensorError as exc:
+        raise TrainingError(f"{path}: unreadable training state ({exc})") from None
+    try:
+        return _restore_state(path, model, tensors, meta)
+    except (KeyError, TypeError, AttributeError, RuntimeError) as exc:
+        # the metadata or tensors do not have the structure _save_state writes (RuntimeError:
+        # load_state_dict's shape mismatch)
+        raise TrainingError(f"{path}: malformed training state ({exc!r:.200})") from None
+
+
+def _restore_state(
+    path: Path, model: PoseModel, tensors: dict[str, torch.Tensor], meta: dict[str, Any]
+) -> tuple[dict[str, torch.Tensor], dict[str, Any], _Progress]:
+    """Load a read training state into ``model``; refuse one of another model."""
     stored = meta["model"]
     if stored["name"] != model.name or stored["config"] != model.config_dict():
         raise TrainingError(

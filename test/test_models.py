@@ -264,3 +264,24 @@ def test_when_live_predictor_reseeded_expect_reproducible_and_seed_dependent_sam
     other = np.array([predictor.step(f) for f in frames])
     assert np.abs(other - first).max() > 1e-3
     assert np.all((first >= 0) & (first <= 1))
+
+
+@pytest.mark.parametrize(
+    ("metadata", "problem"),
+    [
+        ("[" * 10_000 + "]" * 10_000, "training state metadata nests too deeply"),
+        ("[1, 2]", "training state metadata is not a JSON object"),
+        ('{"model": []}', "malformed training state"),
+    ],
+)
+def test_when_a_training_state_is_crafted_expect_training_error_not_a_crash(
+    tmp_path, metadata, problem
+):
+    from safetensors.torch import save_file
+
+    state = tmp_path / "m.train-state.safetensors"
+    save_file({"x": torch.zeros(1)}, str(state), metadata={"audio2pose_train_state": metadata})
+    model = FramewiseMLP(MLPConfig())
+    utterances = synthetic_utterances(2, 20, 0)
+    with pytest.raises(TrainingError, match=problem):
+        train_model(model, utterances[:1], utterances[1:], TrainSettings(max_epochs=1), state, True)
