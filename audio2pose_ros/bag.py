@@ -302,6 +302,22 @@ def read_messages(bag: str | Path, topics: Iterable[str] | None = None) -> Itera
         reader.close()
 
 
+def read_checked_messages(bag: str | Path, topics: Iterable[str] | None = None) -> list[BagMessage]:
+    """:func:`read_messages` as a list, each message's CDR checked by deserializing it.
+
+    Use it before publishing a bag's bytes: a subscriber then never receives bytes it cannot
+    deserialize. Memory is bounded by the bag's size.
+
+    Raises:
+        BagError: the bag cannot be opened, or a message has an unknown type or invalid CDR.
+    """
+    store = typestore()
+    messages = list(read_messages(bag, topics))
+    for message in messages:
+        deserialize(store, message, bag)
+    return messages
+
+
 def read_bag_audio(bag: str | Path) -> np.ndarray:
     """Decode a bag's AudioData as its AudioInfo messages describe, to 16 kHz mono float32.
 

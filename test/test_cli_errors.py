@@ -319,10 +319,21 @@ def test_when_demo_out_is_a_file_expect_usage_error_before_starting_anything(cap
     assert_one_line(stderr, "--out .*file: exists and is not a directory")
 
 
-def test_when_replaying_a_bag_with_invalid_cdr_expect_refused_before_publishing(
-    capsys, tmp_path
-):
+def test_when_replaying_a_bag_with_invalid_cdr_expect_refused_before_publishing(capsys, tmp_path):
     bag = speech_bag(tmp_path / "bag", S16LE_MONO_16K, b"", data=b"\x00\x01\x00\x00\xff")
     status, stderr = audio2pose(capsys, "bag", "replay", bag, "--wait-s", "0")
     assert status == 1
     assert_one_line(stderr, r"bag replay: error: .*/audio/audio at 2 ns: invalid audio_common")
+
+
+def test_when_a_bag_spans_centuries_expect_replay_refused_not_sleeping(capsys, tmp_path):
+    store = typestore()
+    info = store.serialize_cdr(
+        store.types[AUDIO_INFO_TYPE](**S16LE_MONO_16K.audio_info_fields()), AUDIO_INFO_TYPE
+    )
+    with BagWriter(tmp_path / "bag") as bag:
+        bag.write(AUDIO_INFO_TOPIC, AUDIO_INFO_TYPE, 1, bytes(info))
+        bag.write(AUDIO_INFO_TOPIC, AUDIO_INFO_TYPE, 2**62, bytes(info))
+    status, stderr = audio2pose(capsys, "bag", "replay", tmp_path / "bag", "--wait-s", "0")
+    assert status == 1
+    assert_one_line(stderr, r"replaying would take 4\.61e\+09 s at --rate 1; at most 86400 s")

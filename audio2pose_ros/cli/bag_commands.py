@@ -20,9 +20,7 @@ from audio2pose_ros.bag import (
     BagError,
     Chunking,
     check_known_type,
-    deserialize,
-    read_messages,
-    typestore,
+    read_checked_messages,
     write_audio_bag,
 )
 from audio2pose_ros.cli.options import (
@@ -37,6 +35,7 @@ from audio2pose_ros.errors import UsageError
 
 MAX_REPLAY_RATE = 100.0  # --rate: at most 100x the recorded speed
 MAX_WAIT_S = 3600.0
+MAX_REPLAY_S = 24 * 3600.0  # a bag whose timestamps span more than a day is refused
 STREAM_DEPTH = 100  # replay queue depth: absorbs bursts like the graph's own streams
 
 
@@ -89,17 +88,21 @@ def command_from_wav(args: argparse.Namespace) -> int:
 def command_replay(args: argparse.Namespace) -> int:
     """Publish every message of a bag with its recorded timing, ``--rate`` times faster.
 
-    Every message is checked (known type, valid CDR) before the first one is published.
+    Every message is checked (known type, valid CDR) before the first one is published, and
+    a bag whose replay would last more than :data:`MAX_REPLAY_S` is refused.
     """
     import rclpy
 
     bag = input_bag(args.bag)
-    messages = list(read_messages(bag, args.topics or None))
+    messages = read_checked_messages(bag, args.topics or None)
     if not messages:
         raise BagError(f"{bag}: no messages of a known type to replay")
-    store = typestore()
-    for message in messages:
-        deserialize(store, message, bag)
+    span_s = (messages[-1].timestamp_ns - messages[0].timestamp_ns) * 1e-9 / args.rate
+    if span_s > MAX_REPLAY_S:
+        raise BagError(
+            f"{bag}: replaying would take {span_s:.3g} s at --rate {args.rate:g}; at most "
+            f"{MAX_REPLAY_S:g} s (check the bag's timestamps)"
+        )
     with rclpy.init():
         node = rclpy.create_node("audio2pose_bag_replay")
         publishers = {
