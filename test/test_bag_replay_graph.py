@@ -8,6 +8,7 @@ command in its own process. audio_features_node subscribes to ``audio_info`` tra
 from __future__ import annotations
 
 import subprocess
+import time
 from pathlib import Path
 
 import pytest
@@ -33,12 +34,20 @@ def test_when_a_speech_bag_is_replayed_into_the_graph_expect_features_and_poses_
             text=True,
         )
         probe.wait_until(lambda: replay.poll() is not None, timeout_s=60)
-        probe.spin_for(1.0)
+
+        def frames() -> int:
+            return sum(m.layout.dim[0].size for m in probe.received["features"])
+
+        def poses() -> int:
+            return sum(len(m.points) for m in probe.received["raw"])
+
+        # 2 s of audio in 10 ms hops: about 200 frames (the first 25 ms window completes later);
+        # every frame becomes one pose once inference_node has caught up.
+        end = time.monotonic() + 15.0
+        while time.monotonic() < end and not (frames() >= 190 and poses() == frames()):
+            probe.spin_for(0.1)
         assert not any(graph.restarts.values()), "a node died"
     assert replay.returncode == 0, replay.stderr.read()
     assert f"replayed {chunks + 1} messages on 2 topics" in replay.stdout.read()
-    frames = sum(m.layout.dim[0].size for m in probe.received["features"])
-    poses = sum(len(m.points) for m in probe.received["raw"])
-    # 2 s of audio in 10 ms hops: about 200 frames (the first 25 ms window completes later).
-    assert frames >= 190, frames
-    assert poses == frames
+    assert frames() >= 190, frames()
+    assert poses() == frames()
