@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import random
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,9 @@ from audio2pose_ros.robot import RobotDescription, load_robot
 # DDS must never leave loopback here, and parallel runs must not see each other's nodes.
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid()).randint(1, 100)))
+# The motion filter keeps its last pose and a stop in $ROS_HOME across restarts: tests must not
+# inherit them from another run, nor leave theirs to the user's ~/.ros.
+os.environ["ROS_HOME"] = tempfile.mkdtemp(prefix="audio2pose_test_ros_home_")
 
 SPEECH_DIR = share_path("data", "speech")
 

@@ -29,7 +29,7 @@ class Probe(Node):
         for key, msg_type, topic in (
             ("angles", JointAnglesWithSpeed, "/joint_angles"),
             ("trajectory", JointTrajectory, "/joint_trajectory_controller/joint_trajectory"),
-            ("states", JointState, "/joint_states"),
+            ("states", JointState, "/commanded_joint_states"),
             ("raw", JointTrajectory, "/raw_trajectory"),
             ("features", Float32MultiArray, "/features"),
             ("diagnostics", DiagnosticArray, "/diagnostics"),

@@ -58,7 +58,7 @@ RECORDED_TOPICS = {
         JointTrajectory,
         "trajectory_msgs/msg/JointTrajectory",
     ),
-    "/joint_states": (JointState, "sensor_msgs/msg/JointState"),
+    "/commanded_joint_states": (JointState, "sensor_msgs/msg/JointState"),
     "/raw_trajectory": (JointTrajectory, "trajectory_msgs/msg/JointTrajectory"),
 }
 

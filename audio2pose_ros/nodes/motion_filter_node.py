@@ -200,6 +200,7 @@ class MotionFilterNodeSettings:
 
 
 SETTINGS_CLASSES = (MotionFilterSettings, LimitSettings, MotionFilterNodeSettings)
+PARAMETERS = tuple(spec for cls in SETTINGS_CLASSES for spec in specs_of(cls))
 OUTPUT_RATES = ("joint_angles_rate_hz", "joint_trajectory_rate_hz", "joint_states_rate_hz")
 
 
@@ -222,8 +223,7 @@ class MotionFilterNode(DiagnosedNode):
             ConfigurationError: a parameter or the robot description is refused.
         """
         super().__init__("motion_filter_node")
-        specs = [spec for cls in SETTINGS_CLASSES for spec in specs_of(cls)]
-        self.parameters = NodeParameters(self, specs, apply=self.apply_parameters)
+        self.parameters = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
         values = self.parameters.values
         self.settings: MotionFilterNodeSettings = _pick(MotionFilterNodeSettings, values)
         settings: MotionFilterSettings = _pick(MotionFilterSettings, values)

@@ -1,0 +1,48 @@
+"""config/pepper.yaml and the README's parameter table are the nodes' declarations, written out."""
+
+from __future__ import annotations
+
+import yaml
+
+from audio2pose_ros.nodes.parameter_docs import (
+    node_parameters,
+    parameters_markdown,
+    parameters_yaml,
+)
+from audio2pose_ros.resources import share_path
+
+ROOT = share_path("config", "pepper.yaml").parent.parent
+
+
+def test_shipped_parameters_file_is_the_declarations_written_out():
+    shipped = (ROOT / "config" / "pepper.yaml").read_text(encoding="utf-8")
+    assert shipped == parameters_yaml(), (
+        "config/pepper.yaml differs from the declarations: run "
+        "python -m audio2pose_ros.nodes.parameter_docs --write ."
+    )
+
+
+def test_readme_table_is_the_declarations_written_out():
+    assert parameters_markdown() in (ROOT / "README.md").read_text(encoding="utf-8")
+
+
+def test_every_value_in_the_parameters_file_is_declared_by_a_node_and_valid():
+    document = yaml.safe_load((ROOT / "config" / "pepper.yaml").read_text(encoding="utf-8"))
+    nodes = node_parameters()
+    every = {spec.name: spec for specs in nodes.values() for spec in specs}
+    for section, body in document.items():
+        declared = every if section == "/**" else {s.name: s for s in nodes[section]}
+        for name, value in (body["ros__parameters"] or {}).items():
+            assert name in declared, f"{section}: {name} is declared by no node"
+            assert declared[name].validate(value) == value
+
+
+def test_every_declared_parameter_has_a_description_and_is_written_once():
+    for node, specs in node_parameters().items():
+        names = [spec.name for spec in specs]
+        assert len(names) == len(set(names)), node
+        assert all(spec.description for spec in specs), node
+    text = parameters_yaml()
+    for specs in node_parameters().values():
+        for spec in specs:
+            assert text.count(f"\n    {spec.name}: ") == 1, spec.name
