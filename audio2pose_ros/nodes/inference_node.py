@@ -23,8 +23,8 @@ joints is a ConfigurationError at start-up: ``run_node`` prints one line and exi
 Bad input never reaches the model and never stops the node:
 
 - a message of the wrong layout or feature set is dropped and reported;
-- at most :data:`MAX_FRAMES_PER_MESSAGE` frames of one message are used (1 s of audio; the rest
-  is dropped and counted), so one message cannot block the node;
+- at most :data:`MAX_FRAMES_PER_MESSAGE` frames of one message are used (10 s of audio; the
+  rest is dropped and counted), so one message cannot block the node for long;
 - after normalisation, non-finite values are replaced by 0 (the training mean) and values
   beyond +-``feature_limit_sd`` are clamped; both are counted and reported as WARN. The frame
   is kept, so the output stays one pose per 10 ms frame.
@@ -54,7 +54,9 @@ from audio2pose_ros.parameters import ParameterSpec, ParameterValue
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot import load_robot
 
-MAX_FRAMES_PER_MESSAGE = 100  # 1 s of 10 ms frames; audio_features_node sends a few per message
+# 10 s of 10 ms frames (about 20 ms of work for the packaged model); audio_features_node sends
+# one message per audio chunk, typically 1 to 20 frames.
+MAX_FRAMES_PER_MESSAGE = 1000
 
 PARAMETERS = (
     ParameterSpec(
