@@ -10,12 +10,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
 from audio2pose_ros.audio.pcm import read_wav
 from audio2pose_ros.cli.graph import executable_command
+from audio2pose_ros.resources import share_path
 
 AUDIO2POSE = executable_command("audio2pose")
 COMMAND_TOPICS = {
@@ -55,7 +57,10 @@ def test_when_run_plays_and_records_expect_mcap_both_readers_open(
     assert counts["/audio/audio_info"] == 1
     assert counts["/audio/audio"] > 0
     duration_s = len(read_wav(wav)[0]) / 16000
-    assert counts["/joint_angles"] >= 0.9 * 100 * duration_s
+    filter_params = yaml.safe_load(share_path("config", "pepper.yaml").read_text())[
+        "motion_filter_node"
+    ]["ros__parameters"]
+    assert counts["/joint_angles"] >= 0.9 * filter_params["joint_angles_rate_hz"] * duration_s
     angles = np.array(angles)
     assert np.all(angles >= robot.lower_rad - 1e-6)
     assert np.all(angles <= robot.upper_rad + 1e-6)
