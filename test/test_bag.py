@@ -96,3 +96,18 @@ def test_when_bag_replayed_faster_expect_every_message_published_in_order(tmp_pa
     assert [bytes(m.data) for m in received] == [
         bytes(store.deserialize_cdr(m.data, m.msgtype).data) for m in expected
     ]
+
+
+@pytest.mark.parametrize(
+    ("sizes", "problem"),
+    [
+        ((0, 0), r"1 <= min_bytes \(0\) <= max_bytes \(0\)"),
+        ((10, 5), r"min_bytes \(10\) <= max_bytes \(5\)"),
+        ((1, 2**40), r"<= 1048576"),
+    ],
+)
+def test_when_chunk_sizes_cannot_finish_or_be_drawn_expect_configuration_error(sizes, problem):
+    from audio2pose_ros.errors import ConfigurationError
+
+    with pytest.raises(ConfigurationError, match=problem):
+        Chunking(min_bytes=sizes[0], max_bytes=sizes[1])
