@@ -9,6 +9,7 @@ from recording_fixtures import openface_rotation, write_bvh, write_openface_csv,
 
 from audio2pose_ros.cli.dataset_commands import register
 from audio2pose_ros.dataset import Dataset
+from audio2pose_ros.errors import UsageError
 from audio2pose_ros.importers.extras import load_extras
 from audio2pose_ros.resources import share_path
 
@@ -79,8 +80,8 @@ def test_when_importing_bvh_with_a_known_skeleton_expect_all_joints_observed(tmp
     assert clip.mask[5:-5].all()
 
 
-def test_when_the_skeleton_is_unknown_expect_a_value_error_listing_the_known_ones(tmp_path):
-    with pytest.raises(ValueError, match=r"unknown skeleton 'nope'; known: .*genea2020"):
+def test_when_the_skeleton_is_unknown_expect_a_usage_error_listing_the_known_ones(tmp_path):
+    with pytest.raises(UsageError, match=r"unknown skeleton 'nope'; known: .*genea2020"):
         run("dataset", "import-bvh", str(tmp_path), "-o", str(tmp_path / "d"), "--licence", "x",
             "--skeleton", "nope")  # fmt: skip
 

@@ -18,6 +18,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
@@ -264,20 +265,28 @@ def test_when_one_message_is_stamped_far_in_the_future_expect_later_messages_sti
     assert diagnostics["stale_messages_dropped"] == "0"
 
 
-def test_when_one_message_holds_20000_points_expect_it_capped_and_no_velocity_jump(
+def test_when_messages_hold_500_or_20000_points_expect_cap_and_no_stall_or_jump(
     driver, filter_node, robot
 ):
+    """500 points: decoded, all but max_points_per_message (200) dropped and counted. 20,000
+    points (2.5 MB, a quarter second of decoding): dropped before decoding, counted."""
     filter_node()
     driver.wait_for_node()
     driver.spin_for(1.0, every=stream(driver, robot, robot.neutral_rad))
-    huge = stamped(driver, robot, np.tile(raised(robot), (20_000, 1)))
     driver.states.clear()
+    driver.raw.publish(stamped(driver, robot, np.tile(raised(robot), (500, 1))))
+    driver.spin_for(0.5, every=stream(driver, robot, raised(robot)))
+    huge = serialize_message(stamped(driver, robot, np.tile(raised(robot), (20_000, 1))))
+    driver.spin_for(0.3, every=stream(driver, robot, raised(robot)))  # (building huge paused us)
+    after = len(driver.states)
     driver.raw.publish(huge)
     driver.spin_for(1.5, every=stream(driver, robot, raised(robot)))
     times, poses = np.array([t for t, _ in driver.states]), driver.positions()
     speed = np.abs(np.diff(poses, axis=0)) / np.maximum(np.diff(times)[:, None], PERIOD)
     assert np.all(speed <= 0.5 * robot.max_velocity_rad_s * 1.5)  # limits held (with jitter)
-    assert int(driver.diagnostics[-1]["poses_truncated"]) == 20_000 - 200
+    assert np.diff(times[after:]).max() < 0.1  # commands kept flowing
+    assert int(driver.diagnostics[-1]["poses_truncated"]) == 500 - 200
+    assert int(driver.diagnostics[-1]["oversized_messages_dropped"]) == 1
 
 
 def test_when_restarted_with_robot_pose_measured_expect_first_command_from_that_pose(

@@ -16,6 +16,7 @@ from scipy.io import wavfile
 from audio2pose_ros.bag import BagWriter, typestore
 from audio2pose_ros.cli.render_commands import register
 from audio2pose_ros.dataset import Clip, ClipInfo, Dataset, expected_frames
+from audio2pose_ros.errors import UsageError
 from audio2pose_ros.kinematics import RobotKinematics
 from audio2pose_ros.render import BACKGROUND_RGB, TITLE_HEIGHT_PX, RobotCamera
 from audio2pose_ros.resources import bundled_speech_path
@@ -138,7 +139,7 @@ def test_when_comparing_a_model_with_a_clip_truth_expect_two_robots_side_by_side
 def test_when_the_bag_exists_expect_an_error_before_rendering(tmp_path):
     (tmp_path / "clip_mcap").mkdir()
     wav = speech(tmp_path / "speech.wav", 0.5)
-    with pytest.raises(ValueError, match="exists already"):
+    with pytest.raises(UsageError, match="exists already"):
         render(wav, "-o", tmp_path / "clip.mp4", *SMALL)
     assert not (tmp_path / "clip.mp4").exists()
 

@@ -38,6 +38,7 @@ from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -344,7 +345,11 @@ def _future_stamp(seconds: float) -> Callable[[Campaign], Outcome]:
 def _huge_message(c: Campaign) -> Outcome:
     pose = c.pose_a
     rows = np.repeat(pose[None, :], 100_000, axis=0)
-    c.probe.raw.publish(c.probe.trajectory(rows))
+    # built and serialized first: that takes the probe a second, in which its own benign
+    # stream would pause long enough for the filter's watchdog to glide to neutral
+    data = serialize_message(c.probe.trajectory(rows))
+    c.probe.settle(pose)
+    c.probe.raw.publish(data)
     window = c.probe.observe(OBSERVE_S)
     worst, gap = window.worst_deviation(pose), window.longest_gap_s()
     ok = worst <= MAX_DEVIATION_RAD and gap <= MAX_COMMAND_GAP_S

@@ -41,9 +41,9 @@ from audio2pose_ros.bag import (
     BagWriter,
     Chunking,
     audio_messages,
-    read_messages,
+    read_checked_messages,
 )
-from audio2pose_ros.errors import UsageError
+from audio2pose_ros.errors import Audio2PoseError, UsageError
 from audio2pose_ros.nodes.common import EXIT_CONFIGURATION_ERROR, LATCHED_QOS, STALE_AFTER_S
 from audio2pose_ros.resources import share_path
 
@@ -61,6 +61,10 @@ RECORDED_TOPICS = {
     "/commanded_joint_states": (JointState, "sensor_msgs/msg/JointState"),
     "/raw_trajectory": (JointTrajectory, "trajectory_msgs/msg/JointTrajectory"),
 }
+
+
+class GraphTimeoutError(Audio2PoseError):
+    """The node graph did not answer in time (its node logs say why)."""
 
 
 def executable_command(name: str) -> list[str]:
@@ -420,7 +424,7 @@ class PlayerRecorder(Node):
             return self.poses_seen > 0
 
         if not self.spin_until(time.monotonic() + timeout_s, poses_arrive):
-            raise TimeoutError(
+            raise GraphTimeoutError(
                 f"the node graph did not answer within {timeout_s} s (see the node logs)"
             )
         self.spin_until(time.monotonic() + 0.3)
@@ -431,7 +435,7 @@ def audio_source(path: Path, chunking: Chunking | None = None) -> list[BagMessag
     if path.suffix.lower() == ".wav":
         samples, _ = read_wav(path)
         return audio_messages(samples, chunking)
-    messages = list(read_messages(path, (AUDIO_TOPIC, AUDIO_INFO_TOPIC)))
+    messages = read_checked_messages(path, (AUDIO_TOPIC, AUDIO_INFO_TOPIC))
     if not any(m.topic == AUDIO_TOPIC for m in messages):
         raise BagError(f"{path}: no {AUDIO_TOPIC} messages to play")
     start = messages[0].timestamp_ns
@@ -452,7 +456,7 @@ def play_and_record(
     the glide back to the neutral pose.
 
     Raises:
-        TimeoutError: the graph did not come up within ``startup_timeout_s``.
+        GraphTimeoutError: the graph did not come up within ``startup_timeout_s``.
     """
     first_info = next((m for m in messages if m.topic == AUDIO_INFO_TOPIC), None)
     with ExitStack() as stack:

@@ -9,6 +9,7 @@ import time
 import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import rclpy
@@ -23,10 +24,12 @@ from rclpy.qos import (
     QoSProfile,
     ReliabilityPolicy,
 )
+from rclpy.serialization import deserialize_message
+from rclpy.subscription import Subscription
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.errors import ConfigurationError, InputError
 
 # Audio: best effort matches both reliable and best-effort publishers (audio_capture is reliable);
 # a deep queue absorbs bursts from GStreamer without dropping chunks.
@@ -67,14 +70,18 @@ def features_to_msg(frames: np.ndarray, label: str) -> Float32MultiArray:
 
 
 def msg_to_features(msg: Float32MultiArray) -> tuple[np.ndarray, str]:
-    """Unpack a features message; raises ValueError when the layout does not fit the data."""
+    """Unpack a features message.
+
+    Raises:
+        InputError: the layout does not describe the data (2 dims, frames x features).
+    """
     dims = msg.layout.dim
     if len(dims) != 2:
-        raise ValueError(f"features message needs 2 layout dims, got {len(dims)}")
+        raise InputError(f"features message needs 2 layout dims, got {len(dims)}")
     n_frames, n_features = dims[0].size, dims[1].size
     data = np.asarray(msg.data, dtype=np.float32)
     if data.size != n_frames * n_features:
-        raise ValueError(
+        raise InputError(
             f"features message holds {data.size} values, layout says {n_frames}x{n_features}"
         )
     return data.reshape(n_frames, n_features), dims[1].label
@@ -183,6 +190,7 @@ class DiagnosedNode(Node):
         super().__init__(node_name)
         self._problems: dict[str, _Problem] = {}
         self.callback_errors = 0
+        self.oversized_messages = 0
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(HEARTBEAT_PERIOD_S, self.guarded(self.publish_diagnostics))
 
@@ -246,6 +254,40 @@ class DiagnosedNode(Node):
 
         return boundary
 
+    def create_bounded_subscription(
+        self,
+        msg_type: type,
+        topic: str,
+        callback: Callable[[Any], None],
+        qos: QoSProfile | int,
+        max_bytes: int | Callable[[], int],
+    ) -> Subscription:
+        """A guarded subscription that drops a message larger than ``max_bytes`` before decoding.
+
+        rclpy turns every element of a message into a Python object before a callback sees it:
+        a JointTrajectory of 100,000 points takes about a second to decode, during which the node
+        serves nothing (no commands, no heartbeat). Here the message arrives serialized; one
+        above ``max_bytes`` (an int, or a function giving the current cap) is dropped, counted in
+        ``oversized_messages`` and reported, and only messages within the cap are decoded.
+        """
+        handler = self.guarded(callback)
+
+        def receive(data: bytes) -> None:
+            cap = max_bytes() if callable(max_bytes) else max_bytes
+            if len(data) > cap:
+                self.oversized_messages += 1
+                self.report_problem(
+                    f"oversized message on {topic}",
+                    DiagnosticStatus.WARN,
+                    f"dropped a {len(data)}-byte message on {topic} before decoding it "
+                    f"(at most {cap} bytes)",
+                )
+                return
+            handler(deserialize_message(data, msg_type))
+
+        receive.__name__ = getattr(callback, "__name__", "callback")
+        return self.create_subscription(msg_type, topic, self.guarded(receive), qos, raw=True)
+
     # --- publication --------------------------------------------------------------------------
 
     def diagnostic_summary(self) -> tuple[bytes, str]:
@@ -262,6 +304,7 @@ class DiagnosedNode(Node):
         problems = self.current_problems()
         values = dict(self.diagnostic_values())
         values["callback_errors"] = self.callback_errors
+        values["oversized_messages_dropped"] = self.oversized_messages
         for key, (problem_level, problem_message, count) in problems.items():
             level = max(level, problem_level)
             message += f"; {problem_message}" + (f" ({count}x)" if count > 1 else "")

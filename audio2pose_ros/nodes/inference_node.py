@@ -40,6 +40,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from std_msgs.msg import Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
+from audio2pose_ros.errors import InputError
 from audio2pose_ros.models import require_streaming
 from audio2pose_ros.models.checkpoint import load_checkpoint
 from audio2pose_ros.nodes.common import (
@@ -57,6 +58,9 @@ from audio2pose_ros.robot import load_robot
 # 10 s of 10 ms frames (about 20 ms of work for the packaged model); audio_features_node sends
 # one message per audio chunk, typically 1 to 20 frames.
 MAX_FRAMES_PER_MESSAGE = 1000
+# A features message of MAX_FRAMES_PER_MESSAGE frames of up to 256 float32 features and its layout;
+# anything larger is dropped before rclpy decodes it (its layout list could be any length).
+MAX_FEATURES_BYTES = 4096 + MAX_FRAMES_PER_MESSAGE * 256 * 4
 
 PARAMETERS = (
     ParameterSpec(
@@ -128,8 +132,8 @@ class InferenceNode(DiagnosedNode):
         self.compute_s = 0.0
 
         self.trajectory_pub = self.create_publisher(JointTrajectory, "raw_trajectory", STREAM_QOS)
-        self.create_subscription(
-            Float32MultiArray, "features", self.guarded(self.on_features), STREAM_QOS
+        self.create_bounded_subscription(
+            Float32MultiArray, "features", self.on_features, STREAM_QOS, MAX_FEATURES_BYTES
         )
         self.get_logger().info(
             f"streaming model {model.name} from {model_path}, "
@@ -145,7 +149,7 @@ class InferenceNode(DiagnosedNode):
         """Normalise, make safe, predict each frame, publish one trajectory point per frame."""
         try:
             frames, label = msg_to_features(msg)
-        except ValueError as exc:  # msg_to_features refuses a layout that does not fit the data
+        except InputError as exc:  # msg_to_features refuses a layout that does not fit the data
             self.report_problem(
                 "malformed", DiagnosticStatus.WARN, f"malformed features message dropped: {exc}"
             )

@@ -200,6 +200,21 @@ class MotionFilterNodeSettings:
 
 
 SETTINGS_CLASSES = (MotionFilterSettings, LimitSettings, MotionFilterNodeSettings)
+# A JointState of a whole humanoid (names, positions, velocities, efforts) is a few KiB.
+MAX_JOINT_STATE_BYTES = 65536
+
+
+def trajectory_bytes_cap(max_points: int, n_joints: int) -> int:
+    """Largest raw_trajectory decoded: ``max_points`` points carrying all four arrays (bytes).
+
+    A point of CDR holds four float64 arrays (positions, velocities, accelerations, efforts;
+    4-byte length each) and a Duration; beyond the cap the message is dropped before decoding,
+    so the work of one message stays bounded (decoding costs about 9 us per point in rclpy).
+    """
+    per_point = 4 * (4 + 8 * n_joints) + 8
+    return 1024 + 64 * n_joints + max_points * per_point
+
+
 PARAMETERS = tuple(spec for cls in SETTINGS_CLASSES for spec in specs_of(cls))
 OUTPUT_RATES = ("joint_angles_rate_hz", "joint_trajectory_rate_hz", "joint_states_rate_hz")
 
@@ -264,21 +279,28 @@ class MotionFilterNode(DiagnosedNode):
                 "stop: false to release it"
             )
 
-        guarded = self.guarded
-        self.create_subscription(
-            JointTrajectory, "raw_trajectory", guarded(self.on_raw), STREAM_QOS
+        guarded, bounded = self.guarded, self.create_bounded_subscription
+        bounded(
+            JointTrajectory,
+            "raw_trajectory",
+            self.on_raw,
+            STREAM_QOS,
+            lambda: trajectory_bytes_cap(
+                int(self.parameters["max_points_per_message"]), self.robot.n_joints
+            ),
         )
         self.create_subscription(Bool, "voice_activity", guarded(self.on_voice), STREAM_QOS)
         self.create_subscription(Bool, "enable", guarded(self.on_enable), LATCHED_QOS)
         self.create_subscription(Bool, "stop", guarded(self.on_stop), LATCHED_QOS)
-        self.create_subscription(JointState, "head_target", guarded(self.on_head_target), 10)
-        self.create_subscription(JointState, "head_offset", guarded(self.on_head_offset), 10)
+        bounded(JointState, "head_target", self.on_head_target, 10, MAX_JOINT_STATE_BYTES)
+        bounded(JointState, "head_offset", self.on_head_offset, 10, MAX_JOINT_STATE_BYTES)
         try:
-            self.create_subscription(
+            bounded(
                 JointState,
                 self.settings.measured_joint_states_topic,
-                guarded(self.on_measured),
+                self.on_measured,
                 qos_profile_sensor_data,
+                MAX_JOINT_STATE_BYTES,
             )
         except (InvalidTopicNameException, ValueError):
             raise ConfigurationError(
