@@ -4,12 +4,21 @@ Every error the package raises for something a user can fix derives from
 :class:`Audio2PoseError`. The command line turns exactly these into one clear line (exit status
 1, or 2 for :class:`UsageError`); anything else is a bug and is reported as one, with its
 traceback under ``--debug``. Nodes treat :class:`ConfigurationError` at start-up as "do not
-restart me" (see ``audio2pose_ros.nodes.common.EXIT_CONFIGURATION_ERROR``).
+restart me": they exit with :data:`EXIT_CONFIGURATION_ERROR`.
 """
 
 from __future__ import annotations
 
-__all__ = ["Audio2PoseError", "ConfigurationError", "InputError", "UsageError"]
+__all__ = [
+    "EXIT_CONFIGURATION_ERROR",
+    "Audio2PoseError",
+    "ConfigurationError",
+    "InputError",
+    "UsageError",
+]
+
+# sysexits.h EX_CONFIG: a node cannot run with its configuration; supervisors never respawn it
+EXIT_CONFIGURATION_ERROR = 78
 
 
 class Audio2PoseError(Exception):

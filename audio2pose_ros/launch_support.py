@@ -29,7 +29,7 @@ from pathlib import Path
 
 import yaml
 
-from audio2pose_ros.errors import Audio2PoseError, ConfigurationError
+from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, Audio2PoseError, ConfigurationError
 
 __all__ = [
     "ARGUMENTS",
@@ -49,9 +49,6 @@ __all__ = [
     "plan_launch",
 ]
 
-# Exit status of a node that cannot start with its configuration (sysexits.h EX_CONFIG); the
-# node contract in audio2pose_ros.nodes.common uses the same value. Never restarted.
-EXIT_CONFIGURATION_ERROR = 78
 # ros2_control for Pepper (naoqi_driver's ros2_control work) runs this controller at 50 Hz;
 # config/ros2_controllers.yaml declares it under the same name.
 CONTROLLER_NAME = "pepper_joint_trajectory_controller"

@@ -13,6 +13,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
+from audio2pose_ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.nodes.common import LATCHED_QOS
 
 
@@ -28,7 +29,7 @@ class Probe(Node):
         }
         for key, msg_type, topic in (
             ("angles", JointAnglesWithSpeed, "/joint_angles"),
-            ("trajectory", JointTrajectory, "/joint_trajectory_controller/joint_trajectory"),
+            ("trajectory", JointTrajectory, CONTROLLER_TOPIC),
             ("states", JointState, "/commanded_joint_states"),
             ("raw", JointTrajectory, "/raw_trajectory"),
             ("features", Float32MultiArray, "/features"),

@@ -17,12 +17,13 @@ from rosbags.highlevel import AnyReader
 
 from audio2pose_ros.audio.pcm import read_wav
 from audio2pose_ros.cli.graph import executable_command
+from audio2pose_ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.resources import share_path
 
 AUDIO2POSE = executable_command("audio2pose")
 COMMAND_TOPICS = {
     "/joint_angles",
-    "/joint_trajectory_controller/joint_trajectory",
+    CONTROLLER_TOPIC,
     "/commanded_joint_states",
 }
 

@@ -256,12 +256,6 @@ def test_when_a_node_exits_with_a_configuration_error_expect_no_restart():
     assert "not restarting it" in decision.message
 
 
-def test_when_the_exit_status_constant_is_compared_expect_the_node_contracts_value():
-    from audio2pose_ros.nodes.common import EXIT_CONFIGURATION_ERROR as NODE_EXIT
-
-    assert NODE_EXIT == EXIT_CONFIGURATION_ERROR == 78
-
-
 def test_when_describing_exits_expect_signal_names_for_negative_codes():
     assert describe_exit(-signal.SIGKILL) == "killed by SIGKILL"
     assert describe_exit(1) == "status 1"

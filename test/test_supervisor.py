@@ -75,7 +75,7 @@ def test_when_node_goes_silent_expect_it_killed_and_restarted(tmp_path: Path):
     supervisor.start()
     try:
         first = supervisor.processes["quiet"]
-        supervisor.heartbeat("quiet")  # heard once, then never again (like SIGSTOP)
+        supervisor.heartbeat("quiet", first.pid)  # heard once, then never again (like SIGSTOP)
         assert _wait(lambda: supervisor.silences["quiet"] == 1, STALE_AFTER_S + 2.0)
         assert first.poll() is not None
         assert _wait(lambda: supervisor.processes["quiet"] is not first, 2.0)

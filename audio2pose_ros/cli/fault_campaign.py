@@ -122,6 +122,7 @@ class CampaignProbe(Node):
         self.commands: list[tuple[float, np.ndarray]] = []
         self.features = 0
         self.diagnostics: dict[str, tuple[int, str, dict[str, str]]] = {}
+        self.stale_reports: dict[str, int] = {}
         self.create_subscription(JointAnglesWithSpeed, "joint_angles", self._on_command, 1000)
         self.create_subscription(Float32MultiArray, "features", self._on_features, 100)
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 100)
@@ -148,11 +149,10 @@ class CampaignProbe(Node):
         for status in msg.status:
             name = status.name.rpartition(": ")[2]
             values = {kv.key: kv.value for kv in status.values}
-            self.diagnostics[name] = (
-                int.from_bytes(status.level, "little"),
-                status.message,
-                values,
-            )
+            level = int.from_bytes(status.level, "little")
+            self.diagnostics[name] = (level, status.message, values)
+            if level == STALE_LEVEL:
+                self.stale_reports[name] = self.stale_reports.get(name, 0) + 1
 
     def _joint_state(self, values: np.ndarray, names: tuple[str, ...] | None = None) -> JointState:
         msg = JointState()
@@ -469,19 +469,20 @@ def _restart(
 def _sigstop(c: Campaign) -> Outcome:
     node = "motion_filter_node"
     old, silences = c.pid(node), c.supervisor.silences[node]
+    stale_before = c.probe.stale_reports.get(node, 0)
     start = time.monotonic()
     os.kill(old, signal.SIGSTOP)
     deadline = start + 10.0
     while time.monotonic() < deadline and c.supervisor.silences[node] == silences:
         c.probe.spin_for(0.02)
     noticed_s = time.monotonic() - start
-    stale = c.probe.diagnostics.get(node, (0, "", {}))[0] == STALE_LEVEL
     if c.supervisor.silences[node] == silences:
         os.kill(old, signal.SIGCONT)
         return Outcome("not noticed within 10 s", False)
     while time.monotonic() < deadline + 10.0 and c.pid(node) == old:
         c.probe.spin_for(0.05)
     restarted_s = time.monotonic() - start
+    stale = c.probe.stale_reports.get(node, 0) > stale_before
     resumed = c.probe.settle(c.pose_a, timeout_s=15.0)
     ok = noticed_s <= 1.5 and stale and resumed
     did = (

@@ -44,17 +44,21 @@ from audio2pose_ros.bag import (
     read_checked_messages,
 )
 from audio2pose_ros.errors import Audio2PoseError, UsageError
+from audio2pose_ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.nodes.common import EXIT_CONFIGURATION_ERROR, LATCHED_QOS, STALE_AFTER_S
 from audio2pose_ros.resources import share_path
 
 NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
+# As the launch file does: trajectories go to Pepper's ros2_control controller.
+TRAJECTORY_OUTPUT = "joint_trajectory_controller/joint_trajectory"  # the node's relative name
+NODE_REMAPS = {"motion_filter_node": ("-r", f"{TRAJECTORY_OUTPUT}:={CONTROLLER_TOPIC}")}
 STATUS_PREFIX = "audio2pose_ros"  # diagnostic status names: "audio2pose_ros: <node name>"
 STARTUP_GRACE_S = 30.0  # a node may take this long to publish its first heartbeat (imports)
 MAX_BACKOFF_S = 16.0  # longest wait before a restart
 WATCH_PERIOD_S = 0.1
 RECORDED_TOPICS = {
     "/joint_angles": (JointAnglesWithSpeed, "naoqi_bridge_msgs/msg/JointAnglesWithSpeed"),
-    "/joint_trajectory_controller/joint_trajectory": (
+    CONTROLLER_TOPIC: (
         JointTrajectory,
         "trajectory_msgs/msg/JointTrajectory",
     ),
@@ -143,8 +147,15 @@ class NodeSupervisor:
             self._spawn(name, "w")
         self._thread.start()
 
-    def heartbeat(self, name: str) -> None:
-        """``name`` published its diagnostics now (called from a /diagnostics subscriber)."""
+    def heartbeat(self, name: str, pid: int) -> None:
+        """Process ``pid`` of node ``name`` published its diagnostics now.
+
+        A heartbeat of another process than the node's current one (e.g. sent by a killed
+        process and delivered after its restart) is ignored.
+        """
+        process = self.processes.get(name)
+        if process is None or process.pid != pid:
+            return
         with self._lock:
             self._heard_s[name] = self._last_heard_s[name] = time.monotonic()
 
@@ -258,7 +269,9 @@ class HeartbeatMonitor:
         for status in msg.status:
             prefix, _, name = status.name.partition(": ")
             if prefix == STATUS_PREFIX and name in self.supervisor.commands:
-                self.supervisor.heartbeat(name)
+                pid = next((kv.value for kv in status.values if kv.key == "pid"), "")
+                if pid.isdigit():  # a node's own status (ours, about a silent node, has none)
+                    self.supervisor.heartbeat(name, int(pid))
 
     def _report_silent(self) -> None:
         statuses = []
@@ -339,6 +352,7 @@ def node_graph(
                 "--params-file",
                 str(params),
                 *extra,
+                *NODE_REMAPS.get(name, ()),
             ]
             for name in NODE_EXECUTABLES
         }

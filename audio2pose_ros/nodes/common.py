@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import sys
 import time
 import traceback
@@ -29,7 +30,7 @@ from rclpy.subscription import Subscription
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from audio2pose_ros.errors import ConfigurationError, InputError
+from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, ConfigurationError, InputError
 
 # Audio: best effort matches both reliable and best-effort publishers (audio_capture is reliable);
 # a deep queue absorbs bursts from GStreamer without dropping chunks.
@@ -53,8 +54,6 @@ STALE_AFTER_S = 1.2  # a node not heard from for this long is silent (stopped, f
 PROBLEM_HOLD_S = 5.0  # a reported problem is shown until this long after its last occurrence
 LOG_THROTTLE_S = 5.0  # one log line per problem per this many seconds
 MAX_LOGGED_TRACEBACKS = 5  # callback exceptions beyond this are counted, not printed again
-# sysexits.h EX_CONFIG: the node cannot run with its configuration; never respawn it
-EXIT_CONFIGURATION_ERROR = 78
 
 
 def features_to_msg(frames: np.ndarray, label: str) -> Float32MultiArray:
@@ -303,6 +302,7 @@ class DiagnosedNode(Node):
         level, message = self.diagnostic_summary()
         problems = self.current_problems()
         values = dict(self.diagnostic_values())
+        values["pid"] = os.getpid()  # tells a supervisor which process of the node is alive
         values["callback_errors"] = self.callback_errors
         values["oversized_messages_dropped"] = self.oversized_messages
         for key, (problem_level, problem_message, count) in problems.items():
