@@ -18,6 +18,7 @@ from graph_probe import Probe, diagnostics_of
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm, read_wav
 from audio2pose_ros.cli.graph import executable_command, node_graph
 from audio2pose_ros.nodes.common import EXIT_CONFIGURATION_ERROR
+from audio2pose_ros.nodes.motion_filter_node import PARAMETERS as FILTER_PARAMETERS
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -49,7 +50,8 @@ def test_when_speech_streamed_in_odd_chunks_expect_commands_for_11_joints_within
     assert raw_points == expected, (raw_points, expected, duration_s)
 
     angles = probe.received["angles"]
-    assert len(angles) >= 0.9 * 100 * duration_s  # 100 Hz commands while speech plays
+    rate_hz = next(s.default for s in FILTER_PARAMETERS if s.name == "joint_angles_rate_hz")
+    assert len(angles) >= 0.9 * rate_hz * duration_s  # evenly spaced commands while speech plays
     positions = np.array([m.joint_angles for m in angles])
     assert all(list(m.joint_names) == list(robot.names) for m in angles)
     assert positions.shape[1] == 11
