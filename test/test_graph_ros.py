@@ -50,7 +50,7 @@ def test_when_speech_streamed_in_odd_chunks_expect_commands_for_11_joints_within
     assert raw_points == expected, (raw_points, expected, duration_s)
 
     angles = probe.received["angles"]
-    rate_hz = next(s.default for s in FILTER_PARAMETERS if s.name == "joint_angles_rate_hz")
+    rate_hz = default_of("joint_angles_rate_hz")
     assert len(angles) >= 0.9 * rate_hz * duration_s  # evenly spaced commands while speech plays
     positions = np.array([m.joint_angles for m in angles])
     assert all(list(m.joint_names) == list(robot.names) for m in angles)
@@ -62,9 +62,8 @@ def test_when_speech_streamed_in_odd_chunks_expect_commands_for_11_joints_within
 
     states = probe.received["states"]
     trajectories = probe.received["trajectory"]
-    assert len(states) > 0.9 * 50 * duration_s
-    trajectory_hz = next(s.default for s in FILTER_PARAMETERS if s.name == "joint_trajectory_rate_hz")
-    assert len(trajectories) > 0.9 * trajectory_hz * duration_s
+    assert len(states) > 0.9 * default_of("joint_states_rate_hz") * duration_s
+    assert len(trajectories) > 0.9 * default_of("joint_trajectory_rate_hz") * duration_s
     for msg in trajectories[:20]:
         assert list(msg.joint_names) == list(robot.names)
         assert len(msg.points) == 1
@@ -132,6 +131,11 @@ def test_when_audio_is_malformed_expect_logged_skipped_and_node_keeps_running(
     assert "no usable AudioInfo received yet" in log
     assert "S24BE" in log
     assert "dropped an audio chunk" in log
+
+
+def default_of(parameter: str) -> float:
+    """The motion filter's declared default of ``parameter``."""
+    return float(next(s.default for s in FILTER_PARAMETERS if s.name == parameter))
 
 
 def run_inference_node_until_error(model: Path) -> str:
