@@ -35,13 +35,13 @@ def node(monkeypatch):
 
 
 def features(node, frames: np.ndarray):  # a Float32MultiArray
-    spec = node.checkpoint.features
+    spec = node.model.features
     return features_to_msg(frames.astype(np.float32), f"{spec.kind}{spec.dim}")
 
 
 @pytest.mark.ros
 def test_when_features_are_non_finite_or_absurd_expect_one_safe_pose_per_frame(node, robot):
-    mean, std = node.checkpoint.normalizer.mean, node.checkpoint.normalizer.std
+    mean, std = node.model.normalizer.mean, node.model.normalizer.std
     frames = np.tile(mean, (4, 1))
     frames[1, 3] = np.inf
     frames[2, 5] = np.nan
@@ -57,7 +57,7 @@ def test_when_features_are_non_finite_or_absurd_expect_one_safe_pose_per_frame(n
     assert node.values_clamped == frames.shape[1]
     # The 1e30 frame is treated exactly as a frame at the clamp limit.
     node.published.clear()
-    node.predictor = node.checkpoint.model.streaming_predictor()
+    node.predictor = node.model.predictor()
     limit = np.tile(mean, (4, 1))  # non-finite values become the mean
     limit[3, :] = mean + node.limit_sd * std
     node.on_features(features(node, limit))
@@ -70,7 +70,7 @@ def test_when_features_are_non_finite_or_absurd_expect_one_safe_pose_per_frame(n
 def test_when_a_message_holds_a_minute_of_frames_expect_only_the_cap_used(node):
     from audio2pose_ros.nodes.inference_node import MAX_FRAMES_PER_MESSAGE
 
-    frames = np.tile(node.checkpoint.normalizer.mean, (6000, 1))
+    frames = np.tile(node.model.normalizer.mean, (6000, 1))
     node.on_features(features(node, frames))
     assert len(node.published[0].points) == MAX_FRAMES_PER_MESSAGE
     assert node.frames_dropped == 6000 - MAX_FRAMES_PER_MESSAGE

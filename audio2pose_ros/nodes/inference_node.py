@@ -16,6 +16,10 @@ Parameters
     feature_limit_sd (float, 1..1000, live): normalised feature values are clamped to
         +-feature_limit_sd standard deviations of the training data before the model.
 
+Models with a numpy kernel (``mlp``, ``lstm``, ``live``) run without torch
+(:mod:`audio2pose_ros.runtime`, one product per layer for a message's frames with the MLP);
+other streaming models are loaded with torch.
+
 A checkpoint or robot file that is missing, modified, crafted, offline-only or made for other
 joints is a ConfigurationError at start-up: ``run_node`` prints one line and exits with status
 78, which supervisors never respawn.
@@ -41,8 +45,6 @@ from std_msgs.msg import Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.errors import InputError
-from audio2pose_ros.models import require_streaming
-from audio2pose_ros.models.checkpoint import load_checkpoint
 from audio2pose_ros.nodes.common import (
     STREAM_QOS,
     DiagnosedNode,
@@ -54,6 +56,7 @@ from audio2pose_ros.nodes.parameters import NodeParameters
 from audio2pose_ros.parameters import ParameterSpec, ParameterValue
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot import load_robot
+from audio2pose_ros.runtime import load_streaming_model
 
 # 10 s of 10 ms frames (about 20 ms of work for the packaged model); audio_features_node sends
 # one message per audio chunk, typically 1 to 20 frames.
@@ -117,11 +120,9 @@ class InferenceNode(DiagnosedNode):
         self.parameters = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
         model_path = self.parameters["model_path"] or default_checkpoint_path()
         self.robot = load_robot(self.parameters["robot_description"])
-        self.checkpoint = load_checkpoint(model_path, robot=self.robot)
-        model = self.checkpoint.model
-        require_streaming(model, str(model_path))
-        self.predictor = model.streaming_predictor()
-        spec = self.checkpoint.features
+        self.model = load_streaming_model(model_path, robot=self.robot)
+        self.predictor = self.model.predictor()
+        spec = self.model.features
         self.expected_label = f"{spec.kind}{spec.dim}"
         self.period_s = spec.step_s
         self.limit_sd = float(self.parameters["feature_limit_sd"])
@@ -136,8 +137,8 @@ class InferenceNode(DiagnosedNode):
             Float32MultiArray, "features", self.on_features, STREAM_QOS, MAX_FEATURES_BYTES
         )
         self.get_logger().info(
-            f"streaming model {model.name} from {model_path}, "
-            f"expects {self.expected_label} features"
+            f"streaming model {self.model.name} ({self.model.runtime} runtime) from "
+            f"{model_path}, expects {self.expected_label} features"
         )
 
     def apply_parameters(self, changes: Mapping[str, ParameterValue]) -> None:
@@ -154,7 +155,7 @@ class InferenceNode(DiagnosedNode):
                 "malformed", DiagnosticStatus.WARN, f"malformed features message dropped: {exc}"
             )
             return
-        if label != self.expected_label or frames.shape[1] != self.checkpoint.features.dim:
+        if label != self.expected_label or frames.shape[1] != self.model.features.dim:
             self.frames_dropped += len(frames)
             self.report_problem(
                 "wrong features",
@@ -176,7 +177,7 @@ class InferenceNode(DiagnosedNode):
             return
         start = time.perf_counter()
         with np.errstate(invalid="ignore", over="ignore"):  # inf - inf: made safe just below
-            normalized = self.checkpoint.normalizer.apply(frames)
+            normalized = self.model.normalizer.apply(frames)
         safe, replaced, clamped = sanitize_features(normalized, self.limit_sd)
         if replaced or clamped:
             self.values_replaced += replaced
@@ -187,7 +188,7 @@ class InferenceNode(DiagnosedNode):
                 f"feature values made safe: {replaced} non-finite replaced by the mean, "
                 f"{clamped} clamped to +-{self.limit_sd:g} sd",
             )
-        poses = np.array([self.predictor.step(frame) for frame in safe])
+        poses = self.predictor.run(safe)
         angles = self.robot.denormalize(poses)
         self.compute_s += time.perf_counter() - start
         self.frames_in += len(frames)
@@ -199,7 +200,8 @@ class InferenceNode(DiagnosedNode):
         """Frame and value counters and the mean compute time per frame."""
         mean_us = 1e6 * self.compute_s / self.frames_in if self.frames_in else 0.0
         return {
-            "model": self.checkpoint.model.name,
+            "model": self.model.name,
+            "runtime": self.model.runtime,
             "frames_in": self.frames_in,
             "frames_dropped": self.frames_dropped,
             "feature_values_replaced": self.values_replaced,
