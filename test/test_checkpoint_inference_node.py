@@ -8,14 +8,13 @@ frame still yields one pose inside the joint limits.
 from __future__ import annotations
 
 import struct
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
+from node_processes import configuration_error_line
 
-from audio2pose_ros.cli.graph import executable_command
-from audio2pose_ros.nodes.common import EXIT_CONFIGURATION_ERROR, features_to_msg
+from audio2pose_ros.nodes.common import features_to_msg
 
 
 @pytest.fixture
@@ -90,15 +89,6 @@ def test_when_the_checkpoint_is_crafted_expect_one_line_and_exit_78(
 ):
     model = tmp_path / "crafted.safetensors"
     model.write_bytes(struct.pack("<Q", len(content)) + content)
-    result = subprocess.run(
-        [*executable_command("inference_node"), "--ros-args", "-p", f"model_path:={model}"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert result.returncode == EXIT_CONFIGURATION_ERROR, result.stderr
-    assert "Traceback" not in result.stderr + result.stdout
-    lines = [line for line in result.stderr.splitlines() if "configuration error" in line]
-    assert len(lines) == 1, result.stderr
-    assert "crafted.safetensors" in lines[0]
-    assert problem in lines[0]
+    line = configuration_error_line("inference_node", "-p", f"model_path:={model}")
+    assert "crafted.safetensors" in line
+    assert problem in line

@@ -7,17 +7,16 @@ commands are checked where naoqi_driver / ros2_control would receive them.
 
 from __future__ import annotations
 
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 from audio_common_msgs.msg import AudioData, AudioInfo
 from graph_probe import Probe, diagnostics_of
+from node_processes import configuration_error_line
 
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm, read_wav
-from audio2pose_ros.cli.graph import executable_command, node_graph
-from audio2pose_ros.nodes.common import EXIT_CONFIGURATION_ERROR
+from audio2pose_ros.cli.graph import node_graph
 from audio2pose_ros.nodes.motion_filter_node import PARAMETERS as FILTER_PARAMETERS
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -138,24 +137,6 @@ def default_of(parameter: str) -> float:
     return float(next(s.default for s in FILTER_PARAMETERS if s.name == parameter))
 
 
-def run_inference_node_until_error(model: Path) -> str:
-    """Start inference_node on ``model``; return the one line it leaves on exit.
-
-    Asserts the exit status that supervisors never respawn and that no traceback is shown.
-    """
-    result = subprocess.run(
-        [*executable_command("inference_node"), "--ros-args", "-p", f"model_path:={model}"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert result.returncode == EXIT_CONFIGURATION_ERROR, result.stderr
-    assert "Traceback" not in result.stderr + result.stdout
-    lines = [line for line in result.stderr.splitlines() if "configuration error" in line]
-    assert len(lines) == 1, result.stderr
-    return lines[0]
-
-
 def test_when_checkpoint_tampered_expect_one_line_and_no_respawnable_exit(tmp_path: Path):
     from audio2pose_ros.resources import default_checkpoint_path
 
@@ -163,7 +144,7 @@ def test_when_checkpoint_tampered_expect_one_line_and_no_respawnable_exit(tmp_pa
     data[-5] ^= 0x55
     tampered = tmp_path / "tampered.safetensors"
     tampered.write_bytes(bytes(data))
-    message = run_inference_node_until_error(tampered)
+    message = configuration_error_line("inference_node", "-p", f"model_path:={tampered}")
     assert "checksum mismatch" in message
 
 
@@ -183,5 +164,5 @@ def test_when_model_is_offline_only_expect_refusal_pointing_to_synth(tmp_path: P
             robot,
         ),
     )
-    message = run_inference_node_until_error(path)
+    message = configuration_error_line("inference_node", "-p", f"model_path:={path}")
     assert "audio2pose synth" in message
