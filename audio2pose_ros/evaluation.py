@@ -27,6 +27,7 @@ from audio2pose_ros.errors import InputError
 from audio2pose_ros.models.checkpoint import Checkpoint
 from audio2pose_ros.robot import RobotDescription
 from audio2pose_ros.synthesis import synthesize
+from audio2pose_ros.training import TrainSettings
 
 NEUTRAL = "neutral pose"
 MEAN_MOTION = "mean training motion"
@@ -241,3 +242,303 @@ def plot_clip(
     fig.savefig(path, dpi=70)
     plt.close(fig)
     return path
+
+
+# --- Distribution evaluation per joint group (issue 13 item 3) ---------------------------------
+
+STATIC = "static pose"
+MISMATCHED = "mismatched real motion"
+QUALITY_MEASURES = ("H speed", "H accel", "std ratio", "speech/silence speed")
+Predictions = dict[str, dict[str, list[np.ndarray]]]  # method -> clip id -> samples (N, J) rad
+
+
+@dataclass
+class GroupRow:
+    """Measures of one method on one joint group, pooled over the held-out clips.
+
+    Attributes:
+        method: model or baseline name.
+        group: joint group ('head', 'arms', 'hip').
+        measures: :data:`QUALITY_MEASURES` -> (value, 2.5 %, 97.5 % bootstrap bounds).
+        rmse_deg: mean over clips of the RMSE (seed 003 eq. 3.12) on the group's joints.
+        lcca: mean over clips of LCCA_Theta (seed 003 eq. 3.19, Table 5.1).
+        diversity_deg: mean pairwise RMS distance of samples with different seeds (NaN when the
+            method is deterministic).
+
+    """
+
+    method: str
+    group: str
+    measures: dict[str, tuple[float, float, float]]
+    rmse_deg: float
+    lcca: float
+    diversity_deg: float
+
+
+@dataclass
+class QualityEvaluation:
+    """Result of :func:`quality_evaluation`: rows per method and group, histograms, seconds."""
+
+    rows: list[GroupRow]
+    histograms: dict[
+        tuple[str, str], tuple[np.ndarray, np.ndarray]
+    ]  # (method, group) -> (speed, accel)
+    seconds: float
+    silence_seconds: float
+    figure: Path | None = None
+
+    def table(self) -> str:
+        """Plain text: one line per (group, method); bracketed 95 % bootstrap intervals."""
+        lines = [
+            f"{self.seconds:.0f} s of held-out motion ({self.silence_seconds:.0f} s in silences "
+            f">= {metrics.SILENCE_MIN_S:.0f} s); [95 % bootstrap interval over 1 s segments]",
+            f"{'group':<6}{'method':<34}{'H speed':>20}{'H accel':>20}{'std/real':>20}"
+            f"{'speech/silence':>20}{'RMSE deg':>10}{'LCCA':>7}{'div deg':>9}",
+        ]
+        for row in self.rows:
+            cells = ""
+            for key in QUALITY_MEASURES:
+                value, low, high = row.measures[key]
+                cells += f"{_ci(value, low, high):>20}"
+            lines.append(
+                f"{row.group:<6}{row.method:<34}{cells}{_num(row.rmse_deg, 2):>10}"
+                f"{_num(row.lcca, 2):>7}{_num(row.diversity_deg, 2):>9}"
+            )
+        return "\n".join(lines)
+
+
+def _num(value: float, digits: int) -> str:
+    return "-" if not math.isfinite(value) else f"{value:.{digits}f}"
+
+
+def _ci(value: float, low: float, high: float) -> str:
+    if not math.isfinite(value):
+        return "-"
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return f"{value:.2f}"
+    return f"{value:.2f} [{low:.2f},{high:.2f}]"
+
+
+def _mismatched(clips: Sequence[Clip], index: int) -> Clip:
+    """Real motion of another held-out clip, of another speaker when there is one."""
+    n = len(clips)
+    order = [clips[(index + k) % n] for k in range(1, n)]
+    others = [c for c in order if c.info.speaker != clips[index].info.speaker]
+    return (others or order or [clips[index]])[0]
+
+
+def quality_evaluation(
+    clips: Sequence[Clip],
+    predictions: Predictions,
+    robot: RobotDescription,
+    out_figure: Path | None = None,
+    n_resamples: int = 200,
+    seed: int = 0,
+) -> QualityEvaluation:
+    """Compare generated with real motion per joint group, with baselines on the same clips.
+
+    For every joint group with real (observed) motion in ``clips``: the Hellinger distances
+    between histograms of joint speed and of acceleration, generated vs real, computed per joint
+    and averaged over the group's joints (GENEA's numerical evaluation); the standard deviation
+    of the clip-centred angles relative to real; the ratio of mean joint speed during speech to
+    that during silences of at least 1 s (energy VAD, :func:`metrics.energy_vad`); each with a
+    95 % paired bootstrap interval over 1 s segments. Also the seed's RMSE and LCCA_Theta (seed
+    003 Table 5.1) and the diversity of samples with different seeds. Baselines: a static pose
+    (the robot's neutral pose: the floor) and real motion of another held-out clip, of another
+    speaker where there is one, cut or repeated to length (the ceiling).
+
+    Args:
+        clips: held-out clips with real motion.
+        predictions: method -> clip id -> one or more sampled motions (N, J) in radians; the
+            first sample is the one measured, all of them give the diversity.
+        robot: joint order and groups.
+        out_figure: write the speed and acceleration histograms here (PNG); None = no figure.
+        n_resamples: bootstrap resamples.
+        seed: bootstrap seed.
+
+    Raises:
+        EvaluationError: no clips.
+
+    """
+    if not clips:
+        raise EvaluationError("no held-out clips to evaluate")
+    rate = MOTION_RATE_HZ
+    methods = [STATIC, MISMATCHED, *predictions]
+    motion: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {m: [] for m in methods}
+    real, speech_frames = [], []
+    for i, clip in enumerate(clips):
+        n = min(clip.n_frames, *(p[clip.info.clip_id][0].shape[0] for p in predictions.values()))
+        true = np.where(clip.mask[:n], np.nan_to_num(clip.angles_rad[:n]), robot.neutral_rad)
+        real.append((true, clip.mask[:n]))
+        speech_frames.append(metrics.energy_vad(clip.audio, n))
+        everywhere = np.ones_like(clip.mask[:n])
+        other = _mismatched(clips, i)
+        motion[STATIC].append((np.broadcast_to(robot.neutral_rad, true.shape), everywhere))
+        motion[MISMATCHED].append(
+            (_fit_length(np.nan_to_num(other.angles_rad), n), _fit_length(other.mask, n))
+        )
+        for name, per_clip in predictions.items():
+            motion[name].append((per_clip[clip.info.clip_id][0][:n], everywhere))
+    rows, histograms = [], {}
+    groups = [g for g in ("head", "arms", "hip") if robot.group_mask(g).any()]
+    for group in groups:
+        joints = robot.group_mask(group)
+        if not any(mask[:, joints].any() for _, mask in real):
+            continue
+        real_segments = metrics.concat_segments(
+            [
+                metrics.segment_statistics(t[:, joints], m[:, joints], s, rate)
+                for (t, m), s in zip(real, speech_frames, strict=True)
+            ]
+        )
+        histograms[("real", group)] = _density(real_segments)
+        for name in methods:
+            gen = metrics.concat_segments(
+                [
+                    metrics.segment_statistics(p[:, joints], g[:, joints] & m[:, joints], s, rate)
+                    for (p, g), (_, m), s in zip(motion[name], real, speech_frames, strict=True)
+                ]
+            )
+            # std, speed ratio: only where the real angle is known, so both sides match
+            measures = metrics.bootstrap_measures(real_segments, gen, n_resamples, seed)
+            histograms[(name, group)] = _density(gen)
+            rmse, lcca = [], []
+            for (p, _), (t, m) in zip(motion[name], real, strict=True):
+                if m[:, joints].any():
+                    rmse.append(metrics.rmse_deg(t[:, joints], p[:, joints], m[:, joints]))
+                if m[:, joints].all(axis=0).any():
+                    lcca.append(metrics.lcca_theta(t[:, joints], p[:, joints], rate, m[:, joints]))
+            diversity = [
+                metrics.diversity_deg(np.stack([s[: t.shape[0], joints] for s in samples]))
+                for samples, (t, _) in zip(
+                    (
+                        [predictions[name][c.info.clip_id] for c in clips]
+                        if name in predictions
+                        else []
+                    ),
+                    real,
+                    strict=False,
+                )
+                if len(samples) >= 2
+            ]
+            rows.append(
+                GroupRow(
+                    name,
+                    group,
+                    measures,
+                    float(np.mean(rmse)) if rmse else math.nan,
+                    float(np.mean(lcca)) if lcca else math.nan,
+                    float(np.mean(diversity)) if diversity else math.nan,
+                )
+            )
+    seconds = sum(t.shape[0] for t, _ in real) / rate
+    silence = sum(metrics.long_silences(s, rate).sum() for s in speech_frames) / rate
+    result = QualityEvaluation(rows, histograms, seconds, float(silence))
+    if out_figure is not None:
+        result.figure = plot_histograms(out_figure, result, methods)
+    return result
+
+
+def _density(segments: metrics.MotionSegments) -> tuple[np.ndarray, np.ndarray]:
+    """Pooled speed and acceleration histograms (all joints of the group), as fractions."""
+    speed = segments.speed_counts.sum(axis=(0, 1))
+    accel = segments.accel_counts.sum(axis=(0, 1))
+    return speed / max(speed.sum(), 1.0), accel / max(accel.sum(), 1.0)
+
+
+def plot_histograms(path: Path, result: QualityEvaluation, methods: Sequence[str]) -> Path:
+    """One PNG of speed and acceleration histograms per joint group, generated vs real.
+
+    Rows are joint groups, columns speed and acceleration; real motion is the grey area, each
+    method a line (the static pose, all in the first bin, is left out).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    groups = sorted({g for _, g in result.histograms}, key=("head", "arms", "hip").index)
+    fig, axes = plt.subplots(len(groups), 2, figsize=(11, 3.2 * len(groups)), squeeze=False)
+    edges = (metrics.SPEED_BINS_RAD_S[:-1], metrics.ACCELERATION_BINS_RAD_S2[:-1])
+    limits = (3.0, 100.0)
+    for r, group in enumerate(groups):
+        for c, (label, unit) in enumerate((("speed", "rad/s"), ("acceleration", "rad/s^2"))):
+            ax = axes[r, c]
+            real = result.histograms[("real", group)][c]
+            ax.fill_between(edges[c], real, step="post", color="0.8", label="real")
+            for name in methods:
+                if name == STATIC or (name, group) not in result.histograms:
+                    continue
+                ax.step(edges[c], result.histograms[(name, group)][c], where="post", label=name)
+            ax.set_yscale("log")
+            ax.set_xlim(0, limits[c])
+            ax.set_title(f"{group}: joint {label} (held-out)", fontsize=9)
+            ax.set_xlabel(unit, fontsize=8)
+            ax.set_ylabel("fraction of frames", fontsize=8)
+    axes[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def loso_predictions(
+    dataset: Dataset,
+    robot: RobotDescription,
+    model_names: Sequence[str],
+    settings: TrainSettings,
+    n_samples: int = 3,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[list[Clip], Predictions]:
+    """Leave one speaker out: for each speaker, train each model on the others, predict it.
+
+    Every clip of the data set is held out exactly once (in its speaker's fold), whatever its
+    split label; validation for early stopping holds out further speakers of the training side
+    (:func:`~audio2pose_ros.training.train_on_clips`).
+
+    Returns:
+        All clips, and per model label (``"<name> (LOSO)"``) and clip id the synthesized
+        samples (seeds ``settings.seed`` + 0 .. n_samples - 1; one for deterministic models).
+
+    Raises:
+        EvaluationError: fewer than two speakers.
+
+    """
+    from audio2pose_ros.training import train_on_clips
+
+    clips = [dataset.load(c.clip_id) for c in dataset.clips]
+    speakers = sorted({c.info.speaker for c in clips})
+    if len(speakers) < 2:
+        raise EvaluationError(f"{dataset.root}: leave-one-speaker-out needs two speakers")
+    predictions: Predictions = {f"{m} (LOSO)": {} for m in model_names}
+    for k, speaker in enumerate(speakers):
+        training = [c for c in clips if c.info.speaker != speaker]
+        for name in model_names:
+            if progress is not None:
+                progress(f"fold {k + 1}/{len(speakers)} ({speaker} held out): training {name}")
+            checkpoint, _ = train_on_clips(name, training, robot, settings)
+            draws = n_samples if checkpoint.model.stochastic else 1
+            for clip in (c for c in clips if c.info.speaker == speaker):
+                predictions[f"{name} (LOSO)"][clip.info.clip_id] = [
+                    synthesize(checkpoint, clip.audio, seed=settings.seed + s)[1]
+                    for s in range(draws)
+                ]
+    return clips, predictions
+
+
+def checkpoint_predictions(
+    checkpoints: Sequence[tuple[Path, Checkpoint]],
+    clips: Sequence[Clip],
+    n_samples: int = 3,
+    seed: int = 0,
+) -> Predictions:
+    """Synthesized samples of trained checkpoints on given clips (seeds seed .. seed + n - 1)."""
+    out: Predictions = {}
+    for path, ckpt in checkpoints:
+        draws = n_samples if ckpt.model.stochastic else 1
+        out[_model_label(ckpt, path)] = {
+            c.info.clip_id: [synthesize(ckpt, c.audio, seed=seed + s)[1] for s in range(draws)]
+            for c in clips
+        }
+    return out

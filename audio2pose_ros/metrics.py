@@ -14,6 +14,7 @@ their histograms (:func:`hellinger_speed`, :func:`hellinger_acceleration`); for 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -246,3 +247,218 @@ def diversity_deg(samples_rad: np.ndarray) -> float:
         np.sqrt(np.mean((samples[a] - samples[b]) ** 2)) for a in range(n) for b in range(a + 1, n)
     ]
     return float(np.degrees(np.mean(distances)))
+
+
+# --- Distribution measures per joint group, with confidence intervals (issue 13 item 3) -------
+
+SILENCE_MIN_S = 1.0  # only pauses of at least this long count as silence (short pauses do not)
+VAD_FLOOR_DB = 30.0  # frames this far below the clip's loud frames (95th percentile) are silent
+
+
+def energy_vad(
+    signal_16k: np.ndarray, n_frames: int, hop: int = 160, window: int = 400
+) -> np.ndarray:
+    """Speech activity per motion frame from frame energy (an energy VAD).
+
+    A frame (25 ms window every 10 ms, the feature grid) is speech when its RMS energy in dB is
+    within :data:`VAD_FLOOR_DB` of the clip's 95th percentile; the decision is smoothed by a
+    0.2 s median filter so that stop consonants do not split speech.
+
+    Returns:
+        (n_frames,) bool, True where someone speaks.
+
+    """
+    from scipy.ndimage import median_filter
+
+    audio = np.asarray(signal_16k, dtype=np.float64)
+    starts = np.arange(n_frames) * hop
+    padded = np.pad(audio, (0, max(0, starts[-1] + window - audio.size if n_frames else 0)))
+    frames = np.stack([padded[s : s + window] for s in starts]) if n_frames else np.zeros((0, 1))
+    level_db = 10.0 * np.log10(np.mean(frames**2, axis=1) + 1e-10)
+    if level_db.size == 0:
+        return np.zeros(0, dtype=bool)
+    speech = level_db >= np.percentile(level_db, 95) - VAD_FLOOR_DB
+    return median_filter(speech.astype(np.uint8), size=21, mode="nearest").astype(bool)
+
+
+def long_silences(speech: np.ndarray, rate_hz: float, min_s: float = SILENCE_MIN_S) -> np.ndarray:
+    """Frames inside runs of non-speech lasting at least ``min_s`` seconds."""
+    silent = ~np.asarray(speech, dtype=bool)
+    out = np.zeros_like(silent)
+    start = None
+    for i, value in enumerate([*silent, False]):
+        if value and start is None:
+            start = i
+        elif not value and start is not None:
+            if i - start >= min_s * rate_hz:
+                out[start:i] = True
+            start = None
+    return out
+
+
+@dataclass
+class MotionSegments:
+    """Per-segment sufficient statistics of one motion source, for paired bootstrapping.
+
+    Every held-out clip is cut into segments of :data:`SEGMENT_S`; a bootstrap resample draws
+    segments with replacement and sums their statistics, so the measures of a resample cost a
+    sum, not a recomputation.
+
+    Attributes:
+        speed_counts: (S, J, bins) histogram counts of joint speed per segment.
+        accel_counts: (S, J, bins) histogram counts of joint acceleration per segment.
+        moments: (S, J, 3) count, sum and sum of squares of the clip-centred angle.
+        speech_speed: (S, 2) sum of the joints' mean speed over speech frames, and their count.
+        silence_speed: (S, 2) the same over frames of silences of at least 1 s.
+
+    """
+
+    speed_counts: np.ndarray
+    accel_counts: np.ndarray
+    moments: np.ndarray
+    speech_speed: np.ndarray
+    silence_speed: np.ndarray
+
+
+SEGMENT_S = 1.0
+
+
+def segment_statistics(
+    theta_rad: np.ndarray,
+    mask: np.ndarray,
+    speech: np.ndarray,
+    rate_hz: float,
+    segment_s: float = SEGMENT_S,
+) -> MotionSegments:
+    """Cut one clip's motion (N, J) into segments and histogram speed and acceleration.
+
+    Args:
+        theta_rad: (N, J) angles of the joints of one group.
+        mask: (N, J) True where the angle is known.
+        speech: (N,) speech activity (:func:`energy_vad`).
+        rate_hz: frame rate.
+        segment_s: segment length.
+
+    """
+    theta = np.asarray(theta_rad, dtype=np.float64)
+    known = np.asarray(mask, dtype=bool)
+    n, joints = theta.shape
+    speed = np.zeros_like(theta)
+    speed[1:] = np.abs(np.diff(theta, axis=0)) * rate_hz
+    speed_ok = np.zeros_like(known)
+    speed_ok[1:] = known[1:] & known[:-1]
+    accel = np.zeros_like(theta)
+    accel[2:] = np.abs(np.diff(theta, 2, axis=0)) * rate_hz**2
+    accel_ok = np.zeros_like(known)
+    accel_ok[2:] = known[2:] & known[1:-1] & known[:-2]
+    centre = np.array(
+        [np.mean(theta[known[:, j], j]) if known[:, j].any() else 0.0 for j in range(joints)]
+    )
+    centred = theta - centre
+    silence = long_silences(speech, rate_hz)
+    mean_speed = np.where(speed_ok, speed, 0.0).sum(axis=1) / np.maximum(speed_ok.sum(axis=1), 1)
+    any_speed = speed_ok.any(axis=1)
+    length = max(1, round(segment_s * rate_hz))
+    bounds = [(s, min(n, s + length)) for s in range(0, n, length) if min(n, s + length) - s > 2]
+    out = MotionSegments(
+        np.zeros((len(bounds), joints, SPEED_BINS_RAD_S.size - 1)),
+        np.zeros((len(bounds), joints, ACCELERATION_BINS_RAD_S2.size - 1)),
+        np.zeros((len(bounds), joints, 3)),
+        np.zeros((len(bounds), 2)),
+        np.zeros((len(bounds), 2)),
+    )
+    for k, (a, b) in enumerate(bounds):
+        for j in range(joints):
+            out.speed_counts[k, j] = np.histogram(
+                speed[a:b, j][speed_ok[a:b, j]], SPEED_BINS_RAD_S
+            )[0]
+            out.accel_counts[k, j] = np.histogram(
+                accel[a:b, j][accel_ok[a:b, j]], ACCELERATION_BINS_RAD_S2
+            )[0]
+            values = centred[a:b, j][known[a:b, j]]
+            out.moments[k, j] = (values.size, values.sum(), (values**2).sum())
+        for target, frames in ((out.speech_speed, speech), (out.silence_speed, silence)):
+            chosen = frames[a:b] & any_speed[a:b]
+            target[k] = (mean_speed[a:b][chosen].sum(), chosen.sum())
+    return out
+
+
+def concat_segments(parts: Sequence[MotionSegments]) -> MotionSegments:
+    """Stack the segments of several clips."""
+    return MotionSegments(
+        *(
+            np.concatenate([getattr(p, f) for p in parts])
+            for f in MotionSegments.__dataclass_fields__
+        )
+    )
+
+
+def _joint_hellinger(true_counts: np.ndarray, pred_counts: np.ndarray) -> float:
+    """Hellinger distance per joint between (J, bins) histograms, averaged over joints."""
+    values = [hellinger(t, p) for t, p in zip(true_counts, pred_counts, strict=True)]
+    values = [v for v in values if not np.isnan(v)]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def _std(moments: np.ndarray) -> np.ndarray:
+    count, total, squares = moments[..., 0], moments[..., 1], moments[..., 2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(np.maximum(squares / count - (total / count) ** 2, 0.0))
+
+
+def distribution_measures(real: MotionSegments, generated: MotionSegments) -> dict[str, float]:
+    """H speed, H accel (per joint, averaged), std ratio, and speech / silence speed ratio.
+
+    ``real`` and ``generated`` hold the same segments (same clips, same order).
+    """
+    with np.errstate(invalid="ignore", divide="ignore"):
+        std_ratio = _std(generated.moments.sum(axis=0)) / _std(real.moments.sum(axis=0))
+        speech = generated.speech_speed.sum(axis=0)
+        silence = generated.silence_speed.sum(axis=0)
+        ratio = (speech[0] / speech[1]) / (silence[0] / silence[1]) if silence[1] else np.nan
+    finite = std_ratio[np.isfinite(std_ratio)]
+    return {
+        "H speed": _joint_hellinger(
+            real.speed_counts.sum(axis=0), generated.speed_counts.sum(axis=0)
+        ),
+        "H accel": _joint_hellinger(
+            real.accel_counts.sum(axis=0), generated.accel_counts.sum(axis=0)
+        ),
+        "std ratio": float(np.mean(finite)) if finite.size else float("nan"),
+        "speech/silence speed": float(ratio),
+    }
+
+
+def bootstrap_measures(
+    real: MotionSegments, generated: MotionSegments, n_resamples: int = 200, seed: int = 0
+) -> dict[str, tuple[float, float, float]]:
+    """:func:`distribution_measures` with 95 % percentile bootstrap intervals over segments.
+
+    Segments are resampled with replacement, the same indices for real and generated motion
+    (a paired bootstrap).
+
+    Returns:
+        measure -> (value on all segments, 2.5th percentile, 97.5th percentile).
+
+    """
+    point = distribution_measures(real, generated)
+    rng = np.random.default_rng(seed)
+    n = real.speed_counts.shape[0]
+    draws: dict[str, list[float]] = {k: [] for k in point}
+    for _ in range(n_resamples if n > 1 else 0):
+        pick = rng.integers(0, n, n)
+        values = distribution_measures(_take(real, pick), _take(generated, pick))
+        for key, value in values.items():
+            draws[key].append(value)
+    out = {}
+    for key, value in point.items():
+        finite = np.asarray([v for v in draws[key] if np.isfinite(v)])
+        low, high = np.percentile(finite, [2.5, 97.5]) if finite.size else (np.nan, np.nan)
+        out[key] = (value, float(low), float(high))
+    return out
+
+
+def _take(segments: MotionSegments, pick: np.ndarray) -> MotionSegments:
+    return MotionSegments(
+        *(getattr(segments, f)[pick] for f in MotionSegments.__dataclass_fields__)
+    )

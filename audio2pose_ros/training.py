@@ -544,6 +544,16 @@ def prepare_training_data(
         )
     if not val_clips:
         train_clips, val_clips = _hold_out(train_clips, validation_fraction, holdout, seed)
+    return training_data_from_clips(train_clips, val_clips, robot, spec)
+
+
+def training_data_from_clips(
+    train_clips: Sequence[Clip],
+    val_clips: Sequence[Clip],
+    robot: RobotDescription,
+    spec: FeatureSpec,
+) -> TrainingData:
+    """Utterances of given training and validation clips, normalised by the training clips."""
     normalizer = FeatureNormalizer.fit(
         np.concatenate([extract_features(c.audio, spec) for c in train_clips])
     )
@@ -553,6 +563,56 @@ def prepare_training_data(
         normalizer=normalizer,
         speakers=sorted({c.info.speaker for c in train_clips}),
     )
+
+
+def train_on_clips(
+    model_name: str,
+    clips: Sequence[Clip],
+    robot: RobotDescription,
+    settings: TrainSettings | None = None,
+    config: dict[str, Any] | None = None,
+) -> tuple[Checkpoint, TrainReport]:
+    """Train a new model on in-memory clips, validating on held-out speakers (or clips).
+
+    Used by the leave-one-speaker-out evaluation (:mod:`audio2pose_ros.evaluation`) and the
+    default model's rebuild: a fifth of the speakers (at least one) is held out for early
+    stopping when there are two or more, else a fifth of the clips.
+
+    Args:
+        model_name: registry name.
+        clips: the training clips (any split label).
+        robot: joint order and ranges.
+        settings: training settings (no training state is saved).
+        config: model config beyond the feature and joint counts.
+
+    Raises:
+        TrainingError: fewer than two clips.
+
+    """
+    settings = settings or TrainSettings()
+    spec = FeatureSpec()
+    torch.manual_seed(settings.seed)
+    model = build_model(
+        model_name, {"n_features": spec.dim, "n_joints": robot.n_joints, **(config or {})}
+    )
+    speakers = {c.info.speaker for c in clips}
+    holdout = "speaker" if len(speakers) >= 2 else "clip"
+    train_clips, val_clips = _hold_out(list(clips), 0.2, holdout, settings.seed)
+    data = training_data_from_clips(train_clips, val_clips, robot, spec)
+    report = train_model(model, data.train, data.validation, settings)
+    info = {
+        "train_clips": sorted(u.name for u in data.train),
+        "validation_clips": sorted(u.name for u in data.validation),
+        "speakers": data.speakers,
+        "subject": "independent",
+        "recipe": asdict(model.recipe),
+        "seed": settings.seed,
+        "stages": [asdict(s) for s in report.stages],
+        "epochs": len(report.val_loss),
+        "best_epoch": report.best_epoch,
+        "best_validation_loss": report.best_val_loss,
+    }
+    return Checkpoint(model, spec, data.normalizer, robot, info), report
 
 
 def state_path_for(output: Path) -> Path:

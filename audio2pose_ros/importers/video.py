@@ -122,7 +122,7 @@ def track_video(path: Path, body: bool = True) -> VideoTracks:
     )
 
 
-def _body_angles(tracks: VideoTracks, robot: RobotDescription) -> tuple[np.ndarray, np.ndarray]:
+def body_angles(tracks: VideoTracks, robot: RobotDescription) -> tuple[np.ndarray, np.ndarray]:
     """Arm and hip angles per video frame, (N, J) with NaN, and their (N, J) observed mask."""
     n, names = tracks.times_s.size, robot.names
     angles = np.full((n, robot.n_joints), np.nan)
@@ -176,7 +176,7 @@ def clip_from_tracks(
         face &= tracks.fit_residual <= head_pose.RESIDUAL_OUTLIER_FACTOR * typical
     neutral = head_neutral(robot) if settings.centre else None
     ypr, face = head_pose.clean_head_track(tracks.head_rotation, face, neutral)
-    angles, observed = _body_angles(tracks, robot)
+    angles, observed = body_angles(tracks, robot)
     for k, name in enumerate(HEAD_JOINTS):
         angles[:, robot.names.index(name)] = ypr[:, k]
         observed[:, robot.names.index(name)] = face

@@ -9,6 +9,7 @@
 | ``blstm_prior`` | 002 section 3.2 | no |
 | ``cvae`` | 002 section 3.3 | no (samples) |
 | ``live`` | ours | yes (samples) |
+| ``live_groups`` | ours: a live sampler per joint group | yes (samples) |
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from audio2pose_ros.models.blstm_prior import BLSTMPriorConfig, PriorMotionBLSTM
 from audio2pose_ros.models.cvae import CVAEConfig, SpeechCVAE
 from audio2pose_ros.models.dae_gru import DAEGRU, DAEGRUConfig
 from audio2pose_ros.models.live import LiveConfig, LiveSampler
+from audio2pose_ros.models.live_groups import LiveGroups, LiveGroupsConfig
 from audio2pose_ros.models.lstm import CausalLSTM, LSTMConfig
 from audio2pose_ros.models.mlp import FramewiseMLP, MLPConfig
 
@@ -44,6 +46,7 @@ MODEL_REGISTRY: dict[str, tuple[type[PoseModel], type]] = {
         (PriorMotionBLSTM, BLSTMPriorConfig),
         (SpeechCVAE, CVAEConfig),
         (LiveSampler, LiveConfig),
+        (LiveGroups, LiveGroupsConfig),
     )
 }
 
@@ -108,6 +111,8 @@ __all__ = [
     "FramewiseMLP",
     "LSTMConfig",
     "LiveConfig",
+    "LiveGroups",
+    "LiveGroupsConfig",
     "LiveSampler",
     "MLPConfig",
     "OfflineOnlyModelError",

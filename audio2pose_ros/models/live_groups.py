@@ -1,0 +1,154 @@
+"""Two live samplers side by side: one for the head, one for the arms and hip (ours).
+
+The head is labelled by talking-head clips whose arms are out of frame, the arms by a lecture
+whose speaker's face is too small to track: no clip labels both. A single autoregressive model
+fed back its own untrained outputs for the joints a clip does not label would see, at run time,
+inputs it never saw in training. This model splits the joints into two groups, each with its own
+:class:`~audio2pose_ros.models.live.LiveSampler` (causal GRU, Gaussian output, time-correlated
+sampling noise) that reads the audio and only its own group's previous pose. Each part's loss
+is the masked Gaussian negative log-likelihood of its joints, so a clip trains only the part
+whose joints it labels; both parts train together, on the union of the data sets.
+Streams: yes (two GRU cell steps per frame); the streaming predictor samples with a settable
+seed (the head part's noise from ``seed``, the body part's from ``seed + 1``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.models.base import PoseModel, StreamingPredictor
+from audio2pose_ros.models.live import LiveConfig, LivePredictor, LiveSampler
+
+
+@dataclass(frozen=True)
+class LiveGroupsConfig:
+    """Architecture of :class:`LiveGroups`.
+
+    Attributes:
+        first_group: bit j set = joint j belongs to the first part (default 3: joints 0 and 1,
+            HeadPitch and HeadYaw in Pepper's order); the other joints form the second part.
+
+    """
+
+    n_features: int = 26
+    n_joints: int = 11
+    hidden_units: int = 32
+    input_noise: float = 0.05
+    noise_correlation: float = 0.95
+    first_group: int = 3
+
+
+class LiveGroups(PoseModel):
+    """Two :class:`LiveSampler` s over disjoint joint groups; (B, T, F) -> (B, T, J)."""
+
+    name: ClassVar[str] = "live_groups"
+    streaming: ClassVar[bool] = True
+    stochastic: ClassVar[bool] = True
+
+    def __init__(self, config: LiveGroupsConfig) -> None:
+        """Build both parts."""
+        super().__init__()
+        first = np.array([(config.first_group >> j) & 1 == 1 for j in range(config.n_joints)])
+        if config.first_group >= 1 << config.n_joints or first.all() or not first.any():
+            raise ConfigurationError(
+                f"first_group={config.first_group} must select some but not all of "
+                f"{config.n_joints} joints"
+            )
+        self.config = config
+        self.groups = (np.flatnonzero(first), np.flatnonzero(~first))
+        self.parts = torch.nn.ModuleList(
+            LiveSampler(
+                LiveConfig(
+                    config.n_features,
+                    len(joints),
+                    config.hidden_units,
+                    config.input_noise,
+                    config.noise_correlation,
+                )
+            )
+            for joints in self.groups
+        )
+
+    def config_dict(self) -> dict[str, Any]:
+        """Constructor arguments as a dict."""
+        return asdict(self.config)
+
+    def _scatter(self, outputs: list[torch.Tensor]) -> torch.Tensor:
+        shape = (*outputs[0].shape[:-1], self.config.n_joints)
+        poses = outputs[0].new_zeros(shape)
+        for joints, out in zip(self.groups, outputs, strict=True):
+            poses[..., torch.from_numpy(joints)] = out
+        return poses
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        """Both parts' most likely motion (temperature 0), joints in the robot's order."""
+        return self._scatter([part(features) for part in self.parts])
+
+    def training_loss(
+        self, features: torch.Tensor, targets: torch.Tensor, mask: torch.Tensor
+    ) -> torch.Tensor:
+        """Sum of the parts' masked Gaussian negative log-likelihoods."""
+        total = features.new_zeros(())
+        for joints, part in zip(self.groups, self.parts, strict=True):
+            index = torch.from_numpy(joints)
+            if mask[..., index].any():
+                total = total + part.training_loss(features, targets[..., index], mask[..., index])
+        return total
+
+    def sample(
+        self,
+        features: torch.Tensor,
+        n_samples: int,
+        generator: torch.Generator | None = None,
+        temperature: float = 1.0,
+    ) -> torch.Tensor:
+        """(B, T, F) -> (S, B, T, J); each part draws its own noise from ``generator``."""
+        return self._scatter(
+            [part.sample(features, n_samples, generator, temperature) for part in self.parts]
+        )
+
+    def streaming_predictor(self, seed: int = 0, temperature: float = 1.0) -> LiveGroupsPredictor:
+        """Per-frame sampler: same seed, same motion; ``temperature`` 0 = ``forward``."""
+        return LiveGroupsPredictor(self, seed, temperature)
+
+
+class LiveGroupsPredictor(StreamingPredictor):
+    """Streaming sampler of :class:`LiveGroups` with a settable seed and temperature."""
+
+    def __init__(self, model: LiveGroups, seed: int = 0, temperature: float = 1.0) -> None:
+        """One :class:`LivePredictor` per part (seeds ``seed`` and ``seed + 1``)."""
+        self._groups = model.groups
+        self._n_joints = model.config.n_joints
+        self._parts = [
+            LivePredictor(part._core(), seed + k, temperature) for k, part in enumerate(model.parts)
+        ]
+        self.seed = seed
+
+    @property
+    def temperature(self) -> float:
+        """Noise scale of both parts (0 = most likely motion)."""
+        return self._parts[0].temperature
+
+    @temperature.setter
+    def temperature(self, value: float) -> None:
+        for part in self._parts:
+            part.temperature = value
+
+    def reset(self, seed: int | None = None) -> None:
+        """Forget the state; optionally change the seed."""
+        if seed is not None:
+            self.seed = seed
+        for k, part in enumerate(self._parts):
+            part.reset(self.seed + k)
+
+    def step(self, features: np.ndarray) -> np.ndarray:
+        """Sample the pose of one (n_features,) frame: (n_joints,) in [0, 1]."""
+        pose = np.empty(self._n_joints)
+        for joints, part in zip(self._groups, self._parts, strict=True):
+            pose[joints] = part.step(features)
+        return pose
