@@ -571,12 +571,14 @@ def train_on_clips(
     robot: RobotDescription,
     settings: TrainSettings | None = None,
     config: dict[str, Any] | None = None,
+    validation: Sequence[Clip] | None = None,
 ) -> tuple[Checkpoint, TrainReport]:
     """Train a new model on in-memory clips, validating on held-out speakers (or clips).
 
     Used by the leave-one-speaker-out evaluation (:mod:`audio2pose_ros.evaluation`) and the
     default model's rebuild: a fifth of the speakers (at least one) is held out for early
-    stopping when there are two or more, else a fifth of the clips.
+    stopping when there are two or more, else a fifth of the clips; or the given validation
+    clips.
 
     Args:
         model_name: registry name.
@@ -584,9 +586,10 @@ def train_on_clips(
         robot: joint order and ranges.
         settings: training settings (no training state is saved).
         config: model config beyond the feature and joint counts.
+        validation: clips for early stopping; None = held out from ``clips``.
 
     Raises:
-        TrainingError: fewer than two clips.
+        TrainingError: fewer than two clips (without ``validation``).
 
     """
     settings = settings or TrainSettings()
@@ -595,9 +598,11 @@ def train_on_clips(
     model = build_model(
         model_name, {"n_features": spec.dim, "n_joints": robot.n_joints, **(config or {})}
     )
-    speakers = {c.info.speaker for c in clips}
-    holdout = "speaker" if len(speakers) >= 2 else "clip"
-    train_clips, val_clips = _hold_out(list(clips), 0.2, holdout, settings.seed)
+    if validation:
+        train_clips, val_clips = list(clips), list(validation)
+    else:
+        holdout = "speaker" if len({c.info.speaker for c in clips}) >= 2 else "clip"
+        train_clips, val_clips = _hold_out(list(clips), 0.2, holdout, settings.seed)
     data = training_data_from_clips(train_clips, val_clips, robot, spec)
     report = train_model(model, data.train, data.validation, settings)
     info = {
