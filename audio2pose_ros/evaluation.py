@@ -367,7 +367,7 @@ def quality_evaluation(
     motion: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {m: [] for m in methods}
     real, speech_frames = [], []
     for i, clip in enumerate(clips):
-        n = min(clip.n_frames, *(p[clip.info.clip_id][0].shape[0] for p in predictions.values()))
+        n = min([clip.n_frames, *(p[clip.info.clip_id][0].shape[0] for p in predictions.values())])
         true = np.where(clip.mask[:n], np.nan_to_num(clip.angles_rad[:n]), robot.neutral_rad)
         real.append((true, clip.mask[:n]))
         speech_frames.append(metrics.energy_vad(clip.audio, n))

@@ -109,3 +109,18 @@ def test_when_synthesizing_any_model_expect_limited_angles_and_seeded_samples(
     np.testing.assert_array_equal(synthesize(checkpoint, audio, seed=1)[1], angles)
     if checkpoint.model.stochastic:
         assert np.abs(synthesize(checkpoint, audio, seed=2)[1] - angles).max() > 0
+
+
+def test_when_evaluating_leave_one_speaker_out_expect_group_table_with_baselines_and_figure(
+    folder, tmp_path, capsys
+):
+    out = tmp_path / "loso"
+    argv = ["evaluate", "--data", str(folder), "--loso", "mlp", "live", "--max-epochs", "2"]
+    assert run_cli([*argv, "--samples", "2", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "leave one speaker out" in text
+    for method in ("static pose", "mismatched real motion", "mlp (LOSO)", "live (LOSO)"):
+        assert f"head  {method}" in text
+        assert f"arms  {method}" in text
+    assert (out / "distributions.png").stat().st_size > 1000
+    assert "speech/silence" in (out / "metrics.txt").read_text()

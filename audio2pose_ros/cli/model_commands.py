@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from audio2pose_ros.cli.options import MAX_SEED, bounded_int, input_dir, input_file, output_file
+from audio2pose_ros.errors import UsageError
 
 
 def command_train(args: argparse.Namespace) -> int:
@@ -50,31 +51,66 @@ def command_train(args: argparse.Namespace) -> int:
 
 
 def command_evaluate(args: argparse.Namespace) -> int:
-    """Evaluate checkpoints and baselines on a split; print the table, save PNGs."""
+    """Evaluate checkpoints and baselines on a split, or model families leave-one-speaker-out.
+
+    With checkpoints: seed 003's table on the split, then the per-group distribution table on
+    the same clips. With ``--loso``: each named family is trained once per speaker on the
+    others and measured on the held-out speaker; the per-group table covers every clip.
+    ``--out`` gets metrics.txt, distributions.png (and one PNG per clip with checkpoints).
+    """
     from audio2pose_ros.dataset import Dataset
-    from audio2pose_ros.evaluation import evaluate
+    from audio2pose_ros.evaluation import (
+        checkpoint_predictions,
+        evaluate,
+        loso_predictions,
+        quality_evaluation,
+    )
     from audio2pose_ros.models.checkpoint import load_checkpoint
     from audio2pose_ros.robot import load_robot
+    from audio2pose_ros.training import TrainSettings
 
+    if not args.checkpoints and not args.loso:
+        raise UsageError("evaluate: give checkpoints, or --loso MODEL... (or both)")
     robot = load_robot()
     dataset = Dataset.open(input_dir(args.data, "data set folder"), robot)
     checkpoints = [(Path(p), load_checkpoint(p, robot=robot)) for p in args.checkpoints]
     out_dir = Path(args.out) if args.out else None
-    result = evaluate(
-        checkpoints,
-        dataset,
-        robot,
-        split=args.split,
-        out_dir=out_dir,
-        n_samples=args.samples,
-        seed=args.seed,
-        progress=lambda clip: print(f"evaluating {clip} ...", file=sys.stderr, flush=True),
-    )
-    table = result.table()
-    print(table)
+
+    def progress(message: str) -> None:
+        print(message, file=sys.stderr, flush=True)
+
+    tables, figures = [], 0
+    if checkpoints:
+        result = evaluate(
+            checkpoints,
+            dataset,
+            robot,
+            split=args.split,
+            out_dir=out_dir,
+            n_samples=args.samples,
+            seed=args.seed,
+            progress=lambda clip: progress(f"evaluating {clip} ..."),
+        )
+        tables.append(result.table())
+        figures += len(result.figures)
+        clips = list(dataset.iter_split(args.split))
+        predictions = checkpoint_predictions(checkpoints, clips, args.samples, args.seed)
+    else:
+        clips, predictions = [], {}
+    if args.loso:
+        settings = TrainSettings(max_epochs=args.max_epochs, seed=args.seed, show_progress=False)
+        clips, loso = loso_predictions(dataset, robot, args.loso, settings, args.samples, progress)
+        predictions = loso
+        tables.append("leave one speaker out: every clip held out once, in its speaker's fold")
+    figure = out_dir / "distributions.png" if out_dir is not None else None
+    quality = quality_evaluation(clips, predictions, robot, figure, seed=args.seed)
+    tables.append(quality.table())
+    text = "\n\n".join(tables)
+    print(text)
     if out_dir is not None:
-        (out_dir / "metrics.txt").write_text(table + "\n", encoding="utf-8")
-        print(f"wrote {len(result.figures)} figures and metrics.txt to {out_dir}")
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "metrics.txt").write_text(text + "\n", encoding="utf-8")
+        print(f"wrote {figures + 1} figures and metrics.txt to {out_dir}")
     return 0
 
 
@@ -108,7 +144,7 @@ def register(verbs: argparse._SubParsersAction) -> None:
     train.set_defaults(func=command_train)
 
     evaluate = verbs.add_parser("evaluate", help="compare checkpoints and baselines")
-    evaluate.add_argument("checkpoints", nargs="+", metavar="CKPT")
+    evaluate.add_argument("checkpoints", nargs="*", metavar="CKPT")
     evaluate.add_argument("--data", required=True, metavar="DIR", help="data set folder")
     evaluate.add_argument("--split", default="test", choices=("train", "validation", "test"))
     evaluate.add_argument("--out", metavar="DIR", help="write one PNG per clip and the table")
@@ -116,4 +152,17 @@ def register(verbs: argparse._SubParsersAction) -> None:
         "--samples", type=bounded_int(2, 100), default=3, help="samples for diversity, 2 to 100"
     )
     evaluate.add_argument("--seed", type=bounded_int(0, MAX_SEED), default=0)
+    evaluate.add_argument(
+        "--loso",
+        nargs="+",
+        choices=sorted(MODEL_REGISTRY),
+        metavar="MODEL",
+        help="train these families leave-one-speaker-out and measure them on held-out speakers",
+    )
+    evaluate.add_argument(
+        "--max-epochs",
+        type=bounded_int(1, 100_000),
+        default=150,
+        help="with --loso: epochs per fold at most (default 150)",
+    )
     evaluate.set_defaults(func=command_evaluate)
