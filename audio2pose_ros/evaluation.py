@@ -248,7 +248,7 @@ def plot_clip(
 
 STATIC = "static pose"
 MISMATCHED = "mismatched real motion"
-QUALITY_MEASURES = ("H speed", "H accel", "std ratio", "speech/silence speed")
+QUALITY_MEASURES = ("H speed", "H accel", "std ratio", "speech/silence speed", "speech/pause speed")
 Predictions = dict[str, dict[str, list[np.ndarray]]]  # method -> clip id -> samples (N, J) rad
 
 
@@ -293,7 +293,7 @@ class QualityEvaluation:
             f"{self.seconds:.0f} s of held-out motion ({self.silence_seconds:.0f} s in silences "
             f">= {metrics.SILENCE_MIN_S:.0f} s); [95 % bootstrap interval over 1 s segments]",
             f"{'group':<6}{'method':<34}{'H speed':>20}{'H accel':>20}{'std/real':>20}"
-            f"{'speech/silence':>20}{'RMSE deg':>10}{'LCCA':>7}{'div deg':>9}",
+            f"{'speech/silence':>20}{'speech/pause':>20}{'RMSE deg':>10}{'LCCA':>7}{'div deg':>9}",
         ]
         for row in self.rows:
             cells = ""
@@ -319,12 +319,34 @@ def _ci(value: float, low: float, high: float) -> str:
     return f"{value:.2f} [{low:.2f},{high:.2f}]"
 
 
-def _mismatched(clips: Sequence[Clip], index: int) -> Clip:
-    """Real motion of another held-out clip, of another speaker when there is one."""
-    n = len(clips)
-    order = [clips[(index + k) % n] for k in range(1, n)]
-    others = [c for c in order if c.info.speaker != clips[index].info.speaker]
-    return (others or order or [clips[index]])[0]
+def mismatched_order(speakers: Sequence[str]) -> list[int]:
+    """A cyclic shift of the clips pairing each with another speaker's where possible.
+
+    Every clip's motion is used exactly once, so the mismatched baseline's motion has the same
+    overall distribution as the real motion; of the shifts, the one with the fewest same-speaker
+    pairs is taken (ties: the shift closest to half the clips).
+    """
+    n = len(speakers)
+    if n < 2:
+        return list(range(n))
+
+    def cost(shift: int) -> tuple[int, int]:
+        same = sum(speakers[i] == speakers[(i + shift) % n] for i in range(n))
+        return same, abs(shift - n / 2)
+
+    best = min(range(1, n), key=cost)
+    return [(i + best) % n for i in range(n)]
+
+
+PAUSE_S = 1.5  # silence inserted into held-out audio for the speech / silence speed ratio
+_PAUSE_LEVEL = 3e-4  # RMS of the inserted room noise (about -70 dBFS)
+
+
+def with_pause(audio: np.ndarray, seed: int = 0) -> np.ndarray:
+    """The clip's audio with :data:`PAUSE_S` of quiet room noise inserted in the middle."""
+    noise = _PAUSE_LEVEL * np.random.default_rng(seed).standard_normal(int(PAUSE_S * AUDIO_RATE_HZ))
+    middle = audio.size // 2
+    return np.concatenate([audio[:middle], noise, audio[middle:]]).astype(np.float32)
 
 
 def quality_evaluation(
@@ -334,6 +356,7 @@ def quality_evaluation(
     out_figure: Path | None = None,
     n_resamples: int = 200,
     seed: int = 0,
+    paused: Predictions | None = None,
 ) -> QualityEvaluation:
     """Compare generated with real motion per joint group, with baselines on the same clips.
 
@@ -345,7 +368,11 @@ def quality_evaluation(
     95 % paired bootstrap interval over 1 s segments. Also the seed's RMSE and LCCA_Theta (seed
     003 Table 5.1) and the diversity of samples with different seeds. Baselines: a static pose
     (the robot's neutral pose: the floor) and real motion of another held-out clip, of another
-    speaker where there is one, cut or repeated to length (the ceiling).
+    speaker where there is one, cut or repeated to length (the ceiling; a cyclic shift, so
+    every clip's motion is used once, :func:`mismatched_order`). Held-out clips rarely hold a
+    silence of a second or more, so ``paused`` gives each method's motion on the clips' audio
+    with :data:`PAUSE_S` of quiet inserted (:func:`with_pause`): its speech / silence speed
+    ratio is the "speech/pause speed" measure.
 
     Args:
         clips: held-out clips with real motion.
@@ -355,6 +382,8 @@ def quality_evaluation(
         out_figure: write the speed and acceleration histograms here (PNG); None = no figure.
         n_resamples: bootstrap resamples.
         seed: bootstrap seed.
+        paused: method -> clip id -> [motion on ``with_pause(clip.audio)``]; None = no
+            speech/pause measure.
 
     Raises:
         EvaluationError: no clips.
@@ -366,13 +395,14 @@ def quality_evaluation(
     methods = [STATIC, MISMATCHED, *predictions]
     motion: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {m: [] for m in methods}
     real, speech_frames = [], []
+    order = mismatched_order([c.info.speaker for c in clips])
     for i, clip in enumerate(clips):
         n = min([clip.n_frames, *(p[clip.info.clip_id][0].shape[0] for p in predictions.values())])
         true = np.where(clip.mask[:n], np.nan_to_num(clip.angles_rad[:n]), robot.neutral_rad)
         real.append((true, clip.mask[:n]))
         speech_frames.append(metrics.energy_vad(clip.audio, n))
         everywhere = np.ones_like(clip.mask[:n])
-        other = _mismatched(clips, i)
+        other = clips[order[i]]
         motion[STATIC].append((np.broadcast_to(robot.neutral_rad, true.shape), everywhere))
         motion[MISMATCHED].append(
             (_fit_length(np.nan_to_num(other.angles_rad), n), _fit_length(other.mask, n))
@@ -401,6 +431,9 @@ def quality_evaluation(
             )
             # std, speed ratio: only where the real angle is known, so both sides match
             measures = metrics.bootstrap_measures(real_segments, gen, n_resamples, seed)
+            measures["speech/pause speed"] = _pause_ratio(
+                clips, (paused or {}).get(name), joints, n_resamples, seed
+            )
             histograms[(name, group)] = _density(gen)
             rmse, lcca = [], []
             for (p, _), (t, m) in zip(motion[name], real, strict=True):
@@ -437,6 +470,27 @@ def quality_evaluation(
     if out_figure is not None:
         result.figure = plot_histograms(out_figure, result, methods)
     return result
+
+
+def _pause_ratio(
+    clips: Sequence[Clip],
+    motions: dict[str, list[np.ndarray]] | None,
+    joints: np.ndarray,
+    n_resamples: int,
+    seed: int,
+) -> tuple[float, float, float]:
+    """Speech / silence speed ratio of motion generated on the clips' audio with a pause."""
+    if not motions:
+        return math.nan, math.nan, math.nan
+    parts = []
+    for clip in clips:
+        motion = motions[clip.info.clip_id][0][:, joints]
+        speech = metrics.energy_vad(with_pause(clip.audio), motion.shape[0])
+        parts.append(
+            metrics.segment_statistics(motion, np.ones(motion.shape, bool), speech, MOTION_RATE_HZ)
+        )
+    segments = metrics.concat_segments(parts)
+    return metrics.bootstrap_measures(segments, segments, n_resamples, seed)["speech/silence speed"]
 
 
 def _density(segments: metrics.MotionSegments) -> tuple[np.ndarray, np.ndarray]:
@@ -490,7 +544,7 @@ def loso_predictions(
     settings: TrainSettings,
     n_samples: int = 3,
     progress: Callable[[str], None] | None = None,
-) -> tuple[list[Clip], Predictions]:
+) -> tuple[list[Clip], Predictions, Predictions]:
     """Leave one speaker out: for each speaker, train each model on the others, predict it.
 
     Every clip of the data set is held out exactly once (in its speaker's fold), whatever its
@@ -498,8 +552,9 @@ def loso_predictions(
     (:func:`~audio2pose_ros.training.train_on_clips`).
 
     Returns:
-        All clips, and per model label (``"<name> (LOSO)"``) and clip id the synthesized
-        samples (seeds ``settings.seed`` + 0 .. n_samples - 1; one for deterministic models).
+        All clips; per model label (``"<name> (LOSO)"``) and clip id the synthesized samples
+        (seeds ``settings.seed`` + 0 .. n_samples - 1; one for deterministic models); and the
+        same for the clips' audio with a pause (:func:`with_pause`, one sample).
 
     Raises:
         EvaluationError: fewer than two speakers.
@@ -512,19 +567,21 @@ def loso_predictions(
     if len(speakers) < 2:
         raise EvaluationError(f"{dataset.root}: leave-one-speaker-out needs two speakers")
     predictions: Predictions = {f"{m} (LOSO)": {} for m in model_names}
+    paused: Predictions = {f"{m} (LOSO)": {} for m in model_names}
     for k, speaker in enumerate(speakers):
         training = [c for c in clips if c.info.speaker != speaker]
+        held_out = [c for c in clips if c.info.speaker == speaker]
         for name in model_names:
             if progress is not None:
                 progress(f"fold {k + 1}/{len(speakers)} ({speaker} held out): training {name}")
             checkpoint, _ = train_on_clips(name, training, robot, settings)
-            draws = n_samples if checkpoint.model.stochastic else 1
-            for clip in (c for c in clips if c.info.speaker == speaker):
-                predictions[f"{name} (LOSO)"][clip.info.clip_id] = [
-                    synthesize(checkpoint, clip.audio, seed=settings.seed + s)[1]
-                    for s in range(draws)
-                ]
-    return clips, predictions
+            label = f"{name} (LOSO)"
+            samples, pauses = checkpoint_predictions(
+                [(Path(label), checkpoint)], held_out, n_samples, settings.seed
+            )
+            predictions[label] |= next(iter(samples.values()))
+            paused[label] |= next(iter(pauses.values()))
+    return clips, predictions, paused
 
 
 def checkpoint_predictions(
@@ -532,13 +589,23 @@ def checkpoint_predictions(
     clips: Sequence[Clip],
     n_samples: int = 3,
     seed: int = 0,
-) -> Predictions:
-    """Synthesized samples of trained checkpoints on given clips (seeds seed .. seed + n - 1)."""
-    out: Predictions = {}
+) -> tuple[Predictions, Predictions]:
+    """Synthesized samples of checkpoints on clips, and on their audio with a pause.
+
+    Returns:
+        method -> clip id -> samples (seeds seed .. seed + n - 1; one for deterministic
+        models), and method -> clip id -> [one sample on ``with_pause(clip.audio)``].
+    """
+    samples: Predictions = {}
+    paused: Predictions = {}
     for path, ckpt in checkpoints:
         draws = n_samples if ckpt.model.stochastic else 1
-        out[_model_label(ckpt, path)] = {
+        label = _model_label(ckpt, path)
+        samples[label] = {
             c.info.clip_id: [synthesize(ckpt, c.audio, seed=seed + s)[1] for s in range(draws)]
             for c in clips
         }
-    return out
+        paused[label] = {
+            c.info.clip_id: [synthesize(ckpt, with_pause(c.audio), seed=seed)[1]] for c in clips
+        }
+    return samples, paused

@@ -75,7 +75,12 @@ def test_when_train_then_evaluate_cli_expect_table_and_one_png_per_clip(folder, 
         assert row in table
     for column in ("RMSE deg", "LCCA_Theta", "Delta J", "H speed", "diversity deg"):
         assert column in table
-    assert sorted(p.name for p in out.glob("*.png")) == ["test0.png", "test1.png"]
+    assert sorted(p.name for p in out.glob("*.png")) == [
+        "distributions.png",
+        "test0.png",
+        "test1.png",
+    ]
+    assert "head  cvae (cvae)" in table  # the per-group distribution table follows
     assert (out / "metrics.txt").read_text().startswith("2 clips")
 
 

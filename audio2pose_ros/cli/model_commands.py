@@ -94,16 +94,19 @@ def command_evaluate(args: argparse.Namespace) -> int:
         tables.append(result.table())
         figures += len(result.figures)
         clips = list(dataset.iter_split(args.split))
-        predictions = checkpoint_predictions(checkpoints, clips, args.samples, args.seed)
+        predictions, paused = checkpoint_predictions(checkpoints, clips, args.samples, args.seed)
     else:
-        clips, predictions = [], {}
+        clips, predictions, paused = [], {}, {}
     if args.loso:
-        settings = TrainSettings(max_epochs=args.max_epochs, seed=args.seed, show_progress=False)
-        clips, loso = loso_predictions(dataset, robot, args.loso, settings, args.samples, progress)
-        predictions = loso
+        settings = TrainSettings(
+            max_epochs=args.max_epochs, batch_size=8, seed=args.seed, show_progress=False
+        )
+        clips, predictions, paused = loso_predictions(
+            dataset, robot, args.loso, settings, args.samples, progress
+        )
         tables.append("leave one speaker out: every clip held out once, in its speaker's fold")
     figure = out_dir / "distributions.png" if out_dir is not None else None
-    quality = quality_evaluation(clips, predictions, robot, figure, seed=args.seed)
+    quality = quality_evaluation(clips, predictions, robot, figure, seed=args.seed, paused=paused)
     tables.append(quality.table())
     text = "\n\n".join(tables)
     print(text)

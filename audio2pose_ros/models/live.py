@@ -7,7 +7,9 @@ GRU reads the audio features x_t and its own previous pose y_{t-1}, and outputs 
 the pose, mean mu_t (sigmoid, in [0, 1]) and standard deviation sigma_t. It samples
 y_t = clip(mu_t + temperature * sigma_t * e_t, 0, 1), where e_t is unit-variance noise that is
 correlated over time, e_t = rho e_{t-1} + sqrt(1 - rho^2) n_t with n_t ~ N(0, I), so samples
-wander smoothly instead of jittering at 100 Hz; temperature 0 gives the deterministic
+wander smoothly instead of jittering at 100 Hz (with ``noise_order`` 2 the AR(1) filter is
+applied twice, a smoother noise whose speed, unlike an AR(1)'s, is itself correlated over
+time, rescaled to unit variance); temperature 0 gives the deterministic
 ``forward``. Conditioning on its own output lets a sample commit to one of several plausible
 motions and continue it.
 
@@ -47,6 +49,7 @@ class LiveConfig:
     hidden_units: int = 48
     input_noise: float = 0.05  # std of the noise on teacher-forced poses, [0, 1] units
     noise_correlation: float = 0.95  # rho of the sampling noise (0 = white)
+    noise_order: int = 1  # AR(1) filters in cascade on the sampling noise: 1 or 2
 
 
 class LiveSampler(PoseModel):
@@ -63,6 +66,8 @@ class LiveSampler(PoseModel):
             raise ConfigurationError(
                 f"noise_correlation must be in [0, 1), got {config.noise_correlation}"
             )
+        if config.noise_order not in (1, 2):
+            raise ConfigurationError(f"noise_order must be 1 or 2, got {config.noise_order}")
         self.config = config
         self.gru = nn.GRU(
             config.n_features + config.n_joints, config.hidden_units, batch_first=True
@@ -126,6 +131,7 @@ class LiveSampler(PoseModel):
             *linear_weights(self.out),
             self.start_pose.detach().cpu().double().numpy().copy(),
             self.config.noise_correlation,
+            self.config.noise_order,
         )
 
     def streaming_predictor(self, seed: int = 0, temperature: float = 1.0) -> LivePredictor:
@@ -143,10 +149,14 @@ class _LiveCore:
         b_out: np.ndarray,
         start_pose: np.ndarray,
         rho: float,
+        order: int = 1,
     ) -> None:
         self.cell, self.w_out, self.b_out, self.start_pose = cell, w_out, b_out, start_pose
         self.rho = rho
+        self.order = order
         self.innovation = math.sqrt(1.0 - rho * rho)
+        # a second AR(1) stage on unit-variance AR(1) noise has variance (1 + rho^2) / (1 - rho^2)
+        self.second_gain = math.sqrt((1.0 + rho * rho) / (1.0 - rho * rho))
 
     def start(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """Initial (hidden, previous pose) for ``n`` sequences."""
@@ -156,7 +166,12 @@ class _LiveCore:
         """(N, T, J) white noise -> unit-variance AR(1) noise e_t = rho e_(t-1) + ... over T."""
         scaled = white.copy()
         scaled[:, 0] /= self.innovation  # so that e_0 = white_0, already unit variance
-        return signal.lfilter([self.innovation], [1.0, -self.rho], scaled, axis=1)
+        first = signal.lfilter([self.innovation], [1.0, -self.rho], scaled, axis=1)
+        if self.order == 1:
+            return first
+        first[:, 0] *= self.second_gain / self.innovation  # stationary variance from frame 0
+        second = signal.lfilter([self.innovation], [1.0, -self.rho], first, axis=1)
+        return second / self.second_gain
 
     def _output(self, hidden: np.ndarray, noise: np.ndarray, temperature: float) -> np.ndarray:
         raw = hidden @ self.w_out + self.b_out
@@ -221,15 +236,19 @@ class LivePredictor(StreamingPredictor):
         hidden, previous = self._core.start(1)
         self._state = (hidden[0], previous[0])
         self._noise = self._rng.standard_normal(previous.shape[1])
+        self._smooth = self._noise * self._core.second_gain  # second AR(1) stage (order 2)
         self._first = True
 
     def step(self, features: np.ndarray) -> np.ndarray:
         """Sample the pose of one (n_features,) frame."""
+        core = self._core
         if not self._first:
             fresh = self._rng.standard_normal(self._noise.shape[0])
-            self._noise = self._core.rho * self._noise + self._core.innovation * fresh
+            self._noise = core.rho * self._noise + core.innovation * fresh
+            self._smooth = core.rho * self._smooth + core.innovation * self._noise
         self._first = False
-        pose, self._state = self._core.step(
-            np.asarray(features, dtype=np.float64), self._state, self._noise, self.temperature
+        noise = self._noise if core.order == 1 else self._smooth / core.second_gain
+        pose, self._state = core.step(
+            np.asarray(features, dtype=np.float64), self._state, noise, self.temperature
         )
         return pose

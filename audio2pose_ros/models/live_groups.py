@@ -40,6 +40,7 @@ class LiveGroupsConfig:
     hidden_units: int = 32
     input_noise: float = 0.05
     noise_correlation: float = 0.95
+    noise_order: int = 2
     first_group: int = 3
 
 
@@ -69,6 +70,7 @@ class LiveGroups(PoseModel):
                     config.hidden_units,
                     config.input_noise,
                     config.noise_correlation,
+                    config.noise_order,
                 )
             )
             for joints in self.groups
