@@ -124,3 +124,23 @@ def test_when_evaluating_groups_expect_baselines_rows_only_for_observed_groups_a
     assert result.silence_seconds > 2.0
     assert (tmp_path / "hist.png").stat().st_size > 1000
     assert "mismatched real motion" in result.table()
+
+
+def test_when_pairing_mismatched_clips_expect_a_permutation_across_speakers():
+    from audio2pose_ros.evaluation import mismatched_order
+
+    speakers = ["obama"] * 5 + [f"grid{k}" for k in range(8)]
+    order = mismatched_order(speakers)
+    assert sorted(order) == list(range(13))  # every clip's motion used once
+    assert all(speakers[i] != speakers[j] for i, j in enumerate(order))
+
+
+def test_when_a_pause_is_inserted_expect_a_silence_of_a_second_or_more_in_the_middle():
+    from audio2pose_ros.evaluation import PAUSE_S, with_pause
+
+    audio = speech_audio([(2.0, True)])
+    paused = with_pause(audio)
+    assert paused.size == audio.size + int(PAUSE_S * 16000)
+    silence = metrics.long_silences(metrics.energy_vad(paused, frames_of(paused)), RATE)
+    assert silence[110:230].all()
+    assert 1.0 <= silence.sum() / RATE <= PAUSE_S
