@@ -200,20 +200,50 @@ def command_info(args: argparse.Namespace) -> int:
 
 
 def command_build_default(args: argparse.Namespace) -> int:
-    """Rebuild the default model from the shared talking-head clips (import, train, evaluate)."""
-    from audio2pose_ros.default_model import build_default_model
+    """Rebuild the default model from the shared recordings (import, train, evaluate, card).
+
+    ``--arms learned`` (default): head from the talking heads, arms and hip from the lecture
+    video (``--lecture``, default ``<CLIPS_DIR>/../lecture_video/physicsworks.webm``). ``--arms
+    prosody`` / ``neutral``: the seed's MLP with procedural or still arms.
+    """
+    from audio2pose_ros.default_model import (
+        LearnedBuildSettings,
+        build_default_model,
+        build_learned_default_model,
+    )
     from audio2pose_ros.robot import load_robot
 
     out = Path(args.output)
-    result = build_default_model(
-        input_dir(args.clips, "clips folder"),
-        out,
-        Path(args.work_dir) if args.work_dir else out / "work",
-        load_robot(),
-        arms=args.arms,
-        max_epochs=args.max_epochs,
-        seed=args.seed,
-    )
+    clips = input_dir(args.clips, "clips folder")
+    work = Path(args.work_dir) if args.work_dir else out / "work"
+
+    def progress(message: str) -> None:
+        print(message, file=sys.stderr, flush=True)
+
+    if args.arms == "learned":
+        lecture = (
+            Path(args.lecture)
+            if args.lecture
+            else clips.parent / "lecture_video" / ("physicsworks.webm")
+        )
+        if not lecture.is_file():
+            raise UsageError(f"--lecture {lecture}: no such file (the shared lecture video)")
+        epochs = args.max_epochs or LearnedBuildSettings.max_epochs
+        settings = LearnedBuildSettings(max_epochs=epochs, loso_epochs=epochs, seed=args.seed)
+        result = build_learned_default_model(
+            clips, lecture, out, work, load_robot(), settings, progress
+        )
+    else:
+        result = build_default_model(
+            clips,
+            out,
+            work,
+            load_robot(),
+            arms=args.arms,
+            max_epochs=args.max_epochs or 2000,
+            seed=args.seed,
+            progress=progress,
+        )
     print(result.table)
     print(f"wrote {result.checkpoint} and {result.model_card}")
     return 0
@@ -270,13 +300,25 @@ def register(verbs: argparse._SubParsersAction) -> None:
     bvh.set_defaults(func=command_import_bvh)
 
     build = sub.add_parser(
-        "build-default", help="rebuild the default model from the shared talking-head clips"
+        "build-default", help="rebuild the default model from the shared recordings"
     )
     build.add_argument("clips", metavar="CLIPS_DIR", help="../shared/data/talking_heads")
     build.add_argument("-o", "--output", required=True, metavar="DIR", help="checkpoint + card")
     build.add_argument("--work-dir", help="scratch data sets (default: <output>/work)")
-    build.add_argument("--arms", choices=("prosody", "neutral"), default="prosody")
-    build.add_argument("--max-epochs", type=bounded_int(1, 100_000), default=2000)
+    build.add_argument(
+        "--arms",
+        choices=("learned", "prosody", "neutral"),
+        default="learned",
+        help="learned from the lecture video (default), or the MLP with the prosody rule / still",
+    )
+    build.add_argument(
+        "--lecture", metavar="VIDEO", help="default: CLIPS_DIR/../lecture_video/physicsworks.webm"
+    )
+    build.add_argument(
+        "--max-epochs",
+        type=bounded_int(1, 100_000),
+        help="default 200 (learned; also per evaluation fold) or 2000 (prosody, neutral)",
+    )
     build.add_argument("--seed", type=bounded_int(0, MAX_SEED), default=0)
     build.set_defaults(func=command_build_default)
 
