@@ -58,3 +58,10 @@ def test_when_the_first_group_selects_no_or_all_joints_expect_a_configuration_er
     for bits in (0, 31, 64):
         with pytest.raises(ConfigurationError, match="first_group"):
             build_model("live_groups", {"n_joints": 5, "first_group": bits})
+
+
+@pytest.mark.parametrize("name", ["mlp", "lstm", "live", "live_groups"])
+def test_when_any_streaming_model_is_given_a_seed_expect_a_predictor(name):
+    model = build_model(name, {"n_features": 4, "n_joints": 5})
+    predictor = model.streaming_predictor(seed=5)
+    assert predictor.step(np.zeros(4)).shape == (5,)

@@ -150,8 +150,14 @@ class PoseModel(nn.Module, ABC):
         """
         raise NotImplementedError(f"model {self.name!r} is deterministic and cannot sample")
 
-    def streaming_predictor(self) -> StreamingPredictor:
-        """Return a constant-cost per-frame predictor; offline-only models raise."""
+    def streaming_predictor(self, seed: int = 0) -> StreamingPredictor:
+        """Return a constant-cost per-frame predictor; offline-only models raise.
+
+        Args:
+            seed: seed of a sampler's noise (same seed, same motion); deterministic models
+                ignore it, so callers may always pass it.
+
+        """
         raise OfflineOnlyModelError(
             f"model {self.name!r} needs the whole utterance and cannot stream; "
             "use `audio2pose synth` for offline synthesis"

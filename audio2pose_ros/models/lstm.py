@@ -51,8 +51,8 @@ class CausalLSTM(PoseModel):
         hidden, _ = self.lstm(features)  # (B, T, H)
         return torch.sigmoid(self.out(hidden))
 
-    def streaming_predictor(self) -> StreamingPredictor:
-        """A numpy copy of the weights carrying (h, c) between frames."""
+    def streaming_predictor(self, seed: int = 0) -> StreamingPredictor:
+        """A numpy copy of the weights carrying (h, c) between frames (``seed`` unused)."""
         return _NumpyLSTM(CellWeights.of(self.lstm), *linear_weights(self.out))
 
 

@@ -60,8 +60,8 @@ class FramewiseMLP(PoseModel):
         """(B, T, F) or (N, F) normalised features -> same leading shape x n_joints, in [0, 1]."""
         return torch.sigmoid(self.net(features))
 
-    def streaming_predictor(self) -> StreamingPredictor:
-        """A numpy copy of the weights: one frame costs a few tiny matrix products."""
+    def streaming_predictor(self, seed: int = 0) -> StreamingPredictor:
+        """A numpy copy of the weights: one frame costs a few tiny matrix products (no seed)."""
         return _NumpyMLP(
             [
                 (
