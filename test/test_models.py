@@ -162,10 +162,11 @@ def loudness_data():
     return loudness_utterances(8, 400, seed=0), loudness_utterances(2, 400, seed=1)
 
 
-def test_when_registry_listed_expect_all_seed_families_and_the_live_model():
-    assert set(MODEL_REGISTRY) == {"mlp", "lstm", "dae_gru", "blstm", "blstm_prior", "cvae", "live"}
+def test_when_registry_listed_expect_all_seed_families_and_the_live_models():
+    seeds = {"mlp", "lstm", "dae_gru", "blstm", "blstm_prior", "cvae"}
+    assert set(MODEL_REGISTRY) == seeds | {"live", "live_groups"}
     streaming = {n for n, (cls, _) in MODEL_REGISTRY.items() if cls.streaming}
-    assert streaming == {"mlp", "lstm", "live"}
+    assert streaming == {"mlp", "lstm", "live", "live_groups"}
 
 
 @pytest.mark.parametrize("name", sorted(FAST_CONFIGS))
