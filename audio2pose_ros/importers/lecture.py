@@ -108,9 +108,9 @@ def import_lecture(
     progress: Callable[[str], None] = print,
 ) -> Dataset:
     """Track the lecture video and write its clips as a new data set."""
-    progress(f"tracking {path.name} (MediaPipe Pose and FaceMesh, a few minutes)")
+    progress(f"tracking {path.name} with MediaPipe Pose (about two minutes)")
     audio = read_audio(path)
-    tracks = track_video(path, body=True)
+    tracks = track_video(path, body=True, face=False)  # the head is not labelled here
     dataset = Dataset.create(dataset_dir, robot)
     for clip in lecture_clips(tracks, audio, robot, f"{path.name} (lecture video)"):
         dataset.add(clip, robot)

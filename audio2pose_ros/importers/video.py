@@ -74,8 +74,8 @@ def _face_points(landmarks: object, width: int, height: int, indices: np.ndarray
     return scale * np.array([[points[i].x, points[i].y, points[i].z] for i in indices])
 
 
-def track_video(path: Path, body: bool = True) -> VideoTracks:
-    """Run FaceMesh (and Pose) on every frame of a video.
+def track_video(path: Path, body: bool = True, face: bool = True) -> VideoTracks:
+    """Run FaceMesh (unless ``face`` is False) and Pose (if ``body``) on every frame of a video.
 
     Raises:
         ImporterError: the file is not a readable video.
@@ -86,12 +86,14 @@ def track_video(path: Path, body: bool = True) -> VideoTracks:
     model = head_pose.canonical_face_model()
     times, found, rotations, residuals, xyz, visibility = [], [], [], [], [], []
     start = time.perf_counter()
-    face_mesh = mp.solutions.face_mesh.FaceMesh(static_image_mode=False, max_num_faces=1)
+    face_mesh = (
+        mp.solutions.face_mesh.FaceMesh(static_image_mode=False, max_num_faces=1) if face else None
+    )
     pose = mp.solutions.pose.Pose(static_image_mode=False, model_complexity=1) if body else None
     try:
         for time_s, rgb in video_frames(path):
             times.append(time_s)
-            faces = face_mesh.process(rgb).multi_face_landmarks
+            faces = face_mesh.process(rgb).multi_face_landmarks if face_mesh is not None else None
             if faces:
                 observed = _face_points(faces[0], rgb.shape[1], rgb.shape[0], model.indices)
                 rotation, residual = head_pose.rigid_fit(model.points, observed)
@@ -108,7 +110,8 @@ def track_video(path: Path, body: bool = True) -> VideoTracks:
                 xyz.append(np.full((33, 3), np.nan))
                 visibility.append(np.zeros(33))
     finally:
-        face_mesh.close()
+        if face_mesh is not None:
+            face_mesh.close()
         if pose is not None:
             pose.close()
     return VideoTracks(
