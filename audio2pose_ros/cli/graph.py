@@ -1,7 +1,9 @@
 """``audio2pose run``: start the node graph as processes, play a WAV into it, record its output.
 
 This is what ``ros2 launch audio2pose_ros pepper.launch.py`` does, for machines without a ROS
-distro: the same three executables, each its own process, with the same parameter file. The
+distro: the same three executables, each its own process, with the same parameter file; or,
+with ``single_process``, the same three nodes in one process and one executor
+(:mod:`audio2pose_ros.nodes.single_process`). The
 player publishes audio_common_msgs AudioInfo (latched) and AudioData chunks in real time; the
 recorder writes every command the robot would receive to a rosbag2 (MCAP).
 """
@@ -49,6 +51,7 @@ from audio2pose_ros.nodes.common import EXIT_CONFIGURATION_ERROR, LATCHED_QOS, S
 from audio2pose_ros.resources import share_path
 
 NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
+SINGLE_PROCESS = "audio2pose_nodes"  # the process that runs all three nodes (single-process mode)
 # As the launch file does: trajectories go to Pepper's ros2_control controller.
 TRAJECTORY_OUTPUT = "joint_trajectory_controller/joint_trajectory"  # the node's relative name
 NODE_REMAPS = {"motion_filter_node": ("-r", f"{TRAJECTORY_OUTPUT}:={CONTROLLER_TOPIC}")}
@@ -95,6 +98,10 @@ class NodeSupervisor:
     - **Silence.** A node whose process is alive but has not published its /diagnostics
       heartbeat for ``STALE_AFTER_S`` (stopped with SIGSTOP, deadlocked, starved) is reported,
       killed and restarted like a crashed one (:meth:`heartbeat` feeds the times heard).
+
+    ``commands`` are keyed by process; ``members`` maps each node name to the process that runs
+    it (default: each process runs the node of its name). A process is heard when any of its
+    nodes is: its nodes share one executor, so a stopped process silences them all.
     """
 
     def __init__(
@@ -105,9 +112,11 @@ class NodeSupervisor:
         max_restarts: int = 5,
         restart_window_s: float = 60.0,
         startup_grace_s: float = STARTUP_GRACE_S,
+        members: dict[str, str] | None = None,
     ) -> None:
-        """Remember how to start each node; :meth:`start` starts them."""
+        """Remember how to start each process; :meth:`start` starts them."""
         self.commands = commands
+        self.members = members or {name: name for name in commands}
         self.log_dir = log_dir
         self.respawn_delay_s = respawn_delay_s
         self.max_restarts = max_restarts
@@ -147,13 +156,14 @@ class NodeSupervisor:
             self._spawn(name, "w")
         self._thread.start()
 
-    def heartbeat(self, name: str, pid: int) -> None:
-        """Process ``pid`` of node ``name`` published its diagnostics now.
+    def heartbeat(self, node: str, pid: int) -> None:
+        """Process ``pid`` published the diagnostics of node ``node`` now.
 
-        A heartbeat of another process than the node's current one (e.g. sent by a killed
-        process and delivered after its restart) is ignored.
+        A heartbeat of another process than the one now running the node (e.g. sent by a killed
+        process and delivered after its restart) is ignored, as is an unknown node.
         """
-        process = self.processes.get(name)
+        name = self.members.get(node)
+        process = self.processes.get(name) if name is not None else None
         if process is None or process.pid != pid:
             return
         with self._lock:
@@ -268,15 +278,15 @@ class HeartbeatMonitor:
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
             prefix, _, name = status.name.partition(": ")
-            if prefix == STATUS_PREFIX and name in self.supervisor.commands:
+            if prefix == STATUS_PREFIX and name in self.supervisor.members:
                 pid = next((kv.value for kv in status.values if kv.key == "pid"), "")
                 if pid.isdigit():  # a node's own status (ours, about a silent node, has none)
                     self.supervisor.heartbeat(name, int(pid))
 
     def _report_silent(self) -> None:
         statuses = []
-        for name in self.supervisor.commands:
-            silent = self.supervisor.silent_s(name)
+        for name, process in self.supervisor.members.items():
+            silent = self.supervisor.silent_s(process)
             if silent > STALE_AFTER_S:
                 statuses.append(
                     DiagnosticStatus(
@@ -330,14 +340,18 @@ def node_graph(
     overrides: Sequence[str] = (),
     log_dir: Path | None = None,
     monitor: bool = True,
+    single_process: bool = False,
 ) -> Iterator[NodeSupervisor]:
     """Run the three nodes as supervised processes for the duration of the context.
 
     Args:
         params_file: ROS parameter YAML (default: the package's config/pepper.yaml).
         overrides: ``name:=value`` parameters for every node; they win over the file.
-        log_dir: where each node's output goes (``<node>.log``); ``None`` inherits the terminal.
+        log_dir: where each process's output goes (``<process>.log``); ``None`` inherits the
+            terminal.
         monitor: watch the nodes' heartbeats and restart a silent node.
+        single_process: run the three nodes in one process and one executor
+            (``audio2pose_nodes``) instead of one process each.
     """
     params = params_file or share_path("config", "pepper.yaml")
     with ExitStack() as stack:
@@ -345,18 +359,19 @@ def node_graph(
         if overrides:
             tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="audio2pose_")))
             extra = ["--params-file", str(overrides_file(overrides, tmp))]
-        commands = {
-            name: [
-                *executable_command(name),
-                "--ros-args",
-                "--params-file",
-                str(params),
-                *extra,
-                *NODE_REMAPS.get(name, ()),
-            ]
-            for name in NODE_EXECUTABLES
-        }
-        supervisor = NodeSupervisor(commands, log_dir)
+        ros_args = ["--ros-args", "--params-file", str(params), *extra]
+        if single_process:
+            remaps = [arg for name in NODE_EXECUTABLES for arg in NODE_REMAPS.get(name, ())]
+            module = [sys.executable, "-m", "audio2pose_ros.nodes.single_process"]
+            commands = {SINGLE_PROCESS: [*module, *ros_args, *remaps]}
+            members = dict.fromkeys(NODE_EXECUTABLES, SINGLE_PROCESS)
+        else:
+            commands = {
+                name: [*executable_command(name), *ros_args, *NODE_REMAPS.get(name, ())]
+                for name in NODE_EXECUTABLES
+            }
+            members = None
+        supervisor = NodeSupervisor(commands, log_dir, members=members)
         stack.callback(supervisor.stop)
         supervisor.start()
         if monitor:
@@ -502,13 +517,15 @@ def run_graph(
     overrides: Sequence[str],
     log_dir: Path | None,
     rate: float = 1.0,
+    single_process: bool = False,
 ) -> PlaybackResult | None:
     """Start the graph; with ``play`` (a WAV or a bag) play it and return what was recorded.
 
-    Without ``play`` the graph runs until Ctrl-C or until a node exits.
+    Without ``play`` the graph runs until Ctrl-C or until a node exits. ``single_process`` runs
+    the three nodes in one process (:func:`node_graph`).
     """
     messages = audio_source(play) if play is not None else None
-    with node_graph(params_file, overrides, log_dir) as supervisor:
+    with node_graph(params_file, overrides, log_dir, single_process=single_process) as supervisor:
         if messages is None:
             try:
                 while supervisor.running:

@@ -11,6 +11,13 @@ causal one-step filters; their *signal* lag is a property of the filter, shown b
 identifies it. End-to-end latency of chunk j = arrival of that command - publication of chunk j.
 The feature window's algorithmic delay (a 25 ms window is complete only with its last sample) is
 outside this figure, as the issue asks.
+
+CPU is read from /proc for each node process: ``cpu_ms_per_frame`` from the end of the warm-up
+to the end of the run (as before), and ``steady_cpu_ms_per_frame`` over the steady part only,
+from :data:`STEADY_SKIP_S` after the stream starts until its last chunk (no start-up, no idle
+tail). The graph runs as three processes (the default) or, with ``single_process``, as one
+(:mod:`audio2pose_ros.nodes.single_process`). :func:`targets` compares the figures with issue
+15's targets.
 """
 
 from __future__ import annotations
@@ -36,18 +43,28 @@ from audio2pose_ros.robot import load_robot
 
 CHUNK_SAMPLES = 160  # one 10 ms frame step (seed 003 section 4.2.2)
 MATCH_TOLERANCE_RAD = 1e-5  # float32 /joint_angles against float64 raw poses
+STEADY_SKIP_S = 2.0  # steady-state CPU is read from this long after the stream starts
+# Issue 15's targets: (figure, three-process target, single-process target, unit); at most.
+TARGETS = (
+    ("steady CPU of the node processes per 10 ms frame", 1.0, 0.5, "ms"),
+    ("resident memory of the node processes", 250.0, 150.0, "MB"),
+    ("first command after start", 1.5, 1.5, "s"),
+    ("latency audio -> /joint_angles p99", 10.0, 10.0, "ms"),
+)
 
 
 @dataclass
 class GraphFigures:
     """What the graph benchmark measured (times in ms, memory in MB)."""
 
+    mode: str  # "three-process" or "single-process"
     audio_s: float
     latency_raw_ms: np.ndarray  # chunk publication -> its raw pose at the filter's input
     latency_command_ms: np.ndarray  # chunk publication -> the /joint_angles command carrying it
     startup_first_command_s: float
     startup_first_response_s: float
     cpu_ms_per_frame: dict[str, float]
+    steady_cpu_ms_per_frame: dict[str, float]
     rss_mb: dict[str, float]
 
 
@@ -109,15 +126,22 @@ def rss_mb(pid: int) -> float:
     return float("nan")
 
 
-def measure_graph(speech_16k: np.ndarray, duration_s: float = 60.0) -> GraphFigures:
-    """Run the graph on ``duration_s`` of ``speech_16k`` (repeated) and measure it."""
+def measure_graph(
+    speech_16k: np.ndarray, duration_s: float = 60.0, single_process: bool = False
+) -> GraphFigures:
+    """Run the graph on ``duration_s`` of ``speech_16k`` (repeated) and measure it.
+
+    ``single_process`` runs the three nodes in one process instead of three.
+    """
     audio = np.resize(speech_16k, int(duration_s * 16000) // CHUNK_SAMPLES * CHUNK_SAMPLES)
     payload = encode_pcm(audio, S16LE_MONO_16K)
     step = 2 * CHUNK_SAMPLES
     with tempfile.TemporaryDirectory() as tmp, rclpy.init():
         player = _Player()
         launched = time.monotonic()
-        with node_graph(_bench_params(Path(tmp)), log_dir=Path(tmp) / "logs") as graph:
+        with node_graph(
+            _bench_params(Path(tmp)), log_dir=Path(tmp) / "logs", single_process=single_process
+        ) as graph:
             player.info.publish(AudioInfo(**S16LE_MONO_16K.audio_info_fields()))
             while not player.commands:
                 player.spin_until(time.monotonic() + 0.01)
@@ -135,10 +159,20 @@ def measure_graph(speech_16k: np.ndarray, duration_s: float = 60.0) -> GraphFigu
             cpu_start = {n: cpu_s(p.pid) for n, p in graph.processes.items()}
             sent: list[float] = []
             start = time.monotonic()
+            steady_start: dict[str, float] = {}
+            steady_from = 0
             for j, offset in enumerate(range(0, len(payload), step)):
                 player.spin_until(start + j * CHUNK_SAMPLES / 16000)
+                if not steady_start and time.monotonic() - start >= STEADY_SKIP_S:
+                    steady_start = {n: cpu_s(p.pid) for n, p in graph.processes.items()}
+                    steady_from = j
                 sent.append(time.monotonic())
                 player.audio.publish(AudioData(data=payload[offset : offset + step]))
+            steady = {
+                n: cpu_s(p.pid) - steady_start.get(n, cpu_start[n])
+                for n, p in graph.processes.items()
+            }
+            steady_frames = max(len(sent) - steady_from, 1)
             player.spin_until(time.monotonic() + 1.0)
             cpu = {n: cpu_s(p.pid) - cpu_start[n] for n, p in graph.processes.items()}
             rss = {n: rss_mb(p.pid) for n, p in graph.processes.items()}
@@ -163,12 +197,14 @@ def measure_graph(speech_16k: np.ndarray, duration_s: float = 60.0) -> GraphFigu
             latency_command.append((window[match][0] - sent[j]) * 1e3)
             c += match + 1
     return GraphFigures(
+        mode="single-process" if single_process else "three-process",
         audio_s=len(audio) / 16000,
         latency_raw_ms=latency_raw,
         latency_command_ms=np.array(latency_command),
         startup_first_command_s=first_command,
         startup_first_response_s=first_response,
         cpu_ms_per_frame={k: 1e3 * v / max(n, 1) for k, v in cpu.items()},
+        steady_cpu_ms_per_frame={k: 1e3 * v / steady_frames for k, v in steady.items()},
         rss_mb=rss,
     )
 
@@ -194,11 +230,40 @@ def report(figures: GraphFigures) -> dict[str, object]:
         }
 
     return {
+        "mode": figures.mode,
         "audio_s": figures.audio_s,
         "latency_audio_to_raw_pose": stats(figures.latency_raw_ms),
         "latency_audio_to_joint_angles": stats(figures.latency_command_ms),
         "startup_first_command_s": figures.startup_first_command_s,
         "startup_first_response_to_audio_s": figures.startup_first_response_s,
         "cpu_ms_per_frame": figures.cpu_ms_per_frame,
+        "steady_cpu_ms_per_frame": figures.steady_cpu_ms_per_frame,
         "rss_mb": figures.rss_mb,
+        "targets": targets(figures),
     }
+
+
+def targets(figures: GraphFigures) -> list[dict[str, object]]:
+    """Issue 15's targets for the figures' mode: figure, value, target, unit, met."""
+    single = figures.mode == "single-process"
+    p99 = (
+        float(np.percentile(figures.latency_command_ms, 99))
+        if len(figures.latency_command_ms)
+        else float("inf")
+    )
+    values = (
+        sum(figures.steady_cpu_ms_per_frame.values()),
+        sum(figures.rss_mb.values()),
+        figures.startup_first_command_s,
+        p99,
+    )
+    return [
+        {
+            "figure": name,
+            "value": value,
+            "target": single_target if single else three_target,
+            "unit": unit,
+            "met": bool(value <= (single_target if single else three_target)),
+        }
+        for (name, three_target, single_target, unit), value in zip(TARGETS, values, strict=True)
+    ]

@@ -57,7 +57,9 @@ def command_run(args: argparse.Namespace) -> int:
     if log_dir is not None and log_dir.exists() and not log_dir.is_dir():
         raise UsageError(f"--log-dir {log_dir}: exists and is not a directory")
     overrides = [f"model_path:={model.resolve()}"] if model else []
-    result = run_graph(play, record, params, overrides, log_dir, rate=args.rate)
+    result = run_graph(
+        play, record, params, overrides, log_dir, rate=args.rate, single_process=args.single_process
+    )
     if result is not None:
         print(summarize(result))
     return 0
@@ -166,7 +168,13 @@ def command_bench(args: argparse.Namespace) -> int:
     if args.graph:  # before pinning this process to one core: the nodes need the machine
         from audio2pose_ros.cli.graph_bench import bundled_speech, measure_graph, report
 
-        results["graph"] = report(measure_graph(bundled_speech(), duration_s=args.duration))
+        speech = bundled_speech()
+        results["graph"] = [
+            report(measure_graph(speech, duration_s=args.duration, single_process=single))
+            for single in {"three": [False], "single": [True], "both": [False, True]}[
+                args.graph_mode
+            ]
+        ]
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     torch.set_num_threads(1)
@@ -220,23 +228,50 @@ def _print_bench(results: dict, frames: int, clip_s: float) -> None:
             )
             print(f"{name:<14}{step}{cost['offline_x_real_time']:>22.0f}")
     if "graph" in results:
-        graph = results["graph"]
-        print(
-            f"\nlive graph (3 node processes over DDS), {graph['audio_s']:.0f} s of speech in "
-            "10 ms chunks"
+        _print_graph(results["graph"])
+
+
+def _print_graph(runs: list[dict]) -> None:
+    """The graph figures of each mode side by side, then the targets met or not."""
+    modes = [run["mode"] for run in runs]
+    print(f"\nlive graph over DDS, {runs[0]['audio_s']:.0f} s of speech in 10 ms chunks")
+    print(f"{'':<44}" + "".join(f"{mode:>20}" for mode in modes))
+
+    def row(label: str, values: list[str]) -> None:
+        print(f"{label:<44}" + "".join(f"{v:>20}" for v in values))
+
+    for key in ("latency_audio_to_raw_pose", "latency_audio_to_joint_angles"):
+        row(
+            f"{key.removeprefix('latency_')} p50/p99 ms",
+            [f"{run[key]['p50_ms']:.2f} / {run[key]['p99_ms']:.2f}" for run in runs],
         )
-        for key in ("latency_audio_to_raw_pose", "latency_audio_to_joint_angles"):
-            s = graph[key]
+    row(
+        "first command / first response s",
+        [
+            f"{run['startup_first_command_s']:.2f} / {run['startup_first_response_to_audio_s']:.2f}"
+            for run in runs
+        ],
+    )
+    processes = sorted({name for run in runs for name in run["rss_mb"]})
+    for name in processes:
+        row(
+            f"{name}: CPU ms/frame (steady), MB",
+            [
+                f"{run['cpu_ms_per_frame'][name]:.3f} ({run['steady_cpu_ms_per_frame'][name]:.3f}),"
+                f" {run['rss_mb'][name]:.0f}"
+                if name in run["rss_mb"]
+                else "-"
+                for run in runs
+            ],
+        )
+    print("targets (issue 15)")
+    for run in runs:
+        for target in run["targets"]:
+            verdict = "met" if target["met"] else "NOT MET"
             print(
-                f"  {key}: p50 {s['p50_ms']:.2f} ms, p99 {s['p99_ms']:.2f} ms, "
-                f"max {s['max_ms']:.2f} ms ({s['n']} chunks)"
+                f"  {run['mode']:<16}{target['figure']:<52}{target['value']:>9.2f} "
+                f"<= {target['target']:g} {target['unit']:<3} {verdict}"
             )
-        print(
-            f"  start-up: first command {graph['startup_first_command_s']:.2f} s, first "
-            f"response to audio {graph['startup_first_response_to_audio_s']:.2f} s"
-        )
-        for node, cpu in graph["cpu_ms_per_frame"].items():
-            print(f"  {node}: {cpu:.3f} ms CPU per frame, {graph['rss_mb'][node]:.0f} MB resident")
 
 
 def _section(data: object, key: str, path: Path) -> dict:
@@ -348,6 +383,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--model", help="checkpoint for the graph (default: packaged model)")
     run.add_argument("--params-file", help="ROS parameter YAML (default: config/pepper.yaml)")
     run.add_argument("--log-dir", help="write each node's output to <dir>/<node>.log")
+    run.add_argument(
+        "--single-process",
+        action="store_true",
+        help="run the three nodes in one process and one executor (smallest footprint)",
+    )
     run.set_defaults(func=command_run)
 
     demo = verbs.add_parser("demo", help="bundled speech -> live graph -> recorded bag and CSV")
@@ -380,6 +420,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=bounded_float(1.0, 3600.0),
         default=60.0,
         help="seconds of speech for --graph, 1 to 3600 (default 60)",
+    )
+    bench.add_argument(
+        "--graph-mode",
+        choices=("three", "single", "both"),
+        default="both",
+        help="--graph runs three node processes, one process, or both in turn (default both)",
     )
     bench.add_argument("--json", action="store_true", help="print the figures as JSON")
     bench.set_defaults(func=command_bench)

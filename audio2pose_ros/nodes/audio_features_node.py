@@ -10,7 +10,8 @@ Subscriptions (``input_type`` chooses one of two inputs):
 Publications:
     features (std_msgs/Float32MultiArray): frames x features, un-normalised, at 100 frames/s
         of audio; dim[1].label names the feature set (e.g. ``logfbank26``).
-    voice_activity (std_msgs/Bool): energy-based voice activity after each audio chunk.
+    voice_activity (std_msgs/Bool): energy-based voice activity after each audio chunk (while
+        something subscribes to it).
     /diagnostics (diagnostic_msgs/DiagnosticArray): a heartbeat every 0.5 s.
 
 Parameters
@@ -175,7 +176,9 @@ class AudioFeaturesNode(DiagnosedNode):
     def _publish(self, samples: np.ndarray) -> None:
         frames = self.extractor.push(samples)
         if len(samples):
-            self.voice_pub.publish(Bool(data=self.vad.push(samples)))
+            active = self.vad.push(samples)
+            if self.voice_pub.get_subscription_count():  # no message for nobody (issue 15)
+                self.voice_pub.publish(Bool(data=active))
         if len(frames):
             self.frames_out += len(frames)
             self.features_pub.publish(features_to_msg(np.asarray(frames), self.label))

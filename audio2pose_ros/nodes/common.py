@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import array
 import functools
 import math
 import os
@@ -16,7 +17,7 @@ import numpy as np
 import rclpy
 from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.qos import (
@@ -64,7 +65,8 @@ def features_to_msg(frames: np.ndarray, label: str) -> Float32MultiArray:
         MultiArrayDimension(label="frames", size=n_frames, stride=n_frames * n_features),
         MultiArrayDimension(label=label, size=n_features, stride=n_features),
     ]
-    msg.data = np.ascontiguousarray(frames, dtype=np.float32).ravel().tolist()
+    # An array.array of the right type code is stored as is; a list is checked value by value.
+    msg.data = array.array("f", np.ascontiguousarray(frames, dtype=np.float32).tobytes())
     return msg
 
 
@@ -78,7 +80,7 @@ def msg_to_features(msg: Float32MultiArray) -> tuple[np.ndarray, str]:
     if len(dims) != 2:
         raise InputError(f"features message needs 2 layout dims, got {len(dims)}")
     n_frames, n_features = dims[0].size, dims[1].size
-    data = np.asarray(msg.data, dtype=np.float32)
+    data = np.frombuffer(msg.data, dtype=np.float32) if msg.data else np.zeros(0, np.float32)
     if data.size != n_frames * n_features:
         raise InputError(
             f"features message holds {data.size} values, layout says {n_frames}x{n_features}"
@@ -104,11 +106,17 @@ def trajectory_msg(
     """
     msg = JointTrajectory()
     msg.joint_names = list(joint_names)
-    for i, row in enumerate(np.atleast_2d(positions_rad)):
+    positions = np.ascontiguousarray(np.atleast_2d(positions_rad), dtype=np.float64)
+    velocities = (
+        None
+        if velocities_rad_s is None
+        else np.ascontiguousarray(np.atleast_2d(velocities_rad_s), dtype=np.float64)
+    )
+    for i, row in enumerate(positions):
         point = JointTrajectoryPoint()
-        point.positions = [float(v) for v in row]
-        if velocities_rad_s is not None:
-            point.velocities = [float(v) for v in np.atleast_2d(velocities_rad_s)[i]]
+        point.positions = array.array("d", row.tobytes())  # stored as is, unlike a list
+        if velocities is not None:
+            point.velocities = array.array("d", velocities[i].tobytes())
         point.time_from_start = duration_msg((i + 1) * period_s)
         msg.points.append(point)
     return msg
@@ -312,10 +320,56 @@ class DiagnosedNode(Node):
         self.diagnostics_pub.publish(diagnostic_array(self, level, message, values))
 
 
-def run_node(factory: Callable[[], Node], node_name: str, args: list[str] | None = None) -> None:
-    """The ros2/examples main: init, spin until Ctrl-C / SIGTERM / shutdown, clean up.
+SPIN_ONCE_TIMEOUT_S = 0.5  # an idle EventsExecutor checks for shutdown this often
+EXECUTOR_ENV = "AUDIO2POSE_EXECUTOR"  # "events" (default where available) or "single_threaded"
 
-    A :class:`~audio2pose_ros.errors.ConfigurationError` while the node is built (a refused
+
+def create_executor() -> Executor:
+    """The executor the nodes spin in: rclpy's EventsExecutor where available, else single-threaded.
+
+    The EventsExecutor (``rclpy.experimental``, Jazzy and later) is driven by middleware events
+    instead of rebuilding a wait set in Python for every callback, which was the largest single
+    item of the nodes' CPU (issue 15: about 20-40 % of each node's samples under traffic).
+    Humble has none and gets the SingleThreadedExecutor; ``AUDIO2POSE_EXECUTOR=single_threaded``
+    forces it (for comparison, or should a distro's EventsExecutor misbehave). Spin it with
+    :func:`spin_executor`.
+    """
+    if os.environ.get(EXECUTOR_ENV, "events") != "single_threaded":
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:  # Humble
+            pass
+        else:
+            return EventsExecutor()
+    return SingleThreadedExecutor()
+
+
+def spin_executor(executor: Executor) -> None:
+    """Spin until the context shuts down (Ctrl-C, SIGTERM, ``rclpy.shutdown``).
+
+    The EventsExecutor is spun one event at a time: its ``spin()`` (rclpy 9.1) never ran a
+    callback here, while ``spin_once`` serves timers and subscriptions as expected.
+    """
+    if isinstance(executor, SingleThreadedExecutor):
+        executor.spin()
+        return
+    while executor.context.ok():
+        executor.spin_once(timeout_sec=SPIN_ONCE_TIMEOUT_S)
+
+
+def run_node(factory: Callable[[], Node], node_name: str, args: list[str] | None = None) -> None:
+    """The ros2/examples main for one node: see :func:`run_nodes`."""
+    run_nodes([factory], node_name, args)
+
+
+def run_nodes(
+    factories: Sequence[Callable[[], Node]], process_name: str, args: list[str] | None = None
+) -> None:
+    """Init, build the nodes, spin them in one executor until Ctrl-C / SIGTERM, clean up.
+
+    One factory is the usual one node per process; several put nodes in one process and one
+    executor (``audio2pose run --single-process``). A
+    :class:`~audio2pose_ros.errors.ConfigurationError` while a node is built (a refused
     parameter, a bad model or robot file), or arguments rcl cannot parse (a parameters file with
     a YAML syntax error, a missing file), end the process with one line on stderr and exit status
     :data:`EXIT_CONFIGURATION_ERROR`, which ``audio2pose run`` and the launch file never respawn.
@@ -323,15 +377,18 @@ def run_node(factory: Callable[[], Node], node_name: str, args: list[str] | None
     try:
         rclpy.init(args=args)  # not `with rclpy.init()`: Humble's init is no context manager
         try:
-            rclpy.spin(factory())
+            executor = create_executor()
+            for factory in factories:
+                executor.add_node(factory())
+            spin_executor(executor)
         finally:
             rclpy.try_shutdown()
     except ConfigurationError as exc:
-        print(f"[{node_name}] configuration error: {exc}", file=sys.stderr, flush=True)
+        print(f"[{process_name}] configuration error: {exc}", file=sys.stderr, flush=True)
         raise SystemExit(EXIT_CONFIGURATION_ERROR) from None
     except rclpy_implementation.RCLError as exc:
         print(
-            f"[{node_name}] configuration error: ROS arguments refused: "
+            f"[{process_name}] configuration error: ROS arguments refused: "
             + " ".join(str(exc).split()),
             file=sys.stderr,
             flush=True,

@@ -31,7 +31,7 @@ periods after the previous tick), so a steady stream is commanded on arrival. Ea
 published at the tick nearest to its own period, never less than its period minus half a filter
 period after the previous one (its documented minimum spacing: 15 ms for 50 Hz at a 100 Hz
 filter clock). Header stamps are the time the command was computed for (the tick), not the
-publish time.
+publish time. An output nobody subscribes to is not built nor sent (issue 15).
 """
 
 from __future__ import annotations
@@ -325,14 +325,16 @@ class MotionFilterNode(DiagnosedNode):
             "joint_states": (JointState, "commanded_joint_states", self.publish_joint_states),
         }
         self.publishers_by_output = {}
-        # (minimum spacing in s, time of the last publication, publish callback)
+        # (minimum spacing in s, time of the last publication, publish callback, publisher);
+        # an output is built and sent only while something subscribes to it
         self.outputs: list[list] = []
         for key, (msg_type, topic, callback) in outputs.items():
             rate_hz = getattr(self.settings, f"{key}_rate_hz")
             if rate_hz > 0:
-                self.publishers_by_output[key] = self.create_publisher(msg_type, topic, 10)
+                publisher = self.create_publisher(msg_type, topic, 10)
+                self.publishers_by_output[key] = publisher
                 spacing = max(1.0 / rate_hz - 0.5 * self.filter.period_s, 0.0)
-                self.outputs.append([spacing, -math.inf, callback])
+                self.outputs.append([spacing, -math.inf, callback, publisher])
         self.get_logger().info(
             f"{self.robot.n_joints} joints at {settings.rate_hz:g} Hz, {settings.smoothing} "
             f"smoothing, outputs: {', '.join(self.publishers_by_output) or 'none'}; waiting up "
@@ -582,10 +584,11 @@ class MotionFilterNode(DiagnosedNode):
             self.faults_seen = status.faults
             self.report_problem("filter_fault", DiagnosticStatus.ERROR, status.last_fault)
         for output in self.outputs:
-            spacing, last_s, publish = output
+            spacing, last_s, publish, publisher = output
             if self.last_tick_s - last_s >= spacing:
                 output[1] = self.last_tick_s
-                publish()
+                if publisher.get_subscription_count():  # no message for nobody (issue 15)
+                    publish()
 
     def _stamp(self) -> object:
         return self.tick_stamp.to_msg()

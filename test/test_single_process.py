@@ -1,0 +1,73 @@
+"""Single-process mode (issue 15): the three nodes in one process give the same poses.
+
+The same 3 s of real speech is played into the graph run as three processes and as one; the
+model (the packaged MLP) and the feature extractor are deterministic and do not depend on how
+the audio is chunked or when it arrives, so the raw trajectories must be identical, point for
+point. The commands that follow them depend on the filter's clock (when each tick falls), so
+for those the test checks what timing cannot change: both modes command the robot through all
+its joints, within its limits, at the configured 50 Hz.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+from rclpy.serialization import deserialize_message
+from trajectory_msgs.msg import JointTrajectory
+
+from audio2pose_ros.bag import Chunking, audio_messages, read_messages
+from audio2pose_ros.cli.graph import SINGLE_PROCESS, node_graph, play_and_record
+from audio2pose_ros.robot import RobotDescription
+
+SPEECH_S = 3.0
+
+
+def _run(tmp_path: Path, speech: np.ndarray, single_process: bool) -> dict[str, list]:
+    """Play the speech into the graph; the recorded raw poses and /joint_angles commands."""
+    mode = "single" if single_process else "three"
+    messages = audio_messages(speech[: int(SPEECH_S * 16000)], Chunking(seed=3))
+    bag = tmp_path / f"{mode}_bag"
+    with (
+        node_graph(log_dir=tmp_path / f"{mode}_logs", single_process=single_process) as graph,
+        rclpy.init(),
+    ):
+        processes = dict(graph.processes)
+        play_and_record(messages, bag, tail_s=0.5)
+    raw = [
+        np.asarray(p.positions)
+        for m in read_messages(bag, ["/raw_trajectory"])
+        for p in deserialize_message(m.data, JointTrajectory).points
+    ]
+    commands = [
+        (m.timestamp_ns, np.asarray(deserialize_message(m.data, JointAnglesWithSpeed).joint_angles))
+        for m in read_messages(bag, ["/joint_angles"])
+    ]
+    return {"processes": list(processes), "raw": raw, "commands": commands}
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_when_the_nodes_share_one_process_expect_the_same_raw_poses_and_commands(
+    tmp_path: Path, speech: np.ndarray, robot: RobotDescription
+) -> None:
+    three = _run(tmp_path, speech, single_process=False)
+    single = _run(tmp_path, speech, single_process=True)
+    assert single["processes"] == [SINGLE_PROCESS]
+    assert len(three["processes"]) == 3
+    frames = int(SPEECH_S * 100)
+    assert frames - 5 <= len(single["raw"]) <= frames + 5
+    n = min(len(three["raw"]), len(single["raw"]))
+    assert n >= frames - 5
+    np.testing.assert_array_equal(np.array(single["raw"][:n]), np.array(three["raw"][:n]))
+    for run in (three, single):
+        poses = np.array([pose for _, pose in run["commands"]])
+        stamps_s = np.array([t for t, _ in run["commands"]]) * 1e-9
+        assert (poses >= robot.lower_rad - 1e-6).all()
+        assert (poses <= robot.upper_rad + 1e-6).all()
+        assert np.ptp(poses, axis=0).max() > 0.05  # the speech moved the robot
+        rate_hz = (len(stamps_s) - 1) / (stamps_s[-1] - stamps_s[0])
+        assert 40.0 <= rate_hz <= 55.0
