@@ -64,7 +64,10 @@ ARGUMENTS = (
     "robot_state_publisher",
     "sim",
     "diagnostic_aggregator",
+    "single_process",
 )
+# single_process:=true runs this module's three nodes in one process (issue 15).
+SINGLE_PROCESS_MODULE = "audio2pose_ros.nodes.single_process"
 
 # launch.conditions.IfCondition: the expanded text, stripped and lower-cased, must be one of these.
 _TRUE = ("true", "1")
@@ -244,6 +247,8 @@ class LaunchPlan:
             (only without a simulator: a simulated or real robot publishes its own).
         sim: ``"none"`` or ``"gz"``.
         diagnostic_aggregator: start diagnostic_aggregator with config/diagnostic_analyzers.yaml.
+        single_process: run the three nodes in one process and one executor
+            (:data:`SINGLE_PROCESS_MODULE`) instead of one process each.
 
     """
 
@@ -255,6 +260,7 @@ class LaunchPlan:
     robot_state_publisher: bool
     sim: str
     diagnostic_aggregator: bool
+    single_process: bool = False
 
     @property
     def audio_topics(self) -> dict[str, str]:
@@ -301,7 +307,39 @@ def plan_launch(arguments: Mapping[str, str]) -> LaunchPlan:
         diagnostic_aggregator=parse_bool(
             "diagnostic_aggregator", arguments["diagnostic_aggregator"]
         ),
+        single_process=parse_bool("single_process", arguments["single_process"]),
     )
+
+
+def single_process_arguments(plan: LaunchPlan, directory: Path) -> list[str]:
+    """``--ros-args`` of the single-process node executable for ``plan``.
+
+    The same parameters and remappings the launch file gives the three nodes: the parameters
+    file, then ``model_path`` for the two nodes that read it (written to a parameters file in
+    ``directory`` that names each node, so it wins over the file's node sections as the
+    per-node launch parameters do), the audio topics and the controller topic. In one process a
+    remapping applies to every node; each of these names belongs to one node only.
+    """
+    arguments = ["--ros-args", "--params-file", str(plan.params_file)]
+    if plan.model_path:
+        override = directory / "single_process_model_path.yaml"
+        override.write_text(
+            yaml.safe_dump(
+                {
+                    node: {"ros__parameters": dict(plan.model_path)}
+                    for node in ("audio_features_node", "inference_node")
+                }
+            ),
+            encoding="utf-8",
+        )
+        arguments += ["--params-file", str(override)]
+    remaps = {
+        **plan.audio_topics,
+        "joint_trajectory_controller/joint_trajectory": plan.controller_topic,
+    }
+    for name, target in remaps.items():
+        arguments += ["-r", f"{name}:={target}"]
+    return arguments
 
 
 def describe_exit(returncode: int) -> str:

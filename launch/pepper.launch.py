@@ -36,12 +36,18 @@ Visualisation and simulation (urdf/pepper.urdf, primitive shapes):
   pepper_joint_trajectory_controller, which executes the motion filter's trajectories. The
   simulated robot publishes /joint_states like a real one; robot_state_publisher shows it.
 
+``single_process:=true`` runs the three nodes in one process and one executor
+(``python -m audio2pose_ros.nodes.single_process``, the same parameters and remappings): the
+smallest footprint. The default stays three processes.
+
 ``diagnostic_aggregator:=true`` starts diagnostic_aggregator with config/diagnostic_analyzers.yaml:
 /diagnostics_agg (and rqt_robot_monitor) shows each node's status, missing or stale ones as such.
 """
 
 from __future__ import annotations
 
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -49,6 +55,7 @@ from ament_index_python.packages import get_package_share_directory
 from launch import Action, LaunchContext, LaunchDescription
 from launch.actions import (
     DeclareLaunchArgument,
+    ExecuteProcess,
     IncludeLaunchDescription,
     OpaqueFunction,
     RegisterEventHandler,
@@ -66,12 +73,15 @@ from audio2pose_ros.launch_support import (
     ARGUMENTS,
     CONTROLLER_NAME,
     CONTROLLER_TOPIC,
+    SINGLE_PROCESS_MODULE,
     LaunchPlan,
     RespawnBudget,
     plan_launch,
+    single_process_arguments,
 )
 
 PACKAGE = "audio2pose_ros"
+SINGLE_PROCESS = "audio2pose_nodes"  # the process of single_process:=true
 COMMANDED_JOINT_STATES = "commanded_joint_states"
 
 
@@ -123,6 +133,12 @@ def declare_arguments() -> list[DeclareLaunchArgument]:
             description="Aggregate /diagnostics with config/diagnostic_analyzers.yaml into "
             "/diagnostics_agg (rqt_robot_monitor) (true/false/1/0)",
         ),
+        DeclareLaunchArgument(
+            "single_process",
+            default_value="false",
+            description="Run the three nodes in one process and one executor, the smallest "
+            "footprint; same topics and outputs (true/false/1/0)",
+        ),
     ]
 
 
@@ -140,8 +156,15 @@ class NodeSupervisor:
         self.budget = RespawnBudget()
         self.started_s: dict[str, float] = {}
 
-    def node(self, executable: str) -> Node:
-        """A fresh Node action for one of the package's executables."""
+    def node(self, executable: str) -> ExecuteProcess:
+        """A fresh action for one of the package's executables, or the single-process one."""
+        if executable == SINGLE_PROCESS:
+            arguments = single_process_arguments(self.plan, Path(tempfile.mkdtemp(PACKAGE)))
+            return ExecuteProcess(
+                cmd=[sys.executable, "-m", SINGLE_PROCESS_MODULE, *arguments],
+                name=SINGLE_PROCESS,
+                output="screen",
+            )
         parameters: list[object] = [str(self.plan.params_file)]
         remappings: list[tuple[str, str]] = []
         if executable in ("audio_features_node", "inference_node"):
@@ -283,6 +306,8 @@ def launch_setup(context: LaunchContext) -> list[Action]:
     plan = plan_launch({name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS})
     supervisor = NodeSupervisor(plan)
     actions = visualisation_and_simulation(plan) + diagnostics(plan)
+    if plan.single_process:
+        return actions + supervisor.start(SINGLE_PROCESS)
     for executable in ("audio_features_node", "inference_node", "motion_filter_node"):
         actions += supervisor.start(executable)
     return actions

@@ -42,6 +42,7 @@ def arguments(**overrides: str) -> dict[str, str]:
         "robot_state_publisher": "false",
         "sim": "none",
         "diagnostic_aggregator": "false",
+        "single_process": "false",
     }
     return {**values, **overrides}
 
