@@ -76,8 +76,15 @@ class LiveSampler(PoseModel):
         self.start_pose = nn.Parameter(torch.full((config.n_joints,), 0.5))
 
     def config_dict(self) -> dict[str, Any]:
-        """Constructor arguments as a dict."""
-        return asdict(self.config)
+        """Constructor arguments as a dict; ``noise_order`` only when it is not 1.
+
+        Checkpoints of first-order models keep the keys they always had, which the torch-free
+        kernel (:mod:`audio2pose_ros.runtime`) requires.
+        """
+        config = asdict(self.config)
+        if config["noise_order"] == 1:
+            del config["noise_order"]
+        return config
 
     def _gaussian(self, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Hidden states -> (mean in [0, 1], log std), each (..., J)."""
