@@ -8,7 +8,10 @@ the seed's own approach to online features: python_speech_features run on the la
 for every frame.
 
 :func:`model_costs` compares the model families: for each registered streaming model the cost
-of one ``step`` of its streaming predictor, and for every model the offline throughput of
+of one ``step`` of its streaming predictor, of the torch-free kernel that ``inference_node``
+runs (:mod:`audio2pose_ros.runtime`) and of one torch call per frame (the module's ``forward``
+on one frame: for the recurrent models the same work as a stateful step), and for every model
+the offline throughput of
 :func:`~audio2pose_ros.synthesis.synthesize` (features, model, smoothing) in seconds of audio per
 second. Costs do not depend on the weights, so untrained models of the default sizes are timed.
 """
@@ -32,6 +35,7 @@ from audio2pose_ros.models import MODEL_REGISTRY, build_model
 from audio2pose_ros.models.checkpoint import Checkpoint
 from audio2pose_ros.motion.filter import MotionFilter
 from audio2pose_ros.robot import RobotDescription
+from audio2pose_ros.runtime import numpy_kernel_for
 from audio2pose_ros.synthesis import synthesize
 
 
@@ -134,12 +138,16 @@ class ModelCost:
         name: registry name.
         step: per-frame cost of the streaming predictor; None for offline-only models.
         offline_audio_s_per_s: seconds of audio synthesised offline per second of compute.
+        kernel_step: per-frame cost of the torch-free kernel; None without one.
+        torch_step: per-frame cost of a torch call on one frame; None for offline-only models.
 
     """
 
     name: str
     step: Timing | None
     offline_audio_s_per_s: float
+    kernel_step: Timing | None = None
+    torch_step: Timing | None = None
 
 
 def model_costs(
@@ -166,13 +174,27 @@ def model_costs(
     for name in MODEL_REGISTRY:
         torch.manual_seed(0)
         model = build_model(name, {"n_features": spec.dim, "n_joints": robot.n_joints}).eval()
-        step = None
+        step = kernel_step = torch_step = None
         if model.streaming:
             step_fn = model.streaming_predictor().step
             step = Timing.of(name, _time_calls([lambda f=f, s=step_fn: s(f) for f in frames]))
+            kernel = numpy_kernel_for(name, model.config_dict())
+            if kernel is not None:
+                tensors = {k: v.detach().numpy() for k, v in model.state_dict().items()}
+                run = kernel.build(tensors, model.config_dict()).step
+                kernel_step = Timing.of(
+                    name, _time_calls([lambda f=f, s=run: s(f) for f in frames])
+                )
+            inputs = torch.from_numpy(frames).float()[:, None, None, :]  # (N, 1, 1, F)
+            with torch.no_grad():
+                torch_step = Timing.of(
+                    name, _time_calls([lambda x=x, m=model: m(x) for x in inputs])
+                )
         checkpoint = Checkpoint(model, spec, normalizer, robot)
         durations = _time_calls(
             [lambda c=checkpoint: synthesize(c, signal_16k) for _ in range(repeats)]
         )
-        costs.append(ModelCost(name, step, audio_s / (min(durations) / 1e9)))
+        costs.append(
+            ModelCost(name, step, audio_s / (min(durations) / 1e9), kernel_step, torch_step)
+        )
     return costs

@@ -194,6 +194,10 @@ def command_bench(args: argparse.Namespace) -> int:
             cost.name: {
                 "step_median_us": cost.step.median_us if cost.step else None,
                 "step_p99_us": cost.step.p99_us if cost.step else None,
+                "numpy_kernel_step_median_us": (
+                    cost.kernel_step.median_us if cost.kernel_step else None
+                ),
+                "torch_step_median_us": cost.torch_step.median_us if cost.torch_step else None,
                 "offline_x_real_time": cost.offline_audio_s_per_s,
             }
             for cost in model_costs(signal, robot, n_frames=min(args.frames, 2000))
@@ -219,13 +223,19 @@ def _print_bench(results: dict, frames: int, clip_s: float) -> None:
             f"\nevery model family (untrained weights; cost does not depend on them), "
             f"{clip_s:.1f} s clip"
         )
-        print(f"{'model':<14}{'step median us':>16}{'step p99 us':>14}{'offline x real time':>22}")
+        print(
+            f"{'model':<14}{'step median us':>16}{'step p99 us':>14}{'no-torch kernel us':>20}"
+            f"{'torch call us':>15}{'offline x real time':>22}"
+        )
         for name, cost in results["models"].items():
             step = (
                 f"{cost['step_median_us']:>16.1f}{cost['step_p99_us']:>14.1f}"
                 if cost["step_median_us"] is not None
                 else f"{'offline only':>16}{'':>14}"
             )
+            kernel, call = cost["numpy_kernel_step_median_us"], cost["torch_step_median_us"]
+            step += f"{kernel:>20.1f}" if kernel is not None else f"{'-':>20}"
+            step += f"{call:>15.1f}" if call is not None else f"{'-':>15}"
             print(f"{name:<14}{step}{cost['offline_x_real_time']:>22.0f}")
     if "graph" in results:
         _print_graph(results["graph"])
