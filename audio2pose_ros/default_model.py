@@ -191,6 +191,8 @@ class LearnedBuildSettings:
     Attributes:
         max_epochs: epochs at most (early stopping on the validation clips usually ends sooner).
         batch_size: 2 s windows per optimiser step.
+        patience: epochs without validation improvement before training stops (the
+            validation loss mixes head and arm clips, so this is more than the seed's 10).
         loso_epochs: epochs per leave-one-speaker-out fold.
         samples: samples per clip for the diversity measure.
         seed: training seed.
@@ -199,6 +201,7 @@ class LearnedBuildSettings:
 
     max_epochs: int = 200
     batch_size: int = 8
+    patience: int = 30
     loso_epochs: int = 200
     samples: int = 3
     seed: int = 0
@@ -277,6 +280,7 @@ def build_learned_default_model(
     train_settings = TrainSettings(
         max_epochs=settings.max_epochs,
         batch_size=settings.batch_size,
+        patience=settings.patience,
         seed=settings.seed,
         show_progress=False,
     )
@@ -306,6 +310,7 @@ def build_learned_default_model(
     loso_settings = TrainSettings(
         max_epochs=settings.loso_epochs,
         batch_size=settings.batch_size,
+        patience=settings.patience,
         seed=settings.seed,
         show_progress=False,
     )

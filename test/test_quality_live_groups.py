@@ -65,3 +65,24 @@ def test_when_any_streaming_model_is_given_a_seed_expect_a_predictor(name):
     model = build_model(name, {"n_features": 4, "n_joints": 5})
     predictor = model.streaming_predictor(seed=5)
     assert predictor.step(np.zeros(4)).shape == (5,)
+
+
+def silence_speed(model, features, seed=0):
+    poses = stream(model.streaming_predictor(seed=seed), features)
+    return np.abs(np.diff(poses[300:], axis=0)).mean()  # 1 s after speech stopped
+
+
+def test_when_speech_stops_expect_the_speech_gate_to_still_the_sampling_noise():
+    rng = np.random.default_rng(4)
+    features = np.concatenate([rng.normal(0.3, 1.0, (200, 4)), np.full((200, 4), -1.5)])
+    speeds = {}
+    for rest in (1.0, 0.05):
+        torch.manual_seed(0)
+        config = {"n_features": 4, "n_joints": 5, "hidden_units": 6, "silence_temperature": rest}
+        model = build_model("live_groups", config)
+        with torch.no_grad():  # a wide output distribution, so the noise dominates the motion
+            for part in model.parts:
+                part.out.bias[part.config.n_joints :] = -1.0
+        speeds[rest] = silence_speed(model, features)
+        np.testing.assert_array_equal(speeds[rest], silence_speed(model, features))
+    assert speeds[0.05] < 0.3 * speeds[1.0]

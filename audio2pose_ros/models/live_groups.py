@@ -8,6 +8,15 @@ inputs it never saw in training. This model splits the joints into two groups, e
 sampling noise) that reads the audio and only its own group's previous pose. Each part's loss
 is the masked Gaussian negative log-likelihood of its joints, so a clip trains only the part
 whose joints it labels; both parts train together, on the union of the data sets.
+
+People keep still when they stop talking; a sampler whose noise never stops does not. The
+sampling noise of both parts is therefore scaled by a causal speech gate read from the same
+normalised audio features: the frame's mean log filter-bank energy e_t is compared with a
+slowly decaying peak of recent energy (:data:`PEAK_DECAY_PER_S`), v_t = sigmoid((e_t - peak_t
++ gate_margin) / gate_width), smoothed over :data:`GATE_TAU_S`; the temperature is multiplied by
+silence_temperature + (1 - silence_temperature) v_t, and by each part's own temperature
+(chosen on held-out data: the head's real motion is smaller than its one-step uncertainty
+suggests). A relative gate (against the recent peak) does not depend on the recording level.
 Streams: yes (two GRU cell steps per frame); the streaming predictor samples with a settable
 seed (the head part's noise from ``seed``, the body part's from ``seed + 1``).
 """
@@ -42,6 +51,11 @@ class LiveGroupsConfig:
     noise_correlation: float = 0.975  # with order 2: chosen on the held-out lecture stretch
     noise_order: int = 2
     first_group: int = 3
+    first_temperature: float = 1.0
+    second_temperature: float = 1.0
+    silence_temperature: float = 0.05  # noise left in silence (1 = no speech gate)
+    gate_margin: float = 1.0  # z-units of the features' mean below the recent peak
+    gate_width: float = 0.2
 
 
 class LiveGroups(PoseModel):
@@ -102,6 +116,10 @@ class LiveGroups(PoseModel):
                 total = total + part.training_loss(features, targets[..., index], mask[..., index])
         return total
 
+    def part_temperatures(self) -> tuple[float, float]:
+        """Each part's own temperature factor."""
+        return self.config.first_temperature, self.config.second_temperature
+
     def sample(
         self,
         features: torch.Tensor,
@@ -110,13 +128,59 @@ class LiveGroups(PoseModel):
         temperature: float = 1.0,
     ) -> torch.Tensor:
         """(B, T, F) -> (S, B, T, J); each part draws its own noise from ``generator``."""
-        return self._scatter(
-            [part.sample(features, n_samples, generator, temperature) for part in self.parts]
-        )
+        batch, n_frames, _ = features.shape
+        x = np.tile(features.detach().cpu().double().numpy(), (n_samples, 1, 1))
+        gate = SpeechGate(self.config)
+        scale = np.stack([gate.run(row) for row in x])[..., None]  # (S * B, T, 1)
+        outputs = []
+        for part, factor in zip(self.parts, self.part_temperatures(), strict=True):
+            core = part._core()
+            white = torch.randn(
+                n_samples * batch, n_frames, part.config.n_joints, generator=generator
+            )
+            noise = core.correlate(white.double().numpy()) * scale * factor
+            poses = core.run(x, noise, temperature)
+            outputs.append(torch.from_numpy(poses).float().view(n_samples, batch, n_frames, -1))
+        return self._scatter(outputs)
 
     def streaming_predictor(self, seed: int = 0, temperature: float = 1.0) -> LiveGroupsPredictor:
         """Per-frame sampler: same seed, same motion; ``temperature`` 0 = ``forward``."""
         return LiveGroupsPredictor(self, seed, temperature)
+
+
+GATE_TAU_S = 0.3  # smoothing of the speech gate
+PEAK_DECAY_PER_S = 0.3  # z-units per second the energy peak forgets
+
+
+class SpeechGate:
+    """Causal speech activity in [0, 1] from normalised features (see the module docstring)."""
+
+    def __init__(self, config: LiveGroupsConfig, rate_hz: float = 100.0) -> None:
+        """Start silent, with the peak at the training audio's mean energy (0)."""
+        self.rest = config.silence_temperature
+        self.margin, self.width = config.gate_margin, config.gate_width
+        self.smoothing = float(np.exp(-1.0 / (GATE_TAU_S * rate_hz)))
+        self.decay = PEAK_DECAY_PER_S / rate_hz
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the peak and the smoothed activity."""
+        self.peak, self.level = 0.0, 0.0
+
+    def step(self, features: np.ndarray) -> float:
+        """Temperature factor of one frame: rest + (1 - rest) * smoothed activity."""
+        if self.rest >= 1.0:
+            return 1.0
+        energy = float(np.mean(features))
+        self.peak = max(energy, self.peak - self.decay)
+        active = 1.0 / (1.0 + np.exp(-(energy - self.peak + self.margin) / self.width))
+        self.level = self.smoothing * self.level + (1.0 - self.smoothing) * active
+        return self.rest + (1.0 - self.rest) * self.level
+
+    def run(self, frames: np.ndarray) -> np.ndarray:
+        """(T, F) frames of one utterance -> (T,) factors, from a fresh state."""
+        self.reset()
+        return np.array([self.step(frame) for frame in frames])
 
 
 class LiveGroupsPredictor(StreamingPredictor):
@@ -126,31 +190,27 @@ class LiveGroupsPredictor(StreamingPredictor):
         """One :class:`LivePredictor` per part (seeds ``seed`` and ``seed + 1``)."""
         self._groups = model.groups
         self._n_joints = model.config.n_joints
+        self._factors = model.part_temperatures()
+        self._gate = SpeechGate(model.config)
         self._parts = [
             LivePredictor(part._core(), seed + k, temperature) for k, part in enumerate(model.parts)
         ]
         self.seed = seed
-
-    @property
-    def temperature(self) -> float:
-        """Noise scale of both parts (0 = most likely motion)."""
-        return self._parts[0].temperature
-
-    @temperature.setter
-    def temperature(self, value: float) -> None:
-        for part in self._parts:
-            part.temperature = value
+        self.temperature = temperature
 
     def reset(self, seed: int | None = None) -> None:
         """Forget the state; optionally change the seed."""
         if seed is not None:
             self.seed = seed
+        self._gate.reset()
         for k, part in enumerate(self._parts):
             part.reset(self.seed + k)
 
     def step(self, features: np.ndarray) -> np.ndarray:
         """Sample the pose of one (n_features,) frame: (n_joints,) in [0, 1]."""
+        scale = self._gate.step(features) if self.temperature else 0.0
         pose = np.empty(self._n_joints)
-        for joints, part in zip(self._groups, self._parts, strict=True):
+        for joints, part, factor in zip(self._groups, self._parts, self._factors, strict=True):
+            part.temperature = self.temperature * factor * scale
             pose[joints] = part.step(features)
         return pose
