@@ -44,3 +44,44 @@ def test_when_filling_unobserved_joints_expect_the_head_kept_and_the_rest_from_t
     expected = rule if arms == "prosody" else np.broadcast_to(robot.neutral_rad, rule.shape)
     np.testing.assert_allclose(filled.angles_rad[:, ~head], expected[:n, ~head], atol=1e-5)
     assert "filled by the" in Dataset.open(tmp_path / "filled").clips[0].source
+
+
+def clip_with_id(clip_id, split="train"):
+    info = ClipInfo(clip_id, clip_id.split("_")[0], "x", "CC0-1.0", split)
+    return Clip(info, np.zeros(800, np.float32), np.zeros((3, 11)), np.zeros((3, 11), bool))
+
+
+def test_when_choosing_validation_clips_expect_talking_heads_and_one_training_lecture_stretch():
+    from audio2pose_ros.default_model import VALIDATION_CLIPS, _validation_ids
+
+    clips = [
+        clip_with_id(name)
+        for name in ("lecture_016.01s", "lecture_048.68s", "lecture_060.94s", *VALIDATION_CLIPS)
+    ]
+    clips.append(clip_with_id("lecture_050.00s", split="test"))
+    assert _validation_ids(clips) == {*VALIDATION_CLIPS, "lecture_048.68s"}
+
+
+def test_when_loading_the_packaged_default_expect_a_seeded_streaming_sampler_learned_from_people(
+    robot, speech
+):
+    from audio2pose_ros.models.checkpoint import load_checkpoint
+    from audio2pose_ros.resources import default_checkpoint_path
+
+    checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
+    assert checkpoint.model.name == "live_groups"
+    assert checkpoint.model.streaming
+    assert "Walter Lewin" in checkpoint.info["dataset"]
+    assert "CC BY 3.0" in checkpoint.info["dataset"]
+    assert "Cooke et al. 2006" in checkpoint.info["dataset"]
+    frames = checkpoint.normalizer.apply(extract_features(speech[:48000], checkpoint.features))
+
+    def run(seed):
+        predictor = checkpoint.model.streaming_predictor(seed=seed)
+        return robot.denormalize(np.stack([predictor.step(f) for f in frames]))
+
+    first = run(0)
+    np.testing.assert_array_equal(run(0), first)
+    other = run(1)
+    assert np.degrees(np.abs(other - first).max(axis=0)).max() > 2.0  # visibly different
+    assert np.all((first >= robot.lower_rad) & (first <= robot.upper_rad))

@@ -11,9 +11,10 @@ whose joints it labels; both parts train together, on the union of the data sets
 
 People keep still when they stop talking; a sampler whose noise never stops does not. The
 sampling noise of both parts is therefore scaled by a causal speech gate read from the same
-normalised audio features: the frame's mean log filter-bank energy e_t is compared with a
-slowly decaying peak of recent energy (:data:`PEAK_DECAY_PER_S`), v_t = sigmoid((e_t - peak_t
-+ gate_margin) / gate_width), smoothed over :data:`GATE_TAU_S`; the temperature is multiplied by
+normalised audio features (:mod:`audio2pose_ros.speech_gate`): the frame's mean log
+filter-bank energy e_t is compared with a slowly decaying peak of recent energy,
+v_t = sigmoid((e_t - peak_t + gate_margin) / gate_width), smoothed over 0.3 s; the temperature
+is multiplied by
 silence_temperature + (1 - silence_temperature) v_t, and by each part's own temperature
 (chosen on held-out data: the head's real motion is smaller than its one-step uncertainty
 suggests). A relative gate (against the recent peak) does not depend on the recording level.
@@ -32,6 +33,7 @@ import torch
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.base import PoseModel, StreamingPredictor
 from audio2pose_ros.models.live import LiveConfig, LivePredictor, LiveSampler
+from audio2pose_ros.speech_gate import SpeechGate
 
 
 @dataclass(frozen=True)
@@ -130,7 +132,9 @@ class LiveGroups(PoseModel):
         """(B, T, F) -> (S, B, T, J); each part draws its own noise from ``generator``."""
         batch, n_frames, _ = features.shape
         x = np.tile(features.detach().cpu().double().numpy(), (n_samples, 1, 1))
-        gate = SpeechGate(self.config)
+        gate = SpeechGate(
+            self.config.silence_temperature, self.config.gate_margin, self.config.gate_width
+        )
         scale = np.stack([gate.run(row) for row in x])[..., None]  # (S * B, T, 1)
         outputs = []
         for part, factor in zip(self.parts, self.part_temperatures(), strict=True):
@@ -148,41 +152,6 @@ class LiveGroups(PoseModel):
         return LiveGroupsPredictor(self, seed, temperature)
 
 
-GATE_TAU_S = 0.3  # smoothing of the speech gate
-PEAK_DECAY_PER_S = 0.3  # z-units per second the energy peak forgets
-
-
-class SpeechGate:
-    """Causal speech activity in [0, 1] from normalised features (see the module docstring)."""
-
-    def __init__(self, config: LiveGroupsConfig, rate_hz: float = 100.0) -> None:
-        """Start silent, with the peak at the training audio's mean energy (0)."""
-        self.rest = config.silence_temperature
-        self.margin, self.width = config.gate_margin, config.gate_width
-        self.smoothing = float(np.exp(-1.0 / (GATE_TAU_S * rate_hz)))
-        self.decay = PEAK_DECAY_PER_S / rate_hz
-        self.reset()
-
-    def reset(self) -> None:
-        """Forget the peak and the smoothed activity."""
-        self.peak, self.level = 0.0, 0.0
-
-    def step(self, features: np.ndarray) -> float:
-        """Temperature factor of one frame: rest + (1 - rest) * smoothed activity."""
-        if self.rest >= 1.0:
-            return 1.0
-        energy = float(np.mean(features))
-        self.peak = max(energy, self.peak - self.decay)
-        active = 1.0 / (1.0 + np.exp(-(energy - self.peak + self.margin) / self.width))
-        self.level = self.smoothing * self.level + (1.0 - self.smoothing) * active
-        return self.rest + (1.0 - self.rest) * self.level
-
-    def run(self, frames: np.ndarray) -> np.ndarray:
-        """(T, F) frames of one utterance -> (T,) factors, from a fresh state."""
-        self.reset()
-        return np.array([self.step(frame) for frame in frames])
-
-
 class LiveGroupsPredictor(StreamingPredictor):
     """Streaming sampler of :class:`LiveGroups` with a settable seed and temperature."""
 
@@ -191,7 +160,8 @@ class LiveGroupsPredictor(StreamingPredictor):
         self._groups = model.groups
         self._n_joints = model.config.n_joints
         self._factors = model.part_temperatures()
-        self._gate = SpeechGate(model.config)
+        config = model.config
+        self._gate = SpeechGate(config.silence_temperature, config.gate_margin, config.gate_width)
         self._parts = [
             LivePredictor(part._core(), seed + k, temperature) for k, part in enumerate(model.parts)
         ]
