@@ -26,9 +26,12 @@ from audio2pose_ros.robot import RobotDescription
 SPEECH_S = 3.0
 
 
-def _run(tmp_path: Path, speech: np.ndarray, single_process: bool) -> dict[str, list]:
+def _run(
+    tmp_path: Path, speech: np.ndarray, single_process: bool, monkeypatch: pytest.MonkeyPatch
+) -> dict[str, list]:
     """Play the speech into the graph; the recorded raw poses and /joint_angles commands."""
     mode = "single" if single_process else "three"
+    monkeypatch.setenv("ROS_HOME", str(tmp_path / f"{mode}_ros_home"))  # no saved pose or stop
     messages = audio_messages(speech[: int(SPEECH_S * 16000)], Chunking(seed=3))
     bag = tmp_path / f"{mode}_bag"
     with (
@@ -52,10 +55,10 @@ def _run(tmp_path: Path, speech: np.ndarray, single_process: bool) -> dict[str, 
 @pytest.mark.ros
 @pytest.mark.slow
 def test_when_the_nodes_share_one_process_expect_the_same_raw_poses_and_commands(
-    tmp_path: Path, speech: np.ndarray, robot: RobotDescription
+    tmp_path: Path, speech: np.ndarray, robot: RobotDescription, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    three = _run(tmp_path, speech, single_process=False)
-    single = _run(tmp_path, speech, single_process=True)
+    three = _run(tmp_path, speech, False, monkeypatch)
+    single = _run(tmp_path, speech, True, monkeypatch)
     assert single["processes"] == [SINGLE_PROCESS]
     assert len(three["processes"]) == 3
     frames = int(SPEECH_S * 100)
