@@ -86,3 +86,11 @@ def test_when_speech_stops_expect_the_speech_gate_to_still_the_sampling_noise():
         speeds[rest] = silence_speed(model, features)
         np.testing.assert_array_equal(speeds[rest], silence_speed(model, features))
     assert speeds[0.05] < 0.3 * speeds[1.0]
+
+
+def test_when_sampling_offline_with_a_seed_expect_the_streaming_motion_of_that_seed(model):
+    features = np.random.default_rng(5).normal(size=(80, 4))
+    generator = torch.Generator().manual_seed(11)
+    offline = model.sample(torch.tensor(features[None], dtype=torch.float32), 1, generator)
+    online = stream(model.streaming_predictor(seed=11), features)
+    np.testing.assert_allclose(offline[0, 0].numpy(), online, atol=1e-5)

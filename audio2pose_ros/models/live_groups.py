@@ -129,7 +129,15 @@ class LiveGroups(PoseModel):
         generator: torch.Generator | None = None,
         temperature: float = 1.0,
     ) -> torch.Tensor:
-        """(B, T, F) -> (S, B, T, J); each part draws its own noise from ``generator``."""
+        """(B, T, F) -> (S, B, T, J), the same motion as the streaming predictor.
+
+        Sequence i (sample-major: i = s * B + b) of part k draws its noise, frame by frame,
+        from ``numpy.random.default_rng(seed + 2 i + k)``, where ``seed`` is the generator's
+        initial seed (0 without one): sample 0 of a single utterance equals what
+        ``streaming_predictor(seed)`` produces frame by frame, so ``audio2pose synth`` and the
+        inference node move alike for the same seed.
+        """
+        seed = generator.initial_seed() if generator is not None else 0
         batch, n_frames, _ = features.shape
         x = np.tile(features.detach().cpu().double().numpy(), (n_samples, 1, 1))
         gate = SpeechGate(
@@ -137,12 +145,17 @@ class LiveGroups(PoseModel):
         )
         scale = np.stack([gate.run(row) for row in x])[..., None]  # (S * B, T, 1)
         outputs = []
-        for part, factor in zip(self.parts, self.part_temperatures(), strict=True):
+        for k, (part, factor) in enumerate(zip(self.parts, self.part_temperatures(), strict=True)):
             core = part._core()
-            white = torch.randn(
-                n_samples * batch, n_frames, part.config.n_joints, generator=generator
+            white = np.stack(
+                [
+                    np.random.default_rng(seed + 2 * i + k).standard_normal(
+                        (n_frames, part.config.n_joints)
+                    )
+                    for i in range(n_samples * batch)
+                ]
             )
-            noise = core.correlate(white.double().numpy()) * scale * factor
+            noise = core.correlate(white) * scale * factor
             poses = core.run(x, noise, temperature)
             outputs.append(torch.from_numpy(poses).float().view(n_samples, batch, n_frames, -1))
         return self._scatter(outputs)
