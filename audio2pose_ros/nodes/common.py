@@ -321,22 +321,20 @@ class DiagnosedNode(Node):
 
 
 SPIN_ONCE_TIMEOUT_S = 0.5  # an idle EventsExecutor checks for shutdown this often
-EXECUTOR_ENV = "AUDIO2POSE_EXECUTOR"  # "single_threaded" (default) or "events"
+EXECUTOR_ENV = "AUDIO2POSE_EXECUTOR"  # "events" (default where available) or "single_threaded"
 
 
 def create_executor() -> Executor:
-    """The executor the nodes spin in: single-threaded, or rclpy's EventsExecutor on request.
+    """The executor the nodes spin in: rclpy's EventsExecutor where available, else single-threaded.
 
-    ``AUDIO2POSE_EXECUTOR=events`` selects the EventsExecutor (``rclpy.experimental``, Jazzy and
-    later; Humble has none and keeps the SingleThreadedExecutor). It is driven by middleware
-    events instead of rebuilding a wait set in Python for every callback, which is the largest
-    single item of the nodes' CPU (issue 15: 20-40 % of each node's samples under traffic); with
-    it the three nodes used 2.9 instead of 4.2 ms CPU per 10 ms frame. It is not the default:
-    with rclpy 9.1 here, the fault campaign's two "SIGKILL motion_filter_node" cases fail under
-    it (the restarted filter moved 0.2 and 0.4 rad from the robot's pose; they pass with the
-    SingleThreadedExecutor), and a safety case outweighs the CPU.
+    The EventsExecutor (``rclpy.experimental``, Jazzy and later) is driven by middleware events
+    instead of rebuilding a wait set in Python for every callback, which was the largest single
+    item of the nodes' CPU (issue 15: 20-40 % of each node's samples under traffic); with it the
+    three nodes used 2.9 instead of 4.2 ms CPU per 10 ms frame. Humble has none and gets the
+    SingleThreadedExecutor; ``AUDIO2POSE_EXECUTOR=single_threaded`` forces it (for comparison,
+    or should a distro's EventsExecutor misbehave). Spin it with :func:`spin_executor`.
     """
-    if os.environ.get(EXECUTOR_ENV, "single_threaded") == "events":
+    if os.environ.get(EXECUTOR_ENV, "events") != "single_threaded":
         try:
             from rclpy.experimental import EventsExecutor
         except ImportError:  # Humble
