@@ -9,7 +9,8 @@ kernel here, frame by frame, with float64 arithmetic:
 |---|---|
 | ``mlp`` | seed 003 section 4.3.3: ReLU layers, sigmoid output; a message's frames at once |
 | ``lstm`` | seed 003 section 4.3.4 made causal: one LSTM cell step per frame, (h, c) carried |
-| ``live`` | a GRU step on audio and the last pose, Gaussian output, AR(1) sampling noise |
+| ``live`` | a GRU step on audio and the last pose, Gaussian output, AR(1) or AR(1)x2 noise |
+| ``live_groups`` | two ``live`` kernels (head; arms and hip) and the causal speech gate |
 
 Gate layouts are torch's (LSTM: input, forget, cell, output; GRU: reset, update, new, the reset
 gate scaling the hidden projection including its bias), so the kernels give the same poses as
@@ -48,6 +49,7 @@ from audio2pose_ros.checkpoint_format import (
     verify_digest,
 )
 from audio2pose_ros.robot import RobotDescription
+from audio2pose_ros.speech_gate import SpeechGate
 
 __all__ = [
     "KERNELS",
@@ -169,7 +171,8 @@ class LiveKernel:
     """The live sampler: GRU on (audio, last pose), Gaussian output, time-correlated noise.
 
     At frame t: e_t = rho e_(t-1) + sqrt(1 - rho^2) n_t (e_0 = n_0) from
-    ``numpy.random.default_rng(seed)``; pose = clip(mu + temperature * sigma * e_t, 0, 1),
+    ``numpy.random.default_rng(seed)``; with ``order`` 2 a second such stage filters e_t and is
+    scaled back to unit variance; pose = clip(mu + temperature * sigma * noise, 0, 1),
     mu = sigmoid of the first half of the output layer, sigma = exp of the second half clamped
     to [-7, 0]; the pose is the next frame's previous pose.
     """
@@ -178,19 +181,24 @@ class LiveKernel:
         self,
         tensors: Mapping[str, np.ndarray],
         rho: float,
+        order: int = 1,
         seed: int = 0,
         temperature: float = 1.0,
+        prefix: str = "",
     ) -> None:
-        """Take the GRU, output layer and start pose from ``tensors``; start an utterance."""
-        self._w_ih = _weights(tensors, "gru.weight_ih_l0")
-        self._w_hh = _weights(tensors, "gru.weight_hh_l0")
-        self._b_ih = _vector(tensors, "gru.bias_ih_l0")
-        self._b_hh = _vector(tensors, "gru.bias_hh_l0")
-        self._w_out = _weights(tensors, "out.weight")
-        self._b_out = _vector(tensors, "out.bias")
-        self._start_pose = _vector(tensors, "start_pose")
+        """Take the GRU, output layer and start pose (names after ``prefix``); start."""
+        self._w_ih = _weights(tensors, f"{prefix}gru.weight_ih_l0")
+        self._w_hh = _weights(tensors, f"{prefix}gru.weight_hh_l0")
+        self._b_ih = _vector(tensors, f"{prefix}gru.bias_ih_l0")
+        self._b_hh = _vector(tensors, f"{prefix}gru.bias_hh_l0")
+        self._w_out = _weights(tensors, f"{prefix}out.weight")
+        self._b_out = _vector(tensors, f"{prefix}out.bias")
+        self._start_pose = _vector(tensors, f"{prefix}start_pose")
         self._rho = rho
+        self._order = order
         self._innovation = math.sqrt(1.0 - rho * rho)
+        # a second AR(1) stage on unit-variance AR(1) noise has variance (1 + rho^2) / (1 - rho^2)
+        self._second_gain = math.sqrt((1.0 + rho * rho) / (1.0 - rho * rho))
         self.seed = seed
         self.temperature = temperature
         self.reset()
@@ -203,6 +211,7 @@ class LiveKernel:
         self._hidden = np.zeros(self._w_hh.shape[0])
         self._previous = self._start_pose.copy()
         self._noise = self._rng.standard_normal(self._start_pose.shape[0])
+        self._smooth = self._noise * self._second_gain
         self._first = True
 
     def step(self, features: np.ndarray) -> np.ndarray:
@@ -210,7 +219,9 @@ class LiveKernel:
         if not self._first:
             fresh = self._rng.standard_normal(self._noise.shape[0])
             self._noise = self._rho * self._noise + self._innovation * fresh
+            self._smooth = self._rho * self._smooth + self._innovation * self._noise
         self._first = False
+        noise = self._noise if self._order == 1 else self._smooth / self._second_gain
         x = np.concatenate([np.asarray(features, dtype=np.float64), self._previous])
         xr, xz, xn = np.split(x @ self._w_ih + self._b_ih, 3)
         hr, hz, hn = np.split(self._hidden @ self._w_hh + self._b_hh, 3)
@@ -222,8 +233,60 @@ class LiveKernel:
         pose = sigmoid(raw[:joints])
         if self.temperature:
             std = np.exp(np.clip(raw[joints:], _MIN_LOG_STD, _MAX_LOG_STD))
-            pose = np.clip(pose + self.temperature * std * self._noise, 0.0, 1.0)
+            pose = np.clip(pose + self.temperature * std * noise, 0.0, 1.0)
         self._previous = pose
+        return pose
+
+    def run(self, frames: np.ndarray) -> np.ndarray:
+        """(N, n_features) frames in order -> (N, n_joints) sampled poses."""
+        return np.array([self.step(frame) for frame in frames])
+
+
+class LiveGroupsKernel:
+    """Two live kernels over disjoint joint groups, their noise scaled by the speech gate.
+
+    Per frame: factor = the gate's temperature factor (0 at temperature 0); part k samples at
+    temperature * its own temperature * factor with seed ``seed + k``; the parts' poses are
+    scattered into the robot's joint order.
+    """
+
+    def __init__(
+        self,
+        tensors: Mapping[str, np.ndarray],
+        config: Mapping[str, Any],
+        seed: int = 0,
+        temperature: float = 1.0,
+    ) -> None:
+        """Build both parts and the gate from the tensors and the config."""
+        self._groups = _live_groups(config)
+        self._n_joints = config["n_joints"]
+        self._factors = (config["first_temperature"], config["second_temperature"])
+        self._gate = SpeechGate(
+            config["silence_temperature"], config["gate_margin"], config["gate_width"]
+        )
+        rho, order = float(config["noise_correlation"]), config["noise_order"]
+        self._parts = [
+            LiveKernel(tensors, rho, order, seed + k, temperature, prefix=f"parts.{k}.")
+            for k in range(len(self._groups))
+        ]
+        self.seed = seed
+        self.temperature = temperature
+
+    def reset(self, seed: int | None = None) -> None:
+        """Forget the state; optionally change the seed."""
+        if seed is not None:
+            self.seed = seed
+        self._gate.reset()
+        for k, part in enumerate(self._parts):
+            part.reset(self.seed + k)
+
+    def step(self, features: np.ndarray) -> np.ndarray:
+        """Sample the pose of one frame, joints in the robot's order."""
+        scale = self._gate.step(features) if self.temperature else 0.0
+        pose = np.empty(self._n_joints)
+        for joints, part, factor in zip(self._groups, self._parts, self._factors, strict=True):
+            part.temperature = self.temperature * factor * scale
+            pose[joints] = part.step(features)
         return pose
 
     def run(self, frames: np.ndarray) -> np.ndarray:
@@ -239,7 +302,8 @@ class KernelSpec:
     """A model family this module runs: its exact config keys, tensor shapes and builder.
 
     Attributes:
-        config_keys: the config keys the kernel reads, all required, no others.
+        config_keys: the config keys the kernel reads, all required but ``optional_keys``
+            (left out, their default applies), no others.
         accepts: whether a config's values lie in the kernel's range.
         shapes: the tensor names and shapes of a config (torch's ``state_dict`` layout).
         build: the predictor, from the tensors, the config, and keyword options (``seed``,
@@ -250,6 +314,7 @@ class KernelSpec:
     accepts: Callable[[Mapping[str, Any]], bool]
     shapes: Callable[[Mapping[str, Any]], dict[str, tuple[int, ...]]]
     build: Callable[..., FramePredictor]
+    optional_keys: frozenset[str] = frozenset()
 
 
 def _is_int(value: object, low: int = 1) -> bool:
@@ -342,9 +407,54 @@ def _build_live(
     seed: int = 0,
     temperature: float = 1.0,
 ) -> LiveKernel:
-    return LiveKernel(tensors, float(config["noise_correlation"]), seed, temperature)
+    order = config.get("noise_order", 1)
+    return LiveKernel(tensors, float(config["noise_correlation"]), order, seed, temperature)
 
 
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _live_accepts(config: Mapping[str, Any]) -> bool:
+    order = config.get("noise_order", 1)
+    return (
+        _sizes_ok(config)
+        and _is_fraction(config["noise_correlation"])
+        and _is_number(config["input_noise"])
+        and not isinstance(order, bool)
+        and order in (1, 2)
+    )
+
+
+def _live_groups(config: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """Joint indices of the two parts (bit j of ``first_group`` = joint j in the first)."""
+    first = np.array([(config["first_group"] >> j) & 1 == 1 for j in range(config["n_joints"])])
+    return np.flatnonzero(first), np.flatnonzero(~first)
+
+
+def _live_groups_accepts(config: Mapping[str, Any]) -> bool:
+    numbers = ("first_temperature", "second_temperature", "silence_temperature")
+    if not (
+        _live_accepts(config)
+        and _is_int(config["first_group"])
+        and config["first_group"] < 1 << config["n_joints"]
+        and all(_is_number(config[k]) for k in (*numbers, "gate_margin", "gate_width"))
+    ):
+        return False
+    return all(len(joints) for joints in _live_groups(config))
+
+
+def _live_groups_shapes(config: Mapping[str, Any]) -> dict[str, tuple[int, ...]]:
+    shapes = {}
+    for k, joints in enumerate(_live_groups(config)):
+        part = _live_shapes({**config, "n_joints": len(joints)})
+        shapes.update({f"parts.{k}.{name}": shape for name, shape in part.items()})
+    return shapes
+
+
+_LIVE_KEYS = frozenset(
+    {"n_features", "n_joints", "hidden_units", "input_noise", "noise_correlation"}
+)
 KERNELS: dict[str, KernelSpec] = {
     "mlp": KernelSpec(
         frozenset({"n_features", "n_joints", "hidden_layers", "hidden_units", "dropout"}),
@@ -356,16 +466,26 @@ KERNELS: dict[str, KernelSpec] = {
         frozenset({"n_features", "n_joints", "hidden_units"}), _sizes_ok, _lstm_shapes, _build_lstm
     ),
     "live": KernelSpec(
-        frozenset({"n_features", "n_joints", "hidden_units", "input_noise", "noise_correlation"}),
-        lambda c: (
-            _sizes_ok(c)
-            and _is_fraction(c["noise_correlation"])
-            and isinstance(c["input_noise"], int | float)
-            and not isinstance(c["input_noise"], bool)
-            and math.isfinite(c["input_noise"])
-        ),
+        _LIVE_KEYS | {"noise_order"},
+        _live_accepts,
         _live_shapes,
         _build_live,
+        frozenset({"noise_order"}),
+    ),
+    "live_groups": KernelSpec(
+        _LIVE_KEYS
+        | {
+            "noise_order",
+            "first_group",
+            "first_temperature",
+            "second_temperature",
+            "silence_temperature",
+            "gate_margin",
+            "gate_width",
+        },
+        _live_groups_accepts,
+        _live_groups_shapes,
+        LiveGroupsKernel,
     ),
 }
 
@@ -373,7 +493,11 @@ KERNELS: dict[str, KernelSpec] = {
 def numpy_kernel_for(name: str, config: object) -> KernelSpec | None:
     """The kernel that runs model ``name`` with ``config``, or None (the torch loader's case)."""
     spec = KERNELS.get(name)
-    if spec is None or not isinstance(config, dict) or set(config) != spec.config_keys:
+    if (
+        spec is None
+        or not isinstance(config, dict)
+        or not spec.config_keys - spec.optional_keys <= set(config) <= spec.config_keys
+    ):
         return None
     return spec if spec.accepts(config) else None
 

@@ -64,7 +64,14 @@ def _checkpoint(
 
 @pytest.mark.parametrize(
     ("name", "config"),
-    [("mlp", {}), ("mlp", {"dropout": 0.2, "hidden_layers": 2}), ("lstm", {}), ("live", {})],
+    [
+        ("mlp", {}),
+        ("mlp", {"dropout": 0.2, "hidden_layers": 2}),
+        ("lstm", {}),
+        ("live", {}),
+        ("live", {"noise_order": 2}),
+        ("live_groups", {}),
+    ],
 )
 def test_when_a_streaming_model_runs_on_real_speech_expect_numpy_kernel_equals_torch(
     tmp_path: Path,
@@ -79,7 +86,7 @@ def test_when_a_streaming_model_runs_on_real_speech_expect_numpy_kernel_equals_t
     assert loaded.runtime == "numpy"
     torch_model = load_checkpoint(path, robot=robot).model
     frames = loaded.normalizer.apply(raw)
-    options = {"temperature": 0.0} if name == "live" else {}
+    options = {"temperature": 0.0} if name.startswith("live") else {}
     numpy_poses = loaded.predictor(**options).run(frames)
     with torch.no_grad():
         torch_poses = torch_model(torch.from_numpy(frames).float()[None])[0].double().numpy()
@@ -88,11 +95,18 @@ def test_when_a_streaming_model_runs_on_real_speech_expect_numpy_kernel_equals_t
     np.testing.assert_allclose(numpy_poses, torch_poses, atol=TORCH_TOLERANCE, rtol=0)
 
 
-def test_when_the_live_model_samples_expect_the_same_poses_as_its_torch_side_predictor(
-    tmp_path: Path, robot: RobotDescription, speech_features: tuple[np.ndarray, FeatureNormalizer]
+@pytest.mark.parametrize(
+    ("name", "config"), [("live", {}), ("live", {"noise_order": 2}), ("live_groups", {})]
+)
+def test_when_a_live_model_samples_expect_the_same_poses_as_its_torch_side_predictor(
+    tmp_path: Path,
+    robot: RobotDescription,
+    speech_features: tuple[np.ndarray, FeatureNormalizer],
+    name: str,
+    config: dict,
 ) -> None:
     raw, normalizer = speech_features
-    path = _checkpoint(tmp_path, "live", robot, normalizer)
+    path = _checkpoint(tmp_path, name, robot, normalizer, config)
     frames = normalizer.apply(raw)
     kernel = load_streaming_model(path, robot=robot).predictor(seed=5, temperature=1.0)
     reference = load_checkpoint(path, robot=robot).model.streaming_predictor(seed=5)
@@ -147,12 +161,22 @@ def _write_raw_checkpoint(
     return path
 
 
+@pytest.fixture
+def mlp_path(
+    tmp_path: Path, robot: RobotDescription, speech_features: tuple[np.ndarray, FeatureNormalizer]
+) -> Path:
+    """An MLP checkpoint (the hostile variants below edit its tensors)."""
+    return _checkpoint(tmp_path, "mlp", robot, speech_features[1])
+
+
 def _tensors(path: Path) -> dict[str, np.ndarray]:
     return load_file(str(path))
 
 
-def test_when_a_tensor_has_another_shape_than_the_config_expect_refusal(tmp_path: Path) -> None:
-    source = default_checkpoint_path()
+def test_when_a_tensor_has_another_shape_than_the_config_expect_refusal(
+    tmp_path: Path, mlp_path: Path
+) -> None:
+    source = mlp_path
     tensors = _tensors(source)
     tensors["net.0.weight"] = np.zeros((8, 25), dtype=np.float32)
     bad = _write_raw_checkpoint(tmp_path / "shape.safetensors", source, tensors)
@@ -160,8 +184,8 @@ def test_when_a_tensor_has_another_shape_than_the_config_expect_refusal(tmp_path
         load_streaming_model(bad)
 
 
-def test_when_a_tensor_is_missing_or_extra_expect_refusal(tmp_path: Path) -> None:
-    source = default_checkpoint_path()
+def test_when_a_tensor_is_missing_or_extra_expect_refusal(tmp_path: Path, mlp_path: Path) -> None:
+    source = mlp_path
     tensors = _tensors(source)
     tensors["net.99.weight"] = tensors.pop("net.14.weight")
     bad = _write_raw_checkpoint(tmp_path / "names.safetensors", source, tensors)
@@ -169,8 +193,8 @@ def test_when_a_tensor_is_missing_or_extra_expect_refusal(tmp_path: Path) -> Non
         load_streaming_model(bad)
 
 
-def test_when_a_weight_is_not_finite_expect_refusal(tmp_path: Path) -> None:
-    source = default_checkpoint_path()
+def test_when_a_weight_is_not_finite_expect_refusal(tmp_path: Path, mlp_path: Path) -> None:
+    source = mlp_path
     tensors = _tensors(source)
     tensors["net.2.bias"][3] = np.nan
     bad = _write_raw_checkpoint(tmp_path / "nan.safetensors", source, tensors)
@@ -178,8 +202,8 @@ def test_when_a_weight_is_not_finite_expect_refusal(tmp_path: Path) -> None:
         load_streaming_model(bad)
 
 
-def test_when_a_tensor_is_float64_expect_refusal_not_a_cast(tmp_path: Path) -> None:
-    source = default_checkpoint_path()
+def test_when_a_tensor_is_float64_expect_refusal_not_a_cast(tmp_path: Path, mlp_path: Path) -> None:
+    source = mlp_path
     tensors = _tensors(source)
     tensors["net.0.bias"] = tensors["net.0.bias"].astype(np.float64)
     bad = _write_raw_checkpoint(tmp_path / "f64.safetensors", source, tensors)
@@ -187,8 +211,10 @@ def test_when_a_tensor_is_float64_expect_refusal_not_a_cast(tmp_path: Path) -> N
         load_streaming_model(bad)
 
 
-def test_when_the_header_is_edited_after_saving_expect_digest_refusal(tmp_path: Path) -> None:
-    data = bytearray(default_checkpoint_path().read_bytes())
+def test_when_the_header_is_edited_after_saving_expect_digest_refusal(
+    tmp_path: Path, mlp_path: Path
+) -> None:
+    data = bytearray(mlp_path.read_bytes())
     at = data.index(b"hidden_units")
     data[at : at + 12] = b"hidden_Units"
     (tmp_path / "edited.safetensors").write_bytes(bytes(data))
