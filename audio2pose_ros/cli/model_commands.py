@@ -98,8 +98,15 @@ def command_evaluate(args: argparse.Namespace) -> int:
     else:
         clips, predictions, paused = [], {}, {}
     if args.loso:
+        from audio2pose_ros.default_model import LearnedBuildSettings
+
+        build = LearnedBuildSettings()  # the default model's evaluation, fold for fold
         settings = TrainSettings(
-            max_epochs=args.max_epochs, batch_size=8, seed=args.seed, show_progress=False
+            max_epochs=args.max_epochs,
+            batch_size=build.batch_size,
+            patience=build.patience,
+            seed=args.seed,
+            show_progress=False,
         )
         clips, predictions, paused = loso_predictions(
             dataset, robot, args.loso, settings, args.samples, progress
@@ -165,7 +172,7 @@ def register(verbs: argparse._SubParsersAction) -> None:
     evaluate.add_argument(
         "--max-epochs",
         type=bounded_int(1, 100_000),
-        default=150,
-        help="with --loso: epochs per fold at most (default 150)",
+        default=200,
+        help="with --loso: epochs per fold at most (default 200, as make default-model)",
     )
     evaluate.set_defaults(func=command_evaluate)
