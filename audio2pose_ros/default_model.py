@@ -12,8 +12,7 @@ With ``arms="prosody"`` or ``"neutral"`` (explicitly named options,
 :func:`build_default_model`): import the 13 clips (:mod:`audio2pose_ros.importers.video`: real
 speech, real head motion; arms and hip masked, as they are not visible), split them by clip
 (one GRID speaker and one Obama clip held out for test, one of each for validation), fill the
-masked arm and hip
-joints of the training copy with the labelled procedural prosody rule
+masked arm and hip joints of the training copy with the labelled procedural prosody rule
 (:mod:`audio2pose_ros.motion.prosody`), train one streaming MLP (seed 003 section 4.3.3) on all 11
 joints, and evaluate it on the held-out clips against the static, mean-motion and
 mismatched-motion baselines (:mod:`audio2pose_ros.evaluation`; only the head has ground truth
