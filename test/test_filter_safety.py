@@ -229,3 +229,18 @@ def test_when_velocity_fraction_lowered_while_moving_fast_expect_braking_not_a_f
     assert filt.status.faults == 0
     assert speeds[0] >= fast - filt.limiter.max_acceleration_rad_s2.max() * PERIOD - 1e-9
     assert speeds[-1] <= filt.limiter.max_velocity_rad_s.max() + 1e-9  # braked to the new limit
+
+
+def test_when_started_and_no_pose_arrives_expect_robot_held_not_glided_to_neutral(robot):
+    """A restarted filter whose input is late (DDS discovery under load) must not move."""
+    start = robot.neutral_rad.copy()
+    start[robot.names.index("LShoulderPitch")] -= 0.4
+    motion = MotionFilter(robot)
+    motion.start_from(start)
+    for k in range(200):  # 2 s without any pose: beyond the watchdog and a whole glide
+        positions, _ = motion.tick(0.01 * k)
+        assert np.abs(positions - motion.limiter.clamp_position(start)).max() < 1e-12
+    assert motion.status.mode == "waiting"
+    motion.push(start[None, :], 2.0)
+    motion.tick(2.0)
+    assert motion.status.mode == "tracking"

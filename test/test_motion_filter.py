@@ -22,7 +22,7 @@ def run(filt: MotionFilter, poses: np.ndarray, start_s: float = 0.0, extra_ticks
     return np.array(out)
 
 
-def test_when_no_input_ever_expect_neutral_mode(robot):
+def test_when_no_input_ever_expect_waiting_at_the_neutral_start_pose(robot):
     filt = MotionFilter(robot)
     out = run(filt, np.empty((0, 11)), extra_ticks=10)
     np.testing.assert_allclose(
@@ -30,7 +30,7 @@ def test_when_no_input_ever_expect_neutral_mode(robot):
         np.clip(robot.neutral_rad, robot.lower_rad + 0.01, robot.upper_rad - 0.01),
         atol=1e-9,
     )
-    assert filt.status.mode == "neutral"
+    assert filt.status.mode == "waiting"  # holds its start pose until the first pose
 
 
 def test_when_input_stops_expect_glide_to_neutral_within_timeout_plus_settling(robot):

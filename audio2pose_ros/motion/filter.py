@@ -11,7 +11,9 @@ a short jitter buffer and, at every :meth:`MotionFilter.tick`, produces one comm
    before the buffer or the smoother sees them; the rest are clamped into the joint ranges. Head
    targets are checked against the head's range, head offsets against ``max_head_offset_rad``.
 1. **Mode.** It *tracks* the generated motion while poses arrive, the voice is active, the filter
-   is enabled and no stop is requested. Otherwise it *glides to the neutral pose* along a
+   is enabled and no stop is requested. After :meth:`MotionFilter.start_from` it is *waiting*:
+   it holds the start pose until the first pose is admitted (a restarted filter does not move the
+   robot before input says it may). Otherwise it *glides to the neutral pose* along a
    minimum-jerk path of ``neutral_glide_s`` that starts where the robot is. An emergency stop
    either brakes to a standstill and *holds* (``stop_behaviour: hold``) or glides to neutral
    (``neutral``); while stopped nothing else (generated motion, head target or offset) moves it.
@@ -51,7 +53,7 @@ from audio2pose_ros.robot import JOINT_GROUPS, RobotDescription
 
 SMOOTHING_METHODS = ("kalman", "lowpass", "none")
 STOP_BEHAVIOURS = ("hold", "neutral")
-MODES = ("tracking", "neutral", "stopped")
+MODES = ("waiting", "tracking", "neutral", "stopped")
 GAP_PERIODS = 3.0  # ticks further apart than this many periods are a gap (the process stalled)
 STEP_SLACK_RAD = 1e-9  # rounding allowance of the step check of the health guard
 
@@ -348,6 +350,9 @@ class MotionFilter:
         self._last_input_s = -np.inf
         self._last_voice_s = -np.inf
         self._voice_reported = False
+        # After start_from, hold the start pose until the first pose is admitted: a restarted
+        # filter must not move the robot (not even towards neutral) before input says it may.
+        self._holding = False
         self._head_target = _External(robot.n_joints)
         self._head_offset = _External(robot.n_joints)
         self.start_from(self.neutral_rad if start_pose_rad is None else start_pose_rad)
@@ -387,6 +392,7 @@ class MotionFilter:
         self.gate.reset()
         self._last_tick_s: float | None = None
         self._glide_start: tuple[float, np.ndarray] | None = None
+        self._holding = True
 
     def update_settings(
         self, settings: MotionFilterSettings, limits: LimitSettings | None = None
@@ -454,6 +460,7 @@ class MotionFilter:
         self.status.received += len(admitted)
         if len(admitted):
             self._last_input_s = now_s
+            self._holding = False
         return len(admitted)
 
     def set_voice_active(self, active: bool, now_s: float) -> None:
@@ -623,6 +630,10 @@ class MotionFilter:
         elif self._tracking_allowed(now_s):
             desired = self._compose_head(self._track(), now_s)
             status.mode = "tracking"
+        elif self._holding and status.enabled:
+            self._glide_start = None
+            desired = self.position_rad  # started: wait where the robot is for the first pose
+            status.mode = "waiting"
         else:
             # Poses generated meanwhile (of silence, or while disabled) are stale: replaying
             # them when tracking resumes would only add latency and wrong motion.
