@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from audio2pose_ros.bag import read_bag_audio, write_audio_bag
 from audio2pose_ros.cli.graph import executable_command
 from audio2pose_ros.models.checkpoint import load_checkpoint
-from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.synthesis import predict_normalized
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -35,13 +35,31 @@ def recorded_raw_poses(bag: Path, names: tuple[str, ...]) -> np.ndarray:
     return np.array(rows)
 
 
+def stateless_checkpoint(path: Path, robot, speech: np.ndarray) -> Path:
+    """A frame-wise MLP checkpoint: its pose depends on the current frame only, so the stream
+    and the offline run agree frame for frame whatever the warm-up (the packaged default is a
+    recurrent sampler, whose state depends on every frame it has seen). Untrained, normalised
+    on the speech itself, so that its poses follow the audio."""
+    from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec, extract_features
+    from audio2pose_ros.models import build_model
+    from audio2pose_ros.models.checkpoint import Checkpoint, save_checkpoint
+
+    spec = FeatureSpec()
+    torch.manual_seed(0)
+    model = build_model("mlp", {"n_features": spec.dim, "n_joints": robot.n_joints})
+    normalizer = FeatureNormalizer.fit(extract_features(speech, spec))
+    return save_checkpoint(path, Checkpoint(model, spec, normalizer, robot))
+
+
 def test_when_speech_bag_replayed_through_graph_expect_offline_trajectory(
     tmp_path: Path, robot, speech_files
 ):
     from audio2pose_ros.audio.pcm import read_wav
 
+    speech = read_wav(speech_files[3])[0]
+    model = stateless_checkpoint(tmp_path / "mlp.safetensors", robot, speech)
     bag = tmp_path / "speech_bag"
-    write_audio_bag(read_wav(speech_files[3])[0], bag)  # 6 s of speech, irregular chunks
+    write_audio_bag(speech, bag)  # 6 s of speech, irregular chunks
     out = tmp_path / "recorded"
     result = subprocess.run(
         [
@@ -53,6 +71,8 @@ def test_when_speech_bag_replayed_through_graph_expect_offline_trajectory(
             str(out),
             "--log-dir",
             str(tmp_path / "logs"),
+            "--model",
+            str(model),
         ],
         capture_output=True,
         text=True,
@@ -61,7 +81,7 @@ def test_when_speech_bag_replayed_through_graph_expect_offline_trajectory(
     assert result.returncode == 0, result.stderr
 
     live = recorded_raw_poses(out, robot.names)
-    checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
+    checkpoint = load_checkpoint(model, robot=robot)
     offline = robot.denormalize(predict_normalized(checkpoint, read_bag_audio(bag)))
     # The stream emits every complete window; offline also has python_speech_features' final
     # zero-padded window. Up to two live frames straddle the warm-up silence and the speech.
