@@ -129,7 +129,9 @@ def _read_speech(path: Path):  # noqa: ANN202 - numpy imported lazily
     return read_wav(path)[0] if path.suffix.lower() == ".wav" else read_bag_audio(path)
 
 
-def _synthesize_to_csv(wav: Path, out: Path, model: str | None, smooth: bool) -> Path:
+def _synthesize_to_csv(
+    wav: Path, out: Path, model: str | None, smooth: bool, seed: int = 0
+) -> Path:
     from audio2pose_ros.models.checkpoint import load_checkpoint
     from audio2pose_ros.resources import default_checkpoint_path
     from audio2pose_ros.robot import load_robot
@@ -137,7 +139,7 @@ def _synthesize_to_csv(wav: Path, out: Path, model: str | None, smooth: bool) ->
 
     output_file(out, "-o")
     checkpoint = load_checkpoint(model or default_checkpoint_path(), robot=load_robot())
-    times, angles = synthesize(checkpoint, _read_speech(wav), smooth=smooth)
+    times, angles = synthesize(checkpoint, _read_speech(wav), smooth=smooth, seed=seed)
     try:
         return write_trajectory_csv(out, times, angles, checkpoint.robot.names)
     except OSError as exc:
@@ -146,7 +148,9 @@ def _synthesize_to_csv(wav: Path, out: Path, model: str | None, smooth: bool) ->
 
 def command_synth(args: argparse.Namespace) -> int:
     """Offline synthesis of a WAV to a CSV of joint angles at 100 Hz."""
-    out = _synthesize_to_csv(Path(args.wav), Path(args.output), args.model, not args.no_smooth)
+    out = _synthesize_to_csv(
+        Path(args.wav), Path(args.output), args.model, not args.no_smooth, seed=args.seed
+    )
     print(f"wrote {out}")
     return 0
 
@@ -409,6 +413,9 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("-o", "--output", required=True, metavar="OUT.csv")
     synth.add_argument("--model", help="checkpoint (default: packaged model)")
     synth.add_argument("--no-smooth", action="store_true", help="skip the 4 Hz Butterworth filter")
+    synth.add_argument(
+        "--seed", type=seed, default=0, help="noise seed of a sampling model (default 0)"
+    )
     synth.set_defaults(func=command_synth)
 
     bench = verbs.add_parser("bench", help="per-frame cost of the streaming path")

@@ -86,6 +86,14 @@ PARAMETERS = (
         maximum=1000.0,
         unit="sd",
     ),
+    ParameterSpec(
+        "seed",
+        0,
+        "seed of a sampling model's noise: the same seed gives the same motion for the same audio",
+        minimum=0,
+        maximum=2**31 - 1,
+        read_only=True,
+    ),
 )
 
 
@@ -121,7 +129,7 @@ class InferenceNode(DiagnosedNode):
         model_path = self.parameters["model_path"] or default_checkpoint_path()
         self.robot = load_robot(self.parameters["robot_description"])
         self.model = load_streaming_model(model_path, robot=self.robot)
-        self.predictor = self.model.predictor()
+        self.predictor = self.model.predictor(seed=int(self.parameters["seed"]))
         spec = self.model.features
         self.expected_label = f"{spec.kind}{spec.dim}"
         self.period_s = spec.step_s
