@@ -357,7 +357,10 @@ def _mlp_shapes(config: Mapping[str, Any]) -> dict[str, tuple[int, ...]]:
     return shapes
 
 
-def _build_mlp(tensors: Mapping[str, np.ndarray], config: Mapping[str, Any]) -> MLPKernel:
+def _build_mlp(
+    tensors: Mapping[str, np.ndarray], config: Mapping[str, Any], seed: int = 0
+) -> MLPKernel:
+    """A deterministic model: ``seed`` is accepted (every streaming model takes one) and unused."""
     return MLPKernel(
         [
             (_weights(tensors, f"net.{i}.weight"), _vector(tensors, f"net.{i}.bias"))
@@ -378,7 +381,10 @@ def _lstm_shapes(config: Mapping[str, Any]) -> dict[str, tuple[int, ...]]:
     }
 
 
-def _build_lstm(tensors: Mapping[str, np.ndarray], _config: Mapping[str, Any]) -> LSTMKernel:
+def _build_lstm(
+    tensors: Mapping[str, np.ndarray], _config: Mapping[str, Any], seed: int = 0
+) -> LSTMKernel:
+    """A deterministic model: ``seed`` is accepted (every streaming model takes one) and unused."""
     return LSTMKernel(
         _weights(tensors, "lstm.weight_ih_l0"),
         _weights(tensors, "lstm.weight_hh_l0"),
