@@ -400,6 +400,7 @@ class PlayerRecorder(Node):
         self.recording = False
         self.counts = dict.fromkeys(RECORDED_TOPICS, 0)
         self.poses_seen = 0
+        self.heard: set[str] = set()  # recorded topics that ever delivered a message
         self.audio_pub = self.create_publisher(AudioData, AUDIO_TOPIC, 100)
         self.info_pub = self.create_publisher(AudioInfo, AUDIO_INFO_TOPIC, LATCHED_QOS)
         self.create_subscription(JointTrajectory, "/raw_trajectory", self._on_pose, 100)
@@ -413,6 +414,7 @@ class PlayerRecorder(Node):
 
     def _recorder(self, topic: str, type_name: str) -> Callable[[bytes], None]:
         def record(data: bytes) -> None:
+            self.heard.add(topic)
             if not self.recording:
                 return
             self.counts[topic] += 1
@@ -439,7 +441,7 @@ class PlayerRecorder(Node):
         return done is None
 
     def warm_up(self, timeout_s: float) -> None:
-        """Send silence until poses come back, so every link of the graph has matched.
+        """Send silence until poses and every recorded command come back: each link has matched.
 
         DDS discovery is asymmetric: a node may see our subscription before its own publisher
         has matched the next node, and samples sent before that are lost. Chunks of 160
@@ -450,7 +452,7 @@ class PlayerRecorder(Node):
         def poses_arrive() -> bool:
             self.audio_pub.publish(silence)
             self.spin_until(time.monotonic() + 0.02)
-            return self.poses_seen > 0
+            return self.poses_seen > 0 and self.heard >= set(RECORDED_TOPICS)
 
         if not self.spin_until(time.monotonic() + timeout_s, poses_arrive):
             raise GraphTimeoutError(
