@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from stateless_model import stateless_checkpoint
 
 from audio2pose_ros.bag import read_bag_audio, write_audio_bag
 from audio2pose_ros.cli.graph import executable_command
@@ -33,22 +33,6 @@ def recorded_raw_poses(bag: Path, names: tuple[str, ...]) -> np.ndarray:
             assert tuple(msg.joint_names) == names
             rows += [point.positions for point in msg.points]
     return np.array(rows)
-
-
-def stateless_checkpoint(path: Path, robot, speech: np.ndarray) -> Path:
-    """A frame-wise MLP checkpoint: its pose depends on the current frame only, so the stream
-    and the offline run agree frame for frame whatever the warm-up (the packaged default is a
-    recurrent sampler, whose state depends on every frame it has seen). Untrained, normalised
-    on the speech itself, so that its poses follow the audio."""
-    from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec, extract_features
-    from audio2pose_ros.models import build_model
-    from audio2pose_ros.models.checkpoint import Checkpoint, save_checkpoint
-
-    spec = FeatureSpec()
-    torch.manual_seed(0)
-    model = build_model("mlp", {"n_features": spec.dim, "n_joints": robot.n_joints})
-    normalizer = FeatureNormalizer.fit(extract_features(speech, spec))
-    return save_checkpoint(path, Checkpoint(model, spec, normalizer, robot))
 
 
 def test_when_speech_bag_replayed_through_graph_expect_offline_trajectory(

@@ -1,7 +1,7 @@
 """Single-process mode (issue 15): the three nodes in one process give the same poses.
 
 The same 3 s of real speech is played into the graph run as three processes and as one; the
-model (the packaged MLP) and the feature extractor are deterministic and do not depend on how
+model (a frame-wise MLP) and the feature extractor are deterministic and do not depend on how
 the audio is chunked or when it arrives, so the raw trajectories must be identical, point for
 point. The commands that follow them depend on the filter's clock (when each tick falls), so
 for those the test checks what timing cannot change: both modes command the robot through all
@@ -17,11 +17,12 @@ import pytest
 import rclpy
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.serialization import deserialize_message
+from stateless_model import stateless_checkpoint
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.bag import Chunking, audio_messages, read_messages
 from audio2pose_ros.cli.graph import SINGLE_PROCESS, node_graph, play_and_record
-from audio2pose_ros.robot import RobotDescription
+from audio2pose_ros.robot import RobotDescription, load_robot
 
 SPEECH_S = 3.0
 
@@ -34,8 +35,13 @@ def _run(
     monkeypatch.setenv("ROS_HOME", str(tmp_path / f"{mode}_ros_home"))  # no saved pose or stop
     messages = audio_messages(speech[: int(SPEECH_S * 16000)], Chunking(seed=3))
     bag = tmp_path / f"{mode}_bag"
+    model = stateless_checkpoint(tmp_path / "mlp.safetensors", load_robot(), speech)
     with (
-        node_graph(log_dir=tmp_path / f"{mode}_logs", single_process=single_process) as graph,
+        node_graph(
+            log_dir=tmp_path / f"{mode}_logs",
+            single_process=single_process,
+            overrides=[f"model_path:={model}"],
+        ) as graph,
         rclpy.init(),
     ):
         processes = dict(graph.processes)
