@@ -38,6 +38,7 @@ import numpy as np
 
 from audio2pose_ros.audio.features import FeatureSpec
 from audio2pose_ros.errors import Audio2PoseError, ConfigurationError
+from audio2pose_ros.robot import RobotDescription
 
 __all__ = [
     "DIGEST_KEY",
@@ -315,3 +316,36 @@ def parse_section(
         return parse(checkpoint.header[section])
     except (Audio2PoseError, ValueError, TypeError) as exc:
         raise CheckpointError(f"{checkpoint.path}: bad {section} section ({exc})") from None
+
+
+def check_made_for(
+    checkpoint: CheckpointFile,
+    stored_robot: RobotDescription,
+    stored_features: FeatureSpec,
+    robot: RobotDescription | None,
+    features: FeatureSpec | None,
+) -> None:
+    """Refuse a checkpoint made for other joints than ``robot`` or other features than ``features``.
+
+    ``None`` skips that comparison. Used by both loaders (torch and the numpy runtime).
+
+    Raises:
+        CheckpointError: the message lists what differs.
+    """
+    if robot is not None:
+        differences = robot.differences(stored_robot)
+        if differences:
+            raise CheckpointError(
+                f"{checkpoint.path}: made for other joints than the configured robot: "
+                + "; ".join(differences)
+            )
+    if features is not None and stored_features != features:
+        configured = features.to_dict()
+        changed = [
+            f"{key}={value!r} (configured {configured[key]!r})"
+            for key, value in stored_features.to_dict().items()
+            if configured.get(key) != value
+        ]
+        raise CheckpointError(
+            f"{checkpoint.path}: made for other audio features: " + ", ".join(changed)
+        )

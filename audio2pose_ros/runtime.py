@@ -44,6 +44,7 @@ from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec
 from audio2pose_ros.checkpoint_format import (
     CheckpointError,
     CheckpointFile,
+    check_made_for,
     parse_section,
     read_checkpoint_file,
     verify_digest,
@@ -552,20 +553,7 @@ def _header_sections(
             f"{file.path}: normalizer has {normalizer.mean.size} means and deviations, the "
             f"features have {stored_features.dim} dimensions"
         )
-    if robot is not None:
-        differences = robot.differences(stored_robot)
-        if differences:
-            raise CheckpointError(
-                f"{file.path}: made for other joints than the configured robot: "
-                + "; ".join(differences)
-            )
-    if features is not None and stored_features != features:
-        changed = [
-            f"{key}={value!r} (configured {features.to_dict()[key]!r})"
-            for key, value in stored_features.to_dict().items()
-            if features.to_dict().get(key) != value
-        ]
-        raise CheckpointError(f"{file.path}: made for other audio features: " + ", ".join(changed))
+    check_made_for(file, stored_robot, stored_features, robot, features)
     return stored_robot, stored_features, normalizer
 
 

@@ -35,6 +35,7 @@ from audio2pose_ros.checkpoint_format import (
     HEADER_KEY,
     CheckpointError,
     CheckpointFile,
+    check_made_for,
     digest_update,
     parse_section,
     read_checkpoint_file,
@@ -126,20 +127,7 @@ def load_checkpoint(
             f"{model_dims.get('n_joints')} joints, but the header describes "
             f"{stored_features.dim} features and {stored_robot.n_joints} joints"
         )
-    if robot is not None:
-        differences = robot.differences(stored_robot)
-        if differences:
-            raise CheckpointError(
-                f"{file.path}: made for other joints than the configured robot: "
-                + "; ".join(differences)
-            )
-    if features is not None and stored_features != features:
-        changed = [
-            f"{key}={value!r} (configured {features.to_dict()[key]!r})"
-            for key, value in stored_features.to_dict().items()
-            if features.to_dict().get(key) != value
-        ]
-        raise CheckpointError(f"{file.path}: made for other audio features: " + ", ".join(changed))
+    check_made_for(file, stored_robot, stored_features, robot, features)
     model.eval()
     return Checkpoint(
         model=model,
