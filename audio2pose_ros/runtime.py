@@ -50,7 +50,7 @@ from audio2pose_ros.checkpoint_format import (
     verify_digest,
 )
 from audio2pose_ros.robot import RobotDescription
-from audio2pose_ros.speech_gate import SpeechGate
+from audio2pose_ros.speech_gate import GroupedSampler, SpeechGate
 
 __all__ = [
     "KERNELS",
@@ -243,7 +243,7 @@ class LiveKernel:
         return np.array([self.step(frame) for frame in frames])
 
 
-class LiveGroupsKernel:
+class LiveGroupsKernel(GroupedSampler):
     """Two live kernels over disjoint joint groups, their noise scaled by the speech gate.
 
     Per frame: factor = the gate's temperature factor (0 at temperature 0); part k samples at
@@ -272,23 +272,6 @@ class LiveGroupsKernel:
         ]
         self.seed = seed
         self.temperature = temperature
-
-    def reset(self, seed: int | None = None) -> None:
-        """Forget the state; optionally change the seed."""
-        if seed is not None:
-            self.seed = seed
-        self._gate.reset()
-        for k, part in enumerate(self._parts):
-            part.reset(self.seed + k)
-
-    def step(self, features: np.ndarray) -> np.ndarray:
-        """Sample the pose of one frame, joints in the robot's order."""
-        scale = self._gate.step(features) if self.temperature else 0.0
-        pose = np.empty(self._n_joints)
-        for joints, part, factor in zip(self._groups, self._parts, self._factors, strict=True):
-            part.temperature = self.temperature * factor * scale
-            pose[joints] = part.step(features)
-        return pose
 
     def run(self, frames: np.ndarray) -> np.ndarray:
         """(N, n_features) frames in order -> (N, n_joints) sampled poses."""

@@ -12,6 +12,9 @@ recent peak, it does not depend on the recording level. Torch-free, so the numpy
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Protocol
+
 import numpy as np
 
 GATE_TAU_S = 0.3  # smoothing of the speech gate
@@ -55,3 +58,51 @@ class SpeechGate:
         """(T, F) frames of one utterance -> (T,) factors, from a fresh state."""
         self.reset()
         return np.array([self.step(frame) for frame in frames])
+
+
+class SamplerPart(Protocol):
+    """One part of a grouped sampler: a seeded per-frame sampler with a settable temperature."""
+
+    temperature: float
+
+    def reset(self, seed: int) -> None:
+        """Forget the state and restart the noise from ``seed``."""
+
+    def step(self, features: np.ndarray) -> np.ndarray:
+        """Sample the part's joints for one frame."""
+
+
+class GroupedSampler:
+    """Parts sampling disjoint joint groups, their noise scaled by one :class:`SpeechGate`.
+
+    Shared by the torch model's predictor and the numpy runtime's kernel of ``live_groups``.
+    A subclass sets ``_groups`` (joint indices per part), ``_parts``, ``_factors`` (each part's
+    own temperature), ``_gate``, ``_n_joints``, ``seed`` and ``temperature``. Per frame part k
+    samples at temperature * its factor * the gate's factor (0 at temperature 0) with seed
+    ``seed + k``, and its pose is scattered into the robot's joint order.
+    """
+
+    _groups: Sequence[np.ndarray]
+    _parts: Sequence[SamplerPart]
+    _factors: Sequence[float]
+    _gate: SpeechGate
+    _n_joints: int
+    seed: int
+    temperature: float
+
+    def reset(self, seed: int | None = None) -> None:
+        """Forget the state; optionally change the seed."""
+        if seed is not None:
+            self.seed = seed
+        self._gate.reset()
+        for k, part in enumerate(self._parts):
+            part.reset(self.seed + k)
+
+    def step(self, features: np.ndarray) -> np.ndarray:
+        """Sample the pose of one (n_features,) frame: (n_joints,) in [0, 1]."""
+        scale = self._gate.step(features) if self.temperature else 0.0
+        pose = np.empty(self._n_joints)
+        for joints, part, factor in zip(self._groups, self._parts, self._factors, strict=True):
+            part.temperature = self.temperature * factor * scale
+            pose[joints] = part.step(features)
+        return pose

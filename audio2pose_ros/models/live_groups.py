@@ -33,7 +33,7 @@ import torch
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.base import PoseModel, StreamingPredictor
 from audio2pose_ros.models.live import LiveConfig, LivePredictor, LiveSampler
-from audio2pose_ros.speech_gate import SpeechGate
+from audio2pose_ros.speech_gate import GroupedSampler, SpeechGate
 
 
 @dataclass(frozen=True)
@@ -165,7 +165,7 @@ class LiveGroups(PoseModel):
         return LiveGroupsPredictor(self, seed, temperature)
 
 
-class LiveGroupsPredictor(StreamingPredictor):
+class LiveGroupsPredictor(GroupedSampler, StreamingPredictor):
     """Streaming sampler of :class:`LiveGroups` with a settable seed and temperature."""
 
     def __init__(self, model: LiveGroups, seed: int = 0, temperature: float = 1.0) -> None:
@@ -180,20 +180,3 @@ class LiveGroupsPredictor(StreamingPredictor):
         ]
         self.seed = seed
         self.temperature = temperature
-
-    def reset(self, seed: int | None = None) -> None:
-        """Forget the state; optionally change the seed."""
-        if seed is not None:
-            self.seed = seed
-        self._gate.reset()
-        for k, part in enumerate(self._parts):
-            part.reset(self.seed + k)
-
-    def step(self, features: np.ndarray) -> np.ndarray:
-        """Sample the pose of one (n_features,) frame: (n_joints,) in [0, 1]."""
-        scale = self._gate.step(features) if self.temperature else 0.0
-        pose = np.empty(self._n_joints)
-        for joints, part, factor in zip(self._groups, self._parts, self._factors, strict=True):
-            part.temperature = self.temperature * factor * scale
-            pose[joints] = part.step(features)
-        return pose
