@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from launch_arguments import arguments
 
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.launch_support import (
@@ -29,22 +30,6 @@ from audio2pose_ros.launch_support import (
 )
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def arguments(**overrides: str) -> dict[str, str]:
-    """The launch file's default arguments, as launch hands them over (strings)."""
-    values = {
-        "params_file": str(ROOT / "config" / "pepper.yaml"),
-        "model_path": "",
-        "audio_ns": "/audio",
-        "controller_topic": "/pepper_joint_trajectory_controller/joint_trajectory",
-        "rviz": "false",
-        "robot_state_publisher": "false",
-        "sim": "none",
-        "diagnostic_aggregator": "false",
-        "single_process": "false",
-    }
-    return {**values, **overrides}
 
 
 def test_when_importing_launch_support_expect_no_launch_or_rclpy_module():

@@ -6,43 +6,27 @@ from pathlib import Path
 
 import pytest
 import yaml
+from launch_arguments import arguments as launch_arguments
 
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.launch_support import plan_launch, single_process_arguments
 
-ROOT = Path(__file__).resolve().parent.parent
-
-
-def _arguments(**overrides: str) -> dict[str, str]:
-    values = {
-        "params_file": str(ROOT / "config" / "pepper.yaml"),
-        "model_path": "",
-        "audio_ns": "/audio",
-        "controller_topic": "/pepper_joint_trajectory_controller/joint_trajectory",
-        "rviz": "false",
-        "robot_state_publisher": "false",
-        "sim": "none",
-        "diagnostic_aggregator": "false",
-        "single_process": "false",
-    }
-    return {**values, **overrides}
-
 
 def test_when_single_process_is_not_given_expect_three_processes() -> None:
-    assert not plan_launch(_arguments()).single_process
-    assert plan_launch(_arguments(single_process="True")).single_process
+    assert not plan_launch(launch_arguments()).single_process
+    assert plan_launch(launch_arguments(single_process="True")).single_process
 
 
 def test_when_single_process_is_not_a_boolean_expect_a_refusal() -> None:
     with pytest.raises(ConfigurationError, match="single_process"):
-        plan_launch(_arguments(single_process="yes please"))
+        plan_launch(launch_arguments(single_process="yes please"))
 
 
 def test_when_single_process_expect_the_three_nodes_parameters_and_remappings(
     tmp_path: Path,
 ) -> None:
     plan = plan_launch(
-        _arguments(
+        launch_arguments(
             single_process="1",
             model_path="/models/1",
             audio_ns="/mic",
@@ -63,5 +47,5 @@ def test_when_single_process_expect_the_three_nodes_parameters_and_remappings(
         "audio/audio_info:=/mic/audio_info",
         "joint_trajectory_controller/joint_trajectory:=/arm_controller/joint_trajectory",
     ]
-    without_model = single_process_arguments(plan_launch(_arguments()), tmp_path)
+    without_model = single_process_arguments(plan_launch(launch_arguments()), tmp_path)
     assert without_model.count("--params-file") == 1
