@@ -36,7 +36,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from audio2pose_ros.audio.features import FeatureSpec
+from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec
 from audio2pose_ros.errors import Audio2PoseError, ConfigurationError
 from audio2pose_ros.robot import RobotDescription
 
@@ -316,6 +316,29 @@ def parse_section(
         return parse(checkpoint.header[section])
     except (Audio2PoseError, ValueError, TypeError) as exc:
         raise CheckpointError(f"{checkpoint.path}: bad {section} section ({exc})") from None
+
+
+def header_sections(
+    checkpoint: CheckpointFile,
+) -> tuple[RobotDescription, FeatureSpec, FeatureNormalizer]:
+    """The robot, feature and normalizer sections, parsed and checked against each other.
+
+    Raises:
+        CheckpointError: a section is malformed, or the normalizer does not fit the features.
+    """
+    stored_robot = parse_section(
+        checkpoint,
+        "robot",
+        lambda data: RobotDescription.from_dict(data, source=f"{checkpoint.path} robot"),
+    )
+    stored_features = parse_section(checkpoint, "features", FeatureSpec.from_dict)
+    normalizer = parse_section(checkpoint, "normalizer", FeatureNormalizer.from_dict)
+    if normalizer.mean.shape != (stored_features.dim,):
+        raise CheckpointError(
+            f"{checkpoint.path}: normalizer has {normalizer.mean.size} means and deviations, "
+            f"the features have {stored_features.dim} dimensions"
+        )
+    return stored_robot, stored_features, normalizer
 
 
 def check_made_for(

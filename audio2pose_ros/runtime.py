@@ -45,7 +45,7 @@ from audio2pose_ros.checkpoint_format import (
     CheckpointError,
     CheckpointFile,
     check_made_for,
-    parse_section,
+    header_sections,
     read_checkpoint_file,
     verify_digest,
 )
@@ -522,24 +522,6 @@ class StreamingModel:
         return self.make_predictor(**options)
 
 
-def _header_sections(
-    file: CheckpointFile, robot: RobotDescription | None, features: FeatureSpec | None
-) -> tuple[RobotDescription, FeatureSpec, FeatureNormalizer]:
-    """Parse and cross-check the robot, features and normalizer sections (as load_checkpoint)."""
-    stored_robot = parse_section(
-        file, "robot", lambda data: RobotDescription.from_dict(data, source=f"{file.path} robot")
-    )
-    stored_features = parse_section(file, "features", FeatureSpec.from_dict)
-    normalizer = parse_section(file, "normalizer", FeatureNormalizer.from_dict)
-    if normalizer.mean.shape != (stored_features.dim,):
-        raise CheckpointError(
-            f"{file.path}: normalizer has {normalizer.mean.size} means and deviations, the "
-            f"features have {stored_features.dim} dimensions"
-        )
-    check_made_for(file, stored_robot, stored_features, robot, features)
-    return stored_robot, stored_features, normalizer
-
-
 def _read_tensors(
     file: CheckpointFile, model: str, shapes: dict[str, tuple[int, ...]]
 ) -> dict[str, np.ndarray]:
@@ -618,7 +600,8 @@ def load_streaming_model(
                 f"(kernels: {sorted(KERNELS)})"
             )
         return _torch_model(file.path, robot, features)
-    stored_robot, stored_features, normalizer = _header_sections(file, robot, features)
+    stored_robot, stored_features, normalizer = header_sections(file)
+    check_made_for(file, stored_robot, stored_features, robot, features)
     if config["n_joints"] != stored_robot.n_joints or config["n_features"] != stored_features.dim:
         raise CheckpointError(
             f"{file.path}: model maps {config['n_features']} features to "

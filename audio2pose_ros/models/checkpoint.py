@@ -37,6 +37,7 @@ from audio2pose_ros.checkpoint_format import (
     CheckpointFile,
     check_made_for,
     digest_update,
+    header_sections,
     parse_section,
     read_checkpoint_file,
     verify_digest,
@@ -107,16 +108,7 @@ def load_checkpoint(
     """
     file = read_checkpoint_file(path)
     verify_digest(file)
-    stored_robot = parse_section(
-        file, "robot", lambda data: RobotDescription.from_dict(data, source=f"{file.path} robot")
-    )
-    stored_features = parse_section(file, "features", FeatureSpec.from_dict)
-    normalizer = parse_section(file, "normalizer", FeatureNormalizer.from_dict)
-    if normalizer.mean.shape != (stored_features.dim,):
-        raise CheckpointError(
-            f"{file.path}: normalizer has {normalizer.mean.size} means and deviations, the "
-            f"features have {stored_features.dim} dimensions"
-        )
+    stored_robot, stored_features, normalizer = header_sections(file)
     model = _model_for(file)
     model_dims = model.config_dict()
     if model_dims.get("n_joints") != stored_robot.n_joints or (
