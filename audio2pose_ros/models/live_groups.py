@@ -11,7 +11,7 @@ whose joints it labels; both parts train together, on the union of the data sets
 
 People keep still when they stop talking; a sampler whose noise never stops does not. The
 sampling noise of both parts is therefore scaled by a causal speech gate read from the same
-normalised audio features (:mod:`audio2pose_ros.speech_gate`): the frame's mean log
+normalised audio features (:mod:`audio2pose_ros.models.speech_gate`): the frame's mean log
 filter-bank energy e_t is compared with a slowly decaying peak of recent energy,
 v_t = sigmoid((e_t - peak_t + gate_margin) / gate_width), smoothed over 0.3 s; the temperature
 is multiplied by
@@ -33,7 +33,7 @@ import torch
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.base import PoseModel, StreamingPredictor
 from audio2pose_ros.models.live import LiveConfig, LivePredictor, LiveSampler
-from audio2pose_ros.speech_gate import GroupedSampler, SpeechGate
+from audio2pose_ros.models.speech_gate import GroupedSampler, SpeechGate
 
 
 @dataclass(frozen=True)
