@@ -19,7 +19,9 @@ def stateless_checkpoint(path: Path, robot, speech: np.ndarray) -> Path:
     on the speech itself, so that its poses follow the audio."""
     from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec, extract_features
     from audio2pose_ros.checkpoints.torch_io import Checkpoint, save_checkpoint
-    from audio2pose_ros.models import build_model
+    from audio2pose_ros.models.registry import (
+        build_model,
+    )
 
     spec = FeatureSpec()
     torch.manual_seed(0)

@@ -102,7 +102,9 @@ def test_when_loading_packaged_default_expect_it_matches_the_robot(robot):
 
 @pytest.mark.parametrize("name", ["lstm", "dae_gru", "blstm", "blstm_prior", "cvae", "live"])
 def test_when_any_model_saved_and_loaded_expect_same_output(name, tmp_path, robot):
-    from audio2pose_ros.models import build_model
+    from audio2pose_ros.models.registry import (
+        build_model,
+    )
 
     torch.manual_seed(0)
     model = build_model(name, {}).eval()

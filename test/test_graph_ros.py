@@ -151,7 +151,9 @@ def test_when_checkpoint_tampered_expect_one_line_and_no_respawnable_exit(tmp_pa
 def test_when_model_is_offline_only_expect_refusal_pointing_to_synth(tmp_path: Path, robot):
     from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec
     from audio2pose_ros.checkpoints.torch_io import Checkpoint, save_checkpoint
-    from audio2pose_ros.models import build_model
+    from audio2pose_ros.models.registry import (
+        build_model,
+    )
 
     spec = FeatureSpec()
     model = build_model("cvae", {"n_features": spec.dim, "n_joints": robot.n_joints})

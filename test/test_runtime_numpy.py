@@ -29,7 +29,12 @@ from audio2pose_ros.checkpoints.format import (
 )
 from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 from audio2pose_ros.checkpoints.torch_io import Checkpoint, load_checkpoint, save_checkpoint
-from audio2pose_ros.models import OfflineOnlyModelError, build_model
+from audio2pose_ros.models.base import (
+    OfflineOnlyModelError,
+)
+from audio2pose_ros.models.registry import (
+    build_model,
+)
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot.description import RobotDescription
 

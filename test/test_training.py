@@ -19,7 +19,9 @@ from audio2pose_ros.learning.training import (
     train_from_dataset,
     train_model,
 )
-from audio2pose_ros.models import build_model
+from audio2pose_ros.models.registry import (
+    build_model,
+)
 
 sys.path.insert(0, str(Path(__file__).parent))
 from synthetic_motion import synthetic_utterances, write_dataset

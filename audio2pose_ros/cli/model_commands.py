@@ -60,7 +60,7 @@ class LazyChoices(Sequence[str]):
 
 
 def _model_names() -> list[str]:
-    return sorted(importlib.import_module("audio2pose_ros.models").MODEL_REGISTRY)
+    return sorted(importlib.import_module("audio2pose_ros.models.registry").MODEL_REGISTRY)
 
 
 def _holdout_kinds() -> tuple[str, ...]:
