@@ -10,8 +10,9 @@ Subscriptions (``input_type`` chooses one of two inputs):
 Publications:
     features (std_msgs/Float32MultiArray): frames x features, un-normalised, at 100 frames/s
         of audio; dim[1].label names the feature set (e.g. ``logfbank26``).
-    voice_activity (std_msgs/Bool): energy-based voice activity after each audio chunk (while
-        something subscribes to it).
+    voice_activity (std_msgs/Bool): energy-based voice activity, published when it changes and
+        at least every ``VOICE_REFRESH_S`` (0.5 s) while audio arrives (while something
+        subscribes to it); a value holds until the next one.
     /diagnostics (diagnostic_msgs/DiagnosticArray): a heartbeat every 0.5 s.
 
 Parameters
@@ -32,6 +33,8 @@ Any other exception in a callback is caught at the node boundary
 from __future__ import annotations
 
 import dataclasses
+import math
+import time
 from collections.abc import Mapping
 
 import numpy as np
@@ -65,6 +68,7 @@ MODEL_PATH = ParameterSpec(
 )
 PARAMETERS: tuple[ParameterSpec, ...] = (MODEL_PATH, *specs_of(AudioInputSettings))
 _INPUT_FIELDS = tuple(spec.name for spec in specs_of(AudioInputSettings))
+VOICE_REFRESH_S = 0.5  # voice_activity is republished unchanged this often (a late subscriber)
 
 
 class AudioFeaturesNode(DiagnosedNode):
@@ -85,6 +89,8 @@ class AudioFeaturesNode(DiagnosedNode):
         self.extractor = StreamingFeatureExtractor(self.spec)
         self.vad = EnergyVad()
         self.frames_out = 0
+        self.voice_sent: bool | None = None  # the voice activity last published, and when
+        self.voice_sent_s = -math.inf
 
         self.features_pub = self.create_publisher(Float32MultiArray, "features", STREAM_QOS)
         self.voice_pub = self.create_publisher(Bool, "voice_activity", STREAM_QOS)
@@ -177,8 +183,13 @@ class AudioFeaturesNode(DiagnosedNode):
         frames = self.extractor.push(samples)
         if len(samples):
             active = self.vad.push(samples)
-            if self.voice_pub.get_subscription_count():  # no message for nobody (issue 15)
-                self.voice_pub.publish(Bool(data=active))
+            now = time.monotonic()
+            # A change at once; the same value again only as a refresh for a subscriber that
+            # (re)started meanwhile: not one message per chunk (issue 15).
+            if active != self.voice_sent or now - self.voice_sent_s >= VOICE_REFRESH_S:
+                self.voice_sent, self.voice_sent_s = active, now
+                if self.voice_pub.get_subscription_count():  # no message for nobody
+                    self.voice_pub.publish(Bool(data=active))
         if len(frames):
             self.frames_out += len(frames)
             self.features_pub.publish(features_to_msg(np.asarray(frames), self.label))
