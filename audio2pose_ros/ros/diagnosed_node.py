@@ -363,12 +363,16 @@ def run_node(factory: Callable[[], Node], node_name: str, args: list[str] | None
 
 
 def run_nodes(
-    factories: Sequence[Callable[[], Node]], process_name: str, args: list[str] | None = None
+    factories: Sequence[Callable[[], Node]],
+    process_name: str,
+    args: list[str] | None = None,
+    connect: Callable[[list[Node]], None] | None = None,
 ) -> None:
     """Init, build the nodes, spin them in one executor until Ctrl-C / SIGTERM, clean up.
 
     One factory is the usual one node per process; several put nodes in one process and one
-    executor (``audio2pose run --single-process``). A
+    executor (``audio2pose run --single-process``), where ``connect`` (called with the built
+    nodes, in order, before spinning) wires them to each other. A
     :class:`~audio2pose_ros.errors.ConfigurationError` while a node is built (a refused
     parameter, a bad model or robot file), or arguments rcl cannot parse (a parameters file with
     a YAML syntax error, a missing file), end the process with one line on stderr and exit status
@@ -378,8 +382,11 @@ def run_nodes(
         rclpy.init(args=args)  # not `with rclpy.init()`: Humble's init is no context manager
         try:
             executor = create_executor()
-            for factory in factories:
-                executor.add_node(factory())
+            nodes = [factory() for factory in factories]
+            if connect is not None:
+                connect(nodes)
+            for node in nodes:
+                executor.add_node(node)
             spin_executor(executor)
         finally:
             rclpy.try_shutdown()

@@ -9,7 +9,8 @@ Subscriptions (``input_type`` chooses one of two inputs):
         naoqi_driver publishes them (remap it to naoqi_driver's ``audio`` topic).
 Publications:
     features (std_msgs/Float32MultiArray): frames x features, un-normalised, at 100 frames/s
-        of audio; dim[1].label names the feature set (e.g. ``logfbank26``).
+        of audio, one message per audio chunk (while something subscribes to it); dim[1].label
+        names the feature set (e.g. ``logfbank26``).
     voice_activity (std_msgs/Bool): energy-based voice activity, published when it changes and
         at least every ``VOICE_REFRESH_S`` (0.5 s) while audio arrives (while something
         subscribes to it); a value holds until the next one.
@@ -35,7 +36,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 from audio_common_msgs.msg import AudioData, AudioInfo
@@ -91,6 +92,10 @@ class AudioFeaturesNode(DiagnosedNode):
         self.frames_out = 0
         self.voice_sent: bool | None = None  # the voice activity last published, and when
         self.voice_sent_s = -math.inf
+        # In single-process mode the next nodes are called directly (nodes.single_process);
+        # the topics are then published only for other subscribers.
+        self.features_sink: Callable[[np.ndarray], None] | None = None
+        self.voice_sink: Callable[[bool], None] | None = None
 
         self.features_pub = self.create_publisher(Float32MultiArray, "features", STREAM_QOS)
         self.voice_pub = self.create_publisher(Bool, "voice_activity", STREAM_QOS)
@@ -188,11 +193,17 @@ class AudioFeaturesNode(DiagnosedNode):
             # (re)started meanwhile: not one message per chunk (issue 15).
             if active != self.voice_sent or now - self.voice_sent_s >= VOICE_REFRESH_S:
                 self.voice_sent, self.voice_sent_s = active, now
+                if self.voice_sink is not None:
+                    self.voice_sink(active)
                 if self.voice_pub.get_subscription_count():  # no message for nobody
                     self.voice_pub.publish(Bool(data=active))
         if len(frames):
             self.frames_out += len(frames)
-            self.features_pub.publish(features_to_msg(np.asarray(frames), self.label))
+            batch = np.asarray(frames, dtype=np.float32)  # what the topic carries, either way
+            if self.features_pub.get_subscription_count():
+                self.features_pub.publish(features_to_msg(batch, self.label))
+            if self.features_sink is not None:
+                self.features_sink(batch)
 
     # --- diagnostics ----------------------------------------------------------------------------
 
