@@ -39,11 +39,12 @@ from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm, read_wav
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
-from audio2pose_ros.ros.graph import node_graph
+from audio2pose_ros.ros.graph import GraphTimeoutError, node_graph
 
 CHUNK_SAMPLES = 160  # one 10 ms frame step (seed 003 section 4.2.2)
 MATCH_TOLERANCE_RAD = 1e-5  # float32 /joint_angles against float64 raw poses
 STEADY_SKIP_S = 2.0  # steady-state CPU is read from this long after the stream starts
+ANSWER_TIMEOUT_S = 60.0  # the graph must command and answer audio this soon after the start
 # Issue 15's targets: (figure, three-process target, single-process target, unit); at most.
 TARGETS = (
     ("steady CPU of the node processes per 10 ms frame", 1.0, 0.5, "ms"),
@@ -84,6 +85,7 @@ def _bench_params(directory: Path) -> Path:
         velocity_fraction=1.0,
         silence_timeout_s=1000.0,
         max_buffer_s=1.0,
+        state_file=str(directory / "motion_filter_state.json"),  # not the user's saved pose
     )
     params_file = directory / "params.yaml"
     params_file.write_text(yaml.safe_dump(params), encoding="utf-8")
@@ -126,6 +128,14 @@ def rss_mb(pid: int) -> float:
     return float("nan")
 
 
+def _check_deadline(deadline: float, what: str) -> None:
+    """Raise GraphTimeoutError once ``deadline`` (monotonic) has passed."""
+    if time.monotonic() > deadline:
+        raise GraphTimeoutError(
+            f"{what} within {ANSWER_TIMEOUT_S:g} s of the start (see the node logs)"
+        )
+
+
 def measure_graph(
     speech_16k: np.ndarray, duration_s: float = 60.0, single_process: bool = False
 ) -> GraphFigures:
@@ -143,11 +153,14 @@ def measure_graph(
             _bench_params(Path(tmp)), log_dir=Path(tmp) / "logs", single_process=single_process
         ) as graph:
             player.info.publish(AudioInfo(**S16LE_MONO_16K.audio_info_fields()))
+            deadline = launched + ANSWER_TIMEOUT_S
             while not player.commands:
+                _check_deadline(deadline, "no /joint_angles command")
                 player.spin_until(time.monotonic() + 0.01)
             first_command = time.monotonic() - launched
             silence = AudioData(data=bytes(step))
             while not player.raw:  # warm-up in whole frames until the graph answers
+                _check_deadline(deadline, "no raw pose for the audio played")
                 player.audio.publish(silence)
                 player.spin_until(time.monotonic() + 0.01)
             first_response = time.monotonic() - launched
