@@ -37,6 +37,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from audio2pose_ros.errors import ConfigurationError, InputError
+from audio2pose_ros.timebase import FRAME_PERIOD_S, SAMPLE_RATE_HZ, WINDOW_S
 
 _EPS = float(np.finfo(np.float64).eps)  # replaces zero energies before the log (as the seed's)
 
@@ -98,7 +99,7 @@ def mel_to_hz(mel: np.ndarray | float) -> np.ndarray:
 def mel_filterbank(
     nfilt: int = 26,
     nfft: int = 512,
-    sample_rate_hz: float = 16000.0,
+    sample_rate_hz: float = SAMPLE_RATE_HZ,
     lowfreq_hz: float = 0.0,
     highfreq_hz: float | None = None,
 ) -> np.ndarray:
@@ -267,9 +268,9 @@ class FeatureSpec:
     """
 
     kind: str = "logfbank"
-    sample_rate_hz: int = 16000
-    window_s: float = 0.025
-    step_s: float = 0.010
+    sample_rate_hz: int = SAMPLE_RATE_HZ
+    window_s: float = WINDOW_S
+    step_s: float = FRAME_PERIOD_S
     nfft: int = 512
     nfilt: int = 26
     numcep: int = 13

@@ -44,8 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from audio2pose_ros.errors import InputError
-
-TARGET_RATE_HZ = 16000  # seed 003 section 4.2.2: audio is downsampled to f_s = 16 kHz
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 SUPPORTED_SAMPLE_FORMATS: tuple[str, ...] = ("S16LE", "S32LE", "F32LE", "U8")
 SUPPORTED_CODING_FORMATS: tuple[str, ...] = ("wave", "")
@@ -102,7 +101,7 @@ class PcmFormat:
 
     sample_format: str = "S16LE"
     channels: int = 1
-    sample_rate_hz: int = TARGET_RATE_HZ
+    sample_rate_hz: int = SAMPLE_RATE_HZ
     coding_format: str = "wave"
 
     def __post_init__(self) -> None:
@@ -448,7 +447,7 @@ class PcmDecoder:
     def __init__(
         self,
         fmt: PcmFormat,
-        target_rate_hz: int = TARGET_RATE_HZ,
+        target_rate_hz: int = SAMPLE_RATE_HZ,
         channels: Sequence[int] | None = None,
     ) -> None:
         self._fmt = fmt
@@ -697,7 +696,7 @@ def _wav_samples(layout: _WavLayout, data: memoryview) -> tuple[PcmFormat, np.nd
 
 
 def read_wav(
-    path: str | PathLike[str], target_rate_hz: int = TARGET_RATE_HZ
+    path: str | PathLike[str], target_rate_hz: int = SAMPLE_RATE_HZ
 ) -> tuple[np.ndarray, int]:
     """Read a WAV file as float32 mono at the target rate (seed 003 section 4.2.2).
 

@@ -37,7 +37,6 @@ import numpy as np
 
 from audio2pose_ros.audio.pcm import (
     MAX_CHANNELS,
-    TARGET_RATE_HZ,
     InvalidAudio,
     PcmDecoder,
     PcmFormat,
@@ -46,6 +45,9 @@ from audio2pose_ros.audio.pcm import (
 )
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.parameters import param, validate_settings
+from audio2pose_ros.timebase import (
+    SAMPLE_RATE_HZ,
+)
 
 __all__ = [
     "INPUT_TYPES",
@@ -289,7 +291,7 @@ class AudioInput:
     def __init__(
         self,
         settings: AudioInputSettings,
-        target_rate_hz: int = TARGET_RATE_HZ,
+        target_rate_hz: int = SAMPLE_RATE_HZ,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.settings = settings

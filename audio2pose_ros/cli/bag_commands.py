@@ -26,6 +26,7 @@ from audio2pose_ros.data.bag import (
     write_audio_bag,
 )
 from audio2pose_ros.errors import UsageError
+from audio2pose_ros.timebase import duration_s
 
 MAX_REPLAY_RATE = 100.0  # --rate: at most 100x the recorded speed
 MAX_WAIT_S = 3600.0
@@ -44,7 +45,7 @@ def command_from_wav(args: argparse.Namespace) -> int:
     signal, _ = read_wav(input_file(args.wav, "WAV file"))
     chunking = Chunking(min_bytes=args.min_bytes, max_bytes=args.max_bytes, seed=args.seed)
     count = write_audio_bag(signal, output, chunking, storage=args.storage)
-    print(f"wrote {count} AudioData messages ({len(signal) / 16000:.2f} s) to {output}")
+    print(f"wrote {count} AudioData messages ({duration_s(len(signal)):.2f} s) to {output}")
     return 0
 
 

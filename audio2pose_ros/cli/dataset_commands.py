@@ -176,8 +176,14 @@ def command_import_bvh(args: argparse.Namespace) -> int:
 
 def command_info(args: argparse.Namespace) -> int:
     """Print a data set's clips, speakers, splits, durations and observed joint groups."""
-    from audio2pose_ros.data.dataset import AUDIO_RATE_HZ, SPLITS, Dataset
+    from audio2pose_ros.data.dataset import (
+        SPLITS,
+        Dataset,
+    )
     from audio2pose_ros.robot.description import JOINT_GROUPS, load_robot
+    from audio2pose_ros.timebase import (
+        SAMPLE_RATE_HZ,
+    )
 
     robot = load_robot()
     dataset = Dataset.open(input_dir(args.data, "data set folder"), robot)
@@ -186,7 +192,7 @@ def command_info(args: argparse.Namespace) -> int:
     totals = dict.fromkeys(SPLITS, 0.0)
     for info in dataset.clips:
         clip = dataset.load(info.clip_id)
-        seconds = clip.audio.size / AUDIO_RATE_HZ
+        seconds = clip.audio.size / SAMPLE_RATE_HZ
         totals[info.split] += seconds
         observed = " / ".join(
             f"{100.0 * clip.mask[:, robot.group_mask(g)].mean():.0f}%" for g in JOINT_GROUPS

@@ -47,6 +47,7 @@ from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import RobotDescription, load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.ros.graph import NodeSupervisor, node_graph
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 __all__ = ["Case", "Outcome", "cases", "run_campaign", "table"]
 
@@ -511,7 +512,7 @@ def _audio_bomb(rate: int) -> Callable[[Campaign], Outcome]:
         c.probe.audio_info.publish(
             AudioInfo(
                 channels=1,
-                sample_rate=16000,
+                sample_rate=SAMPLE_RATE_HZ,
                 sample_format="S16LE",
                 bitrate=0,
                 coding_format="wave",
