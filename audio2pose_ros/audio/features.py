@@ -490,7 +490,7 @@ def _direct_rfft(nfft: int, frame_len: int) -> Callable[..., np.ndarray] | None:
     ``np.fft.rfft`` exactly on a test frame here; otherwise the caller uses ``np.fft.rfft``.
     """
     try:
-        from numpy.fft import _pocketfft_umath  # optional private module
+        from numpy.fft import _pocketfft_umath  # type: ignore[attr-defined]  # private, optional
 
         ufunc = _pocketfft_umath.rfft_n_even if nfft % 2 == 0 else _pocketfft_umath.rfft_n_odd
         probe = np.sin(0.37 * np.arange(frame_len)) + 0.25 * np.cos(1.91 * np.arange(frame_len))

@@ -12,6 +12,7 @@ import argparse
 
 from audio2pose_ros.cli.options import (
     MAX_SEED,
+    Verbs,
     bounded_float,
     bounded_int,
     input_bag,
@@ -72,7 +73,7 @@ def command_replay(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(verbs: argparse._SubParsersAction) -> None:
+def register(verbs: Verbs) -> None:
     """Add ``audio2pose bag from-wav`` and ``audio2pose bag replay``."""
     bag = verbs.add_parser("bag", help="speech bags: make from WAV, replay")
     sub = bag.add_subparsers(dest="bag_verb", required=True)

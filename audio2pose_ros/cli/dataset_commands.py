@@ -16,11 +16,15 @@ import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from audio2pose_ros.cli.options import MAX_SEED, bounded_float, bounded_int, input_dir
+from audio2pose_ros.cli.options import MAX_SEED, Verbs, bounded_float, bounded_int, input_dir
 from audio2pose_ros.errors import Audio2PoseError, UsageError
+
+if TYPE_CHECKING:
+    from audio2pose_ros.data.dataset import Clip, ClipInfo
 
 VIDEO_SUFFIXES = (".mp4", ".mpg", ".mpeg", ".mov", ".avi", ".mkv", ".webm", ".m4v")
 AUDIO_SUFFIXES = (".wav", ".flac", ".mp3", ".ogg", ".m4a", *VIDEO_SUFFIXES)
@@ -60,7 +64,7 @@ def _paired_audio(path: Path, audio_dir: str | None) -> Path:
 def _run_import(
     args: argparse.Namespace,
     files: list[Path],
-    import_one: Callable[[Path, object], tuple[object, dict[str, np.ndarray]]],
+    import_one: Callable[[Path, ClipInfo], tuple[Clip, dict[str, np.ndarray]]],
 ) -> int:
     """Import every file into the data set, reporting failures per file; exit code 1 if any."""
     from tqdm import tqdm
@@ -269,7 +273,7 @@ def _common_import_options(parser: argparse.ArgumentParser, what: str) -> None:
     )
 
 
-def register(verbs: argparse._SubParsersAction) -> None:
+def register(verbs: Verbs) -> None:
     """Add the ``dataset`` verb and its sub-verbs to the ``audio2pose`` parser."""
     dataset = verbs.add_parser("dataset", help="import recordings into a data set; describe one")
     sub = dataset.add_subparsers(dest="dataset_verb", required=True)

@@ -12,6 +12,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from audio2pose_ros.cli.options import (
+    Verbs,
     bounded_float,
     bounded_int,
     input_bag,
@@ -103,7 +104,7 @@ def command_render(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(verbs: argparse._SubParsersAction) -> None:
+def register(verbs: Verbs) -> None:
     """Add the ``render`` verb to the ``audio2pose`` parser."""
     render = verbs.add_parser(
         "render", help="video of the robot moving for a WAV (+ MCAP bag for Foxglove)"

@@ -263,8 +263,10 @@ def _build_layout(
                 ax.set_xlabel("time (s)", fontsize=7, labelpad=1)
             axes.append(ax)
         axes_by_trajectory.append(axes)
-    canvas.draw()
-    background = np.asarray(canvas.buffer_rgba())[:, :, :3].copy()
+    # matplotlib's Agg canvas methods are unannotated
+    canvas.draw()  # type: ignore[no-untyped-call]
+    rgba = canvas.buffer_rgba()  # type: ignore[no-untyped-call]
+    background = np.asarray(rgba)[:, :, :3].copy()
     spans = []
     for axes in axes_by_trajectory:
         top, bottom = axes[0].get_window_extent(), axes[-1].get_window_extent()
