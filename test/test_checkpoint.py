@@ -7,7 +7,12 @@ import numpy as np
 import pytest
 import torch
 
-from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec
+from audio2pose_ros.audio.features import (
+    FeatureSpec,
+)
+from audio2pose_ros.audio.normalize import (
+    FeatureNormalizer,
+)
 from audio2pose_ros.checkpoints.format import CheckpointError, feature_spec_of
 from audio2pose_ros.checkpoints.torch_io import Checkpoint, load_checkpoint, save_checkpoint
 from audio2pose_ros.models.mlp import FramewiseMLP, MLPConfig

@@ -19,7 +19,13 @@ import pytest
 import torch
 from safetensors.numpy import load_file, save_file
 
-from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec, extract_features
+from audio2pose_ros.audio.features import (
+    FeatureSpec,
+    extract_features,
+)
+from audio2pose_ros.audio.normalize import (
+    FeatureNormalizer,
+)
 from audio2pose_ros.checkpoints.format import (
     DIGEST_KEY,
     HEADER_KEY,

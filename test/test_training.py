@@ -8,7 +8,9 @@ import pytest
 import torch
 from safetensors import safe_open
 
-from audio2pose_ros.audio.features import FeatureSpec
+from audio2pose_ros.audio.features import (
+    FeatureSpec,
+)
 from audio2pose_ros.data.dataset import Dataset
 from audio2pose_ros.learning import training
 from audio2pose_ros.learning.training import (

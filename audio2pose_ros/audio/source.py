@@ -37,13 +37,16 @@ import numpy as np
 
 from audio2pose_ros.audio.pcm import (
     MAX_CHANNELS,
-    InvalidAudio,
     PcmDecoder,
     PcmFormat,
-    UnsupportedAudioFormat,
     short_repr,
 )
-from audio2pose_ros.errors import ConfigurationError, InputError
+from audio2pose_ros.errors import (
+    ConfigurationError,
+    InputError,
+    InvalidAudio,
+    UnsupportedAudioFormat,
+)
 from audio2pose_ros.parameters import param, validate_settings
 from audio2pose_ros.timebase import (
     SAMPLE_RATE_HZ,
@@ -270,8 +273,8 @@ class AudioInput:
 
     Every ``decode_*`` method returns the samples that became available, or raises an
     :class:`~audio2pose_ros.errors.InputError` (:class:`AudioDropped`,
-    :class:`~audio2pose_ros.audio.pcm.UnsupportedAudioFormat` or
-    :class:`~audio2pose_ros.audio.pcm.InvalidAudio`) saying why the message was dropped; the
+    :class:`~audio2pose_ros.errors.UnsupportedAudioFormat` or
+    :class:`~audio2pose_ros.errors.InvalidAudio`) saying why the message was dropped; the
     input stays usable either way.
 
     Args:

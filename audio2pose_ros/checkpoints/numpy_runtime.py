@@ -40,7 +40,12 @@ import numpy as np
 from safetensors import SafetensorError
 from safetensors.numpy import load_file
 
-from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec
+from audio2pose_ros.audio.features import (
+    FeatureSpec,
+)
+from audio2pose_ros.audio.normalize import (
+    FeatureNormalizer,
+)
 from audio2pose_ros.checkpoints.format import (
     CheckpointError,
     CheckpointFile,

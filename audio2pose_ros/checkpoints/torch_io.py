@@ -28,7 +28,12 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec
+from audio2pose_ros.audio.features import (
+    FeatureSpec,
+)
+from audio2pose_ros.audio.normalize import (
+    FeatureNormalizer,
+)
 from audio2pose_ros.checkpoints.format import (
     DIGEST_KEY,
     FORMAT_VERSION,

@@ -21,7 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from audio2pose_ros.audio.features import FeatureSpec, extract_features
+from audio2pose_ros.audio.features import (
+    FeatureSpec,
+    extract_features,
+)
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import (
     Clip,

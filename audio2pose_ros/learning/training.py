@@ -30,7 +30,13 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from tqdm import tqdm
 
-from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec, extract_features
+from audio2pose_ros.audio.features import (
+    FeatureSpec,
+    extract_features,
+)
+from audio2pose_ros.audio.normalize import (
+    FeatureNormalizer,
+)
 from audio2pose_ros.checkpoints.format import MAX_HEADER_BYTES, MAX_JSON_DEPTH, json_depth
 from audio2pose_ros.checkpoints.torch_io import Checkpoint, load_checkpoint, save_checkpoint
 from audio2pose_ros.data.dataset import Clip, Dataset

@@ -28,10 +28,14 @@ import numpy as np
 import torch
 
 from audio2pose_ros.audio.features import (
-    FeatureNormalizer,
     FeatureSpec,
-    StreamingFeatureExtractor,
     extract_features,
+)
+from audio2pose_ros.audio.normalize import (
+    FeatureNormalizer,
+)
+from audio2pose_ros.audio.streaming import (
+    StreamingFeatureExtractor,
 )
 from audio2pose_ros.checkpoints.numpy_runtime import numpy_kernel_for
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
