@@ -20,10 +20,11 @@ class StreamingFeatureExtractor:
 
     The concatenation of all :meth:`push` outputs and the final :meth:`flush` equals
     :func:`~audio2pose_ros.audio.features.extract_features` of the concatenated samples (to
-    float64 rounding), whatever the chunking. A frame is computed as soon as its last sample arrives; with deltas it is emitted
-    ``spec.lookahead_frames`` frames later, once the future frames eq. 3.5 needs exist (the
-    first frames use repeated copies of frame 0, as python_speech_features does). :meth:`flush`
-    adds the zero-padded last partial frame and the delta tail, then starts a new stream.
+    float64 rounding), whatever the chunking. A frame is computed as soon as its last sample
+    arrives; with deltas it is emitted ``spec.lookahead_frames`` frames later, once the future
+    frames eq. 3.5 needs exist (the first frames use repeated copies of frame 0, as
+    python_speech_features does). :meth:`flush` adds the zero-padded last partial frame and the
+    delta tail, then starts a new stream.
 
     Pushing one frame step (160 samples) at a time costs one FFT and a few small matrix
     products: the filter bank, window, DCT, lifter and delta weights are precomputed, raw
