@@ -24,6 +24,14 @@ from audio2pose_ros.data.bag import (
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.ros.player import MessagePlayer, spin_until, warm_up
 from audio2pose_ros.timebase import SAMPLES_PER_FRAME
+from audio2pose_ros.topics import (
+    COMMANDED_JOINT_STATES,
+    DIAGNOSTICS,
+    FEATURES,
+    JOINT_ANGLES,
+    RAW_TRAJECTORY,
+    absolute,
+)
 
 
 class Probe(Node):
@@ -40,12 +48,12 @@ class Probe(Node):
             k: [] for k in ("angles", "trajectory", "states", "raw", "features", "diagnostics")
         }
         for key, msg_type, topic in (
-            ("angles", JointAnglesWithSpeed, "/joint_angles"),
+            ("angles", JointAnglesWithSpeed, absolute(JOINT_ANGLES)),
             ("trajectory", JointTrajectory, CONTROLLER_TOPIC),
-            ("states", JointState, "/commanded_joint_states"),
-            ("raw", JointTrajectory, "/raw_trajectory"),
-            ("features", Float32MultiArray, "/features"),
-            ("diagnostics", DiagnosticArray, "/diagnostics"),
+            ("states", JointState, absolute(COMMANDED_JOINT_STATES)),
+            ("raw", JointTrajectory, absolute(RAW_TRAJECTORY)),
+            ("features", Float32MultiArray, absolute(FEATURES)),
+            ("diagnostics", DiagnosticArray, DIAGNOSTICS),
         ):
             self.create_subscription(msg_type, topic, self.received[key].append, 1000)
 
@@ -63,9 +71,9 @@ class Probe(Node):
     def graph_ready(self) -> bool:
         return (
             self.audio.get_subscription_count() > 0
-            and self.count_subscribers("/features") > 0
-            and self.count_subscribers("/raw_trajectory") > 0
-            and self.count_publishers("/joint_angles") > 0
+            and self.count_subscribers(absolute(FEATURES)) > 0
+            and self.count_subscribers(absolute(RAW_TRAJECTORY)) > 0
+            and self.count_publishers(absolute(JOINT_ANGLES)) > 0
         )
 
     def warm_up(self) -> None:

@@ -35,6 +35,7 @@ from audio2pose_ros.audio.streaming import (
 )
 from audio2pose_ros.ros.diagnosed_node import AUDIO_QOS, EXIT_CONFIGURATION_ERROR, LATCHED_QOS
 from audio2pose_ros.ros.graph_bench import rss_mb
+from audio2pose_ros.topics import DIAGNOSTICS
 
 pytestmark = pytest.mark.ros
 
@@ -56,7 +57,7 @@ class Peer(Node):
         self.frames: list[np.ndarray] = []
         self.statuses: list[tuple[float, DiagnosticStatus]] = []
         self.create_subscription(Float32MultiArray, "features", self._on_features, 1000)
-        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 100)
+        self.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, 100)
 
     def _on_features(self, msg: Float32MultiArray) -> None:
         rows, cols = msg.layout.dim[0].size, msg.layout.dim[1].size

@@ -24,6 +24,7 @@ from audio2pose_ros.audio.pcm import (
 from audio2pose_ros.ros.diagnosed_node import trajectory_msg
 from audio2pose_ros.ros.graph import node_graph
 from audio2pose_ros.ros.graph_bench import rss_mb
+from audio2pose_ros.topics import RAW_TRAJECTORY, absolute
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -125,7 +126,7 @@ def test_when_raw_trajectory_duplicated_or_late_expect_filter_drops_it(
     with node_graph(log_dir=tmp_path):
         start(probe)
         publisher = probe.create_publisher(
-            type(trajectory_msg(robot.names, robot.neutral_rad, 0.01)), "/raw_trajectory", 10
+            type(trajectory_msg(robot.names, robot.neutral_rad, 0.01)), absolute(RAW_TRAJECTORY), 10
         )
         probe.wait_until(lambda: publisher.get_subscription_count() > 0)
         newest = trajectory_msg(robot.names, robot.neutral_rad[None, :], 0.01)

@@ -59,6 +59,7 @@ from audio2pose_ros.resources import default_checkpoint_path, share_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.player import MessagePlayer, spin_until, warm_up
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
+from audio2pose_ros.topics import JOINT_ANGLES, RAW_TRAJECTORY, absolute
 
 SPEECH_S = 3.0
 WORK = Path(tempfile.mkdtemp(prefix="test_launch_pepper_"))
@@ -133,8 +134,10 @@ class SpeechPlayer(Node):
         )
         self.angles: list[JointAnglesWithSpeed] = []
         self.raw: list[JointTrajectory] = []
-        self.create_subscription(JointAnglesWithSpeed, "/joint_angles", self.angles.append, 1000)
-        self.create_subscription(JointTrajectory, "/raw_trajectory", self.raw.append, 1000)
+        self.create_subscription(
+            JointAnglesWithSpeed, absolute(JOINT_ANGLES), self.angles.append, 1000
+        )
+        self.create_subscription(JointTrajectory, absolute(RAW_TRAJECTORY), self.raw.append, 1000)
 
     def spin_for(self, seconds: float) -> None:
         """Process callbacks for ``seconds``."""

@@ -31,6 +31,7 @@ from rclpy.subscription import Subscription
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from audio2pose_ros import topics
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, ConfigurationError, InputError
 
 # Audio: best effort matches both reliable and best-effort publishers (audio_capture is reliable);
@@ -198,7 +199,7 @@ class DiagnosedNode(Node):
         self._problems: dict[str, _Problem] = {}
         self.callback_errors = 0
         self.oversized_messages = 0
-        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_timer(HEARTBEAT_PERIOD_S, self.guarded(self.publish_diagnostics))
 
     # --- problems -----------------------------------------------------------------------------

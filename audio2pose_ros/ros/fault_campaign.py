@@ -44,6 +44,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from audio2pose_ros import topics
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import RobotDescription, load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS
@@ -109,15 +110,15 @@ class CampaignProbe(Node):
         """Publishers for every input of the graph; recorders for what the robot receives."""
         super().__init__("audio2pose_fault_campaign")
         self.robot = robot
-        self.raw = self.create_publisher(JointTrajectory, "raw_trajectory", STREAM_QOS)
-        self.voice = self.create_publisher(Bool, "voice_activity", STREAM_QOS)
-        self.stop = self.create_publisher(Bool, "stop", LATCHED_QOS)
-        self.enable = self.create_publisher(Bool, "enable", LATCHED_QOS)
-        self.head_target = self.create_publisher(JointState, "head_target", 10)
-        self.head_offset = self.create_publisher(JointState, "head_offset", 10)
-        self.measured = self.create_publisher(JointState, "joint_states", 10)
-        self.audio = self.create_publisher(AudioData, "audio/audio", 100)
-        self.audio_info = self.create_publisher(AudioInfo, "audio/audio_info", LATCHED_QOS)
+        self.raw = self.create_publisher(JointTrajectory, topics.RAW_TRAJECTORY, STREAM_QOS)
+        self.voice = self.create_publisher(Bool, topics.VOICE_ACTIVITY, STREAM_QOS)
+        self.stop = self.create_publisher(Bool, topics.STOP, LATCHED_QOS)
+        self.enable = self.create_publisher(Bool, topics.ENABLE, LATCHED_QOS)
+        self.head_target = self.create_publisher(JointState, topics.HEAD_TARGET, 10)
+        self.head_offset = self.create_publisher(JointState, topics.HEAD_OFFSET, 10)
+        self.measured = self.create_publisher(JointState, topics.JOINT_STATES, 10)
+        self.audio = self.create_publisher(AudioData, topics.AUDIO, 100)
+        self.audio_info = self.create_publisher(AudioInfo, topics.AUDIO_INFO, LATCHED_QOS)
         self.set_filter_parameters: Client[SetParameters.Request, SetParameters.Response]
         self.set_filter_parameters = self.create_client(
             SetParameters, "motion_filter_node/set_parameters"
@@ -126,9 +127,9 @@ class CampaignProbe(Node):
         self.features = 0
         self.diagnostics: dict[str, tuple[int, str, dict[str, str]]] = {}
         self.stale_reports: dict[str, int] = {}
-        self.create_subscription(JointAnglesWithSpeed, "joint_angles", self._on_command, 1000)
-        self.create_subscription(Float32MultiArray, "features", self._on_features, 100)
-        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 100)
+        self.create_subscription(JointAnglesWithSpeed, topics.JOINT_ANGLES, self._on_command, 1000)
+        self.create_subscription(Float32MultiArray, topics.FEATURES, self._on_features, 100)
+        self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, 100)
         self.pose = robot.neutral_rad.copy()
         self.robot_pose = robot.neutral_rad.copy()
         self.streaming = True
@@ -445,7 +446,7 @@ def _restart(
         os.kill(old, kill)
         if stop_first:  # the sender of the stop goes away too: its latched stop is gone
             c.probe.destroy_publisher(c.probe.stop)
-            c.probe.stop = c.probe.create_publisher(Bool, "stop", LATCHED_QOS)
+            c.probe.stop = c.probe.create_publisher(Bool, topics.STOP, LATCHED_QOS)
         c.probe.pose = c.pose_b if stop_first else pose
         deadline = time.monotonic() + 30.0
         while time.monotonic() < deadline and c.pid("motion_filter_node") == old:
