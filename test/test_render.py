@@ -15,19 +15,13 @@ from scipy.io import wavfile
 
 from audio2pose_ros.cli.render_commands import register
 from audio2pose_ros.data.bag import BagWriter, typestore
-from audio2pose_ros.data.dataset import (
-    Clip,
-    ClipInfo,
-    Dataset,
-)
+from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
 from audio2pose_ros.errors import UsageError
 from audio2pose_ros.offline.trajectory import bag_trajectory
 from audio2pose_ros.resources import bundled_speech_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.robot.kinematics import RobotKinematics
-from audio2pose_ros.timebase import (
-    complete_frames,
-)
+from audio2pose_ros.timebase import complete_frames
 from audio2pose_ros.topics import AUDIO, JOINT_STATES, absolute
 from audio2pose_ros.viz.render import BACKGROUND_RGB, TITLE_HEIGHT_PX, RobotCamera
 

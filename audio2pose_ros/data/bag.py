@@ -31,16 +31,9 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from audio2pose_ros import topics
-from audio2pose_ros.audio.pcm import (
-    S16LE_MONO_16K,
-    PcmDecoder,
-    PcmFormat,
-    encode_pcm,
-)
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmDecoder, PcmFormat, encode_pcm
 from audio2pose_ros.errors import Audio2PoseError, ConfigurationError, InputError
-from audio2pose_ros.timebase import (
-    SAMPLE_RATE_HZ,
-)
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 from audio2pose_ros.topics import absolute
 
 EXTRA_MESSAGE_DEFINITIONS = {

@@ -17,16 +17,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from audio2pose_ros.audio.features import (
-    FeatureSpec,
-    extract_features,
-)
-from audio2pose_ros.audio.normalize import (
-    FeatureNormalizer,
-)
-from audio2pose_ros.audio.wav import (
-    read_wav,
-)
+from audio2pose_ros.audio.features import FeatureSpec, extract_features
+from audio2pose_ros.audio.normalize import FeatureNormalizer
+from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.checkpoints.torch_io import Checkpoint, save_checkpoint
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.learning.training import TrainReport, TrainSettings, Utterance, train_model

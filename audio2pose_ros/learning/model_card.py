@@ -5,14 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
-from audio2pose_ros.data.dataset import (
-    Dataset,
-)
+from audio2pose_ros.data.dataset import Dataset
 from audio2pose_ros.learning.evaluation import Evaluation, GroupRow, QualityEvaluation
 from audio2pose_ros.learning.training import TrainReport
-from audio2pose_ros.timebase import (
-    SAMPLE_RATE_HZ,
-)
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 _ARMS_TEXT = {
     "prosody": (

@@ -86,12 +86,8 @@ def clip_trajectory(
     dataset_dir: str | Path, clip_id: str, robot: RobotDescription
 ) -> tuple[Trajectory, np.ndarray]:
     """A data set clip's recorded motion (unobserved angles at neutral) and its 16 kHz audio."""
-    from audio2pose_ros.data.dataset import (
-        Dataset,
-    )
-    from audio2pose_ros.timebase import (
-        FRAME_RATE_HZ,
-    )
+    from audio2pose_ros.data.dataset import Dataset
+    from audio2pose_ros.timebase import FRAME_RATE_HZ
 
     clip = Dataset.open(dataset_dir, robot).load(clip_id)
     angles_rad = np.where(clip.mask, clip.angles_rad, robot.neutral_rad)
