@@ -359,8 +359,7 @@ def command_plot_filter(args: argparse.Namespace) -> int:
 
 def command_distill_prosody(args: argparse.Namespace) -> int:
     """Rebuild the default model: an MLP trained to imitate the prosody rule on the given WAVs."""
-    from audio2pose_ros.cli.model_card import write_prosody_model_card
-    from audio2pose_ros.learning.distillation import distill_prosody
+    from audio2pose_ros.learning.distillation import distill_prosody, write_prosody_model_card
     from audio2pose_ros.learning.training import TrainSettings
     from audio2pose_ros.robot.description import load_robot
 
