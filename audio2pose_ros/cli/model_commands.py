@@ -126,7 +126,7 @@ def command_evaluate(args: argparse.Namespace) -> int:
 
 def register(verbs: argparse._SubParsersAction) -> None:
     """Add the ``train`` and ``evaluate`` sub-commands to the ``audio2pose`` parser."""
-    from audio2pose_ros.learning.training import HOLDOUTS
+    from audio2pose_ros.learning.batches import HOLDOUTS
     from audio2pose_ros.models.registry import MODEL_REGISTRY
 
     train = verbs.add_parser("train", help="train a pose model on a data set folder")

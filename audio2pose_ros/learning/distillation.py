@@ -22,7 +22,9 @@ from audio2pose_ros.audio.normalize import FeatureNormalizer
 from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.checkpoints.torch_io import Checkpoint, save_checkpoint
 from audio2pose_ros.errors import ConfigurationError
-from audio2pose_ros.learning.training import TrainReport, TrainSettings, Utterance, train_model
+from audio2pose_ros.learning.batches import Utterance
+from audio2pose_ros.learning.train_state import TrainReport
+from audio2pose_ros.learning.training import TrainSettings, train_model
 from audio2pose_ros.models.mlp import FramewiseMLP, MLPConfig
 from audio2pose_ros.motion.prosody import ProsodyRule, prosody_trajectory
 from audio2pose_ros.offline.synthesis import synthesize

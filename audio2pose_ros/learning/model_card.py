@@ -7,7 +7,7 @@ from pathlib import Path
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Dataset
 from audio2pose_ros.learning.evaluation import Evaluation, GroupRow, QualityEvaluation
-from audio2pose_ros.learning.training import TrainReport
+from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 _ARMS_TEXT = {
