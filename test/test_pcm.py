@@ -9,16 +9,10 @@ import wave
 import numpy as np
 import pytest
 
-from audio2pose_ros.audio.pcm import (
-    InvalidAudio,
-    PcmDecoder,
-    PcmFormat,
-    PolyphaseResampler,
-    UnsupportedAudioFormat,
-    encode_pcm,
-    read_wav,
-)
-from audio2pose_ros.errors import InputError
+from audio2pose_ros.audio.pcm import PcmDecoder, PcmFormat, encode_pcm
+from audio2pose_ros.audio.resample import PolyphaseResampler
+from audio2pose_ros.audio.wav import read_wav
+from audio2pose_ros.errors import InputError, InvalidAudio, UnsupportedAudioFormat
 from audio2pose_ros.resources import bundled_speech_path
 
 

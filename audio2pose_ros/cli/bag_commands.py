@@ -12,6 +12,7 @@ import argparse
 
 from audio2pose_ros.cli.options import (
     MAX_SEED,
+    Verbs,
     bounded_float,
     bounded_int,
     input_bag,
@@ -26,6 +27,7 @@ from audio2pose_ros.data.bag import (
     write_audio_bag,
 )
 from audio2pose_ros.errors import UsageError
+from audio2pose_ros.timebase import duration_s
 
 MAX_REPLAY_RATE = 100.0  # --rate: at most 100x the recorded speed
 MAX_WAIT_S = 3600.0
@@ -34,7 +36,7 @@ MAX_REPLAY_S = 24 * 3600.0  # a bag whose timestamps span more than a day is ref
 
 def command_from_wav(args: argparse.Namespace) -> int:
     """Write a WAV's audio as AudioData + AudioInfo chunks, as a live capture delivers them."""
-    from audio2pose_ros.audio.pcm import read_wav
+    from audio2pose_ros.audio.wav import read_wav
 
     if args.min_bytes > args.max_bytes:
         raise UsageError(
@@ -44,7 +46,7 @@ def command_from_wav(args: argparse.Namespace) -> int:
     signal, _ = read_wav(input_file(args.wav, "WAV file"))
     chunking = Chunking(min_bytes=args.min_bytes, max_bytes=args.max_bytes, seed=args.seed)
     count = write_audio_bag(signal, output, chunking, storage=args.storage)
-    print(f"wrote {count} AudioData messages ({len(signal) / 16000:.2f} s) to {output}")
+    print(f"wrote {count} AudioData messages ({duration_s(len(signal)):.2f} s) to {output}")
     return 0
 
 
@@ -71,7 +73,7 @@ def command_replay(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(verbs: argparse._SubParsersAction) -> None:
+def register(verbs: Verbs) -> None:
     """Add ``audio2pose bag from-wav`` and ``audio2pose bag replay``."""
     bag = verbs.add_parser("bag", help="speech bags: make from WAV, replay")
     sub = bag.add_subparsers(dest="bag_verb", required=True)

@@ -64,7 +64,7 @@ def _model_names() -> list[str]:
 
 
 def _holdout_kinds() -> tuple[str, ...]:
-    return importlib.import_module("audio2pose_ros.learning.training").HOLDOUTS
+    return importlib.import_module("audio2pose_ros.learning.batches").HOLDOUTS
 
 
 MODEL_NAMES = LazyChoices(_model_names)  # the registered model families (torch)

@@ -5,9 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
-from audio2pose_ros.data.dataset import AUDIO_RATE_HZ, Dataset
+from audio2pose_ros.data.dataset import Dataset
 from audio2pose_ros.learning.evaluation import Evaluation, GroupRow, QualityEvaluation
-from audio2pose_ros.learning.training import TrainReport
+from audio2pose_ros.learning.train_state import TrainReport
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 _ARMS_TEXT = {
     "prosody": (
@@ -29,7 +30,7 @@ _ARMS_TEXT = {
 def _clip_rows(dataset: Dataset) -> str:
     rows = []
     for info in dataset.clips:
-        seconds = dataset.load(info.clip_id).audio.size / AUDIO_RATE_HZ
+        seconds = dataset.load(info.clip_id).audio.size / SAMPLE_RATE_HZ
         rows.append(f"| {info.clip_id} | {info.speaker} | {info.split} | {seconds:.1f} |")
     return "\n".join(rows)
 

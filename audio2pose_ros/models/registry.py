@@ -77,9 +77,9 @@ def _check_config_value(name: str, key: str, value: object, kind: type) -> None:
         problem = "is not a number"
     elif kind is bool and not isinstance(value, bool):
         problem = "is not true or false"
-    elif number and not math.isfinite(value):
+    elif isinstance(value, int | float) and not math.isfinite(value):
         problem = "is not finite"
-    elif kind is int and not 0 <= value <= MAX_CONFIG_INT:
+    elif kind is int and isinstance(value, int) and not 0 <= value <= MAX_CONFIG_INT:
         problem = f"is outside [0, {MAX_CONFIG_INT}]"
     else:
         return

@@ -20,17 +20,13 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
-from rclpy.qos import (
-    DurabilityPolicy,
-    HistoryPolicy,
-    QoSProfile,
-    ReliabilityPolicy,
-)
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rclpy.subscription import Subscription
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from audio2pose_ros import topics
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, ConfigurationError, InputError
 
 # Audio: best effort matches both reliable and best-effort publishers (audio_capture is reliable);
@@ -198,7 +194,7 @@ class DiagnosedNode(Node):
         self._problems: dict[str, _Problem] = {}
         self.callback_errors = 0
         self.oversized_messages = 0
-        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_timer(HEARTBEAT_PERIOD_S, self.guarded(self.publish_diagnostics))
 
     # --- problems -----------------------------------------------------------------------------
@@ -268,7 +264,7 @@ class DiagnosedNode(Node):
         callback: Callable[[Any], None],
         qos: QoSProfile | int,
         max_bytes: int | Callable[[], int],
-    ) -> Subscription:
+    ) -> Subscription[Any]:
         """A guarded subscription that drops a message larger than ``max_bytes`` before decoding.
 
         rclpy turns every element of a message into a Python object before a callback sees it:
@@ -336,7 +332,7 @@ def create_executor() -> Executor:
     """
     if os.environ.get(EXECUTOR_ENV, "events") != "single_threaded":
         try:
-            from rclpy.experimental import EventsExecutor
+            from rclpy.experimental.events_executor import EventsExecutor
         except ImportError:  # Humble
             pass
         else:

@@ -16,9 +16,11 @@ from __future__ import annotations
 import importlib
 import time
 from collections.abc import Callable, Iterable, Sequence
+from typing import Any
 
 import rclpy
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from audio2pose_ros.data.bag import (
@@ -79,7 +81,7 @@ class MessagePlayer:
     def __init__(self, node: Node, topics: Iterable[tuple[str, str]]) -> None:
         """One publisher per (topic, message type name), with :func:`replay_qos`."""
         self.node = node
-        self.publishers = {
+        self.publishers: dict[str, Publisher[Any]] = {
             topic: node.create_publisher(message_class(msgtype), topic, replay_qos(msgtype))
             for topic, msgtype in dict(topics).items()
         }
