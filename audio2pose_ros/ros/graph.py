@@ -34,6 +34,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
+from audio2pose_ros import topics
 from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.data.bag import (
     AUDIO_INFO_TOPIC,
@@ -45,28 +46,30 @@ from audio2pose_ros.data.bag import (
     audio_messages,
     read_checked_messages,
 )
-from audio2pose_ros.errors import Audio2PoseError, UsageError
+from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, Audio2PoseError, UsageError
 from audio2pose_ros.resources import share_path
-from audio2pose_ros.ros.diagnosed_node import EXIT_CONFIGURATION_ERROR, LATCHED_QOS, STALE_AFTER_S
+from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STALE_AFTER_S
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 
 NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
 SINGLE_PROCESS = "audio2pose_nodes"  # the process that runs all three nodes (single-process mode)
 # As the launch file does: trajectories go to Pepper's ros2_control controller.
-TRAJECTORY_OUTPUT = "joint_trajectory_controller/joint_trajectory"  # the node's relative name
-NODE_REMAPS = {"motion_filter_node": ("-r", f"{TRAJECTORY_OUTPUT}:={CONTROLLER_TOPIC}")}
+NODE_REMAPS = {"motion_filter_node": ("-r", f"{topics.JOINT_TRAJECTORY}:={CONTROLLER_TOPIC}")}
 STATUS_PREFIX = "audio2pose_ros"  # diagnostic status names: "audio2pose_ros: <node name>"
 STARTUP_GRACE_S = 30.0  # a node may take this long to publish its first heartbeat (imports)
 MAX_BACKOFF_S = 16.0  # longest wait before a restart
 WATCH_PERIOD_S = 0.1
 RECORDED_TOPICS = {
-    "/joint_angles": (JointAnglesWithSpeed, "naoqi_bridge_msgs/msg/JointAnglesWithSpeed"),
-    CONTROLLER_TOPIC: (
+    topics.absolute(topics.JOINT_ANGLES): (
+        JointAnglesWithSpeed,
+        "naoqi_bridge_msgs/msg/JointAnglesWithSpeed",
+    ),
+    CONTROLLER_TOPIC: (JointTrajectory, "trajectory_msgs/msg/JointTrajectory"),
+    topics.absolute(topics.COMMANDED_JOINT_STATES): (JointState, "sensor_msgs/msg/JointState"),
+    topics.absolute(topics.RAW_TRAJECTORY): (
         JointTrajectory,
         "trajectory_msgs/msg/JointTrajectory",
     ),
-    "/commanded_joint_states": (JointState, "sensor_msgs/msg/JointState"),
-    "/raw_trajectory": (JointTrajectory, "trajectory_msgs/msg/JointTrajectory"),
 }
 
 
@@ -264,8 +267,8 @@ class HeartbeatMonitor:
         self.context = Context()
         rclpy.init(context=self.context)
         self.node = Node("audio2pose_supervisor", context=self.context)
-        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 50)
-        self.publisher = self.node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, 50)
+        self.publisher = self.node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.node.create_timer(WATCH_PERIOD_S * 2, self._report_silent)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -404,7 +407,9 @@ class PlayerRecorder(Node):
         self.heard: set[str] = set()  # recorded topics that ever delivered a message
         self.audio_pub = self.create_publisher(AudioData, AUDIO_TOPIC, 100)
         self.info_pub = self.create_publisher(AudioInfo, AUDIO_INFO_TOPIC, LATCHED_QOS)
-        self.create_subscription(JointTrajectory, "/raw_trajectory", self._on_pose, 100)
+        self.create_subscription(
+            JointTrajectory, topics.absolute(topics.RAW_TRAJECTORY), self._on_pose, 100
+        )
         for topic, (msg_type, type_name) in RECORDED_TOPICS.items():
             self.create_subscription(
                 msg_type, topic, self._recorder(topic, type_name), 100, raw=True

@@ -35,6 +35,7 @@ from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectory
 
+from audio2pose_ros import topics
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.resources import share_path
@@ -96,12 +97,18 @@ def _bench_params(directory: Path) -> Path:
 class _Player(Node):
     def __init__(self) -> None:
         super().__init__("audio2pose_graph_bench")
-        self.audio = self.create_publisher(AudioData, "/audio/audio", 1000)
-        self.info = self.create_publisher(AudioInfo, "/audio/audio_info", LATCHED_QOS)
+        self.audio = self.create_publisher(AudioData, topics.absolute(topics.AUDIO), 1000)
+        self.info = self.create_publisher(
+            AudioInfo, topics.absolute(topics.AUDIO_INFO), LATCHED_QOS
+        )
         self.raw: list[tuple[float, np.ndarray]] = []
         self.commands: list[tuple[float, np.ndarray]] = []
-        self.create_subscription(JointTrajectory, "/raw_trajectory", self._on_raw, 1000)
-        self.create_subscription(JointAnglesWithSpeed, "/joint_angles", self._on_command, 1000)
+        self.create_subscription(
+            JointTrajectory, topics.absolute(topics.RAW_TRAJECTORY), self._on_raw, 1000
+        )
+        self.create_subscription(
+            JointAnglesWithSpeed, topics.absolute(topics.JOINT_ANGLES), self._on_command, 1000
+        )
 
     def _on_raw(self, msg: JointTrajectory) -> None:
         now = time.monotonic()

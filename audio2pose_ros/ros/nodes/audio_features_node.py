@@ -44,6 +44,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from naoqi_bridge_msgs.msg import AudioBuffer
 from std_msgs.msg import Bool, Float32MultiArray
 
+from audio2pose_ros import topics
 from audio2pose_ros.audio.source import AudioInput, AudioInputSettings
 from audio2pose_ros.audio.streaming import StreamingFeatureExtractor
 from audio2pose_ros.audio.vad import EnergyVad
@@ -97,18 +98,18 @@ class AudioFeaturesNode(DiagnosedNode):
         self.features_sink: Callable[[np.ndarray], None] | None = None
         self.voice_sink: Callable[[bool], None] | None = None
 
-        self.features_pub = self.create_publisher(Float32MultiArray, "features", STREAM_QOS)
-        self.voice_pub = self.create_publisher(Bool, "voice_activity", STREAM_QOS)
+        self.features_pub = self.create_publisher(Float32MultiArray, topics.FEATURES, STREAM_QOS)
+        self.voice_pub = self.create_publisher(Bool, topics.VOICE_ACTIVITY, STREAM_QOS)
         if self.input.settings.input_type == "naoqi":
             self.create_subscription(
-                AudioBuffer, "audio/audio", self.guarded(self.on_audio_buffer), AUDIO_QOS
+                AudioBuffer, topics.AUDIO, self.guarded(self.on_audio_buffer), AUDIO_QOS
             )
         else:
             self.create_subscription(
-                AudioInfo, "audio/audio_info", self.guarded(self.on_audio_info), LATCHED_QOS
+                AudioInfo, topics.AUDIO_INFO, self.guarded(self.on_audio_info), LATCHED_QOS
             )
             self.create_subscription(
-                AudioData, "audio/audio", self.guarded(self.on_audio_data), AUDIO_QOS
+                AudioData, topics.AUDIO, self.guarded(self.on_audio_data), AUDIO_QOS
             )
         self.get_logger().info(
             f"computing {self.label} features ({self.spec.to_dict()}) from "

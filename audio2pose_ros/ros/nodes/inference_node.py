@@ -47,6 +47,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from std_msgs.msg import Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
+from audio2pose_ros import topics
 from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.parameters import ParameterSpec, ParameterValue
@@ -153,10 +154,12 @@ class InferenceNode(DiagnosedNode):
         # In single-process mode motion_filter_node is called directly (nodes.single_process);
         # raw_trajectory is then published only for other subscribers.
         self.pose_sink: PoseSink | None = None
-        self.trajectory_pub = self.create_publisher(JointTrajectory, "raw_trajectory", STREAM_QOS)
+        self.trajectory_pub = self.create_publisher(
+            JointTrajectory, topics.RAW_TRAJECTORY, STREAM_QOS
+        )
         if subscribe:
             self.create_bounded_subscription(
-                Float32MultiArray, "features", self.on_features, STREAM_QOS, MAX_FEATURES_BYTES
+                Float32MultiArray, topics.FEATURES, self.on_features, STREAM_QOS, MAX_FEATURES_BYTES
             )
         self.get_logger().info(
             f"streaming model {self.model.name} ({self.model.runtime} runtime) from "

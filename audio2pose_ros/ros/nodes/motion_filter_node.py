@@ -53,6 +53,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
 
+from audio2pose_ros import topics
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
@@ -145,7 +146,7 @@ class MotionFilterNodeSettings:
         ),
     )
     measured_joint_states_topic: str = field(
-        default="joint_states",
+        default=topics.JOINT_STATES,
         metadata=param("the robot's measured joint states (naoqi_driver)", read_only=True),
     )
     startup_timeout_s: float = field(
@@ -289,18 +290,20 @@ class MotionFilterNode(DiagnosedNode):
         if subscribe_graph:
             bounded(
                 JointTrajectory,
-                "raw_trajectory",
+                topics.RAW_TRAJECTORY,
                 self.on_raw,
                 STREAM_QOS,
                 lambda: trajectory_bytes_cap(
                     int(self.parameters["max_points_per_message"]), self.robot.n_joints
                 ),
             )
-            self.create_subscription(Bool, "voice_activity", guarded(self.on_voice), STREAM_QOS)
-        self.create_subscription(Bool, "enable", guarded(self.on_enable), LATCHED_QOS)
-        self.create_subscription(Bool, "stop", guarded(self.on_stop), LATCHED_QOS)
-        bounded(JointState, "head_target", self.on_head_target, 10, MAX_JOINT_STATE_BYTES)
-        bounded(JointState, "head_offset", self.on_head_offset, 10, MAX_JOINT_STATE_BYTES)
+            self.create_subscription(
+                Bool, topics.VOICE_ACTIVITY, guarded(self.on_voice), STREAM_QOS
+            )
+        self.create_subscription(Bool, topics.ENABLE, guarded(self.on_enable), LATCHED_QOS)
+        self.create_subscription(Bool, topics.STOP, guarded(self.on_stop), LATCHED_QOS)
+        bounded(JointState, topics.HEAD_TARGET, self.on_head_target, 10, MAX_JOINT_STATE_BYTES)
+        bounded(JointState, topics.HEAD_OFFSET, self.on_head_offset, 10, MAX_JOINT_STATE_BYTES)
         try:
             bounded(
                 JointState,
@@ -323,13 +326,13 @@ class MotionFilterNode(DiagnosedNode):
         self.last_tick_s = -math.inf
         self.tick_stamp = self.get_clock().now()
         outputs = {
-            "joint_angles": (JointAnglesWithSpeed, "joint_angles", self.publish_joint_angles),
+            "joint_angles": (JointAnglesWithSpeed, topics.JOINT_ANGLES, self.publish_joint_angles),
             "joint_trajectory": (
                 JointTrajectory,
-                "joint_trajectory_controller/joint_trajectory",
+                topics.JOINT_TRAJECTORY,
                 self.publish_joint_trajectory,
             ),
-            "joint_states": (JointState, "commanded_joint_states", self.publish_joint_states),
+            "joint_states": (JointState, topics.COMMANDED_JOINT_STATES, self.publish_joint_states),
         }
         self.publishers_by_output = {}
         # (minimum spacing in s, time of the last publication, publish callback, publisher);
