@@ -25,7 +25,7 @@ from audio2pose_ros.audio.features import FeatureSpec
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmDecoder, PcmFormat, encode_pcm
 from audio2pose_ros.audio.streaming import StreamingFeatureExtractor
 from audio2pose_ros.ros.diagnosed_node import AUDIO_QOS, EXIT_CONFIGURATION_ERROR, LATCHED_QOS
-from audio2pose_ros.ros.graph_bench import rss_mb
+from audio2pose_ros.ros.process_stats import rss_mb
 from audio2pose_ros.topics import DIAGNOSTICS
 
 pytestmark = pytest.mark.ros

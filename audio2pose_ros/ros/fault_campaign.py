@@ -51,6 +51,7 @@ from audio2pose_ros.ros.fault_harness import (
     Outcome,
 )
 from audio2pose_ros.ros.graph import node_graph
+from audio2pose_ros.ros.process_stats import rss_mb
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 __all__ = ["cases", "run_campaign", "table"]
@@ -282,7 +283,7 @@ def _audio_bomb(rate: int) -> Callable[[Campaign], Outcome]:
             c.probe.audio.publish(AudioData(data=bytes(200_000)))
             c.probe.spin_for(0.2)
         c.probe.spin_for(1.0)
-        rss = _rss_mb(c.pid(node))
+        rss = rss_mb(c.pid(node))
         alive = c.pid(node) == pid and c.supervisor.processes[node].poll() is None
         c.probe.audio_info.publish(
             AudioInfo(
@@ -308,16 +309,6 @@ def _audio_bomb(rate: int) -> Callable[[Campaign], Outcome]:
         return Outcome(did, ok)
 
     return run
-
-
-def _rss_mb(pid: int) -> float:
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return math.nan
 
 
 def cases() -> list[Case]:

@@ -44,6 +44,7 @@ from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.graph import GraphTimeoutError, node_graph
 from audio2pose_ros.ros.player import MessagePlayer, silence_message, spin_until, warm_up
+from audio2pose_ros.ros.process_stats import cpu_s, rss_mb
 from audio2pose_ros.timebase import FRAME_PERIOD_S, SAMPLE_RATE_HZ, SAMPLES_PER_FRAME
 
 CHUNK_SAMPLES = SAMPLES_PER_FRAME  # one 10 ms frame step per chunk (seed 003 section 4.2.2)
@@ -124,20 +125,6 @@ class _Player(Node):
 
     def _on_command(self, msg: JointAnglesWithSpeed) -> None:
         self.commands.append((time.monotonic(), np.asarray(msg.joint_angles, dtype=np.float64)))
-
-
-def cpu_s(pid: int) -> float:
-    """CPU time (user + system, s) a process has used."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / 100.0  # utime + stime, in clock ticks of 10 ms
-
-
-def rss_mb(pid: int) -> float:
-    """Resident memory of a process (MB)."""
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
 
 
 def _check_deadline(deadline: float, what: str) -> None:
