@@ -23,7 +23,7 @@ import dataclasses
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 from audio2pose_ros.errors import ConfigurationError
 
@@ -31,12 +31,15 @@ __all__ = [
     "ParameterSpec",
     "ParameterValue",
     "param",
+    "settings_from",
+    "settings_with",
     "specs_of",
     "validate_settings",
     "validate_values",
 ]
 
 ParameterValue = bool | int | float | str
+SettingsT = TypeVar("SettingsT")
 _METADATA_KEY = "audio2pose_parameter"
 
 
@@ -159,6 +162,30 @@ def specs_of(settings_class: type) -> tuple[ParameterSpec, ...]:
             raise TypeError(f"{settings_class.__name__}.{field.name} needs a default")
         specs.append(ParameterSpec(name=field.name, default=field.default, **meta))
     return tuple(specs)
+
+
+def settings_from(settings_class: type[SettingsT], values: Mapping[str, object]) -> SettingsT:
+    """An instance of a settings dataclass from the values of its fields in ``values``.
+
+    Every node builds its settings this way from its parameter values (names of other settings
+    classes in ``values`` are ignored); fields missing from ``values`` keep their defaults.
+
+    Raises:
+        ConfigurationError: a value is refused by the class's validation.
+    """
+    names = {field.name for field in dataclasses.fields(settings_class)}  # type: ignore[arg-type]
+    return settings_class(**{k: v for k, v in values.items() if k in names})
+
+
+def settings_with(settings: SettingsT, changes: Mapping[str, object]) -> SettingsT:
+    """A copy of ``settings`` with the values of its fields in ``changes`` (a live change).
+
+    Raises:
+        ConfigurationError: a changed value is refused by the class's validation.
+    """
+    names = {field.name for field in dataclasses.fields(settings)}  # type: ignore[arg-type]
+    ours = {k: v for k, v in changes.items() if k in names}
+    return dataclasses.replace(settings, **ours) if ours else settings  # type: ignore[type-var]
 
 
 def validate_values(

@@ -60,7 +60,7 @@ def test_when_features_are_non_finite_or_absurd_expect_one_safe_pose_per_frame(n
     node.published.clear()
     node.predictor = node.model.predictor()
     limit = np.tile(mean, (4, 1))  # non-finite values become the mean
-    limit[3, :] = mean + node.limit_sd * std
+    limit[3, :] = mean + node.settings.feature_limit_sd * std
     node.on_features(features(node, limit))
     np.testing.assert_allclose(
         np.array([p.positions for p in node.published[0].points]), poses, atol=1e-5

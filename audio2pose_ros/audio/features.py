@@ -204,6 +204,11 @@ class FeatureSpec:
         return self.base_dim * (1 + self.delta_order)
 
     @property
+    def label(self) -> str:
+        """Name of the feature set in a features message (``logfbank26``, ``mfcc13``)."""
+        return f"{self.kind}{self.dim}"
+
+    @property
     def frame_len(self) -> int:
         """Frame length in samples, round-half-up of window_s * sample_rate_hz (400)."""
         return round_half_up(self.window_s * self.sample_rate_hz)

@@ -129,7 +129,7 @@ def write_prosody_model_card(
 
 ## What it is
 A frame-wise MLP (seed 003 section 4.3.3; config `{model.config_dict()}`, {n_params} parameters)
-mapping {checkpoint.features.kind}{checkpoint.features.dim} audio features (seed 003 section
+mapping {checkpoint.features.label} audio features (seed 003 section
 4.2.2 parameters) to Pepper's {checkpoint.robot.n_joints} joints. It streams (no state), so it runs
 in `inference_node`.
 

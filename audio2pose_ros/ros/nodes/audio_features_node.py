@@ -50,7 +50,14 @@ from audio2pose_ros.audio.streaming import StreamingFeatureExtractor
 from audio2pose_ros.audio.vad import EnergyVad
 from audio2pose_ros.checkpoints.format import feature_spec_of
 from audio2pose_ros.errors import InputError
-from audio2pose_ros.parameters import ParameterSpec, ParameterValue, specs_of
+from audio2pose_ros.parameters import (
+    ParameterValue,
+    param,
+    settings_from,
+    settings_with,
+    specs_of,
+    validate_settings,
+)
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.ros.diagnosed_node import (
     AUDIO_QOS,
@@ -62,14 +69,25 @@ from audio2pose_ros.ros.diagnosed_node import (
 )
 from audio2pose_ros.ros.node_parameters import NodeParameters
 
-MODEL_PATH = ParameterSpec(
-    name="model_path",
-    default="",
-    description="checkpoint whose feature specification is computed ('' = packaged default)",
-    read_only=True,
-)
-PARAMETERS: tuple[ParameterSpec, ...] = (MODEL_PATH, *specs_of(AudioInputSettings))
-_INPUT_FIELDS = tuple(spec.name for spec in specs_of(AudioInputSettings))
+
+@dataclasses.dataclass(frozen=True)
+class FeaturesNodeSettings:
+    """The features node's own parameter; its audio input's are :class:`AudioInputSettings`."""
+
+    model_path: str = dataclasses.field(
+        default="",
+        metadata=param(
+            "checkpoint whose feature specification is computed ('' = packaged default)",
+            read_only=True,
+        ),
+    )
+
+    def __post_init__(self) -> None:
+        """Validate every field against its declaration."""
+        validate_settings(self)
+
+
+PARAMETERS = (*specs_of(FeaturesNodeSettings), *specs_of(AudioInputSettings))
 VOICE_REFRESH_S = 0.5  # voice_activity is republished unchanged this often (a late subscriber)
 
 
@@ -85,9 +103,13 @@ class AudioFeaturesNode(DiagnosedNode):
         """
         super().__init__("audio_features_node")
         self.params = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
-        self.spec = feature_spec_of(self.params["model_path"] or default_checkpoint_path())
-        self.label = f"{self.spec.kind}{self.spec.dim}"
-        self.input = AudioInput(self._input_settings(), target_rate_hz=self.spec.sample_rate_hz)
+        settings = settings_from(FeaturesNodeSettings, self.params.values)
+        self.spec = feature_spec_of(settings.model_path or default_checkpoint_path())
+        self.label = self.spec.label
+        self.input = AudioInput(
+            settings_from(AudioInputSettings, self.params.values),
+            target_rate_hz=self.spec.sample_rate_hz,
+        )
         self.extractor = StreamingFeatureExtractor(self.spec)
         self.vad = EnergyVad()
         self.frames_out = 0
@@ -116,16 +138,9 @@ class AudioFeaturesNode(DiagnosedNode):
             f"{self.input.settings.input_type} audio, {self.input.settings.selection.describe()}"
         )
 
-    def _input_settings(
-        self, changes: Mapping[str, ParameterValue] | None = None
-    ) -> AudioInputSettings:
-        values = {name: self.params[name] for name in _INPUT_FIELDS}
-        values.update({k: v for k, v in (changes or {}).items() if k in _INPUT_FIELDS})
-        return AudioInputSettings(**values)  # type: ignore[arg-type]
-
     def apply_parameters(self, changes: Mapping[str, ParameterValue]) -> None:
         """Validate the combination, then apply it from the next message on."""
-        self.input.update_settings(self._input_settings(changes))
+        self.input.update_settings(settings_with(self.input.settings, changes))
 
     # --- audio_common ---------------------------------------------------------------------------
 

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -50,7 +51,14 @@ from trajectory_msgs.msg import JointTrajectory
 from audio2pose_ros import topics
 from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 from audio2pose_ros.errors import InputError
-from audio2pose_ros.parameters import ParameterSpec, ParameterValue
+from audio2pose_ros.parameters import (
+    ParameterValue,
+    param,
+    settings_from,
+    settings_with,
+    specs_of,
+    validate_settings,
+)
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import (
@@ -69,36 +77,51 @@ MAX_FRAMES_PER_MESSAGE = 1000
 # anything larger is dropped before rclpy decodes it (its layout list could be any length).
 MAX_FEATURES_BYTES = 4096 + MAX_FRAMES_PER_MESSAGE * 256 * 4
 
-PARAMETERS = (
-    ParameterSpec(
-        "model_path",
-        "",
-        "checkpoint to run ('' = packaged default); must be a streaming model",
-        read_only=True,
-    ),
-    ParameterSpec(
-        "robot_description",
-        "",
-        "robot description YAML ('' = packaged Pepper); the checkpoint must match it",
-        read_only=True,
-    ),
-    ParameterSpec(
-        "feature_limit_sd",
-        8.0,
-        "normalised features are clamped to +- this many training standard deviations",
-        minimum=1.0,
-        maximum=1000.0,
-        unit="sd",
-    ),
-    ParameterSpec(
-        "seed",
-        0,
-        "seed of a sampling model's noise: the same seed gives the same motion for the same audio",
-        minimum=0,
-        maximum=2**31 - 1,
-        read_only=True,
-    ),
-)
+
+@dataclass(frozen=True)
+class InferenceNodeSettings:
+    """The inference node's parameters (one definition: descriptors, YAML, README, settings)."""
+
+    model_path: str = field(
+        default="",
+        metadata=param(
+            "checkpoint to run ('' = packaged default); must be a streaming model",
+            read_only=True,
+        ),
+    )
+    robot_description: str = field(
+        default="",
+        metadata=param(
+            "robot description YAML ('' = packaged Pepper); the checkpoint must match it",
+            read_only=True,
+        ),
+    )
+    feature_limit_sd: float = field(
+        default=8.0,
+        metadata=param(
+            "normalised features are clamped to +- this many training standard deviations",
+            minimum=1.0,
+            maximum=1000.0,
+            unit="sd",
+        ),
+    )
+    seed: int = field(
+        default=0,
+        metadata=param(
+            "seed of a sampling model's noise: the same seed gives the same motion for the "
+            "same audio",
+            minimum=0,
+            maximum=2**31 - 1,
+            read_only=True,
+        ),
+    )
+
+    def __post_init__(self) -> None:
+        """Validate every field against its declaration."""
+        validate_settings(self)
+
+
+PARAMETERS = specs_of(InferenceNodeSettings)
 
 
 def sanitize_features(normalized: np.ndarray, limit_sd: float) -> tuple[np.ndarray, int, int]:
@@ -137,14 +160,14 @@ class InferenceNode(DiagnosedNode):
         """
         super().__init__("inference_node")
         self.parameters = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
-        model_path = self.parameters["model_path"] or default_checkpoint_path()
-        self.robot = load_robot(self.parameters["robot_description"])
+        self.settings = settings_from(InferenceNodeSettings, self.parameters.values)
+        model_path = self.settings.model_path or default_checkpoint_path()
+        self.robot = load_robot(self.settings.robot_description or None)
         self.model = load_streaming_model(model_path, robot=self.robot)
-        self.predictor = self.model.predictor(seed=int(self.parameters["seed"]))
+        self.predictor = self.model.predictor(seed=self.settings.seed)
         spec = self.model.features
-        self.expected_label = f"{spec.kind}{spec.dim}"
+        self.expected_label = spec.label
         self.period_s = spec.step_s
-        self.limit_sd = float(self.parameters["feature_limit_sd"])
         self.frames_in = 0
         self.frames_dropped = 0
         self.values_replaced = 0
@@ -168,8 +191,7 @@ class InferenceNode(DiagnosedNode):
 
     def apply_parameters(self, changes: Mapping[str, ParameterValue]) -> None:
         """Adopt a validated run-time change (only feature_limit_sd may change)."""
-        if "feature_limit_sd" in changes:
-            self.limit_sd = float(changes["feature_limit_sd"])
+        self.settings = settings_with(self.settings, changes)
 
     def on_features(self, msg: Float32MultiArray) -> None:
         """Unpack a features message and run it (:meth:`on_frames`)."""
@@ -211,7 +233,7 @@ class InferenceNode(DiagnosedNode):
         start = time.perf_counter()
         with np.errstate(invalid="ignore", over="ignore"):  # inf - inf: made safe just below
             normalized = self.model.normalizer.apply(frames)
-        safe, replaced, clamped = sanitize_features(normalized, self.limit_sd)
+        safe, replaced, clamped = sanitize_features(normalized, self.settings.feature_limit_sd)
         if replaced or clamped:
             self.values_replaced += replaced
             self.values_clamped += clamped
@@ -219,7 +241,7 @@ class InferenceNode(DiagnosedNode):
                 "feature values",
                 DiagnosticStatus.WARN,
                 f"feature values made safe: {replaced} non-finite replaced by the mean, "
-                f"{clamped} clamped to +-{self.limit_sd:g} sd",
+                f"{clamped} clamped to +-{self.settings.feature_limit_sd:g} sd",
             )
         poses = self.predictor.run(safe)
         angles = self.robot.denormalize(poses)
@@ -243,7 +265,7 @@ class InferenceNode(DiagnosedNode):
             "frames_dropped": self.frames_dropped,
             "feature_values_replaced": self.values_replaced,
             "feature_values_clamped": self.values_clamped,
-            "feature_limit_sd": self.limit_sd,
+            "feature_limit_sd": self.settings.feature_limit_sd,
             "mean_compute_us_per_frame": f"{mean_us:.1f}",
         }
 

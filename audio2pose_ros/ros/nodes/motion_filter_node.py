@@ -37,12 +37,12 @@ publish time. An output nobody subscribes to is not built nor sent (issue 15).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -64,7 +64,14 @@ from audio2pose_ros.motion.state_file import (
     save_memory,
 )
 from audio2pose_ros.motion.timing import StampCheck
-from audio2pose_ros.parameters import ParameterValue, param, specs_of, validate_settings
+from audio2pose_ros.parameters import (
+    ParameterValue,
+    param,
+    settings_from,
+    settings_with,
+    specs_of,
+    validate_settings,
+)
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import (
     LATCHED_QOS,
@@ -221,11 +228,6 @@ PARAMETERS = tuple(spec for cls in SETTINGS_CLASSES for spec in specs_of(cls))
 OUTPUT_RATES = ("joint_angles_rate_hz", "joint_trajectory_rate_hz", "joint_states_rate_hz")
 
 
-def _pick(settings_class: type, values: Mapping[str, ParameterValue]) -> object:
-    names = {f.name for f in dataclasses.fields(settings_class)}
-    return settings_class(**{k: v for k, v in values.items() if k in names})
-
-
 def _stamp_s(stamp: object) -> float:
     return stamp.sec + stamp.nanosec * 1e-9  # type: ignore[attr-defined]
 
@@ -247,8 +249,8 @@ class MotionFilterNode(DiagnosedNode):
         super().__init__("motion_filter_node")
         self.parameters = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
         values = self.parameters.values
-        self.settings: MotionFilterNodeSettings = _pick(MotionFilterNodeSettings, values)
-        settings: MotionFilterSettings = _pick(MotionFilterSettings, values)
+        self.settings: MotionFilterNodeSettings = settings_from(MotionFilterNodeSettings, values)
+        settings: MotionFilterSettings = settings_from(MotionFilterSettings, values)
         for name in OUTPUT_RATES:
             rate = getattr(self.settings, name)
             if rate > settings.rate_hz:
@@ -260,7 +262,7 @@ class MotionFilterNode(DiagnosedNode):
             self.robot = load_robot(self.settings.robot_description or None)
         except (OSError, ValueError) as exc:
             raise ConfigurationError(f"parameter robot_description: {exc}") from None
-        self.filter = MotionFilter(self.robot, settings, _pick(LimitSettings, values))
+        self.filter = MotionFilter(self.robot, settings, settings_from(LimitSettings, values))
         self.stamps = StampCheck(self.settings.max_stamp_future_s, self.settings.max_stamp_age_s)
         self.input_messages = 0
         self.dropped_messages = 0
@@ -337,7 +339,7 @@ class MotionFilterNode(DiagnosedNode):
         self.publishers_by_output = {}
         # (minimum spacing in s, time of the last publication, publish callback, publisher);
         # an output is built and sent only while something subscribes to it
-        self.outputs: list[list] = []
+        self.outputs: list[list[Any]] = []
         for key, (msg_type, topic, callback) in outputs.items():
             rate_hz = getattr(self.settings, f"{key}_rate_hz")
             if rate_hz > 0:
@@ -360,15 +362,10 @@ class MotionFilterNode(DiagnosedNode):
         Raises:
             ConfigurationError: the new combination is refused (nothing changes then).
         """
-
-        def changed(current: object) -> object:
-            names = {f.name for f in dataclasses.fields(current)}  # type: ignore[arg-type]
-            ours = {k: v for k, v in changes.items() if k in names}
-            return dataclasses.replace(current, **ours) if ours else current  # type: ignore
-
-        node_settings = changed(self.settings)
+        node_settings = settings_with(self.settings, changes)
         self.filter.update_settings(
-            changed(self.filter.settings), changed(self.filter.limiter.settings)
+            settings_with(self.filter.settings, changes),
+            settings_with(self.filter.limiter.settings, changes),
         )
         self.settings = node_settings
         self.stamps.max_future_s = node_settings.max_stamp_future_s
@@ -586,7 +583,9 @@ class MotionFilterNode(DiagnosedNode):
             raise InputError(f"{len(msg.name)} names for {len(msg.position)} positions")
         return dict(zip(msg.name, (float(p) for p in msg.position), strict=True))
 
-    def _external(self, msg: JointState, setter: Callable, key: str) -> None:
+    def _external(
+        self, msg: JointState, setter: Callable[[dict[str, float], float], None], key: str
+    ) -> None:
         try:
             setter(self._head_values(msg), time.monotonic())
         except InputError as exc:

@@ -18,10 +18,14 @@ Run it as ``python -m audio2pose_ros.ros.nodes.single_process [--ros-args ...]``
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 if TYPE_CHECKING:
     from rclpy.node import Node
+
+    from audio2pose_ros.ros.nodes.audio_features_node import AudioFeaturesNode
+    from audio2pose_ros.ros.nodes.inference_node import InferenceNode
+    from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
 
 PROCESS_NAME = "audio2pose_nodes"
 NODE_NAMES = ("audio_features_node", "inference_node", "motion_filter_node")
@@ -37,7 +41,9 @@ def connect(nodes: list[Node]) -> None:
 
     from audio2pose_ros.errors import ConfigurationError
 
-    features, inference, motion = nodes
+    features = cast("AudioFeaturesNode", nodes[0])
+    inference = cast("InferenceNode", nodes[1])
+    motion = cast("MotionFilterNode", nodes[2])
     model_names = list(inference.robot.names)
     missing = [name for name in motion.robot.names if name not in model_names]
     if missing:
