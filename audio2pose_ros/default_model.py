@@ -24,9 +24,10 @@ people, its arms and hip imitate the procedural rule, and the model card says so
 from __future__ import annotations
 
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -36,6 +37,11 @@ from audio2pose_ros.importers.extras import save_extras
 from audio2pose_ros.importers.video import VideoImportSettings, import_video
 from audio2pose_ros.motion.prosody import prosody_trajectory
 from audio2pose_ros.robot import RobotDescription
+
+if TYPE_CHECKING:
+    from audio2pose_ros.evaluation import Predictions
+    from audio2pose_ros.models.checkpoint import Checkpoint
+    from audio2pose_ros.sampler_selection import SamplingChoice
 
 GRID_LICENCE = (
     "CC BY 4.0; GRID audio-visual sentence corpus, Cooke, Barker, Cunningham and Shao (2006), "
@@ -47,6 +53,9 @@ VALIDATION_CLIPS = ("grid_lrwp9a", "obama_weekly_address_13")
 ARM_MODES = ("prosody", "neutral")  # procedural layers of the MLP build
 DEFAULT_SEED = 0  # the seed the inference node samples with unless told otherwise
 LIVE_VALIDATION_LECTURE_S = (44.0, 60.0)  # the lecture clip starting here validates
+
+
+PROSODY_RULE = "prosody rule"  # the hand-written arm rule, a baseline of the arm evaluation
 
 
 @dataclass(frozen=True)
@@ -222,6 +231,23 @@ def _validation_ids(clips: list[Clip]) -> set[str]:
     return ids
 
 
+def prosody_predictions(
+    clips: Sequence[Clip], robot: RobotDescription
+) -> tuple[Predictions, Predictions]:
+    """The prosody rule's motion on the clips and on their audio with a pause (a baseline)."""
+    from audio2pose_ros.evaluation import with_pause
+
+    spec = FeatureSpec()  # LogFB-26: what the rule reads
+
+    def rule(audio: np.ndarray) -> list[np.ndarray]:
+        return [prosody_trajectory(extract_features(audio, spec), robot)]
+
+    return (
+        {PROSODY_RULE: {c.info.clip_id: rule(c.audio) for c in clips}},
+        {PROSODY_RULE: {c.info.clip_id: rule(with_pause(c.audio)) for c in clips}},
+    )
+
+
 def describe_learned_data() -> dict[str, str]:
     """What the learned default model learned from, stored in its checkpoint."""
     from audio2pose_ros.importers.lecture import LECTURE_LICENCE
@@ -265,6 +291,7 @@ def build_learned_default_model(
     )
     from audio2pose_ros.importers.lecture import import_lecture
     from audio2pose_ros.models.checkpoint import save_checkpoint
+    from audio2pose_ros.sampler_selection import select_sampling
     from audio2pose_ros.training import TrainSettings, train_on_clips
 
     settings = settings or LearnedBuildSettings()
@@ -287,13 +314,17 @@ def build_learned_default_model(
         f"training live_groups on {len(usable) - len(validation_ids)} clips "
         f"(validation: {sorted(validation_ids)})"
     )
+    validation = [c for c in usable if c.info.clip_id in validation_ids]
     checkpoint, report = train_on_clips(
         "live_groups",
         [c for c in usable if c.info.clip_id not in validation_ids],
         robot,
         train_settings,
-        validation=[c for c in usable if c.info.clip_id in validation_ids],
+        validation=validation,
     )
+    progress("choosing the sampling settings on the validation clips")
+    checkpoint, choice = select_sampling(checkpoint, validation, robot)
+    progress(choice.table().splitlines()[0])
     checkpoint.info.update(describe_learned_data())
     checkpoint_path = out_dir / "default.safetensors"
     save_checkpoint(checkpoint_path, checkpoint)
@@ -302,8 +333,13 @@ def build_learned_default_model(
     samples, paused = checkpoint_predictions(
         [(checkpoint_path, checkpoint)], test, settings.samples, DEFAULT_SEED
     )
+    rule, rule_paused = prosody_predictions(test, robot)
     arms = quality_evaluation(
-        test, samples, robot, out_dir / "arms_distributions.png", paused=paused
+        test,
+        samples | rule,
+        robot,
+        out_dir / "arms_distributions.png",
+        paused=paused | rule_paused,
     )
     progress("evaluating the head leave-one-speaker-out over the talking-head clips")
     loso_settings = TrainSettings(
@@ -313,8 +349,17 @@ def build_learned_default_model(
         seed=settings.seed,
         show_progress=False,
     )
+    fold_choices: list[SamplingChoice] = []
+
+    def tune(fold: Checkpoint, fold_validation: list[Clip]) -> Checkpoint:
+        tuned, fold_choice = select_sampling(fold, fold_validation, robot)
+        if fold_choice.settings:
+            fold_choices.append(fold_choice)
+            progress(fold_choice.table().splitlines()[0])
+        return tuned
+
     clips, loso, loso_paused = loso_predictions(
-        heads, robot, ["live_groups", "mlp"], loso_settings, settings.samples, progress
+        heads, robot, ["live_groups", "mlp"], loso_settings, settings.samples, progress, tune
     )
     head = quality_evaluation(
         clips, loso, robot, out_dir / "head_distributions.png", paused=loso_paused
@@ -325,8 +370,14 @@ def build_learned_default_model(
         + "\n\narms and hip: held-out lecture stretch\n"
         + arms.table()
     )
-    (out_dir / "metrics.txt").write_text(table + "\n", encoding="utf-8")
+    selection = (
+        "sampling settings of the shipped model\n"
+        + choice.table()
+        + "\n\nsampling settings of the leave-one-speaker-out folds (head)\n"
+        + "\n".join(c.table().splitlines()[0] for c in fold_choices)
+    )
+    (out_dir / "metrics.txt").write_text(table + "\n\n" + selection + "\n", encoding="utf-8")
     card = write_learned_model_card(
-        out_dir, checkpoint, report, heads, lecture, head, arms, sorted(validation_ids)
+        out_dir, checkpoint, report, heads, lecture, head, arms, choice, fold_choices
     )
     return DefaultModelResult(checkpoint_path, card, table)
