@@ -5,6 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from synthetic_motion import write_dataset
 
 from audio2pose_ros.dataset import Clip, Dataset
 from audio2pose_ros.errors import ConfigurationError
@@ -19,8 +20,6 @@ from audio2pose_ros.sampler_selection import (
     select_sampling,
 )
 from audio2pose_ros.training import TrainSettings, train_on_clips
-
-from synthetic_motion import write_dataset
 
 torch.set_num_threads(1)
 
