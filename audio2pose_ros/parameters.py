@@ -2,7 +2,7 @@
 
 A settings dataclass of the core (``MotionFilterSettings``, ``LimitSettings``, ...) declares each
 field with :func:`param`; the field's default, type and metadata are then the single definition
-that the node's ParameterDescriptors (``audio2pose_ros.nodes.parameters``), the settings
+that the node's ParameterDescriptors (``audio2pose_ros.ros.node_parameters``), the settings
 validation (:func:`validate_settings`, called from ``__post_init__``), ``config/pepper.yaml`` and
 the README table are checked against. This module does not import rclpy.
 

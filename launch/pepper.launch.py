@@ -16,13 +16,13 @@ pepper_joint_trajectory_controller); the commanded pose goes to /commanded_joint
 ``audio2pose run`` starts the same executables with the same parameter file.
 
 Arguments (see ``ros2 launch audio2pose_ros pepper.launch.py --show-args``) are checked before
-any node starts, by :func:`audio2pose_ros.launch_support.plan_launch`; an unusable one stops the
+any node starts, by :func:`audio2pose_ros.ros.launch_support.plan_launch`; an unusable one stops the
 launch with one line and exit status 1. Booleans accept what launch's IfCondition accepts
 (true/false/1/0, any letter case). ``model_path`` precedence: the launch argument when not empty,
 else the parameters file, else the package default.
 
 Crashed nodes are restarted after 2, 4, 8, 8, 8 s, at most 5 times in a row (a process that ran
-30 s starts a new row; :class:`~audio2pose_ros.launch_support.RespawnBudget`); a node that exits
+30 s starts a new row; :class:`~audio2pose_ros.ros.launch_support.RespawnBudget`); a node that exits
 with status 78 (it cannot start with its configuration) or one that crashes a 6th time in a row
 stops the launch with one line and exit status 1. This replaces ``respawn=True``, which
 restarts forever on Humble (it has no ``respawn_max_retries``).
@@ -37,7 +37,7 @@ Visualisation and simulation (urdf/pepper.urdf, primitive shapes):
   simulated robot publishes /joint_states like a real one; robot_state_publisher shows it.
 
 ``single_process:=true`` runs the three nodes in one process and one executor
-(``python -m audio2pose_ros.nodes.single_process``, the same parameters and remappings): the
+(``python -m audio2pose_ros.ros.nodes.single_process``, the same parameters and remappings): the
 smallest footprint. The default stays three processes.
 
 ``diagnostic_aggregator:=true`` starts diagnostic_aggregator with config/diagnostic_analyzers.yaml:
@@ -69,7 +69,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
-from audio2pose_ros.launch_support import (
+from audio2pose_ros.ros.launch_support import (
     ARGUMENTS,
     CONTROLLER_NAME,
     CONTROLLER_TOPIC,

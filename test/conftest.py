@@ -12,7 +12,7 @@ import pytest
 
 from audio2pose_ros.audio.pcm import read_wav
 from audio2pose_ros.resources import bundled_speech_path, share_path
-from audio2pose_ros.robot import RobotDescription, load_robot
+from audio2pose_ros.robot.description import RobotDescription, load_robot
 
 # DDS must never leave loopback here, and parallel runs must not see each other's nodes.
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"

@@ -13,8 +13,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.launch_support import CONTROLLER_TOPIC
-from audio2pose_ros.nodes.common import LATCHED_QOS
+from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
+from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 
 
 class Probe(Node):

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import subprocess
 
-from audio2pose_ros.cli.graph import executable_command
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR
+from audio2pose_ros.ros.graph import executable_command
 
 
 def configuration_error_line(node: str, *ros_args: str) -> str:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from audio2pose_ros.importers.head_pose import CAMERA_TO_BODY
+from audio2pose_ros.data.importers.head_pose import CAMERA_TO_BODY
 
 NAMES = (
     "HeadPitch", "HeadYaw", "LShoulderRoll", "LShoulderPitch", "LElbowRoll", "LElbowYaw",

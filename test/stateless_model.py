@@ -18,8 +18,8 @@ def stateless_checkpoint(path: Path, robot, speech: np.ndarray) -> Path:
     recurrent sampler, whose state depends on every frame it has seen). Untrained, normalised
     on the speech itself, so that its poses follow the audio."""
     from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec, extract_features
+    from audio2pose_ros.checkpoints.torch_io import Checkpoint, save_checkpoint
     from audio2pose_ros.models import build_model
-    from audio2pose_ros.models.checkpoint import Checkpoint, save_checkpoint
 
     spec = FeatureSpec()
     torch.manual_seed(0)

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-from audio2pose_ros.dataset import Clip, ClipInfo, Dataset
-from audio2pose_ros.training import Utterance
+from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
+from audio2pose_ros.learning.training import Utterance
 
 N_JOINTS = 11
 GAINS = np.array([0.5, -0.4, 0.3, -0.5, 0.4, -0.3, 0.5, -0.4, 0.3, -0.5, 0.2])

@@ -23,8 +23,8 @@ from std_msgs.msg import Float32MultiArray
 
 from audio2pose_ros.audio.features import FeatureSpec, StreamingFeatureExtractor
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmDecoder, PcmFormat, encode_pcm
-from audio2pose_ros.cli.graph_bench import rss_mb
-from audio2pose_ros.nodes.common import AUDIO_QOS, EXIT_CONFIGURATION_ERROR, LATCHED_QOS
+from audio2pose_ros.ros.diagnosed_node import AUDIO_QOS, EXIT_CONFIGURATION_ERROR, LATCHED_QOS
+from audio2pose_ros.ros.graph_bench import rss_mb
 
 pytestmark = pytest.mark.ros
 
@@ -88,7 +88,7 @@ def values_of(status: DiagnosticStatus) -> dict[str, str]:
 @contextmanager
 def features_node(tmp_path: Path, *parameters: str) -> Iterator[subprocess.Popen]:
     """The node in its own process (``-p name:=value`` per parameter), stopped afterwards."""
-    args = [sys.executable, "-m", "audio2pose_ros.nodes.audio_features_node", "--ros-args"]
+    args = [sys.executable, "-m", "audio2pose_ros.ros.nodes.audio_features_node", "--ros-args"]
     for parameter in parameters:
         args += ["-p", parameter]
     with (tmp_path / f"{NODE}.log").open("w") as log:
@@ -228,7 +228,7 @@ def test_when_parameters_described_and_set_live_expect_descriptors_and_validated
     (issue 11 item 4): read-only ones are refused, bad values refused with the reason."""
     from rclpy.parameter import Parameter
 
-    from audio2pose_ros.nodes.audio_features_node import PARAMETERS, AudioFeaturesNode
+    from audio2pose_ros.ros.nodes.audio_features_node import PARAMETERS, AudioFeaturesNode
 
     with rclpy.init(args=["--ros-args", "-p", "max_chunk_s:=1"]):
         node = AudioFeaturesNode()

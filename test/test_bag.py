@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from audio2pose_ros.bag import (
+from audio2pose_ros.data.bag import (
     AUDIO_INFO_TOPIC,
     AUDIO_TOPIC,
     BagError,
@@ -61,7 +61,7 @@ def test_when_bag_replayed_faster_expect_every_message_published_in_order(tmp_pa
     import subprocess
     import time
 
-    from audio2pose_ros.cli.graph import executable_command
+    from audio2pose_ros.ros.graph import executable_command
 
     bag = tmp_path / "bag"
     write_audio_bag(speech[:32000], bag)  # 2 s of speech

@@ -8,11 +8,11 @@ import pytest
 import torch
 
 from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec
-from audio2pose_ros.checkpoint_format import CheckpointError, feature_spec_of
-from audio2pose_ros.models.checkpoint import Checkpoint, load_checkpoint, save_checkpoint
+from audio2pose_ros.checkpoints.format import CheckpointError, feature_spec_of
+from audio2pose_ros.checkpoints.torch_io import Checkpoint, load_checkpoint, save_checkpoint
 from audio2pose_ros.models.mlp import FramewiseMLP, MLPConfig
 from audio2pose_ros.resources import default_checkpoint_path
-from audio2pose_ros.robot import RobotDescription
+from audio2pose_ros.robot.description import RobotDescription
 
 
 @pytest.fixture

@@ -16,14 +16,19 @@ import pytest
 import torch
 
 from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec
-from audio2pose_ros.checkpoint_format import (
+from audio2pose_ros.checkpoints.format import (
     MAX_HEADER_BYTES,
     CheckpointError,
     feature_spec_of,
     json_depth,
 )
+from audio2pose_ros.checkpoints.torch_io import (
+    Checkpoint,
+    _digest,
+    load_checkpoint,
+    save_checkpoint,
+)
 from audio2pose_ros.errors import ConfigurationError
-from audio2pose_ros.models.checkpoint import Checkpoint, _digest, load_checkpoint, save_checkpoint
 from audio2pose_ros.models.mlp import FramewiseMLP, MLPConfig
 
 LOADERS = [load_checkpoint, feature_spec_of]

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from node_processes import configuration_error_line
 
-from audio2pose_ros.nodes.common import features_to_msg
+from audio2pose_ros.ros.diagnosed_node import features_to_msg
 
 
 @pytest.fixture
@@ -22,7 +22,7 @@ def node(monkeypatch):
     """An InferenceNode on the packaged model whose published trajectories are collected."""
     import rclpy
 
-    from audio2pose_ros.nodes.inference_node import InferenceNode
+    from audio2pose_ros.ros.nodes.inference_node import InferenceNode
 
     with rclpy.init():
         inference = InferenceNode()
@@ -67,7 +67,7 @@ def test_when_features_are_non_finite_or_absurd_expect_one_safe_pose_per_frame(n
 
 @pytest.mark.ros
 def test_when_a_message_holds_a_minute_of_frames_expect_only_the_cap_used(node):
-    from audio2pose_ros.nodes.inference_node import MAX_FRAMES_PER_MESSAGE
+    from audio2pose_ros.ros.nodes.inference_node import MAX_FRAMES_PER_MESSAGE
 
     frames = np.tile(node.model.normalizer.mean, (6000, 1))
     node.on_features(features(node, frames))

@@ -16,9 +16,9 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
 from audio2pose_ros.audio.pcm import read_wav
-from audio2pose_ros.cli.graph import executable_command
-from audio2pose_ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.resources import share_path
+from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 
 AUDIO2POSE = executable_command("audio2pose")
 COMMAND_TOPICS = {
@@ -136,10 +136,12 @@ def test_when_bench_runs_expect_every_stage_timed():
 def test_when_core_modules_imported_expect_no_ros():
     code = (
         "import sys\n"
-        "import audio2pose_ros.audio.features, audio2pose_ros.audio.pcm, audio2pose_ros.robot\n"
+        "import audio2pose_ros.audio.features, audio2pose_ros.audio.pcm\n"
+        "import audio2pose_ros.robot.description\n"
         "import audio2pose_ros.motion.filter, audio2pose_ros.motion.prosody\n"
-        "import audio2pose_ros.models.checkpoint, audio2pose_ros.synthesis\n"
-        "import audio2pose_ros.training, audio2pose_ros.benchmark, audio2pose_ros.bag\n"
+        "import audio2pose_ros.checkpoints.torch_io, audio2pose_ros.offline.synthesis\n"
+        "import audio2pose_ros.learning.training, audio2pose_ros.offline.benchmark\n"
+        "import audio2pose_ros.data.bag\n"
         "bad = [m for m in sys.modules if m.split('.')[0] in ('rclpy', 'rosidl_runtime_py')]\n"
         "print(bad)\n"
         "sys.exit(1 if bad else 0)\n"
@@ -182,7 +184,7 @@ def test_when_distill_prosody_expect_loadable_checkpoint_and_honest_card(
         timeout=300,
     )
     assert result.returncode == 0, result.stderr
-    from audio2pose_ros.models.checkpoint import load_checkpoint
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
 
     checkpoint = load_checkpoint(out, robot=robot)
     assert "not human motion" in checkpoint.info["trained_on"]

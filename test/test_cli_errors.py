@@ -14,9 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from audio2pose_ros import bag as bag_module
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmFormat, encode_pcm
-from audio2pose_ros.bag import (
+from audio2pose_ros.cli import main as cli
+from audio2pose_ros.data import bag as bag_module
+from audio2pose_ros.data.bag import (
     AUDIO_DATA_TYPE,
     AUDIO_INFO_TOPIC,
     AUDIO_INFO_TYPE,
@@ -26,7 +27,6 @@ from audio2pose_ros.bag import (
     read_bag_audio,
     typestore,
 )
-from audio2pose_ros.cli import main as cli
 from audio2pose_ros.resources import default_checkpoint_path
 
 

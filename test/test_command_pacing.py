@@ -18,9 +18,9 @@ from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.cli.graph import executable_command
-from audio2pose_ros.nodes.common import trajectory_msg
-from audio2pose_ros.nodes.motion_filter_node import PARAMETERS
+from audio2pose_ros.ros.diagnosed_node import trajectory_msg
+from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.nodes.motion_filter_node import PARAMETERS
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 RATE_HZ = next(float(s.default) for s in PARAMETERS if s.name == "joint_angles_rate_hz")

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from audio2pose_ros.dataset import Clip, ClipInfo, Dataset, DatasetError, expected_frames
+from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset, DatasetError, expected_frames
 
 
 def make_clip(robot, clip_id="c1", seconds=1.0, split="train") -> Clip:

@@ -8,9 +8,9 @@ import pytest
 from recording_fixtures import openface_rotation, write_bvh, write_openface_csv, write_wav
 
 from audio2pose_ros.cli.dataset_commands import register
-from audio2pose_ros.dataset import Dataset
+from audio2pose_ros.data.dataset import Dataset
+from audio2pose_ros.data.importers.extras import load_extras
 from audio2pose_ros.errors import UsageError
-from audio2pose_ros.importers.extras import load_extras
 from audio2pose_ros.resources import share_path
 
 

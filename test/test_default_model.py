@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from audio2pose_ros.audio.features import FeatureSpec, extract_features
-from audio2pose_ros.dataset import Clip, ClipInfo, Dataset, expected_frames
-from audio2pose_ros.default_model import TEST_CLIPS, clip_info, fill_unobserved
+from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset, expected_frames
+from audio2pose_ros.learning.default_model import TEST_CLIPS, clip_info, fill_unobserved
 from audio2pose_ros.motion.prosody import prosody_trajectory
 
 
@@ -52,7 +52,7 @@ def clip_with_id(clip_id, split="train"):
 
 
 def test_when_choosing_validation_clips_expect_talking_heads_and_one_training_lecture_stretch():
-    from audio2pose_ros.default_model import VALIDATION_CLIPS, _validation_ids
+    from audio2pose_ros.learning.default_model import VALIDATION_CLIPS, _validation_ids
 
     clips = [
         clip_with_id(name)
@@ -65,7 +65,7 @@ def test_when_choosing_validation_clips_expect_talking_heads_and_one_training_le
 def test_when_loading_the_packaged_default_expect_a_seeded_streaming_sampler_learned_from_people(
     robot, speech
 ):
-    from audio2pose_ros.models.checkpoint import load_checkpoint
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
     from audio2pose_ros.resources import default_checkpoint_path
 
     checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)

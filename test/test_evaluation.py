@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import torch
 
+from audio2pose_ros.checkpoints.torch_io import load_checkpoint
 from audio2pose_ros.cli.model_commands import register
-from audio2pose_ros.dataset import Dataset
-from audio2pose_ros.evaluation import MEAN_MOTION, NEUTRAL, OTHER_UTTERANCE, evaluate
-from audio2pose_ros.models.checkpoint import load_checkpoint
-from audio2pose_ros.synthesis import synthesize
+from audio2pose_ros.data.dataset import Dataset
+from audio2pose_ros.learning.evaluation import MEAN_MOTION, NEUTRAL, OTHER_UTTERANCE, evaluate
+from audio2pose_ros.offline.synthesis import synthesize
 
 sys.path.insert(0, str(Path(__file__).parent))
 from synthetic_motion import write_dataset

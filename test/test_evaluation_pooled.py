@@ -4,11 +4,16 @@ import math
 
 import numpy as np
 
-from audio2pose_ros import metrics
-from audio2pose_ros.dataset import Clip, ClipInfo
-from audio2pose_ros.default_model import PROSODY_RULE
-from audio2pose_ros.default_model_card import _targets
-from audio2pose_ros.evaluation import STATIC, GroupRow, QualityEvaluation, quality_evaluation
+from audio2pose_ros.data.dataset import Clip, ClipInfo
+from audio2pose_ros.learning import metrics
+from audio2pose_ros.learning.default_model import PROSODY_RULE
+from audio2pose_ros.learning.evaluation import (
+    STATIC,
+    GroupRow,
+    QualityEvaluation,
+    quality_evaluation,
+)
+from audio2pose_ros.learning.model_card import _targets
 
 
 def test_when_adding_two_samples_segments_expect_summed_counts_and_moments():

@@ -198,10 +198,10 @@ def test_when_gain_changed_live_expect_effect_from_next_tick_and_read_only_refus
 
 
 def test_when_default_model_speaks_expect_gate_rejects_none_of_its_poses(speech):
-    from audio2pose_ros.filter_plot import online_filter
-    from audio2pose_ros.models.checkpoint import load_checkpoint
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+    from audio2pose_ros.offline.synthesis import predict_normalized
     from audio2pose_ros.resources import default_checkpoint_path
-    from audio2pose_ros.synthesis import predict_normalized
+    from audio2pose_ros.viz.filter_plot import online_filter
 
     checkpoint = load_checkpoint(default_checkpoint_path())
     raw = checkpoint.robot.denormalize(predict_normalized(checkpoint, speech))

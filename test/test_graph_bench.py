@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from audio2pose_ros.cli.graph_bench import GraphFigures, measure_graph, report, targets
+from audio2pose_ros.ros.graph_bench import GraphFigures, measure_graph, report, targets
 
 
 def _figures(mode: str, cpu: dict[str, float], rss: dict[str, float]) -> GraphFigures:

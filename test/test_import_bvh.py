@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from recording_fixtures import NAMES, known_angles, write_bvh
 
-from audio2pose_ros.dataset import ClipInfo
-from audio2pose_ros.importers import ImporterError
-from audio2pose_ros.importers.bvh import import_bvh, load_mappings, read_bvh, retarget
-from audio2pose_ros.importers.common import grid_times_s
+from audio2pose_ros.data.dataset import ClipInfo
+from audio2pose_ros.data.importers import ImporterError
+from audio2pose_ros.data.importers.bvh import import_bvh, load_mappings, read_bvh, retarget
+from audio2pose_ros.data.importers.common import grid_times_s
 
 FRAME_TIME_S = 1.0 / 30.0
 N_FRAMES = 150  # 5 s

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from audio2pose_ros.dataset import expected_frames
-from audio2pose_ros.importers.lecture import LECTURE_LICENCE, TEST_SPAN_S, lecture_clips
-from audio2pose_ros.importers.video import POSE_INDEX, VideoTracks, body_angles
+from audio2pose_ros.data.dataset import expected_frames
+from audio2pose_ros.data.importers.lecture import LECTURE_LICENCE, TEST_SPAN_S, lecture_clips
+from audio2pose_ros.data.importers.video import POSE_INDEX, VideoTracks, body_angles
 
 
 def rot_x(a):

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from recording_fixtures import openface_rotation, write_openface_csv
 
-from audio2pose_ros.dataset import ClipInfo
-from audio2pose_ros.importers import ImporterError
-from audio2pose_ros.importers.common import grid_times_s
-from audio2pose_ros.importers.openface import OpenFaceImportSettings, import_openface
+from audio2pose_ros.data.dataset import ClipInfo
+from audio2pose_ros.data.importers import ImporterError
+from audio2pose_ros.data.importers.common import grid_times_s
+from audio2pose_ros.data.importers.openface import OpenFaceImportSettings, import_openface
 
 FPS = 30.0
 SECONDS = 4.0

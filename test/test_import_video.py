@@ -5,10 +5,10 @@ import subprocess
 import numpy as np
 import pytest
 
-from audio2pose_ros.dataset import ClipInfo, expected_frames
-from audio2pose_ros.importers import ImporterError, head_pose
-from audio2pose_ros.importers.media import ffmpeg_executable, read_audio
-from audio2pose_ros.importers.video import VideoImportSettings, import_video
+from audio2pose_ros.data.dataset import ClipInfo, expected_frames
+from audio2pose_ros.data.importers import ImporterError, head_pose
+from audio2pose_ros.data.importers.media import ffmpeg_executable, read_audio
+from audio2pose_ros.data.importers.video import VideoImportSettings, import_video
 from audio2pose_ros.resources import share_path
 
 GRID_CLIP = share_path("data", "video", "grid_bbaf2n.mpg")  # GRID, CC BY 4.0: data/video/SOURCES.md

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from audio2pose_ros.kinematics import KinematicsError, RobotKinematics, axis_angle_matrix
-from audio2pose_ros.robot import load_robot
+from audio2pose_ros.robot.description import load_robot
+from audio2pose_ros.robot.kinematics import KinematicsError, RobotKinematics, axis_angle_matrix
 
 
 @pytest.fixture(scope="module")

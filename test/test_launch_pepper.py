@@ -47,10 +47,10 @@ from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.audio.pcm import read_wav
-from audio2pose_ros.bag import AUDIO_INFO_TOPIC, audio_messages
-from audio2pose_ros.nodes.common import LATCHED_QOS
+from audio2pose_ros.data.bag import AUDIO_INFO_TOPIC, audio_messages
 from audio2pose_ros.resources import default_checkpoint_path, share_path
-from audio2pose_ros.robot import load_robot
+from audio2pose_ros.robot.description import load_robot
+from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
 
 SPEECH_S = 3.0
 WORK = Path(tempfile.mkdtemp(prefix="test_launch_pepper_"))

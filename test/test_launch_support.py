@@ -1,4 +1,4 @@
-"""What launch/pepper.launch.py decides, without launch: audio2pose_ros.launch_support.
+"""What launch/pepper.launch.py decides, without launch: audio2pose_ros.ros.launch_support.
 
 The launch file itself runs in test/test_launch_pepper.py (launch_testing, on a ROS distro) and
 in support/launch_check.sh (the launch stack built from source); these tests cover the
@@ -15,7 +15,7 @@ import pytest
 from launch_arguments import arguments
 
 from audio2pose_ros.errors import ConfigurationError
-from audio2pose_ros.launch_support import (
+from audio2pose_ros.ros.launch_support import (
     ARGUMENTS,
     EXIT_CONFIGURATION_ERROR,
     GaveUpError,
@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def test_when_importing_launch_support_expect_no_launch_or_rclpy_module():
     code = (
-        "import sys, audio2pose_ros.launch_support; "
+        "import sys, audio2pose_ros.ros.launch_support; "
         "print(sorted(m for m in sys.modules if m.split('.')[0] in "
         "('launch', 'launch_ros', 'rclpy')))"
     )

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from audio2pose_ros import metrics
+from audio2pose_ros.learning import metrics
 
 
 def test_when_errors_known_expect_rmse_per_joint_and_overall_in_degrees():

@@ -8,6 +8,13 @@ import pytest
 import torch
 
 from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.learning.training import (
+    TrainingError,
+    TrainSettings,
+    Utterance,
+    evaluate_loss,
+    train_model,
+)
 from audio2pose_ros.models import (
     MODEL_REGISTRY,
     OfflineOnlyModelError,
@@ -16,13 +23,6 @@ from audio2pose_ros.models import (
 )
 from audio2pose_ros.models.mlp import FramewiseMLP, MLPConfig
 from audio2pose_ros.models.span import recombine_spans, span_loss
-from audio2pose_ros.training import (
-    TrainingError,
-    TrainSettings,
-    Utterance,
-    evaluate_loss,
-    train_model,
-)
 
 sys.path.insert(0, str(Path(__file__).parent))
 from synthetic_motion import mean_baseline_mse

@@ -23,8 +23,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.cli.graph import executable_command
-from audio2pose_ros.nodes.common import EXIT_CONFIGURATION_ERROR, LATCHED_QOS, trajectory_msg
+from audio2pose_ros.ros.diagnosed_node import EXIT_CONFIGURATION_ERROR, LATCHED_QOS, trajectory_msg
+from audio2pose_ros.ros.graph import executable_command
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 PERIOD = 0.01

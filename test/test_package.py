@@ -2,7 +2,7 @@
 
 `ros2 launch` is not available here, so the launch file is checked for structure: the
 executables it starts exist, node names match them, the arguments it declares are the ones
-audio2pose_ros.launch_support checks, and the configuration files it installs name the same
+audio2pose_ros.ros.launch_support checks, and the configuration files it installs name the same
 controllers, topics and diagnostics as the code. test/test_launch_pepper.py runs it for real where
 launch_testing is installed.
 """
@@ -14,9 +14,9 @@ from pathlib import Path
 
 import yaml
 
-from audio2pose_ros.cli.graph import NODE_EXECUTABLES
-from audio2pose_ros.launch_support import ARGUMENTS, CONTROLLER_NAME, CONTROLLER_TOPIC
-from audio2pose_ros.robot import load_robot
+from audio2pose_ros.robot.description import load_robot
+from audio2pose_ros.ros.graph import NODE_EXECUTABLES
+from audio2pose_ros.ros.launch_support import ARGUMENTS, CONTROLLER_NAME, CONTROLLER_TOPIC
 
 ROOT = Path(__file__).resolve().parent.parent
 LAUNCH_FILE = ROOT / "launch" / "pepper.launch.py"
@@ -49,7 +49,7 @@ def test_when_reading_setup_cfg_expect_one_executable_per_node_plus_cli():
     assert set(scripts) == {*NODE_EXECUTABLES, "audio2pose"}
     for name in NODE_EXECUTABLES:
         # nodes/process.py makes the process safe to stop before the heavy imports
-        assert scripts[name] == f"audio2pose_ros.nodes.process:{name}"
+        assert scripts[name] == f"audio2pose_ros.ros.nodes.process:{name}"
 
 
 def test_when_parsing_launch_file_expect_the_three_nodes_named_as_their_executables():
@@ -128,7 +128,7 @@ def test_when_reading_controller_config_expect_pepper_controller_at_50_hz_on_the
 def test_when_reading_diagnostic_analyzers_expect_one_analyzer_per_node_status_name():
     from types import SimpleNamespace
 
-    from audio2pose_ros.nodes.common import diagnostic_array
+    from audio2pose_ros.ros.diagnosed_node import diagnostic_array
 
     config = yaml.safe_load((ROOT / "config" / "diagnostic_analyzers.yaml").read_text())
     group = config["analyzers"]["ros__parameters"]["audio2pose_ros"]

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import yaml
 
-from audio2pose_ros.nodes.parameter_docs import (
+from audio2pose_ros.resources import share_path
+from audio2pose_ros.ros.parameter_docs import (
     node_parameters,
     parameters_markdown,
     parameters_yaml,
 )
-from audio2pose_ros.resources import share_path
 
 ROOT = share_path("config", "pepper.yaml").parent.parent
 
@@ -18,7 +18,7 @@ def test_shipped_parameters_file_is_the_declarations_written_out():
     shipped = (ROOT / "config" / "pepper.yaml").read_text(encoding="utf-8")
     assert shipped == parameters_yaml(), (
         "config/pepper.yaml differs from the declarations: run "
-        "python -m audio2pose_ros.nodes.parameter_docs --write ."
+        "python -m audio2pose_ros.ros.parameter_docs --write ."
     )
 
 

@@ -13,15 +13,15 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from scipy.io import wavfile
 
-from audio2pose_ros.bag import BagWriter, typestore
 from audio2pose_ros.cli.render_commands import register
-from audio2pose_ros.dataset import Clip, ClipInfo, Dataset, expected_frames
+from audio2pose_ros.data.bag import BagWriter, typestore
+from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset, expected_frames
 from audio2pose_ros.errors import UsageError
-from audio2pose_ros.kinematics import RobotKinematics
-from audio2pose_ros.render import BACKGROUND_RGB, TITLE_HEIGHT_PX, RobotCamera
+from audio2pose_ros.offline.trajectory import bag_trajectory
 from audio2pose_ros.resources import bundled_speech_path
-from audio2pose_ros.robot import load_robot
-from audio2pose_ros.trajectory import bag_trajectory
+from audio2pose_ros.robot.description import load_robot
+from audio2pose_ros.robot.kinematics import RobotKinematics
+from audio2pose_ros.viz.render import BACKGROUND_RGB, TITLE_HEIGHT_PX, RobotCamera
 
 SMALL = ["--view-width", "160", "--view-height", "192", "--curves-height", "120", "--no-progress"]
 

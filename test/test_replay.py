@@ -16,10 +16,10 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from stateless_model import stateless_checkpoint
 
-from audio2pose_ros.bag import read_bag_audio, write_audio_bag
-from audio2pose_ros.cli.graph import executable_command
-from audio2pose_ros.models.checkpoint import load_checkpoint
-from audio2pose_ros.synthesis import predict_normalized
+from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+from audio2pose_ros.data.bag import read_bag_audio, write_audio_bag
+from audio2pose_ros.offline.synthesis import predict_normalized
+from audio2pose_ros.ros.graph import executable_command
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 TOLERANCE_RAD = 1e-4  # float32 features over DDS against float64 offline

@@ -7,7 +7,7 @@ import pytest
 import yaml
 
 from audio2pose_ros.errors import ConfigurationError
-from audio2pose_ros.robot import MAX_FILE_BYTES, RobotDescriptionError, load_robot
+from audio2pose_ros.robot.description import MAX_FILE_BYTES, RobotDescriptionError, load_robot
 
 SEED_TABLE_3_1 = {  # name: (lower, upper) in rad, in the seed's order theta_1..theta_11
     "HeadPitch": (-0.7068, 0.4451),

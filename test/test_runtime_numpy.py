@@ -20,18 +20,18 @@ import torch
 from safetensors.numpy import load_file, save_file
 
 from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec, extract_features
-from audio2pose_ros.checkpoint_format import (
+from audio2pose_ros.checkpoints.format import (
     DIGEST_KEY,
     HEADER_KEY,
     CheckpointError,
     digest_update,
     read_checkpoint_file,
 )
+from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
+from audio2pose_ros.checkpoints.torch_io import Checkpoint, load_checkpoint, save_checkpoint
 from audio2pose_ros.models import OfflineOnlyModelError, build_model
-from audio2pose_ros.models.checkpoint import Checkpoint, load_checkpoint, save_checkpoint
 from audio2pose_ros.resources import default_checkpoint_path
-from audio2pose_ros.robot import RobotDescription
-from audio2pose_ros.runtime import load_streaming_model
+from audio2pose_ros.robot.description import RobotDescription
 
 TORCH_TOLERANCE = 1e-5  # [0, 1] pose units: float64 kernels vs torch float32 forward
 PREDICTOR_TOLERANCE = 1e-12  # vs the models' own float64 numpy predictors
@@ -135,7 +135,7 @@ def test_when_the_packaged_model_runs_on_real_speech_expect_torch_poses(
 def test_when_the_packaged_model_is_loaded_for_streaming_expect_torch_not_imported() -> None:
     script = (
         "import sys\n"
-        "from audio2pose_ros.runtime import load_streaming_model\n"
+        "from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model\n"
         "from audio2pose_ros.resources import default_checkpoint_path\n"
         "model = load_streaming_model(default_checkpoint_path())\n"
         "model.predictor().step([0.0] * 26)\n"

@@ -7,11 +7,10 @@ import pytest
 import torch
 from synthetic_motion import write_dataset
 
-from audio2pose_ros.dataset import Clip, Dataset
+from audio2pose_ros.data.dataset import Clip, Dataset
 from audio2pose_ros.errors import ConfigurationError
-from audio2pose_ros.evaluation import loso_predictions
-from audio2pose_ros.models import build_model
-from audio2pose_ros.sampler_selection import (
+from audio2pose_ros.learning.evaluation import loso_predictions
+from audio2pose_ros.learning.sampler_selection import (
     PAUSE_MARGIN,
     PAUSE_TARGETS,
     SILENCE_TEMPERATURES,
@@ -19,7 +18,8 @@ from audio2pose_ros.sampler_selection import (
     score,
     select_sampling,
 )
-from audio2pose_ros.training import TrainSettings, train_on_clips
+from audio2pose_ros.learning.training import TrainSettings, train_on_clips
+from audio2pose_ros.models import build_model
 
 torch.set_num_threads(1)
 

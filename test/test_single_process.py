@@ -20,9 +20,9 @@ from rclpy.serialization import deserialize_message
 from stateless_model import stateless_checkpoint
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.bag import Chunking, audio_messages, read_messages
-from audio2pose_ros.cli.graph import SINGLE_PROCESS, node_graph, play_and_record
-from audio2pose_ros.robot import RobotDescription, load_robot
+from audio2pose_ros.data.bag import Chunking, audio_messages, read_messages
+from audio2pose_ros.robot.description import RobotDescription, load_robot
+from audio2pose_ros.ros.graph import SINGLE_PROCESS, node_graph, play_and_record
 
 SPEECH_S = 3.0
 

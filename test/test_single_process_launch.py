@@ -9,7 +9,7 @@ import yaml
 from launch_arguments import arguments as launch_arguments
 
 from audio2pose_ros.errors import ConfigurationError
-from audio2pose_ros.launch_support import plan_launch, single_process_arguments
+from audio2pose_ros.ros.launch_support import plan_launch, single_process_arguments
 
 
 def test_when_single_process_is_not_given_expect_three_processes() -> None:

@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from audio2pose_ros.cli.graph import NodeSupervisor, executable_command, overrides_file
 from audio2pose_ros.errors import UsageError
-from audio2pose_ros.nodes.common import EXIT_CONFIGURATION_ERROR, STALE_AFTER_S
+from audio2pose_ros.ros.diagnosed_node import EXIT_CONFIGURATION_ERROR, STALE_AFTER_S
+from audio2pose_ros.ros.graph import NodeSupervisor, executable_command, overrides_file
 
 
 def _python(code: str) -> list[str]:

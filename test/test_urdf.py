@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from audio2pose_ros.kinematics import RobotKinematics, default_urdf_path
-from audio2pose_ros.robot import load_robot
+from audio2pose_ros.robot.description import load_robot
+from audio2pose_ros.robot.kinematics import RobotKinematics, default_urdf_path
 
 ROOT = Path(__file__).resolve().parent.parent
 URDF = ROOT / "urdf" / "pepper.urdf"

@@ -1,7 +1,7 @@
 """``audio2pose bag``: make speech bags from WAV files and replay bags into a running graph.
 
 ``bag replay`` publishes only the message types this project knows
-(:data:`audio2pose_ros.bag.KNOWN_MESSAGE_TYPES`), after checking every message's CDR bytes, and
+(:data:`audio2pose_ros.data.bag.KNOWN_MESSAGE_TYPES`), after checking every message's CDR bytes, and
 with the QoS a live source offers: ``audio_info`` latched (reliable, transient local, as
 audio_capture publishes it and audio_features_node subscribes to it), everything else reliable
 and volatile with a deep queue, so a replayed bag drives the real graph as a microphone does.
@@ -13,7 +13,15 @@ import argparse
 import importlib
 import time
 
-from audio2pose_ros.bag import (
+from audio2pose_ros.cli.options import (
+    MAX_SEED,
+    bounded_float,
+    bounded_int,
+    input_bag,
+    input_file,
+    new_dir,
+)
+from audio2pose_ros.data.bag import (
     AUDIO_INFO_TYPE,
     KNOWN_MESSAGE_TYPES,
     MAX_CHUNK_BYTES,
@@ -22,14 +30,6 @@ from audio2pose_ros.bag import (
     check_known_type,
     read_checked_messages,
     write_audio_bag,
-)
-from audio2pose_ros.cli.options import (
-    MAX_SEED,
-    bounded_float,
-    bounded_int,
-    input_bag,
-    input_file,
-    new_dir,
 )
 from audio2pose_ros.errors import UsageError
 
@@ -42,7 +42,7 @@ STREAM_DEPTH = 100  # replay queue depth: absorbs bursts like the graph's own st
 def message_class(msgtype: str) -> type:
     """The rclpy message class of a known type name such as ``sensor_msgs/msg/JointState``.
 
-    Only types in :data:`~audio2pose_ros.bag.KNOWN_MESSAGE_TYPES` are imported, from the module
+    Only types in :data:`~audio2pose_ros.data.bag.KNOWN_MESSAGE_TYPES` are imported, from the module
     that table names; a bag cannot make this process import anything else.
 
     Raises:

@@ -45,7 +45,7 @@ def _clip_id(path: Path) -> str:
 
 def _paired_audio(path: Path, audio_dir: str | None) -> Path:
     """The recording whose audio goes with a CSV / BVH file: same stem, audio or video suffix."""
-    from audio2pose_ros.importers import ImporterError
+    from audio2pose_ros.data.importers import ImporterError
 
     folder = Path(audio_dir) if audio_dir else path.parent
     for suffix in AUDIO_SUFFIXES:
@@ -65,9 +65,9 @@ def _run_import(
     """Import every file into the data set, reporting failures per file; exit code 1 if any."""
     from tqdm import tqdm
 
-    from audio2pose_ros.dataset import ClipInfo, Dataset
-    from audio2pose_ros.importers.extras import save_extras
-    from audio2pose_ros.robot import load_robot
+    from audio2pose_ros.data.dataset import ClipInfo, Dataset
+    from audio2pose_ros.data.importers.extras import save_extras
+    from audio2pose_ros.robot.description import load_robot
 
     if not files:
         raise UsageError("no input files")
@@ -102,8 +102,8 @@ def _run_import(
 
 def command_import_video(args: argparse.Namespace) -> int:
     """Import video files (audio track + face + visible upper body)."""
-    from audio2pose_ros.importers.video import VideoImportSettings, VideoTracks, import_video
-    from audio2pose_ros.robot import load_robot
+    from audio2pose_ros.data.importers.video import VideoImportSettings, VideoTracks, import_video
+    from audio2pose_ros.robot.description import load_robot
 
     robot = load_robot()
     settings = VideoImportSettings(mirror=args.mirror, centre=not args.no_centre, body=args.body)
@@ -130,9 +130,9 @@ def command_import_video(args: argparse.Namespace) -> int:
 
 def command_import_openface(args: argparse.Namespace) -> int:
     """Import OpenFace 2.0 CSV files with their audio."""
-    from audio2pose_ros.importers.media import read_audio
-    from audio2pose_ros.importers.openface import OpenFaceImportSettings, import_openface
-    from audio2pose_ros.robot import load_robot
+    from audio2pose_ros.data.importers.media import read_audio
+    from audio2pose_ros.data.importers.openface import OpenFaceImportSettings, import_openface
+    from audio2pose_ros.robot.description import load_robot
 
     robot = load_robot()
     settings = OpenFaceImportSettings(
@@ -152,9 +152,9 @@ def command_import_openface(args: argparse.Namespace) -> int:
 
 def command_import_bvh(args: argparse.Namespace) -> int:
     """Import BVH files with their audio through a skeleton mapping."""
-    from audio2pose_ros.importers.bvh import import_bvh, load_mappings
-    from audio2pose_ros.importers.media import read_audio
-    from audio2pose_ros.robot import load_robot
+    from audio2pose_ros.data.importers.bvh import import_bvh, load_mappings
+    from audio2pose_ros.data.importers.media import read_audio
+    from audio2pose_ros.robot.description import load_robot
 
     robot = load_robot()
     mappings = load_mappings(args.mappings)
@@ -176,8 +176,8 @@ def command_import_bvh(args: argparse.Namespace) -> int:
 
 def command_info(args: argparse.Namespace) -> int:
     """Print a data set's clips, speakers, splits, durations and observed joint groups."""
-    from audio2pose_ros.dataset import AUDIO_RATE_HZ, SPLITS, Dataset
-    from audio2pose_ros.robot import JOINT_GROUPS, load_robot
+    from audio2pose_ros.data.dataset import AUDIO_RATE_HZ, SPLITS, Dataset
+    from audio2pose_ros.robot.description import JOINT_GROUPS, load_robot
 
     robot = load_robot()
     dataset = Dataset.open(input_dir(args.data, "data set folder"), robot)
@@ -206,12 +206,12 @@ def command_build_default(args: argparse.Namespace) -> int:
     video (``--lecture``, default ``<CLIPS_DIR>/../lecture_video/physicsworks.webm``). ``--arms
     prosody`` / ``neutral``: the seed's MLP with procedural or still arms.
     """
-    from audio2pose_ros.default_model import (
+    from audio2pose_ros.learning.default_model import (
         LearnedBuildSettings,
         build_default_model,
         build_learned_default_model,
     )
-    from audio2pose_ros.robot import load_robot
+    from audio2pose_ros.robot.description import load_robot
 
     out = Path(args.output)
     clips = input_dir(args.clips, "clips folder")

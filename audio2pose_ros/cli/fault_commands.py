@@ -8,7 +8,7 @@ from pathlib import Path
 
 def command_faults(args: argparse.Namespace) -> int:
     """Run the campaign and print its table; exit status 1 if a case failed."""
-    from audio2pose_ros.cli.fault_campaign import cases, run_campaign, table
+    from audio2pose_ros.ros.fault_campaign import cases, run_campaign, table
 
     chosen = cases()
     if args.case:

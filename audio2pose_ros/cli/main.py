@@ -45,7 +45,7 @@ MAX_PLAYBACK_RATE = 100.0  # --rate: playback at most 100x real time
 
 def command_run(args: argparse.Namespace) -> int:
     """Start the graph as processes; with --play, play a WAV in real time and record commands."""
-    from audio2pose_ros.cli.graph import run_graph, summarize
+    from audio2pose_ros.ros.graph import run_graph, summarize
 
     if args.record and args.play is None:
         raise UsageError("--record needs --play (recording stops when the file ends)")
@@ -71,8 +71,8 @@ def command_demo(args: argparse.Namespace) -> int:
     Writes the recorded commands (MCAP), a video of the robot performing them with the speech,
     the filter plot and the offline trajectory of the same clip, and says where they are.
     """
-    from audio2pose_ros.cli.graph import run_graph, summarize
     from audio2pose_ros.resources import bundled_speech_path
+    from audio2pose_ros.ros.graph import run_graph, summarize
 
     wav = bundled_speech_path()
     if Path(args.out).exists() and not Path(args.out).is_dir():
@@ -123,7 +123,7 @@ def _speech_input(name: str) -> Path:
 def _read_speech(path: Path):  # noqa: ANN202 - numpy imported lazily
     """16 kHz mono samples of a WAV file, or of a bag's audio topics."""
     from audio2pose_ros.audio.pcm import read_wav
-    from audio2pose_ros.bag import read_bag_audio
+    from audio2pose_ros.data.bag import read_bag_audio
 
     path = _speech_input(path)
     return read_wav(path)[0] if path.suffix.lower() == ".wav" else read_bag_audio(path)
@@ -132,10 +132,10 @@ def _read_speech(path: Path):  # noqa: ANN202 - numpy imported lazily
 def _synthesize_to_csv(
     wav: Path, out: Path, model: str | None, smooth: bool, seed: int = 0
 ) -> Path:
-    from audio2pose_ros.models.checkpoint import load_checkpoint
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+    from audio2pose_ros.offline.synthesis import synthesize, write_trajectory_csv
     from audio2pose_ros.resources import default_checkpoint_path
-    from audio2pose_ros.robot import load_robot
-    from audio2pose_ros.synthesis import synthesize, write_trajectory_csv
+    from audio2pose_ros.robot.description import load_robot
 
     output_file(out, "-o")
     checkpoint = load_checkpoint(model or default_checkpoint_path(), robot=load_robot())
@@ -162,15 +162,19 @@ def command_bench(args: argparse.Namespace) -> int:
     import torch
 
     from audio2pose_ros.audio.pcm import read_wav
-    from audio2pose_ros.benchmark import model_costs, reference_feature_cost, streaming_costs
-    from audio2pose_ros.models.checkpoint import load_checkpoint
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
     from audio2pose_ros.motion.filter import MotionFilter
+    from audio2pose_ros.offline.benchmark import (
+        model_costs,
+        reference_feature_cost,
+        streaming_costs,
+    )
     from audio2pose_ros.resources import bundled_speech_path, default_checkpoint_path
-    from audio2pose_ros.robot import load_robot
+    from audio2pose_ros.robot.description import load_robot
 
     results: dict[str, object] = {}
     if args.graph:  # before pinning this process to one core: the nodes need the machine
-        from audio2pose_ros.cli.graph_bench import bundled_speech, measure_graph, report
+        from audio2pose_ros.ros.graph_bench import bundled_speech, measure_graph, report
 
         speech = bundled_speech()
         results["graph"] = [
@@ -304,7 +308,7 @@ def _filter_from_params(params_file: Path | None):  # noqa: ANN202 - heavy types
     from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
     from audio2pose_ros.motion.limits import LimitSettings
     from audio2pose_ros.resources import share_path
-    from audio2pose_ros.robot import load_robot
+    from audio2pose_ros.robot.description import load_robot
     from audio2pose_ros.yaml_files import read_yaml_file
 
     path = params_file or share_path("config", "pepper.yaml")
@@ -330,9 +334,9 @@ def _filter_from_params(params_file: Path | None):  # noqa: ANN202 - heavy types
 def command_plot_filter(args: argparse.Namespace) -> int:
     """Draw raw model output against the online motion filter for a speech file."""
     from audio2pose_ros.audio.pcm import read_wav
-    from audio2pose_ros.filter_plot import plot_raw_vs_filtered
-    from audio2pose_ros.models.checkpoint import load_checkpoint
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
     from audio2pose_ros.resources import default_checkpoint_path
+    from audio2pose_ros.viz.filter_plot import plot_raw_vs_filtered
 
     output_file(args.output, "-o")
     filt = _filter_from_params(
@@ -356,9 +360,9 @@ def command_plot_filter(args: argparse.Namespace) -> int:
 def command_distill_prosody(args: argparse.Namespace) -> int:
     """Rebuild the default model: an MLP trained to imitate the prosody rule on the given WAVs."""
     from audio2pose_ros.cli.model_card import write_prosody_model_card
-    from audio2pose_ros.prosody_distillation import distill_prosody
-    from audio2pose_ros.robot import load_robot
-    from audio2pose_ros.training import TrainSettings
+    from audio2pose_ros.learning.distillation import distill_prosody
+    from audio2pose_ros.learning.training import TrainSettings
+    from audio2pose_ros.robot.description import load_robot
 
     wavs = [input_file(w, "WAV file") for w in args.wavs]
     output_file(args.output, "-o")

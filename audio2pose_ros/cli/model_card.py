@@ -5,8 +5,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from audio2pose_ros.models.checkpoint import Checkpoint
-from audio2pose_ros.training import TrainReport
+from audio2pose_ros.checkpoints.torch_io import Checkpoint
+from audio2pose_ros.learning.training import TrainReport
 
 
 def write_prosody_model_card(

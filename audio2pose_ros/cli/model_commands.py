@@ -18,8 +18,8 @@ from audio2pose_ros.errors import UsageError
 
 def command_train(args: argparse.Namespace) -> int:
     """Train a model on a data set folder and write its checkpoint."""
-    from audio2pose_ros.robot import load_robot
-    from audio2pose_ros.training import TrainSettings, train_from_dataset
+    from audio2pose_ros.learning.training import TrainSettings, train_from_dataset
+    from audio2pose_ros.robot.description import load_robot
 
     data = input_dir(args.data, "data set folder")
     output_file(args.output, "-o")
@@ -58,16 +58,16 @@ def command_evaluate(args: argparse.Namespace) -> int:
     others and measured on the held-out speaker; the per-group table covers every clip.
     ``--out`` gets metrics.txt, distributions.png (and one PNG per clip with checkpoints).
     """
-    from audio2pose_ros.dataset import Dataset
-    from audio2pose_ros.evaluation import (
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+    from audio2pose_ros.data.dataset import Dataset
+    from audio2pose_ros.learning.evaluation import (
         checkpoint_predictions,
         evaluate,
         loso_predictions,
         quality_evaluation,
     )
-    from audio2pose_ros.models.checkpoint import load_checkpoint
-    from audio2pose_ros.robot import load_robot
-    from audio2pose_ros.training import TrainSettings
+    from audio2pose_ros.learning.training import TrainSettings
+    from audio2pose_ros.robot.description import load_robot
 
     if not args.checkpoints and not args.loso:
         raise UsageError("evaluate: give checkpoints, or --loso MODEL... (or both)")
@@ -98,7 +98,7 @@ def command_evaluate(args: argparse.Namespace) -> int:
     else:
         clips, predictions, paused = [], {}, {}
     if args.loso:
-        from audio2pose_ros.default_model import LearnedBuildSettings
+        from audio2pose_ros.learning.default_model import LearnedBuildSettings
 
         build = LearnedBuildSettings()  # the default model's evaluation, fold for fold
         settings = TrainSettings(
@@ -126,8 +126,8 @@ def command_evaluate(args: argparse.Namespace) -> int:
 
 def register(verbs: argparse._SubParsersAction) -> None:
     """Add the ``train`` and ``evaluate`` sub-commands to the ``audio2pose`` parser."""
+    from audio2pose_ros.learning.training import HOLDOUTS
     from audio2pose_ros.models import MODEL_REGISTRY
-    from audio2pose_ros.training import HOLDOUTS
 
     train = verbs.add_parser("train", help="train a pose model on a data set folder")
     train.add_argument("--model", choices=sorted(MODEL_REGISTRY), help="model family")

@@ -21,7 +21,7 @@ from audio2pose_ros.cli.options import (
     output_file,
 )
 from audio2pose_ros.errors import UsageError
-from audio2pose_ros.render import MAX_FPS, MAX_VIEW_PX, RenderSettings
+from audio2pose_ros.viz.render import MAX_FPS, MAX_VIEW_PX, RenderSettings
 
 
 def _bag_path(args: argparse.Namespace) -> Path:
@@ -32,16 +32,16 @@ def _bag_path(args: argparse.Namespace) -> Path:
 def command_render(args: argparse.Namespace) -> int:
     """Render the requested trajectories to an MP4 with audio; write the first one as MCAP."""
     from audio2pose_ros.audio.pcm import read_wav
-    from audio2pose_ros.foxglove_bag import write_foxglove_bag
-    from audio2pose_ros.kinematics import RobotKinematics
-    from audio2pose_ros.render import render_video
-    from audio2pose_ros.resources import default_checkpoint_path
-    from audio2pose_ros.robot import load_robot
-    from audio2pose_ros.trajectory import (
+    from audio2pose_ros.offline.trajectory import (
         bag_trajectory,
         clip_trajectory,
         synthesized_trajectory,
     )
+    from audio2pose_ros.resources import default_checkpoint_path
+    from audio2pose_ros.robot.description import load_robot
+    from audio2pose_ros.robot.kinematics import RobotKinematics
+    from audio2pose_ros.viz.foxglove_bag import write_foxglove_bag
+    from audio2pose_ros.viz.render import render_video
 
     if (args.data is None) != (args.clip is None):
         raise UsageError("--data and --clip go together")

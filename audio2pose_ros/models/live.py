@@ -79,7 +79,7 @@ class LiveSampler(PoseModel):
         """Constructor arguments as a dict; ``noise_order`` only when it is not 1.
 
         Checkpoints of first-order models keep the keys they always had, which the torch-free
-        kernel (:mod:`audio2pose_ros.runtime`) requires.
+        kernel (:mod:`audio2pose_ros.checkpoints.numpy_runtime`) requires.
         """
         config = asdict(self.config)
         if config["noise_order"] == 1:

@@ -11,15 +11,15 @@ whose joints it labels; both parts train together, on the union of the data sets
 
 People keep still when they stop talking; a sampler whose noise never stops does not. The
 sampling noise of both parts is therefore scaled by a causal speech gate read from the same
-normalised audio features (:mod:`audio2pose_ros.speech_gate`): the frame's mean log
+normalised audio features (:mod:`audio2pose_ros.models.speech_gate`): the frame's mean log
 filter-bank energy e_t is compared with a slowly decaying peak of recent energy,
 v_t = sigmoid((e_t - peak_t + gate_margin) / gate_width), smoothed over 0.3 s; the temperature
 is multiplied by
 silence_temperature + (1 - silence_temperature) v_t, and by each part's own temperature (a
 free-running sampler's motion is not as large as real motion at temperature 1: its one-step
 uncertainty does not add up to the real spread). These three :data:`SAMPLING_SETTINGS` act only
-when sampling; :mod:`audio2pose_ros.sampler_selection` chooses them on validation clips after
-training, without retraining (:meth:`LiveGroups.with_sampling`). A relative gate (against the
+when sampling; :mod:`audio2pose_ros.learning.sampler_selection` chooses them on validation clips
+after training, without retraining (:meth:`LiveGroups.with_sampling`). A relative gate (against the
 recent peak) does not depend on the recording level.
 Streams: yes (two GRU cell steps per frame); the streaming predictor samples with a settable
 seed (the head part's noise from ``seed``, the body part's from ``seed + 1``).
@@ -36,7 +36,7 @@ import torch
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.base import PoseModel, StreamingPredictor
 from audio2pose_ros.models.live import LiveConfig, LivePredictor, LiveSampler
-from audio2pose_ros.speech_gate import GroupedSampler, SpeechGate
+from audio2pose_ros.models.speech_gate import GroupedSampler, SpeechGate
 
 SAMPLING_SETTINGS = ("first_temperature", "second_temperature", "silence_temperature")
 
@@ -127,7 +127,7 @@ class LiveGroups(PoseModel):
         """A copy with the same weights and other :data:`SAMPLING_SETTINGS` (no retraining).
 
         The temperatures and the gate's rest level act only when sampling, so they can be chosen
-        after training (:mod:`audio2pose_ros.sampler_selection`).
+        after training (:mod:`audio2pose_ros.learning.sampler_selection`).
 
         Raises:
             ConfigurationError: a setting that is not a sampling setting.

@@ -49,7 +49,7 @@ from audio2pose_ros.motion.gate import TrackGate
 from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
 from audio2pose_ros.motion.smoothing import CausalLowPass, KalmanSmoother
 from audio2pose_ros.parameters import param, specs_of, validate_settings
-from audio2pose_ros.robot import JOINT_GROUPS, RobotDescription
+from audio2pose_ros.robot.description import JOINT_GROUPS, RobotDescription
 
 SMOOTHING_METHODS = ("kalman", "lowpass", "none")
 STOP_BEHAVIOURS = ("hold", "neutral")

@@ -15,7 +15,7 @@ import numpy as np
 
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.parameters import param, validate_settings
-from audio2pose_ros.robot import RobotDescription
+from audio2pose_ros.robot.description import RobotDescription
 
 MIN_DT_S = 1e-6  # shorter steps are timer noise: velocities over them would only amplify rounding
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
-from audio2pose_ros.robot import RobotDescription
+from audio2pose_ros.robot.description import RobotDescription
 
 
 @dataclass(frozen=True)

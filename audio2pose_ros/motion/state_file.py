@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from audio2pose_ros.errors import InputError
-from audio2pose_ros.robot import RobotDescription
+from audio2pose_ros.robot.description import RobotDescription
 
 FORMAT_VERSION = 1
 MAX_FILE_BYTES = 65536  # a state file is a few hundred bytes; anything larger is not ours

@@ -1,0 +1,1 @@
+"""Checkpoints: the file format, saving/loading torch models, and the torch-free runtime."""

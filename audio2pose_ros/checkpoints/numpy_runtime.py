@@ -1,0 +1,624 @@
+"""Streaming inference without torch: numpy kernels run a checkpoint's tensors (issue 15).
+
+The online graph runs tiny networks (the packaged MLP has 747 parameters) one 10 ms frame at a
+time; torch costs about 250 MB of resident memory and seconds of import for that. This module
+loads a checkpoint with safetensors' numpy API and runs the streaming models that have a numpy
+kernel here, frame by frame, with float64 arithmetic:
+
+| model | kernel |
+|---|---|
+| ``mlp`` | seed 003 section 4.3.3: ReLU layers, sigmoid output; a message's frames at once |
+| ``lstm`` | seed 003 section 4.3.4 made causal: one LSTM cell step per frame, (h, c) carried |
+| ``live`` | a GRU step on audio and the last pose, Gaussian output, AR(1) or AR(1)x2 noise |
+| ``live_groups`` | two ``live`` kernels (head; arms and hip) and the causal speech gate |
+
+Gate layouts are torch's (LSTM: input, forget, cell, output; GRU: reset, update, new, the reset
+gate scaling the hidden projection including its bias), so the kernels give the same poses as
+the models' own streaming predictors (``test/test_runtime_numpy.py`` checks them against torch
+on real speech).
+
+:func:`load_streaming_model` applies the checks of
+:func:`~audio2pose_ros.checkpoints.torch_io.load_checkpoint` without torch: the container, header,
+F32-only tensor entries and their offsets
+(:func:`~audio2pose_ros.checkpoints.format.read_checkpoint_file`), the digest, the header
+sections, that the tensors are exactly the model's names and shapes (before any tensor is
+read), and that every value is finite float32. A checkpoint whose model has no kernel here, or
+whose config the kernel does not know exactly (a missing or extra key, a value outside the
+kernel's range), is handed to the torch loader, which validates it fully and runs it; only
+then is torch imported.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from safetensors import SafetensorError
+from safetensors.numpy import load_file
+
+from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec
+from audio2pose_ros.checkpoints.format import (
+    CheckpointError,
+    CheckpointFile,
+    check_made_for,
+    header_sections,
+    read_checkpoint_file,
+    verify_digest,
+)
+from audio2pose_ros.models.speech_gate import GroupedSampler, SpeechGate
+from audio2pose_ros.robot.description import RobotDescription
+
+__all__ = [
+    "KERNELS",
+    "FramePredictor",
+    "StreamingModel",
+    "load_streaming_model",
+    "numpy_kernel_for",
+]
+
+MAX_KERNEL_UNITS = 1024  # widths beyond this go to the torch loader (which refuses them)
+_MIN_LOG_STD = -7.0  # the live model's clamp of its log standard deviation
+_MAX_LOG_STD = 0.0
+
+
+class FramePredictor(Protocol):
+    """Normalised feature frames in, poses in [0, 1] out, with the state carried between them."""
+
+    def step(self, features: np.ndarray) -> np.ndarray:
+        """(n_features,) frame -> (n_joints,) pose."""
+
+    def reset(self) -> None:
+        """Forget the state carried between frames."""
+
+    def run(self, frames: np.ndarray) -> np.ndarray:
+        """(N, n_features) frames in order -> (N, n_joints) poses."""
+
+
+class _Stepwise:
+    """A torch-side model's streaming predictor (step and reset) with :meth:`run` added."""
+
+    def __init__(self, predictor: Any) -> None:
+        self.predictor = predictor
+
+    def step(self, features: np.ndarray) -> np.ndarray:
+        return self.predictor.step(features)
+
+    def reset(self) -> None:
+        self.predictor.reset()
+
+    def run(self, frames: np.ndarray) -> np.ndarray:
+        return np.array([self.predictor.step(frame) for frame in frames])
+
+
+def sigmoid(x: np.ndarray) -> np.ndarray:
+    """Logistic function."""
+    return 1.0 / (1.0 + np.exp(-x))
+
+
+def _weights(tensors: Mapping[str, np.ndarray], name: str) -> np.ndarray:
+    """A torch ``(out, in)`` weight as a float64 ``(in, out)`` array, for ``x @ w``."""
+    return np.ascontiguousarray(tensors[name].astype(np.float64).T)
+
+
+def _vector(tensors: Mapping[str, np.ndarray], name: str) -> np.ndarray:
+    return tensors[name].astype(np.float64)
+
+
+# --- kernels ----------------------------------------------------------------------------------
+
+
+class MLPKernel:
+    """Seed 003 section 4.3.3 MLP: ReLU hidden layers and a sigmoid output; no state."""
+
+    def __init__(self, layers: list[tuple[np.ndarray, np.ndarray]]) -> None:
+        """``layers``: (weight as (in, out), bias) per Linear layer, the output layer last."""
+        self._layers = layers
+
+    def run(self, frames: np.ndarray) -> np.ndarray:
+        """(N, n_features) frames -> (N, n_joints) poses, all frames in one product per layer."""
+        x = np.asarray(frames, dtype=np.float64)
+        for weight, bias in self._layers[:-1]:
+            x = np.maximum(x @ weight + bias, 0.0)
+        weight, bias = self._layers[-1]
+        return sigmoid(x @ weight + bias)
+
+    def step(self, features: np.ndarray) -> np.ndarray:
+        """One frame."""
+        return self.run(features)
+
+    def reset(self) -> None:
+        """Stateless: nothing to forget."""
+
+
+class LSTMKernel:
+    """Seed 003 section 4.3.4 LSTM, causal: one cell step per frame with (h, c) carried."""
+
+    def __init__(
+        self,
+        w_ih: np.ndarray,
+        w_hh: np.ndarray,
+        bias: np.ndarray,
+        w_out: np.ndarray,
+        b_out: np.ndarray,
+    ) -> None:
+        """Weights as (in, 4H) and (H, 4H), the summed input and hidden biases, output layer."""
+        self._w_ih, self._w_hh, self._bias = w_ih, w_hh, bias
+        self._w_out, self._b_out = w_out, b_out
+        self.reset()
+
+    def step(self, features: np.ndarray) -> np.ndarray:
+        """One frame: the cell step (seed 002 eqs. 1-6), then the sigmoid output layer."""
+        gates = np.asarray(features, dtype=np.float64) @ self._w_ih + self._h @ self._w_hh
+        i, f, g, o = np.split(gates + self._bias, 4)
+        self._c = sigmoid(f) * self._c + sigmoid(i) * np.tanh(g)
+        self._h = sigmoid(o) * np.tanh(self._c)
+        return sigmoid(self._h @ self._w_out + self._b_out)
+
+    def run(self, frames: np.ndarray) -> np.ndarray:
+        """(N, n_features) frames in order -> (N, n_joints) poses."""
+        return np.array([self.step(frame) for frame in frames])
+
+    def reset(self) -> None:
+        """Zero state, as at the start of an utterance."""
+        hidden = self._w_hh.shape[0]
+        self._h, self._c = np.zeros(hidden), np.zeros(hidden)
+
+
+class LiveKernel:
+    """The live sampler: GRU on (audio, last pose), Gaussian output, time-correlated noise.
+
+    At frame t: e_t = rho e_(t-1) + sqrt(1 - rho^2) n_t (e_0 = n_0) from
+    ``numpy.random.default_rng(seed)``; with ``order`` 2 a second such stage filters e_t and is
+    scaled back to unit variance; pose = clip(mu + temperature * sigma * noise, 0, 1),
+    mu = sigmoid of the first half of the output layer, sigma = exp of the second half clamped
+    to [-7, 0]; the pose is the next frame's previous pose.
+    """
+
+    def __init__(
+        self,
+        tensors: Mapping[str, np.ndarray],
+        rho: float,
+        order: int = 1,
+        seed: int = 0,
+        temperature: float = 1.0,
+        prefix: str = "",
+    ) -> None:
+        """Take the GRU, output layer and start pose (names after ``prefix``); start."""
+        self._w_ih = _weights(tensors, f"{prefix}gru.weight_ih_l0")
+        self._w_hh = _weights(tensors, f"{prefix}gru.weight_hh_l0")
+        self._b_ih = _vector(tensors, f"{prefix}gru.bias_ih_l0")
+        self._b_hh = _vector(tensors, f"{prefix}gru.bias_hh_l0")
+        self._w_out = _weights(tensors, f"{prefix}out.weight")
+        self._b_out = _vector(tensors, f"{prefix}out.bias")
+        self._start_pose = _vector(tensors, f"{prefix}start_pose")
+        self._rho = rho
+        self._order = order
+        self._innovation = math.sqrt(1.0 - rho * rho)
+        # a second AR(1) stage on unit-variance AR(1) noise has variance (1 + rho^2) / (1 - rho^2)
+        self._second_gain = math.sqrt((1.0 + rho * rho) / (1.0 - rho * rho))
+        self.seed = seed
+        self.temperature = temperature
+        self.reset()
+
+    def reset(self, seed: int | None = None) -> None:
+        """Forget the state; optionally change the seed of the sampling noise."""
+        if seed is not None:
+            self.seed = seed
+        self._rng = np.random.default_rng(self.seed)
+        self._hidden = np.zeros(self._w_hh.shape[0])
+        self._previous = self._start_pose.copy()
+        self._noise = self._rng.standard_normal(self._start_pose.shape[0])
+        self._smooth = self._noise * self._second_gain
+        self._first = True
+
+    def step(self, features: np.ndarray) -> np.ndarray:
+        """Sample the pose of one frame."""
+        if not self._first:
+            fresh = self._rng.standard_normal(self._noise.shape[0])
+            self._noise = self._rho * self._noise + self._innovation * fresh
+            self._smooth = self._rho * self._smooth + self._innovation * self._noise
+        self._first = False
+        noise = self._noise if self._order == 1 else self._smooth / self._second_gain
+        x = np.concatenate([np.asarray(features, dtype=np.float64), self._previous])
+        xr, xz, xn = np.split(x @ self._w_ih + self._b_ih, 3)
+        hr, hz, hn = np.split(self._hidden @ self._w_hh + self._b_hh, 3)
+        r, z = sigmoid(xr + hr), sigmoid(xz + hz)
+        new = np.tanh(xn + r * hn)
+        self._hidden = (1.0 - z) * new + z * self._hidden
+        raw = self._hidden @ self._w_out + self._b_out
+        joints = raw.shape[0] // 2
+        pose = sigmoid(raw[:joints])
+        if self.temperature:
+            std = np.exp(np.clip(raw[joints:], _MIN_LOG_STD, _MAX_LOG_STD))
+            pose = np.clip(pose + self.temperature * std * noise, 0.0, 1.0)
+        self._previous = pose
+        return pose
+
+    def run(self, frames: np.ndarray) -> np.ndarray:
+        """(N, n_features) frames in order -> (N, n_joints) sampled poses."""
+        return np.array([self.step(frame) for frame in frames])
+
+
+class LiveGroupsKernel(GroupedSampler):
+    """Two live kernels over disjoint joint groups, their noise scaled by the speech gate.
+
+    Per frame: factor = the gate's temperature factor (0 at temperature 0); part k samples at
+    temperature * its own temperature * factor with seed ``seed + k``; the parts' poses are
+    scattered into the robot's joint order.
+    """
+
+    def __init__(
+        self,
+        tensors: Mapping[str, np.ndarray],
+        config: Mapping[str, Any],
+        seed: int = 0,
+        temperature: float = 1.0,
+    ) -> None:
+        """Build both parts and the gate from the tensors and the config."""
+        self._groups = _live_groups(config)
+        self._n_joints = config["n_joints"]
+        self._factors = (config["first_temperature"], config["second_temperature"])
+        self._gate = SpeechGate(
+            config["silence_temperature"], config["gate_margin"], config["gate_width"]
+        )
+        rho, order = float(config["noise_correlation"]), config["noise_order"]
+        self._parts = [
+            LiveKernel(tensors, rho, order, seed + k, temperature, prefix=f"parts.{k}.")
+            for k in range(len(self._groups))
+        ]
+        self.seed = seed
+        self.temperature = temperature
+
+    def run(self, frames: np.ndarray) -> np.ndarray:
+        """(N, n_features) frames in order -> (N, n_joints) sampled poses."""
+        return np.array([self.step(frame) for frame in frames])
+
+
+# --- what each kernel accepts -----------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class KernelSpec:
+    """A model family this module runs: its exact config keys, tensor shapes and builder.
+
+    Attributes:
+        config_keys: the config keys the kernel reads, all required but ``optional_keys``
+            (left out, their default applies), no others.
+        accepts: whether a config's values lie in the kernel's range.
+        shapes: the tensor names and shapes of a config (torch's ``state_dict`` layout).
+        build: the predictor, from the tensors, the config, and keyword options (``seed``,
+            ``temperature`` for samplers).
+    """
+
+    config_keys: frozenset[str]
+    accepts: Callable[[Mapping[str, Any]], bool]
+    shapes: Callable[[Mapping[str, Any]], dict[str, tuple[int, ...]]]
+    build: Callable[..., FramePredictor]
+    optional_keys: frozenset[str] = frozenset()
+
+
+def _is_int(value: object, low: int = 1) -> bool:
+    return (
+        isinstance(value, int)
+        and not isinstance(value, bool)
+        and low <= value <= (MAX_KERNEL_UNITS)
+    )
+
+
+def _is_fraction(value: object) -> bool:
+    """A number in [0, 1) (rho, dropout, noise)."""
+    return (
+        isinstance(value, int | float)
+        and not isinstance(value, bool)
+        and math.isfinite(value)
+        and 0.0 <= value < 1.0
+    )
+
+
+def _sizes_ok(config: Mapping[str, Any]) -> bool:
+    return all(_is_int(config[k]) for k in ("n_features", "n_joints", "hidden_units"))
+
+
+def _mlp_linear_indices(config: Mapping[str, Any]) -> list[int]:
+    """Indices of the Linear layers in FramewiseMLP's ``net`` (a Dropout follows each ReLU)."""
+    per_layer = 3 if config["dropout"] > 0 else 2
+    return [i * per_layer for i in range(config["hidden_layers"] + 1)]
+
+
+def _mlp_shapes(config: Mapping[str, Any]) -> dict[str, tuple[int, ...]]:
+    shapes: dict[str, tuple[int, ...]] = {}
+    width = config["n_features"]
+    indices = _mlp_linear_indices(config)
+    for n, index in enumerate(indices):
+        out = config["n_joints"] if n == len(indices) - 1 else config["hidden_units"]
+        shapes[f"net.{index}.weight"] = (out, width)
+        shapes[f"net.{index}.bias"] = (out,)
+        width = out
+    return shapes
+
+
+def _build_mlp(
+    tensors: Mapping[str, np.ndarray], config: Mapping[str, Any], seed: int = 0
+) -> MLPKernel:
+    """A deterministic model: ``seed`` is accepted (every streaming model takes one) and unused."""
+    return MLPKernel(
+        [
+            (_weights(tensors, f"net.{i}.weight"), _vector(tensors, f"net.{i}.bias"))
+            for i in _mlp_linear_indices(config)
+        ]
+    )
+
+
+def _lstm_shapes(config: Mapping[str, Any]) -> dict[str, tuple[int, ...]]:
+    features, joints, hidden = config["n_features"], config["n_joints"], config["hidden_units"]
+    return {
+        "lstm.weight_ih_l0": (4 * hidden, features),
+        "lstm.weight_hh_l0": (4 * hidden, hidden),
+        "lstm.bias_ih_l0": (4 * hidden,),
+        "lstm.bias_hh_l0": (4 * hidden,),
+        "out.weight": (joints, hidden),
+        "out.bias": (joints,),
+    }
+
+
+def _build_lstm(
+    tensors: Mapping[str, np.ndarray], _config: Mapping[str, Any], seed: int = 0
+) -> LSTMKernel:
+    """A deterministic model: ``seed`` is accepted (every streaming model takes one) and unused."""
+    return LSTMKernel(
+        _weights(tensors, "lstm.weight_ih_l0"),
+        _weights(tensors, "lstm.weight_hh_l0"),
+        _vector(tensors, "lstm.bias_ih_l0") + _vector(tensors, "lstm.bias_hh_l0"),
+        _weights(tensors, "out.weight"),
+        _vector(tensors, "out.bias"),
+    )
+
+
+def _live_shapes(config: Mapping[str, Any]) -> dict[str, tuple[int, ...]]:
+    features, joints, hidden = config["n_features"], config["n_joints"], config["hidden_units"]
+    return {
+        "start_pose": (joints,),
+        "gru.weight_ih_l0": (3 * hidden, features + joints),
+        "gru.weight_hh_l0": (3 * hidden, hidden),
+        "gru.bias_ih_l0": (3 * hidden,),
+        "gru.bias_hh_l0": (3 * hidden,),
+        "out.weight": (2 * joints, hidden),
+        "out.bias": (2 * joints,),
+    }
+
+
+def _build_live(
+    tensors: Mapping[str, np.ndarray],
+    config: Mapping[str, Any],
+    seed: int = 0,
+    temperature: float = 1.0,
+) -> LiveKernel:
+    order = config.get("noise_order", 1)
+    return LiveKernel(tensors, float(config["noise_correlation"]), order, seed, temperature)
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _live_accepts(config: Mapping[str, Any]) -> bool:
+    order = config.get("noise_order", 1)
+    return (
+        _sizes_ok(config)
+        and _is_fraction(config["noise_correlation"])
+        and _is_number(config["input_noise"])
+        and not isinstance(order, bool)
+        and order in (1, 2)
+    )
+
+
+def _live_groups(config: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """Joint indices of the two parts (bit j of ``first_group`` = joint j in the first)."""
+    first = np.array([(config["first_group"] >> j) & 1 == 1 for j in range(config["n_joints"])])
+    return np.flatnonzero(first), np.flatnonzero(~first)
+
+
+def _live_groups_accepts(config: Mapping[str, Any]) -> bool:
+    numbers = ("first_temperature", "second_temperature", "silence_temperature")
+    if not (
+        _live_accepts(config)
+        and _is_int(config["first_group"])
+        and config["first_group"] < 1 << config["n_joints"]
+        and all(_is_number(config[k]) for k in (*numbers, "gate_margin", "gate_width"))
+    ):
+        return False
+    return all(len(joints) for joints in _live_groups(config))
+
+
+def _live_groups_shapes(config: Mapping[str, Any]) -> dict[str, tuple[int, ...]]:
+    shapes = {}
+    for k, joints in enumerate(_live_groups(config)):
+        part = _live_shapes({**config, "n_joints": len(joints)})
+        shapes.update({f"parts.{k}.{name}": shape for name, shape in part.items()})
+    return shapes
+
+
+_LIVE_KEYS = frozenset(
+    {"n_features", "n_joints", "hidden_units", "input_noise", "noise_correlation"}
+)
+KERNELS: dict[str, KernelSpec] = {
+    "mlp": KernelSpec(
+        frozenset({"n_features", "n_joints", "hidden_layers", "hidden_units", "dropout"}),
+        lambda c: _sizes_ok(c) and _is_int(c["hidden_layers"], 0) and _is_fraction(c["dropout"]),
+        _mlp_shapes,
+        _build_mlp,
+    ),
+    "lstm": KernelSpec(
+        frozenset({"n_features", "n_joints", "hidden_units"}), _sizes_ok, _lstm_shapes, _build_lstm
+    ),
+    "live": KernelSpec(
+        _LIVE_KEYS | {"noise_order"},
+        _live_accepts,
+        _live_shapes,
+        _build_live,
+        frozenset({"noise_order"}),
+    ),
+    "live_groups": KernelSpec(
+        _LIVE_KEYS
+        | {
+            "noise_order",
+            "first_group",
+            "first_temperature",
+            "second_temperature",
+            "silence_temperature",
+            "gate_margin",
+            "gate_width",
+        },
+        _live_groups_accepts,
+        _live_groups_shapes,
+        LiveGroupsKernel,
+    ),
+}
+
+
+def numpy_kernel_for(name: str, config: object) -> KernelSpec | None:
+    """The kernel that runs model ``name`` with ``config``, or None (the torch loader's case)."""
+    spec = KERNELS.get(name)
+    if (
+        spec is None
+        or not isinstance(config, dict)
+        or not spec.config_keys - spec.optional_keys <= set(config) <= spec.config_keys
+    ):
+        return None
+    return spec if spec.accepts(config) else None
+
+
+# --- loading ----------------------------------------------------------------------------------
+
+
+@dataclass
+class StreamingModel:
+    """A verified streaming checkpoint, ready to run online.
+
+    Attributes:
+        name: the model family.
+        features: the feature specification it expects.
+        normalizer: feature z-normalisation statistics.
+        robot: the joints and ranges it was trained for.
+        runtime: ``"numpy"`` (a kernel of this module) or ``"torch"`` (the model's own
+            streaming predictor; torch was imported).
+        info: the header's free-form training information.
+    """
+
+    name: str
+    features: FeatureSpec
+    normalizer: FeatureNormalizer
+    robot: RobotDescription
+    runtime: str
+    make_predictor: Callable[..., FramePredictor]
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def predictor(self, **options: Any) -> FramePredictor:
+        """A new frame-by-frame predictor (``seed``, ``temperature`` for samplers)."""
+        return self.make_predictor(**options)
+
+
+def _read_tensors(
+    file: CheckpointFile, model: str, shapes: dict[str, tuple[int, ...]]
+) -> dict[str, np.ndarray]:
+    """The file's tensors, after checking they are exactly ``shapes``; finite float32 each."""
+    missing = sorted(set(shapes) - set(file.tensors))
+    unexpected = sorted(set(file.tensors) - set(shapes))
+    if missing or unexpected:
+        raise CheckpointError(
+            f"{file.path}: tensors do not fit model {model!r}: missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]}"
+        )
+    for name, shape in shapes.items():
+        if file.tensors[name].shape != shape:
+            raise CheckpointError(
+                f"{file.path}: tensor {name!r} has shape {list(file.tensors[name].shape)}, "
+                f"model {model!r} needs {list(shape)} (torch.float32)"
+            )
+    try:
+        tensors = load_file(str(file.path))
+    except (SafetensorError, OSError) as exc:
+        raise CheckpointError(f"{file.path}: unreadable tensors ({exc})") from None
+    for name, tensor in tensors.items():
+        if tensor.dtype != np.float32 or not bool(np.isfinite(tensor).all()):
+            raise CheckpointError(f"{file.path}: tensor {name!r} is not finite float32")
+    return tensors
+
+
+def _torch_model(
+    path: Path, robot: RobotDescription | None, features: FeatureSpec | None
+) -> StreamingModel:
+    """Load with torch (a model without a numpy kernel here): the full torch-side checks."""
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+    from audio2pose_ros.models import require_streaming
+
+    checkpoint = load_checkpoint(path, robot=robot, features=features)
+    require_streaming(checkpoint.model, str(path))
+    return StreamingModel(
+        name=checkpoint.model.name,
+        features=checkpoint.features,
+        normalizer=checkpoint.normalizer,
+        robot=checkpoint.robot,
+        runtime="torch",
+        make_predictor=lambda **options: _Stepwise(checkpoint.model.streaming_predictor(**options)),
+        info=checkpoint.info,
+    )
+
+
+def load_streaming_model(
+    path: str | Path,
+    robot: RobotDescription | None = None,
+    features: FeatureSpec | None = None,
+    allow_torch: bool = True,
+) -> StreamingModel:
+    """Load and verify a streaming checkpoint, with numpy kernels where this module has one.
+
+    Args:
+        path: the ``.safetensors`` checkpoint.
+        robot: when given, the checkpoint's joints and ranges must equal it.
+        features: when given, the checkpoint's feature specification must equal it.
+        allow_torch: hand checkpoints without a kernel to the torch loader; when False they
+            are refused instead.
+
+    Raises:
+        CheckpointError: the file is unreadable, modified after saving, crafted, or made for
+            other joints or features; or (``allow_torch`` False) it has no numpy kernel.
+        OfflineOnlyModelError: through the torch loader, a model that cannot stream.
+    """
+    file = read_checkpoint_file(path)
+    verify_digest(file)
+    name, config = file.header["model"]["name"], file.header["model"]["config"]
+    spec = numpy_kernel_for(name, config)
+    if spec is None:
+        if not allow_torch:
+            raise CheckpointError(
+                f"{file.path}: model {name!r} with this config has no numpy kernel "
+                f"(kernels: {sorted(KERNELS)})"
+            )
+        return _torch_model(file.path, robot, features)
+    stored_robot, stored_features, normalizer = header_sections(file)
+    check_made_for(file, stored_robot, stored_features, robot, features)
+    if config["n_joints"] != stored_robot.n_joints or config["n_features"] != stored_features.dim:
+        raise CheckpointError(
+            f"{file.path}: model maps {config['n_features']} features to "
+            f"{config['n_joints']} joints, but the header describes "
+            f"{stored_features.dim} features and {stored_robot.n_joints} joints"
+        )
+    tensors = _read_tensors(file, name, spec.shapes(config))
+
+    def make_predictor(**options: Any) -> FramePredictor:
+        return spec.build(tensors, config, **options)
+
+    return StreamingModel(
+        name=name,
+        features=stored_features,
+        normalizer=normalizer,
+        robot=stored_robot,
+        runtime="numpy",
+        make_predictor=make_predictor,
+        info=file.header.get("info", {}),
+    )

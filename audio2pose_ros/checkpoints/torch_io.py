@@ -1,0 +1,172 @@
+"""Self-describing, code-free checkpoints (safetensors).
+
+A checkpoint is one ``.safetensors`` file: the model's tensors plus a JSON header entry holding
+everything needed to use it without the training code: format version, model name and config,
+feature specification, feature normalisation statistics, the robot description (joint order and
+ranges) and free-form training information. Loading never executes code (safetensors holds only
+tensors and strings), and a SHA-256 digest over header and tensors detects files changed after
+saving. A checkpoint whose joints, ranges or features differ from what the caller expects is
+refused with a message that lists the differences.
+
+Loading checks, in this order and before any tensor is read: the container and header structure
+and sizes (:func:`~audio2pose_ros.checkpoints.format.read_checkpoint_file`), the digest, the
+model config (:func:`~audio2pose_ros.models.build_model`), and that the file holds exactly the
+tensors the model has, with its shapes and dtype (the model is first built on torch's ``meta``
+device, which allocates nothing). Weights must be finite; the normalisation statistics must
+fit the features.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+
+from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec
+from audio2pose_ros.checkpoints.format import (
+    DIGEST_KEY,
+    FORMAT_VERSION,
+    HEADER_KEY,
+    CheckpointError,
+    CheckpointFile,
+    check_made_for,
+    digest_update,
+    header_sections,
+    parse_section,
+    read_checkpoint_file,
+    verify_digest,
+)
+from audio2pose_ros.models import PoseModel, build_model
+from audio2pose_ros.robot.description import RobotDescription
+
+__all__ = ["Checkpoint", "CheckpointError", "load_checkpoint", "save_checkpoint"]
+
+
+@dataclass
+class Checkpoint:
+    """A loaded model with everything needed to feed it and interpret its output."""
+
+    model: PoseModel
+    features: FeatureSpec
+    normalizer: FeatureNormalizer
+    robot: RobotDescription
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+def _digest(header: str, tensors: dict[str, torch.Tensor]) -> str:
+    sha = hashlib.sha256(header.encode("utf-8"))
+    for name in sorted(tensors):
+        tensor = tensors[name].detach().cpu().contiguous()
+        digest_update(sha, name, tuple(tensor.shape), tensor.numpy().tobytes())
+    return sha.hexdigest()
+
+
+def save_checkpoint(path: str | Path, checkpoint: Checkpoint) -> Path:
+    """Write ``checkpoint`` to ``path`` (parent folders are created)."""
+    header = json.dumps(
+        {
+            "format_version": FORMAT_VERSION,
+            "model": {"name": checkpoint.model.name, "config": checkpoint.model.config_dict()},
+            "features": checkpoint.features.to_dict(),
+            "normalizer": checkpoint.normalizer.to_dict(),
+            "robot": checkpoint.robot.to_dict(),
+            "info": checkpoint.info,
+        },
+        sort_keys=True,
+    )
+    tensors = {k: v.detach().cpu().contiguous() for k, v in checkpoint.model.state_dict().items()}
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    save_file(
+        tensors, str(out), metadata={HEADER_KEY: header, DIGEST_KEY: _digest(header, tensors)}
+    )
+    return out
+
+
+def load_checkpoint(
+    path: str | Path,
+    robot: RobotDescription | None = None,
+    features: FeatureSpec | None = None,
+) -> Checkpoint:
+    """Load and verify a checkpoint.
+
+    Args:
+        path: the ``.safetensors`` file.
+        robot: when given, the checkpoint's joint order and position ranges must equal it.
+        features: when given, the checkpoint's feature specification must equal it.
+
+    Raises:
+        CheckpointError: the file is unreadable, was modified after saving, has another format
+            version, or does not match ``robot`` / ``features`` (the message lists what differs).
+
+    """
+    file = read_checkpoint_file(path)
+    verify_digest(file)
+    stored_robot, stored_features, normalizer = header_sections(file)
+    model = _model_for(file)
+    model_dims = model.config_dict()
+    if model_dims.get("n_joints") != stored_robot.n_joints or (
+        model_dims.get("n_features") != stored_features.dim
+    ):
+        raise CheckpointError(
+            f"{file.path}: model maps {model_dims.get('n_features')} features to "
+            f"{model_dims.get('n_joints')} joints, but the header describes "
+            f"{stored_features.dim} features and {stored_robot.n_joints} joints"
+        )
+    check_made_for(file, stored_robot, stored_features, robot, features)
+    model.eval()
+    return Checkpoint(
+        model=model,
+        features=stored_features,
+        normalizer=normalizer,
+        robot=stored_robot,
+        info=file.header.get("info", {}),
+    )
+
+
+def _model_for(file: CheckpointFile) -> PoseModel:
+    """Build the header's model and load the file's tensors into it, checking both first.
+
+    The model is first built on the ``meta`` device (no memory) and its state dict compared
+    with the file's tensor entries: same names, same shapes, float32 everywhere. Only then is
+    it built for real and the tensors read; they must be finite.
+    """
+    spec = file.header["model"]
+    with torch.device("meta"):
+        shapes = {
+            name: (tuple(tensor.shape), tensor.dtype)
+            for name, tensor in parse_section(
+                file, "model", lambda m: build_model(m["name"], m["config"])
+            )
+            .state_dict()
+            .items()
+        }
+    missing = sorted(set(shapes) - set(file.tensors))
+    unexpected = sorted(set(file.tensors) - set(shapes))
+    if missing or unexpected:
+        raise CheckpointError(
+            f"{file.path}: tensors do not fit model {spec['name']!r}: missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]}"
+        )
+    for name, (shape, dtype) in shapes.items():
+        if file.tensors[name].shape != shape or dtype != torch.float32:
+            raise CheckpointError(
+                f"{file.path}: tensor {name!r} has shape {list(file.tensors[name].shape)}, "
+                f"model {spec['name']!r} needs {list(shape)} ({dtype})"
+            )
+    model = build_model(spec["name"], spec["config"])
+    try:
+        tensors = load_file(str(file.path))
+    except (SafetensorError, OSError) as exc:
+        raise CheckpointError(f"{file.path}: unreadable tensors ({exc})") from None
+    for name, tensor in tensors.items():
+        if tensor.dtype != torch.float32 or not bool(torch.isfinite(tensor).all()):
+            raise CheckpointError(f"{file.path}: tensor {name!r} is not finite float32")
+    model.load_state_dict(tensors, strict=True)
+    return model

@@ -1,0 +1,1 @@
+"""Data sets: clips, rosbag2 files and importers from recordings."""

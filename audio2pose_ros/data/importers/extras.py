@@ -1,0 +1,42 @@
+"""Per-clip arrays that drive no joint (head roll), kept beside a data set's clips.
+
+The data set format (:mod:`audio2pose_ros.data.dataset`) stores the robot's joints only. Importers
+that measure more keep it in ``clips/<clip_id>.extras.npz`` next to ``clips/<clip_id>.npz``, on
+the same 100 Hz grid: the video and OpenFace importers store ``head_roll_rad`` (T,) (positive:
+the top of the head tilts to the speaker's right; mirrored with ``--mirror``) and
+``head_roll_mask`` (T,) bool. Pepper has no head-roll joint, so training and the robot ignore
+roll; it is kept for analysis and for robots that have such a joint.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from audio2pose_ros.data.dataset import Dataset, DatasetError
+
+EXTRAS_SUFFIX = ".extras.npz"
+
+
+def extras_path(dataset: Dataset, clip_id: str) -> Path:
+    """Where the extras of ``clip_id`` live."""
+    return dataset.root / "clips" / f"{clip_id}{EXTRAS_SUFFIX}"
+
+
+def save_extras(dataset: Dataset, clip_id: str, arrays: dict[str, np.ndarray]) -> Path:
+    """Write (replace) the extras of a clip already in ``dataset``."""
+    if clip_id not in {c.clip_id for c in dataset.clips}:
+        raise DatasetError(f"{dataset.root}: no clip {clip_id!r} to attach extras to")
+    path = extras_path(dataset, clip_id)
+    np.savez_compressed(path, **arrays)
+    return path
+
+
+def load_extras(dataset: Dataset, clip_id: str) -> dict[str, np.ndarray]:
+    """The extras of a clip; empty when it has none."""
+    path = extras_path(dataset, clip_id)
+    if not path.is_file():
+        return {}
+    with np.load(path, allow_pickle=False) as data:
+        return {key: data[key] for key in data.files}

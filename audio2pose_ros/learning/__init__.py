@@ -1,0 +1,1 @@
+"""Learning: training, evaluation, metrics, distillation and the default model build."""

@@ -1,0 +1,384 @@
+"""Rebuild the default model from the shared recordings, end to end.
+
+With ``arms="learned"`` (the default, :func:`build_learned_default_model`): import the 13
+talking-head clips (real head motion, arms out of frame) and the lecture video (real arm and hip
+motion, :mod:`audio2pose_ros.data.importers.lecture`), train one streaming sampler with a part per
+joint group (``live_groups``: the head part learns from the talking heads, the arm-and-hip part
+from the lecture, unobserved joints masked, never filled), and evaluate it where it was not
+trained: the head leave-one-speaker-out over the talking-head clips, the arms and hip on the
+held-out lecture stretch (:func:`audio2pose_ros.learning.evaluation.quality_evaluation`).
+
+With ``arms="prosody"`` or ``"neutral"`` (explicitly named options,
+:func:`build_default_model`): import the 13 clips (:mod:`audio2pose_ros.data.importers.video`: real
+speech, real head motion; arms and hip masked, as they are not visible), split them by clip
+(one GRID speaker and one Obama clip held out for test, one of each for validation), fill the
+masked arm and hip joints of the training copy with the labelled procedural prosody rule
+(:mod:`audio2pose_ros.motion.prosody`), train one streaming MLP (seed 003 section 4.3.3) on all 11
+joints, and evaluate it on the held-out clips against the static, mean-motion and
+mismatched-motion baselines (:mod:`audio2pose_ros.learning.evaluation`; only the head has ground
+truth
+there). The result is one checkpoint, as ``inference_node`` expects: its head is learned from
+people, its arms and hip imitate the procedural rule, and the model card says so. With
+``arms="neutral"`` the arms and hip are trained to stay at the neutral pose instead.
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from audio2pose_ros.audio.features import FeatureSpec, extract_features
+from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
+from audio2pose_ros.data.importers.extras import save_extras
+from audio2pose_ros.data.importers.video import VideoImportSettings, import_video
+from audio2pose_ros.motion.prosody import prosody_trajectory
+from audio2pose_ros.robot.description import RobotDescription
+
+if TYPE_CHECKING:
+    from audio2pose_ros.checkpoints.torch_io import Checkpoint
+    from audio2pose_ros.learning.evaluation import Predictions
+    from audio2pose_ros.learning.sampler_selection import SamplingChoice
+
+GRID_LICENCE = (
+    "CC BY 4.0; GRID audio-visual sentence corpus, Cooke, Barker, Cunningham and Shao (2006), "
+    "JASA 120(5)"
+)
+OBAMA_LICENCE = "public domain (work of the US federal government: weekly address)"
+TEST_CLIPS = ("grid_sbwe5n", "obama_weekly_address_21")  # one unseen GRID speaker, one Obama clip
+VALIDATION_CLIPS = ("grid_lrwp9a", "obama_weekly_address_13")
+ARM_MODES = ("prosody", "neutral")  # procedural layers of the MLP build
+DEFAULT_SEED = 0  # the seed the inference node samples with unless told otherwise
+LIVE_VALIDATION_LECTURE_S = (44.0, 60.0)  # the lecture clip starting here validates
+
+
+PROSODY_RULE = "prosody rule"  # the hand-written arm rule, a baseline of the arm evaluation
+
+
+@dataclass(frozen=True)
+class DefaultModelResult:
+    """Where the rebuild wrote its outputs, and the evaluation table."""
+
+    checkpoint: Path
+    model_card: Path
+    table: str
+
+
+def clip_info(path: Path) -> ClipInfo:
+    """Metadata of one shared clip: speaker, source, licence and split (by clip)."""
+    stem = path.stem
+    split = "test" if stem in TEST_CLIPS else "validation" if stem in VALIDATION_CLIPS else "train"
+    if stem.startswith("obama"):
+        return ClipInfo(stem, "obama", f"{path.name} (US weekly address)", OBAMA_LICENCE, split)
+    # each GRID clip of the shared set is a different speaker (SOURCES.md: 8 clips, 8 speakers)
+    return ClipInfo(
+        stem, f"grid_{stem.removeprefix('grid_')}", f"{path.name} (GRID)", GRID_LICENCE, split
+    )
+
+
+def import_talking_heads(
+    clips_dir: Path,
+    dataset_dir: Path,
+    robot: RobotDescription,
+    progress: Callable[[str], None] = print,
+) -> Dataset:
+    """Import every ``*.mpg`` / ``*.mp4`` of the shared folder into a new data set.
+
+    Head and shoulders only (SOURCES.md): MediaPipe Pose is not run, arms and hip are masked.
+    """
+    dataset = Dataset.create(dataset_dir, robot)
+    for path in sorted([*clips_dir.glob("*.mpg"), *clips_dir.glob("*.mp4")]):
+        progress(f"importing {path.name}")
+        clip, extras = import_video(path, clip_info(path), robot, VideoImportSettings(body=False))
+        dataset.add(clip, robot)
+        save_extras(dataset, clip.info.clip_id, extras)
+    return dataset
+
+
+def fill_unobserved(
+    source: Dataset, target_dir: Path, robot: RobotDescription, arms: str = "prosody"
+) -> Dataset:
+    """Copy a data set, filling unobserved joints with the prosody rule (or neutral); mask True.
+
+    Observed joints (here the head) keep their measured angles. The copy is a training set for a
+    combined model; its clips' ``source`` says which joints are procedural.
+
+    Raises:
+        ValueError: ``arms`` is not one of :data:`ARM_MODES`.
+
+    """
+    if arms not in ARM_MODES:
+        raise ValueError(f"arms {arms!r} not in {ARM_MODES}")
+    target = Dataset.create(target_dir, robot)
+    spec = FeatureSpec()  # LogFB-26: what the prosody rule reads
+    for info in source.clips:
+        clip = source.load(info.clip_id)
+        if arms == "prosody":
+            filled = prosody_trajectory(extract_features(clip.audio, spec), robot)
+        else:
+            filled = np.broadcast_to(robot.neutral_rad, clip.angles_rad.shape)
+        n = min(filled.shape[0], clip.n_frames)
+        angles = np.where(clip.mask[:n], clip.angles_rad[:n], filled[:n])
+        note = f"{info.source}; unobserved joints filled by the {arms} rule"
+        copy = ClipInfo(info.clip_id, info.speaker, note, info.licence, info.split)
+        target.add(Clip(copy, clip.audio, angles, np.ones_like(clip.mask[:n])), robot)
+    return target
+
+
+def describe_training_data(arms: str) -> dict[str, str]:
+    """What the default model learned from, stored in its checkpoint beside the model card's."""
+    return {
+        "dataset": "talking_heads: 8 GRID clips (Cooke et al. 2006, CC BY 4.0, attribution "
+        "required) and 5 Obama weekly-address clips (public domain)",
+        "trained_on": "HeadYaw and HeadPitch: real head motion (MediaPipe FaceMesh) of people "
+        f"speaking; arms and hip: not human motion, the {arms} rule "
+        "(audio2pose_ros.motion.prosody) filled in where no person was observed",
+    }
+
+
+def build_default_model(
+    clips_dir: Path,
+    out_dir: Path,
+    work_dir: Path,
+    robot: RobotDescription,
+    arms: str = "prosody",
+    max_epochs: int = 2000,
+    seed: int = 0,
+    progress: Callable[[str], None] = print,
+) -> DefaultModelResult:
+    """Import, train, evaluate and write ``out_dir/default.safetensors`` and its model card.
+
+    Args:
+        clips_dir: the shared talking-head clips (``../shared/data/talking_heads``).
+        out_dir: where the checkpoint, MODEL_CARD.md and metrics.txt go.
+        work_dir: scratch folder for the data sets (replaced).
+        robot: joint order, limits and neutral pose.
+        arms: ``"prosody"`` (labelled procedural arms and hip) or ``"neutral"``.
+        max_epochs: training epochs at most (early stopping usually ends sooner).
+        seed: training seed.
+        progress: receives one line per step.
+
+    """
+    from audio2pose_ros.checkpoints.torch_io import save_checkpoint
+    from audio2pose_ros.learning.evaluation import evaluate
+    from audio2pose_ros.learning.model_card import write_default_model_card
+    from audio2pose_ros.learning.training import TrainSettings, state_path_for, train_from_dataset
+
+    shutil.rmtree(work_dir, ignore_errors=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    imported = import_talking_heads(clips_dir, work_dir / "talking_heads", robot, progress)
+    progress(f"filling arms and hip of the training copy with the {arms} rule")
+    filled = fill_unobserved(imported, work_dir / "talking_heads_filled", robot, arms)
+    checkpoint_path = out_dir / "default.safetensors"
+    progress("training the MLP")
+    checkpoint, report = train_from_dataset(
+        filled.root,
+        checkpoint_path,
+        robot,
+        model_name="mlp",
+        settings=TrainSettings(max_epochs=max_epochs, seed=seed),
+    )
+    state_path_for(checkpoint_path).unlink(missing_ok=True)  # resume state: not shipped
+    checkpoint.info.update(describe_training_data(arms))
+    save_checkpoint(checkpoint_path, checkpoint)  # the checkpoint says what it learned from
+    progress("evaluating on the held-out clips")
+    evaluation = evaluate([(checkpoint_path, checkpoint)], imported, robot, split="test")
+    table = evaluation.table()
+    (out_dir / "metrics.txt").write_text(table + "\n", encoding="utf-8")
+    card = write_default_model_card(out_dir, checkpoint, report, imported, evaluation, arms)
+    return DefaultModelResult(checkpoint_path, card, table)
+
+
+@dataclass(frozen=True)
+class LearnedBuildSettings:
+    """Training and evaluation budget of :func:`build_learned_default_model`.
+
+    Attributes:
+        max_epochs: epochs at most (early stopping on the validation clips usually ends sooner).
+        batch_size: 2 s windows per optimiser step.
+        patience: epochs without validation improvement before training stops (the
+            validation loss mixes head and arm clips, so this is more than the seed's 10).
+        loso_epochs: epochs per leave-one-speaker-out fold.
+        samples: samples per clip for the diversity measure.
+        seed: training seed.
+
+    """
+
+    max_epochs: int = 200
+    batch_size: int = 8
+    patience: int = 30
+    loso_epochs: int = 200
+    samples: int = 3
+    seed: int = 0
+
+
+def _validation_ids(clips: list[Clip]) -> set[str]:
+    """Early-stopping clips: the usual talking-head pair and one training lecture stretch."""
+    ids = set(VALIDATION_CLIPS)
+    lecture = [
+        c
+        for c in clips
+        if c.info.split == "train"
+        and c.info.clip_id.startswith("lecture_")
+        and LIVE_VALIDATION_LECTURE_S[0]
+        <= float(c.info.clip_id.removeprefix("lecture_").removesuffix("s"))
+        < LIVE_VALIDATION_LECTURE_S[1]
+    ]
+    ids |= {c.info.clip_id for c in lecture[:1]}
+    return ids
+
+
+def prosody_predictions(
+    clips: Sequence[Clip], robot: RobotDescription
+) -> tuple[Predictions, Predictions]:
+    """The prosody rule's motion on the clips and on their audio with a pause (a baseline)."""
+    from audio2pose_ros.learning.evaluation import with_pause
+
+    spec = FeatureSpec()  # LogFB-26: what the rule reads
+
+    def rule(audio: np.ndarray) -> list[np.ndarray]:
+        return [prosody_trajectory(extract_features(audio, spec), robot)]
+
+    return (
+        {PROSODY_RULE: {c.info.clip_id: rule(c.audio) for c in clips}},
+        {PROSODY_RULE: {c.info.clip_id: rule(with_pause(c.audio)) for c in clips}},
+    )
+
+
+def describe_learned_data() -> dict[str, str]:
+    """What the learned default model learned from, stored in its checkpoint."""
+    from audio2pose_ros.data.importers.lecture import LECTURE_LICENCE
+
+    return {
+        "dataset": "talking_heads: 8 GRID clips (Cooke et al. 2006, CC BY 4.0, attribution "
+        "required) and 5 Obama weekly-address clips (public domain); lecture: " + LECTURE_LICENCE,
+        "trained_on": "HeadYaw and HeadPitch: real head motion (MediaPipe FaceMesh) of people "
+        "speaking; arms and hip: real upper-body motion (MediaPipe Pose, retargeted) of one "
+        "lecturer, masked where his arms are not visible",
+        "default_seed": str(DEFAULT_SEED),
+    }
+
+
+def build_learned_default_model(
+    clips_dir: Path,
+    lecture_video: Path,
+    out_dir: Path,
+    work_dir: Path,
+    robot: RobotDescription,
+    settings: LearnedBuildSettings | None = None,
+    progress: Callable[[str], None] = print,
+) -> DefaultModelResult:
+    """Import, train ``live_groups``, evaluate on held-out speakers and lecture, write the card.
+
+    Args:
+        clips_dir: the shared talking-head clips (``../shared/data/talking_heads``).
+        lecture_video: ``../shared/data/lecture_video/physicsworks.webm``.
+        out_dir: where the checkpoint, MODEL_CARD.md, metrics.txt and figures go.
+        work_dir: scratch folder for the data sets (replaced).
+        robot: joint order, limits and neutral pose.
+        settings: training and evaluation budget.
+        progress: receives one line per step.
+
+    """
+    from audio2pose_ros.checkpoints.torch_io import save_checkpoint
+    from audio2pose_ros.data.importers.lecture import import_lecture
+    from audio2pose_ros.learning.evaluation import (
+        checkpoint_predictions,
+        loso_predictions,
+        quality_evaluation,
+    )
+    from audio2pose_ros.learning.model_card import write_learned_model_card
+    from audio2pose_ros.learning.sampler_selection import select_sampling
+    from audio2pose_ros.learning.training import TrainSettings, train_on_clips
+
+    settings = settings or LearnedBuildSettings()
+    shutil.rmtree(work_dir, ignore_errors=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    heads = import_talking_heads(clips_dir, work_dir / "talking_heads", robot, progress)
+    lecture = import_lecture(lecture_video, work_dir / "lecture", robot, progress)
+    head_clips = [heads.load(c.clip_id) for c in heads.clips]
+    lecture_clips = [lecture.load(c.clip_id) for c in lecture.clips]
+    usable = head_clips + [c for c in lecture_clips if c.info.split == "train"]
+    validation_ids = _validation_ids(usable)
+    train_settings = TrainSettings(
+        max_epochs=settings.max_epochs,
+        batch_size=settings.batch_size,
+        patience=settings.patience,
+        seed=settings.seed,
+        show_progress=False,
+    )
+    progress(
+        f"training live_groups on {len(usable) - len(validation_ids)} clips "
+        f"(validation: {sorted(validation_ids)})"
+    )
+    validation = [c for c in usable if c.info.clip_id in validation_ids]
+    checkpoint, report = train_on_clips(
+        "live_groups",
+        [c for c in usable if c.info.clip_id not in validation_ids],
+        robot,
+        train_settings,
+        validation=validation,
+    )
+    progress("choosing the sampling settings on the validation clips")
+    checkpoint, choice = select_sampling(checkpoint, validation, robot)
+    progress(choice.table().splitlines()[0])
+    checkpoint.info.update(describe_learned_data())
+    checkpoint_path = out_dir / "default.safetensors"
+    save_checkpoint(checkpoint_path, checkpoint)
+    progress("evaluating the arms and hip on the held-out lecture stretch")
+    test = [c for c in lecture_clips if c.info.split == "test"]
+    samples, paused = checkpoint_predictions(
+        [(checkpoint_path, checkpoint)], test, settings.samples, DEFAULT_SEED
+    )
+    rule, rule_paused = prosody_predictions(test, robot)
+    arms = quality_evaluation(
+        test,
+        samples | rule,
+        robot,
+        out_dir / "arms_distributions.png",
+        paused=paused | rule_paused,
+    )
+    progress("evaluating the head leave-one-speaker-out over the talking-head clips")
+    loso_settings = TrainSettings(
+        max_epochs=settings.loso_epochs,
+        batch_size=settings.batch_size,
+        patience=settings.patience,
+        seed=settings.seed,
+        show_progress=False,
+    )
+    fold_choices: list[SamplingChoice] = []
+
+    def tune(fold: Checkpoint, fold_validation: list[Clip]) -> Checkpoint:
+        tuned, fold_choice = select_sampling(fold, fold_validation, robot)
+        if fold_choice.settings:
+            fold_choices.append(fold_choice)
+            progress(fold_choice.table().splitlines()[0])
+        return tuned
+
+    clips, loso, loso_paused = loso_predictions(
+        heads, robot, ["live_groups", "mlp"], loso_settings, settings.samples, progress, tune
+    )
+    head = quality_evaluation(
+        clips, loso, robot, out_dir / "head_distributions.png", paused=loso_paused
+    )
+    table = (
+        "head: leave one speaker out over the talking-head clips\n"
+        + head.table()
+        + "\n\narms and hip: held-out lecture stretch\n"
+        + arms.table()
+    )
+    selection = (
+        "sampling settings of the shipped model\n"
+        + choice.table()
+        + "\n\nsampling settings of the leave-one-speaker-out folds (head)\n"
+        + "\n".join(c.table().splitlines()[0] for c in fold_choices)
+    )
+    (out_dir / "metrics.txt").write_text(table + "\n\n" + selection + "\n", encoding="utf-8")
+    card = write_learned_model_card(
+        out_dir, checkpoint, report, heads, lecture, head, arms, choice, fold_choices
+    )
+    return DefaultModelResult(checkpoint_path, card, table)

@@ -1,0 +1,106 @@
+"""Train a streaming model to imitate the hand-written prosody rule (the first default model).
+
+The packaged default model is built by this module from the bundled LibriVox speech: audio
+features are the model's input, the trajectory of :func:`prosody_trajectory` its target. The
+result moves the robot in time with the voice, but it has learned a rule written in this
+repository, not human motion; the model card it writes says so.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec, extract_features
+from audio2pose_ros.audio.pcm import read_wav
+from audio2pose_ros.checkpoints.torch_io import Checkpoint, save_checkpoint
+from audio2pose_ros.learning.training import TrainReport, TrainSettings, Utterance, train_model
+from audio2pose_ros.models.mlp import FramewiseMLP, MLPConfig
+from audio2pose_ros.motion.prosody import ProsodyRule, prosody_trajectory
+from audio2pose_ros.offline.synthesis import synthesize
+from audio2pose_ros.robot.description import RobotDescription
+
+
+def _rmse_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Overall RMSE in degrees (seed 003 eq. 3.12)."""
+    return float(np.degrees(np.sqrt(np.mean((a - b) ** 2))))
+
+
+def distill_prosody(
+    wavs: Sequence[Path],
+    output: Path,
+    robot: RobotDescription,
+    validation: Sequence[str] = (),
+    spec: FeatureSpec | None = None,
+    model_config: MLPConfig | None = None,
+    settings: TrainSettings | None = None,
+) -> tuple[Checkpoint, TrainReport, dict[str, float]]:
+    """Train an MLP on ``wavs`` to reproduce :class:`ProsodyRule` and save it to ``output``.
+
+    Args:
+        wavs: speech files (any rate; mono or stereo).
+        output: checkpoint path (.safetensors).
+        robot: joint order, limits and neutral pose.
+        validation: file stems held out for validation (default: the last file).
+        spec: input features (default LogFB-26, seed 003's choice).
+        model_config: MLP architecture (default: seed 003 Table 4.5 sized for ``spec``).
+        settings: training settings.
+
+    Returns:
+        The checkpoint, the training report and held-out metrics: RMSE in degrees of the
+        smoothed model output against the rule, and of the static neutral pose against the rule.
+
+    """
+    spec = spec or FeatureSpec()
+    if spec.kind != "logfbank" or spec.delta_order != 0:
+        raise ValueError(
+            "the prosody rule reads plain log filter banks (kind 'logfbank', no deltas)"
+        )
+    held_out = set(validation) or {Path(wavs[-1]).stem}
+    signals = {Path(w).stem: read_wav(w)[0] for w in wavs}
+    raw = {name: extract_features(sig, spec) for name, sig in signals.items()}
+    targets = {name: prosody_trajectory(frames, robot) for name, frames in raw.items()}
+    normalizer = FeatureNormalizer.fit(np.concatenate(list(raw.values())))
+    utterances = {
+        name: Utterance(
+            name=name,
+            features=normalizer.apply(frames),
+            targets=robot.normalize(targets[name]),
+            mask=np.ones_like(targets[name], dtype=bool),
+        )
+        for name, frames in raw.items()
+    }
+    train = [u for n, u in utterances.items() if n not in held_out]
+    val = [u for n, u in utterances.items() if n in held_out]
+
+    torch.manual_seed((settings or TrainSettings()).seed)
+    config = model_config or MLPConfig(n_features=spec.dim, n_joints=robot.n_joints)
+    model = FramewiseMLP(config)
+    report = train_model(model, train, val, settings)
+    checkpoint = Checkpoint(
+        model=model,
+        features=spec,
+        normalizer=normalizer,
+        robot=robot,
+        info={
+            "trained_on": "prosody rule targets (audio2pose_ros.motion.prosody), not human motion",
+            "prosody_rule": asdict(ProsodyRule()),
+            "train_clips": sorted(u.name for u in train),
+            "validation_clips": sorted(u.name for u in val),
+            "best_epoch": report.best_epoch,
+            "best_validation_loss": report.best_val_loss,
+        },
+    )
+    save_checkpoint(output, checkpoint)
+
+    metrics = {}
+    for name in sorted(held_out):
+        _, predicted = synthesize(checkpoint, signals[name])
+        metrics[f"{name} model RMSE deg"] = _rmse_deg(predicted, targets[name])
+        neutral = np.broadcast_to(robot.neutral_rad, targets[name].shape)
+        metrics[f"{name} neutral-pose RMSE deg"] = _rmse_deg(neutral, targets[name])
+    return checkpoint, report, metrics

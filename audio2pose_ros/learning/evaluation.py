@@ -1,0 +1,639 @@
+"""Compare trained models and baselines on a data set split (``audio2pose evaluate``).
+
+Every model is evaluated after the seed's post-processing (seed 003 section 4.3.3: predictions
+mapped back with nu^-1, smoothed by the zero-phase 4 Hz Butterworth filter, clamped to the
+limits: :func:`audio2pose_ros.offline.synthesis.synthesize`); samplers are evaluated on one sample
+with a
+fixed seed, and their diversity on ``n_samples`` samples. The baselines are those of the field:
+the static neutral pose, the mean training motion (the mean pose of the training clips, held
+still) and real motion from a different utterance of the same speaker (cut or repeated to the
+clip's length). Metrics: :mod:`audio2pose_ros.learning.metrics` (seed 003 section 3.4 and GENEA's
+Hellinger distances), averaged over clips. One PNG per clip shows the audio waveform and, for
+every joint, the ground truth and each model's prediction.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from audio2pose_ros.audio.features import FeatureSpec, extract_features
+from audio2pose_ros.checkpoints.torch_io import Checkpoint
+from audio2pose_ros.data.dataset import AUDIO_RATE_HZ, MOTION_RATE_HZ, Clip, Dataset
+from audio2pose_ros.errors import InputError
+from audio2pose_ros.learning import metrics
+from audio2pose_ros.learning.training import TrainSettings
+from audio2pose_ros.offline.synthesis import synthesize
+from audio2pose_ros.robot.description import RobotDescription
+
+NEUTRAL = "neutral pose"
+MEAN_MOTION = "mean training motion"
+OTHER_UTTERANCE = "other utterance, same speaker"
+COLUMNS = (
+    ("L", "{:.4f}"),
+    ("RMSE deg", "{:.2f}"),
+    ("LCCA_Theta", "{:.3f}"),
+    ("Delta LCCA", "{:.3f}"),
+    ("J 1e3 rad2/s5", "{:.2f}"),
+    ("Delta J 1e3", "{:.2f}"),
+    ("H speed", "{:.3f}"),
+    ("H accel", "{:.3f}"),
+    ("diversity deg", "{:.2f}"),
+)
+
+
+class EvaluationError(InputError):
+    """Nothing to evaluate: an empty split, or checkpoints made for another robot."""
+
+
+@dataclass
+class MethodResult:
+    """Metrics of one model or baseline, per clip; :meth:`row` averages them."""
+
+    name: str
+    per_clip: list[dict[str, float]] = field(default_factory=list)
+
+    def row(self) -> dict[str, float]:
+        """Mean of each metric over the clips where it is defined."""
+        out = {}
+        for column, _ in COLUMNS:
+            values = [c[column] for c in self.per_clip if not math.isnan(c.get(column, math.nan))]
+            out[column] = float(np.mean(values)) if values else math.nan
+        return out
+
+
+def clip_metrics(
+    features: np.ndarray,
+    true_rad: np.ndarray,
+    pred_rad: np.ndarray,
+    mask: np.ndarray,
+    robot: RobotDescription,
+    rate_hz: float = MOTION_RATE_HZ,
+) -> dict[str, float]:
+    """All seed 003 section 3.4 metrics and GENEA Hellinger distances of one clip."""
+    return {
+        "L": metrics.loss_l(robot.normalize(true_rad), robot.normalize(pred_rad), mask),
+        "RMSE deg": metrics.rmse_deg(true_rad, pred_rad, mask),
+        "LCCA_Theta": metrics.lcca_theta(true_rad, pred_rad, rate_hz, mask),
+        "Delta LCCA": metrics.delta_lcca(features, true_rad, pred_rad, rate_hz, mask),
+        "J 1e3 rad2/s5": metrics.jerk(pred_rad, rate_hz, mask) / 1e3,
+        "Delta J 1e3": metrics.delta_jerk(true_rad, pred_rad, rate_hz, mask) / 1e3,
+        "H speed": metrics.hellinger_speed(true_rad, pred_rad, rate_hz, mask),
+        "H accel": metrics.hellinger_acceleration(true_rad, pred_rad, rate_hz, mask),
+    }
+
+
+def _fit_length(motion: np.ndarray, n_frames: int) -> np.ndarray:
+    """Cut or repeat ``motion`` to ``n_frames`` frames."""
+    return np.resize(motion, (n_frames, motion.shape[1]))
+
+
+def _mean_training_pose(dataset: Dataset, robot: RobotDescription) -> np.ndarray:
+    total, count = np.zeros(robot.n_joints), np.zeros(robot.n_joints)
+    for clip in dataset.iter_split("train"):
+        total += np.where(clip.mask, np.nan_to_num(clip.angles_rad), 0.0).sum(axis=0)
+        count += clip.mask.sum(axis=0)
+    return np.where(count > 0, total / np.maximum(count, 1), robot.neutral_rad)
+
+
+def _other_utterance(dataset: Dataset, clip: Clip) -> Clip | None:
+    """Another clip of the same speaker: the next one in index order, wrapping around."""
+    same = [c for c in dataset.clips if c.speaker == clip.info.speaker]
+    if len(same) < 2:
+        return None
+    index = next(i for i, c in enumerate(same) if c.clip_id == clip.info.clip_id)
+    return dataset.load(same[(index + 1) % len(same)].clip_id)
+
+
+def _model_label(checkpoint: Checkpoint, path: Path) -> str:
+    return f"{checkpoint.model.name} ({path.stem})"
+
+
+@dataclass
+class Evaluation:
+    """Results of :func:`evaluate`: one entry per method, in table order, and the PNGs."""
+
+    methods: list[MethodResult]
+    clips: list[str]
+    figures: list[Path] = field(default_factory=list)
+
+    def table(self) -> str:
+        """A plain-text table: one row per method, one column per metric (means over clips)."""
+        width = max(len(m.name) for m in self.methods) + 2
+        header = f"{'method':<{width}}" + "".join(f"{c:>15}" for c, _ in COLUMNS)
+        lines = [f"{len(self.clips)} clips", header]
+        for method in self.methods:
+            row = method.row()
+            cells = "".join(
+                f"{'-' if math.isnan(row[c]) else fmt.format(row[c]):>15}" for c, fmt in COLUMNS
+            )
+            lines.append(f"{method.name:<{width}}{cells}")
+        return "\n".join(lines)
+
+
+def evaluate(
+    checkpoints: Sequence[tuple[Path, Checkpoint]],
+    dataset: Dataset,
+    robot: RobotDescription,
+    split: str = "test",
+    out_dir: Path | None = None,
+    n_samples: int = 3,
+    seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> Evaluation:
+    """Evaluate models and baselines on every clip of ``split``.
+
+    Args:
+        checkpoints: (path, loaded checkpoint) pairs; all must be made for ``robot``.
+        dataset: the data set.
+        robot: joint order and ranges.
+        split: 'train', 'validation' or 'test'.
+        out_dir: write one PNG per clip here; None = no figures.
+        n_samples: samples per clip for the diversity of samplers.
+        seed: seed of the samplers' noise.
+        progress: called with each clip id before it is evaluated.
+
+    Raises:
+        EvaluationError: no clips in the split.
+
+    """
+    clips = list(dataset.iter_split(split))
+    if not clips:
+        raise EvaluationError(f"{dataset.root}: no clips in split {split!r}")
+    mean_pose = _mean_training_pose(dataset, robot)
+    methods = [MethodResult(NEUTRAL), MethodResult(MEAN_MOTION), MethodResult(OTHER_UTTERANCE)]
+    methods += [MethodResult(_model_label(ckpt, path)) for path, ckpt in checkpoints]
+    evaluation = Evaluation(methods, [c.info.clip_id for c in clips])
+    for clip in clips:
+        if progress is not None:
+            progress(clip.info.clip_id)
+        features = extract_features(clip.audio, FeatureSpec())
+        predictions: dict[str, np.ndarray] = {}
+        for path, ckpt in checkpoints:
+            _, angles = synthesize(ckpt, clip.audio, seed=seed)
+            predictions[_model_label(ckpt, path)] = angles
+        n = min(clip.n_frames, features.shape[0], *(p.shape[0] for p in predictions.values()))
+        true, mask = clip.angles_rad[:n], clip.mask[:n]
+        true = np.where(mask, np.nan_to_num(true), robot.neutral_rad)
+        candidates = {
+            NEUTRAL: np.broadcast_to(robot.neutral_rad, true.shape),
+            MEAN_MOTION: np.broadcast_to(mean_pose, true.shape),
+        }
+        other = _other_utterance(dataset, clip)
+        if other is not None:
+            candidates[OTHER_UTTERANCE] = _fit_length(
+                np.where(other.mask, np.nan_to_num(other.angles_rad), mean_pose), n
+            )
+        candidates |= {name: pred[:n] for name, pred in predictions.items()}
+        for method in methods:
+            if method.name not in candidates:
+                method.per_clip.append({})
+                continue
+            method.per_clip.append(
+                clip_metrics(features[:n], true, candidates[method.name], mask, robot)
+            )
+        for (_, ckpt), method in zip(checkpoints, methods[3:], strict=True):
+            if ckpt.model.stochastic and n_samples >= 2:
+                samples = [
+                    synthesize(ckpt, clip.audio, seed=seed + s)[1][:n] for s in range(n_samples)
+                ]
+                method.per_clip[-1]["diversity deg"] = metrics.diversity_deg(np.stack(samples))
+        if out_dir is not None:
+            evaluation.figures.append(
+                plot_clip(out_dir / f"{clip.info.clip_id}.png", clip, true, predictions, robot)
+            )
+    return evaluation
+
+
+def plot_clip(
+    path: Path,
+    clip: Clip,
+    true_rad: np.ndarray,
+    predictions: dict[str, np.ndarray],
+    robot: RobotDescription,
+) -> Path:
+    """One PNG: the waveform on top, then every joint's ground truth and predictions (degrees)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    n = true_rad.shape[0]
+    times_s = np.arange(n) / MOTION_RATE_HZ
+    fig, axes = plt.subplots(
+        robot.n_joints + 1, 1, figsize=(10, 2 + 1.3 * robot.n_joints), sharex=True
+    )
+    audio_times_s = np.arange(clip.audio.shape[0]) / AUDIO_RATE_HZ
+    axes[0].plot(audio_times_s, clip.audio, color="0.5", linewidth=0.3)
+    axes[0].set_ylabel("audio")
+    axes[0].set_title(f"{clip.info.clip_id} ({clip.info.speaker})")
+    for j, ax in enumerate(axes[1:]):
+        ax.plot(times_s, np.degrees(true_rad[:, j]), color="black", linewidth=1.2, label="truth")
+        for name, pred in predictions.items():
+            ax.plot(times_s, np.degrees(pred[:n, j]), linewidth=0.9, label=name)
+        ax.set_ylabel(f"{robot.names[j]}\n(deg)", fontsize=7)
+    axes[1].legend(fontsize=6, loc="upper right")
+    axes[-1].set_xlabel("time (s)")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=70)
+    plt.close(fig)
+    return path
+
+
+# --- Distribution evaluation per joint group (issue 13 item 3) ---------------------------------
+
+STATIC = "static pose"
+MISMATCHED = "mismatched real motion"
+QUALITY_MEASURES = ("H speed", "H accel", "std ratio", "speech/silence speed", "speech/pause speed")
+Predictions = dict[str, dict[str, list[np.ndarray]]]  # method -> clip id -> samples (N, J) rad
+
+
+@dataclass
+class GroupRow:
+    """Measures of one method on one joint group, pooled over the held-out clips.
+
+    Attributes:
+        method: model or baseline name.
+        group: joint group ('head', 'arms', 'hip').
+        measures: :data:`QUALITY_MEASURES` -> (value, 2.5 %, 97.5 % bootstrap bounds).
+        rmse_deg: mean over clips of the RMSE (seed 003 eq. 3.12) on the group's joints.
+        lcca: mean over clips of LCCA_Theta (seed 003 eq. 3.19, Table 5.1).
+        diversity_deg: mean pairwise RMS distance of samples with different seeds (NaN when the
+            method is deterministic).
+
+    """
+
+    method: str
+    group: str
+    measures: dict[str, tuple[float, float, float]]
+    rmse_deg: float
+    lcca: float
+    diversity_deg: float
+
+
+@dataclass
+class QualityEvaluation:
+    """Result of :func:`quality_evaluation`: rows per method and group, histograms, seconds."""
+
+    rows: list[GroupRow]
+    histograms: dict[
+        tuple[str, str], tuple[np.ndarray, np.ndarray]
+    ]  # (method, group) -> (speed, accel)
+    seconds: float
+    silence_seconds: float
+    figure: Path | None = None
+
+    def table(self) -> str:
+        """Plain text: one line per (group, method); bracketed 95 % bootstrap intervals."""
+        lines = [
+            f"{self.seconds:.0f} s of held-out motion ({self.silence_seconds:.0f} s in silences "
+            f">= {metrics.SILENCE_MIN_S:.0f} s); [95 % bootstrap interval over 1 s segments]",
+            f"{'group':<6}{'method':<34}{'H speed':>20}{'H accel':>20}{'std/real':>20}"
+            f"{'speech/silence':>20}{'speech/pause':>20}{'RMSE deg':>10}{'LCCA':>7}{'div deg':>9}",
+        ]
+        for row in self.rows:
+            cells = ""
+            for key in QUALITY_MEASURES:
+                value, low, high = row.measures[key]
+                cells += f"{_ci(value, low, high):>20}"
+            lines.append(
+                f"{row.group:<6}{row.method:<34}{cells}{_num(row.rmse_deg, 2):>10}"
+                f"{_num(row.lcca, 2):>7}{_num(row.diversity_deg, 2):>9}"
+            )
+        return "\n".join(lines)
+
+
+def _num(value: float, digits: int) -> str:
+    return "-" if not math.isfinite(value) else f"{value:.{digits}f}"
+
+
+def _ci(value: float, low: float, high: float) -> str:
+    if not math.isfinite(value):
+        return "-"
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return f"{value:.2f}"
+    return f"{value:.2f} [{low:.2f},{high:.2f}]"
+
+
+def mismatched_order(speakers: Sequence[str]) -> list[int]:
+    """A cyclic shift of the clips pairing each with another speaker's where possible.
+
+    Every clip's motion is used exactly once, so the mismatched baseline's motion has the same
+    overall distribution as the real motion; of the shifts, the one with the fewest same-speaker
+    pairs is taken (ties: the shift closest to half the clips).
+    """
+    n = len(speakers)
+    if n < 2:
+        return list(range(n))
+
+    def cost(shift: int) -> tuple[int, int]:
+        same = sum(speakers[i] == speakers[(i + shift) % n] for i in range(n))
+        return same, abs(shift - n / 2)
+
+    best = min(range(1, n), key=cost)
+    return [(i + best) % n for i in range(n)]
+
+
+PAUSE_S = 1.5  # silence inserted into held-out audio for the speech / silence speed ratio
+_PAUSE_LEVEL = 3e-4  # RMS of the inserted room noise (about -70 dBFS)
+
+
+def with_pause(audio: np.ndarray, seed: int = 0) -> np.ndarray:
+    """The clip's audio with :data:`PAUSE_S` of quiet room noise inserted in the middle."""
+    noise = _PAUSE_LEVEL * np.random.default_rng(seed).standard_normal(int(PAUSE_S * AUDIO_RATE_HZ))
+    middle = audio.size // 2
+    return np.concatenate([audio[:middle], noise, audio[middle:]]).astype(np.float32)
+
+
+def quality_evaluation(
+    clips: Sequence[Clip],
+    predictions: Predictions,
+    robot: RobotDescription,
+    out_figure: Path | None = None,
+    n_resamples: int = 200,
+    seed: int = 0,
+    paused: Predictions | None = None,
+) -> QualityEvaluation:
+    """Compare generated with real motion per joint group, with baselines on the same clips.
+
+    For every joint group with real (observed) motion in ``clips``: the Hellinger distances
+    between histograms of joint speed and of acceleration, generated vs real, computed per joint
+    and averaged over the group's joints (GENEA's numerical evaluation); the standard deviation
+    of the clip-centred angles relative to real; the ratio of mean joint speed during speech to
+    that during silences of at least 1 s (energy VAD, :func:`metrics.energy_vad`); each with a
+    95 % paired bootstrap interval over 1 s segments. Also the seed's RMSE and LCCA_Theta (seed
+    003 Table 5.1) and the diversity of samples with different seeds. Baselines: a static pose
+    (the robot's neutral pose: the floor) and real motion of another held-out clip, of another
+    speaker where there is one, cut or repeated to length (the ceiling; a cyclic shift, so
+    every clip's motion is used once, :func:`mismatched_order`). Held-out clips rarely hold a
+    silence of a second or more, so ``paused`` gives each method's motion on the clips' audio
+    with :data:`PAUSE_S` of quiet inserted (:func:`with_pause`): its speech / silence speed
+    ratio is the "speech/pause speed" measure.
+
+    Args:
+        clips: held-out clips with real motion.
+        predictions: method -> clip id -> one or more sampled motions (N, J) in radians; the
+            distribution measures pool all samples segment by segment
+            (:func:`metrics.sum_segments`, so sampling noise averages out and the bootstrap
+            stays paired), RMSE and LCCA are those of the first sample, all of them give the
+            diversity.
+        robot: joint order and groups.
+        out_figure: write the speed and acceleration histograms here (PNG); None = no figure.
+        n_resamples: bootstrap resamples.
+        seed: bootstrap seed.
+        paused: method -> clip id -> motions on ``with_pause(clip.audio)`` (pooled like
+            ``predictions``); None = no speech/pause measure.
+
+    Raises:
+        EvaluationError: no clips.
+
+    """
+    if not clips:
+        raise EvaluationError("no held-out clips to evaluate")
+    rate = MOTION_RATE_HZ
+    methods = [STATIC, MISMATCHED, *predictions]
+    motion: dict[str, list[tuple[list[np.ndarray], np.ndarray]]] = {m: [] for m in methods}
+    real, speech_frames = [], []
+    order = mismatched_order([c.info.speaker for c in clips])
+    for i, clip in enumerate(clips):
+        n = min([clip.n_frames, *(p[clip.info.clip_id][0].shape[0] for p in predictions.values())])
+        true = np.where(clip.mask[:n], np.nan_to_num(clip.angles_rad[:n]), robot.neutral_rad)
+        real.append((true, clip.mask[:n]))
+        speech_frames.append(metrics.energy_vad(clip.audio, n))
+        everywhere = np.ones_like(clip.mask[:n])
+        other = clips[order[i]]
+        motion[STATIC].append(([np.broadcast_to(robot.neutral_rad, true.shape)], everywhere))
+        motion[MISMATCHED].append(
+            ([_fit_length(np.nan_to_num(other.angles_rad), n)], _fit_length(other.mask, n))
+        )
+        for name, per_clip in predictions.items():
+            motion[name].append(([s[:n] for s in per_clip[clip.info.clip_id]], everywhere))
+    rows, histograms = [], {}
+    groups = [g for g in ("head", "arms", "hip") if robot.group_mask(g).any()]
+    for group in groups:
+        joints = robot.group_mask(group)
+        if not any(mask[:, joints].any() for _, mask in real):
+            continue
+        real_segments = metrics.concat_segments(
+            [
+                metrics.segment_statistics(t[:, joints], m[:, joints], s, rate)
+                for (t, m), s in zip(real, speech_frames, strict=True)
+            ]
+        )
+        histograms[("real", group)] = _density(real_segments)
+        for name in methods:
+            gen = metrics.concat_segments(
+                [
+                    metrics.sum_segments(
+                        [
+                            metrics.segment_statistics(
+                                p[:, joints], g[:, joints] & m[:, joints], s, rate
+                            )
+                            for p in samples
+                        ]
+                    )
+                    for (samples, g), (_, m), s in zip(
+                        motion[name], real, speech_frames, strict=True
+                    )
+                ]
+            )
+            # std, speed ratio: only where the real angle is known, so both sides match
+            measures = metrics.bootstrap_measures(real_segments, gen, n_resamples, seed)
+            measures["speech/pause speed"] = _pause_ratio(
+                clips, (paused or {}).get(name), joints, n_resamples, seed
+            )
+            histograms[(name, group)] = _density(gen)
+            rmse, lcca = [], []
+            for (samples, _), (t, m) in zip(motion[name], real, strict=True):
+                p = samples[0]
+                if m[:, joints].any():
+                    rmse.append(metrics.rmse_deg(t[:, joints], p[:, joints], m[:, joints]))
+                if m[:, joints].all(axis=0).any():
+                    lcca.append(metrics.lcca_theta(t[:, joints], p[:, joints], rate, m[:, joints]))
+            diversity = [
+                metrics.diversity_deg(np.stack([s[: t.shape[0], joints] for s in samples]))
+                for samples, (t, _) in zip(
+                    (
+                        [predictions[name][c.info.clip_id] for c in clips]
+                        if name in predictions
+                        else []
+                    ),
+                    real,
+                    strict=False,
+                )
+                if len(samples) >= 2
+            ]
+            rows.append(
+                GroupRow(
+                    name,
+                    group,
+                    measures,
+                    float(np.mean(rmse)) if rmse else math.nan,
+                    float(np.mean(lcca)) if lcca else math.nan,
+                    float(np.mean(diversity)) if diversity else math.nan,
+                )
+            )
+    seconds = sum(t.shape[0] for t, _ in real) / rate
+    silence = sum(metrics.long_silences(s, rate).sum() for s in speech_frames) / rate
+    result = QualityEvaluation(rows, histograms, seconds, float(silence))
+    if out_figure is not None:
+        result.figure = plot_histograms(out_figure, result, methods)
+    return result
+
+
+def _pause_ratio(
+    clips: Sequence[Clip],
+    motions: dict[str, list[np.ndarray]] | None,
+    joints: np.ndarray,
+    n_resamples: int,
+    seed: int,
+) -> tuple[float, float, float]:
+    """Speech / silence speed ratio of motions generated on the clips' audio with a pause."""
+    if not motions:
+        return math.nan, math.nan, math.nan
+    parts = []
+    for clip in clips:
+        samples = [m[:, joints] for m in motions[clip.info.clip_id]]
+        speech = metrics.energy_vad(with_pause(clip.audio), samples[0].shape[0])
+        everywhere = np.ones(samples[0].shape, bool)
+        parts.append(
+            metrics.sum_segments(
+                [metrics.segment_statistics(m, everywhere, speech, MOTION_RATE_HZ) for m in samples]
+            )
+        )
+    segments = metrics.concat_segments(parts)
+    return metrics.bootstrap_measures(segments, segments, n_resamples, seed)["speech/silence speed"]
+
+
+def _density(segments: metrics.MotionSegments) -> tuple[np.ndarray, np.ndarray]:
+    """Pooled speed and acceleration histograms (all joints of the group), as fractions."""
+    speed = segments.speed_counts.sum(axis=(0, 1))
+    accel = segments.accel_counts.sum(axis=(0, 1))
+    return speed / max(speed.sum(), 1.0), accel / max(accel.sum(), 1.0)
+
+
+def plot_histograms(path: Path, result: QualityEvaluation, methods: Sequence[str]) -> Path:
+    """One PNG of speed and acceleration histograms per joint group, generated vs real.
+
+    Rows are joint groups, columns speed and acceleration; real motion is the grey area, each
+    method a line (the static pose, all in the first bin, is left out).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    groups = sorted({g for _, g in result.histograms}, key=("head", "arms", "hip").index)
+    fig, axes = plt.subplots(len(groups), 2, figsize=(11, 3.2 * len(groups)), squeeze=False)
+    edges = (metrics.SPEED_BINS_RAD_S[:-1], metrics.ACCELERATION_BINS_RAD_S2[:-1])
+    limits = (3.0, 100.0)
+    for r, group in enumerate(groups):
+        for c, (label, unit) in enumerate((("speed", "rad/s"), ("acceleration", "rad/s^2"))):
+            ax = axes[r, c]
+            real = result.histograms[("real", group)][c]
+            ax.fill_between(edges[c], real, step="post", color="0.8", label="real")
+            for name in methods:
+                if name == STATIC or (name, group) not in result.histograms:
+                    continue
+                ax.step(edges[c], result.histograms[(name, group)][c], where="post", label=name)
+            ax.set_yscale("log")
+            ax.set_xlim(0, limits[c])
+            ax.set_title(f"{group}: joint {label} (held-out)", fontsize=9)
+            ax.set_xlabel(unit, fontsize=8)
+            ax.set_ylabel("fraction of frames", fontsize=8)
+    axes[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def loso_predictions(
+    dataset: Dataset,
+    robot: RobotDescription,
+    model_names: Sequence[str],
+    settings: TrainSettings,
+    n_samples: int = 3,
+    progress: Callable[[str], None] | None = None,
+    tune: Callable[[Checkpoint, list[Clip]], Checkpoint] | None = None,
+) -> tuple[list[Clip], Predictions, Predictions]:
+    """Leave one speaker out: for each speaker, train each model on the others, predict it.
+
+    Every clip of the data set is held out exactly once (in its speaker's fold), whatever its
+    split label; validation for early stopping holds out further speakers of the training side
+    (:func:`~audio2pose_ros.learning.training.train_on_clips`). ``tune`` (e.g. the choice of a
+    sampler's settings, :mod:`audio2pose_ros.learning.sampler_selection`) receives each fold's
+    trained checkpoint and that fold's validation clips, never the held-out speaker's, and
+    returns the checkpoint that predicts the held-out speaker.
+
+    Returns:
+        All clips; per model label (``"<name> (LOSO)"``) and clip id the synthesized samples
+        (seeds ``settings.seed`` + 0 .. n_samples - 1; one for deterministic models); and the
+        same for the clips' audio with a pause (:func:`with_pause`).
+
+    Raises:
+        EvaluationError: fewer than two speakers.
+
+    """
+    from audio2pose_ros.learning.training import train_on_clips
+
+    clips = [dataset.load(c.clip_id) for c in dataset.clips]
+    speakers = sorted({c.info.speaker for c in clips})
+    if len(speakers) < 2:
+        raise EvaluationError(f"{dataset.root}: leave-one-speaker-out needs two speakers")
+    predictions: Predictions = {f"{m} (LOSO)": {} for m in model_names}
+    paused: Predictions = {f"{m} (LOSO)": {} for m in model_names}
+    for k, speaker in enumerate(speakers):
+        training = [c for c in clips if c.info.speaker != speaker]
+        held_out = [c for c in clips if c.info.speaker == speaker]
+        for name in model_names:
+            if progress is not None:
+                progress(f"fold {k + 1}/{len(speakers)} ({speaker} held out): training {name}")
+            checkpoint, _ = train_on_clips(name, training, robot, settings)
+            if tune is not None:
+                validation = set(checkpoint.info["validation_clips"])
+                checkpoint = tune(checkpoint, [c for c in training if c.info.clip_id in validation])
+            label = f"{name} (LOSO)"
+            samples, pauses = checkpoint_predictions(
+                [(Path(label), checkpoint)], held_out, n_samples, settings.seed
+            )
+            predictions[label] |= next(iter(samples.values()))
+            paused[label] |= next(iter(pauses.values()))
+    return clips, predictions, paused
+
+
+def checkpoint_predictions(
+    checkpoints: Sequence[tuple[Path, Checkpoint]],
+    clips: Sequence[Clip],
+    n_samples: int = 3,
+    seed: int = 0,
+) -> tuple[Predictions, Predictions]:
+    """Synthesized samples of checkpoints on clips, and on their audio with a pause.
+
+    Returns:
+        method -> clip id -> samples (seeds seed .. seed + n - 1; one for deterministic
+        models), and method -> clip id -> the samples with the same seeds on
+        ``with_pause(clip.audio)``.
+    """
+    samples: Predictions = {}
+    paused: Predictions = {}
+    for path, ckpt in checkpoints:
+        draws = n_samples if ckpt.model.stochastic else 1
+        label = _model_label(ckpt, path)
+        samples[label] = {
+            c.info.clip_id: [synthesize(ckpt, c.audio, seed=seed + s)[1] for s in range(draws)]
+            for c in clips
+        }
+        paused[label] = {
+            c.info.clip_id: [
+                synthesize(ckpt, with_pause(c.audio), seed=seed + s)[1] for s in range(draws)
+            ]
+            for c in clips
+        }
+    return samples, paused

@@ -1,0 +1,108 @@
+"""A causal speech gate on normalised audio features (numpy only, no torch).
+
+Used by the ``live_groups`` model (:mod:`audio2pose_ros.models.live_groups`) to scale its
+sampling noise: people keep still when they stop talking. The frame's mean z-normalised log
+filter-bank energy e_t is compared with a slowly decaying peak of recent energy,
+peak_t = max(e_t, peak_(t-1) - :data:`PEAK_DECAY_PER_S` / rate); activity
+v_t = sigmoid((e_t - peak_t + margin) / width) is smoothed with a first-order low-pass of time
+constant :data:`GATE_TAU_S`, s_t, and the factor is rest + (1 - rest) s_t. Relative to the
+recent peak, it does not depend on the recording level. Torch-free, so the numpy runtime
+(:mod:`audio2pose_ros.checkpoints.numpy_runtime`) can use it too.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Protocol
+
+import numpy as np
+
+GATE_TAU_S = 0.3  # smoothing of the speech gate
+PEAK_DECAY_PER_S = 0.3  # z-units per second the energy peak forgets
+
+
+class SpeechGate:
+    """Causal speech activity in [0, 1] from normalised features (see the module docstring)."""
+
+    def __init__(self, rest: float, margin: float, width: float, rate_hz: float = 100.0) -> None:
+        """Start silent, with the peak at the training audio's mean energy (0).
+
+        Args:
+            rest: factor in silence (1 = no gate).
+            margin: how far (z-units) below the recent peak the energy may fall and count as
+                speech.
+            width: softness of that threshold (z-units).
+            rate_hz: frame rate.
+
+        """
+        self.rest, self.margin, self.width = rest, margin, width
+        self.smoothing = float(np.exp(-1.0 / (GATE_TAU_S * rate_hz)))
+        self.decay = PEAK_DECAY_PER_S / rate_hz
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the peak and the smoothed activity."""
+        self.peak, self.level = 0.0, 0.0
+
+    def step(self, features: np.ndarray) -> float:
+        """Temperature factor of one frame: rest + (1 - rest) * smoothed activity."""
+        if self.rest >= 1.0:
+            return 1.0
+        energy = float(np.mean(features))
+        self.peak = max(energy, self.peak - self.decay)
+        active = 1.0 / (1.0 + np.exp(-(energy - self.peak + self.margin) / self.width))
+        self.level = self.smoothing * self.level + (1.0 - self.smoothing) * active
+        return self.rest + (1.0 - self.rest) * self.level
+
+    def run(self, frames: np.ndarray) -> np.ndarray:
+        """(T, F) frames of one utterance -> (T,) factors, from a fresh state."""
+        self.reset()
+        return np.array([self.step(frame) for frame in frames])
+
+
+class SamplerPart(Protocol):
+    """One part of a grouped sampler: a seeded per-frame sampler with a settable temperature."""
+
+    temperature: float
+
+    def reset(self, seed: int) -> None:
+        """Forget the state and restart the noise from ``seed``."""
+
+    def step(self, features: np.ndarray) -> np.ndarray:
+        """Sample the part's joints for one frame."""
+
+
+class GroupedSampler:
+    """Parts sampling disjoint joint groups, their noise scaled by one :class:`SpeechGate`.
+
+    Shared by the torch model's predictor and the numpy runtime's kernel of ``live_groups``.
+    A subclass sets ``_groups`` (joint indices per part), ``_parts``, ``_factors`` (each part's
+    own temperature), ``_gate``, ``_n_joints``, ``seed`` and ``temperature``. Per frame part k
+    samples at temperature * its factor * the gate's factor (0 at temperature 0) with seed
+    ``seed + k``, and its pose is scattered into the robot's joint order.
+    """
+
+    _groups: Sequence[np.ndarray]
+    _parts: Sequence[SamplerPart]
+    _factors: Sequence[float]
+    _gate: SpeechGate
+    _n_joints: int
+    seed: int
+    temperature: float
+
+    def reset(self, seed: int | None = None) -> None:
+        """Forget the state; optionally change the seed."""
+        if seed is not None:
+            self.seed = seed
+        self._gate.reset()
+        for k, part in enumerate(self._parts):
+            part.reset(self.seed + k)
+
+    def step(self, features: np.ndarray) -> np.ndarray:
+        """Sample the pose of one (n_features,) frame: (n_joints,) in [0, 1]."""
+        scale = self._gate.step(features) if self.temperature else 0.0
+        pose = np.empty(self._n_joints)
+        for joints, part, factor in zip(self._groups, self._parts, self._factors, strict=True):
+            part.temperature = self.temperature * factor * scale
+            pose[joints] = part.step(features)
+        return pose

@@ -1,0 +1,1 @@
+"""Offline use of a model: synthesis from audio, trajectories, benchmarks."""

@@ -1,0 +1,1 @@
+"""The robot: its description (joints, limits, neutral pose) and forward kinematics."""

@@ -1,0 +1,1 @@
+"""The only layer that imports rclpy: nodes, the graph supervisor and its tools."""

@@ -1,0 +1,659 @@
+"""``audio2pose faults``: attack the live node graph and print what the robot would have done.
+
+The campaign starts the three nodes as supervised processes (:func:`~audio2pose_ros.ros.graph.
+node_graph`, as ``audio2pose run`` does), plays the part of the rest of the world with one probe
+participant, and runs each :class:`Case` in turn over real DDS:
+
+- the probe streams a benign pose ``P`` on ``raw_trajectory`` (2 points every 20 ms, like
+  inference_node) with ``voice_activity`` true, and plays the robot: it echoes the commanded
+  pose back as the measured ``joint_states`` (naoqi_driver publishes the measured state there);
+- once the commands have settled on ``P``, the case injects its fault (a bad message, a bad
+  parameter, a killed or stopped process, an audio format bomb) and keeps the benign stream up;
+- the outcome is read from what the robot receives on ``joint_angles``: the worst deviation from
+  ``P`` (rad), finiteness, the joint limits, the largest step against what the velocity limit
+  allows, and the gaps between commands; process liveness and resident memory come from /proc.
+
+Each case says what the robot must do and what it did, and passes or fails on that. The table
+is the product: ``audio2pose faults`` prints it and exits 1 if any case failed.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import rclpy
+import yaml
+from audio_common_msgs.msg import AudioData, AudioInfo
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
+from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from rclpy.node import Node
+from rclpy.serialization import serialize_message
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, Float32MultiArray
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from audio2pose_ros.resources import share_path
+from audio2pose_ros.robot.description import RobotDescription, load_robot
+from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS
+from audio2pose_ros.ros.graph import NodeSupervisor, node_graph
+
+__all__ = ["Case", "Outcome", "cases", "run_campaign", "table"]
+
+MAX_DEVIATION_RAD = 0.1  # issue 11: one bad input moves no joint more than about this
+SETTLE_TOLERANCE_RAD = 0.005
+STREAM_PERIOD_S = 0.02  # the benign stream: 2 points of 10 ms every 20 ms
+MEASURED_PERIOD_S = 0.02  # naoqi_driver publishes the measured joint states at 50 Hz
+OBSERVE_S = 2.0  # how long each case watches the robot after its fault
+STEP_TOLERANCE = 1.05  # a step may exceed v_max * dt by this factor (timing jitter of dt)
+MAX_COMMAND_GAP_S = 0.1  # commands must keep flowing: no gap longer than this
+FEATURES_RSS_LIMIT_MB = 400.0
+STALE_LEVEL = 3  # diagnostic_msgs/DiagnosticStatus.STALE
+
+
+@dataclass
+class Outcome:
+    """What the robot did in one case."""
+
+    did: str
+    passed: bool
+    worst_deviation_rad: float = math.nan
+
+
+@dataclass
+class Case:
+    """One attack: a name, what the robot must do, and the function that runs it."""
+
+    name: str
+    must: str
+    run: Callable[[Campaign], Outcome]
+
+
+@dataclass
+class Commands:
+    """The commands the robot received during an observation window."""
+
+    times_s: np.ndarray  # (n,) arrival (monotonic)
+    positions_rad: np.ndarray  # (n, n_joints)
+
+    def worst_deviation(self, pose: np.ndarray, mask: np.ndarray | None = None) -> float:
+        """Largest |command - pose| over the window (rad), inf if any command is not finite."""
+        if len(self.positions_rad) == 0:
+            return math.nan
+        error = np.abs(self.positions_rad - pose[None, :])
+        if mask is not None:
+            error = error[:, mask]
+        return float(np.max(error)) if np.isfinite(error).all() else math.inf
+
+    def longest_gap_s(self) -> float:
+        """Longest time without a command (s)."""
+        return float(np.max(np.diff(self.times_s))) if len(self.times_s) > 1 else math.inf
+
+
+class CampaignProbe(Node):
+    """The world around the graph: raw poses, voice, stop/enable, head targets, audio, robot."""
+
+    def __init__(self, robot: RobotDescription) -> None:
+        """Publishers for every input of the graph; recorders for what the robot receives."""
+        super().__init__("audio2pose_fault_campaign")
+        self.robot = robot
+        self.raw = self.create_publisher(JointTrajectory, "raw_trajectory", STREAM_QOS)
+        self.voice = self.create_publisher(Bool, "voice_activity", STREAM_QOS)
+        self.stop = self.create_publisher(Bool, "stop", LATCHED_QOS)
+        self.enable = self.create_publisher(Bool, "enable", LATCHED_QOS)
+        self.head_target = self.create_publisher(JointState, "head_target", 10)
+        self.head_offset = self.create_publisher(JointState, "head_offset", 10)
+        self.measured = self.create_publisher(JointState, "joint_states", 10)
+        self.audio = self.create_publisher(AudioData, "audio/audio", 100)
+        self.audio_info = self.create_publisher(AudioInfo, "audio/audio_info", LATCHED_QOS)
+        self.set_filter_parameters = self.create_client(
+            SetParameters, "motion_filter_node/set_parameters"
+        )
+        self.commands: list[tuple[float, np.ndarray]] = []
+        self.features = 0
+        self.diagnostics: dict[str, tuple[int, str, dict[str, str]]] = {}
+        self.stale_reports: dict[str, int] = {}
+        self.create_subscription(JointAnglesWithSpeed, "joint_angles", self._on_command, 1000)
+        self.create_subscription(Float32MultiArray, "features", self._on_features, 100)
+        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 100)
+        self.pose = robot.neutral_rad.copy()
+        self.robot_pose = robot.neutral_rad.copy()
+        self.streaming = True
+        self.robot_reports = True  # publish the measured joint states, as naoqi_driver does
+        self._next_send_s = 0.0
+        self._next_measured_s = 0.0
+
+    def _on_command(self, msg: JointAnglesWithSpeed) -> None:
+        index = {name: i for i, name in enumerate(msg.joint_names)}
+        values = np.array(
+            [msg.joint_angles[index[n]] if n in index else math.nan for n in self.robot.names]
+        )
+        self.commands.append((time.monotonic(), values))
+        if np.isfinite(values).all():
+            self.robot_pose = values  # a perfect robot: it is where it was last commanded
+
+    def _on_features(self, msg: Float32MultiArray) -> None:
+        self.features += len(msg.layout.dim) and msg.layout.dim[0].size
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            name = status.name.rpartition(": ")[2]
+            values = {kv.key: kv.value for kv in status.values}
+            level = int.from_bytes(status.level, "little")
+            self.diagnostics[name] = (level, status.message, values)
+            if level == STALE_LEVEL:
+                self.stale_reports[name] = self.stale_reports.get(name, 0) + 1
+
+    def _joint_state(self, values: np.ndarray, names: tuple[str, ...] | None = None) -> JointState:
+        msg = JointState()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.name = list(names or self.robot.names)
+        msg.position = [float(v) for v in values]
+        return msg
+
+    def trajectory(self, rows: np.ndarray, stamp: Time | None = None) -> JointTrajectory:
+        """A raw_trajectory message like inference_node's: 10 ms points."""
+        msg = JointTrajectory()
+        msg.header.stamp = stamp or self.get_clock().now().to_msg()
+        msg.joint_names = list(self.robot.names)
+        for i, row in enumerate(np.atleast_2d(rows)):
+            point = JointTrajectoryPoint()
+            point.positions = [float(v) for v in row]
+            point.time_from_start.nanosec = 10_000_000 * (i + 1)
+            msg.points.append(point)
+        return msg
+
+    def spin_for(self, seconds: float) -> None:
+        """Serve callbacks and keep the benign stream going for ``seconds``."""
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            now = time.monotonic()
+            if self.streaming and now >= self._next_send_s:
+                self._next_send_s = now + STREAM_PERIOD_S
+                self.raw.publish(self.trajectory(np.stack([self.pose, self.pose])))
+                self.voice.publish(Bool(data=True))
+            if self.robot_reports and now >= self._next_measured_s:
+                self._next_measured_s = now + MEASURED_PERIOD_S
+                self.measured.publish(self._joint_state(self.robot_pose))
+            rclpy.spin_once(self, timeout_sec=0.002)
+
+    def observe(self, seconds: float) -> Commands:
+        """Commands received during the next ``seconds``."""
+        start = len(self.commands)
+        self.spin_for(seconds)
+        window = self.commands[start:]
+        n = self.robot.n_joints
+        return Commands(
+            np.array([t for t, _ in window]),
+            np.array([p for _, p in window]).reshape(-1, n),
+        )
+
+    def settle(self, pose: np.ndarray, timeout_s: float = 15.0) -> bool:
+        """Stream ``pose`` until the commands sit on it."""
+        self.pose = pose.copy()
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            window = self.observe(0.3)
+            if len(window.times_s) and window.worst_deviation(pose) < SETTLE_TOLERANCE_RAD:
+                return True
+        return False
+
+    def set_parameter(self, name: str, value: object) -> tuple[bool, str]:
+        """Set one parameter of motion_filter_node at run time: (successful, reason)."""
+        parameter_value = ParameterValue()
+        if isinstance(value, bool):
+            parameter_value.type, parameter_value.bool_value = ParameterType.PARAMETER_BOOL, value
+        elif isinstance(value, int):
+            parameter_value.type = ParameterType.PARAMETER_INTEGER
+            parameter_value.integer_value = value
+        elif isinstance(value, float):
+            parameter_value.type = ParameterType.PARAMETER_DOUBLE
+            parameter_value.double_value = value
+        else:
+            parameter_value.type = ParameterType.PARAMETER_STRING
+            parameter_value.string_value = str(value)
+        request = SetParameters.Request(parameters=[Parameter(name=name, value=parameter_value)])
+        if not self.set_filter_parameters.wait_for_service(timeout_sec=10.0):
+            return False, "no set_parameters service"
+        future = self.set_filter_parameters.call_async(request)
+        deadline = time.monotonic() + 5.0
+        while not future.done() and time.monotonic() < deadline:
+            self.spin_for(0.01)
+        if not future.done():
+            return False, "no answer"
+        result = future.result().results[0]
+        return bool(result.successful), result.reason
+
+
+@dataclass
+class Campaign:
+    """The running graph, the probe and what the cases share."""
+
+    supervisor: NodeSupervisor
+    probe: CampaignProbe
+    robot: RobotDescription
+    rows: list[tuple[Case, Outcome]] = field(default_factory=list)
+
+    @property
+    def pose_a(self) -> np.ndarray:
+        """The benign pose the cases start from: neutral with the arms and head moved."""
+        pose = self.robot.neutral_rad.copy()
+        for name, delta in (("LShoulderPitch", -0.4), ("RElbowRoll", 0.3), ("HeadYaw", 0.2)):
+            pose[self.robot.names.index(name)] += delta
+        return np.clip(pose, self.robot.lower_rad + 0.05, self.robot.upper_rad - 0.05)
+
+    @property
+    def pose_b(self) -> np.ndarray:
+        """A second benign pose, to show that tracking goes on after a fault."""
+        pose = self.pose_a.copy()
+        pose[self.robot.names.index("LShoulderPitch")] += 0.2
+        return pose
+
+    def max_step_ratio(self, commands: Commands) -> float:
+        """Largest step between commands over what the velocity limit allows for its time."""
+        if len(commands.times_s) < 2:
+            return math.nan
+        steps = np.abs(np.diff(commands.positions_rad, axis=0))
+        # dt of the arrivals, but at least the output period: DDS may deliver two at once
+        dt = np.maximum(np.diff(commands.times_s), 0.02)[:, None]
+        return float(np.max(steps / (self.robot.max_velocity_rad_s[None, :] * dt)))
+
+    def inside_limits(self, commands: Commands) -> bool:
+        """Every command finite and inside the position limits."""
+        p = commands.positions_rad
+        return bool(
+            np.isfinite(p).all()
+            and (p >= self.robot.lower_rad - 1e-9).all()
+            and (p <= self.robot.upper_rad + 1e-9).all()
+        )
+
+    def pid(self, node: str) -> int:
+        """PID of a node's current process."""
+        return self.supervisor.processes[node].pid
+
+
+# --- the cases --------------------------------------------------------------------------------
+
+
+def _bad_point(value: float, joint: str = "LShoulderPitch") -> Callable[[Campaign], Outcome]:
+    def run(c: Campaign) -> Outcome:
+        pose = c.pose_a
+        bad = pose.copy()
+        bad[c.robot.names.index(joint)] = value
+        c.probe.raw.publish(c.probe.trajectory(bad[None, :]))
+        window = c.probe.observe(OBSERVE_S)
+        worst = window.worst_deviation(pose)
+        ok = worst <= MAX_DEVIATION_RAD and c.inside_limits(window)
+        return Outcome(f"moved at most {worst:.3f} rad", ok, worst)
+
+    return run
+
+
+def _spike(c: Campaign) -> Outcome:
+    pose = c.pose_a
+    index = c.robot.names.index("LShoulderPitch")
+    bad = pose.copy()
+    bad[index] = pose[index] + (3.0 if pose[index] < 0 else -3.0)
+    bad[index] = float(np.clip(bad[index], c.robot.lower_rad[index], c.robot.upper_rad[index]))
+    c.probe.raw.publish(c.probe.trajectory(bad[None, :]))
+    window = c.probe.observe(OBSERVE_S)
+    worst = window.worst_deviation(pose)
+    return Outcome(f"moved at most {worst:.3f} rad", worst <= MAX_DEVIATION_RAD, worst)
+
+
+def _all_joints(value: float) -> Callable[[Campaign], Outcome]:
+    def run(c: Campaign) -> Outcome:
+        pose = c.pose_a
+        c.probe.raw.publish(c.probe.trajectory(np.full((1, c.robot.n_joints), value)))
+        window = c.probe.observe(1.0)
+        worst = window.worst_deviation(pose)
+        resumed = c.probe.settle(c.pose_b, timeout_s=5.0)
+        ok = worst <= MAX_DEVIATION_RAD and c.inside_limits(window) and resumed
+        did = f"moved at most {worst:.3f} rad; " + ("tracks again" if resumed else "FROZEN")
+        return Outcome(did, ok, worst)
+
+    return run
+
+
+def _future_stamp(seconds: float) -> Callable[[Campaign], Outcome]:
+    def run(c: Campaign) -> Outcome:
+        pose = c.pose_a
+        now = c.probe.get_clock().now().nanoseconds + int(seconds * 1e9)
+        stamp = Time(sec=max(0, now // 1_000_000_000), nanosec=now % 1_000_000_000)
+        far = c.pose_b
+        c.probe.raw.publish(c.probe.trajectory(far[None, :], stamp=stamp))
+        window = c.probe.observe(0.5)
+        worst = window.worst_deviation(pose)
+        resumed = c.probe.settle(c.pose_b, timeout_s=5.0)
+        ok = worst <= MAX_DEVIATION_RAD and resumed
+        did = f"moved {worst:.3f} rad; " + ("later poses tracked" if resumed else "FROZEN")
+        return Outcome(did, ok, worst)
+
+    return run
+
+
+def _huge_message(c: Campaign) -> Outcome:
+    pose = c.pose_a
+    rows = np.repeat(pose[None, :], 100_000, axis=0)
+    # built and serialized first: that takes the probe a second, in which its own benign
+    # stream would pause long enough for the filter's watchdog to glide to neutral
+    data = serialize_message(c.probe.trajectory(rows))
+    c.probe.settle(pose)
+    c.probe.raw.publish(data)
+    window = c.probe.observe(OBSERVE_S)
+    worst, gap = window.worst_deviation(pose), window.longest_gap_s()
+    ok = worst <= MAX_DEVIATION_RAD and gap <= MAX_COMMAND_GAP_S
+    return Outcome(f"moved {worst:.3f} rad, longest gap {gap * 1e3:.0f} ms", ok, worst)
+
+
+def _head(kind: str, value: float) -> Callable[[Campaign], Outcome]:
+    def run(c: Campaign) -> Outcome:
+        pose = c.pose_a
+        publisher = c.probe.head_target if kind == "target" else c.probe.head_offset
+        publisher.publish(c.probe._joint_state(np.array([value]), names=("HeadYaw",)))
+        window = c.probe.observe(OBSERVE_S)
+        worst = window.worst_deviation(pose)
+        return Outcome(f"head moved {worst:.3f} rad", worst <= MAX_DEVIATION_RAD, worst)
+
+    return run
+
+
+def _malformed(c: Campaign) -> Outcome:
+    pose = c.pose_a
+    msg = c.probe.trajectory(pose[None, :])
+    msg.joint_names = msg.joint_names[:3]  # too few names for the positions
+    c.probe.raw.publish(msg)
+    duplicate = c.probe.trajectory(pose[None, :])
+    duplicate.joint_names = ["HeadYaw"] * len(duplicate.joint_names)
+    c.probe.raw.publish(duplicate)
+    window = c.probe.observe(1.0)
+    worst = window.worst_deviation(pose)
+    alive = c.supervisor.processes["motion_filter_node"].poll() is None
+    ok = worst <= MAX_DEVIATION_RAD and alive
+    return Outcome(f"moved {worst:.3f} rad, node alive: {alive}", ok, worst)
+
+
+def _stop_hold(c: Campaign) -> Outcome:
+    pose = c.pose_a
+    c.probe.stop.publish(Bool(data=True))
+    c.probe.spin_for(0.3)
+    c.probe.pose = c.pose_b  # generated motion elsewhere, and a head target
+    c.probe.head_target.publish(c.probe._joint_state(np.array([0.5]), names=("HeadYaw",)))
+    window = c.probe.observe(OBSERVE_S)
+    worst = window.worst_deviation(pose)
+    c.probe.stop.publish(Bool(data=False))
+    c.probe.pose = pose
+    c.probe.settle(pose)
+    return Outcome(f"moved {worst:.3f} rad while stopped", worst <= 0.02, worst)
+
+
+def _stop_neutral_head_target(c: Campaign) -> Outcome:
+    ok_set, reason = c.probe.set_parameter("stop_behaviour", "neutral")
+    if not ok_set:
+        return Outcome(f"could not set stop_behaviour: {reason}", False)
+    c.probe.stop.publish(Bool(data=True))
+    c.probe.spin_for(2.5)  # the glide to neutral ends
+    neutral = c.robot.neutral_rad
+    c.probe.head_target.publish(c.probe._joint_state(np.array([0.6]), names=("HeadYaw",)))
+    window = c.probe.observe(1.0)
+    head = np.array([n.startswith("Head") for n in c.robot.names])
+    worst = window.worst_deviation(neutral, head)
+    c.probe.stop.publish(Bool(data=False))
+    c.probe.set_parameter("stop_behaviour", "hold")
+    c.probe.settle(c.pose_a)
+    return Outcome(f"head moved {worst:.3f} rad while stopped", worst <= 0.02, worst)
+
+
+def _parameters(c: Campaign) -> Outcome:
+    refused = []
+    for name, value in (("kalman_q", math.nan), ("rate_hz", 50.0), ("arms_gain", 7.0)):
+        ok, reason = c.probe.set_parameter(name, value)
+        refused.append(not ok and bool(reason))
+    accepted, _ = c.probe.set_parameter("neutral_glide_s", 2)  # an integer for a float
+    c.probe.set_parameter("neutral_glide_s", 1.0)
+    ok = all(refused) and accepted
+    return Outcome(f"bad values refused: {sum(refused)}/3, int for float accepted: {accepted}", ok)
+
+
+def _restart(
+    kill: signal.Signals, stop_first: bool, robot_reports: bool = True
+) -> Callable[[Campaign], Outcome]:
+    def run(c: Campaign) -> Outcome:
+        pose = c.pose_a
+        c.probe.robot_reports = robot_reports
+        if stop_first:
+            c.probe.stop.publish(Bool(data=True))
+            c.probe.spin_for(0.5)
+        old = c.pid("motion_filter_node")
+        start = time.monotonic()
+        os.kill(old, kill)
+        if stop_first:  # the sender of the stop goes away too: its latched stop is gone
+            c.probe.destroy_publisher(c.probe.stop)
+            c.probe.stop = c.probe.create_publisher(Bool, "stop", LATCHED_QOS)
+        c.probe.pose = c.pose_b if stop_first else pose
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline and c.pid("motion_filter_node") == old:
+            c.probe.spin_for(0.05)
+        restarted_s = time.monotonic() - start
+        c.probe.commands.clear()
+        window = c.probe.observe(6.0)
+        if not len(window.times_s):
+            return Outcome("no commands after the restart", False)
+        worst = window.worst_deviation(pose)
+        steps = c.max_step_ratio(window)
+        ok = worst <= MAX_DEVIATION_RAD and steps <= STEP_TOLERANCE and c.inside_limits(window)
+        did = (
+            f"back after {restarted_s:.1f} s; moved {worst:.3f} rad from where it was"
+            + ("; still stopped" if stop_first and worst <= MAX_DEVIATION_RAD else "")
+            + f"; largest step {steps:.2f} of the velocity limit"
+        )
+        if stop_first:
+            c.probe.stop.publish(Bool(data=False))
+        c.probe.robot_reports = True
+        c.probe.settle(pose)
+        return Outcome(did, ok, worst)
+
+    return run
+
+
+def _sigstop(c: Campaign) -> Outcome:
+    node = "motion_filter_node"
+    old, silences = c.pid(node), c.supervisor.silences[node]
+    stale_before = c.probe.stale_reports.get(node, 0)
+    start = time.monotonic()
+    os.kill(old, signal.SIGSTOP)
+    deadline = start + 10.0
+    while time.monotonic() < deadline and c.supervisor.silences[node] == silences:
+        c.probe.spin_for(0.02)
+    noticed_s = time.monotonic() - start
+    if c.supervisor.silences[node] == silences:
+        os.kill(old, signal.SIGCONT)
+        return Outcome("not noticed within 10 s", False)
+    while time.monotonic() < deadline + 10.0 and c.pid(node) == old:
+        c.probe.spin_for(0.05)
+    restarted_s = time.monotonic() - start
+    stale = c.probe.stale_reports.get(node, 0) > stale_before
+    resumed = c.probe.settle(c.pose_a, timeout_s=15.0)
+    ok = noticed_s <= 1.5 and stale and resumed
+    did = (
+        f"noticed after {noticed_s:.1f} s (STALE on /diagnostics: {stale}), "
+        f"restarted after {restarted_s:.1f} s; tracking again: {resumed}"
+    )
+    return Outcome(did, ok)
+
+
+def _audio_bomb(rate: int) -> Callable[[Campaign], Outcome]:
+    def run(c: Campaign) -> Outcome:
+        node = "audio_features_node"
+        pid = c.pid(node)
+        info = AudioInfo(
+            channels=1, sample_rate=rate, sample_format="S16LE", bitrate=0, coding_format="wave"
+        )
+        c.probe.audio_info.publish(info)
+        c.probe.spin_for(0.3)
+        start = time.monotonic()
+        for _ in range(3):
+            c.probe.audio.publish(AudioData(data=bytes(200_000)))
+            c.probe.spin_for(0.2)
+        c.probe.spin_for(1.0)
+        rss = _rss_mb(c.pid(node))
+        alive = c.pid(node) == pid and c.supervisor.processes[node].poll() is None
+        c.probe.audio_info.publish(
+            AudioInfo(
+                channels=1,
+                sample_rate=16000,
+                sample_format="S16LE",
+                bitrate=0,
+                coding_format="wave",
+            )
+        )
+        c.probe.spin_for(0.5)
+        before = c.probe.features
+        for _ in range(20):
+            c.probe.audio.publish(AudioData(data=bytes(320)))
+            c.probe.spin_for(0.01)
+        c.probe.spin_for(1.0)
+        recovered = c.probe.features > before
+        ok = alive and rss <= FEATURES_RSS_LIMIT_MB and recovered
+        did = (
+            f"same process: {alive}, {rss:.0f} MB resident, "
+            f"{time.monotonic() - start:.1f} s; features after a valid AudioInfo: {recovered}"
+        )
+        return Outcome(did, ok)
+
+    return run
+
+
+def _rss_mb(pid: int) -> float:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return math.nan
+
+
+def cases() -> list[Case]:
+    """The campaign, in the order it runs."""
+    bad = "cannot move any joint more than 0.1 rad; counted"
+    return [
+        Case("raw point 90 rad (one arm joint)", bad, _bad_point(90.0)),
+        Case("raw point 1e6 rad", bad, _bad_point(1e6)),
+        Case("raw point 1e50 rad", bad, _bad_point(1e50)),
+        Case("in-range one-frame spike of 3 rad", bad, _spike),
+        Case("raw point 1e308 in every joint", bad + "; tracking goes on", _all_joints(1e308)),
+        Case("raw point NaN in every joint", bad + "; tracking goes on", _all_joints(math.nan)),
+        Case("raw point -inf in every joint", bad + "; tracking goes on", _all_joints(-math.inf)),
+        Case("stamp 1e6 s in the future", "rejected; later poses tracked", _future_stamp(1e6)),
+        Case("stamp 1000 s in the past", "rejected; later poses tracked", _future_stamp(-1000.0)),
+        Case("message of 100,000 points", "bounded work: no gap > 100 ms, no jump", _huge_message),
+        Case("head_target 1e6", "head moves at most 0.1 rad", _head("target", 1e6)),
+        Case("head_offset 1e6", "head moves at most 0.1 rad", _head("offset", 1e6)),
+        Case("head_target NaN", "head moves at most 0.1 rad", _head("target", math.nan)),
+        Case("malformed trajectories", "dropped; node keeps serving", _malformed),
+        Case("stop (hold), then motion + head_target", "nothing moves", _stop_hold),
+        Case(
+            "stop (neutral), then head_target",
+            "head stays at neutral",
+            _stop_neutral_head_target,
+        ),
+        Case(
+            "set_parameters: NaN, read-only, out of range; int for float",
+            "bad refused with a reason; int accepted",
+            _parameters,
+        ),
+        Case(
+            "SIGKILL motion_filter_node",
+            "restarts where the robot is: no jump, steps within velocity limits",
+            _restart(signal.SIGKILL, stop_first=False),
+        ),
+        Case(
+            "SIGKILL motion_filter_node, robot reports no joint states",
+            "restarts from its saved pose: no jump",
+            _restart(signal.SIGKILL, stop_first=False, robot_reports=False),
+        ),
+        Case(
+            "stop, then SIGKILL filter and the stop's sender",
+            "still stopped after the restart",
+            _restart(signal.SIGKILL, stop_first=True),
+        ),
+        Case(
+            "SIGSTOP motion_filter_node",
+            "reported STALE within ~1 s and restarted",
+            _sigstop,
+        ),
+        Case(
+            "AudioInfo sample_rate 1",
+            "features node survives, bounded memory, recovers",
+            _audio_bomb(1),
+        ),
+        Case(
+            "AudioInfo sample_rate 383999",
+            "features node survives, bounded memory, recovers",
+            _audio_bomb(383999),
+        ),
+    ]
+
+
+def run_campaign(
+    selected: list[Case] | None = None,
+    log_dir: Path | None = None,
+    progress: Callable[[str], None] = print,
+) -> list[tuple[Case, Outcome]]:
+    """Start the graph, run the cases, return (case, outcome) pairs."""
+    robot = load_robot()
+    chosen = selected if selected is not None else cases()
+    with tempfile.TemporaryDirectory(prefix="audio2pose_faults_") as tmp:
+        state = Path(tmp) / "filter_state.yaml"
+        params = Path(tmp) / "params.yaml"
+        document = yaml.safe_load(share_path("config", "pepper.yaml").read_text())
+        document.setdefault("motion_filter_node", {}).setdefault("ros__parameters", {})
+        document["motion_filter_node"]["ros__parameters"]["state_file"] = str(state)
+        params.write_text(yaml.safe_dump(document), encoding="utf-8")
+        logs = log_dir or Path(tmp) / "logs"
+        with node_graph(params, log_dir=logs) as supervisor:
+            rclpy.init()
+            probe = CampaignProbe(robot)
+            try:
+                campaign = Campaign(supervisor, probe, robot)
+                progress("waiting for the graph ...")
+                if not probe.settle(campaign.pose_a, timeout_s=60.0):
+                    raise TimeoutError(f"the graph did not follow the probe (logs: {logs})")
+                for case in chosen:
+                    probe.settle(campaign.pose_a)
+                    try:
+                        outcome = case.run(campaign)
+                    except Exception as exc:  # a case that breaks is a failed case
+                        outcome = Outcome(f"case raised {type(exc).__name__}: {exc}", False)
+                    campaign.rows.append((case, outcome))
+                    progress(f"{'PASS' if outcome.passed else 'FAIL'}  {case.name}: {outcome.did}")
+                return campaign.rows
+            finally:
+                probe.destroy_node()
+                rclpy.try_shutdown()
+
+
+def table(rows: list[tuple[Case, Outcome]]) -> str:
+    """The campaign as a Markdown table."""
+    lines = [
+        "| case | the robot must | it did | result | worst deviation (rad) |",
+        "|---|---|---|---|---|",
+    ]
+    for case, outcome in rows:
+        worst = (
+            "" if math.isnan(outcome.worst_deviation_rad) else f"{outcome.worst_deviation_rad:.3f}"
+        )
+        verdict = "pass" if outcome.passed else "FAIL"
+        lines.append(f"| {case.name} | {case.must} | {outcome.did} | {verdict} | {worst} |")
+    return "\n".join(lines)

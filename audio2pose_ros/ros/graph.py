@@ -1,0 +1,553 @@
+"""``audio2pose run``: start the node graph as processes, play a WAV into it, record its output.
+
+This is what ``ros2 launch audio2pose_ros pepper.launch.py`` does, for machines without a ROS
+distro: the same three executables, each its own process, with the same parameter file; or,
+with ``single_process``, the same three nodes in one process and one executor
+(:mod:`audio2pose_ros.ros.nodes.single_process`). The
+player publishes audio_common_msgs AudioInfo (latched) and AudioData chunks in real time; the
+recorder writes every command the robot would receive to a rosbag2 (MCAP).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import ExitStack, contextmanager, suppress
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import rclpy
+import yaml
+from audio_common_msgs.msg import AudioData, AudioInfo
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+from rclpy.context import Context
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+
+from audio2pose_ros.audio.pcm import read_wav
+from audio2pose_ros.data.bag import (
+    AUDIO_INFO_TOPIC,
+    AUDIO_TOPIC,
+    BagError,
+    BagMessage,
+    BagWriter,
+    Chunking,
+    audio_messages,
+    read_checked_messages,
+)
+from audio2pose_ros.errors import Audio2PoseError, UsageError
+from audio2pose_ros.resources import share_path
+from audio2pose_ros.ros.diagnosed_node import EXIT_CONFIGURATION_ERROR, LATCHED_QOS, STALE_AFTER_S
+from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
+
+NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
+SINGLE_PROCESS = "audio2pose_nodes"  # the process that runs all three nodes (single-process mode)
+# As the launch file does: trajectories go to Pepper's ros2_control controller.
+TRAJECTORY_OUTPUT = "joint_trajectory_controller/joint_trajectory"  # the node's relative name
+NODE_REMAPS = {"motion_filter_node": ("-r", f"{TRAJECTORY_OUTPUT}:={CONTROLLER_TOPIC}")}
+STATUS_PREFIX = "audio2pose_ros"  # diagnostic status names: "audio2pose_ros: <node name>"
+STARTUP_GRACE_S = 30.0  # a node may take this long to publish its first heartbeat (imports)
+MAX_BACKOFF_S = 16.0  # longest wait before a restart
+WATCH_PERIOD_S = 0.1
+RECORDED_TOPICS = {
+    "/joint_angles": (JointAnglesWithSpeed, "naoqi_bridge_msgs/msg/JointAnglesWithSpeed"),
+    CONTROLLER_TOPIC: (
+        JointTrajectory,
+        "trajectory_msgs/msg/JointTrajectory",
+    ),
+    "/commanded_joint_states": (JointState, "sensor_msgs/msg/JointState"),
+    "/raw_trajectory": (JointTrajectory, "trajectory_msgs/msg/JointTrajectory"),
+}
+
+
+class GraphTimeoutError(Audio2PoseError):
+    """The node graph did not answer in time (its node logs say why)."""
+
+
+def executable_command(name: str) -> list[str]:
+    """The console script ``name`` next to this interpreter, else ``python -m`` its module."""
+    script = Path(sys.executable).parent / name
+    if script.is_file() and os.access(script, os.X_OK):
+        return [str(script)]
+    found = shutil.which(name)
+    if found:
+        return [found]
+    return [sys.executable, "-m", f"audio2pose_ros.ros.nodes.{name}"]
+
+
+class NodeSupervisor:
+    """Runs the node processes like a launch file would, and restarts them with a bounded budget.
+
+    - **Crash.** A node that exits is restarted after a back-off that doubles from
+      ``respawn_delay_s`` up to ``MAX_BACKOFF_S``; one that dies more than ``max_restarts`` times
+      within ``restart_window_s`` is given up on, loudly, rather than restarted forever.
+    - **Configuration error.** A node that exits with
+      :data:`~audio2pose_ros.ros.diagnosed_node.EXIT_CONFIGURATION_ERROR` (a refused parameter, a
+      bad
+      model or robot file, a parameters file rcl cannot parse) is never restarted: the same
+      configuration would fail the same way. Its one-line reason is in its log.
+    - **Silence.** A node whose process is alive but has not published its /diagnostics
+      heartbeat for ``STALE_AFTER_S`` (stopped with SIGSTOP, deadlocked, starved) is reported,
+      killed and restarted like a crashed one (:meth:`heartbeat` feeds the times heard).
+
+    ``commands`` are keyed by process; ``members`` maps each node name to the process that runs
+    it (default: each process runs the node of its name). A process is heard when any of its
+    nodes is: its nodes share one executor, so a stopped process silences them all.
+    """
+
+    def __init__(
+        self,
+        commands: dict[str, list[str]],
+        log_dir: Path | None,
+        respawn_delay_s: float = 1.0,
+        max_restarts: int = 5,
+        restart_window_s: float = 60.0,
+        startup_grace_s: float = STARTUP_GRACE_S,
+        members: dict[str, str] | None = None,
+    ) -> None:
+        """Remember how to start each process; :meth:`start` starts them."""
+        self.commands = commands
+        self.members = members or {name: name for name in commands}
+        self.log_dir = log_dir
+        self.respawn_delay_s = respawn_delay_s
+        self.max_restarts = max_restarts
+        self.restart_window_s = restart_window_s
+        self.startup_grace_s = startup_grace_s
+        self.processes: dict[str, subprocess.Popen] = {}
+        self.restarts: dict[str, list[float]] = {name: [] for name in commands}
+        self.given_up: set[str] = set()
+        self.silences = dict.fromkeys(commands, 0)
+        self._started_s: dict[str, float] = {}
+        self._heard_s: dict[str, float] = {}  # since the current process started
+        self._last_heard_s: dict[str, float] = {}  # by any process of the node
+        self._due_s: dict[str, float] = {}  # restart time of a node that is down
+        self._lock = threading.Lock()
+        self._stopping = threading.Event()
+        self._thread = threading.Thread(target=self._watch, name="node-supervisor", daemon=True)
+
+    def _say(self, message: str) -> None:
+        print(f"audio2pose run: {message}", file=sys.stderr, flush=True)
+
+    def _spawn(self, name: str, mode: str) -> None:
+        stdout = None
+        if self.log_dir is not None:
+            self.log_dir.mkdir(parents=True, exist_ok=True)
+            stdout = (self.log_dir / f"{name}.log").open(mode)
+        self.processes[name] = subprocess.Popen(
+            self.commands[name], stdout=stdout, stderr=subprocess.STDOUT if stdout else None
+        )
+        self._started_s[name] = time.monotonic()
+        self._heard_s.pop(name, None)
+        if stdout is not None:
+            stdout.close()  # the child holds its own descriptor
+
+    def start(self) -> None:
+        """Start every node and the watchdog thread."""
+        for name in self.commands:
+            self._spawn(name, "w")
+        self._thread.start()
+
+    def heartbeat(self, node: str, pid: int) -> None:
+        """Process ``pid`` published the diagnostics of node ``node`` now.
+
+        A heartbeat of another process than the one now running the node (e.g. sent by a killed
+        process and delivered after its restart) is ignored, as is an unknown node.
+        """
+        name = self.members.get(node)
+        process = self.processes.get(name) if name is not None else None
+        if process is None or process.pid != pid:
+            return
+        with self._lock:
+            self._heard_s[name] = self._last_heard_s[name] = time.monotonic()
+
+    def silent_s(self, name: str) -> float:
+        """How long ``name`` has not been heard from, across restarts (0 before it ever was)."""
+        with self._lock:
+            heard = self._last_heard_s.get(name)
+        return 0.0 if heard is None else time.monotonic() - heard
+
+    def _failed(self, name: str, why: str, now: float) -> None:
+        """``name`` is down: schedule its restart, or give up on it."""
+        recent = [t for t in self.restarts[name] if now - t < self.restart_window_s]
+        if len(recent) >= self.max_restarts:
+            self.given_up.add(name)
+            self._say(
+                f"{name} {why}; it failed {len(recent) + 1} times within "
+                f"{self.restart_window_s:.0f} s: giving up on it (see its log)"
+            )
+            return
+        delay = min(self.respawn_delay_s * 2 ** len(recent), MAX_BACKOFF_S)
+        self.restarts[name] = [*recent, now]
+        self._due_s[name] = now + delay
+        self._say(f"{name} {why}; restarting it in {delay:.1f} s")
+
+    def _check(self, name: str, process: subprocess.Popen, now: float) -> None:
+        if name in self.given_up:
+            return
+        due = self._due_s.get(name)
+        if due is not None:
+            if now >= due:
+                del self._due_s[name]
+                self._spawn(name, "a")
+            return
+        code = process.poll()
+        if code == EXIT_CONFIGURATION_ERROR:
+            self.given_up.add(name)
+            self._say(
+                f"{name} refused its configuration (exit status {code}); not restarting it: "
+                "fix the parameter or file named in its log"
+            )
+        elif code is not None:
+            self._failed(name, f"exited with status {code}", now)
+        else:
+            with self._lock:
+                heard = self._heard_s.get(name)
+            started = self._started_s[name]
+            silent = now - heard if heard is not None else now - started - self.startup_grace_s
+            if silent > STALE_AFTER_S:
+                process.kill()  # SIGKILL also ends a stopped (SIGSTOP) process
+                process.wait()
+                self.silences[name] += 1
+                self._failed(name, f"was silent for {silent:.1f} s (no heartbeat)", now)
+
+    def _watch(self) -> None:
+        while not self._stopping.wait(WATCH_PERIOD_S):
+            now = time.monotonic()
+            for name, process in list(self.processes.items()):
+                self._check(name, process, now)
+
+    @property
+    def running(self) -> bool:
+        """True while at least one node is running or will be restarted."""
+        return len(self.given_up) < len(self.commands)
+
+    def stop(self) -> None:
+        """Stop the watchdog, then the nodes (SIGINT, then SIGKILL after 5 s)."""
+        self._stopping.set()
+        if self._thread.is_alive():
+            self._thread.join()
+        for process in self.processes.values():
+            if process.poll() is None:
+                process.send_signal(signal.SIGCONT)  # a stopped process cannot act on SIGINT
+                process.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + 5.0
+        for process in self.processes.values():
+            try:
+                process.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+
+class HeartbeatMonitor:
+    """Listens to /diagnostics in its own rclpy context and tells a supervisor who is alive.
+
+    Node statuses are named ``audio2pose_ros: <node name>`` (``nodes.common.diagnostic_array``).
+    A node silent for ``STALE_AFTER_S`` is reported on /diagnostics under its own name with
+    level STALE until it is heard again, as diagnostic_aggregator would show it. Runs its own
+    executor thread, so it works beside a player in the default context.
+    """
+
+    def __init__(self, supervisor: NodeSupervisor) -> None:
+        """Start a context, a node subscribed to /diagnostics and a spinning thread."""
+        self.supervisor = supervisor
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = Node("audio2pose_supervisor", context=self.context)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 50)
+        self.publisher = self.node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.node.create_timer(WATCH_PERIOD_S * 2, self._report_silent)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, name="heartbeat-monitor", daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        with suppress(ExternalShutdownException):
+            self.executor.spin()
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            prefix, _, name = status.name.partition(": ")
+            if prefix == STATUS_PREFIX and name in self.supervisor.members:
+                pid = next((kv.value for kv in status.values if kv.key == "pid"), "")
+                if pid.isdigit():  # a node's own status (ours, about a silent node, has none)
+                    self.supervisor.heartbeat(name, int(pid))
+
+    def _report_silent(self) -> None:
+        statuses = []
+        for name, process in self.supervisor.members.items():
+            silent = self.supervisor.silent_s(process)
+            if silent > STALE_AFTER_S:
+                statuses.append(
+                    DiagnosticStatus(
+                        level=DiagnosticStatus.STALE,
+                        name=f"{STATUS_PREFIX}: {name}",
+                        message=f"no heartbeat for {silent:.1f} s: restarting the node",
+                        hardware_id="pepper",
+                    )
+                )
+        if statuses:
+            array = DiagnosticArray(status=statuses)
+            array.header.stamp = self.node.get_clock().now().to_msg()
+            self.publisher.publish(array)
+
+    def close(self) -> None:
+        """Stop spinning and leave the context."""
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+        self._thread.join(timeout=2.0)
+
+
+def overrides_file(overrides: Sequence[str], directory: Path) -> Path:
+    """Write ``name:=value`` overrides as a parameters file that targets each node by name.
+
+    rcl applies node-specific entries after ``/**`` ones, so a plain ``-p name:=value`` (a
+    wildcard) loses against the same name in a node's section of the parameters file. Entries
+    for every node, passed after the parameters file, win: command line over file over defaults.
+
+    Raises:
+        UsageError: an override is not ``name:=value``.
+    """
+    values: dict[str, object] = {}
+    for override in overrides:
+        name, sep, text = override.partition(":=")
+        if not sep or not name.strip():
+            raise UsageError(f"parameter override {override!r} is not name:=value")
+        try:
+            values[name.strip()] = yaml.safe_load(text) if text else ""
+        except yaml.YAMLError:
+            values[name.strip()] = text
+    path = directory / "overrides.yaml"
+    document = {node: {"ros__parameters": dict(values)} for node in NODE_EXECUTABLES}
+    path.write_text(yaml.safe_dump(document), encoding="utf-8")
+    return path
+
+
+@contextmanager
+def node_graph(
+    params_file: Path | None = None,
+    overrides: Sequence[str] = (),
+    log_dir: Path | None = None,
+    monitor: bool = True,
+    single_process: bool = False,
+) -> Iterator[NodeSupervisor]:
+    """Run the three nodes as supervised processes for the duration of the context.
+
+    Args:
+        params_file: ROS parameter YAML (default: the package's config/pepper.yaml).
+        overrides: ``name:=value`` parameters for every node; they win over the file.
+        log_dir: where each process's output goes (``<process>.log``); ``None`` inherits the
+            terminal.
+        monitor: watch the nodes' heartbeats and restart a silent node.
+        single_process: run the three nodes in one process and one executor
+            (``audio2pose_nodes``) instead of one process each.
+    """
+    params = params_file or share_path("config", "pepper.yaml")
+    with ExitStack() as stack:
+        extra: list[str] = []
+        if overrides:
+            tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="audio2pose_")))
+            extra = ["--params-file", str(overrides_file(overrides, tmp))]
+        ros_args = ["--ros-args", "--params-file", str(params), *extra]
+        if single_process:
+            remaps = [arg for name in NODE_EXECUTABLES for arg in NODE_REMAPS.get(name, ())]
+            module = [sys.executable, "-m", "audio2pose_ros.ros.nodes.single_process"]
+            commands = {SINGLE_PROCESS: [*module, *ros_args, *remaps]}
+            members = dict.fromkeys(NODE_EXECUTABLES, SINGLE_PROCESS)
+        else:
+            commands = {
+                name: [*executable_command(name), *ros_args, *NODE_REMAPS.get(name, ())]
+                for name in NODE_EXECUTABLES
+            }
+            members = None
+        supervisor = NodeSupervisor(commands, log_dir, members=members)
+        stack.callback(supervisor.stop)
+        supervisor.start()
+        if monitor:
+            stack.callback(HeartbeatMonitor(supervisor).close)
+        yield supervisor
+
+
+@dataclass
+class PlaybackResult:
+    """What a run recorded."""
+
+    audio_s: float
+    chunks_sent: int
+    recorded_s: float
+    counts: dict[str, int] = field(default_factory=dict)
+    bag: Path | None = None
+
+
+class PlayerRecorder(Node):
+    """Publishes a WAV as audio_common_msgs in real time and records the graph's commands."""
+
+    def __init__(self, bag: BagWriter | None) -> None:
+        """Create the audio publishers and one recording subscription per command topic."""
+        super().__init__("audio2pose_player")
+        self.bag = bag
+        self.recording = False
+        self.counts = dict.fromkeys(RECORDED_TOPICS, 0)
+        self.poses_seen = 0
+        self.heard: set[str] = set()  # recorded topics that ever delivered a message
+        self.audio_pub = self.create_publisher(AudioData, AUDIO_TOPIC, 100)
+        self.info_pub = self.create_publisher(AudioInfo, AUDIO_INFO_TOPIC, LATCHED_QOS)
+        self.create_subscription(JointTrajectory, "/raw_trajectory", self._on_pose, 100)
+        for topic, (msg_type, type_name) in RECORDED_TOPICS.items():
+            self.create_subscription(
+                msg_type, topic, self._recorder(topic, type_name), 100, raw=True
+            )
+
+    def _on_pose(self, msg: JointTrajectory) -> None:
+        self.poses_seen += len(msg.points)
+
+    def _recorder(self, topic: str, type_name: str) -> Callable[[bytes], None]:
+        def record(data: bytes) -> None:
+            self.heard.add(topic)
+            if not self.recording:
+                return
+            self.counts[topic] += 1
+            if self.bag is not None:
+                self.bag.write(topic, type_name, self.get_clock().now().nanoseconds, data)
+
+        return record
+
+    def publish_audio(self, message: BagMessage) -> None:
+        """Publish a serialised AudioData / AudioInfo, and record it while recording."""
+        publisher = self.info_pub if message.topic == AUDIO_INFO_TOPIC else self.audio_pub
+        publisher.publish(message.data)
+        if self.recording and self.bag is not None:
+            self.bag.write(
+                message.topic, message.msgtype, self.get_clock().now().nanoseconds, message.data
+            )
+
+    def spin_until(self, deadline_s: float, done: Callable[[], bool] | None = None) -> bool:
+        """Process callbacks until ``deadline_s`` (monotonic) or until ``done()`` is true."""
+        while time.monotonic() < deadline_s:
+            rclpy.spin_once(self, timeout_sec=0.005)
+            if done is not None and done():
+                return True
+        return done is None
+
+    def warm_up(self, timeout_s: float) -> None:
+        """Send silence until poses and every recorded command come back: each link has matched.
+
+        DDS discovery is asymmetric: a node may see our subscription before its own publisher
+        has matched the next node, and samples sent before that are lost. Chunks of 160
+        samples keep the feature extractor aligned to whole 10 ms frames.
+        """
+        silence = AudioData(data=bytes(2 * 160))
+
+        def poses_arrive() -> bool:
+            self.audio_pub.publish(silence)
+            self.spin_until(time.monotonic() + 0.02)
+            return self.poses_seen > 0 and self.heard >= set(RECORDED_TOPICS)
+
+        if not self.spin_until(time.monotonic() + timeout_s, poses_arrive):
+            raise GraphTimeoutError(
+                f"the node graph did not answer within {timeout_s} s (see the node logs)"
+            )
+        self.spin_until(time.monotonic() + 0.3)
+
+
+def audio_source(path: Path, chunking: Chunking | None = None) -> list[BagMessage]:
+    """The audio messages to play: a WAV cut like a live capture, or a bag's audio topics."""
+    if path.suffix.lower() == ".wav":
+        samples, _ = read_wav(path)
+        return audio_messages(samples, chunking)
+    messages = read_checked_messages(path, (AUDIO_TOPIC, AUDIO_INFO_TOPIC))
+    if not any(m.topic == AUDIO_TOPIC for m in messages):
+        raise BagError(f"{path}: no {AUDIO_TOPIC} messages to play")
+    start = messages[0].timestamp_ns
+    return [replace(m, timestamp_ns=m.timestamp_ns - start) for m in messages]
+
+
+def play_and_record(
+    messages: Sequence[BagMessage],
+    bag_path: Path | None,
+    rate: float = 1.0,
+    tail_s: float = 2.0,
+    startup_timeout_s: float = 60.0,
+) -> PlaybackResult:
+    """Publish audio messages with their timing (``rate`` x faster); record what the graph sends.
+
+    Must run while :func:`node_graph` is up, inside an initialised rclpy context. Recording
+    starts with the first message and ends ``tail_s`` after the last one, so the bag also shows
+    the glide back to the neutral pose.
+
+    Raises:
+        GraphTimeoutError: the graph did not come up within ``startup_timeout_s``.
+    """
+    first_info = next((m for m in messages if m.topic == AUDIO_INFO_TOPIC), None)
+    with ExitStack() as stack:
+        bag = stack.enter_context(BagWriter(bag_path)) if bag_path else None
+        node = PlayerRecorder(bag)
+        stack.callback(node.destroy_node)
+        if first_info is not None:
+            node.publish_audio(first_info)
+        node.warm_up(startup_timeout_s)
+        node.recording = True
+        start = time.monotonic()
+        for message in messages:
+            node.spin_until(start + message.timestamp_ns * 1e-9 / rate)
+            node.publish_audio(message)
+        node.spin_until(time.monotonic() + tail_s)
+        return PlaybackResult(
+            audio_s=messages[-1].timestamp_ns * 1e-9 if messages else 0.0,
+            chunks_sent=sum(m.topic == AUDIO_TOPIC for m in messages),
+            recorded_s=time.monotonic() - start,
+            counts=dict(node.counts),
+            bag=bag_path,
+        )
+
+
+def run_graph(
+    play: Path | None,
+    record: Path | None,
+    params_file: Path | None,
+    overrides: Sequence[str],
+    log_dir: Path | None,
+    rate: float = 1.0,
+    single_process: bool = False,
+) -> PlaybackResult | None:
+    """Start the graph; with ``play`` (a WAV or a bag) play it and return what was recorded.
+
+    Without ``play`` the graph runs until Ctrl-C or until a node exits. ``single_process`` runs
+    the three nodes in one process (:func:`node_graph`).
+    """
+    messages = audio_source(play) if play is not None else None
+    with node_graph(params_file, overrides, log_dir, single_process=single_process) as supervisor:
+        if messages is None:
+            try:
+                while supervisor.running:
+                    time.sleep(0.2)
+            except KeyboardInterrupt:
+                pass
+            return None
+        with rclpy.init():
+            return play_and_record(messages, record, rate=rate)
+
+
+def summarize(result: PlaybackResult) -> str:
+    """Human-readable summary of a playback."""
+    lines = [
+        f"played {result.audio_s:.2f} s of audio in {result.chunks_sent} messages; recorded "
+        f"{result.recorded_s:.2f} s (speech and {result.recorded_s - result.audio_s:.1f} s after)"
+    ]
+    for topic, count in result.counts.items():
+        lines.append(f"  {topic}: {count} messages ({count / result.recorded_s:.0f} Hz)")
+    if result.bag is not None:
+        lines.append(f"recorded to {result.bag}")
+    return "\n".join(lines)

@@ -1,0 +1,269 @@
+"""``audio2pose bench --graph``: latency, CPU, memory and start-up of the live node graph.
+
+The three nodes run as processes (as ``audio2pose run`` starts them) and this process plays
+audio_capture: real speech in 10 ms AudioData chunks (160 samples) in real time. After an
+aligned warm-up every chunk completes exactly one feature frame, so chunk j causes raw pose j.
+
+Latency is measured message by message. The filter runs with smoothing off and limits wide
+open for the measurement (its timing is the same with any smoothing: Kalman and low-pass are
+causal one-step filters; their *signal* lag is a property of the filter, shown by
+``audio2pose plot-filter``), so the /joint_angles command that carries raw pose j equals it and
+identifies it. End-to-end latency of chunk j = arrival of that command - publication of chunk j.
+The feature window's algorithmic delay (a 25 ms window is complete only with its last sample) is
+outside this figure, as the issue asks.
+
+CPU is read from /proc for each node process: ``cpu_ms_per_frame`` from the end of the warm-up
+to the end of the run (as before), and ``steady_cpu_ms_per_frame`` over the steady part only,
+from :data:`STEADY_SKIP_S` after the stream starts until its last chunk (no start-up, no idle
+tail). The graph runs as three processes (the default) or, with ``single_process``, as one
+(:mod:`audio2pose_ros.ros.nodes.single_process`). :func:`targets` compares the figures with issue
+15's targets.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import rclpy
+import yaml
+from audio_common_msgs.msg import AudioData, AudioInfo
+from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+from rclpy.node import Node
+from trajectory_msgs.msg import JointTrajectory
+
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm, read_wav
+from audio2pose_ros.resources import share_path
+from audio2pose_ros.robot.description import load_robot
+from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
+from audio2pose_ros.ros.graph import node_graph
+
+CHUNK_SAMPLES = 160  # one 10 ms frame step (seed 003 section 4.2.2)
+MATCH_TOLERANCE_RAD = 1e-5  # float32 /joint_angles against float64 raw poses
+STEADY_SKIP_S = 2.0  # steady-state CPU is read from this long after the stream starts
+# Issue 15's targets: (figure, three-process target, single-process target, unit); at most.
+TARGETS = (
+    ("steady CPU of the node processes per 10 ms frame", 1.0, 0.5, "ms"),
+    ("resident memory of the node processes", 250.0, 150.0, "MB"),
+    ("first command after start", 1.5, 1.5, "s"),
+    ("latency audio -> /joint_angles p99", 10.0, 10.0, "ms"),
+)
+
+
+@dataclass
+class GraphFigures:
+    """What the graph benchmark measured (times in ms, memory in MB)."""
+
+    mode: str  # "three-process" or "single-process"
+    audio_s: float
+    latency_raw_ms: np.ndarray  # chunk publication -> its raw pose at the filter's input
+    latency_command_ms: np.ndarray  # chunk publication -> the /joint_angles command carrying it
+    startup_first_command_s: float
+    startup_first_response_s: float
+    cpu_ms_per_frame: dict[str, float]
+    steady_cpu_ms_per_frame: dict[str, float]
+    rss_mb: dict[str, float]
+
+
+def _bench_params(directory: Path) -> Path:
+    """Parameter and robot files: smoothing off, limits wide, so commands equal raw poses."""
+    params = yaml.safe_load(share_path("config", "pepper.yaml").read_text(encoding="utf-8"))
+    robot = load_robot().to_dict()
+    for joint in robot["joints"]:
+        joint["max_acceleration_rad_s2"] = 1e12  # braking bounds then cost < 1e-9 rad
+        joint["max_velocity_rad_s"] = 1e12
+    robot_file = directory / "robot.yaml"
+    robot_file.write_text(yaml.safe_dump(robot), encoding="utf-8")
+    params["/**"]["ros__parameters"]["robot_description"] = str(robot_file)
+    params["motion_filter_node"]["ros__parameters"].update(
+        smoothing="none",
+        position_margin_rad=0.0,
+        velocity_fraction=1.0,
+        silence_timeout_s=1000.0,
+        max_buffer_s=1.0,
+    )
+    params_file = directory / "params.yaml"
+    params_file.write_text(yaml.safe_dump(params), encoding="utf-8")
+    return params_file
+
+
+class _Player(Node):
+    def __init__(self) -> None:
+        super().__init__("audio2pose_graph_bench")
+        self.audio = self.create_publisher(AudioData, "/audio/audio", 1000)
+        self.info = self.create_publisher(AudioInfo, "/audio/audio_info", LATCHED_QOS)
+        self.raw: list[tuple[float, np.ndarray]] = []
+        self.commands: list[tuple[float, np.ndarray]] = []
+        self.create_subscription(JointTrajectory, "/raw_trajectory", self._on_raw, 1000)
+        self.create_subscription(JointAnglesWithSpeed, "/joint_angles", self._on_command, 1000)
+
+    def _on_raw(self, msg: JointTrajectory) -> None:
+        now = time.monotonic()
+        self.raw += [(now, np.asarray(p.positions)) for p in msg.points]
+
+    def _on_command(self, msg: JointAnglesWithSpeed) -> None:
+        self.commands.append((time.monotonic(), np.asarray(msg.joint_angles, dtype=np.float64)))
+
+    def spin_until(self, deadline: float) -> None:
+        while (wait := deadline - time.monotonic()) > 0:
+            rclpy.spin_once(self, timeout_sec=min(wait, 0.002))
+
+
+def cpu_s(pid: int) -> float:
+    """CPU time (user + system, s) a process has used."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / 100.0  # utime + stime, in clock ticks of 10 ms
+
+
+def rss_mb(pid: int) -> float:
+    """Resident memory of a process (MB)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def measure_graph(
+    speech_16k: np.ndarray, duration_s: float = 60.0, single_process: bool = False
+) -> GraphFigures:
+    """Run the graph on ``duration_s`` of ``speech_16k`` (repeated) and measure it.
+
+    ``single_process`` runs the three nodes in one process instead of three.
+    """
+    audio = np.resize(speech_16k, int(duration_s * 16000) // CHUNK_SAMPLES * CHUNK_SAMPLES)
+    payload = encode_pcm(audio, S16LE_MONO_16K)
+    step = 2 * CHUNK_SAMPLES
+    with tempfile.TemporaryDirectory() as tmp, rclpy.init():
+        player = _Player()
+        launched = time.monotonic()
+        with node_graph(
+            _bench_params(Path(tmp)), log_dir=Path(tmp) / "logs", single_process=single_process
+        ) as graph:
+            player.info.publish(AudioInfo(**S16LE_MONO_16K.audio_info_fields()))
+            while not player.commands:
+                player.spin_until(time.monotonic() + 0.01)
+            first_command = time.monotonic() - launched
+            silence = AudioData(data=bytes(step))
+            while not player.raw:  # warm-up in whole frames until the graph answers
+                player.audio.publish(silence)
+                player.spin_until(time.monotonic() + 0.01)
+            first_response = time.monotonic() - launched
+            for _ in range(3):  # at least one 25 ms window of warm-up, then let it drain
+                player.audio.publish(silence)
+            player.spin_until(time.monotonic() + 0.5)
+            player.raw.clear()
+            player.commands.clear()
+            cpu_start = {n: cpu_s(p.pid) for n, p in graph.processes.items()}
+            sent: list[float] = []
+            start = time.monotonic()
+            steady_start: dict[str, float] = {}
+            steady_from = 0
+            for j, offset in enumerate(range(0, len(payload), step)):
+                player.spin_until(start + j * CHUNK_SAMPLES / 16000)
+                if not steady_start and time.monotonic() - start >= STEADY_SKIP_S:
+                    steady_start = {n: cpu_s(p.pid) for n, p in graph.processes.items()}
+                    steady_from = j
+                sent.append(time.monotonic())
+                player.audio.publish(AudioData(data=payload[offset : offset + step]))
+            steady = {
+                n: cpu_s(p.pid) - steady_start.get(n, cpu_start[n])
+                for n, p in graph.processes.items()
+            }
+            steady_frames = max(len(sent) - steady_from, 1)
+            player.spin_until(time.monotonic() + 1.0)
+            cpu = {n: cpu_s(p.pid) - cpu_start[n] for n, p in graph.processes.items()}
+            rss = {n: rss_mb(p.pid) for n, p in graph.processes.items()}
+        player.destroy_node()
+
+    n = min(len(sent), len(player.raw))
+    latency_raw = np.array([player.raw[j][0] - sent[j] for j in range(n)]) * 1e3
+    latency_command = []
+    c = 0
+    for j in range(n):  # commands carry raw poses in order; a skipped pose matches nothing
+        pose = player.raw[j][1]
+        window = player.commands[c : c + 100]
+        match = next(
+            (
+                i
+                for i, (_, command) in enumerate(window)
+                if np.abs(command - pose).max() <= MATCH_TOLERANCE_RAD
+            ),
+            None,
+        )
+        if match is not None:
+            latency_command.append((window[match][0] - sent[j]) * 1e3)
+            c += match + 1
+    return GraphFigures(
+        mode="single-process" if single_process else "three-process",
+        audio_s=len(audio) / 16000,
+        latency_raw_ms=latency_raw,
+        latency_command_ms=np.array(latency_command),
+        startup_first_command_s=first_command,
+        startup_first_response_s=first_response,
+        cpu_ms_per_frame={k: 1e3 * v / max(n, 1) for k, v in cpu.items()},
+        steady_cpu_ms_per_frame={k: 1e3 * v / steady_frames for k, v in steady.items()},
+        rss_mb=rss,
+    )
+
+
+def bundled_speech() -> np.ndarray:
+    """All bundled speech clips, concatenated (24.7 s)."""
+    return np.concatenate(
+        [read_wav(p)[0] for p in sorted(share_path("data", "speech").glob("*.wav"))]
+    )
+
+
+def report(figures: GraphFigures) -> dict[str, object]:
+    """Summary statistics (also the ``--json`` output)."""
+
+    def stats(values: np.ndarray) -> dict[str, float]:
+        if not len(values):
+            return {"n": 0}
+        return {
+            "n": len(values),
+            "p50_ms": float(np.median(values)),
+            "p99_ms": float(np.percentile(values, 99)),
+            "max_ms": float(values.max()),
+        }
+
+    return {
+        "mode": figures.mode,
+        "audio_s": figures.audio_s,
+        "latency_audio_to_raw_pose": stats(figures.latency_raw_ms),
+        "latency_audio_to_joint_angles": stats(figures.latency_command_ms),
+        "startup_first_command_s": figures.startup_first_command_s,
+        "startup_first_response_to_audio_s": figures.startup_first_response_s,
+        "cpu_ms_per_frame": figures.cpu_ms_per_frame,
+        "steady_cpu_ms_per_frame": figures.steady_cpu_ms_per_frame,
+        "rss_mb": figures.rss_mb,
+        "targets": targets(figures),
+    }
+
+
+def targets(figures: GraphFigures) -> list[dict[str, object]]:
+    """Issue 15's targets for the figures' mode: figure, value, target, unit, met."""
+    single = figures.mode == "single-process"
+    p99 = (
+        float(np.percentile(figures.latency_command_ms, 99))
+        if len(figures.latency_command_ms)
+        else float("inf")
+    )
+    values = (
+        sum(figures.steady_cpu_ms_per_frame.values()),
+        sum(figures.rss_mb.values()),
+        figures.startup_first_command_s,
+        p99,
+    )
+    return [
+        {
+            "figure": name,
+            "value": value,
+            "target": single_target if single else three_target,
+            "unit": unit,
+            "met": bool(value <= (single_target if single else three_target)),
+        }
+        for (name, three_target, single_target, unit), value in zip(TARGETS, values, strict=True)
+    ]

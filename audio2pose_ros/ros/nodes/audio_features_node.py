@@ -1,0 +1,222 @@
+"""audio_features_node: microphone audio in, streaming LogFB/MFCC feature frames out.
+
+Subscriptions (``input_type`` chooses one of two inputs):
+    audio_common (default):
+        audio/audio (audio_common_msgs/AudioData, best effort): raw PCM chunks of any size.
+        audio/audio_info (audio_common_msgs/AudioInfo, transient local): how to decode them.
+    naoqi:
+        audio/audio (naoqi_bridge_msgs/AudioBuffer, best effort): the robot's microphones as
+        naoqi_driver publishes them (remap it to naoqi_driver's ``audio`` topic).
+Publications:
+    features (std_msgs/Float32MultiArray): frames x features, un-normalised, at 100 frames/s
+        of audio; dim[1].label names the feature set (e.g. ``logfbank26``).
+    voice_activity (std_msgs/Bool): energy-based voice activity after each audio chunk (while
+        something subscribes to it).
+    /diagnostics (diagnostic_msgs/DiagnosticArray): a heartbeat every 0.5 s.
+
+Parameters
+----------
+    model_path (str, read-only): checkpoint whose feature specification to compute ('' = the
+        packaged default).
+    input_type, channels, max_chunk_bytes, max_chunk_s, max_audio_s_per_s: see
+        :class:`~audio2pose_ros.audio.source.AudioInputSettings` (``ros2 param describe``
+        shows each with its range). All but input_type and model_path can change live.
+
+Audio that cannot be used (no or a rejected format, a message over a limit, NaN samples) is
+dropped, counted and reported on /diagnostics while it happens; a rejected AudioInfo is
+reported with its reason until a valid AudioInfo arrives, and decoding resumes at once then.
+Any other exception in a callback is caught at the node boundary
+(:meth:`~audio2pose_ros.ros.diagnosed_node.DiagnosedNode.guarded`) and the node keeps serving.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+
+import numpy as np
+from audio_common_msgs.msg import AudioData, AudioInfo
+from diagnostic_msgs.msg import DiagnosticStatus
+from naoqi_bridge_msgs.msg import AudioBuffer
+from std_msgs.msg import Bool, Float32MultiArray
+
+from audio2pose_ros.audio.features import StreamingFeatureExtractor
+from audio2pose_ros.audio.source import AudioInput, AudioInputSettings
+from audio2pose_ros.audio.vad import EnergyVad
+from audio2pose_ros.checkpoints.format import feature_spec_of
+from audio2pose_ros.errors import InputError
+from audio2pose_ros.parameters import ParameterSpec, ParameterValue, specs_of
+from audio2pose_ros.resources import default_checkpoint_path
+from audio2pose_ros.ros.diagnosed_node import (
+    AUDIO_QOS,
+    LATCHED_QOS,
+    STREAM_QOS,
+    DiagnosedNode,
+    features_to_msg,
+    run_node,
+)
+from audio2pose_ros.ros.node_parameters import NodeParameters
+
+MODEL_PATH = ParameterSpec(
+    name="model_path",
+    default="",
+    description="checkpoint whose feature specification is computed ('' = packaged default)",
+    read_only=True,
+)
+PARAMETERS: tuple[ParameterSpec, ...] = (MODEL_PATH, *specs_of(AudioInputSettings))
+_INPUT_FIELDS = tuple(spec.name for spec in specs_of(AudioInputSettings))
+
+
+class AudioFeaturesNode(DiagnosedNode):
+    """Decode audio messages within limits and publish feature frames."""
+
+    def __init__(self) -> None:
+        """Declare parameters, build the extractor, wire topics (the heartbeat is the base's).
+
+        Raises:
+            ConfigurationError: a parameter is refused, or ``model_path`` is not a usable
+                checkpoint (the node exits and is not respawned).
+        """
+        super().__init__("audio_features_node")
+        self.params = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
+        self.spec = feature_spec_of(self.params["model_path"] or default_checkpoint_path())
+        self.label = f"{self.spec.kind}{self.spec.dim}"
+        self.input = AudioInput(self._input_settings(), target_rate_hz=self.spec.sample_rate_hz)
+        self.extractor = StreamingFeatureExtractor(self.spec)
+        self.vad = EnergyVad()
+        self.frames_out = 0
+
+        self.features_pub = self.create_publisher(Float32MultiArray, "features", STREAM_QOS)
+        self.voice_pub = self.create_publisher(Bool, "voice_activity", STREAM_QOS)
+        if self.input.settings.input_type == "naoqi":
+            self.create_subscription(
+                AudioBuffer, "audio/audio", self.guarded(self.on_audio_buffer), AUDIO_QOS
+            )
+        else:
+            self.create_subscription(
+                AudioInfo, "audio/audio_info", self.guarded(self.on_audio_info), LATCHED_QOS
+            )
+            self.create_subscription(
+                AudioData, "audio/audio", self.guarded(self.on_audio_data), AUDIO_QOS
+            )
+        self.get_logger().info(
+            f"computing {self.label} features ({self.spec.to_dict()}) from "
+            f"{self.input.settings.input_type} audio, {self.input.settings.selection.describe()}"
+        )
+
+    def _input_settings(
+        self, changes: Mapping[str, ParameterValue] | None = None
+    ) -> AudioInputSettings:
+        values = {name: self.params[name] for name in _INPUT_FIELDS}
+        values.update({k: v for k, v in (changes or {}).items() if k in _INPUT_FIELDS})
+        return AudioInputSettings(**values)  # type: ignore[arg-type]
+
+    def apply_parameters(self, changes: Mapping[str, ParameterValue]) -> None:
+        """Validate the combination, then apply it from the next message on."""
+        self.input.update_settings(self._input_settings(changes))
+
+    # --- audio_common ---------------------------------------------------------------------------
+
+    def on_audio_info(self, msg: AudioInfo) -> None:
+        """Adopt a new format (a change restarts features); keep a refusal's reason on show."""
+        try:
+            changed = self.input.set_audio_info(
+                msg.channels, msg.sample_rate, msg.sample_format, msg.coding_format
+            )
+        except InputError as exc:  # shown by diagnostic_summary until a valid AudioInfo
+            self.get_logger().error(f"{exc}; audio is dropped until a valid AudioInfo arrives")
+            return
+        self.clear_problem("format")
+        if changed:
+            self.get_logger().info(f"audio format: {self.input.format}")
+            self._restart()
+
+    def on_audio_data(self, msg: AudioData) -> None:
+        """Decode one AudioData and publish what became available."""
+        try:
+            samples = self.input.decode_audio_data(msg.data)
+        except InputError as exc:
+            self._report_dropped(exc)
+            return
+        self._publish(samples)
+
+    # --- naoqi ----------------------------------------------------------------------------------
+
+    def on_audio_buffer(self, msg: AudioBuffer) -> None:
+        """Decode one AudioBuffer (its own format) and publish what became available."""
+        try:
+            samples, changed = self.input.decode_audio_buffer(
+                msg.frequency, msg.channel_map, msg.data
+            )
+        except InputError as exc:
+            self._report_dropped(exc)
+            return
+        self.clear_problem("format")
+        if changed:
+            self.get_logger().info(
+                f"audio format: {self.input.format}, channel_map {list(msg.channel_map)}"
+            )
+            self._restart()
+        self._publish(samples)
+
+    # --- shared ---------------------------------------------------------------------------------
+
+    def _restart(self) -> None:
+        """A new stream: forget partial frames and the noise floor."""
+        self.extractor.reset()
+        self.vad.reset()
+
+    def _report_dropped(self, exc: InputError) -> None:
+        """Report a dropped message while such drops go on (a refused AudioInfo: the summary)."""
+        if self.input.info_rejected:
+            return
+        key = "format" if self.input.format is None else "audio_dropped"
+        self.report_problem(key, DiagnosticStatus.WARN, str(exc))
+
+    def _publish(self, samples: np.ndarray) -> None:
+        frames = self.extractor.push(samples)
+        if len(samples):
+            active = self.vad.push(samples)
+            if self.voice_pub.get_subscription_count():  # no message for nobody (issue 15)
+                self.voice_pub.publish(Bool(data=active))
+        if len(frames):
+            self.frames_out += len(frames)
+            self.features_pub.publish(features_to_msg(np.asarray(frames), self.label))
+
+    # --- diagnostics ----------------------------------------------------------------------------
+
+    def diagnostic_summary(self) -> tuple[bytes, str]:
+        """ERROR while the declared AudioInfo is refused, else OK with what is decoded.
+
+        Audio dropped for another reason (none yet, a limit) is a reported problem, shown
+        while it happens.
+        """
+        if self.input.info_rejected:
+            return DiagnosticStatus.ERROR, self.input.format_problem
+        if self.input.format is None:
+            return DiagnosticStatus.OK, f"waiting: {self.input.format_problem}"
+        return DiagnosticStatus.OK, f"decoding {self.input.format}"
+
+    def diagnostic_values(self) -> dict[str, object]:
+        """Counters, the format and the limits in force."""
+        settings = dataclasses.asdict(self.input.settings)
+        return {
+            "format": self.input.format or self.input.format_problem,
+            "channels_used": self.input.channels_used or "all",
+            "features": self.label,
+            "chunks_received": self.input.chunks,
+            "chunks_dropped": self.input.dropped_chunks,
+            "dropped_bytes": self.input.dropped_bytes,
+            "frames_published": self.frames_out,
+            "voice_active": self.vad.active,
+            **settings,
+        }
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run the node until shutdown."""
+    run_node(AudioFeaturesNode, "audio_features_node", args)
+
+
+if __name__ == "__main__":
+    main()

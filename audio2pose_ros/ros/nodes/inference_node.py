@@ -1,0 +1,229 @@
+"""inference_node: feature frames in, raw joint trajectories of the 11 joints out (100 Hz points).
+
+Subscriptions:
+    features (std_msgs/Float32MultiArray): frames x features from audio_features_node.
+Publications:
+    raw_trajectory (trajectory_msgs/JointTrajectory): one point per feature frame, 10 ms apart,
+        positions in radians, unsmoothed (motion_filter_node smooths and limits them).
+    /diagnostics (diagnostic_msgs/DiagnosticArray): heartbeat every 0.5 s (DiagnosedNode).
+
+Parameters
+----------
+    model_path (str, read-only): checkpoint to run ('' = packaged default). Must be a streaming
+        model.
+    robot_description (str, read-only): robot YAML ('' = packaged Pepper); the checkpoint must
+        match it.
+    feature_limit_sd (float, 1..1000, live): normalised feature values are clamped to
+        +-feature_limit_sd standard deviations of the training data before the model.
+
+Models with a numpy kernel (``mlp``, ``lstm``, ``live``) run without torch
+(:mod:`audio2pose_ros.checkpoints.numpy_runtime`, one product per layer for a message's frames with
+the MLP);
+other streaming models are loaded with torch.
+
+A checkpoint or robot file that is missing, modified, crafted, offline-only or made for other
+joints is a ConfigurationError at start-up: ``run_node`` prints one line and exits with status
+78, which supervisors never respawn.
+
+Bad input never reaches the model and never stops the node:
+
+- a message of the wrong layout or feature set is dropped and reported;
+- at most :data:`MAX_FRAMES_PER_MESSAGE` frames of one message are used (10 s of audio; the
+  rest is dropped and counted), so one message cannot block the node for long;
+- after normalisation, non-finite values are replaced by 0 (the training mean) and values
+  beyond +-``feature_limit_sd`` are clamped; both are counted and reported as WARN. The frame
+  is kept, so the output stays one pose per 10 ms frame.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus
+from std_msgs.msg import Float32MultiArray
+from trajectory_msgs.msg import JointTrajectory
+
+from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
+from audio2pose_ros.errors import InputError
+from audio2pose_ros.parameters import ParameterSpec, ParameterValue
+from audio2pose_ros.resources import default_checkpoint_path
+from audio2pose_ros.robot.description import load_robot
+from audio2pose_ros.ros.diagnosed_node import (
+    STREAM_QOS,
+    DiagnosedNode,
+    msg_to_features,
+    run_node,
+    trajectory_msg,
+)
+from audio2pose_ros.ros.node_parameters import NodeParameters
+
+# 10 s of 10 ms frames (about 20 ms of work for the packaged model); audio_features_node sends
+# one message per audio chunk, typically 1 to 20 frames.
+MAX_FRAMES_PER_MESSAGE = 1000
+# A features message of MAX_FRAMES_PER_MESSAGE frames of up to 256 float32 features and its layout;
+# anything larger is dropped before rclpy decodes it (its layout list could be any length).
+MAX_FEATURES_BYTES = 4096 + MAX_FRAMES_PER_MESSAGE * 256 * 4
+
+PARAMETERS = (
+    ParameterSpec(
+        "model_path",
+        "",
+        "checkpoint to run ('' = packaged default); must be a streaming model",
+        read_only=True,
+    ),
+    ParameterSpec(
+        "robot_description",
+        "",
+        "robot description YAML ('' = packaged Pepper); the checkpoint must match it",
+        read_only=True,
+    ),
+    ParameterSpec(
+        "feature_limit_sd",
+        8.0,
+        "normalised features are clamped to +- this many training standard deviations",
+        minimum=1.0,
+        maximum=1000.0,
+        unit="sd",
+    ),
+    ParameterSpec(
+        "seed",
+        0,
+        "seed of a sampling model's noise: the same seed gives the same motion for the same audio",
+        minimum=0,
+        maximum=2**31 - 1,
+        read_only=True,
+    ),
+)
+
+
+def sanitize_features(normalized: np.ndarray, limit_sd: float) -> tuple[np.ndarray, int, int]:
+    """Make normalised features safe for the model.
+
+    Args:
+        normalized: (n_frames, n_features) z-normalised features.
+        limit_sd: values are clamped to [-limit_sd, limit_sd].
+
+    Returns:
+        ``(features, n_non_finite, n_clamped)``: a copy with non-finite values replaced by 0
+        (the training mean) and the others clamped, and how many values each rule changed.
+    """
+    finite = np.isfinite(normalized)
+    n_non_finite = int(normalized.size - np.count_nonzero(finite))
+    safe = np.where(finite, normalized, 0.0)
+    n_clamped = int(np.count_nonzero(np.abs(safe) > limit_sd))
+    return np.clip(safe, -limit_sd, limit_sd), n_non_finite, n_clamped
+
+
+class InferenceNode(DiagnosedNode):
+    """Run a streaming pose model frame by frame."""
+
+    def __init__(self) -> None:
+        """Declare parameters, load and check the model, then wire topics.
+
+        Raises:
+            ConfigurationError: a refused parameter, or an unusable checkpoint or robot file.
+        """
+        super().__init__("inference_node")
+        self.parameters = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
+        model_path = self.parameters["model_path"] or default_checkpoint_path()
+        self.robot = load_robot(self.parameters["robot_description"])
+        self.model = load_streaming_model(model_path, robot=self.robot)
+        self.predictor = self.model.predictor(seed=int(self.parameters["seed"]))
+        spec = self.model.features
+        self.expected_label = f"{spec.kind}{spec.dim}"
+        self.period_s = spec.step_s
+        self.limit_sd = float(self.parameters["feature_limit_sd"])
+        self.frames_in = 0
+        self.frames_dropped = 0
+        self.values_replaced = 0
+        self.values_clamped = 0
+        self.compute_s = 0.0
+
+        self.trajectory_pub = self.create_publisher(JointTrajectory, "raw_trajectory", STREAM_QOS)
+        self.create_bounded_subscription(
+            Float32MultiArray, "features", self.on_features, STREAM_QOS, MAX_FEATURES_BYTES
+        )
+        self.get_logger().info(
+            f"streaming model {self.model.name} ({self.model.runtime} runtime) from "
+            f"{model_path}, expects {self.expected_label} features"
+        )
+
+    def apply_parameters(self, changes: Mapping[str, ParameterValue]) -> None:
+        """Adopt a validated run-time change (only feature_limit_sd may change)."""
+        if "feature_limit_sd" in changes:
+            self.limit_sd = float(changes["feature_limit_sd"])
+
+    def on_features(self, msg: Float32MultiArray) -> None:
+        """Normalise, make safe, predict each frame, publish one trajectory point per frame."""
+        try:
+            frames, label = msg_to_features(msg)
+        except InputError as exc:  # msg_to_features refuses a layout that does not fit the data
+            self.report_problem(
+                "malformed", DiagnosticStatus.WARN, f"malformed features message dropped: {exc}"
+            )
+            return
+        if label != self.expected_label or frames.shape[1] != self.model.features.dim:
+            self.frames_dropped += len(frames)
+            self.report_problem(
+                "wrong features",
+                DiagnosticStatus.WARN,
+                f"features {label!r} x{frames.shape[1]} dropped: the model expects "
+                f"{self.expected_label!r}",
+            )
+            return
+        if len(frames) > MAX_FRAMES_PER_MESSAGE:
+            self.frames_dropped += len(frames) - MAX_FRAMES_PER_MESSAGE
+            self.report_problem(
+                "too many frames",
+                DiagnosticStatus.WARN,
+                f"a message of {len(frames)} frames: frames beyond {MAX_FRAMES_PER_MESSAGE} "
+                "dropped",
+            )
+            frames = frames[:MAX_FRAMES_PER_MESSAGE]
+        if not len(frames):
+            return
+        start = time.perf_counter()
+        with np.errstate(invalid="ignore", over="ignore"):  # inf - inf: made safe just below
+            normalized = self.model.normalizer.apply(frames)
+        safe, replaced, clamped = sanitize_features(normalized, self.limit_sd)
+        if replaced or clamped:
+            self.values_replaced += replaced
+            self.values_clamped += clamped
+            self.report_problem(
+                "feature values",
+                DiagnosticStatus.WARN,
+                f"feature values made safe: {replaced} non-finite replaced by the mean, "
+                f"{clamped} clamped to +-{self.limit_sd:g} sd",
+            )
+        poses = self.predictor.run(safe)
+        angles = self.robot.denormalize(poses)
+        self.compute_s += time.perf_counter() - start
+        self.frames_in += len(frames)
+        out = trajectory_msg(self.robot.names, angles, self.period_s)
+        out.header.stamp = self.get_clock().now().to_msg()
+        self.trajectory_pub.publish(out)
+
+    def diagnostic_values(self) -> dict[str, object]:
+        """Frame and value counters and the mean compute time per frame."""
+        mean_us = 1e6 * self.compute_s / self.frames_in if self.frames_in else 0.0
+        return {
+            "model": self.model.name,
+            "runtime": self.model.runtime,
+            "frames_in": self.frames_in,
+            "frames_dropped": self.frames_dropped,
+            "feature_values_replaced": self.values_replaced,
+            "feature_values_clamped": self.values_clamped,
+            "feature_limit_sd": self.limit_sd,
+            "mean_compute_us_per_frame": f"{mean_us:.1f}",
+        }
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run the node until shutdown; a configuration error exits with status 78."""
+    run_node(InferenceNode, "inference_node", args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,699 @@
+"""motion_filter_node: raw poses in; smooth, limited commands for naoqi, ros2_control, viewers out.
+
+Subscriptions:
+    raw_trajectory (trajectory_msgs/JointTrajectory): poses from inference_node (any joint order).
+    voice_activity (std_msgs/Bool): from audio_features_node; silence -> glide to neutral.
+    enable (std_msgs/Bool, latched): False -> glide to neutral and ignore generated motion.
+    stop (std_msgs/Bool, latched): True -> emergency stop ('hold': brake and stay; 'neutral').
+    head_target (sensor_msgs/JointState): absolute HeadYaw/HeadPitch targets, e.g. a look-at.
+    head_offset (sensor_msgs/JointState): HeadYaw/HeadPitch offsets added to the head motion.
+    joint_states (sensor_msgs/JointState, parameter measured_joint_states_topic): the robot's
+        measured joint states (naoqi_driver publishes them); the filter starts from them.
+Publications:
+    joint_angles (naoqi_bridge_msgs/JointAnglesWithSpeed): for naoqi_driver (absolute angles).
+    joint_trajectory_controller/joint_trajectory (trajectory_msgs/JointTrajectory): one point,
+        for ros2_control's joint_trajectory_controller.
+    commanded_joint_states (sensor_msgs/JointState): the commanded pose, for
+        robot_state_publisher / RViz in simulation (never ``joint_states``: on a robot that topic
+        carries the driver's measured states).
+    /diagnostics (diagnostic_msgs/DiagnosticArray): heartbeat, counters, problems.
+Parameters: the fields of MotionFilterSettings, LimitSettings and MotionFilterNodeSettings
+    (``ros2 param describe`` shows each one's description and range).
+
+Safety (issue 11): every command passes the input gate first and the joint limiter last; the
+node publishes nothing until it knows where the robot is (its measured pose, or within
+``startup_timeout_s`` the pose it last commanded, saved in ``state_file``, or else neutral), and
+a stop stays in force across restarts until a ``stop: false`` arrives.
+
+Timing (issue 12 item 10): the filter ticks at ``rate_hz``, at the latest one period after the
+previous tick and early when a pose arrives into an empty buffer (at most ``MIN_TICK_SPACING``
+periods after the previous tick), so a steady stream is commanded on arrival. Each output is
+published at the tick nearest to its own period, never less than its period minus half a filter
+period after the previous one (its documented minimum spacing: 15 ms for 50 Hz at a 100 Hz
+filter clock). Header stamps are the time the command was computed for (the tick), not the
+publish time. An output nobody subscribes to is not built nor sent (issue 15).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus
+from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+from rclpy.exceptions import InvalidTopicNameException
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
+from trajectory_msgs.msg import JointTrajectory
+
+from audio2pose_ros.errors import ConfigurationError, InputError
+from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+from audio2pose_ros.motion.limits import LimitSettings
+from audio2pose_ros.motion.state_file import (
+    FilterMemory,
+    default_state_path,
+    load_memory,
+    save_memory,
+)
+from audio2pose_ros.motion.timing import StampCheck
+from audio2pose_ros.parameters import ParameterValue, param, specs_of, validate_settings
+from audio2pose_ros.robot.description import load_robot
+from audio2pose_ros.ros.diagnosed_node import (
+    LATCHED_QOS,
+    STREAM_QOS,
+    DiagnosedNode,
+    run_node,
+    trajectory_msg,
+    trajectory_positions,
+)
+from audio2pose_ros.ros.node_parameters import NodeParameters
+
+MIN_TICK_SPACING = 0.5  # of a period: an arriving pose is commanded at once if the last tick
+# is at least this long ago (so ticks are never closer than half a period: no bursts)
+STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
+STOP_RELEASE_GRACE_S = 2.0  # after a restart with a saved stop, a stop=false arriving this soon
+# is the latched value from before the restart, not a release
+
+
+@dataclass(frozen=True)
+class MotionFilterNodeSettings:
+    """Parameters of the node itself (the filter's are in MotionFilterSettings, LimitSettings).
+
+    Attributes:
+        robot_description: robot description YAML ('' = config/pepper_robot.yaml).
+        joint_angles_speed: JointAnglesWithSpeed.speed; negative = velocity_fraction.
+        joint_angles_rate_hz: rate of /joint_angles (0 = off); 50 Hz = one command per
+            ALMotion 20 ms cycle.
+        joint_trajectory_rate_hz: rate of joint_trajectory (0 = off); Pepper's ros2_control
+            controller runs at 50 Hz.
+        joint_states_rate_hz: rate of commanded_joint_states (0 = off).
+        measured_joint_states_topic: the robot's measured joint states.
+        startup_timeout_s: how long to wait for a measured pose before using the saved one.
+        state_file: where the last commanded pose and a stop are kept ('' = the default).
+        state_save_period_s: how often the state file is rewritten while the pose changes.
+        max_stamp_future_s: raw trajectories stamped further ahead of the clock are rejected.
+        max_stamp_age_s: raw trajectories stamped further behind the clock are rejected.
+    """
+
+    robot_description: str = field(
+        default="",
+        metadata=param("robot description YAML ('' = config/pepper_robot.yaml)", read_only=True),
+    )
+    joint_angles_speed: float = field(
+        default=-1.0,
+        metadata=param(
+            "JointAnglesWithSpeed.speed (fraction of max velocity); negative = velocity_fraction",
+            minimum=-1.0,
+            maximum=1.0,
+        ),
+    )
+    joint_angles_rate_hz: float = field(
+        default=50.0,
+        metadata=param(
+            "rate of joint_angles, at most rate_hz (0 = off; 50 = one per ALMotion 20 ms cycle)",
+            minimum=0.0,
+            maximum=1000.0,
+            read_only=True,
+            unit="Hz",
+        ),
+    )
+    joint_trajectory_rate_hz: float = field(
+        default=50.0,
+        metadata=param(
+            "rate of joint_trajectory_controller/joint_trajectory, at most rate_hz (0 = off)",
+            minimum=0.0,
+            maximum=1000.0,
+            read_only=True,
+            unit="Hz",
+        ),
+    )
+    joint_states_rate_hz: float = field(
+        default=50.0,
+        metadata=param(
+            "rate of commanded_joint_states, at most rate_hz (0 = off)",
+            minimum=0.0,
+            maximum=1000.0,
+            read_only=True,
+            unit="Hz",
+        ),
+    )
+    measured_joint_states_topic: str = field(
+        default="joint_states",
+        metadata=param("the robot's measured joint states (naoqi_driver)", read_only=True),
+    )
+    startup_timeout_s: float = field(
+        default=1.0,
+        metadata=param(
+            "wait this long for a measured pose, then start from the saved one (or neutral)",
+            minimum=0.0,
+            maximum=60.0,
+            read_only=True,
+            unit="s",
+        ),
+    )
+    state_file: str = field(
+        default="",
+        metadata=param(
+            "file keeping the last commanded pose and a stop across restarts "
+            "('' = $ROS_HOME/audio2pose_ros/<node>.json)",
+            read_only=True,
+        ),
+    )
+    state_save_period_s: float = field(
+        default=0.5,
+        metadata=param(
+            "the state file is rewritten this often while the pose changes",
+            minimum=0.05,
+            maximum=60.0,
+            read_only=True,
+            unit="s",
+        ),
+    )
+    max_stamp_future_s: float = field(
+        default=0.5,
+        metadata=param(
+            "raw_trajectory stamped further ahead of the node clock is rejected",
+            minimum=0.0,
+            maximum=3600.0,
+            unit="s",
+        ),
+    )
+    max_stamp_age_s: float = field(
+        default=5.0,
+        metadata=param(
+            "raw_trajectory stamped further behind the node clock is rejected",
+            minimum=0.01,
+            maximum=3600.0,
+            unit="s",
+        ),
+    )
+
+    def __post_init__(self) -> None:
+        """Validate every field against its declaration."""
+        validate_settings(self)
+
+
+SETTINGS_CLASSES = (MotionFilterSettings, LimitSettings, MotionFilterNodeSettings)
+# A JointState of a whole humanoid (names, positions, velocities, efforts) is a few KiB.
+MAX_JOINT_STATE_BYTES = 65536
+
+
+def trajectory_bytes_cap(max_points: int, n_joints: int) -> int:
+    """Largest raw_trajectory decoded: ``max_points`` points carrying all four arrays (bytes).
+
+    A point of CDR holds four float64 arrays (positions, velocities, accelerations, efforts;
+    4-byte length each) and a Duration; beyond the cap the message is dropped before decoding,
+    so the work of one message stays bounded (decoding costs about 9 us per point in rclpy).
+    """
+    per_point = 4 * (4 + 8 * n_joints) + 8
+    return 1024 + 64 * n_joints + max_points * per_point
+
+
+PARAMETERS = tuple(spec for cls in SETTINGS_CLASSES for spec in specs_of(cls))
+OUTPUT_RATES = ("joint_angles_rate_hz", "joint_trajectory_rate_hz", "joint_states_rate_hz")
+
+
+def _pick(settings_class: type, values: Mapping[str, ParameterValue]) -> object:
+    names = {f.name for f in dataclasses.fields(settings_class)}
+    return settings_class(**{k: v for k, v in values.items() if k in names})
+
+
+def _stamp_s(stamp: object) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9  # type: ignore[attr-defined]
+
+
+class MotionFilterNode(DiagnosedNode):
+    """Gate, pace, smooth and limit poses; publish them in three message types."""
+
+    def __init__(self) -> None:
+        """Declare parameters, build the filter, wire topics and timers (nothing is commanded yet).
+
+        Raises:
+            ConfigurationError: a parameter or the robot description is refused.
+        """
+        super().__init__("motion_filter_node")
+        self.parameters = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
+        values = self.parameters.values
+        self.settings: MotionFilterNodeSettings = _pick(MotionFilterNodeSettings, values)
+        settings: MotionFilterSettings = _pick(MotionFilterSettings, values)
+        for name in OUTPUT_RATES:
+            rate = getattr(self.settings, name)
+            if rate > settings.rate_hz:
+                raise ConfigurationError(
+                    f"parameter {name}: value {rate!r} is out of range; allowed: 0 (off) to "
+                    f"rate_hz = {settings.rate_hz:g}"
+                )
+        try:
+            self.robot = load_robot(self.settings.robot_description or None)
+        except (OSError, ValueError) as exc:
+            raise ConfigurationError(f"parameter robot_description: {exc}") from None
+        self.filter = MotionFilter(self.robot, settings, _pick(LimitSettings, values))
+        self.stamps = StampCheck(self.settings.max_stamp_future_s, self.settings.max_stamp_age_s)
+        self.input_messages = 0
+        self.dropped_messages = 0
+        self.poses_at_last_report = 0
+        self.last_report_s = time.monotonic()
+        self.faults_seen = 0
+        self.started_from = ""
+        self.created_s = time.monotonic()
+        self.measured_rad: np.ndarray | None = None
+
+        self.state_path = (
+            Path(self.settings.state_file).expanduser()
+            if self.settings.state_file
+            else default_state_path(self.get_fully_qualified_name())
+        )
+        self.memory = self._load_memory()
+        self.saved: tuple[tuple[float, ...], bool] | None = None
+        self.stop_saved = self.memory is not None and self.memory.stopped
+        if self.stop_saved:
+            self.filter.set_stop(True)
+            self.get_logger().warning(
+                f"STOP in force from before the restart ({self.state_path}); publish "
+                "stop: false to release it"
+            )
+
+        guarded, bounded = self.guarded, self.create_bounded_subscription
+        bounded(
+            JointTrajectory,
+            "raw_trajectory",
+            self.on_raw,
+            STREAM_QOS,
+            lambda: trajectory_bytes_cap(
+                int(self.parameters["max_points_per_message"]), self.robot.n_joints
+            ),
+        )
+        self.create_subscription(Bool, "voice_activity", guarded(self.on_voice), STREAM_QOS)
+        self.create_subscription(Bool, "enable", guarded(self.on_enable), LATCHED_QOS)
+        self.create_subscription(Bool, "stop", guarded(self.on_stop), LATCHED_QOS)
+        bounded(JointState, "head_target", self.on_head_target, 10, MAX_JOINT_STATE_BYTES)
+        bounded(JointState, "head_offset", self.on_head_offset, 10, MAX_JOINT_STATE_BYTES)
+        try:
+            bounded(
+                JointState,
+                self.settings.measured_joint_states_topic,
+                self.on_measured,
+                qos_profile_sensor_data,
+                MAX_JOINT_STATE_BYTES,
+            )
+        except (InvalidTopicNameException, ValueError):
+            raise ConfigurationError(
+                f"parameter measured_joint_states_topic: value "
+                f"{self.settings.measured_joint_states_topic!r} is not a valid topic name"
+            ) from None
+        self.period_ns = round(self.filter.period_s * 1e9)
+        self.tick_timer = self.create_timer(self.filter.period_s, guarded(self.on_timer))
+        self.startup_timer = self.create_timer(
+            max(self.settings.startup_timeout_s, 1e-3), guarded(self.on_startup_timeout)
+        )
+        self.create_timer(self.settings.state_save_period_s, guarded(self.save_state))
+        self.last_tick_s = -math.inf
+        self.tick_stamp = self.get_clock().now()
+        outputs = {
+            "joint_angles": (JointAnglesWithSpeed, "joint_angles", self.publish_joint_angles),
+            "joint_trajectory": (
+                JointTrajectory,
+                "joint_trajectory_controller/joint_trajectory",
+                self.publish_joint_trajectory,
+            ),
+            "joint_states": (JointState, "commanded_joint_states", self.publish_joint_states),
+        }
+        self.publishers_by_output = {}
+        # (minimum spacing in s, time of the last publication, publish callback, publisher);
+        # an output is built and sent only while something subscribes to it
+        self.outputs: list[list] = []
+        for key, (msg_type, topic, callback) in outputs.items():
+            rate_hz = getattr(self.settings, f"{key}_rate_hz")
+            if rate_hz > 0:
+                publisher = self.create_publisher(msg_type, topic, 10)
+                self.publishers_by_output[key] = publisher
+                spacing = max(1.0 / rate_hz - 0.5 * self.filter.period_s, 0.0)
+                self.outputs.append([spacing, -math.inf, callback, publisher])
+        self.get_logger().info(
+            f"{self.robot.n_joints} joints at {settings.rate_hz:g} Hz, {settings.smoothing} "
+            f"smoothing, outputs: {', '.join(self.publishers_by_output) or 'none'}; waiting up "
+            f"to {self.settings.startup_timeout_s:g} s for the measured pose on "
+            f"{self.settings.measured_joint_states_topic}"
+        )
+
+    # --- parameters ---------------------------------------------------------------------------
+
+    def apply_parameters(self, changes: Mapping[str, ParameterValue]) -> None:
+        """Validate a run-time change as a whole and apply it from the next tick.
+
+        Raises:
+            ConfigurationError: the new combination is refused (nothing changes then).
+        """
+
+        def changed(current: object) -> object:
+            names = {f.name for f in dataclasses.fields(current)}  # type: ignore[arg-type]
+            ours = {k: v for k, v in changes.items() if k in names}
+            return dataclasses.replace(current, **ours) if ours else current  # type: ignore
+
+        node_settings = changed(self.settings)
+        self.filter.update_settings(
+            changed(self.filter.settings), changed(self.filter.limiter.settings)
+        )
+        self.settings = node_settings
+        self.stamps.max_future_s = node_settings.max_stamp_future_s
+        self.stamps.max_age_s = node_settings.max_stamp_age_s
+
+    # --- start-up -----------------------------------------------------------------------------
+
+    @property
+    def started(self) -> bool:
+        """Whether the filter knows where the robot is (and commands are published)."""
+        return bool(self.started_from)
+
+    def _load_memory(self) -> FilterMemory | None:
+        try:
+            return load_memory(self.state_path, self.robot)
+        except InputError as exc:
+            self.report_problem("state_file", DiagnosticStatus.WARN, f"state file ignored: {exc}")
+            return None
+
+    def _start(self, pose_rad: np.ndarray, source: str) -> None:
+        self.filter.start_from(pose_rad)
+        self.started_from = source
+        self.last_tick_s = time.monotonic()  # the stall check counts from here
+        self.startup_timer.cancel()
+        self.save_state()
+
+    def on_measured(self, msg: JointState) -> None:
+        """The robot's measured joint states: the start pose (later: shown in diagnostics)."""
+        if len(msg.name) != len(msg.position):
+            raise InputError(
+                f"measured joint states: {len(msg.name)} names, {len(msg.position)} positions"
+            )
+        index = {name: i for i, name in enumerate(msg.name)}
+        if any(name not in index for name in self.robot.names):
+            return  # another robot's, or a partial message: nothing to learn from it
+        pose = np.array([msg.position[index[name]] for name in self.robot.names], dtype=float)
+        tolerance = self.filter.settings.outlier_tolerance_rad
+        if not (
+            np.isfinite(pose).all()
+            and np.all(pose >= self.robot.lower_rad - tolerance)
+            and np.all(pose <= self.robot.upper_rad + tolerance)
+        ):
+            self.report_problem(
+                "measured_invalid",
+                DiagnosticStatus.WARN,
+                "measured joint states outside the joint ranges or not finite: ignored",
+            )
+            return
+        self.measured_rad = pose
+        if not self.started:
+            self._start(pose, "measured pose")
+            self.get_logger().info("starting from the robot's measured pose")
+
+    def on_startup_timeout(self) -> None:
+        """No measured pose in time: start from the saved pose, or else from neutral."""
+        self.startup_timer.cancel()
+        if self.started:
+            return
+        topic = self.settings.measured_joint_states_topic
+        if self.memory is not None:
+            self._start(np.array(self.memory.position_rad), "saved pose")
+            self.report_problem(
+                "start_pose",
+                DiagnosticStatus.WARN,
+                f"no measured pose on {topic}: started from the last commanded pose saved in "
+                f"{self.state_path}",
+                hold_s=10.0,
+            )
+        else:
+            self._start(self.robot.neutral_rad, "neutral pose")
+            self.report_problem(
+                "start_pose",
+                DiagnosticStatus.WARN,
+                f"no measured pose on {topic} and no saved pose: started from the neutral pose; "
+                "the first commands move the robot there at the velocity limit",
+                hold_s=10.0,
+            )
+
+    def save_state(self) -> None:
+        """Rewrite the state file when the commanded pose or the stop changed (atomically)."""
+        if not self.started:
+            return
+        state = (tuple(float(v) for v in self.filter.position_rad), self.filter.status.stopped)
+        if state == self.saved:
+            return
+        memory = FilterMemory(tuple(self.robot.names), state[0], state[1], time.time())
+        try:
+            save_memory(self.state_path, memory)
+        except OSError as exc:
+            self.report_problem(
+                "state_file", DiagnosticStatus.WARN, f"cannot save {self.state_path}: {exc}"
+            )
+            return
+        self.saved = state
+
+    # --- inputs -------------------------------------------------------------------------------
+
+    def on_raw(self, msg: JointTrajectory) -> None:
+        """Check and queue the poses of one raw trajectory message."""
+        self.input_messages += 1
+        if not self.started:
+            return  # the start pose is not known yet: generated motion waits
+        problem = self.stamps.check(_stamp_s(msg.header.stamp), self.now_s())
+        if problem:
+            self.dropped_messages += 1
+            self.report_problem(
+                "raw_stamp", DiagnosticStatus.WARN, f"raw trajectory dropped: {problem}"
+            )
+            return
+        status = self.filter.status
+        take = self.filter.points_to_take(len(msg.points))
+        if take < len(msg.points):
+            msg.points = msg.points[:take]
+            self.report_problem(
+                "raw_truncated",
+                DiagnosticStatus.WARN,
+                f"raw trajectory longer than max_points_per_message "
+                f"({self.filter.settings.max_points_per_message}): the rest dropped",
+            )
+        try:
+            poses = trajectory_positions(msg, self.robot.names)
+        except ValueError as exc:
+            self.dropped_messages += 1
+            self.report_problem(
+                "raw_malformed", DiagnosticStatus.WARN, f"raw trajectory dropped: {exc}"
+            )
+            return
+        before = (status.rejected, status.out_of_range, status.implausible)
+        was_waiting = self.filter.buffered == 0
+        arrival_s = time.monotonic()
+        self.filter.push(poses, arrival_s)
+        if (status.rejected, status.out_of_range, status.implausible) != before:
+            self.report_problem(
+                "raw_rejected",
+                DiagnosticStatus.WARN,
+                f"raw poses rejected before the filter: {status.rejected} non-finite, "
+                f"{status.out_of_range} out of range, {status.implausible} unreachable (total)",
+            )
+        # The clock follows the input: a pose that finds the buffer empty is commanded at once,
+        # or MIN_TICK_SPACING periods after the last tick if that is later, and the timer then
+        # waits 1.5 periods, or one if poses remain queued. A steady stream is served on arrival;
+        # the timer ticks when input is late or comes several poses at a time; no two ticks are
+        # closer than MIN_TICK_SPACING periods.
+        if not (was_waiting and self.filter.buffered):
+            return
+        wait_s = self.last_tick_s + MIN_TICK_SPACING * self.filter.period_s - arrival_s
+        if wait_s <= 0:
+            self.on_tick()
+            queued = self.filter.buffered > 0
+            self.tick_timer.timer_period_ns = self.period_ns if queued else self.period_ns * 3 // 2
+        else:  # too soon after the last tick: tick as soon as the spacing allows
+            self.tick_timer.timer_period_ns = max(round(wait_s * 1e9), 1)
+        self.tick_timer.reset()
+
+    def on_voice(self, msg: Bool) -> None:
+        """Voice activity from the features node."""
+        self.filter.set_voice_active(msg.data, time.monotonic())
+
+    def on_enable(self, msg: Bool) -> None:
+        """Enable or disable generated motion."""
+        self.filter.set_enabled(msg.data)
+        self.get_logger().info("enabled" if msg.data else "disabled: gliding to neutral")
+
+    def on_stop(self, msg: Bool) -> None:
+        """Emergency stop on / off (a saved stop ignores the latched value from before)."""
+        replayed = time.monotonic() - self.created_s < STOP_RELEASE_GRACE_S
+        if not msg.data and self.stop_saved and replayed:
+            self.report_problem(
+                "stop_release_ignored",
+                DiagnosticStatus.WARN,
+                "stop: false from before the restart ignored: the saved stop stays in "
+                "force; publish stop: false again to release it",
+            )
+            return
+        self.stop_saved = False
+        self.filter.set_stop(msg.data)
+        self.saved = None  # save the change at once
+        self.save_state()
+        if msg.data:
+            self.get_logger().warning(f"STOP ({self.filter.settings.stop_behaviour})")
+        else:
+            self.get_logger().info("stop released")
+
+    def _head_values(self, msg: JointState) -> dict[str, float]:
+        if len(msg.name) != len(msg.position):
+            raise InputError(f"{len(msg.name)} names for {len(msg.position)} positions")
+        return dict(zip(msg.name, (float(p) for p in msg.position), strict=True))
+
+    def _external(self, msg: JointState, setter: Callable, key: str) -> None:
+        try:
+            setter(self._head_values(msg), time.monotonic())
+        except InputError as exc:
+            self.report_problem(key, DiagnosticStatus.WARN, f"{key} rejected: {exc}")
+
+    def on_head_target(self, msg: JointState) -> None:
+        """Absolute head target (e.g. a face tracker's look-at)."""
+        self._external(msg, self.filter.set_head_target, "head_target")
+
+    def on_head_offset(self, msg: JointState) -> None:
+        """Head offset added to the generated head motion."""
+        self._external(msg, self.filter.set_head_offset, "head_offset")
+
+    # --- clock and outputs --------------------------------------------------------------------
+
+    def now_s(self) -> float:
+        """Node clock in seconds."""
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def on_timer(self) -> None:
+        """The fallback clock: tick, and return to the nominal period."""
+        if self.tick_timer.timer_period_ns != self.period_ns:
+            self.tick_timer.timer_period_ns = self.period_ns
+        if self.started:
+            self.on_tick()
+
+    def on_tick(self) -> None:
+        """Advance the filter by one period and publish the outputs due at this tick."""
+        self.last_tick_s = time.monotonic()
+        self.tick_stamp = self.get_clock().now()
+        status = self.filter.status
+        self.filter.tick(self.last_tick_s)
+        if status.faults > self.faults_seen:
+            self.faults_seen = status.faults
+            self.report_problem("filter_fault", DiagnosticStatus.ERROR, status.last_fault)
+        for output in self.outputs:
+            spacing, last_s, publish, publisher = output
+            if self.last_tick_s - last_s >= spacing:
+                output[1] = self.last_tick_s
+                if publisher.get_subscription_count():  # no message for nobody (issue 15)
+                    publish()
+
+    def _stamp(self) -> object:
+        return self.tick_stamp.to_msg()
+
+    def publish_joint_angles(self) -> None:
+        """naoqi_driver command: absolute angles at ``speed`` fraction of max velocity."""
+        msg = JointAnglesWithSpeed()
+        msg.header.stamp = self._stamp()
+        msg.joint_names = list(self.robot.names)
+        msg.joint_angles = [float(v) for v in self.filter.position_rad]
+        speed = self.settings.joint_angles_speed
+        msg.speed = float(speed if speed >= 0 else self.filter.limiter.settings.velocity_fraction)
+        msg.relative = 0
+        self.publishers_by_output["joint_angles"].publish(msg)
+
+    def publish_joint_trajectory(self) -> None:
+        """ros2_control command: one point, one filter period after the tick it was computed at."""
+        msg = trajectory_msg(
+            self.robot.names,
+            self.filter.position_rad[None, :],
+            self.filter.period_s,
+            self.filter.velocity_rad_s[None, :],
+        )
+        msg.header.stamp = self._stamp()
+        self.publishers_by_output["joint_trajectory"].publish(msg)
+
+    def publish_joint_states(self) -> None:
+        """The commanded pose as a JointState (for robot_state_publisher and viewers)."""
+        msg = JointState()
+        msg.header.stamp = self._stamp()
+        msg.name = list(self.robot.names)
+        msg.position = [float(v) for v in self.filter.position_rad]
+        msg.velocity = [float(v) for v in self.filter.velocity_rad_s]
+        self.publishers_by_output["joint_states"].publish(msg)
+
+    # --- diagnostics --------------------------------------------------------------------------
+
+    def diagnostic_summary(self) -> tuple[bytes, str]:
+        """Mode and where the filter started; WARN while waiting or stopped."""
+        status = self.filter.status
+        if not self.started:
+            return DiagnosticStatus.WARN, "waiting for the robot's pose: commanding nothing"
+        silent_s = time.monotonic() - self.last_tick_s
+        if silent_s > STALLED_PERIODS * self.filter.period_s:
+            return DiagnosticStatus.ERROR, f"no command computed for {silent_s * 1e3:.0f} ms"
+        if status.stopped:
+            return DiagnosticStatus.WARN, f"STOPPED ({self.filter.settings.stop_behaviour})"
+        return DiagnosticStatus.OK, f"{status.mode} (started from the {self.started_from})"
+
+    def diagnostic_values(self) -> dict[str, object]:
+        """Input and filter counters, latency, mode, limiter activity, health."""
+        status, counts, stamps = self.filter.status, self.filter.limiter.counts, self.stamps
+        now = time.monotonic()
+        input_rate_hz = (status.received - self.poses_at_last_report) / max(
+            now - self.last_report_s, 1e-3
+        )
+        self.poses_at_last_report, self.last_report_s = status.received, now
+        values: dict[str, object] = {
+            "started_from": self.started_from or "waiting",
+            "input_messages": self.input_messages,
+            "dropped_messages": self.dropped_messages,
+            "stale_messages_dropped": stamps.counts.out_of_order,
+            "future_stamps_rejected": stamps.counts.future,
+            "old_stamps_rejected": stamps.counts.too_old,
+            "poses_received": status.received,
+            "poses_rejected": status.rejected,
+            "poses_out_of_range": status.out_of_range,
+            "poses_unreachable": status.implausible,
+            "poses_truncated": status.truncated,
+            "poses_dropped": status.dropped,
+            "head_inputs_rejected": status.external_rejected,
+            "buffer_underruns": status.underruns,
+            "poses_skipped_backlog": status.skipped,
+            "buffered_poses": status.buffered,
+            "input_latency_ms": f"{stamps.latency_s * 1e3:.2f}",
+            "mode": status.mode,
+            "enabled": status.enabled,
+            "stopped": status.stopped,
+            "voice_active": status.voice_active,
+            "head_target_active": status.head_target_active,
+            "input_rate_hz": f"{input_rate_hz:.1f}",
+            "position_limit_hits": counts.position,
+            "velocity_limit_hits": counts.velocity,
+            "acceleration_limit_hits": counts.acceleration,
+            "gaps": status.gaps,
+            "filter_faults": status.faults,
+            "command_finite_and_in_limits": bool(
+                np.isfinite(self.filter.position_rad).all()
+                and np.all(self.filter.position_rad >= self.filter.limiter.lower_rad)
+                and np.all(self.filter.position_rad <= self.filter.limiter.upper_rad)
+            ),
+            "last_command_age_ms": (
+                f"{(now - self.last_tick_s) * 1e3:.0f}" if self.started else "none"
+            ),
+        }
+        if self.measured_rad is not None:
+            deviation = np.abs(self.measured_rad - self.filter.position_rad).max()
+            values["measured_deviation_rad"] = f"{deviation:.3f}"
+        return values
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run the node until shutdown."""
+    run_node(MotionFilterNode, "motion_filter_node", args)
+
+
+if __name__ == "__main__":
+    main()

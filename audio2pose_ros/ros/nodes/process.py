@@ -1,0 +1,69 @@
+"""Entry points of the node executables: make the process safe to start and stop, then import.
+
+The console scripts ``audio_features_node``, ``inference_node`` and ``motion_filter_node`` start
+here, before any heavy import (rclpy, numpy, torch take seconds), so that from the first
+instant of the process:
+
+- it dies with its parent: ``PR_SET_PDEATHSIG`` (Linux) makes the kernel send SIGTERM when the
+  process that started it (``ros2 launch``, ``audio2pose run``) ends in any way, even SIGKILL, so
+  nodes are never left running as orphans; a process whose parent is already gone exits at once;
+- SIGTERM and Ctrl-C (SIGINT) end it quietly at any point of start-up (an import, the model
+  load); once rclpy is initialised its own handlers take over and shut the node down.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib
+import os
+import signal
+import sys
+
+__all__ = ["audio_features_node", "inference_node", "motion_filter_node", "prepare_node_process"]
+
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def _exit_on_signal(signum: int, _frame: object) -> None:
+    """A termination signal before rclpy took over: leave as a shell would report it."""
+    raise SystemExit(128 + signum)
+
+
+def prepare_node_process() -> None:
+    """Die with the parent process and exit cleanly on SIGTERM; call first thing in a node."""
+    signal.signal(signal.SIGTERM, _exit_on_signal)
+    # A parent may start us with SIGINT ignored (a shell's background job): Ctrl-C must work.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    parent = os.getppid()
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+        except (OSError, AttributeError):  # no prctl (not glibc): orphans are the launcher's job
+            pass
+    if parent == 1 or os.getppid() != parent:  # the parent died before prctl took effect
+        raise SystemExit(128 + signal.SIGTERM)
+
+
+def _run(module: str) -> None:
+    prepare_node_process()
+    try:
+        main = importlib.import_module(f"audio2pose_ros.ros.nodes.{module}").main
+    except KeyboardInterrupt:  # Ctrl-C while importing (torch takes seconds): quiet exit
+        raise SystemExit(128 + signal.SIGINT) from None
+    main()
+
+
+def audio_features_node() -> None:
+    """Console script ``audio_features_node``."""
+    _run("audio_features_node")
+
+
+def inference_node() -> None:
+    """Console script ``inference_node``."""
+    _run("inference_node")
+
+
+def motion_filter_node() -> None:
+    """Console script ``motion_filter_node``."""
+    _run("motion_filter_node")

@@ -1,0 +1,1 @@
+"""Pictures of motion: rendering, filter plots and Foxglove bags."""
