@@ -15,8 +15,10 @@ from audio2pose_ros.learning.sampler_selection import (
     PAUSE_TARGETS,
     SILENCE_TEMPERATURES,
     TEMPERATURES,
+    choose_sampling,
     score,
     select_sampling,
+    speaker_folds,
 )
 from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 from audio2pose_ros.models import build_model
@@ -114,15 +116,15 @@ def test_when_a_model_is_not_a_grouped_sampler_expect_it_unchanged(clips, robot)
     assert choice.settings == {}
 
 
-def test_when_evaluating_leave_one_speaker_out_expect_tuning_on_the_folds_validation_only(
+def test_when_evaluating_leave_one_speaker_out_expect_tuning_on_the_folds_training_side_only(
     tmp_path, robot
 ):
     dataset = write_dataset(tmp_path / "loso", robot, {"train": 4}, seconds=1.5, seed=2)
     speakers = sorted({c.speaker for c in dataset.clips})
     seen = []
 
-    def tune(fold, validation):
-        seen.append(validation)
+    def tune(fold, training):
+        seen.append(training)
         return replace(fold, model=fold.model.with_sampling(first_temperature=0.0))
 
     settings = TrainSettings(max_epochs=1, batch_size=4, show_progress=False)
@@ -130,10 +132,43 @@ def test_when_evaluating_leave_one_speaker_out_expect_tuning_on_the_folds_valida
         dataset, robot, ["live_groups"], settings, n_samples=2, tune=tune
     )
     assert len(seen) == len(speakers)
-    for held_out, validation in zip(speakers, seen, strict=True):
-        assert validation
-        assert held_out not in {c.info.speaker for c in validation}
+    for held_out, training in zip(speakers, seen, strict=True):
+        assert training
+        assert held_out not in {c.info.speaker for c in training}
     head = robot.group_mask("head")
     for clip in clips:  # the tuned checkpoint predicts: a head at temperature 0 ignores the seed
         first, second = predictions["live_groups (LOSO)"][clip.info.clip_id]
         np.testing.assert_array_equal(first[:, head], second[:, head])
+
+
+def test_when_splitting_by_speaker_expect_every_speaker_to_validate_once_and_never_train_there(
+    clips,
+):
+    renamed = [replace(c, info=replace(c.info, speaker=f"p{i % 5}")) for i, c in enumerate(clips)]
+    folds = speaker_folds(renamed, 3)
+    assert len(folds) == 3
+    validating = [s for _, v in folds for s in sorted({c.info.speaker for c in v})]
+    assert sorted(validating) == [f"p{i}" for i in range(5)]
+    for training, validation in folds:
+        assert not {c.info.speaker for c in training} & {c.info.speaker for c in validation}
+        assert len(training) + len(validation) == len(renamed)
+    assert speaker_folds(renamed, 3) == folds
+    assert speaker_folds(renamed[:1], 3) == []
+
+
+def test_when_folds_observe_different_groups_expect_each_part_scored_on_its_own_groups(
+    checkpoint, clips, robot
+):
+    head = robot.group_mask("head")
+    validation = [c for c in clips if c.info.split == "validation"]
+    heads_only = [replace(c, mask=c.mask & head) for c in validation[:1]]
+    body_only = [replace(c, mask=c.mask & ~head) for c in validation[1:]]
+    choice = choose_sampling([(checkpoint, heads_only), (checkpoint, body_only)], robot, 2)
+    groups = {(t.setting, t.group) for t in choice.trials if t.setting != "silence_temperature"}
+    assert groups == {
+        ("first_temperature", "head"),
+        ("second_temperature", "arms"),
+        ("second_temperature", "hip"),
+    }
+    assert choice.n_models == 2
+    assert choice.validation == tuple(c.info.clip_id for c in heads_only + body_only)

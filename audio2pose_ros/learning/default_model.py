@@ -285,14 +285,18 @@ def build_learned_default_model(
 
     """
     from audio2pose_ros.checkpoints.torch_io import save_checkpoint
-    from audio2pose_ros.data.importers.lecture import import_lecture
+    from audio2pose_ros.data.importers.lecture import LECTURE_SPEAKER, import_lecture
     from audio2pose_ros.learning.evaluation import (
         checkpoint_predictions,
         loso_predictions,
         quality_evaluation,
     )
     from audio2pose_ros.learning.model_card import write_learned_model_card
-    from audio2pose_ros.learning.sampler_selection import select_sampling
+    from audio2pose_ros.learning.sampler_selection import (
+        apply_sampling,
+        choose_sampling,
+        cross_validated,
+    )
     from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 
     settings = settings or LearnedBuildSettings()
@@ -323,9 +327,22 @@ def build_learned_default_model(
         train_settings,
         validation=validation,
     )
-    progress("choosing the sampling settings on the validation clips")
-    checkpoint, choice = select_sampling(checkpoint, validation, robot)
-    progress(choice.table().splitlines()[0])
+    fold_settings = TrainSettings(
+        max_epochs=settings.loso_epochs,
+        batch_size=settings.batch_size,
+        patience=settings.patience,
+        seed=settings.seed,
+        show_progress=False,
+    )
+    progress(
+        "choosing the sampling settings: the head's by cross-validation over the talking-head "
+        "speakers, the arms' on the validation lecture stretch"
+    )
+    head_folds = cross_validated("live_groups", head_clips, robot, fold_settings, progress=progress)
+    lecture_validation = [c for c in validation if c.info.speaker == LECTURE_SPEAKER]
+    choice = choose_sampling([*head_folds, (checkpoint, lecture_validation)], robot)
+    progress("  chosen: " + choice.summary())
+    checkpoint = apply_sampling(checkpoint, choice)
     checkpoint.info.update(describe_learned_data())
     checkpoint_path = out_dir / "default.safetensors"
     save_checkpoint(checkpoint_path, checkpoint)
@@ -343,24 +360,20 @@ def build_learned_default_model(
         paused=paused | rule_paused,
     )
     progress("evaluating the head leave-one-speaker-out over the talking-head clips")
-    loso_settings = TrainSettings(
-        max_epochs=settings.loso_epochs,
-        batch_size=settings.batch_size,
-        patience=settings.patience,
-        seed=settings.seed,
-        show_progress=False,
-    )
     fold_choices: list[SamplingChoice] = []
 
-    def tune(fold: Checkpoint, fold_validation: list[Clip]) -> Checkpoint:
-        tuned, fold_choice = select_sampling(fold, fold_validation, robot)
-        if fold_choice.settings:
-            fold_choices.append(fold_choice)
-            progress(fold_choice.table().splitlines()[0])
-        return tuned
+    def tune(fold: Checkpoint, training: list[Clip]) -> Checkpoint:
+        """A fold's sampling settings, by cross-validation over its training speakers only."""
+        if fold.model.name != "live_groups":
+            return fold
+        inner = cross_validated("live_groups", training, robot, fold_settings, progress=progress)
+        fold_choice = choose_sampling(inner, robot)
+        fold_choices.append(fold_choice)
+        progress("  chosen: " + fold_choice.summary())
+        return apply_sampling(fold, fold_choice)
 
     clips, loso, loso_paused = loso_predictions(
-        heads, robot, ["live_groups", "mlp"], loso_settings, settings.samples, progress, tune
+        heads, robot, ["live_groups", "mlp"], fold_settings, settings.samples, progress, tune
     )
     head = quality_evaluation(
         clips, loso, robot, out_dir / "head_distributions.png", paused=loso_paused
@@ -375,7 +388,10 @@ def build_learned_default_model(
         "sampling settings of the shipped model\n"
         + choice.table()
         + "\n\nsampling settings of the leave-one-speaker-out folds (head)\n"
-        + "\n".join(c.table().splitlines()[0] for c in fold_choices)
+        + "\n".join(
+            f"{speaker} held out: {c.summary()}"
+            for speaker, c in zip(heads.speakers, fold_choices, strict=True)
+        )
     )
     (out_dir / "metrics.txt").write_text(table + "\n\n" + selection + "\n", encoding="utf-8")
     card = write_learned_model_card(

@@ -569,7 +569,7 @@ def loso_predictions(
     split label; validation for early stopping holds out further speakers of the training side
     (:func:`~audio2pose_ros.learning.training.train_on_clips`). ``tune`` (e.g. the choice of a
     sampler's settings, :mod:`audio2pose_ros.learning.sampler_selection`) receives each fold's
-    trained checkpoint and that fold's validation clips, never the held-out speaker's, and
+    trained checkpoint and that fold's training clips, never the held-out speaker's, and
     returns the checkpoint that predicts the held-out speaker.
 
     Returns:
@@ -597,8 +597,7 @@ def loso_predictions(
                 progress(f"fold {k + 1}/{len(speakers)} ({speaker} held out): training {name}")
             checkpoint, _ = train_on_clips(name, training, robot, settings)
             if tune is not None:
-                validation = set(checkpoint.info["validation_clips"])
-                checkpoint = tune(checkpoint, [c for c in training if c.info.clip_id in validation])
+                checkpoint = tune(checkpoint, training)
             label = f"{name} (LOSO)"
             samples, pauses = checkpoint_predictions(
                 [(Path(label), checkpoint)], held_out, n_samples, settings.seed

@@ -10,6 +10,7 @@ from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import AUDIO_RATE_HZ, Dataset
 from audio2pose_ros.learning.evaluation import Evaluation, GroupRow, QualityEvaluation
 from audio2pose_ros.learning.sampler_selection import (
+    INNER_FOLDS,
     N_SEEDS,
     PAUSE_MARGIN,
     SILENCE_TEMPERATURES,
@@ -195,24 +196,28 @@ def _targets(head: QualityEvaluation, arms: QualityEvaluation, model: str) -> st
     return "\n".join(lines)
 
 
-def _selection(choice: SamplingChoice, folds: list[SamplingChoice]) -> str:
+def _selection(choice: SamplingChoice, folds: list[SamplingChoice], speakers: list[str]) -> str:
     """The card's account of how the sampling settings were chosen, with every trial."""
-    fold_lines = "\n".join(c.table().splitlines()[0] for c in folds)
+    fold_lines = "\n".join(
+        f"{speaker} held out: {c.summary()}" for speaker, c in zip(speakers, folds, strict=True)
+    )
     temperatures = ", ".join(f"{t:g}" for t in TEMPERATURES)
     rests = ", ".join(f"{t:g}" for t in SILENCE_TEMPERATURES)
     return f"""## How the sampling settings were chosen (validation, not test)
 The part temperatures and the gate's rest level in silence act only when sampling, so
 `make default-model` chooses them after training
-(`audio2pose_ros/learning/sampler_selection.py`) on the clips that stopped training early, never on a clip reported below: each part's
-temperature from
-{temperatures} by the lowest score mean(H speed, H accel) + |ln(std ratio)| of its joint groups
-on those clips ({N_SEEDS} samples each), then the highest rest level of {rests} whose
-speech/pause speed ratio on those clips is at least {PAUSE_MARGIN:g} times the target (head 2,
-arms and hip 1.5). Every leave-one-speaker-out fold below chooses its own in the same way on its
-own early-stopping speakers (never the held-out one), so the head numbers measure the whole
-procedure. Fixed, not chosen per build (set in an earlier session while the lecture's test
-stretch was in view): the noise's correlation (0.975, second order), the gate's margin (1),
-width (0.2) and time constants.
+(`audio2pose_ros/learning/sampler_selection.py`), never on a clip reported below. Evidence: for
+the head, {INNER_FOLDS}-fold cross-validation over the talking-head speakers (every speaker's
+clips sampled by a model trained without that speaker); for the arms and hip, the shipped model
+on its validation stretch of the lecture. Each part's temperature from {temperatures} by the
+lowest score mean(H speed, H accel) + |ln(std ratio)| of its joint groups ({N_SEEDS} samples per
+clip), then the highest rest level of {rests} whose speech/pause speed ratio is at least
+{PAUSE_MARGIN:g} times the target (head 2, arms and hip 1.5). Every leave-one-speaker-out fold
+below chooses its own in the same way by cross-validation over its own training speakers only
+(never the held-out one), so the head numbers measure the whole procedure. Fixed, not chosen
+per build (set in an earlier session while the lecture's test stretch was in view): the
+noise's correlation (0.975, second order), the gate's margin (1), width (0.2) and time
+constants.
 
 Shipped model:
 
@@ -318,7 +323,7 @@ static pose (floor), real motion of another held-out clip of another speaker (ce
 the arms, the hand-written prosody rule. The sampling settings were chosen on validation clips
 (next section), not on these.
 
-{_selection(choice, fold_choices)}## Held-out numbers
+{_selection(choice, fold_choices, heads.speakers)}## Held-out numbers
 
 **Head, leave one speaker out** over the {len(heads.clips)} talking-head clips (each fold
 trains `live_groups`, and the seed's `mlp` for comparison, on the other speakers):
