@@ -154,14 +154,18 @@ def cross_validated(
     k: int = INNER_FOLDS,
     progress: Callable[[str], None] | None = None,
 ) -> list[Fold]:
-    """Train one model per :func:`speaker_folds` pair; each with the speakers it did not see."""
+    """Train one model per :func:`speaker_folds` pair; each with the speakers it did not see.
+
+    Each model stops early on the speakers it is then scored on (its validation speakers), so
+    it uses all its other speakers for training.
+    """
     pairs = speaker_folds(clips, k)
     folds = []
     for i, (training, validation) in enumerate(pairs):
         if progress is not None:
             speakers = sorted({c.info.speaker for c in validation})
             progress(f"  validation model {i + 1}/{len(pairs)} (without {', '.join(speakers)})")
-        checkpoint, _ = train_on_clips(model_name, training, robot, settings)
+        checkpoint, _ = train_on_clips(model_name, training, robot, settings, validation=validation)
         folds.append((checkpoint, validation))
     return folds
 
