@@ -24,7 +24,7 @@ test-fast: setup
 	$(VENV_BIN)/python -m pytest -m "not slow"
 
 lint: setup
-	$(VENV_BIN)/ruff check . && $(VENV_BIN)/ruff format --check .
+	$(VENV_BIN)/ruff check . && $(VENV_BIN)/ruff format --check . && $(VENV_BIN)/mypy
 
 bench: setup
 	$(VENV_BIN)/audio2pose bench

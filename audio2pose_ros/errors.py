@@ -14,6 +14,8 @@ __all__ = [
     "Audio2PoseError",
     "ConfigurationError",
     "InputError",
+    "InvalidAudio",
+    "UnsupportedAudioFormat",
     "UsageError",
 ]
 
@@ -35,3 +37,11 @@ class InputError(Audio2PoseError):
 
 class UsageError(Audio2PoseError):
     """A command-line option or combination of options is invalid (exit status 2)."""
+
+
+class UnsupportedAudioFormat(InputError):  # noqa: N818 (name fixed by the node API)
+    """An AudioInfo field or a WAV header names an audio format the decoder cannot handle."""
+
+
+class InvalidAudio(InputError):  # noqa: N818 (name fixed by the node API)
+    """Audio data that cannot be decoded as samples (NaN or inf in F32LE, a broken WAV file)."""

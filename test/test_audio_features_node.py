@@ -21,8 +21,18 @@ from naoqi_bridge_msgs.msg import AudioBuffer
 from rclpy.node import Node
 from std_msgs.msg import Float32MultiArray
 
-from audio2pose_ros.audio.features import FeatureSpec, StreamingFeatureExtractor
-from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmDecoder, PcmFormat, encode_pcm
+from audio2pose_ros.audio.features import (
+    FeatureSpec,
+)
+from audio2pose_ros.audio.pcm import (
+    S16LE_MONO_16K,
+    PcmDecoder,
+    PcmFormat,
+    encode_pcm,
+)
+from audio2pose_ros.audio.streaming import (
+    StreamingFeatureExtractor,
+)
 from audio2pose_ros.ros.diagnosed_node import AUDIO_QOS, EXIT_CONFIGURATION_ERROR, LATCHED_QOS
 from audio2pose_ros.ros.graph_bench import rss_mb
 

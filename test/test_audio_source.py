@@ -11,10 +11,8 @@ import numpy as np
 import pytest
 
 from audio2pose_ros.audio.pcm import (
-    InvalidAudio,
     PcmDecoder,
     PcmFormat,
-    UnsupportedAudioFormat,
     encode_pcm,
 )
 from audio2pose_ros.audio.source import (
@@ -24,7 +22,12 @@ from audio2pose_ros.audio.source import (
     AudioInputSettings,
     ChannelSelection,
 )
-from audio2pose_ros.errors import ConfigurationError, InputError
+from audio2pose_ros.errors import (
+    ConfigurationError,
+    InputError,
+    InvalidAudio,
+    UnsupportedAudioFormat,
+)
 
 S16_INFO = {"channels": 1, "sample_rate": 16000, "sample_format": "S16LE", "coding_format": "wave"}
 PEPPER_MAP = (3, 5, 0, 2)  # naoqi_driver on Pepper: rear left, rear right, front left, front right

@@ -12,13 +12,17 @@ import numpy as np
 import pytest
 
 from audio2pose_ros.audio.pcm import (
-    InvalidAudio,
     PcmDecoder,
     PcmFormat,
-    UnsupportedAudioFormat,
+)
+from audio2pose_ros.audio.wav import (
     read_wav,
 )
-from audio2pose_ros.errors import InputError
+from audio2pose_ros.errors import (
+    InputError,
+    InvalidAudio,
+    UnsupportedAudioFormat,
+)
 
 
 def wav_bytes(

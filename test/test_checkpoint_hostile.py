@@ -15,7 +15,12 @@ import numpy as np
 import pytest
 import torch
 
-from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec
+from audio2pose_ros.audio.features import (
+    FeatureSpec,
+)
+from audio2pose_ros.audio.normalize import (
+    FeatureNormalizer,
+)
 from audio2pose_ros.checkpoints.format import (
     MAX_HEADER_BYTES,
     CheckpointError,

@@ -15,7 +15,9 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
-from audio2pose_ros.audio.pcm import read_wav
+from audio2pose_ros.audio.wav import (
+    read_wav,
+)
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.ros.graph import executable_command
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC

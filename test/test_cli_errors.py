@@ -14,7 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmFormat, encode_pcm
+from audio2pose_ros.audio.pcm import (
+    S16LE_MONO_16K,
+    PcmFormat,
+    encode_pcm,
+)
 from audio2pose_ros.cli import main as cli
 from audio2pose_ros.data import bag as bag_module
 from audio2pose_ros.data.bag import (

@@ -5,12 +5,20 @@ import json
 import numpy as np
 import pytest
 
-from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset, DatasetError, expected_frames
+from audio2pose_ros.data.dataset import (
+    Clip,
+    ClipInfo,
+    Dataset,
+    DatasetError,
+)
+from audio2pose_ros.timebase import (
+    complete_frames,
+)
 
 
 def make_clip(robot, clip_id="c1", seconds=1.0, split="train") -> Clip:
     n = int(16000 * seconds)
-    frames = expected_frames(n)
+    frames = complete_frames(n)
     angles = np.tile(robot.neutral_rad, (frames, 1))
     mask = np.ones_like(angles, dtype=bool)
     mask[:, robot.group_mask("arms")] = False  # e.g. a head-only recording
@@ -32,9 +40,9 @@ def test_when_clip_added_and_reopened_expect_same_arrays_and_attribution(tmp_pat
 
 
 def test_when_expected_frames_expect_feature_grid():
-    assert expected_frames(399) == 0
-    assert expected_frames(400) == 1
-    assert expected_frames(16000) == 98
+    assert complete_frames(399) == 0
+    assert complete_frames(400) == 1
+    assert complete_frames(16000) == 98
 
 
 def test_when_motion_length_does_not_fit_audio_expect_error(tmp_path, robot):

@@ -16,7 +16,11 @@ import pytest
 from audio_common_msgs.msg import AudioData, AudioInfo
 from graph_probe import Probe, diagnostics_of
 
-from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmFormat, encode_pcm
+from audio2pose_ros.audio.pcm import (
+    S16LE_MONO_16K,
+    PcmFormat,
+    encode_pcm,
+)
 from audio2pose_ros.ros.diagnosed_node import trajectory_msg
 from audio2pose_ros.ros.graph import node_graph
 from audio2pose_ros.ros.graph_bench import rss_mb
@@ -197,7 +201,9 @@ def test_when_30_minutes_of_audio_stream_through_expect_flat_memory(
     tmp_path: Path, probe: Probe, robot, speech_files
 ):
     """Soak: 30 min of real speech at 25x real time; resident memory of every node stays flat."""
-    from audio2pose_ros.audio.pcm import read_wav
+    from audio2pose_ros.audio.wav import (
+        read_wav,
+    )
 
     speech = np.concatenate([read_wav(f)[0] for f in speech_files])
     total_s, speed = 30 * 60, 25.0

@@ -9,7 +9,9 @@ from recording_fixtures import NAMES, known_angles, write_bvh
 from audio2pose_ros.data.dataset import ClipInfo
 from audio2pose_ros.data.importers import ImporterError
 from audio2pose_ros.data.importers.bvh import import_bvh, load_mappings, read_bvh, retarget
-from audio2pose_ros.data.importers.common import grid_times_s
+from audio2pose_ros.timebase import (
+    frame_times_s,
+)
 
 FRAME_TIME_S = 1.0 / 30.0
 N_FRAMES = 150  # 5 s
@@ -36,7 +38,7 @@ def test_when_importing_a_bvh_of_known_motion_expect_angles_within_one_degree(bv
     info = ClipInfo("known", "s", "test", "CC0")
     clip, extras = import_bvh(bvh_file, audio, info, robot, load_mappings()["genea2020"])
     assert robot.names == NAMES
-    expected = known_angles(grid_times_s(audio.size))
+    expected = known_angles(frame_times_s(audio.size))
     inner = slice(20, -20)  # away from the filter's edges and the last BVH frame
     for j, name in enumerate(robot.names):
         error_deg = np.rad2deg(np.abs(clip.angles_rad[inner, j] - expected[name][inner]))

@@ -3,9 +3,11 @@
 import numpy as np
 import pytest
 
-from audio2pose_ros.data.dataset import expected_frames
 from audio2pose_ros.data.importers.lecture import LECTURE_LICENCE, TEST_SPAN_S, lecture_clips
 from audio2pose_ros.data.importers.video import POSE_INDEX, VideoTracks, body_angles
+from audio2pose_ros.timebase import (
+    complete_frames,
+)
 
 
 def rot_x(a):
@@ -122,7 +124,7 @@ def test_when_the_arms_disappear_expect_clips_cut_there_and_no_zero_filled_frame
     pitch = robot.names.index("LShoulderPitch")
     for clip in clips:
         assert clip.info.licence == LECTURE_LICENCE
-        assert expected_frames(clip.audio.size) == clip.n_frames
+        assert complete_frames(clip.audio.size) == clip.n_frames
         assert not clip.mask[:, head].any()  # the lecture does not label the head
         assert clip.mask[:, ~head].mean() > 0.95
         known = clip.angles_rad[clip.mask[:, pitch], pitch]

@@ -8,8 +8,10 @@ from recording_fixtures import openface_rotation, write_openface_csv
 
 from audio2pose_ros.data.dataset import ClipInfo
 from audio2pose_ros.data.importers import ImporterError
-from audio2pose_ros.data.importers.common import grid_times_s
 from audio2pose_ros.data.importers.openface import OpenFaceImportSettings, import_openface
+from audio2pose_ros.timebase import (
+    frame_times_s,
+)
 
 FPS = 30.0
 SECONDS = 4.0
@@ -37,7 +39,7 @@ def test_when_importing_known_head_angles_expect_them_back_within_half_a_degree(
     yaw = lambda t: 0.4 * np.sin(2 * np.pi * 0.3 * t)  # noqa: E731
     pitch = lambda t: 0.1 + 0.2 * np.sin(2 * np.pi * 0.5 * t)  # noqa: E731
     clip, _ = _import(_csv(tmp_path, yaw, pitch), robot)
-    t = grid_times_s(clip.audio.size)
+    t = frame_times_s(clip.audio.size)
     inner = slice(20, -20)
     got = clip.angles_rad[:, [robot.names.index("HeadYaw"), robot.names.index("HeadPitch")]]
     np.testing.assert_allclose(got[inner, 0], yaw(t)[inner], atol=np.deg2rad(0.5))
@@ -73,7 +75,7 @@ def test_when_success_is_zero_for_a_second_expect_those_frames_masked(tmp_path, 
     lost = lambda t: (t < 1.5) | (t > 2.5)  # noqa: E731
     path = _csv(tmp_path, lambda t: 0.1, lambda t: 0.0, success=lost)
     clip, _ = _import(path, robot)
-    t = grid_times_s(clip.audio.size)
+    t = frame_times_s(clip.audio.size)
     head = clip.mask[:, robot.names.index("HeadYaw")]
     assert not head[(t > 1.8) & (t < 2.2)].any()
     assert head[t < 1.4].all()

@@ -5,11 +5,16 @@ import subprocess
 import numpy as np
 import pytest
 
-from audio2pose_ros.data.dataset import ClipInfo, expected_frames
+from audio2pose_ros.data.dataset import (
+    ClipInfo,
+)
 from audio2pose_ros.data.importers import ImporterError, head_pose
 from audio2pose_ros.data.importers.media import ffmpeg_executable, read_audio
 from audio2pose_ros.data.importers.video import VideoImportSettings, import_video
 from audio2pose_ros.resources import share_path
+from audio2pose_ros.timebase import (
+    complete_frames,
+)
 
 GRID_CLIP = share_path("data", "video", "grid_bbaf2n.mpg")  # GRID, CC BY 4.0: data/video/SOURCES.md
 HEAD_ONLY = VideoImportSettings(body=False)
@@ -34,7 +39,7 @@ def test_when_importing_a_talking_head_expect_a_face_in_over_95_percent_of_frame
 
 def test_when_importing_a_talking_head_expect_plausible_head_angles_without_wraps(imported, robot):
     clip, extras, _ = imported
-    assert clip.n_frames == expected_frames(clip.audio.size)
+    assert clip.n_frames == complete_frames(clip.audio.size)
     head = [robot.names.index("HeadYaw"), robot.names.index("HeadPitch")]
     angles = clip.angles_rad[:, head]
     assert np.isfinite(angles).all()

@@ -46,7 +46,9 @@ from rcl_interfaces.srv import GetParameters
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.audio.pcm import read_wav
+from audio2pose_ros.audio.wav import (
+    read_wav,
+)
 from audio2pose_ros.data.bag import AUDIO_INFO_TOPIC, audio_messages
 from audio2pose_ros.resources import default_checkpoint_path, share_path
 from audio2pose_ros.robot.description import load_robot

@@ -15,13 +15,15 @@ from audio2pose_ros.learning.training import (
     evaluate_loss,
     train_model,
 )
-from audio2pose_ros.models import (
-    MODEL_REGISTRY,
+from audio2pose_ros.models.base import (
     OfflineOnlyModelError,
-    build_model,
     require_streaming,
 )
 from audio2pose_ros.models.mlp import FramewiseMLP, MLPConfig
+from audio2pose_ros.models.registry import (
+    MODEL_REGISTRY,
+    build_model,
+)
 from audio2pose_ros.models.span import recombine_spans, span_loss
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -15,12 +15,19 @@ from scipy.io import wavfile
 
 from audio2pose_ros.cli.render_commands import register
 from audio2pose_ros.data.bag import BagWriter, typestore
-from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset, expected_frames
+from audio2pose_ros.data.dataset import (
+    Clip,
+    ClipInfo,
+    Dataset,
+)
 from audio2pose_ros.errors import UsageError
 from audio2pose_ros.offline.trajectory import bag_trajectory
 from audio2pose_ros.resources import bundled_speech_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.robot.kinematics import RobotKinematics
+from audio2pose_ros.timebase import (
+    complete_frames,
+)
 from audio2pose_ros.viz.render import BACKGROUND_RGB, TITLE_HEIGHT_PX, RobotCamera
 
 SMALL = ["--view-width", "160", "--view-height", "192", "--curves-height", "120", "--no-progress"]
@@ -123,7 +130,7 @@ def test_when_comparing_a_model_with_a_clip_truth_expect_two_robots_side_by_side
     robot = load_robot()
     rate, samples = wavfile.read(bundled_speech_path())
     audio = samples[: 2 * rate].astype(np.float32) / 32768
-    n = expected_frames(len(audio))
+    n = complete_frames(len(audio))
     angles = np.tile(robot.neutral_rad, (n, 1))
     angles[:, robot.names.index("LShoulderPitch")] = np.linspace(1.5, 0.0, n)
     dataset = Dataset.create(tmp_path / "data", robot)

@@ -38,7 +38,9 @@ def recorded_raw_poses(bag: Path, names: tuple[str, ...]) -> np.ndarray:
 def test_when_speech_bag_replayed_through_graph_expect_offline_trajectory(
     tmp_path: Path, robot, speech_files
 ):
-    from audio2pose_ros.audio.pcm import read_wav
+    from audio2pose_ros.audio.wav import (
+        read_wav,
+    )
 
     speech = read_wav(speech_files[3])[0]
     model = stateless_checkpoint(tmp_path / "mlp.safetensors", robot, speech)

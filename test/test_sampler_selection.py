@@ -21,7 +21,7 @@ from audio2pose_ros.learning.sampler_selection import (
     speaker_folds,
 )
 from audio2pose_ros.learning.training import TrainSettings, train_on_clips
-from audio2pose_ros.models import build_model
+from audio2pose_ros.models.registry import build_model
 
 torch.set_num_threads(1)
 

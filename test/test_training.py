@@ -8,7 +8,9 @@ import pytest
 import torch
 from safetensors import safe_open
 
-from audio2pose_ros.audio.features import FeatureSpec
+from audio2pose_ros.audio.features import (
+    FeatureSpec,
+)
 from audio2pose_ros.data.dataset import Dataset
 from audio2pose_ros.learning import training
 from audio2pose_ros.learning.training import (
@@ -19,7 +21,9 @@ from audio2pose_ros.learning.training import (
     train_from_dataset,
     train_model,
 )
-from audio2pose_ros.models import build_model
+from audio2pose_ros.models.registry import (
+    build_model,
+)
 
 sys.path.insert(0, str(Path(__file__).parent))
 from synthetic_motion import synthetic_utterances, write_dataset

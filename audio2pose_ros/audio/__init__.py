@@ -1,58 +1,14 @@
-"""ROS-free audio front end: PCM decoding (seed 003 section 4.2.2) and features (section 3.2).
+"""ROS-free audio front end: bytes to 16 kHz samples to features (seed 003 sections 3.2, 4.2.2).
 
-:mod:`~audio2pose_ros.audio.pcm` turns PCM bytes (AudioData, WAV files) into 16 kHz mono
-float32 samples within documented limits; :mod:`~audio2pose_ros.audio.source` applies it to
-audio_common AudioInfo/AudioData or naoqi AudioBuffer messages with per-message and per-second
-caps; :mod:`~audio2pose_ros.audio.features` turns samples into LogFB/MFCC features, offline or
-streaming, with per-speaker z-normalisation.
+- :mod:`~audio2pose_ros.audio.pcm`: AudioData bytes as AudioInfo describes them -> 16 kHz mono
+  float32 (any chunking), within documented format limits;
+- :mod:`~audio2pose_ros.audio.resample`: the streaming polyphase resampler it uses;
+- :mod:`~audio2pose_ros.audio.wav`: WAV files through a bounded RIFF reader;
+- :mod:`~audio2pose_ros.audio.source`: the features node's guarded input (audio_common
+  AudioInfo/AudioData or naoqi AudioBuffer, per-message and per-second caps);
+- :mod:`~audio2pose_ros.audio.dsp`: mel filter bank, DCT, lifter, window, pre-emphasis, deltas;
+- :mod:`~audio2pose_ros.audio.features`: feature sets (LogFB, MFCC) and offline extraction;
+- :mod:`~audio2pose_ros.audio.streaming`: the same features chunk by chunk;
+- :mod:`~audio2pose_ros.audio.normalize`: per-speaker z-normalisation;
+- :mod:`~audio2pose_ros.audio.vad`: the energy voice-activity detector.
 """
-
-from audio2pose_ros.audio.features import (
-    FeatureNormalizer,
-    FeatureSpec,
-    StreamingFeatureExtractor,
-    dct_matrix,
-    delta,
-    extract_features,
-    hz_to_mel,
-    mel_filterbank,
-    mel_to_hz,
-)
-from audio2pose_ros.audio.pcm import (
-    MAX_CHANNELS,
-    MAX_SAMPLE_RATE_HZ,
-    MIN_SAMPLE_RATE_HZ,
-    InvalidAudio,
-    PcmDecoder,
-    PcmFormat,
-    PolyphaseResampler,
-    UnsupportedAudioFormat,
-    encode_pcm,
-    read_wav,
-)
-from audio2pose_ros.audio.source import AudioDropped, AudioInput, AudioInputSettings
-
-__all__ = [
-    "MAX_CHANNELS",
-    "MAX_SAMPLE_RATE_HZ",
-    "MIN_SAMPLE_RATE_HZ",
-    "AudioDropped",
-    "AudioInput",
-    "AudioInputSettings",
-    "FeatureNormalizer",
-    "FeatureSpec",
-    "InvalidAudio",
-    "PcmDecoder",
-    "PcmFormat",
-    "PolyphaseResampler",
-    "StreamingFeatureExtractor",
-    "UnsupportedAudioFormat",
-    "dct_matrix",
-    "delta",
-    "encode_pcm",
-    "extract_features",
-    "hz_to_mel",
-    "mel_filterbank",
-    "mel_to_hz",
-    "read_wav",
-]

@@ -4,8 +4,9 @@ Seed 003 section 4.2.2: "The stereo audio signal was first averaged to a single 
 downsampled to f_s = 16 kHz". :class:`PcmDecoder` does exactly that on a byte stream that
 arrives in arbitrary pieces (ROS messages, odd byte counts, single bytes): it keeps the bytes of
 an incomplete frame, averages the channels and resamples any input rate to the target rate with
-a streaming polyphase FIR whose state is carried across calls, so that feeding a signal in
-chunks gives the same samples as feeding it whole.
+a streaming polyphase FIR (:mod:`~audio2pose_ros.audio.resample`) whose state is carried
+across calls, so that feeding a signal in chunks gives the same samples as feeding it whole.
+WAV files are read by :mod:`~audio2pose_ros.audio.wav` with the same decoder.
 
 Samples are float32 in the nominal range [-1, 1): integer formats are scaled by their full
 scale (S16LE by 2**15, S32LE by 2**31, U8 by 2**7 around 128); the decoder's output is clipped
@@ -18,7 +19,8 @@ Limits (what an AudioInfo, a WAV header or an AudioBuffer may claim):
   common hardware). Above 16 kHz the features only see the band below 8 kHz anyway; below
   8 kHz the upper mel bands would be empty. At the target rate of 16 kHz one input sample gives
   at most two output samples, so the output of a message is bounded by its size;
-- the resampling filter has at most :data:`MAX_FILTER_TAPS` coefficients (4 MiB). Every
+- the resampling filter has at most
+  :data:`~audio2pose_ros.audio.resample.MAX_FILTER_TAPS` coefficients (4 MiB). Every
   standard rate (8000, 11025, 12000, 16000, 22050, 24000, 32000, 44056, 44100, 48000, 64000,
   88200, 96000, 176400, 192000 Hz) fits; a rate such as 47999 Hz, whose ratio to 16 kHz does
   not reduce, would need three million taps and is refused;
@@ -33,27 +35,20 @@ and AudioData's ``data`` (anything bytes-like) to :meth:`PcmDecoder.feed`.
 
 from __future__ import annotations
 
-import functools
-import math
-import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
-from os import PathLike
-from pathlib import Path
 
 import numpy as np
 
-from audio2pose_ros.errors import InputError
-
-TARGET_RATE_HZ = 16000  # seed 003 section 4.2.2: audio is downsampled to f_s = 16 kHz
+from audio2pose_ros.audio.resample import PolyphaseResampler
+from audio2pose_ros.errors import InvalidAudio, UnsupportedAudioFormat
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 SUPPORTED_SAMPLE_FORMATS: tuple[str, ...] = ("S16LE", "S32LE", "F32LE", "U8")
 SUPPORTED_CODING_FORMATS: tuple[str, ...] = ("wave", "")
 MIN_SAMPLE_RATE_HZ = 8000  # lowest accepted input rate (telephony)
 MAX_SAMPLE_RATE_HZ = 192000  # highest accepted input rate (USB Audio Class 2, ALSA hardware)
 MAX_CHANNELS = 16  # interleaved channels accepted (Pepper: 4, microphone arrays: 4 to 8)
-MAX_FILTER_TAPS = 1 << 19  # resampling filter coefficients (float64: 4 MiB)
-_BLOCK_VALUES = 1 << 20  # input values gathered per vectorised resampler block (8 MiB)
 
 # numpy dtype and bytes per sample of each supported sample format (all little-endian).
 _DTYPES: dict[str, np.dtype] = {
@@ -65,14 +60,6 @@ _DTYPES: dict[str, np.dtype] = {
 
 # Largest float32 below 1.0: the decoder's output is clipped to [-1, _MAX_SAMPLE].
 _MAX_SAMPLE = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
-
-
-class UnsupportedAudioFormat(InputError):  # noqa: N818 (name fixed by the node API)
-    """An AudioInfo field or a WAV header names a format this decoder cannot handle."""
-
-
-class InvalidAudio(InputError):  # noqa: N818 (name fixed by the node API)
-    """Audio data that cannot be decoded as samples (NaN or inf in F32LE, a broken WAV file)."""
 
 
 def short_repr(value: object, limit: int = 40) -> str:
@@ -102,7 +89,7 @@ class PcmFormat:
 
     sample_format: str = "S16LE"
     channels: int = 1
-    sample_rate_hz: int = TARGET_RATE_HZ
+    sample_rate_hz: int = SAMPLE_RATE_HZ
     coding_format: str = "wave"
 
     def __post_init__(self) -> None:
@@ -233,189 +220,6 @@ def _to_float(raw: np.ndarray, sample_format: str) -> np.ndarray:
     return raw.astype(np.float64)
 
 
-def resampler_taps(in_rate_hz: int, out_rate_hz: int) -> int:
-    """Coefficients of :class:`PolyphaseResampler`'s filter for these rates (1 when equal)."""
-    g = math.gcd(int(in_rate_hz), int(out_rate_hz))
-    up, down = out_rate_hz // g, in_rate_hz // g
-    if up == down == 1:
-        return 1
-    delay = math.ceil(PolyphaseResampler.ZERO_CROSSINGS * max(up, down) / down)
-    return 2 * delay * down + 1
-
-
-@functools.lru_cache(maxsize=8)
-def _polyphase_filter(up: int, down: int) -> tuple[int, np.ndarray]:
-    """``(delay_samples, poly)`` of the low-pass for ``up / down`` (read-only, cached).
-
-    Cached because a stream whose format flips between a few rates would otherwise design the
-    same filter again for every message.
-    """
-    max_rate = max(up, down)
-    delay_samples = math.ceil(PolyphaseResampler.ZERO_CROSSINGS * max_rate / down)
-    half_len = delay_samples * down  # group delay in up-rate samples
-    taps = np.arange(-half_len, half_len + 1, dtype=np.float64)
-    cutoff = PolyphaseResampler.ROLLOFF * 0.5 / max_rate  # cycles per up-rate sample
-    h = 2.0 * cutoff * np.sinc(2.0 * cutoff * taps)
-    h *= np.kaiser(taps.size, PolyphaseResampler.KAISER_BETA)
-    h *= up / h.sum()  # unit DC gain after zero-stuffing by `up`
-    n_taps = -(-h.size // up)
-    h = np.concatenate([h, np.zeros(n_taps * up - h.size)])
-    # poly[p, j] = h[j * up + p], reversed along j so it pairs with ascending input.
-    poly = h.reshape(n_taps, up).T[:, ::-1].copy()
-    poly.flags.writeable = False
-    return delay_samples, poly
-
-
-class PolyphaseResampler:
-    """Streaming rational-ratio resampler (polyphase Kaiser-windowed-sinc FIR, delay-compensated).
-
-    The ratio ``out_rate_hz / in_rate_hz`` is reduced to ``up / down``. A linear-phase low-pass
-    of ``2 * delay_samples * down + 1`` taps at the rate ``in_rate_hz * up`` (cut-off 0.96 of the
-    lower Nyquist frequency, Kaiser beta 8, about 80 dB stop-band) is applied in polyphase form.
-    The output is delay-compensated: output sample ``m`` is the signal at time
-    ``m / out_rate_hz``. Because of that an output sample is only produced once the input
-    ``delay_samples`` output periods later has arrived; :meth:`flush` produces the tail (input
-    beyond the end taken as zeros). Input before the start is taken as zeros.
-
-    A whole signal of ``n`` input samples gives ``ceil(n * up / down)`` output samples from
-    :meth:`process` plus :meth:`flush`, independent of how it was chunked (to rounding error).
-
-    Memory: the filter has at most :data:`MAX_FILTER_TAPS` coefficients, and the temporary
-    array of a vectorised block holds at most about :data:`_BLOCK_VALUES` values, whatever the
-    size of the input.
-
-    Args:
-        in_rate_hz: input sample rate (Hz).
-        out_rate_hz: output sample rate (Hz).
-
-    Raises:
-        UnsupportedAudioFormat: a rate is not positive, or the filter for this ratio would
-            have more than :data:`MAX_FILTER_TAPS` coefficients.
-
-    """
-
-    ZERO_CROSSINGS = 32  # sinc zero crossings per side: sets the filter length and transition
-    ROLLOFF = 0.96  # cut-off as a fraction of the lower of the two Nyquist frequencies
-    KAISER_BETA = 8.0  # about 80 dB stop-band attenuation
-
-    def __init__(self, in_rate_hz: int, out_rate_hz: int) -> None:
-        if in_rate_hz <= 0 or out_rate_hz <= 0:
-            raise UnsupportedAudioFormat(
-                f"rates must be positive, got {in_rate_hz} -> {out_rate_hz} Hz"
-            )
-        n_taps = resampler_taps(in_rate_hz, out_rate_hz)
-        if n_taps > MAX_FILTER_TAPS:
-            raise UnsupportedAudioFormat(
-                f"unsupported sample_rate {in_rate_hz}: resampling it to {out_rate_hz} Hz needs "
-                f"a {n_taps}-tap filter (at most {MAX_FILTER_TAPS}); use a standard rate such as "
-                "16000, 44100 or 48000 Hz"
-            )
-        g = math.gcd(int(in_rate_hz), int(out_rate_hz))
-        self.in_rate_hz = int(in_rate_hz)
-        self.out_rate_hz = int(out_rate_hz)
-        self.up = self.out_rate_hz // g
-        self.down = self.in_rate_hz // g
-        if self.up == self.down == 1:
-            self.delay_samples = 0
-            self._poly = np.ones((1, 1))
-        else:
-            self.delay_samples, self._poly = _polyphase_filter(self.up, self.down)
-        self._block = max(1, _BLOCK_VALUES // self.taps_per_phase)
-        self.reset()
-
-    @property
-    def passthrough(self) -> bool:
-        """True when the rates are equal and samples pass unchanged."""
-        return self.up == self.down == 1
-
-    @property
-    def taps_per_phase(self) -> int:
-        """Input samples that each output sample depends on."""
-        return int(self._poly.shape[1])
-
-    def reset(self) -> None:
-        """Forget all input: the next sample is the start of a new signal."""
-        history = self.taps_per_phase - 1
-        self._buf = np.zeros(history)  # input samples, zeros before the signal start
-        self._offset = -history  # global input index of _buf[0]
-        self._n_in = 0  # input samples received
-        self._n_out = 0  # output samples produced
-
-    def _n_available(self, n_in: int) -> int:
-        """Count the outputs whose newest input is among the first ``n_in`` input samples."""
-        return -(-n_in * self.up // self.down) - self.delay_samples
-
-    def _compute(self, m0: int, m1: int) -> np.ndarray:
-        """Output samples ``m0 .. m1 - 1`` from the buffered input."""
-        out = np.empty(m1 - m0)
-        taps = self.taps_per_phase
-        lane = np.arange(taps)
-        for b0 in range(m0, m1, self._block):
-            b1 = min(b0 + self._block, m1)
-            k = (np.arange(b0, b1, dtype=np.int64) + self.delay_samples) * self.down
-            newest = k // self.up
-            phase = k - newest * self.up
-            first = newest - (taps - 1) - self._offset
-            values = self._buf[first[:, None] + lane[None, :]]
-            out[b0 - m0 : b1 - m0] = np.einsum("ij,ij->i", values, self._poly[phase])
-        return out
-
-    def _drop_consumed(self) -> None:
-        """Discard input no longer needed by the next output sample."""
-        k = (self._n_out + self.delay_samples) * self.down
-        keep_from = k // self.up - (self.taps_per_phase - 1)
-        cut = keep_from - self._offset
-        if cut > 0:
-            self._buf = self._buf[cut:]
-            self._offset += cut
-
-    def process(self, samples: np.ndarray) -> np.ndarray:
-        """Resample the next piece of the input.
-
-        Args:
-            samples: (n,) input samples at ``in_rate_hz``.
-
-        Returns:
-            (k,) float64 output samples at ``out_rate_hz`` that became computable.
-
-        """
-        x = np.asarray(samples, dtype=np.float64).reshape(-1)
-        if self.passthrough:
-            return x.copy()
-        if x.size == 0:
-            return np.empty(0)
-        self._buf = np.concatenate([self._buf, x])
-        self._n_in += x.size
-        m1 = self._n_available(self._n_in)
-        if m1 <= self._n_out:
-            return np.empty(0)
-        out = self._compute(self._n_out, m1)
-        self._n_out = m1
-        self._drop_consumed()
-        return out
-
-    def flush(self) -> np.ndarray:
-        """Produce the remaining output (input after the end taken as zeros) and reset.
-
-        Returns:
-            (k,) float64 output samples, so that the total output of the signal is
-            ``ceil(n_in * up / down)`` samples.
-
-        """
-        if self.passthrough:
-            return np.empty(0)
-        total = -(-self._n_in * self.up // self.down)
-        out = np.empty(0)
-        if total > self._n_out:
-            newest = ((total - 1 + self.delay_samples) * self.down) // self.up
-            missing = newest + 1 - (self._offset + self._buf.size)
-            if missing > 0:
-                self._buf = np.concatenate([self._buf, np.zeros(missing)])
-            out = self._compute(self._n_out, total)
-        self.reset()
-        return out
-
-
 class PcmDecoder:
     """Streaming decoder: interleaved PCM bytes -> float32 mono samples at the target rate.
 
@@ -448,7 +252,7 @@ class PcmDecoder:
     def __init__(
         self,
         fmt: PcmFormat,
-        target_rate_hz: int = TARGET_RATE_HZ,
+        target_rate_hz: int = SAMPLE_RATE_HZ,
         channels: Sequence[int] | None = None,
     ) -> None:
         self._fmt = fmt
@@ -598,148 +402,3 @@ def encode_pcm(samples: np.ndarray, fmt: PcmFormat) -> bytes:
     else:
         out = x
     return out.astype(fmt.dtype).tobytes()
-
-
-WAV_BLOCK_FRAMES = 1 << 16  # frames decoded per step by read_wav (bounds its temporaries)
-
-_WAVE_FORMAT_PCM = 0x0001
-_WAVE_FORMAT_IEEE_FLOAT = 0x0003
-_WAVE_FORMAT_EXTENSIBLE = 0xFFFE
-
-
-@dataclass(frozen=True)
-class _WavLayout:
-    """The ``fmt `` chunk of a WAV file (fields as the RIFF/WAVE specification names them)."""
-
-    format_tag: int
-    channels: int
-    sample_rate_hz: int
-    block_align: int
-    bits_per_sample: int
-
-
-def _wav_chunks(raw: bytes) -> tuple[_WavLayout, memoryview]:
-    """Walk the RIFF chunks of a WAV file held in ``raw``: its ``fmt `` layout and its samples.
-
-    A chunk that claims more bytes than the file holds is cut at the end of the file, so
-    nothing larger than the file is ever referenced.
-
-    Raises:
-        InvalidAudio: not RIFF/WAVE, or no well-formed ``fmt `` or ``data`` chunk (without
-            the path; :func:`read_wav` adds it).
-
-    """
-    if len(raw) < 12 or raw[:4] != b"RIFF" or raw[8:12] != b"WAVE":
-        raise InvalidAudio(f"not a RIFF/WAVE file ({len(raw)} bytes, starts {raw[:12]!r})")
-    view = memoryview(raw)
-    layout: _WavLayout | None = None
-    data: memoryview | None = None
-    pos = 12
-    while pos + 8 <= len(raw) and (layout is None or data is None):
-        chunk_id, size = raw[pos : pos + 4], struct.unpack_from("<I", raw, pos + 4)[0]
-        body = view[pos + 8 : min(pos + 8 + size, len(raw))]
-        if chunk_id == b"fmt ":
-            if len(body) < 16:
-                raise InvalidAudio(f"'fmt ' chunk of {len(body)} bytes (at least 16 needed)")
-            tag, channels, rate, _, block_align, bits = struct.unpack_from("<HHIIHH", body)
-            if tag == _WAVE_FORMAT_EXTENSIBLE and len(body) >= 26:
-                tag = struct.unpack_from("<H", body, 24)[0]  # first field of SubFormat
-            layout = _WavLayout(tag, channels, rate, block_align, bits)
-        elif chunk_id == b"data":
-            data = body
-        pos += 8 + size + (size & 1)  # chunks are padded to an even size
-    if layout is None:
-        raise InvalidAudio("no 'fmt ' chunk")
-    if data is None:
-        raise InvalidAudio("no 'data' chunk")
-    return layout, data
-
-
-def _wav_samples(layout: _WavLayout, data: memoryview) -> tuple[PcmFormat, np.ndarray]:
-    """The PcmFormat of a WAV layout and its (n_frames, channels) samples in that format.
-
-    24-bit samples are left-aligned in int32 (read as S32LE), 64-bit floats become float32.
-
-    Raises:
-        UnsupportedAudioFormat: the sample type, channel count or rate is not supported.
-
-    """
-    kinds = {
-        (_WAVE_FORMAT_PCM, 8): ("U8", "u1"),
-        (_WAVE_FORMAT_PCM, 16): ("S16LE", "<i2"),
-        (_WAVE_FORMAT_PCM, 24): ("S32LE", "V3"),
-        (_WAVE_FORMAT_PCM, 32): ("S32LE", "<i4"),
-        (_WAVE_FORMAT_IEEE_FLOAT, 32): ("F32LE", "<f4"),
-        (_WAVE_FORMAT_IEEE_FLOAT, 64): ("F32LE", "<f8"),
-    }
-    kind = kinds.get((layout.format_tag, layout.bits_per_sample))
-    if kind is None:
-        raise UnsupportedAudioFormat(
-            f"unsupported WAV sample type (format tag {layout.format_tag:#06x}, "
-            f"{layout.bits_per_sample} bits); supported: 8/16/24/32-bit integer PCM, "
-            "32/64-bit float"
-        )
-    sample_format, stored = kind
-    fmt = PcmFormat(sample_format, layout.channels, layout.sample_rate_hz, "wave")
-    sample_bytes = np.dtype(stored).itemsize
-    if layout.block_align != sample_bytes * layout.channels:
-        raise UnsupportedAudioFormat(
-            f"block_align {layout.block_align} does not match {layout.channels} channel(s) of "
-            f"{layout.bits_per_sample}-bit samples ({sample_bytes * layout.channels} expected)"
-        )
-    n_frames = len(data) // layout.block_align  # a truncated last frame is dropped
-    values = np.frombuffer(data, dtype=stored, count=n_frames * layout.channels)
-    if stored == "V3":  # 24-bit: place the three bytes in the top of a little-endian int32
-        wide = np.zeros((values.size, 4), dtype=np.uint8)
-        wide[:, 1:] = np.frombuffer(values.tobytes(), dtype=np.uint8).reshape(-1, 3)
-        values = wide.view("<i4").reshape(-1)
-    return fmt, values.astype(fmt.dtype, copy=False).reshape(n_frames, layout.channels)
-
-
-def read_wav(
-    path: str | PathLike[str], target_rate_hz: int = TARGET_RATE_HZ
-) -> tuple[np.ndarray, int]:
-    """Read a WAV file as float32 mono at the target rate (seed 003 section 4.2.2).
-
-    The file is decoded by :class:`PcmDecoder` (same scaling, channel averaging, resampler and
-    limits as the streaming path) and flushed, so the result is delay-compensated and has
-    ``ceil(n * target_rate_hz / original_rate)`` samples. 8-, 16-, 24- and 32-bit integer and
-    32/64-bit float WAVs (WAVE_FORMAT_EXTENSIBLE too) with 1 .. :data:`MAX_CHANNELS` channels
-    at :data:`MIN_SAMPLE_RATE_HZ` .. :data:`MAX_SAMPLE_RATE_HZ` are read.
-
-    Memory is bounded by the file's size: the file is read once, chunk sizes that its header
-    claims are cut at the end of the file, and the samples are decoded
-    :data:`WAV_BLOCK_FRAMES` frames at a time; the result holds at most two float32 samples
-    per input frame. Peak use is about three times the file's size plus a few MiB.
-
-    Args:
-        path: WAV file.
-        target_rate_hz: output sample rate (Hz, default 16000).
-
-    Returns:
-        ``(samples, original_rate)``: (n,) float32 samples in [-1, 1) and the file's rate (Hz).
-
-    Raises:
-        InputError: the file cannot be read.
-        UnsupportedAudioFormat: the WAV's sample type, channel count or rate is not supported.
-        InvalidAudio: the file is not a well-formed WAV, holds no samples, or holds NaN or inf.
-        Every message starts with the file's path.
-
-    """
-    try:
-        raw = Path(path).read_bytes()
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read WAV file: {exc.strerror or exc}") from None
-    try:
-        fmt, frames = _wav_samples(*_wav_chunks(raw))
-        decoder = PcmDecoder(fmt, target_rate_hz)
-        if frames.shape[0] == 0:
-            raise InvalidAudio("the WAV file holds no samples")
-        pieces = [
-            decoder.feed(frames[start : start + WAV_BLOCK_FRAMES].tobytes())
-            for start in range(0, frames.shape[0], WAV_BLOCK_FRAMES)
-        ]
-    except InputError as exc:
-        raise type(exc)(f"{path}: {exc}") from None
-    pieces.append(decoder.flush())
-    return np.concatenate(pieces), fmt.sample_rate_hz

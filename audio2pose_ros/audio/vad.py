@@ -12,7 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-HOP_SAMPLES = 160  # 10 ms at 16 kHz: the feature step of seed 003 section 4.2.2
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ, SAMPLES_PER_FRAME
+
 _EPS = 1e-12  # keeps log10 finite on digital silence
 
 
@@ -32,8 +33,8 @@ class EnergyVad:
     def __init__(self, settings: VadSettings | None = None) -> None:
         """Start inactive with the noise floor at the absolute minimum level."""
         self.settings = settings or VadSettings()
-        self._rise_per_hop = self.settings.floor_rise_db_per_s * HOP_SAMPLES / 16000
-        self._hangover_hops = round(self.settings.hangover_s * 16000 / HOP_SAMPLES)
+        self._rise_per_hop = self.settings.floor_rise_db_per_s * SAMPLES_PER_FRAME / SAMPLE_RATE_HZ
+        self._hangover_hops = round(self.settings.hangover_s * SAMPLE_RATE_HZ / SAMPLES_PER_FRAME)
         self.reset()
 
     def reset(self) -> None:
@@ -52,11 +53,11 @@ class EnergyVad:
         """
         x = np.clip(np.nan_to_num(np.asarray(samples, dtype=np.float64), nan=0.0), -1.0, 1.0)
         data = np.concatenate((self._pending, x))
-        n_hops = data.size // HOP_SAMPLES
-        self._pending = data[n_hops * HOP_SAMPLES :]
+        n_hops = data.size // SAMPLES_PER_FRAME
+        self._pending = data[n_hops * SAMPLES_PER_FRAME :]
         if n_hops == 0:
             return self.active
-        hops = data[: n_hops * HOP_SAMPLES].reshape(n_hops, HOP_SAMPLES)
+        hops = data[: n_hops * SAMPLES_PER_FRAME].reshape(n_hops, SAMPLES_PER_FRAME)
         levels = 10.0 * np.log10(np.mean(hops * hops, axis=1) + _EPS)
         for level in levels:
             # The floor drops at once to a quieter hop and rises slowly otherwise.

@@ -10,10 +10,10 @@ refused with a message that lists the differences.
 
 Loading checks, in this order and before any tensor is read: the container and header structure
 and sizes (:func:`~audio2pose_ros.checkpoints.format.read_checkpoint_file`), the digest, the
-model config (:func:`~audio2pose_ros.models.build_model`), and that the file holds exactly the
-tensors the model has, with its shapes and dtype (the model is first built on torch's ``meta``
-device, which allocates nothing). Weights must be finite; the normalisation statistics must
-fit the features.
+model config (:func:`~audio2pose_ros.models.registry.build_model`), and that the file holds
+exactly the tensors the model has, with its shapes and dtype (the model is first built on
+torch's ``meta`` device, which allocates nothing). Weights must be finite; the normalisation
+statistics must fit the features.
 """
 
 from __future__ import annotations
@@ -28,7 +28,12 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec
+from audio2pose_ros.audio.features import (
+    FeatureSpec,
+)
+from audio2pose_ros.audio.normalize import (
+    FeatureNormalizer,
+)
 from audio2pose_ros.checkpoints.format import (
     DIGEST_KEY,
     FORMAT_VERSION,
@@ -42,7 +47,12 @@ from audio2pose_ros.checkpoints.format import (
     read_checkpoint_file,
     verify_digest,
 )
-from audio2pose_ros.models import PoseModel, build_model
+from audio2pose_ros.models.base import (
+    PoseModel,
+)
+from audio2pose_ros.models.registry import (
+    build_model,
+)
 from audio2pose_ros.robot.description import RobotDescription
 
 __all__ = ["Checkpoint", "CheckpointError", "load_checkpoint", "save_checkpoint"]

@@ -1,20 +1,18 @@
 """``audio2pose bag``: make speech bags from WAV files and replay bags into a running graph.
 
-``bag replay`` publishes only the message types this project knows
-(:data:`audio2pose_ros.data.bag.KNOWN_MESSAGE_TYPES`), after checking every message's CDR bytes, and
-with the QoS a live source offers: ``audio_info`` latched (reliable, transient local, as
-audio_capture publishes it and audio_features_node subscribes to it), everything else reliable
-and volatile with a deep queue, so a replayed bag drives the real graph as a microphone does.
+``bag replay`` checks every message's type and CDR bytes
+(:func:`~audio2pose_ros.data.bag.read_checked_messages`) and hands them to
+:func:`audio2pose_ros.ros.player.replay_bag`, which publishes them with their recorded timing and
+the QoS a live source offers, so a replayed bag drives the real graph as a microphone does.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
-import time
 
 from audio2pose_ros.cli.options import (
     MAX_SEED,
+    Verbs,
     bounded_float,
     bounded_int,
     input_bag,
@@ -22,56 +20,25 @@ from audio2pose_ros.cli.options import (
     new_dir,
 )
 from audio2pose_ros.data.bag import (
-    AUDIO_INFO_TYPE,
-    KNOWN_MESSAGE_TYPES,
     MAX_CHUNK_BYTES,
     BagError,
     Chunking,
-    check_known_type,
     read_checked_messages,
     write_audio_bag,
 )
 from audio2pose_ros.errors import UsageError
+from audio2pose_ros.timebase import duration_s
 
 MAX_REPLAY_RATE = 100.0  # --rate: at most 100x the recorded speed
 MAX_WAIT_S = 3600.0
 MAX_REPLAY_S = 24 * 3600.0  # a bag whose timestamps span more than a day is refused
-STREAM_DEPTH = 100  # replay queue depth: absorbs bursts like the graph's own streams
-
-
-def message_class(msgtype: str) -> type:
-    """The rclpy message class of a known type name such as ``sensor_msgs/msg/JointState``.
-
-    Only types in :data:`~audio2pose_ros.data.bag.KNOWN_MESSAGE_TYPES` are imported, from the module
-    that table names; a bag cannot make this process import anything else.
-
-    Raises:
-        BagError: the type is not a known one, or its package is not installed here.
-    """
-    check_known_type(msgtype, "bag")
-    module = KNOWN_MESSAGE_TYPES[msgtype]
-    try:
-        return getattr(importlib.import_module(module), msgtype.rsplit("/", 1)[1])
-    except (ImportError, AttributeError):
-        raise BagError(f"message type {msgtype} is not available in this environment") from None
-
-
-def replay_qos(msgtype: str):  # noqa: ANN201 - rclpy imported lazily
-    """The QoS a live publisher of ``msgtype`` offers: AudioInfo latched, the rest reliable."""
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
-    latched = msgtype == AUDIO_INFO_TYPE
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=1 if latched else STREAM_DEPTH,
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
-    )
 
 
 def command_from_wav(args: argparse.Namespace) -> int:
     """Write a WAV's audio as AudioData + AudioInfo chunks, as a live capture delivers them."""
-    from audio2pose_ros.audio.pcm import read_wav
+    from audio2pose_ros.audio.wav import (
+        read_wav,
+    )
 
     if args.min_bytes > args.max_bytes:
         raise UsageError(
@@ -81,7 +48,7 @@ def command_from_wav(args: argparse.Namespace) -> int:
     signal, _ = read_wav(input_file(args.wav, "WAV file"))
     chunking = Chunking(min_bytes=args.min_bytes, max_bytes=args.max_bytes, seed=args.seed)
     count = write_audio_bag(signal, output, chunking, storage=args.storage)
-    print(f"wrote {count} AudioData messages ({len(signal) / 16000:.2f} s) to {output}")
+    print(f"wrote {count} AudioData messages ({duration_s(len(signal)):.2f} s) to {output}")
     return 0
 
 
@@ -91,7 +58,7 @@ def command_replay(args: argparse.Namespace) -> int:
     Every message is checked (known type, valid CDR) before the first one is published, and
     a bag whose replay would last more than :data:`MAX_REPLAY_S` is refused.
     """
-    import rclpy
+    from audio2pose_ros.ros.player import replay_bag
 
     bag = input_bag(args.bag)
     messages = read_checked_messages(bag, args.topics or None)
@@ -103,32 +70,12 @@ def command_replay(args: argparse.Namespace) -> int:
             f"{bag}: replaying would take {span_s:.3g} s at --rate {args.rate:g}; at most "
             f"{MAX_REPLAY_S:g} s (check the bag's timestamps)"
         )
-    with rclpy.init():
-        node = rclpy.create_node("audio2pose_bag_replay")
-        publishers = {
-            m.topic: node.create_publisher(message_class(m.msgtype), m.topic, replay_qos(m.msgtype))
-            for m in messages
-        }
-        deadline = time.monotonic() + args.wait_s
-        while time.monotonic() < deadline and not all(
-            p.get_subscription_count() for p in publishers.values()
-        ):
-            rclpy.spin_once(node, timeout_sec=0.05)
-        start_ns, start = messages[0].timestamp_ns, time.monotonic()
-        for message in messages:
-            due = start + (message.timestamp_ns - start_ns) * 1e-9 / args.rate
-            while (wait := due - time.monotonic()) > 0:
-                rclpy.spin_once(node, timeout_sec=min(wait, 0.01))
-            publishers[message.topic].publish(message.data)
-        node.destroy_node()
-    print(
-        f"replayed {len(messages)} messages on {len(publishers)} topics in "
-        f"{time.monotonic() - start:.2f} s"
-    )
+    topics, elapsed_s = replay_bag(messages, args.rate, args.wait_s)
+    print(f"replayed {len(messages)} messages on {topics} topics in {elapsed_s:.2f} s")
     return 0
 
 
-def register(verbs: argparse._SubParsersAction) -> None:
+def register(verbs: Verbs) -> None:
     """Add ``audio2pose bag from-wav`` and ``audio2pose bag replay``."""
     bag = verbs.add_parser("bag", help="speech bags: make from WAV, replay")
     sub = bag.add_subparsers(dest="bag_verb", required=True)

@@ -16,11 +16,15 @@ import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from audio2pose_ros.cli.options import MAX_SEED, bounded_float, bounded_int, input_dir
+from audio2pose_ros.cli.options import MAX_SEED, Verbs, bounded_float, bounded_int, input_dir
 from audio2pose_ros.errors import Audio2PoseError, UsageError
+
+if TYPE_CHECKING:
+    from audio2pose_ros.data.dataset import Clip, ClipInfo
 
 VIDEO_SUFFIXES = (".mp4", ".mpg", ".mpeg", ".mov", ".avi", ".mkv", ".webm", ".m4v")
 AUDIO_SUFFIXES = (".wav", ".flac", ".mp3", ".ogg", ".m4a", *VIDEO_SUFFIXES)
@@ -60,7 +64,7 @@ def _paired_audio(path: Path, audio_dir: str | None) -> Path:
 def _run_import(
     args: argparse.Namespace,
     files: list[Path],
-    import_one: Callable[[Path, object], tuple[object, dict[str, np.ndarray]]],
+    import_one: Callable[[Path, ClipInfo], tuple[Clip, dict[str, np.ndarray]]],
 ) -> int:
     """Import every file into the data set, reporting failures per file; exit code 1 if any."""
     from tqdm import tqdm
@@ -176,8 +180,14 @@ def command_import_bvh(args: argparse.Namespace) -> int:
 
 def command_info(args: argparse.Namespace) -> int:
     """Print a data set's clips, speakers, splits, durations and observed joint groups."""
-    from audio2pose_ros.data.dataset import AUDIO_RATE_HZ, SPLITS, Dataset
+    from audio2pose_ros.data.dataset import (
+        SPLITS,
+        Dataset,
+    )
     from audio2pose_ros.robot.description import JOINT_GROUPS, load_robot
+    from audio2pose_ros.timebase import (
+        SAMPLE_RATE_HZ,
+    )
 
     robot = load_robot()
     dataset = Dataset.open(input_dir(args.data, "data set folder"), robot)
@@ -186,7 +196,7 @@ def command_info(args: argparse.Namespace) -> int:
     totals = dict.fromkeys(SPLITS, 0.0)
     for info in dataset.clips:
         clip = dataset.load(info.clip_id)
-        seconds = clip.audio.size / AUDIO_RATE_HZ
+        seconds = clip.audio.size / SAMPLE_RATE_HZ
         totals[info.split] += seconds
         observed = " / ".join(
             f"{100.0 * clip.mask[:, robot.group_mask(g)].mean():.0f}%" for g in JOINT_GROUPS
@@ -263,7 +273,7 @@ def _common_import_options(parser: argparse.ArgumentParser, what: str) -> None:
     )
 
 
-def register(verbs: argparse._SubParsersAction) -> None:
+def register(verbs: Verbs) -> None:
     """Add the ``dataset`` verb and its sub-verbs to the ``audio2pose`` parser."""
     dataset = verbs.add_parser("dataset", help="import recordings into a data set; describe one")
     sub = dataset.add_subparsers(dest="dataset_verb", required=True)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from audio2pose_ros.cli.options import Verbs
+
 
 def command_faults(args: argparse.Namespace) -> int:
     """Run the campaign and print its table; exit status 1 if a case failed."""
@@ -20,7 +22,7 @@ def command_faults(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
-def register(verbs: argparse._SubParsersAction) -> None:
+def register(verbs: Verbs) -> None:
     """Add ``audio2pose faults``."""
     faults = verbs.add_parser(
         "faults", help="attack the live node graph with bad inputs and faults; print a table"

@@ -122,7 +122,9 @@ def _speech_input(name: str) -> Path:
 
 def _read_speech(path: Path):  # noqa: ANN202 - numpy imported lazily
     """16 kHz mono samples of a WAV file, or of a bag's audio topics."""
-    from audio2pose_ros.audio.pcm import read_wav
+    from audio2pose_ros.audio.wav import (
+        read_wav,
+    )
     from audio2pose_ros.data.bag import read_bag_audio
 
     path = _speech_input(path)
@@ -161,7 +163,9 @@ def command_bench(args: argparse.Namespace) -> int:
 
     import torch
 
-    from audio2pose_ros.audio.pcm import read_wav
+    from audio2pose_ros.audio.wav import (
+        read_wav,
+    )
     from audio2pose_ros.checkpoints.torch_io import load_checkpoint
     from audio2pose_ros.motion.filter import MotionFilter
     from audio2pose_ros.offline.benchmark import (
@@ -333,7 +337,9 @@ def _filter_from_params(params_file: Path | None):  # noqa: ANN202 - heavy types
 
 def command_plot_filter(args: argparse.Namespace) -> int:
     """Draw raw model output against the online motion filter for a speech file."""
-    from audio2pose_ros.audio.pcm import read_wav
+    from audio2pose_ros.audio.wav import (
+        read_wav,
+    )
     from audio2pose_ros.checkpoints.torch_io import load_checkpoint
     from audio2pose_ros.resources import default_checkpoint_path
     from audio2pose_ros.viz.filter_plot import plot_raw_vs_filtered

@@ -127,7 +127,9 @@ def command_evaluate(args: argparse.Namespace) -> int:
 def register(verbs: argparse._SubParsersAction) -> None:
     """Add the ``train`` and ``evaluate`` sub-commands to the ``audio2pose`` parser."""
     from audio2pose_ros.learning.training import HOLDOUTS
-    from audio2pose_ros.models import MODEL_REGISTRY
+    from audio2pose_ros.models.registry import (
+        MODEL_REGISTRY,
+    )
 
     train = verbs.add_parser("train", help="train a pose model on a data set folder")
     train.add_argument("--model", choices=sorted(MODEL_REGISTRY), help="model family")

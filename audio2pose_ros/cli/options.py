@@ -21,9 +21,13 @@ import stat
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import NoReturn
+from typing import NoReturn, TypeAlias, TypeVar
 
 from audio2pose_ros.errors import InputError, UsageError
+
+NumberT = TypeVar("NumberT", int, float)
+#: The sub-command table each ``*_commands.register`` adds its verbs to.
+Verbs: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"
 
 __all__ = [
     "MAX_SEED",
@@ -48,7 +52,7 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def _number(kind: type, text: str) -> float | int:
+def _number(kind: Callable[[str], NumberT], text: str) -> NumberT:
     try:
         return kind(text)
     except ValueError:

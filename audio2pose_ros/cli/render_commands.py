@@ -12,6 +12,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from audio2pose_ros.cli.options import (
+    Verbs,
     bounded_float,
     bounded_int,
     input_bag,
@@ -31,7 +32,9 @@ def _bag_path(args: argparse.Namespace) -> Path:
 
 def command_render(args: argparse.Namespace) -> int:
     """Render the requested trajectories to an MP4 with audio; write the first one as MCAP."""
-    from audio2pose_ros.audio.pcm import read_wav
+    from audio2pose_ros.audio.wav import (
+        read_wav,
+    )
     from audio2pose_ros.offline.trajectory import (
         bag_trajectory,
         clip_trajectory,
@@ -103,7 +106,7 @@ def command_render(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(verbs: argparse._SubParsersAction) -> None:
+def register(verbs: Verbs) -> None:
     """Add the ``render`` verb to the ``audio2pose`` parser."""
     render = verbs.add_parser(
         "render", help="video of the robot moving for a WAV (+ MCAP bag for Foxglove)"

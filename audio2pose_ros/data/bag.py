@@ -32,12 +32,14 @@ from rosbags.typesys.store import Typestore
 
 from audio2pose_ros.audio.pcm import (
     S16LE_MONO_16K,
-    TARGET_RATE_HZ,
     PcmDecoder,
     PcmFormat,
     encode_pcm,
 )
 from audio2pose_ros.errors import Audio2PoseError, ConfigurationError, InputError
+from audio2pose_ros.timebase import (
+    SAMPLE_RATE_HZ,
+)
 
 EXTRA_MESSAGE_DEFINITIONS = {
     "audio_common_msgs/msg/AudioData": "uint8[] data\n",
@@ -215,7 +217,7 @@ def audio_messages(signal_16k: np.ndarray, chunking: Chunking | None = None) -> 
         size = int(rng.integers(chunking.min_bytes, chunking.max_bytes + 1))
         chunk = payload[offset : offset + size]
         offset += len(chunk)
-        t_s = offset / (2 * 16000) + rng.uniform(0.0, chunking.jitter_s)
+        t_s = offset / (2 * SAMPLE_RATE_HZ) + rng.uniform(0.0, chunking.jitter_s)
         if t_s >= next_info_s:
             messages.append(
                 BagMessage(round(next_info_s * 1e9), AUDIO_INFO_TOPIC, AUDIO_INFO_TYPE, info_bytes)
@@ -333,7 +335,7 @@ def read_bag_audio(bag: str | Path) -> np.ndarray:
     store = typestore()
     decoder: PcmDecoder | None = None
     pieces: list[np.ndarray] = []
-    budget = MAX_BAG_AUDIO_S * TARGET_RATE_HZ  # output samples left
+    budget = MAX_BAG_AUDIO_S * SAMPLE_RATE_HZ  # output samples left
     for message in read_messages(bag, (AUDIO_TOPIC, AUDIO_INFO_TOPIC)):
         msg = deserialize(store, message, bag)
         if message.topic == AUDIO_INFO_TOPIC:
@@ -353,11 +355,11 @@ def read_bag_audio(bag: str | Path) -> np.ndarray:
             raise BagError(f"{bag}: AudioData at {message.timestamp_ns} ns before any AudioInfo")
         else:
             fmt = decoder.fmt
-            budget -= (len(msg.data) / fmt.frame_bytes + 1) * TARGET_RATE_HZ / fmt.sample_rate_hz
+            budget -= (len(msg.data) / fmt.frame_bytes + 1) * SAMPLE_RATE_HZ / fmt.sample_rate_hz
             if budget < 0:
                 raise BagError(
                     f"{bag}: its audio at {fmt.sample_rate_hz} Hz decodes to more than "
-                    f"{MAX_BAG_AUDIO_S:g} s at {TARGET_RATE_HZ} Hz"
+                    f"{MAX_BAG_AUDIO_S:g} s at {SAMPLE_RATE_HZ} Hz"
                 )
             pieces.append(decoder.feed(bytes(msg.data)))
     if decoder is None:

@@ -8,8 +8,9 @@ A data set is a folder::
 
 Each index entry carries the clip's speaker, source, licence and split ('train', 'validation'
 or 'test'), so a data set derived from third-party recordings keeps their attribution. Motion
-frame i covers audio samples [160 i, 160 i + 400): the same grid as the audio features (seed 003
-section 4.2.2: 25 ms windows every 10 ms), so feature frame i and pose frame i line up.
+frame i covers audio samples [160 i, 160 i + 400), the frame grid of
+:mod:`audio2pose_ros.timebase` that the audio features use too (seed 003 section 4.2.2: 25 ms
+windows every 10 ms), so feature frame i and pose frame i line up.
 """
 
 from __future__ import annotations
@@ -23,10 +24,9 @@ import numpy as np
 
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.robot.description import RobotDescription
+from audio2pose_ros.timebase import FRAME_RATE_HZ, SAMPLE_RATE_HZ, complete_frames
 
 FORMAT_VERSION = 1
-MOTION_RATE_HZ = 100.0
-AUDIO_RATE_HZ = 16000
 SPLITS = ("train", "validation", "test")
 INDEX_FILE = "index.json"
 FRAME_TOLERANCE = 3  # motion may be this many frames longer or shorter than the audio's grid
@@ -69,11 +69,6 @@ class Clip:
         return int(self.angles_rad.shape[0])
 
 
-def expected_frames(n_samples: int) -> int:
-    """Number of complete 25 ms / 10 ms frames in ``n_samples`` audio samples."""
-    return 0 if n_samples < 400 else 1 + (n_samples - 400) // 160
-
-
 def _check_clip(clip: Clip, robot: RobotDescription) -> None:
     cid = clip.info.clip_id
     if clip.angles_rad.ndim != 2 or clip.angles_rad.shape[1] != robot.n_joints:
@@ -84,7 +79,7 @@ def _check_clip(clip: Clip, robot: RobotDescription) -> None:
         raise DatasetError(f"clip {cid}: mask must be bool with the angles' shape")
     if clip.audio.ndim != 1:
         raise DatasetError(f"clip {cid}: audio must be mono (1-d), got shape {clip.audio.shape}")
-    grid = expected_frames(clip.audio.shape[0])
+    grid = complete_frames(clip.audio.shape[0])
     if abs(clip.n_frames - grid) > FRAME_TOLERANCE:
         raise DatasetError(
             f"clip {cid}: {clip.n_frames} motion frames for audio of {grid} "
@@ -143,8 +138,8 @@ class Dataset:
         index = {
             "format_version": FORMAT_VERSION,
             "joint_names": list(self.joint_names),
-            "motion_rate_hz": MOTION_RATE_HZ,
-            "audio_rate_hz": AUDIO_RATE_HZ,
+            "motion_rate_hz": FRAME_RATE_HZ,
+            "audio_rate_hz": SAMPLE_RATE_HZ,
             "clips": [asdict(c) for c in self.clips],
         }
         tmp = self.root / (INDEX_FILE + ".tmp")

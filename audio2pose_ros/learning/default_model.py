@@ -32,7 +32,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from audio2pose_ros.audio.features import FeatureSpec, extract_features
+from audio2pose_ros.audio.features import (
+    FeatureSpec,
+    extract_features,
+)
 from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
 from audio2pose_ros.data.importers.extras import save_extras
 from audio2pose_ros.data.importers.video import VideoImportSettings, import_video

@@ -1,9 +1,11 @@
-"""Train a streaming model to imitate the hand-written prosody rule (the first default model).
+"""Train a streaming MLP to imitate the hand-written prosody rule (``audio2pose distill-prosody``).
 
-The packaged default model is built by this module from the bundled LibriVox speech: audio
-features are the model's input, the trajectory of :func:`prosody_trajectory` its target. The
-result moves the robot in time with the voice, but it has learned a rule written in this
-repository, not human motion; the model card it writes says so.
+Audio features are the model's input, the trajectory of
+:func:`~audio2pose_ros.motion.prosody.prosody_trajectory` its target. The result moves the robot
+in time with the voice, but it has learned a rule written in this repository, not human motion;
+the model card it writes says so. It was the first wave's default model; the default is now
+learned from people (:mod:`~audio2pose_ros.learning.default_model`), and this remains as a
+baseline and as the smallest example of training a streaming model.
 """
 
 from __future__ import annotations
@@ -15,9 +17,18 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec, extract_features
-from audio2pose_ros.audio.pcm import read_wav
+from audio2pose_ros.audio.features import (
+    FeatureSpec,
+    extract_features,
+)
+from audio2pose_ros.audio.normalize import (
+    FeatureNormalizer,
+)
+from audio2pose_ros.audio.wav import (
+    read_wav,
+)
 from audio2pose_ros.checkpoints.torch_io import Checkpoint, save_checkpoint
+from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.learning.training import TrainReport, TrainSettings, Utterance, train_model
 from audio2pose_ros.models.mlp import FramewiseMLP, MLPConfig
 from audio2pose_ros.motion.prosody import ProsodyRule, prosody_trajectory
@@ -57,8 +68,9 @@ def distill_prosody(
     """
     spec = spec or FeatureSpec()
     if spec.kind != "logfbank" or spec.delta_order != 0:
-        raise ValueError(
-            "the prosody rule reads plain log filter banks (kind 'logfbank', no deltas)"
+        raise ConfigurationError(
+            f"the prosody rule reads plain log filter banks (kind 'logfbank', no deltas), not "
+            f"{spec.kind} with delta order {spec.delta_order}"
         )
     held_out = set(validation) or {Path(wavs[-1]).stem}
     signals = {Path(w).stem: read_wav(w)[0] for w in wavs}

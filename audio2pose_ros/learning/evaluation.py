@@ -21,14 +21,24 @@ from pathlib import Path
 
 import numpy as np
 
-from audio2pose_ros.audio.features import FeatureSpec, extract_features
+from audio2pose_ros.audio.features import (
+    FeatureSpec,
+    extract_features,
+)
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
-from audio2pose_ros.data.dataset import AUDIO_RATE_HZ, MOTION_RATE_HZ, Clip, Dataset
+from audio2pose_ros.data.dataset import (
+    Clip,
+    Dataset,
+)
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.learning import metrics
 from audio2pose_ros.learning.training import TrainSettings
 from audio2pose_ros.offline.synthesis import synthesize
 from audio2pose_ros.robot.description import RobotDescription
+from audio2pose_ros.timebase import (
+    FRAME_RATE_HZ,
+    SAMPLE_RATE_HZ,
+)
 
 NEUTRAL = "neutral pose"
 MEAN_MOTION = "mean training motion"
@@ -72,7 +82,7 @@ def clip_metrics(
     pred_rad: np.ndarray,
     mask: np.ndarray,
     robot: RobotDescription,
-    rate_hz: float = MOTION_RATE_HZ,
+    rate_hz: float = FRAME_RATE_HZ,
 ) -> dict[str, float]:
     """All seed 003 section 3.4 metrics and GENEA Hellinger distances of one clip."""
     return {
@@ -223,11 +233,11 @@ def plot_clip(
     from matplotlib import pyplot as plt
 
     n = true_rad.shape[0]
-    times_s = np.arange(n) / MOTION_RATE_HZ
+    times_s = np.arange(n) / FRAME_RATE_HZ
     fig, axes = plt.subplots(
         robot.n_joints + 1, 1, figsize=(10, 2 + 1.3 * robot.n_joints), sharex=True
     )
-    audio_times_s = np.arange(clip.audio.shape[0]) / AUDIO_RATE_HZ
+    audio_times_s = np.arange(clip.audio.shape[0]) / SAMPLE_RATE_HZ
     axes[0].plot(audio_times_s, clip.audio, color="0.5", linewidth=0.3)
     axes[0].set_ylabel("audio")
     axes[0].set_title(f"{clip.info.clip_id} ({clip.info.speaker})")
@@ -345,7 +355,9 @@ _PAUSE_LEVEL = 3e-4  # RMS of the inserted room noise (about -70 dBFS)
 
 def with_pause(audio: np.ndarray, seed: int = 0) -> np.ndarray:
     """The clip's audio with :data:`PAUSE_S` of quiet room noise inserted in the middle."""
-    noise = _PAUSE_LEVEL * np.random.default_rng(seed).standard_normal(int(PAUSE_S * AUDIO_RATE_HZ))
+    noise = _PAUSE_LEVEL * np.random.default_rng(seed).standard_normal(
+        int(PAUSE_S * SAMPLE_RATE_HZ)
+    )
     middle = audio.size // 2
     return np.concatenate([audio[:middle], noise, audio[middle:]]).astype(np.float32)
 
@@ -395,7 +407,7 @@ def quality_evaluation(
     """
     if not clips:
         raise EvaluationError("no held-out clips to evaluate")
-    rate = MOTION_RATE_HZ
+    rate = FRAME_RATE_HZ
     methods = [STATIC, MISMATCHED, *predictions]
     motion: dict[str, list[tuple[list[np.ndarray], np.ndarray]]] = {m: [] for m in methods}
     real, speech_frames = [], []
@@ -503,7 +515,7 @@ def _pause_ratio(
         everywhere = np.ones(samples[0].shape, bool)
         parts.append(
             metrics.sum_segments(
-                [metrics.segment_statistics(m, everywhere, speech, MOTION_RATE_HZ) for m in samples]
+                [metrics.segment_statistics(m, everywhere, speech, FRAME_RATE_HZ) for m in samples]
             )
         )
     segments = metrics.concat_segments(parts)

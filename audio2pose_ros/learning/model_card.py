@@ -7,7 +7,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
-from audio2pose_ros.data.dataset import AUDIO_RATE_HZ, Dataset
+from audio2pose_ros.data.dataset import (
+    Dataset,
+)
 from audio2pose_ros.learning.evaluation import Evaluation, GroupRow, QualityEvaluation
 from audio2pose_ros.learning.sampler_selection import (
     INNER_FOLDS,
@@ -18,6 +20,9 @@ from audio2pose_ros.learning.sampler_selection import (
     SamplingChoice,
 )
 from audio2pose_ros.learning.training import TrainReport
+from audio2pose_ros.timebase import (
+    SAMPLE_RATE_HZ,
+)
 
 _ARMS_TEXT = {
     "prosody": (
@@ -39,7 +44,7 @@ _ARMS_TEXT = {
 def _clip_rows(dataset: Dataset) -> str:
     rows = []
     for info in dataset.clips:
-        seconds = dataset.load(info.clip_id).audio.size / AUDIO_RATE_HZ
+        seconds = dataset.load(info.clip_id).audio.size / SAMPLE_RATE_HZ
         rows.append(f"| {info.clip_id} | {info.speaker} | {info.split} | {seconds:.1f} |")
     return "\n".join(rows)
 

@@ -38,11 +38,12 @@ from typing import cast
 import numpy as np
 
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
-from audio2pose_ros.data.dataset import MOTION_RATE_HZ, Clip
+from audio2pose_ros.data.dataset import Clip
 from audio2pose_ros.learning import metrics
 from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 from audio2pose_ros.models.live_groups import LiveGroups
 from audio2pose_ros.robot.description import RobotDescription
+from audio2pose_ros.timebase import FRAME_RATE_HZ
 
 TEMPERATURES = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0)
 SILENCE_TEMPERATURES = (0.3, 0.2, 0.1, 0.05, 0.02)  # most noise left in silence first
@@ -218,7 +219,7 @@ def _measures(
                 generated.setdefault(g, []).append(
                     metrics.sum_segments(
                         [
-                            metrics.segment_statistics(m[:n, joints], known, speech, MOTION_RATE_HZ)
+                            metrics.segment_statistics(m[:n, joints], known, speech, FRAME_RATE_HZ)
                             for m in samples
                         ]
                     )
@@ -226,7 +227,7 @@ def _measures(
                 if not paused:
                     true = np.nan_to_num(clip.angles_rad[:n, joints])
                     real.setdefault(g, []).append(
-                        metrics.segment_statistics(true, known, speech, MOTION_RATE_HZ)
+                        metrics.segment_statistics(true, known, speech, FRAME_RATE_HZ)
                     )
     out = {}
     for g, parts in generated.items():
@@ -254,7 +255,7 @@ def choose_sampling(
     folds = [(c, v) for c, v in folds if isinstance(c.model, LiveGroups) and v]
     clips = [clip for _, v in folds for clip in v]
     names = tuple(c.info.clip_id for c in clips)
-    seconds = sum(c.n_frames for c in clips) / MOTION_RATE_HZ
+    seconds = sum(c.n_frames for c in clips) / FRAME_RATE_HZ
     groups = _observed(robot, clips)
     if not groups:
         return SamplingChoice({}, (), names, seconds, len(folds))

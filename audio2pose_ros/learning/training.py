@@ -30,13 +30,25 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from tqdm import tqdm
 
-from audio2pose_ros.audio.features import FeatureNormalizer, FeatureSpec, extract_features
+from audio2pose_ros.audio.features import (
+    FeatureSpec,
+    extract_features,
+)
+from audio2pose_ros.audio.normalize import (
+    FeatureNormalizer,
+)
 from audio2pose_ros.checkpoints.format import MAX_HEADER_BYTES, MAX_JSON_DEPTH, json_depth
 from audio2pose_ros.checkpoints.torch_io import Checkpoint, load_checkpoint, save_checkpoint
 from audio2pose_ros.data.dataset import Clip, Dataset
 from audio2pose_ros.errors import InputError
-from audio2pose_ros.models import FitStage, PoseModel, build_model
-from audio2pose_ros.models.base import masked_mse
+from audio2pose_ros.models.base import (
+    FitStage,
+    PoseModel,
+    masked_mse,
+)
+from audio2pose_ros.models.registry import (
+    build_model,
+)
 from audio2pose_ros.robot.description import RobotDescription
 
 STATE_SUFFIX = ".train-state.safetensors"

@@ -61,6 +61,7 @@ class _NumpyLSTM(StreamingPredictor):
 
     def __init__(self, cell: CellWeights, w_out: np.ndarray, b_out: np.ndarray) -> None:
         self._cell, self._w_out, self._b_out = cell, w_out, b_out
+        self._h = self._c = np.zeros(0)
         self.reset()
 
     def step(self, features: np.ndarray) -> np.ndarray:

@@ -83,11 +83,16 @@ def clip_trajectory(
     dataset_dir: str | Path, clip_id: str, robot: RobotDescription
 ) -> tuple[Trajectory, np.ndarray]:
     """A data set clip's recorded motion (unobserved angles at neutral) and its 16 kHz audio."""
-    from audio2pose_ros.data.dataset import MOTION_RATE_HZ, Dataset
+    from audio2pose_ros.data.dataset import (
+        Dataset,
+    )
+    from audio2pose_ros.timebase import (
+        FRAME_RATE_HZ,
+    )
 
     clip = Dataset.open(dataset_dir, robot).load(clip_id)
     angles_rad = np.where(clip.mask, clip.angles_rad, robot.neutral_rad)
-    times_s = np.arange(clip.n_frames) / MOTION_RATE_HZ
+    times_s = np.arange(clip.n_frames) / FRAME_RATE_HZ
     return Trajectory(f"ground truth {clip_id}", times_s, angles_rad, robot.names), clip.audio
 
 

@@ -268,7 +268,7 @@ class DiagnosedNode(Node):
         callback: Callable[[Any], None],
         qos: QoSProfile | int,
         max_bytes: int | Callable[[], int],
-    ) -> Subscription:
+    ) -> Subscription[Any]:
         """A guarded subscription that drops a message larger than ``max_bytes`` before decoding.
 
         rclpy turns every element of a message into a Python object before a callback sees it:
@@ -336,7 +336,7 @@ def create_executor() -> Executor:
     """
     if os.environ.get(EXECUTOR_ENV, "events") != "single_threaded":
         try:
-            from rclpy.experimental import EventsExecutor
+            from rclpy.experimental.events_executor import EventsExecutor
         except ImportError:  # Humble
             pass
         else:

@@ -37,6 +37,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
+from rclpy.client import Client
 from rclpy.node import Node
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
@@ -47,6 +48,7 @@ from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import RobotDescription, load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.ros.graph import NodeSupervisor, node_graph
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 __all__ = ["Case", "Outcome", "cases", "run_campaign", "table"]
 
@@ -116,6 +118,7 @@ class CampaignProbe(Node):
         self.measured = self.create_publisher(JointState, "joint_states", 10)
         self.audio = self.create_publisher(AudioData, "audio/audio", 100)
         self.audio_info = self.create_publisher(AudioInfo, "audio/audio_info", LATCHED_QOS)
+        self.set_filter_parameters: Client[SetParameters.Request, SetParameters.Response]
         self.set_filter_parameters = self.create_client(
             SetParameters, "motion_filter_node/set_parameters"
         )
@@ -231,7 +234,10 @@ class CampaignProbe(Node):
             self.spin_for(0.01)
         if not future.done():
             return False, "no answer"
-        result = future.result().results[0]
+        response = future.result()
+        if response is None:
+            return False, "no answer"
+        result = response.results[0]
         return bool(result.successful), result.reason
 
 
@@ -511,7 +517,7 @@ def _audio_bomb(rate: int) -> Callable[[Campaign], Outcome]:
         c.probe.audio_info.publish(
             AudioInfo(
                 channels=1,
-                sample_rate=16000,
+                sample_rate=SAMPLE_RATE_HZ,
                 sample_format="S16LE",
                 bitrate=0,
                 coding_format="wave",

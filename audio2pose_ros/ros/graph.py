@@ -34,7 +34,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.audio.pcm import read_wav
+from audio2pose_ros.audio.wav import (
+    read_wav,
+)
 from audio2pose_ros.data.bag import (
     AUDIO_INFO_TOPIC,
     AUDIO_TOPIC,

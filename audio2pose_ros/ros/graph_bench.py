@@ -35,7 +35,13 @@ from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm, read_wav
+from audio2pose_ros.audio.pcm import (
+    S16LE_MONO_16K,
+    encode_pcm,
+)
+from audio2pose_ros.audio.wav import (
+    read_wav,
+)
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Iterable, Mapping
+from typing import Any
 
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -101,7 +102,10 @@ class NodeParameters:
             if name in overrides:  # validate first: our message beats rclpy's range message
                 spec.validate(overrides[name].value)
             try:
-                value = node.declare_parameter(name, spec.default, descriptor_of(spec)).value
+                declared: Parameter[Any] = node.declare_parameter(
+                    name, spec.default, descriptor_of(spec)
+                )
+                value: ParameterValue = declared.value
             except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
                 raise ConfigurationError(f"parameter {name}: {exc}") from None
             self.values[name] = spec.validate(value)
@@ -111,7 +115,7 @@ class NodeParameters:
         """Current value of parameter ``name``."""
         return self.values[name]
 
-    def _on_set(self, parameters: list[Parameter]) -> SetParametersResult:
+    def _on_set(self, parameters: list[Parameter[Any]]) -> SetParametersResult:
         changes: dict[str, ParameterValue] = {}
         try:
             for parameter in parameters:

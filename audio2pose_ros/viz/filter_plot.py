@@ -20,6 +20,7 @@ from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.motion.filter import MotionFilter
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
 from audio2pose_ros.offline.synthesis import predict_normalized
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 
 def online_filter(filt: MotionFilter, raw_rad: np.ndarray, tail_s: float = 2.0) -> np.ndarray:
@@ -65,7 +66,7 @@ def plot_raw_vs_filtered(
     fig, axes = plt.subplots(
         robot.n_joints + 1, 1, figsize=(12, 2.0 + 1.3 * robot.n_joints), sharex=True
     )
-    t_audio = np.arange(len(signal_16k)) / 16000
+    t_audio = np.arange(len(signal_16k)) / SAMPLE_RATE_HZ
     axes[0].plot(t_audio, signal_16k, color="0.5", linewidth=0.4)
     axes[0].set_ylabel("audio")
     axes[0].set_title(title or "raw model output vs motion filter")

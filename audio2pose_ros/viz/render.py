@@ -26,8 +26,8 @@ from scipy.spatial.transform import Rotation
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.offline.trajectory import Trajectory
 from audio2pose_ros.robot.kinematics import RobotKinematics
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
-AUDIO_RATE_HZ = 16000
 VIEWS = ("front", "side")
 MAX_FPS = 240.0  # video frame rate cap (Hz)
 MAX_VIEW_PX = 4096  # largest view or panel side in pixels
@@ -263,8 +263,10 @@ def _build_layout(
                 ax.set_xlabel("time (s)", fontsize=7, labelpad=1)
             axes.append(ax)
         axes_by_trajectory.append(axes)
-    canvas.draw()
-    background = np.asarray(canvas.buffer_rgba())[:, :, :3].copy()
+    # matplotlib's Agg canvas methods are unannotated
+    canvas.draw()  # type: ignore[no-untyped-call]
+    rgba = canvas.buffer_rgba()  # type: ignore[no-untyped-call]
+    background = np.asarray(rgba)[:, :, :3].copy()
     spans = []
     for axes in axes_by_trajectory:
         top, bottom = axes[0].get_window_extent(), axes[-1].get_window_extent()
@@ -290,7 +292,7 @@ def _write_wav(path: Path, audio_16k: np.ndarray) -> None:
     from scipy.io import wavfile
 
     samples = np.clip(np.asarray(audio_16k, dtype=np.float64), -1.0, 1.0)
-    wavfile.write(path, AUDIO_RATE_HZ, (samples * 32767).astype(np.int16))
+    wavfile.write(path, SAMPLE_RATE_HZ, (samples * 32767).astype(np.int16))
 
 
 def render_video(
@@ -323,7 +325,7 @@ def render_video(
     settings = settings or RenderSettings()
     if not trajectories:
         raise RenderError("nothing to render: no trajectories")
-    duration_s = len(audio_16k) / AUDIO_RATE_HZ
+    duration_s = len(audio_16k) / SAMPLE_RATE_HZ
     n_frames = max(1, round(duration_s * settings.fps))
     frame_times_s = np.arange(n_frames) / settings.fps
     layout = _build_layout(trajectories, groups, duration_s, settings)

@@ -16,18 +16,14 @@ from __future__ import annotations
 import numpy as np
 
 from audio2pose_ros.data.dataset import (
-    AUDIO_RATE_HZ,
-    MOTION_RATE_HZ,
     Clip,
     ClipInfo,
-    expected_frames,
 )
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
 from audio2pose_ros.robot.description import RobotDescription
+from audio2pose_ros.timebase import FRAME_RATE_HZ, frame_times_s
 
-WINDOW_SAMPLES = 400  # 25 ms at 16 kHz (seed 003 section 4.2.2)
-HOP_SAMPLES = 160  # 10 ms at 16 kHz
 HEAD_JOINTS = ("HeadYaw", "HeadPitch")  # driven by head yaw and pitch, in this order
 MAX_GAP_S = 0.25  # unobserved stretches up to this long are interpolated and count as observed
 
@@ -38,13 +34,6 @@ _MIRROR_NEGATED = ("HeadYaw", "HipRoll", "ShoulderRoll", "ElbowRoll", "ElbowYaw"
 
 class ImporterError(InputError):
     """A source file cannot be imported; the message names the file and the reason."""
-
-
-def grid_times_s(n_samples: int) -> np.ndarray:
-    """Centre times (s) of the motion frames of ``n_samples`` 16 kHz audio samples."""
-    n_frames = expected_frames(n_samples)
-    starts = np.arange(n_frames) * HOP_SAMPLES
-    return (starts + WINDOW_SAMPLES / 2.0) / AUDIO_RATE_HZ
 
 
 def head_neutral(robot: RobotDescription) -> tuple[float, float]:
@@ -118,7 +107,7 @@ def finish_angles(
     """
     filled = np.where(np.isfinite(angles_rad), angles_rad, robot.neutral_rad)
     if filled.shape[0] > 1:
-        filled = butterworth_zero_phase(filled, rate_hz=MOTION_RATE_HZ)
+        filled = butterworth_zero_phase(filled, rate_hz=FRAME_RATE_HZ)
     clamped = np.clip(filled, robot.lower_rad, robot.upper_rad)
     return np.where(mask, clamped, robot.neutral_rad), mask.copy()
 
@@ -130,7 +119,7 @@ def smooth_track(track: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """
     filled = np.nan_to_num(np.asarray(track, dtype=np.float64))
     if filled.size > 1:
-        filled = butterworth_zero_phase(filled[:, None], rate_hz=MOTION_RATE_HZ)[:, 0]
+        filled = butterworth_zero_phase(filled[:, None], rate_hz=FRAME_RATE_HZ)[:, 0]
     return np.where(mask, filled, 0.0)
 
 
@@ -199,7 +188,7 @@ def assemble_clip(
         The clip and its extras ``{"head_roll_rad": (T,), "head_roll_mask": (T,) bool}``.
 
     """
-    grid = grid_times_s(audio.size)
+    grid = frame_times_s(audio.size)
     angles, mask = resample_to_grid(times_s, angles_rad, observed, grid)
     head = observed[:, robot.names.index(HEAD_JOINTS[0])]
     roll, roll_mask = resample_to_grid(times_s, head_roll_rad[:, None], head, grid)

@@ -29,7 +29,7 @@ def save_extras(dataset: Dataset, clip_id: str, arrays: dict[str, np.ndarray]) -
     if clip_id not in {c.clip_id for c in dataset.clips}:
         raise DatasetError(f"{dataset.root}: no clip {clip_id!r} to attach extras to")
     path = extras_path(dataset, clip_id)
-    np.savez_compressed(path, **arrays)
+    np.savez_compressed(path, allow_pickle=False, **arrays)
     return path
 
 

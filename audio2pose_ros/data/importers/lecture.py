@@ -30,16 +30,23 @@ from pathlib import Path
 
 import numpy as np
 
-from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset, expected_frames
+from audio2pose_ros.data.dataset import (
+    Clip,
+    ClipInfo,
+    Dataset,
+)
 from audio2pose_ros.data.importers.common import (
     HEAD_JOINTS,
-    HOP_SAMPLES,
-    WINDOW_SAMPLES,
     assemble_clip,
 )
 from audio2pose_ros.data.importers.media import read_audio
 from audio2pose_ros.data.importers.video import VideoTracks, body_angles, track_video
 from audio2pose_ros.robot.description import RobotDescription
+from audio2pose_ros.timebase import (
+    SAMPLES_PER_FRAME,
+    WINDOW_SAMPLES,
+    complete_frames,
+)
 
 LECTURE_LICENCE = (
     'CC BY 3.0; "Physicsworks" by Walter Lewin (MIT OpenCourseWare 8.01, Lecture 11, "Work, '
@@ -95,8 +102,8 @@ def lecture_clips(
             continue
         start_s = start / 100.0
         split = "test" if TEST_SPAN_S[0] <= start_s < TEST_SPAN_S[1] else "train"
-        piece = audio[start * HOP_SAMPLES : (stop - 1) * HOP_SAMPLES + WINDOW_SAMPLES]
-        n = min(stop - start, expected_frames(piece.size))
+        piece = audio[start * SAMPLES_PER_FRAME : (stop - 1) * SAMPLES_PER_FRAME + WINDOW_SAMPLES]
+        n = min(stop - start, complete_frames(piece.size))
         clip_info = ClipInfo(
             f"lecture_{start_s:06.2f}s", LECTURE_SPEAKER, source, LECTURE_LICENCE, split
         )

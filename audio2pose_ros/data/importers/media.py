@@ -12,8 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from audio2pose_ros.data.dataset import AUDIO_RATE_HZ
 from audio2pose_ros.data.importers.common import ImporterError
+from audio2pose_ros.timebase import (
+    SAMPLE_RATE_HZ,
+)
 
 
 def ffmpeg_executable() -> str:
@@ -34,7 +36,7 @@ def read_audio(path: Path) -> np.ndarray:
         raise ImporterError(f"{path}: no such file")
     command = [
         ffmpeg_executable(), "-nostdin", "-v", "error", "-i", str(path), "-map", "0:a:0",
-        "-vn", "-ac", "1", "-ar", str(AUDIO_RATE_HZ), "-f", "f32le", "-acodec", "pcm_f32le",
+        "-vn", "-ac", "1", "-ar", str(SAMPLE_RATE_HZ), "-f", "f32le", "-acodec", "pcm_f32le",
         "pipe:1",
     ]  # fmt: skip
     result = subprocess.run(command, capture_output=True, check=False)

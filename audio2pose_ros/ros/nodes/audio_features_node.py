@@ -40,8 +40,10 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from naoqi_bridge_msgs.msg import AudioBuffer
 from std_msgs.msg import Bool, Float32MultiArray
 
-from audio2pose_ros.audio.features import StreamingFeatureExtractor
 from audio2pose_ros.audio.source import AudioInput, AudioInputSettings
+from audio2pose_ros.audio.streaming import (
+    StreamingFeatureExtractor,
+)
 from audio2pose_ros.audio.vad import EnergyVad
 from audio2pose_ros.checkpoints.format import feature_spec_of
 from audio2pose_ros.errors import InputError

@@ -1,0 +1,40 @@
+"""The frame grid every layer shares (seed 003 section 4.2.2), defined once.
+
+Audio is resampled to 16 kHz mono; features are computed on 25 ms windows every 10 ms, so poses,
+features, data set clips and the live graph all run at 100 frames per second. Frame ``i`` covers
+the samples ``[160 i, 160 i + 400)`` and stands for the instant at the centre of that window,
+``(160 i + 200) / 16000`` s.
+
+A feature set may ask for another grid (:class:`~audio2pose_ros.audio.features.FeatureSpec`
+carries its own rate, window and step for checkpoints that were trained so); these constants are
+the defaults, and what the data set, the importers and the live graph use.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+SAMPLE_RATE_HZ = 16000  # f_s: every audio input is resampled to this rate
+WINDOW_SAMPLES = 400  # 25 ms analysis window
+SAMPLES_PER_FRAME = 160  # 10 ms frame step (hop)
+FRAME_RATE_HZ = SAMPLE_RATE_HZ / SAMPLES_PER_FRAME  # 100 frames (poses) per second
+FRAME_PERIOD_S = SAMPLES_PER_FRAME / SAMPLE_RATE_HZ  # 0.01 s between frames
+WINDOW_S = WINDOW_SAMPLES / SAMPLE_RATE_HZ  # 0.025 s
+
+
+def complete_frames(n_samples: int) -> int:
+    """Frames whose whole window lies inside ``n_samples`` samples (0 if shorter than a window)."""
+    if n_samples < WINDOW_SAMPLES:
+        return 0
+    return 1 + (n_samples - WINDOW_SAMPLES) // SAMPLES_PER_FRAME
+
+
+def frame_times_s(n_samples: int) -> np.ndarray:
+    """Time (s) of each complete frame of ``n_samples`` samples: ``(160 i + 200) / 16000``."""
+    starts = np.arange(complete_frames(n_samples)) * SAMPLES_PER_FRAME
+    return (starts + WINDOW_SAMPLES / 2.0) / SAMPLE_RATE_HZ
+
+
+def duration_s(n_samples: int) -> float:
+    """Duration (s) of ``n_samples`` samples at :data:`SAMPLE_RATE_HZ`."""
+    return n_samples / SAMPLE_RATE_HZ

@@ -1,0 +1,147 @@
+"""The package layout is the pipeline: a folder imports only folders below it, and only ``ros/``
+imports ROS.
+
+Layers, bottom to top (README "Code map"): the shared base (errors, the frame grid, parameter
+specs, resources, YAML reading), then ``audio`` and ``robot``, ``motion``, ``models``,
+``checkpoints``, ``data``, ``offline``, ``viz``, ``learning``, ``ros``, ``cli``. Every import in
+every module is checked, function-level ones included, from the source with :mod:`ast`.
+"""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = "audio2pose_ros"
+PACKAGE_DIR = Path(__file__).resolve().parent.parent / PACKAGE
+
+#: Rank of each top-level module or folder of the package. A module may import lower ranks, and
+#: its own rank only inside its own folder or, for the rank-0 base modules, among themselves.
+LAYERS: dict[str, int] = {
+    "__init__": 0,
+    "errors": 0,
+    "timebase": 0,
+    "parameters": 0,
+    "resources": 0,
+    "yaml_files": 0,
+    "audio": 1,
+    "robot": 1,
+    "motion": 2,
+    "models": 3,
+    "checkpoints": 4,
+    "data": 5,
+    "offline": 6,
+    "viz": 7,
+    "learning": 8,
+    "ros": 9,
+    "cli": 10,
+}
+
+#: Top-level modules of ROS 2 (client library, launch, message packages) that only ``ros/`` may
+#: import. ``ament_index_python`` (a path lookup, no middleware) is allowed for resources.
+ROS_MODULES = frozenset(
+    {
+        "rclpy",
+        "rosidl_runtime_py",
+        "launch",
+        "launch_ros",
+        "launch_testing",
+        "rcl_interfaces",
+        "builtin_interfaces",
+        "std_msgs",
+        "sensor_msgs",
+        "trajectory_msgs",
+        "diagnostic_msgs",
+        "geometry_msgs",
+        "tf2_msgs",
+        "audio_common_msgs",
+        "naoqi_bridge_msgs",
+        "rosbag2_py",
+    }
+)
+
+
+def imported_modules(source: str) -> list[tuple[int, str]]:
+    """Every absolute module name ``source`` imports, with its line, nested imports included."""
+    found: list[tuple[int, str]] = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            if node.module == PACKAGE:
+                found += [(node.lineno, f"{PACKAGE}.{alias.name}") for alias in node.names]
+            else:
+                found.append((node.lineno, node.module))
+    return found
+
+
+def layer_of(module: str) -> str:
+    """The top-level module or folder of ``audio2pose_ros.<module>``."""
+    return module.split(".")[1] if "." in module else "__init__"
+
+
+def violations(module: str, source: str) -> list[str]:
+    """The layering rules ``module`` (dotted name) breaks with the imports in ``source``."""
+    own = layer_of(module)
+    found = []
+    for line, name in imported_modules(source):
+        top = name.split(".")[0]
+        if top in ROS_MODULES and own != "ros":
+            found.append(f"{module}:{line} imports {name}: only {PACKAGE}.ros may import ROS")
+        if top != PACKAGE or name == PACKAGE:
+            continue
+        target = layer_of(name)
+        if target not in LAYERS:
+            found.append(f"{module}:{line} imports {name}: {target!r} is not a known layer")
+        elif LAYERS[target] > LAYERS[own] or (LAYERS[target] == LAYERS[own] != 0 and target != own):
+            found.append(
+                f"{module}:{line} imports {name}: layer {target} ({LAYERS[target]}) is not below "
+                f"{own} ({LAYERS[own]})"
+            )
+    return found
+
+
+def package_modules() -> list[tuple[str, Path]]:
+    """(dotted name, path) of every module of the package."""
+    modules = []
+    for path in sorted(PACKAGE_DIR.rglob("*.py")):
+        parts = path.relative_to(PACKAGE_DIR.parent).with_suffix("").parts
+        modules.append((".".join(parts), path))
+    return modules
+
+
+def test_every_folder_and_top_level_module_has_a_layer():
+    tops = {path.relative_to(PACKAGE_DIR).parts[0] for _, path in package_modules()}
+    unknown = sorted(
+        top.removesuffix(".py") for top in tops if top.removesuffix(".py") not in LAYERS
+    )
+    assert unknown == []
+
+
+@pytest.mark.parametrize(("module", "path"), package_modules(), ids=lambda value: str(value))
+def test_module_imports_only_lower_layers_and_no_ros_outside_ros(module, path):
+    assert violations(module, path.read_text()) == []
+
+
+def test_checker_reports_an_upward_import_and_ros_outside_ros():
+    source = "import rclpy\n\ndef f():\n    from audio2pose_ros.ros.graph import Supervisor\n"
+    found = violations("audio2pose_ros.motion.filter", source)
+    assert len(found) == 2
+    assert "only audio2pose_ros.ros may import ROS" in found[0]
+    assert "layer ros (9) is not below motion (2)" in found[1]
+
+
+def test_checker_reports_a_sideways_import_between_folders_of_one_rank():
+    found = violations("audio2pose_ros.audio.features", "from audio2pose_ros import robot\n")
+    assert found == [
+        "audio2pose_ros.audio.features:1 imports audio2pose_ros.robot: layer robot (1) is not "
+        "below audio (1)"
+    ]
+
+
+def test_checker_accepts_imports_within_a_folder_and_downwards_and_among_the_base():
+    source = (
+        "from audio2pose_ros.motion import gate\nfrom audio2pose_ros.robot.description import x\n"
+    )
+    assert violations("audio2pose_ros.motion.filter", source) == []
+    assert violations("audio2pose_ros.parameters", "from audio2pose_ros.errors import E\n") == []
