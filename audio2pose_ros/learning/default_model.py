@@ -4,9 +4,13 @@ With ``arms="learned"`` (the default, :func:`build_learned_default_model`): impo
 talking-head clips (real head motion, arms out of frame) and the lecture video (real arm and hip
 motion, :mod:`audio2pose_ros.data.importers.lecture`), train one streaming sampler with a part per
 joint group (``live_groups``: the head part learns from the talking heads, the arm-and-hip part
-from the lecture, unobserved joints masked, never filled), and evaluate it where it was not
-trained: the head leave-one-speaker-out over the talking-head clips, the arms and hip on the
-held-out lecture stretch (:func:`audio2pose_ros.learning.evaluation.quality_evaluation`).
+from the lecture, unobserved joints masked, never filled), choose its sampling settings on
+validation data (:mod:`audio2pose_ros.learning.sampler_selection`: the head's by cross-validation
+over the talking-head speakers, the arms' on a validation stretch of the lecture), and evaluate
+it where it was not trained: the head leave-one-speaker-out over the talking-head clips (every
+fold choosing its own settings on its training speakers only), the arms and hip on the held-out
+lecture stretch against the static pose, another clip's real motion and the prosody rule
+(:func:`audio2pose_ros.learning.evaluation.quality_evaluation`).
 
 With ``arms="prosody"`` or ``"neutral"`` (explicitly named options,
 :func:`build_default_model`): import the 13 clips (:mod:`audio2pose_ros.data.importers.video`: real
@@ -205,8 +209,10 @@ class LearnedBuildSettings:
         batch_size: 2 s windows per optimiser step.
         patience: epochs without validation improvement before training stops (the
             validation loss mixes head and arm clips, so this is more than the seed's 10).
-        loso_epochs: epochs per leave-one-speaker-out fold.
-        samples: samples per clip for the diversity measure.
+        loso_epochs: epochs per leave-one-speaker-out fold and per cross-validation model of
+            the sampling choice.
+        samples: samples per clip, pooled by the distribution measures and compared by the
+            diversity measure.
         seed: training seed.
 
     """
