@@ -20,10 +20,7 @@ def _is_share(candidate: Path) -> bool:
 
 def _ament_share() -> Path | None:
     try:
-        from ament_index_python.packages import (
-            PackageNotFoundError,
-            get_package_share_directory,
-        )
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
     except ImportError:
         return None
     try:

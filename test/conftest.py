@@ -10,9 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from audio2pose_ros.audio.wav import (
-    read_wav,
-)
+from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.resources import bundled_speech_path, share_path
 from audio2pose_ros.robot.description import RobotDescription, load_robot
 

@@ -5,16 +5,33 @@ from __future__ import annotations
 import time
 
 import rclpy
-from audio_common_msgs.msg import AudioData, AudioInfo
+from audio_common_msgs.msg import AudioData
 from diagnostic_msgs.msg import DiagnosticArray
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
+from audio2pose_ros.data.bag import (
+    AUDIO_DATA_TYPE,
+    AUDIO_INFO_TOPIC,
+    AUDIO_INFO_TYPE,
+    AUDIO_TOPIC,
+    BagMessage,
+)
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
+from audio2pose_ros.ros.player import MessagePlayer, spin_until, warm_up
+from audio2pose_ros.timebase import SAMPLES_PER_FRAME
+from audio2pose_ros.topics import (
+    COMMANDED_JOINT_STATES,
+    DIAGNOSTICS,
+    FEATURES,
+    JOINT_ANGLES,
+    RAW_TRAJECTORY,
+    absolute,
+)
 
 
 class Probe(Node):
@@ -22,25 +39,26 @@ class Probe(Node):
 
     def __init__(self) -> None:
         super().__init__("test_probe")
-        self.audio = self.create_publisher(AudioData, "/audio/audio", 100)
-        self.info = self.create_publisher(AudioInfo, "/audio/audio_info", LATCHED_QOS)
+        self.player = MessagePlayer(
+            self, [(AUDIO_TOPIC, AUDIO_DATA_TYPE), (AUDIO_INFO_TOPIC, AUDIO_INFO_TYPE)]
+        )
+        self.audio = self.player.publishers[AUDIO_TOPIC]
+        self.info = self.player.publishers[AUDIO_INFO_TOPIC]
         self.received: dict[str, list] = {
             k: [] for k in ("angles", "trajectory", "states", "raw", "features", "diagnostics")
         }
         for key, msg_type, topic in (
-            ("angles", JointAnglesWithSpeed, "/joint_angles"),
+            ("angles", JointAnglesWithSpeed, absolute(JOINT_ANGLES)),
             ("trajectory", JointTrajectory, CONTROLLER_TOPIC),
-            ("states", JointState, "/commanded_joint_states"),
-            ("raw", JointTrajectory, "/raw_trajectory"),
-            ("features", Float32MultiArray, "/features"),
-            ("diagnostics", DiagnosticArray, "/diagnostics"),
+            ("states", JointState, absolute(COMMANDED_JOINT_STATES)),
+            ("raw", JointTrajectory, absolute(RAW_TRAJECTORY)),
+            ("features", Float32MultiArray, absolute(FEATURES)),
+            ("diagnostics", DiagnosticArray, DIAGNOSTICS),
         ):
             self.create_subscription(msg_type, topic, self.received[key].append, 1000)
 
     def spin_for(self, seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            rclpy.spin_once(self, timeout_sec=0.005)
+        spin_until(self, time.monotonic() + seconds)
 
     def wait_until(self, condition, timeout_s: float = 60.0) -> None:
         end = time.monotonic() + timeout_s
@@ -53,44 +71,40 @@ class Probe(Node):
     def graph_ready(self) -> bool:
         return (
             self.audio.get_subscription_count() > 0
-            and self.count_subscribers("/features") > 0
-            and self.count_subscribers("/raw_trajectory") > 0
-            and self.count_publishers("/joint_angles") > 0
+            and self.count_subscribers(absolute(FEATURES)) > 0
+            and self.count_subscribers(absolute(RAW_TRAJECTORY)) > 0
+            and self.count_publishers(absolute(JOINT_ANGLES)) > 0
         )
 
     def warm_up(self) -> None:
-        """Send silence until poses come back: every link of the graph has matched.
-
-        DDS discovery is asymmetric: our side may see a subscriber before the node's own
-        publisher has matched the next node, and reliable volatile samples sent before that
-        are lost. 160-sample chunks keep the feature extractor aligned to whole frames.
-        """
-        silence = bytes(2 * 160)
-
-        def poses_arrive() -> bool:
-            self.audio.publish(AudioData(data=silence))
-            self.spin_for(0.02)
-            return bool(self.received["raw"]) and bool(self.received["angles"])
-
-        self.wait_until(poses_arrive, timeout_s=60)
-        for _ in range(5):  # make the warm-up longer than one 25 ms window
-            self.audio.publish(AudioData(data=silence))
+        """Send silence until poses and commands come back (the player's warm-up), then a
+        little more than one 25 ms window of silence, and forget what arrived so far."""
+        answered = warm_up(
+            self.player,
+            AUDIO_TOPIC,
+            lambda: bool(self.received["raw"]) and bool(self.received["angles"]),
+            timeout_s=60.0,
+        )
+        if not answered:
+            raise TimeoutError("the graph did not answer within 60 s")
+        for _ in range(5):
+            self.audio.publish(AudioData(data=bytes(2 * SAMPLES_PER_FRAME)))
         self.spin_for(0.5)
         for key in self.received:
             self.received[key].clear()
 
     def play(self, payload: bytes, chunk_sizes: list[int], bytes_per_s: float) -> int:
         """Send ``payload`` in chunks of the given sizes (cycled), paced at ``bytes_per_s``."""
-        start, offset, i = time.monotonic(), 0, 0
+        messages, offset, i = [], 0, 0
         while offset < len(payload):
             size = chunk_sizes[i % len(chunk_sizes)]
-            due = start + offset / bytes_per_s
-            while time.monotonic() < due:
-                rclpy.spin_once(self, timeout_sec=0.001)
-            self.audio.publish(AudioData(data=payload[offset : offset + size]))
+            chunk = serialize_message(AudioData(data=payload[offset : offset + size]))
+            stamp_ns = round(offset / bytes_per_s * 1e9)
+            messages.append(BagMessage(stamp_ns, AUDIO_TOPIC, AUDIO_DATA_TYPE, chunk))
             offset += size
             i += 1
-        return i
+        self.player.play(messages)
+        return len(messages)
 
 
 def diagnostics_of(probe: Probe, node_name: str) -> dict[str, str]:

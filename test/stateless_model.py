@@ -17,17 +17,10 @@ def stateless_checkpoint(path: Path, robot, speech: np.ndarray) -> Path:
     and the offline run agree frame for frame whatever the warm-up (the packaged default is a
     recurrent sampler, whose state depends on every frame it has seen). Untrained, normalised
     on the speech itself, so that its poses follow the audio."""
-    from audio2pose_ros.audio.features import (
-        FeatureSpec,
-        extract_features,
-    )
-    from audio2pose_ros.audio.normalize import (
-        FeatureNormalizer,
-    )
+    from audio2pose_ros.audio.features import FeatureSpec, extract_features
+    from audio2pose_ros.audio.normalize import FeatureNormalizer
     from audio2pose_ros.checkpoints.torch_io import Checkpoint, save_checkpoint
-    from audio2pose_ros.models.registry import (
-        build_model,
-    )
+    from audio2pose_ros.models.registry import build_model
 
     spec = FeatureSpec()
     torch.manual_seed(0)

@@ -12,7 +12,7 @@ import numpy as np
 from scipy import signal
 
 from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
-from audio2pose_ros.learning.training import Utterance
+from audio2pose_ros.learning.batches import Utterance
 
 N_JOINTS = 11
 GAINS = np.array([0.5, -0.4, 0.3, -0.5, 0.4, -0.3, 0.5, -0.4, 0.3, -0.5, 0.2])

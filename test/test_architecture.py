@@ -21,6 +21,7 @@ LAYERS: dict[str, int] = {
     "__init__": 0,
     "errors": 0,
     "timebase": 0,
+    "topics": 0,
     "parameters": 0,
     "resources": 0,
     "yaml_files": 0,

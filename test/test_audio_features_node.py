@@ -21,20 +21,12 @@ from naoqi_bridge_msgs.msg import AudioBuffer
 from rclpy.node import Node
 from std_msgs.msg import Float32MultiArray
 
-from audio2pose_ros.audio.features import (
-    FeatureSpec,
-)
-from audio2pose_ros.audio.pcm import (
-    S16LE_MONO_16K,
-    PcmDecoder,
-    PcmFormat,
-    encode_pcm,
-)
-from audio2pose_ros.audio.streaming import (
-    StreamingFeatureExtractor,
-)
+from audio2pose_ros.audio.features import FeatureSpec
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmDecoder, PcmFormat, encode_pcm
+from audio2pose_ros.audio.streaming import StreamingFeatureExtractor
 from audio2pose_ros.ros.diagnosed_node import AUDIO_QOS, EXIT_CONFIGURATION_ERROR, LATCHED_QOS
-from audio2pose_ros.ros.graph_bench import rss_mb
+from audio2pose_ros.ros.process_stats import rss_mb
+from audio2pose_ros.topics import DIAGNOSTICS
 
 pytestmark = pytest.mark.ros
 
@@ -56,7 +48,7 @@ class Peer(Node):
         self.frames: list[np.ndarray] = []
         self.statuses: list[tuple[float, DiagnosticStatus]] = []
         self.create_subscription(Float32MultiArray, "features", self._on_features, 1000)
-        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 100)
+        self.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, 100)
 
     def _on_features(self, msg: Float32MultiArray) -> None:
         rows, cols = msg.layout.dim[0].size, msg.layout.dim[1].size

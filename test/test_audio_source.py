@@ -10,11 +10,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from audio2pose_ros.audio.pcm import (
-    PcmDecoder,
-    PcmFormat,
-    encode_pcm,
-)
+from audio2pose_ros.audio.pcm import PcmDecoder, PcmFormat, encode_pcm
 from audio2pose_ros.audio.source import (
     AudioBudget,
     AudioDropped,

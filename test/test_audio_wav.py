@@ -11,18 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from audio2pose_ros.audio.pcm import (
-    PcmDecoder,
-    PcmFormat,
-)
-from audio2pose_ros.audio.wav import (
-    read_wav,
-)
-from audio2pose_ros.errors import (
-    InputError,
-    InvalidAudio,
-    UnsupportedAudioFormat,
-)
+from audio2pose_ros.audio.pcm import PcmDecoder, PcmFormat
+from audio2pose_ros.audio.wav import read_wav
+from audio2pose_ros.errors import InputError, InvalidAudio, UnsupportedAudioFormat
 
 
 def wav_bytes(

@@ -7,12 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from audio2pose_ros.audio.features import (
-    FeatureSpec,
-)
-from audio2pose_ros.audio.normalize import (
-    FeatureNormalizer,
-)
+from audio2pose_ros.audio.features import FeatureSpec
+from audio2pose_ros.audio.normalize import FeatureNormalizer
 from audio2pose_ros.checkpoints.format import CheckpointError, feature_spec_of
 from audio2pose_ros.checkpoints.torch_io import Checkpoint, load_checkpoint, save_checkpoint
 from audio2pose_ros.models.mlp import FramewiseMLP, MLPConfig
@@ -107,9 +103,7 @@ def test_when_loading_packaged_default_expect_it_matches_the_robot(robot):
 
 @pytest.mark.parametrize("name", ["lstm", "dae_gru", "blstm", "blstm_prior", "cvae", "live"])
 def test_when_any_model_saved_and_loaded_expect_same_output(name, tmp_path, robot):
-    from audio2pose_ros.models.registry import (
-        build_model,
-    )
+    from audio2pose_ros.models.registry import build_model
 
     torch.manual_seed(0)
     model = build_model(name, {}).eval()

@@ -15,12 +15,8 @@ import numpy as np
 import pytest
 import torch
 
-from audio2pose_ros.audio.features import (
-    FeatureSpec,
-)
-from audio2pose_ros.audio.normalize import (
-    FeatureNormalizer,
-)
+from audio2pose_ros.audio.features import FeatureSpec
+from audio2pose_ros.audio.normalize import FeatureNormalizer
 from audio2pose_ros.checkpoints.format import (
     MAX_HEADER_BYTES,
     CheckpointError,

@@ -28,6 +28,8 @@ def node(monkeypatch):
         inference = InferenceNode()
         published = []
         monkeypatch.setattr(inference.trajectory_pub, "publish", published.append)
+        # raw_trajectory is built only for a subscriber: play one
+        monkeypatch.setattr(inference.trajectory_pub, "get_subscription_count", lambda: 1)
         inference.published = published
         yield inference
         inference.destroy_node()

@@ -15,18 +15,17 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
-from audio2pose_ros.audio.wav import (
-    read_wav,
-)
+from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.ros.graph import executable_command
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
+from audio2pose_ros.topics import AUDIO, AUDIO_INFO, COMMANDED_JOINT_STATES, JOINT_ANGLES, absolute
 
 AUDIO2POSE = executable_command("audio2pose")
 COMMAND_TOPICS = {
-    "/joint_angles",
+    absolute(JOINT_ANGLES),
     CONTROLLER_TOPIC,
-    "/commanded_joint_states",
+    absolute(COMMANDED_JOINT_STATES),
 }
 
 
@@ -53,17 +52,19 @@ def test_when_run_plays_and_records_expect_mcap_both_readers_open(
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
         for _, channel, _, msg in reader.iter_decoded_messages():
             counts[channel.topic] += 1
-            if channel.topic == "/joint_angles":
+            if channel.topic == absolute(JOINT_ANGLES):
                 assert list(msg.joint_names) == list(robot.names)
                 angles.append(msg.joint_angles)
     assert set(counts) >= COMMAND_TOPICS
-    assert counts["/audio/audio_info"] == 1
-    assert counts["/audio/audio"] > 0
+    assert counts[absolute(AUDIO_INFO)] == 1
+    assert counts[absolute(AUDIO)] > 0
     duration_s = len(read_wav(wav)[0]) / 16000
     filter_params = yaml.safe_load(share_path("config", "pepper.yaml").read_text())[
         "motion_filter_node"
     ]["ros__parameters"]
-    assert counts["/joint_angles"] >= 0.9 * filter_params["joint_angles_rate_hz"] * duration_s
+    assert (
+        counts[absolute(JOINT_ANGLES)] >= 0.9 * filter_params["joint_angles_rate_hz"] * duration_s
+    )
     angles = np.array(angles)
     assert np.all(angles >= robot.lower_rad - 1e-6)
     assert np.all(angles <= robot.upper_rad + 1e-6)

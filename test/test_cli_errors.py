@@ -14,11 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from audio2pose_ros.audio.pcm import (
-    S16LE_MONO_16K,
-    PcmFormat,
-    encode_pcm,
-)
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmFormat, encode_pcm
 from audio2pose_ros.cli import main as cli
 from audio2pose_ros.data import bag as bag_module
 from audio2pose_ros.data.bag import (
@@ -32,6 +28,7 @@ from audio2pose_ros.data.bag import (
     typestore,
 )
 from audio2pose_ros.resources import default_checkpoint_path
+from audio2pose_ros.topics import JOINT_ANGLES, absolute
 
 
 def audio2pose(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str]:
@@ -284,7 +281,9 @@ def test_when_render_is_given_a_bag_with_invalid_joint_angles_expect_one_line(
     capsys, tmp_path, speech_path
 ):
     with BagWriter(tmp_path / "bag") as bag:
-        bag.write("/joint_angles", "naoqi_bridge_msgs/msg/JointAnglesWithSpeed", 1, b"\x00\x01")
+        bag.write(
+            absolute(JOINT_ANGLES), "naoqi_bridge_msgs/msg/JointAnglesWithSpeed", 1, b"\x00\x01"
+        )
     status, stderr = audio2pose(
         capsys, "render", speech_path, "-o", tmp_path / "v.mp4", "--bag", tmp_path / "bag"
     )

@@ -27,17 +27,11 @@ def test_when_synth_runs_with_seeds_expect_same_seed_same_motion_other_seed_othe
 @pytest.mark.parametrize("family", ["mlp", "lstm"])
 def test_when_a_deterministic_model_gets_a_seed_expect_it_accepted_and_unused(robot, family):
     """inference_node passes its seed to every streaming model (a TypeError crash-looped it)."""
-    from audio2pose_ros.audio.features import (
-        FeatureSpec,
-    )
-    from audio2pose_ros.audio.normalize import (
-        FeatureNormalizer,
-    )
+    from audio2pose_ros.audio.features import FeatureSpec
+    from audio2pose_ros.audio.normalize import FeatureNormalizer
     from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
     from audio2pose_ros.checkpoints.torch_io import Checkpoint, save_checkpoint
-    from audio2pose_ros.models.registry import (
-        build_model,
-    )
+    from audio2pose_ros.models.registry import build_model
 
     spec = FeatureSpec()
     model = build_model(family, {"n_features": spec.dim, "n_joints": robot.n_joints})

@@ -21,6 +21,7 @@ from trajectory_msgs.msg import JointTrajectory
 from audio2pose_ros.ros.diagnosed_node import trajectory_msg
 from audio2pose_ros.ros.graph import executable_command
 from audio2pose_ros.ros.nodes.motion_filter_node import PARAMETERS
+from audio2pose_ros.topics import JOINT_ANGLES, RAW_TRAJECTORY, absolute
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 RATE_HZ = next(float(s.default) for s in PARAMETERS if s.name == "joint_angles_rate_hz")
@@ -30,9 +31,11 @@ FILTER_PERIOD_S = 1.0 / next(float(s.default) for s in PARAMETERS if s.name == "
 class Listener(Node):
     def __init__(self) -> None:
         super().__init__("pacing_listener")
-        self.raw = self.create_publisher(JointTrajectory, "/raw_trajectory", 100)
+        self.raw = self.create_publisher(JointTrajectory, absolute(RAW_TRAJECTORY), 100)
         self.commands: list[tuple[float, float]] = []  # (arrival, header stamp) in seconds
-        self.create_subscription(JointAnglesWithSpeed, "/joint_angles", self.on_command, 1000)
+        self.create_subscription(
+            JointAnglesWithSpeed, absolute(JOINT_ANGLES), self.on_command, 1000
+        )
 
     def on_command(self, msg: JointAnglesWithSpeed) -> None:
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9

@@ -5,15 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from audio2pose_ros.data.dataset import (
-    Clip,
-    ClipInfo,
-    Dataset,
-    DatasetError,
-)
-from audio2pose_ros.timebase import (
-    complete_frames,
-)
+from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset, DatasetError
+from audio2pose_ros.timebase import complete_frames
 
 
 def make_clip(robot, clip_id="c1", seconds=1.0, split="train") -> Clip:

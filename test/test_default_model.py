@@ -5,20 +5,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from audio2pose_ros.audio.features import (
-    FeatureSpec,
-    extract_features,
-)
-from audio2pose_ros.data.dataset import (
-    Clip,
-    ClipInfo,
-    Dataset,
-)
+from audio2pose_ros.audio.features import FeatureSpec, extract_features
+from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
 from audio2pose_ros.learning.default_model import TEST_CLIPS, clip_info, fill_unobserved
 from audio2pose_ros.motion.prosody import prosody_trajectory
-from audio2pose_ros.timebase import (
-    complete_frames,
-)
+from audio2pose_ros.timebase import complete_frames
 
 
 def test_when_naming_the_shared_clips_expect_grid_attribution_and_held_out_clips():
@@ -36,9 +27,7 @@ def test_when_naming_the_shared_clips_expect_grid_attribution_and_held_out_clips
 def test_when_filling_unobserved_joints_expect_the_head_kept_and_the_rest_from_the_rule(
     tmp_path, robot, speech_path, arms
 ):
-    from audio2pose_ros.audio.wav import (
-        read_wav,
-    )
+    from audio2pose_ros.audio.wav import read_wav
 
     audio = read_wav(speech_path)[0][:48000]
     n = complete_frames(audio.size)

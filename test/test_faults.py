@@ -16,14 +16,11 @@ import pytest
 from audio_common_msgs.msg import AudioData, AudioInfo
 from graph_probe import Probe, diagnostics_of
 
-from audio2pose_ros.audio.pcm import (
-    S16LE_MONO_16K,
-    PcmFormat,
-    encode_pcm,
-)
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmFormat, encode_pcm
 from audio2pose_ros.ros.diagnosed_node import trajectory_msg
 from audio2pose_ros.ros.graph import node_graph
-from audio2pose_ros.ros.graph_bench import rss_mb
+from audio2pose_ros.ros.process_stats import rss_mb
+from audio2pose_ros.topics import RAW_TRAJECTORY, absolute
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -125,7 +122,7 @@ def test_when_raw_trajectory_duplicated_or_late_expect_filter_drops_it(
     with node_graph(log_dir=tmp_path):
         start(probe)
         publisher = probe.create_publisher(
-            type(trajectory_msg(robot.names, robot.neutral_rad, 0.01)), "/raw_trajectory", 10
+            type(trajectory_msg(robot.names, robot.neutral_rad, 0.01)), absolute(RAW_TRAJECTORY), 10
         )
         probe.wait_until(lambda: publisher.get_subscription_count() > 0)
         newest = trajectory_msg(robot.names, robot.neutral_rad[None, :], 0.01)
@@ -201,9 +198,7 @@ def test_when_30_minutes_of_audio_stream_through_expect_flat_memory(
     tmp_path: Path, probe: Probe, robot, speech_files
 ):
     """Soak: 30 min of real speech at 25x real time; resident memory of every node stays flat."""
-    from audio2pose_ros.audio.wav import (
-        read_wav,
-    )
+    from audio2pose_ros.audio.wav import read_wav
 
     speech = np.concatenate([read_wav(f)[0] for f in speech_files])
     total_s, speed = 30 * 60, 25.0

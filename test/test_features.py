@@ -9,31 +9,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from audio2pose_ros.audio.dsp import (
-    dct_matrix,
-    delta,
-    hz_to_mel,
-    mel_filterbank,
-    mel_to_hz,
-)
-from audio2pose_ros.audio.features import (
-    FeatureSpec,
-    extract_features,
-)
-from audio2pose_ros.audio.normalize import (
-    FeatureNormalizer,
-)
-from audio2pose_ros.audio.pcm import (
-    PcmDecoder,
-    PcmFormat,
-    encode_pcm,
-)
-from audio2pose_ros.audio.streaming import (
-    StreamingFeatureExtractor,
-)
-from audio2pose_ros.audio.wav import (
-    read_wav,
-)
+from audio2pose_ros.audio.dsp import dct_matrix, delta, hz_to_mel, mel_filterbank, mel_to_hz
+from audio2pose_ros.audio.features import FeatureSpec, extract_features
+from audio2pose_ros.audio.normalize import FeatureNormalizer
+from audio2pose_ros.audio.pcm import PcmDecoder, PcmFormat, encode_pcm
+from audio2pose_ros.audio.streaming import StreamingFeatureExtractor
+from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.resources import bundled_speech_path
 

@@ -15,13 +15,8 @@ from audio_common_msgs.msg import AudioData, AudioInfo
 from graph_probe import Probe, diagnostics_of
 from node_processes import configuration_error_line
 
-from audio2pose_ros.audio.pcm import (
-    S16LE_MONO_16K,
-    encode_pcm,
-)
-from audio2pose_ros.audio.wav import (
-    read_wav,
-)
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
+from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.ros.graph import node_graph
 from audio2pose_ros.ros.nodes.motion_filter_node import PARAMETERS as FILTER_PARAMETERS
 
@@ -155,16 +150,10 @@ def test_when_checkpoint_tampered_expect_one_line_and_no_respawnable_exit(tmp_pa
 
 
 def test_when_model_is_offline_only_expect_refusal_pointing_to_synth(tmp_path: Path, robot):
-    from audio2pose_ros.audio.features import (
-        FeatureSpec,
-    )
-    from audio2pose_ros.audio.normalize import (
-        FeatureNormalizer,
-    )
+    from audio2pose_ros.audio.features import FeatureSpec
+    from audio2pose_ros.audio.normalize import FeatureNormalizer
     from audio2pose_ros.checkpoints.torch_io import Checkpoint, save_checkpoint
-    from audio2pose_ros.models.registry import (
-        build_model,
-    )
+    from audio2pose_ros.models.registry import build_model
 
     spec = FeatureSpec()
     model = build_model("cvae", {"n_features": spec.dim, "n_joints": robot.n_joints})

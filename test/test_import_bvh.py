@@ -9,9 +9,7 @@ from recording_fixtures import NAMES, known_angles, write_bvh
 from audio2pose_ros.data.dataset import ClipInfo
 from audio2pose_ros.data.importers import ImporterError
 from audio2pose_ros.data.importers.bvh import import_bvh, load_mappings, read_bvh, retarget
-from audio2pose_ros.timebase import (
-    frame_times_s,
-)
+from audio2pose_ros.timebase import frame_times_s
 
 FRAME_TIME_S = 1.0 / 30.0
 N_FRAMES = 150  # 5 s

@@ -5,9 +5,7 @@ import pytest
 
 from audio2pose_ros.data.importers.lecture import LECTURE_LICENCE, TEST_SPAN_S, lecture_clips
 from audio2pose_ros.data.importers.video import POSE_INDEX, VideoTracks, body_angles
-from audio2pose_ros.timebase import (
-    complete_frames,
-)
+from audio2pose_ros.timebase import complete_frames
 
 
 def rot_x(a):

@@ -9,9 +9,7 @@ from recording_fixtures import openface_rotation, write_openface_csv
 from audio2pose_ros.data.dataset import ClipInfo
 from audio2pose_ros.data.importers import ImporterError
 from audio2pose_ros.data.importers.openface import OpenFaceImportSettings, import_openface
-from audio2pose_ros.timebase import (
-    frame_times_s,
-)
+from audio2pose_ros.timebase import frame_times_s
 
 FPS = 30.0
 SECONDS = 4.0

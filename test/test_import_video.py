@@ -5,16 +5,12 @@ import subprocess
 import numpy as np
 import pytest
 
-from audio2pose_ros.data.dataset import (
-    ClipInfo,
-)
+from audio2pose_ros.data.dataset import ClipInfo
 from audio2pose_ros.data.importers import ImporterError, head_pose
 from audio2pose_ros.data.importers.media import ffmpeg_executable, read_audio
 from audio2pose_ros.data.importers.video import VideoImportSettings, import_video
 from audio2pose_ros.resources import share_path
-from audio2pose_ros.timebase import (
-    complete_frames,
-)
+from audio2pose_ros.timebase import complete_frames
 
 GRID_CLIP = share_path("data", "video", "grid_bbaf2n.mpg")  # GRID, CC BY 4.0: data/video/SOURCES.md
 HEAD_ONLY = VideoImportSettings(body=False)

@@ -37,7 +37,7 @@ import launch_testing.asserts
 import numpy as np
 import rclpy
 from ament_index_python.packages import get_package_share_directory
-from audio_common_msgs.msg import AudioData, AudioInfo
+from audio_common_msgs.msg import AudioInfo
 from launch import LaunchDescription
 from launch.actions import IncludeLaunchDescription
 from launch.launch_description_sources import PythonLaunchDescriptionSource
@@ -46,13 +46,20 @@ from rcl_interfaces.srv import GetParameters
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.audio.wav import (
-    read_wav,
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K
+from audio2pose_ros.audio.wav import read_wav
+from audio2pose_ros.data.bag import (
+    AUDIO_DATA_TYPE,
+    AUDIO_INFO_TOPIC,
+    AUDIO_INFO_TYPE,
+    AUDIO_TOPIC,
+    audio_messages,
 )
-from audio2pose_ros.data.bag import AUDIO_INFO_TOPIC, audio_messages
 from audio2pose_ros.resources import default_checkpoint_path, share_path
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
+from audio2pose_ros.ros.player import MessagePlayer, spin_until, warm_up
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
+from audio2pose_ros.topics import JOINT_ANGLES, RAW_TRAJECTORY, absolute
 
 SPEECH_S = 3.0
 WORK = Path(tempfile.mkdtemp(prefix="test_launch_pepper_"))
@@ -122,18 +129,19 @@ class SpeechPlayer(Node):
     def __init__(self) -> None:
         """Audio publishers, command and raw-pose subscriptions."""
         super().__init__("test_launch_pepper")
-        self.audio = self.create_publisher(AudioData, "/audio/audio", 100)
-        self.info = self.create_publisher(AudioInfo, "/audio/audio_info", LATCHED_QOS)
+        self.player = MessagePlayer(
+            self, [(AUDIO_TOPIC, AUDIO_DATA_TYPE), (AUDIO_INFO_TOPIC, AUDIO_INFO_TYPE)]
+        )
         self.angles: list[JointAnglesWithSpeed] = []
         self.raw: list[JointTrajectory] = []
-        self.create_subscription(JointAnglesWithSpeed, "/joint_angles", self.angles.append, 1000)
-        self.create_subscription(JointTrajectory, "/raw_trajectory", self.raw.append, 1000)
+        self.create_subscription(
+            JointAnglesWithSpeed, absolute(JOINT_ANGLES), self.angles.append, 1000
+        )
+        self.create_subscription(JointTrajectory, absolute(RAW_TRAJECTORY), self.raw.append, 1000)
 
     def spin_for(self, seconds: float) -> None:
         """Process callbacks for ``seconds``."""
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            rclpy.spin_once(self, timeout_sec=0.005)
+        spin_until(self, time.monotonic() + seconds)
 
     def wait_until(self, condition: object, timeout_s: float, what: str) -> None:
         """Spin until ``condition()``; fail the test with ``what`` after ``timeout_s``."""
@@ -145,25 +153,17 @@ class SpeechPlayer(Node):
 
     def warm_up(self, timeout_s: float) -> None:
         """Send silence until poses come back: every link of the graph has matched."""
-        silence = AudioData(data=bytes(2 * 160))
-
-        def poses_arrive() -> bool:
-            self.audio.publish(silence)
-            self.spin_for(0.02)
-            return bool(self.raw) and bool(self.angles)
-
-        self.wait_until(poses_arrive, timeout_s, "no pose came back from the graph")
+        answered = warm_up(
+            self.player, AUDIO_TOPIC, lambda: bool(self.raw) and bool(self.angles), timeout_s
+        )
+        assert answered, f"no pose came back from the graph within {timeout_s} s"
         self.spin_for(0.3)
 
     def play_speech(self, seconds: float) -> None:
         """Publish ``seconds`` of a packaged speech recording in real time."""
         wav = sorted(share_path("data", "speech").glob("*.wav"))[0]
         samples, _ = read_wav(wav)
-        start = time.monotonic()
-        for message in audio_messages(samples[: round(seconds * 16000)]):
-            publisher = self.info if message.topic == AUDIO_INFO_TOPIC else self.audio
-            self.spin_for(start + message.timestamp_ns * 1e-9 - time.monotonic())
-            publisher.publish(message.data)
+        self.player.play(audio_messages(samples[: round(seconds * SAMPLE_RATE_HZ)]))
         self.spin_for(0.5)
 
     def model_path(self, node: str) -> str:
@@ -183,7 +183,9 @@ class TestRunningGraph(unittest.TestCase):
         """One participant for the whole run."""
         rclpy.init()
         cls.player = SpeechPlayer()
-        cls.player.info.publish(AudioInfo(channels=1, sample_rate=16000, sample_format="S16LE"))
+        cls.player.player.publishers[AUDIO_INFO_TOPIC].publish(
+            AudioInfo(**S16LE_MONO_16K.audio_info_fields())
+        )
         cls.player.warm_up(timeout_s=60.0)
 
     @classmethod

@@ -8,22 +8,11 @@ import pytest
 import torch
 
 from audio2pose_ros.errors import ConfigurationError
-from audio2pose_ros.learning.training import (
-    TrainingError,
-    TrainSettings,
-    Utterance,
-    evaluate_loss,
-    train_model,
-)
-from audio2pose_ros.models.base import (
-    OfflineOnlyModelError,
-    require_streaming,
-)
+from audio2pose_ros.learning.batches import TrainingError, Utterance
+from audio2pose_ros.learning.training import TrainSettings, evaluate_loss, train_model
+from audio2pose_ros.models.base import OfflineOnlyModelError, require_streaming
 from audio2pose_ros.models.mlp import FramewiseMLP, MLPConfig
-from audio2pose_ros.models.registry import (
-    MODEL_REGISTRY,
-    build_model,
-)
+from audio2pose_ros.models.registry import MODEL_REGISTRY, build_model
 from audio2pose_ros.models.span import recombine_spans, span_loss
 
 sys.path.insert(0, str(Path(__file__).parent))

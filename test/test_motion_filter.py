@@ -216,3 +216,24 @@ def test_when_tracking_resumes_after_silence_expect_no_stale_poses_replayed(robo
     filt.tick(t)
     assert filt.status.buffered == 0
     np.testing.assert_allclose(filt.position_rad, filt.neutral_rad, atol=1e-3)
+
+
+def test_when_voice_is_reported_on_change_only_expect_silence_counted_from_the_change(robot):
+    """audio_features_node reports voice activity when it changes (issue 15), not every chunk.
+
+    Before: silence counted from the last *report* of voice (t=0 here), so the filter glided to
+    neutral at once when the voice stopped at t=1 s; after: from the report of silence.
+    """
+    settings = MotionFilterSettings(silence_timeout_s=0.2, neutral_glide_s=0.5)
+    filt = MotionFilter(robot, settings)
+    pose, t, modes = raised_pose(robot), 0.0, []
+    filt.set_voice_active(True, t)  # the one report while the voice lasts
+    for i in range(150):
+        t += PERIOD
+        if i == 100:
+            filt.set_voice_active(False, t)  # the voice stopped at about t = 1 s
+        filt.push(pose[None, :], t)
+        filt.tick(t)
+        modes.append(filt.status.mode)
+    assert modes[:119] == ["tracking"] * 119  # tracking until 0.2 s after the change
+    assert modes[-1] == "neutral"

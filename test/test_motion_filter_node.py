@@ -25,6 +25,16 @@ from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.ros.diagnosed_node import EXIT_CONFIGURATION_ERROR, LATCHED_QOS, trajectory_msg
 from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.topics import (
+    COMMANDED_JOINT_STATES,
+    DIAGNOSTICS,
+    HEAD_OFFSET,
+    HEAD_TARGET,
+    JOINT_STATES,
+    RAW_TRAJECTORY,
+    STOP,
+    absolute,
+)
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 PERIOD = 0.01
@@ -33,15 +43,15 @@ PERIOD = 0.01
 class Driver(Node):
     def __init__(self) -> None:
         super().__init__("filter_test_driver")
-        self.raw = self.create_publisher(JointTrajectory, "/raw_trajectory", 100)
-        self.stop = self.create_publisher(Bool, "/stop", LATCHED_QOS)
-        self.head = self.create_publisher(JointState, "/head_target", 10)
-        self.offset = self.create_publisher(JointState, "/head_offset", 10)
-        self.measured = self.create_publisher(JointState, "/joint_states", 10)
+        self.raw = self.create_publisher(JointTrajectory, absolute(RAW_TRAJECTORY), 100)
+        self.stop = self.create_publisher(Bool, absolute(STOP), LATCHED_QOS)
+        self.head = self.create_publisher(JointState, absolute(HEAD_TARGET), 10)
+        self.offset = self.create_publisher(JointState, absolute(HEAD_OFFSET), 10)
+        self.measured = self.create_publisher(JointState, absolute(JOINT_STATES), 10)
         self.states: list[tuple[float, np.ndarray]] = []
         self.diagnostics: list[dict[str, str]] = []
-        self.create_subscription(JointState, "/commanded_joint_states", self.on_state, 1000)
-        self.create_subscription(DiagnosticArray, "/diagnostics", self.on_diagnostics, 100)
+        self.create_subscription(JointState, absolute(COMMANDED_JOINT_STATES), self.on_state, 1000)
+        self.create_subscription(DiagnosticArray, DIAGNOSTICS, self.on_diagnostics, 100)
         self.set_parameters = self.create_client(
             SetParameters, "/motion_filter_node/set_parameters"
         )
@@ -315,7 +325,9 @@ def test_when_stopped_then_restarted_expect_stop_kept_and_saved_pose_held_until_
     first = filter_node(stop_behaviour="hold")
     driver.wait_for_node()
     driver.spin_for(1.5, every=stream(driver, robot, raised(robot)))  # the arm is up
-    operator = driver.create_publisher(Bool, "/stop", LATCHED_QOS)  # a one-shot `ros2 topic pub`
+    operator = driver.create_publisher(
+        Bool, absolute(STOP), LATCHED_QOS
+    )  # a one-shot `ros2 topic pub`
     operator.publish(Bool(data=True))
     driver.spin_for(0.5)
     driver.destroy_publisher(operator)
@@ -331,7 +343,7 @@ def test_when_stopped_then_restarted_expect_stop_kept_and_saved_pose_held_until_
     assert np.abs(poses - poses[0]).max() < 1e-6  # stopped: nothing moves
     assert driver.diagnostics[-1]["stopped"] == "True"
     assert driver.diagnostics[-1]["started_from"] == "saved pose"
-    release = driver.create_publisher(Bool, "/stop", LATCHED_QOS)
+    release = driver.create_publisher(Bool, absolute(STOP), LATCHED_QOS)
     driver.spin_for(0.5)
     release.publish(Bool(data=False))
     driver.spin_for(2.0, every=stream(driver, robot, robot.neutral_rad))

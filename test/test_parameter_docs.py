@@ -5,11 +5,7 @@ from __future__ import annotations
 import yaml
 
 from audio2pose_ros.resources import share_path
-from audio2pose_ros.ros.parameter_docs import (
-    node_parameters,
-    parameters_markdown,
-    parameters_yaml,
-)
+from audio2pose_ros.ros.parameter_docs import node_parameters, parameters_markdown, parameters_yaml
 
 ROOT = share_path("config", "pepper.yaml").parent.parent
 

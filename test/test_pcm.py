@@ -9,22 +9,10 @@ import wave
 import numpy as np
 import pytest
 
-from audio2pose_ros.audio.pcm import (
-    PcmDecoder,
-    PcmFormat,
-    encode_pcm,
-)
-from audio2pose_ros.audio.resample import (
-    PolyphaseResampler,
-)
-from audio2pose_ros.audio.wav import (
-    read_wav,
-)
-from audio2pose_ros.errors import (
-    InputError,
-    InvalidAudio,
-    UnsupportedAudioFormat,
-)
+from audio2pose_ros.audio.pcm import PcmDecoder, PcmFormat, encode_pcm
+from audio2pose_ros.audio.resample import PolyphaseResampler
+from audio2pose_ros.audio.wav import read_wav
+from audio2pose_ros.errors import InputError, InvalidAudio, UnsupportedAudioFormat
 from audio2pose_ros.resources import bundled_speech_path
 
 
@@ -263,9 +251,7 @@ def test_when_read_wav_at_16k_expect_exact_int16_over_32768():
 
 
 def test_when_format_written_as_audio_info_expect_from_audio_info_gives_it_back():
-    from audio2pose_ros.audio.pcm import (
-        S16LE_MONO_16K,
-    )
+    from audio2pose_ros.audio.pcm import S16LE_MONO_16K
 
     fields = S16LE_MONO_16K.audio_info_fields()
     assert fields["bitrate"] == 256000  # 16 kHz x 16 bit x 1 channel, as audio_capture reports

@@ -4,9 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from audio2pose_ros.models.registry import (
-    build_model,
-)
+from audio2pose_ros.models.registry import build_model
 
 torch.set_num_threads(1)
 

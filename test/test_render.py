@@ -15,19 +15,14 @@ from scipy.io import wavfile
 
 from audio2pose_ros.cli.render_commands import register
 from audio2pose_ros.data.bag import BagWriter, typestore
-from audio2pose_ros.data.dataset import (
-    Clip,
-    ClipInfo,
-    Dataset,
-)
+from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
 from audio2pose_ros.errors import UsageError
 from audio2pose_ros.offline.trajectory import bag_trajectory
 from audio2pose_ros.resources import bundled_speech_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.robot.kinematics import RobotKinematics
-from audio2pose_ros.timebase import (
-    complete_frames,
-)
+from audio2pose_ros.timebase import complete_frames
+from audio2pose_ros.topics import AUDIO, JOINT_STATES, absolute
 from audio2pose_ros.viz.render import BACKGROUND_RGB, TITLE_HEIGHT_PX, RobotCamera
 
 SMALL = ["--view-width", "160", "--view-height", "192", "--curves-height", "120", "--no-progress"]
@@ -118,9 +113,9 @@ def test_when_reading_the_bag_with_the_mcap_library_expect_description_joint_sta
             else:
                 assert "HeadPitch" in message.name
                 assert len(message.name) == len(message.position)
-    assert set(counts) == {"/robot_description", "/joint_states", "/tf"}
+    assert set(counts) == {"/robot_description", absolute(JOINT_STATES), "/tf"}
     assert counts["/robot_description"] == 1
-    assert counts["/joint_states"] == counts["/tf"] > 200  # 100 Hz synthesis of 2.5 s
+    assert counts[absolute(JOINT_STATES)] == counts["/tf"] > 200  # 100 Hz synthesis of 2.5 s
     assert {("base_link", "torso"), ("Neck", "Head"), ("LForeArm", "l_wrist")} <= frames
     qos = yaml.safe_load(channels["/robot_description"].metadata["offered_qos_profiles"])
     assert qos[0]["durability"] == 1  # transient local, as robot_state_publisher offers it
@@ -159,7 +154,7 @@ def test_when_reading_a_recorded_bag_expect_times_from_the_audio_and_angles_by_n
     with BagWriter(tmp_path / "rec") as bag:
         audio = msgs["audio_common_msgs/msg/AudioData"](data=np.zeros(320, dtype=np.uint8))
         bag.write(
-            "/audio/audio",
+            absolute(AUDIO),
             "audio_common_msgs/msg/AudioData",
             start_ns,
             store.serialize_cdr(audio, "audio_common_msgs/msg/AudioData"),
@@ -176,7 +171,7 @@ def test_when_reading_a_recorded_bag_expect_times_from_the_audio_and_angles_by_n
                 effort=np.zeros(0),
             )
             bag.write(
-                "/joint_states",
+                absolute(JOINT_STATES),
                 "sensor_msgs/msg/JointState",
                 start_ns + (i + 1) * 10_000_000,
                 store.serialize_cdr(state, "sensor_msgs/msg/JointState"),

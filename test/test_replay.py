@@ -20,6 +20,7 @@ from audio2pose_ros.checkpoints.torch_io import load_checkpoint
 from audio2pose_ros.data.bag import read_bag_audio, write_audio_bag
 from audio2pose_ros.offline.synthesis import predict_normalized
 from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.topics import RAW_TRAJECTORY, absolute
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 TOLERANCE_RAD = 1e-4  # float32 features over DDS against float64 offline
@@ -29,7 +30,7 @@ def recorded_raw_poses(bag: Path, names: tuple[str, ...]) -> np.ndarray:
     rows = []
     with next(bag.glob("*.mcap")).open("rb") as stream:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
-        for _, _, _, msg in reader.iter_decoded_messages(topics=["/raw_trajectory"]):
+        for _, _, _, msg in reader.iter_decoded_messages(topics=[absolute(RAW_TRAJECTORY)]):
             assert tuple(msg.joint_names) == names
             rows += [point.positions for point in msg.points]
     return np.array(rows)
@@ -38,9 +39,7 @@ def recorded_raw_poses(bag: Path, names: tuple[str, ...]) -> np.ndarray:
 def test_when_speech_bag_replayed_through_graph_expect_offline_trajectory(
     tmp_path: Path, robot, speech_files
 ):
-    from audio2pose_ros.audio.wav import (
-        read_wav,
-    )
+    from audio2pose_ros.audio.wav import read_wav
 
     speech = read_wav(speech_files[3])[0]
     model = stateless_checkpoint(tmp_path / "mlp.safetensors", robot, speech)

@@ -19,13 +19,8 @@ import pytest
 import torch
 from safetensors.numpy import load_file, save_file
 
-from audio2pose_ros.audio.features import (
-    FeatureSpec,
-    extract_features,
-)
-from audio2pose_ros.audio.normalize import (
-    FeatureNormalizer,
-)
+from audio2pose_ros.audio.features import FeatureSpec, extract_features
+from audio2pose_ros.audio.normalize import FeatureNormalizer
 from audio2pose_ros.checkpoints.format import (
     DIGEST_KEY,
     HEADER_KEY,
@@ -35,12 +30,8 @@ from audio2pose_ros.checkpoints.format import (
 )
 from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 from audio2pose_ros.checkpoints.torch_io import Checkpoint, load_checkpoint, save_checkpoint
-from audio2pose_ros.models.base import (
-    OfflineOnlyModelError,
-)
-from audio2pose_ros.models.registry import (
-    build_model,
-)
+from audio2pose_ros.models.base import OfflineOnlyModelError
+from audio2pose_ros.models.registry import build_model
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot.description import RobotDescription
 

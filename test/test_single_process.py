@@ -23,6 +23,7 @@ from trajectory_msgs.msg import JointTrajectory
 from audio2pose_ros.data.bag import Chunking, audio_messages, read_messages
 from audio2pose_ros.robot.description import RobotDescription, load_robot
 from audio2pose_ros.ros.graph import SINGLE_PROCESS, node_graph, play_and_record
+from audio2pose_ros.topics import JOINT_ANGLES, RAW_TRAJECTORY, absolute
 
 SPEECH_S = 3.0
 
@@ -48,12 +49,12 @@ def _run(
         play_and_record(messages, bag, tail_s=0.5)
     raw = [
         np.asarray(p.positions)
-        for m in read_messages(bag, ["/raw_trajectory"])
+        for m in read_messages(bag, [absolute(RAW_TRAJECTORY)])
         for p in deserialize_message(m.data, JointTrajectory).points
     ]
     commands = [
         (m.timestamp_ns, np.asarray(deserialize_message(m.data, JointAnglesWithSpeed).joint_angles))
-        for m in read_messages(bag, ["/joint_angles"])
+        for m in read_messages(bag, [absolute(JOINT_ANGLES)])
     ]
     return {"processes": list(processes), "raw": raw, "commands": commands}
 

@@ -8,22 +8,13 @@ import pytest
 import torch
 from safetensors import safe_open
 
-from audio2pose_ros.audio.features import (
-    FeatureSpec,
-)
+from audio2pose_ros.audio.features import FeatureSpec
 from audio2pose_ros.data.dataset import Dataset
 from audio2pose_ros.learning import training
-from audio2pose_ros.learning.training import (
-    TrainingError,
-    TrainSettings,
-    prepare_training_data,
-    state_path_for,
-    train_from_dataset,
-    train_model,
-)
-from audio2pose_ros.models.registry import (
-    build_model,
-)
+from audio2pose_ros.learning.batches import TrainingError, prepare_training_data
+from audio2pose_ros.learning.train_state import state_path_for
+from audio2pose_ros.learning.training import TrainSettings, train_from_dataset, train_model
+from audio2pose_ros.models.registry import build_model
 
 sys.path.insert(0, str(Path(__file__).parent))
 from synthetic_motion import synthetic_utterances, write_dataset
@@ -61,7 +52,7 @@ def test_when_run_interrupted_and_resumed_expect_same_result_as_uninterrupted(
 
     straight, straight_report = run(None, False)
     state = tmp_path / "m.train-state.safetensors"
-    original_save = training._save_state
+    original_save = training.save_state
     saves = []
 
     def save_then_crash(*args):
@@ -70,10 +61,10 @@ def test_when_run_interrupted_and_resumed_expect_same_result_as_uninterrupted(
         if len(saves) == 2:  # killed after the second epoch
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(training, "_save_state", save_then_crash)
+    monkeypatch.setattr(training, "save_state", save_then_crash)
     with pytest.raises(KeyboardInterrupt):
         run(state, False)
-    monkeypatch.setattr(training, "_save_state", original_save)
+    monkeypatch.setattr(training, "save_state", original_save)
     resumed, resumed_report = run(state, True)
     assert resumed_report.val_loss == pytest.approx(straight_report.val_loss, rel=1e-6)
     for key, value in straight.state_dict().items():

@@ -7,9 +7,7 @@ import math
 
 import numpy as np
 
-from audio2pose_ros.errors import (
-    UnsupportedAudioFormat,
-)
+from audio2pose_ros.errors import UnsupportedAudioFormat
 
 MAX_FILTER_TAPS = 1 << 19  # resampling filter coefficients (float64: 4 MiB)
 

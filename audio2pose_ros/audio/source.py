@@ -35,12 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from audio2pose_ros.audio.pcm import (
-    MAX_CHANNELS,
-    PcmDecoder,
-    PcmFormat,
-    short_repr,
-)
+from audio2pose_ros.audio.pcm import MAX_CHANNELS, PcmDecoder, PcmFormat, short_repr
 from audio2pose_ros.errors import (
     ConfigurationError,
     InputError,
@@ -48,9 +43,7 @@ from audio2pose_ros.errors import (
     UnsupportedAudioFormat,
 )
 from audio2pose_ros.parameters import param, validate_settings
-from audio2pose_ros.timebase import (
-    SAMPLE_RATE_HZ,
-)
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 __all__ = [
     "INPUT_TYPES",

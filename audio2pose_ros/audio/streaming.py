@@ -9,10 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from audio2pose_ros.audio.dsp import delta_rows
-from audio2pose_ros.audio.features import (
-    FeatureSpec,
-    FrameKernel,
-)
+from audio2pose_ros.audio.features import FeatureSpec, FrameKernel
 
 
 class StreamingFeatureExtractor:

@@ -9,15 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from audio2pose_ros.audio.pcm import (
-    PcmDecoder,
-    PcmFormat,
-)
-from audio2pose_ros.errors import (
-    InputError,
-    InvalidAudio,
-    UnsupportedAudioFormat,
-)
+from audio2pose_ros.audio.pcm import PcmDecoder, PcmFormat
+from audio2pose_ros.errors import InputError, InvalidAudio, UnsupportedAudioFormat
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 WAV_BLOCK_FRAMES = 1 << 16  # frames decoded per step by read_wav (bounds its temporaries)

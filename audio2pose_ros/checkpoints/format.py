@@ -36,12 +36,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from audio2pose_ros.audio.features import (
-    FeatureSpec,
-)
-from audio2pose_ros.audio.normalize import (
-    FeatureNormalizer,
-)
+from audio2pose_ros.audio.features import FeatureSpec
+from audio2pose_ros.audio.normalize import FeatureNormalizer
 from audio2pose_ros.errors import Audio2PoseError, ConfigurationError
 from audio2pose_ros.robot.description import RobotDescription
 

@@ -40,12 +40,8 @@ import numpy as np
 from safetensors import SafetensorError
 from safetensors.numpy import load_file
 
-from audio2pose_ros.audio.features import (
-    FeatureSpec,
-)
-from audio2pose_ros.audio.normalize import (
-    FeatureNormalizer,
-)
+from audio2pose_ros.audio.features import FeatureSpec
+from audio2pose_ros.audio.normalize import FeatureNormalizer
 from audio2pose_ros.checkpoints.format import (
     CheckpointError,
     CheckpointFile,
@@ -559,9 +555,7 @@ def _torch_model(
 ) -> StreamingModel:
     """Load with torch (a model without a numpy kernel here): the full torch-side checks."""
     from audio2pose_ros.checkpoints.torch_io import load_checkpoint
-    from audio2pose_ros.models.base import (
-        require_streaming,
-    )
+    from audio2pose_ros.models.base import require_streaming
 
     checkpoint = load_checkpoint(path, robot=robot, features=features)
     require_streaming(checkpoint.model, str(path))

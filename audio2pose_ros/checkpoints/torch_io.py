@@ -28,12 +28,8 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from audio2pose_ros.audio.features import (
-    FeatureSpec,
-)
-from audio2pose_ros.audio.normalize import (
-    FeatureNormalizer,
-)
+from audio2pose_ros.audio.features import FeatureSpec
+from audio2pose_ros.audio.normalize import FeatureNormalizer
 from audio2pose_ros.checkpoints.format import (
     DIGEST_KEY,
     FORMAT_VERSION,
@@ -47,12 +43,8 @@ from audio2pose_ros.checkpoints.format import (
     read_checkpoint_file,
     verify_digest,
 )
-from audio2pose_ros.models.base import (
-    PoseModel,
-)
-from audio2pose_ros.models.registry import (
-    build_model,
-)
+from audio2pose_ros.models.base import PoseModel
+from audio2pose_ros.models.registry import build_model
 from audio2pose_ros.robot.description import RobotDescription
 
 __all__ = ["Checkpoint", "CheckpointError", "load_checkpoint", "save_checkpoint"]

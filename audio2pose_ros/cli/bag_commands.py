@@ -36,9 +36,7 @@ MAX_REPLAY_S = 24 * 3600.0  # a bag whose timestamps span more than a day is ref
 
 def command_from_wav(args: argparse.Namespace) -> int:
     """Write a WAV's audio as AudioData + AudioInfo chunks, as a live capture delivers them."""
-    from audio2pose_ros.audio.wav import (
-        read_wav,
-    )
+    from audio2pose_ros.audio.wav import read_wav
 
     if args.min_bytes > args.max_bytes:
         raise UsageError(

@@ -180,14 +180,9 @@ def command_import_bvh(args: argparse.Namespace) -> int:
 
 def command_info(args: argparse.Namespace) -> int:
     """Print a data set's clips, speakers, splits, durations and observed joint groups."""
-    from audio2pose_ros.data.dataset import (
-        SPLITS,
-        Dataset,
-    )
+    from audio2pose_ros.data.dataset import SPLITS, Dataset
     from audio2pose_ros.robot.description import JOINT_GROUPS, load_robot
-    from audio2pose_ros.timebase import (
-        SAMPLE_RATE_HZ,
-    )
+    from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
     robot = load_robot()
     dataset = Dataset.open(input_dir(args.data, "data set folder"), robot)

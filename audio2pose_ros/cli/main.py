@@ -122,9 +122,7 @@ def _speech_input(name: str) -> Path:
 
 def _read_speech(path: Path):  # noqa: ANN202 - numpy imported lazily
     """16 kHz mono samples of a WAV file, or of a bag's audio topics."""
-    from audio2pose_ros.audio.wav import (
-        read_wav,
-    )
+    from audio2pose_ros.audio.wav import read_wav
     from audio2pose_ros.data.bag import read_bag_audio
 
     path = _speech_input(path)
@@ -163,9 +161,7 @@ def command_bench(args: argparse.Namespace) -> int:
 
     import torch
 
-    from audio2pose_ros.audio.wav import (
-        read_wav,
-    )
+    from audio2pose_ros.audio.wav import read_wav
     from audio2pose_ros.checkpoints.torch_io import load_checkpoint
     from audio2pose_ros.motion.filter import MotionFilter
     from audio2pose_ros.offline.benchmark import (
@@ -337,9 +333,7 @@ def _filter_from_params(params_file: Path | None):  # noqa: ANN202 - heavy types
 
 def command_plot_filter(args: argparse.Namespace) -> int:
     """Draw raw model output against the online motion filter for a speech file."""
-    from audio2pose_ros.audio.wav import (
-        read_wav,
-    )
+    from audio2pose_ros.audio.wav import read_wav
     from audio2pose_ros.checkpoints.torch_io import load_checkpoint
     from audio2pose_ros.resources import default_checkpoint_path
     from audio2pose_ros.viz.filter_plot import plot_raw_vs_filtered
@@ -365,8 +359,7 @@ def command_plot_filter(args: argparse.Namespace) -> int:
 
 def command_distill_prosody(args: argparse.Namespace) -> int:
     """Rebuild the default model: an MLP trained to imitate the prosody rule on the given WAVs."""
-    from audio2pose_ros.cli.model_card import write_prosody_model_card
-    from audio2pose_ros.learning.distillation import distill_prosody
+    from audio2pose_ros.learning.distillation import distill_prosody, write_prosody_model_card
     from audio2pose_ros.learning.training import TrainSettings
     from audio2pose_ros.robot.description import load_robot
 

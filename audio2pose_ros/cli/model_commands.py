@@ -4,16 +4,71 @@
 ``command_<verb>(args) -> int``; the library raises typed errors
 (:class:`~audio2pose_ros.errors.Audio2PoseError`), which the main entry point reports as one
 line.
+
+Registering the verbs imports no torch (issue 15): the model families and hold-out kinds the
+options accept live in torch modules, so they are :class:`LazyChoices`, read the first time an
+option's value is checked or its help is shown. ``audio2pose run`` and every other verb that
+builds the same parser stay free of torch.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from functools import cached_property
 from pathlib import Path
 
 from audio2pose_ros.cli.options import MAX_SEED, bounded_int, input_dir, input_file, output_file
 from audio2pose_ros.errors import UsageError
+
+
+class LazyChoices(Sequence[str]):
+    """The ``choices`` of an argparse option, computed only when argparse first looks at them.
+
+    argparse reads ``choices`` to check a value (``in``), to word an error and to expand
+    ``%(choices)s`` in help; an option with ``metavar`` set never reads them while the parser is
+    built. So the torch modules that define the names are imported only by a command that uses
+    the option.
+    """
+
+    def __init__(self, load: Callable[[], Iterable[str]]) -> None:
+        """``load()`` returns the accepted names, in the order help should show them."""
+        self._load = load
+
+    @cached_property
+    def names(self) -> tuple[str, ...]:
+        """The accepted names (loaded on first use)."""
+        return tuple(self._load())
+
+    def __getitem__(self, index: int) -> str:  # type: ignore[override]
+        """The ``index``-th name."""
+        return self.names[index]
+
+    def __len__(self) -> int:
+        """How many names there are."""
+        return len(self.names)
+
+    def __iter__(self) -> Iterator[str]:
+        """The names in order."""
+        return iter(self.names)
+
+    def __contains__(self, value: object) -> bool:
+        """Whether ``value`` is one of the names."""
+        return value in self.names
+
+
+def _model_names() -> list[str]:
+    return sorted(importlib.import_module("audio2pose_ros.models.registry").MODEL_REGISTRY)
+
+
+def _holdout_kinds() -> tuple[str, ...]:
+    return importlib.import_module("audio2pose_ros.learning.batches").HOLDOUTS
+
+
+MODEL_NAMES = LazyChoices(_model_names)  # the registered model families (torch)
+HOLDOUT_KINDS = LazyChoices(_holdout_kinds)  # what training may hold out (torch)
 
 
 def command_train(args: argparse.Namespace) -> int:
@@ -125,14 +180,11 @@ def command_evaluate(args: argparse.Namespace) -> int:
 
 
 def register(verbs: argparse._SubParsersAction) -> None:
-    """Add the ``train`` and ``evaluate`` sub-commands to the ``audio2pose`` parser."""
-    from audio2pose_ros.learning.training import HOLDOUTS
-    from audio2pose_ros.models.registry import (
-        MODEL_REGISTRY,
-    )
-
+    """Add the ``train`` and ``evaluate`` sub-commands to the ``audio2pose`` parser (no torch)."""
     train = verbs.add_parser("train", help="train a pose model on a data set folder")
-    train.add_argument("--model", choices=sorted(MODEL_REGISTRY), help="model family")
+    train.add_argument(
+        "--model", choices=MODEL_NAMES, metavar="MODEL", help="model family: %(choices)s"
+    )
     train.add_argument("--data", required=True, metavar="DIR", help="data set folder")
     train.add_argument("-o", "--output", required=True, metavar="CKPT.safetensors")
     train.add_argument("--speaker", help="train on this speaker only (subject-dependent)")
@@ -149,9 +201,10 @@ def register(verbs: argparse._SubParsersAction) -> None:
     )
     train.add_argument(
         "--holdout",
-        choices=HOLDOUTS,
+        choices=HOLDOUT_KINDS,
         default="clip",
-        help="without a validation split, hold out clips or whole speakers (default: clip)",
+        metavar="HOLDOUT",
+        help="without a validation split, hold out %(choices)s (default: clip)",
     )
     train.set_defaults(func=command_train)
 
@@ -167,7 +220,7 @@ def register(verbs: argparse._SubParsersAction) -> None:
     evaluate.add_argument(
         "--loso",
         nargs="+",
-        choices=sorted(MODEL_REGISTRY),
+        choices=MODEL_NAMES,
         metavar="MODEL",
         help="train these families leave-one-speaker-out and measure them on held-out speakers",
     )

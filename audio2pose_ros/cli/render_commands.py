@@ -32,9 +32,7 @@ def _bag_path(args: argparse.Namespace) -> Path:
 
 def command_render(args: argparse.Namespace) -> int:
     """Render the requested trajectories to an MP4 with audio; write the first one as MCAP."""
-    from audio2pose_ros.audio.wav import (
-        read_wav,
-    )
+    from audio2pose_ros.audio.wav import read_wav
     from audio2pose_ros.offline.trajectory import (
         bag_trajectory,
         clip_trajectory,

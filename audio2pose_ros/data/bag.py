@@ -30,16 +30,11 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from audio2pose_ros.audio.pcm import (
-    S16LE_MONO_16K,
-    PcmDecoder,
-    PcmFormat,
-    encode_pcm,
-)
+from audio2pose_ros import topics
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmDecoder, PcmFormat, encode_pcm
 from audio2pose_ros.errors import Audio2PoseError, ConfigurationError, InputError
-from audio2pose_ros.timebase import (
-    SAMPLE_RATE_HZ,
-)
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
+from audio2pose_ros.topics import absolute
 
 EXTRA_MESSAGE_DEFINITIONS = {
     "audio_common_msgs/msg/AudioData": "uint8[] data\n",
@@ -155,8 +150,8 @@ class BagWriter:
         self.counts[topic] += 1
 
 
-AUDIO_TOPIC = "/audio/audio"
-AUDIO_INFO_TOPIC = "/audio/audio_info"
+AUDIO_TOPIC = absolute(topics.AUDIO)  # where bags keep the audio: the root namespace
+AUDIO_INFO_TOPIC = absolute(topics.AUDIO_INFO)
 AUDIO_DATA_TYPE = "audio_common_msgs/msg/AudioData"
 AUDIO_INFO_TYPE = "audio_common_msgs/msg/AudioInfo"
 AUDIO_INFO_PERIOD_S = 5.0  # audio_capture republishes its latched AudioInfo every 5 s

@@ -36,10 +36,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from audio2pose_ros.audio.features import (
-    FeatureSpec,
-    extract_features,
-)
+from audio2pose_ros.audio.features import FeatureSpec, extract_features
 from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
 from audio2pose_ros.data.importers.extras import save_extras
 from audio2pose_ros.data.importers.video import VideoImportSettings, import_video
@@ -173,7 +170,8 @@ def build_default_model(
     from audio2pose_ros.checkpoints.torch_io import save_checkpoint
     from audio2pose_ros.learning.evaluation import evaluate
     from audio2pose_ros.learning.model_card import write_default_model_card
-    from audio2pose_ros.learning.training import TrainSettings, state_path_for, train_from_dataset
+    from audio2pose_ros.learning.train_state import state_path_for
+    from audio2pose_ros.learning.training import TrainSettings, train_from_dataset
 
     shutil.rmtree(work_dir, ignore_errors=True)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -21,24 +21,15 @@ from pathlib import Path
 
 import numpy as np
 
-from audio2pose_ros.audio.features import (
-    FeatureSpec,
-    extract_features,
-)
+from audio2pose_ros.audio.features import FeatureSpec, extract_features
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
-from audio2pose_ros.data.dataset import (
-    Clip,
-    Dataset,
-)
+from audio2pose_ros.data.dataset import Clip, Dataset
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.learning import metrics
 from audio2pose_ros.learning.training import TrainSettings
 from audio2pose_ros.offline.synthesis import synthesize
 from audio2pose_ros.robot.description import RobotDescription
-from audio2pose_ros.timebase import (
-    FRAME_RATE_HZ,
-    SAMPLE_RATE_HZ,
-)
+from audio2pose_ros.timebase import FRAME_RATE_HZ, SAMPLE_RATE_HZ
 
 NEUTRAL = "neutral pose"
 MEAN_MOTION = "mean training motion"

@@ -7,9 +7,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
-from audio2pose_ros.data.dataset import (
-    Dataset,
-)
+from audio2pose_ros.data.dataset import Dataset
 from audio2pose_ros.learning.evaluation import Evaluation, GroupRow, QualityEvaluation
 from audio2pose_ros.learning.sampler_selection import (
     INNER_FOLDS,
@@ -19,10 +17,8 @@ from audio2pose_ros.learning.sampler_selection import (
     TEMPERATURES,
     SamplingChoice,
 )
-from audio2pose_ros.learning.training import TrainReport
-from audio2pose_ros.timebase import (
-    SAMPLE_RATE_HZ,
-)
+from audio2pose_ros.learning.train_state import TrainReport
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 _ARMS_TEXT = {
     "prosody": (

@@ -464,11 +464,17 @@ class MotionFilter:
         return len(admitted)
 
     def set_voice_active(self, active: bool, now_s: float) -> None:
-        """Report voice activity; without any report the voice counts as active."""
+        """Report voice activity; without any report the voice counts as active.
+
+        A report holds until the next one, so a sender may report changes only
+        (``audio_features_node`` does, with a refresh every 0.5 s): a report of silence after
+        one of voice means the voice was active until now, and ``silence_timeout_s`` counts
+        from here.
+        """
+        if active or (self._voice_reported and self.status.voice_active):
+            self._last_voice_s = now_s
         self._voice_reported = True
         self.status.voice_active = active
-        if active:
-            self._last_voice_s = now_s
 
     def set_enabled(self, enabled: bool) -> None:
         """Disable (glide to neutral, ignore generated motion) or re-enable the filter."""

@@ -27,22 +27,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from audio2pose_ros.audio.features import (
-    FeatureSpec,
-    extract_features,
-)
-from audio2pose_ros.audio.normalize import (
-    FeatureNormalizer,
-)
-from audio2pose_ros.audio.streaming import (
-    StreamingFeatureExtractor,
-)
+from audio2pose_ros.audio.features import FeatureSpec, extract_features
+from audio2pose_ros.audio.normalize import FeatureNormalizer
+from audio2pose_ros.audio.streaming import StreamingFeatureExtractor
 from audio2pose_ros.checkpoints.numpy_runtime import numpy_kernel_for
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
-from audio2pose_ros.models.registry import (
-    MODEL_REGISTRY,
-    build_model,
-)
+from audio2pose_ros.models.registry import MODEL_REGISTRY, build_model
 from audio2pose_ros.motion.filter import MotionFilter
 from audio2pose_ros.offline.synthesis import synthesize
 from audio2pose_ros.robot.description import RobotDescription

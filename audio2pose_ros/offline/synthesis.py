@@ -15,9 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from audio2pose_ros.audio.features import (
-    extract_features,
-)
+from audio2pose_ros.audio.features import extract_features
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
 

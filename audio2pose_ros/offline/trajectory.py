@@ -13,16 +13,19 @@ import numpy as np
 
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.robot.description import RobotDescription
+from audio2pose_ros.topics import (
+    AUDIO,
+    COMMANDED_JOINT_STATES,
+    JOINT_ANGLES,
+    JOINT_STATES,
+    absolute,
+)
 
-COMMANDED_JOINT_STATES_TOPIC = "/commanded_joint_states"
-JOINT_STATES_TOPIC = "/joint_states"
-JOINT_ANGLES_TOPIC = "/joint_angles"
-AUDIO_TOPIC = "/audio/audio"
 # Topics bag_trajectory reads the commanded pose from, in order of preference, with their type.
 POSE_TOPICS = {
-    COMMANDED_JOINT_STATES_TOPIC: "sensor_msgs/msg/JointState",
-    JOINT_STATES_TOPIC: "sensor_msgs/msg/JointState",
-    JOINT_ANGLES_TOPIC: "naoqi_bridge_msgs/msg/JointAnglesWithSpeed",
+    absolute(COMMANDED_JOINT_STATES): "sensor_msgs/msg/JointState",
+    absolute(JOINT_STATES): "sensor_msgs/msg/JointState",
+    absolute(JOINT_ANGLES): "naoqi_bridge_msgs/msg/JointAnglesWithSpeed",
 }
 
 
@@ -83,12 +86,8 @@ def clip_trajectory(
     dataset_dir: str | Path, clip_id: str, robot: RobotDescription
 ) -> tuple[Trajectory, np.ndarray]:
     """A data set clip's recorded motion (unobserved angles at neutral) and its 16 kHz audio."""
-    from audio2pose_ros.data.dataset import (
-        Dataset,
-    )
-    from audio2pose_ros.timebase import (
-        FRAME_RATE_HZ,
-    )
+    from audio2pose_ros.data.dataset import Dataset
+    from audio2pose_ros.timebase import FRAME_RATE_HZ
 
     clip = Dataset.open(dataset_dir, robot).load(clip_id)
     angles_rad = np.where(clip.mask, clip.angles_rad, robot.neutral_rad)
@@ -119,7 +118,7 @@ def bag_trajectory(bag_path: str | Path, robot: RobotDescription) -> Trajectory:
         raise TrajectoryError(
             f"{bag_path}: none of {sorted(POSE_TOPICS)} with its type (topics: {sorted(present)})"
         )
-    start_ns = next((m.timestamp_ns for m in read_messages(bag_path, [AUDIO_TOPIC])), None)
+    start_ns = next((m.timestamp_ns for m in read_messages(bag_path, [absolute(AUDIO)])), None)
     store = typestore()
     index = {name: i for i, name in enumerate(robot.names)}
     current = robot.neutral_rad.copy()
@@ -128,7 +127,7 @@ def bag_trajectory(bag_path: str | Path, robot: RobotDescription) -> Trajectory:
         msg = deserialize(store, message, bag_path)
         names, values = (
             (msg.joint_names, msg.joint_angles)
-            if topic == JOINT_ANGLES_TOPIC
+            if topic == absolute(JOINT_ANGLES)
             else (msg.name, msg.position)
         )
         for name, value in zip(names, values, strict=False):

@@ -20,17 +20,13 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
-from rclpy.qos import (
-    DurabilityPolicy,
-    HistoryPolicy,
-    QoSProfile,
-    ReliabilityPolicy,
-)
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rclpy.subscription import Subscription
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from audio2pose_ros import topics
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, ConfigurationError, InputError
 
 # Audio: best effort matches both reliable and best-effort publishers (audio_capture is reliable);
@@ -198,7 +194,7 @@ class DiagnosedNode(Node):
         self._problems: dict[str, _Problem] = {}
         self.callback_errors = 0
         self.oversized_messages = 0
-        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_timer(HEARTBEAT_PERIOD_S, self.guarded(self.publish_diagnostics))
 
     # --- problems -----------------------------------------------------------------------------
@@ -363,12 +359,16 @@ def run_node(factory: Callable[[], Node], node_name: str, args: list[str] | None
 
 
 def run_nodes(
-    factories: Sequence[Callable[[], Node]], process_name: str, args: list[str] | None = None
+    factories: Sequence[Callable[[], Node]],
+    process_name: str,
+    args: list[str] | None = None,
+    connect: Callable[[list[Node]], None] | None = None,
 ) -> None:
     """Init, build the nodes, spin them in one executor until Ctrl-C / SIGTERM, clean up.
 
     One factory is the usual one node per process; several put nodes in one process and one
-    executor (``audio2pose run --single-process``). A
+    executor (``audio2pose run --single-process``), where ``connect`` (called with the built
+    nodes, in order, before spinning) wires them to each other. A
     :class:`~audio2pose_ros.errors.ConfigurationError` while a node is built (a refused
     parameter, a bad model or robot file), or arguments rcl cannot parse (a parameters file with
     a YAML syntax error, a missing file), end the process with one line on stderr and exit status
@@ -378,8 +378,11 @@ def run_nodes(
         rclpy.init(args=args)  # not `with rclpy.init()`: Humble's init is no context manager
         try:
             executor = create_executor()
-            for factory in factories:
-                executor.add_node(factory())
+            nodes = [factory() for factory in factories]
+            if connect is not None:
+                connect(nodes)
+            for node in nodes:
+                executor.add_node(node)
             spin_executor(executor)
         finally:
             rclpy.try_shutdown()

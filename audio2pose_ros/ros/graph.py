@@ -3,9 +3,10 @@
 This is what ``ros2 launch audio2pose_ros pepper.launch.py`` does, for machines without a ROS
 distro: the same three executables, each its own process, with the same parameter file; or,
 with ``single_process``, the same three nodes in one process and one executor
-(:mod:`audio2pose_ros.ros.nodes.single_process`). The
-player publishes audio_common_msgs AudioInfo (latched) and AudioData chunks in real time; the
-recorder writes every command the robot would receive to a rosbag2 (MCAP).
+(:mod:`audio2pose_ros.ros.nodes.single_process`). The player
+(:mod:`audio2pose_ros.ros.player`) publishes audio_common_msgs AudioInfo (latched) and AudioData
+chunks in real time; the recorder writes every command the robot would receive to a rosbag2
+(MCAP).
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ from pathlib import Path
 
 import rclpy
 import yaml
-from audio_common_msgs.msg import AudioData, AudioInfo
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.context import Context
@@ -34,11 +34,12 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.audio.wav import (
-    read_wav,
-)
+from audio2pose_ros import topics
+from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.data.bag import (
+    AUDIO_DATA_TYPE,
     AUDIO_INFO_TOPIC,
+    AUDIO_INFO_TYPE,
     AUDIO_TOPIC,
     BagError,
     BagMessage,
@@ -47,28 +48,31 @@ from audio2pose_ros.data.bag import (
     audio_messages,
     read_checked_messages,
 )
-from audio2pose_ros.errors import Audio2PoseError, UsageError
+from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, Audio2PoseError, UsageError
 from audio2pose_ros.resources import share_path
-from audio2pose_ros.ros.diagnosed_node import EXIT_CONFIGURATION_ERROR, LATCHED_QOS, STALE_AFTER_S
+from audio2pose_ros.ros.diagnosed_node import STALE_AFTER_S
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
+from audio2pose_ros.ros.player import MessagePlayer, spin_until, warm_up
 
 NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
 SINGLE_PROCESS = "audio2pose_nodes"  # the process that runs all three nodes (single-process mode)
 # As the launch file does: trajectories go to Pepper's ros2_control controller.
-TRAJECTORY_OUTPUT = "joint_trajectory_controller/joint_trajectory"  # the node's relative name
-NODE_REMAPS = {"motion_filter_node": ("-r", f"{TRAJECTORY_OUTPUT}:={CONTROLLER_TOPIC}")}
+NODE_REMAPS = {"motion_filter_node": ("-r", f"{topics.JOINT_TRAJECTORY}:={CONTROLLER_TOPIC}")}
 STATUS_PREFIX = "audio2pose_ros"  # diagnostic status names: "audio2pose_ros: <node name>"
 STARTUP_GRACE_S = 30.0  # a node may take this long to publish its first heartbeat (imports)
 MAX_BACKOFF_S = 16.0  # longest wait before a restart
 WATCH_PERIOD_S = 0.1
 RECORDED_TOPICS = {
-    "/joint_angles": (JointAnglesWithSpeed, "naoqi_bridge_msgs/msg/JointAnglesWithSpeed"),
-    CONTROLLER_TOPIC: (
+    topics.absolute(topics.JOINT_ANGLES): (
+        JointAnglesWithSpeed,
+        "naoqi_bridge_msgs/msg/JointAnglesWithSpeed",
+    ),
+    CONTROLLER_TOPIC: (JointTrajectory, "trajectory_msgs/msg/JointTrajectory"),
+    topics.absolute(topics.COMMANDED_JOINT_STATES): (JointState, "sensor_msgs/msg/JointState"),
+    topics.absolute(topics.RAW_TRAJECTORY): (
         JointTrajectory,
         "trajectory_msgs/msg/JointTrajectory",
     ),
-    "/commanded_joint_states": (JointState, "sensor_msgs/msg/JointState"),
-    "/raw_trajectory": (JointTrajectory, "trajectory_msgs/msg/JointTrajectory"),
 }
 
 
@@ -125,7 +129,7 @@ class NodeSupervisor:
         self.max_restarts = max_restarts
         self.restart_window_s = restart_window_s
         self.startup_grace_s = startup_grace_s
-        self.processes: dict[str, subprocess.Popen] = {}
+        self.processes: dict[str, subprocess.Popen[bytes]] = {}
         self.restarts: dict[str, list[float]] = {name: [] for name in commands}
         self.given_up: set[str] = set()
         self.silences = dict.fromkeys(commands, 0)
@@ -166,7 +170,9 @@ class NodeSupervisor:
         process and delivered after its restart) is ignored, as is an unknown node.
         """
         name = self.members.get(node)
-        process = self.processes.get(name) if name is not None else None
+        if name is None:
+            return
+        process = self.processes.get(name)
         if process is None or process.pid != pid:
             return
         with self._lock:
@@ -193,7 +199,7 @@ class NodeSupervisor:
         self._due_s[name] = now + delay
         self._say(f"{name} {why}; restarting it in {delay:.1f} s")
 
-    def _check(self, name: str, process: subprocess.Popen, now: float) -> None:
+    def _check(self, name: str, process: subprocess.Popen[bytes], now: float) -> None:
         if name in self.given_up:
             return
         due = self._due_s.get(name)
@@ -266,8 +272,8 @@ class HeartbeatMonitor:
         self.context = Context()
         rclpy.init(context=self.context)
         self.node = Node("audio2pose_supervisor", context=self.context)
-        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 50)
-        self.publisher = self.node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, 50)
+        self.publisher = self.node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.node.create_timer(WATCH_PERIOD_S * 2, self._report_silent)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -404,9 +410,12 @@ class PlayerRecorder(Node):
         self.counts = dict.fromkeys(RECORDED_TOPICS, 0)
         self.poses_seen = 0
         self.heard: set[str] = set()  # recorded topics that ever delivered a message
-        self.audio_pub = self.create_publisher(AudioData, AUDIO_TOPIC, 100)
-        self.info_pub = self.create_publisher(AudioInfo, AUDIO_INFO_TOPIC, LATCHED_QOS)
-        self.create_subscription(JointTrajectory, "/raw_trajectory", self._on_pose, 100)
+        self.player = MessagePlayer(
+            self, [(AUDIO_TOPIC, AUDIO_DATA_TYPE), (AUDIO_INFO_TOPIC, AUDIO_INFO_TYPE)]
+        )
+        self.create_subscription(
+            JointTrajectory, topics.absolute(topics.RAW_TRAJECTORY), self._on_pose, 100
+        )
         for topic, (msg_type, type_name) in RECORDED_TOPICS.items():
             self.create_subscription(
                 msg_type, topic, self._recorder(topic, type_name), 100, raw=True
@@ -426,42 +435,29 @@ class PlayerRecorder(Node):
 
         return record
 
-    def publish_audio(self, message: BagMessage) -> None:
-        """Publish a serialised AudioData / AudioInfo, and record it while recording."""
-        publisher = self.info_pub if message.topic == AUDIO_INFO_TOPIC else self.audio_pub
-        publisher.publish(message.data)
+    def record_sent(self, message: BagMessage) -> None:
+        """Record a message the player just published, while recording."""
         if self.recording and self.bag is not None:
             self.bag.write(
                 message.topic, message.msgtype, self.get_clock().now().nanoseconds, message.data
             )
 
-    def spin_until(self, deadline_s: float, done: Callable[[], bool] | None = None) -> bool:
-        """Process callbacks until ``deadline_s`` (monotonic) or until ``done()`` is true."""
-        while time.monotonic() < deadline_s:
-            rclpy.spin_once(self, timeout_sec=0.005)
-            if done is not None and done():
-                return True
-        return done is None
-
     def warm_up(self, timeout_s: float) -> None:
         """Send silence until poses and every recorded command come back: each link has matched.
 
-        DDS discovery is asymmetric: a node may see our subscription before its own publisher
-        has matched the next node, and samples sent before that are lost. Chunks of 160
-        samples keep the feature extractor aligned to whole 10 ms frames.
+        Raises:
+            GraphTimeoutError: the graph did not answer within ``timeout_s``.
         """
-        silence = AudioData(data=bytes(2 * 160))
-
-        def poses_arrive() -> bool:
-            self.audio_pub.publish(silence)
-            self.spin_until(time.monotonic() + 0.02)
-            return self.poses_seen > 0 and self.heard >= set(RECORDED_TOPICS)
-
-        if not self.spin_until(time.monotonic() + timeout_s, poses_arrive):
+        if not warm_up(
+            self.player,
+            AUDIO_TOPIC,
+            lambda: self.poses_seen > 0 and self.heard >= set(RECORDED_TOPICS),
+            timeout_s,
+        ):
             raise GraphTimeoutError(
                 f"the node graph did not answer within {timeout_s} s (see the node logs)"
             )
-        self.spin_until(time.monotonic() + 0.3)
+        spin_until(self, time.monotonic() + 0.3)
 
 
 def audio_source(path: Path, chunking: Chunking | None = None) -> list[BagMessage]:
@@ -498,14 +494,11 @@ def play_and_record(
         node = PlayerRecorder(bag)
         stack.callback(node.destroy_node)
         if first_info is not None:
-            node.publish_audio(first_info)
+            node.player.publish(first_info)
         node.warm_up(startup_timeout_s)
         node.recording = True
-        start = time.monotonic()
-        for message in messages:
-            node.spin_until(start + message.timestamp_ns * 1e-9 / rate)
-            node.publish_audio(message)
-        node.spin_until(time.monotonic() + tail_s)
+        start = node.player.play(messages, rate, on_publish=node.record_sent)
+        spin_until(node, time.monotonic() + tail_s)
         return PlaybackResult(
             audio_s=messages[-1].timestamp_ns * 1e-9 if messages else 0.0,
             chunks_sent=sum(m.topic == AUDIO_TOPIC for m in messages),

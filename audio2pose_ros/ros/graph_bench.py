@@ -33,23 +33,24 @@ import yaml
 from audio_common_msgs.msg import AudioData, AudioInfo
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
+from rclpy.serialization import serialize_message
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.audio.pcm import (
-    S16LE_MONO_16K,
-    encode_pcm,
-)
-from audio2pose_ros.audio.wav import (
-    read_wav,
-)
+from audio2pose_ros import topics
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
+from audio2pose_ros.audio.wav import read_wav
+from audio2pose_ros.data.bag import AUDIO_DATA_TYPE, AUDIO_INFO_TYPE, BagMessage
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
-from audio2pose_ros.ros.graph import node_graph
+from audio2pose_ros.ros.graph import GraphTimeoutError, node_graph
+from audio2pose_ros.ros.player import MessagePlayer, silence_message, spin_until, warm_up
+from audio2pose_ros.ros.process_stats import cpu_s, rss_mb
+from audio2pose_ros.timebase import FRAME_PERIOD_S, SAMPLE_RATE_HZ, SAMPLES_PER_FRAME
 
-CHUNK_SAMPLES = 160  # one 10 ms frame step (seed 003 section 4.2.2)
+CHUNK_SAMPLES = SAMPLES_PER_FRAME  # one 10 ms frame step per chunk (seed 003 section 4.2.2)
 MATCH_TOLERANCE_RAD = 1e-5  # float32 /joint_angles against float64 raw poses
 STEADY_SKIP_S = 2.0  # steady-state CPU is read from this long after the stream starts
+ANSWER_TIMEOUT_S = 60.0  # the graph must command and answer audio this soon after the start
 # Issue 15's targets: (figure, three-process target, single-process target, unit); at most.
 TARGETS = (
     ("steady CPU of the node processes per 10 ms frame", 1.0, 0.5, "ms"),
@@ -90,6 +91,7 @@ def _bench_params(directory: Path) -> Path:
         velocity_fraction=1.0,
         silence_timeout_s=1000.0,
         max_buffer_s=1.0,
+        state_file=str(directory / "motion_filter_state.json"),  # not the user's saved pose
     )
     params_file = directory / "params.yaml"
     params_file.write_text(yaml.safe_dump(params), encoding="utf-8")
@@ -97,14 +99,25 @@ def _bench_params(directory: Path) -> Path:
 
 
 class _Player(Node):
+    """Plays audio through the shared player and stamps raw poses and commands on arrival."""
+
     def __init__(self) -> None:
         super().__init__("audio2pose_graph_bench")
-        self.audio = self.create_publisher(AudioData, "/audio/audio", 1000)
-        self.info = self.create_publisher(AudioInfo, "/audio/audio_info", LATCHED_QOS)
+        self.player = MessagePlayer(
+            self,
+            [
+                (topics.absolute(topics.AUDIO), AUDIO_DATA_TYPE),
+                (topics.absolute(topics.AUDIO_INFO), AUDIO_INFO_TYPE),
+            ],
+        )
         self.raw: list[tuple[float, np.ndarray]] = []
         self.commands: list[tuple[float, np.ndarray]] = []
-        self.create_subscription(JointTrajectory, "/raw_trajectory", self._on_raw, 1000)
-        self.create_subscription(JointAnglesWithSpeed, "/joint_angles", self._on_command, 1000)
+        self.create_subscription(
+            JointTrajectory, topics.absolute(topics.RAW_TRAJECTORY), self._on_raw, 1000
+        )
+        self.create_subscription(
+            JointAnglesWithSpeed, topics.absolute(topics.JOINT_ANGLES), self._on_command, 1000
+        )
 
     def _on_raw(self, msg: JointTrajectory) -> None:
         now = time.monotonic()
@@ -113,23 +126,13 @@ class _Player(Node):
     def _on_command(self, msg: JointAnglesWithSpeed) -> None:
         self.commands.append((time.monotonic(), np.asarray(msg.joint_angles, dtype=np.float64)))
 
-    def spin_until(self, deadline: float) -> None:
-        while (wait := deadline - time.monotonic()) > 0:
-            rclpy.spin_once(self, timeout_sec=min(wait, 0.002))
 
-
-def cpu_s(pid: int) -> float:
-    """CPU time (user + system, s) a process has used."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / 100.0  # utime + stime, in clock ticks of 10 ms
-
-
-def rss_mb(pid: int) -> float:
-    """Resident memory of a process (MB)."""
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
+def _check_deadline(deadline: float, what: str) -> None:
+    """Raise GraphTimeoutError once ``deadline`` (monotonic) has passed."""
+    if time.monotonic() > deadline:
+        raise GraphTimeoutError(
+            f"{what} within {ANSWER_TIMEOUT_S:g} s of the start (see the node logs)"
+        )
 
 
 def measure_graph(
@@ -139,47 +142,65 @@ def measure_graph(
 
     ``single_process`` runs the three nodes in one process instead of three.
     """
-    audio = np.resize(speech_16k, int(duration_s * 16000) // CHUNK_SAMPLES * CHUNK_SAMPLES)
+    audio = np.resize(speech_16k, int(duration_s * SAMPLE_RATE_HZ) // CHUNK_SAMPLES * CHUNK_SAMPLES)
     payload = encode_pcm(audio, S16LE_MONO_16K)
     step = 2 * CHUNK_SAMPLES
+    audio_topic = topics.absolute(topics.AUDIO)
+    chunks = [  # chunk j is due j frame periods after the first
+        BagMessage(
+            timestamp_ns=round(j * FRAME_PERIOD_S * 1e9),
+            topic=audio_topic,
+            msgtype=AUDIO_DATA_TYPE,
+            data=serialize_message(AudioData(data=payload[offset : offset + step])),
+        )
+        for j, offset in enumerate(range(0, len(payload), step))
+    ]
     with tempfile.TemporaryDirectory() as tmp, rclpy.init():
         player = _Player()
         launched = time.monotonic()
         with node_graph(
             _bench_params(Path(tmp)), log_dir=Path(tmp) / "logs", single_process=single_process
         ) as graph:
-            player.info.publish(AudioInfo(**S16LE_MONO_16K.audio_info_fields()))
+            player.player.publishers[topics.absolute(topics.AUDIO_INFO)].publish(
+                AudioInfo(**S16LE_MONO_16K.audio_info_fields())
+            )
+            deadline = launched + ANSWER_TIMEOUT_S
             while not player.commands:
-                player.spin_until(time.monotonic() + 0.01)
+                _check_deadline(deadline, "no /joint_angles command")
+                spin_until(player, time.monotonic() + 0.01)
             first_command = time.monotonic() - launched
-            silence = AudioData(data=bytes(step))
-            while not player.raw:  # warm-up in whole frames until the graph answers
-                player.audio.publish(silence)
-                player.spin_until(time.monotonic() + 0.01)
+            if not warm_up(
+                player.player, audio_topic, lambda: bool(player.raw), deadline - time.monotonic()
+            ):
+                _check_deadline(deadline, "no raw pose for the audio played")
             first_response = time.monotonic() - launched
+            silence = silence_message(audio_topic)
             for _ in range(3):  # at least one 25 ms window of warm-up, then let it drain
-                player.audio.publish(silence)
-            player.spin_until(time.monotonic() + 0.5)
+                player.player.publish(silence)
+            spin_until(player, time.monotonic() + 0.5)
             player.raw.clear()
             player.commands.clear()
             cpu_start = {n: cpu_s(p.pid) for n, p in graph.processes.items()}
             sent: list[float] = []
-            start = time.monotonic()
             steady_start: dict[str, float] = {}
             steady_from = 0
-            for j, offset in enumerate(range(0, len(payload), step)):
-                player.spin_until(start + j * CHUNK_SAMPLES / 16000)
-                if not steady_start and time.monotonic() - start >= STEADY_SKIP_S:
-                    steady_start = {n: cpu_s(p.pid) for n, p in graph.processes.items()}
-                    steady_from = j
-                sent.append(time.monotonic())
-                player.audio.publish(AudioData(data=payload[offset : offset + step]))
+            play_start = time.monotonic()
+
+            def stamp(_: BagMessage) -> None:
+                nonlocal steady_from
+                now = time.monotonic()
+                if not steady_start and now - play_start >= STEADY_SKIP_S:
+                    steady_start.update({n: cpu_s(p.pid) for n, p in graph.processes.items()})
+                    steady_from = len(sent)
+                sent.append(now)
+
+            player.player.play(chunks, on_publish=stamp)
             steady = {
                 n: cpu_s(p.pid) - steady_start.get(n, cpu_start[n])
                 for n, p in graph.processes.items()
             }
             steady_frames = max(len(sent) - steady_from, 1)
-            player.spin_until(time.monotonic() + 1.0)
+            spin_until(player, time.monotonic() + 1.0)
             cpu = {n: cpu_s(p.pid) - cpu_start[n] for n, p in graph.processes.items()}
             rss = {n: rss_mb(p.pid) for n, p in graph.processes.items()}
         player.destroy_node()
@@ -204,7 +225,7 @@ def measure_graph(
             c += match + 1
     return GraphFigures(
         mode="single-process" if single_process else "three-process",
-        audio_s=len(audio) / 16000,
+        audio_s=len(audio) / SAMPLE_RATE_HZ,
         latency_raw_ms=latency_raw,
         latency_command_ms=np.array(latency_command),
         startup_first_command_s=first_command,

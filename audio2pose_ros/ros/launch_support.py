@@ -29,6 +29,7 @@ from pathlib import Path
 
 import yaml
 
+from audio2pose_ros import topics
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, Audio2PoseError, ConfigurationError
 
 __all__ = [
@@ -335,7 +336,7 @@ def single_process_arguments(plan: LaunchPlan, directory: Path) -> list[str]:
         arguments += ["--params-file", str(override)]
     remaps = {
         **plan.audio_topics,
-        "joint_trajectory_controller/joint_trajectory": plan.controller_topic,
+        topics.JOINT_TRAJECTORY: plan.controller_topic,
     }
     for name, target in remaps.items():
         arguments += ["-r", f"{name}:={target}"]

@@ -29,10 +29,8 @@ from scipy.spatial.transform import Rotation
 from audio2pose_ros.data.bag import typestore
 from audio2pose_ros.offline.trajectory import Trajectory
 from audio2pose_ros.robot.kinematics import RobotKinematics, UrdfJoint
+from audio2pose_ros.topics import JOINT_STATES, ROBOT_DESCRIPTION, TF, absolute
 
-ROBOT_DESCRIPTION_TOPIC = "/robot_description"
-JOINT_STATES_TOPIC = "/joint_states"
-TF_TOPIC = "/tf"
 _NO_TIME = QosTime(sec=0, nsec=0)
 
 
@@ -80,19 +78,19 @@ def write_foxglove_bag(
     joint_names = kinematics.movable_joint_names
     with Writer(out, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
         description = writer.add_connection(
-            ROBOT_DESCRIPTION_TOPIC,
+            absolute(ROBOT_DESCRIPTION),
             "std_msgs/msg/String",
             typestore=store,
             offered_qos_profiles=[_qos(QosDurability.TRANSIENT_LOCAL)],
         )
         states = writer.add_connection(
-            JOINT_STATES_TOPIC,
+            absolute(JOINT_STATES),
             "sensor_msgs/msg/JointState",
             typestore=store,
             offered_qos_profiles=[_qos(QosDurability.VOLATILE)],
         )
         tf = writer.add_connection(
-            TF_TOPIC,
+            absolute(TF),
             "tf2_msgs/msg/TFMessage",
             typestore=store,
             offered_qos_profiles=[_qos(QosDurability.VOLATILE)],

@@ -15,10 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from audio2pose_ros.data.dataset import (
-    Clip,
-    ClipInfo,
-)
+from audio2pose_ros.data.dataset import Clip, ClipInfo
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
 from audio2pose_ros.robot.description import RobotDescription

@@ -30,23 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
-from audio2pose_ros.data.dataset import (
-    Clip,
-    ClipInfo,
-    Dataset,
-)
-from audio2pose_ros.data.importers.common import (
-    HEAD_JOINTS,
-    assemble_clip,
-)
+from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
+from audio2pose_ros.data.importers.common import HEAD_JOINTS, assemble_clip
 from audio2pose_ros.data.importers.media import read_audio
 from audio2pose_ros.data.importers.video import VideoTracks, body_angles, track_video
 from audio2pose_ros.robot.description import RobotDescription
-from audio2pose_ros.timebase import (
-    SAMPLES_PER_FRAME,
-    WINDOW_SAMPLES,
-    complete_frames,
-)
+from audio2pose_ros.timebase import SAMPLES_PER_FRAME, WINDOW_SAMPLES, complete_frames
 
 LECTURE_LICENCE = (
     'CC BY 3.0; "Physicsworks" by Walter Lewin (MIT OpenCourseWare 8.01, Lecture 11, "Work, '

@@ -13,9 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from audio2pose_ros.data.importers.common import ImporterError
-from audio2pose_ros.timebase import (
-    SAMPLE_RATE_HZ,
-)
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 
 def ffmpeg_executable() -> str:

@@ -9,9 +9,11 @@ Subscriptions (``input_type`` chooses one of two inputs):
         naoqi_driver publishes them (remap it to naoqi_driver's ``audio`` topic).
 Publications:
     features (std_msgs/Float32MultiArray): frames x features, un-normalised, at 100 frames/s
-        of audio; dim[1].label names the feature set (e.g. ``logfbank26``).
-    voice_activity (std_msgs/Bool): energy-based voice activity after each audio chunk (while
-        something subscribes to it).
+        of audio, one message per audio chunk (while something subscribes to it); dim[1].label
+        names the feature set (e.g. ``logfbank26``).
+    voice_activity (std_msgs/Bool): energy-based voice activity, published when it changes and
+        at least every ``VOICE_REFRESH_S`` (0.5 s) while audio arrives (while something
+        subscribes to it); a value holds until the next one.
     /diagnostics (diagnostic_msgs/DiagnosticArray): a heartbeat every 0.5 s.
 
 Parameters
@@ -32,7 +34,9 @@ Any other exception in a callback is caught at the node boundary
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+import math
+import time
+from collections.abc import Callable, Mapping
 
 import numpy as np
 from audio_common_msgs.msg import AudioData, AudioInfo
@@ -40,10 +44,9 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from naoqi_bridge_msgs.msg import AudioBuffer
 from std_msgs.msg import Bool, Float32MultiArray
 
+from audio2pose_ros import topics
 from audio2pose_ros.audio.source import AudioInput, AudioInputSettings
-from audio2pose_ros.audio.streaming import (
-    StreamingFeatureExtractor,
-)
+from audio2pose_ros.audio.streaming import StreamingFeatureExtractor
 from audio2pose_ros.audio.vad import EnergyVad
 from audio2pose_ros.checkpoints.format import feature_spec_of
 from audio2pose_ros.errors import InputError
@@ -67,6 +70,7 @@ MODEL_PATH = ParameterSpec(
 )
 PARAMETERS: tuple[ParameterSpec, ...] = (MODEL_PATH, *specs_of(AudioInputSettings))
 _INPUT_FIELDS = tuple(spec.name for spec in specs_of(AudioInputSettings))
+VOICE_REFRESH_S = 0.5  # voice_activity is republished unchanged this often (a late subscriber)
 
 
 class AudioFeaturesNode(DiagnosedNode):
@@ -87,19 +91,25 @@ class AudioFeaturesNode(DiagnosedNode):
         self.extractor = StreamingFeatureExtractor(self.spec)
         self.vad = EnergyVad()
         self.frames_out = 0
+        self.voice_sent: bool | None = None  # the voice activity last published, and when
+        self.voice_sent_s = -math.inf
+        # In single-process mode the next nodes are called directly (nodes.single_process);
+        # the topics are then published only for other subscribers.
+        self.features_sink: Callable[[np.ndarray], None] | None = None
+        self.voice_sink: Callable[[bool], None] | None = None
 
-        self.features_pub = self.create_publisher(Float32MultiArray, "features", STREAM_QOS)
-        self.voice_pub = self.create_publisher(Bool, "voice_activity", STREAM_QOS)
+        self.features_pub = self.create_publisher(Float32MultiArray, topics.FEATURES, STREAM_QOS)
+        self.voice_pub = self.create_publisher(Bool, topics.VOICE_ACTIVITY, STREAM_QOS)
         if self.input.settings.input_type == "naoqi":
             self.create_subscription(
-                AudioBuffer, "audio/audio", self.guarded(self.on_audio_buffer), AUDIO_QOS
+                AudioBuffer, topics.AUDIO, self.guarded(self.on_audio_buffer), AUDIO_QOS
             )
         else:
             self.create_subscription(
-                AudioInfo, "audio/audio_info", self.guarded(self.on_audio_info), LATCHED_QOS
+                AudioInfo, topics.AUDIO_INFO, self.guarded(self.on_audio_info), LATCHED_QOS
             )
             self.create_subscription(
-                AudioData, "audio/audio", self.guarded(self.on_audio_data), AUDIO_QOS
+                AudioData, topics.AUDIO, self.guarded(self.on_audio_data), AUDIO_QOS
             )
         self.get_logger().info(
             f"computing {self.label} features ({self.spec.to_dict()}) from "
@@ -179,11 +189,22 @@ class AudioFeaturesNode(DiagnosedNode):
         frames = self.extractor.push(samples)
         if len(samples):
             active = self.vad.push(samples)
-            if self.voice_pub.get_subscription_count():  # no message for nobody (issue 15)
-                self.voice_pub.publish(Bool(data=active))
+            now = time.monotonic()
+            # A change at once; the same value again only as a refresh for a subscriber that
+            # (re)started meanwhile: not one message per chunk (issue 15).
+            if active != self.voice_sent or now - self.voice_sent_s >= VOICE_REFRESH_S:
+                self.voice_sent, self.voice_sent_s = active, now
+                if self.voice_sink is not None:
+                    self.voice_sink(active)
+                if self.voice_pub.get_subscription_count():  # no message for nobody
+                    self.voice_pub.publish(Bool(data=active))
         if len(frames):
             self.frames_out += len(frames)
-            self.features_pub.publish(features_to_msg(np.asarray(frames), self.label))
+            batch = np.asarray(frames, dtype=np.float32)  # what the topic carries, either way
+            if self.features_pub.get_subscription_count():
+                self.features_pub.publish(features_to_msg(batch, self.label))
+            if self.features_sink is not None:
+                self.features_sink(batch)
 
     # --- diagnostics ----------------------------------------------------------------------------
 

@@ -1,10 +1,12 @@
 """inference_node: feature frames in, raw joint trajectories of the 11 joints out (100 Hz points).
 
 Subscriptions:
-    features (std_msgs/Float32MultiArray): frames x features from audio_features_node.
+    features (std_msgs/Float32MultiArray): frames x features from audio_features_node (in
+        single-process mode that node calls this one directly instead).
 Publications:
     raw_trajectory (trajectory_msgs/JointTrajectory): one point per feature frame, 10 ms apart,
-        positions in radians, unsmoothed (motion_filter_node smooths and limits them).
+        positions in radians, unsmoothed (motion_filter_node smooths and limits them); one
+        message per features message, while something subscribes to it.
     /diagnostics (diagnostic_msgs/DiagnosticArray): heartbeat every 0.5 s (DiagnosedNode).
 
 Parameters
@@ -38,13 +40,14 @@ Bad input never reaches the model and never stops the node:
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from std_msgs.msg import Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
+from audio2pose_ros import topics
 from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.parameters import ParameterSpec, ParameterValue
@@ -116,11 +119,18 @@ def sanitize_features(normalized: np.ndarray, limit_sd: float) -> tuple[np.ndarr
     return np.clip(safe, -limit_sd, limit_sd), n_non_finite, n_clamped
 
 
+PoseSink = Callable[[np.ndarray, float], None]  # (angles in self.robot's joint order, stamp s)
+
+
 class InferenceNode(DiagnosedNode):
     """Run a streaming pose model frame by frame."""
 
-    def __init__(self) -> None:
+    def __init__(self, subscribe: bool = True) -> None:
         """Declare parameters, load and check the model, then wire topics.
+
+        Args:
+            subscribe: take features from the ``features`` topic; False in single-process mode,
+                where audio_features_node calls :meth:`on_frames` directly.
 
         Raises:
             ConfigurationError: a refused parameter, or an unusable checkpoint or robot file.
@@ -141,10 +151,16 @@ class InferenceNode(DiagnosedNode):
         self.values_clamped = 0
         self.compute_s = 0.0
 
-        self.trajectory_pub = self.create_publisher(JointTrajectory, "raw_trajectory", STREAM_QOS)
-        self.create_bounded_subscription(
-            Float32MultiArray, "features", self.on_features, STREAM_QOS, MAX_FEATURES_BYTES
+        # In single-process mode motion_filter_node is called directly (nodes.single_process);
+        # raw_trajectory is then published only for other subscribers.
+        self.pose_sink: PoseSink | None = None
+        self.trajectory_pub = self.create_publisher(
+            JointTrajectory, topics.RAW_TRAJECTORY, STREAM_QOS
         )
+        if subscribe:
+            self.create_bounded_subscription(
+                Float32MultiArray, topics.FEATURES, self.on_features, STREAM_QOS, MAX_FEATURES_BYTES
+            )
         self.get_logger().info(
             f"streaming model {self.model.name} ({self.model.runtime} runtime) from "
             f"{model_path}, expects {self.expected_label} features"
@@ -156,7 +172,7 @@ class InferenceNode(DiagnosedNode):
             self.limit_sd = float(changes["feature_limit_sd"])
 
     def on_features(self, msg: Float32MultiArray) -> None:
-        """Normalise, make safe, predict each frame, publish one trajectory point per frame."""
+        """Unpack a features message and run it (:meth:`on_frames`)."""
         try:
             frames, label = msg_to_features(msg)
         except InputError as exc:  # msg_to_features refuses a layout that does not fit the data
@@ -164,6 +180,14 @@ class InferenceNode(DiagnosedNode):
                 "malformed", DiagnosticStatus.WARN, f"malformed features message dropped: {exc}"
             )
             return
+        self.on_frames(frames, label)
+
+    def on_frames(self, frames: np.ndarray, label: str) -> None:
+        """Normalise, make safe, predict each frame, send one trajectory point per frame.
+
+        The trajectory is published on raw_trajectory while something subscribes to it, and
+        handed to :attr:`pose_sink` when one is set (single-process mode).
+        """
         if label != self.expected_label or frames.shape[1] != self.model.features.dim:
             self.frames_dropped += len(frames)
             self.report_problem(
@@ -201,9 +225,13 @@ class InferenceNode(DiagnosedNode):
         angles = self.robot.denormalize(poses)
         self.compute_s += time.perf_counter() - start
         self.frames_in += len(frames)
-        out = trajectory_msg(self.robot.names, angles, self.period_s)
-        out.header.stamp = self.get_clock().now().to_msg()
-        self.trajectory_pub.publish(out)
+        stamp = self.get_clock().now()
+        if self.trajectory_pub.get_subscription_count():  # no message for nobody (issue 15)
+            out = trajectory_msg(self.robot.names, angles, self.period_s)
+            out.header.stamp = stamp.to_msg()
+            self.trajectory_pub.publish(out)
+        if self.pose_sink is not None:
+            self.pose_sink(angles, stamp.nanoseconds * 1e-9)
 
     def diagnostic_values(self) -> dict[str, object]:
         """Frame and value counters and the mean compute time per frame."""

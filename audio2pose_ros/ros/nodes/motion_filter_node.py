@@ -3,6 +3,7 @@
 Subscriptions:
     raw_trajectory (trajectory_msgs/JointTrajectory): poses from inference_node (any joint order).
     voice_activity (std_msgs/Bool): from audio_features_node; silence -> glide to neutral.
+    (In single-process mode those two nodes call this one directly instead of these two topics.)
     enable (std_msgs/Bool, latched): False -> glide to neutral and ignore generated motion.
     stop (std_msgs/Bool, latched): True -> emergency stop ('hold': brake and stay; 'neutral').
     head_target (sensor_msgs/JointState): absolute HeadYaw/HeadPitch targets, e.g. a look-at.
@@ -52,6 +53,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
 
+from audio2pose_ros import topics
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
@@ -144,7 +146,7 @@ class MotionFilterNodeSettings:
         ),
     )
     measured_joint_states_topic: str = field(
-        default="joint_states",
+        default=topics.JOINT_STATES,
         metadata=param("the robot's measured joint states (naoqi_driver)", read_only=True),
     )
     startup_timeout_s: float = field(
@@ -231,8 +233,13 @@ def _stamp_s(stamp: object) -> float:
 class MotionFilterNode(DiagnosedNode):
     """Gate, pace, smooth and limit poses; publish them in three message types."""
 
-    def __init__(self) -> None:
+    def __init__(self, subscribe_graph: bool = True) -> None:
         """Declare parameters, build the filter, wire topics and timers (nothing is commanded yet).
+
+        Args:
+            subscribe_graph: take raw poses and voice activity from the ``raw_trajectory`` and
+                ``voice_activity`` topics; False in single-process mode, where the other two
+                nodes call :meth:`on_poses` and :meth:`on_voice_active` directly.
 
         Raises:
             ConfigurationError: a parameter or the robot description is refused.
@@ -280,20 +287,23 @@ class MotionFilterNode(DiagnosedNode):
             )
 
         guarded, bounded = self.guarded, self.create_bounded_subscription
-        bounded(
-            JointTrajectory,
-            "raw_trajectory",
-            self.on_raw,
-            STREAM_QOS,
-            lambda: trajectory_bytes_cap(
-                int(self.parameters["max_points_per_message"]), self.robot.n_joints
-            ),
-        )
-        self.create_subscription(Bool, "voice_activity", guarded(self.on_voice), STREAM_QOS)
-        self.create_subscription(Bool, "enable", guarded(self.on_enable), LATCHED_QOS)
-        self.create_subscription(Bool, "stop", guarded(self.on_stop), LATCHED_QOS)
-        bounded(JointState, "head_target", self.on_head_target, 10, MAX_JOINT_STATE_BYTES)
-        bounded(JointState, "head_offset", self.on_head_offset, 10, MAX_JOINT_STATE_BYTES)
+        if subscribe_graph:
+            bounded(
+                JointTrajectory,
+                topics.RAW_TRAJECTORY,
+                self.on_raw,
+                STREAM_QOS,
+                lambda: trajectory_bytes_cap(
+                    int(self.parameters["max_points_per_message"]), self.robot.n_joints
+                ),
+            )
+            self.create_subscription(
+                Bool, topics.VOICE_ACTIVITY, guarded(self.on_voice), STREAM_QOS
+            )
+        self.create_subscription(Bool, topics.ENABLE, guarded(self.on_enable), LATCHED_QOS)
+        self.create_subscription(Bool, topics.STOP, guarded(self.on_stop), LATCHED_QOS)
+        bounded(JointState, topics.HEAD_TARGET, self.on_head_target, 10, MAX_JOINT_STATE_BYTES)
+        bounded(JointState, topics.HEAD_OFFSET, self.on_head_offset, 10, MAX_JOINT_STATE_BYTES)
         try:
             bounded(
                 JointState,
@@ -316,13 +326,13 @@ class MotionFilterNode(DiagnosedNode):
         self.last_tick_s = -math.inf
         self.tick_stamp = self.get_clock().now()
         outputs = {
-            "joint_angles": (JointAnglesWithSpeed, "joint_angles", self.publish_joint_angles),
+            "joint_angles": (JointAnglesWithSpeed, topics.JOINT_ANGLES, self.publish_joint_angles),
             "joint_trajectory": (
                 JointTrajectory,
-                "joint_trajectory_controller/joint_trajectory",
+                topics.JOINT_TRAJECTORY,
                 self.publish_joint_trajectory,
             ),
-            "joint_states": (JointState, "commanded_joint_states", self.publish_joint_states),
+            "joint_states": (JointState, topics.COMMANDED_JOINT_STATES, self.publish_joint_states),
         }
         self.publishers_by_output = {}
         # (minimum spacing in s, time of the last publication, publish callback, publisher);
@@ -456,28 +466,38 @@ class MotionFilterNode(DiagnosedNode):
 
     # --- inputs -------------------------------------------------------------------------------
 
-    def on_raw(self, msg: JointTrajectory) -> None:
-        """Check and queue the poses of one raw trajectory message."""
+    def _admit(self, stamp_s: float, n_points: int) -> int | None:
+        """How many of a raw message's ``n_points`` poses to use (None: drop the message).
+
+        None before the start and for a rejected stamp (counted and reported); else at most
+        ``max_points_per_message`` (the rest is counted and reported as truncated).
+        """
         self.input_messages += 1
         if not self.started:
-            return  # the start pose is not known yet: generated motion waits
-        problem = self.stamps.check(_stamp_s(msg.header.stamp), self.now_s())
+            return None  # the start pose is not known yet: generated motion waits
+        problem = self.stamps.check(stamp_s, self.now_s())
         if problem:
             self.dropped_messages += 1
             self.report_problem(
                 "raw_stamp", DiagnosticStatus.WARN, f"raw trajectory dropped: {problem}"
             )
-            return
-        status = self.filter.status
-        take = self.filter.points_to_take(len(msg.points))
-        if take < len(msg.points):
-            msg.points = msg.points[:take]
+            return None
+        take = self.filter.points_to_take(n_points)
+        if take < n_points:
             self.report_problem(
                 "raw_truncated",
                 DiagnosticStatus.WARN,
                 f"raw trajectory longer than max_points_per_message "
                 f"({self.filter.settings.max_points_per_message}): the rest dropped",
             )
+        return take
+
+    def on_raw(self, msg: JointTrajectory) -> None:
+        """Check and queue the poses of one raw trajectory message."""
+        take = self._admit(_stamp_s(msg.header.stamp), len(msg.points))
+        if take is None:
+            return
+        msg.points = msg.points[:take]
         try:
             poses = trajectory_positions(msg, self.robot.names)
         except ValueError as exc:
@@ -486,6 +506,21 @@ class MotionFilterNode(DiagnosedNode):
                 "raw_malformed", DiagnosticStatus.WARN, f"raw trajectory dropped: {exc}"
             )
             return
+        self._queue(poses)
+
+    def on_poses(self, poses_rad: np.ndarray, stamp_s: float) -> None:
+        """Raw poses (n, n_joints) in this robot's joint order, stamped ``stamp_s`` (node clock).
+
+        What inference_node hands over directly in single-process mode: the same checks as a
+        raw_trajectory message (start, stamp, points per message, then the filter's gate).
+        """
+        take = self._admit(stamp_s, len(poses_rad))
+        if take is not None:
+            self._queue(poses_rad[:take])
+
+    def _queue(self, poses: np.ndarray) -> None:
+        """Push admitted raw poses into the filter; command at once when the stream is steady."""
+        status = self.filter.status
         before = (status.rejected, status.out_of_range, status.implausible)
         was_waiting = self.filter.buffered == 0
         arrival_s = time.monotonic()
@@ -515,7 +550,11 @@ class MotionFilterNode(DiagnosedNode):
 
     def on_voice(self, msg: Bool) -> None:
         """Voice activity from the features node."""
-        self.filter.set_voice_active(msg.data, time.monotonic())
+        self.on_voice_active(msg.data)
+
+    def on_voice_active(self, active: bool) -> None:
+        """Voice activity (from voice_activity, or directly in single-process mode)."""
+        self.filter.set_voice_active(active, time.monotonic())
 
     def on_enable(self, msg: Bool) -> None:
         """Enable or disable generated motion."""

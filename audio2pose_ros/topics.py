@@ -1,0 +1,46 @@
+"""Every topic name of the node graph, defined once.
+
+Nodes create these names relative (no leading slash), so a namespace (``ros2 launch ...
+namespace:=pepper``) or a remap (``-r joint_angles:=/naoqi/joint_angles``) moves them, as ROS 2
+conventions ask. Tools that talk to the graph from the root namespace (the runner, the player,
+bags, benchmarks, tests) use :func:`absolute`. ``/diagnostics`` is absolute by convention: every
+node of a robot reports to the one aggregator.
+
+Name (type): publisher -> subscriber
+
+- audio/audio, audio/audio_info (audio_common_msgs AudioData, AudioInfo latched): microphone ->
+  features; or audio/audio (naoqi_bridge_msgs AudioBuffer): naoqi_driver -> features
+- features (std_msgs Float32MultiArray): features -> inference
+- voice_activity (std_msgs Bool): features -> filter
+- raw_trajectory (trajectory_msgs JointTrajectory): inference -> filter
+- joint_angles (naoqi_bridge_msgs JointAnglesWithSpeed): filter -> naoqi_driver
+- joint_trajectory_controller/joint_trajectory (JointTrajectory): filter -> ros2_control
+- commanded_joint_states (sensor_msgs JointState): filter -> robot_state_publisher, RViz
+- joint_states (sensor_msgs JointState, measured): naoqi_driver -> filter
+- head_target, head_offset (sensor_msgs JointState): perception -> filter
+- enable, stop (std_msgs Bool, latched): operator -> filter
+"""
+
+from __future__ import annotations
+
+AUDIO = "audio/audio"
+AUDIO_INFO = "audio/audio_info"
+FEATURES = "features"
+VOICE_ACTIVITY = "voice_activity"
+RAW_TRAJECTORY = "raw_trajectory"
+JOINT_ANGLES = "joint_angles"
+JOINT_TRAJECTORY = "joint_trajectory_controller/joint_trajectory"
+COMMANDED_JOINT_STATES = "commanded_joint_states"
+JOINT_STATES = "joint_states"
+HEAD_TARGET = "head_target"
+HEAD_OFFSET = "head_offset"
+ENABLE = "enable"
+STOP = "stop"
+DIAGNOSTICS = "/diagnostics"
+ROBOT_DESCRIPTION = "robot_description"
+TF = "tf"
+
+
+def absolute(name: str) -> str:
+    """The topic ``name`` resolves to in the root namespace (``features`` -> ``/features``)."""
+    return name if name.startswith("/") else f"/{name}"
