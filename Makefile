@@ -34,7 +34,7 @@ LECTURE_VIDEO ?= ../shared/data/lecture_video/physicsworks.webm
 # Rebuild models/default/ from the shared talking-head clips and lecture video: import, train,
 # evaluate (head leave-one-speaker-out, arms on a held-out lecture stretch), model card.
 default-model: setup
-	nice -n 10 $(VENV_BIN)/audio2pose dataset build-default $(TALKING_HEADS) --lecture $(LECTURE_VIDEO) -o models/default
+	nice -n 10 $(VENV_BIN)/audio2pose dataset build-default $(TALKING_HEADS) --lecture $(LECTURE_VIDEO) -o models/default --work-dir out/default-model-work
 
 clean:
 	rm -rf .venv out build install log .pytest_cache .ruff_cache .hypothesis

@@ -85,4 +85,21 @@ def test_when_loading_the_packaged_default_expect_a_seeded_streaming_sampler_lea
     np.testing.assert_array_equal(run(0), first)
     other = run(1)
     assert np.degrees(np.abs(other - first).max(axis=0)).max() > 2.0  # visibly different
-    assert np.all((first >= robot.lower_rad) & (first <= robot.upper_rad))
+    # within the limits; denormalize(1.0) lands up to one rounding step (7e-17 rad) above them
+    assert np.all((first >= robot.lower_rad - 1e-12) & (first <= robot.upper_rad + 1e-12))
+
+
+def test_when_loading_the_packaged_default_expect_sampling_chosen_on_clips_it_is_not_tested_on(
+    robot,
+):
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+    from audio2pose_ros.data.importers.lecture import TEST_SPAN_S
+    from audio2pose_ros.resources import default_checkpoint_path
+
+    info = load_checkpoint(default_checkpoint_path(), robot=robot).info
+    chosen_on = info["sampling_chosen_on"]
+    starts = [c.removeprefix("lecture_").removesuffix("s") for c in chosen_on if "lecture" in c]
+    lecture = [float(s) for s in starts]
+    assert lecture  # the arms' settings: a lecture stretch ...
+    assert not [s for s in lecture if TEST_SPAN_S[0] <= s < TEST_SPAN_S[1]]  # ... not the test one
+    assert any(c.startswith(("grid_", "obama_")) for c in chosen_on)  # the head's: talking heads

@@ -4,9 +4,13 @@ With ``arms="learned"`` (the default, :func:`build_learned_default_model`): impo
 talking-head clips (real head motion, arms out of frame) and the lecture video (real arm and hip
 motion, :mod:`audio2pose_ros.data.importers.lecture`), train one streaming sampler with a part per
 joint group (``live_groups``: the head part learns from the talking heads, the arm-and-hip part
-from the lecture, unobserved joints masked, never filled), and evaluate it where it was not
-trained: the head leave-one-speaker-out over the talking-head clips, the arms and hip on the
-held-out lecture stretch (:func:`audio2pose_ros.learning.evaluation.quality_evaluation`).
+from the lecture, unobserved joints masked, never filled), choose its sampling settings on
+validation data (:mod:`audio2pose_ros.learning.sampler_selection`: the head's by cross-validation
+over the talking-head speakers, the arms' on a validation stretch of the lecture), and evaluate
+it where it was not trained: the head leave-one-speaker-out over the talking-head clips (every
+fold choosing its own settings on its training speakers only), the arms and hip on the held-out
+lecture stretch against the static pose, another clip's real motion and the prosody rule
+(:func:`audio2pose_ros.learning.evaluation.quality_evaluation`).
 
 With ``arms="prosody"`` or ``"neutral"`` (explicitly named options,
 :func:`build_default_model`): import the 13 clips (:mod:`audio2pose_ros.data.importers.video`: real
@@ -25,9 +29,10 @@ people, its arms and hip imitate the procedural rule, and the model card says so
 from __future__ import annotations
 
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,6 +42,11 @@ from audio2pose_ros.data.importers.extras import save_extras
 from audio2pose_ros.data.importers.video import VideoImportSettings, import_video
 from audio2pose_ros.motion.prosody import prosody_trajectory
 from audio2pose_ros.robot.description import RobotDescription
+
+if TYPE_CHECKING:
+    from audio2pose_ros.checkpoints.torch_io import Checkpoint
+    from audio2pose_ros.learning.evaluation import Predictions
+    from audio2pose_ros.learning.sampler_selection import SamplingChoice
 
 GRID_LICENCE = (
     "CC BY 4.0; GRID audio-visual sentence corpus, Cooke, Barker, Cunningham and Shao (2006), "
@@ -48,6 +58,9 @@ VALIDATION_CLIPS = ("grid_lrwp9a", "obama_weekly_address_13")
 ARM_MODES = ("prosody", "neutral")  # procedural layers of the MLP build
 DEFAULT_SEED = 0  # the seed the inference node samples with unless told otherwise
 LIVE_VALIDATION_LECTURE_S = (44.0, 60.0)  # the lecture clip starting here validates
+
+
+PROSODY_RULE = "prosody rule"  # the hand-written arm rule, a baseline of the arm evaluation
 
 
 @dataclass(frozen=True)
@@ -194,8 +207,10 @@ class LearnedBuildSettings:
         batch_size: 2 s windows per optimiser step.
         patience: epochs without validation improvement before training stops (the
             validation loss mixes head and arm clips, so this is more than the seed's 10).
-        loso_epochs: epochs per leave-one-speaker-out fold.
-        samples: samples per clip for the diversity measure.
+        loso_epochs: epochs per leave-one-speaker-out fold and per cross-validation model of
+            the sampling choice.
+        samples: samples per clip, pooled by the distribution measures and compared by the
+            diversity measure.
         seed: training seed.
 
     """
@@ -222,6 +237,23 @@ def _validation_ids(clips: list[Clip]) -> set[str]:
     ]
     ids |= {c.info.clip_id for c in lecture[:1]}
     return ids
+
+
+def prosody_predictions(
+    clips: Sequence[Clip], robot: RobotDescription
+) -> tuple[Predictions, Predictions]:
+    """The prosody rule's motion on the clips and on their audio with a pause (a baseline)."""
+    from audio2pose_ros.learning.evaluation import with_pause
+
+    spec = FeatureSpec()  # LogFB-26: what the rule reads
+
+    def rule(audio: np.ndarray) -> list[np.ndarray]:
+        return [prosody_trajectory(extract_features(audio, spec), robot)]
+
+    return (
+        {PROSODY_RULE: {c.info.clip_id: rule(c.audio) for c in clips}},
+        {PROSODY_RULE: {c.info.clip_id: rule(with_pause(c.audio)) for c in clips}},
+    )
 
 
 def describe_learned_data() -> dict[str, str]:
@@ -260,13 +292,18 @@ def build_learned_default_model(
 
     """
     from audio2pose_ros.checkpoints.torch_io import save_checkpoint
-    from audio2pose_ros.data.importers.lecture import import_lecture
+    from audio2pose_ros.data.importers.lecture import LECTURE_SPEAKER, import_lecture
     from audio2pose_ros.learning.evaluation import (
         checkpoint_predictions,
         loso_predictions,
         quality_evaluation,
     )
     from audio2pose_ros.learning.model_card import write_learned_model_card
+    from audio2pose_ros.learning.sampler_selection import (
+        apply_sampling,
+        choose_sampling,
+        cross_validated,
+    )
     from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 
     settings = settings or LearnedBuildSettings()
@@ -289,13 +326,30 @@ def build_learned_default_model(
         f"training live_groups on {len(usable) - len(validation_ids)} clips "
         f"(validation: {sorted(validation_ids)})"
     )
+    validation = [c for c in usable if c.info.clip_id in validation_ids]
     checkpoint, report = train_on_clips(
         "live_groups",
         [c for c in usable if c.info.clip_id not in validation_ids],
         robot,
         train_settings,
-        validation=[c for c in usable if c.info.clip_id in validation_ids],
+        validation=validation,
     )
+    fold_settings = TrainSettings(
+        max_epochs=settings.loso_epochs,
+        batch_size=settings.batch_size,
+        patience=settings.patience,
+        seed=settings.seed,
+        show_progress=False,
+    )
+    progress(
+        "choosing the sampling settings: the head's by cross-validation over the talking-head "
+        "speakers, the arms' on the validation lecture stretch"
+    )
+    head_folds = cross_validated("live_groups", head_clips, robot, fold_settings, progress=progress)
+    lecture_validation = [c for c in validation if c.info.speaker == LECTURE_SPEAKER]
+    choice = choose_sampling([*head_folds, (checkpoint, lecture_validation)], robot)
+    progress("  chosen: " + choice.summary())
+    checkpoint = apply_sampling(checkpoint, choice)
     checkpoint.info.update(describe_learned_data())
     checkpoint_path = out_dir / "default.safetensors"
     save_checkpoint(checkpoint_path, checkpoint)
@@ -304,19 +358,29 @@ def build_learned_default_model(
     samples, paused = checkpoint_predictions(
         [(checkpoint_path, checkpoint)], test, settings.samples, DEFAULT_SEED
     )
+    rule, rule_paused = prosody_predictions(test, robot)
     arms = quality_evaluation(
-        test, samples, robot, out_dir / "arms_distributions.png", paused=paused
+        test,
+        samples | rule,
+        robot,
+        out_dir / "arms_distributions.png",
+        paused=paused | rule_paused,
     )
     progress("evaluating the head leave-one-speaker-out over the talking-head clips")
-    loso_settings = TrainSettings(
-        max_epochs=settings.loso_epochs,
-        batch_size=settings.batch_size,
-        patience=settings.patience,
-        seed=settings.seed,
-        show_progress=False,
-    )
+    fold_choices: list[SamplingChoice] = []
+
+    def tune(fold: Checkpoint, training: list[Clip]) -> Checkpoint:
+        """A fold's sampling settings, by cross-validation over its training speakers only."""
+        if fold.model.name != "live_groups":
+            return fold
+        inner = cross_validated("live_groups", training, robot, fold_settings, progress=progress)
+        fold_choice = choose_sampling(inner, robot)
+        fold_choices.append(fold_choice)
+        progress("  chosen: " + fold_choice.summary())
+        return apply_sampling(fold, fold_choice)
+
     clips, loso, loso_paused = loso_predictions(
-        heads, robot, ["live_groups", "mlp"], loso_settings, settings.samples, progress
+        heads, robot, ["live_groups", "mlp"], fold_settings, settings.samples, progress, tune
     )
     head = quality_evaluation(
         clips, loso, robot, out_dir / "head_distributions.png", paused=loso_paused
@@ -327,8 +391,17 @@ def build_learned_default_model(
         + "\n\narms and hip: held-out lecture stretch\n"
         + arms.table()
     )
-    (out_dir / "metrics.txt").write_text(table + "\n", encoding="utf-8")
+    selection = (
+        "sampling settings of the shipped model\n"
+        + choice.table()
+        + "\n\nsampling settings of the leave-one-speaker-out folds (head)\n"
+        + "\n".join(
+            f"{speaker} held out: {c.summary()}"
+            for speaker, c in zip(heads.speakers, fold_choices, strict=True)
+        )
+    )
+    (out_dir / "metrics.txt").write_text(table + "\n\n" + selection + "\n", encoding="utf-8")
     card = write_learned_model_card(
-        out_dir, checkpoint, report, heads, lecture, head, arms, sorted(validation_ids)
+        out_dir, checkpoint, report, heads, lecture, head, arms, choice, fold_choices
     )
     return DefaultModelResult(checkpoint_path, card, table)

@@ -381,13 +381,16 @@ def quality_evaluation(
     Args:
         clips: held-out clips with real motion.
         predictions: method -> clip id -> one or more sampled motions (N, J) in radians; the
-            first sample is the one measured, all of them give the diversity.
+            distribution measures pool all samples segment by segment
+            (:func:`metrics.sum_segments`, so sampling noise averages out and the bootstrap
+            stays paired), RMSE and LCCA are those of the first sample, all of them give the
+            diversity.
         robot: joint order and groups.
         out_figure: write the speed and acceleration histograms here (PNG); None = no figure.
         n_resamples: bootstrap resamples.
         seed: bootstrap seed.
-        paused: method -> clip id -> [motion on ``with_pause(clip.audio)``]; None = no
-            speech/pause measure.
+        paused: method -> clip id -> motions on ``with_pause(clip.audio)`` (pooled like
+            ``predictions``); None = no speech/pause measure.
 
     Raises:
         EvaluationError: no clips.
@@ -397,7 +400,7 @@ def quality_evaluation(
         raise EvaluationError("no held-out clips to evaluate")
     rate = FRAME_RATE_HZ
     methods = [STATIC, MISMATCHED, *predictions]
-    motion: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {m: [] for m in methods}
+    motion: dict[str, list[tuple[list[np.ndarray], np.ndarray]]] = {m: [] for m in methods}
     real, speech_frames = [], []
     order = mismatched_order([c.info.speaker for c in clips])
     for i, clip in enumerate(clips):
@@ -407,12 +410,12 @@ def quality_evaluation(
         speech_frames.append(metrics.energy_vad(clip.audio, n))
         everywhere = np.ones_like(clip.mask[:n])
         other = clips[order[i]]
-        motion[STATIC].append((np.broadcast_to(robot.neutral_rad, true.shape), everywhere))
+        motion[STATIC].append(([np.broadcast_to(robot.neutral_rad, true.shape)], everywhere))
         motion[MISMATCHED].append(
-            (_fit_length(np.nan_to_num(other.angles_rad), n), _fit_length(other.mask, n))
+            ([_fit_length(np.nan_to_num(other.angles_rad), n)], _fit_length(other.mask, n))
         )
         for name, per_clip in predictions.items():
-            motion[name].append((per_clip[clip.info.clip_id][0][:n], everywhere))
+            motion[name].append(([s[:n] for s in per_clip[clip.info.clip_id]], everywhere))
     rows, histograms = [], {}
     groups = [g for g in ("head", "arms", "hip") if robot.group_mask(g).any()]
     for group in groups:
@@ -429,8 +432,17 @@ def quality_evaluation(
         for name in methods:
             gen = metrics.concat_segments(
                 [
-                    metrics.segment_statistics(p[:, joints], g[:, joints] & m[:, joints], s, rate)
-                    for (p, g), (_, m), s in zip(motion[name], real, speech_frames, strict=True)
+                    metrics.sum_segments(
+                        [
+                            metrics.segment_statistics(
+                                p[:, joints], g[:, joints] & m[:, joints], s, rate
+                            )
+                            for p in samples
+                        ]
+                    )
+                    for (samples, g), (_, m), s in zip(
+                        motion[name], real, speech_frames, strict=True
+                    )
                 ]
             )
             # std, speed ratio: only where the real angle is known, so both sides match
@@ -440,7 +452,8 @@ def quality_evaluation(
             )
             histograms[(name, group)] = _density(gen)
             rmse, lcca = [], []
-            for (p, _), (t, m) in zip(motion[name], real, strict=True):
+            for (samples, _), (t, m) in zip(motion[name], real, strict=True):
+                p = samples[0]
                 if m[:, joints].any():
                     rmse.append(metrics.rmse_deg(t[:, joints], p[:, joints], m[:, joints]))
                 if m[:, joints].all(axis=0).any():
@@ -483,15 +496,18 @@ def _pause_ratio(
     n_resamples: int,
     seed: int,
 ) -> tuple[float, float, float]:
-    """Speech / silence speed ratio of motion generated on the clips' audio with a pause."""
+    """Speech / silence speed ratio of motions generated on the clips' audio with a pause."""
     if not motions:
         return math.nan, math.nan, math.nan
     parts = []
     for clip in clips:
-        motion = motions[clip.info.clip_id][0][:, joints]
-        speech = metrics.energy_vad(with_pause(clip.audio), motion.shape[0])
+        samples = [m[:, joints] for m in motions[clip.info.clip_id]]
+        speech = metrics.energy_vad(with_pause(clip.audio), samples[0].shape[0])
+        everywhere = np.ones(samples[0].shape, bool)
         parts.append(
-            metrics.segment_statistics(motion, np.ones(motion.shape, bool), speech, FRAME_RATE_HZ)
+            metrics.sum_segments(
+                [metrics.segment_statistics(m, everywhere, speech, FRAME_RATE_HZ) for m in samples]
+            )
         )
     segments = metrics.concat_segments(parts)
     return metrics.bootstrap_measures(segments, segments, n_resamples, seed)["speech/silence speed"]
@@ -548,17 +564,21 @@ def loso_predictions(
     settings: TrainSettings,
     n_samples: int = 3,
     progress: Callable[[str], None] | None = None,
+    tune: Callable[[Checkpoint, list[Clip]], Checkpoint] | None = None,
 ) -> tuple[list[Clip], Predictions, Predictions]:
     """Leave one speaker out: for each speaker, train each model on the others, predict it.
 
     Every clip of the data set is held out exactly once (in its speaker's fold), whatever its
     split label; validation for early stopping holds out further speakers of the training side
-    (:func:`~audio2pose_ros.learning.training.train_on_clips`).
+    (:func:`~audio2pose_ros.learning.training.train_on_clips`). ``tune`` (e.g. the choice of a
+    sampler's settings, :mod:`audio2pose_ros.learning.sampler_selection`) receives each fold's
+    trained checkpoint and that fold's training clips, never the held-out speaker's, and
+    returns the checkpoint that predicts the held-out speaker.
 
     Returns:
         All clips; per model label (``"<name> (LOSO)"``) and clip id the synthesized samples
         (seeds ``settings.seed`` + 0 .. n_samples - 1; one for deterministic models); and the
-        same for the clips' audio with a pause (:func:`with_pause`, one sample).
+        same for the clips' audio with a pause (:func:`with_pause`).
 
     Raises:
         EvaluationError: fewer than two speakers.
@@ -579,6 +599,8 @@ def loso_predictions(
             if progress is not None:
                 progress(f"fold {k + 1}/{len(speakers)} ({speaker} held out): training {name}")
             checkpoint, _ = train_on_clips(name, training, robot, settings)
+            if tune is not None:
+                checkpoint = tune(checkpoint, training)
             label = f"{name} (LOSO)"
             samples, pauses = checkpoint_predictions(
                 [(Path(label), checkpoint)], held_out, n_samples, settings.seed
@@ -598,7 +620,8 @@ def checkpoint_predictions(
 
     Returns:
         method -> clip id -> samples (seeds seed .. seed + n - 1; one for deterministic
-        models), and method -> clip id -> [one sample on ``with_pause(clip.audio)``].
+        models), and method -> clip id -> the samples with the same seeds on
+        ``with_pause(clip.audio)``.
     """
     samples: Predictions = {}
     paused: Predictions = {}
@@ -610,6 +633,9 @@ def checkpoint_predictions(
             for c in clips
         }
         paused[label] = {
-            c.info.clip_id: [synthesize(ckpt, with_pause(c.audio), seed=seed)[1]] for c in clips
+            c.info.clip_id: [
+                synthesize(ckpt, with_pause(c.audio), seed=seed + s)[1] for s in range(draws)
+            ]
+            for c in clips
         }
     return samples, paused

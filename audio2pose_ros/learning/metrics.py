@@ -393,6 +393,17 @@ def concat_segments(parts: Sequence[MotionSegments]) -> MotionSegments:
     )
 
 
+def sum_segments(parts: Sequence[MotionSegments]) -> MotionSegments:
+    """Add the statistics of several motions of the same segments (e.g. samples with other seeds).
+
+    Every statistic is a sum (histogram counts, moments, speed sums), so the result describes
+    the motions pooled, segment by segment: a paired bootstrap over segments stays paired.
+    """
+    return MotionSegments(
+        *(sum(getattr(p, f) for p in parts) for f in MotionSegments.__dataclass_fields__)
+    )
+
+
 def _joint_hellinger(true_counts: np.ndarray, pred_counts: np.ndarray) -> float:
     """Hellinger distance per joint between (J, bins) histograms, averaged over joints."""
     values = [hellinger(t, p) for t, p in zip(true_counts, pred_counts, strict=True)]

@@ -2,11 +2,21 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from pathlib import Path
 
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Dataset
 from audio2pose_ros.learning.evaluation import Evaluation, GroupRow, QualityEvaluation
+from audio2pose_ros.learning.sampler_selection import (
+    INNER_FOLDS,
+    N_SEEDS,
+    PAUSE_MARGIN,
+    SILENCE_TEMPERATURES,
+    TEMPERATURES,
+    SamplingChoice,
+)
 from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
@@ -144,15 +154,37 @@ def _row(evaluation: QualityEvaluation, group: str, method: str) -> GroupRow | N
 
 
 def _targets(head: QualityEvaluation, arms: QualityEvaluation, model: str) -> str:
-    """Issue 13's targets for the model's head and arms, met or not, with the measured values."""
+    """Issue 13's targets for the model's head and arms, met or not, with the measured values.
+
+    The arms' Hellinger distances are also compared with the static pose's and the prosody
+    rule's on the same clips (issue 13: at least clearly better than those baselines): met when
+    the model's value lies below the baseline's whole bootstrap interval.
+    """
+    from audio2pose_ros.learning.default_model import PROSODY_RULE
+    from audio2pose_ros.learning.evaluation import STATIC
+
+    def within(low: float, high: float) -> Callable[[float], bool]:
+        return lambda v: low <= v <= high
+
+    def below(baseline: str, measure: str) -> Callable[[float], bool]:
+        row = _row(arms, "arms", baseline)
+        return lambda v: row is not None and v < min(row.measures[measure][:2])
+
+    loso = "live_groups (LOSO)"
+    checks = [
+        ("head", head, loso, "H speed", "<= 0.15", within(0.0, 0.15)),
+        ("head", head, loso, "H accel", "<= 0.15", within(0.0, 0.15)),
+        ("head", head, loso, "std ratio", "0.7 to 1.4", within(0.7, 1.4)),
+        ("head", head, loso, "speech/pause speed", ">= 2", within(2.0, math.inf)),
+        ("arms", arms, model, "std ratio", "0.7 to 1.4", within(0.7, 1.4)),
+        ("arms", arms, model, "speech/pause speed", ">= 1.5", within(1.5, math.inf)),
+    ]
+    for measure in ("H speed", "H accel"):
+        checks.append(("arms", arms, model, measure, "<= 0.15 (aim)", within(0.0, 0.15)))
+        for baseline in (STATIC, PROSODY_RULE):
+            target = f"below the {baseline}'s interval"
+            checks.append(("arms", arms, model, measure, target, below(baseline, measure)))
     lines = []
-    checks = (
-        ("head", head, "live_groups (LOSO)", "H speed", "<= 0.15", lambda v: v <= 0.15),
-        ("head", head, "live_groups (LOSO)", "H accel", "<= 0.15", lambda v: v <= 0.15),
-        ("head", head, "live_groups (LOSO)", "std ratio", "0.7 to 1.4", lambda v: 0.7 <= v <= 1.4),
-        ("head", head, "live_groups (LOSO)", "speech/pause speed", ">= 2", lambda v: v >= 2.0),
-        ("arms", arms, model, "speech/pause speed", ">= 1.5", lambda v: v >= 1.5),
-    )
     for group, evaluation, method, measure, target, ok in checks:
         row = _row(evaluation, group, method)
         if row is None:
@@ -165,6 +197,44 @@ def _targets(head: QualityEvaluation, arms: QualityEvaluation, model: str) -> st
     return "\n".join(lines)
 
 
+def _selection(choice: SamplingChoice, folds: list[SamplingChoice], speakers: list[str]) -> str:
+    """The card's account of how the sampling settings were chosen, with every trial."""
+    fold_lines = "\n".join(
+        f"{speaker} held out: {c.summary()}" for speaker, c in zip(speakers, folds, strict=True)
+    )
+    temperatures = ", ".join(f"{t:g}" for t in TEMPERATURES)
+    rests = ", ".join(f"{t:g}" for t in SILENCE_TEMPERATURES)
+    return f"""## How the sampling settings were chosen (validation, not test)
+The part temperatures and the gate's rest level in silence act only when sampling, so
+`make default-model` chooses them after training
+(`audio2pose_ros/learning/sampler_selection.py`), never on a clip reported below. Evidence: for
+the head, {INNER_FOLDS}-fold cross-validation over the talking-head speakers (every speaker's
+clips sampled by a model trained without that speaker); for the arms and hip, the shipped model
+on its validation stretch of the lecture. Each part's temperature from {temperatures} by the
+lowest score mean(H speed, H accel) + |ln(std ratio)| of its joint groups ({N_SEEDS} samples per
+clip), then the highest rest level of {rests} whose speech/pause speed ratio is at least
+{PAUSE_MARGIN:g} times the target (head 2, arms and hip 1.5). Every leave-one-speaker-out fold
+below chooses its own in the same way by cross-validation over its own training speakers only
+(never the held-out one), so the head numbers measure the whole procedure. Fixed, not chosen
+per build (set in an earlier session while the lecture's test stretch was in view): the
+noise's correlation (0.975, second order), the gate's margin (1), width (0.2) and time
+constants.
+
+Shipped model:
+
+```
+{choice.table()}
+```
+
+Leave-one-speaker-out folds (head part; their arm part is untrained):
+
+```
+{fold_lines}
+```
+
+"""
+
+
 def write_learned_model_card(
     out_dir: Path,
     checkpoint: Checkpoint,
@@ -173,13 +243,15 @@ def write_learned_model_card(
     lecture: Dataset,
     head: QualityEvaluation,
     arms: QualityEvaluation,
-    validation: list[str],
+    choice: SamplingChoice,
+    fold_choices: list[SamplingChoice],
 ) -> Path:
     """Write ``out_dir/MODEL_CARD.md`` of the learned default model (``live_groups``)."""
     from audio2pose_ros.data.importers.lecture import LECTURE_LICENCE, TEST_SPAN_S
 
     n_params = sum(p.numel() for p in checkpoint.model.parameters())
     model_label = next(r.method for r in arms.rows if r.method.startswith("live_groups"))
+    validation = sorted(checkpoint.info.get("validation_clips", []))
     lecture_seconds = {
         split: sum(
             lecture.load(c.clip_id).n_frames / 100.0 for c in lecture.clips if c.split == split
@@ -199,7 +271,7 @@ than like the average of people. A causal speech gate (mean filter-bank energy a
 recent peak) scales the sampling noise down to {checkpoint.model.config.silence_temperature:g} of
 itself in silence, so the robot comes to rest when nobody speaks; the head part samples at
 temperature {checkpoint.model.config.first_temperature:g}, the arm part at
-{checkpoint.model.config.second_temperature:g} (chosen on held-out data, see below). It streams
+{checkpoint.model.config.second_temperature:g} (chosen on validation clips, see below). It streams
 (two GRU cell steps per frame, about 0.1 ms), so `inference_node` runs it. Same seed, same
 motion; another seed, another motion on the same audio (`streaming_predictor(seed=N)` online,
 `audio2pose_ros.offline.synthesis.synthesize(..., seed=N)` offline; the default seed is 0).
@@ -242,16 +314,17 @@ speed and of acceleration, generated vs real, per joint and averaged over the gr
 distribution); the standard deviation of the motion relative to real; the ratio of joint speed
 during speech to that in silences of at least 1 s (energy VAD; "speech/pause": on the held-out
 audio with 1.5 s of quiet inserted, since the clips hardly pause); RMSE and LCCA (seed 003
-Table 5.1); diversity (mean RMS distance between samples with seeds 0, 1, 2). Brackets: 95 %
-percentile bootstrap intervals over 1 s segments (a Hellinger distance between histograms of
-resampled, duplicated segments is biased upwards, so a small value can sit below its interval).
-They cover the choice of segments, not the sampler's own randomness: motion drawn with other
-noise gives other values, by about the interval's width (two rebuilds while this model was
-made: head H speed 0.14 and 0.07, std ratio 0.85 and 0.70).
-Baselines on the same clips: a static pose (floor) and real motion of another held-out clip of
-another speaker (ceiling). The sampling temperatures and the gate were chosen on these same
-held-out measures (a handful of settings tried), so the numbers are somewhat optimistic; the
-test on unseen recordings is yours.
+Table 5.1, of the sample with seed 0); diversity (mean RMS distance between samples with seeds
+0, 1, 2). The distribution measures pool the three samples segment by segment, which averages
+out part of the sampler's own randomness. Brackets: 95 % percentile bootstrap intervals over
+1 s segments (a Hellinger distance between histograms of resampled, duplicated segments is
+biased upwards, so a small value can sit below its interval); they cover the choice of
+segments, not the sampler's randomness nor the training's. Baselines on the same clips: a
+static pose (floor), real motion of another held-out clip of another speaker (ceiling) and, for
+the arms, the hand-written prosody rule. The sampling settings were chosen on validation clips
+(next section), not on these.
+
+{_selection(choice, fold_choices, heads.speakers)}## Held-out numbers
 
 **Head, leave one speaker out** over the {len(heads.clips)} talking-head clips (each fold
 trains `live_groups`, and the seed's `mlp` for comparison, on the other speakers):

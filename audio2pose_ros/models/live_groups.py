@@ -15,16 +15,19 @@ normalised audio features (:mod:`audio2pose_ros.models.speech_gate`): the frame'
 filter-bank energy e_t is compared with a slowly decaying peak of recent energy,
 v_t = sigmoid((e_t - peak_t + gate_margin) / gate_width), smoothed over 0.3 s; the temperature
 is multiplied by
-silence_temperature + (1 - silence_temperature) v_t, and by each part's own temperature
-(chosen on held-out data: the head's real motion is smaller than its one-step uncertainty
-suggests). A relative gate (against the recent peak) does not depend on the recording level.
+silence_temperature + (1 - silence_temperature) v_t, and by each part's own temperature (a
+free-running sampler's motion is not as large as real motion at temperature 1: its one-step
+uncertainty does not add up to the real spread). These three :data:`SAMPLING_SETTINGS` act only
+when sampling; :mod:`audio2pose_ros.learning.sampler_selection` chooses them on validation clips
+after training, without retraining (:meth:`LiveGroups.with_sampling`). A relative gate (against the
+recent peak) does not depend on the recording level.
 Streams: yes (two GRU cell steps per frame); the streaming predictor samples with a settable
 seed (the head part's noise from ``seed``, the body part's from ``seed + 1``).
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any, ClassVar
 
 import numpy as np
@@ -34,6 +37,8 @@ from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.base import PoseModel, StreamingPredictor
 from audio2pose_ros.models.live import LiveConfig, LivePredictor, LiveSampler
 from audio2pose_ros.models.speech_gate import GroupedSampler, SpeechGate
+
+SAMPLING_SETTINGS = ("first_temperature", "second_temperature", "silence_temperature")
 
 
 @dataclass(frozen=True)
@@ -50,12 +55,12 @@ class LiveGroupsConfig:
     n_joints: int = 11
     hidden_units: int = 32
     input_noise: float = 0.05
-    noise_correlation: float = 0.975  # with order 2: chosen on the held-out lecture stretch
+    noise_correlation: float = 0.975  # with order 2: fixed, not chosen per build
     noise_order: int = 2
     first_group: int = 3
-    first_temperature: float = 2.5  # head: chosen leave-one-speaker-out (std ~ real)
-    second_temperature: float = 1.0
-    silence_temperature: float = 0.05  # noise left in silence (1 = no speech gate)
+    first_temperature: float = 2.5  # head; `make default-model` chooses it on validation clips
+    second_temperature: float = 1.0  # arms and hip; likewise
+    silence_temperature: float = 0.05  # noise left in silence (1 = no speech gate); likewise
     gate_margin: float = 1.0  # z-units of the features' mean below the recent peak
     gate_width: float = 0.2
 
@@ -117,6 +122,23 @@ class LiveGroups(PoseModel):
             if mask[..., index].any():
                 total = total + part.training_loss(features, targets[..., index], mask[..., index])
         return total
+
+    def with_sampling(self, **settings: float) -> LiveGroups:
+        """A copy with the same weights and other :data:`SAMPLING_SETTINGS` (no retraining).
+
+        The temperatures and the gate's rest level act only when sampling, so they can be chosen
+        after training (:mod:`audio2pose_ros.learning.sampler_selection`).
+
+        Raises:
+            ConfigurationError: a setting that is not a sampling setting.
+
+        """
+        unknown = sorted(set(settings) - set(SAMPLING_SETTINGS))
+        if unknown:
+            raise ConfigurationError(f"{unknown} are not sampling settings {SAMPLING_SETTINGS}")
+        model = LiveGroups(replace(self.config, **settings))
+        model.load_state_dict(self.state_dict())
+        return model.train(self.training)
 
     def part_temperatures(self) -> tuple[float, float]:
         """Each part's own temperature factor."""

@@ -1,0 +1,174 @@
+"""Sampling settings of live_groups chosen on validation clips, in the build and in every fold."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+from synthetic_motion import write_dataset
+
+from audio2pose_ros.data.dataset import Clip, Dataset
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.learning.evaluation import loso_predictions
+from audio2pose_ros.learning.sampler_selection import (
+    PAUSE_MARGIN,
+    PAUSE_TARGETS,
+    SILENCE_TEMPERATURES,
+    TEMPERATURES,
+    choose_sampling,
+    score,
+    select_sampling,
+    speaker_folds,
+)
+from audio2pose_ros.learning.training import TrainSettings, train_on_clips
+from audio2pose_ros.models.registry import build_model
+
+torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def clips(tmp_path_factory, robot):
+    root = tmp_path_factory.mktemp("selection") / "data"
+    write_dataset(root, robot, {"train": 4, "validation": 2}, seconds=2.0, seed=5)
+    dataset = Dataset.open(root, robot)
+    return [dataset.load(c.clip_id) for c in dataset.clips]
+
+
+@pytest.fixture(scope="module")
+def checkpoint(clips, robot):
+    train = [c for c in clips if c.info.split == "train"]
+    settings = TrainSettings(max_epochs=2, batch_size=4, show_progress=False)
+    return train_on_clips("live_groups", train, robot, settings)[0]
+
+
+def test_when_changing_sampling_settings_expect_the_same_weights_and_nothing_else_changeable():
+    torch.manual_seed(0)
+    model = build_model("live_groups", {"n_features": 4, "n_joints": 5, "hidden_units": 6})
+    tuned = model.with_sampling(first_temperature=1.7, silence_temperature=0.2)
+    assert (tuned.config.first_temperature, tuned.config.silence_temperature) == (1.7, 0.2)
+    assert tuned.config.second_temperature == model.config.second_temperature
+    for key, value in model.state_dict().items():
+        torch.testing.assert_close(tuned.state_dict()[key], value)
+    with pytest.raises(ConfigurationError, match="hidden_units"):
+        model.with_sampling(hidden_units=3)
+
+
+def scores_by_value(trials, setting, robot):
+    """Joint-count weighted score per tried value of one part's temperature."""
+    out = {}
+    for value in TEMPERATURES:
+        rows = [t for t in trials if t.setting == setting and t.value == value]
+        weights = [robot.group_mask(t.group).sum() for t in rows]
+        out[value] = np.average([score(t.measures) for t in rows], weights=weights)
+    return out
+
+
+def test_when_selecting_expect_each_part_at_its_best_validation_score_and_the_liveliest_gate(
+    checkpoint, clips, robot
+):
+    validation = [c for c in clips if c.info.split == "validation"]
+    tuned, choice = select_sampling(checkpoint, validation, robot, n_seeds=2)
+    for setting in ("first_temperature", "second_temperature"):
+        scores = scores_by_value(choice.trials, setting, robot)
+        assert choice.settings[setting] == min(scores, key=scores.get)
+    met = [
+        rest
+        for rest in SILENCE_TEMPERATURES
+        if all(
+            t.measures["speech/pause speed"] >= PAUSE_MARGIN * PAUSE_TARGETS[t.group]
+            for t in choice.trials
+            if t.setting == "silence_temperature" and t.value == rest
+        )
+        and any(t.value == rest for t in choice.trials if t.setting == "silence_temperature")
+    ]
+    assert choice.settings["silence_temperature"] == (met[0] if met else SILENCE_TEMPERATURES[-1])
+    config = tuned.model.config
+    assert {k: getattr(config, k) for k in choice.settings} == choice.settings
+    assert tuned.info["sampling_chosen_on"] == [c.info.clip_id for c in validation]
+    for key, value in checkpoint.model.state_dict().items():
+        torch.testing.assert_close(tuned.model.state_dict()[key], value)
+    assert "*" in choice.table()
+
+
+def amplified(clip: Clip, joints: np.ndarray, gain: float) -> Clip:
+    angles = clip.angles_rad.copy()
+    centre = angles[:, joints].mean(axis=0)
+    angles[:, joints] = centre + gain * (angles[:, joints] - centre)
+    return replace(clip, angles_rad=angles)
+
+
+def test_when_the_validation_head_moves_more_expect_a_head_temperature_at_least_as_high(
+    checkpoint, clips, robot
+):
+    head = robot.group_mask("head")
+    validation = [c for c in clips if c.info.split == "validation"]
+    _, small = select_sampling(checkpoint, validation, robot, n_seeds=2)
+    _, large = select_sampling(checkpoint, [amplified(c, head, 4.0) for c in validation], robot, 2)
+    assert large.settings["first_temperature"] >= small.settings["first_temperature"]
+    assert large.settings["first_temperature"] > TEMPERATURES[0]
+
+
+def test_when_a_model_is_not_a_grouped_sampler_expect_it_unchanged(clips, robot):
+    train = [c for c in clips if c.info.split == "train"]
+    mlp, _ = train_on_clips("mlp", train, robot, TrainSettings(max_epochs=1, show_progress=False))
+    same, choice = select_sampling(mlp, clips[-1:], robot)
+    assert same is mlp
+    assert choice.settings == {}
+
+
+def test_when_evaluating_leave_one_speaker_out_expect_tuning_on_the_folds_training_side_only(
+    tmp_path, robot
+):
+    dataset = write_dataset(tmp_path / "loso", robot, {"train": 4}, seconds=1.5, seed=2)
+    speakers = sorted({c.speaker for c in dataset.clips})
+    seen = []
+
+    def tune(fold, training):
+        seen.append(training)
+        return replace(fold, model=fold.model.with_sampling(first_temperature=0.0))
+
+    settings = TrainSettings(max_epochs=1, batch_size=4, show_progress=False)
+    clips, predictions, _ = loso_predictions(
+        dataset, robot, ["live_groups"], settings, n_samples=2, tune=tune
+    )
+    assert len(seen) == len(speakers)
+    for held_out, training in zip(speakers, seen, strict=True):
+        assert training
+        assert held_out not in {c.info.speaker for c in training}
+    head = robot.group_mask("head")
+    for clip in clips:  # the tuned checkpoint predicts: a head at temperature 0 ignores the seed
+        first, second = predictions["live_groups (LOSO)"][clip.info.clip_id]
+        np.testing.assert_array_equal(first[:, head], second[:, head])
+
+
+def test_when_splitting_by_speaker_expect_every_speaker_to_validate_once_and_never_train_there(
+    clips,
+):
+    renamed = [replace(c, info=replace(c.info, speaker=f"p{i % 5}")) for i, c in enumerate(clips)]
+    folds = speaker_folds(renamed, 3)
+    assert len(folds) == 3
+    validating = [s for _, v in folds for s in sorted({c.info.speaker for c in v})]
+    assert sorted(validating) == [f"p{i}" for i in range(5)]
+    for training, validation in folds:
+        assert not {c.info.speaker for c in training} & {c.info.speaker for c in validation}
+        assert len(training) + len(validation) == len(renamed)
+    assert speaker_folds(renamed, 3) == folds
+    assert speaker_folds(renamed[:1], 3) == []
+
+
+def test_when_folds_observe_different_groups_expect_each_part_scored_on_its_own_groups(
+    checkpoint, clips, robot
+):
+    head = robot.group_mask("head")
+    validation = [c for c in clips if c.info.split == "validation"]
+    heads_only = [replace(c, mask=c.mask & head) for c in validation[:1]]
+    body_only = [replace(c, mask=c.mask & ~head) for c in validation[1:]]
+    choice = choose_sampling([(checkpoint, heads_only), (checkpoint, body_only)], robot, 2)
+    groups = {(t.setting, t.group) for t in choice.trials if t.setting != "silence_temperature"}
+    assert groups == {
+        ("first_temperature", "head"),
+        ("second_temperature", "arms"),
+        ("second_temperature", "hip"),
+    }
+    assert choice.n_models == 2
+    assert choice.validation == tuple(c.info.clip_id for c in heads_only + body_only)
