@@ -2,8 +2,11 @@
 
 Verbs: ``run`` (start the node graph, optionally play a WAV and record a bag), ``demo`` (run on
 the bundled speech clip with the default model), ``synth`` (offline synthesis to CSV), ``bench``
-(per-frame cost of the streaming path), ``distill-prosody`` (rebuild the default model). Each verb
-is a function ``command_<verb>(args) -> int``.
+(per-frame cost of the streaming path and of the live graph), ``plot-filter`` (raw model output
+against the online filter), ``distill-prosody`` (an MLP imitating the prosody rule); the
+``*_commands`` modules add ``train``, ``evaluate``, ``dataset``, ``bag``, ``render`` and
+``faults``. Each verb is a function ``command_<verb>(args) -> int`` that parses and checks its
+options and calls the layer that does the work.
 
 Errors and exit status: the package raises :class:`~audio2pose_ros.errors.Audio2PoseError` for
 what a user can fix, and only those are reported as ``audio2pose <verb>: error: ...``, one line
@@ -22,10 +25,15 @@ import time
 import traceback
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import numpy as np
 
 from audio2pose_ros.cli.options import (
     MAX_SEED,
     OneLineParser,
+    Verbs,
     bounded_float,
     bounded_int,
     input_bag,
@@ -120,12 +128,12 @@ def _speech_input(name: str) -> Path:
     return input_file(path, "WAV file") if path.suffix.lower() == ".wav" else input_bag(path)
 
 
-def _read_speech(path: Path):  # noqa: ANN202 - numpy imported lazily
+def _read_speech(path: Path) -> np.ndarray:
     """16 kHz mono samples of a WAV file, or of a bag's audio topics."""
     from audio2pose_ros.audio.wav import read_wav
     from audio2pose_ros.data.bag import read_bag_audio
 
-    path = _speech_input(path)
+    path = _speech_input(str(path))
     return read_wav(path)[0] if path.suffix.lower() == ".wav" else read_bag_audio(path)
 
 
@@ -217,7 +225,7 @@ def command_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_bench(results: dict, frames: int, clip_s: float) -> None:
+def _print_bench(results: dict[str, Any], frames: int, clip_s: float) -> None:
     print(f"per-frame cost on one core, {frames} frames of real speech (10 ms each)")
     print(f"{'stage':<52}{'median us':>12}{'p99 us':>12}")
     for name, timing in results["stages_us"].items():
@@ -249,7 +257,7 @@ def _print_bench(results: dict, frames: int, clip_s: float) -> None:
         _print_graph(results["graph"])
 
 
-def _print_graph(runs: list[dict]) -> None:
+def _print_graph(runs: list[dict[str, Any]]) -> None:
     """The graph figures of each mode side by side, then the targets met or not."""
     modes = [run["mode"] for run in runs]
     print(f"\nlive graph over DDS, {runs[0]['audio_s']:.0f} s of speech in 10 ms chunks")
@@ -292,54 +300,16 @@ def _print_graph(runs: list[dict]) -> None:
             )
 
 
-def _section(data: object, key: str, path: Path) -> dict:
-    """``data[key]["ros__parameters"]`` of a ROS parameters file, checked to be mappings."""
-    node = data.get(key) if isinstance(data, dict) else None
-    params = node.get("ros__parameters") if isinstance(node, dict) else None
-    if node is not None and params is not None and not isinstance(params, dict):
-        raise InputError(f"{path}: {key}.ros__parameters must be a mapping")
-    return params or {}
-
-
-def _filter_from_params(params_file: Path | None):  # noqa: ANN202 - heavy types imported lazily
-    """A MotionFilter configured like motion_filter_node from a ROS parameter file."""
-    from dataclasses import fields
-
-    from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
-    from audio2pose_ros.motion.limits import LimitSettings
-    from audio2pose_ros.resources import share_path
-    from audio2pose_ros.robot.description import load_robot
-    from audio2pose_ros.yaml_files import read_yaml_file
-
-    path = params_file or share_path("config", "pepper.yaml")
-    data = read_yaml_file(path, "parameters", InputError) or {}
-    if not isinstance(data, dict):
-        raise InputError(f"{path}: a parameters file is a mapping of node names")
-    params = _section(data, "motion_filter_node", path)
-    shared = _section(data, "/**", path)
-    robot_file = params.get("robot_description") or shared.get("robot_description") or ""
-    if not isinstance(robot_file, str):
-        raise InputError(f"{path}: robot_description must be a string, got {robot_file!r:.40}")
-    robot = load_robot(robot_file)
-
-    def pick(cls: type) -> object:
-        try:
-            return cls(**{f.name: params[f.name] for f in fields(cls) if f.name in params})
-        except Audio2PoseError as exc:
-            raise InputError(f"{path}: {exc}") from None
-
-    return MotionFilter(robot, pick(MotionFilterSettings), pick(LimitSettings))
-
-
 def command_plot_filter(args: argparse.Namespace) -> int:
     """Draw raw model output against the online motion filter for a speech file."""
     from audio2pose_ros.audio.wav import read_wav
     from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+    from audio2pose_ros.offline.parameters_file import motion_filter_from_file
     from audio2pose_ros.resources import default_checkpoint_path
     from audio2pose_ros.viz.filter_plot import plot_raw_vs_filtered
 
     output_file(args.output, "-o")
-    filt = _filter_from_params(
+    filt = motion_filter_from_file(
         input_file(args.params_file, "parameters file") if args.params_file else None
     )
     checkpoint = load_checkpoint(args.model or default_checkpoint_path(), robot=filt.robot)
@@ -358,7 +328,7 @@ def command_plot_filter(args: argparse.Namespace) -> int:
 
 
 def command_distill_prosody(args: argparse.Namespace) -> int:
-    """Rebuild the default model: an MLP trained to imitate the prosody rule on the given WAVs."""
+    """Train an MLP to imitate the prosody rule on the given WAVs and write its model card."""
     from audio2pose_ros.learning.distillation import distill_prosody, write_prosody_model_card
     from audio2pose_ros.learning.training import TrainSettings
     from audio2pose_ros.robot.description import load_robot
@@ -477,7 +447,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _command_modules() -> list[Callable[[argparse._SubParsersAction], None]]:
+def _command_modules() -> list[Callable[[Verbs], None]]:
     """``register(verbs)`` functions of the verbs that live in their own modules."""
     from audio2pose_ros.cli import (
         bag_commands,

@@ -20,7 +20,14 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from functools import cached_property
 from pathlib import Path
 
-from audio2pose_ros.cli.options import MAX_SEED, bounded_int, input_dir, input_file, output_file
+from audio2pose_ros.cli.options import (
+    MAX_SEED,
+    Verbs,
+    bounded_int,
+    input_dir,
+    input_file,
+    output_file,
+)
 from audio2pose_ros.errors import UsageError
 
 
@@ -179,7 +186,7 @@ def command_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(verbs: argparse._SubParsersAction) -> None:
+def register(verbs: Verbs) -> None:
     """Add the ``train`` and ``evaluate`` sub-commands to the ``audio2pose`` parser (no torch)."""
     train = verbs.add_parser("train", help="train a pose model on a data set folder")
     train.add_argument(

@@ -27,7 +27,7 @@ from audio2pose_ros.errors import InputError, UsageError
 
 NumberT = TypeVar("NumberT", int, float)
 #: The sub-command table each ``*_commands.register`` adds its verbs to.
-Verbs: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"
+Verbs: TypeAlias = "argparse._SubParsersAction[OneLineParser]"
 
 __all__ = [
     "MAX_SEED",
