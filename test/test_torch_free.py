@@ -38,8 +38,9 @@ def _loaded_after(code: str) -> dict[str, bool]:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def test_the_run_and_demo_verbs_and_the_graph_runner_import_no_torch() -> None:
-    """Before: building the parser imported torch (model_commands.register); after: not."""
+def test_the_run_and_demo_verbs_and_the_graph_runner_import_no_torch_nor_scipy() -> None:
+    """Before: building the parser imported torch (model_commands.register) and scipy
+    (render_commands -> viz.render); after: neither."""
     code = (
         "from audio2pose_ros.cli.main import build_parser\n"
         "parser = build_parser()\n"
@@ -47,7 +48,7 @@ def test_the_run_and_demo_verbs_and_the_graph_runner_import_no_torch() -> None:
         "parser.parse_args(['demo'])\n"
         "import audio2pose_ros.ros.graph\n"
     )
-    assert not _loaded_after(code)["torch"]
+    assert _loaded_after(code) == {"torch": False, "scipy": False}
 
 
 def test_the_node_processes_import_neither_torch_nor_scipy() -> None:

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.offline.trajectory import Trajectory
@@ -152,6 +151,8 @@ class RobotCamera:
         The base (``GROUND_LINK``) stays where it is in the default pose, as on the floor: the
         hip joints then tilt the upper body, not the base.
         """
+        from scipy.spatial.transform import Rotation  # only the renderer needs scipy
+
         full = self._kinematics.resolve(positions)
         for name, value in full.items():
             self._client.resetJointState(self._body, self._index[name], value)
@@ -162,6 +163,8 @@ class RobotCamera:
 
     def link_pose(self, link: str) -> np.ndarray:
         """(4, 4) world pose of a link's frame, from pybullet's own forward kinematics."""
+        from scipy.spatial.transform import Rotation
+
         for index in self._index.values():
             if self._client.getJointInfo(self._body, index)[12].decode() == link:
                 state = self._client.getLinkState(self._body, index, computeForwardKinematics=True)
