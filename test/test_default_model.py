@@ -86,7 +86,7 @@ def test_when_loading_the_packaged_default_expect_a_seeded_streaming_sampler_lea
     other = run(1)
     assert np.degrees(np.abs(other - first).max(axis=0)).max() > 2.0  # visibly different
     # within the limits; denormalize(1.0) lands up to one rounding step (7e-17 rad) above them
-    assert np.all((first >= robot.lower_rad - 1e-12) & (first <= robot.upper_rad + 1e-12))
+    assert np.all((first >= robot.lower_rad) & (first <= robot.upper_rad))
 
 
 def test_when_loading_the_packaged_default_expect_sampling_chosen_on_clips_it_is_not_tested_on(

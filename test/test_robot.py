@@ -154,3 +154,9 @@ def test_when_the_file_is_huge_missing_or_a_directory_expect_one_line(tmp_path: 
 def test_when_the_robot_file_is_a_device_expect_refused_without_reading():
     with pytest.raises(ConfigurationError, match="/dev/zero: not a regular file"):
         load_robot("/dev/zero")
+
+
+def test_when_unit_positions_are_0_and_1_expect_the_limits_exactly():
+    robot = load_robot()
+    assert np.array_equal(robot.denormalize(np.zeros(robot.n_joints)), robot.lower_rad)
+    assert np.array_equal(robot.denormalize(np.ones(robot.n_joints)), robot.upper_rad)

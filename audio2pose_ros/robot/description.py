@@ -164,8 +164,13 @@ class RobotDescription:
         return (np.asarray(angles_rad) - self.lower_rad) / (self.upper_rad - self.lower_rad)
 
     def denormalize(self, unit: np.ndarray) -> np.ndarray:
-        """Invert :meth:`normalize` (seed 003 section 3.4.2, nu^-1)."""
-        return self.lower_rad + np.asarray(unit) * (self.upper_rad - self.lower_rad)
+        """Invert :meth:`normalize` (seed 003 section 3.4.2, nu^-1).
+
+        Written as ``(1 - u) lower + u upper`` so that 0 and 1 give the limits exactly (the form
+        ``lower + u (upper - lower)`` can land one rounding step above ``upper``).
+        """
+        u = np.asarray(unit)
+        return (1.0 - u) * self.lower_rad + u * self.upper_rad
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe form, stored in checkpoints so a model knows the robot it was trained for."""
