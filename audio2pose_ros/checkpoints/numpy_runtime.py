@@ -138,6 +138,9 @@ class MLPKernel:
 class LSTMKernel:
     """Seed 003 section 4.3.4 LSTM, causal: one cell step per frame with (h, c) carried."""
 
+    _h: np.ndarray
+    _c: np.ndarray
+
     def __init__(
         self,
         w_ih: np.ndarray,
@@ -212,7 +215,7 @@ class LiveKernel:
         self._rng = np.random.default_rng(self.seed)
         self._hidden = np.zeros(self._w_hh.shape[0])
         self._previous = self._start_pose.copy()
-        self._noise = self._rng.standard_normal(self._start_pose.shape[0])
+        self._noise = self._rng.standard_normal(int(self._start_pose.shape[0]))
         self._smooth = self._noise * self._second_gain
         self._first = True
 

@@ -332,7 +332,7 @@ def mismatched_order(speakers: Sequence[str]) -> list[int]:
     if n < 2:
         return list(range(n))
 
-    def cost(shift: int) -> tuple[int, int]:
+    def cost(shift: int) -> tuple[int, float]:
         same = sum(speakers[i] == speakers[(i + shift) % n] for i in range(n))
         return same, abs(shift - n / 2)
 

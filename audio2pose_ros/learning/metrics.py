@@ -116,7 +116,7 @@ def lcca(x: np.ndarray, y: np.ndarray, window_frames: int) -> float:
 def _complete_joints(mask: np.ndarray | None, n_joints: int) -> np.ndarray:
     if mask is None:
         return np.ones(n_joints, dtype=bool)
-    return np.asarray(mask, dtype=bool).all(axis=0)
+    return np.asarray(np.asarray(mask, dtype=bool).all(axis=0))
 
 
 def window_frames_for(rate_hz: float, window_s: float = LCCA_WINDOW_S) -> int:
@@ -357,7 +357,7 @@ def segment_statistics(
     centred = theta - centre
     silence = long_silences(speech, rate_hz)
     mean_speed = np.where(speed_ok, speed, 0.0).sum(axis=1) / np.maximum(speed_ok.sum(axis=1), 1)
-    any_speed = speed_ok.any(axis=1)
+    any_speed = np.asarray(speed_ok.any(axis=1))
     length = max(1, round(segment_s * rate_hz))
     bounds = [(s, min(n, s + length)) for s in range(0, n, length) if min(n, s + length) - s > 2]
     out = MotionSegments(
@@ -454,7 +454,7 @@ def bootstrap_measures(
     """
     point = distribution_measures(real, generated)
     rng = np.random.default_rng(seed)
-    n = real.speed_counts.shape[0]
+    n = int(real.speed_counts.shape[0])
     draws: dict[str, list[float]] = {k: [] for k in point}
     for _ in range(n_resamples if n > 1 else 0):
         pick = rng.integers(0, n, n)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from pathlib import Path
+from typing import cast
 
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Dataset
@@ -18,6 +19,7 @@ from audio2pose_ros.learning.sampler_selection import (
     SamplingChoice,
 )
 from audio2pose_ros.learning.train_state import TrainReport
+from audio2pose_ros.models.live_groups import LiveGroups
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 _ARMS_TEXT = {
@@ -56,7 +58,8 @@ def _verdicts(evaluation: Evaluation) -> str:
     model = rows.pop(model_name)
     lines = []
     for baseline, row in rows.items():
-        better, worse = [], []
+        better: list[str] = []
+        worse: list[str] = []
         for metric, lower in _COMPARED:
             if row[metric] != row[metric] or model[metric] == row[metric]:  # NaN or tie
                 continue
@@ -84,7 +87,7 @@ def write_default_model_card(
 
 ## What it is
 A frame-wise MLP (seed 003 section 4.3.3; config `{checkpoint.model.config_dict()}`,
-{n_params} parameters) from {checkpoint.features.kind}{checkpoint.features.dim} audio features to
+{n_params} parameters) from {checkpoint.features.label} audio features to
 Pepper's {checkpoint.robot.n_joints} joints. It streams (no state), so `inference_node` runs it.
 Rebuild it with `audio2pose dataset build-default` (see README); training stopped at epoch
 {report.best_epoch} (validation loss {report.best_val_loss:.5f}).
@@ -251,6 +254,7 @@ def write_learned_model_card(
 
     n_params = sum(p.numel() for p in checkpoint.model.parameters())
     model_label = next(r.method for r in arms.rows if r.method.startswith("live_groups"))
+    config = cast(LiveGroups, checkpoint.model).config  # the learned default is live_groups
     validation = sorted(checkpoint.info.get("validation_clips", []))
     lecture_seconds = {
         split: sum(
@@ -264,14 +268,14 @@ def write_learned_model_card(
 `live_groups` (this package's own, `audio2pose_ros/models/live_groups.py`): two causal,
 autoregressive GRU samplers side by side, one for HeadPitch and HeadYaw, one for the arms and
 HipRoll (config `{checkpoint.model.config_dict()}`, {n_params} parameters). At every 10 ms
-frame each reads the {checkpoint.features.kind}{checkpoint.features.dim} audio features and its
+frame each reads the {checkpoint.features.label} audio features and its
 own previous pose and samples the next pose from a Gaussian, with smooth, time-correlated
 noise: it samples motion instead of regressing to the mean, so it moves like a person rather
 than like the average of people. A causal speech gate (mean filter-bank energy against its
-recent peak) scales the sampling noise down to {checkpoint.model.config.silence_temperature:g} of
+recent peak) scales the sampling noise down to {config.silence_temperature:g} of
 itself in silence, so the robot comes to rest when nobody speaks; the head part samples at
-temperature {checkpoint.model.config.first_temperature:g}, the arm part at
-{checkpoint.model.config.second_temperature:g} (chosen on validation clips, see below). It streams
+temperature {config.first_temperature:g}, the arm part at
+{config.second_temperature:g} (chosen on validation clips, see below). It streams
 (two GRU cell steps per frame, about 0.1 ms), so `inference_node` runs it. Same seed, same
 motion; another seed, another motion on the same audio (`streaming_predictor(seed=N)` online,
 `audio2pose_ros.offline.synthesis.synthesize(..., seed=N)` offline; the default seed is 0).

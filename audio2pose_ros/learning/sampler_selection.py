@@ -161,7 +161,7 @@ def cross_validated(
     it uses all its other speakers for training.
     """
     pairs = speaker_folds(clips, k)
-    folds = []
+    folds: list[Fold] = []
     for i, (training, validation) in enumerate(pairs):
         if progress is not None:
             speakers = sorted({c.info.speaker for c in validation})
@@ -179,9 +179,11 @@ def _observed(robot: RobotDescription, clips: Sequence[Clip]) -> list[str]:
     ]
 
 
-def _part_groups(model: LiveGroups, robot: RobotDescription, groups: Sequence[str]) -> dict:
+def _part_groups(
+    model: LiveGroups, robot: RobotDescription, groups: Sequence[str]
+) -> dict[str, list[str]]:
     """Part setting name -> its joint groups among ``groups``."""
-    parts = {}
+    parts: dict[str, list[str]] = {}
     for setting, joints in zip(_PART_SETTINGS, model.groups, strict=True):
         inside = np.zeros(robot.n_joints, bool)
         inside[joints] = True
@@ -259,9 +261,10 @@ def choose_sampling(
     groups = _observed(robot, clips)
     if not groups:
         return SamplingChoice({}, (), names, seconds, len(folds))
+    first = cast(LiveGroups, folds[0][0].model)  # only LiveGroups folds are kept above
     parts = {
         setting: part_groups
-        for setting, part_groups in _part_groups(folds[0][0].model, robot, groups).items()
+        for setting, part_groups in _part_groups(first, robot, groups).items()
         if part_groups
     }
     trials: list[Trial] = []
@@ -274,12 +277,11 @@ def choose_sampling(
     chosen: dict[str, float] = {}
     for setting, part in parts.items():
         weights = [int(robot.group_mask(g).sum()) for g in part]
-        chosen[setting] = min(
-            TEMPERATURES,
-            key=lambda v, part=part, weights=weights: np.average(
-                [score(per_value[v][g]) for g in part], weights=weights
-            ),
-        )
+
+        def weighted(v: float, part: list[str] = part, weights: list[int] = weights) -> float:
+            return np.average([score(per_value[v][g]) for g in part], weights=weights)
+
+        chosen[setting] = min(TEMPERATURES, key=weighted)
     for rest in SILENCE_TEMPERATURES:
         settings = {**chosen, "silence_temperature": rest}
         ratios = _measures(folds, settings, robot, n_seeds, True)

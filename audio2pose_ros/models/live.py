@@ -242,7 +242,7 @@ class LivePredictor(StreamingPredictor):
         self._rng = np.random.default_rng(self.seed)
         hidden, previous = self._core.start(1)
         self._state = (hidden[0], previous[0])
-        self._noise = self._rng.standard_normal(previous.shape[1])
+        self._noise = self._rng.standard_normal(int(previous.shape[1]))
         self._smooth = self._noise * self._core.second_gain  # second AR(1) stage (order 2)
         self._first = True
 

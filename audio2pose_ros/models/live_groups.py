@@ -28,7 +28,7 @@ seed (the head part's noise from ``seed``, the body part's from ``seed + 1``).
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
-from typing import Any, ClassVar
+from typing import Any, ClassVar, cast
 
 import numpy as np
 import torch
@@ -101,6 +101,10 @@ class LiveGroups(PoseModel):
         """Constructor arguments as a dict."""
         return asdict(self.config)
 
+    def samplers(self) -> list[LiveSampler]:
+        """The two parts, typed (``parts`` is a ``ModuleList`` of :class:`LiveSampler`)."""
+        return [cast(LiveSampler, part) for part in self.parts]
+
     def _scatter(self, outputs: list[torch.Tensor]) -> torch.Tensor:
         shape = (*outputs[0].shape[:-1], self.config.n_joints)
         poses = outputs[0].new_zeros(shape)
@@ -117,7 +121,7 @@ class LiveGroups(PoseModel):
     ) -> torch.Tensor:
         """Sum of the parts' masked Gaussian negative log-likelihoods."""
         total = features.new_zeros(())
-        for joints, part in zip(self.groups, self.parts, strict=True):
+        for joints, part in zip(self.groups, self.samplers(), strict=True):
             index = torch.from_numpy(joints)
             if mask[..., index].any():
                 total = total + part.training_loss(features, targets[..., index], mask[..., index])
@@ -136,7 +140,8 @@ class LiveGroups(PoseModel):
         unknown = sorted(set(settings) - set(SAMPLING_SETTINGS))
         if unknown:
             raise ConfigurationError(f"{unknown} are not sampling settings {SAMPLING_SETTINGS}")
-        model = LiveGroups(replace(self.config, **settings))
+        # dataclasses.replace is typed per field; the names were checked just above
+        model = LiveGroups(replace(self.config, **cast(dict[str, Any], settings)))
         model.load_state_dict(self.state_dict())
         return model.train(self.training)
 
@@ -167,7 +172,9 @@ class LiveGroups(PoseModel):
         )
         scale = np.stack([gate.run(row) for row in x])[..., None]  # (S * B, T, 1)
         outputs = []
-        for k, (part, factor) in enumerate(zip(self.parts, self.part_temperatures(), strict=True)):
+        for k, (part, factor) in enumerate(
+            zip(self.samplers(), self.part_temperatures(), strict=True)
+        ):
             core = part._core()
             white = np.stack(
                 [
@@ -198,7 +205,8 @@ class LiveGroupsPredictor(GroupedSampler, StreamingPredictor):
         config = model.config
         self._gate = SpeechGate(config.silence_temperature, config.gate_margin, config.gate_width)
         self._parts = [
-            LivePredictor(part._core(), seed + k, temperature) for k, part in enumerate(model.parts)
+            LivePredictor(part._core(), seed + k, temperature)
+            for k, part in enumerate(model.samplers())
         ]
         self.seed = seed
         self.temperature = temperature

@@ -23,6 +23,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 import torch
@@ -88,7 +89,7 @@ def streaming_costs(
     normalized = checkpoint.normalizer.apply(frames)
 
     predictor = checkpoint.model.streaming_predictor()
-    model_ns = _time_calls([lambda f=f: predictor.step(f) for f in normalized])
+    model_ns = _time_calls([partial(predictor.step, f) for f in normalized])
     poses = checkpoint.robot.denormalize(np.array([predictor.step(f) for f in normalized]))
 
     clock = [0.0]
@@ -98,7 +99,7 @@ def streaming_costs(
         filt.push(pose[None, :], clock[0])
         filt.tick(clock[0])
 
-    filter_ns = _time_calls([lambda p=p: filter_step(p) for p in poses])
+    filter_ns = _time_calls([partial(filter_step, p) for p in poses])
 
     total_extractor = StreamingFeatureExtractor(spec)
     total_predictor = checkpoint.model.streaming_predictor()
@@ -108,7 +109,7 @@ def streaming_costs(
             pose = total_predictor.step(checkpoint.normalizer.apply(frame[None, :])[0])
             filter_step(checkpoint.robot.denormalize(pose))
 
-    total_ns = _time_calls([lambda c=c: whole_frame(c) for c in chunks[:n_frames]])
+    total_ns = _time_calls([partial(whole_frame, c) for c in chunks[:n_frames]])
     return [
         Timing.of("features (push 160 samples)", feature_ns[:n_frames]),
         Timing.of(f"model step ({checkpoint.model.name})", model_ns),
@@ -125,7 +126,7 @@ def reference_feature_cost(signal_16k: np.ndarray, n_frames: int = 1000) -> Timi
     windows = [audio[i * 160 : i * 160 + 400] for i in range(n_frames)]
     return Timing.of(
         "python_speech_features.logfbank per 25 ms window",
-        _time_calls([lambda w=w: logfbank(w, 16000, nfft=512) for w in windows]),
+        _time_calls([partial(logfbank, w, 16000, nfft=512) for w in windows]),
     )
 
 
@@ -176,22 +177,18 @@ def model_costs(
         step = kernel_step = torch_step = None
         if model.streaming:
             step_fn = model.streaming_predictor().step
-            step = Timing.of(name, _time_calls([lambda f=f, s=step_fn: s(f) for f in frames]))
+            step = Timing.of(name, _time_calls([partial(step_fn, f) for f in frames]))
             kernel = numpy_kernel_for(name, model.config_dict())
             if kernel is not None:
                 tensors = {k: v.detach().numpy() for k, v in model.state_dict().items()}
                 run = kernel.build(tensors, model.config_dict()).step
-                kernel_step = Timing.of(
-                    name, _time_calls([lambda f=f, s=run: s(f) for f in frames])
-                )
+                kernel_step = Timing.of(name, _time_calls([partial(run, f) for f in frames]))
             inputs = torch.from_numpy(frames).float()[:, None, None, :]  # (N, 1, 1, F)
             with torch.no_grad():
-                torch_step = Timing.of(
-                    name, _time_calls([lambda x=x, m=model: m(x) for x in inputs])
-                )
+                torch_step = Timing.of(name, _time_calls([partial(model, x) for x in inputs]))
         checkpoint = Checkpoint(model, spec, normalizer, robot)
         durations = _time_calls(
-            [lambda c=checkpoint: synthesize(c, signal_16k) for _ in range(repeats)]
+            [partial(synthesize, checkpoint, signal_16k) for _ in range(repeats)]
         )
         costs.append(
             ModelCost(name, step, audio_s / (min(durations) / 1e9), kernel_step, torch_step)

@@ -81,7 +81,8 @@ def lecture_clips(
         tracks.times_s, angles, observed, np.zeros(tracks.times_s.size), audio, info, robot
     )
     mask = _erode(whole.mask, round(EDGE_S * 100))
-    both = mask[:, [robot.names.index(f"{side}ShoulderPitch") for side in "LR"]].all(axis=1)
+    shoulders = [robot.names.index(f"{side}ShoulderPitch") for side in "LR"]
+    both = np.asarray(mask[:, shoulders].all(axis=1))
     mask &= both[:, None]  # one arm alone is mostly a close-up's guess (SOURCES.md)
     arms = both
     clips = []

@@ -85,7 +85,9 @@ def track_video(path: Path, body: bool = True, face: bool = True) -> VideoTracks
     import mediapipe as mp
 
     model = head_pose.canonical_face_model()
-    times, found, rotations, residuals, xyz, visibility = [], [], [], [], [], []
+    times, found, rotations, residuals = [], [], [], []
+    xyz: list[list[list[float]] | np.ndarray] = []
+    visibility: list[list[float] | np.ndarray] = []
     start = time.perf_counter()
     face_mesh = (
         mp.solutions.face_mesh.FaceMesh(static_image_mode=False, max_num_faces=1) if face else None
