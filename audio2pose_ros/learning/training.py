@@ -30,6 +30,7 @@ from audio2pose_ros.audio.features import FeatureSpec
 from audio2pose_ros.checkpoints.torch_io import Checkpoint, load_checkpoint, save_checkpoint
 from audio2pose_ros.data.dataset import Clip, Dataset
 from audio2pose_ros.learning.batches import (
+    TrainingData,
     TrainingError,
     Utterance,
     hold_out,
@@ -248,6 +249,31 @@ def train_model(
     return report
 
 
+def training_info(
+    model: PoseModel,
+    data: TrainingData,
+    settings: TrainSettings,
+    report: TrainReport,
+    **extra: object,
+) -> dict[str, Any]:
+    """What a trained checkpoint records about its training (its ``info`` header section).
+
+    ``extra`` adds the caller's own entries first (the data set, subject, fine-tuning source).
+    """
+    return {
+        **extra,
+        "train_clips": sorted(u.name for u in data.train),
+        "validation_clips": sorted(u.name for u in data.validation),
+        "speakers": data.speakers,
+        "recipe": asdict(model.recipe),
+        "seed": settings.seed,
+        "stages": [asdict(stage) for stage in report.stages],
+        "epochs": len(report.val_loss),
+        "best_epoch": report.best_epoch,
+        "best_validation_loss": report.best_val_loss,
+    }
+
+
 def train_on_clips(
     model_name: str,
     clips: Sequence[Clip],
@@ -288,18 +314,7 @@ def train_on_clips(
         train_clips, val_clips = hold_out(list(clips), 0.2, holdout, settings.seed)
     data = training_data_from_clips(train_clips, val_clips, robot, spec)
     report = train_model(model, data.train, data.validation, settings)
-    info = {
-        "train_clips": sorted(u.name for u in data.train),
-        "validation_clips": sorted(u.name for u in data.validation),
-        "speakers": data.speakers,
-        "subject": "independent",
-        "recipe": asdict(model.recipe),
-        "seed": settings.seed,
-        "stages": [asdict(s) for s in report.stages],
-        "epochs": len(report.val_loss),
-        "best_epoch": report.best_epoch,
-        "best_validation_loss": report.best_val_loss,
-    }
+    info = training_info(model, data, settings, report, subject="independent")
     return Checkpoint(model, spec, data.normalizer, robot, info), report
 
 
@@ -350,20 +365,15 @@ def train_from_dataset(
     report = train_model(
         model, data.train, data.validation, settings, state_path_for(output), resume
     )
-    info = {
-        "dataset": str(Path(data_dir).resolve()),
-        "train_clips": sorted(u.name for u in data.train),
-        "validation_clips": sorted(u.name for u in data.validation),
-        "speakers": data.speakers,
-        "subject": "dependent" if speaker else "independent",
-        "finetuned_from": str(finetune) if finetune else None,
-        "recipe": asdict(model.recipe),
-        "seed": settings.seed,
-        "stages": [asdict(s) for s in report.stages],
-        "epochs": len(report.val_loss),
-        "best_epoch": report.best_epoch,
-        "best_validation_loss": report.best_val_loss,
-    }
+    info = training_info(
+        model,
+        data,
+        settings,
+        report,
+        dataset=str(Path(data_dir).resolve()),
+        subject="dependent" if speaker else "independent",
+        finetuned_from=str(finetune) if finetune else None,
+    )
     checkpoint = Checkpoint(model, spec, data.normalizer, robot, info)
     save_checkpoint(output, checkpoint)
     return checkpoint, report
