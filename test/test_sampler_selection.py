@@ -16,6 +16,7 @@ from audio2pose_ros.learning.sampler_selection import (
     SILENCE_TEMPERATURES,
     TEMPERATURES,
     choose_sampling,
+    fold_tuner,
     score,
     select_sampling,
     speaker_folds,
@@ -172,3 +173,21 @@ def test_when_folds_observe_different_groups_expect_each_part_scored_on_its_own_
     }
     assert choice.n_models == 2
     assert choice.validation == tuple(c.info.clip_id for c in heads_only + body_only)
+
+
+def test_when_a_fold_is_tuned_expect_a_choice_made_on_its_training_speakers_and_applied(
+    clips, checkpoint, robot
+):
+    train = [c for c in clips if c.info.split == "train"]
+    choices = []
+    tune = fold_tuner(
+        robot, TrainSettings(max_epochs=1, batch_size=4, show_progress=False), choices=choices
+    )
+    tuned = tune(checkpoint, train)
+    assert len(choices) == 1
+    assert set(choices[0].validation) <= {c.info.clip_id for c in train}
+    for name, value in choices[0].settings.items():
+        assert getattr(tuned.model.config, name) == value
+    mlp, _ = train_on_clips("mlp", train, robot, TrainSettings(max_epochs=1, show_progress=False))
+    assert tune(mlp, train) is mlp
+    assert len(choices) == 1

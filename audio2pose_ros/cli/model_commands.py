@@ -161,6 +161,7 @@ def command_evaluate(args: argparse.Namespace) -> int:
         clips, predictions, paused = [], {}, {}
     if args.loso:
         from audio2pose_ros.learning.default_model import LearnedBuildSettings
+        from audio2pose_ros.learning.sampler_selection import fold_tuner
 
         build = LearnedBuildSettings()  # the default model's evaluation, fold for fold
         settings = TrainSettings(
@@ -170,8 +171,9 @@ def command_evaluate(args: argparse.Namespace) -> int:
             seed=args.seed,
             show_progress=False,
         )
+        tune = fold_tuner(robot, settings, progress)  # live_groups: as the default model's card
         clips, predictions, paused = loso_predictions(
-            dataset, robot, args.loso, settings, args.samples, progress
+            dataset, robot, args.loso, settings, args.samples, progress, tune
         )
         tables.append("leave one speaker out: every clip held out once, in its speaker's fold")
     figure = out_dir / "distributions.png" if out_dir is not None else None

@@ -44,7 +44,6 @@ from audio2pose_ros.motion.prosody import prosody_trajectory
 from audio2pose_ros.robot.description import RobotDescription
 
 if TYPE_CHECKING:
-    from audio2pose_ros.checkpoints.torch_io import Checkpoint
     from audio2pose_ros.learning.evaluation import Predictions
     from audio2pose_ros.learning.sampler_selection import SamplingChoice
 
@@ -303,6 +302,7 @@ def build_learned_default_model(
         apply_sampling,
         choose_sampling,
         cross_validated,
+        fold_tuner,
     )
     from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 
@@ -369,15 +369,7 @@ def build_learned_default_model(
     progress("evaluating the head leave-one-speaker-out over the talking-head clips")
     fold_choices: list[SamplingChoice] = []
 
-    def tune(fold: Checkpoint, training: list[Clip]) -> Checkpoint:
-        """A fold's sampling settings, by cross-validation over its training speakers only."""
-        if fold.model.name != "live_groups":
-            return fold
-        inner = cross_validated("live_groups", training, robot, fold_settings, progress=progress)
-        fold_choice = choose_sampling(inner, robot)
-        fold_choices.append(fold_choice)
-        progress("  chosen: " + fold_choice.summary())
-        return apply_sampling(fold, fold_choice)
+    tune = fold_tuner(robot, fold_settings, progress, fold_choices)
 
     clips, loso, loso_paused = loso_predictions(
         heads, robot, ["live_groups", "mlp"], fold_settings, settings.samples, progress, tune

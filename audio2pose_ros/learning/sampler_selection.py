@@ -313,3 +313,30 @@ def select_sampling(
     """Choose on one checkpoint's validation clips and apply: (tuned checkpoint, choice)."""
     choice = choose_sampling([(checkpoint, validation)], robot, n_seeds)
     return apply_sampling(checkpoint, choice), choice
+
+
+def fold_tuner(
+    robot: RobotDescription,
+    settings: TrainSettings,
+    progress: Callable[[str], None] | None = None,
+    choices: list[SamplingChoice] | None = None,
+) -> Callable[[Checkpoint, list[Clip]], Checkpoint]:
+    """The ``tune`` of a leave-one-speaker-out evaluation for ``live_groups``.
+
+    Each fold's settings are chosen by :func:`cross_validated` over that fold's training
+    speakers only (the held-out speaker is never seen), so the reported numbers measure the
+    whole procedure. Other models pass unchanged. Each choice is appended to ``choices``.
+    """
+
+    def tune(fold: Checkpoint, training: list[Clip]) -> Checkpoint:
+        if fold.model.name != "live_groups":
+            return fold
+        inner = cross_validated("live_groups", training, robot, settings, progress=progress)
+        choice = choose_sampling(inner, robot)
+        if choices is not None:
+            choices.append(choice)
+        if progress is not None:
+            progress("  chosen: " + choice.summary())
+        return apply_sampling(fold, choice)
+
+    return tune
