@@ -16,13 +16,9 @@ Publications:
         subscribes to it); a value holds until the next one.
     /diagnostics (diagnostic_msgs/DiagnosticArray): a heartbeat every 0.5 s.
 
-Parameters
-----------
-    model_path (str, read-only): checkpoint whose feature specification to compute ('' = the
-        packaged default).
-    input_type, channels, max_chunk_bytes, max_chunk_s, max_audio_s_per_s: see
-        :class:`~audio2pose_ros.audio.source.AudioInputSettings` (``ros2 param describe``
-        shows each with its range). All but input_type and model_path can change live.
+Parameters: the fields of :class:`FeaturesNodeSettings` (model_path) and of
+:class:`~audio2pose_ros.audio.source.AudioInputSettings` (``ros2 param describe`` shows each with
+its range); all but input_type and model_path can change live.
 
 Audio that cannot be used (no or a rejected format, a message over a limit, NaN samples) is
 dropped, counted and reported on /diagnostics while it happens; a rejected AudioInfo is

@@ -9,19 +9,13 @@ Publications:
         message per features message, while something subscribes to it.
     /diagnostics (diagnostic_msgs/DiagnosticArray): heartbeat every 0.5 s (DiagnosedNode).
 
-Parameters
-----------
-    model_path (str, read-only): checkpoint to run ('' = packaged default). Must be a streaming
-        model.
-    robot_description (str, read-only): robot YAML ('' = packaged Pepper); the checkpoint must
-        match it.
-    feature_limit_sd (float, 1..1000, live): normalised feature values are clamped to
-        +-feature_limit_sd standard deviations of the training data before the model.
+Parameters: the fields of :class:`InferenceNodeSettings` (model_path, robot_description, seed
+read-only; feature_limit_sd live); ``ros2 param describe`` shows each one's range.
 
-Models with a numpy kernel (``mlp``, ``lstm``, ``live``) run without torch
-(:mod:`audio2pose_ros.checkpoints.numpy_runtime`, one product per layer for a message's frames with
-the MLP);
-other streaming models are loaded with torch.
+Models with a numpy kernel (``mlp``, ``lstm``, ``live``, ``live_groups``: every streaming model
+this package trains) run without torch (:mod:`audio2pose_ros.checkpoints.numpy_runtime`; the
+MLP computes a message's frames with one product per layer); a streaming model without a kernel
+would be loaded with torch.
 
 A checkpoint or robot file that is missing, modified, crafted, offline-only or made for other
 joints is a ConfigurationError at start-up: ``run_node`` prints one line and exits with status
