@@ -128,7 +128,6 @@ def command_evaluate(args: argparse.Namespace) -> int:
         loso_predictions,
         quality_evaluation,
     )
-    from audio2pose_ros.learning.training import TrainSettings
     from audio2pose_ros.robot.description import load_robot
 
     if not args.checkpoints and not args.loso:
@@ -163,14 +162,8 @@ def command_evaluate(args: argparse.Namespace) -> int:
         from audio2pose_ros.learning.default_model import LearnedBuildSettings
         from audio2pose_ros.learning.sampler_selection import fold_tuner
 
-        build = LearnedBuildSettings()  # the default model's evaluation, fold for fold
-        settings = TrainSettings(
-            max_epochs=args.max_epochs,
-            batch_size=build.batch_size,
-            patience=build.patience,
-            seed=args.seed,
-            show_progress=False,
-        )
+        # the default model's evaluation, fold for fold
+        settings = LearnedBuildSettings().train_settings(args.max_epochs, seed=args.seed)
         tune = fold_tuner(robot, settings, progress)  # live_groups: as the default model's card
         clips, predictions, paused = loso_predictions(
             dataset, robot, args.loso, settings, args.samples, progress, tune

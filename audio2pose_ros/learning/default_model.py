@@ -46,6 +46,7 @@ from audio2pose_ros.robot.description import RobotDescription
 if TYPE_CHECKING:
     from audio2pose_ros.learning.evaluation import Predictions
     from audio2pose_ros.learning.sampler_selection import SamplingChoice
+    from audio2pose_ros.learning.training import TrainSettings
 
 GRID_LICENCE = (
     "CC BY 4.0; GRID audio-visual sentence corpus, Cooke, Barker, Cunningham and Shao (2006), "
@@ -221,6 +222,18 @@ class LearnedBuildSettings:
     samples: int = 3
     seed: int = 0
 
+    def train_settings(self, max_epochs: int, seed: int | None = None) -> TrainSettings:
+        """The TrainSettings of one training run of this budget (no progress bars)."""
+        from audio2pose_ros.learning.training import TrainSettings
+
+        return TrainSettings(
+            max_epochs=max_epochs,
+            batch_size=self.batch_size,
+            patience=self.patience,
+            seed=self.seed if seed is None else seed,
+            show_progress=False,
+        )
+
 
 def _validation_ids(clips: list[Clip]) -> set[str]:
     """Early-stopping clips: the usual talking-head pair and one training lecture stretch."""
@@ -304,7 +317,7 @@ def build_learned_default_model(
         cross_validated,
         fold_tuner,
     )
-    from audio2pose_ros.learning.training import TrainSettings, train_on_clips
+    from audio2pose_ros.learning.training import train_on_clips
 
     settings = settings or LearnedBuildSettings()
     shutil.rmtree(work_dir, ignore_errors=True)
@@ -315,13 +328,7 @@ def build_learned_default_model(
     lecture_clips = [lecture.load(c.clip_id) for c in lecture.clips]
     usable = head_clips + [c for c in lecture_clips if c.info.split == "train"]
     validation_ids = _validation_ids(usable)
-    train_settings = TrainSettings(
-        max_epochs=settings.max_epochs,
-        batch_size=settings.batch_size,
-        patience=settings.patience,
-        seed=settings.seed,
-        show_progress=False,
-    )
+    train_settings = settings.train_settings(settings.max_epochs)
     progress(
         f"training live_groups on {len(usable) - len(validation_ids)} clips "
         f"(validation: {sorted(validation_ids)})"
@@ -334,13 +341,7 @@ def build_learned_default_model(
         train_settings,
         validation=validation,
     )
-    fold_settings = TrainSettings(
-        max_epochs=settings.loso_epochs,
-        batch_size=settings.batch_size,
-        patience=settings.patience,
-        seed=settings.seed,
-        show_progress=False,
-    )
+    fold_settings = settings.train_settings(settings.loso_epochs)
     progress(
         "choosing the sampling settings: the head's by cross-validation over the talking-head "
         "speakers, the arms' on the validation lecture stretch"
