@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
+from safetensors import SafetensorError
 
 from audio2pose_ros.audio.features import FeatureSpec
 from audio2pose_ros.audio.normalize import FeatureNormalizer
@@ -66,6 +67,7 @@ _HEADER_SECTIONS = {"model": dict, "features": dict, "normalizer": dict, "robot"
 _STRINGS = re.compile(r'"(?:[^"\\]|\\.)*"', re.DOTALL)
 _READ_CHUNK_BYTES = 1 << 20
 T = TypeVar("T")
+TensorT = TypeVar("TensorT")  # a numpy array or a torch tensor, as the caller's reader gives
 
 
 class CheckpointError(ConfigurationError):
@@ -199,6 +201,26 @@ def _audio2pose_header(metadata: object, file: Path) -> tuple[dict[str, Any], st
     if not isinstance(header.get("info", {}), dict):
         raise CheckpointError(f"{file}: header section 'info' must be a JSON object")
     return header, header_text, digest
+
+
+def load_checked_tensors(
+    file: CheckpointFile,
+    load: Callable[[str], dict[str, TensorT]],
+    finite_float32: Callable[[TensorT], bool],
+) -> dict[str, TensorT]:
+    """Read the tensors of a checked file with ``load`` (safetensors' numpy or torch reader).
+
+    Raises:
+        CheckpointError: the tensors cannot be read, or one is not finite float32.
+    """
+    try:
+        tensors = load(str(file.path))
+    except (SafetensorError, OSError) as exc:
+        raise CheckpointError(f"{file.path}: unreadable tensors ({exc})") from None
+    for name, tensor in tensors.items():
+        if not finite_float32(tensor):
+            raise CheckpointError(f"{file.path}: tensor {name!r} is not finite float32")
+    return tensors
 
 
 def read_checkpoint_file(path: str | Path) -> CheckpointFile:

@@ -37,7 +37,6 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
-from safetensors import SafetensorError
 from safetensors.numpy import load_file
 
 from audio2pose_ros.audio.features import FeatureSpec
@@ -47,6 +46,7 @@ from audio2pose_ros.checkpoints.format import (
     CheckpointFile,
     check_made_for,
     header_sections,
+    load_checked_tensors,
     read_checkpoint_file,
     verify_digest,
 )
@@ -543,14 +543,9 @@ def _read_tensors(
                 f"{file.path}: tensor {name!r} has shape {list(file.tensors[name].shape)}, "
                 f"model {model!r} needs {list(shape)} (torch.float32)"
             )
-    try:
-        tensors = load_file(str(file.path))
-    except (SafetensorError, OSError) as exc:
-        raise CheckpointError(f"{file.path}: unreadable tensors ({exc})") from None
-    for name, tensor in tensors.items():
-        if tensor.dtype != np.float32 or not bool(np.isfinite(tensor).all()):
-            raise CheckpointError(f"{file.path}: tensor {name!r} is not finite float32")
-    return tensors
+    return load_checked_tensors(
+        file, load_file, lambda t: t.dtype == np.float32 and bool(np.isfinite(t).all())
+    )
 
 
 def _torch_model(

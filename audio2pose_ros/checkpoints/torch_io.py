@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from audio2pose_ros.audio.features import FeatureSpec
@@ -39,6 +38,7 @@ from audio2pose_ros.checkpoints.format import (
     check_made_for,
     digest_update,
     header_sections,
+    load_checked_tensors,
     parse_section,
     read_checkpoint_file,
     verify_digest,
@@ -163,12 +163,8 @@ def _model_for(file: CheckpointFile) -> PoseModel:
                 f"model {spec['name']!r} needs {list(shape)} ({dtype})"
             )
     model = build_model(spec["name"], spec["config"])
-    try:
-        tensors = load_file(str(file.path))
-    except (SafetensorError, OSError) as exc:
-        raise CheckpointError(f"{file.path}: unreadable tensors ({exc})") from None
-    for name, tensor in tensors.items():
-        if tensor.dtype != torch.float32 or not bool(torch.isfinite(tensor).all()):
-            raise CheckpointError(f"{file.path}: tensor {name!r} is not finite float32")
+    tensors = load_checked_tensors(
+        file, load_file, lambda t: t.dtype == torch.float32 and bool(torch.isfinite(t).all())
+    )
     model.load_state_dict(tensors, strict=True)
     return model
