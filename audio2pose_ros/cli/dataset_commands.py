@@ -307,7 +307,9 @@ def register(verbs: Verbs) -> None:
     build = sub.add_parser(
         "build-default", help="rebuild the default model from the shared recordings"
     )
-    build.add_argument("clips", metavar="CLIPS_DIR", help="../shared/data/talking_heads")
+    build.add_argument(
+        "clips", metavar="CLIPS_DIR", help="talking-head clips (make default-model: TALKING_HEADS)"
+    )
     build.add_argument("-o", "--output", required=True, metavar="DIR", help="checkpoint + card")
     build.add_argument("--work-dir", help="scratch data sets (default: <output>/work)")
     build.add_argument(

@@ -1,7 +1,8 @@
 """A transparent, hand-written prosody-to-gesture rule (not learned from human motion).
 
-No data set pairs speech with Pepper-like upper-body motion that we may redistribute (see
-../shared/DESIGN.md section 7). Where no recorded motion exists, this rule gives motion that
+It is the fallback where no recorded motion of a speaker's arms exists (the default model's
+arms are learned from a lecture recording; ``dataset build-default --arms prosody`` uses this
+rule instead), and a baseline the arm evaluation compares with. It gives motion that
 follows the voice and says openly what it is: loudness raises the forearms and nods the head,
 the spectral balance (bright against dark voice) turns head and hip and makes the gesture
 asymmetric. Its output is a (n_frames, n_joints) trajectory at the feature rate, clamped to the

@@ -1,6 +1,7 @@
-"""The shared lecture recording -> arm and hip clips (issue 13 item 2).
+"""A lecture recording -> arm and hip clips (issue 13 item 2).
 
-``../shared/data/lecture_video/physicsworks.webm`` (see its SOURCES.md) shows one standing
+The lecture the default model learns from ("Physicsworks" by Walter Lewin, CC BY 3.0; README
+"Data and credits"; ``LECTURE_VIDEO`` of ``make default-model``) shows one standing
 lecturer whose arms are visible in about 84 of its 203 s, between camera cuts. This module runs
 the video importer's trackers (:func:`~audio2pose_ros.data.importers.video.track_video`, MediaPipe
 Pose world landmarks) and its retargeting to Pepper's shoulder, elbow and hip joints
