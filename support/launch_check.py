@@ -192,10 +192,13 @@ def scenario_defaults(probe: GraphProbe) -> None:
     if not check("defaults: graph up", graph_up(probe, launch), f"nodes {sorted(probe.nodes())}"):
         launch.stop()
         return
+    # A node is in the graph a moment before its endpoints are: wait for its controller output.
+    controller = "/pepper_joint_trajectory_controller/joint_trajectory"
+    probe.wait_for(lambda: controller in probe.topics_of("motion_filter_node", True), 10.0)
     filter_pubs = probe.topics_of("motion_filter_node", publishers=True)
     check(
         "item 12: controller topic default",
-        "/pepper_joint_trajectory_controller/joint_trajectory" in filter_pubs,
+        controller in filter_pubs,
         f"motion_filter_node publishes {sorted(filter_pubs)}",
     )
     check(
