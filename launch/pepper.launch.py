@@ -69,6 +69,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
+from audio2pose_ros import topics
 from audio2pose_ros.ros.launch_support import (
     ARGUMENTS,
     CONTROLLER_NAME,
@@ -82,7 +83,6 @@ from audio2pose_ros.ros.launch_support import (
 
 PACKAGE = "audio2pose_ros"
 SINGLE_PROCESS = "audio2pose_nodes"  # the process of single_process:=true
-COMMANDED_JOINT_STATES = "commanded_joint_states"
 
 
 def declare_arguments() -> list[DeclareLaunchArgument]:
@@ -176,9 +176,7 @@ class NodeSupervisor:
         if executable == "audio_features_node":
             remappings = list(self.plan.audio_topics.items())
         if executable == "motion_filter_node":
-            remappings = [
-                ("joint_trajectory_controller/joint_trajectory", self.plan.controller_topic)
-            ]
+            remappings = [(topics.JOINT_TRAJECTORY, self.plan.controller_topic)]
         return Node(
             package=PACKAGE,
             executable=executable,
@@ -231,7 +229,7 @@ def visualisation_and_simulation(plan: LaunchPlan) -> list[Action]:
                 executable="robot_state_publisher",
                 name="robot_state_publisher",
                 parameters=[{"robot_description": robot_description()}],
-                remappings=[("joint_states", COMMANDED_JOINT_STATES)],
+                remappings=[(topics.JOINT_STATES, topics.COMMANDED_JOINT_STATES)],
             )
         )
     if plan.rviz:

@@ -55,6 +55,7 @@ __all__ = [
 CONTROLLER_NAME = "pepper_joint_trajectory_controller"
 CONTROLLER_TOPIC = f"/{CONTROLLER_NAME}/joint_trajectory"
 SIM_CHOICES = ("none", "gz")
+AUDIO_INPUTS = (topics.AUDIO, topics.AUDIO_INFO)  # the features node's inputs moved by audio_ns
 # The launch file's arguments, all read by plan_launch.
 ARGUMENTS = (
     "params_file",
@@ -266,10 +267,8 @@ class LaunchPlan:
     @property
     def audio_topics(self) -> dict[str, str]:
         """Remappings of the features node's audio inputs."""
-        return {
-            "audio/audio": topic_in(self.audio_ns, "audio"),
-            "audio/audio_info": topic_in(self.audio_ns, "audio_info"),
-        }
+        # audio_capture's topics keep their names inside the chosen namespace
+        return {name: topic_in(self.audio_ns, name.rsplit("/", 1)[-1]) for name in AUDIO_INPUTS}
 
     @property
     def commanded_state_publisher(self) -> bool:
