@@ -81,3 +81,29 @@ def test_when_signalled_at_any_point_of_start_up_expect_quiet_exit(tmp_path, sig
         pytest.fail(f"{signal.Signals(signum).name} after {after_s} s was ignored")
     assert "Traceback" not in output, output
     assert process.returncode in (0, 128 + signum), process.returncode
+
+
+def test_when_start_up_threads_exist_expect_stop_signals_blocked_in_every_one():
+    """A stop signal during start-up must not run rclpy's handler on another thread.
+
+    Before: numpy's and the middleware's threads accepted SIGINT, so under load a Ctrl-C could
+    run rclpy's handler on one of them while the main thread created the node in the context it
+    shut down: exit 78 ("the given context is not valid") or SIGABRT. After: every thread of a
+    starting node process blocks SIGINT and SIGTERM until the nodes are built.
+    """
+    code = (
+        "from audio2pose_ros.ros.nodes.process import prepare_node_process\n"
+        "prepare_node_process()\n"
+        "import numpy, rclpy, threading, pathlib\n"
+        "numpy.ones((64, 64)) @ numpy.ones((64, 64))\n"
+        "threading.Thread(target=lambda: None).start()\n"
+        "for status in pathlib.Path('/proc/self/task').glob('*/status'):\n"
+        "    line = next(l for l in status.read_text().splitlines() if l.startswith('SigBlk'))\n"
+        "    print(int(line.split()[1], 16))\n"
+    )
+    masks = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.split()
+    stop = (1 << (signal.SIGINT - 1)) | (1 << (signal.SIGTERM - 1))
+    assert masks, "no thread found"
+    assert all(int(mask) & stop == stop for mask in masks), masks

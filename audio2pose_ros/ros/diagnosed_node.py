@@ -6,6 +6,7 @@ import array
 import functools
 import math
 import os
+import signal
 import sys
 import time
 import traceback
@@ -28,6 +29,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from audio2pose_ros import topics
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, ConfigurationError, InputError
+from audio2pose_ros.ros.nodes.process import STOP_SIGNALS
 
 # Audio: best effort matches both reliable and best-effort publishers (audio_capture is reliable);
 # a deep queue absorbs bursts from GStreamer without dropping chunks.
@@ -375,16 +377,22 @@ def run_nodes(
     :data:`EXIT_CONFIGURATION_ERROR`, which ``audio2pose run`` and the launch file never respawn.
     """
     try:
-        rclpy.init(args=args)  # not `with rclpy.init()`: Humble's init is no context manager
+        # Ctrl-C or SIGTERM while rcl initialises or the nodes are built would shut the context
+        # down under them: the signals wait until the nodes are ready (the node executables
+        # block them from their first line, nodes.process), then rclpy's handler ends the spin.
+        signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
         try:
+            rclpy.init(args=args)  # not `with rclpy.init()`: Humble's init is no context manager
             executor = create_executor()
             nodes = [factory() for factory in factories]
             if connect is not None:
                 connect(nodes)
             for node in nodes:
                 executor.add_node(node)
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
             spin_executor(executor)
         finally:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
             rclpy.try_shutdown()
     except ConfigurationError as exc:
         print(f"[{process_name}] configuration error: {exc}", file=sys.stderr, flush=True)

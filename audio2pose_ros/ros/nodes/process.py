@@ -7,8 +7,12 @@ instant of the process:
 - it dies with its parent: ``PR_SET_PDEATHSIG`` (Linux) makes the kernel send SIGTERM when the
   process that started it (``ros2 launch``, ``audio2pose run``) ends in any way, even SIGKILL, so
   nodes are never left running as orphans; a process whose parent is already gone exits at once;
-- SIGTERM and Ctrl-C (SIGINT) end it quietly at any point of start-up (an import, the model
-  load); once rclpy is initialised its own handlers take over and shut the node down.
+- SIGTERM and Ctrl-C (SIGINT) end it quietly at any point of start-up: they are blocked from
+  here until the nodes are built (:func:`~audio2pose_ros.ros.diagnosed_node.run_nodes`), then
+  delivered to the main thread only, where rclpy's handlers shut the nodes down. Threads started
+  meanwhile (numpy's, the middleware's) inherit the block, so a signal never runs rclpy's
+  handler on another thread while the main one is creating nodes in the context that handler
+  shuts down (that race ended a node with a configuration error, and once with SIGABRT).
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import sys
 __all__ = ["audio_features_node", "inference_node", "motion_filter_node", "prepare_node_process"]
 
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
+STOP_SIGNALS = frozenset({signal.SIGINT, signal.SIGTERM})
 
 
 def _exit_on_signal(signum: int, _frame: object) -> None:
@@ -34,6 +39,7 @@ def prepare_node_process() -> None:
     signal.signal(signal.SIGTERM, _exit_on_signal)
     # A parent may start us with SIGINT ignored (a shell's background job): Ctrl-C must work.
     signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
     parent = os.getppid()
     if sys.platform.startswith("linux"):
         try:
@@ -47,11 +53,7 @@ def prepare_node_process() -> None:
 
 def _run(module: str) -> None:
     prepare_node_process()
-    try:
-        main = importlib.import_module(f"audio2pose_ros.ros.nodes.{module}").main
-    except KeyboardInterrupt:  # Ctrl-C while importing (torch takes seconds): quiet exit
-        raise SystemExit(128 + signal.SIGINT) from None
-    main()
+    importlib.import_module(f"audio2pose_ros.ros.nodes.{module}").main()
 
 
 def audio_features_node() -> None:
