@@ -78,7 +78,10 @@ class Case:
 class Commands:
     """The commands the robot received during an observation window."""
 
-    times_s: np.ndarray  # (n,) arrival (monotonic)
+    # (n,) the time each command was computed for (its header stamp, set by the filter at its
+    # tick): gaps and steps are the graph's, not delays of this probe, which blocks while it
+    # publishes a fault (an 11 MB message takes it a few hundred ms under load)
+    times_s: np.ndarray
     positions_rad: np.ndarray  # (n, n_joints)
 
     def worst_deviation(self, pose: np.ndarray, mask: np.ndarray | None = None) -> float:
@@ -134,7 +137,8 @@ class CampaignProbe(Node):
         values = np.array(
             [msg.joint_angles[index[n]] if n in index else math.nan for n in self.robot.names]
         )
-        self.commands.append((time.monotonic(), values))
+        stamp = msg.header.stamp
+        self.commands.append((stamp.sec + stamp.nanosec * 1e-9, values))
         if np.isfinite(values).all():
             self.robot_pose = values  # a perfect robot: it is where it was last commanded
 
