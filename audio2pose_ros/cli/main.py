@@ -43,6 +43,7 @@ from audio2pose_ros.cli.options import (
     report,
 )
 from audio2pose_ros.errors import Audio2PoseError, InputError, UsageError
+from audio2pose_ros.timebase import duration_s
 
 DEFAULT_OUT = Path("out")
 EXIT_DATA_ERROR = 1
@@ -221,7 +222,7 @@ def command_bench(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(results, indent=1))
         return 0
-    _print_bench(results, args.frames, len(signal) / 16000)
+    _print_bench(results, args.frames, duration_s(len(signal)))
     return 0
 
 

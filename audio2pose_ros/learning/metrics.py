@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from audio2pose_ros.timebase import SAMPLES_PER_FRAME, WINDOW_SAMPLES
+
 LCCA_WINDOW_S = 3.0  # seed 003 section 3.4.3: tau = 3 s, N_tau = tau * f_f frames
 _RANK_TOLERANCE = 1e-10  # singular values below this (relative) span no direction in CCA
 # Histogram bins (documented choice; GENEA does not fix units for joint angles): speed |d theta/dt|
@@ -256,7 +258,10 @@ VAD_FLOOR_DB = 30.0  # frames this far below the clip's loud frames (95th percen
 
 
 def energy_vad(
-    signal_16k: np.ndarray, n_frames: int, hop: int = 160, window: int = 400
+    signal_16k: np.ndarray,
+    n_frames: int,
+    hop: int = SAMPLES_PER_FRAME,
+    window: int = WINDOW_SAMPLES,
 ) -> np.ndarray:
     """Speech activity per motion frame from frame energy (an energy VAD).
 

@@ -37,6 +37,7 @@ from audio2pose_ros.models.registry import MODEL_REGISTRY, build_model
 from audio2pose_ros.motion.filter import MotionFilter
 from audio2pose_ros.offline.synthesis import synthesize
 from audio2pose_ros.robot.description import RobotDescription
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ, SAMPLES_PER_FRAME, WINDOW_SAMPLES
 
 
 @dataclass(frozen=True)
@@ -122,11 +123,12 @@ def reference_feature_cost(signal_16k: np.ndarray, n_frames: int = 1000) -> Timi
     """python_speech_features.logfbank on the latest 25 ms window, once per frame (seed 4.4.2)."""
     from python_speech_features import logfbank
 
-    audio = np.resize(np.asarray(signal_16k, dtype=np.float64), (n_frames + 3) * 160)
-    windows = [audio[i * 160 : i * 160 + 400] for i in range(n_frames)]
+    step, window = SAMPLES_PER_FRAME, WINDOW_SAMPLES
+    audio = np.resize(np.asarray(signal_16k, dtype=np.float64), (n_frames + 3) * step)
+    windows = [audio[i * step : i * step + window] for i in range(n_frames)]
     return Timing.of(
         "python_speech_features.logfbank per 25 ms window",
-        _time_calls([partial(logfbank, w, 16000, nfft=512) for w in windows]),
+        _time_calls([partial(logfbank, w, SAMPLE_RATE_HZ, nfft=512) for w in windows]),
     )
 
 
