@@ -203,6 +203,29 @@ def _audio2pose_header(metadata: object, file: Path) -> tuple[dict[str, Any], st
     return header, header_text, digest
 
 
+def check_tensor_layout(
+    file: CheckpointFile, model: str, shapes: Mapping[str, tuple[int, ...]]
+) -> None:
+    """Refuse a file whose tensor entries are not exactly ``shapes`` (names and shapes).
+
+    Raises:
+        CheckpointError: a tensor is missing, unexpected, or of another shape than the model's.
+    """
+    missing = sorted(set(shapes) - set(file.tensors))
+    unexpected = sorted(set(file.tensors) - set(shapes))
+    if missing or unexpected:
+        raise CheckpointError(
+            f"{file.path}: tensors do not fit model {model!r}: missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]}"
+        )
+    for name, shape in shapes.items():
+        if file.tensors[name].shape != shape:
+            raise CheckpointError(
+                f"{file.path}: tensor {name!r} has shape {list(file.tensors[name].shape)}, "
+                f"model {model!r} needs {list(shape)} (torch.float32)"
+            )
+
+
 def load_checked_tensors(
     file: CheckpointFile,
     load: Callable[[str], dict[str, TensorT]],

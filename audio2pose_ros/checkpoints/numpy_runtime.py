@@ -45,6 +45,7 @@ from audio2pose_ros.checkpoints.format import (
     CheckpointError,
     CheckpointFile,
     check_made_for,
+    check_tensor_layout,
     header_sections,
     load_checked_tensors,
     read_checkpoint_file,
@@ -530,19 +531,7 @@ def _read_tensors(
     file: CheckpointFile, model: str, shapes: dict[str, tuple[int, ...]]
 ) -> dict[str, np.ndarray]:
     """The file's tensors, after checking they are exactly ``shapes``; finite float32 each."""
-    missing = sorted(set(shapes) - set(file.tensors))
-    unexpected = sorted(set(file.tensors) - set(shapes))
-    if missing or unexpected:
-        raise CheckpointError(
-            f"{file.path}: tensors do not fit model {model!r}: missing {missing[:5]}, "
-            f"unexpected {unexpected[:5]}"
-        )
-    for name, shape in shapes.items():
-        if file.tensors[name].shape != shape:
-            raise CheckpointError(
-                f"{file.path}: tensor {name!r} has shape {list(file.tensors[name].shape)}, "
-                f"model {model!r} needs {list(shape)} (torch.float32)"
-            )
+    check_tensor_layout(file, model, shapes)
     return load_checked_tensors(
         file, load_file, lambda t: t.dtype == np.float32 and bool(np.isfinite(t).all())
     )

@@ -36,6 +36,7 @@ from audio2pose_ros.checkpoints.format import (
     CheckpointError,
     CheckpointFile,
     check_made_for,
+    check_tensor_layout,
     digest_update,
     header_sections,
     load_checked_tensors,
@@ -141,27 +142,18 @@ def _model_for(file: CheckpointFile) -> PoseModel:
     """
     spec = file.header["model"]
     with torch.device("meta"):
-        shapes = {
-            name: (tuple(tensor.shape), tensor.dtype)
-            for name, tensor in parse_section(
-                file, "model", lambda m: build_model(m["name"], m["config"])
-            )
-            .state_dict()
-            .items()
-        }
-    missing = sorted(set(shapes) - set(file.tensors))
-    unexpected = sorted(set(file.tensors) - set(shapes))
-    if missing or unexpected:
+        state = parse_section(
+            file, "model", lambda m: build_model(m["name"], m["config"])
+        ).state_dict()
+    not_float32 = [name for name, tensor in state.items() if tensor.dtype != torch.float32]
+    if not_float32:
         raise CheckpointError(
-            f"{file.path}: tensors do not fit model {spec['name']!r}: missing {missing[:5]}, "
-            f"unexpected {unexpected[:5]}"
+            f"{file.path}: model {spec['name']!r} has tensors {not_float32[:5]} that are not "
+            "torch.float32, which checkpoints hold"
         )
-    for name, (shape, dtype) in shapes.items():
-        if file.tensors[name].shape != shape or dtype != torch.float32:
-            raise CheckpointError(
-                f"{file.path}: tensor {name!r} has shape {list(file.tensors[name].shape)}, "
-                f"model {spec['name']!r} needs {list(shape)} ({dtype})"
-            )
+    check_tensor_layout(
+        file, spec["name"], {name: tuple(tensor.shape) for name, tensor in state.items()}
+    )
     model = build_model(spec["name"], spec["config"])
     tensors = load_checked_tensors(
         file, load_file, lambda t: t.dtype == torch.float32 and bool(torch.isfinite(t).all())
