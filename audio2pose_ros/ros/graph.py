@@ -52,7 +52,7 @@ from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, Audio2PoseError, Usa
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.ros.diagnosed_node import STALE_AFTER_S
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
-from audio2pose_ros.ros.player import MessagePlayer, spin_until, warm_up
+from audio2pose_ros.ros.player import MessagePlayer, rclpy_session, spin_until, warm_up
 
 NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
 SINGLE_PROCESS = "audio2pose_nodes"  # the process that runs all three nodes (single-process mode)
@@ -531,7 +531,7 @@ def run_graph(
             except KeyboardInterrupt:
                 pass
             return None
-        with rclpy.init():
+        with rclpy_session():
             return play_and_record(messages, record, rate=rate)
 
 

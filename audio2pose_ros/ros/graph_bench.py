@@ -28,7 +28,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import rclpy
 import yaml
 from audio_common_msgs.msg import AudioData, AudioInfo
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
@@ -43,7 +42,13 @@ from audio2pose_ros.data.bag import AUDIO_DATA_TYPE, AUDIO_INFO_TYPE, BagMessage
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.graph import GraphTimeoutError, node_graph
-from audio2pose_ros.ros.player import MessagePlayer, silence_message, spin_until, warm_up
+from audio2pose_ros.ros.player import (
+    MessagePlayer,
+    rclpy_session,
+    silence_message,
+    spin_until,
+    warm_up,
+)
 from audio2pose_ros.ros.process_stats import cpu_s, rss_mb
 from audio2pose_ros.timebase import FRAME_PERIOD_S, SAMPLE_RATE_HZ, SAMPLES_PER_FRAME
 
@@ -155,7 +160,7 @@ def measure_graph(
         )
         for j, offset in enumerate(range(0, len(payload), step))
     ]
-    with tempfile.TemporaryDirectory() as tmp, rclpy.init():
+    with tempfile.TemporaryDirectory() as tmp, rclpy_session():
         player = _Player()
         launched = time.monotonic()
         with node_graph(

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import importlib
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 import rclpy
@@ -60,6 +61,20 @@ def replay_qos(msgtype: str) -> QoSProfile:
         reliability=ReliabilityPolicy.RELIABLE,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
     )
+
+
+@contextmanager
+def rclpy_session() -> Iterator[None]:
+    """Rclpy initialised for the ``with`` block and shut down after it.
+
+    For the processes that play into a graph (the runner, the bench, bag replay): ``with
+    rclpy.init()`` is not available on Humble, whose ``init`` returns nothing.
+    """
+    rclpy.init()
+    try:
+        yield
+    finally:
+        rclpy.try_shutdown()
 
 
 def spin_until(node: Node, deadline_s: float, done: Callable[[], bool] | None = None) -> bool:
@@ -130,7 +145,7 @@ def replay_bag(messages: Sequence[BagMessage], rate: float, wait_s: float) -> tu
     Returns:
         The number of topics published and the seconds the playback took.
     """
-    with rclpy.init():
+    with rclpy_session():
         node = rclpy.create_node("audio2pose_bag_replay")
         player = MessagePlayer(node, ((m.topic, m.msgtype) for m in messages))
         player.wait_for_subscribers(wait_s)
