@@ -132,12 +132,11 @@ class _Player(Node):
         self.commands.append((time.monotonic(), np.asarray(msg.joint_angles, dtype=np.float64)))
 
 
-def _check_deadline(deadline: float, what: str) -> None:
-    """Raise GraphTimeoutError once ``deadline`` (monotonic) has passed."""
-    if time.monotonic() > deadline:
-        raise GraphTimeoutError(
-            f"{what} within {ANSWER_TIMEOUT_S:g} s of the start (see the node logs)"
-        )
+def _timed_out(what: str) -> GraphTimeoutError:
+    """The error of a graph that did not answer within :data:`ANSWER_TIMEOUT_S`."""
+    return GraphTimeoutError(
+        f"{what} within {ANSWER_TIMEOUT_S:g} s of the start (see the node logs)"
+    )
 
 
 def measure_graph(
@@ -170,14 +169,13 @@ def measure_graph(
                 AudioInfo(**S16LE_MONO_16K.audio_info_fields())
             )
             deadline = launched + ANSWER_TIMEOUT_S
-            while not player.commands:
-                _check_deadline(deadline, "no /joint_angles command")
-                spin_until(player, time.monotonic() + 0.01)
+            if not spin_until(player, deadline, lambda: bool(player.commands)):
+                raise _timed_out("no /joint_angles command")
             first_command = time.monotonic() - launched
             if not warm_up(
                 player.player, audio_topic, lambda: bool(player.raw), deadline - time.monotonic()
             ):
-                _check_deadline(deadline, "no raw pose for the audio played")
+                raise _timed_out("no raw pose for the audio played")
             first_response = time.monotonic() - launched
             silence = silence_message(audio_topic)
             for _ in range(3):  # at least one 25 ms window of warm-up, then let it drain
