@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import time
 
-import rclpy
 from audio_common_msgs.msg import AudioData
 from diagnostic_msgs.msg import DiagnosticArray
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
@@ -61,12 +60,8 @@ class Probe(Node):
         spin_until(self, time.monotonic() + seconds)
 
     def wait_until(self, condition, timeout_s: float = 60.0) -> None:
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end:
-            if condition():
-                return
-            rclpy.spin_once(self, timeout_sec=0.05)
-        raise TimeoutError("condition not met in time")
+        if not (condition() or spin_until(self, time.monotonic() + timeout_s, condition)):
+            raise TimeoutError("condition not met in time")
 
     def graph_ready(self) -> bool:
         return (

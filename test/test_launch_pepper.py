@@ -20,6 +20,7 @@ import signal
 import tempfile
 import time
 import unittest
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -143,13 +144,10 @@ class SpeechPlayer(Node):
         """Process callbacks for ``seconds``."""
         spin_until(self, time.monotonic() + seconds)
 
-    def wait_until(self, condition: object, timeout_s: float, what: str) -> None:
+    def wait_until(self, condition: Callable[[], bool], timeout_s: float, what: str) -> None:
         """Spin until ``condition()``; fail the test with ``what`` after ``timeout_s``."""
-        end = time.monotonic() + timeout_s
-        while not condition():  # type: ignore[operator]
-            if time.monotonic() > end:
-                raise AssertionError(f"{what} within {timeout_s} s")
-            rclpy.spin_once(self, timeout_sec=0.05)
+        if not (condition() or spin_until(self, time.monotonic() + timeout_s, condition)):
+            raise AssertionError(f"{what} within {timeout_s} s")
 
     def warm_up(self, timeout_s: float) -> None:
         """Send silence until poses come back: every link of the graph has matched."""
