@@ -46,6 +46,7 @@ class Probe(Node):
         self.received: dict[str, list] = {
             k: [] for k in ("angles", "trajectory", "states", "raw", "features", "diagnostics")
         }
+        self.subscriptions_by_key = {}
         for key, msg_type, topic in (
             ("angles", JointAnglesWithSpeed, absolute(JOINT_ANGLES)),
             ("trajectory", JointTrajectory, CONTROLLER_TOPIC),
@@ -54,7 +55,9 @@ class Probe(Node):
             ("features", Float32MultiArray, absolute(FEATURES)),
             ("diagnostics", DiagnosticArray, DIAGNOSTICS),
         ):
-            self.create_subscription(msg_type, topic, self.received[key].append, 1000)
+            self.subscriptions_by_key[key] = self.create_subscription(
+                msg_type, topic, self.received[key].append, 1000
+            )
 
     def spin_for(self, seconds: float) -> None:
         spin_until(self, time.monotonic() + seconds)
@@ -69,6 +72,9 @@ class Probe(Node):
             and self.count_subscribers(absolute(FEATURES)) > 0
             and self.count_subscribers(absolute(RAW_TRAJECTORY)) > 0
             and self.count_publishers(absolute(JOINT_ANGLES)) > 0
+            # present in the graph is not yet matched: the probe's own readers must be
+            and self.subscriptions_by_key["raw"].get_publisher_count() > 0
+            and self.subscriptions_by_key["features"].get_publisher_count() > 0
         )
 
     def warm_up(self) -> None:
