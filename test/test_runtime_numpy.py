@@ -32,6 +32,7 @@ from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 from audio2pose_ros.checkpoints.torch_io import Checkpoint, load_checkpoint, save_checkpoint
 from audio2pose_ros.models.base import OfflineOnlyModelError
 from audio2pose_ros.models.registry import build_model
+from audio2pose_ros.models.warm_start import WARM_START_FRAMES, with_warm_start
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot.description import RobotDescription
 
@@ -72,7 +73,9 @@ def _checkpoint(
         ("lstm", {}),
         ("live", {}),
         ("live", {"noise_order": 2}),
+        ("live", {"noise_order": 2, "noise_burst": 0.8}),
         ("live_groups", {}),
+        ("live_groups", {"first_burst": 0.6, "second_burst": 1.2}),
     ],
 )
 def test_when_a_streaming_model_runs_on_real_speech_expect_numpy_kernel_equals_torch(
@@ -90,15 +93,23 @@ def test_when_a_streaming_model_runs_on_real_speech_expect_numpy_kernel_equals_t
     frames = loaded.normalizer.apply(raw)
     options = {"temperature": 0.0} if name.startswith("live") else {}
     numpy_poses = loaded.predictor(**options).run(frames)
-    with torch.no_grad():
-        torch_poses = torch_model(torch.from_numpy(frames).float()[None])[0].double().numpy()
+    with torch.no_grad():  # both start settled: the warm-up frames' poses are dropped
+        warmed = torch.from_numpy(with_warm_start(frames)).float()[None]
+        torch_poses = torch_model(warmed)[0].double().numpy()[WARM_START_FRAMES:]
     assert numpy_poses.shape == (len(raw), robot.n_joints)
     assert np.ptp(numpy_poses, axis=0).max() > 0.05  # the comparison is not between constants
     np.testing.assert_allclose(numpy_poses, torch_poses, atol=TORCH_TOLERANCE, rtol=0)
 
 
 @pytest.mark.parametrize(
-    ("name", "config"), [("live", {}), ("live", {"noise_order": 2}), ("live_groups", {})]
+    ("name", "config"),
+    [
+        ("live", {}),
+        ("live", {"noise_order": 2}),
+        ("live", {"noise_burst": 1.0}),
+        ("live_groups", {}),
+        ("live_groups", {"first_burst": 1.2, "second_burst": 0.6}),
+    ],
 )
 def test_when_a_live_model_samples_expect_the_same_poses_as_its_torch_side_predictor(
     tmp_path: Path,
@@ -113,7 +124,8 @@ def test_when_a_live_model_samples_expect_the_same_poses_as_its_torch_side_predi
     kernel = load_streaming_model(path, robot=robot).predictor(seed=5, temperature=1.0)
     reference = load_checkpoint(path, robot=robot).model.streaming_predictor(seed=5)
     sampled = kernel.run(frames)
-    expected = np.array([reference.step(f) for f in frames])
+    warmed = np.array([reference.step(f) for f in with_warm_start(frames)])
+    expected = warmed[WARM_START_FRAMES:]
     np.testing.assert_allclose(sampled, expected, atol=PREDICTOR_TOLERANCE, rtol=0)
     kernel.reset()
     np.testing.assert_allclose(kernel.run(frames[:50]), expected[:50], atol=PREDICTOR_TOLERANCE)
@@ -130,7 +142,7 @@ def test_when_the_packaged_model_runs_on_real_speech_expect_torch_poses(
     predictor = loaded.predictor()
     stepped = np.array([predictor.step(f) for f in frames])
     reference = checkpoint.model.streaming_predictor()
-    expected = np.array([reference.step(f) for f in frames])
+    expected = np.array([reference.step(f) for f in with_warm_start(frames)])[WARM_START_FRAMES:]
     np.testing.assert_allclose(stepped, expected, atol=TORCH_TOLERANCE, rtol=0)
 
 

@@ -9,7 +9,7 @@ kernel here, frame by frame, with float64 arithmetic:
 |---|---|
 | ``mlp`` | seed 003 section 4.3.3: ReLU layers, sigmoid output; a message's frames at once |
 | ``lstm`` | seed 003 section 4.3.4 made causal: one LSTM cell step per frame, (h, c) carried |
-| ``live`` | a GRU step on audio and the last pose, Gaussian output, AR(1) or AR(1)x2 noise |
+| ``live`` | a GRU step on audio and the last pose, Gaussian output, smooth (bursty) noise |
 | ``live_groups`` | two ``live`` kernels (head; arms and hip) and the causal speech gate |
 
 Gate layouts are torch's (LSTM: input, forget, cell, output; GRU: reset, update, new, the reset
@@ -51,7 +51,9 @@ from audio2pose_ros.checkpoints.format import (
     read_checkpoint_file,
     verify_digest,
 )
+from audio2pose_ros.models.sampling_noise import MAX_BURST, NoiseShape, NoiseStream
 from audio2pose_ros.models.speech_gate import GroupedSampler, SpeechGate
+from audio2pose_ros.models.warm_start import WarmStarted
 from audio2pose_ros.robot.description import RobotDescription
 
 __all__ = [
@@ -176,9 +178,9 @@ class LSTMKernel:
 class LiveKernel:
     """The live sampler: GRU on (audio, last pose), Gaussian output, time-correlated noise.
 
-    At frame t: e_t = rho e_(t-1) + sqrt(1 - rho^2) n_t (e_0 = n_0) from
-    ``numpy.random.default_rng(seed)``; with ``order`` 2 a second such stage filters e_t and is
-    scaled back to unit variance; pose = clip(mu + temperature * sigma * noise, 0, 1),
+    At frame t the noise comes from :class:`~audio2pose_ros.models.sampling_noise.NoiseStream`
+    (AR(1), or two stages, optionally bursty) with draws from
+    ``numpy.random.default_rng(seed)``; pose = clip(mu + temperature * sigma * noise, 0, 1),
     mu = sigmoid of the first half of the output layer, sigma = exp of the second half clamped
     to [-7, 0]; the pose is the next frame's previous pose.
     """
@@ -186,8 +188,7 @@ class LiveKernel:
     def __init__(
         self,
         tensors: Mapping[str, np.ndarray],
-        rho: float,
-        order: int = 1,
+        noise: NoiseShape,
         seed: int = 0,
         temperature: float = 1.0,
         prefix: str = "",
@@ -200,11 +201,8 @@ class LiveKernel:
         self._w_out = _weights(tensors, f"{prefix}out.weight")
         self._b_out = _vector(tensors, f"{prefix}out.bias")
         self._start_pose = _vector(tensors, f"{prefix}start_pose")
-        self._rho = rho
-        self._order = order
-        self._innovation = math.sqrt(1.0 - rho * rho)
-        # a second AR(1) stage on unit-variance AR(1) noise has variance (1 + rho^2) / (1 - rho^2)
-        self._second_gain = math.sqrt((1.0 + rho * rho) / (1.0 - rho * rho))
+        self._shape = noise
+        self._draws = noise.draws(int(self._start_pose.shape[0]))
         self.seed = seed
         self.temperature = temperature
         self.reset()
@@ -216,18 +214,16 @@ class LiveKernel:
         self._rng = np.random.default_rng(self.seed)
         self._hidden = np.zeros(self._w_hh.shape[0])
         self._previous = self._start_pose.copy()
-        self._noise = self._rng.standard_normal(int(self._start_pose.shape[0]))
-        self._smooth = self._noise * self._second_gain
+        self._stream = NoiseStream(self._shape, int(self._start_pose.shape[0]))
+        self._noise = self._stream.start(self._rng.standard_normal(self._draws))
         self._first = True
 
     def step(self, features: np.ndarray) -> np.ndarray:
         """Sample the pose of one frame."""
         if not self._first:
-            fresh = self._rng.standard_normal(self._noise.shape[0])
-            self._noise = self._rho * self._noise + self._innovation * fresh
-            self._smooth = self._rho * self._smooth + self._innovation * self._noise
+            self._noise = self._stream.next(self._rng.standard_normal(self._draws))
         self._first = False
-        noise = self._noise if self._order == 1 else self._smooth / self._second_gain
+        noise = self._noise
         x = np.concatenate([np.asarray(features, dtype=np.float64), self._previous])
         xr, xz, xn = np.split(x @ self._w_ih + self._b_ih, 3)
         hr, hz, hn = np.split(self._hidden @ self._w_hh + self._b_hh, 3)
@@ -271,8 +267,15 @@ class LiveGroupsKernel(GroupedSampler):
             config["silence_temperature"], config["gate_margin"], config["gate_width"]
         )
         rho, order = float(config["noise_correlation"]), config["noise_order"]
+        bursts = (config.get("first_burst", 0.0), config.get("second_burst", 0.0))
         self._parts = [
-            LiveKernel(tensors, rho, order, seed + k, temperature, prefix=f"parts.{k}.")
+            LiveKernel(
+                tensors,
+                NoiseShape(rho, order, float(bursts[k])),
+                seed + k,
+                temperature,
+                prefix=f"parts.{k}.",
+            )
             for k in range(len(self._groups))
         ]
         self.seed = seed
@@ -402,12 +405,20 @@ def _build_live(
     seed: int = 0,
     temperature: float = 1.0,
 ) -> LiveKernel:
-    order = config.get("noise_order", 1)
-    return LiveKernel(tensors, float(config["noise_correlation"]), order, seed, temperature)
+    noise = NoiseShape(
+        float(config["noise_correlation"]),
+        config.get("noise_order", 1),
+        float(config.get("noise_burst", 0.0)),
+    )
+    return LiveKernel(tensors, noise, seed, temperature)
 
 
 def _is_number(value: object) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _is_burst(value: object) -> bool:
+    return isinstance(value, int | float) and _is_number(value) and 0.0 <= value <= MAX_BURST
 
 
 def _live_accepts(config: Mapping[str, Any]) -> bool:
@@ -418,6 +429,7 @@ def _live_accepts(config: Mapping[str, Any]) -> bool:
         and _is_number(config["input_noise"])
         and not isinstance(order, bool)
         and order in (1, 2)
+        and _is_burst(config.get("noise_burst", 0.0))
     )
 
 
@@ -434,6 +446,7 @@ def _live_groups_accepts(config: Mapping[str, Any]) -> bool:
         and _is_int(config["first_group"])
         and config["first_group"] < 1 << config["n_joints"]
         and all(_is_number(config[k]) for k in (*numbers, "gate_margin", "gate_width"))
+        and all(_is_burst(config.get(k, 0.0)) for k in _GROUP_BURSTS)
     ):
         return False
     return all(len(joints) for joints in _live_groups(config))
@@ -447,6 +460,7 @@ def _live_groups_shapes(config: Mapping[str, Any]) -> dict[str, tuple[int, ...]]
     return shapes
 
 
+_GROUP_BURSTS = frozenset({"first_burst", "second_burst"})  # optional: older checkpoints lack them
 _LIVE_KEYS = frozenset(
     {"n_features", "n_joints", "hidden_units", "input_noise", "noise_correlation"}
 )
@@ -461,11 +475,11 @@ KERNELS: dict[str, KernelSpec] = {
         frozenset({"n_features", "n_joints", "hidden_units"}), _sizes_ok, _lstm_shapes, _build_lstm
     ),
     "live": KernelSpec(
-        _LIVE_KEYS | {"noise_order"},
+        _LIVE_KEYS | {"noise_order", "noise_burst"},
         _live_accepts,
         _live_shapes,
         _build_live,
-        frozenset({"noise_order"}),
+        frozenset({"noise_order", "noise_burst"}),
     ),
     "live_groups": KernelSpec(
         _LIVE_KEYS
@@ -477,10 +491,12 @@ KERNELS: dict[str, KernelSpec] = {
             "silence_temperature",
             "gate_margin",
             "gate_width",
-        },
+        }
+        | _GROUP_BURSTS,
         _live_groups_accepts,
         _live_groups_shapes,
         LiveGroupsKernel,
+        _GROUP_BURSTS,
     ),
 }
 
@@ -523,8 +539,12 @@ class StreamingModel:
     info: dict[str, Any] = field(default_factory=dict)
 
     def predictor(self, **options: Any) -> FramePredictor:
-        """A new frame-by-frame predictor (``seed``, ``temperature`` for samplers)."""
-        return self.make_predictor(**options)
+        """A new frame-by-frame predictor (``seed``, ``temperature`` for samplers).
+
+        It starts settled (:mod:`audio2pose_ros.models.warm_start`), as the offline synthesis
+        does, so both give the same poses for the same seed.
+        """
+        return WarmStarted(self.make_predictor(**options))
 
 
 def _read_tensors(

@@ -9,9 +9,10 @@ y_t = clip(mu_t + temperature * sigma_t * e_t, 0, 1), where e_t is unit-variance
 correlated over time, e_t = rho e_{t-1} + sqrt(1 - rho^2) n_t with n_t ~ N(0, I), so samples
 wander smoothly instead of jittering at 100 Hz (with ``noise_order`` 2 the AR(1) filter is
 applied twice, a smoother noise whose speed, unlike an AR(1)'s, is itself correlated over
-time, rescaled to unit variance); temperature 0 gives the deterministic
-``forward``. Conditioning on its own output lets a sample commit to one of several plausible
-motions and continue it.
+time, rescaled to unit variance; with ``noise_burst`` > 0 the innovations come in bursts, as
+real motion does: :mod:`audio2pose_ros.models.sampling_noise`); temperature 0 gives the
+deterministic ``forward``. Conditioning on its own output lets a sample commit to one of
+several plausible motions and continue it.
 
 Training (teacher forcing): the previous ground-truth pose, corrupted with Gaussian noise of
 ``input_noise`` so the model does not learn to copy it, is the pose input; the loss is the
@@ -23,18 +24,17 @@ settable seed and temperature).
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 import torch
-from scipy import signal
 from torch import nn
 
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.base import PoseModel, StreamingPredictor
 from audio2pose_ros.models.recurrent_numpy import CellWeights, gru_step, linear_weights, sigmoid
+from audio2pose_ros.models.sampling_noise import MAX_BURST, NoiseShape, NoiseStream
 
 _MIN_LOG_STD = -7.0  # sigma >= 1e-3 of the joint range: keeps the likelihood finite
 _MAX_LOG_STD = 0.0
@@ -50,6 +50,11 @@ class LiveConfig:
     input_noise: float = 0.05  # std of the noise on teacher-forced poses, [0, 1] units
     noise_correlation: float = 0.95  # rho of the sampling noise (0 = white)
     noise_order: int = 1  # AR(1) filters in cascade on the sampling noise: 1 or 2
+    noise_burst: float = 0.0  # log-std of the noise's burst envelope (0 = steady noise)
+
+    def noise_shape(self) -> NoiseShape:
+        """The sampling noise this config describes."""
+        return NoiseShape(self.noise_correlation, self.noise_order, self.noise_burst)
 
 
 class LiveSampler(PoseModel):
@@ -68,6 +73,10 @@ class LiveSampler(PoseModel):
             )
         if config.noise_order not in (1, 2):
             raise ConfigurationError(f"noise_order must be 1 or 2, got {config.noise_order}")
+        if not 0.0 <= config.noise_burst <= MAX_BURST:
+            raise ConfigurationError(
+                f"noise_burst must be in [0, {MAX_BURST}], got {config.noise_burst}"
+            )
         self.config = config
         self.gru = nn.GRU(
             config.n_features + config.n_joints, config.hidden_units, batch_first=True
@@ -76,14 +85,16 @@ class LiveSampler(PoseModel):
         self.start_pose = nn.Parameter(torch.full((config.n_joints,), 0.5))
 
     def config_dict(self) -> dict[str, Any]:
-        """Constructor arguments as a dict; ``noise_order`` only when it is not 1.
+        """Constructor arguments as a dict; ``noise_order`` only if not 1, ``noise_burst`` if not 0.
 
-        Checkpoints of first-order models keep the keys they always had, which the torch-free
-        kernel (:mod:`audio2pose_ros.checkpoints.numpy_runtime`) requires.
+        Checkpoints of first-order models without bursts keep the keys they always had, which
+        the torch-free kernel (:mod:`audio2pose_ros.checkpoints.numpy_runtime`) requires.
         """
         config = asdict(self.config)
         if config["noise_order"] == 1:
             del config["noise_order"]
+        if not config["noise_burst"]:
+            del config["noise_burst"]
         return config
 
     def _gaussian(self, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -127,9 +138,10 @@ class LiveSampler(PoseModel):
         """(B, T, F) -> (S, B, T, J); noise from ``generator``, recurrence run in numpy."""
         batch, n_frames, _ = features.shape
         core = self._core()
-        white = torch.randn(n_samples * batch, n_frames, self.config.n_joints, generator=generator)
+        draws = core.noise.draws(self.config.n_joints)
+        white = torch.randn(n_samples * batch, n_frames, draws, generator=generator)
         x = np.tile(features.detach().cpu().double().numpy(), (n_samples, 1, 1))
-        poses = core.run(x, core.correlate(white.double().numpy()), temperature)
+        poses = core.run(x, core.noise.filter(white.double().numpy()), temperature)
         return torch.from_numpy(poses).float().view(n_samples, batch, n_frames, -1)
 
     def _core(self) -> _LiveCore:
@@ -137,8 +149,7 @@ class LiveSampler(PoseModel):
             CellWeights.of(self.gru),
             *linear_weights(self.out),
             self.start_pose.detach().cpu().double().numpy().copy(),
-            self.config.noise_correlation,
-            self.config.noise_order,
+            self.config.noise_shape(),
         )
 
     def streaming_predictor(self, seed: int = 0, temperature: float = 1.0) -> LivePredictor:
@@ -155,30 +166,14 @@ class _LiveCore:
         w_out: np.ndarray,
         b_out: np.ndarray,
         start_pose: np.ndarray,
-        rho: float,
-        order: int = 1,
+        noise: NoiseShape,
     ) -> None:
         self.cell, self.w_out, self.b_out, self.start_pose = cell, w_out, b_out, start_pose
-        self.rho = rho
-        self.order = order
-        self.innovation = math.sqrt(1.0 - rho * rho)
-        # a second AR(1) stage on unit-variance AR(1) noise has variance (1 + rho^2) / (1 - rho^2)
-        self.second_gain = math.sqrt((1.0 + rho * rho) / (1.0 - rho * rho))
+        self.noise = noise
 
     def start(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """Initial (hidden, previous pose) for ``n`` sequences."""
         return np.zeros((n, self.cell.w_hh.shape[0])), np.tile(self.start_pose, (n, 1))
-
-    def correlate(self, white: np.ndarray) -> np.ndarray:
-        """(N, T, J) white noise -> unit-variance AR(1) noise e_t = rho e_(t-1) + ... over T."""
-        scaled = white.copy()
-        scaled[:, 0] /= self.innovation  # so that e_0 = white_0, already unit variance
-        first = signal.lfilter([self.innovation], [1.0, -self.rho], scaled, axis=1)
-        if self.order == 1:
-            return first
-        first[:, 0] *= self.second_gain / self.innovation  # stationary variance from frame 0
-        second = signal.lfilter([self.innovation], [1.0, -self.rho], first, axis=1)
-        return second / self.second_gain
 
     def _output(self, hidden: np.ndarray, noise: np.ndarray, temperature: float) -> np.ndarray:
         raw = hidden @ self.w_out + self.b_out
@@ -242,20 +237,17 @@ class LivePredictor(StreamingPredictor):
         self._rng = np.random.default_rng(self.seed)
         hidden, previous = self._core.start(1)
         self._state = (hidden[0], previous[0])
-        self._noise = self._rng.standard_normal(int(previous.shape[1]))
-        self._smooth = self._noise * self._core.second_gain  # second AR(1) stage (order 2)
+        self._stream = NoiseStream(self._core.noise, int(previous.shape[1]))
+        self._draws = self._core.noise.draws(int(previous.shape[1]))
+        self._noise = self._stream.start(self._rng.standard_normal(self._draws))
         self._first = True
 
     def step(self, features: np.ndarray) -> np.ndarray:
         """Sample the pose of one (n_features,) frame."""
-        core = self._core
         if not self._first:
-            fresh = self._rng.standard_normal(self._noise.shape[0])
-            self._noise = core.rho * self._noise + core.innovation * fresh
-            self._smooth = core.rho * self._smooth + core.innovation * self._noise
+            self._noise = self._stream.next(self._rng.standard_normal(self._draws))
         self._first = False
-        noise = self._noise if core.order == 1 else self._smooth / core.second_gain
-        pose, self._state = core.step(
-            np.asarray(features, dtype=np.float64), self._state, noise, self.temperature
+        pose, self._state = self._core.step(
+            np.asarray(features, dtype=np.float64), self._state, self._noise, self.temperature
         )
         return pose

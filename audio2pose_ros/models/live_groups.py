@@ -17,7 +17,9 @@ v_t = sigmoid((e_t - peak_t + gate_margin) / gate_width), smoothed over 0.3 s; t
 is multiplied by
 silence_temperature + (1 - silence_temperature) v_t, and by each part's own temperature (a
 free-running sampler's motion is not as large as real motion at temperature 1: its one-step
-uncertainty does not add up to the real spread). These three :data:`SAMPLING_SETTINGS` act only
+uncertainty does not add up to the real spread). Each part's noise also has its own
+burstiness (``first_burst``, ``second_burst``: :mod:`audio2pose_ros.models.sampling_noise`), the
+two parts share the noise's correlation. These :data:`SAMPLING_SETTINGS` act only
 when sampling; :mod:`audio2pose_ros.learning.sampler_selection` chooses them on validation clips
 after training, without retraining (:meth:`LiveGroups.with_sampling`). A relative gate (against the
 recent peak) does not depend on the recording level.
@@ -38,7 +40,14 @@ from audio2pose_ros.models.base import PoseModel, StreamingPredictor
 from audio2pose_ros.models.live import LiveConfig, LivePredictor, LiveSampler
 from audio2pose_ros.models.speech_gate import GroupedSampler, SpeechGate
 
-SAMPLING_SETTINGS = ("first_temperature", "second_temperature", "silence_temperature")
+SAMPLING_SETTINGS = (
+    "first_temperature",
+    "second_temperature",
+    "first_burst",
+    "second_burst",
+    "noise_correlation",
+    "silence_temperature",
+)
 
 
 @dataclass(frozen=True)
@@ -55,11 +64,13 @@ class LiveGroupsConfig:
     n_joints: int = 11
     hidden_units: int = 32
     input_noise: float = 0.05
-    noise_correlation: float = 0.975  # with order 2: fixed, not chosen per build
+    noise_correlation: float = 0.975  # both parts; `make default-model` chooses it
     noise_order: int = 2
     first_group: int = 3
     first_temperature: float = 2.5  # head; `make default-model` chooses it on validation clips
     second_temperature: float = 1.0  # arms and hip; likewise
+    first_burst: float = 0.0  # burstiness of the head part's noise (sampling_noise); likewise
+    second_burst: float = 0.0  # of the arm part's noise; likewise
     silence_temperature: float = 0.05  # noise left in silence (1 = no speech gate); likewise
     gate_margin: float = 1.0  # z-units of the features' mean below the recent peak
     gate_width: float = 0.2
@@ -92,9 +103,12 @@ class LiveGroups(PoseModel):
                     config.input_noise,
                     config.noise_correlation,
                     config.noise_order,
+                    burst,
                 )
             )
-            for joints in self.groups
+            for joints, burst in zip(
+                self.groups, (config.first_burst, config.second_burst), strict=True
+            )
         )
 
     def config_dict(self) -> dict[str, Any]:
@@ -176,15 +190,14 @@ class LiveGroups(PoseModel):
             zip(self.samplers(), self.part_temperatures(), strict=True)
         ):
             core = part._core()
+            draws = core.noise.draws(part.config.n_joints)
             white = np.stack(
                 [
-                    np.random.default_rng(seed + 2 * i + k).standard_normal(
-                        (n_frames, part.config.n_joints)
-                    )
+                    np.random.default_rng(seed + 2 * i + k).standard_normal((n_frames, draws))
                     for i in range(n_samples * batch)
                 ]
             )
-            noise = core.correlate(white) * scale * factor
+            noise = core.noise.filter(white) * scale * factor
             poses = core.run(x, noise, temperature)
             outputs.append(torch.from_numpy(poses).float().view(n_samples, batch, n_frames, -1))
         return self._scatter(outputs)

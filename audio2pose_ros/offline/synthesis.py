@@ -4,7 +4,8 @@ Features of the whole signal are z-normalised with the checkpoint's statistics, 
 range-normalised poses, nu^-1 maps them back to radians (eq. 3.14), the seed's zero-phase
 5th-order 4 Hz Butterworth filter smooths them, and the result is clamped to the joint limits.
 Every model works here, offline-only ones included; samplers (``model.stochastic``) draw one
-motion with a given seed and temperature, so a synthesis is reproducible.
+motion with a given seed and temperature, so a synthesis is reproducible. Streaming models start
+settled, as online (:mod:`audio2pose_ros.models.warm_start`).
 """
 
 from __future__ import annotations
@@ -17,7 +18,40 @@ import torch
 
 from audio2pose_ros.audio.features import extract_features
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
+from audio2pose_ros.models.warm_start import WARM_START_FRAMES, with_warm_start
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
+
+
+def normalized_features(checkpoint: Checkpoint, signal_16k: np.ndarray) -> np.ndarray:
+    """The checkpoint's features of an utterance, z-normalised: (n_frames, n_features)."""
+    return checkpoint.normalizer.apply(extract_features(signal_16k, checkpoint.features))
+
+
+def sample_normalized(
+    checkpoint: Checkpoint,
+    frames: np.ndarray,
+    n_samples: int = 1,
+    seed: int = 0,
+    temperature: float = 1.0,
+) -> np.ndarray:
+    """Model output for one utterance's normalised features: (n_samples, n_frames, n_joints).
+
+    Streaming models start settled (:mod:`audio2pose_ros.models.warm_start`). Samplers draw
+    ``n_samples`` motions from a generator seeded with ``seed`` (sample 0 is the motion of
+    ``seed``); deterministic models, and temperature 0, repeat their one motion.
+    """
+    model = checkpoint.model
+    warm_up = WARM_START_FRAMES if model.streaming and len(frames) else 0
+    if warm_up:
+        frames = with_warm_start(frames, warm_up)
+    normalized = torch.tensor(frames[None], dtype=torch.float32)
+    with torch.no_grad():
+        if model.stochastic and temperature > 0:
+            generator = torch.Generator().manual_seed(seed)
+            poses = model.sample(normalized, n_samples, generator, temperature)[:, 0]
+        else:
+            poses = model(normalized).expand(n_samples, -1, -1)
+    return poses.numpy()[:, warm_up:]
 
 
 def predict_normalized(
@@ -32,14 +66,21 @@ def predict_normalized(
         temperature: a sampler's noise scale; 0 gives its most likely motion.
 
     """
-    features = extract_features(signal_16k, checkpoint.features)
-    normalized = torch.tensor(checkpoint.normalizer.apply(features)[None], dtype=torch.float32)
-    model = checkpoint.model
-    with torch.no_grad():
-        if model.stochastic and temperature > 0:
-            generator = torch.Generator().manual_seed(seed)
-            return model.sample(normalized, 1, generator, temperature)[0, 0].numpy()
-        return model(normalized)[0].numpy()
+    frames = normalized_features(checkpoint, signal_16k)
+    return sample_normalized(checkpoint, frames, 1, seed, temperature)[0]
+
+
+def to_angles(checkpoint: Checkpoint, poses: np.ndarray, smooth: bool = True) -> np.ndarray:
+    """(n_frames, n_joints) poses in [0, 1] -> radians, smoothed, within the limits.
+
+    nu^-1 (eq. 3.14), then the seed's zero-phase 4 Hz Butterworth low-pass along the frames
+    (``smooth``), then the joint limits.
+    """
+    robot = checkpoint.robot
+    angles = robot.denormalize(poses)
+    if smooth:
+        angles = butterworth_zero_phase(angles, rate_hz=1.0 / checkpoint.features.step_s)
+    return np.clip(angles, robot.lower_rad, robot.upper_rad)
 
 
 def synthesize(
@@ -63,13 +104,10 @@ def synthesize(
         (n_frames, n_joints) angles within the joint limits, in the robot's joint order.
 
     """
-    robot = checkpoint.robot
-    angles = robot.denormalize(predict_normalized(checkpoint, signal_16k, seed, temperature))
-    rate_hz = 1.0 / checkpoint.features.step_s
-    if smooth:
-        angles = butterworth_zero_phase(angles, rate_hz=rate_hz)
-    angles = np.clip(angles, robot.lower_rad, robot.upper_rad)
-    return np.arange(angles.shape[0]) / rate_hz, angles
+    angles = to_angles(
+        checkpoint, predict_normalized(checkpoint, signal_16k, seed, temperature), smooth
+    )
+    return np.arange(angles.shape[0]) / (1.0 / checkpoint.features.step_s), angles
 
 
 def write_trajectory_csv(

@@ -1,0 +1,126 @@
+"""The live sampler's noise: smooth, unit-variance, optionally bursty (numpy only, no torch).
+
+The live model (:mod:`audio2pose_ros.models.live`) samples y_t = mu_t + temperature * sigma_t *
+e_t. Its noise e_t is white noise n_t filtered by an AR(1) stage,
+e_t = rho e_(t-1) + sqrt(1 - rho^2) n_t with e_0 = n_0, once (``order`` 1) or twice in cascade
+(``order`` 2, rescaled to unit variance), so samples wander smoothly instead of jittering at
+100 Hz.
+
+Real head and arm speed is heavy-tailed: long stretches of near stillness and short quick
+movements. Gaussian noise of one fixed size gives speeds of one typical size instead. With
+``burst`` b > 0 the white innovations are scaled by a slowly varying log-normal envelope,
+n_t = w_t exp(b z_t - b^2), where z_t is a unit-variance AR(1) of coefficient
+:data:`BURST_CORRELATION` (about half a second at 100 Hz) started at z_0 = its first draw; since
+E[exp(2 b z - 2 b^2)] = 1 for z ~ N(0, 1) the noise keeps unit variance, only its speed is spread
+over quiet stretches and bursts (a stochastic-volatility process). ``burst`` 0 is the plain
+noise, drawing exactly as before.
+
+Offline (:meth:`NoiseShape.filter`, a whole utterance at once) and streaming
+(:class:`NoiseStream`, frame by frame) produce the same numbers from the same draws: per frame
+:meth:`NoiseShape.draws` standard normals, the joints' first and the envelope's last.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+BURST_CORRELATION = 0.98  # AR(1) coefficient of the burst envelope's log: ~0.5 s at 100 Hz
+MAX_BURST = 2.0  # exp(2 b^2) inflates rare peaks; beyond this the envelope is mostly spikes
+
+
+@dataclass(frozen=True)
+class NoiseShape:
+    """Correlation, smoothness and burstiness of the sampling noise.
+
+    Attributes:
+        rho: AR(1) coefficient in [0, 1) (0 = white).
+        order: AR(1) stages in cascade, 1 or 2.
+        burst: log-std of the burst envelope, in [0, :data:`MAX_BURST`] (0 = none).
+
+    """
+
+    rho: float
+    order: int = 1
+    burst: float = 0.0
+
+    @property
+    def innovation(self) -> float:
+        """sqrt(1 - rho^2): the weight of a new draw in one AR(1) step."""
+        return math.sqrt(1.0 - self.rho * self.rho)
+
+    @property
+    def second_gain(self) -> float:
+        """Std of a second AR(1) stage run on unit-variance AR(1) noise."""
+        return math.sqrt((1.0 + self.rho * self.rho) / (1.0 - self.rho * self.rho))
+
+    def draws(self, n_joints: int) -> int:
+        """Standard normals drawn per frame: one per joint, and one for the envelope."""
+        return n_joints + (1 if self.burst else 0)
+
+    def _envelope(self, z_draws: np.ndarray) -> np.ndarray:
+        """exp(b z_t - b^2) for the envelope's draws along the last axis' frames (..., T)."""
+        from scipy import signal
+
+        rho = BURST_CORRELATION
+        innovation = math.sqrt(1.0 - rho * rho)
+        scaled = z_draws.copy()
+        scaled[..., 0] /= innovation  # z_0 = its draw, already unit variance
+        z = signal.lfilter([innovation], [1.0, -rho], scaled, axis=-1)
+        return np.exp(self.burst * z - self.burst * self.burst)
+
+    def filter(self, white: np.ndarray) -> np.ndarray:
+        """(N, T, draws) standard normals -> (N, T, J) unit-variance noise, whole utterances."""
+        from scipy import signal
+
+        joints = white.shape[-1] - (1 if self.burst else 0)
+        scaled = white[..., :joints].copy()
+        if self.burst:
+            scaled *= self._envelope(white[..., joints])[..., None]
+        scaled[:, 0] /= self.innovation  # so that e_0 = n_0
+        first = signal.lfilter([self.innovation], [1.0, -self.rho], scaled, axis=1)
+        if self.order == 1:
+            return first
+        first[:, 0] *= self.second_gain / self.innovation  # stationary variance from frame 0
+        second = signal.lfilter([self.innovation], [1.0, -self.rho], first, axis=1)
+        return second / self.second_gain
+
+
+class NoiseStream:
+    """The same noise as :meth:`NoiseShape.filter`, one frame at a time."""
+
+    def __init__(self, shape: NoiseShape, n_joints: int) -> None:
+        """Noise of ``shape`` for ``n_joints`` joints; call :meth:`start` before :meth:`next`."""
+        self.shape = shape
+        self.n_joints = n_joints
+        self._rho_z = BURST_CORRELATION
+        self._innovation_z = math.sqrt(1.0 - BURST_CORRELATION * BURST_CORRELATION)
+        self._noise = np.zeros(n_joints)
+        self._smooth = np.zeros(n_joints)
+        self._z = 0.0
+
+    def _innovations(self, draw: np.ndarray, first: bool) -> np.ndarray:
+        if not self.shape.burst:
+            return draw
+        z = float(draw[self.n_joints])
+        self._z = z if first else self._rho_z * self._z + self._innovation_z * z
+        return draw[: self.n_joints] * math.exp(self.shape.burst * (self._z - self.shape.burst))
+
+    def start(self, draw: np.ndarray) -> np.ndarray:
+        """The first frame's noise from its :meth:`NoiseShape.draws` standard normals."""
+        self._noise = self._innovations(draw, first=True)
+        self._smooth = self._noise * self.shape.second_gain
+        return self._current()
+
+    def next(self, draw: np.ndarray) -> np.ndarray:
+        """The next frame's noise from its draws."""
+        shape = self.shape
+        fresh = self._innovations(draw, first=False)
+        self._noise = shape.rho * self._noise + shape.innovation * fresh
+        self._smooth = shape.rho * self._smooth + shape.innovation * self._noise
+        return self._current()
+
+    def _current(self) -> np.ndarray:
+        return self._noise if self.shape.order == 1 else self._smooth / self.shape.second_gain

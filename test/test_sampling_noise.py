@@ -1,0 +1,70 @@
+"""The live sampler's noise: offline and streaming agree, unit variance, bursts give heavy tails."""
+
+import numpy as np
+import pytest
+
+from audio2pose_ros.checkpoints.numpy_runtime import numpy_kernel_for
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.models.live import LiveConfig, LiveSampler
+from audio2pose_ros.models.registry import build_model
+from audio2pose_ros.models.sampling_noise import MAX_BURST, NoiseShape, NoiseStream
+
+
+@pytest.mark.parametrize("shape", [NoiseShape(0.9), NoiseShape(0.95, 2), NoiseShape(0.975, 2, 1.2)])
+def test_when_streaming_frame_by_frame_expect_the_offline_noise_of_the_same_draws(shape):
+    white = np.random.default_rng(1).standard_normal((3, 400, shape.draws(4)))
+    offline = shape.filter(white)
+    for sequence, expected in zip(white, offline, strict=True):
+        stream = NoiseStream(shape, 4)
+        frames = [stream.start(sequence[0])] + [stream.next(d) for d in sequence[1:]]
+        np.testing.assert_allclose(np.array(frames), expected, atol=1e-10)
+
+
+def test_when_counting_draws_expect_one_per_joint_and_one_more_for_a_burst_envelope():
+    assert NoiseShape(0.95, 2).draws(9) == 9  # unchanged for models without bursts
+    assert NoiseShape(0.95, 2, 0.5).draws(9) == 10
+
+
+@pytest.mark.parametrize("burst", [0.0, 0.6])
+def test_when_bursty_expect_unit_variance_from_the_first_frame(burst):
+    shape = NoiseShape(0.95, 2, burst)
+    noise = shape.filter(np.random.default_rng(2).standard_normal((4000, 300, shape.draws(1))))
+    assert abs(noise[:, 0].var() - 1.0) < 0.15  # stationary from frame 0
+    assert abs(noise[:, -1].var() - 1.0) < 0.15
+
+
+def test_when_very_bursty_expect_unit_variance_pooled_over_frames():
+    # E[a^4] = exp(4 b^2) makes one frame's variance estimate too noisy: pool frames instead
+    shape = NoiseShape(0.95, 2, 1.2)
+    noise = shape.filter(np.random.default_rng(4).standard_normal((4000, 600, shape.draws(1))))
+    assert abs(noise[:, 100:].var() - 1.0) < 0.25
+
+
+def _speed_kurtosis(burst: float) -> float:
+    shape = NoiseShape(0.95, 2, burst)
+    noise = shape.filter(np.random.default_rng(3).standard_normal((20, 3000, shape.draws(1))))
+    speed = np.diff(noise[..., 0], axis=1).ravel()
+    return float(np.mean(speed**4) / np.mean(speed**2) ** 2)
+
+
+def test_when_bursty_expect_heavier_tailed_speed_than_steady_noise():
+    steady, bursty = _speed_kurtosis(0.0), _speed_kurtosis(1.2)
+    assert abs(steady - 3.0) < 0.3  # Gaussian speed
+    assert bursty > steady + 2.0  # long quiet stretches and short quick movements
+
+
+@pytest.mark.parametrize("burst", [-0.1, MAX_BURST + 0.1, float("nan")])
+def test_when_a_burst_is_out_of_range_expect_a_configuration_error_and_no_numpy_kernel(burst):
+    with pytest.raises(ConfigurationError, match="noise_burst"):
+        LiveSampler(LiveConfig(noise_burst=burst))
+    config = build_model("live", {"n_features": 4, "n_joints": 3}).config_dict()
+    assert numpy_kernel_for("live", {**config, "noise_burst": burst}) is None
+    groups = build_model("live_groups", {"n_features": 4, "n_joints": 3}).config_dict()
+    assert numpy_kernel_for("live_groups", {**groups, "second_burst": burst}) is None
+    assert numpy_kernel_for("live_groups", groups) is not None
+
+
+def test_when_a_model_has_no_burst_expect_its_config_without_the_key():
+    assert "noise_burst" not in build_model("live", {"n_features": 4, "n_joints": 3}).config_dict()
+    bursty = build_model("live", {"n_features": 4, "n_joints": 3, "noise_burst": 0.5})
+    assert bursty.config_dict()["noise_burst"] == 0.5

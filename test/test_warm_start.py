@@ -1,0 +1,72 @@
+"""Streaming models start an utterance settled: no start jump, offline and online alike."""
+
+import numpy as np
+import pytest
+
+from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
+from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+from audio2pose_ros.models.warm_start import WARM_START_FRAMES, WarmStarted, with_warm_start
+from audio2pose_ros.offline.synthesis import normalized_features, predict_normalized
+from audio2pose_ros.resources import default_checkpoint_path
+
+
+def test_when_warming_up_expect_the_first_frame_repeated_in_front_and_nothing_else_changed():
+    frames = np.arange(12.0).reshape(4, 3)
+    warmed = with_warm_start(frames, 5)
+    assert warmed.shape == (9, 3)
+    np.testing.assert_array_equal(warmed[:5], np.tile(frames[0], (5, 1)))
+    np.testing.assert_array_equal(warmed[5:], frames)
+    batch = with_warm_start(np.stack([frames, frames + 1]), 2)
+    assert batch.shape == (2, 6, 3)
+    np.testing.assert_array_equal(batch[1, :2], np.tile(frames[0] + 1, (2, 1)))
+    with pytest.raises(ValueError, match="first frame"):
+        with_warm_start(np.zeros((0, 3)))
+
+
+class _Counter:
+    """A stateful predictor: the pose is the number of frames seen, then the frame's sum."""
+
+    def __init__(self) -> None:
+        self.seen = 0
+
+    def step(self, features: np.ndarray) -> np.ndarray:
+        self.seen += 1
+        return np.array([self.seen, features.sum()])
+
+    def reset(self) -> None:
+        self.seen = 0
+
+    def run(self, frames: np.ndarray) -> np.ndarray:
+        return np.array([self.step(f) for f in frames])
+
+
+def test_when_a_wrapped_predictor_starts_expect_it_warmed_up_once_per_reset():
+    frames = np.arange(6.0).reshape(3, 2)
+    wrapped = WarmStarted(_Counter(), n=4)
+    first = wrapped.step(frames[0])
+    np.testing.assert_array_equal(first, [5, 1])  # 4 warm-up frames before it
+    np.testing.assert_array_equal(wrapped.run(frames[1:]), [[6, 5], [7, 9]])  # no second warm-up
+    wrapped.reset()
+    np.testing.assert_array_equal(wrapped.run(frames), [[5, 1], [6, 5], [7, 9]])
+    assert len(wrapped.run(np.zeros((0, 2)))) == 0
+
+
+@pytest.mark.parametrize("temperature", [0.0, 1.0])
+def test_when_the_packaged_model_starts_an_utterance_expect_no_start_jump(speech, temperature):
+    """The first frames change no faster than the model later does (it jumped 0.4 rad)."""
+    checkpoint = load_checkpoint(default_checkpoint_path())
+    robot = checkpoint.robot
+    angles = robot.denormalize(predict_normalized(checkpoint, speech, temperature=temperature))
+    step = np.abs(np.diff(angles, axis=0))
+    later = step[20:].max(axis=0)
+    assert (step[:20].max(axis=0) <= later + 1e-3).all(), (step[:20].max(axis=0), later)
+
+
+def test_when_the_packaged_model_runs_online_expect_the_offline_synthesis_poses(speech):
+    checkpoint = load_checkpoint(default_checkpoint_path())
+    online = load_streaming_model(default_checkpoint_path()).predictor(seed=3)
+    frames = normalized_features(checkpoint, speech)
+    offline = predict_normalized(checkpoint, speech, seed=3)
+    halves = np.concatenate([online.run(frames[:37]), *[online.step(f)[None] for f in frames[37:]]])
+    np.testing.assert_allclose(halves, offline, atol=1e-5)
+    assert WARM_START_FRAMES >= 50  # the default sampler settles within about 20 frames
