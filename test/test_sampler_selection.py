@@ -1,5 +1,6 @@
 """Sampling settings of live_groups chosen on validation clips, in the build and in every fold."""
 
+import pickle
 from dataclasses import replace
 
 import numpy as np
@@ -11,17 +12,20 @@ from audio2pose_ros.data.dataset import Clip, Dataset
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.learning.evaluation import loso_predictions
 from audio2pose_ros.learning.sampler_selection import (
+    BURSTS,
+    CORRELATIONS,
     PAUSE_MARGIN,
     PAUSE_TARGETS,
     SILENCE_TEMPERATURES,
     TEMPERATURES,
+    FoldTuner,
     choose_sampling,
-    fold_tuner,
     score,
     select_sampling,
     speaker_folds,
 )
 from audio2pose_ros.learning.training import TrainSettings, train_on_clips
+from audio2pose_ros.models.live_groups import SAMPLING_SETTINGS
 from audio2pose_ros.models.registry import build_model
 
 torch.set_num_threads(1)
@@ -54,14 +58,19 @@ def test_when_changing_sampling_settings_expect_the_same_weights_and_nothing_els
         model.with_sampling(hidden_units=3)
 
 
-def scores_by_value(trials, setting, robot):
-    """Joint-count weighted score per tried value of one part's temperature."""
+def part_scores(trials, setting, robot):
+    """Joint-count weighted score per tried (correlation, burst, temperature) of one part."""
     out = {}
-    for value in TEMPERATURES:
-        rows = [t for t in trials if t.setting == setting and t.value == value]
-        weights = [robot.group_mask(t.group).sum() for t in rows]
-        out[value] = np.average([score(t.measures) for t in rows], weights=weights)
-    return out
+    for t in trials:
+        if t.setting == setting:
+            out.setdefault((t.correlation, t.burst, t.value), []).append(t)
+    return {
+        key: np.average(
+            [score(t.measures) for t in rows],
+            weights=[robot.group_mask(t.group).sum() for t in rows],
+        )
+        for key, rows in out.items()
+    }
 
 
 def test_when_selecting_expect_each_part_at_its_best_validation_score_and_the_liveliest_gate(
@@ -69,9 +78,28 @@ def test_when_selecting_expect_each_part_at_its_best_validation_score_and_the_li
 ):
     validation = [c for c in clips if c.info.split == "validation"]
     tuned, choice = select_sampling(checkpoint, validation, robot, n_seeds=2)
-    for setting in ("first_temperature", "second_temperature"):
-        scores = scores_by_value(choice.trials, setting, robot)
-        assert choice.settings[setting] == min(scores, key=scores.get)
+    parts = {"first_temperature": "first_burst", "second_temperature": "second_burst"}
+    scores = {setting: part_scores(choice.trials, setting, robot) for setting in parts}
+    for setting in parts:
+        assert len(scores[setting]) == len(CORRELATIONS) * len(BURSTS) * len(TEMPERATURES)
+
+    def cost(correlation):
+        return sum(
+            min(v for k, v in scores[s].items() if k[0] == correlation)
+            * sum(
+                robot.group_mask(g).sum()
+                for g in {t.group for t in choice.trials if t.setting == s}
+            )
+            for s in parts
+        )
+
+    correlation = choice.settings["noise_correlation"]
+    assert correlation == min(CORRELATIONS, key=cost)
+    for setting, burst in parts.items():
+        at = {k: v for k, v in scores[setting].items() if k[0] == correlation}
+        assert (correlation, choice.settings[burst], choice.settings[setting]) == min(
+            at, key=at.get
+        )
     met = [
         rest
         for rest in SILENCE_TEMPERATURES
@@ -88,7 +116,9 @@ def test_when_selecting_expect_each_part_at_its_best_validation_score_and_the_li
     assert tuned.info["sampling_chosen_on"] == [c.info.clip_id for c in validation]
     for key, value in checkpoint.model.state_dict().items():
         torch.testing.assert_close(tuned.model.state_dict()[key], value)
-    assert "*" in choice.table()
+    starred = [line.split() for line in choice.table().splitlines()[2:] if "*" in line]
+    chosen_part_rows = {(row[0], row[4]) for row in starred if row[0] in parts}
+    assert chosen_part_rows == {(t.setting, t.group) for t in choice.trials if t.setting in parts}
 
 
 def amplified(clip: Clip, joints: np.ndarray, gain: float) -> Clip:
@@ -179,15 +209,30 @@ def test_when_a_fold_is_tuned_expect_a_choice_made_on_its_training_speakers_and_
     clips, checkpoint, robot
 ):
     train = [c for c in clips if c.info.split == "train"]
-    choices = []
-    tune = fold_tuner(
-        robot, TrainSettings(max_epochs=1, batch_size=4, show_progress=False), choices=choices
-    )
+    tune = FoldTuner(robot, TrainSettings(max_epochs=1, batch_size=4, show_progress=False))
     tuned = tune(checkpoint, train)
-    assert len(choices) == 1
-    assert set(choices[0].validation) <= {c.info.clip_id for c in train}
-    for name, value in choices[0].settings.items():
-        assert getattr(tuned.model.config, name) == value
+    note = tuned.info["sampling_choice"]
+    assert f"on {len(train)} validation clips" in note
+    for name in SAMPLING_SETTINGS:
+        assert f"{name} = {getattr(tuned.model.config, name):g}" in note
+    assert set(tuned.info["sampling_chosen_on"]) <= {c.info.clip_id for c in train}
     mlp, _ = train_on_clips("mlp", train, robot, TrainSettings(max_epochs=1, show_progress=False))
     assert tune(mlp, train) is mlp
-    assert len(choices) == 1
+    assert pickle.loads(pickle.dumps(tune)) == tune  # workers receive it
+
+
+def test_when_loso_folds_train_in_two_processes_expect_the_serial_results(tmp_path, robot):
+    dataset = write_dataset(tmp_path / "loso", robot, {"train": 4}, seconds=1.5, seed=4)
+    settings = TrainSettings(max_epochs=2, batch_size=4, show_progress=False)
+    serial_choices, parallel_choices = {}, {}
+    tune = FoldTuner(robot, settings)
+    _, serial, _ = loso_predictions(
+        dataset, robot, ["live_groups"], settings, 2, None, tune, 1, serial_choices
+    )
+    _, parallel, _ = loso_predictions(
+        dataset, robot, ["live_groups"], settings, 2, None, tune, 2, parallel_choices
+    )
+    assert serial_choices.keys() == parallel_choices.keys() == set(dataset.speakers)
+    for clip_id, samples in serial["live_groups (LOSO)"].items():
+        for a, b in zip(samples, parallel["live_groups (LOSO)"][clip_id], strict=True):
+            np.testing.assert_allclose(a, b, atol=1e-3)

@@ -233,8 +233,15 @@ def command_build_default(args: argparse.Namespace) -> int:
         )
         if not lecture.is_file():
             raise UsageError(f"--lecture {lecture}: no such file (the shared lecture video)")
+        from audio2pose_ros.learning.parallel import default_workers
+
         epochs = args.max_epochs or LearnedBuildSettings.max_epochs
-        settings = LearnedBuildSettings(max_epochs=epochs, loso_epochs=epochs, seed=args.seed)
+        settings = LearnedBuildSettings(
+            max_epochs=epochs,
+            loso_epochs=epochs,
+            seed=args.seed,
+            workers=args.jobs or default_workers(),
+        )
         result = build_learned_default_model(
             clips, lecture, out, work, load_robot(), settings, progress
         )
@@ -327,6 +334,11 @@ def register(verbs: Verbs) -> None:
         help="default 200 (learned; also per evaluation fold) or 2000 (prosody, neutral)",
     )
     build.add_argument("--seed", type=bounded_int(0, MAX_SEED), default=0)
+    build.add_argument(
+        "--jobs",
+        type=bounded_int(1, 256),
+        help="learned: trainings side by side, one process each (default: the usable cores)",
+    )
     build.set_defaults(func=command_build_default)
 
     info = sub.add_parser("info", help="clips, speakers, splits and observed joints")

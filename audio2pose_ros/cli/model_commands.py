@@ -160,13 +160,13 @@ def command_evaluate(args: argparse.Namespace) -> int:
         clips, predictions, paused = [], {}, {}
     if args.loso:
         from audio2pose_ros.learning.default_model import LearnedBuildSettings
-        from audio2pose_ros.learning.sampler_selection import fold_tuner
+        from audio2pose_ros.learning.sampler_selection import FoldTuner
 
         # the default model's evaluation, fold for fold
         settings = LearnedBuildSettings().train_settings(args.max_epochs, seed=args.seed)
-        tune = fold_tuner(robot, settings, progress)  # live_groups: as the default model's card
+        tune = FoldTuner(robot, settings, verbose=True)  # live_groups: as the default model's card
         clips, predictions, paused = loso_predictions(
-            dataset, robot, args.loso, settings, args.samples, progress, tune
+            dataset, robot, args.loso, settings, args.samples, progress, tune, args.jobs
         )
         tables.append("leave one speaker out: every clip held out once, in its speaker's fold")
     figure = out_dir / "distributions.png" if out_dir is not None else None
@@ -231,5 +231,11 @@ def register(verbs: Verbs) -> None:
         type=bounded_int(1, 100_000),
         default=200,
         help="with --loso: epochs per fold at most (default 200, as make default-model)",
+    )
+    evaluate.add_argument(
+        "--jobs",
+        type=bounded_int(1, 256),
+        default=1,
+        help="with --loso: folds trained side by side, one process each (default 1)",
     )
     evaluate.set_defaults(func=command_evaluate)

@@ -31,6 +31,7 @@ from __future__ import annotations
 import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -44,8 +45,9 @@ from audio2pose_ros.motion.prosody import prosody_trajectory
 from audio2pose_ros.robot.description import RobotDescription
 
 if TYPE_CHECKING:
+    from audio2pose_ros.checkpoints.torch_io import Checkpoint
     from audio2pose_ros.learning.evaluation import Predictions
-    from audio2pose_ros.learning.sampler_selection import SamplingChoice
+    from audio2pose_ros.learning.train_state import TrainReport
     from audio2pose_ros.learning.training import TrainSettings
 
 GRID_LICENCE = (
@@ -212,6 +214,8 @@ class LearnedBuildSettings:
         samples: samples per clip, pooled by the distribution measures and compared by the
             diversity measure.
         seed: training seed.
+        workers: trainings side by side, one process each
+            (:func:`~audio2pose_ros.learning.parallel.run_tasks`).
 
     """
 
@@ -221,6 +225,7 @@ class LearnedBuildSettings:
     loso_epochs: int = 200
     samples: int = 3
     seed: int = 0
+    workers: int = 1
 
     def train_settings(self, max_epochs: int, seed: int | None = None) -> TrainSettings:
         """The TrainSettings of one training run of this budget (no progress bars)."""
@@ -311,11 +316,12 @@ def build_learned_default_model(
         quality_evaluation,
     )
     from audio2pose_ros.learning.model_card import write_learned_model_card
+    from audio2pose_ros.learning.parallel import run_tasks
     from audio2pose_ros.learning.sampler_selection import (
+        FoldTuner,
         apply_sampling,
         choose_sampling,
-        cross_validated,
-        fold_tuner,
+        cross_validation_tasks,
     )
     from audio2pose_ros.learning.training import train_on_clips
 
@@ -334,19 +340,30 @@ def build_learned_default_model(
         f"(validation: {sorted(validation_ids)})"
     )
     validation = [c for c in usable if c.info.clip_id in validation_ids]
-    checkpoint, report = train_on_clips(
-        "live_groups",
-        [c for c in usable if c.info.clip_id not in validation_ids],
-        robot,
-        train_settings,
-        validation=validation,
-    )
     fold_settings = settings.train_settings(settings.loso_epochs)
     progress(
         "choosing the sampling settings: the head's by cross-validation over the talking-head "
         "speakers, the arms' on the validation lecture stretch"
     )
-    head_folds = cross_validated("live_groups", head_clips, robot, fold_settings, progress=progress)
+    head_tasks, head_held = cross_validation_tasks(
+        "live_groups", head_clips, robot, fold_settings, progress=progress
+    )
+    # the shipped model and the head's cross-validation models train side by side
+    tasks: list[Callable[[], tuple[Checkpoint, TrainReport]]] = [
+        partial(
+            train_on_clips,
+            "live_groups",
+            [c for c in usable if c.info.clip_id not in validation_ids],
+            robot,
+            train_settings,
+            None,
+            validation,
+        ),
+        *head_tasks,
+    ]
+    trained = run_tasks(tasks, settings.workers)
+    checkpoint, report = trained[0]
+    head_folds = [(c, held) for (c, _), held in zip(trained[1:], head_held, strict=True)]
     lecture_validation = [c for c in validation if c.info.speaker == LECTURE_SPEAKER]
     choice = choose_sampling([*head_folds, (checkpoint, lecture_validation)], robot)
     progress("  chosen: " + choice.summary())
@@ -368,12 +385,17 @@ def build_learned_default_model(
         paused=paused | rule_paused,
     )
     progress("evaluating the head leave-one-speaker-out over the talking-head clips")
-    fold_choices: list[SamplingChoice] = []
-
-    tune = fold_tuner(robot, fold_settings, progress, fold_choices)
-
+    fold_choices: dict[str, str] = {}
     clips, loso, loso_paused = loso_predictions(
-        heads, robot, ["live_groups", "mlp"], fold_settings, settings.samples, progress, tune
+        heads,
+        robot,
+        ["live_groups", "mlp"],
+        fold_settings,
+        settings.samples,
+        progress,
+        FoldTuner(robot, fold_settings, verbose=True),
+        settings.workers,
+        fold_choices,
     )
     head = quality_evaluation(
         clips, loso, robot, out_dir / "head_distributions.png", paused=loso_paused
@@ -388,10 +410,7 @@ def build_learned_default_model(
         "sampling settings of the shipped model\n"
         + choice.table()
         + "\n\nsampling settings of the leave-one-speaker-out folds (head)\n"
-        + "\n".join(
-            f"{speaker} held out: {c.summary()}"
-            for speaker, c in zip(heads.speakers, fold_choices, strict=True)
-        )
+        + "\n".join(f"{speaker} held out: {note}" for speaker, note in fold_choices.items())
     )
     (out_dir / "metrics.txt").write_text(table + "\n\n" + selection + "\n", encoding="utf-8")
     card = write_learned_model_card(

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -557,6 +558,43 @@ def plot_histograms(path: Path, result: QualityEvaluation, methods: Sequence[str
     return path
 
 
+def _loso_fold(
+    training: list[Clip],
+    held_out: list[Clip],
+    robot: RobotDescription,
+    model_names: Sequence[str],
+    settings: TrainSettings,
+    n_samples: int,
+    tune: Callable[[Checkpoint, list[Clip]], Checkpoint] | None,
+    progress: Callable[[str], None] | None,
+    title: str,
+) -> tuple[Predictions, Predictions, str | None]:
+    """One leave-one-speaker-out fold: train each model, tune it, sample the held-out clips.
+
+    Returns the fold's samples and paused samples per model label, and the tuned checkpoint's
+    ``sampling_choice`` note (None without one).
+    """
+    from audio2pose_ros.learning.training import train_on_clips
+
+    predictions: Predictions = {}
+    paused: Predictions = {}
+    note = None
+    for name in model_names:
+        if progress is not None:
+            progress(f"{title}: training {name}")
+        checkpoint, _ = train_on_clips(name, training, robot, settings)
+        if tune is not None:
+            checkpoint = tune(checkpoint, training)
+            note = checkpoint.info.get("sampling_choice", note)
+        label = f"{name} (LOSO)"
+        samples, pauses = checkpoint_predictions(
+            [(Path(label), checkpoint)], held_out, n_samples, settings.seed
+        )
+        predictions[label] = next(iter(samples.values()))
+        paused[label] = next(iter(pauses.values()))
+    return predictions, paused, note
+
+
 def loso_predictions(
     dataset: Dataset,
     robot: RobotDescription,
@@ -565,15 +603,29 @@ def loso_predictions(
     n_samples: int = 3,
     progress: Callable[[str], None] | None = None,
     tune: Callable[[Checkpoint, list[Clip]], Checkpoint] | None = None,
+    workers: int = 1,
+    choices: dict[str, str] | None = None,
 ) -> tuple[list[Clip], Predictions, Predictions]:
     """Leave one speaker out: for each speaker, train each model on the others, predict it.
 
     Every clip of the data set is held out exactly once (in its speaker's fold), whatever its
     split label; validation for early stopping holds out further speakers of the training side
     (:func:`~audio2pose_ros.learning.training.train_on_clips`). ``tune`` (e.g. the choice of a
-    sampler's settings, :mod:`audio2pose_ros.learning.sampler_selection`) receives each fold's
-    trained checkpoint and that fold's training clips, never the held-out speaker's, and
-    returns the checkpoint that predicts the held-out speaker.
+    sampler's settings, :class:`~audio2pose_ros.learning.sampler_selection.FoldTuner`) receives
+    each fold's trained checkpoint and that fold's training clips, never the held-out
+    speaker's, and returns the checkpoint that predicts the held-out speaker.
+
+    Args:
+        dataset: the clips, with their speakers.
+        robot: joint order and ranges.
+        model_names: the models to train in every fold.
+        settings: training settings.
+        n_samples: samples per clip of a sampler.
+        progress: receives one line per training (with ``workers`` > 1 the workers print
+            them to standard error instead).
+        tune: see above; must be picklable when ``workers`` > 1.
+        workers: folds trained side by side (:func:`~audio2pose_ros.learning.parallel.run_tasks`).
+        choices: filled with speaker -> the tuned checkpoint's ``sampling_choice`` note.
 
     Returns:
         All clips; per model label (``"<name> (LOSO)"``) and clip id the synthesized samples
@@ -584,29 +636,36 @@ def loso_predictions(
         EvaluationError: fewer than two speakers.
 
     """
-    from audio2pose_ros.learning.training import train_on_clips
+    from audio2pose_ros.learning.parallel import report, run_tasks
 
     clips = [dataset.load(c.clip_id) for c in dataset.clips]
     speakers = sorted({c.info.speaker for c in clips})
     if len(speakers) < 2:
         raise EvaluationError(f"{dataset.root}: leave-one-speaker-out needs two speakers")
+    step = progress if workers == 1 or progress is None else report
+    tasks = [
+        partial(
+            _loso_fold,
+            [c for c in clips if c.info.speaker != speaker],
+            [c for c in clips if c.info.speaker == speaker],
+            robot,
+            model_names,
+            settings,
+            n_samples,
+            tune,
+            step,
+            f"fold {k + 1}/{len(speakers)} ({speaker} held out)",
+        )
+        for k, speaker in enumerate(speakers)
+    ]
     predictions: Predictions = {f"{m} (LOSO)": {} for m in model_names}
     paused: Predictions = {f"{m} (LOSO)": {} for m in model_names}
-    for k, speaker in enumerate(speakers):
-        training = [c for c in clips if c.info.speaker != speaker]
-        held_out = [c for c in clips if c.info.speaker == speaker]
-        for name in model_names:
-            if progress is not None:
-                progress(f"fold {k + 1}/{len(speakers)} ({speaker} held out): training {name}")
-            checkpoint, _ = train_on_clips(name, training, robot, settings)
-            if tune is not None:
-                checkpoint = tune(checkpoint, training)
-            label = f"{name} (LOSO)"
-            samples, pauses = checkpoint_predictions(
-                [(Path(label), checkpoint)], held_out, n_samples, settings.seed
-            )
-            predictions[label] |= next(iter(samples.values()))
-            paused[label] |= next(iter(pauses.values()))
+    for speaker, (samples, pauses, note) in zip(speakers, run_tasks(tasks, workers), strict=True):
+        for label in predictions:
+            predictions[label] |= samples[label]
+            paused[label] |= pauses[label]
+        if choices is not None and note is not None:
+            choices[speaker] = note
     return clips, predictions, paused
 
 

@@ -1,7 +1,7 @@
 """Choose a ``live_groups`` model's sampling settings on validation clips (issue 13).
 
-The part temperatures and the speech gate's rest level of
-:class:`~audio2pose_ros.models.live_groups.LiveGroups` act only when sampling
+The part temperatures and noise burstiness, the noise's correlation and the speech gate's rest
+level of :class:`~audio2pose_ros.models.live_groups.LiveGroups` act only when sampling
 (:data:`~audio2pose_ros.models.live_groups.SAMPLING_SETTINGS`), so they are chosen after
 training, on clips the deciding models were not trained on and that are never the reported
 test clips. The evidence is a list of :data:`Fold` s, each a trained checkpoint with clips it did
@@ -11,21 +11,29 @@ model trained without that speaker; the same again inside every leave-one-speake
 that fold's training speakers only) and, for the arms, the shipped model on its validation
 stretch of the lecture.
 
-1. Temperatures. Both parts sample at each temperature of :data:`TEMPERATURES`, with
-   :data:`N_SEEDS` seeds; per joint group, the samples' motion on every fold's clips that
-   observe the group is compared with the real motion (pooled over the seeds and folds:
+1. Noise and temperatures. Both parts sample with every combination of a noise correlation of
+   :data:`CORRELATIONS`, a burstiness of :data:`BURSTS`
+   (:mod:`audio2pose_ros.models.sampling_noise`) and a temperature of :data:`TEMPERATURES`,
+   :data:`N_SEEDS` samples per clip; per joint group, the samples' motion on every fold's clips
+   that observe the group is compared with the real motion (pooled over the samples and folds:
    :func:`~audio2pose_ros.learning.metrics.sum_segments`) by :func:`score`, which adds the mean
    of the Hellinger distances of speed and acceleration to how far the motion's size is from
-   real, ``|ln(std ratio)|``. Each part keeps the temperature with the lowest score, averaged
-   over its joint groups weighted by their joint counts; a part whose joints no clip observes
-   keeps its configured temperature.
-2. Rest level in silence. With those temperatures, every rest level of
+   real, ``|ln(std ratio)|``. For each correlation, each part keeps the burstiness and
+   temperature with the lowest score, averaged over its joint groups weighted by their joint
+   counts; the correlation (shared by the parts) is the one whose parts' best scores, weighted
+   by their joint counts, sum lowest. A part whose joints no clip observes keeps its configured
+   settings.
+2. Rest level in silence. With those settings, every rest level of
    :data:`SILENCE_TEMPERATURES`, from the most noise left in silence to the least, samples the
    same clips' audio with a pause inserted
    (:func:`~audio2pose_ros.learning.evaluation.with_pause`); the first whose speech / pause
    speed ratio reaches :data:`PAUSE_MARGIN` times issue 13's target (:data:`PAUSE_TARGETS`) in
    every scored group is kept (the lowest one if none does): as lively in silence as the "come
    to rest" target allows, with a margin.
+
+The features of every clip are computed once and every setting samples all its seeds in one
+batch (:func:`~audio2pose_ros.offline.synthesis.sample_normalized`), so the search costs
+sampling, not feature extraction.
 """
 
 from __future__ import annotations
@@ -33,6 +41,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import cast
 
 import numpy as np
@@ -40,12 +49,15 @@ import numpy as np
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Clip
 from audio2pose_ros.learning import metrics
+from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 from audio2pose_ros.models.live_groups import LiveGroups
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.timebase import FRAME_RATE_HZ
 
 TEMPERATURES = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0)
+BURSTS = (0.0, 0.6, 1.2)  # log-std of the noise's burst envelope (0 = steady noise)
+CORRELATIONS = (0.95, 0.975)  # AR(1) coefficient of the noise (second order)
 SILENCE_TEMPERATURES = (0.3, 0.2, 0.1, 0.05, 0.02)  # most noise left in silence first
 PAUSE_TARGETS = {"head": 2.0, "arms": 1.5, "hip": 1.5}  # issue 13: speech / silence speed
 PAUSE_MARGIN = 1.25
@@ -53,6 +65,7 @@ N_SEEDS = 4
 INNER_FOLDS = 3
 GROUPS = ("head", "arms", "hip")
 _PART_SETTINGS = ("first_temperature", "second_temperature")
+_PART_BURSTS = {"first_temperature": "first_burst", "second_temperature": "second_burst"}
 
 Fold = tuple[Checkpoint, Sequence[Clip]]  # a trained checkpoint and clips it was not trained on
 
@@ -66,12 +79,24 @@ def score(measures: dict[str, float]) -> float:
 
 @dataclass(frozen=True)
 class Trial:
-    """One setting tried on one joint group: its measures on the validation clips."""
+    """One setting tried on one joint group: its measures on the validation clips.
+
+    Attributes:
+        setting: the part's temperature setting, or ``silence_temperature``.
+        value: its value.
+        group: the joint group measured.
+        measures: the distribution measures, or the speech/pause speed ratio.
+        correlation: the noise correlation sampled with (part trials).
+        burst: the part's noise burstiness sampled with (part trials).
+
+    """
 
     setting: str
     value: float
     group: str
     measures: dict[str, float]
+    correlation: float | None = None
+    burst: float | None = None
 
 
 @dataclass(frozen=True)
@@ -101,18 +126,29 @@ class SamplingChoice:
             f"predicted by {self.n_models} model(s), {N_SEEDS} samples each)"
         )
 
+    def _chosen(self, trial: Trial) -> bool:
+        if self.settings.get(trial.setting) != trial.value:
+            return False
+        if trial.correlation is None:
+            return True
+        burst = self.settings.get(_PART_BURSTS.get(trial.setting, ""))
+        return self.settings.get("noise_correlation") == trial.correlation and burst == trial.burst
+
     def table(self) -> str:
-        """Plain text: the summary, then one line per trial, the chosen values marked ``*``."""
+        """Plain text: the summary, then one line per trial, the chosen ones marked ``*``."""
         lines = [
             self.summary(),
-            f"{'setting':<21}{'value':>6}  {'group':<6}{'H speed':>8}{'H accel':>8}"
-            f"{'std/real':>9}{'score':>7}{'speech/pause':>13}",
+            f"{'setting':<21}{'corr':>6}{'burst':>6}{'value':>6}  {'group':<6}{'H speed':>8}"
+            f"{'H accel':>8}{'std/real':>9}{'score':>7}{'speech/pause':>13}",
         ]
         for t in self.trials:
-            chosen = "*" if self.settings.get(t.setting) == t.value else " "
             m = t.measures
+            noise = "".join(
+                f"{v:>6g}" if v is not None else f"{'-':>6}" for v in (t.correlation, t.burst)
+            )
             lines.append(
-                f"{t.setting:<21}{t.value:>6g}{chosen} {t.group:<6}"
+                f"{t.setting:<21}{noise}{t.value:>6g}{'*' if self._chosen(t) else ' '} "
+                f"{t.group:<6}"
                 + "".join(
                     f"{m[k]:>{w}.2f}" if k in m else f"{'-':>{w}}"
                     for k, w in (("H speed", 8), ("H accel", 8), ("std ratio", 9))
@@ -147,6 +183,32 @@ def speaker_folds(
     return folds
 
 
+def cross_validation_tasks(
+    model_name: str,
+    clips: Sequence[Clip],
+    robot: RobotDescription,
+    settings: TrainSettings,
+    k: int = INNER_FOLDS,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[list[Callable[[], tuple[Checkpoint, TrainReport]]], list[list[Clip]]]:
+    """The trainings of :func:`cross_validated`, not yet run, and each one's validation clips.
+
+    Each model stops early on the speakers it is then scored on (its validation speakers), so
+    it uses all its other speakers for training. The trainings are picklable, for
+    :func:`~audio2pose_ros.learning.parallel.run_tasks`.
+    """
+    pairs = speaker_folds(clips, k)
+    if progress is not None:
+        for i, (_, validation) in enumerate(pairs):
+            speakers = sorted({c.info.speaker for c in validation})
+            progress(f"  validation model {i + 1}/{len(pairs)} (without {', '.join(speakers)})")
+    tasks: list[Callable[[], tuple[Checkpoint, TrainReport]]] = [
+        partial(train_on_clips, model_name, training, robot, settings, None, validation)
+        for training, validation in pairs
+    ]
+    return tasks, [validation for _, validation in pairs]
+
+
 def cross_validated(
     model_name: str,
     clips: Sequence[Clip],
@@ -154,21 +216,19 @@ def cross_validated(
     settings: TrainSettings,
     k: int = INNER_FOLDS,
     progress: Callable[[str], None] | None = None,
+    workers: int = 1,
 ) -> list[Fold]:
     """Train one model per :func:`speaker_folds` pair; each with the speakers it did not see.
 
-    Each model stops early on the speakers it is then scored on (its validation speakers), so
-    it uses all its other speakers for training.
+    ``workers`` trains them side by side (:func:`~audio2pose_ros.learning.parallel.run_tasks`).
     """
-    pairs = speaker_folds(clips, k)
-    folds: list[Fold] = []
-    for i, (training, validation) in enumerate(pairs):
-        if progress is not None:
-            speakers = sorted({c.info.speaker for c in validation})
-            progress(f"  validation model {i + 1}/{len(pairs)} (without {', '.join(speakers)})")
-        checkpoint, _ = train_on_clips(model_name, training, robot, settings, validation=validation)
-        folds.append((checkpoint, validation))
-    return folds
+    from audio2pose_ros.learning.parallel import run_tasks
+
+    tasks, held = cross_validation_tasks(model_name, clips, robot, settings, k, progress)
+    trained = run_tasks(tasks, workers)
+    return [
+        (checkpoint, validation) for (checkpoint, _), validation in zip(trained, held, strict=True)
+    ]
 
 
 def _observed(robot: RobotDescription, clips: Sequence[Clip]) -> list[str]:
@@ -191,46 +251,89 @@ def _part_groups(
     return parts
 
 
+@dataclass(frozen=True)
+class _Evidence:
+    """One validation clip of a fold, with what every setting's samples are compared against.
+
+    Attributes:
+        checkpoint: the fold's model (trained without the clip).
+        frames: the clip's normalised features (or its paused audio's).
+        speech: speech activity per frame (energy VAD).
+        known: per observed group, its (frames, joints) mask.
+        real: per observed group, the real motion's segment statistics (not for paused audio).
+
+    """
+
+    checkpoint: Checkpoint
+    frames: np.ndarray
+    speech: np.ndarray
+    known: dict[str, np.ndarray]
+    real: dict[str, metrics.MotionSegments]
+
+
+def _evidence(folds: Sequence[Fold], robot: RobotDescription, paused: bool) -> list[_Evidence]:
+    """Every fold's clips, features and real motion computed once for all settings."""
+    from audio2pose_ros.learning.evaluation import with_pause
+    from audio2pose_ros.offline.synthesis import normalized_features
+
+    out = []
+    for checkpoint, clips in folds:
+        groups = _observed(robot, clips)
+        for clip in clips:
+            audio = with_pause(clip.audio) if paused else clip.audio
+            frames = normalized_features(checkpoint, audio)
+            n = len(frames) if paused else min(len(frames), clip.n_frames)
+            speech = metrics.energy_vad(audio, n)
+            known, real = {}, {}
+            for g in groups:
+                joints = robot.group_mask(g)
+                mask = np.ones((n, int(joints.sum())), bool) if paused else clip.mask[:n, joints]
+                if not mask.any():
+                    continue
+                known[g] = mask
+                if not paused:
+                    true = np.nan_to_num(clip.angles_rad[:n, joints])
+                    real[g] = metrics.segment_statistics(true, mask, speech, FRAME_RATE_HZ)
+            out.append(_Evidence(checkpoint, frames, speech, known, real))
+    return out
+
+
 def _measures(
-    folds: Sequence[Fold],
+    evidence: Sequence[_Evidence],
     settings: dict[str, float],
     robot: RobotDescription,
     n_seeds: int,
     paused: bool,
 ) -> dict[str, dict[str, float]]:
-    """Group -> measures of every fold's samples (seeds 0 .. n - 1) on its clips, pooled."""
-    from audio2pose_ros.learning.evaluation import with_pause
-    from audio2pose_ros.offline.synthesis import synthesize
+    """Group -> measures of the samples (``n_seeds`` per clip) with ``settings``, pooled."""
+    from audio2pose_ros.offline.synthesis import sample_normalized, to_angles
 
     real: dict[str, list[metrics.MotionSegments]] = {}
     generated: dict[str, list[metrics.MotionSegments]] = {}
-    for checkpoint, clips in folds:
-        model = cast(LiveGroups, checkpoint.model)  # choose_sampling keeps live_groups folds only
-        candidate = replace(checkpoint, model=model.with_sampling(**settings))
-        groups = _observed(robot, clips)
-        for clip in clips:
-            audio = with_pause(clip.audio) if paused else clip.audio
-            samples = [synthesize(candidate, audio, seed=s)[1] for s in range(n_seeds)]
-            n = samples[0].shape[0] if paused else min(samples[0].shape[0], clip.n_frames)
-            speech = metrics.energy_vad(audio, n)
-            for g in groups:
-                joints = robot.group_mask(g)
-                known = np.ones((n, int(joints.sum())), bool) if paused else clip.mask[:n, joints]
-                if not known.any():
-                    continue
-                generated.setdefault(g, []).append(
-                    metrics.sum_segments(
-                        [
-                            metrics.segment_statistics(m[:n, joints], known, speech, FRAME_RATE_HZ)
-                            for m in samples
-                        ]
-                    )
+    candidates: dict[int, Checkpoint] = {}
+    for item in evidence:
+        checkpoint = item.checkpoint
+        if id(checkpoint) not in candidates:
+            model = cast(LiveGroups, checkpoint.model)  # choose_sampling keeps live_groups only
+            candidates[id(checkpoint)] = replace(checkpoint, model=model.with_sampling(**settings))
+        candidate = candidates[id(checkpoint)]
+        n = len(item.speech)
+        samples = [
+            to_angles(candidate, poses)[:n]
+            for poses in sample_normalized(candidate, item.frames, n_seeds)
+        ]
+        for g, known in item.known.items():
+            joints = robot.group_mask(g)
+            generated.setdefault(g, []).append(
+                metrics.sum_segments(
+                    [
+                        metrics.segment_statistics(m[:, joints], known, item.speech, FRAME_RATE_HZ)
+                        for m in samples
+                    ]
                 )
-                if not paused:
-                    true = np.nan_to_num(clip.angles_rad[:n, joints])
-                    real.setdefault(g, []).append(
-                        metrics.segment_statistics(true, known, speech, FRAME_RATE_HZ)
-                    )
+            )
+            if not paused:
+                real.setdefault(g, []).append(item.real[g])
     out = {}
     for g, parts in generated.items():
         gen = metrics.concat_segments(parts)
@@ -267,24 +370,41 @@ def choose_sampling(
         for setting, part_groups in _part_groups(first, robot, groups).items()
         if part_groups
     }
+    weights = {s: [int(robot.group_mask(g).sum()) for g in part] for s, part in parts.items()}
+    evidence = _evidence(folds, robot, paused=False)
     trials: list[Trial] = []
-    per_value = {}
-    for value in TEMPERATURES:
-        per_value[value] = _measures(folds, dict.fromkeys(parts, value), robot, n_seeds, False)
-        trials += [
-            Trial(s, value, g, per_value[value][g]) for s, part in parts.items() for g in part
-        ]
-    chosen: dict[str, float] = {}
-    for setting, part in parts.items():
-        weights = [int(robot.group_mask(g).sum()) for g in part]
+    # per correlation and part: (score, burst, temperature) of every combination tried
+    scored: dict[float, dict[str, list[tuple[float, float, float]]]] = {}
+    for correlation in CORRELATIONS:
+        scored[correlation] = {s: [] for s in parts}
+        for burst in BURSTS:
+            for value in TEMPERATURES:
+                settings = {
+                    "noise_correlation": correlation,
+                    **{_PART_BURSTS[s]: burst for s in parts},
+                    **dict.fromkeys(parts, value),
+                }
+                measured = _measures(evidence, settings, robot, n_seeds, False)
+                for s, part in parts.items():
+                    trials += [Trial(s, value, g, measured[g], correlation, burst) for g in part]
+                    total = float(
+                        np.average([score(measured[g]) for g in part], weights=weights[s])
+                    )
+                    scored[correlation][s].append((total, burst, value))
 
-        def weighted(v: float, part: list[str] = part, weights: list[int] = weights) -> float:
-            return np.average([score(per_value[v][g]) for g in part], weights=weights)
+    def cost(correlation: float) -> float:
+        return sum(min(scored[correlation][s])[0] * sum(weights[s]) for s in parts)
 
-        chosen[setting] = min(TEMPERATURES, key=weighted)
+    best = min(CORRELATIONS, key=cost)
+    chosen: dict[str, float] = {"noise_correlation": best}
+    for s in parts:
+        _, burst, value = min(scored[best][s])
+        chosen[s] = value
+        chosen[_PART_BURSTS[s]] = burst
+    paused = _evidence(folds, robot, paused=True)
     for rest in SILENCE_TEMPERATURES:
         settings = {**chosen, "silence_temperature": rest}
-        ratios = _measures(folds, settings, robot, n_seeds, True)
+        ratios = _measures(paused, settings, robot, n_seeds, True)
         trials += [Trial("silence_temperature", rest, g, ratios[g]) for g in groups]
         chosen["silence_temperature"] = rest
         if all(ratios[g]["speech/pause speed"] >= PAUSE_MARGIN * PAUSE_TARGETS[g] for g in groups):
@@ -315,28 +435,38 @@ def select_sampling(
     return apply_sampling(checkpoint, choice), choice
 
 
-def fold_tuner(
-    robot: RobotDescription,
-    settings: TrainSettings,
-    progress: Callable[[str], None] | None = None,
-    choices: list[SamplingChoice] | None = None,
-) -> Callable[[Checkpoint, list[Clip]], Checkpoint]:
-    """The ``tune`` of a leave-one-speaker-out evaluation for ``live_groups``.
+@dataclass(frozen=True)
+class FoldTuner:
+    """The ``tune`` of a leave-one-speaker-out evaluation for ``live_groups`` (picklable).
 
     Each fold's settings are chosen by :func:`cross_validated` over that fold's training
     speakers only (the held-out speaker is never seen), so the reported numbers measure the
-    whole procedure. Other models pass unchanged. Each choice is appended to ``choices``.
+    whole procedure; the choice's summary is noted in the tuned checkpoint's info as
+    ``sampling_choice``. Other models pass unchanged.
+
+    Attributes:
+        robot: joint order and groups.
+        settings: training settings of the cross-validation models.
+        verbose: print one line per step to standard error.
+
     """
 
-    def tune(fold: Checkpoint, training: list[Clip]) -> Checkpoint:
+    robot: RobotDescription
+    settings: TrainSettings
+    verbose: bool = False
+
+    def __call__(self, fold: Checkpoint, training: list[Clip]) -> Checkpoint:
+        """The fold's checkpoint with the settings chosen on its training speakers."""
         if fold.model.name != "live_groups":
             return fold
-        inner = cross_validated("live_groups", training, robot, settings, progress=progress)
-        choice = choose_sampling(inner, robot)
-        if choices is not None:
-            choices.append(choice)
+        from audio2pose_ros.learning.parallel import report
+
+        progress = report if self.verbose else None
+        inner = cross_validated(
+            "live_groups", training, self.robot, self.settings, progress=progress
+        )
+        choice = choose_sampling(inner, self.robot)
         if progress is not None:
             progress("  chosen: " + choice.summary())
-        return apply_sampling(fold, choice)
-
-    return tune
+        tuned = apply_sampling(fold, choice)
+        return replace(tuned, info={**tuned.info, "sampling_choice": choice.summary()})
