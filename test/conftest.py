@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import atexit
 import os
 import random
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -20,6 +22,7 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid()).randint(1,
 # The motion filter keeps its last pose and a stop in $ROS_HOME across restarts: tests must not
 # inherit them from another run, nor leave theirs to the user's ~/.ros.
 os.environ["ROS_HOME"] = tempfile.mkdtemp(prefix="audio2pose_test_ros_home_")
+atexit.register(shutil.rmtree, os.environ["ROS_HOME"], ignore_errors=True)  # not left in /tmp
 
 SPEECH_DIR = share_path("data", "speech")
 
