@@ -216,19 +216,10 @@ def cross_validated(
     settings: TrainSettings,
     k: int = INNER_FOLDS,
     progress: Callable[[str], None] | None = None,
-    workers: int = 1,
 ) -> list[Fold]:
-    """Train one model per :func:`speaker_folds` pair; each with the speakers it did not see.
-
-    ``workers`` trains them side by side (:func:`~audio2pose_ros.learning.parallel.run_tasks`).
-    """
-    from audio2pose_ros.learning.parallel import run_tasks
-
+    """Train one model per :func:`speaker_folds` pair, in order; each with its unseen speakers."""
     tasks, held = cross_validation_tasks(model_name, clips, robot, settings, k, progress)
-    trained = run_tasks(tasks, workers)
-    return [
-        (checkpoint, validation) for (checkpoint, _), validation in zip(trained, held, strict=True)
-    ]
+    return [(task()[0], validation) for task, validation in zip(tasks, held, strict=True)]
 
 
 def _observed(robot: RobotDescription, clips: Sequence[Clip]) -> list[str]:
