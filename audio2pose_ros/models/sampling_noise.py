@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -46,12 +47,12 @@ class NoiseShape:
     order: int = 1
     burst: float = 0.0
 
-    @property
+    @cached_property
     def innovation(self) -> float:
         """sqrt(1 - rho^2): the weight of a new draw in one AR(1) step."""
         return math.sqrt(1.0 - self.rho * self.rho)
 
-    @property
+    @cached_property
     def second_gain(self) -> float:
         """Std of a second AR(1) stage run on unit-variance AR(1) noise."""
         return math.sqrt((1.0 + self.rho * self.rho) / (1.0 - self.rho * self.rho))
@@ -62,13 +63,7 @@ class NoiseShape:
 
     def _envelope(self, z_draws: np.ndarray) -> np.ndarray:
         """exp(b z_t - b^2) for the envelope's draws along the last axis' frames (..., T)."""
-        from scipy import signal
-
-        rho = BURST_CORRELATION
-        innovation = math.sqrt(1.0 - rho * rho)
-        scaled = z_draws.copy()
-        scaled[..., 0] /= innovation  # z_0 = its draw, already unit variance
-        z = signal.lfilter([innovation], [1.0, -rho], scaled, axis=-1)
+        z = _ar1(z_draws, BURST_CORRELATION, axis=-1)
         return np.exp(self.burst * z - self.burst * self.burst)
 
     def filter(self, white: np.ndarray) -> np.ndarray:
@@ -76,16 +71,25 @@ class NoiseShape:
         from scipy import signal
 
         joints = white.shape[-1] - (1 if self.burst else 0)
-        scaled = white[..., :joints].copy()
+        innovations = white[..., :joints]
         if self.burst:
-            scaled *= self._envelope(white[..., joints])[..., None]
-        scaled[:, 0] /= self.innovation  # so that e_0 = n_0
-        first = signal.lfilter([self.innovation], [1.0, -self.rho], scaled, axis=1)
+            innovations = innovations * self._envelope(white[..., joints])[..., None]
+        first = _ar1(innovations, self.rho, axis=1)
         if self.order == 1:
             return first
         first[:, 0] *= self.second_gain / self.innovation  # stationary variance from frame 0
         second = signal.lfilter([self.innovation], [1.0, -self.rho], first, axis=1)
         return second / self.second_gain
+
+
+def _ar1(draws: np.ndarray, rho: float, axis: int) -> np.ndarray:
+    """x_t = rho x_(t-1) + sqrt(1 - rho^2) d_t along ``axis``, started at x_0 = d_0."""
+    from scipy import signal
+
+    innovation = math.sqrt(1.0 - rho * rho)
+    scaled = np.moveaxis(draws, axis, 0).copy()
+    scaled[0] /= innovation  # so that x_0 = d_0, already unit variance
+    return np.moveaxis(signal.lfilter([innovation], [1.0, -rho], scaled, axis=0), 0, axis)
 
 
 class NoiseStream:
