@@ -28,7 +28,7 @@ from audio2pose_ros.data.dataset import Clip, Dataset
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.learning import metrics
 from audio2pose_ros.learning.training import TrainSettings
-from audio2pose_ros.offline.synthesis import synthesize
+from audio2pose_ros.offline.synthesis import synthesize_samples
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.timebase import FRAME_RATE_HZ, SAMPLE_RATE_HZ
 
@@ -174,10 +174,18 @@ def evaluate(
         if progress is not None:
             progress(clip.info.clip_id)
         features = extract_features(clip.audio, FeatureSpec())
-        predictions: dict[str, np.ndarray] = {}
-        for path, ckpt in checkpoints:
-            _, angles = synthesize(ckpt, clip.audio, seed=seed)
-            predictions[_model_label(ckpt, path)] = angles
+        drawn = [  # seed, seed + 1, ...: the first is the prediction, all give the diversity
+            synthesize_samples(
+                ckpt,
+                clip.audio,
+                range(seed, seed + (n_samples if ckpt.model.stochastic and n_samples >= 2 else 1)),
+            )
+            for _, ckpt in checkpoints
+        ]
+        predictions = {
+            _model_label(ckpt, path): samples[0]
+            for (path, ckpt), samples in zip(checkpoints, drawn, strict=True)
+        }
         n = min(clip.n_frames, features.shape[0], *(p.shape[0] for p in predictions.values()))
         true, mask = clip.angles_rad[:n], clip.mask[:n]
         true = np.where(mask, np.nan_to_num(true), robot.neutral_rad)
@@ -198,12 +206,10 @@ def evaluate(
             method.per_clip.append(
                 clip_metrics(features[:n], true, candidates[method.name], mask, robot)
             )
-        for (_, ckpt), method in zip(checkpoints, methods[3:], strict=True):
-            if ckpt.model.stochastic and n_samples >= 2:
-                samples = [
-                    synthesize(ckpt, clip.audio, seed=seed + s)[1][:n] for s in range(n_samples)
-                ]
-                method.per_clip[-1]["diversity deg"] = metrics.diversity_deg(np.stack(samples))
+        for samples, method in zip(drawn, methods[3:], strict=True):
+            if len(samples) >= 2:
+                stacked = np.stack([sample[:n] for sample in samples])
+                method.per_clip[-1]["diversity deg"] = metrics.diversity_deg(stacked)
         if out_dir is not None:
             evaluation.figures.append(
                 plot_clip(out_dir / f"{clip.info.clip_id}.png", clip, true, predictions, robot)
@@ -687,14 +693,9 @@ def checkpoint_predictions(
     for path, ckpt in checkpoints:
         draws = n_samples if ckpt.model.stochastic else 1
         label = _model_label(ckpt, path)
-        samples[label] = {
-            c.info.clip_id: [synthesize(ckpt, c.audio, seed=seed + s)[1] for s in range(draws)]
-            for c in clips
-        }
+        seeds = range(seed, seed + draws)
+        samples[label] = {c.info.clip_id: synthesize_samples(ckpt, c.audio, seeds) for c in clips}
         paused[label] = {
-            c.info.clip_id: [
-                synthesize(ckpt, with_pause(c.audio), seed=seed + s)[1] for s in range(draws)
-            ]
-            for c in clips
+            c.info.clip_id: synthesize_samples(ckpt, with_pause(c.audio), seeds) for c in clips
         }
     return samples, paused

@@ -11,6 +11,7 @@ settled, as online (:mod:`audio2pose_ros.models.warm_start`).
 from __future__ import annotations
 
 import csv
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -81,6 +82,18 @@ def to_angles(checkpoint: Checkpoint, poses: np.ndarray, smooth: bool = True) ->
     if smooth:
         angles = butterworth_zero_phase(angles, rate_hz=1.0 / checkpoint.features.step_s)
     return np.clip(angles, robot.lower_rad, robot.upper_rad)
+
+
+def synthesize_samples(
+    checkpoint: Checkpoint, signal_16k: np.ndarray, seeds: Sequence[int]
+) -> list[np.ndarray]:
+    """One utterance's angles for each seed, its features extracted once.
+
+    Element i equals ``synthesize(checkpoint, signal_16k, seed=seeds[i])[1]`` (smoothed,
+    temperature 1).
+    """
+    frames = normalized_features(checkpoint, signal_16k)
+    return [to_angles(checkpoint, sample_normalized(checkpoint, frames, 1, s)[0]) for s in seeds]
 
 
 def synthesize(
