@@ -98,6 +98,62 @@ def test_when_bag_replayed_faster_expect_every_message_published_in_order(tmp_pa
     ]
 
 
+# A reliable subscriber that stops itself after its first message: it stays matched but never
+# acknowledges the rest.
+_STALLING_SUBSCRIBER = """
+import os, signal, sys
+import rclpy
+from audio_common_msgs.msg import AudioData
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+rclpy.init()
+node = rclpy.create_node("stalling_subscriber")
+qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+stop = lambda message: os.kill(os.getpid(), signal.SIGSTOP)
+node.create_subscription(AudioData, sys.argv[1], stop, qos)
+rclpy.spin(node)
+"""
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_when_a_subscriber_does_not_acknowledge_the_replay_expect_exit_1_and_a_warning(
+    tmp_path, speech
+):
+    import subprocess
+    import sys
+
+    from audio2pose_ros.ros.graph import executable_command
+    from audio2pose_ros.ros.player import ACK_TIMEOUT_S
+
+    bag = tmp_path / "bag"
+    write_audio_bag(speech[:32000], bag)
+    subscriber = subprocess.Popen([sys.executable, "-c", _STALLING_SUBSCRIBER, AUDIO_TOPIC])
+    try:
+        replay = subprocess.run(
+            [
+                *executable_command("audio2pose"),
+                "bag",
+                "replay",
+                str(bag),
+                "--rate",
+                "4",
+                "--topics",
+                AUDIO_TOPIC,
+                "--wait-s",
+                "30",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=90,
+        )
+    finally:
+        subscriber.kill()
+        subscriber.wait()
+    assert "replayed" in replay.stdout
+    assert replay.returncode == 1, replay.stderr
+    assert f"did not acknowledge every message within {ACK_TIMEOUT_S:g} s" in replay.stderr
+
+
 @pytest.mark.parametrize(
     ("sizes", "problem"),
     [

@@ -9,6 +9,7 @@ the QoS a live source offers, so a replayed bag drives the real graph as a micro
 from __future__ import annotations
 
 import argparse
+import sys
 
 from audio2pose_ros.cli.options import (
     MAX_SEED,
@@ -54,9 +55,10 @@ def command_replay(args: argparse.Namespace) -> int:
     """Publish every message of a bag with its recorded timing, ``--rate`` times faster.
 
     Every message is checked (known type, valid CDR) before the first one is published, and
-    a bag whose replay would last more than :data:`MAX_REPLAY_S` is refused.
+    a bag whose replay would last more than :data:`MAX_REPLAY_S` is refused. Exits 1 with a
+    warning when a subscriber has not acknowledged every message soon after the last one.
     """
-    from audio2pose_ros.ros.player import replay_bag
+    from audio2pose_ros.ros.player import ACK_TIMEOUT_S, replay_bag
 
     bag = input_bag(args.bag)
     messages = read_checked_messages(bag, args.topics or None)
@@ -68,8 +70,15 @@ def command_replay(args: argparse.Namespace) -> int:
             f"{bag}: replaying would take {span_s:.3g} s at --rate {args.rate:g}; at most "
             f"{MAX_REPLAY_S:g} s (check the bag's timestamps)"
         )
-    topics, elapsed_s = replay_bag(messages, args.rate, args.wait_s)
+    topics, elapsed_s, acknowledged = replay_bag(messages, args.rate, args.wait_s)
     print(f"replayed {len(messages)} messages on {topics} topics in {elapsed_s:.2f} s")
+    if not acknowledged:
+        print(
+            f"warning: a subscriber did not acknowledge every message within {ACK_TIMEOUT_S:g} s "
+            "after the last one; it may have missed some",
+            file=sys.stderr,
+        )
+        return 1
     return 0
 
 

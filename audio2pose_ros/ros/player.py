@@ -20,6 +20,7 @@ from contextlib import contextmanager
 from typing import Any
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -36,6 +37,7 @@ from audio2pose_ros.timebase import SAMPLES_PER_FRAME
 
 STREAM_DEPTH = 100  # queue depth of replayed streams: absorbs bursts like the graph's own streams
 SPIN_PERIOD_S = 0.005  # longest wait between two looks at the callbacks while waiting
+ACK_TIMEOUT_S = 5.0  # how long a replay waits for its subscribers to acknowledge the last messages
 
 
 def message_class(msgtype: str) -> type:
@@ -105,6 +107,21 @@ class MessagePlayer:
         """Publish one message's serialised bytes on its topic."""
         self.publishers[message.topic].publish(message.data)
 
+    def delivered(self, timeout_s: float) -> bool:
+        """Wait until every reliable subscriber acknowledged every message, at most ``timeout_s``.
+
+        A process that destroys its publishers right after the last ``publish`` can take
+        messages still in flight with it; waiting for the acknowledgements first does not.
+        Best-effort subscribers send none and are not waited for.
+        """
+        deadline = time.monotonic() + timeout_s
+        return all(
+            publisher.wait_for_all_acked(
+                Duration(nanoseconds=max(0, int((deadline - time.monotonic()) * 1e9)))
+            )
+            for publisher in self.publishers.values()
+        )
+
     def wait_for_subscribers(self, timeout_s: float) -> bool:
         """Spin until every topic has a subscriber, for at most ``timeout_s``."""
         return spin_until(
@@ -137,13 +154,18 @@ class MessagePlayer:
         return start
 
 
-def replay_bag(messages: Sequence[BagMessage], rate: float, wait_s: float) -> tuple[int, float]:
+def replay_bag(
+    messages: Sequence[BagMessage], rate: float, wait_s: float, ack_timeout_s: float = ACK_TIMEOUT_S
+) -> tuple[int, float, bool]:
     """Publish checked bag messages with their recorded timing in a node of their own.
 
-    Waits up to ``wait_s`` for a subscriber on every topic first, then plays ``rate`` x faster.
+    Waits up to ``wait_s`` for a subscriber on every topic first, then plays ``rate`` x faster,
+    then up to ``ack_timeout_s`` for the subscribers to acknowledge every message
+    (:meth:`MessagePlayer.delivered`) before the node goes.
 
     Returns:
-        The number of topics published and the seconds the playback took.
+        The number of topics published, the seconds the playback took, and whether every
+        message was acknowledged.
     """
     with rclpy_session():
         node = rclpy.create_node("audio2pose_bag_replay")
@@ -151,8 +173,9 @@ def replay_bag(messages: Sequence[BagMessage], rate: float, wait_s: float) -> tu
         player.wait_for_subscribers(wait_s)
         start = player.play(messages, rate)
         elapsed_s = time.monotonic() - start
+        acknowledged = player.delivered(ack_timeout_s)
         node.destroy_node()
-    return len(player.publishers), elapsed_s
+    return len(player.publishers), elapsed_s, acknowledged
 
 
 def silence_message(topic: str, frames: int = 1) -> BagMessage:
