@@ -185,6 +185,28 @@ def test_when_stop_requested_expect_motion_stops(driver, filter_node, robot):
     assert np.abs(driver.states[-1][1] - raised(robot)).max() < 0.05  # released: moves again
 
 
+def test_when_robot_does_not_follow_expect_a_warning_until_it_does(driver, filter_node, robot):
+    """The robot reports neutral while the arm is commanded up: WARN naming the joint; then the
+    robot reports what it is commanded and the warning goes."""
+    filter_node()
+    driver.wait_for_node()
+
+    def report(pose_of) -> None:
+        send_poses(driver, robot, raised(robot))()
+        pose = pose_of()
+        driver.measured.publish(JointState(name=list(robot.names), position=list(pose)))
+
+    driver.spin_for(3.0, every=lambda: report(lambda: robot.neutral_rad))
+    warned = [d for d in driver.diagnostics if "problem: not_following" in d]
+    assert warned, "no warning while the robot stayed at neutral"
+    assert "LShoulderPitch" in warned[-1]["message"]
+    assert warned[-1]["level"] == "1"  # WARN
+    assert float(warned[-1]["measured_off_recent_commands_rad"]) > 0.5
+    driver.spin_for(2.0, every=lambda: report(lambda: driver.states[-1][1]))
+    assert "problem: not_following" not in driver.diagnostics[-1]
+    assert float(driver.diagnostics[-1]["measured_off_recent_commands_rad"]) < 0.05
+
+
 def test_when_head_target_published_expect_head_follows_it(driver, filter_node, robot):
     filter_node(head_target_weight=1.0)
     driver.wait_for_node()

@@ -9,7 +9,8 @@ Subscriptions:
     head_target (sensor_msgs/JointState): absolute HeadYaw/HeadPitch targets, e.g. a look-at.
     head_offset (sensor_msgs/JointState): HeadYaw/HeadPitch offsets added to the head motion.
     joint_states (sensor_msgs/JointState, parameter measured_joint_states_topic): the robot's
-        measured joint states (naoqi_driver publishes them); the filter starts from them.
+        measured joint states (naoqi_driver publishes them); the filter starts from them, and a
+        robot that does not follow its commands is reported (``motion.tracking``).
 Publications:
     joint_angles (naoqi_bridge_msgs/JointAnglesWithSpeed): for naoqi_driver (absolute angles).
     joint_trajectory_controller/joint_trajectory (trajectory_msgs/JointTrajectory): one point,
@@ -64,6 +65,7 @@ from audio2pose_ros.motion.state_file import (
     save_memory,
 )
 from audio2pose_ros.motion.timing import StampCheck
+from audio2pose_ros.motion.tracking import TrackingWatch
 from audio2pose_ros.parameters import (
     ParameterValue,
     param,
@@ -272,6 +274,7 @@ class MotionFilterNode(DiagnosedNode):
         self.started_from = ""
         self.created_s = time.monotonic()
         self.measured_rad: np.ndarray | None = None
+        self.tracking = TrackingWatch()
 
         self.state_path = (
             Path(self.settings.state_file).expanduser()
@@ -393,7 +396,7 @@ class MotionFilterNode(DiagnosedNode):
         self.save_state()
 
     def on_measured(self, msg: JointState) -> None:
-        """The robot's measured joint states: the start pose (later: shown in diagnostics)."""
+        """The robot's measured joint states: the start pose, then checked against the commands."""
         if len(msg.name) != len(msg.position):
             raise InputError(
                 f"measured joint states: {len(msg.name)} names, {len(msg.position)} positions"
@@ -418,6 +421,19 @@ class MotionFilterNode(DiagnosedNode):
         if not self.started:
             self._start(pose, "measured pose")
             self.get_logger().info("starting from the robot's measured pose")
+            return
+        lagging = self.tracking.measure(pose, time.monotonic())
+        if lagging is None:
+            self.clear_problem("not_following")
+            return
+        self.report_problem(
+            "not_following",
+            DiagnosticStatus.WARN,
+            f"the robot does not follow its commands: {self.robot.names[lagging.joint]} is "
+            f"{lagging.off_rad:.2f} rad from what it was commanded over the last "
+            f"{self.tracking.lag_s:g} s, for {lagging.for_s:.1f} s (motors off or resting, a "
+            "joint blocked, or another controller moving it)",
+        )
 
     def on_startup_timeout(self) -> None:
         """No measured pose in time: start from the saved pose, or else from neutral."""
@@ -618,6 +634,7 @@ class MotionFilterNode(DiagnosedNode):
         self.tick_stamp = self.get_clock().now()
         status = self.filter.status
         self.filter.tick(self.last_tick_s)
+        self.tracking.command(self.filter.position_rad, self.last_tick_s)
         if status.faults > self.faults_seen:
             self.faults_seen = status.faults
             self.report_problem("filter_fault", DiagnosticStatus.ERROR, status.last_fault)
@@ -725,6 +742,7 @@ class MotionFilterNode(DiagnosedNode):
         if self.measured_rad is not None:
             deviation = np.abs(self.measured_rad - self.filter.position_rad).max()
             values["measured_deviation_rad"] = f"{deviation:.3f}"
+            values["measured_off_recent_commands_rad"] = f"{self.tracking.off_rad:.3f}"
         return values
 
 
