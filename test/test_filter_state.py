@@ -15,9 +15,9 @@ from audio2pose_ros.motion.state_file import (
 from audio2pose_ros.motion.timing import StampCheck
 
 
-def memory_of(robot, stopped=False):
+def memory_of(robot, stopped=False, enabled=True):
     pose = robot.neutral_rad + 0.1
-    return FilterMemory(tuple(robot.names), tuple(float(v) for v in pose), stopped, 1.0e9)
+    return FilterMemory(tuple(robot.names), tuple(float(v) for v in pose), stopped, 1.0e9, enabled)
 
 
 def test_when_saved_and_loaded_expect_same_pose_and_stop(tmp_path, robot):
@@ -25,6 +25,36 @@ def test_when_saved_and_loaded_expect_same_pose_and_stop(tmp_path, robot):
     save_memory(path, memory_of(robot, stopped=True))
     assert load_memory(path, robot) == memory_of(robot, stopped=True)
     assert [p.name for p in path.parent.iterdir()] == ["state.json"]  # no temporary left over
+
+
+def test_when_saved_disabled_expect_it_loaded_disabled(tmp_path, robot):
+    path = tmp_path / "state.json"
+    save_memory(path, memory_of(robot, enabled=False))
+    loaded = load_memory(path, robot)
+    assert loaded is not None
+    assert loaded.enabled is False
+    assert loaded == memory_of(robot, enabled=False)
+
+
+def test_when_file_predates_enable_expect_enabled(tmp_path, robot):
+    """State files written before 'enabled' was kept still load: enabled, as they behaved."""
+    path = tmp_path / "state.json"
+    save_memory(path, memory_of(robot, stopped=True))
+    data = json.loads(path.read_text())
+    del data["enabled"]
+    path.write_text(json.dumps(data))
+    assert load_memory(path, robot) == memory_of(robot, stopped=True, enabled=True)
+
+
+@pytest.mark.parametrize("value", [0, "false", None, [False]])
+def test_when_enabled_is_not_true_or_false_expect_refused(tmp_path, robot, value):
+    path = tmp_path / "state.json"
+    save_memory(path, memory_of(robot))
+    data = json.loads(path.read_text())
+    data["enabled"] = value
+    path.write_text(json.dumps(data))
+    with pytest.raises(InputError, match="'enabled' must be true/false"):
+        load_memory(path, robot)
 
 
 def test_when_no_file_expect_none(tmp_path, robot):

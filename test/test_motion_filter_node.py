@@ -28,6 +28,7 @@ from audio2pose_ros.ros.graph import executable_command
 from audio2pose_ros.topics import (
     COMMANDED_JOINT_STATES,
     DIAGNOSTICS,
+    ENABLE,
     HEAD_OFFSET,
     HEAD_TARGET,
     JOINT_STATES,
@@ -370,6 +371,33 @@ def test_when_stopped_then_restarted_expect_stop_kept_and_saved_pose_held_until_
     release.publish(Bool(data=False))
     driver.spin_for(2.0, every=stream(driver, robot, robot.neutral_rad))
     assert np.abs(driver.states[-1][1] - robot.neutral_rad).max() < 0.05  # released: moves
+
+
+def test_when_disabled_then_restarted_expect_still_disabled_until_enabled(
+    driver, filter_node, robot
+):
+    """enable: false from a one-shot publisher outlives a restart of the node; the latched
+    enable: true of an older publisher does not undo it, a new enable: true does."""
+    first = filter_node()
+    older = driver.create_publisher(Bool, absolute(ENABLE), LATCHED_QOS)  # e.g. a GUI
+    older.publish(Bool(data=True))
+    driver.wait_for_node()
+    operator = driver.create_publisher(Bool, absolute(ENABLE), LATCHED_QOS)  # one-shot
+    operator.publish(Bool(data=False))
+    driver.spin_for(0.5)
+    driver.destroy_publisher(operator)
+    first.terminate()
+    first.wait(timeout=10)
+    driver.states.clear()
+    filter_node()  # respawned, same state file; the GUI still latches enable: true
+    driver.wait_for_node()
+    driver.spin_for(2.0, every=stream(driver, robot, raised(robot)))
+    assert np.abs(driver.positions() - robot.neutral_rad).max() < 0.02  # speech ignored
+    assert driver.diagnostics[-1]["enabled"] == "False"
+    assert any("problem: enable_ignored" in d for d in driver.diagnostics)
+    older.publish(Bool(data=True))
+    driver.spin_for(2.0, every=stream(driver, robot, raised(robot)))
+    assert np.abs(driver.states[-1][1] - raised(robot)).max() < 0.05  # enabled: moves
 
 
 def test_when_stopped_with_neutral_behaviour_expect_head_target_ignored(driver, filter_node, robot):

@@ -1,7 +1,8 @@
-"""The motion filter's memory across restarts: last commanded pose and whether a stop is in force.
+"""The motion filter's memory across restarts: last commanded pose, stop and enable.
 
 A restarted ``motion_filter_node`` must not move the robot before it knows where the robot is,
-and a stop must outlive the process that sent it (issue 11 item 5). Without the robot's measured
+and a stop must outlive the process that sent it (issue 11 item 5), as must ``enable: false``
+(a restart must not bring back the motion an operator switched off). Without the robot's measured
 joint states the node starts from the pose it last commanded, read from a small JSON file that
 it rewrites atomically (a temporary file in the same directory, flushed, then renamed over the
 old one) a few times per second and at every stop or release. A file that cannot be used is
@@ -36,12 +37,14 @@ class FilterMemory:
         position_rad: the last commanded pose.
         stopped: a stop was in force.
         saved_at_s: wall-clock time of saving (s since the epoch).
+        enabled: generated motion was enabled (files written before this field: True).
     """
 
     joint_names: tuple[str, ...]
     position_rad: tuple[float, ...]
     stopped: bool
     saved_at_s: float
+    enabled: bool = True
 
 
 def default_state_path(node_name: str) -> Path:
@@ -64,6 +67,7 @@ def save_memory(path: Path, memory: FilterMemory) -> None:
             "joint_names": list(memory.joint_names),
             "position_rad": list(memory.position_rad),
             "stopped": memory.stopped,
+            "enabled": memory.enabled,
             "saved_at_s": memory.saved_at_s,
         }
     )
@@ -114,6 +118,15 @@ def load_memory(path: Path, robot: RobotDescription) -> FilterMemory | None:
         )
     ):
         raise InputError(f"{path}: position_rad must be {robot.n_joints} finite angles")
-    if not isinstance(stopped, bool) or not isinstance(saved_at, int | float):
-        raise InputError(f"{path}: 'stopped' must be true/false and 'saved_at_s' a number")
-    return FilterMemory(tuple(names), tuple(float(v) for v in positions), stopped, float(saved_at))
+    enabled = data.get("enabled", True)
+    if (
+        not isinstance(stopped, bool)
+        or not isinstance(enabled, bool)
+        or not isinstance(saved_at, int | float)
+    ):
+        raise InputError(
+            f"{path}: 'stopped' and 'enabled' must be true/false and 'saved_at_s' a number"
+        )
+    return FilterMemory(
+        tuple(names), tuple(float(v) for v in positions), stopped, float(saved_at), enabled
+    )

@@ -25,7 +25,8 @@ Parameters: the fields of MotionFilterSettings, LimitSettings and MotionFilterNo
 Safety (issue 11): every command passes the input gate first and the joint limiter last; the
 node publishes nothing until it knows where the robot is (its measured pose, or within
 ``startup_timeout_s`` the pose it last commanded, saved in ``state_file``, or else neutral), and
-a stop stays in force across restarts until a ``stop: false`` arrives.
+a stop stays in force across restarts until a ``stop: false`` arrives, as does ``enable: false``
+until an ``enable: true``.
 
 Timing (issue 12 item 10): the filter ticks at ``rate_hz``, at the latest one period after the
 previous tick and early when a pose arrives into an empty buffer (at most ``MIN_TICK_SPACING``
@@ -88,8 +89,8 @@ from audio2pose_ros.ros.node_parameters import NodeParameters
 MIN_TICK_SPACING = 0.5  # of a period: an arriving pose is commanded at once if the last tick
 # is at least this long ago (so ticks are never closer than half a period: no bursts)
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
-STOP_RELEASE_GRACE_S = 2.0  # after a restart with a saved stop, a stop=false arriving this soon
-# is the latched value from before the restart, not a release
+STOP_RELEASE_GRACE_S = 2.0  # after a restart with a saved stop (or disable), a stop=false (or
+# enable=true) arriving this soon is the latched value from before the restart, not a release
 
 
 @dataclass(frozen=True)
@@ -282,13 +283,20 @@ class MotionFilterNode(DiagnosedNode):
             else default_state_path(self.get_fully_qualified_name())
         )
         self.memory = self._load_memory()
-        self.saved: tuple[tuple[float, ...], bool] | None = None
+        self.saved: tuple[tuple[float, ...], bool, bool] | None = None
         self.stop_saved = self.memory is not None and self.memory.stopped
         if self.stop_saved:
             self.filter.set_stop(True)
             self.get_logger().warning(
                 f"STOP in force from before the restart ({self.state_path}); publish "
                 "stop: false to release it"
+            )
+        self.disable_saved = self.memory is not None and not self.memory.enabled
+        if self.disable_saved:
+            self.filter.set_enabled(False)
+            self.get_logger().warning(
+                f"disabled from before the restart ({self.state_path}): generated motion is "
+                "ignored; publish enable: true to enable it"
             )
 
         guarded, bounded = self.guarded, self.create_bounded_subscription
@@ -461,13 +469,14 @@ class MotionFilterNode(DiagnosedNode):
             )
 
     def save_state(self) -> None:
-        """Rewrite the state file when the commanded pose or the stop changed (atomically)."""
+        """Rewrite the state file when the pose, the stop or enable changed (atomically)."""
         if not self.started:
             return
-        state = (tuple(float(v) for v in self.filter.position_rad), self.filter.status.stopped)
+        status = self.filter.status
+        state = (tuple(float(v) for v in self.filter.position_rad), status.stopped, status.enabled)
         if state == self.saved:
             return
-        memory = FilterMemory(tuple(self.robot.names), state[0], state[1], time.time())
+        memory = FilterMemory(tuple(self.robot.names), state[0], state[1], time.time(), state[2])
         try:
             save_memory(self.state_path, memory)
         except OSError as exc:
@@ -570,8 +579,20 @@ class MotionFilterNode(DiagnosedNode):
         self.filter.set_voice_active(active, time.monotonic())
 
     def on_enable(self, msg: Bool) -> None:
-        """Enable or disable generated motion."""
+        """Enable or disable generated motion (a saved disable ignores a replayed enable)."""
+        replayed = time.monotonic() - self.created_s < STOP_RELEASE_GRACE_S
+        if msg.data and self.disable_saved and replayed:
+            self.report_problem(
+                "enable_ignored",
+                DiagnosticStatus.WARN,
+                "enable: true from before the restart ignored: the saved disable stays in "
+                "force; publish enable: true again to enable generated motion",
+            )
+            return
+        self.disable_saved = False
         self.filter.set_enabled(msg.data)
+        self.saved = None  # save the change at once
+        self.save_state()
         self.get_logger().info("enabled" if msg.data else "disabled: gliding to neutral")
 
     def on_stop(self, msg: Bool) -> None:
