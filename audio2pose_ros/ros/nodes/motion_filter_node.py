@@ -578,38 +578,46 @@ class MotionFilterNode(DiagnosedNode):
         """Voice activity (from voice_activity, or directly in single-process mode)."""
         self.filter.set_voice_active(active, time.monotonic())
 
+    def _replayed_release(self, key: str, release: str, held: str) -> bool:
+        """True, and reported, while a release may be the latched value from before a restart.
+
+        A stop or disable restored from the state file must not be undone by the ``release``
+        (``"stop: false"``, ``"enable: true"``) that an older publisher latched before the
+        restart: within ``STOP_RELEASE_GRACE_S`` of start-up it is ignored with a WARN.
+        """
+        if time.monotonic() - self.created_s >= STOP_RELEASE_GRACE_S:
+            return False
+        self.report_problem(
+            key,
+            DiagnosticStatus.WARN,
+            f"{release} from before the restart ignored: the saved {held} stays in force; "
+            f"publish {release} again to release it",
+        )
+        return True
+
+    def _save_now(self) -> None:
+        """Write the state file at once (a stop or enable changed)."""
+        self.saved = None
+        self.save_state()
+
     def on_enable(self, msg: Bool) -> None:
         """Enable or disable generated motion (a saved disable ignores a replayed enable)."""
-        replayed = time.monotonic() - self.created_s < STOP_RELEASE_GRACE_S
-        if msg.data and self.disable_saved and replayed:
-            self.report_problem(
-                "enable_ignored",
-                DiagnosticStatus.WARN,
-                "enable: true from before the restart ignored: the saved disable stays in "
-                "force; publish enable: true again to enable generated motion",
-            )
+        releases_saved = msg.data and self.disable_saved
+        if releases_saved and self._replayed_release("enable_ignored", "enable: true", "disable"):
             return
         self.disable_saved = False
         self.filter.set_enabled(msg.data)
-        self.saved = None  # save the change at once
-        self.save_state()
+        self._save_now()
         self.get_logger().info("enabled" if msg.data else "disabled: gliding to neutral")
 
     def on_stop(self, msg: Bool) -> None:
         """Emergency stop on / off (a saved stop ignores the latched value from before)."""
-        replayed = time.monotonic() - self.created_s < STOP_RELEASE_GRACE_S
-        if not msg.data and self.stop_saved and replayed:
-            self.report_problem(
-                "stop_release_ignored",
-                DiagnosticStatus.WARN,
-                "stop: false from before the restart ignored: the saved stop stays in "
-                "force; publish stop: false again to release it",
-            )
+        releases_saved = not msg.data and self.stop_saved
+        if releases_saved and self._replayed_release("stop_release_ignored", "stop: false", "stop"):
             return
         self.stop_saved = False
         self.filter.set_stop(msg.data)
-        self.saved = None  # save the change at once
-        self.save_state()
+        self._save_now()
         if msg.data:
             self.get_logger().warning(f"STOP ({self.filter.settings.stop_behaviour})")
         else:
