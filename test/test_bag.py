@@ -55,13 +55,21 @@ def test_when_path_is_not_a_bag_expect_error_naming_it(tmp_path: Path):
         list(read_messages(tmp_path / "nothing.mcap"))
 
 
+def _replay_command(bag: Path) -> list[str]:
+    """`audio2pose bag replay` of the bag's audio at 4x, waiting up to 30 s for a subscriber."""
+    from audio2pose_ros.ros.graph import executable_command
+
+    return [
+        *executable_command("audio2pose"),
+        *("bag", "replay", str(bag), "--rate", "4", "--topics", AUDIO_TOPIC, "--wait-s", "30"),
+    ]
+
+
 @pytest.mark.ros
 @pytest.mark.slow
 def test_when_bag_replayed_faster_expect_every_message_published_in_order(tmp_path, speech, probe):
     import subprocess
     import time
-
-    from audio2pose_ros.ros.graph import executable_command
 
     bag = tmp_path / "bag"
     write_audio_bag(speech[:32000], bag)  # 2 s of speech
@@ -71,18 +79,7 @@ def test_when_bag_replayed_faster_expect_every_message_published_in_order(tmp_pa
 
     probe.create_subscription(AudioData, AUDIO_TOPIC, received.append, 1000)
     replay = subprocess.Popen(
-        [
-            *executable_command("audio2pose"),
-            "bag",
-            "replay",
-            str(bag),
-            "--rate",
-            "4",
-            "--topics",
-            AUDIO_TOPIC,
-            "--wait-s",
-            "30",  # replay starts as soon as this probe's subscription is matched
-        ],
+        _replay_command(bag),  # replay starts as soon as this probe's subscription is matched
         stdout=subprocess.PIPE,
         text=True,
     )
@@ -122,7 +119,6 @@ def test_when_a_subscriber_does_not_acknowledge_the_replay_expect_exit_1_and_a_w
     import subprocess
     import sys
 
-    from audio2pose_ros.ros.graph import executable_command
     from audio2pose_ros.ros.player import ACK_TIMEOUT_S
 
     bag = tmp_path / "bag"
@@ -130,18 +126,7 @@ def test_when_a_subscriber_does_not_acknowledge_the_replay_expect_exit_1_and_a_w
     subscriber = subprocess.Popen([sys.executable, "-c", _STALLING_SUBSCRIBER, AUDIO_TOPIC])
     try:
         replay = subprocess.run(
-            [
-                *executable_command("audio2pose"),
-                "bag",
-                "replay",
-                str(bag),
-                "--rate",
-                "4",
-                "--topics",
-                AUDIO_TOPIC,
-                "--wait-s",
-                "30",
-            ],
+            _replay_command(bag),
             capture_output=True,
             text=True,
             timeout=90,
