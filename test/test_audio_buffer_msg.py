@@ -1,5 +1,5 @@
 """The AudioBuffer copy in support/ros_msgs is naoqi_driver's message: same fields, constants and
-type hash as ros-naoqi/naoqi_bridge_msgs2 (issue 12 item 11)."""
+type hash as ros-naoqi/naoqi_bridge_msgs2."""
 
 from __future__ import annotations
 

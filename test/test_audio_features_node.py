@@ -1,6 +1,6 @@
 """audio_features_node as a real process over DDS: format bombs, recovery, the naoqi microphones,
-parameters and a diagnostics heartbeat that describes the present (issue 11 items 4, 6, 7;
-issue 12 items 6, 11). Each test starts the node alone and plays its publishers from here."""
+parameters and a diagnostics heartbeat that describes the present. Each test starts the node
+alone and plays its publishers from here."""
 
 from __future__ import annotations
 
@@ -158,7 +158,7 @@ def test_when_audio_info_claims_bomb_rates_expect_refusal_kept_then_recovery(
 
 
 def test_when_a_message_is_over_a_limit_expect_warn_while_it_happens_then_ok(tmp_path, peer):
-    """A stale WARN disappears once the problem is gone (issue 12 item 6)."""
+    """A stale WARN disappears once the problem is gone."""
     with features_node(tmp_path, "max_chunk_bytes:=4096", "max_chunk_s:=0.1") as process:
         peer.info.publish(AudioInfo(**S16LE_MONO_16K.audio_info_fields()))
         peer.wait_until(lambda: bool(peer.statuses) and "decoding" in peer.latest().message)
@@ -227,7 +227,7 @@ def test_when_a_parameter_is_refused_expect_one_line_and_the_configuration_exit(
 
 def test_when_parameters_described_and_set_live_expect_descriptors_and_validated_changes():
     """Every parameter has a descriptor; integers pass for floats; live changes are validated
-    (issue 11 item 4): read-only ones are refused, bad values refused with the reason."""
+    read-only ones are refused, bad values refused with the reason."""
     from rclpy.parameter import Parameter
 
     from audio2pose_ros.ros.nodes.audio_features_node import PARAMETERS, AudioFeaturesNode

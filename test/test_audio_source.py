@@ -1,5 +1,5 @@
 """Tests of audio2pose_ros.audio.source: every field of AudioInfo, AudioData and AudioBuffer as an
-attacker would set it, and the per-message and per-second limits (issue 11 item 7)."""
+attacker would set it, and the per-message and per-second limits."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """read_wav on hostile files: one clear InputError naming the file, memory bounded by its size
-(issue 11 item 8), and the sample types it reads, checked against the standard library."""
+and the sample types it reads, checked against the standard library."""
 
 from __future__ import annotations
 

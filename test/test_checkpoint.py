@@ -98,7 +98,7 @@ def test_when_not_a_checkpoint_expect_clear_error(tmp_path):
 def test_when_loading_packaged_default_expect_it_matches_the_robot(robot):
     checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
     assert checkpoint.model.streaming
-    assert "lecturer" in checkpoint.info["trained_on"]  # arms learned from a person (issue 13)
+    assert "lecturer" in checkpoint.info["trained_on"]  # arms learned from a person, not a rule
 
 
 @pytest.mark.parametrize("name", ["lstm", "dae_gru", "blstm", "blstm_prior", "cvae", "live"])

@@ -2,7 +2,7 @@
 
 ALMotion takes one command per 20 ms cycle. The motion filter used to publish /joint_angles at
 100 Hz in bursts about 1 ms apart whenever poses arrived (inference publishes one message per
-audio chunk), with the publish time as stamp (issue 12 item 10). Here raw poses arrive in bursts
+audio chunk), with the publish time as stamp. Here raw poses arrive in bursts
 of 10 every 100 ms, as they do from a 100 ms audio chunk, and the node runs as its own process.
 """
 

@@ -1,7 +1,7 @@
 """Node processes die with the process that started them and stop cleanly on any signal.
 
 ``ros2 launch`` killed by SIGTERM (systemd, ``docker stop``) used to leave the three nodes running
-as orphans, and Ctrl-C while a node was still importing was once swallowed (issue 12 item 8).
+as orphans, and Ctrl-C while a node was still importing was once swallowed.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Torch-free streaming inference (issue 15): numpy kernels against torch on real speech.
+"""Torch-free streaming inference: numpy kernels against torch on real speech.
 
 Tolerance: poses are in [0, 1] (normalised joint ranges); the kernels compute in float64 from
 the float32 weights, torch's ``forward`` in float32, so they agree to 1e-5 (about 1e-5 rad on

@@ -1,4 +1,4 @@
-"""Single-process mode (issue 15): the three nodes in one process give the same poses.
+"""Single-process mode: the three nodes in one process give the same poses.
 
 The same 3 s of real speech is played into the graph run as three processes and as one; the
 model (a frame-wise MLP) and the feature extractor are deterministic and do not depend on how

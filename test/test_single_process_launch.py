@@ -1,4 +1,4 @@
-"""The launch file's single_process argument (issue 15): one process, the same configuration."""
+"""The launch file's single_process argument: one process, the same configuration."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Single-process mode wires the nodes by direct calls, not over DDS (issue 15).
+"""Single-process mode wires the nodes by direct calls, not over DDS.
 
 The three nodes are built in this process as ``audio2pose run --single-process`` builds them
 (:func:`audio2pose_ros.ros.nodes.single_process.connect`) and fed audio chunks directly: the

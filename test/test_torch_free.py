@@ -1,4 +1,4 @@
-"""Torch is for training only (issue 15): the runner and the node processes never import it.
+"""Torch is for training only: the runner and the node processes never import it.
 
 ``audio2pose run`` (parser, supervisor, player, recorder) and the three node executables, in
 either mode, are checked in a fresh interpreter: after building the parser and parsing ``run``

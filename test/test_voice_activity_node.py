@@ -1,4 +1,4 @@
-"""audio_features_node publishes voice activity on change, with a refresh (issue 15).
+"""audio_features_node publishes voice activity on change, with a refresh.
 
 One message per audio chunk cost one DDS write in audio_features_node and one callback in
 motion_filter_node per 10 ms; the voice changes a few times a second at most. The node and a

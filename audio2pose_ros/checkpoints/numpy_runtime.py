@@ -1,4 +1,4 @@
-"""Streaming inference without torch: numpy kernels run a checkpoint's tensors (issue 15).
+"""Streaming inference without torch: numpy kernels run a checkpoint's tensors.
 
 The online graph runs tiny networks (the packaged MLP has 747 parameters) one 10 ms frame at a
 time; torch costs about 250 MB of resident memory and seconds of import for that. This module

@@ -6,7 +6,7 @@ per-joint Kalman filter. Trajectories are (n_frames, n_joints) arrays sampled at
 
 scipy is imported by the Butterworth filters only, when one is built: the online default (the
 Kalman filter) needs numpy alone, so ``motion_filter_node`` starts without scipy's import time
-and memory (issue 15: about 0.6 s and 70 MB).
+and memory (about 0.6 s and 70 MB of start-up).
 """
 
 from __future__ import annotations

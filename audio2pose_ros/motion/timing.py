@@ -1,7 +1,7 @@
 """Message stamps against the node's clock: a wild stamp is rejected, never the new time base.
 
 ``motion_filter_node`` orders raw trajectories by their header stamps (a duplicate or a late,
-reordered message is dropped). A stamp far from the node's clock (issue 11 item 3: one message
+reordered message is dropped). A stamp far from the node's clock (once, one message
 stamped 1e6 s in the future made every later message look late, forever) is rejected and
 counted instead, and only accepted stamps move the ordering forward. A zero stamp means
 "unstamped" and is accepted without ordering.

@@ -202,7 +202,7 @@ class AudioFeaturesNode(DiagnosedNode):
             active = self.vad.push(samples)
             now = time.monotonic()
             # A change at once; the same value again only as a refresh for a subscriber that
-            # (re)started meanwhile: not one message per chunk (issue 15).
+            # (re)started meanwhile: not one message per chunk.
             if active != self.voice_sent or now - self.voice_sent_s >= VOICE_REFRESH_S:
                 self.voice_sent, self.voice_sent_s = active, now
                 if self.voice_sink is not None:
