@@ -23,7 +23,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from rclpy.subscription import Subscription
+from rclpy.subscription import MessageInfo, Subscription
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -263,9 +263,10 @@ class DiagnosedNode(Node):
         self,
         msg_type: type,
         topic: str,
-        callback: Callable[[Any], None],
+        callback: Callable[..., None],
         qos: QoSProfile | int,
         max_bytes: int | Callable[[], int],
+        with_info: bool = False,
     ) -> Subscription[Any]:
         """A guarded subscription that drops a message larger than ``max_bytes`` before decoding.
 
@@ -274,10 +275,12 @@ class DiagnosedNode(Node):
         serves nothing (no commands, no heartbeat). Here the message arrives serialized; one
         above ``max_bytes`` (an int, or a function giving the current cap) is dropped, counted in
         ``oversized_messages`` and reported, and only messages within the cap are decoded.
+        With ``with_info`` the callback also gets rclpy's MessageInfo (publisher gid, source
+        timestamp).
         """
         handler = self.guarded(callback)
 
-        def receive(data: bytes) -> None:
+        def receive(data: bytes, info: MessageInfo) -> None:
             cap = max_bytes() if callable(max_bytes) else max_bytes
             if len(data) > cap:
                 self.oversized_messages += 1
@@ -288,7 +291,11 @@ class DiagnosedNode(Node):
                     f"(at most {cap} bytes)",
                 )
                 return
-            handler(deserialize_message(data, msg_type))
+            message: Any = deserialize_message(data, msg_type)
+            if with_info:
+                handler(message, info)
+            else:
+                handler(message)
 
         receive.__name__ = getattr(callback, "__name__", "callback")
         return self.create_subscription(msg_type, topic, self.guarded(receive), qos, raw=True)
@@ -322,7 +329,7 @@ SPIN_ONCE_TIMEOUT_S = 0.5  # an idle EventsExecutor checks for shutdown this oft
 EXECUTOR_ENV = "AUDIO2POSE_EXECUTOR"  # "events" (default where available) or "single_threaded"
 
 
-def create_executor() -> Executor:
+def create_executor(events: bool = True) -> Executor:
     """The executor the nodes spin in: rclpy's EventsExecutor where available, else single-threaded.
 
     The EventsExecutor (``rclpy.experimental``, Jazzy and later) is driven by middleware events
@@ -331,8 +338,14 @@ def create_executor() -> Executor:
     three nodes used 2.9 instead of 4.2 ms CPU per 10 ms frame. Humble has none and gets the
     SingleThreadedExecutor; ``AUDIO2POSE_EXECUTOR=single_threaded`` forces it (for comparison,
     or should a distro's EventsExecutor misbehave). Spin it with :func:`spin_executor`.
+
+    ``events=False`` asks for the SingleThreadedExecutor: the motion filter needs it, because the
+    EventsExecutor (rclpy 9) hands no MessageInfo to a callback (the filter reads the publisher
+    gid and the source timestamp of its inputs) and serves events first come, first served, so a
+    flood on one topic delays the command timer by the whole backlog; the SingleThreadedExecutor
+    serves every ready timer and subscription once per round, so the tick keeps its rate.
     """
-    if os.environ.get(EXECUTOR_ENV, "events") != "single_threaded":
+    if events and os.environ.get(EXECUTOR_ENV, "events") != "single_threaded":
         try:
             from rclpy.experimental.events_executor import EventsExecutor
         except ImportError:  # Humble
@@ -355,9 +368,14 @@ def spin_executor(executor: Executor) -> None:
         executor.spin_once(timeout_sec=SPIN_ONCE_TIMEOUT_S)
 
 
-def run_node(factory: Callable[[], Node], node_name: str, args: list[str] | None = None) -> None:
+def run_node(
+    factory: Callable[[], Node],
+    node_name: str,
+    args: list[str] | None = None,
+    events: bool = True,
+) -> None:
     """The ros2/examples main for one node: see :func:`run_nodes`."""
-    run_nodes([factory], node_name, args)
+    run_nodes([factory], node_name, args, events=events)
 
 
 def run_nodes(
@@ -365,12 +383,14 @@ def run_nodes(
     process_name: str,
     args: list[str] | None = None,
     connect: Callable[[list[Node]], None] | None = None,
+    events: bool = True,
 ) -> None:
     """Init, build the nodes, spin them in one executor until Ctrl-C / SIGTERM, clean up.
 
     One factory is the usual one node per process; several put nodes in one process and one
     executor (``audio2pose run --single-process``), where ``connect`` (called with the built
-    nodes, in order, before spinning) wires them to each other. A
+    nodes, in order, before spinning) wires them to each other; ``events`` goes to
+    :func:`create_executor`. A
     :class:`~audio2pose_ros.errors.ConfigurationError` while a node is built (a refused
     parameter, a bad model or robot file), or arguments rcl cannot parse (a parameters file with
     a YAML syntax error, a missing file), end the process with one line on stderr and exit status
@@ -383,7 +403,7 @@ def run_nodes(
         signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
         try:
             rclpy.init(args=args)  # not `with rclpy.init()`: Humble's init is no context manager
-            executor = create_executor()
+            executor = create_executor(events)
             nodes = [factory() for factory in factories]
             if connect is not None:
                 connect(nodes)
