@@ -49,6 +49,9 @@ STREAM_QOS = QoSProfile(
 )
 DIAGNOSTICS_PERIOD_S = 1.0
 HEARTBEAT_PERIOD_S = 0.5  # every node publishes /diagnostics this often, busy or idle
+# A supervisor passes the write end of a pipe in this variable: each heartbeat also writes a byte
+# there. Only the supervised process holds that descriptor, so no other process can fake it.
+HEARTBEAT_FD_ENV = "AUDIO2POSE_HEARTBEAT_FD"
 STALE_AFTER_S = 1.2  # a node not heard from for this long is silent (stopped, frozen or dead)
 PROBLEM_HOLD_S = 5.0  # a reported problem is shown until this long after its last occurrence
 LOG_THROTTLE_S = 5.0  # one log line per problem per this many seconds
@@ -142,13 +145,22 @@ def trajectory_positions(msg: JointTrajectory, joint_names: Sequence[str]) -> np
     return np.array(rows).reshape(-1, len(joint_names))
 
 
+def status_name(fully_qualified_name: str) -> str:
+    """The /diagnostics status name of a node: ``audio2pose_ros: /<namespace>/<node>``.
+
+    The namespace is part of it, so the nodes of two robots (``/pepper1``, ``/pepper2``) on one
+    /diagnostics are told apart.
+    """
+    return f"audio2pose_ros: {fully_qualified_name}"
+
+
 def diagnostic_array(
     node: Node, level: bytes, message: str, values: dict[str, object]
 ) -> DiagnosticArray:
-    """A DiagnosticArray with one status named after the node."""
+    """A DiagnosticArray with one status named after the node (namespace included)."""
     status = DiagnosticStatus(
         level=level,
-        name=f"audio2pose_ros: {node.get_name()}",
+        name=status_name(node.get_fully_qualified_name()),
         message=message,
         hardware_id="pepper",
         values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
@@ -323,6 +335,21 @@ class DiagnosedNode(Node):
             message += f"; {problem_message}" + (f" ({count}x)" if count > 1 else "")
             values[f"problem: {key}"] = count
         self.diagnostics_pub.publish(diagnostic_array(self, level, message, values))
+        beat_to_supervisor()
+
+
+def beat_to_supervisor() -> None:
+    """Write one heartbeat byte to the supervisor's pipe (``HEARTBEAT_FD_ENV``), if there is one.
+
+    Never blocks: a full pipe (a supervisor that does not read) or a closed one is ignored.
+    """
+    fd = os.environ.get(HEARTBEAT_FD_ENV, "")
+    if fd.isdigit():
+        try:
+            os.set_blocking(int(fd), False)
+            os.write(int(fd), b".")
+        except OSError:
+            pass
 
 
 SPIN_ONCE_TIMEOUT_S = 0.5  # an idle EventsExecutor checks for shutdown this often

@@ -149,7 +149,7 @@ class CampaignProbe(Node):
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
-            name = status.name.rpartition(": ")[2]
+            name = status.name.rpartition(": ")[2].lstrip("/")  # the graph's namespace is /
             values = {kv.key: kv.value for kv in status.values}
             level = int.from_bytes(status.level, "little")
             self.diagnostics[name] = (level, status.message, values)
