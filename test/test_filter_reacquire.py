@@ -71,3 +71,22 @@ def test_when_two_sources_alternate_expect_only_the_first_followed_until_it_goes
     assert not sources.admit("a", 1.2)  # "b" last heard at 0.98 s
     assert sources.admit("a", 1.5)  # "b" silent for 0.52 s: "a" takes over
     assert sources.rivals(2.1) == 0
+
+
+def test_when_a_burst_comes_in_one_message_expect_its_queued_poses_dropped_with_the_track(robot):
+    """30 consistent wrong poses in one message, then the real stream: barely a move."""
+    good = robot.neutral_rad.copy()
+    joint = robot.names.index("LShoulderPitch")
+    good[joint] = 1.0
+    filt, t = settled(robot, good)
+    wrong = good.copy()
+    wrong[joint] = -0.2
+    t += PERIOD
+    filt.push(np.repeat(wrong[None, :], 30, axis=0), t)
+    worst = 0.0
+    for i in range(300):
+        t += PERIOD
+        if i % 2 == 0:  # two poses every 20 ms, as inference_node sends them
+            filt.push(np.stack([good, good]), t)
+        worst = max(worst, float(np.abs(filt.tick(t)[0] - good).max()))
+    assert worst < 0.1

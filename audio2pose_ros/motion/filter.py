@@ -444,11 +444,15 @@ class MotionFilter:
         poses = poses[: self.points_to_take(len(poses))]
         counts = self.gate.counts
         before = (counts.non_finite, counts.out_of_range, counts.implausible)
-        reacquired = counts.reacquired
         admitted = self.gate.admit(poses, now_s)
-        if counts.reacquired > reacquired and self.status.mode == "tracking":
-            # A new track: the smoother starts on it (none of the old track's momentum, none
-            # of its own transient) and the approach blends it in gently from the robot's pose.
+        if self.gate.new_track_at is not None and self.status.mode == "tracking":
+            # A new track: the old track's queued poses are dropped, the smoother starts on the
+            # new one (none of the old momentum, no transient of its own) and the approach
+            # blends it in gently from the robot's pose.
+            old = len(self._queue) + self.gate.new_track_at
+            self.status.dropped += old
+            self._queue.clear()
+            admitted = admitted[self.gate.new_track_at :]
             scaled = self.neutral_rad + self._gains * (admitted[-1] - self.neutral_rad)
             if self._smoother is not None:
                 self._smoother.reset(scaled)

@@ -292,7 +292,7 @@ class DiagnosedNode(Node):
         """
         handler = self.guarded(callback)
 
-        def receive(data: bytes, info: MessageInfo) -> None:
+        def receive(data: bytes, *info: MessageInfo) -> None:
             cap = max_bytes() if callable(max_bytes) else max_bytes
             if len(data) > cap:
                 self.oversized_messages += 1
@@ -303,14 +303,14 @@ class DiagnosedNode(Node):
                     f"(at most {cap} bytes)",
                 )
                 return
-            message: Any = deserialize_message(data, msg_type)
-            if with_info:
-                handler(message, info)
-            else:
-                handler(message)
+            handler(deserialize_message(data, msg_type), *info)
 
-        receive.__name__ = getattr(callback, "__name__", "callback")
-        return self.create_subscription(msg_type, topic, self.guarded(receive), qos, raw=True)
+        def receive_with_info(data: bytes, info: MessageInfo) -> None:
+            receive(data, info)
+
+        entry = receive_with_info if with_info else receive  # rclpy counts the parameters
+        entry.__name__ = getattr(callback, "__name__", "callback")
+        return self.create_subscription(msg_type, topic, self.guarded(entry), qos, raw=True)
 
     # --- publication --------------------------------------------------------------------------
 

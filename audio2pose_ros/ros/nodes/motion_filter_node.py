@@ -112,6 +112,7 @@ MIN_TICK_SPACING = 0.5  # of a period: an arriving pose is commanded at once if 
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
 MEASURED_WAIT_S = 10.0  # while the measured topic has a publisher, wait this long for its pose
 MIN_SAVE_SPACING_S = 0.1  # the state file is written at most this often (flash wear)
+SAVED_POSE_RESOLUTION_RAD = 1e-4  # a pose that moved less than this is not saved again
 
 
 @dataclass(frozen=True)
@@ -579,7 +580,9 @@ class MotionFilterNode(DiagnosedNode):
             return
         status = self.filter.status
         pose = tuple(float(v) for v in self.filter.position_rad)
-        state = (pose, status.stopped, status.enabled, self.stop_since_s, self.disable_since_s)
+        resolution = SAVED_POSE_RESOLUTION_RAD
+        key = tuple(round(v / resolution) for v in pose)  # a pose at rest is saved once
+        state = (key, status.stopped, status.enabled, self.stop_since_s, self.disable_since_s)
         self.save_due = False
         if state == self.saved:
             return
@@ -751,7 +754,8 @@ class MotionFilterNode(DiagnosedNode):
             self.disable_since_s = None
         changed = self.filter.status.enabled != msg.data
         self.filter.set_enabled(msg.data)
-        self._save_now()
+        if changed or not msg.data:  # a later disable moves disable_since_s
+            self._save_now()
         if changed:
             self.get_logger().info("enabled" if msg.data else "disabled: gliding to neutral")
 
@@ -769,7 +773,8 @@ class MotionFilterNode(DiagnosedNode):
             self.stop_since_s = None
         changed = self.filter.status.stopped != msg.data
         self.filter.set_stop(msg.data)
-        self._save_now()
+        if changed or msg.data:  # a later stop moves stop_since_s
+            self._save_now()
         if changed and msg.data:
             self.get_logger().warning(f"STOP ({self.filter.settings.stop_behaviour})")
         elif changed:
