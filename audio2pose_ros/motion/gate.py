@@ -92,7 +92,7 @@ class TrackGate:
             (n_accepted, n_joints) accepted poses, in order; when a new track was taken,
             :attr:`new_track_at` is the index of its first pose among them (else None).
         """
-        accepted = []
+        accepted: list[np.ndarray] = []
         self.new_track_at = None
         tolerance = self.tolerance_rad
         for i, pose in enumerate(np.asarray(poses_rad, dtype=np.float64)):
