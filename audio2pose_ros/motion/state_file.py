@@ -51,6 +51,7 @@ class FilterMemory:
         enabled: generated motion was enabled (files written before this field: True).
         stopped_at_s: wall-clock time the stop came into force (None: not kept; older files).
         disabled_at_s: wall-clock time the disable came into force (likewise).
+        measured: the robot reported its measured joint states to the process that saved.
     """
 
     joint_names: tuple[str, ...]
@@ -60,6 +61,7 @@ class FilterMemory:
     enabled: bool = True
     stopped_at_s: float | None = None
     disabled_at_s: float | None = None
+    measured: bool = False
 
     def pose_in_range(self, robot: RobotDescription) -> bool:
         """Whether every saved angle lies inside its joint's range (a pose outside is refused)."""
@@ -141,6 +143,7 @@ def save_memory(path: Path, memory: FilterMemory) -> None:
             "saved_at_s": memory.saved_at_s,
             "stopped_at_s": memory.stopped_at_s,
             "disabled_at_s": memory.disabled_at_s,
+            "measured": memory.measured,
         }
     )
     handle, temporary = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
@@ -199,6 +202,9 @@ def load_memory(path: Path, robot: RobotDescription) -> FilterMemory | None:
         raise InputError(
             f"{path}: 'stopped' and 'enabled' must be true/false and 'saved_at_s' a number"
         )
+    measured = data.get("measured", False)
+    if not isinstance(measured, bool):
+        raise InputError(f"{path}: 'measured' must be true/false")
     since = [data.get(key) for key in ("stopped_at_s", "disabled_at_s")]
     if not all(
         v is None or (isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v))
@@ -211,5 +217,7 @@ def load_memory(path: Path, robot: RobotDescription) -> FilterMemory | None:
         stopped,
         float(saved_at),
         enabled,
-        *(None if v is None else float(v) for v in since),
+        None if since[0] is None else float(since[0]),
+        None if since[1] is None else float(since[1]),
+        measured,
     )

@@ -125,6 +125,7 @@ def _restart_partial_measurement(c: Campaign) -> Outcome:
     expected[head] = c.robot.lower_rad[head]
     old = c.pid(FILTER)
     c.probe.robot_reports = False
+    killed_s = c.probe.get_clock().now().nanoseconds * 1e-9
     os.kill(old, signal.SIGKILL)
     c.probe.pose = moved  # the stream resumes where the robot now is
     deadline = time.monotonic() + 30.0
@@ -132,13 +133,15 @@ def _restart_partial_measurement(c: Campaign) -> Outcome:
         while time.monotonic() < deadline and c.pid(FILTER) == old:
             c.probe.measured.publish(c.probe._joint_state(reading))
             c.probe.spin_for(0.02)
-        start = len(c.probe.commands)  # the old process's last commands are in by now
-        while time.monotonic() < deadline and len(c.probe.commands) - start < 5:
+        start = len(c.probe.commands)
+        while time.monotonic() < deadline and len(c.probe.commands) - start < 10:
             c.probe.measured.publish(c.probe._joint_state(reading))
             c.probe.spin_for(0.02)
     finally:
         c.probe.robot_reports = True
-    first = _commands_since(c, start)
+    window = _commands_since(c, start)
+    new = window.times_s > killed_s  # not the old process's last commands, still in flight
+    first = Commands(window.times_s[new], window.positions_rad[new])
     if not len(first.times_s):
         return Outcome("no commands after the restart", False)
     mask = np.arange(c.robot.n_joints) != hip

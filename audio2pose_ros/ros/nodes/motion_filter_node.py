@@ -110,7 +110,7 @@ from audio2pose_ros.ros.node_parameters import NodeParameters
 MIN_TICK_SPACING = 0.5  # of a period: an arriving pose is commanded at once if the last tick
 # is at least this long ago (so ticks are never closer than half a period: no bursts)
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
-MEASURED_WAIT_S = 10.0  # while the measured topic has a publisher, wait this long for its pose
+MEASURED_WAIT_S = 3.0  # while the measured topic has a publisher, wait this long for its pose
 MIN_SAVE_SPACING_S = 0.1  # the state file is written at most this often (flash wear)
 SAVED_POSE_RESOLUTION_RAD = 1e-4  # a pose that moved less than this is not saved again
 
@@ -533,20 +533,24 @@ class MotionFilterNode(DiagnosedNode):
     def on_startup_timeout(self) -> None:
         """No measured pose in time: start from the saved pose, or else from neutral.
 
-        While something publishes the measured joint states (its first pose is on the way), the
-        node waits for it instead, up to ``MEASURED_WAIT_S`` after start-up.
+        While a measured pose is to be expected, the node waits for it instead, up to
+        ``MEASURED_WAIT_S`` after start-up: while something publishes the measured joint states
+        (its first pose is on the way), and when the robot reported its pose before the restart
+        (the state file says so; discovery of its publisher may take a while under load).
         """
         if self.started:
             self.startup_timer.cancel()
             return
         topic = self.settings.measured_joint_states_topic
         waited_s = time.monotonic() - self.created_s
-        if self.count_publishers(topic) and waited_s < MEASURED_WAIT_S:
+        reported_before = self.memory is not None and self.memory.measured
+        if (self.count_publishers(topic) or reported_before) and waited_s < MEASURED_WAIT_S:
             self.report_problem(
                 "start_pose",
                 DiagnosticStatus.WARN,
-                f"{topic} has a publisher but no measured pose has come yet: waiting for it "
-                f"(up to {MEASURED_WAIT_S:g} s), commanding nothing",
+                f"no measured pose on {topic} yet, but one is expected (it has a publisher, or "
+                f"the robot reported its pose before the restart): waiting for it (up to "
+                f"{MEASURED_WAIT_S:g} s), commanding nothing",
             )
             self.startup_timer.timer_period_ns = max(self.startup_timer.timer_period_ns, 10**8)
             return
@@ -582,7 +586,9 @@ class MotionFilterNode(DiagnosedNode):
         pose = tuple(float(v) for v in self.filter.position_rad)
         resolution = SAVED_POSE_RESOLUTION_RAD
         key = tuple(round(v / resolution) for v in pose)  # a pose at rest is saved once
-        state = (key, status.stopped, status.enabled, self.stop_since_s, self.disable_since_s)
+        measured = self.measured_rad is not None
+        since = (self.stop_since_s, self.disable_since_s)
+        state = (key, status.stopped, status.enabled, *since, measured)
         self.save_due = False
         if state == self.saved:
             return
@@ -594,6 +600,7 @@ class MotionFilterNode(DiagnosedNode):
             status.enabled,
             self.stop_since_s,
             self.disable_since_s,
+            measured,
         )
         self.last_write_s = time.monotonic()
         try:
