@@ -311,6 +311,15 @@ def _send_offset(c: Campaign) -> None:
     c.probe.head_offset.publish(c.probe._joint_state(np.array([0.0]), names=("HeadYaw",)))
 
 
+def _send_target(c: Campaign) -> None:
+    head_yaw = c.pose_a[c.robot.names.index("HeadYaw")]  # where the head is: no motion
+    c.probe.head_target.publish(c.probe._joint_state(np.array([head_yaw]), names=("HeadYaw",)))
+
+
+def _send_enable(c: Campaign) -> None:
+    c.probe.enable.publish(Bool(data=True))
+
+
 def _send_measured(c: Campaign) -> None:
     c.probe.measured.publish(c.probe._joint_state(c.probe.robot_pose))
 
@@ -425,11 +434,13 @@ def runtime_cases() -> list[Case]:
             _impersonated_sigstop,
         ),
         Case(
-            "flood: stop false",
-            flood + "; state file written <= 3 times",
-            _flood(_send_release, check_state=True),
+            "flood: stop false", flood + "; state written <= 3 times", _flood(_send_release, True)
+        ),
+        Case(
+            "flood: enable true", flood + "; state written <= 3 times", _flood(_send_enable, True)
         ),
         Case("flood: head_offset", flood, _flood(_send_offset)),
+        Case("flood: head_target", flood, _flood(_send_target)),
         Case("flood: joint_states", flood, _flood(_send_measured)),
         Case("flood: raw_trajectory", flood, _flood(_send_raw)),
         Case("flood: parameter sets", flood, _parameter_flood),
