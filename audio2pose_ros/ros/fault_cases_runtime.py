@@ -41,7 +41,7 @@ from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 FILTER = "motion_filter_node"
 ERROR_LEVEL = 2
-FLOOD_S = 2.0
+FLOOD_S = 1.5
 MIN_COMMAND_RATE_HZ = 45.0  # joint_angles runs at 50 Hz
 MAX_FLOOD_GAP_S = 0.1
 MAX_STATE_WRITES = 3  # while a flood does not change the state
@@ -93,11 +93,14 @@ def _burst(c: Campaign) -> Outcome:
 
 def _second_publisher(c: Campaign) -> Outcome:
     other = c.probe.create_publisher(JointTrajectory, topics.RAW_TRAJECTORY, STREAM_QOS)
-    far = c.pose_b.copy()
-    far[c.robot.names.index("LShoulderPitch")] += 0.4
+    other_pose = c.pose_a.copy()  # close enough to pass the gate: both tracks are plausible
+    other_pose[c.robot.names.index("LShoulderPitch")] += 0.15
     try:
         window = _while(
-            c, 2.0, lambda: other.publish(c.probe.trajectory(np.stack([far, far]))), 0.02
+            c,
+            2.0,
+            lambda: other.publish(c.probe.trajectory(np.stack([other_pose, other_pose]))),
+            0.02,
         )
         reported = _filter_error(c, "second publisher")
     finally:
