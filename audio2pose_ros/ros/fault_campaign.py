@@ -40,7 +40,7 @@ from audio2pose_ros import topics
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
-from audio2pose_ros.ros.fault_cases_runtime import runtime_cases
+from audio2pose_ros.ros.fault_cases_runtime import impersonated_sigstop_case, runtime_cases
 from audio2pose_ros.ros.fault_harness import (
     MAX_COMMAND_GAP_S,
     MAX_DEVIATION_RAD,
@@ -362,11 +362,7 @@ def cases() -> list[Case]:
             "still stopped after the restart",
             _restart(signal.SIGKILL, stop_first=True),
         ),
-        Case(
-            "SIGSTOP motion_filter_node",
-            "reported STALE within ~1 s, restarted after 5 s of silence",
-            sigstop_case,
-        ),
+        impersonated_sigstop_case(),  # SIGSTOP the filter while an impostor publishes its status
         Case(
             "AudioInfo sample_rate 1",
             "features node survives, bounded memory, recovers",

@@ -11,7 +11,8 @@ supervisor and the state file:
 - a second filter with the same state file, a filter in another namespace;
 - older panels' latched ``stop: false`` (and a newer latched ``stop: true``) across a restart;
 - a stop that cannot be saved;
-- a SIGSTOPped filter impersonated on /diagnostics;
+- a SIGSTOPped filter impersonated on /diagnostics (:func:`impersonated_sigstop_case`, which
+  takes the place of the plain SIGSTOP case);
 - floods on stop, head_offset, joint_states, raw_trajectory and parameter sets;
 - SIGKILL of inference_node, twice: the time to its next raw pose.
 """
@@ -400,6 +401,15 @@ def _respawn(c: Campaign) -> Outcome:
     )
 
 
+def impersonated_sigstop_case() -> Case:
+    """SIGSTOP of the filter while another process publishes its status name and pid."""
+    return Case(
+        "SIGSTOP motion_filter_node, an impostor publishes its status",
+        "reported STALE within ~1 s, restarted after 5 s of silence",
+        _impersonated_sigstop,
+    )
+
+
 def runtime_cases() -> list[Case]:
     """The cases of this module, in the order they run."""
     flood = f"commands >= {MIN_COMMAND_RATE_HZ:g} Hz, no gap > {MAX_FLOOD_GAP_S * 1e3:.0f} ms"
@@ -430,11 +440,6 @@ def runtime_cases() -> list[Case]:
             "stop while the state file cannot be written",
             "ERROR on /diagnostics, stop holds",
             _unsaved_stop,
-        ),
-        Case(
-            "SIGSTOP motion_filter_node, impostor publishes its status",
-            "reported STALE within ~1 s, restarted after 5 s of silence",
-            _impersonated_sigstop,
         ),
         Case(
             "flood: stop false", flood + "; state written <= 3 times", _flood(_send_release, True)
