@@ -1,4 +1,4 @@
-"""One regression test per unsafe case observed on the motion filter core (issue 11 items 1-5).
+"""One regression test per unsafe case observed on the motion filter core (inputs, faults, gaps).
 
 Each test replays the case against MotionFilter and states what the robot may do: one bad input
 moves no joint more than 0.1 rad, no NaN survives, a gap does not resume at the old velocity,

@@ -221,7 +221,7 @@ def test_when_tracking_resumes_after_silence_expect_no_stale_poses_replayed(robo
 
 
 def test_when_voice_is_reported_on_change_only_expect_silence_counted_from_the_change(robot):
-    """audio_features_node reports voice activity when it changes (issue 15), not every chunk.
+    """audio_features_node reports voice activity when it changes (less traffic), not every chunk.
 
     Before: silence counted from the last *report* of voice (t=0 here), so the filter glided to
     neutral at once when the voice stopped at t=1 s; after: from the report of silence.

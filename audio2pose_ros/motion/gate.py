@@ -1,7 +1,7 @@
 """The input gate of the motion filter: raw targets are checked before any filter state sees them.
 
 A raw pose from the model is a target for every joint. :class:`TrackGate` lets a pose through
-to the jitter buffer only when it is plausible (issue 11 item 1):
+to the jitter buffer only when it is plausible:
 
 - **finite** (NaN and inf are rejected);
 - **inside the joint's range**, give or take ``tolerance_rad``: a value a little outside (a model

@@ -361,7 +361,7 @@ def create_executor(events: bool = True) -> Executor:
 
     The EventsExecutor (``rclpy.experimental``, Jazzy and later) is driven by middleware events
     instead of rebuilding a wait set in Python for every callback, which was the largest single
-    item of the nodes' CPU (issue 15: 20-40 % of each node's samples under traffic); with it the
+    item of the nodes' CPU (20-40 % of each node's samples under traffic); with it the
     three nodes used 2.9 instead of 4.2 ms CPU per 10 ms frame. Humble has none and gets the
     SingleThreadedExecutor; ``AUDIO2POSE_EXECUTOR=single_threaded`` forces it (for comparison,
     or should a distro's EventsExecutor misbehave). Spin it with :func:`spin_executor`.

@@ -68,7 +68,7 @@ ARGUMENTS = (
     "diagnostic_aggregator",
     "single_process",
 )
-# single_process:=true runs this module's three nodes in one process (issue 15).
+# single_process:=true runs this module's three nodes in one process (the smallest footprint).
 SINGLE_PROCESS_MODULE = "audio2pose_ros.ros.nodes.single_process"
 
 # launch.conditions.IfCondition: the expanded text, stripped and lower-cased, must be one of these.

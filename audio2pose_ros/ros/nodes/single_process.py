@@ -1,4 +1,4 @@
-"""The three nodes in one process and one executor (issue 15): the smallest footprint.
+"""The three nodes in one process and one executor: the smallest footprint.
 
 ``audio2pose run --single-process`` and ``ros2 launch audio2pose_ros pepper.launch.py
 single_process:=true`` start this instead of the three node executables. The nodes are the same
