@@ -21,8 +21,9 @@ launch with one line and exit status 1. Booleans accept what launch's IfConditio
 (true/false/1/0, any letter case). ``model_path`` precedence: the launch argument when not empty,
 else the parameters file, else the package default.
 
-Crashed nodes are restarted after 2, 4, 8, 8, 8 s, at most 5 times in a row (a process that ran
-30 s starts a new row; :class:`~audio2pose_ros.ros.launch_support.RespawnBudget`); a node that exits
+Crashed nodes are restarted at once, then after 2, 4, 8, 8 s, at most 5 times in a row (a
+process that ran 30 s starts a new row;
+:class:`~audio2pose_ros.ros.launch_support.RespawnBudget`); a node that exits
 with status 78 (it cannot start with its configuration) or one that crashes a 6th time in a row
 stops the launch with one line and exit status 1. This replaces ``respawn=True``, which
 restarts forever on Humble (it has no ``respawn_max_retries``).

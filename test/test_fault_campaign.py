@@ -1,6 +1,6 @@
 """The fault campaign (`audio2pose faults`) against the live graph: every case must pass.
 
-Each case is an attack observed on the first wave (issue 11): bad poses, stamps and sizes, head
+Each case is an attack observed on the live graph: bad poses, stamps and sizes, head
 inputs, stop behaviours, run-time parameters, a killed, a stopped and a restarted filter, audio
 format bombs. The campaign runs real node processes over real DDS.
 """

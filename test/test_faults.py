@@ -125,6 +125,9 @@ def test_when_raw_trajectory_duplicated_or_late_expect_filter_drops_it(
             type(trajectory_msg(robot.names, robot.neutral_rad, 0.01)), absolute(RAW_TRAJECTORY), 10
         )
         probe.wait_until(lambda: publisher.get_subscription_count() > 0)
+        # the filter follows one raw_trajectory publisher at a time: this one takes over once
+        # inference_node (which answered the warm-up) has been quiet for watchdog_timeout_s
+        probe.spin_for(1.0)
         newest = trajectory_msg(robot.names, robot.neutral_rad[None, :], 0.01)
         newest.header.stamp = probe.get_clock().now().to_msg()
         older = trajectory_msg(robot.names, robot.neutral_rad[None, :], 0.01)

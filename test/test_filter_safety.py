@@ -1,4 +1,4 @@
-"""One regression test per unsafe case observed on the motion filter core (issue 11 items 1-5).
+"""One regression test per unsafe case observed on the motion filter core (inputs, faults, gaps).
 
 Each test replays the case against MotionFilter and states what the robot may do: one bad input
 moves no joint more than 0.1 rad, no NaN survives, a gap does not resume at the old velocity,
@@ -65,11 +65,12 @@ def test_when_one_in_range_three_rad_spike_expect_no_joint_moves_more_than_a_ten
     assert filt.status.implausible == 1
 
 
-def test_when_track_really_jumps_expect_it_reacquired_within_a_few_poses(robot):
+def test_when_track_really_jumps_expect_it_reacquired_and_reached(robot):
+    """Reached gently: 2 rad at a quarter of the velocity limit take about 3 s."""
     filt, t = settled_filter(robot)
     moved = steady_pose(robot)
     moved[robot.names.index("LShoulderPitch")] = -1.0
-    for _ in range(200):
+    for _ in range(500):
         t += PERIOD
         filt.push(moved[None, :], t)
         filt.tick(t)
@@ -131,10 +132,12 @@ def test_when_filter_state_turns_non_finite_expect_reset_from_last_command_and_f
 
 def test_when_ticks_stop_for_half_a_second_expect_no_resume_at_old_velocity(robot):
     filt, t = settled_filter(robot)
+    joint = robot.names.index("LShoulderPitch")
     far = steady_pose(robot)
-    far[robot.names.index("LShoulderPitch")] = -1.5
-    for _ in range(12):  # accelerate toward a far pose...
+    step = -0.9 * filt.limiter.max_velocity_rad_s[joint] * PERIOD
+    for _ in range(12):  # accelerate along a fast, reachable track...
         t += PERIOD
+        far[joint] += step
         filt.push(far[None, :], t)
         filt.tick(t)
     moving = float(np.abs(filt.velocity_rad_s).max())

@@ -1,6 +1,7 @@
 """The filter's memory across restarts (state file) and the stamp check of raw trajectories."""
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -8,6 +9,8 @@ import pytest
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.motion.state_file import (
     FilterMemory,
+    StateFileInUseError,
+    StateLock,
     default_state_path,
     load_memory,
     save_memory,
@@ -92,8 +95,40 @@ def test_when_saved_angles_not_finite_expect_refused(tmp_path, robot):
 
 def test_when_ros_home_set_expect_state_under_it(monkeypatch, tmp_path):
     monkeypatch.setenv("ROS_HOME", str(tmp_path))
-    expected = tmp_path / "audio2pose_ros" / "robot1__motion_filter_node.json"
+    monkeypatch.setenv("ROS_DOMAIN_ID", "7")
+    expected = tmp_path / "audio2pose_ros" / "domain_7" / "robot1__motion_filter_node.json"
     assert default_state_path("/robot1/motion_filter_node") == expected
+
+
+def test_when_two_robots_differ_in_domain_or_namespace_expect_different_files(monkeypatch):
+    """Two graphs of one user must not share a state file (one's stop lost by the other)."""
+    monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
+    paths = {
+        default_state_path("/motion_filter_node", "1"),
+        default_state_path("/motion_filter_node", "2"),
+        default_state_path("/pepper1/motion_filter_node", "1"),
+        default_state_path("/motion_filter_node"),
+    }
+    assert len(paths) == 4
+
+
+def test_when_a_second_owner_takes_the_state_file_expect_refused_naming_the_file(tmp_path):
+    path = tmp_path / "state.json"
+    first = StateLock(path)
+    with pytest.raises(StateFileInUseError, match=f"{path}.*pid {os.getpid()}"):
+        StateLock(path)
+    first.release()
+    StateLock(path).release()  # free again once the owner is gone
+
+
+def test_when_saved_pose_outside_range_expect_it_refused_not_clamped(robot):
+    pose = list(robot.neutral_rad)
+    pose[robot.names.index("LShoulderPitch")] = (
+        robot.upper_rad[robot.names.index("LShoulderPitch")] + 0.5
+    )
+    memory = FilterMemory(tuple(robot.names), tuple(pose), False, 1.0)
+    assert not memory.pose_in_range(robot)
+    assert memory_of(robot).pose_in_range(robot)
 
 
 def test_when_one_stamp_is_far_in_the_future_expect_it_rejected_and_later_ones_accepted():

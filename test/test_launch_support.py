@@ -205,14 +205,14 @@ def test_when_planning_expect_exactly_the_arguments_the_launch_file_declares():
         plan_launch({k: v for k, v in arguments().items() if k != "audio_ns"})
 
 
-def test_when_a_node_crashes_expect_restarts_with_back_off_then_give_up():
+def test_when_a_node_crashes_expect_first_restart_at_once_then_back_off_then_give_up():
     budget = RespawnBudget()
     delays = []
     for _ in range(5):
         decision = budget.on_exit("motion_filter_node", -signal.SIGKILL, ran_s=3.0)
         assert decision.restart
         delays.append(decision.delay_s)
-    assert delays == [2.0, 4.0, 8.0, 8.0, 8.0]
+    assert delays == [0.0, 2.0, 4.0, 8.0, 8.0]
     final = budget.on_exit("motion_filter_node", -signal.SIGKILL, ran_s=3.0)
     assert not final.restart
     assert isinstance(final.error(), GaveUpError)
@@ -225,7 +225,7 @@ def test_when_a_node_ran_long_enough_before_crashing_expect_a_fresh_budget():
         budget.on_exit("inference_node", 1, ran_s=1.0)
     decision = budget.on_exit("inference_node", 1, ran_s=budget.healthy_after_s)
     assert decision.restart
-    assert decision.delay_s == budget.first_delay_s
+    assert decision.delay_s == 0.0  # a first crash in a row: restarted at once
 
 
 def test_when_one_node_exhausts_its_budget_expect_the_others_unaffected():

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from node_processes import configuration_error_line
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
@@ -451,3 +452,30 @@ def test_when_a_parameter_is_refused_at_start_up_expect_one_line_and_exit_78(
     assert len(log) == 1
     assert log[0].startswith(f"[motion_filter_node] configuration error: parameter {name}: ")
     assert line in log[0]
+
+
+def test_when_state_file_cannot_be_written_expect_error_at_start_and_node_serving(
+    driver, filter_node, tmp_path
+):
+    """A stop that cannot be persisted is an ERROR, said at every start; the node still runs."""
+    blocker = tmp_path / "not_a_directory"
+    blocker.write_text("")
+    filter_node(state_file=str(blocker / "state.json"))
+    driver.wait_for_node()
+    driver.spin_for(1.0)
+    latest = driver.diagnostics[-1]
+    assert latest["level"] == "2"
+    assert "will NOT survive a restart" in latest["message"]
+    assert str(blocker / "state.json") in latest["message"]
+
+
+def test_when_a_second_node_takes_the_same_state_file_expect_exit_78_naming_it(
+    driver, filter_node, tmp_path
+):
+    filter_node()
+    driver.wait_for_node()
+    line = configuration_error_line(
+        "motion_filter_node", "-p", f"state_file:={tmp_path / 'filter_state.json'}"
+    )
+    assert str(tmp_path / "filter_state.json") in line
+    assert "in use by another live node" in line

@@ -139,7 +139,9 @@ def test_when_reading_diagnostic_analyzers_expect_one_analyzer_per_node_status_n
     clock = SimpleNamespace(now=lambda: SimpleNamespace(to_msg=lambda: None))
     names = []
     for node in NODE_EXECUTABLES:
-        fake = SimpleNamespace(get_name=lambda node=node: node, get_clock=lambda: clock)
+        fake = SimpleNamespace(
+            get_fully_qualified_name=lambda node=node: f"/{node}", get_clock=lambda: clock
+        )
         names += [s.name for s in diagnostic_array(fake, b"\x00", "ok", {}).status]
     assert expected == sorted(names)
     assert 'glob("config/*.yaml")' in (ROOT / "setup.py").read_text()  # installed with the rest

@@ -165,3 +165,80 @@ def test_when_command_line_and_params_file_disagree_expect_command_line_to_win(t
         output = process.communicate(timeout=10)[0]
     assert alive, output
     assert f"from {default_checkpoint_path()}" in output
+
+
+def test_when_a_node_crashes_once_expect_restart_at_once_then_back_off(tmp_path: Path):
+    supervisor = NodeSupervisor(
+        {"crash": _python("import time, sys; time.sleep(0.3); sys.exit(1)")},
+        tmp_path,
+        respawn_delay_s=1.0,
+    )
+    supervisor.start()
+    try:
+        assert _wait(lambda: len(supervisor.restarts["crash"]) >= 3, 15.0)
+        first, second, third = supervisor.restarts["crash"][:3]  # times of the exits
+        assert second - first < 0.3 + 0.5  # ran 0.3 s again: restarted at once
+        assert third - second >= 0.3 + 1.0  # the second restart waited the back-off
+    finally:
+        supervisor.stop()
+
+
+BEATING_CHILD = (  # a node's heartbeat, through the supervisor's pipe when it gives one
+    "import os, time\n"
+    "fd = os.environ.get('AUDIO2POSE_HEARTBEAT_FD')\n"
+    "while True:\n"
+    "    if fd: os.write(int(fd), b'.')\n"
+    "    time.sleep(0.2)\n"
+)
+
+
+@pytest.mark.ros
+def test_when_a_stopped_node_is_impersonated_on_diagnostics_expect_stale_and_replaced(
+    tmp_path: Path,
+):
+    """Liveness comes from the supervised process itself: another process publishing the node's
+    status name and pid on /diagnostics does not keep a SIGSTOPped node from being replaced."""
+    import os
+    import signal
+
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+    from audio2pose_ros.ros.graph import HeartbeatMonitor
+
+    supervisor = NodeSupervisor(
+        {"motion_filter_node": _python(BEATING_CHILD)}, tmp_path, startup_grace_s=1.0
+    )
+    supervisor.start()
+    monitor = HeartbeatMonitor(supervisor)
+    rclpy.init()
+    impostor = rclpy.create_node("impostor")
+    stale: list[str] = []
+    impostor.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda msg: stale.extend(s.name for s in msg.status if s.level == DiagnosticStatus.STALE),
+        10,
+    )
+    publisher = impostor.create_publisher(DiagnosticArray, "/diagnostics", 10)
+    try:
+        child = supervisor.processes["motion_filter_node"]
+        time.sleep(1.5)
+        assert supervisor.silences["motion_filter_node"] == 0  # beating through its pipe
+        os.kill(child.pid, signal.SIGSTOP)
+        deadline = time.monotonic() + RESTART_AFTER_S + 3.0
+        while time.monotonic() < deadline and supervisor.silences["motion_filter_node"] == 0:
+            pid = KeyValue(key="pid", value=str(child.pid))
+            names = ("audio2pose_ros: /motion_filter_node", "audio2pose_ros: motion_filter_node")
+            publisher.publish(
+                DiagnosticArray(status=[DiagnosticStatus(name=n, values=[pid]) for n in names])
+            )
+            rclpy.spin_once(impostor, timeout_sec=0.1)
+        assert supervisor.silences["motion_filter_node"] == 1, "impostor kept it alive"
+        assert "audio2pose_ros: /motion_filter_node" in stale
+        assert _wait(lambda: supervisor.processes["motion_filter_node"] is not child, 2.0)
+    finally:
+        impostor.destroy_node()
+        rclpy.try_shutdown()
+        monitor.close()
+        supervisor.stop()

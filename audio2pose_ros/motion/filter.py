@@ -4,7 +4,7 @@ This is the ROS-free core of ``motion_filter_node``, the last stage before the r
 arrive in bursts (one burst per audio chunk); :class:`MotionFilter` checks them, queues them in
 a short jitter buffer and, at every :meth:`MotionFilter.tick`, produces one command:
 
-0. **Gate** (:class:`~audio2pose_ros.motion.gate.TrackGate`, issue 11 items 1-3). At most
+0. **Gate** (:class:`~audio2pose_ros.motion.gate.TrackGate`). At most
    ``max_points_per_message`` poses of a message are looked at (the rest are dropped and
    counted). Non-finite poses, poses outside a joint's range (beyond ``outlier_tolerance_rad``)
    and poses no joint could reach from the recent track in the time that passed are rejected
@@ -19,17 +19,20 @@ a short jitter buffer and, at every :meth:`MotionFilter.tick`, produces one comm
    (``neutral``); while stopped nothing else (generated motion, head target or offset) moves it.
 2. **Tracking.** Each joint group is scaled around the neutral pose by its gain, and the pose
    is smoothed causally (seed 003 section 4.4.2: Kalman filter; or a low-pass; or none). When
-   tracking resumes, the smoother restarts from the commanded pose, so nothing jumps.
+   tracking resumes, the smoother restarts from the commanded pose, so nothing jumps, and when
+   it resumes or the gate re-acquires a new track, the tracked pose is blended in along a
+   minimum-jerk path timed for the distance (:class:`~audio2pose_ros.motion.approach.Approach`:
+   at most a quarter of the velocity limit), never at the limits.
 3. **Head composition.** An external head target (a face tracker's look-at) is blended into the
    head joints with ``head_target_weight``, and an external offset is added, for
    ``external_timeout_s`` after each message, while not stopped.
 4. **Limits last** (:class:`~audio2pose_ros.motion.limits.JointLimiter`): position, velocity,
    acceleration, from the first command on (the start pose counts as commanded, at rest).
-5. **Health** (issue 11 item 2). A non-finite wanted pose or smoother state is reset from the
+5. **Health**. A non-finite wanted pose or smoother state is reset from the
    last commanded pose; a command that is not finite, leaves the limits or steps further than
    the velocity limit allows is replaced by the last commanded pose. Either counts as a fault
    (``FilterStatus.faults``, ``last_fault``) that the node reports as ERROR.
-6. **Gaps** (issue 11 item 3). When ticks stop for more than ``GAP_PERIODS`` periods (a blocked
+6. **Gaps**. When ticks stop for more than ``GAP_PERIODS`` periods (a blocked
    process), the commanded velocity is braked at the acceleration limit over the time that
    passed and the smoother restarts from the commanded pose at rest: the robot resumes from the
    pose it was last sent, with no velocity jump.
@@ -45,6 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from audio2pose_ros.errors import ConfigurationError, InputError
+from audio2pose_ros.motion.approach import Approach, minimum_jerk
 from audio2pose_ros.motion.gate import TrackGate
 from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
 from audio2pose_ros.motion.smoothing import CausalLowPass, KalmanSmoother
@@ -56,16 +60,6 @@ STOP_BEHAVIOURS = ("hold", "neutral")
 MODES = ("waiting", "tracking", "neutral", "stopped")
 GAP_PERIODS = 3.0  # ticks further apart than this many periods are a gap (the process stalled)
 STEP_SLACK_RAD = 1e-9  # rounding allowance of the step check of the health guard
-
-
-def minimum_jerk(fraction: float) -> float:
-    """Position fraction of a minimum-jerk move at time fraction ``fraction`` in [0, 1].
-
-    10 s^3 - 15 s^4 + 6 s^5: zero velocity and acceleration at both ends (Flash and Hogan's
-    minimum-jerk profile; seed 003 section 3.4.4 cites minimum-jerk human movement).
-    """
-    s = min(max(fraction, 0.0), 1.0)
-    return s * s * s * (10.0 - 15.0 * s + 6.0 * s * s)
 
 
 def _gain(group: str) -> dict[str, object]:
@@ -338,6 +332,7 @@ class MotionFilter:
             self.period_s,
             self.settings.outlier_tolerance_rad,
         )
+        self.approach = Approach()
         self._apply_live_settings()
         self._queue: deque[np.ndarray] = deque(
             maxlen=max(1, round(self.settings.max_buffer_s * self.settings.rate_hz))
@@ -450,6 +445,18 @@ class MotionFilter:
         counts = self.gate.counts
         before = (counts.non_finite, counts.out_of_range, counts.implausible)
         admitted = self.gate.admit(poses, now_s)
+        if self.gate.new_track_at is not None and self.status.mode == "tracking":
+            # A new track: the old track's queued poses are dropped, the smoother starts on the
+            # new one (none of the old momentum, no transient of its own) and the approach
+            # blends it in gently from the robot's pose.
+            old = len(self._queue) + self.gate.new_track_at
+            self.status.dropped += old
+            self._queue.clear()
+            admitted = admitted[self.gate.new_track_at :]
+            scaled = self.neutral_rad + self._gains * (admitted[-1] - self.neutral_rad)
+            if self._smoother is not None:
+                self._smoother.reset(scaled)
+            self.approach.begin(now_s, self.position_rad, scaled, self.limiter.max_velocity_rad_s)
         self.status.rejected += counts.non_finite - before[0]
         self.status.out_of_range += counts.out_of_range - before[1]
         self.status.implausible += counts.implausible - before[2]
@@ -634,7 +641,12 @@ class MotionFilter:
             status.mode = "stopped"
             status.head_target_active = False
         elif self._tracking_allowed(now_s):
-            desired = self._compose_head(self._track(), now_s)
+            if status.mode != "tracking":  # resuming: approach the track gently
+                ahead = self._queue[0] if self._queue else self._target
+                self.approach.begin(
+                    now_s, self.position_rad, ahead, self.limiter.max_velocity_rad_s
+                )
+            desired = self._compose_head(self.approach.blend(self._track(), now_s), now_s)
             status.mode = "tracking"
         elif self._holding and status.enabled:
             self._glide_start = None

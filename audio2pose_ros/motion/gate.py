@@ -1,7 +1,7 @@
 """The input gate of the motion filter: raw targets are checked before any filter state sees them.
 
 A raw pose from the model is a target for every joint. :class:`TrackGate` lets a pose through
-to the jitter buffer only when it is plausible (issue 11 item 1):
+to the jitter buffer only when it is plausible:
 
 - **finite** (NaN and inf are rejected);
 - **inside the joint's range**, give or take ``tolerance_rad``: a value a little outside (a model
@@ -69,6 +69,7 @@ class TrackGate:
         self._candidate: np.ndarray | None = None
         self._candidate_s = -np.inf
         self._candidates = 0
+        self.new_track_at: int | None = None  # of the last admit's result: first new-track pose
 
     def reset(self, pose_rad: np.ndarray | None = None, now_s: float = -np.inf) -> None:
         """Forget the track, or start it at ``pose_rad`` as of ``now_s``."""
@@ -88,9 +89,11 @@ class TrackGate:
             now_s: arrival time of the message (s, the filter's clock).
 
         Returns:
-            (n_accepted, n_joints) accepted poses, in order.
+            (n_accepted, n_joints) accepted poses, in order; when a new track was taken,
+            :attr:`new_track_at` is the index of its first pose among them (else None).
         """
-        accepted = []
+        accepted: list[np.ndarray] = []
+        self.new_track_at = None
         tolerance = self.tolerance_rad
         for i, pose in enumerate(np.asarray(poses_rad, dtype=np.float64)):
             pose_s = now_s + i * self.period_s
@@ -119,6 +122,7 @@ class TrackGate:
                     self.counts.implausible += 1
                     continue
                 self.counts.reacquired += 1
+                self.new_track_at = len(accepted)
                 self._candidate, self._candidates = None, 0
             self._track, self._track_s = clamped, max(pose_s, self._track_s + self.period_s)
             accepted.append(clamped)

@@ -1,22 +1,32 @@
 """The motion filter's memory across restarts: last commanded pose, stop and enable.
 
 A restarted ``motion_filter_node`` must not move the robot before it knows where the robot is,
-and a stop must outlive the process that sent it (issue 11 item 5), as must ``enable: false``
-(a restart must not bring back the motion an operator switched off). Without the robot's measured
+and a stop must outlive the process that sent it, as must ``enable: false`` (a restart must not
+bring back the motion an operator switched off). Without the robot's measured
 joint states the node starts from the pose it last commanded, read from a small JSON file that
 it rewrites atomically (a temporary file in the same directory, flushed, then renamed over the
 old one) a few times per second and at every stop or release. A file that cannot be used is
 reported and ignored; it never stops the node from starting.
 
-The default location is ``$ROS_HOME/audio2pose_ros/`` (``~/.ros/audio2pose_ros/`` without
-ROS_HOME), one file per node (by its fully qualified name).
+The default location is ``$ROS_HOME/audio2pose_ros/domain_<ROS_DOMAIN_ID>/``
+(``~/.ros/...`` without ROS_HOME), one file per node by its fully qualified name (namespace
+included): two robots, in two namespaces or two domains, never share a file. A file is also
+never shared by two live nodes: :class:`StateLock` holds an exclusive lock on
+``<file>.lock`` for the node's life (the kernel releases it when the process dies, even by
+SIGKILL), and a second node that finds it held refuses to start, naming the file and the
+owner's pid.
+
+The times a stop and a disable came into force (``stopped_at_s``, ``disabled_at_s``, wall clock)
+are kept too: a release must be published after them to count (see ``motion_filter_node``).
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import math
 import os
+import socket
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +36,7 @@ from audio2pose_ros.robot.description import RobotDescription
 
 FORMAT_VERSION = 1
 MAX_FILE_BYTES = 65536  # a state file is a few hundred bytes; anything larger is not ours
+RANGE_SLACK_RAD = 1e-6  # rounding allowance of the range check of a saved pose
 
 
 @dataclass(frozen=True)
@@ -38,6 +49,9 @@ class FilterMemory:
         stopped: a stop was in force.
         saved_at_s: wall-clock time of saving (s since the epoch).
         enabled: generated motion was enabled (files written before this field: True).
+        stopped_at_s: wall-clock time the stop came into force (None: not kept; older files).
+        disabled_at_s: wall-clock time the disable came into force (likewise).
+        measured: the robot reported its measured joint states to the process that saved.
     """
 
     joint_names: tuple[str, ...]
@@ -45,13 +59,71 @@ class FilterMemory:
     stopped: bool
     saved_at_s: float
     enabled: bool = True
+    stopped_at_s: float | None = None
+    disabled_at_s: float | None = None
+    measured: bool = False
+
+    def pose_in_range(self, robot: RobotDescription) -> bool:
+        """Whether every saved angle lies inside its joint's range (a pose outside is refused)."""
+        return all(
+            low - RANGE_SLACK_RAD <= v <= high + RANGE_SLACK_RAD
+            for v, low, high in zip(
+                self.position_rad, robot.lower_rad, robot.upper_rad, strict=True
+            )
+        )
 
 
-def default_state_path(node_name: str) -> Path:
-    """``$ROS_HOME/audio2pose_ros/<node>.json`` (ROS_HOME defaults to ``~/.ros``)."""
+def default_state_path(node_name: str, domain_id: str | None = None) -> Path:
+    """``$ROS_HOME/audio2pose_ros/domain_<id>/<node>.json`` (ROS_HOME defaults to ``~/.ros``).
+
+    ``node_name`` is the fully qualified name (its namespace becomes part of the file name);
+    ``domain_id`` defaults to ``$ROS_DOMAIN_ID`` (0 when unset, as in ROS 2).
+    """
     ros_home = os.environ.get("ROS_HOME") or str(Path.home() / ".ros")
+    domain = domain_id if domain_id is not None else os.environ.get("ROS_DOMAIN_ID", "").strip()
+    domain = "".join(c for c in domain if c.isalnum() or c in "-_") or "0"
     safe = node_name.strip("/").replace("/", "__") or "motion_filter_node"
-    return Path(ros_home) / "audio2pose_ros" / f"{safe}.json"
+    return Path(ros_home) / "audio2pose_ros" / f"domain_{domain}" / f"{safe}.json"
+
+
+class StateFileInUseError(InputError):
+    """Another live process holds the state file (two nodes must not share one robot's state)."""
+
+
+class StateLock:
+    """An exclusive, non-blocking lock on ``<state file>.lock``, held until :meth:`release`.
+
+    The lock file names its owner (pid and host) for the message a second node gets.
+    """
+
+    def __init__(self, path: Path) -> None:
+        """Take the lock of the state file ``path``.
+
+        Raises:
+            StateFileInUseError: another process holds it (the message names file and owner).
+            OSError: the lock file cannot be created (the directory is not writable).
+        """
+        self.path = path.with_name(path.name + ".lock")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fd: int | None = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            owner = os.pread(self._fd, 200, 0).decode("utf-8", "replace").strip() or "unknown"
+            os.close(self._fd)
+            self._fd = None
+            raise StateFileInUseError(
+                f"state file {path} is in use by another live node ({owner}); give each robot "
+                "its own namespace, ROS_DOMAIN_ID or state_file"
+            ) from None
+        os.ftruncate(self._fd, 0)
+        os.pwrite(self._fd, f"pid {os.getpid()} on {socket.gethostname()}".encode(), 0)
+
+    def release(self) -> None:
+        """Give the lock up (the kernel also does when the process ends)."""
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
 
 
 def save_memory(path: Path, memory: FilterMemory) -> None:
@@ -69,6 +141,9 @@ def save_memory(path: Path, memory: FilterMemory) -> None:
             "stopped": memory.stopped,
             "enabled": memory.enabled,
             "saved_at_s": memory.saved_at_s,
+            "stopped_at_s": memory.stopped_at_s,
+            "disabled_at_s": memory.disabled_at_s,
+            "measured": memory.measured,
         }
     )
     handle, temporary = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
@@ -127,6 +202,22 @@ def load_memory(path: Path, robot: RobotDescription) -> FilterMemory | None:
         raise InputError(
             f"{path}: 'stopped' and 'enabled' must be true/false and 'saved_at_s' a number"
         )
+    measured = data.get("measured", False)
+    if not isinstance(measured, bool):
+        raise InputError(f"{path}: 'measured' must be true/false")
+    since = [data.get(key) for key in ("stopped_at_s", "disabled_at_s")]
+    if not all(
+        v is None or (isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v))
+        for v in since
+    ):
+        raise InputError(f"{path}: 'stopped_at_s' and 'disabled_at_s' must be numbers")
     return FilterMemory(
-        tuple(names), tuple(float(v) for v in positions), stopped, float(saved_at), enabled
+        tuple(names),
+        tuple(float(v) for v in positions),
+        stopped,
+        float(saved_at),
+        enabled,
+        None if since[0] is None else float(since[0]),
+        None if since[1] is None else float(since[1]),
+        measured,
     )

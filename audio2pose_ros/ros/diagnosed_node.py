@@ -23,7 +23,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from rclpy.subscription import Subscription
+from rclpy.subscription import MessageInfo, Subscription
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -49,6 +49,9 @@ STREAM_QOS = QoSProfile(
 )
 DIAGNOSTICS_PERIOD_S = 1.0
 HEARTBEAT_PERIOD_S = 0.5  # every node publishes /diagnostics this often, busy or idle
+# A supervisor passes the write end of a pipe in this variable: each heartbeat also writes a byte
+# there. Only the supervised process holds that descriptor, so no other process can fake it.
+HEARTBEAT_FD_ENV = "AUDIO2POSE_HEARTBEAT_FD"
 STALE_AFTER_S = 1.2  # a node not heard from for this long is silent (stopped, frozen or dead)
 PROBLEM_HOLD_S = 5.0  # a reported problem is shown until this long after its last occurrence
 LOG_THROTTLE_S = 5.0  # one log line per problem per this many seconds
@@ -142,13 +145,22 @@ def trajectory_positions(msg: JointTrajectory, joint_names: Sequence[str]) -> np
     return np.array(rows).reshape(-1, len(joint_names))
 
 
+def status_name(fully_qualified_name: str) -> str:
+    """The /diagnostics status name of a node: ``audio2pose_ros: /<namespace>/<node>``.
+
+    The namespace is part of it, so the nodes of two robots (``/pepper1``, ``/pepper2``) on one
+    /diagnostics are told apart.
+    """
+    return f"audio2pose_ros: {fully_qualified_name}"
+
+
 def diagnostic_array(
     node: Node, level: bytes, message: str, values: dict[str, object]
 ) -> DiagnosticArray:
-    """A DiagnosticArray with one status named after the node."""
+    """A DiagnosticArray with one status named after the node (namespace included)."""
     status = DiagnosticStatus(
         level=level,
-        name=f"audio2pose_ros: {node.get_name()}",
+        name=status_name(node.get_fully_qualified_name()),
         message=message,
         hardware_id="pepper",
         values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
@@ -263,9 +275,10 @@ class DiagnosedNode(Node):
         self,
         msg_type: type,
         topic: str,
-        callback: Callable[[Any], None],
+        callback: Callable[..., None],
         qos: QoSProfile | int,
         max_bytes: int | Callable[[], int],
+        with_info: bool = False,
     ) -> Subscription[Any]:
         """A guarded subscription that drops a message larger than ``max_bytes`` before decoding.
 
@@ -274,10 +287,12 @@ class DiagnosedNode(Node):
         serves nothing (no commands, no heartbeat). Here the message arrives serialized; one
         above ``max_bytes`` (an int, or a function giving the current cap) is dropped, counted in
         ``oversized_messages`` and reported, and only messages within the cap are decoded.
+        With ``with_info`` the callback also gets rclpy's MessageInfo (publisher gid, source
+        timestamp).
         """
         handler = self.guarded(callback)
 
-        def receive(data: bytes) -> None:
+        def receive(data: bytes, *info: MessageInfo) -> None:
             cap = max_bytes() if callable(max_bytes) else max_bytes
             if len(data) > cap:
                 self.oversized_messages += 1
@@ -288,10 +303,14 @@ class DiagnosedNode(Node):
                     f"(at most {cap} bytes)",
                 )
                 return
-            handler(deserialize_message(data, msg_type))
+            handler(deserialize_message(data, msg_type), *info)
 
-        receive.__name__ = getattr(callback, "__name__", "callback")
-        return self.create_subscription(msg_type, topic, self.guarded(receive), qos, raw=True)
+        def receive_with_info(data: bytes, info: MessageInfo) -> None:
+            receive(data, info)
+
+        entry = receive_with_info if with_info else receive  # rclpy counts the parameters
+        entry.__name__ = getattr(callback, "__name__", "callback")
+        return self.create_subscription(msg_type, topic, self.guarded(entry), qos, raw=True)
 
     # --- publication --------------------------------------------------------------------------
 
@@ -316,23 +335,44 @@ class DiagnosedNode(Node):
             message += f"; {problem_message}" + (f" ({count}x)" if count > 1 else "")
             values[f"problem: {key}"] = count
         self.diagnostics_pub.publish(diagnostic_array(self, level, message, values))
+        beat_to_supervisor()
+
+
+def beat_to_supervisor() -> None:
+    """Write one heartbeat byte to the supervisor's pipe (``HEARTBEAT_FD_ENV``), if there is one.
+
+    Never blocks: a full pipe (a supervisor that does not read) or a closed one is ignored.
+    """
+    fd = os.environ.get(HEARTBEAT_FD_ENV, "")
+    if fd.isdigit():
+        try:
+            os.set_blocking(int(fd), False)
+            os.write(int(fd), b".")
+        except OSError:
+            pass
 
 
 SPIN_ONCE_TIMEOUT_S = 0.5  # an idle EventsExecutor checks for shutdown this often
 EXECUTOR_ENV = "AUDIO2POSE_EXECUTOR"  # "events" (default where available) or "single_threaded"
 
 
-def create_executor() -> Executor:
+def create_executor(events: bool = True) -> Executor:
     """The executor the nodes spin in: rclpy's EventsExecutor where available, else single-threaded.
 
     The EventsExecutor (``rclpy.experimental``, Jazzy and later) is driven by middleware events
     instead of rebuilding a wait set in Python for every callback, which was the largest single
-    item of the nodes' CPU (issue 15: 20-40 % of each node's samples under traffic); with it the
+    item of the nodes' CPU (20-40 % of each node's samples under traffic); with it the
     three nodes used 2.9 instead of 4.2 ms CPU per 10 ms frame. Humble has none and gets the
     SingleThreadedExecutor; ``AUDIO2POSE_EXECUTOR=single_threaded`` forces it (for comparison,
     or should a distro's EventsExecutor misbehave). Spin it with :func:`spin_executor`.
+
+    ``events=False`` asks for the SingleThreadedExecutor: the motion filter needs it, because the
+    EventsExecutor (rclpy 9) hands no MessageInfo to a callback (the filter reads the publisher
+    gid and the source timestamp of its inputs) and serves events first come, first served, so a
+    flood on one topic delays the command timer by the whole backlog; the SingleThreadedExecutor
+    serves every ready timer and subscription once per round, so the tick keeps its rate.
     """
-    if os.environ.get(EXECUTOR_ENV, "events") != "single_threaded":
+    if events and os.environ.get(EXECUTOR_ENV, "events") != "single_threaded":
         try:
             from rclpy.experimental.events_executor import EventsExecutor
         except ImportError:  # Humble
@@ -355,9 +395,14 @@ def spin_executor(executor: Executor) -> None:
         executor.spin_once(timeout_sec=SPIN_ONCE_TIMEOUT_S)
 
 
-def run_node(factory: Callable[[], Node], node_name: str, args: list[str] | None = None) -> None:
+def run_node(
+    factory: Callable[[], Node],
+    node_name: str,
+    args: list[str] | None = None,
+    events: bool = True,
+) -> None:
     """The ros2/examples main for one node: see :func:`run_nodes`."""
-    run_nodes([factory], node_name, args)
+    run_nodes([factory], node_name, args, events=events)
 
 
 def run_nodes(
@@ -365,12 +410,14 @@ def run_nodes(
     process_name: str,
     args: list[str] | None = None,
     connect: Callable[[list[Node]], None] | None = None,
+    events: bool = True,
 ) -> None:
     """Init, build the nodes, spin them in one executor until Ctrl-C / SIGTERM, clean up.
 
     One factory is the usual one node per process; several put nodes in one process and one
     executor (``audio2pose run --single-process``), where ``connect`` (called with the built
-    nodes, in order, before spinning) wires them to each other. A
+    nodes, in order, before spinning) wires them to each other; ``events`` goes to
+    :func:`create_executor`. A
     :class:`~audio2pose_ros.errors.ConfigurationError` while a node is built (a refused
     parameter, a bad model or robot file), or arguments rcl cannot parse (a parameters file with
     a YAML syntax error, a missing file), end the process with one line on stderr and exit status
@@ -383,7 +430,7 @@ def run_nodes(
         signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
         try:
             rclpy.init(args=args)  # not `with rclpy.init()`: Humble's init is no context manager
-            executor = create_executor()
+            executor = create_executor(events)
             nodes = [factory() for factory in factories]
             if connect is not None:
                 connect(nodes)

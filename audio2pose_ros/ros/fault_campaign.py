@@ -40,6 +40,7 @@ from audio2pose_ros import topics
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
+from audio2pose_ros.ros.fault_cases_runtime import impersonated_sigstop_case, runtime_cases
 from audio2pose_ros.ros.fault_harness import (
     MAX_COMMAND_GAP_S,
     MAX_DEVIATION_RAD,
@@ -243,7 +244,8 @@ def _restart(
     return run
 
 
-def _sigstop(c: Campaign) -> Outcome:
+def sigstop_case(c: Campaign) -> Outcome:
+    """SIGSTOP the filter: it must be reported STALE, killed and replaced."""
     node = "motion_filter_node"
     old, silences = c.pid(node), c.supervisor.silences[node]
     stale_before = c.probe.stale_reports.get(node, 0)
@@ -360,11 +362,7 @@ def cases() -> list[Case]:
             "still stopped after the restart",
             _restart(signal.SIGKILL, stop_first=True),
         ),
-        Case(
-            "SIGSTOP motion_filter_node",
-            "reported STALE within ~1 s, restarted after 5 s of silence",
-            _sigstop,
-        ),
+        impersonated_sigstop_case(),  # SIGSTOP the filter while an impostor publishes its status
         Case(
             "AudioInfo sample_rate 1",
             "features node survives, bounded memory, recovers",
@@ -375,6 +373,7 @@ def cases() -> list[Case]:
             "features node survives, bounded memory, recovers",
             _audio_bomb(383999),
         ),
+        *runtime_cases(),  # tracks, start poses, state files, stops, liveness, floods, respawn
     ]
 
 
@@ -387,7 +386,7 @@ def run_campaign(
     robot = load_robot()
     chosen = selected if selected is not None else cases()
     with tempfile.TemporaryDirectory(prefix="audio2pose_faults_") as tmp:
-        state = Path(tmp) / "filter_state.yaml"
+        state = Path(tmp) / "state" / "filter_state.json"  # alone in its directory
         params = Path(tmp) / "params.yaml"
         document = yaml.safe_load(share_path("config", "pepper.yaml").read_text())
         document.setdefault("motion_filter_node", {}).setdefault("ros__parameters", {})
@@ -398,7 +397,7 @@ def run_campaign(
             rclpy.init()
             probe = CampaignProbe(robot)
             try:
-                campaign = Campaign(supervisor, probe, robot)
+                campaign = Campaign(supervisor, probe, robot, state_file=state)
                 progress("waiting for the graph ...")
                 if not probe.settle(campaign.pose_a, timeout_s=60.0):
                     raise TimeoutError(f"the graph did not follow the probe (logs: {logs})")

@@ -12,6 +12,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import rclpy
@@ -32,7 +33,7 @@ from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.ros.graph import NodeSupervisor
 
-MAX_DEVIATION_RAD = 0.1  # issue 11: one bad input moves no joint more than about this
+MAX_DEVIATION_RAD = 0.1  # one bad input moves no joint more than about this
 
 
 SETTLE_TOLERANCE_RAD = 0.005
@@ -149,7 +150,7 @@ class CampaignProbe(Node):
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
-            name = status.name.rpartition(": ")[2]
+            name = status.name.rpartition(": ")[2].lstrip("/")  # the graph's namespace is /
             values = {kv.key: kv.value for kv in status.values}
             level = int.from_bytes(status.level, "little")
             self.diagnostics[name] = (level, status.message, values)
@@ -248,6 +249,7 @@ class Campaign:
     probe: CampaignProbe
     robot: RobotDescription
     rows: list[tuple[Case, Outcome]] = field(default_factory=list)
+    state_file: Path = Path()  # the filter's state file (alone in its directory)
 
     @property
     def pose_a(self) -> np.ndarray:

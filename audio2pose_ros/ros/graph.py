@@ -50,7 +50,12 @@ from audio2pose_ros.data.bag import (
 )
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, Audio2PoseError, UsageError
 from audio2pose_ros.resources import share_path
-from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_PERIOD_S, STALE_AFTER_S
+from audio2pose_ros.ros.diagnosed_node import (
+    HEARTBEAT_FD_ENV,
+    HEARTBEAT_PERIOD_S,
+    STALE_AFTER_S,
+    status_name,
+)
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.ros.player import MessagePlayer, rclpy_session, spin_until, warm_up
 
@@ -58,7 +63,6 @@ NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node
 SINGLE_PROCESS = "audio2pose_nodes"  # the process that runs all three nodes (single-process mode)
 # As the launch file does: trajectories go to Pepper's ros2_control controller.
 NODE_REMAPS = {"motion_filter_node": ("-r", f"{topics.JOINT_TRAJECTORY}:={CONTROLLER_TOPIC}")}
-STATUS_PREFIX = "audio2pose_ros"  # diagnostic status names: "audio2pose_ros: <node name>"
 STARTUP_GRACE_S = 30.0  # a node may take this long to publish its first heartbeat (imports)
 MAX_BACKOFF_S = 16.0  # longest wait before a restart
 # A node silent this long is killed and restarted. Ten heartbeats: a process that a busy machine
@@ -99,17 +103,21 @@ def executable_command(name: str) -> list[str]:
 class NodeSupervisor:
     """Runs the node processes like a launch file would, and restarts them with a bounded budget.
 
-    - **Crash.** A node that exits is restarted after a back-off that doubles from
-      ``respawn_delay_s`` up to ``MAX_BACKOFF_S``; one that dies more than ``max_restarts`` times
-      within ``restart_window_s`` is given up on, loudly, rather than restarted forever.
+    - **Crash.** A node that exits is restarted at once the first time (within
+      ``restart_window_s``), then after a back-off that doubles from ``respawn_delay_s`` up to
+      ``MAX_BACKOFF_S``; one that dies more than ``max_restarts`` times within
+      ``restart_window_s`` is given up on, loudly, rather than restarted forever.
     - **Configuration error.** A node that exits with
       :data:`~audio2pose_ros.ros.diagnosed_node.EXIT_CONFIGURATION_ERROR` (a refused parameter, a
       bad
       model or robot file, a parameters file rcl cannot parse) is never restarted: the same
       configuration would fail the same way. Its one-line reason is in its log.
-    - **Silence.** A node whose process is alive but has not published its /diagnostics
-      heartbeat for ``restart_after_s`` (stopped with SIGSTOP, deadlocked) is killed and
-      restarted like a crashed one (:meth:`heartbeat` feeds the times heard). A shorter gap
+    - **Silence.** A node whose process is alive but has not sent its heartbeat for
+      ``restart_after_s`` (stopped with SIGSTOP, deadlocked) is killed and restarted like a
+      crashed one. The heartbeat comes from the process itself, never from a topic anyone can
+      publish: each process gets the write end of its own pipe (``HEARTBEAT_FD_ENV``), and its
+      nodes write a byte there with every /diagnostics heartbeat; another process publishing
+      /diagnostics under the node's name and pid keeps nothing alive. A shorter gap
       (``STALE_AFTER_S``) is only reported, by :class:`HeartbeatMonitor`: a node that a busy
       machine starved for a second is not taken away for the seconds a restart lasts.
 
@@ -151,6 +159,7 @@ class NodeSupervisor:
         self._heard_s: dict[str, float] = {}  # since the current process started
         self._last_heard_s: dict[str, float] = {}  # by any process of the node
         self._due_s: dict[str, float] = {}  # restart time of a node that is down
+        self._pipes: dict[str, int] = {}  # read end of each process's heartbeat pipe
         self._lock = threading.Lock()
         self._stopping = threading.Event()
         self._thread = threading.Thread(target=self._watch, name="node-supervisor", daemon=True)
@@ -163,9 +172,22 @@ class NodeSupervisor:
         if self.log_dir is not None:
             self.log_dir.mkdir(parents=True, exist_ok=True)
             stdout = (self.log_dir / f"{name}.log").open(mode)
-        self.processes[name] = subprocess.Popen(
-            self.commands[name], stdout=stdout, stderr=subprocess.STDOUT if stdout else None
-        )
+        read_end, write_end = os.pipe()
+        os.set_blocking(read_end, False)
+        old = self._pipes.pop(name, None)
+        if old is not None:
+            os.close(old)
+        self._pipes[name] = read_end
+        try:
+            self.processes[name] = subprocess.Popen(
+                self.commands[name],
+                stdout=stdout,
+                stderr=subprocess.STDOUT if stdout else None,
+                pass_fds=(write_end,),
+                env={**os.environ, HEARTBEAT_FD_ENV: str(write_end)},
+            )
+        finally:
+            os.close(write_end)  # the child holds its own
         self._started_s[name] = time.monotonic()
         self._heard_s.pop(name, None)
         if stdout is not None:
@@ -178,10 +200,10 @@ class NodeSupervisor:
         self._thread.start()
 
     def heartbeat(self, node: str, pid: int) -> None:
-        """Process ``pid`` published the diagnostics of node ``node`` now.
+        """Process ``pid`` running node ``node`` is alive now (the pipe reader calls this).
 
-        A heartbeat of another process than the one now running the node (e.g. sent by a killed
-        process and delivered after its restart) is ignored, as is an unknown node.
+        A heartbeat of another process than the one now running the node is ignored, as is an
+        unknown node.
         """
         name = self.members.get(node)
         if name is None:
@@ -208,14 +230,30 @@ class NodeSupervisor:
                 f"{self.restart_window_s:.0f} s: giving up on it (see its log)"
             )
             return
-        delay = min(self.respawn_delay_s * 2 ** len(recent), MAX_BACKOFF_S)
+        # the first crash restarts at once; back off from the second on
+        delay = (
+            0.0 if not recent else min(self.respawn_delay_s * 2 ** (len(recent) - 1), MAX_BACKOFF_S)
+        )
         self.restarts[name] = [*recent, now]
         self._due_s[name] = now + delay
         self._say(f"{name} {why}; restarting it in {delay:.1f} s")
 
+    def _read_pipe(self, name: str, process: subprocess.Popen[bytes]) -> None:
+        """Heartbeat bytes the running process of ``name`` wrote to its pipe: it is alive."""
+        fd = self._pipes.get(name)
+        if fd is None:
+            return
+        try:
+            data = os.read(fd, 4096)
+        except BlockingIOError:
+            return
+        if data:
+            self.heartbeat(next(n for n, p in self.members.items() if p == name), process.pid)
+
     def _check(self, name: str, process: subprocess.Popen[bytes], now: float) -> None:
         if name in self.given_up:
             return
+        self._read_pipe(name, process)
         due = self._due_s.get(name)
         if due is not None:
             if now >= due:
@@ -269,16 +307,21 @@ class NodeSupervisor:
             except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait()
+        for fd in self._pipes.values():
+            os.close(fd)
+        self._pipes.clear()
 
 
 class HeartbeatMonitor:
-    """Listens to /diagnostics in its own rclpy context and tells a supervisor who is alive.
+    """Reports the supervisor's silent nodes on /diagnostics, from its own rclpy context.
 
-    Node statuses are named ``audio2pose_ros: <node name>`` (``nodes.common.diagnostic_array``).
-    A node silent for ``STALE_AFTER_S`` is reported on /diagnostics under its own name with
-    level STALE until it is heard again, as diagnostic_aggregator would show it; the supervisor
-    restarts it once it has been silent for its ``restart_after_s``. Runs its own
-    executor thread, so it works beside a player in the default context.
+    Node statuses are named ``audio2pose_ros: /<node name>`` (``diagnosed_node.status_name``).
+    A node whose process has sent no heartbeat (through its pipe, see :class:`NodeSupervisor`)
+    for ``STALE_AFTER_S`` is reported on /diagnostics under its own name with level STALE until
+    it is heard again, as diagnostic_aggregator would show it, whatever other processes publish
+    under that name; the supervisor restarts it once it has been silent for its
+    ``restart_after_s``. Runs its own executor thread, so it works beside a player in the
+    default context.
     """
 
     def __init__(self, supervisor: NodeSupervisor) -> None:
@@ -287,7 +330,6 @@ class HeartbeatMonitor:
         self.context = Context()
         rclpy.init(context=self.context)
         self.node = Node("audio2pose_supervisor", context=self.context)
-        self.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, 50)
         self.publisher = self.node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.node.create_timer(WATCH_PERIOD_S * 2, self._report_silent)
         self.executor = SingleThreadedExecutor(context=self.context)
@@ -299,14 +341,6 @@ class HeartbeatMonitor:
         with suppress(ExternalShutdownException):
             self.executor.spin()
 
-    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        for status in msg.status:
-            prefix, _, name = status.name.partition(": ")
-            if prefix == STATUS_PREFIX and name in self.supervisor.members:
-                pid = next((kv.value for kv in status.values if kv.key == "pid"), "")
-                if pid.isdigit():  # a node's own status (ours, about a silent node, has none)
-                    self.supervisor.heartbeat(name, int(pid))
-
     def _report_silent(self) -> None:
         statuses = []
         for name, process in self.supervisor.members.items():
@@ -315,7 +349,7 @@ class HeartbeatMonitor:
                 statuses.append(
                     DiagnosticStatus(
                         level=DiagnosticStatus.STALE,
-                        name=f"{STATUS_PREFIX}: {name}",
+                        name=status_name(f"/{name}"),
                         message=(
                             f"no heartbeat for {silent:.1f} s: restarting the node if it "
                             f"stays silent for {self.supervisor.restart_after_s:.0f} s"

@@ -68,7 +68,7 @@ ARGUMENTS = (
     "diagnostic_aggregator",
     "single_process",
 )
-# single_process:=true runs this module's three nodes in one process (issue 15).
+# single_process:=true runs this module's three nodes in one process (the smallest footprint).
 SINGLE_PROCESS_MODULE = "audio2pose_ros.ros.nodes.single_process"
 
 # launch.conditions.IfCondition: the expanded text, stripped and lower-cased, must be one of these.
@@ -382,17 +382,18 @@ class RespawnDecision:
 class RespawnBudget:
     """Restart crashed nodes with exponential back-off, at most ``max_restarts`` in a row.
 
-    The k-th restart in a row of a node waits ``first_delay_s * 2**(k-1)`` seconds, at most
-    ``max_delay_s``; one more crash gives up. A process that ran ``healthy_after_s`` or longer
-    before it exited starts a new row, so a node that crashes once an hour is always restarted
-    after ``first_delay_s``, while a crash loop ends after ``max_restarts`` restarts whatever
-    the delays and start-up times. Exit status :data:`EXIT_CONFIGURATION_ERROR` gives up at once:
+    The first restart in a row is immediate (a single crash should cost the robot only the
+    node's start-up time); the k-th (k >= 2) waits ``first_delay_s * 2**(k-2)`` seconds, at
+    most ``max_delay_s``; one more crash gives up. A process that ran ``healthy_after_s`` or
+    longer before it exited starts a new row, so a node that crashes once an hour is always
+    restarted at once, while a crash loop ends after ``max_restarts`` restarts whatever the
+    delays and start-up times. Exit status :data:`EXIT_CONFIGURATION_ERROR` gives up at once:
     the same configuration would fail again.
 
     Attributes:
         max_restarts: restarts in a row allowed per node.
         healthy_after_s: a process that ran this long resets its node's row (s).
-        first_delay_s: delay before the first restart (s).
+        first_delay_s: delay before the second restart in a row (s); the first has none.
         max_delay_s: cap of the back-off (s).
 
     """
@@ -426,7 +427,11 @@ class RespawnBudget:
                 f"running less than {self.healthy_after_s:g} s: giving up",
             )
         self._in_a_row[node] = restarts + 1
-        delay_s = min(self.first_delay_s * 2**restarts, self.max_delay_s)
+        delay_s = (
+            0.0
+            if restarts == 0
+            else min(self.first_delay_s * 2 ** (restarts - 1), self.max_delay_s)
+        )
         return RespawnDecision(
             restart=True,
             delay_s=delay_s,

@@ -22,19 +22,36 @@ Publications:
 Parameters: the fields of MotionFilterSettings, LimitSettings and MotionFilterNodeSettings
     (``ros2 param describe`` shows each one's description and range).
 
-Safety (issue 11): every command passes the input gate first and the joint limiter last; the
-node publishes nothing until it knows where the robot is (its measured pose, or within
-``startup_timeout_s`` the pose it last commanded, saved in ``state_file``, or else neutral), and
-a stop stays in force across restarts until a ``stop: false`` arrives, as does ``enable: false``
-until an ``enable: true``.
+Safety: every command passes the input gate first and the joint limiter last; the node
+publishes nothing until it knows where the robot is: its measured pose (every valid joint of it:
+an out-of-range reading is clamped and reported, a NaN joint is taken from the saved pose or
+neutral), or, when no measured pose arrives within ``startup_timeout_s`` and nothing publishes
+one (while a publisher exists it waits up to ``MEASURED_WAIT_S``), the pose it last commanded,
+saved in ``state_file`` (refused when outside the joint ranges), or else neutral.
 
-Timing (issue 12 item 10): the filter ticks at ``rate_hz``, at the latest one period after the
+Stop and disable: a stop stays in force across restarts until a ``stop: false`` *published
+after the stop* arrives, as does ``enable: false`` until a later ``enable: true``. "After" is
+judged by the message's source timestamp (the publisher's wall clock, which DDS carries with
+every sample; std_msgs/Bool has no stamp) against the time the stop came into force (saved in
+the state file), so a ``stop: false`` an older panel latched before the stop never releases it,
+whatever the restart timing and delivery order. The machines' clocks must agree (NTP), as ROS 2
+needs for tf anyway. A stop, a disable and the pose are saved when they change, at most every
+``MIN_SAVE_SPACING_S``; a state that cannot be saved is an ERROR on /diagnostics (the stop stays
+in force in memory), reported again at every start. The state file is this node's alone: a
+second live node with the same file refuses to start (exit 78, naming the file).
+
+One master: raw poses are taken from one ``raw_trajectory`` publisher at a time (its gid); a
+second one is refused and reported as ERROR until it stops, and the first is given up only
+after it has been silent for ``watchdog_timeout_s`` (then the filter approaches the new track
+gently).
+
+Timing: the filter ticks at ``rate_hz``, at the latest one period after the
 previous tick and early when a pose arrives into an empty buffer (at most ``MIN_TICK_SPACING``
 periods after the previous tick), so a steady stream is commanded on arrival. Each output is
 published at the tick nearest to its own period, never less than its period minus half a filter
 period after the previous one (its documented minimum spacing: 15 ms for 50 Hz at a 100 Hz
 filter clock). Header stamps are the time the command was computed for (the tick), not the
-publish time. An output nobody subscribes to is not built nor sent (issue 15).
+publish time. An output nobody subscribes to is not built nor sent.
 """
 
 from __future__ import annotations
@@ -51,6 +68,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.exceptions import InvalidTopicNameException
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.subscription import MessageInfo
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
@@ -59,8 +77,11 @@ from audio2pose_ros import topics
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
+from audio2pose_ros.motion.sources import SingleSource
 from audio2pose_ros.motion.state_file import (
     FilterMemory,
+    StateFileInUseError,
+    StateLock,
     default_state_path,
     load_memory,
     save_memory,
@@ -89,8 +110,9 @@ from audio2pose_ros.ros.node_parameters import NodeParameters
 MIN_TICK_SPACING = 0.5  # of a period: an arriving pose is commanded at once if the last tick
 # is at least this long ago (so ticks are never closer than half a period: no bursts)
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
-STOP_RELEASE_GRACE_S = 2.0  # after a restart with a saved stop (or disable), a stop=false (or
-# enable=true) arriving this soon is the latched value from before the restart, not a release
+MEASURED_WAIT_S = 3.0  # while the measured topic has a publisher, wait this long for its pose
+MIN_SAVE_SPACING_S = 0.1  # the state file is written at most this often (flash wear)
+SAVED_POSE_RESOLUTION_RAD = 1e-4  # a pose that moved less than this is not saved again
 
 
 @dataclass(frozen=True)
@@ -235,6 +257,12 @@ def _stamp_s(stamp: object) -> float:
     return stamp.sec + stamp.nanosec * 1e-9  # type: ignore[attr-defined]
 
 
+def _published_s(info: MessageInfo) -> float:
+    """When a message was published (publisher's wall clock); its arrival when not carried."""
+    source_ns = info.get("source_timestamp") or info.get("received_timestamp") or 0
+    return source_ns * 1e-9 if source_ns else time.time()
+
+
 class MotionFilterNode(DiagnosedNode):
     """Gate, pace, smooth and limit poses; publish them in three message types."""
 
@@ -282,22 +310,36 @@ class MotionFilterNode(DiagnosedNode):
             if self.settings.state_file
             else default_state_path(self.get_fully_qualified_name())
         )
+        self.state_lock: StateLock | None = None
+        try:
+            self.state_lock = StateLock(self.state_path)
+        except StateFileInUseError as exc:
+            raise ConfigurationError(f"parameter state_file: {exc}") from None
+        except OSError as exc:
+            self._unsaved(f"cannot lock it: {exc}")
         self.memory = self._load_memory()
-        self.saved: tuple[tuple[float, ...], bool, bool] | None = None
-        self.stop_saved = self.memory is not None and self.memory.stopped
-        if self.stop_saved:
+        self.saved: tuple[object, ...] | None = None
+        self.save_due = False
+        self.last_write_s = -math.inf
+        # wall-clock times the stop and the disable in force came into force (None: not in force)
+        self.stop_since_s: float | None = None
+        self.disable_since_s: float | None = None
+        memory = self.memory
+        if memory is not None and memory.stopped:
+            self.stop_since_s = memory.stopped_at_s or memory.saved_at_s
             self.filter.set_stop(True)
             self.get_logger().warning(
                 f"STOP in force from before the restart ({self.state_path}); publish "
                 "stop: false to release it"
             )
-        self.disable_saved = self.memory is not None and not self.memory.enabled
-        if self.disable_saved:
+        if memory is not None and not memory.enabled:
+            self.disable_since_s = memory.disabled_at_s or memory.saved_at_s
             self.filter.set_enabled(False)
             self.get_logger().warning(
                 f"disabled from before the restart ({self.state_path}): generated motion is "
                 "ignored; publish enable: true to enable it"
             )
+        self.sources = SingleSource(settings.watchdog_timeout_s)
 
         guarded, bounded = self.guarded, self.create_bounded_subscription
         if subscribe_graph:
@@ -309,6 +351,7 @@ class MotionFilterNode(DiagnosedNode):
                 lambda: trajectory_bytes_cap(
                     int(self.parameters["max_points_per_message"]), self.robot.n_joints
                 ),
+                with_info=True,
             )
             self.create_subscription(
                 Bool, topics.VOICE_ACTIVITY, guarded(self.on_voice), STREAM_QOS
@@ -336,6 +379,7 @@ class MotionFilterNode(DiagnosedNode):
             max(self.settings.startup_timeout_s, 1e-3), guarded(self.on_startup_timeout)
         )
         self.create_timer(self.settings.state_save_period_s, guarded(self.save_state))
+        self.create_timer(MIN_SAVE_SPACING_S, guarded(self._save_if_due))
         self.last_tick_s = -math.inf
         self.tick_stamp = self.get_clock().now()
         outputs = {
@@ -391,10 +435,37 @@ class MotionFilterNode(DiagnosedNode):
 
     def _load_memory(self) -> FilterMemory | None:
         try:
-            return load_memory(self.state_path, self.robot)
+            memory = load_memory(self.state_path, self.robot)
         except InputError as exc:
             self.report_problem("state_file", DiagnosticStatus.WARN, f"state file ignored: {exc}")
             return None
+        if memory is not None and not memory.pose_in_range(self.robot):
+            self.report_problem(
+                "saved_pose_refused",
+                DiagnosticStatus.WARN,
+                f"the pose saved in {self.state_path} lies outside the joint ranges: refused "
+                "(its stop and enable are kept)",
+                hold_s=10.0,
+            )
+        return memory
+
+    def _saved_pose(self) -> np.ndarray | None:
+        """The saved pose, when there is one inside the joint ranges."""
+        memory = self.memory
+        if memory is None or not memory.pose_in_range(self.robot):
+            return None
+        return np.array(memory.position_rad)
+
+    def _unsaved(self, reason: str) -> None:
+        """The state cannot be saved: an ERROR until a save succeeds (the stop stays in memory)."""
+        stopped = " The STOP in force" if self.filter.status.stopped else " A stop"
+        self.report_problem(
+            "state_file_unsaved",
+            DiagnosticStatus.ERROR,
+            f"state file {self.state_path}: {reason}.{stopped} stays in force in this process "
+            "but will NOT survive a restart",
+            hold_s=math.inf,
+        )
 
     def _start(self, pose_rad: np.ndarray, source: str) -> None:
         self.filter.start_from(pose_rad)
@@ -402,6 +473,29 @@ class MotionFilterNode(DiagnosedNode):
         self.last_tick_s = time.monotonic()  # the stall check counts from here
         self.startup_timer.cancel()
         self.save_state()
+
+    def _measured_start_pose(self, pose: np.ndarray) -> np.ndarray:
+        """Every valid joint of a measured pose: out of range clamped, NaN from saved or neutral.
+
+        Each repair is reported (WARN) naming the joints.
+        """
+        finite = np.isfinite(pose)
+        lower, upper = self.robot.lower_rad, self.robot.upper_rad
+        outside = finite & ((pose < lower) | (pose > upper))
+        fallback = self._saved_pose()
+        fill_from = "saved pose" if fallback is not None else "neutral pose"
+        filled = np.where(finite, pose, self.robot.neutral_rad if fallback is None else fallback)
+        for mask, what in ((outside, "out of range, clamped into it"), (~finite, "not finite")):
+            if mask.any():
+                names = ", ".join(n for n, bad in zip(self.robot.names, mask, strict=True) if bad)
+                fix = "" if what.startswith("out") else f", taken from the {fill_from}"
+                self.report_problem(
+                    "measured_invalid",
+                    DiagnosticStatus.WARN,
+                    f"measured joint states of {names} {what}{fix}",
+                    hold_s=10.0,
+                )
+        return np.clip(filled, lower, upper)
 
     def on_measured(self, msg: JointState) -> None:
         """The robot's measured joint states: the start pose, then checked against the commands."""
@@ -413,21 +507,14 @@ class MotionFilterNode(DiagnosedNode):
         if any(name not in index for name in self.robot.names):
             return  # another robot's, or a partial message: nothing to learn from it
         pose = np.array([msg.position[index[name]] for name in self.robot.names], dtype=float)
-        tolerance = self.filter.settings.outlier_tolerance_rad
-        if not (
-            np.isfinite(pose).all()
-            and np.all(pose >= self.robot.lower_rad - tolerance)
-            and np.all(pose <= self.robot.upper_rad + tolerance)
-        ):
+        if not np.isfinite(pose).any():
             self.report_problem(
-                "measured_invalid",
-                DiagnosticStatus.WARN,
-                "measured joint states outside the joint ranges or not finite: ignored",
+                "measured_invalid", DiagnosticStatus.WARN, "measured joint states all non-finite"
             )
             return
         self.measured_rad = pose
         if not self.started:
-            self._start(pose, "measured pose")
+            self._start(self._measured_start_pose(pose), "measured pose")
             self.get_logger().info("starting from the robot's measured pose")
             return
         lagging = self.tracking.measure(pose, time.monotonic())
@@ -444,13 +531,33 @@ class MotionFilterNode(DiagnosedNode):
         )
 
     def on_startup_timeout(self) -> None:
-        """No measured pose in time: start from the saved pose, or else from neutral."""
-        self.startup_timer.cancel()
+        """No measured pose in time: start from the saved pose, or else from neutral.
+
+        While a measured pose is to be expected, the node waits for it instead, up to
+        ``MEASURED_WAIT_S`` after start-up: while something publishes the measured joint states
+        (its first pose is on the way), and when the robot reported its pose before the restart
+        (the state file says so; discovery of its publisher may take a while under load).
+        """
         if self.started:
+            self.startup_timer.cancel()
             return
         topic = self.settings.measured_joint_states_topic
-        if self.memory is not None:
-            self._start(np.array(self.memory.position_rad), "saved pose")
+        waited_s = time.monotonic() - self.created_s
+        reported_before = self.memory is not None and self.memory.measured
+        if (self.count_publishers(topic) or reported_before) and waited_s < MEASURED_WAIT_S:
+            self.report_problem(
+                "start_pose",
+                DiagnosticStatus.WARN,
+                f"no measured pose on {topic} yet, but one is expected (it has a publisher, or "
+                f"the robot reported its pose before the restart): waiting for it (up to "
+                f"{MEASURED_WAIT_S:g} s), commanding nothing",
+            )
+            self.startup_timer.timer_period_ns = max(self.startup_timer.timer_period_ns, 10**8)
+            return
+        self.startup_timer.cancel()
+        saved = self._saved_pose()
+        if saved is not None:
+            self._start(saved, "saved pose")
             self.report_problem(
                 "start_pose",
                 DiagnosticStatus.WARN,
@@ -469,22 +576,45 @@ class MotionFilterNode(DiagnosedNode):
             )
 
     def save_state(self) -> None:
-        """Rewrite the state file when the pose, the stop or enable changed (atomically)."""
+        """Rewrite the state file when the pose, the stop or enable changed (atomically).
+
+        Nothing is written when nothing changed; a failure is an ERROR until a save succeeds.
+        """
         if not self.started:
             return
         status = self.filter.status
-        state = (tuple(float(v) for v in self.filter.position_rad), status.stopped, status.enabled)
+        pose = tuple(float(v) for v in self.filter.position_rad)
+        resolution = SAVED_POSE_RESOLUTION_RAD
+        key = tuple(round(v / resolution) for v in pose)  # a pose at rest is saved once
+        measured = self.measured_rad is not None
+        since = (self.stop_since_s, self.disable_since_s)
+        state = (key, status.stopped, status.enabled, *since, measured)
+        self.save_due = False
         if state == self.saved:
             return
-        memory = FilterMemory(tuple(self.robot.names), state[0], state[1], time.time(), state[2])
+        memory = FilterMemory(
+            tuple(self.robot.names),
+            pose,
+            status.stopped,
+            time.time(),
+            status.enabled,
+            self.stop_since_s,
+            self.disable_since_s,
+            measured,
+        )
+        self.last_write_s = time.monotonic()
         try:
             save_memory(self.state_path, memory)
         except OSError as exc:
-            self.report_problem(
-                "state_file", DiagnosticStatus.WARN, f"cannot save {self.state_path}: {exc}"
-            )
+            self._unsaved(f"cannot be written: {exc}")
             return
         self.saved = state
+        if self.state_lock is not None:
+            self.clear_problem("state_file_unsaved")
+
+    def _save_if_due(self) -> None:
+        if self.save_due:
+            self.save_state()
 
     # --- inputs -------------------------------------------------------------------------------
 
@@ -514,8 +644,21 @@ class MotionFilterNode(DiagnosedNode):
             )
         return take
 
-    def on_raw(self, msg: JointTrajectory) -> None:
-        """Check and queue the poses of one raw trajectory message."""
+    def on_raw(self, msg: JointTrajectory, info: MessageInfo) -> None:
+        """Check and queue the poses of one raw trajectory message (of the one source in use)."""
+        gid = info.get("publisher_gid") or {}
+        source = bytes(gid.get("data", b"")) if isinstance(gid, dict) else repr(gid)
+        now = time.monotonic()
+        if not self.sources.admit(source, now):
+            self.dropped_messages += 1
+            self.report_problem(
+                "raw_second_source",
+                DiagnosticStatus.ERROR,
+                "a second publisher sends raw_trajectory: its poses are refused; only the first "
+                "drives the robot (stop the other one)",
+                hold_s=1.0,
+            )
+            return
         take = self._admit(_stamp_s(msg.header.stamp), len(msg.points))
         if take is None:
             return
@@ -578,49 +721,70 @@ class MotionFilterNode(DiagnosedNode):
         """Voice activity (from voice_activity, or directly in single-process mode)."""
         self.filter.set_voice_active(active, time.monotonic())
 
-    def _replayed_release(self, key: str, release: str, held: str) -> bool:
-        """True, and reported, while a release may be the latched value from before a restart.
+    def _release_is_older(
+        self, info: MessageInfo, since_s: float | None, key: str, release: str, held: str
+    ) -> bool:
+        """True, and reported, when a release was published before the hold it would end.
 
-        A stop or disable restored from the state file must not be undone by the ``release``
-        (``"stop: false"``, ``"enable: true"``) that an older publisher latched before the
-        restart: within ``STOP_RELEASE_GRACE_S`` of start-up it is ignored with a WARN.
+        ``since_s`` is when the stop (or disable) in force came into force; a ``release``
+        published no later than that (an older panel's latched value, delivered again after a
+        restart or after a newer stop) is ignored with a WARN.
         """
-        if time.monotonic() - self.created_s >= STOP_RELEASE_GRACE_S:
+        published_s = _published_s(info)
+        if since_s is None or published_s > since_s:
             return False
         self.report_problem(
             key,
             DiagnosticStatus.WARN,
-            f"{release} from before the restart ignored: the saved {held} stays in force; "
-            f"publish {release} again to release it",
+            f"{release} published {since_s - published_s:.1f} s before the {held} in force: "
+            f"ignored; publish {release} again to release it",
         )
         return True
 
     def _save_now(self) -> None:
-        """Write the state file at once (a stop or enable changed)."""
-        self.saved = None
-        self.save_state()
+        """Save a changed stop or enable now, or within ``MIN_SAVE_SPACING_S`` (bounded rate)."""
+        self.save_due = True
+        if time.monotonic() - self.last_write_s >= MIN_SAVE_SPACING_S:
+            self.save_state()
 
-    def on_enable(self, msg: Bool) -> None:
-        """Enable or disable generated motion (a saved disable ignores a replayed enable)."""
-        releases_saved = msg.data and self.disable_saved
-        if releases_saved and self._replayed_release("enable_ignored", "enable: true", "disable"):
+    def on_enable(self, msg: Bool, info: MessageInfo) -> None:
+        """Enable or disable generated motion (only a later enable ends a disable)."""
+        if msg.data and self._release_is_older(
+            info, self.disable_since_s, "enable_ignored", "enable: true", "disable"
+        ):
             return
-        self.disable_saved = False
-        self.filter.set_enabled(msg.data)
-        self._save_now()
-        self.get_logger().info("enabled" if msg.data else "disabled: gliding to neutral")
-
-    def on_stop(self, msg: Bool) -> None:
-        """Emergency stop on / off (a saved stop ignores the latched value from before)."""
-        releases_saved = not msg.data and self.stop_saved
-        if releases_saved and self._replayed_release("stop_release_ignored", "stop: false", "stop"):
-            return
-        self.stop_saved = False
-        self.filter.set_stop(msg.data)
-        self._save_now()
-        if msg.data:
-            self.get_logger().warning(f"STOP ({self.filter.settings.stop_behaviour})")
+        published_s = min(_published_s(info), time.time())
+        if not msg.data:
+            since = self.disable_since_s
+            self.disable_since_s = published_s if since is None else max(since, published_s)
         else:
+            self.disable_since_s = None
+        changed = self.filter.status.enabled != msg.data
+        self.filter.set_enabled(msg.data)
+        if changed or not msg.data:  # a later disable moves disable_since_s
+            self._save_now()
+        if changed:
+            self.get_logger().info("enabled" if msg.data else "disabled: gliding to neutral")
+
+    def on_stop(self, msg: Bool, info: MessageInfo) -> None:
+        """Emergency stop on / off (only a release published after the stop ends it)."""
+        if not msg.data and self._release_is_older(
+            info, self.stop_since_s, "stop_release_ignored", "stop: false", "stop"
+        ):
+            return
+        published_s = min(_published_s(info), time.time())  # a clock ahead cannot pin a stop
+        if msg.data:
+            since = self.stop_since_s
+            self.stop_since_s = published_s if since is None else max(since, published_s)
+        else:
+            self.stop_since_s = None
+        changed = self.filter.status.stopped != msg.data
+        self.filter.set_stop(msg.data)
+        if changed or msg.data:  # a later stop moves stop_since_s
+            self._save_now()
+        if changed and msg.data:
+            self.get_logger().warning(f"STOP ({self.filter.settings.stop_behaviour})")
+        elif changed:
             self.get_logger().info("stop released")
 
     def _head_values(self, msg: JointState) -> dict[str, float]:
@@ -671,7 +835,7 @@ class MotionFilterNode(DiagnosedNode):
             spacing, last_s, publish, publisher = output
             if self.last_tick_s - last_s >= spacing:
                 output[1] = self.last_tick_s
-                if publisher.get_subscription_count():  # no message for nobody (issue 15)
+                if publisher.get_subscription_count():  # no message for nobody
                     publish()
 
     def _stamp(self) -> object:
@@ -743,6 +907,8 @@ class MotionFilterNode(DiagnosedNode):
             "poses_unreachable": status.implausible,
             "poses_truncated": status.truncated,
             "poses_dropped": status.dropped,
+            "raw_messages_of_a_second_source": self.sources.refused,
+            "approaches": self.filter.approach.count,
             "head_inputs_rejected": status.external_rejected,
             "buffer_underruns": status.underruns,
             "poses_skipped_backlog": status.skipped,
@@ -777,7 +943,7 @@ class MotionFilterNode(DiagnosedNode):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until shutdown."""
-    run_node(MotionFilterNode, "motion_filter_node", args)
+    run_node(MotionFilterNode, "motion_filter_node", args, events=False)  # see create_executor
 
 
 if __name__ == "__main__":

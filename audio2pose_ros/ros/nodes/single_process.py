@@ -78,6 +78,7 @@ def main(args: list[str] | None = None) -> None:
         PROCESS_NAME,
         args,
         connect=connect,
+        events=False,  # the motion filter's callbacks take MessageInfo (create_executor)
     )
 
 
