@@ -20,6 +20,7 @@ overlap by that much).
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +48,20 @@ class BodyModelError(ConfigurationError):
     """The URDF lacks a joint of the robot description, or its collision shapes cannot load."""
 
 
+def _bounding_radius(shape: Any) -> float:
+    """Radius of a sphere about the shape's centre that contains it (m)."""
+    kind = type(shape).__name__
+    if kind == "Sphere":
+        return float(shape.radius)
+    if kind in ("Cylinder", "Capsule"):
+        return float(np.hypot(shape.radius, shape.halfLength)) + (
+            float(shape.radius) if kind == "Capsule" else 0.0
+        )
+    if kind == "Box":
+        return float(np.linalg.norm(shape.halfSide))
+    raise BodyModelError(f"collision shape {kind} is not supported (use boxes, cylinders, spheres)")
+
+
 def _link_of(geometry_name: str) -> str:
     """``LForeArm_0`` -> ``LForeArm`` (Pinocchio numbers the shapes of a link)."""
     return geometry_name.rsplit("_", 1)[0]
@@ -64,6 +79,12 @@ class _PairGroup:
         for a, b in pairs:
             self.geometry.addCollisionPair(pin.CollisionPair(a, b))
         self.data = self.geometry.createData()
+        for request in self.data.distanceRequests:
+            # Answers must not depend on earlier queries (coal otherwise starts GJK from the last
+            # answer's support points): the same poses give the same commands in every run.
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", DeprecationWarning)  # coal 3 renamed the switch
+                request.enable_cached_gjk_guess = False
         self.pairs = pairs
 
 
@@ -123,6 +144,7 @@ class BodyModel:
                     by_joints.setdefault(tuple(mask), []).append((a, b))
         if not by_joints:
             raise BodyModelError(f"{urdf_path}: no arm link to check against the body")
+        self.lever_m = self._levers(geometry)
         self._groups = [_PairGroup(pinocchio, model, urdf_path, p) for p in by_joints.values()]
         self._group_joints = np.array(list(by_joints), dtype=bool)  # (n_groups, n_joints)
         all_pairs = [pair for group in self._groups for pair in group.pairs]
@@ -161,6 +183,36 @@ class BodyModel:
                 return side == "left"  # arm against arm: once, from the left
             return True  # the body, or the other arm's shoulder
         return False
+
+    def _levers(self, geometry: Any) -> np.ndarray:
+        """Per robot joint, the farthest any collision shape it moves can be from its axis (m).
+
+        Bounded along the kinematic chain: the offsets of the joints below it, the shape's
+        placement and its bounding radius. Turning joint j by d moves no point further than
+        ``lever_m[j] * |d|``, so a clearance larger than that sum cannot be lost
+        (:meth:`certainly_clear`).
+        """
+        model = self._model
+        levers = np.zeros(self.robot.n_joints)
+        joint_ids = [model.getJointId(name) for name in self.robot.names]
+        for obj in geometry.geometryObjects:
+            radius = _bounding_radius(obj.geometry) + float(
+                np.linalg.norm(obj.placement.translation)
+            )
+            chain = [int(j) for j in model.supports[obj.parentJoint]]
+            for i, joint in enumerate(joint_ids):
+                if joint in chain:
+                    below = chain[chain.index(joint) + 1 :]
+                    reach = radius + sum(
+                        float(np.linalg.norm(model.jointPlacements[j].translation)) for j in below
+                    )
+                    levers[i] = max(levers[i], reach)
+        return levers
+
+    def certainly_clear(self, pose_rad: np.ndarray, moved_rad: np.ndarray, margin_m: float) -> bool:
+        """Whether ``moved_rad`` is clear by ``margin_m`` without a query, from ``pose_rad``'s."""
+        travel = float(np.dot(self.lever_m, np.abs(moved_rad - pose_rad)))
+        return float(self._query(pose_rad)[0]) - travel >= margin_m
 
     def _driven_joints(self, joint_a: int, joint_b: int) -> np.ndarray:
         """Mask of the robot's joints on the kinematic chains of two URDF joints."""
