@@ -143,4 +143,4 @@ def test_when_joints_turn_expect_clearance_to_change_no_more_than_the_lever_boun
     change = np.abs(body.clearance(moved) - body.clearance(poses))
     bound = np.abs(moved - poses) @ body.lever_m
     assert np.all(change <= bound + 1e-6)
-    assert np.mean(change / bound) > 0.05  # a bound, but not a vacuous one
+    assert np.max(change / bound) > 0.1  # a bound, but not a vacuous one
