@@ -197,7 +197,7 @@ done
 
 # ---------------------------------------------------------------------------------------------
 log "[7/7] verifying imports"
-"$PY" -c "import rclpy, torch, python_speech_features" || die "import check failed"
+"$PY" -c "import rclpy, torch, python_speech_features, pinocchio" || die "import check failed"
 for pkg in "${MSG_PKGS[@]}"; do
   "$PY" -c "$(msg_import "$pkg")" || die "import check of $pkg failed"
 done

@@ -36,6 +36,7 @@ def run(filt, t, poses):
 @pytest.mark.parametrize("burst", [5, 12, 30])
 def test_when_a_burst_of_consistent_wrong_poses_arrives_expect_arm_barely_moves(robot, burst):
     good = robot.neutral_rad.copy()
+    good[robot.names.index("LShoulderRoll")] = 0.4  # arm out: clear of the body at every pitch
     joint = robot.names.index("LShoulderPitch")
     good[joint] = 1.0
     filt, t = settled(robot, good)
@@ -51,6 +52,7 @@ def test_when_a_burst_of_consistent_wrong_poses_arrives_expect_arm_barely_moves(
 
 def test_when_track_really_moves_expect_it_reached_below_a_third_of_the_velocity_limit(robot):
     good = robot.neutral_rad.copy()
+    good[robot.names.index("LShoulderRoll")] = 0.4  # arm out: clear of the body at every pitch
     joint = robot.names.index("LShoulderPitch")
     good[joint] = 1.0
     filt, t = settled(robot, good)
@@ -76,6 +78,7 @@ def test_when_two_sources_alternate_expect_only_the_first_followed_until_it_goes
 def test_when_a_burst_comes_in_one_message_expect_its_queued_poses_dropped_with_the_track(robot):
     """30 consistent wrong poses in one message, then the real stream: barely a move."""
     good = robot.neutral_rad.copy()
+    good[robot.names.index("LShoulderRoll")] = 0.4  # arm out: clear of the body at every pitch
     joint = robot.names.index("LShoulderPitch")
     good[joint] = 1.0
     filt, t = settled(robot, good)

@@ -22,6 +22,7 @@ MAX_DEVIATION_RAD = 0.1
 def steady_pose(robot):
     pose = robot.neutral_rad.copy()
     pose[robot.names.index("LShoulderPitch")] = 1.0
+    pose[robot.names.index("LShoulderRoll")] = 0.4  # clear of the body at every pitch
     pose[robot.names.index("HeadYaw")] = 0.2
     return pose
 
@@ -236,6 +237,7 @@ def test_when_started_and_no_pose_arrives_expect_robot_held_not_glided_to_neutra
     """A restarted filter whose input is late (DDS discovery under load) must not move."""
     start = robot.neutral_rad.copy()
     start[robot.names.index("LShoulderPitch")] -= 0.4
+    start[robot.names.index("LShoulderRoll")] = 0.4  # clear of the body: nothing to lead out
     motion = MotionFilter(robot)
     motion.start_from(start)
     for k in range(200):  # 2 s without any pose: beyond the watchdog and a whole glide

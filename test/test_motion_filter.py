@@ -38,6 +38,7 @@ def test_when_input_stops_expect_glide_to_neutral_within_timeout_plus_settling(r
     filt = MotionFilter(robot, settings)
     raised = robot.neutral_rad.copy()
     raised[robot.names.index("LShoulderPitch")] -= 0.8  # forearm up
+    raised[robot.names.index("LShoulderRoll")] = 0.4  # and out, clear of the body
     out = run(filt, np.tile(raised, (200, 1)), extra_ticks=300)
     joint = robot.names.index("LShoulderPitch")
     assert out[199, joint] == pytest.approx(raised[joint], abs=0.02)  # tracked while speaking
@@ -79,8 +80,10 @@ def test_when_settings_invalid_expect_configuration_error_naming_parameter_and_r
 
 
 def raised_pose(robot):
+    """The left arm raised forward and out (clear of the body), the head turned."""
     pose = robot.neutral_rad.copy()
     pose[robot.names.index("LShoulderPitch")] -= 0.8
+    pose[robot.names.index("LShoulderRoll")] = 0.4
     pose[robot.names.index("HeadYaw")] += 0.4
     return pose
 

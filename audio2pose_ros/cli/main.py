@@ -164,6 +164,29 @@ def command_synth(args: argparse.Namespace) -> int:
     return 0
 
 
+def command_check_body(args: argparse.Namespace) -> int:
+    """Per clip: how often the model's raw motion needs the self-collision guard, and after it."""
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+    from audio2pose_ros.offline.body_check import HEADER, check_trajectory
+    from audio2pose_ros.offline.synthesis import synthesize
+    from audio2pose_ros.resources import default_checkpoint_path
+    from audio2pose_ros.robot.body import BodyModel
+    from audio2pose_ros.robot.description import load_robot
+
+    checkpoint = load_checkpoint(args.model or default_checkpoint_path(), robot=load_robot())
+    body = BodyModel.load(checkpoint.robot)
+    inputs = [_speech_input(name) for name in args.inputs]
+    print(f"margin {args.margin * 100:.1f} cm, seed {args.seed}")
+    print(f"{'clip':<40}{'motion':<9}{HEADER}")
+    for path in inputs:
+        signal = _read_speech(path)
+        for label, margin in (("raw", None), ("guarded", args.margin)):
+            _, angles = synthesize(checkpoint, signal, seed=args.seed, body_margin_m=margin)
+            report = check_trajectory(body, angles, args.margin)
+            print(f"{path.stem[:39]:<40}{label:<9}{report.row()}")
+    return 0
+
+
 def command_bench(args: argparse.Namespace) -> int:
     """Per-frame cost of each streaming stage on one core; with --graph, the live graph too."""
     import json
@@ -391,6 +414,22 @@ def build_parser() -> argparse.ArgumentParser:
         "--seed", type=seed, default=0, help="noise seed of a sampling model (default 0)"
     )
     synth.set_defaults(func=command_synth)
+
+    check = verbs.add_parser(
+        "check-body", help="how often the model's motion needs the self-collision guard"
+    )
+    check.add_argument("inputs", nargs="+", metavar="FILE.wav|BAG", help="speech to synthesize")
+    check.add_argument("--model", help="checkpoint (default: packaged model)")
+    check.add_argument(
+        "--seed", type=seed, default=0, help="noise seed of a sampling model (default 0)"
+    )
+    check.add_argument(
+        "--margin",
+        type=bounded_float(0.0, 0.1),
+        default=0.02,
+        help="clearance from the body (m), as the filter's body_margin_m (default 0.02)",
+    )
+    check.set_defaults(func=command_check_body)
 
     bench = verbs.add_parser("bench", help="per-frame cost of the streaming path")
     bench.add_argument("--model", help="checkpoint (default: packaged model)")

@@ -28,6 +28,9 @@ a short jitter buffer and, at every :meth:`MotionFilter.tick`, produces one comm
    ``external_timeout_s`` after each message, while not stopped.
 4. **Limits last** (:class:`~audio2pose_ros.motion.limits.JointLimiter`): position, velocity,
    acceleration, from the first command on (the start pose counts as commanded, at rest).
+   Then the **body** (:class:`~audio2pose_ros.motion.body_guard.BodyGuard`): no command brings
+   an arm closer than ``body_margin_m`` to the robot's body or the other arm; only the joints
+   that must stop brake, and a robot that starts inside the margin is led out slowly.
 5. **Health**. A non-finite wanted pose or smoother state is reset from the
    last commanded pose; a command that is not finite, leaves the limits or steps further than
    the velocity limit allows is replaced by the last commanded pose. Either counts as a fault
@@ -49,10 +52,12 @@ import numpy as np
 
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.approach import Approach, minimum_jerk
+from audio2pose_ros.motion.body_guard import BodyGuard
 from audio2pose_ros.motion.gate import TrackGate
 from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
 from audio2pose_ros.motion.smoothing import CausalLowPass, KalmanSmoother
 from audio2pose_ros.parameters import param, specs_of, validate_settings
+from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import JOINT_GROUPS, RobotDescription
 
 SMOOTHING_METHODS = ("kalman", "lowpass", "none")
@@ -105,6 +110,8 @@ class MotionFilterSettings:
         max_head_offset_rad: largest head offset accepted per joint (rad); larger ones are
             rejected.
         max_points_per_message: poses of one message beyond this many are dropped and counted.
+        body_margin_m: no command brings an arm closer than this to the robot's body or the
+            other arm (m; :mod:`~audio2pose_ros.motion.body_guard`, the last stage).
     """
 
     rate_hz: float = field(
@@ -239,6 +246,17 @@ class MotionFilterSettings:
         ),
     )
 
+    body_margin_m: float = field(
+        default=0.02,
+        metadata=param(
+            "no command brings an arm link closer than this to the torso, tablet, head, hip, "
+            "pelvis or the other arm (the self-collision guard, applied last)",
+            minimum=0.0,
+            maximum=0.1,
+            unit="m",
+        ),
+    )
+
     def __post_init__(self) -> None:
         """Validate every field against its declaration, then the one cross-field rule.
 
@@ -321,6 +339,7 @@ class MotionFilter:
         self.robot = robot
         self.settings = settings or MotionFilterSettings()
         self.limiter = JointLimiter(robot, limits)
+        self.body_guard = BodyGuard(BodyModel.load(robot), self.settings.body_margin_m)
         self.period_s = 1.0 / self.settings.rate_hz
         self.neutral_rad = self.limiter.clamp_position(robot.neutral_rad)
         self._gains = np.ones(robot.n_joints)
@@ -364,6 +383,7 @@ class MotionFilter:
         for group in JOINT_GROUPS:
             self._gains[self.robot.group_mask(group)] = getattr(self.settings, f"{group}_gain")
         self.gate.tolerance_rad = self.settings.outlier_tolerance_rad
+        self.body_guard.margin_m = self.settings.body_margin_m
 
     def start_from(self, pose_rad: np.ndarray) -> None:
         """Take ``pose_rad`` as the commanded pose, at rest: the next command starts there.
@@ -379,6 +399,7 @@ class MotionFilter:
             raise InputError(f"start pose must be {self.robot.n_joints} finite angles, got {pose}")
         self.position_rad = self.limiter.clamp_position(pose)
         self.velocity_rad_s = np.zeros(self.robot.n_joints)
+        self.body_guard.reset()  # a start pose inside the body's margin is led out from rest
         self._target = self.position_rad.copy()
         if self._smoother is not None:
             self._smoother.reset(self.position_rad)
@@ -671,6 +692,14 @@ class MotionFilter:
             self._last_tick_s = now_s
         positions, velocities = self.limiter.enforce(
             desired, self.position_rad, self.velocity_rad_s, dt_s
+        )
+        positions, velocities = self.body_guard.enforce(
+            positions,
+            velocities,
+            self.position_rad,
+            self.velocity_rad_s,
+            dt_s,
+            self.limiter,
         )
         if not self._safe(positions, velocities, max(dt_s, 0.0)):
             self._fault("unsafe command replaced by the last commanded pose", now_s)

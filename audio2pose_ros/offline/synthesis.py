@@ -2,7 +2,10 @@
 
 Features of the whole signal are z-normalised with the checkpoint's statistics, the model predicts
 range-normalised poses, nu^-1 maps them back to radians (eq. 3.14), the seed's zero-phase
-5th-order 4 Hz Butterworth filter smooths them, and the result is clamped to the joint limits.
+5th-order 4 Hz Butterworth filter smooths them, the result is clamped to the joint limits and,
+last, the self-collision guard of the live filter keeps every arm clear of the body
+(:func:`~audio2pose_ros.motion.body_guard.guard_trajectory`), so offline motion obeys the same
+margin as the commands of ``motion_filter_node``.
 Every model works here, offline-only ones included; samplers (``model.stochastic``) draw one
 motion with a given seed and temperature, so a synthesis is reproducible. Streaming models start
 settled, as online (:mod:`audio2pose_ros.models.warm_start`).
@@ -20,7 +23,10 @@ import torch
 from audio2pose_ros.audio.features import extract_features
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.models.warm_start import WARM_START_FRAMES, with_warm_start
+from audio2pose_ros.motion.body_guard import BodyGuard, guard_trajectory
+from audio2pose_ros.motion.filter import MotionFilterSettings
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
+from audio2pose_ros.robot.body import BodyModel
 
 
 def normalized_features(checkpoint: Checkpoint, signal_16k: np.ndarray) -> np.ndarray:
@@ -102,6 +108,7 @@ def synthesize(
     smooth: bool = True,
     seed: int = 0,
     temperature: float = 1.0,
+    body_margin_m: float | None = MotionFilterSettings.body_margin_m,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Synthesize joint angles for a whole 16 kHz mono utterance.
 
@@ -111,6 +118,9 @@ def synthesize(
         smooth: apply the seed's zero-phase 4 Hz Butterworth low-pass.
         seed: seed of a sampler's noise (ignored by deterministic models).
         temperature: a sampler's noise scale; 0 gives its most likely motion.
+        body_margin_m: clearance kept between the arms and the body (m), as the live filter's
+            parameter of that name; None returns the model's motion unguarded (for measuring
+            how often the guard is needed).
 
     Returns:
         ``(times_s, angles_rad)``: (n_frames,) frame times from 0 at the feature step, and
@@ -120,6 +130,9 @@ def synthesize(
     angles = to_angles(
         checkpoint, predict_normalized(checkpoint, signal_16k, seed, temperature), smooth
     )
+    if body_margin_m is not None:
+        guard = BodyGuard(BodyModel.load(checkpoint.robot), body_margin_m)
+        angles = guard_trajectory(guard, angles, 1.0 / checkpoint.features.step_s)
     return np.arange(angles.shape[0]) / (1.0 / checkpoint.features.step_s), angles
 
 

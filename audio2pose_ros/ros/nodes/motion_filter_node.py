@@ -75,6 +75,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros import topics
 from audio2pose_ros.errors import ConfigurationError, InputError
+from audio2pose_ros.motion.body_guard import GuardStatus
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.motion.sources import SingleSource
@@ -300,6 +301,7 @@ class MotionFilterNode(DiagnosedNode):
         self.poses_at_last_report = 0
         self.last_report_s = time.monotonic()
         self.faults_seen = 0
+        self.lead_outs_seen = 0
         self.started_from = ""
         self.created_s = time.monotonic()
         self.measured_rad: np.ndarray | None = None
@@ -831,12 +833,28 @@ class MotionFilterNode(DiagnosedNode):
         if status.faults > self.faults_seen:
             self.faults_seen = status.faults
             self.report_problem("filter_fault", DiagnosticStatus.ERROR, status.last_fault)
+        guard = self.filter.body_guard.status
+        if guard.active:
+            self.report_body_guard(guard)
         for output in self.outputs:
             spacing, last_s, publish, publisher = output
             if self.last_tick_s - last_s >= spacing:
                 output[1] = self.last_tick_s
                 if publisher.get_subscription_count():  # no message for nobody
                     publish()
+
+    def report_body_guard(self, guard: GuardStatus) -> None:
+        """WARN naming the links while the self-collision guard changes commands."""
+        link_a, link_b = guard.links
+        margin_cm = self.filter.body_guard.margin_m * 100.0
+        action = "leading the arm out of" if guard.lead_out_steps > self.lead_outs_seen else "at"
+        self.lead_outs_seen = guard.lead_out_steps
+        self.report_problem(
+            "body_guard",
+            DiagnosticStatus.WARN,
+            f"self-collision guard acting: {link_a} {action} the {margin_cm:.1f} cm margin of "
+            f"{link_b} ({guard.clearance_m * 100.0:.1f} cm); the arm is slowed or held there",
+        )
 
     def _stamp(self) -> object:
         return self.tick_stamp.to_msg()
@@ -925,6 +943,11 @@ class MotionFilterNode(DiagnosedNode):
             "acceleration_limit_hits": counts.acceleration,
             "gaps": status.gaps,
             "filter_faults": status.faults,
+            "body_guard_interventions": self.filter.body_guard.status.interventions,
+            "body_guard_lead_out_steps": self.filter.body_guard.status.lead_out_steps,
+            "body_guard_holds": self.filter.body_guard.status.holds,
+            "body_clearance_cm": f"{self.filter.body_guard.status.clearance_m * 100.0:.1f}",
+            "body_closest_links": " / ".join(self.filter.body_guard.status.links),
             "command_finite_and_in_limits": bool(
                 np.isfinite(self.filter.position_rad).all()
                 and np.all(self.filter.position_rad >= self.filter.limiter.lower_rad)

@@ -1,0 +1,284 @@
+"""The self-collision guard: no command brings an arm closer to Pepper's body than a margin.
+
+The last stage of :class:`~audio2pose_ros.motion.filter.MotionFilter` (after the joint limits)
+and of offline synthesis (:func:`guard_trajectory`). Each step it receives the command the limits
+allow and the previous command, and returns a command whose clearance
+(:meth:`~audio2pose_ros.robot.body.BodyModel.clearance`) is at least ``margin_m``:
+
+1. **Admissible commands pass unchanged.** A command is admissible when it is clear of the body
+   by the margin *and* so is the pose where every joint would come to rest if it braked at its
+   acceleration limit from the commanded velocity (and the pose halfway there). So a moving arm
+   can always stop before the margin.
+2. **Otherwise only the joints that must stop, brake.** The joints on the kinematic chains of
+   the offending pairs (one arm; the other arm for arm-against-arm; the hip or head when the
+   pair involves them) decelerate at their acceleration limit, while every other joint keeps
+   the command of the limits: the head and the other arm keep following.
+3. **Sliding.** Each braked joint then takes its wanted value again if the result stays
+   admissible, so an arm slides along the body instead of sticking to it, and follows again as
+   soon as the wanted poses are clear.
+4. **Led out gently.** A robot that starts inside the margin (moved by hand, or a measured pose
+   inside) is moved up the clearance gradient, in the offending joints only, with a speed that
+   ramps up from zero to ``LEAD_OUT_SPEED_RAD_S``; nothing else about it jumps.
+5. **Last resort.** If braking cannot keep a command admissible (another joint moved into a
+   resting arm in one step), the offending joints hold their previous positions, and if even that
+   is not clear the whole previous command is repeated (counted as ``holds``).
+
+Every command it returns is inside the position range and no faster than the command it was
+given or the previous one, so the limits of ``motion/limits.py`` keep holding.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
+from audio2pose_ros.robot.body import BodyModel
+
+LEAD_OUT_SPEED_RAD_S = 0.3  # joint-space speed of leading a robot out of the margin (rad/s)
+LEAD_OUT_ACCEL_RAD_S2 = 1.0  # ... reached with this acceleration from rest (rad/s^2)
+BRAKING_POINTS = (0.5, 1.0)  # fractions of the braking distance checked for clearance
+MAX_WIDENINGS = 3  # times the set of braked joints may grow within one step
+TOLERANCE_M = 1e-3  # braking may end this far inside the margin (m): the braking path between the
+# checked points can curve closer than they are; a robot further inside is led out
+
+
+@dataclass
+class GuardStatus:
+    """What the guard did (counters since start) and the body's state at the last command."""
+
+    interventions: int = 0  # commands it changed (braking, sliding, leading out, holding)
+    lead_out_steps: int = 0  # commands of leading a robot out of the margin
+    holds: int = 0  # last-resort holds of the previous pose
+    active: bool = False  # the last command was changed
+    clearance_m: float = float("inf")  # clearance of the last command (m)
+    links: tuple[str, str] = ("", "")  # closest pair of the last command
+    last_cost_ns: int = 0  # time the last call of BodyGuard.enforce took (for the bench)
+
+
+class BodyGuard:
+    """Keeps commands at least ``margin_m`` away from the robot's body (see the module text)."""
+
+    def __init__(self, body: BodyModel, margin_m: float) -> None:
+        """Guard commands for ``body`` with clearance ``margin_m`` (m, at least 0).
+
+        Raises:
+            ValueError: the margin is negative or not finite.
+        """
+        if not (np.isfinite(margin_m) and margin_m >= 0.0):
+            raise ValueError(f"body margin must be a finite number >= 0 m, got {margin_m!r}")
+        self.body = body
+        self.margin_m = float(margin_m)
+        self.status = GuardStatus()
+        self._lead_out_s = 0.0
+        self._bounds = (body.robot.lower_rad, body.robot.upper_rad)
+
+    def reset(self) -> None:
+        """Forget the lead-out ramp (the robot starts again from rest)."""
+        self._lead_out_s = 0.0
+
+    def _clear(self, pose: np.ndarray) -> bool:
+        return bool(self.body.clearance(pose) >= self.margin_m)
+
+    def _stop_pose(
+        self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray, fraction: float
+    ) -> np.ndarray:
+        lower, upper = self._bounds
+        return np.clip(pose + fraction * velocity * np.abs(velocity) / (2.0 * accel), lower, upper)
+
+    def _candidates(
+        self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray
+    ) -> list[np.ndarray]:
+        """The pose and the points of its braking path that must all be clear."""
+        if not np.any(velocity != 0.0):
+            return [pose]
+        return [pose, *(self._stop_pose(pose, velocity, accel, f) for f in BRAKING_POINTS)]
+
+    def _admissible(self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray) -> bool:
+        candidates = self._candidates(pose, velocity, accel)
+        if not self._clear(candidates[0]):
+            return False
+        return all(  # points of the braking path no joint can bring closer need no query
+            self.body.certainly_clear(pose, candidate, self.margin_m) or self._clear(candidate)
+            for candidate in candidates[1:]
+        )
+
+    def _braking_close_enough(
+        self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray
+    ) -> bool:
+        """Braked commands may end up to ``TOLERANCE_M`` inside the margin (see its comment)."""
+        limit = self.margin_m - TOLERANCE_M
+        return all(
+            self.body.clearance(candidate) >= limit
+            for candidate in self._candidates(pose, velocity, accel)
+        )
+
+    def _offending(
+        self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray
+    ) -> np.ndarray | None:
+        """None if (pose, velocity) is admissible, else the joints of the pairs too close."""
+        joints = np.zeros(self.body.robot.n_joints, dtype=bool)
+        clear = True
+        for candidate in self._candidates(pose, velocity, accel):
+            clearance, more = self.body.violations(candidate, self.margin_m)
+            if clearance < self.margin_m:
+                clear = False
+                joints |= more
+        return None if clear else joints
+
+    def enforce(
+        self,
+        positions_rad: np.ndarray,
+        velocities_rad_s: np.ndarray,
+        previous_rad: np.ndarray,
+        previous_velocity_rad_s: np.ndarray,
+        dt_s: float,
+        limiter: JointLimiter,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Return the admissible command closest to ``positions_rad`` (see the module text).
+
+        Args:
+            positions_rad: (n_joints,) command of the joint limits.
+            velocities_rad_s: (n_joints,) its velocity.
+            previous_rad: (n_joints,) the previous command (what the robot was sent last).
+            previous_velocity_rad_s: (n_joints,) its velocity.
+            dt_s: time between the two commands (s); without time passing, the previous
+                command is kept if the new one is not clear.
+            limiter: the joint limits the command already obeys: its position range bounds
+                every pose the guard makes, its acceleration limit is the braking deceleration.
+
+        Returns:
+            ``(positions_rad, velocities_rad_s)``.
+        """
+        start_ns = time.perf_counter_ns()
+        status = self.status
+        want = np.asarray(positions_rad, dtype=np.float64)
+        want_velocity = np.asarray(velocities_rad_s, dtype=np.float64)
+        previous = np.asarray(previous_rad, dtype=np.float64)
+        previous_velocity = np.asarray(previous_velocity_rad_s, dtype=np.float64)
+        accel = limiter.max_acceleration_rad_s2
+        self._bounds = (limiter.lower_rad, limiter.upper_rad)
+        result: tuple[np.ndarray, np.ndarray]
+        if not (np.isfinite(dt_s) and dt_s > 0.0):
+            result = (want, want_velocity) if self._clear(want) else (previous, previous_velocity)
+        elif self.body.clearance(previous) < self.margin_m - TOLERANCE_M:
+            result = self._lead_out(want, want_velocity, previous, dt_s)
+        else:
+            self._lead_out_s = 0.0
+            result = self._restrain(want, want_velocity, previous, previous_velocity, dt_s, accel)
+        positions, velocities = result
+        status.active = not np.array_equal(positions, want)
+        status.interventions += int(status.active)
+        distance, link_a, link_b = self.body.closest_pair(positions)
+        status.clearance_m, status.links = distance, (link_a, link_b)
+        status.last_cost_ns = time.perf_counter_ns() - start_ns
+        return positions.copy(), velocities.copy()
+
+    def _restrain(
+        self,
+        want: np.ndarray,
+        want_velocity: np.ndarray,
+        previous: np.ndarray,
+        previous_velocity: np.ndarray,
+        dt_s: float,
+        accel: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        if self._admissible(want, want_velocity, accel):
+            return want, want_velocity
+        offending = self._offending(want, want_velocity, accel)
+        if offending is None:  # pragma: no cover - the same check as _admissible
+            return want, want_velocity
+        lower, upper = self._bounds
+        held = offending
+        for _ in range(MAX_WIDENINGS):
+            braked_speed = np.maximum(np.abs(previous_velocity) - accel * dt_s, 0.0)
+            velocity = np.where(held, np.copysign(braked_speed, previous_velocity), want_velocity)
+            pose = np.where(held, np.clip(previous + velocity * dt_s, lower, upper), want)
+            velocity = np.where(held, (pose - previous) / dt_s, velocity)
+            more = self._offending(pose, velocity, accel)
+            if more is None or self._braking_close_enough(pose, velocity, accel):
+                return self._slide(pose, velocity, want, want_velocity, held, accel)
+            if not np.any(more & ~held):
+                break
+            held = held | more
+        # Last resort: the offending joints stay where they are; failing that, everything does.
+        self.status.holds += 1
+        pose = np.where(held, previous, want)
+        velocity = np.where(held, 0.0, want_velocity)
+        if self._clear(pose):
+            return pose, velocity
+        return previous.copy(), np.zeros_like(previous)
+
+    def _slide(
+        self,
+        pose: np.ndarray,
+        velocity: np.ndarray,
+        want: np.ndarray,
+        want_velocity: np.ndarray,
+        held: np.ndarray,
+        accel: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Let each braked joint take its wanted value again where that stays admissible."""
+        for joint in np.flatnonzero(held):
+            if pose[joint] == want[joint]:
+                continue
+            trial, trial_velocity = pose.copy(), velocity.copy()
+            trial[joint], trial_velocity[joint] = want[joint], want_velocity[joint]
+            if self._admissible(trial, trial_velocity, accel):
+                pose, velocity = trial, trial_velocity
+        return pose, velocity
+
+    def _lead_out(
+        self, want: np.ndarray, want_velocity: np.ndarray, previous: np.ndarray, dt_s: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Move the offending joints up the clearance gradient, slowly, from rest."""
+        self.status.lead_out_steps += 1
+        body = self.body
+        lower, upper = self._bounds
+        clearance, joints = body.violations(previous, self.margin_m)
+        gradient = body.gradient(previous, joints)
+        norm = float(np.linalg.norm(gradient))
+        self._lead_out_s += dt_s
+        speed = min(LEAD_OUT_SPEED_RAD_S, LEAD_OUT_ACCEL_RAD_S2 * self._lead_out_s)
+        step = np.zeros_like(previous) if norm < 1e-9 else gradient / norm * speed * dt_s
+        led = np.clip(previous + step, lower, upper)
+        # The other joints follow their command unless that brings the body closer still.
+        pose = np.where(joints, led, want)
+        if body.clearance(pose) < body.clearance(led):
+            pose = led
+        velocity = (pose - previous) / dt_s
+        if body.clearance(pose) < clearance:  # never deeper in than before
+            return previous.copy(), np.zeros_like(previous)
+        return pose, velocity
+
+
+def guard_trajectory(guard: BodyGuard, trajectory_rad: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Run a whole (n_frames, n_joints) trajectory through ``guard``, from its first pose at rest.
+
+    The offline counterpart of the filter's last stage: ``audio2pose synth`` and ``render`` pass
+    their trajectories through it, so offline motion obeys the same margin as live commands. It
+    brakes at the robot's own acceleration limits, within its full position ranges.
+    """
+    trajectory = np.asarray(trajectory_rad, dtype=np.float64)
+    if len(trajectory) == 0:
+        return trajectory.copy()
+    limiter = JointLimiter(
+        guard.body.robot,
+        LimitSettings(position_margin_rad=0.0, velocity_fraction=1.0, acceleration_fraction=1.0),
+    )
+    dt_s = 1.0 / rate_hz
+    out = np.empty_like(trajectory)
+    previous = limiter.clamp_position(trajectory[0])
+    velocity = np.zeros(trajectory.shape[1])
+    guard.reset()
+    if guard.body.clearance(previous) < guard.margin_m:
+        previous = guard.body.push_out(previous, guard.margin_m)  # offline: start clear
+    for i, want in enumerate(trajectory):
+        want = limiter.clamp_position(want)
+        previous, velocity = guard.enforce(
+            want, (want - previous) / dt_s, previous, velocity, dt_s, limiter
+        )
+        out[i] = previous
+    return out

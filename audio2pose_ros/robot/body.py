@@ -1,0 +1,344 @@
+"""Pepper's body as collision geometry: how close the arms come to the body and to each other.
+
+The geometry is the URDF's ``<collision>`` shapes (``urdf/pepper.urdf``: primitive shapes on
+pepper_description's kinematics, the chest tablet included), loaded with Pinocchio (``pin``) into a
+kinematic model and a separate geometry model, as Pinocchio separates them; distances between
+shapes come from coal (the FCL successor Pinocchio uses). Nothing here is hand-written geometry.
+
+**Checked pairs.** Every link of an arm that the arm's joints move (bicep, elbow, forearm, wrist,
+hand) against every link of the rest of the body (torso with the tablet and the neck base, neck,
+head, hip, pelvis, legs and base) and against every link of the other arm (its shoulder
+included). Not checked, like an allowed-collision matrix: links of one arm against each other
+(adjacent, they overlap by construction), and the shoulder balls against the body: they turn about
+their own centre, fixed to the torso, so their clearance does not depend on any command (the head
+cannot reach them within its limits; ``test/test_body.py`` checks both by sampling).
+
+Joints the speech model does not drive (HipPitch, KneePitch, the wrists and hands) stay at zero,
+where Pepper holds them while it talks; distances are signed, in metres (negative: the shapes
+overlap by that much).
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.robot.description import RobotDescription, load_robot
+from audio2pose_ros.robot.kinematics import default_urdf_path
+
+ARM_LINK_PREFIXES = {
+    "left": ("LBicep", "LElbow", "LForeArm", "l_wrist", "l_gripper"),
+    "right": ("RBicep", "RElbow", "RForeArm", "r_wrist", "r_gripper"),
+}
+SHOULDER_LINKS = {"left": "LShoulder", "right": "RShoulder"}
+PUSH_OUT_STEP_RAD = 0.02  # joint-space step of push_out's climb along the clearance gradient
+PUSH_OUT_MAX_STEPS = 400  # push_out gives up after this many steps (8 rad of travel)
+GRADIENT_STEP_RAD = 1e-3  # finite-difference step of the clearance gradient
+RECENT_QUERIES = 16  # poses whose clearance is kept: a guard step asks about the same few poses
+
+
+_LOADED: dict[tuple[RobotDescription, Path], BodyModel] = {}
+
+
+class BodyModelError(ConfigurationError):
+    """The URDF lacks a joint of the robot description, or its collision shapes cannot load."""
+
+
+def _bounding_radius(shape: Any) -> float:
+    """Radius of a sphere about the shape's centre that contains it (m)."""
+    kind = type(shape).__name__
+    if kind == "Sphere":
+        return float(shape.radius)
+    if kind in ("Cylinder", "Capsule"):
+        return float(np.hypot(shape.radius, shape.halfLength)) + (
+            float(shape.radius) if kind == "Capsule" else 0.0
+        )
+    if kind == "Box":
+        return float(np.linalg.norm(shape.halfSide))
+    raise BodyModelError(f"collision shape {kind} is not supported (use boxes, cylinders, spheres)")
+
+
+def _link_of(geometry_name: str) -> str:
+    """``LForeArm_0`` -> ``LForeArm`` (Pinocchio numbers the shapes of a link)."""
+    return geometry_name.rsplit("_", 1)[0]
+
+
+class _PairGroup:
+    """The checked pairs moved by the same joints, in a geometry model of their own.
+
+    A pose closer than a margin is queried group by group: the groups closer than the margin
+    tell which joints must stop.
+    """
+
+    def __init__(self, pin: Any, model: Any, urdf_path: Path, pairs: list[tuple[int, int]]) -> None:
+        self.geometry = pin.buildGeomFromUrdf(model, str(urdf_path), pin.GeometryType.COLLISION)
+        for a, b in pairs:
+            self.geometry.addCollisionPair(pin.CollisionPair(a, b))
+        self.data = self.geometry.createData()
+        for request in self.data.distanceRequests:
+            # Answers must not depend on earlier queries (coal otherwise starts GJK from the last
+            # answer's support points): the same poses give the same commands in every run.
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", DeprecationWarning)  # coal 3 renamed the switch
+                request.enable_cached_gjk_guess = False
+        self.pairs = pairs
+
+
+class BodyModel:
+    """Clearance of Pepper's arms from its body, for poses in the robot description's joint order.
+
+    Build it once with :meth:`load`; every query takes a pose and returns distances. One instance
+    holds Pinocchio's per-query workspaces (``Data``), so give each thread its own.
+    """
+
+    def __init__(self, robot: RobotDescription, urdf_path: Path) -> None:
+        """Load the kinematic and collision models of ``urdf_path`` for ``robot``'s joints.
+
+        Raises:
+            BodyModelError: the URDF cannot be loaded or lacks one of the robot's joints.
+        """
+        try:
+            import pinocchio
+        except ImportError as error:  # pragma: no cover - a dependency of the package
+            raise BodyModelError(f"the body model needs pinocchio (pip: pin): {error}") from None
+        self._pin: Any = pinocchio
+        self.robot = robot
+        self.urdf_path = urdf_path
+        try:
+            model = pinocchio.buildModelFromUrdf(str(urdf_path))
+            geometry = pinocchio.buildGeomFromUrdf(
+                model, str(urdf_path), pinocchio.GeometryType.COLLISION
+            )
+        except (RuntimeError, ValueError, OSError) as error:
+            raise BodyModelError(f"{urdf_path}: cannot load its collision model: {error}") from None
+        self._model = model
+        self._q_index = np.zeros(robot.n_joints, dtype=np.int64)
+        for i, name in enumerate(robot.names):
+            if not model.existJointName(name):
+                raise BodyModelError(f"{urdf_path} has no joint {name!r} of the robot description")
+            self._q_index[i] = model.joints[model.getJointId(name)].idx_q
+        self._q = pinocchio.neutral(model)
+        self._data = model.createData()
+        objects = geometry.geometryObjects
+        names = [_link_of(obj.name) for obj in objects]
+        # A link of an arm counts as moved by all of its arm's joints (those of the hand's chain):
+        # the guard stops or slides a whole arm, so pairs group by arm, head and hip.
+        hand_joint = {
+            link: objects[names.index(links[-1])].parentJoint
+            for links in ARM_LINK_PREFIXES.values()
+            for link in links
+            if links[-1] in names
+        }
+        chain = [
+            hand_joint.get(name, obj.parentJoint) for name, obj in zip(names, objects, strict=True)
+        ]
+        by_joints: dict[tuple[bool, ...], list[tuple[int, int]]] = {}
+        for a in range(len(objects)):
+            for b in range(len(objects)):
+                if a != b and self._checked(names[a], names[b]):
+                    mask = self._driven_joints(chain[a], chain[b])
+                    by_joints.setdefault(tuple(mask), []).append((a, b))
+        if not by_joints:
+            raise BodyModelError(f"{urdf_path}: no arm link to check against the body")
+        self.lever_m = self._levers(geometry)
+        self._groups = [_PairGroup(pinocchio, model, urdf_path, p) for p in by_joints.values()]
+        self._group_joints = np.array(list(by_joints), dtype=bool)  # (n_groups, n_joints)
+        all_pairs = [pair for group in self._groups for pair in group.pairs]
+        self._all = _PairGroup(pinocchio, model, urdf_path, all_pairs)  # one query: the minimum
+        self.link_pairs: tuple[tuple[str, str], ...] = tuple(
+            (names[a], names[b]) for a, b in all_pairs
+        )
+        self._recent: dict[bytes, tuple[float, int]] = {}  # the last few queries
+
+    @classmethod
+    def load(
+        cls, robot: RobotDescription | None = None, urdf_path: Path | None = None
+    ) -> BodyModel:
+        """The packaged Pepper URDF and robot description unless others are given.
+
+        Loading takes about 60 ms, so one model per robot description and URDF is kept and
+        shared by the callers of one process (queries hold no state between calls but the
+        cache of recent answers, which depends on the pose alone).
+        """
+        key = (robot or load_robot(), Path(urdf_path or default_urdf_path()).resolve())
+        model = _LOADED.get(key)
+        if model is None:
+            model = _LOADED[key] = cls(*key)
+        return model
+
+    @staticmethod
+    def _checked(link_a: str, link_b: str) -> bool:
+        """Whether the pair (``link_a``, ``link_b``) is checked, counting each pair once."""
+        for side, links in ARM_LINK_PREFIXES.items():
+            if link_a not in links:
+                continue
+            if link_b in (*links, SHOULDER_LINKS[side]):
+                return False  # the arm's own links
+            other = "right" if side == "left" else "left"
+            if link_b in ARM_LINK_PREFIXES[other]:
+                return side == "left"  # arm against arm: once, from the left
+            return True  # the body, or the other arm's shoulder
+        return False
+
+    def _levers(self, geometry: Any) -> np.ndarray:
+        """Per robot joint, the farthest any collision shape it moves can be from its axis (m).
+
+        Bounded along the kinematic chain: the offsets of the joints below it, the shape's
+        placement and its bounding radius. Turning joint j by d moves no point further than
+        ``lever_m[j] * |d|``, so a clearance larger than that sum cannot be lost
+        (:meth:`certainly_clear`).
+        """
+        model = self._model
+        levers = np.zeros(self.robot.n_joints)
+        joint_ids = [model.getJointId(name) for name in self.robot.names]
+        for obj in geometry.geometryObjects:
+            radius = _bounding_radius(obj.geometry) + float(
+                np.linalg.norm(obj.placement.translation)
+            )
+            chain = [int(j) for j in model.supports[obj.parentJoint]]
+            for i, joint in enumerate(joint_ids):
+                if joint in chain:
+                    below = chain[chain.index(joint) + 1 :]
+                    reach = radius + sum(
+                        float(np.linalg.norm(model.jointPlacements[j].translation)) for j in below
+                    )
+                    levers[i] = max(levers[i], reach)
+        return levers
+
+    def certainly_clear(self, pose_rad: np.ndarray, moved_rad: np.ndarray, margin_m: float) -> bool:
+        """Whether ``moved_rad`` is clear by ``margin_m`` without a query, from ``pose_rad``'s."""
+        travel = float(np.dot(self.lever_m, np.abs(moved_rad - pose_rad)))
+        return float(self._query(pose_rad)[0]) - travel >= margin_m
+
+    def _driven_joints(self, joint_a: int, joint_b: int) -> np.ndarray:
+        """Mask of the robot's joints on the kinematic chains of two URDF joints."""
+        model = self._model
+        supports = {int(j) for joint in (joint_a, joint_b) for j in model.supports[joint]}
+        names = {model.names[j] for j in supports}
+        return np.array([name in names for name in self.robot.names])
+
+    def _placements(self, pose_rad: np.ndarray) -> None:
+        self._q[self._q_index] = pose_rad
+        self._pin.forwardKinematics(self._model, self._data, self._q)
+
+    def _query(self, pose_rad: np.ndarray) -> tuple[float, int]:
+        """The closest pair's distance (m) and index in :attr:`link_pairs` (recent ones cached)."""
+        key = pose_rad.tobytes()
+        cached = self._recent.get(key)
+        if cached is not None:
+            return cached
+        pin, group = self._pin, self._all
+        self._placements(pose_rad)
+        pin.updateGeometryPlacements(self._model, self._data, group.geometry, group.data)
+        k = int(pin.computeDistances(group.geometry, group.data))
+        distance = float(group.data.distanceResults[k].min_distance)
+        if len(self._recent) >= RECENT_QUERIES:
+            self._recent.pop(next(iter(self._recent)))  # oldest first (dicts keep order)
+        self._recent[key] = (distance, k)
+        return distance, k
+
+    def _pose_array(self, poses_rad: np.ndarray) -> np.ndarray:
+        poses = np.asarray(poses_rad, dtype=np.float64)
+        if poses.shape[-1:] != (self.robot.n_joints,) or poses.ndim > 2:
+            raise ValueError(
+                f"poses must be (n_joints,) or (N, n_joints) with n_joints = "
+                f"{self.robot.n_joints}, got shape {poses.shape}"
+            )
+        if not np.isfinite(poses).all():
+            raise ValueError("poses must be finite")
+        return poses
+
+    def pair_distances(self, pose_rad: np.ndarray) -> np.ndarray:
+        """Signed distance (m) of every pair of :attr:`link_pairs` in one pose."""
+        self._query(self._pose_array(pose_rad).reshape(-1))
+        return np.array([r.min_distance for r in self._all.data.distanceResults])
+
+    def clearance(self, poses_rad: np.ndarray) -> np.ndarray:
+        """Smallest signed distance (m) of the checked pairs: shape () for one pose, (N,) for N."""
+        poses = self._pose_array(poses_rad)
+        if poses.ndim == 1:
+            return np.asarray(self._query(poses)[0])
+        return np.array([self._query(pose)[0] for pose in poses])
+
+    def closest_pair(self, pose_rad: np.ndarray) -> tuple[float, str, str]:
+        """``(distance_m, arm_link, other_link)`` of the closest checked pair in one pose."""
+        distance, k = self._query(self._pose_array(pose_rad).reshape(-1))
+        return distance, *self.link_pairs[k]
+
+    def violations(self, pose_rad: np.ndarray, margin_m: float) -> tuple[float, np.ndarray]:
+        """Clearance of one pose and the mask of joints that move any pair closer than the margin.
+
+        Args:
+            pose_rad: (n_joints,) finite pose.
+            margin_m: required clearance (m).
+
+        Returns:
+            ``(clearance_m, joints)``: the smallest distance and a boolean (n_joints,) mask of the
+            joints on the kinematic chains of the pairs closer than ``margin_m`` (all False when
+            the pose is clear).
+        """
+        clearance, _ = self._query(pose_rad)
+        if clearance >= margin_m:
+            return clearance, np.zeros(self.robot.n_joints, dtype=bool)
+        pin = self._pin  # rare: which groups of pairs are too close
+        close = np.zeros(len(self._groups), dtype=bool)
+        for g, group in enumerate(self._groups):
+            pin.updateGeometryPlacements(self._model, self._data, group.geometry, group.data)
+            k = int(pin.computeDistances(group.geometry, group.data))
+            close[g] = group.data.distanceResults[k].min_distance < margin_m
+        return clearance, np.asarray(self._group_joints[close].any(axis=0), dtype=bool)
+
+    def gradient(self, pose_rad: np.ndarray, joints: np.ndarray) -> np.ndarray:
+        """Central-difference gradient (m/rad) of the clearance in the ``joints`` (mask) only."""
+        gradient = np.zeros(self.robot.n_joints)
+        pose = np.array(pose_rad, dtype=np.float64)
+        for i in np.flatnonzero(joints):
+            saved = pose[i]
+            pose[i] = saved + GRADIENT_STEP_RAD
+            up = self._query(pose)[0]
+            pose[i] = saved - GRADIENT_STEP_RAD
+            down = self._query(pose)[0]
+            pose[i] = saved
+            gradient[i] = (up - down) / (2.0 * GRADIENT_STEP_RAD)
+        return gradient
+
+    def push_out(self, poses_rad: np.ndarray, margin_m: float) -> np.ndarray:
+        """Move every pose closer than ``margin_m`` to a nearby clear pose; clear poses stay.
+
+        Only the joints of the offending pairs move (an arm, and the hip or head when the pair
+        involves them), up the clearance gradient in small steps within the joint limits, until
+        the clearance reaches the margin. Used to clean training targets retargeted from people,
+        whose bodies are not Pepper's.
+
+        Args:
+            poses_rad: (N, n_joints) or (n_joints,) finite poses.
+            margin_m: required clearance (m), at least 0.
+
+        Returns:
+            Poses of the same shape, each with clearance >= ``margin_m`` unless no such pose was
+            found within ``PUSH_OUT_MAX_STEPS`` steps (then the clearest pose found).
+        """
+        poses = self._pose_array(poses_rad)
+        lower, upper = self.robot.lower_rad, self.robot.upper_rad
+        out = np.array(np.atleast_2d(poses), dtype=np.float64)
+        for row in out:
+            clearance, joints = self.violations(row, margin_m)
+            for _ in range(PUSH_OUT_MAX_STEPS):
+                if clearance >= margin_m:
+                    break
+                gradient = self.gradient(row, joints)
+                norm = float(np.linalg.norm(gradient))
+                if norm < 1e-9:  # flat: move the joints towards their neutral pose instead
+                    direction = np.where(joints, self.robot.neutral_rad - row, 0.0)
+                    norm = float(np.linalg.norm(direction))
+                    if norm < 1e-9:
+                        break
+                    gradient = direction
+                row[:] = np.clip(row + PUSH_OUT_STEP_RAD * gradient / norm, lower, upper)
+                clearance, more = self.violations(row, margin_m)
+                joints |= more
+        return out.reshape(poses.shape)

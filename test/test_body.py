@@ -1,0 +1,146 @@
+"""robot/body.py: Pepper's collision shapes, the checked pairs and clearance queries."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from audio2pose_ros.robot.body import SHOULDER_LINKS, BodyModel, BodyModelError
+
+MARGIN_M = 0.02
+
+
+@pytest.fixture(scope="module")
+def body():
+    return BodyModel.load()
+
+
+def pose_with(robot, **angles):
+    pose = robot.neutral_rad.copy()
+    for name, value in angles.items():
+        pose[robot.names.index(name)] = value
+    return pose
+
+
+def random_poses(robot, n, seed=0):
+    rng = np.random.default_rng(seed)
+    return rng.uniform(robot.lower_rad, robot.upper_rad, size=(n, robot.n_joints))
+
+
+def test_when_neutral_pose_expect_clear_of_the_body_by_the_default_margin(body):
+    assert body.clearance(body.robot.neutral_rad) >= MARGIN_M
+
+
+def test_when_left_forearm_folded_into_the_tablet_expect_negative_clearance_naming_links(body):
+    pose = pose_with(
+        body.robot, LShoulderPitch=1.22, LShoulderRoll=0.04, LElbowRoll=-1.32, LElbowYaw=-0.19
+    )
+    distance, arm_link, other = body.closest_pair(pose)
+    assert distance < -0.05  # the forearm is 6 cm inside the torso and tablet
+    assert (arm_link, other) == ("LForeArm", "torso")
+
+
+def test_when_chest_tablet_expect_a_collision_shape_in_front_of_the_torso(body):
+    """The tablet is solid: a hand pressed onto the chest's front is inside the body."""
+    pin = pytest.importorskip("pinocchio")
+    model = pin.buildModelFromUrdf(str(body.urdf_path))
+    geometry = pin.buildGeomFromUrdf(model, str(body.urdf_path), pin.GeometryType.COLLISION)
+    boxes = [
+        obj
+        for obj in geometry.geometryObjects
+        if obj.name.startswith("torso") and type(obj.geometry).__name__ == "Box"
+    ]
+    assert boxes, "the torso has no box (the tablet)"
+    front = max(box.placement.translation[0] + box.geometry.halfSide[0] for box in boxes)
+    assert front > 0.09  # beyond the torso cylinder's front surface (x = 0.09 m)
+
+
+def test_when_sampled_expect_every_checked_pair_to_move_with_some_command(body):
+    """Pairs whose distance no command changes are not checked (allowed-collision matrix)."""
+    poses = random_poses(body.robot, 200)
+    distances = np.array([body.pair_distances(pose) for pose in poses])
+    assert np.all(distances.std(axis=0) > 1e-6), [
+        pair for pair, s in zip(body.link_pairs, distances.std(axis=0), strict=True) if s <= 1e-6
+    ]
+
+
+def test_when_shoulder_balls_are_excluded_expect_the_head_never_near_them(body):
+    """The shoulder balls turn in place; only the head could approach them, and cannot."""
+    pin = pytest.importorskip("pinocchio")
+    model = pin.buildModelFromUrdf(str(body.urdf_path))
+    geometry = pin.buildGeomFromUrdf(model, str(body.urdf_path), pin.GeometryType.COLLISION)
+    names = [obj.name for obj in geometry.geometryObjects]
+    shoulders = [i for i, n in enumerate(names) if n.rsplit("_", 1)[0] in SHOULDER_LINKS.values()]
+    heads = [i for i, n in enumerate(names) if n.startswith(("Head", "Neck"))]
+    for a in shoulders:
+        for b in heads:
+            geometry.addCollisionPair(pin.CollisionPair(a, b))
+    data, geometry_data = model.createData(), geometry.createData()
+    q = pin.neutral(model)
+    closest = np.inf
+    for pose in random_poses(body.robot, 300, seed=1):
+        for i, name in enumerate(body.robot.names):
+            q[model.joints[model.getJointId(name)].idx_q] = pose[i]
+        pin.computeDistances(model, data, geometry, geometry_data, q)
+        closest = min(closest, min(r.min_distance for r in geometry_data.distanceResults))
+    assert closest > MARGIN_M
+
+
+def test_when_many_poses_expect_clearance_equal_to_the_smallest_pair_distance(body):
+    poses = random_poses(body.robot, 50, seed=2)
+    expected = np.array([body.pair_distances(pose).min() for pose in poses])
+    np.testing.assert_allclose(body.clearance(poses), expected, atol=1e-6)
+    assert body.clearance(poses[0]).shape == ()
+
+
+def test_when_poses_inside_expect_push_out_clears_them_moving_only_the_offending_arm(body):
+    poses = random_poses(body.robot, 60, seed=3)
+    inside = poses[body.clearance(poses) < MARGIN_M]
+    assert len(inside) > 5
+    pushed = body.push_out(inside, MARGIN_M)
+    assert np.all(body.clearance(pushed) >= MARGIN_M - 1e-9)
+    assert np.all(pushed >= body.robot.lower_rad)
+    assert np.all(pushed <= body.robot.upper_rad)
+    clear = poses[body.clearance(poses) >= MARGIN_M]
+    np.testing.assert_array_equal(body.push_out(clear, MARGIN_M), clear)
+
+
+def test_when_only_left_hand_in_hip_expect_right_arm_and_head_unchanged_by_push_out(body):
+    robot = body.robot
+    pose = pose_with(
+        robot, LShoulderPitch=1.3, LShoulderRoll=0.13, LElbowRoll=-1.24, LElbowYaw=0.28, HeadYaw=0.5
+    )
+    clearance, joints = body.violations(pose, MARGIN_M)
+    assert clearance < MARGIN_M
+    pushed = body.push_out(pose, MARGIN_M)
+    untouched = [robot.names.index(n) for n in ("HeadYaw", "HeadPitch", "RShoulderPitch")]
+    np.testing.assert_array_equal(pushed[untouched], pose[untouched])
+    assert not joints[untouched].any()
+
+
+@pytest.mark.parametrize(
+    "bad", [np.full(11, np.nan), np.zeros(10), np.zeros((2, 3, 11)), np.full(11, np.inf)]
+)
+def test_when_pose_malformed_expect_value_error(body, bad):
+    with pytest.raises(ValueError, match="poses must be"):
+        body.clearance(bad)
+
+
+def test_when_urdf_lacks_a_joint_expect_a_configuration_error_naming_it(body, tmp_path):
+    urdf = tmp_path / "pepper.urdf"
+    urdf.write_text(body.urdf_path.read_text().replace('name="HipRoll"', 'name="HipTilt"'))
+    with pytest.raises(BodyModelError, match="HipRoll"):
+        BodyModel.load(urdf_path=urdf)
+
+
+def test_when_joints_turn_expect_clearance_to_change_no_more_than_the_lever_bound(body):
+    """certainly_clear skips queries: the bound it relies on must hold for any pair of poses."""
+    rng = np.random.default_rng(4)
+    poses = random_poses(body.robot, 200, seed=5)
+    moved = np.clip(
+        poses + rng.normal(scale=0.3, size=poses.shape), body.robot.lower_rad, body.robot.upper_rad
+    )
+    change = np.abs(body.clearance(moved) - body.clearance(poses))
+    bound = np.abs(moved - poses) @ body.lever_m
+    assert np.all(change <= bound + 1e-6)
+    assert np.max(change / bound) > 0.1  # a bound, but not a vacuous one

@@ -1,0 +1,167 @@
+"""The self-collision guard in the motion filter and offline: no command inside the margin."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from audio2pose_ros.motion.body_guard import TOLERANCE_M, BodyGuard, guard_trajectory
+from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+from audio2pose_ros.robot.body import BodyModel
+
+PERIOD = 0.01
+MARGIN_M = 0.02
+
+
+@pytest.fixture(scope="module")
+def body():
+    return BodyModel.load()
+
+
+def pose_with(robot, **angles):
+    pose = robot.neutral_rad.copy()
+    for name, value in angles.items():
+        pose[robot.names.index(name)] = value
+    return pose
+
+
+def hand_in_hip(robot):
+    """Left hand driven down into the hip, within every joint limit; head and right arm move."""
+    return pose_with(
+        robot,
+        LShoulderPitch=1.3,
+        LShoulderRoll=0.13,
+        LElbowRoll=-1.24,
+        LElbowYaw=0.28,
+        HeadYaw=0.6,
+        HeadPitch=0.1,
+        RShoulderPitch=0.6,
+        RShoulderRoll=-0.5,
+    )
+
+
+def drive(filt, poses, t=0.0):
+    out = []
+    for pose in poses:
+        t += PERIOD
+        filt.push(pose[None, :], t)
+        out.append(filt.tick(t)[0].copy())
+    return np.array(out), t
+
+
+def test_when_raw_poses_drive_left_hand_into_hip_expect_arm_stopped_at_margin(body):
+    robot = body.robot
+    filt = MotionFilter(robot)
+    target = hand_in_hip(robot)
+    assert body.clearance(target) < 0.0  # the raw pose is inside the body
+    out, _ = drive(filt, np.tile(target, (300, 1)))
+    clearance = body.clearance(out)
+    assert clearance.min() >= MARGIN_M - TOLERANCE_M
+    assert filt.body_guard.status.interventions > 0
+    # the head and the right arm kept following
+    for name in ("HeadYaw", "HeadPitch", "RShoulderPitch", "RShoulderRoll"):
+        joint = robot.names.index(name)
+        assert out[-1, joint] == pytest.approx(target[joint], abs=1e-3)
+    assert filt.status.faults == 0
+
+
+def test_when_unguarded_filter_expect_the_same_raw_poses_to_go_inside(body):
+    """What the guard prevents: without it, the filter's limits alone command the hip pose."""
+    robot = body.robot
+    filt = MotionFilter(robot)
+    filt.body_guard.margin_m = -1.0  # disabled: nothing is closer than -1 m
+    out, _ = drive(filt, np.tile(hand_in_hip(robot), (300, 1)))
+    assert body.clearance(out).min() < 0.0
+
+
+def test_when_raw_poses_clear_again_expect_arm_follows_within_a_second(body):
+    robot = body.robot
+    filt = MotionFilter(robot)
+    inside = hand_in_hip(robot)
+    _, t = drive(filt, np.tile(inside, (200, 1)))
+    clear = pose_with(robot, LShoulderPitch=0.8, LShoulderRoll=0.5, LElbowRoll=-0.8)
+    fraction = np.linspace(0.0, 1.0, 50)[:, None]  # the speaker's arm moves away over 0.5 s
+    _, t = drive(filt, inside + fraction * (clear - inside), t)
+    out, _ = drive(filt, np.tile(clear, (100, 1)), t)  # then 1 s of clear poses
+    np.testing.assert_allclose(out[-1], clear, atol=0.02)
+
+
+def test_when_started_inside_the_margin_expect_led_out_slowly_within_limits(body):
+    robot = body.robot
+    inside = hand_in_hip(robot)
+    filt = MotionFilter(robot, start_pose_rad=inside)
+    start = filt.position_rad.copy()
+    assert body.clearance(start) < 0.0
+    out, _ = drive(filt, np.tile(inside, (400, 1)))
+    clearance = body.clearance(out)
+    assert clearance[-1] >= MARGIN_M - TOLERANCE_M  # out within 4 s
+    once_out = np.flatnonzero(clearance >= MARGIN_M - TOLERANCE_M)[0]
+    steps = np.abs(np.diff(np.vstack([start, out[:once_out]]), axis=0)) / PERIOD
+    assert steps.max() <= 0.3 + 1e-6  # gently: lead-out speed, not the joints' limits
+    assert clearance[once_out:].min() >= MARGIN_M - TOLERANCE_M  # and stays out
+    assert np.all(np.diff(clearance[:once_out]) >= -1e-6)  # never deeper on the way
+    assert filt.status.faults == 0
+
+
+def test_when_margin_raised_live_expect_arm_led_out_to_the_new_margin_and_kept_there(body):
+    robot = body.robot
+    filt = MotionFilter(robot)
+    filt.update_settings(MotionFilterSettings(body_margin_m=0.03))  # neutral is now inside
+    out, _ = drive(filt, np.tile(hand_in_hip(robot), (400, 1)))
+    clearance = body.clearance(out)
+    once_out = np.flatnonzero(clearance >= 0.03 - TOLERANCE_M)[0]
+    assert np.all(np.diff(clearance[:once_out]) >= -1e-6)  # led out, never deeper
+    assert clearance[once_out:].min() >= 0.03 - TOLERANCE_M
+
+
+def test_when_offline_trajectory_enters_the_body_expect_guarded_copy_outside(body):
+    robot = body.robot
+    n = 200
+    fraction = np.linspace(0.0, 1.0, n)[:, None]
+    trajectory = robot.neutral_rad + fraction * (hand_in_hip(robot) - robot.neutral_rad)
+    guarded = guard_trajectory(BodyGuard(body, MARGIN_M), trajectory, 100.0)
+    assert body.clearance(trajectory).min() < 0.0
+    assert body.clearance(guarded).min() >= MARGIN_M - TOLERANCE_M
+    assert np.all(guarded >= robot.lower_rad)
+    assert np.all(guarded <= robot.upper_rad)
+
+
+settle = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+@settle
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    rate=st.sampled_from([20.0, 50.0, 100.0]),
+    restart_at=st.integers(0, 150),
+    start_inside=st.booleans(),
+)
+def test_when_random_raw_poses_rates_and_restarts_expect_no_command_inside_margin(
+    body, seed, rate, restart_at, start_inside
+):
+    """Random poses anywhere in the joint ranges, at random rates, with a restart: after the
+    robot has been led out (if it started inside), no command is inside the margin, ever, and
+    no command leaves the joint limits."""
+    robot = body.robot
+    rng = np.random.default_rng(seed)
+    start = hand_in_hip(robot) if start_inside else None
+    filt = MotionFilter(robot, start_pose_rad=start)
+    led_out = body.clearance(filt.position_rad) >= MARGIN_M - TOLERANCE_M
+    t = 0.0
+    targets = rng.uniform(robot.lower_rad, robot.upper_rad, size=(8, robot.n_joints))
+    for k in range(300):
+        t += PERIOD
+        if k % max(1, round(100.0 / rate)) == 0:
+            filt.push(targets[(k // 40) % len(targets)][None, :], t)
+        if k == restart_at:
+            filt.start_from(filt.position_rad)
+        positions, _ = filt.tick(t)
+        assert np.all(positions >= filt.limiter.lower_rad - 1e-12)
+        assert np.all(positions <= filt.limiter.upper_rad + 1e-12)
+        clearance = float(body.clearance(positions))
+        if led_out:
+            assert clearance >= MARGIN_M - TOLERANCE_M, (k, body.closest_pair(positions))
+        led_out = led_out or clearance >= MARGIN_M - TOLERANCE_M
+    assert filt.status.faults == 0
