@@ -6,6 +6,7 @@ campaign and reads the outcome from what the robot receives, the nodes' /diagnos
 supervisor and the state file:
 
 - a burst of consistent wrong poses, a second ``raw_trajectory`` publisher;
+- raw poses that sweep a hand into the hip (the self-collision guard);
 - a restart while the robot reports a pose with a NaN and an out-of-range joint, after the arm
   was moved while the filter was down;
 - a second filter with the same state file, a filter in another namespace;
@@ -35,8 +36,18 @@ from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros import topics
+from audio2pose_ros.motion.body_guard import TOLERANCE_M as BODY_TOLERANCE_M
+from audio2pose_ros.motion.filter import MotionFilterSettings
+from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, status_name
-from audio2pose_ros.ros.fault_harness import MAX_DEVIATION_RAD, Campaign, Case, Commands, Outcome
+from audio2pose_ros.ros.fault_harness import (
+    MAX_DEVIATION_RAD,
+    STREAM_PERIOD_S,
+    Campaign,
+    Case,
+    Commands,
+    Outcome,
+)
 from audio2pose_ros.ros.graph import executable_command
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
@@ -47,6 +58,13 @@ MIN_COMMAND_RATE_HZ = 45.0  # joint_angles runs at 50 Hz
 MAX_FLOOD_GAP_S = 0.1
 MAX_STATE_WRITES = 3  # while a flood does not change the state
 RESPAWN_LIMIT_S = 5.0
+# the left hand 7 cm inside the hip, within every joint limit (raw poses of a wrong model)
+BODY_ATTACK_POSE = {
+    "LShoulderPitch": 1.3,
+    "LShoulderRoll": 0.13,
+    "LElbowRoll": -1.24,
+    "LElbowYaw": 0.28,
+}
 
 
 def _commands_since(c: Campaign, start: int) -> Commands:
@@ -111,6 +129,36 @@ def _second_publisher(c: Campaign) -> Outcome:
     ok = worst <= 0.02 and reported
     did = f"moved {worst:.3f} rad, {reversals:.1f} reversals/s; ERROR on /diagnostics: {reported}"
     return Outcome(did, ok, worst)
+
+
+def _into_the_body(c: Campaign) -> Outcome:
+    """Raw poses sweep the left hand into the hip and back: no command inside the margin."""
+    body = BodyModel.load(c.robot)
+    inside = c.pose_a.copy()
+    for name, value in BODY_ATTACK_POSE.items():
+        inside[c.robot.names.index(name)] = value
+    start, steps = c.pose_a.copy(), 50  # 1 s in, 1 s held, 1 s back out
+    path = [start + (inside - start) * k / steps for k in range(steps + 1)]
+    path += [inside] * steps + path[::-1]
+    first = len(c.probe.commands)
+    try:
+        for pose in path:
+            c.probe.pose = pose
+            c.probe.spin_for(STREAM_PERIOD_S)
+        warned = "self-collision guard" in c.probe.diagnostics.get(FILTER, (0, "", {}))[1]
+        window = _commands_since(c, first)
+    finally:
+        c.probe.pose = c.pose_a
+    margin = MotionFilterSettings().body_margin_m  # the graph runs the default parameters
+    clearance = body.clearance(window.positions_rad) if len(window.times_s) else np.zeros(0)
+    closest = float(clearance.min()) if len(clearance) else math.nan
+    raw = float(body.clearance(inside))
+    ok = len(clearance) > 0 and closest >= margin - BODY_TOLERANCE_M
+    did = (
+        f"raw poses {raw * 100:.1f} cm from the body; closest command {closest * 100:.2f} cm"
+        f" (margin {margin * 100:.0f} cm); WARN naming links: {warned}"
+    )
+    return Outcome(did, ok, math.nan)
 
 
 # --- start pose -------------------------------------------------------------------------------
@@ -415,6 +463,11 @@ def runtime_cases() -> list[Case]:
     flood = f"commands >= {MIN_COMMAND_RATE_HZ:g} Hz, no gap > {MAX_FLOOD_GAP_S * 1e3:.0f} ms"
     return [
         Case("burst of 30 consistent wrong poses", "arm moves at most 0.1 rad", _burst),
+        Case(
+            "raw poses sweep the left hand into the hip",
+            "no command closer to the body than the margin",
+            _into_the_body,
+        ),
         Case(
             "second raw_trajectory publisher",
             "robot follows one (<= 0.02 rad off), ERROR",

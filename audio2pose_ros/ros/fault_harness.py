@@ -255,7 +255,13 @@ class Campaign:
     def pose_a(self) -> np.ndarray:
         """The benign pose the cases start from: neutral with the arms and head moved."""
         pose = self.robot.neutral_rad.copy()
-        for name, delta in (("LShoulderPitch", -0.4), ("RElbowRoll", 0.3), ("HeadYaw", 0.2)):
+        moves = (
+            ("LShoulderPitch", -0.4),
+            ("LShoulderRoll", 0.28),
+            ("RElbowRoll", 0.3),
+            ("HeadYaw", 0.2),
+        )
+        for name, delta in moves:  # the left arm forward and out: clear of the body
             pose[self.robot.names.index(name)] += delta
         return np.clip(pose, self.robot.lower_rad + 0.05, self.robot.upper_rad - 0.05)
 
