@@ -138,6 +138,7 @@ def filter_node(tmp_path):
 def raised(robot) -> np.ndarray:
     pose = robot.neutral_rad.copy()
     pose[robot.names.index("LShoulderPitch")] -= 0.8
+    pose[robot.names.index("LShoulderRoll")] = 0.4  # forward and out: clear of the body
     pose[robot.names.index("RElbowRoll")] += 0.5
     pose[robot.names.index("HeadYaw")] += 0.4
     return pose
