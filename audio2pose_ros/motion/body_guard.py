@@ -39,7 +39,7 @@ from audio2pose_ros.robot.body import BodyModel
 
 LEAD_OUT_SPEED_RAD_S = 0.3  # joint-space speed of leading a robot out of the margin (rad/s)
 LEAD_OUT_ACCEL_RAD_S2 = 1.0  # ... reached with this acceleration from rest (rad/s^2)
-BRAKING_POINTS = (0.5, 1.0)  # fractions of the braking distance checked for clearance
+BRAKING_POINTS = (1.0,)  # fractions of the braking distance checked for clearance
 MAX_WIDENINGS = 3  # times the set of braked joints may grow within one step
 TOLERANCE_M = 1e-3  # braking may end this far inside the margin (m): the braking path between the
 # checked points can curve closer than they are; a robot further inside is led out
@@ -76,8 +76,9 @@ class BodyGuard:
         self._bounds = (body.robot.lower_rad, body.robot.upper_rad)
 
     def reset(self) -> None:
-        """Forget the lead-out ramp (the robot starts again from rest)."""
+        """Start again from rest: forget the lead-out ramp and the body model's earlier queries."""
         self._lead_out_s = 0.0
+        self.body.reset()
 
     def _clear(self, pose: np.ndarray) -> bool:
         return bool(self.body.clearance(pose) >= self.margin_m)
@@ -121,7 +122,10 @@ class BodyGuard:
         """None if (pose, velocity) is admissible, else the joints of the pairs too close."""
         joints = np.zeros(self.body.robot.n_joints, dtype=bool)
         clear = True
-        for candidate in self._candidates(pose, velocity, accel):
+        candidates = self._candidates(pose, velocity, accel)
+        for i, candidate in enumerate(candidates):
+            if i and self.body.certainly_clear(pose, candidate, self.margin_m):
+                continue
             clearance, more = self.body.violations(candidate, self.margin_m)
             if clearance < self.margin_m:
                 clear = False
@@ -185,10 +189,8 @@ class BodyGuard:
         dt_s: float,
         accel: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
-        if self._admissible(want, want_velocity, accel):
-            return want, want_velocity
         offending = self._offending(want, want_velocity, accel)
-        if offending is None:  # pragma: no cover - the same check as _admissible
+        if offending is None:
             return want, want_velocity
         lower, upper = self._bounds
         held = offending

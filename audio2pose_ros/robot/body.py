@@ -20,7 +20,6 @@ overlap by that much).
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -68,24 +67,32 @@ def _link_of(geometry_name: str) -> str:
 
 
 class _PairGroup:
-    """The checked pairs moved by the same joints, in a geometry model of their own.
-
-    A pose closer than a margin is queried group by group: the groups closer than the margin
-    tell which joints must stop.
-    """
+    """The checked pairs in a geometry model of their own, with coal's per-pair workspace."""
 
     def __init__(self, pin: Any, model: Any, urdf_path: Path, pairs: list[tuple[int, int]]) -> None:
         self.geometry = pin.buildGeomFromUrdf(model, str(urdf_path), pin.GeometryType.COLLISION)
         for a, b in pairs:
             self.geometry.addCollisionPair(pin.CollisionPair(a, b))
         self.data = self.geometry.createData()
-        for request in self.data.distanceRequests:
-            # Answers must not depend on earlier queries (coal otherwise starts GJK from the last
-            # answer's support points): the same poses give the same commands in every run.
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", DeprecationWarning)  # coal 3 renamed the switch
-                request.enable_cached_gjk_guess = False
         self.pairs = pairs
+        self._initial_guesses = [
+            (request.cached_gjk_guess.copy(), request.cached_support_func_guess.copy())
+            for request in self.data.distanceRequests
+        ]
+
+    def reset_guesses(self) -> None:
+        """Start every pair's distance search from its first guess again.
+
+        coal starts each search from the previous answer's support points (several times
+        faster for the small steps between commands), so an answer depends, within its 1e-6 m
+        tolerance, on the queries before it. Resetting at the start of a run makes the same
+        poses give the same answers in every run.
+        """
+        for request, (gjk, support) in zip(
+            self.data.distanceRequests, self._initial_guesses, strict=True
+        ):
+            request.cached_gjk_guess = gjk.copy()
+            request.cached_support_func_guess = support.copy()
 
 
 class BodyModel:
@@ -136,22 +143,19 @@ class BodyModel:
         chain = [
             hand_joint.get(name, obj.parentJoint) for name, obj in zip(names, objects, strict=True)
         ]
-        by_joints: dict[tuple[bool, ...], list[tuple[int, int]]] = {}
+        pairs: list[tuple[int, int]] = []
+        masks: list[np.ndarray] = []
         for a in range(len(objects)):
             for b in range(len(objects)):
                 if a != b and self._checked(names[a], names[b]):
-                    mask = self._driven_joints(chain[a], chain[b])
-                    by_joints.setdefault(tuple(mask), []).append((a, b))
-        if not by_joints:
+                    pairs.append((a, b))
+                    masks.append(self._driven_joints(chain[a], chain[b]))
+        if not pairs:
             raise BodyModelError(f"{urdf_path}: no arm link to check against the body")
         self.lever_m = self._levers(geometry)
-        self._groups = [_PairGroup(pinocchio, model, urdf_path, p) for p in by_joints.values()]
-        self._group_joints = np.array(list(by_joints), dtype=bool)  # (n_groups, n_joints)
-        all_pairs = [pair for group in self._groups for pair in group.pairs]
-        self._all = _PairGroup(pinocchio, model, urdf_path, all_pairs)  # one query: the minimum
-        self.link_pairs: tuple[tuple[str, str], ...] = tuple(
-            (names[a], names[b]) for a, b in all_pairs
-        )
+        self._pairs = _PairGroup(pinocchio, model, urdf_path, pairs)
+        self._pair_joints = np.array(masks, dtype=bool)  # (n_pairs, n_joints)
+        self.link_pairs: tuple[tuple[str, str], ...] = tuple((names[a], names[b]) for a, b in pairs)
         self._recent: dict[bytes, tuple[float, int]] = {}  # the last few queries
 
     @classmethod
@@ -161,8 +165,8 @@ class BodyModel:
         """The packaged Pepper URDF and robot description unless others are given.
 
         Loading takes about 60 ms, so one model per robot description and URDF is kept and
-        shared by the callers of one process (queries hold no state between calls but the
-        cache of recent answers, which depends on the pose alone).
+        shared by the callers of one process; a run that must be reproducible starts with
+        :meth:`reset`.
         """
         key = (robot or load_robot(), Path(urdf_path or default_urdf_path()).resolve())
         model = _LOADED.get(key)
@@ -231,7 +235,7 @@ class BodyModel:
         cached = self._recent.get(key)
         if cached is not None:
             return cached
-        pin, group = self._pin, self._all
+        pin, group = self._pin, self._pairs
         self._placements(pose_rad)
         pin.updateGeometryPlacements(self._model, self._data, group.geometry, group.data)
         k = int(pin.computeDistances(group.geometry, group.data))
@@ -255,7 +259,7 @@ class BodyModel:
     def pair_distances(self, pose_rad: np.ndarray) -> np.ndarray:
         """Signed distance (m) of every pair of :attr:`link_pairs` in one pose."""
         self._query(self._pose_array(pose_rad).reshape(-1))
-        return np.array([r.min_distance for r in self._all.data.distanceResults])
+        return np.array([r.min_distance for r in self._pairs.data.distanceResults])
 
     def clearance(self, poses_rad: np.ndarray) -> np.ndarray:
         """Smallest signed distance (m) of the checked pairs: shape () for one pose, (N,) for N."""
@@ -270,7 +274,7 @@ class BodyModel:
         return distance, *self.link_pairs[k]
 
     def violations(self, pose_rad: np.ndarray, margin_m: float) -> tuple[float, np.ndarray]:
-        """Clearance of one pose and the mask of joints that move any pair closer than the margin.
+        """Clearance of one pose and the joints that move its closest pair, if that is too close.
 
         Args:
             pose_rad: (n_joints,) finite pose.
@@ -278,19 +282,19 @@ class BodyModel:
 
         Returns:
             ``(clearance_m, joints)``: the smallest distance and a boolean (n_joints,) mask of the
-            joints on the kinematic chains of the pairs closer than ``margin_m`` (all False when
-            the pose is clear).
+            joints on the kinematic chains of the closest pair when it is closer than
+            ``margin_m`` (all False when the pose is clear). Other pairs closer than the margin
+            show once the closest one is resolved (the guard widens its set of braked joints).
         """
-        clearance, _ = self._query(pose_rad)
+        clearance, k = self._query(pose_rad)
         if clearance >= margin_m:
             return clearance, np.zeros(self.robot.n_joints, dtype=bool)
-        pin = self._pin  # rare: which groups of pairs are too close
-        close = np.zeros(len(self._groups), dtype=bool)
-        for g, group in enumerate(self._groups):
-            pin.updateGeometryPlacements(self._model, self._data, group.geometry, group.data)
-            k = int(pin.computeDistances(group.geometry, group.data))
-            close[g] = group.data.distanceResults[k].min_distance < margin_m
-        return clearance, np.asarray(self._group_joints[close].any(axis=0), dtype=bool)
+        return clearance, self._pair_joints[k].copy()
+
+    def reset(self) -> None:
+        """Forget earlier queries: the answers of a run then depend on its own poses alone."""
+        self._recent.clear()
+        self._pairs.reset_guesses()
 
     def gradient(self, pose_rad: np.ndarray, joints: np.ndarray) -> np.ndarray:
         """Central-difference gradient (m/rad) of the clearance in the ``joints`` (mask) only."""
