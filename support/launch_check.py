@@ -1,4 +1,4 @@
-"""Run ``ros2 launch audio2pose_ros pepper.launch.py`` for real and check what issue 12 asks.
+"""Run ``ros2 launch audio2pose_ros pepper.launch.py`` for real: how it starts, fails, stops.
 
 Needs the launch stack of ../shared/tools/ros2-launch-stack (``support/launch_check.sh`` builds
 it and runs this script). Each scenario starts the real launch file in its own session, looks at
@@ -275,7 +275,7 @@ def scenario_booleans_and_namespaces(probe: GraphProbe) -> None:
     graph_up(probe, launch)
     aggregator = [c for c in launch.children().values() if "aggregator_node" in c]
     check(
-        "issue 11 item 6: diagnostic_aggregator:=TRUE",
+        "diagnostic_aggregator:=TRUE starts the aggregator with our analyzers",
         len(aggregator) == 1 and "config/diagnostic_analyzers.yaml" in aggregator[0],
         f"started: {aggregator}",
     )

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Run launch/pepper.launch.py for real with the launch stack of ../shared/tools/ros2-launch-stack
-# and check issue 12's items 1-4, 7, 8, 9, 12 (support/launch_check.py prints one line per check).
+# and check model path precedence, booleans, names, errors, respawn and signals
+# (support/launch_check.py prints one line per check).
 # support/launch_test.sh runs test/test_launch_pepper.py under launch_testing the same way.
 #   support/launch_check.sh [defaults|model_path|names|errors|respawn|signals ...]
 # Environment: LAUNCHCHECK (stack build dir), ROS_DOMAIN_ID (your own), LAUNCH_CHECK_LOGS.

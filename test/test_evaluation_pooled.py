@@ -1,4 +1,4 @@
-"""Measures pooled over a sampler's samples; the model card's targets for the arms (issue 13)."""
+"""Measures pooled over a sampler's samples; the model card's targets for the arms."""
 
 import math
 

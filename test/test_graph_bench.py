@@ -1,4 +1,4 @@
-"""``audio2pose bench --graph``: steady-state CPU, both modes, issue 15's targets."""
+"""``audio2pose bench --graph``: steady-state CPU, both modes, the footprint targets."""
 
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
 """The real launch file under launch_testing: speech moves the robot, a killed node comes back.
 
 ``ros2 launch audio2pose_ros pepper.launch.py`` is started by launch_testing (``colcon test`` on
-a ROS 2 distro; launch_testing is a test_depend in package.xml) once per model_path case of
-issue 12 item 1: launch argument > parameters file > package default. In each run the test plays
+a ROS 2 distro; launch_testing is a test_depend in package.xml) once per model_path case
+(which source wins: launch argument > parameters file > package default. In each run the test plays
 speech as audio_capture would (AudioInfo latched, AudioData in 10 ms chunks, real time), checks
 that /joint_angles moves and stays inside the robot's limits, kills motion_filter_node and checks
 that it is restarted and commands flow again, and after the launch has shut down checks that

@@ -1,4 +1,4 @@
-"""Distribution measures per joint group, with bootstrap intervals and baselines (issue 13)."""
+"""Distribution measures per joint group, with bootstrap intervals and baselines."""
 
 import numpy as np
 import pytest

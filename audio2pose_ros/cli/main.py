@@ -314,7 +314,7 @@ def _print_graph(runs: list[dict[str, Any]]) -> None:
                 for run in runs
             ],
         )
-    print("targets (issue 15)")
+    print("footprint targets")
     for run in runs:
         for target in run["targets"]:
             verdict = "met" if target["met"] else "NOT MET"

@@ -5,10 +5,10 @@
 (:class:`~audio2pose_ros.errors.Audio2PoseError`), which the main entry point reports as one
 line.
 
-Registering the verbs imports no torch (issue 15): the model families and hold-out kinds the
-options accept live in torch modules, so they are :class:`LazyChoices`, read the first time an
-option's value is checked or its help is shown. ``audio2pose run`` and every other verb that
-builds the same parser stay free of torch.
+Registering the verbs imports no torch (the runner and the nodes must start without it): the
+model families and hold-out kinds the options accept live in torch modules, so they are
+:class:`LazyChoices`, read the first time an option's value is checked or its help is shown.
+``audio2pose run`` and every other verb that builds the same parser stay free of torch.
 """
 
 from __future__ import annotations

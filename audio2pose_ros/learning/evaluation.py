@@ -253,7 +253,7 @@ def plot_clip(
     return path
 
 
-# --- Distribution evaluation per joint group (issue 13 item 3) ---------------------------------
+# --- Distribution evaluation per joint group ------------------------------------------------
 
 STATIC = "static pose"
 MISMATCHED = "mismatched real motion"

@@ -251,7 +251,7 @@ def diversity_deg(samples_rad: np.ndarray) -> float:
     return float(np.degrees(np.mean(distances)))
 
 
-# --- Distribution measures per joint group, with confidence intervals (issue 13 item 3) -------
+# --- Distribution measures per joint group, with confidence intervals ------------------------
 
 SILENCE_MIN_S = 1.0  # only pauses of at least this long count as silence (short pauses do not)
 VAD_FLOOR_DB = 30.0  # frames this far below the clip's loud frames (95th percentile) are silent

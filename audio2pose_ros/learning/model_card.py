@@ -159,10 +159,10 @@ def _row(evaluation: QualityEvaluation, group: str, method: str) -> GroupRow | N
 
 
 def _targets(head: QualityEvaluation, arms: QualityEvaluation, model: str) -> str:
-    """Issue 13's targets for the model's head and arms, met or not, with the measured values.
+    """The realism targets for the model's head and arms, met or not, with the measured values.
 
     The arms' Hellinger distances are also compared with the static pose's and the prosody
-    rule's on the same clips (issue 13: at least clearly better than those baselines): met when
+    rule's on the same clips (the model must be clearly better than those baselines): met when
     the model's value lies below the baseline's whole bootstrap interval.
     """
     from audio2pose_ros.learning.default_model import PROSODY_RULE
@@ -362,7 +362,7 @@ trains `live_groups`, and the seed's `mlp` for comparison, on the other speakers
 
 ![arm and hip histograms](arms_distributions.png)
 
-Targets of issue 13:
+Realism targets:
 
 | group | measure | target | measured [95 % CI] | |
 |---|---|---|---|---|

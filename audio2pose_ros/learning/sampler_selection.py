@@ -1,4 +1,4 @@
-"""Choose a ``live_groups`` model's sampling settings on validation clips (issue 13).
+"""Choose a ``live_groups`` model's sampling settings on validation clips.
 
 The part temperatures and noise burstiness, the noise's correlation and the speech gate's rest
 level of :class:`~audio2pose_ros.models.live_groups.LiveGroups` act only when sampling
@@ -27,7 +27,8 @@ stretch of the lecture.
    :data:`SILENCE_TEMPERATURES`, from the most noise left in silence to the least, samples the
    same clips' audio with a pause inserted
    (:func:`~audio2pose_ros.learning.evaluation.with_pause`); the first whose speech / pause
-   speed ratio reaches :data:`PAUSE_MARGIN` times issue 13's target (:data:`PAUSE_TARGETS`) in
+   speed ratio reaches :data:`PAUSE_MARGIN` times the speech / pause target
+   (:data:`PAUSE_TARGETS`) in
    every scored group is kept (the lowest one if none does): as lively in silence as the "come
    to rest" target allows, with a margin.
 
@@ -59,7 +60,7 @@ TEMPERATURES = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0)
 BURSTS = (0.0, 0.6, 1.2)  # log-std of the noise's burst envelope (0 = steady noise)
 CORRELATIONS = (0.95, 0.975)  # AR(1) coefficient of the noise (second order)
 SILENCE_TEMPERATURES = (0.3, 0.2, 0.1, 0.05, 0.02)  # most noise left in silence first
-PAUSE_TARGETS = {"head": 2.0, "arms": 1.5, "hip": 1.5}  # issue 13: speech / silence speed
+PAUSE_TARGETS = {"head": 2.0, "arms": 1.5, "hip": 1.5}  # targets: speech / silence speed
 PAUSE_MARGIN = 1.25
 N_SEEDS = 4
 INNER_FOLDS = 3

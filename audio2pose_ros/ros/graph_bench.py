@@ -56,7 +56,7 @@ CHUNK_SAMPLES = SAMPLES_PER_FRAME  # one 10 ms frame step per chunk (seed 003 se
 MATCH_TOLERANCE_RAD = 1e-5  # float32 /joint_angles against float64 raw poses
 STEADY_SKIP_S = 2.0  # steady-state CPU is read from this long after the stream starts
 ANSWER_TIMEOUT_S = 60.0  # the graph must command and answer audio this soon after the start
-# Issue 15's targets: (figure, three-process target, single-process target, unit); at most.
+# Footprint targets: (figure, three-process target, single-process target, unit); at most.
 TARGETS = (
     ("steady CPU of the node processes per 10 ms frame", 1.0, 0.5, "ms"),
     ("resident memory of the node processes", 250.0, 150.0, "MB"),
@@ -274,7 +274,7 @@ def report(figures: GraphFigures) -> dict[str, object]:
 
 
 def targets(figures: GraphFigures) -> list[dict[str, object]]:
-    """Issue 15's targets for the figures' mode: figure, value, target, unit, met."""
+    """The footprint targets for the figures' mode: figure, value, target, unit, met."""
     single = figures.mode == "single-process"
     p99 = (
         float(np.percentile(figures.latency_command_ms, 99))

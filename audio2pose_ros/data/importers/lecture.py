@@ -1,4 +1,4 @@
-"""A lecture recording -> arm and hip clips (issue 13 item 2).
+"""A lecture recording -> arm and hip clips.
 
 The lecture the default model learns from ("Physicsworks" by Walter Lewin, CC BY 3.0; README
 "Data and credits"; ``LECTURE_VIDEO`` of ``make default-model``) shows one standing

@@ -242,7 +242,7 @@ class InferenceNode(DiagnosedNode):
         self.compute_s += time.perf_counter() - start
         self.frames_in += len(frames)
         stamp = self.get_clock().now()
-        if self.trajectory_pub.get_subscription_count():  # no message for nobody (issue 15)
+        if self.trajectory_pub.get_subscription_count():  # no message for nobody
             out = trajectory_msg(self.robot.names, angles, self.period_s)
             out.header.stamp = stamp.to_msg()
             self.trajectory_pub.publish(out)
