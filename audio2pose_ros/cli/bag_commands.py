@@ -25,6 +25,7 @@ from audio2pose_ros.data.bag import (
     BagError,
     Chunking,
     read_checked_messages,
+    select_for_replay,
     write_audio_bag,
 )
 from audio2pose_ros.errors import UsageError
@@ -52,7 +53,7 @@ def command_from_wav(args: argparse.Namespace) -> int:
 
 
 def command_replay(args: argparse.Namespace) -> int:
-    """Publish every message of a bag with its recorded timing, ``--rate`` times faster.
+    """Publish a bag's audio (or the named topics) with its recorded timing, ``--rate`` faster.
 
     Every message is checked (known type, valid CDR) before the first one is published, and
     a bag whose replay would last more than :data:`MAX_REPLAY_S` is refused. Exits 1 with a
@@ -61,9 +62,25 @@ def command_replay(args: argparse.Namespace) -> int:
     from audio2pose_ros.ros.player import ACK_TIMEOUT_S, replay_bag
 
     bag = input_bag(args.bag)
-    messages = read_checked_messages(bag, args.topics or None)
+    selection = select_for_replay(
+        read_checked_messages(bag, args.topics or None), bool(args.topics)
+    )
+    if selection.left_out:
+        print(
+            f"not replayed: {', '.join(selection.left_out)} (robot commands or the graph's own "
+            "topics; name them with --topics to replay them)",
+            file=sys.stderr,
+        )
+    if selection.commanding:
+        print(
+            f"warning: replaying {', '.join(selection.commanding)}: these topics command the "
+            "robot or stand in for the graph's own nodes, past the motion filter's input checks; "
+            "stop the graph (or the robot's driver) first unless you mean it",
+            file=sys.stderr,
+        )
+    messages = selection.messages
     if not messages:
-        raise BagError(f"{bag}: no messages of a known type to replay")
+        raise BagError(f"{bag}: no audio to replay (name other topics with --topics)")
     span_s = (messages[-1].timestamp_ns - messages[0].timestamp_ns) * 1e-9 / args.rate
     if span_s > MAX_REPLAY_S:
         raise BagError(
@@ -115,7 +132,12 @@ def register(verbs: Verbs) -> None:
         default=1.0,
         help=f"speed factor in (0, {MAX_REPLAY_RATE:g}] (default 1)",
     )
-    replay.add_argument("--topics", nargs="*", help="only these topics")
+    replay.add_argument(
+        "--topics",
+        nargs="*",
+        help="replay these topics (default: the audio only; topics that command the robot are "
+        "replayed only when named, with a warning)",
+    )
     replay.add_argument(
         "--wait-s",
         type=bounded_float(0.0, MAX_WAIT_S),

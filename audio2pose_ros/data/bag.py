@@ -82,6 +82,40 @@ KNOWN_MESSAGE_TYPES = {
     "tf2_msgs/msg/TFMessage": "tf2_msgs.msg",
 }
 MAX_BAG_AUDIO_S = 4 * 3600.0  # decoded audio per bag: 4 h at 16 kHz is 0.9 GB of float32
+# What a replay feeds a running graph unless topics are named: its input, the microphone. Every
+# other known type commands the robot (joint_angles, trajectories, stop / enable) or stands in for
+# one of the graph's own nodes (features, raw_trajectory, joint_states).
+INPUT_MESSAGE_TYPES = frozenset(
+    {
+        "audio_common_msgs/msg/AudioData",
+        "audio_common_msgs/msg/AudioDataStamped",
+        "audio_common_msgs/msg/AudioInfo",
+    }
+)
+
+
+@dataclass(frozen=True)
+class ReplaySelection:
+    """What a replay publishes, and the topics it leaves out or must warn about."""
+
+    messages: list[BagMessage]
+    left_out: tuple[str, ...]  # topics not replayed because they are not the graph's input
+    commanding: tuple[str, ...]  # named topics that command the robot or the graph directly
+
+
+def select_for_replay(messages: list[BagMessage], named: bool) -> ReplaySelection:
+    """Keep the graph's input (audio) unless topics were ``named`` by the user.
+
+    A bag made by ``audio2pose run --record`` also holds the commands the robot received:
+    replaying them into a running graph would drive the robot past the motion filter and fight
+    it. Named topics are replayed as asked, and the ones that are not input are reported so the
+    user can be warned.
+    """
+    other = tuple(sorted({m.topic for m in messages if m.msgtype not in INPUT_MESSAGE_TYPES}))
+    if named:
+        return ReplaySelection(messages, (), other)
+    kept = [m for m in messages if m.msgtype in INPUT_MESSAGE_TYPES]
+    return ReplaySelection(kept, other, ())
 
 
 def check_known_type(msgtype: str, where: str) -> None:
