@@ -21,9 +21,11 @@ from audio2pose_ros.cli.options import (
     new_dir,
 )
 from audio2pose_ros.data.bag import (
+    KNOWN_MESSAGE_TYPES,
     MAX_CHUNK_BYTES,
     BagError,
     Chunking,
+    bag_topics,
     read_checked_messages,
     select_for_replay,
     write_audio_bag,
@@ -80,7 +82,14 @@ def command_replay(args: argparse.Namespace) -> int:
         )
     messages = selection.messages
     if not messages:
-        raise BagError(f"{bag}: no audio to replay (name other topics with --topics)")
+        found = ", ".join(
+            f"{topic} ({msgtype}{'' if msgtype in KNOWN_MESSAGE_TYPES else ', not a known type'})"
+            for topic, msgtype in sorted(bag_topics(bag).items())
+        )
+        raise BagError(
+            f"{bag}: no audio to replay (it holds: {found or 'no topics'}; name known topics "
+            "with --topics)"
+        )
     span_s = (messages[-1].timestamp_ns - messages[0].timestamp_ns) * 1e-9 / args.rate
     if span_s > MAX_REPLAY_S:
         raise BagError(

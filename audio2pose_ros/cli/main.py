@@ -34,6 +34,7 @@ from audio2pose_ros.cli.options import (
     MAX_SEED,
     OneLineParser,
     Verbs,
+    add_force,
     bounded_float,
     bounded_int,
     input_bag,
@@ -139,14 +140,19 @@ def _read_speech(path: Path) -> np.ndarray:
 
 
 def _synthesize_to_csv(
-    wav: Path, out: Path, model: str | None, smooth: bool, seed: int = 0
+    wav: Path,
+    out: Path,
+    model: str | None,
+    smooth: bool,
+    seed: int = 0,
+    force: bool = False,
 ) -> Path:
     from audio2pose_ros.checkpoints.torch_io import load_checkpoint
     from audio2pose_ros.offline.synthesis import synthesize, write_trajectory_csv
     from audio2pose_ros.resources import default_checkpoint_path
     from audio2pose_ros.robot.description import load_robot
 
-    output_file(out, "-o")
+    output_file(out, "-o", inputs=(wav, model), force=force)
     checkpoint = load_checkpoint(model or default_checkpoint_path(), robot=load_robot())
     times, angles = synthesize(checkpoint, _read_speech(wav), smooth=smooth, seed=seed)
     try:
@@ -158,7 +164,12 @@ def _synthesize_to_csv(
 def command_synth(args: argparse.Namespace) -> int:
     """Offline synthesis of a WAV to a CSV of joint angles at 100 Hz."""
     out = _synthesize_to_csv(
-        Path(args.wav), Path(args.output), args.model, not args.no_smooth, seed=args.seed
+        Path(args.wav),
+        Path(args.output),
+        args.model,
+        not args.no_smooth,
+        seed=args.seed,
+        force=args.force,
     )
     print(f"wrote {out}")
     return 0
@@ -332,7 +343,9 @@ def command_plot_filter(args: argparse.Namespace) -> int:
     from audio2pose_ros.resources import default_checkpoint_path
     from audio2pose_ros.viz.filter_plot import plot_raw_vs_filtered
 
-    output_file(args.output, "-o")
+    output_file(
+        args.output, "-o", inputs=(args.wav, args.model, args.params_file), force=args.force
+    )
     filt = motion_filter_from_file(
         input_file(args.params_file, "parameters file") if args.params_file else None
     )
@@ -358,7 +371,7 @@ def command_distill_prosody(args: argparse.Namespace) -> int:
     from audio2pose_ros.robot.description import load_robot
 
     wavs = [input_file(w, "WAV file") for w in args.wavs]
-    output_file(args.output, "-o")
+    output_file(args.output, "-o", inputs=wavs, force=args.force)
     checkpoint, fit_report, metrics = distill_prosody(
         wavs,
         Path(args.output),
@@ -408,6 +421,7 @@ def build_parser() -> argparse.ArgumentParser:
     synth = verbs.add_parser("synth", help="offline synthesis of a WAV to CSV (100 Hz, radians)")
     synth.add_argument("wav", metavar="FILE.wav|BAG", help="a WAV file or a bag with audio")
     synth.add_argument("-o", "--output", required=True, metavar="OUT.csv")
+    add_force(synth)
     synth.add_argument("--model", help="checkpoint (default: packaged model)")
     synth.add_argument("--no-smooth", action="store_true", help="skip the 4 Hz Butterworth filter")
     synth.add_argument(
@@ -463,6 +477,7 @@ def build_parser() -> argparse.ArgumentParser:
     plot = verbs.add_parser("plot-filter", help="PNG of raw model output vs the motion filter")
     plot.add_argument("wav", metavar="FILE.wav")
     plot.add_argument("-o", "--output", required=True, metavar="OUT.png")
+    add_force(plot)
     plot.add_argument("--model", help="checkpoint (default: packaged model)")
     plot.add_argument("--params-file", help="ROS parameter YAML (default: config/pepper.yaml)")
     plot.set_defaults(func=command_plot_filter)
@@ -472,6 +487,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     distill.add_argument("wavs", nargs="+", metavar="FILE.wav")
     distill.add_argument("-o", "--output", required=True, metavar="OUT.safetensors")
+    add_force(distill)
     distill.add_argument(
         "--validation",
         nargs="*",

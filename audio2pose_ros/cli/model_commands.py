@@ -23,6 +23,7 @@ from pathlib import Path
 from audio2pose_ros.cli.options import (
     MAX_SEED,
     Verbs,
+    add_force,
     bounded_int,
     input_dir,
     input_file,
@@ -84,9 +85,10 @@ def command_train(args: argparse.Namespace) -> int:
     from audio2pose_ros.robot.description import load_robot
 
     data = input_dir(args.data, "data set folder")
-    output_file(args.output, "-o")
     if args.finetune:
         input_file(args.finetune, "checkpoint")
+    # --resume continues the training that writes this output: it is replaced by design
+    output_file(args.output, "-o", inputs=(args.finetune,), force=args.force or args.resume)
     settings = TrainSettings(max_epochs=args.max_epochs, seed=args.seed)
     checkpoint, report = train_from_dataset(
         data,
@@ -189,6 +191,7 @@ def register(verbs: Verbs) -> None:
     )
     train.add_argument("--data", required=True, metavar="DIR", help="data set folder")
     train.add_argument("-o", "--output", required=True, metavar="CKPT.safetensors")
+    add_force(train)
     train.add_argument("--speaker", help="train on this speaker only (subject-dependent)")
     train.add_argument("--finetune", metavar="CKPT", help="start from this checkpoint")
     train.add_argument(

@@ -19,7 +19,7 @@ import math
 import os
 import stat
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import NoReturn, TypeAlias, TypeVar
 
@@ -32,6 +32,7 @@ Verbs: TypeAlias = "argparse._SubParsersAction[OneLineParser]"
 __all__ = [
     "MAX_SEED",
     "OneLineParser",
+    "add_force",
     "bounded_float",
     "bounded_int",
     "input_bag",
@@ -148,17 +149,49 @@ def _writable_parent(path: Path, option: str) -> None:
         raise UsageError(f"{option} {path}: folder {parent} is not writable")
 
 
-def output_file(name: str | os.PathLike[str], option: str) -> Path:
-    """``name`` as a Path after checking a file can be written there (it may be replaced).
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether two existing paths are one file (symlinks followed, hard links compared)."""
+    try:
+        first, second = a.stat(), b.stat()
+    except OSError:
+        return False
+    return (first.st_dev, first.st_ino) == (second.st_dev, second.st_ino)
+
+
+def output_file(
+    name: str | os.PathLike[str],
+    option: str,
+    inputs: Iterable[str | os.PathLike[str] | None] = (),
+    force: bool = False,
+) -> Path:
+    """``name`` as a Path after checking a file may be written there.
+
+    Args:
+        name: the file to write.
+        option: the option that named it (for the message).
+        inputs: the files the command reads: the output is never one of them, whatever the
+            path it is given by (a symlink, a hard link, ``./``).
+        force: an existing file may be replaced (``--force``); without it, it is refused.
 
     Raises:
-        UsageError: its folder is missing or not writable, or the path is a directory.
+        UsageError: its folder is missing or not writable, the path is a directory, it is one
+            of the inputs, or it exists and ``force`` is not given.
     """
     path = Path(name)
     if path.is_dir():
         raise UsageError(f"{option} {path}: is a directory, expected a file name")
     _writable_parent(path, option)
+    for source in inputs:
+        if source is not None and _same_file(path, Path(source)):
+            raise UsageError(f"{option} {path}: is the input {source}; give another output file")
+    if not force and (path.exists() or path.is_symlink()):
+        raise UsageError(f"{option} {path}: exists already; give --force to replace it")
     return path
+
+
+def add_force(parser: argparse.ArgumentParser) -> None:
+    """``--force``: let the command replace an existing output file (never one of its inputs)."""
+    parser.add_argument("--force", action="store_true", help="replace the output file if it exists")
 
 
 def new_dir(name: str | os.PathLike[str], option: str, parents: bool = False) -> Path:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from audio2pose_ros.cli.options import (
     Verbs,
+    add_force,
     bounded_float,
     bounded_int,
     input_bag,
@@ -51,7 +52,12 @@ def command_render(args: argparse.Namespace) -> int:
     for name in ("view_width", "view_height", "curves_height"):
         if getattr(args, name) % 2:
             raise UsageError(f"--{name.replace('_', '-')} {getattr(args, name)} must be even")
-    output_file(args.output, "-o")
+    output_file(
+        args.output,
+        "-o",
+        inputs=(args.wav, args.model, args.bag, *(args.compare or [])),
+        force=args.force,
+    )
     bag_out = new_dir(_bag_path(args), "--mcap")
     for checkpoint in [args.model, *(args.compare or [])]:
         if checkpoint:
@@ -111,6 +117,7 @@ def register(verbs: Verbs) -> None:
     )
     render.add_argument("wav", nargs="?", metavar="FILE.wav", help="speech (not with --data)")
     render.add_argument("-o", "--output", required=True, metavar="OUT.mp4")
+    add_force(render)
     render.add_argument("--model", help="checkpoint (default: packaged model)")
     source = render.add_mutually_exclusive_group()
     source.add_argument("--bag", help="render the joint angles recorded in this rosbag2")

@@ -1,0 +1,69 @@
+"""No verb writes over one of its inputs, and an existing output is replaced only with --force."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+from audio2pose_ros.cli import main as cli
+
+
+def audio2pose(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str]:
+    try:
+        status = cli.main([str(a) for a in argv])
+    except SystemExit as exc:
+        status = exc.code
+    return status, capsys.readouterr().err
+
+
+@pytest.fixture
+def wav(tmp_path: Path, speech_files: list[Path]) -> Path:
+    copy = tmp_path / "in.wav"
+    shutil.copyfile(speech_files[1], copy)
+    return copy
+
+
+def same_input(wav: Path, how: str) -> Path:
+    """A path naming the input file: itself, through a symlink, a hard link or ``./``."""
+    if how == "same path":
+        return wav
+    if how == "dot path":
+        return wav.parent / "." / wav.name
+    other = wav.parent / f"other_{how.replace(' ', '_')}.csv"
+    (os.symlink if how == "symlink" else os.link)(wav, other)
+    return other
+
+
+@pytest.mark.parametrize("how", ["same path", "dot path", "symlink", "hard link"])
+@pytest.mark.parametrize("verb", ["synth", "plot-filter"])
+def test_when_output_is_the_input_expect_exit_2_and_the_input_intact(capsys, wav, how, verb):
+    before = wav.read_bytes()
+    out = same_input(wav, how)
+    status, err = audio2pose(capsys, verb, wav, "-o", out, "--force")
+    assert status == 2, err
+    assert "is the input" in err
+    assert "Traceback" not in err
+    assert wav.read_bytes() == before
+
+
+def test_when_output_exists_expect_refused_without_force_and_replaced_with_it(
+    capsys, wav, tmp_path
+):
+    out = tmp_path / "out.csv"
+    out.write_text("keep me\n")
+    status, err = audio2pose(capsys, "synth", wav, "-o", out)
+    assert status == 2
+    assert "exists already; give --force" in err
+    assert out.read_text() == "keep me\n"
+    status, err = audio2pose(capsys, "synth", wav, "-o", out, "--force")
+    assert status == 0, err
+    assert out.read_text().startswith("time_s")
+
+
+def test_when_render_output_is_the_input_expect_exit_2(capsys, wav):
+    status, err = audio2pose(capsys, "render", wav, "-o", wav)
+    assert status == 2
+    assert "is the input" in err
