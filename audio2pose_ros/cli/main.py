@@ -68,7 +68,14 @@ def command_run(args: argparse.Namespace) -> int:
         raise UsageError(f"--log-dir {log_dir}: exists and is not a directory")
     overrides = [f"model_path:={model.resolve()}"] if model else []
     result = run_graph(
-        play, record, params, overrides, log_dir, rate=args.rate, single_process=args.single_process
+        play,
+        record,
+        params,
+        overrides,
+        log_dir,
+        rate=args.rate,
+        single_process=args.single_process,
+        sim=args.sim,
     )
     if result is not None:
         print(summarize(result))
@@ -411,6 +418,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--single-process",
         action="store_true",
         help="run the three nodes in one process and one executor (smallest footprint)",
+    )
+    run.add_argument(
+        "--sim",
+        action="store_true",
+        help="also run a simulated Pepper (pybullet) that follows joint_angles and publishes "
+        "the measured joint_states",
     )
     run.set_defaults(func=command_run)
 

@@ -60,6 +60,7 @@ from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.ros.player import MessagePlayer, rclpy_session, spin_until, warm_up
 
 NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
+SIM_NODE = "pepper_sim_node"  # the simulated robot (audio2pose run --sim)
 SINGLE_PROCESS = "audio2pose_nodes"  # the process that runs all three nodes (single-process mode)
 # As the launch file does: trajectories go to Pepper's ros2_control controller.
 NODE_REMAPS = {"motion_filter_node": ("-r", f"{topics.JOINT_TRAJECTORY}:={CONTROLLER_TOPIC}")}
@@ -402,6 +403,7 @@ def node_graph(
     log_dir: Path | None = None,
     monitor: bool = True,
     single_process: bool = False,
+    sim: bool = False,
 ) -> Iterator[NodeSupervisor]:
     """Run the three nodes as supervised processes for the duration of the context.
 
@@ -413,6 +415,8 @@ def node_graph(
         monitor: watch the nodes' heartbeats and restart a silent node.
         single_process: run the three nodes in one process and one executor
             (``audio2pose_nodes``) instead of one process each.
+        sim: also run ``pepper_sim_node``, a simulated Pepper that follows ``joint_angles`` and
+            reports the measured ``joint_states`` the motion filter starts from.
     """
     params = params_file or share_path("config", "pepper.yaml")
     with ExitStack() as stack:
@@ -432,6 +436,10 @@ def node_graph(
                 for name in NODE_EXECUTABLES
             }
             members = None
+        if sim:
+            commands[SIM_NODE] = [*executable_command(SIM_NODE), "--ros-args"]
+            if members is not None:
+                members[SIM_NODE] = SIM_NODE
         supervisor = NodeSupervisor(commands, log_dir, members=members)
         stack.callback(supervisor.stop)
         supervisor.start()
@@ -568,14 +576,17 @@ def run_graph(
     log_dir: Path | None,
     rate: float = 1.0,
     single_process: bool = False,
+    sim: bool = False,
 ) -> PlaybackResult | None:
     """Start the graph; with ``play`` (a WAV or a bag) play it and return what was recorded.
 
     Without ``play`` the graph runs until Ctrl-C or until a node exits. ``single_process`` runs
-    the three nodes in one process (:func:`node_graph`).
+    the three nodes in one process, ``sim`` adds the simulated Pepper (:func:`node_graph`).
     """
     messages = audio_source(play) if play is not None else None
-    with node_graph(params_file, overrides, log_dir, single_process=single_process) as supervisor:
+    with node_graph(
+        params_file, overrides, log_dir, single_process=single_process, sim=sim
+    ) as supervisor:
         if messages is None:
             try:
                 while supervisor.running:

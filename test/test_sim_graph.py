@@ -1,0 +1,65 @@
+"""The node graph against the simulated Pepper over real DDS: speech moves the simulated robot.
+
+``audio2pose run --sim`` starts ``pepper_sim_node`` next to the three nodes: the motion filter
+starts from the simulated robot's measured pose, its commands move the simulated joints at the
+speed JointAnglesWithSpeed asks for, and the measured joint states follow the commands with a
+bounded lag and no arm inside the body.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from audio_common_msgs.msg import AudioInfo
+from graph_probe import Probe, diagnostics_of
+from sensor_msgs.msg import JointState
+
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
+from audio2pose_ros.audio.wav import read_wav
+from audio2pose_ros.robot.body import BodyModel
+from audio2pose_ros.ros.graph import node_graph
+from audio2pose_ros.topics import JOINT_STATES, absolute
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+
+def test_when_speech_plays_against_the_simulated_robot_expect_it_moves_and_tracks(
+    tmp_path: Path, probe: Probe, robot, speech_files
+):
+    measured: list[tuple[float, np.ndarray]] = []
+
+    def on_state(msg: JointState) -> None:
+        index = {name: i for i, name in enumerate(msg.name)}
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        measured.append((stamp, np.array([msg.position[index[n]] for n in robot.names])))
+
+    probe.create_subscription(JointState, absolute(JOINT_STATES), on_state, 1000)
+    samples, _ = read_wav(speech_files[0])
+    payload = encode_pcm(samples, S16LE_MONO_16K)
+    with node_graph(log_dir=tmp_path, sim=True) as graph:
+        probe.info.publish(AudioInfo(**S16LE_MONO_16K.audio_info_fields()))
+        probe.wait_until(probe.graph_ready)
+        probe.wait_until(lambda: len(measured) > 10)
+        probe.warm_up()
+        measured.clear()
+        probe.play(payload, [3200], bytes_per_s=32000)
+        probe.spin_for(1.0)
+        assert not any(graph.restarts.values()), "a node died"
+        sim_status = diagnostics_of(probe, "pepper_sim_node")
+
+    assert len(measured) > 40 * len(samples) / 16000  # about 50 Hz, like naoqi_driver
+    stamps = np.array([t for t, _ in measured])
+    positions = np.array([p for _, p in measured])
+    assert positions.std(axis=0).max() > 0.02  # the simulated robot moved with the speech
+    commands = probe.received["angles"]
+    command_t = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in commands])
+    command_p = np.array([m.joint_angles for m in commands])
+    # the measured pose against the command in force at its time: lag and speed only
+    k = np.clip(np.searchsorted(command_t, stamps) - 1, 0, len(command_t) - 1)
+    error = np.abs(positions - command_p[k]).max(axis=1)
+    assert np.percentile(error, 95) < 0.1, np.percentile(error, [50, 95])
+    assert BodyModel.load(robot).clearance(positions).min() >= 0.0
+    assert int(sim_status["self_collision_steps"]) == 0
+    assert int(sim_status["commands_refused"]) == 0

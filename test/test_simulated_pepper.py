@@ -1,0 +1,96 @@
+"""The simulated Pepper: setAngles speeds, replaced targets, trajectories, refused commands."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from audio2pose_ros.errors import InputError
+from audio2pose_ros.robot.simulated_pepper import SimulatedPepper
+
+
+@pytest.fixture
+def sim():
+    robot = SimulatedPepper()
+    yield robot
+    robot.close()
+
+
+def test_when_set_angles_at_a_tenth_of_max_speed_expect_that_speed(sim):
+    robot = sim.robot
+    joint = robot.names.index("LShoulderPitch")
+    start = sim.measured()[0][joint]
+    sim.set_angles(["LShoulderPitch"], [start - 1.0], 0.1)
+    sim.step(0.5)
+    moved = start - sim.measured()[0][joint]
+    assert moved == pytest.approx(0.5 * 0.1 * robot.max_velocity_rad_s[joint], rel=0.05)
+
+
+def test_when_set_angles_at_full_speed_expect_target_reached_and_held(sim):
+    sim.set_angles(["HeadYaw", "LShoulderPitch"], [0.8, 0.6], 1.0)
+    sim.step(0.5)
+    positions, velocities = sim.measured()
+    names = sim.robot.names
+    assert positions[names.index("HeadYaw")] == pytest.approx(0.8, abs=1e-3)
+    assert positions[names.index("LShoulderPitch")] == pytest.approx(0.6, abs=1e-3)
+    assert np.abs(velocities).max() < 1e-2
+
+
+def test_when_a_new_command_arrives_expect_it_replaces_the_old_target(sim):
+    sim.set_angles(["HeadYaw"], [1.5], 0.2)
+    sim.step(0.1)
+    sim.set_angles(["HeadYaw"], [-0.2], 1.0)
+    sim.step(0.5)
+    assert sim.measured()[0][sim.robot.names.index("HeadYaw")] == pytest.approx(-0.2, abs=1e-3)
+
+
+def test_when_target_out_of_range_expect_clamped_to_the_joint_limit(sim):
+    sim.set_angles(["HipRoll"], [3.0], 1.0)
+    sim.step(1.0)
+    joint = sim.robot.names.index("HipRoll")
+    assert sim.measured()[0][joint] == pytest.approx(sim.robot.upper_rad[joint], abs=1e-3)
+
+
+def test_when_a_trajectory_is_sent_expect_its_points_reached_on_time(sim):
+    sim.follow(["HeadPitch"], [0.2, 0.4], np.array([[0.1], [0.3]]))
+    joint = sim.robot.names.index("HeadPitch")
+    start = sim.measured()[0][joint]
+    sim.step(0.1)
+    assert sim.measured()[0][joint] == pytest.approx(start + (0.1 - start) / 2, abs=0.02)
+    sim.step(0.15)
+    assert sim.measured()[0][joint] == pytest.approx(0.15, abs=0.02)  # between the points
+    sim.step(0.5)
+    assert sim.measured()[0][joint] == pytest.approx(0.3, abs=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("names", "angles", "speed", "problem"),
+    [
+        (["Knee"], [0.0], 0.5, "unknown joints"),
+        (["HeadYaw"], [float("nan")], 0.5, "finite"),
+        (["HeadYaw", "HeadPitch"], [0.0], 0.5, "2 joint names but 1 angles"),
+        (["HeadYaw"], [0.3], 0.0, "speed"),
+        (["HeadYaw"], [0.3], float("inf"), "speed"),
+        (["HeadYaw"], [0.3], 1.5, "speed"),
+    ],
+)
+def test_when_command_malformed_expect_refused_and_robot_unchanged(
+    sim, names, angles, speed, problem
+):
+    before = sim.measured()[0]
+    with pytest.raises(InputError, match=problem):
+        sim.set_angles(names, angles, speed)
+    sim.step(0.2)
+    np.testing.assert_allclose(sim.measured()[0], before, atol=1e-6)
+    assert sim.counts.refused == 1
+
+
+def test_when_arm_commanded_into_the_body_expect_the_self_collision_counted(sim):
+    sim.set_angles(
+        ["LShoulderPitch", "LShoulderRoll", "LElbowRoll", "LElbowYaw"],
+        [1.3, 0.13, -1.24, 0.28],
+        1.0,
+    )
+    sim.step(1.0)
+    assert sim.counts.self_collision_steps > 0
+    assert sim.counts.deepest_m > 0.05
