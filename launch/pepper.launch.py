@@ -36,6 +36,9 @@ Visualisation and simulation (urdf/pepper.urdf, primitive shapes):
   loads gz_ros2_control with config/ros2_controllers.yaml, and spawns joint_state_broadcaster and
   pepper_joint_trajectory_controller, which executes the motion filter's trajectories. The
   simulated robot publishes /joint_states like a real one; robot_state_publisher shows it.
+- ``sim:=pybullet`` starts ``pepper_sim_node`` (this package, headless, 2 CPU cores are plenty):
+  a simulated Pepper that follows /joint_angles as ALMotion's setAngles does and publishes the
+  measured /joint_states at 50 Hz, with robot_state_publisher for RViz.
 
 ``single_process:=true`` runs the three nodes in one process and one executor
 (``python -m audio2pose_ros.ros.nodes.single_process``, the same parameters and remappings): the
@@ -125,8 +128,10 @@ def declare_arguments() -> list[DeclareLaunchArgument]:
         DeclareLaunchArgument(
             "sim",
             default_value="none",
-            choices=["none", "gz"],
-            description="'gz': simulate the robot in gz sim, driven through ros2_control",
+            choices=["none", "gz", "pybullet"],
+            description="'gz': simulate the robot in gz sim, driven through ros2_control; "
+            "'pybullet': pepper_sim_node, a headless simulated Pepper that takes joint_angles "
+            "and publishes joint_states as naoqi_driver does",
         ),
         DeclareLaunchArgument(
             "diagnostic_aggregator",
@@ -243,6 +248,22 @@ def visualisation_and_simulation(plan: LaunchPlan) -> list[Action]:
                 arguments=["-d", str(Path(share, "config", "pepper.rviz"))],
             )
         )
+    if plan.sim == "pybullet":
+        actions += [
+            Node(
+                package=PACKAGE,
+                executable="pepper_sim_node",
+                name="pepper_sim_node",
+                output="screen",
+            ),
+            # The simulated robot's measured joint states, on /joint_states like a real robot's.
+            Node(
+                package="robot_state_publisher",
+                executable="robot_state_publisher",
+                name="robot_state_publisher",
+                parameters=[{"robot_description": robot_description()}],
+            ),
+        ]
     if plan.sim == "gz":
         gz_launch = Path(get_package_share_directory("ros_gz_sim"), "launch", "gz_sim.launch.py")
         actions += [

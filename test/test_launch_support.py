@@ -192,10 +192,13 @@ def test_when_robot_state_publisher_is_on_without_sim_expect_the_commanded_pose_
     assert not plan_launch(arguments(robot_state_publisher="0")).commanded_state_publisher
     gz = plan_launch(arguments(robot_state_publisher="True", sim="gz"))
     assert not gz.commanded_state_publisher  # the simulated robot publishes its own state
+    pybullet = plan_launch(arguments(robot_state_publisher="True", sim="PyBullet"))
+    assert pybullet.sim == "pybullet"
+    assert not pybullet.commanded_state_publisher
 
 
 def test_when_sim_is_unknown_expect_a_refusal():
-    with pytest.raises(ConfigurationError, match="sim:='mujoco' is not one of none, gz"):
+    with pytest.raises(ConfigurationError, match="sim:='mujoco' is not one of none, gz, pybullet"):
         plan_launch(arguments(sim="mujoco"))
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import yaml
 
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.graph import NODE_EXECUTABLES
+from audio2pose_ros.ros.graph import NODE_EXECUTABLES, SIM_NODE
 from audio2pose_ros.ros.launch_support import ARGUMENTS, CONTROLLER_NAME, CONTROLLER_TOPIC
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -46,8 +46,8 @@ def constant_keywords(call: ast.Call) -> dict[str, object]:
 
 def test_when_reading_setup_cfg_expect_one_executable_per_node_plus_cli():
     scripts = console_scripts()
-    assert set(scripts) == {*NODE_EXECUTABLES, "audio2pose"}
-    for name in NODE_EXECUTABLES:
+    assert set(scripts) == {*NODE_EXECUTABLES, SIM_NODE, "audio2pose"}
+    for name in (*NODE_EXECUTABLES, SIM_NODE):
         # nodes/process.py makes the process safe to stop before the heavy imports
         assert scripts[name] == f"audio2pose_ros.ros.nodes.process:{name}"
 
@@ -60,9 +60,10 @@ def test_when_parsing_launch_file_expect_the_three_nodes_named_as_their_executab
         if isinstance(node, ast.For) and isinstance(node.iter, ast.Tuple)
     ]
     assert [tuple(e.value for e in elts) for elts in started] == [NODE_EXECUTABLES]
-    (ours,) = [call for call in launch_calls("Node") if "PACKAGE" in ast.unparse(call)]
-    keywords = {kw.arg: ast.unparse(kw.value) for kw in ours.keywords}
-    assert keywords["executable"] == keywords["name"] == "executable"
+    ours = [call for call in launch_calls("Node") if "PACKAGE" in ast.unparse(call)]
+    keywords = [{kw.arg: ast.unparse(kw.value) for kw in call.keywords} for call in ours]
+    assert [k["executable"] for k in keywords] == ["executable", f"{SIM_NODE!r}"]
+    assert all(k["executable"] == k["name"] for k in keywords)
 
 
 def test_when_parsing_launch_file_expect_no_respawn_flag_and_no_string_comparisons():
@@ -103,7 +104,12 @@ def test_when_parsing_launch_file_expect_other_packages_started_only_by_the_plan
     branches = [
         ast.unparse(node.test) for node in ast.walk(visualisation) if isinstance(node, ast.If)
     ]
-    assert branches == ["plan.commanded_state_publisher", "plan.rviz", "plan.sim == 'gz'"]
+    assert branches == [
+        "plan.commanded_state_publisher",
+        "plan.rviz",
+        "plan.sim == 'pybullet'",
+        "plan.sim == 'gz'",
+    ]
     # The commanded pose only feeds robot_state_publisher in the branch without a robot.
     assert ast.unparse(visualisation).count("COMMANDED_JOINT_STATES") == 1
 

@@ -54,7 +54,7 @@ __all__ = [
 # config/ros2_controllers.yaml declares it under the same name.
 CONTROLLER_NAME = "pepper_joint_trajectory_controller"
 CONTROLLER_TOPIC = f"/{CONTROLLER_NAME}/joint_trajectory"
-SIM_CHOICES = ("none", "gz")
+SIM_CHOICES = ("none", "gz", "pybullet")
 AUDIO_INPUTS = (topics.AUDIO, topics.AUDIO_INFO)  # the features node's inputs moved by audio_ns
 # The launch file's arguments, all read by plan_launch.
 ARGUMENTS = (
@@ -247,7 +247,8 @@ class LaunchPlan:
         rviz: open RViz.
         robot_state_publisher: publish /robot_description and /tf from the commanded pose
             (only without a simulator: a simulated or real robot publishes its own).
-        sim: ``"none"`` or ``"gz"``.
+        sim: ``"none"``, ``"gz"`` (gz sim with ros2_control) or ``"pybullet"``
+            (``pepper_sim_node``: a simulated Pepper behind naoqi_driver's topics).
         diagnostic_aggregator: start diagnostic_aggregator with config/diagnostic_analyzers.yaml.
         single_process: run the three nodes in one process and one executor
             (:data:`SINGLE_PROCESS_MODULE`) instead of one process each.
