@@ -19,6 +19,7 @@ exit status 70 (``EX_SOFTWARE``); the traceback is printed only with the global 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -233,6 +234,11 @@ def command_bench(args: argparse.Namespace) -> int:
                 args.graph_mode
             ]
         ]
+    if args.sim:  # the graph against the simulated Pepper: commanded vs executed
+        from audio2pose_ros.ros.graph_bench import bundled_speech, measure_sim_tracking
+
+        tracking = measure_sim_tracking(bundled_speech(), duration_s=min(args.duration, 60.0))
+        results["sim_tracking"] = dataclasses.asdict(tracking)
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     torch.set_num_threads(1)
@@ -297,6 +303,15 @@ def _print_bench(results: dict[str, Any], frames: int, clip_s: float) -> None:
             print(f"{name:<14}{step}{cost['offline_x_real_time']:>22.0f}")
     if "graph" in results:
         _print_graph(results["graph"])
+    if "sim_tracking" in results:
+        sim = results["sim_tracking"]
+        print(
+            f"\nagainst the simulated Pepper, {sim['audio_s']:.0f} s of speech: commanded vs "
+            f"executed error median {sim['error_median_deg']:.2f} deg, p95 "
+            f"{sim['error_p95_deg']:.2f} deg (largest joint per measured pose); self-collisions "
+            f"executed: {sim['executed_self_collision_steps']} steps "
+            f"({sim['measured_inside_body']} measured poses inside the body)"
+        )
 
 
 def _print_graph(runs: list[dict[str, Any]]) -> None:
@@ -483,6 +498,12 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("three", "single", "both"),
         default="both",
         help="--graph runs three node processes, one process, or both in turn (default both)",
+    )
+    bench.add_argument(
+        "--sim",
+        action="store_true",
+        help="also run the graph against the simulated Pepper: tracking error commanded vs "
+        "executed and self-collisions executed (--duration, at most 60 s)",
     )
     bench.add_argument("--json", action="store_true", help="print the figures as JSON")
     bench.set_defaults(func=command_bench)

@@ -30,9 +30,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 from audio_common_msgs.msg import AudioData, AudioInfo
+from diagnostic_msgs.msg import DiagnosticArray
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
 from rclpy.serialization import serialize_message
+from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros import topics
@@ -40,8 +42,9 @@ from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.data.bag import AUDIO_DATA_TYPE, AUDIO_INFO_TYPE, BagMessage
 from audio2pose_ros.resources import share_path
+from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.graph import GraphTimeoutError, node_graph
+from audio2pose_ros.ros.graph import SIM_NODE, GraphTimeoutError, node_graph
 from audio2pose_ros.ros.player import (
     MessagePlayer,
     rclpy_session,
@@ -297,3 +300,96 @@ def targets(figures: GraphFigures) -> list[dict[str, object]]:
         }
         for (name, three_target, single_target, unit), value in zip(TARGETS, values, strict=True)
     ]
+
+
+@dataclass
+class SimTracking:
+    """The graph against the simulated Pepper: commanded vs executed (degrees), self-collisions."""
+
+    audio_s: float
+    error_median_deg: float  # per measured pose, the largest joint error, then its median
+    error_p95_deg: float
+    executed_self_collision_steps: int  # the simulator's count (steps with an arm inside)
+    measured_inside_body: int  # measured poses with clearance < 0 (our own check of the same)
+
+
+class _SimObserver(_Player):
+    """The bench player, also recording the simulated robot's measured joint states."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.measured: list[tuple[float, np.ndarray]] = []
+        self.sim_values: dict[str, str] = {}
+        names = load_robot().names
+        self._names = names
+
+        def on_state(msg: JointState) -> None:
+            index = {name: i for i, name in enumerate(msg.name)}
+            if all(name in index for name in names):
+                position = np.array([msg.position[index[name]] for name in names])
+                self.measured.append((time.monotonic(), position))
+
+        def on_diagnostics(msg: DiagnosticArray) -> None:
+            for status in msg.status:
+                if status.name.endswith(SIM_NODE):
+                    self.sim_values = {kv.key: kv.value for kv in status.values}
+
+        self.create_subscription(JointState, topics.absolute(topics.JOINT_STATES), on_state, 1000)
+        self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diagnostics, 100)
+
+
+def measure_sim_tracking(speech_16k: np.ndarray, duration_s: float = 30.0) -> SimTracking:
+    """Play ``duration_s`` of speech in real time through the graph and the simulated Pepper.
+
+    The graph runs the package's parameters (real limits, the body guard); the simulated robot
+    follows ``/joint_angles`` (:mod:`audio2pose_ros.robot.simulated_pepper`). Each measured
+    joint state is compared with the command in force when it was received: the error is the
+    robot's lag and speed, as the tracking watch of motion_filter_node sees it.
+    """
+    audio = np.resize(speech_16k, int(duration_s * SAMPLE_RATE_HZ) // CHUNK_SAMPLES * CHUNK_SAMPLES)
+    payload = encode_pcm(audio, S16LE_MONO_16K)
+    step = 2 * CHUNK_SAMPLES
+    audio_topic = topics.absolute(topics.AUDIO)
+    chunks = [
+        BagMessage(
+            timestamp_ns=round(j * FRAME_PERIOD_S * 1e9),
+            topic=audio_topic,
+            msgtype=AUDIO_DATA_TYPE,
+            data=serialize_message(AudioData(data=payload[offset : offset + step])),
+        )
+        for j, offset in enumerate(range(0, len(payload), step))
+    ]
+    with tempfile.TemporaryDirectory() as tmp, rclpy_session():
+        observer = _SimObserver()
+        with node_graph(log_dir=Path(tmp) / "logs", sim=True):
+            observer.player.publishers[topics.absolute(topics.AUDIO_INFO)].publish(
+                AudioInfo(**S16LE_MONO_16K.audio_info_fields())
+            )
+            deadline = time.monotonic() + ANSWER_TIMEOUT_S
+            if not warm_up(
+                observer.player, audio_topic, lambda: bool(observer.raw), ANSWER_TIMEOUT_S
+            ):
+                raise _timed_out("no raw pose for the audio played")
+            spin_until(observer, min(deadline, time.monotonic() + 0.5))
+            observer.commands.clear()
+            observer.measured.clear()
+            observer.player.play(chunks)
+            spin_until(observer, time.monotonic() + 1.5)  # the last diagnostics and states
+        observer.destroy_node()
+    command_t = np.array([c[0] for c in observer.commands])
+    command_p = np.array([c[1] for c in observer.commands])
+    measured = [m for m in observer.measured if len(command_t) and m[0] >= command_t[0]]
+    if not measured:
+        raise _timed_out("no measured joint states while commands came")
+    stamps = np.array([m[0] for m in measured])
+    positions = np.array([m[1] for m in measured])
+    k = np.clip(np.searchsorted(command_t, stamps) - 1, 0, len(command_t) - 1)
+    error = np.degrees(np.abs(positions - command_p[k]).max(axis=1))
+    inside = int(np.count_nonzero(BodyModel.load().clearance(positions) < 0.0))
+    return SimTracking(
+        audio_s=len(audio) / SAMPLE_RATE_HZ,
+        error_median_deg=float(np.median(error)),
+        error_p95_deg=float(np.percentile(error, 95)),
+        executed_self_collision_steps=int(observer.sim_values.get("self_collision_steps", -1)),
+        measured_inside_body=inside,
+    )
