@@ -16,8 +16,10 @@ parameter, the value and the allowed range in one line:
 
 from __future__ import annotations
 
+import re
 import sys
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from rcl_interfaces.msg import (
@@ -33,8 +35,9 @@ from rclpy.parameter import Parameter
 
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.parameters import ParameterSpec, ParameterValue
+from audio2pose_ros.yaml_files import read_yaml_file
 
-__all__ = ["NodeParameters", "descriptor_of"]
+__all__ = ["NodeParameters", "check_parameter_files", "descriptor_of", "parameter_files"]
 
 _TYPES = {
     bool: ParameterType.PARAMETER_BOOL,
@@ -64,6 +67,80 @@ def descriptor_of(spec: ParameterSpec) -> ParameterDescriptor:
         high_i = 2**63 - 1 if spec.maximum is None else int(spec.maximum)
         descriptor.integer_range = [IntegerRange(from_value=low_i, to_value=high_i, step=0)]
     return descriptor
+
+
+# Parameters every rclpy node accepts besides its own (ROS 2's node options).
+ROS_NODE_PARAMETERS = frozenset(
+    {"use_sim_time", "start_type_description_service", "start_parameter_event_publisher"}
+)
+
+
+def parameter_files(argv: Sequence[str]) -> list[Path]:
+    """The ``--params-file`` arguments of a node's command line (after ``--ros-args``)."""
+    files: list[Path] = []
+    in_ros_args = False
+    for i, arg in enumerate(argv):
+        if arg == "--ros-args":
+            in_ros_args = True
+        elif arg == "--":
+            in_ros_args = False
+        elif in_ros_args and arg == "--params-file" and i + 1 < len(argv):
+            files.append(Path(argv[i + 1]))
+    return files
+
+
+def _section_pattern(key: str) -> re.Pattern[str]:
+    """Rcl's node-name wildcards: ``**`` any namespaces, ``*`` one name, ``/`` optional first."""
+    name = key if key.startswith("/") else f"/{key}"
+    parts = [".*" if p == "**" else re.escape(p).replace(r"\*", "[^/]*") for p in name.split("/")]
+    return re.compile("/".join(parts).replace("/.*", "(/.*)?") + "$")
+
+
+def check_parameter_files(
+    node_name: str, namespace: str, specs: Iterable[ParameterSpec], files: Sequence[Path]
+) -> None:
+    """Check every value the parameter files give this node against its declarations.
+
+    rcl merges the files of a node's command line and drops, without a word, a value whose type
+    differs from the same parameter's in an earlier file (``rate_hz: fast`` after the package's
+    ``rate_hz: 100.0``): the node would run with a value its user did not write. Here every
+    section that applies to the node (``/**``, its name, its fully qualified name, wildcards) is
+    read with the project's bounded YAML reader and every value of a declared parameter is
+    validated; in a section of this node's own, an undeclared name (a typo) is refused too.
+
+    Raises:
+        ConfigurationError: naming the file, the parameter and what is allowed.
+    """
+    by_name = {spec.name: spec for spec in specs}
+    fully_qualified = f"{namespace.rstrip('/')}/{node_name}"
+    for file in files:
+        document = read_yaml_file(file, "parameters", ConfigurationError)
+        if not isinstance(document, Mapping):
+            continue  # rcl refuses such a file itself, with its own message
+        for key, section in document.items():
+            if not isinstance(key, str) or not _section_pattern(key).match(fully_qualified):
+                continue
+            values = section.get("ros__parameters") if isinstance(section, Mapping) else None
+            if not isinstance(values, Mapping):
+                continue
+            own = key.strip("/").split("/")[-1] == node_name
+            for name, value in values.items():
+                spec = by_name.get(str(name))
+                if spec is None:
+                    if (
+                        own
+                        and name not in ROS_NODE_PARAMETERS
+                        and not str(name).startswith("qos_overrides.")
+                    ):
+                        raise ConfigurationError(
+                            f"{file}: unknown parameter {name!r} for {node_name}; known: "
+                            f"{', '.join(sorted(by_name))}"
+                        )
+                    continue
+                try:
+                    spec.validate(value)
+                except ConfigurationError as exc:
+                    raise ConfigurationError(f"{file}: {exc}") from None
 
 
 class NodeParameters:
@@ -97,6 +174,9 @@ class NodeParameters:
         self.specs = {spec.name: spec for spec in specs}
         self._apply = apply
         overrides = getattr(node, "_parameter_overrides", {})
+        check_parameter_files(
+            node.get_name(), node.get_namespace(), self.specs.values(), parameter_files(sys.argv)
+        )
         self.values: dict[str, ParameterValue] = {}
         for name, spec in self.specs.items():
             if name in overrides:  # validate first: our message beats rclpy's range message

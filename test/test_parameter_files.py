@@ -1,0 +1,66 @@
+"""A node checks every value its parameter files give it, even those rcl's merge drops."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from node_processes import configuration_error_line
+
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.resources import share_path
+from audio2pose_ros.ros.node_parameters import check_parameter_files, parameter_files
+from audio2pose_ros.ros.nodes.motion_filter_node import PARAMETERS
+
+PACKAGE_PARAMS = share_path("config", "pepper.yaml")
+
+
+def override(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "mine.yaml"
+    path.write_text(text)
+    return path
+
+
+def test_when_argv_has_params_files_expect_them_in_order():
+    argv = ["node", "--ros-args", "--params-file", "a.yaml", "-r", "x:=y", "--params-file", "b"]
+    assert parameter_files(argv) == [Path("a.yaml"), Path("b")]
+    assert parameter_files(["node", "--params-file", "not-ros.yaml"]) == []
+
+
+@pytest.mark.parametrize(
+    ("section", "value", "problem"),
+    [
+        ("motion_filter_node", "fast", "rate_hz"),
+        ("/**", "fast", "rate_hz"),
+        ("/**/motion_filter_node", "-5.0", "rate_hz"),
+        ("/motion_filter_node", "true", "rate_hz"),
+    ],
+)
+def test_when_an_override_file_has_a_wrong_value_expect_it_named_with_its_file(
+    tmp_path, section, value, problem
+):
+    mine = override(tmp_path, f"{section}:\n  ros__parameters:\n    rate_hz: {value}\n")
+    with pytest.raises(ConfigurationError, match=rf"mine\.yaml: .*{problem}"):
+        check_parameter_files("motion_filter_node", "/", PARAMETERS, [PACKAGE_PARAMS, mine])
+
+
+def test_when_another_nodes_section_is_wrong_expect_this_node_unaffected(tmp_path):
+    mine = override(tmp_path, "inference_node:\n  ros__parameters:\n    rate_hz: fast\n")
+    check_parameter_files("motion_filter_node", "/", PARAMETERS, [PACKAGE_PARAMS, mine])
+
+
+def test_when_a_name_is_misspelt_in_the_nodes_section_expect_it_refused(tmp_path):
+    mine = override(tmp_path, "motion_filter_node:\n  ros__parameters:\n    rate_hzz: 50.0\n")
+    with pytest.raises(ConfigurationError, match="unknown parameter 'rate_hzz'"):
+        check_parameter_files("motion_filter_node", "/", PARAMETERS, [mine])
+
+
+def test_when_the_real_node_gets_a_wrong_type_in_a_second_file_expect_exit_78_naming_both(
+    tmp_path,
+):
+    mine = override(tmp_path, "motion_filter_node:\n  ros__parameters:\n    rate_hz: fast\n")
+    line = configuration_error_line(
+        "motion_filter_node", "--params-file", str(PACKAGE_PARAMS), "--params-file", str(mine)
+    )
+    assert "rate_hz" in line
+    assert "mine.yaml" in line
