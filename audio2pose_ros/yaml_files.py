@@ -3,7 +3,9 @@
 Robot descriptions, ROS parameter files and BVH skeleton mappings are all a few kilobytes of
 YAML. :func:`read_yaml_file` refuses what is not such a file before parsing it: a missing path,
 a directory, a device or FIFO (reading ``/dev/zero`` would never end), a file above the size
-cap, text that is not UTF-8, and YAML syntax errors (reported with the line).
+cap, text that is not UTF-8, and YAML syntax errors (reported with the line). Aliases are
+refused too (:func:`load_yaml_text`): none of these files needs them, and a few kilobytes of
+nested aliases ("billion laughs") expand to gigabytes.
 """
 
 from __future__ import annotations
@@ -15,9 +17,30 @@ import yaml
 
 from audio2pose_ros.errors import Audio2PoseError
 
-__all__ = ["MAX_YAML_BYTES", "read_yaml_file"]
+__all__ = ["MAX_YAML_BYTES", "load_yaml_text", "read_yaml_file"]
 
 MAX_YAML_BYTES = 1 << 20  # 1 MiB: the packaged YAML files are 1 to 10 KB
+
+
+class _NoAliasLoader(yaml.SafeLoader):
+    """yaml's safe loader, refusing aliases (``*name``) before they are expanded."""
+
+    def compose_node(self, parent: yaml.Node | None, index: int) -> yaml.Node | None:
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()  # type: ignore[no-untyped-call]
+            raise yaml.composer.ComposerError(
+                None, None, "aliases (*name) are not accepted", event.start_mark
+            )
+        return super().compose_node(parent, index)
+
+
+def load_yaml_text(text: str) -> object:
+    """``yaml.safe_load`` without aliases (see the module text).
+
+    Raises:
+        yaml.YAMLError: invalid YAML, or an alias.
+    """
+    return yaml.load(text, Loader=_NoAliasLoader)
 
 
 def read_yaml_file(
@@ -56,7 +79,7 @@ def read_yaml_file(
     if len(raw) > max_bytes:
         raise error(f"{file}: larger than {max_bytes} bytes, not a {what} file")
     try:
-        return yaml.safe_load(raw.decode("utf-8"))
+        return load_yaml_text(raw.decode("utf-8"))
     except UnicodeDecodeError:
         raise error(f"{file}: not UTF-8 text, not a {what} file") from None
     except yaml.YAMLError as exc:

@@ -283,8 +283,80 @@ def write_audio_bag(
     return sum(m.topic == AUDIO_TOPIC for m in messages)
 
 
+MAX_CHUNK_BYTES_DECOMPRESSED = 64 << 20  # an MCAP chunk is read whole; rosbag2 writes ~1 MiB ones
+MAX_FILE_BYTES_DECOMPRESSED = 2 << 30  # a file-compressed bag file is unpacked to disk first
+
+
+def _mcap_chunks_bounded(path: Path) -> None:
+    """Refuse an MCAP file whose chunks would decompress beyond the cap (a compression bomb)."""
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    try:
+        with path.open("rb") as stream:
+            summary = make_reader(stream).get_summary()
+    except (McapError, OSError, ValueError, EOFError) as exc:
+        raise BagError(f"{path}: not a readable MCAP file ({exc})") from None
+    for index in summary.chunk_indexes if summary is not None else ():
+        if index.uncompressed_size > MAX_CHUNK_BYTES_DECOMPRESSED:
+            raise BagError(
+                f"{path}: a chunk would decompress to {index.uncompressed_size} bytes; at most "
+                f"{MAX_CHUNK_BYTES_DECOMPRESSED} are read (a compression bomb?)"
+            )
+
+
+def _compressed_file_bounded(path: Path) -> None:
+    """Refuse a zstd-compressed bag file whose size once decompressed is unknown or too large."""
+    import zstandard
+
+    with path.open("rb") as stream:
+        header = stream.read(18)
+    size = zstandard.frame_content_size(header) if len(header) >= 4 else -1
+    if size < 0 or size > MAX_FILE_BYTES_DECOMPRESSED:
+        raise BagError(
+            f"{path}: decompresses to {'an unknown size' if size < 0 else f'{size} bytes'}; "
+            f"at most {MAX_FILE_BYTES_DECOMPRESSED} bytes are unpacked"
+        )
+
+
+def check_bag_files(bag: str | Path) -> None:
+    """Refuse a bag that would hang, fill memory or fill the disk before rosbags reads it.
+
+    Every file of a bag folder (and a single-file bag) must be a regular file: reading a FIFO
+    blocks forever and ``/dev/zero`` never ends. ``metadata.yaml`` is read with the project's
+    bounded YAML reader (size cap, no aliases: a few kilobytes of nested aliases expand to
+    gigabytes). MCAP chunks may not decompress beyond :data:`MAX_CHUNK_BYTES_DECOMPRESSED` each,
+    zstd-compressed files not beyond :data:`MAX_FILE_BYTES_DECOMPRESSED`.
+
+    Raises:
+        BagError: naming the file and why it is refused.
+    """
+    import stat
+
+    from audio2pose_ros.yaml_files import read_yaml_file
+
+    path = Path(bag)
+    if not path.exists():
+        return  # rosbags says it is missing, in its own words
+    try:
+        files = sorted(path.iterdir()) if path.is_dir() else [path]
+        for file in files:
+            if not stat.S_ISREG(file.stat().st_mode):
+                raise BagError(f"{file}: not a regular file (a device, FIFO or socket?)")
+    except OSError as exc:
+        raise BagError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    for file in files:
+        if file.name == "metadata.yaml":
+            read_yaml_file(file, "bag metadata", BagError)
+        elif file.suffix == ".mcap":
+            _mcap_chunks_bounded(file)
+        elif file.suffix == ".zstd":
+            _compressed_file_bounded(file)
+
+
 def _open_reader(bag: str | Path) -> AnyReader:
-    """An open AnyReader on ``bag``, or a BagError naming it."""
+    """An open AnyReader on ``bag`` (checked by :func:`check_bag_files`), or a BagError."""
+    check_bag_files(bag)
     try:
         reader = AnyReader([Path(bag)], default_typestore=typestore())
         reader.open()

@@ -31,6 +31,7 @@ import yaml
 
 from audio2pose_ros import topics
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, Audio2PoseError, ConfigurationError
+from audio2pose_ros.yaml_files import MAX_YAML_BYTES, load_yaml_text
 
 __all__ = [
     "ARGUMENTS",
@@ -180,8 +181,10 @@ def check_params_file(path: str) -> Path:
         raise ConfigurationError("launch argument params_file:='' names no file")
     if not file.is_file():
         raise ConfigurationError(f"params_file {file}: no such file")
+    if file.stat().st_size > MAX_YAML_BYTES:
+        raise ConfigurationError(f"params_file {file}: larger than {MAX_YAML_BYTES} bytes")
     try:
-        content = yaml.safe_load(file.read_text(encoding="utf-8"))
+        content = load_yaml_text(file.read_text(encoding="utf-8"))
     except OSError as exc:
         raise ConfigurationError(f"params_file {file}: cannot be read ({exc.strerror})") from None
     except UnicodeDecodeError:

@@ -69,12 +69,6 @@ def descriptor_of(spec: ParameterSpec) -> ParameterDescriptor:
     return descriptor
 
 
-# Parameters every rclpy node accepts besides its own (ROS 2's node options).
-ROS_NODE_PARAMETERS = frozenset(
-    {"use_sim_time", "start_type_description_service", "start_parameter_event_publisher"}
-)
-
-
 def parameter_files(argv: Sequence[str]) -> list[Path]:
     """The ``--params-file`` arguments of a node's command line (after ``--ros-args``)."""
     files: list[Path] = []
@@ -106,7 +100,8 @@ def check_parameter_files(
     ``rate_hz: 100.0``): the node would run with a value its user did not write. Here every
     section that applies to the node (``/**``, its name, its fully qualified name, wildcards) is
     read with the project's bounded YAML reader and every value of a declared parameter is
-    validated; in a section of this node's own, an undeclared name (a typo) is refused too.
+    validated. Names the node does not declare are left alone: sections are shared (``/**``),
+    and launch passes one override set to every node.
 
     Raises:
         ConfigurationError: naming the file, the parameter and what is allowed.
@@ -123,20 +118,10 @@ def check_parameter_files(
             values = section.get("ros__parameters") if isinstance(section, Mapping) else None
             if not isinstance(values, Mapping):
                 continue
-            own = key.strip("/").split("/")[-1] == node_name
             for name, value in values.items():
                 spec = by_name.get(str(name))
                 if spec is None:
-                    if (
-                        own
-                        and name not in ROS_NODE_PARAMETERS
-                        and not str(name).startswith("qos_overrides.")
-                    ):
-                        raise ConfigurationError(
-                            f"{file}: unknown parameter {name!r} for {node_name}; known: "
-                            f"{', '.join(sorted(by_name))}"
-                        )
-                    continue
+                    continue  # another node's parameter (a shared section), or a ROS option
                 try:
                     spec.validate(value)
                 except ConfigurationError as exc:
