@@ -194,3 +194,15 @@ def test_when_distill_prosody_expect_loadable_checkpoint_and_honest_card(
     card = (tmp_path / "MODEL_CARD.md").read_text()
     assert "It was not trained on human motion" in card
     assert "neutral-pose RMSE deg" in result.stdout
+
+
+def test_when_bench_prints_json_expect_one_object_with_its_schema_version(capsys):
+    import json
+
+    from audio2pose_ros.cli.main import BENCH_SCHEMA_VERSION, main
+
+    assert main(["bench", "--frames", "20", "--skip-models", "--json"]) == 0
+    figures = json.loads(capsys.readouterr().out)
+    assert isinstance(figures, dict)
+    assert figures["schema_version"] == BENCH_SCHEMA_VERSION
+    assert "motion filter (push + tick)" in figures["stages_us"]

@@ -206,6 +206,9 @@ def command_check_body(args: argparse.Namespace) -> int:
     return 0
 
 
+BENCH_SCHEMA_VERSION = 2  # 1: before versioning (graph figures became a list of modes)
+
+
 def command_bench(args: argparse.Namespace) -> int:
     """Per-frame cost of each streaming stage on one core; with --graph, the live graph too."""
     import json
@@ -223,7 +226,8 @@ def command_bench(args: argparse.Namespace) -> int:
     from audio2pose_ros.resources import bundled_speech_path, default_checkpoint_path
     from audio2pose_ros.robot.description import load_robot
 
-    results: dict[str, object] = {}
+    # --json: one object; its layout is versioned, and a change of it is in CHANGELOG.md
+    results: dict[str, object] = {"schema_version": BENCH_SCHEMA_VERSION}
     if args.graph:  # before pinning this process to one core: the nodes need the machine
         from audio2pose_ros.ros.graph_bench import bundled_speech, measure_graph, report
 
