@@ -27,6 +27,7 @@ from audio2pose_ros.data.bag import (
     Chunking,
     bag_topics,
     read_checked_messages,
+    repair_bag,
     select_for_replay,
     write_audio_bag,
 )
@@ -108,9 +109,20 @@ def command_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def command_repair(args: argparse.Namespace) -> int:
+    """Write what a damaged (killed) MCAP recording still holds into a new, complete bag."""
+    output = new_dir(args.output, "-o")
+    counts = repair_bag(input_bag(args.bag), output)
+    total = sum(counts.values())
+    print(f"wrote {total} messages on {len(counts)} topics to {output}")
+    for topic, count in sorted(counts.items()):
+        print(f"  {topic}: {count}")
+    return 0
+
+
 def register(verbs: Verbs) -> None:
     """Add ``audio2pose bag from-wav`` and ``audio2pose bag replay``."""
-    bag = verbs.add_parser("bag", help="speech bags: make from WAV, replay")
+    bag = verbs.add_parser("bag", help="speech bags: make from WAV, replay, repair")
     sub = bag.add_subparsers(dest="bag_verb", required=True)
     chunk_bytes = bounded_int(1, MAX_CHUNK_BYTES)
 
@@ -154,3 +166,10 @@ def register(verbs: Verbs) -> None:
         help="wait this long for subscribers before starting (default 10)",
     )
     replay.set_defaults(func=command_replay)
+
+    repair = sub.add_parser(
+        "repair", help="a readable bag from what a killed MCAP recording still holds"
+    )
+    repair.add_argument("bag", metavar="BAG", help="the damaged bag folder or its .mcap file")
+    repair.add_argument("-o", "--output", required=True, metavar="BAG", help="a new bag folder")
+    repair.set_defaults(func=command_repair)

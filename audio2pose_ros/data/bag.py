@@ -17,9 +17,11 @@ rate cannot make a small bag grow into gigabytes.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from struct import error as struct_error
 from typing import Any
 
 import numpy as np
@@ -151,9 +153,14 @@ class BagWriter:
     """Write CDR-serialised messages to a new rosbag2 directory (MCAP or SQLite 3 storage).
 
     Use as a context manager; ``write`` takes bytes serialised by rclpy or by ``rosbags``.
+    With ``flush_period_s`` (MCAP), what was written is closed into a chunk and handed to the
+    operating system at least that often, so a recording killed with SIGKILL keeps all but its
+    last ``flush_period_s``; :func:`repair_bag` makes a readable bag of what is left.
     """
 
-    def __init__(self, path: str | Path, storage: str = "mcap") -> None:
+    def __init__(
+        self, path: str | Path, storage: str = "mcap", flush_period_s: float | None = None
+    ) -> None:
         """Prepare a writer; the directory must not exist yet."""
         plugins = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
         if storage not in plugins:
@@ -163,11 +170,30 @@ class BagWriter:
         self._writer = Writer(self.path, version=8, storage_plugin=plugins[storage])
         self._connections: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
+        self._flush_period_s = flush_period_s if storage == "mcap" else None
+        self._flushed_s = time.monotonic()
 
     def __enter__(self) -> BagWriter:
         """Open the bag."""
         self._writer.open()
+        if self._flush_period_s is not None:
+            self.flush()  # the MCAP header: a recording killed at once is still an MCAP file
         return self
+
+    def flush(self) -> None:
+        """Close the pending MCAP chunk and hand the file's bytes to the operating system.
+
+        rosbags' MCAP writer keeps up to 1 MiB in its pending chunk and its file buffer, which a
+        SIGKILL loses; its storage object has no public flush, so this reaches into it (rosbags
+        is pinned in support/requirements.txt; test_recording.py fails if this stops working).
+        """
+        storage: Any = self._writer.storage  # rosbags' McapWriter (see above)
+        if storage is None:
+            return
+        if storage.chunk.bio.tell():
+            storage.close_chunk()
+        storage.bio.flush()
+        self._flushed_s = time.monotonic()
 
     def __exit__(self, *exc: object) -> None:
         """Close the bag (writes the MCAP summary / metadata.yaml)."""
@@ -182,6 +208,11 @@ class BagWriter:
             self.counts[topic] = 0
         self._writer.write(self._connections[topic], timestamp_ns, data)
         self.counts[topic] += 1
+        if (
+            self._flush_period_s is not None
+            and time.monotonic() - self._flushed_s >= self._flush_period_s
+        ):
+            self.flush()
 
 
 AUDIO_TOPIC = absolute(topics.AUDIO)  # where bags keep the audio: the root namespace
@@ -319,14 +350,15 @@ def _compressed_file_bounded(path: Path) -> None:
         )
 
 
-def check_bag_files(bag: str | Path) -> None:
+def check_bag_files(bag: str | Path, mcap_summaries: bool = True) -> None:
     """Refuse a bag that would hang, fill memory or fill the disk before rosbags reads it.
 
     Every file of a bag folder (and a single-file bag) must be a regular file: reading a FIFO
     blocks forever and ``/dev/zero`` never ends. ``metadata.yaml`` is read with the project's
     bounded YAML reader (size cap, no aliases: a few kilobytes of nested aliases expand to
     gigabytes). MCAP chunks may not decompress beyond :data:`MAX_CHUNK_BYTES_DECOMPRESSED` each,
-    zstd-compressed files not beyond :data:`MAX_FILE_BYTES_DECOMPRESSED`.
+    zstd-compressed files not beyond :data:`MAX_FILE_BYTES_DECOMPRESSED`. Without
+    ``mcap_summaries`` MCAP files are not looked into (a damaged one has no summary).
 
     Raises:
         BagError: naming the file and why it is refused.
@@ -348,7 +380,7 @@ def check_bag_files(bag: str | Path) -> None:
     for file in files:
         if file.name == "metadata.yaml":
             read_yaml_file(file, "bag metadata", BagError)
-        elif file.suffix == ".mcap":
+        elif file.suffix == ".mcap" and mcap_summaries:
             _mcap_chunks_bounded(file)
         elif file.suffix == ".zstd":
             _compressed_file_bounded(file)
@@ -467,3 +499,56 @@ def read_bag_audio(bag: str | Path) -> np.ndarray:
         raise BagError(f"{bag}: no {AUDIO_INFO_TOPIC} / {AUDIO_TOPIC} messages")
     pieces.append(decoder.flush())
     return np.concatenate(pieces).astype(np.float32)
+
+
+def repair_bag(damaged: str | Path, out: str | Path) -> dict[str, int]:
+    """Write the messages a damaged MCAP recording still holds into a new, complete bag.
+
+    A recording killed before it closed has no summary, no footer and no ``metadata.yaml``:
+    rosbags cannot open it. Its records are read in file order with the mcap library's stream
+    reader up to the first incomplete one; every message of a known type is written to ``out``
+    (a new rosbag2 folder, MCAP). ``damaged`` is a bag folder or its ``.mcap`` file.
+
+    Returns:
+        Messages written, per topic.
+
+    Raises:
+        BagError: no MCAP file, or not one (its magic bytes), or nothing readable in it.
+    """
+    from mcap.exceptions import McapError
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
+
+    path = Path(damaged)
+    files = sorted(path.glob("*.mcap")) if path.is_dir() else [path]
+    if not files:
+        raise BagError(f"{path}: no .mcap file to repair")
+    check_bag_files(path, mcap_summaries=False)  # the stream reader bounds each record itself
+    schemas: dict[int, str] = {}
+    channels: dict[int, tuple[str, str]] = {}
+    messages: list[BagMessage] = []
+    for file in files:
+        try:
+            with file.open("rb") as stream:
+                for record in StreamReader(
+                    stream, record_size_limit=MAX_CHUNK_BYTES_DECOMPRESSED
+                ).records:
+                    if isinstance(record, Schema):
+                        schemas[record.id] = record.name
+                    elif isinstance(record, Channel):
+                        channels[record.id] = (record.topic, schemas.get(record.schema_id, ""))
+                    elif isinstance(record, Message) and record.channel_id in channels:
+                        topic, msgtype = channels[record.channel_id]
+                        if msgtype in KNOWN_MESSAGE_TYPES:
+                            messages.append(
+                                BagMessage(record.log_time, topic, msgtype, bytes(record.data))
+                            )
+        except (McapError, EOFError, ValueError, struct_error):
+            pass  # the end of what was written before the recording died
+    if not messages:
+        raise BagError(f"{path}: no readable messages of a known type")
+    messages.sort(key=lambda m: m.timestamp_ns)
+    with BagWriter(out) as bag:
+        for message in messages:
+            bag.write(message.topic, message.msgtype, message.timestamp_ns, message.data)
+        return dict(bag.counts)

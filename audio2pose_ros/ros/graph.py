@@ -60,6 +60,7 @@ from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.ros.player import MessagePlayer, rclpy_session, spin_until, warm_up
 
 NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
+RECORD_FLUSH_PERIOD_S = 0.5  # a killed recording loses at most about this much (BagWriter.flush)
 SIM_NODE = "pepper_sim_node"  # the simulated robot (audio2pose run --sim)
 SINGLE_PROCESS = "audio2pose_nodes"  # the process that runs all three nodes (single-process mode)
 # As the launch file does: trajectories go to Pepper's ros2_control controller.
@@ -550,7 +551,11 @@ def play_and_record(
     """
     first_info = next((m for m in messages if m.topic == AUDIO_INFO_TOPIC), None)
     with ExitStack() as stack:
-        bag = stack.enter_context(BagWriter(bag_path)) if bag_path else None
+        bag = (
+            stack.enter_context(BagWriter(bag_path, flush_period_s=RECORD_FLUSH_PERIOD_S))
+            if bag_path
+            else None
+        )
         node = PlayerRecorder(bag)
         stack.callback(node.destroy_node)
         if first_info is not None:
