@@ -5,6 +5,7 @@ Part of ``audio2pose faults`` (:func:`~audio2pose_ros.ros.fault_campaign.cases` 
 campaign and reads the outcome from what the robot receives, the nodes' /diagnostics, the
 supervisor and the state file:
 
+- a bag replay of a recording that holds the robot's commands;
 - a burst of consistent wrong poses, a second ``raw_trajectory`` publisher;
 - raw poses that sweep a hand into the hip (the self-collision guard);
 - a restart while the robot reports a pose with a NaN and an out-of-range joint, after the arm
@@ -403,6 +404,61 @@ def _parameter_flood(c: Campaign) -> Outcome:
 # --- respawn ----------------------------------------------------------------------------------
 
 
+def _replayed_recording(c: Campaign) -> Outcome:
+    """`audio2pose bag replay` of a recording whose commands hold the arm 1 rad away."""
+    import tempfile
+    from pathlib import Path
+
+    from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+    from rclpy.serialization import serialize_message
+
+    from audio2pose_ros.data.bag import BagWriter
+
+    far = c.pose_a.copy()
+    far[c.robot.names.index("LShoulderPitch")] -= 1.0
+    command = JointAnglesWithSpeed(
+        joint_names=list(c.robot.names), joint_angles=[float(v) for v in far], speed=1.0
+    )
+    data = serialize_message(command)
+    with tempfile.TemporaryDirectory(prefix="audio2pose_replay_") as tmp:
+        bag = Path(tmp) / "recording"
+        with BagWriter(bag) as writer:
+            for i in range(100):  # 2 s of recorded commands at 50 Hz
+                writer.write(
+                    topics.absolute(topics.JOINT_ANGLES),
+                    "naoqi_bridge_msgs/msg/JointAnglesWithSpeed",
+                    i * 20_000_000,
+                    data,
+                )
+            info = AudioInfo(channels=1, sample_rate=SAMPLE_RATE_HZ, sample_format="S16LE")
+            info.coding_format = "wave"
+            writer.write(
+                topics.absolute(topics.AUDIO_INFO),
+                "audio_common_msgs/msg/AudioInfo",
+                0,
+                serialize_message(info),
+            )
+        start = len(c.probe.commands)
+        replay = subprocess.Popen(
+            [*executable_command("audio2pose"), "bag", "replay", str(bag), "--wait-s", "0"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        deadline = time.monotonic() + 30.0
+        while replay.poll() is None and time.monotonic() < deadline:
+            c.probe.spin_for(0.05)
+        if replay.poll() is None:
+            replay.kill()
+        told = "not replayed: /joint_angles" in (replay.communicate()[1] or "")
+    window = _commands_since(c, start)
+    worst = window.worst_deviation(c.pose_a) if len(window.times_s) else math.nan
+    ok = told and len(window.times_s) > 0 and worst <= MAX_DEVIATION_RAD
+    return Outcome(
+        f"robot moved {worst:.3f} rad; replay said it left /joint_angles out: {told}", ok, worst
+    )
+
+
 def _respawn(c: Campaign) -> Outcome:
     node = "inference_node"
     arrivals: list[float] = []
@@ -462,6 +518,11 @@ def runtime_cases() -> list[Case]:
     """The cases of this module, in the order they run."""
     flood = f"commands >= {MIN_COMMAND_RATE_HZ:g} Hz, no gap > {MAX_FLOOD_GAP_S * 1e3:.0f} ms"
     return [
+        Case(
+            "bag replay of a recording with commands 1 rad away",
+            "replays the audio only; the robot stays on its track",
+            _replayed_recording,
+        ),
         Case("burst of 30 consistent wrong poses", "arm moves at most 0.1 rad", _burst),
         Case(
             "raw poses sweep the left hand into the hip",
