@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from body_poses import pose_with
 
 from audio2pose_ros.robot.body import SHOULDER_LINKS, BodyModel, BodyModelError
 
@@ -13,13 +14,6 @@ MARGIN_M = 0.02
 @pytest.fixture(scope="module")
 def body():
     return BodyModel.load()
-
-
-def pose_with(robot, **angles):
-    pose = robot.neutral_rad.copy()
-    for name, value in angles.items():
-        pose[robot.names.index(name)] = value
-    return pose
 
 
 def random_poses(robot, n, seed=0):

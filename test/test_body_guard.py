@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from body_poses import pose_with
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -18,13 +19,6 @@ MARGIN_M = 0.02
 @pytest.fixture(scope="module")
 def body():
     return BodyModel.load()
-
-
-def pose_with(robot, **angles):
-    pose = robot.neutral_rad.copy()
-    for name, value in angles.items():
-        pose[robot.names.index(name)] = value
-    return pose
 
 
 def hand_in_hip(robot):

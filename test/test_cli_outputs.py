@@ -7,16 +7,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-
-from audio2pose_ros.cli import main as cli
-
-
-def audio2pose(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str]:
-    try:
-        status = cli.main([str(a) for a in argv])
-    except SystemExit as exc:
-        status = exc.code
-    return status, capsys.readouterr().err
+from test_cli_errors import audio2pose
 
 
 @pytest.fixture

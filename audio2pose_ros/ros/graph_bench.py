@@ -142,6 +142,28 @@ def _timed_out(what: str) -> GraphTimeoutError:
     )
 
 
+def _speech_chunks(
+    speech_16k: np.ndarray, duration_s: float
+) -> tuple[np.ndarray, list[BagMessage]]:
+    """``duration_s`` of the speech (repeated) and its AudioData chunks of one frame step each.
+
+    Chunk j is due j frame periods after the first, as a live capture delivers them.
+    """
+    audio = np.resize(speech_16k, int(duration_s * SAMPLE_RATE_HZ) // CHUNK_SAMPLES * CHUNK_SAMPLES)
+    payload = encode_pcm(audio, S16LE_MONO_16K)
+    step = 2 * CHUNK_SAMPLES
+    chunks = [
+        BagMessage(
+            timestamp_ns=round(j * FRAME_PERIOD_S * 1e9),
+            topic=topics.absolute(topics.AUDIO),
+            msgtype=AUDIO_DATA_TYPE,
+            data=serialize_message(AudioData(data=payload[offset : offset + step])),
+        )
+        for j, offset in enumerate(range(0, len(payload), step))
+    ]
+    return audio, chunks
+
+
 def measure_graph(
     speech_16k: np.ndarray, duration_s: float = 60.0, single_process: bool = False
 ) -> GraphFigures:
@@ -149,19 +171,8 @@ def measure_graph(
 
     ``single_process`` runs the three nodes in one process instead of three.
     """
-    audio = np.resize(speech_16k, int(duration_s * SAMPLE_RATE_HZ) // CHUNK_SAMPLES * CHUNK_SAMPLES)
-    payload = encode_pcm(audio, S16LE_MONO_16K)
-    step = 2 * CHUNK_SAMPLES
+    audio, chunks = _speech_chunks(speech_16k, duration_s)
     audio_topic = topics.absolute(topics.AUDIO)
-    chunks = [  # chunk j is due j frame periods after the first
-        BagMessage(
-            timestamp_ns=round(j * FRAME_PERIOD_S * 1e9),
-            topic=audio_topic,
-            msgtype=AUDIO_DATA_TYPE,
-            data=serialize_message(AudioData(data=payload[offset : offset + step])),
-        )
-        for j, offset in enumerate(range(0, len(payload), step))
-    ]
     with tempfile.TemporaryDirectory() as tmp, rclpy_session():
         player = _Player()
         launched = time.monotonic()
@@ -346,19 +357,8 @@ def measure_sim_tracking(speech_16k: np.ndarray, duration_s: float = 30.0) -> Si
     joint state is compared with the command in force when it was received: the error is the
     robot's lag and speed, as the tracking watch of motion_filter_node sees it.
     """
-    audio = np.resize(speech_16k, int(duration_s * SAMPLE_RATE_HZ) // CHUNK_SAMPLES * CHUNK_SAMPLES)
-    payload = encode_pcm(audio, S16LE_MONO_16K)
-    step = 2 * CHUNK_SAMPLES
+    audio, chunks = _speech_chunks(speech_16k, duration_s)
     audio_topic = topics.absolute(topics.AUDIO)
-    chunks = [
-        BagMessage(
-            timestamp_ns=round(j * FRAME_PERIOD_S * 1e9),
-            topic=audio_topic,
-            msgtype=AUDIO_DATA_TYPE,
-            data=serialize_message(AudioData(data=payload[offset : offset + step])),
-        )
-        for j, offset in enumerate(range(0, len(payload), step))
-    ]
     with tempfile.TemporaryDirectory() as tmp, rclpy_session():
         observer = _SimObserver()
         with node_graph(log_dir=Path(tmp) / "logs", sim=True):
