@@ -18,6 +18,7 @@ from sensor_msgs.msg import JointState
 
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.audio.wav import read_wav
+from audio2pose_ros.motion.tracking import TRACKING_TOLERANCE_RAD
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.ros.graph import node_graph
 from audio2pose_ros.topics import JOINT_STATES, absolute
@@ -59,7 +60,8 @@ def test_when_speech_plays_against_the_simulated_robot_expect_it_moves_and_track
     # the measured pose against the command in force at its time: lag and speed only
     k = np.clip(np.searchsorted(command_t, stamps) - 1, 0, len(command_t) - 1)
     error = np.abs(positions - command_p[k]).max(axis=1)
-    assert np.percentile(error, 95) < 0.1, np.percentile(error, [50, 95])
+    # below what motion_filter_node's tracking watch reports as a robot not following
+    assert np.percentile(error, 95) < TRACKING_TOLERANCE_RAD, np.percentile(error, [50, 95])
     assert BodyModel.load(robot).clearance(positions).min() >= 0.0
     assert int(sim_status["self_collision_steps"]) == 0
     assert int(sim_status["commands_refused"]) == 0
