@@ -452,6 +452,7 @@ def _command_modules() -> list[Callable[[Verbs], None]]:
     """``register(verbs)`` functions of the verbs that live in their own modules."""
     from audio2pose_ros.cli import (
         bag_commands,
+        console_commands,
         dataset_commands,
         fault_commands,
         model_commands,
@@ -464,6 +465,7 @@ def _command_modules() -> list[Callable[[Verbs], None]]:
         bag_commands.register,
         render_commands.register,
         fault_commands.register,
+        console_commands.register,
     ]
 
 

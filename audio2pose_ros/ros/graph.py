@@ -19,7 +19,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -368,6 +368,7 @@ def node_graph(
     log_dir: Path | None = None,
     monitor: bool = True,
     single_process: bool = False,
+    more_nodes: Mapping[str, list[str]] | None = None,
 ) -> Iterator[NodeSupervisor]:
     """Run the three nodes as supervised processes for the duration of the context.
 
@@ -379,6 +380,8 @@ def node_graph(
         monitor: watch the nodes' heartbeats and restart a silent node.
         single_process: run the three nodes in one process and one executor
             (``audio2pose_nodes``) instead of one process each.
+        more_nodes: more node processes supervised with the graph, by node name: the command of
+            each (``audio2pose console`` adds ``console_node``).
     """
     params = params_file or share_path("config", "pepper.yaml")
     with ExitStack() as stack:
@@ -398,6 +401,10 @@ def node_graph(
                 for name in NODE_EXECUTABLES
             }
             members = None
+        if more_nodes:
+            commands.update(more_nodes)
+            if members is not None:
+                members.update({name: name for name in more_nodes})
         supervisor = NodeSupervisor(commands, log_dir, members=members)
         stack.callback(supervisor.stop)
         supervisor.start()

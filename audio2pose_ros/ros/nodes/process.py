@@ -23,7 +23,13 @@ import os
 import signal
 import sys
 
-__all__ = ["audio_features_node", "inference_node", "motion_filter_node", "prepare_node_process"]
+__all__ = [
+    "audio_features_node",
+    "console_node",
+    "inference_node",
+    "motion_filter_node",
+    "prepare_node_process",
+]
 
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 STOP_SIGNALS = frozenset({signal.SIGINT, signal.SIGTERM})
@@ -69,3 +75,8 @@ def inference_node() -> None:
 def motion_filter_node() -> None:
     """Console script ``motion_filter_node``."""
     _run("motion_filter_node")
+
+
+def console_node() -> None:
+    """Console script ``console_node``."""
+    _run("console_node")
