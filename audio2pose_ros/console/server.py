@@ -378,6 +378,10 @@ class ConsoleServer:
             except ProtocolError as exc:
                 if not await self._refuse(session, str(exc)):
                     break
+            except Exception as exc:  # the boundary: a bug must not end the operator's session
+                self.log("warning", f"console: {session.name!r}'s message failed: {exc!r}")
+                if not await self._refuse(session, "the console could not act on that message"):
+                    break
 
     async def _refuse(self, session: _Session, reason: str) -> bool:
         """Count a refused frame and tell the page; False when the connection is closed for it."""

@@ -188,8 +188,11 @@ class ConsoleNode(DiagnosedNode):
         )
 
     def _log(self, level: str, message: str) -> None:
-        logger = self.get_logger()
-        (logger.warning if level == "warning" else logger.info)(message)
+        # rclpy refuses two severities from one line of code: one call each
+        if level == "warning":
+            self.get_logger().warning(message)
+        else:
+            self.get_logger().info(message)
 
     def destroy_node(self) -> None:
         """Stop the server (pages are told) before the node goes."""
