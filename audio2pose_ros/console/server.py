@@ -11,8 +11,10 @@ tests use their own). What a connection goes through:
 3. **Bounded use**: a frame larger than the largest allowed chunk closes the connection (1009,
    before it is read in full); every other frame is checked by
    :mod:`~audio2pose_ros.console.protocol`; audio counts against ``max_audio_s_per_s`` and text
-   against ``max_messages_per_s``. A refused frame is dropped, counted and answered with an
-   ``error`` message (at most :data:`ERRORS_PER_S` a second); a connection that keeps sending
+   against ``max_messages_per_s`` (audio beyond its rate is dropped and counted, the page may
+   be catching up after a stall). A refused frame is dropped, counted and answered with an
+   ``error`` message (at most :data:`ERRORS_PER_S` a second after a burst of
+   :data:`ERRORS_BURST`); a connection that keeps sending
    refused frames (:data:`VIOLATION_BURST` more than :data:`VIOLATIONS_PER_S` allow) is closed.
 4. **The floor**: only the holder's audio is published; a ``stop`` is accepted from anyone, a
    release of the stop, ``enable`` and ``gains`` only while the floor is free or one's own.
@@ -59,7 +61,8 @@ __all__ = ["ConsoleServer", "GraphBridge", "ServerThread"]
 
 HEARTBEAT_S = 5.0  # WebSocket ping period; a peer that misses a pong is dropped
 STATUS_PERIOD_S = 0.5
-ERRORS_PER_S = 2.0  # error messages sent back to one connection at most
+ERRORS_PER_S = 2.0  # error messages sent back to one connection at most ...
+ERRORS_BURST = 10.0  # ... after a burst of this many
 VIOLATIONS_PER_S = 5.0  # refused frames a connection may keep sending ...
 VIOLATION_BURST = 50.0  # ... after a burst of this many; beyond it the connection is closed
 CLOSE_BAD_TOKEN = 4401
@@ -91,6 +94,10 @@ NOT_BUILT_PAGE = """<!doctype html><html><head><meta charset="utf-8">
 <code>make setup</code> (or <code>cd web &amp;&amp; npm ci &amp;&amp; npm run build</code>) and
 restart the console.</p></body></html>
 """
+
+
+class AudioOverRateError(ProtocolError):
+    """Audio beyond ``max_audio_s_per_s``: dropped and counted, the connection stays."""
 
 
 class GraphBridge(Protocol):
@@ -136,7 +143,7 @@ class _Session:
     violations: AudioBudget = field(
         default_factory=lambda: AudioBudget(VIOLATIONS_PER_S, VIOLATION_BURST)
     )
-    errors: AudioBudget = field(default_factory=lambda: AudioBudget(ERRORS_PER_S, ERRORS_PER_S))
+    errors: AudioBudget = field(default_factory=lambda: AudioBudget(ERRORS_PER_S, ERRORS_BURST))
     name: str = ""
     sending: bool = False
     refused: int = 0
@@ -375,6 +382,8 @@ class ConsoleServer:
                     await self._on_control(session, parse_control(message.data))
                 else:  # an oversized frame or a broken connection: aiohttp closes it
                     break
+            except AudioOverRateError as exc:  # a page catching up after a stall: not a fault
+                await self._refuse(session, str(exc), violation=False)
             except ProtocolError as exc:
                 if not await self._refuse(session, str(exc)):
                     break
@@ -383,11 +392,14 @@ class ConsoleServer:
                 if not await self._refuse(session, "the console could not act on that message"):
                     break
 
-    async def _refuse(self, session: _Session, reason: str) -> bool:
-        """Count a refused frame and tell the page; False when the connection is closed for it."""
+    async def _refuse(self, session: _Session, reason: str, violation: bool = True) -> bool:
+        """Count a refused frame and tell the page; False when the connection is closed for it.
+
+        Only a ``violation`` counts towards closing the connection.
+        """
         session.refused += 1
         self.refused_frames += 1
-        if not session.violations.take(1.0):
+        if violation and not session.violations.take(1.0):
             self.log(
                 "warning",
                 f"console: closing {session.name!r} ({session.peer}): {session.refused} "
@@ -405,7 +417,7 @@ class ConsoleServer:
         if not self.floor.holds(session.id):
             raise ProtocolError("audio without the floor: press Talk first")
         if not session.audio.take(frame.duration_s):
-            raise ProtocolError(
+            raise AudioOverRateError(
                 f"audio beyond {self.settings.max_audio_s_per_s:g} s per second: dropped"
             )
         self.bridge.publish_audio(frame, received_s)
