@@ -446,9 +446,9 @@ def test_when_a_talker_floods_audio_expect_only_the_rate_bound_published(tmp_pat
             await ws.send_str('{"type":"ping","t":1}')
             assert (await until(ws, "pong"))["t"] == 1
 
-    with serving(tmp_path, max_audio_s_per_s=1.0) as (base, bridge):
+    with serving(tmp_path, max_browser_audio_s_per_s=1.0) as (base, bridge):
         run(scenario(base))
-    # the bucket holds max(1.0 s/s, max_chunk_s) = 1 s: about 50 chunks of 20 ms pass
+    # the bucket holds max(1.0 s/s, max_browser_chunk_s) = 1 s: about 50 chunks of 20 ms pass
     assert 45 <= bridge.count("audio") <= 60
 
 

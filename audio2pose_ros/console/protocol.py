@@ -5,8 +5,8 @@ Two kinds of WebSocket frames come from the page:
 - **Binary: one audio chunk.** A 16-byte header, little-endian: the magic ``A2PA``, a uint32
   sequence number, a float64 stamp (ms since the Unix epoch, on the console's clock: the page
   corrects its own by the offset its pings measure), then 16 kHz mono S16LE samples, a whole
-  number of them, at most ``max_chunk_s`` long (:func:`parse_audio_frame`). The page sends
-  20 ms (320 samples).
+  number of them, at most ``max_browser_chunk_s`` long (:func:`parse_audio_frame`). The page
+  sends 20 ms (320 samples).
 - **Text: one control message**, a JSON object of at most :data:`MAX_TEXT_BYTES` whose ``type``
   says what it is and whose fields are exactly those of :data:`CONTROL_FIELDS`, of the right
   type and range (:func:`parse_control`): ``hello`` (token and display name, the first message),

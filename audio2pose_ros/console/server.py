@@ -10,12 +10,12 @@ tests use their own). What a connection goes through:
    otherwise the connection is closed (code 4401 for a wrong token, 4400 for anything else).
 3. **Bounded use**: a frame larger than the largest allowed chunk closes the connection (1009,
    before it is read in full); every other frame is checked by
-   :mod:`~audio2pose_ros.console.protocol`; audio counts against ``max_audio_s_per_s`` and text
-   against ``max_messages_per_s`` (audio beyond its rate is dropped and counted, the page may
-   be catching up after a stall). A refused frame is dropped, counted and answered with an
-   ``error`` message (at most :data:`ERRORS_PER_S` a second after a burst of
-   :data:`ERRORS_BURST`); a connection that keeps sending
-   refused frames (:data:`VIOLATION_BURST` more than :data:`VIOLATIONS_PER_S` allow) is closed.
+   :mod:`~audio2pose_ros.console.protocol`; audio counts against
+   ``max_browser_audio_s_per_s`` and text against ``max_messages_per_s``. A refused frame is
+   dropped, counted and answered with an ``error`` message (at most :data:`ERRORS_PER_S` a
+   second after a burst of :data:`ERRORS_BURST`); a connection that keeps sending refused
+   frames (:data:`VIOLATION_BURST` more than :data:`VIOLATIONS_PER_S` allow) is closed. Audio
+   beyond its rate is only dropped and counted: the page may be catching up after a stall.
 4. **The floor**: only the holder's audio is published; a ``stop`` is accepted from anyone, a
    release of the stop, ``enable`` and ``gains`` only while the floor is free or one's own.
 5. **The end**: a closed or dropped connection (WebSocket pings every :data:`HEARTBEAT_S`)
@@ -97,7 +97,7 @@ restart the console.</p></body></html>
 
 
 class AudioOverRateError(ProtocolError):
-    """Audio beyond ``max_audio_s_per_s``: dropped and counted, the connection stays."""
+    """Audio beyond ``max_browser_audio_s_per_s``: dropped and counted, the connection stays."""
 
 
 class GraphBridge(Protocol):
@@ -304,8 +304,8 @@ class ConsoleServer:
             ws=ws,
             peer=peer,
             audio=AudioBudget(
-                self.settings.max_audio_s_per_s,
-                max(self.settings.max_audio_s_per_s, self.settings.max_chunk_s),
+                self.settings.max_browser_audio_s_per_s,
+                max(self.settings.max_browser_audio_s_per_s, self.settings.max_browser_chunk_s),
             ),
             messages=AudioBudget(
                 self.settings.max_messages_per_s, self.settings.max_messages_per_s
@@ -363,7 +363,6 @@ class ConsoleServer:
                 joints=list(self.bridge.joint_names),
                 neutral=dict(self.bridge.neutral),
                 urdf="urdf/pepper.urdf",
-                max_chunk_s=self.settings.max_chunk_s,
             )
         )
         await self._send_floor()
@@ -418,7 +417,7 @@ class ConsoleServer:
             raise ProtocolError("audio without the floor: press Talk first")
         if not session.audio.take(frame.duration_s):
             raise AudioOverRateError(
-                f"audio beyond {self.settings.max_audio_s_per_s:g} s per second: dropped"
+                f"audio beyond {self.settings.max_browser_audio_s_per_s:g} s per second: dropped"
             )
         self.bridge.publish_audio(frame, received_s)
 

@@ -2,9 +2,9 @@
 
 The audio bounds are those of the features node's input (:mod:`audio2pose_ros.audio.source`),
 made tighter for a live microphone and capped at the features node's defaults, so nothing the
-console publishes is refused downstream: a chunk is at most ``max_chunk_s`` (0.1 s: the page
-sends 20 ms) and a connection at most ``max_audio_s_per_s`` seconds of audio per second (1.5:
-a voice is 1 s/s, the rest absorbs network jitter). Whether the bind needs a token and a
+console publishes is refused downstream: a chunk is at most ``max_browser_chunk_s`` (0.1 s: the
+page sends 20 ms) and a talker at most ``max_browser_audio_s_per_s`` seconds of audio per second
+(1.5: a voice is 1 s/s, the rest absorbs network jitter). Whether the bind needs a token and a
 certificate is decided by :func:`audio2pose_ros.console.access.resolve_access`.
 """
 
@@ -70,7 +70,7 @@ class ConsoleSettings:
             read_only=True,
         ),
     )
-    max_chunk_s: float = field(
+    max_browser_chunk_s: float = field(
         default=0.1,
         metadata=param(
             "longest audio chunk a browser may send; longer ones are dropped and counted "
@@ -81,7 +81,7 @@ class ConsoleSettings:
             unit="s",
         ),
     )
-    max_audio_s_per_s: float = field(
+    max_browser_audio_s_per_s: float = field(
         default=1.5,
         metadata=param(
             "seconds of audio per second of wall-clock time a talker may send; beyond it audio "
@@ -139,4 +139,4 @@ class ConsoleSettings:
     @property
     def max_chunk_bytes(self) -> int:
         """Largest PCM payload of one chunk (bytes of 16 kHz S16LE mono)."""
-        return int(self.max_chunk_s * BYTES_PER_SECOND)
+        return int(self.max_browser_chunk_s * BYTES_PER_SECOND)

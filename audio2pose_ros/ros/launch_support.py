@@ -67,6 +67,7 @@ ARGUMENTS = (
     "sim",
     "diagnostic_aggregator",
     "single_process",
+    "console",
 )
 # single_process:=true runs this module's three nodes in one process (issue 15).
 SINGLE_PROCESS_MODULE = "audio2pose_ros.ros.nodes.single_process"
@@ -251,6 +252,8 @@ class LaunchPlan:
         diagnostic_aggregator: start diagnostic_aggregator with config/diagnostic_analyzers.yaml.
         single_process: run the three nodes in one process and one executor
             (:data:`SINGLE_PROCESS_MODULE`) instead of one process each.
+        console: start console_node, the operator's web console (its settings come from the
+            parameters file's ``console_node`` section).
 
     """
 
@@ -263,6 +266,7 @@ class LaunchPlan:
     sim: str
     diagnostic_aggregator: bool
     single_process: bool = False
+    console: bool = False
 
     @property
     def audio_topics(self) -> dict[str, str]:
@@ -308,6 +312,7 @@ def plan_launch(arguments: Mapping[str, str]) -> LaunchPlan:
             "diagnostic_aggregator", arguments["diagnostic_aggregator"]
         ),
         single_process=parse_bool("single_process", arguments["single_process"]),
+        console=parse_bool("console", arguments["console"]),
     )
 
 
