@@ -182,6 +182,11 @@ def command_bench(args: argparse.Namespace) -> int:
     from audio2pose_ros.robot.description import load_robot
 
     results: dict[str, object] = {}
+    if args.console:  # the operator's voice through the web console to /joint_angles
+        from audio2pose_ros.ros.console_bench import console_report, measure_console
+        from audio2pose_ros.ros.graph_bench import bundled_speech
+
+        results["console"] = console_report(measure_console(bundled_speech(), args.duration))
     if args.graph:  # before pinning this process to one core: the nodes need the machine
         from audio2pose_ros.ros.graph_bench import bundled_speech, measure_graph, report
 
@@ -256,6 +261,33 @@ def _print_bench(results: dict[str, Any], frames: int, clip_s: float) -> None:
             print(f"{name:<14}{step}{cost['offline_x_real_time']:>22.0f}")
     if "graph" in results:
         _print_graph(results["graph"])
+    if "console" in results:
+        _print_console(results["console"])
+
+
+def _print_console(console: dict[str, Any]) -> None:
+    """The console's figures: browser chunk to /joint_angles, and the console node's cost."""
+    latency = console["latency_browser_to_joint_angles"]
+    print(
+        f"\noperator console over WebSocket and DDS, {console['audio_s']:.0f} s of speech in "
+        "the page's 20 ms chunks"
+    )
+    if latency["n"]:
+        print(
+            f"  browser chunk -> /joint_angles p50 / p99: {latency['p50_ms']:.1f} / "
+            f"{latency['p99_ms']:.1f} ms ({latency['n']} chunks; the chunk's own 20 ms and the "
+            "25 ms feature window come on top)"
+        )
+    else:
+        print("  browser chunk -> /joint_angles: no command matched a chunk's poses")
+    live = console["console_live_estimate_ms"]
+    if live:
+        print(f"  the page's live estimate: p50 {live.get('p50')} / p99 {live.get('p99')} ms")
+    print(
+        f"  console_node: {console['console_node_cpu_ms_per_audio_s']:.1f} ms CPU per second of "
+        f"audio ({console['console_node_cpu_percent']:.1f} % of a core), "
+        f"{console['console_node_rss_mb']:.0f} MB resident"
+    )
 
 
 def _print_graph(runs: list[dict[str, Any]]) -> None:
@@ -410,13 +442,19 @@ def build_parser() -> argparse.ArgumentParser:
         "--duration",
         type=bounded_float(1.0, 3600.0),
         default=60.0,
-        help="seconds of speech for --graph, 1 to 3600 (default 60)",
+        help="seconds of speech for --graph and --console, 1 to 3600 (default 60)",
     )
     bench.add_argument(
         "--graph-mode",
         choices=("three", "single", "both"),
         default="both",
         help="--graph runs three node processes, one process, or both in turn (default both)",
+    )
+    bench.add_argument(
+        "--console",
+        action="store_true",
+        help="also stream speech through the operator console: browser to /joint_angles "
+        "latency, console node CPU and memory (--duration seconds)",
     )
     bench.add_argument("--json", action="store_true", help="print the figures as JSON")
     bench.set_defaults(func=command_bench)
