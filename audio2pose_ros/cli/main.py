@@ -280,6 +280,13 @@ def _print_console(console: dict[str, Any]) -> None:
         )
     else:
         print("  browser chunk -> /joint_angles: no command matched a chunk's poses")
+    lag = console["motion_lag_behind_sound"]
+    if lag["n"]:
+        print(
+            f"  /joint_angles behind the same chunk on audio/audio (what audio_play plays) "
+            f"p50 / p99: {lag['p50_ms']:.1f} / {lag['p99_ms']:.1f} ms (minus the player's output "
+            "buffering, not measured here)"
+        )
     live = console["console_live_estimate_ms"]
     if live:
         print(f"  the page's live estimate: p50 {live.get('p50')} / p99 {live.get('p99')} ms")

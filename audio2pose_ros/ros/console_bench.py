@@ -11,9 +11,12 @@ first ``/joint_angles`` command carrying one of them (``/joint_angles`` runs at 
 at 100 Hz: every other pose is commanded).
 
 Reported: that latency's p50 / p99, the console's own live estimate of it (what the page shows,
-from ``/diagnostics``: :mod:`audio2pose_ros.console.latency`), and the console node's CPU per
-second of audio and resident memory while it streams. The chunk's own 20 ms in the browser and
-the microphone's buffering come on top, as the 25 ms feature window does.
+from ``/diagnostics``: :mod:`audio2pose_ros.console.latency`), how far the command lags the
+chunk's sound on ``audio/audio`` (its arrival at a subscriber, as audio_common's ``audio_play``
+receives it to play it at the robot; the player's own output buffering is not included), and
+the console node's CPU per second of audio and resident memory while it streams. The chunk's
+own 20 ms in the browser and the microphone's buffering come on top, as the 25 ms feature
+window does.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from pathlib import Path
 
 import aiohttp
 import numpy as np
+from audio_common_msgs.msg import AudioData
 from diagnostic_msgs.msg import DiagnosticArray
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
@@ -59,6 +63,7 @@ class ConsoleFigures:
 
     audio_s: float
     latency_ms: np.ndarray  # chunk stamp -> the /joint_angles command carrying its pose
+    lag_behind_sound_ms: np.ndarray  # chunk on audio/audio -> that command
     live_estimate: dict[str, str] = field(default_factory=dict)  # console_node's own figures
     cpu_ms_per_audio_s: float = float("nan")
     cpu_percent: float = float("nan")
@@ -71,6 +76,7 @@ class _Listener(Node):
     def __init__(self) -> None:
         super().__init__("audio2pose_console_bench")
         self.raw: list[tuple[float, np.ndarray]] = []
+        self.sound: list[float] = []  # arrivals on audio/audio, as audio_play receives them
         self.commands: list[tuple[float, np.ndarray]] = []
         self.console_values: dict[str, str] = {}
         self.create_subscription(
@@ -80,6 +86,12 @@ class _Listener(Node):
             JointAnglesWithSpeed, topics.absolute(topics.JOINT_ANGLES), self._on_command, 1000
         )
         self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, 50)
+        self.create_subscription(
+            AudioData, topics.absolute(topics.AUDIO), self._on_sound, 1000, raw=True
+        )
+
+    def _on_sound(self, _data: bytes) -> None:
+        self.sound.append(time.time())
 
     def _on_raw(self, msg: JointTrajectory) -> None:
         now = time.time()
@@ -101,7 +113,7 @@ class _Page(threading.Thread):
         super().__init__(name="console-bench-page", daemon=True)
         self.url = url
         self.payload = payload
-        self.sent: list[float] = []  # stamps (s since the epoch) of the measured chunks
+        self.sent: list[float] = []  # stamps (s since the epoch) of every chunk, in order
         self.streaming = threading.Event()
         self.error: BaseException | None = None
 
@@ -136,8 +148,7 @@ class _Page(threading.Thread):
                 await ws.send_bytes(
                     audio_frame(j, stamp * 1e3, self.payload[offset : offset + step])
                 )
-                if j >= WARM_UP_CHUNKS:
-                    self.sent.append(stamp)
+                self.sent.append(stamp)
             await ws.send_str(json.dumps({"type": "talk", "on": False}))
 
 
@@ -210,8 +221,6 @@ def measure_console(speech_16k: np.ndarray, duration_s: float = 60.0) -> Console
             page.start()
             if not spin_until(listener, deadline, page.streaming.is_set):
                 raise GraphTimeoutError(f"the console did not take the audio: {page.error!r}")
-            listener.raw.clear()
-            listener.commands.clear()
             spin_until(listener, time.monotonic() + STEADY_SKIP_S)
             cpu_start, cpu_from = cpu_s(pid), time.monotonic()
             spin_until(listener, time.monotonic() + duration_s + 5.0, lambda: not page.is_alive())
@@ -221,10 +230,22 @@ def measure_console(speech_16k: np.ndarray, duration_s: float = 60.0) -> Console
         listener.destroy_node()
     if page.error is not None:
         raise GraphTimeoutError(f"the page's stream failed: {page.error!r}")
-    first = next((k for k, (t, _) in enumerate(listener.raw) if t >= page.sent[0]), 0)
+    # The page's first chunk is the graph's first audio: it completes no 25 ms window; every
+    # later one completes two frames, one raw_trajectory message. So chunk j caused raw message
+    # j - 1 and is message j on audio/audio, whatever the delays.
+    if len(listener.raw) != len(page.sent) - 1 or len(listener.sound) != len(page.sent):
+        raise GraphTimeoutError(
+            f"{len(page.sent)} chunks sent but {len(listener.sound)} heard on audio/audio and "
+            f"{len(listener.raw)} raw_trajectory messages received: cannot pair them"
+        )
+    measured = slice(WARM_UP_CHUNKS, len(page.sent))
+    raw = listener.raw[WARM_UP_CHUNKS - 1 :]
+    start = page.sent[WARM_UP_CHUNKS] - 0.5
+    commands = [c for c in listener.commands if c[0] >= start]
     return ConsoleFigures(
-        audio_s=len(page.sent) * CHUNK_S,
-        latency_ms=_latencies(page.sent, listener.raw[first:], listener.commands),
+        audio_s=(len(page.sent) - WARM_UP_CHUNKS) * CHUNK_S,
+        latency_ms=_latencies(page.sent[measured], raw, commands),
+        lag_behind_sound_ms=_latencies(listener.sound[measured], raw, commands),
         live_estimate={
             k.removeprefix("latency_"): v
             for k, v in listener.console_values.items()
@@ -238,19 +259,21 @@ def measure_console(speech_16k: np.ndarray, duration_s: float = 60.0) -> Console
 
 def console_report(figures: ConsoleFigures) -> dict[str, object]:
     """Summary statistics (also the ``--json`` output)."""
-    latency = figures.latency_ms
+
+    def stats(values: np.ndarray) -> dict[str, float]:
+        if not len(values):
+            return {"n": 0}
+        return {
+            "n": len(values),
+            "p50_ms": float(np.median(values)),
+            "p99_ms": float(np.percentile(values, 99)),
+            "max_ms": float(values.max()),
+        }
+
     return {
         "audio_s": figures.audio_s,
-        "latency_browser_to_joint_angles": (
-            {
-                "n": len(latency),
-                "p50_ms": float(np.median(latency)),
-                "p99_ms": float(np.percentile(latency, 99)),
-                "max_ms": float(latency.max()),
-            }
-            if len(latency)
-            else {"n": 0}
-        ),
+        "latency_browser_to_joint_angles": stats(figures.latency_ms),
+        "motion_lag_behind_sound": stats(figures.lag_behind_sound_ms),
         "console_live_estimate_ms": figures.live_estimate,
         "console_node_cpu_ms_per_audio_s": figures.cpu_ms_per_audio_s,
         "console_node_cpu_percent": figures.cpu_percent,
