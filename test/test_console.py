@@ -514,3 +514,20 @@ def test_when_the_port_is_taken_expect_a_configuration_error(tmp_path: Path):
 
 def test_audio_header_is_16_bytes():
     assert AUDIO_HEADER.size == 16  # the page writes it by hand (web/src/main.js)
+
+
+@pytest.mark.parametrize(
+    ("heard", "raw", "pairs", "ambiguous"),
+    [
+        ([0, 20, 40], [5, 25, 45], [(0, 0), (1, 1), (2, 2)], 0),
+        ([0, 20, 40, 60], [5, 45, 65], [(0, 0), (2, 1), (3, 2)], 1),  # chunk 1 dropped
+        ([0, 20, 40], [25, 45], [(1, 0), (2, 1)], 1),  # the first chunk completes no frame
+        ([10, 30], [5, 15, 16, 35], [(0, 1), (1, 3)], 0),  # answers to nothing measured
+    ],
+)
+def test_when_the_bench_pairs_chunks_and_raw_poses_expect_the_newest_unanswered_chunk(
+    heard, raw, pairs, ambiguous
+):
+    from audio2pose_ros.ros.console_bench import pair_chunks
+
+    assert pair_chunks(heard, raw) == (pairs, ambiguous)

@@ -275,7 +275,8 @@ def _print_console(console: dict[str, Any]) -> None:
     if latency["n"]:
         print(
             f"  browser chunk -> /joint_angles p50 / p99: {latency['p50_ms']:.1f} / "
-            f"{latency['p99_ms']:.1f} ms ({latency['n']} chunks; the chunk's own 20 ms and the "
+            f"{latency['p99_ms']:.1f} ms ({latency['n']} of {console['chunks']} chunks, "
+            f"{console['ambiguous_pairs']} paired ambiguously; the chunk's own 20 ms and the "
             "25 ms feature window come on top)"
         )
     else:

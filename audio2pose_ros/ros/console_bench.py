@@ -6,9 +6,9 @@ open, so a command equals the raw pose it carries and identifies it). This proce
 page: a WebSocket client that says hello, takes the floor and sends real speech in the page's
 20 ms chunks (16 kHz S16LE) in real time, each stamped when it is sent, as the page stamps a
 chunk when its last sample is captured. A chunk completes two feature frames, hence one
-``raw_trajectory`` message of two poses; its latency runs from its stamp to the arrival of the
-first ``/joint_angles`` command carrying one of them (``/joint_angles`` runs at 50 Hz, the poses
-at 100 Hz: every other pose is commanded).
+``raw_trajectory`` message of two poses (:func:`pair_chunks` finds which); its latency runs from
+its stamp to the arrival of the first ``/joint_angles`` command carrying one of them
+(``/joint_angles`` runs at 50 Hz, the poses at 100 Hz: every other pose is commanded).
 
 Reported: that latency's p50 / p99, the console's own live estimate of it (what the page shows,
 from ``/diagnostics``: :mod:`audio2pose_ros.console.latency`), how far the command lags the
@@ -64,6 +64,8 @@ class ConsoleFigures:
     audio_s: float
     latency_ms: np.ndarray  # chunk stamp -> the /joint_angles command carrying its pose
     lag_behind_sound_ms: np.ndarray  # chunk on audio/audio -> that command
+    chunks: int = 0  # chunks measured
+    ambiguous: int = 0  # raw messages paired after several unanswered chunks (pair_chunks)
     live_estimate: dict[str, str] = field(default_factory=dict)  # console_node's own figures
     cpu_ms_per_audio_s: float = float("nan")
     cpu_percent: float = float("nan")
@@ -167,16 +169,40 @@ def _serves(url: str) -> bool:
         return False
 
 
-def _latencies(
-    sent: list[float],
-    raw: list[tuple[float, np.ndarray]],
-    commands: list[tuple[float, np.ndarray]],
-) -> np.ndarray:
-    """Per chunk: the first command (in order) equal to one of its poses, minus its stamp (ms)."""
-    out = []
+def pair_chunks(heard: list[float], raw_s: list[float]) -> tuple[list[tuple[int, int]], int]:
+    """Pair raw_trajectory messages with the chunks that caused them, by arrival time.
+
+    A raw message belongs to the newest chunk heard on audio/audio before it that has none yet:
+    the graph answers a chunk within a few ms, well inside the 20 ms until the next one, and a
+    chunk that the features node dropped has no answer. A raw message preceded by several
+    unanswered chunks is counted as ambiguous: either those were dropped, or the graph ran more
+    than a chunk behind and its latency is underestimated by multiples of 20 ms.
+
+    Returns:
+        ``(chunk index, raw index)`` pairs, and the number of ambiguous ones.
+    """
+    pairs: list[tuple[int, int]] = []
+    ambiguous = 0
+    unanswered = 0  # the oldest chunk without a raw message
+    newest = -1
+    for k, arrival in enumerate(raw_s):
+        while newest + 1 < len(heard) and heard[newest + 1] <= arrival:
+            newest += 1
+        if newest < unanswered:
+            continue  # no chunk waits for an answer: not caused by a measured chunk
+        ambiguous += newest > unanswered
+        pairs.append((newest, k))
+        unanswered = newest + 1
+    return pairs, ambiguous
+
+
+def _first_commands(
+    raw: list[tuple[float, np.ndarray]], commands: list[tuple[float, np.ndarray]]
+) -> list[float | None]:
+    """Per raw message, the arrival of the first command (in order) equal to one of its poses."""
+    out: list[float | None] = []
     c = 0
-    for j in range(min(len(sent), len(raw))):
-        poses = raw[j][1]
+    for _, poses in raw:
         window = commands[c : c + 100]
         match = next(
             (
@@ -186,10 +212,10 @@ def _latencies(
             ),
             None,
         )
+        out.append(None if match is None else window[match][0])
         if match is not None:
-            out.append((window[match][0] - sent[j]) * 1e3)
             c += match + 1
-    return np.array(out)
+    return out
 
 
 def measure_console(speech_16k: np.ndarray, duration_s: float = 60.0) -> ConsoleFigures:
@@ -230,22 +256,24 @@ def measure_console(speech_16k: np.ndarray, duration_s: float = 60.0) -> Console
         listener.destroy_node()
     if page.error is not None:
         raise GraphTimeoutError(f"the page's stream failed: {page.error!r}")
-    # The page's first chunk is the graph's first audio: it completes no 25 ms window; every
-    # later one completes two frames, one raw_trajectory message. So chunk j caused raw message
-    # j - 1 and is message j on audio/audio, whatever the delays.
-    if len(listener.raw) != len(page.sent) - 1 or len(listener.sound) != len(page.sent):
+    if len(listener.sound) != len(page.sent):  # every chunk is published, in order
         raise GraphTimeoutError(
-            f"{len(page.sent)} chunks sent but {len(listener.sound)} heard on audio/audio and "
-            f"{len(listener.raw)} raw_trajectory messages received: cannot pair them"
+            f"{len(page.sent)} chunks sent but {len(listener.sound)} heard on audio/audio"
         )
-    measured = slice(WARM_UP_CHUNKS, len(page.sent))
-    raw = listener.raw[WARM_UP_CHUNKS - 1 :]
-    start = page.sent[WARM_UP_CHUNKS] - 0.5
-    commands = [c for c in listener.commands if c[0] >= start]
+    pairs, ambiguous = pair_chunks(listener.sound, [t for t, _ in listener.raw])
+    answered = _first_commands(listener.raw, listener.commands)
+    latency, lag = [], []
+    for j, k in pairs:
+        command_s = answered[k]
+        if j >= WARM_UP_CHUNKS and command_s is not None:
+            latency.append((command_s - page.sent[j]) * 1e3)
+            lag.append((command_s - listener.sound[j]) * 1e3)
     return ConsoleFigures(
         audio_s=(len(page.sent) - WARM_UP_CHUNKS) * CHUNK_S,
-        latency_ms=_latencies(page.sent[measured], raw, commands),
-        lag_behind_sound_ms=_latencies(listener.sound[measured], raw, commands),
+        latency_ms=np.array(latency),
+        lag_behind_sound_ms=np.array(lag),
+        chunks=len(page.sent) - WARM_UP_CHUNKS,
+        ambiguous=ambiguous,
         live_estimate={
             k.removeprefix("latency_"): v
             for k, v in listener.console_values.items()
@@ -272,6 +300,8 @@ def console_report(figures: ConsoleFigures) -> dict[str, object]:
 
     return {
         "audio_s": figures.audio_s,
+        "chunks": figures.chunks,
+        "ambiguous_pairs": figures.ambiguous,
         "latency_browser_to_joint_angles": stats(figures.latency_ms),
         "motion_lag_behind_sound": stats(figures.lag_behind_sound_ms),
         "console_live_estimate_ms": figures.live_estimate,
