@@ -61,6 +61,7 @@ class Recorder:
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
+        from sensor_msgs.msg import JointState
 
         self.context = Context()
         rclpy.init(context=self.context)
@@ -69,6 +70,8 @@ class Recorder:
         self.console_status = ""
         self.node.create_subscription(JointAnglesWithSpeed, "/joint_angles", self._command, 100)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._diagnostics, 50)
+        self.measured = self.node.create_publisher(JointState, "/joint_states", 10)
+        self.joint_state = JointState
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)
@@ -87,6 +90,12 @@ class Recorder:
         for status in msg.status:
             if status.name.endswith(": console_node"):
                 self.console_status = status.message
+
+    def publish_measured(self, pose: dict[str, float]) -> None:
+        """Publish a measured pose on /joint_states, as a robot or simulator does."""
+        msg = self.joint_state(name=list(pose), position=list(pose.values()))
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        self.measured.publish(msg)
 
     def between(self, start: float, end: float) -> np.ndarray:
         """Commands received in [start, end] (monotonic s), one row each."""
@@ -312,6 +321,40 @@ def test_when_the_talking_tab_is_closed_expect_the_floor_free_and_the_robot_at_r
     _talk(successor)  # the floor is free for the next operator
     successor.click("#talk")
     successor.close()
+
+
+def test_when_a_robot_reports_its_pose_expect_it_drawn_as_a_ghost(console: Console, browser):
+    robot = load_robot()
+    page = _open(browser, console)
+    page.wait_for_timeout(1000)
+    assert page.evaluate("window.a2p.lastPose.measured") is None
+    alone = page.locator("#robot").screenshot()
+    measured = dict(zip(robot.names, robot.neutral_rad.tolist(), strict=True))
+    measured.update(LShoulderPitch=0.0, RShoulderPitch=0.3, HeadYaw=0.6)  # arms out, head turned
+    reporting = threading.Event()
+    reporting.set()
+
+    def report() -> None:  # 20 Hz, as long as the robot is "on"
+        while reporting.is_set():
+            console.recorder.publish_measured(measured)
+            time.sleep(0.05)
+
+    reporter = threading.Thread(target=report, daemon=True)
+    reporter.start()
+    try:
+        page.wait_for_function("window.a2p.lastPose.measured !== null", timeout=10000)
+        page.wait_for_timeout(500)
+        shown = page.evaluate("window.a2p.lastPose.measured")
+        ghost = page.locator("#robot").screenshot(path=str(console.shots / "console_ghost.png"))
+    finally:
+        reporting.clear()
+        reporter.join()
+    assert max(abs(shown[name] - value) for name, value in measured.items()) < 1e-9
+    changed = _changed_fraction(alone, ghost)
+    assert changed > 0.005, f"no ghost drawn ({changed:.4f} of the pixels changed)"
+    # a robot that stops reporting leaves no ghost behind (MEASURED_TIMEOUT_S, 2 s)
+    page.wait_for_function("window.a2p.lastPose.measured === null", timeout=5000)
+    page.close()
 
 
 def test_when_the_token_is_wrong_expect_access_refused(console: Console, browser):

@@ -267,6 +267,8 @@ function ghostly(robot) {
     if (object.isMesh) {
       object.material = new THREE.MeshStandardMaterial({
         color: 0x2196f3, transparent: true, opacity: 0.3, depthWrite: false,
+        // drawn in front where it coincides with the commanded robot: no z-fighting speckles
+        polygonOffset: true, polygonOffsetFactor: -2, polygonOffsetUnits: -2,
       });
     }
   });
