@@ -76,6 +76,7 @@ from launch_ros.parameter_descriptions import ParameterValue
 from audio2pose_ros import topics
 from audio2pose_ros.ros.launch_support import (
     ARGUMENTS,
+    CONSOLE_EXECUTABLE,
     CONTROLLER_NAME,
     CONTROLLER_TOPIC,
     SINGLE_PROCESS_MODULE,
@@ -315,7 +316,7 @@ def launch_setup(context: LaunchContext) -> list[Action]:
     supervisor = NodeSupervisor(plan)
     actions = visualisation_and_simulation(plan) + diagnostics(plan)
     if plan.console:
-        actions += supervisor.start("console_node")
+        actions += supervisor.start(CONSOLE_EXECUTABLE)
     if plan.single_process:
         return actions + supervisor.start(SINGLE_PROCESS)
     for executable in ("audio_features_node", "inference_node", "motion_filter_node"):

@@ -25,10 +25,11 @@ from audio2pose_ros.ros.graph import (
     executable_command,
     node_graph,
 )
+from audio2pose_ros.ros.launch_support import CONSOLE_EXECUTABLE
 
 __all__ = ["CONSOLE_NODE", "console_command", "run_console"]
 
-CONSOLE_NODE = "console_node"
+CONSOLE_NODE = CONSOLE_EXECUTABLE
 
 
 def console_command(

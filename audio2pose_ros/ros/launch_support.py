@@ -34,6 +34,7 @@ from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, Audio2PoseError, Con
 
 __all__ = [
     "ARGUMENTS",
+    "CONSOLE_EXECUTABLE",
     "CONTROLLER_NAME",
     "CONTROLLER_TOPIC",
     "EXIT_CONFIGURATION_ERROR",
@@ -69,6 +70,8 @@ ARGUMENTS = (
     "single_process",
     "console",
 )
+# console:=true starts this executable (the operator's web console).
+CONSOLE_EXECUTABLE = "console_node"
 # single_process:=true runs this module's three nodes in one process (issue 15).
 SINGLE_PROCESS_MODULE = "audio2pose_ros.ros.nodes.single_process"
 
