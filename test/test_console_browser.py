@@ -297,6 +297,32 @@ def test_when_stop_is_pressed_expect_the_robot_holds_until_released(console: Con
     page.close()
 
 
+def test_when_the_operator_sets_gains_and_disables_motion_expect_the_filter_to_follow(
+    console: Console, browser
+):
+    neutral = load_robot().neutral_rad
+    page = _open(browser, console)
+    page.locator("#gain-arms").fill("0")  # the filter's arms_gain, through its parameter service
+    page.wait_for_function(
+        "window.a2p.status && window.a2p.status.gains && window.a2p.status.gains.arms === 0",
+        timeout=10000,
+    )
+    _talk(page)
+    page.locator("#enable").uncheck()  # enable: false, latched: glide to neutral, ignore speech
+    disabled = time.monotonic()
+    page.wait_for_function("window.a2p.status.enable === false", timeout=5000)
+    page.wait_for_timeout(2500)
+    resting = console.recorder.between(disabled + 1.5, time.monotonic())
+    assert len(resting) > 20
+    assert np.abs(resting - neutral).max() < 0.02, "disabled, the robot did not rest"
+    page.locator("#enable").check()
+    page.wait_for_function("window.a2p.status.enable === true", timeout=5000)
+    page.locator("#gain-arms").fill("1")
+    page.wait_for_function("window.a2p.status.gains.arms === 1", timeout=10000)
+    page.click("#talk")
+    page.close()
+
+
 def test_when_the_talking_tab_is_closed_expect_the_floor_free_and_the_robot_at_rest(
     console: Console, browser
 ):
