@@ -531,3 +531,12 @@ def test_when_the_bench_pairs_chunks_and_raw_poses_expect_the_newest_unanswered_
     from audio2pose_ros.ros.console_bench import pair_chunks
 
     assert pair_chunks(heard, raw) == (pairs, ambiguous)
+
+
+def test_when_the_console_command_is_given_a_network_bind_without_certificate_expect_refused(
+    capsys,
+):
+    from audio2pose_ros.cli.main import main
+
+    assert main(["console", "--host", "0.0.0.0"]) == 1  # before any process starts
+    assert "needs HTTPS" in capsys.readouterr().err

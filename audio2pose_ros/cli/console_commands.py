@@ -11,7 +11,7 @@ from audio2pose_ros.cli.options import Verbs, bounded_int, input_file
 
 def command_console(args: argparse.Namespace) -> int:
     """Start the graph and the console; run until Ctrl-C."""
-    from audio2pose_ros.ros.console_runner import run_console
+    from audio2pose_ros.ros.console_runner import check_console_settings, run_console
 
     values: dict[str, object] = {}
     for name in ("host", "port", "token"):
@@ -23,6 +23,7 @@ def command_console(args: argparse.Namespace) -> int:
     params = input_file(args.params_file, "parameters file") if args.params_file else None
     model = input_file(args.model, "checkpoint") if args.model else None
     overrides = [f"model_path:={model.resolve()}"] if model else []
+    check_console_settings(params, values)  # a refused bind or token stops before anything runs
     with tempfile.TemporaryDirectory(prefix="audio2pose_console_") as tmp:
         run_console(
             params,

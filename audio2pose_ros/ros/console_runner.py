@@ -18,6 +18,10 @@ from pathlib import Path
 
 import yaml
 
+from audio2pose_ros.console.access import resolve_access
+from audio2pose_ros.console.settings import ConsoleSettings
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.parameters import settings_from
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.ros.graph import (
     HeartbeatMonitor,
@@ -27,7 +31,7 @@ from audio2pose_ros.ros.graph import (
 )
 from audio2pose_ros.ros.launch_support import CONSOLE_EXECUTABLE
 
-__all__ = ["CONSOLE_NODE", "console_command", "run_console"]
+__all__ = ["CONSOLE_NODE", "check_console_settings", "console_command", "run_console"]
 
 CONSOLE_NODE = CONSOLE_EXECUTABLE
 
@@ -51,6 +55,23 @@ def console_command(
         )
         command += ["--params-file", str(path)]
     return command
+
+
+def check_console_settings(params_file: Path | None, values: Mapping[str, object]) -> None:
+    """Check the console's settings as console_node will, before any process starts.
+
+    The settings are the parameters file's ``console_node`` section, then ``values`` over it.
+
+    Raises:
+        ConfigurationError: a refused value, bind, certificate or token (one line).
+    """
+    params = params_file or share_path("config", "pepper.yaml")
+    try:
+        document = yaml.safe_load(params.read_text(encoding="utf-8")) or {}
+        section = document.get(CONSOLE_NODE, {}).get("ros__parameters", {}) or {}
+    except (OSError, yaml.YAMLError, AttributeError) as exc:
+        raise ConfigurationError(f"parameters file {params}: cannot be read ({exc})") from None
+    resolve_access(settings_from(ConsoleSettings, {**section, **values}))
 
 
 def run_console(
@@ -81,7 +102,9 @@ def run_console(
             supervisor.start()
             stack.callback(HeartbeatMonitor(supervisor).close)
         try:
-            while supervisor.running:
+            while supervisor.running and CONSOLE_NODE not in supervisor.given_up:
                 time.sleep(0.2)
         except KeyboardInterrupt:
-            pass
+            return
+        if CONSOLE_NODE in supervisor.given_up:
+            raise ConfigurationError("console_node stopped: see its line above")
