@@ -10,6 +10,8 @@ import shutil
 import ssl
 import struct
 import subprocess
+import sys
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -540,3 +542,46 @@ def test_when_the_console_command_is_given_a_network_bind_without_certificate_ex
 
     assert main(["console", "--host", "0.0.0.0"]) == 1  # before any process starts
     assert "needs HTTPS" in capsys.readouterr().err
+
+
+DROPPING_CLIENT = """
+import asyncio, json, sys, aiohttp
+from audio2pose_ros.console.protocol import audio_frame
+async def main(base):
+    async with aiohttp.ClientSession() as session:
+        ws = await session.ws_connect(base.replace("http", "ws") + "/ws", origin=base)
+        await ws.send_str(json.dumps({"type": "hello", "token": "", "name": "Dee"}))
+        await ws.send_str(json.dumps({"type": "talk", "on": True}))
+        await ws.send_bytes(audio_frame(0, 1.0, bytes(640)))
+        print("talking", flush=True)
+        await asyncio.sleep(60)
+asyncio.run(main(sys.argv[1]))
+"""
+
+
+def test_when_the_talkers_process_dies_expect_the_floor_released(tmp_path: Path):
+    with serving(tmp_path) as (base, bridge):
+        client = subprocess.Popen(
+            [sys.executable, "-c", DROPPING_CLIENT, base], stdout=subprocess.PIPE, text=True
+        )
+        try:
+            assert client.stdout is not None
+            assert client.stdout.readline().strip() == "talking"
+            deadline = time.monotonic() + 10.0
+            while bridge.count("audio") == 0 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            client.kill()  # no close frame: the browser crashed or the laptop vanished
+        finally:
+            client.wait()
+        deadline = time.monotonic() + 10.0
+        while bridge.count("end") == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert [name for name, _ in bridge.calls] == ["start", "audio", "end"]
+
+        async def successor() -> None:
+            async with aiohttp.ClientSession() as session:
+                ws = await connect(session, base)
+                await ws.send_str('{"type":"talk","on":true}')
+                await until(ws, "floor", you=True)
+
+        run(successor())
