@@ -26,9 +26,15 @@ let seq = 0;
 let audio = null; // { context, stream, node }
 let reconnectTimer = null;
 
+// The token comes in the address's fragment (never sent to a server); it is kept for this tab
+// only and taken out of the address bar, so it does not stay on screen or in bookmarks.
 function token() {
   const fromHash = new URLSearchParams(location.hash.slice(1)).get('token');
-  return fromHash || $('token').value || '';
+  if (fromHash) {
+    sessionStorage.setItem('a2p-token', fromHash);
+    history.replaceState(null, '', location.pathname);
+  }
+  return sessionStorage.getItem('a2p-token') || '';
 }
 
 function showError(text) {
@@ -367,7 +373,7 @@ function wire() {
   }
   $('login').addEventListener('submit', (event) => {
     event.preventDefault();
-    history.replaceState(null, '', location.pathname);
+    sessionStorage.setItem('a2p-token', $('token').value);
     connect();
   });
   setInterval(() => send({ type: 'ping', t: pageClock() }), PING_PERIOD_MS);

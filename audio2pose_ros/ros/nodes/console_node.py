@@ -33,6 +33,7 @@ address that cannot be bound is a configuration error: one line, exit status 78.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from typing import Any
@@ -283,7 +284,7 @@ class ConsoleNode(DiagnosedNode):
 
     def _command(self, names: list[str], angles: list[float], stamp: Any, source: str) -> None:
         now = time.time()
-        pose = {name: float(a) for name, a in zip(names, angles, strict=False)}
+        pose = {n: float(a) for n, a in zip(names, angles, strict=False) if math.isfinite(a)}
         with self._lock:
             if source == "joint_angles" or self.command_source != "joint_angles":
                 self.commanded, self.command_source = pose, source
@@ -304,7 +305,8 @@ class ConsoleNode(DiagnosedNode):
 
     def on_measured(self, msg: JointState) -> None:
         """The robot's measured pose, drawn as a ghost."""
-        pose = {n: float(p) for n, p in zip(msg.name, msg.position, strict=False) if p == p}
+        pairs = zip(msg.name, msg.position, strict=False)
+        pose = {name: float(p) for name, p in pairs if math.isfinite(p)}  # NaN: not measured
         with self._lock:
             self.measured, self.measured_s = pose, time.monotonic()
 
