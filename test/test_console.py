@@ -486,6 +486,13 @@ def test_when_more_operators_connect_than_allowed_expect_the_extra_refused(tmp_p
             with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
                 await connect(session, base)
             assert refused.value.status == 503
+            await first.close()
+            await asyncio.sleep(0.2)  # the server's side of the closed connection ends
+            silent = await session.ws_connect(f"{base.replace('http', 'ws')}/ws", origin=base)
+            with pytest.raises(aiohttp.WSServerHandshakeError) as refused:  # token not given yet
+                await connect(session, base)
+            assert refused.value.status == 503
+            await silent.close()
 
     with serving(tmp_path, max_clients=1) as (base, _):
         run(scenario(base))

@@ -5,7 +5,8 @@ It serves the page (the built front end, ``web/dist``), the robot's URDF and one
 tests use their own). What a connection goes through:
 
 1. **Before the upgrade**: the Host and Origin checks of
-   :func:`~audio2pose_ros.console.access.request_problem` (403) and ``max_clients`` (503).
+   :func:`~audio2pose_ros.console.access.request_problem` (403) and ``max_clients`` open
+   connections, identified or still waiting for their token (503).
 2. **Token**: the first message must be a ``hello`` with the token, within ``auth_timeout_s``;
    otherwise the connection is closed (code 4401 for a wrong token, 4400 for anything else).
 3. **Bounded use**: a frame larger than the largest allowed chunk closes the connection (1009,
@@ -180,6 +181,7 @@ class ConsoleServer:
         self.sessions: dict[int, _Session] = {}
         self.refused_connections = 0
         self.refused_frames = 0
+        self.connections = 0  # open WebSockets, with or without their token yet
         self.port = 0
         self._ids = itertools.count(1)
         self._runner: web.AppRunner | None = None
@@ -289,7 +291,7 @@ class ConsoleServer:
             self.refused_connections += 1
             self.log("warning", f"console: WebSocket from {peer} refused: {problem}")
             raise web.HTTPForbidden(text=problem)
-        if len(self.sessions) >= self.settings.max_clients:
+        if self.connections >= self.settings.max_clients:  # identified or not yet
             self.refused_connections += 1
             raise web.HTTPServiceUnavailable(
                 text=f"at most {self.settings.max_clients} operators at once"
@@ -299,6 +301,7 @@ class ConsoleServer:
             max_msg_size=AUDIO_HEADER.size + self.settings.max_chunk_bytes,
         )
         await ws.prepare(request)
+        self.connections += 1
         session = _Session(
             id=next(self._ids),
             ws=ws,
@@ -318,6 +321,7 @@ class ConsoleServer:
                 await self._welcome(session)
                 await self._serve(session)
         finally:
+            self.connections -= 1
             self.sessions.pop(session.id, None)
             if self.floor.release(session.id):
                 self.bridge.end_talk()
