@@ -218,6 +218,8 @@ async function toggleTalk() {
 const pendingGains = {};
 let gainTimer = null;
 let draggingSince = 0;
+let enableToggled = 0; // the operator's own change shows until the latched value comes back
+const SETTLE_MS = 1500;
 
 function queueGain(group, value) {
   pendingGains[group] = value;
@@ -234,11 +236,11 @@ function updateStatus(status) {
   const stopped = status.stop === true;
   document.body.classList.toggle('stopped', stopped);
   const enabled = status.enable !== false;
-  $('enable').checked = enabled;
+  if (Date.now() - enableToggled > SETTLE_MS) $('enable').checked = enabled;
   $('robot-state').textContent = stopped
     ? 'STOPPED: the robot holds still until the stop is released.'
     : enabled ? 'Motion enabled.' : 'Motion disabled: the robot rests in its neutral pose.';
-  if (status.gains && Date.now() - draggingSince > 1500) {
+  if (status.gains && Date.now() - draggingSince > SETTLE_MS) {
     for (const [group, value] of Object.entries(status.gains)) {
       $(`gain-${group}`).value = value;
       $(`gain-${group}`).nextElementSibling.textContent = value.toFixed(2);
@@ -363,7 +365,10 @@ function wire() {
   $('talk').addEventListener('click', toggleTalk);
   $('stop').addEventListener('click', () => send({ type: 'stop', on: true }));
   $('release').addEventListener('click', () => send({ type: 'stop', on: false }));
-  $('enable').addEventListener('change', (event) => send({ type: 'enable', on: event.target.checked }));
+  $('enable').addEventListener('change', (event) => {
+    enableToggled = Date.now();
+    send({ type: 'enable', on: event.target.checked });
+  });
   for (const group of ['head', 'arms', 'hip']) {
     $(`gain-${group}`).addEventListener('input', (event) => {
       const value = Number(event.target.value);
