@@ -592,3 +592,18 @@ def test_when_the_talkers_process_dies_expect_the_floor_released(tmp_path: Path)
                 await until(ws, "floor", you=True)
 
         run(successor())
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize(
+    ("ros_args", "expected"),
+    [
+        (("-p", "host:=0.0.0.0"), "parameter host: value '0.0.0.0' is reachable"),
+        (("-p", "port:=70000"), "parameter port: value 70000 is out of range"),
+        (("-p", "max_browser_audio_s_per_s:=9.0"), "max_browser_audio_s_per_s: value 9.0"),
+    ],
+)
+def test_when_console_node_is_misconfigured_expect_one_line_and_status_78(ros_args, expected):
+    from node_processes import configuration_error_line
+
+    assert expected in configuration_error_line("console_node", *ros_args)

@@ -96,6 +96,7 @@ class ConsoleNode(DiagnosedNode):
             ConfigurationError: a refused parameter, bind, certificate or token.
         """
         super().__init__("console_node")
+        self.server_thread: ServerThread | None = None  # rclpy may destroy a half-built node
         self.parameters = NodeParameters(self, PARAMETERS)
         self.settings: ConsoleSettings = settings_from(ConsoleSettings, self.parameters.values)
         self.access = resolve_access(self.settings)
@@ -197,7 +198,8 @@ class ConsoleNode(DiagnosedNode):
 
     def destroy_node(self) -> None:
         """Stop the server (pages are told) before the node goes."""
-        self.server_thread.stop()
+        if self.server_thread is not None:
+            self.server_thread.stop()
         super().destroy_node()
 
     # --- to the graph (called from the server's thread) ------------------------------------------
