@@ -1,28 +1,24 @@
-// The operator console's page: WebSocket to console_node, microphone capture (AudioWorklet,
-// 16 kHz mono S16LE in 20 ms chunks), a 3D view of the robot from the package's URDF
-// (commanded pose solid, measured pose as a ghost), stop / enable / gesture amplitude, health
-// and the voice-to-command latency. Everything is served by the console itself.
+// The operator console's page: microphone capture (AudioWorklet, 16 kHz mono S16LE in 20 ms
+// chunks), the WebSocket to console_node (in a Worker, link.js, so the chunks leave without
+// waiting for this thread), a 3D view of the robot from the package's URDF (commanded pose
+// solid, measured pose as a ghost), stop / enable / gesture amplitude, health and the
+// voice-to-command latency. Everything is served by the console itself.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
 import URDFLoader from 'urdf-loader';
 
 const CHUNK_SAMPLES = 320; // 20 ms at 16 kHz
-const MAGIC = [0x41, 0x32, 0x50, 0x41]; // "A2PA"
-const HEADER_BYTES = 16;
-const PING_PERIOD_MS = 2000;
-const MAX_BUFFERED_BYTES = 32768; // more unsent audio than this: drop chunks, not add delay
 const GAIN_SEND_PERIOD_MS = 150;
 
 const $ = (id) => document.getElementById(id);
 // State the browser test reads (window.a2p).
 const state = {
   connected: false, floor: null, you: false, talking: false, chunksSent: 0, chunksDropped: 0,
-  posesApplied: 0, status: null, lastError: '', offsets: [], joints: [], viewReady: false,
+  posesApplied: 0, status: null, lastError: '', joints: [], viewReady: false,
 };
 window.a2p = state;
 
-let ws = null;
-let seq = 0;
+const link = new Worker('link.js');
 let audio = null; // { context, stream, node }
 let reconnectTimer = null;
 
@@ -49,16 +45,7 @@ function setConnection(text, cls) {
 }
 
 function send(message) {
-  if (ws && ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify(message));
-}
-
-// One clock for stamps and pings: the page's monotonic clock, in ms since the epoch.
-const pageClock = () => performance.timeOrigin + performance.now();
-
-function clockOffset() {
-  if (!state.offsets.length) return 0;
-  const sorted = [...state.offsets].sort((a, b) => a - b);
-  return sorted[Math.floor(sorted.length / 2)];
+  link.postMessage({ cmd: 'send', message });
 }
 
 function setControls(enabled) {
@@ -70,30 +57,40 @@ function setControls(enabled) {
 function connect() {
   clearTimeout(reconnectTimer);
   const scheme = location.protocol === 'https:' ? 'wss' : 'ws';
-  ws = new WebSocket(`${scheme}://${location.host}/ws`);
-  ws.binaryType = 'arraybuffer';
+  const name = $('name').value.trim() || localStorage.getItem('a2p-name') || '';
   setConnection('connecting…');
-  ws.onopen = () => {
-    const name = $('name').value.trim() || localStorage.getItem('a2p-name') || '';
-    send({ type: 'hello', token: token(), name });
-  };
-  ws.onmessage = (event) => {
-    if (typeof event.data === 'string') onMessage(JSON.parse(event.data));
-  };
-  ws.onclose = (event) => {
-    state.connected = false;
-    setControls(false);
-    stopAudio();
-    if (event.code === 4401) {
-      setConnection('token refused', 'err');
-      $('login').hidden = false;
-      $('login-reason').textContent = 'The token was refused: enter the one the console printed.';
-      return;
-    }
-    setConnection('disconnected: retrying', 'err');
-    reconnectTimer = setTimeout(connect, 2000);
-  };
+  link.postMessage({
+    cmd: 'connect',
+    url: `${scheme}://${location.host}/ws`,
+    hello: { type: 'hello', token: token(), name },
+  });
 }
+
+function onClose(code) {
+  state.connected = false;
+  state.you = false;
+  setControls(false);
+  stopAudio();
+  if (code === 4401) {
+    setConnection('token refused', 'err');
+    $('login').hidden = false;
+    $('login-reason').textContent = 'The token was refused: enter the one the console printed.';
+    return;
+  }
+  setConnection('disconnected: retrying', 'err');
+  reconnectTimer = setTimeout(connect, 2000);
+}
+
+link.onmessage = (event) => {
+  const data = event.data;
+  if (data.type === 'message') onMessage(data.message);
+  else if (data.type === 'close') onClose(data.code);
+  else if (data.type === 'level') {
+    $('level').value = state.talking ? Math.min(1, data.rms * 4) : 0;
+    state.chunksSent = data.sent;
+    state.chunksDropped = data.dropped;
+  }
+};
 
 function onMessage(message) {
   switch (message.type) {
@@ -107,7 +104,6 @@ function onMessage(message) {
       setConnection(`connected as ${message.name}`, 'ok');
       setControls(true);
       showError('');
-      send({ type: 'ping', t: pageClock() });
       break;
     case 'floor':
       state.floor = message.holder;
@@ -121,12 +117,6 @@ function onMessage(message) {
       state.status = message;
       updateStatus(message);
       break;
-    case 'pong': {
-      const now = pageClock();
-      state.offsets.push(message.server - (message.t + now) / 2);
-      if (state.offsets.length > 9) state.offsets.shift();
-      break;
-    }
     case 'error':
       showError(message.message);
       break;
@@ -164,7 +154,10 @@ async function startAudio() {
   const mute = context.createGain();
   mute.gain.value = 0;
   source.connect(node).connect(mute).connect(context.destination);
-  node.port.onmessage = (event) => onChunk(event.data);
+  // the chunks go from the worklet straight to the WebSocket's worker
+  const channel = new MessageChannel();
+  node.port.postMessage({ sink: channel.port1 }, [channel.port1]);
+  link.postMessage({ cmd: 'audio', port: channel.port2 }, [channel.port2]);
   audio = { context, stream, node };
 }
 
@@ -172,28 +165,10 @@ function stopAudio() {
   state.talking = false;
   $('level').value = 0;
   if (!audio) return;
-  audio.node.port.onmessage = null;
+  link.postMessage({ cmd: 'audio', port: null });
   audio.stream.getTracks().forEach((track) => track.stop());
   audio.context.close();
   audio = null;
-}
-
-function onChunk({ pcm, rms }) {
-  $('level').value = Math.min(1, rms * 4);
-  if (!state.you || !ws || ws.readyState !== WebSocket.OPEN) return;
-  if (ws.bufferedAmount > MAX_BUFFERED_BYTES) {
-    state.chunksDropped += 1;
-    return;
-  }
-  const frame = new Uint8Array(HEADER_BYTES + pcm.byteLength);
-  const header = new DataView(frame.buffer);
-  MAGIC.forEach((byte, i) => header.setUint8(i, byte));
-  header.setUint32(4, seq, true);
-  seq = (seq + 1) >>> 0;
-  header.setFloat64(8, pageClock() + clockOffset(), true);
-  frame.set(new Uint8Array(pcm), HEADER_BYTES);
-  ws.send(frame.buffer);
-  state.chunksSent += 1;
 }
 
 async function toggleTalk() {
@@ -381,7 +356,6 @@ function wire() {
     sessionStorage.setItem('a2p-token', $('token').value);
     connect();
   });
-  setInterval(() => send({ type: 'ping', t: pageClock() }), PING_PERIOD_MS);
 }
 
 wire();

@@ -1,7 +1,8 @@
 // AudioWorklet processor of the console: the microphone, mixed to mono, resampled to 16 kHz
 // with a windowed-sinc low-pass (Blackman window, cut-off at 95 % of 8 kHz, so nothing above
 // the new Nyquist frequency folds back), converted to signed 16-bit and posted to the page in
-// chunks of `chunkSamples` (320 = 20 ms), each with its RMS level.
+// chunks of `chunkSamples` (320 = 20 ms), each with its RMS level, to the MessagePort the page
+// hands over ({sink: port}: the WebSocket's worker), or to its own port until then.
 
 const TARGET_RATE = 16000;
 const ZERO_CROSSINGS = 8; // of the sinc on each side of the kernel
@@ -20,6 +21,10 @@ class CaptureProcessor extends AudioWorkletProcessor {
     this.out = new Int16Array(this.chunk);
     this.filled = 0;
     this.energy = 0;
+    this.sink = this.port;
+    this.port.onmessage = (event) => {
+      if (event.data && event.data.sink) this.sink = event.data.sink;
+    };
   }
 
   kernel(distance) {
@@ -46,7 +51,7 @@ class CaptureProcessor extends AudioWorkletProcessor {
     this.energy += clamped * clamped;
     if (this.filled === this.chunk) {
       const rms = Math.sqrt(this.energy / this.chunk);
-      this.port.postMessage({ pcm: this.out.buffer, rms }, [this.out.buffer]);
+      this.sink.postMessage({ pcm: this.out.buffer, rms }, [this.out.buffer]);
       this.out = new Int16Array(this.chunk);
       this.filled = 0;
       this.energy = 0;
