@@ -37,4 +37,4 @@ default-model: setup
 	nice -n 10 $(VENV_BIN)/audio2pose dataset build-default $(TALKING_HEADS) --lecture $(LECTURE_VIDEO) -o models/default --work-dir out/default-model-work
 
 clean:
-	rm -rf .venv out build install log .pytest_cache .ruff_cache .mypy_cache .hypothesis
+	rm -rf .venv out build install log .pytest_cache .ruff_cache .mypy_cache .hypothesis web/dist web/node_modules

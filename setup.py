@@ -20,5 +20,7 @@ setup(
         (f"share/{PACKAGE}/models/default", glob("models/default/*")),
         (f"share/{PACKAGE}/data/speech", glob("data/speech/*")),
         (f"share/{PACKAGE}/data/video", glob("data/video/*")),
+        # the operator console's front end, built by `cd web && npm ci && npm run build`
+        (f"share/{PACKAGE}/web/dist", glob("web/dist/*")),
     ],
 )

@@ -44,6 +44,10 @@ Visualisation and simulation (urdf/pepper.urdf, primitive shapes):
 (``python -m audio2pose_ros.ros.nodes.single_process``, the same parameters and remappings): the
 smallest footprint. The default stays three processes.
 
+``console:=true`` starts console_node, the operator's web console (README "Operator console"):
+it prints the address to open; its settings (host, port, token, certificate) come from the
+parameters file's ``console_node`` section.
+
 ``diagnostic_aggregator:=true`` starts diagnostic_aggregator with config/diagnostic_analyzers.yaml:
 /diagnostics_agg (and rqt_robot_monitor) shows each node's status, missing or stale ones as such.
 """
@@ -76,6 +80,7 @@ from launch_ros.parameter_descriptions import ParameterValue
 from audio2pose_ros import topics
 from audio2pose_ros.ros.launch_support import (
     ARGUMENTS,
+    CONSOLE_EXECUTABLE,
     CONTROLLER_NAME,
     CONTROLLER_TOPIC,
     SINGLE_PROCESS_MODULE,
@@ -138,6 +143,12 @@ def declare_arguments() -> list[DeclareLaunchArgument]:
             default_value="false",
             description="Aggregate /diagnostics with config/diagnostic_analyzers.yaml into "
             "/diagnostics_agg (rqt_robot_monitor) (true/false/1/0)",
+        ),
+        DeclareLaunchArgument(
+            "console",
+            default_value="false",
+            description="Start the operator's web console (console_node: talk from a browser, "
+            "3D view, stop); it prints the address to open (true/false/1/0)",
         ),
         DeclareLaunchArgument(
             "single_process",
@@ -326,6 +337,8 @@ def launch_setup(context: LaunchContext) -> list[Action]:
     plan = plan_launch({name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS})
     supervisor = NodeSupervisor(plan)
     actions = visualisation_and_simulation(plan) + diagnostics(plan)
+    if plan.console:
+        actions += supervisor.start(CONSOLE_EXECUTABLE)
     if plan.single_process:
         return actions + supervisor.start(SINGLE_PROCESS)
     for executable in ("audio_features_node", "inference_node", "motion_filter_node"):

@@ -13,6 +13,9 @@
 #      only as root with apt-get; otherwise the script says what to install (those tests skip)
 #   7. verify that rclpy, both message packages, torch, python_speech_features and the rendering
 #      stack (pybullet, yourdfpy, imageio-ffmpeg) import
+# Before all that, and also when .venv is up to date: the operator console's front end
+# (web/: npm ci && npm run build -> web/dist, served by console_node) when its sources changed,
+# if node and npm are installed; without them the console serves a page saying it is not built.
 # A stamp file in .venv records a hash of the inputs; when nothing changed the script only says so.
 # Environment: PYTHON (interpreter used to create the venv, default python3),
 #              AUDIO2POSE_SETUP_FORCE=1 (ignore the stamp and redo every step).
@@ -53,6 +56,25 @@ msg_import() {
     | paste -sd, - | sed 's/,/, /g')"
   printf 'from %s.msg import %s' "$1" "$names"
 }
+
+# The console's front end: rebuilt when web/ changed (its own stamp), only where npm exists.
+build_console_web() {
+  local web="$ROOT/web" stamp="$ROOT/web/dist/.audio2pose_build.sha256" hash
+  hash="$(hash_files "$web/package.json" "$web/package-lock.json" "$web/build.mjs" \
+    $(find "$web/src" -type f | LC_ALL=C sort))"
+  if [[ -f "$stamp" && "$(cat "$stamp")" == "$hash" && -f "$web/dist/index.html" ]]; then
+    log "console front end: web/dist is up to date"
+  elif command -v npm >/dev/null && command -v node >/dev/null; then
+    log "console front end: npm ci && npm run build (web/ -> web/dist)"
+    (cd "$web" && npm ci --no-audit --no-fund --loglevel=error && npm run build --silent) \
+      || die "building the console's front end failed (cd web && npm ci && npm run build)"
+    printf '%s\n' "$hash" >"$stamp"
+  else
+    log "console front end: WARNING: node/npm not found; the console will serve a page saying" \
+      "it is not built (Debian: apt-get install nodejs npm, then make setup)"
+  fi
+}
+build_console_web
 
 mapfile -t ALL_MSG_FILES < <(find "$MSG_SRC" -type f | LC_ALL=C sort)
 INPUT_HASH="$(

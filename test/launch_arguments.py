@@ -19,5 +19,6 @@ def arguments(**overrides: str) -> dict[str, str]:
         "sim": "none",
         "diagnostic_aggregator": "false",
         "single_process": "false",
+        "console": "false",
     }
     return {**values, **overrides}

@@ -34,6 +34,7 @@ LAYERS: dict[str, int] = {
     "offline": 6,
     "viz": 7,
     "learning": 8,
+    "console": 8,
     "ros": 9,
     "cli": 10,
 }

@@ -249,3 +249,13 @@ def test_when_describing_exits_expect_signal_names_for_negative_codes():
     assert describe_exit(-signal.SIGKILL) == "killed by SIGKILL"
     assert describe_exit(1) == "status 1"
     assert describe_exit(-200) == "killed by signal 200"
+
+
+@pytest.mark.parametrize(("text", "expected"), [("false", False), ("TRUE", True), ("1", True)])
+def test_when_the_console_argument_is_given_expect_it_read_as_a_boolean(text, expected):
+    assert plan_launch(arguments(console=text)).console is expected
+
+
+def test_when_the_console_argument_is_not_a_boolean_expect_one_line_naming_it():
+    with pytest.raises(ConfigurationError, match="launch argument console:='web' is not a boolean"):
+        plan_launch(arguments(console="web"))

@@ -15,6 +15,7 @@ from pathlib import Path
 import yaml
 
 from audio2pose_ros.robot.description import load_robot
+from audio2pose_ros.ros.console_runner import CONSOLE_NODE
 from audio2pose_ros.ros.graph import NODE_EXECUTABLES, SIM_NODE
 from audio2pose_ros.ros.launch_support import ARGUMENTS, CONTROLLER_NAME, CONTROLLER_TOPIC
 
@@ -46,8 +47,8 @@ def constant_keywords(call: ast.Call) -> dict[str, object]:
 
 def test_when_reading_setup_cfg_expect_one_executable_per_node_plus_cli():
     scripts = console_scripts()
-    assert set(scripts) == {*NODE_EXECUTABLES, SIM_NODE, "audio2pose"}
-    for name in (*NODE_EXECUTABLES, SIM_NODE):
+    assert set(scripts) == {*NODE_EXECUTABLES, SIM_NODE, CONSOLE_NODE, "audio2pose"}
+    for name in (*NODE_EXECUTABLES, SIM_NODE, CONSOLE_NODE):
         # nodes/process.py makes the process safe to stop before the heavy imports
         assert scripts[name] == f"audio2pose_ros.ros.nodes.process:{name}"
 
@@ -158,7 +159,7 @@ def test_when_reading_parameter_file_expect_sections_for_the_launched_nodes_and_
     # the sections match the node names the launch file gives, and model_path is shared, so the
     # launch argument's override reaches both nodes that read it.
     params = yaml.safe_load((ROOT / "config" / "pepper.yaml").read_text())
-    assert set(params) == {"/**", *NODE_EXECUTABLES}
+    assert set(params) == {"/**", *NODE_EXECUTABLES, CONSOLE_NODE}  # console:=true
     assert "model_path" in params["/**"]["ros__parameters"]
 
 

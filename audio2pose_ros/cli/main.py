@@ -228,6 +228,11 @@ def command_bench(args: argparse.Namespace) -> int:
 
     # --json: one object; its layout is versioned, and a change of it is in CHANGELOG.md
     results: dict[str, object] = {"schema_version": BENCH_SCHEMA_VERSION}
+    if args.console:  # the operator's voice through the web console to /joint_angles
+        from audio2pose_ros.ros.console_bench import console_report, measure_console
+        from audio2pose_ros.ros.graph_bench import bundled_speech
+
+        results["console"] = console_report(measure_console(bundled_speech(), args.duration))
     if args.graph:  # before pinning this process to one core: the nodes need the machine
         from audio2pose_ros.ros.graph_bench import bundled_speech, measure_graph, report
 
@@ -316,6 +321,41 @@ def _print_bench(results: dict[str, Any], frames: int, clip_s: float) -> None:
             f"executed: {sim['executed_self_collision_steps']} steps "
             f"({sim['measured_inside_body']} measured poses inside the body)"
         )
+    if "console" in results:
+        _print_console(results["console"])
+
+
+def _print_console(console: dict[str, Any]) -> None:
+    """The console's figures: browser chunk to /joint_angles, and the console node's cost."""
+    latency = console["latency_browser_to_joint_angles"]
+    print(
+        f"\noperator console over WebSocket and DDS, {console['audio_s']:.0f} s of speech in "
+        "the page's 20 ms chunks"
+    )
+    if latency["n"]:
+        print(
+            f"  browser chunk -> /joint_angles p50 / p99: {latency['p50_ms']:.1f} / "
+            f"{latency['p99_ms']:.1f} ms ({latency['n']} of {console['chunks']} chunks, "
+            f"{console['ambiguous_pairs']} paired ambiguously; the chunk's own 20 ms and the "
+            "25 ms feature window come on top)"
+        )
+    else:
+        print("  browser chunk -> /joint_angles: no command matched a chunk's poses")
+    lag = console["motion_lag_behind_sound"]
+    if lag["n"]:
+        print(
+            f"  /joint_angles behind the same chunk on audio/audio (what audio_play plays) "
+            f"p50 / p99: {lag['p50_ms']:.1f} / {lag['p99_ms']:.1f} ms (minus the player's output "
+            "buffering, not measured here)"
+        )
+    live = console["console_live_estimate_ms"]
+    if live:
+        print(f"  the page's live estimate: p50 {live.get('p50')} / p99 {live.get('p99')} ms")
+    print(
+        f"  console_node: {console['console_node_cpu_ms_per_audio_s']:.1f} ms CPU per second of "
+        f"audio ({console['console_node_cpu_percent']:.1f} % of a core), "
+        f"{console['console_node_rss_mb']:.0f} MB resident"
+    )
 
 
 def _print_graph(runs: list[dict[str, Any]]) -> None:
@@ -441,73 +481,14 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--sim",
         action="store_true",
-        help="also run a simulated Pepper (pybullet) that follows joint_angles and publishes "
-        "the measured joint_states",
-    )
-    run.set_defaults(func=command_run)
-
-    demo = verbs.add_parser("demo", help="bundled speech -> live graph -> recorded bag and CSV")
-    demo.add_argument("--out", default=str(DEFAULT_OUT), help="output folder (default: out/)")
-    demo.set_defaults(func=command_demo)
-
-    synth = verbs.add_parser("synth", help="offline synthesis of a WAV to CSV (100 Hz, radians)")
-    synth.add_argument("wav", metavar="FILE.wav|BAG", help="a WAV file or a bag with audio")
-    synth.add_argument("-o", "--output", required=True, metavar="OUT.csv")
-    add_force(synth)
-    synth.add_argument("--model", help="checkpoint (default: packaged model)")
-    synth.add_argument("--no-smooth", action="store_true", help="skip the 4 Hz Butterworth filter")
-    synth.add_argument(
-        "--seed", type=seed, default=0, help="noise seed of a sampling model (default 0)"
-    )
-    synth.set_defaults(func=command_synth)
-
-    check = verbs.add_parser(
-        "check-body", help="how often the model's motion needs the self-collision guard"
-    )
-    check.add_argument("inputs", nargs="+", metavar="FILE.wav|BAG", help="speech to synthesize")
-    check.add_argument("--model", help="checkpoint (default: packaged model)")
-    check.add_argument(
-        "--seed", type=seed, default=0, help="noise seed of a sampling model (default 0)"
-    )
-    check.add_argument(
-        "--margin",
-        type=bounded_float(0.0, 0.1),
-        default=0.02,
-        help="clearance from the body (m), as the filter's body_margin_m (default 0.02)",
-    )
-    check.set_defaults(func=command_check_body)
-
-    bench = verbs.add_parser("bench", help="per-frame cost of the streaming path")
-    bench.add_argument("--model", help="checkpoint (default: packaged model)")
-    bench.add_argument(
-        "--frames",
-        type=bounded_int(10, 1_000_000),
-        default=3000,
-        help="frames to time, 10 to 1e6 (default 3000)",
-    )
-    bench.add_argument("--skip-models", action="store_true", help="skip the per-model table")
-    bench.add_argument(
-        "--graph",
-        action="store_true",
-        help="also run the live graph: latency, CPU, memory, start-up",
-    )
-    bench.add_argument(
-        "--duration",
-        type=bounded_float(1.0, 3600.0),
-        default=60.0,
-        help="seconds of speech for --graph, 1 to 3600 (default 60)",
-    )
-    bench.add_argument(
-        "--graph-mode",
-        choices=("three", "single", "both"),
-        default="both",
-        help="--graph runs three node processes, one process, or both in turn (default both)",
-    )
-    bench.add_argument(
-        "--sim",
-        action="store_true",
         help="also run the graph against the simulated Pepper: tracking error commanded vs "
         "executed and self-collisions executed (--duration, at most 60 s)",
+    )
+    bench.add_argument(
+        "--console",
+        action="store_true",
+        help="also stream speech through the operator console: browser to /joint_angles "
+        "latency, console node CPU and memory (--duration seconds)",
     )
     bench.add_argument("--json", action="store_true", help="print the figures as JSON")
     bench.set_defaults(func=command_bench)
@@ -545,6 +526,7 @@ def _command_modules() -> list[Callable[[Verbs], None]]:
     """``register(verbs)`` functions of the verbs that live in their own modules."""
     from audio2pose_ros.cli import (
         bag_commands,
+        console_commands,
         dataset_commands,
         fault_commands,
         model_commands,
@@ -557,6 +539,7 @@ def _command_modules() -> list[Callable[[Verbs], None]]:
         bag_commands.register,
         render_commands.register,
         fault_commands.register,
+        console_commands.register,
     ]
 
 

@@ -19,7 +19,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -405,6 +405,7 @@ def node_graph(
     monitor: bool = True,
     single_process: bool = False,
     sim: bool = False,
+    more_nodes: Mapping[str, list[str]] | None = None,
 ) -> Iterator[NodeSupervisor]:
     """Run the three nodes as supervised processes for the duration of the context.
 
@@ -418,6 +419,8 @@ def node_graph(
             (``audio2pose_nodes``) instead of one process each.
         sim: also run ``pepper_sim_node``, a simulated Pepper that follows ``joint_angles`` and
             reports the measured ``joint_states`` the motion filter starts from.
+        more_nodes: more node processes supervised with the graph, by node name: the command of
+            each (``audio2pose console`` adds ``console_node``).
     """
     params = params_file or share_path("config", "pepper.yaml")
     with ExitStack() as stack:
@@ -441,6 +444,10 @@ def node_graph(
             commands[SIM_NODE] = [*executable_command(SIM_NODE), "--ros-args"]
             if members is not None:
                 members[SIM_NODE] = SIM_NODE
+        if more_nodes:
+            commands.update(more_nodes)
+            if members is not None:
+                members.update({name: name for name in more_nodes})
         supervisor = NodeSupervisor(commands, log_dir, members=members)
         stack.callback(supervisor.stop)
         supervisor.start()

@@ -35,6 +35,7 @@ from audio2pose_ros.yaml_files import MAX_YAML_BYTES, load_yaml_text
 
 __all__ = [
     "ARGUMENTS",
+    "CONSOLE_EXECUTABLE",
     "CONTROLLER_NAME",
     "CONTROLLER_TOPIC",
     "EXIT_CONFIGURATION_ERROR",
@@ -68,7 +69,10 @@ ARGUMENTS = (
     "sim",
     "diagnostic_aggregator",
     "single_process",
+    "console",
 )
+# console:=true starts this executable (the operator's web console).
+CONSOLE_EXECUTABLE = "console_node"
 # single_process:=true runs this module's three nodes in one process (the smallest footprint).
 SINGLE_PROCESS_MODULE = "audio2pose_ros.ros.nodes.single_process"
 
@@ -255,6 +259,8 @@ class LaunchPlan:
         diagnostic_aggregator: start diagnostic_aggregator with config/diagnostic_analyzers.yaml.
         single_process: run the three nodes in one process and one executor
             (:data:`SINGLE_PROCESS_MODULE`) instead of one process each.
+        console: start console_node, the operator's web console (its settings come from the
+            parameters file's ``console_node`` section).
 
     """
 
@@ -267,6 +273,7 @@ class LaunchPlan:
     sim: str
     diagnostic_aggregator: bool
     single_process: bool = False
+    console: bool = False
 
     @property
     def audio_topics(self) -> dict[str, str]:
@@ -312,6 +319,7 @@ def plan_launch(arguments: Mapping[str, str]) -> LaunchPlan:
             "diagnostic_aggregator", arguments["diagnostic_aggregator"]
         ),
         single_process=parse_bool("single_process", arguments["single_process"]),
+        console=parse_bool("console", arguments["console"]),
     )
 
 

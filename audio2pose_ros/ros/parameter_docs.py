@@ -33,12 +33,18 @@ YAML_HEADER = """\
 
 def node_parameters() -> dict[str, tuple[ParameterSpec, ...]]:
     """Every node's parameter declarations, by node name."""
-    from audio2pose_ros.ros.nodes import audio_features_node, inference_node, motion_filter_node
+    from audio2pose_ros.ros.nodes import (
+        audio_features_node,
+        console_node,
+        inference_node,
+        motion_filter_node,
+    )
 
     return {
         "audio_features_node": audio_features_node.PARAMETERS,
         "inference_node": inference_node.PARAMETERS,
         "motion_filter_node": motion_filter_node.PARAMETERS,
+        "console_node": console_node.PARAMETERS,
     }
 
 

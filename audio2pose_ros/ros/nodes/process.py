@@ -25,6 +25,7 @@ import sys
 
 __all__ = [
     "audio_features_node",
+    "console_node",
     "inference_node",
     "motion_filter_node",
     "pepper_sim_node",
@@ -80,3 +81,6 @@ def motion_filter_node() -> None:
 def pepper_sim_node() -> None:
     """Console script ``pepper_sim_node``."""
     _run("pepper_sim_node")
+def console_node() -> None:
+    """Console script ``console_node``."""
+    _run("console_node")

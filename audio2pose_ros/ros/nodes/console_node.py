@@ -1,0 +1,399 @@
+"""console_node: the operator's web console, a page and a WebSocket, next to the node graph.
+
+The page (``web/``, served from the package's share directory) captures the operator's
+microphone, shows the robot in 3D and has a stop button; the server
+(:mod:`audio2pose_ros.console.server`, aiohttp in its own thread and asyncio loop) checks every
+browser message and calls this node, which speaks ROS:
+
+Publications:
+    audio/audio (audio_common_msgs/AudioData): the floor holder's voice, 16 kHz mono S16LE in
+        the page's 20 ms chunks, as audio_capture publishes a microphone.
+    audio/audio_info (audio_common_msgs/AudioInfo, transient local): the format, latched and
+        republished every :data:`AUDIO_INFO_PERIOD_S` like audio_capture's.
+    stop, enable (std_msgs/Bool, transient local): the page's stop button and enable switch, as
+        motion_filter_node expects them.
+    /diagnostics: heartbeat, operators, floor, audio published and refused, latency.
+Subscriptions:
+    joint_angles (naoqi_bridge_msgs/JointAnglesWithSpeed) and commanded_joint_states
+        (sensor_msgs/JointState): the commanded pose for the 3D view, and the commands that end
+        the latency measurement (:mod:`audio2pose_ros.console.latency`).
+    joint_states (sensor_msgs/JointState): the measured pose of a robot or simulator, drawn as
+        a ghost when present.
+    raw_trajectory (its arrival only): pairs audio chunks with the poses they caused.
+    stop, enable: their latched state, shown in the page.
+    /diagnostics: the health of every node, shown in the page.
+Services used:
+    <filter_node>/set_parameters, get_parameters (rcl_interfaces): the gesture amplitude
+        (``head_gain``, ``arms_gain``, ``hip_gain``) set from the page, and read back.
+
+Parameters: :class:`~audio2pose_ros.console.settings.ConsoleSettings` (all read-only). A network
+bind without certificate, key or a long enough token, a certificate that does not load or an
+address that cannot be bound is a configuration error: one line, exit status 78.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from typing import Any
+
+from audio_common_msgs.msg import AudioData, AudioInfo
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import GetParameters, SetParameters
+from rclpy.client import Client
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.task import Future
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
+from trajectory_msgs.msg import JointTrajectory
+
+from audio2pose_ros import topics
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K
+from audio2pose_ros.console.access import resolve_access
+from audio2pose_ros.console.latency import VoiceLatency
+from audio2pose_ros.console.protocol import GAIN_GROUPS, AudioFrame
+from audio2pose_ros.console.server import ConsoleServer, ServerThread
+from audio2pose_ros.console.settings import ConsoleSettings
+from audio2pose_ros.parameters import settings_from, specs_of
+from audio2pose_ros.resources import share_path
+from audio2pose_ros.robot.description import load_robot
+from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STALE_AFTER_S, DiagnosedNode, run_node
+from audio2pose_ros.ros.node_parameters import NodeParameters
+
+PARAMETERS = specs_of(ConsoleSettings)
+AUDIO_INFO_PERIOD_S = 5.0  # audio_capture republishes its AudioInfo this often
+GAINS_REFRESH_S = 2.0  # the filter's gains are read back this often
+MEASURED_TIMEOUT_S = 2.0  # measured joint states older than this: no ghost robot
+HEALTH_FORGET_S = 30.0  # a diagnostic status not heard for this long leaves the page
+MAX_HEALTH_STATUSES = 32
+MAX_HEALTH_MESSAGE_CHARS = 240
+MAX_DIAGNOSTICS_BYTES = 1 << 18  # a DiagnosticArray larger than this is dropped undecoded
+MAX_JOINT_STATE_BYTES = 65536  # as motion_filter_node's
+# Listening only: best effort matches reliable publishers and never slows them down.
+LISTEN_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.BEST_EFFORT
+)
+AUDIO_PUBLISH_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE
+)
+
+
+def _level(level: object) -> int:
+    """A DiagnosticStatus level as an int (rclpy gives a one-byte ``bytes``)."""
+    return level[0] if isinstance(level, bytes) and level else int(level)  # type: ignore[call-overload]
+
+
+class ConsoleNode(DiagnosedNode):
+    """Serve the console and carry its audio, stop, enable and gains into the graph."""
+
+    def __init__(self) -> None:
+        """Declare parameters, wire topics and services, start the server thread.
+
+        Raises:
+            ConfigurationError: a refused parameter, bind, certificate or token.
+        """
+        super().__init__("console_node")
+        self.server_thread: ServerThread | None = None  # rclpy may destroy a half-built node
+        self.parameters = NodeParameters(self, PARAMETERS)
+        self.settings: ConsoleSettings = settings_from(ConsoleSettings, self.parameters.values)
+        self.access = resolve_access(self.settings)
+        robot = load_robot()
+        self.joint_names = list(robot.names)
+        self.neutral = {n: float(a) for n, a in zip(robot.names, robot.neutral_rad, strict=True)}
+        self._lock = threading.Lock()
+        self.latency = VoiceLatency()
+        self.commanded: dict[str, float] | None = None
+        self.measured: dict[str, float] | None = None
+        self.measured_s = -1e9
+        self.command_source = ""
+        self.stop_state: bool | None = None
+        self.enable_state: bool | None = None
+        self.gains: dict[str, float] | None = None
+        self.gains_problem = ""
+        self.health: dict[str, tuple[int, str, float]] = {}
+        self.chunks_published = 0
+        self.talking = False
+
+        self.audio_pub = self.create_publisher(AudioData, topics.AUDIO, AUDIO_PUBLISH_QOS)
+        self.info_pub = self.create_publisher(AudioInfo, topics.AUDIO_INFO, LATCHED_QOS)
+        self.stop_pub = self.create_publisher(Bool, topics.STOP, LATCHED_QOS)
+        self.enable_pub = self.create_publisher(Bool, topics.ENABLE, LATCHED_QOS)
+        self.publish_audio_info()
+        self.create_timer(AUDIO_INFO_PERIOD_S, self.guarded(self.publish_audio_info))
+
+        bounded, guarded = self.create_bounded_subscription, self.guarded
+        bounded(
+            JointAnglesWithSpeed,
+            topics.JOINT_ANGLES,
+            self.on_joint_angles,
+            LISTEN_QOS,
+            MAX_JOINT_STATE_BYTES,
+        )
+        bounded(
+            JointState,
+            topics.COMMANDED_JOINT_STATES,
+            self.on_commanded_joint_states,
+            LISTEN_QOS,
+            MAX_JOINT_STATE_BYTES,
+        )
+        bounded(
+            JointState,
+            topics.JOINT_STATES,
+            self.on_measured,
+            qos_profile_sensor_data,
+            MAX_JOINT_STATE_BYTES,
+        )
+        bounded(
+            DiagnosticArray,
+            topics.DIAGNOSTICS,
+            self.on_diagnostics,
+            LISTEN_QOS,
+            MAX_DIAGNOSTICS_BYTES,
+        )
+        # Only the arrival time matters: the message is never decoded.
+        self.create_subscription(
+            JointTrajectory, topics.RAW_TRAJECTORY, guarded(self.on_raw), LISTEN_QOS, raw=True
+        )
+        self.create_subscription(Bool, topics.STOP, guarded(self.on_stop), LATCHED_QOS)
+        self.create_subscription(Bool, topics.ENABLE, guarded(self.on_enable), LATCHED_QOS)
+
+        filter_node = self.settings.filter_node
+        self.set_client: Client[Any, Any] = self.create_client(
+            SetParameters, f"{filter_node}/set_parameters"
+        )
+        self.get_client: Client[Any, Any] = self.create_client(
+            GetParameters, f"{filter_node}/get_parameters"
+        )
+        self.create_timer(GAINS_REFRESH_S, guarded(self.refresh_gains))
+
+        self.server = ConsoleServer(
+            self.settings,
+            self.access,
+            self,
+            web_dir=share_path("web", "dist"),
+            urdf_path=share_path("urdf", "pepper.urdf"),
+            log=self._log,
+        )
+        self.server_thread = ServerThread(self.server)
+        port = self.server_thread.start()
+        if not self.server.built:
+            self.get_logger().warning(
+                f"the console's front end is not built ({share_path('web', 'dist')} has no "
+                "index.html): install Node.js and npm and run `make setup`; the page says so"
+            )
+        self.get_logger().info(
+            f"operator console: open {self.access.url(port)} and press Talk "
+            f"({'token required' if self.access.token else 'no token: this machine only'})"
+        )
+
+    def _log(self, level: str, message: str) -> None:
+        # rclpy refuses two severities from one line of code: one call each
+        if level == "warning":
+            self.get_logger().warning(message)
+        else:
+            self.get_logger().info(message)
+
+    def destroy_node(self) -> None:
+        """Stop the server (pages are told) before the node goes."""
+        if self.server_thread is not None:
+            self.server_thread.stop()
+        super().destroy_node()
+
+    # --- to the graph (called from the server's thread) ------------------------------------------
+
+    def publish_audio_info(self) -> None:
+        """Latch the format of the audio, as audio_capture does: 16 kHz mono S16LE wave."""
+        self.info_pub.publish(AudioInfo(**S16LE_MONO_16K.audio_info_fields()))
+
+    def publish_audio(self, frame: AudioFrame, received_s: float) -> None:
+        """Publish one chunk of the floor holder's voice."""
+        self.audio_pub.publish(AudioData(data=frame.pcm))
+        published_s = time.time()
+        with self._lock:
+            self.chunks_published += 1
+            self.latency.chunk_published(frame.stamp_ms * 1e-3, received_s, published_s)
+
+    def start_talk(self) -> None:
+        """A talker got the floor: chunks in flight before belong to nobody."""
+        with self._lock:
+            self.talking = True
+            self.latency.reset()
+
+    def end_talk(self) -> None:
+        """No more audio: the filter's watchdog and silence timeout bring the robot to rest."""
+        with self._lock:
+            self.talking = False
+
+    def set_stop(self, on: bool) -> None:
+        """Publish the emergency stop (latched)."""
+        self.stop_pub.publish(Bool(data=on))
+
+    def set_enable(self, on: bool) -> None:
+        """Publish enable (latched)."""
+        self.enable_pub.publish(Bool(data=on))
+
+    def set_gains(self, gains: dict[str, float]) -> None:
+        """Set ``<group>_gain`` of the filter through its parameter service."""
+        if not self.set_client.service_is_ready():
+            with self._lock:
+                self.gains_problem = (
+                    f"{self.settings.filter_node}'s parameter service is not available"
+                )
+            return
+        request = SetParameters.Request()
+        request.parameters = [
+            Parameter(
+                name=f"{group}_gain",
+                value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value),
+            )
+            for group, value in gains.items()
+        ]
+        self.set_client.call_async(request).add_done_callback(self._gains_set)
+
+    def _gains_set(self, future: Future[Any]) -> None:
+        response = future.result()
+        refused = [r.reason for r in getattr(response, "results", []) if not r.successful]
+        with self._lock:
+            self.gains_problem = "; ".join(refused)
+        if refused:
+            self.get_logger().warning(f"gains refused by the filter: {'; '.join(refused)}")
+        self.refresh_gains()
+
+    def refresh_gains(self) -> None:
+        """Read the filter's gains back (the page shows what is in force)."""
+        if not self.get_client.service_is_ready():
+            return
+        request = GetParameters.Request(names=[f"{group}_gain" for group in GAIN_GROUPS])
+        self.get_client.call_async(request).add_done_callback(self._gains_read)
+
+    def _gains_read(self, future: Future[Any]) -> None:
+        response = future.result()
+        values = [v.double_value for v in getattr(response, "values", [])]
+        if len(values) == len(GAIN_GROUPS):
+            with self._lock:
+                self.gains = dict(zip(GAIN_GROUPS, values, strict=True))
+
+    # --- from the graph ---------------------------------------------------------------------------
+
+    def on_raw(self, _data: bytes) -> None:
+        """A raw pose message arrived: pair it with the chunk that caused it."""
+        now = time.time()
+        with self._lock:
+            self.latency.raw_arrived(now)
+
+    def _command(self, names: list[str], angles: list[float], stamp: Any, source: str) -> None:
+        now = time.time()
+        pose = {n: float(a) for n, a in zip(names, angles, strict=False) if math.isfinite(a)}
+        with self._lock:
+            if source == "joint_angles" or self.command_source != "joint_angles":
+                self.commanded, self.command_source = pose, source
+            if source == self.command_source:
+                self.latency.command_arrived(stamp.sec + stamp.nanosec * 1e-9, now)
+
+    def on_joint_angles(self, msg: JointAnglesWithSpeed) -> None:
+        """A command to naoqi_driver: the pose shown and the end of a latency."""
+        self._command(
+            list(msg.joint_names), list(msg.joint_angles), msg.header.stamp, "joint_angles"
+        )
+
+    def on_commanded_joint_states(self, msg: JointState) -> None:
+        """The commanded pose (used where joint_angles is off)."""
+        self._command(
+            list(msg.name), list(msg.position), msg.header.stamp, "commanded_joint_states"
+        )
+
+    def on_measured(self, msg: JointState) -> None:
+        """The robot's measured pose, drawn as a ghost."""
+        pairs = zip(msg.name, msg.position, strict=False)
+        pose = {name: float(p) for name, p in pairs if math.isfinite(p)}  # NaN: not measured
+        with self._lock:
+            self.measured, self.measured_s = pose, time.monotonic()
+
+    def on_stop(self, msg: Bool) -> None:
+        """The latched stop, from anyone."""
+        with self._lock:
+            self.stop_state = bool(msg.data)
+
+    def on_enable(self, msg: Bool) -> None:
+        """The latched enable, from anyone."""
+        with self._lock:
+            self.enable_state = bool(msg.data)
+
+    def on_diagnostics(self, msg: DiagnosticArray) -> None:
+        """Keep each status's level and message for the page's health panel."""
+        now = time.monotonic()
+        with self._lock:
+            for status in msg.status[:MAX_HEALTH_STATUSES]:
+                if status.name in self.health or len(self.health) < MAX_HEALTH_STATUSES:
+                    self.health[status.name[:80]] = (
+                        _level(status.level),
+                        status.message[:MAX_HEALTH_MESSAGE_CHARS],
+                        now,
+                    )
+
+    # --- snapshots for the pages (called from the server's thread) -------------------------------
+
+    def pose(self) -> dict[str, Any]:
+        """The commanded pose and, while fresh, the measured one."""
+        with self._lock:
+            fresh = time.monotonic() - self.measured_s <= MEASURED_TIMEOUT_S
+            return {"commanded": self.commanded, "measured": self.measured if fresh else None}
+
+    def status(self) -> dict[str, Any]:
+        """Stop, enable, gains, health and latency for the pages."""
+        now = time.monotonic()
+        with self._lock:
+            for name in [n for n, (_, _, t) in self.health.items() if now - t > HEALTH_FORGET_S]:
+                del self.health[name]
+            health = [
+                {
+                    "name": name,
+                    "level": level if now - heard <= STALE_AFTER_S else DiagnosticStatus.STALE[0],
+                    "message": message if now - heard <= STALE_AFTER_S else "no heartbeat",
+                }
+                for name, (level, message, heard) in sorted(self.health.items())
+            ]
+            return {
+                "stop": self.stop_state,
+                "enable": self.enable_state,
+                "gains": self.gains,
+                "gains_problem": self.gains_problem,
+                "health": health,
+                "latency": self.latency.summary(),
+            }
+
+    # --- own diagnostics ---------------------------------------------------------------------
+
+    def diagnostic_summary(self) -> tuple[bytes, str]:
+        """Who holds the floor and how many operators are connected."""
+        holder = self.server.floor.holder_name
+        operators = len(self.server.sessions)
+        talk = f"{holder} is talking" if holder else "nobody is talking"
+        address = self.access.url(self.server.port).split("#")[0]
+        return DiagnosticStatus.OK, f"serving {address}: {operators} operator(s), {talk}"
+
+    def diagnostic_values(self) -> dict[str, object]:
+        """Operators, audio published, refusals and the voice-to-command latency."""
+        with self._lock:
+            latency = self.latency.summary()
+            chunks = self.chunks_published
+        return {
+            "operators": len(self.server.sessions),
+            "floor": self.server.floor.holder_name or "free",
+            "chunks_published": chunks,
+            "refused_connections": self.server.refused_connections,
+            "refused_frames": self.server.refused_frames,
+            **{f"latency_{key}": value for key, value in latency.items()},
+        }
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run the node until shutdown."""
+    run_node(ConsoleNode, "console_node", args)
+
+
+if __name__ == "__main__":
+    main()

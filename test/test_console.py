@@ -1,0 +1,609 @@
+"""The console's core without ROS: browser message checks, access rules, the floor, latency
+pairing, and the real aiohttp server on a loopback port, driven by a real WebSocket client,
+with a recording stand-in for the ROS side (console_node is tested in test_console_browser)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import shutil
+import ssl
+import struct
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import pytest
+
+from audio2pose_ros.console.access import (
+    MIN_TOKEN_CHARS,
+    is_loopback,
+    request_problem,
+    resolve_access,
+)
+from audio2pose_ros.console.floor import Floor
+from audio2pose_ros.console.latency import VoiceLatency
+from audio2pose_ros.console.protocol import (
+    AUDIO_HEADER,
+    MAX_TEXT_BYTES,
+    ProtocolError,
+    audio_frame,
+    parse_audio_frame,
+    parse_control,
+)
+from audio2pose_ros.console.server import ConsoleServer, ServerThread
+from audio2pose_ros.console.settings import ConsoleSettings
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.resources import share_path
+
+CHUNK = b"\x01\x00" * 320  # 20 ms of 16 kHz S16LE
+TOKEN = "unit-test-token-0123456789"
+
+# --- protocol -----------------------------------------------------------------------------------
+
+
+def test_when_an_audio_frame_is_well_formed_expect_its_fields():
+    frame = parse_audio_frame(audio_frame(7, 1.7e12, CHUNK), max_pcm_bytes=3200)
+    assert (frame.seq, frame.stamp_ms, frame.pcm) == (7, 1.7e12, CHUNK)
+    assert frame.duration_s == pytest.approx(0.02)
+
+
+@pytest.mark.parametrize(
+    ("data", "match"),
+    [
+        (b"A2PA", "shorter than header"),
+        (audio_frame(0, 0.0, b""), "shorter than header"),
+        (b"XXXX" + audio_frame(0, 0.0, CHUNK)[4:], "magic"),
+        (audio_frame(0, float("nan"), CHUNK), "non-finite stamp"),
+        (audio_frame(0, float("inf"), CHUNK), "non-finite stamp"),
+        (audio_frame(0, 0.0, CHUNK + b"\x00"), "whole 16-bit samples"),
+        (audio_frame(0, 0.0, CHUNK * 11), "over the limit"),
+    ],
+)
+def test_when_an_audio_frame_is_malformed_expect_a_protocol_error(data, match):
+    with pytest.raises(ProtocolError, match=match):
+        parse_audio_frame(data, max_pcm_bytes=3200)
+
+
+def test_when_control_messages_are_valid_expect_their_fields():
+    assert parse_control('{"type":"talk","on":true}').fields == {"on": True}
+    assert parse_control('{"type":"gains","arms":0,"head":0.5}').fields == {
+        "arms": 0.0,
+        "head": 0.5,
+    }
+    hello = parse_control(json.dumps({"type": "hello", "token": "t", "name": "Ann"}))
+    assert hello.fields == {"token": "t", "name": "Ann"}
+    assert parse_control('{"type":"ping","t":12}').fields == {"t": 12.0}
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("not json", "not JSON"),
+        ('{"type":"ping","t":NaN}', "not JSON"),
+        ('{"type":"ping","t":Infinity}', "not JSON"),
+        ("[1, 2]", "JSON object"),
+        ("[" * 100000 + "]" * 100000, "over the limit"),
+        ('{"type":"launch"}', "unknown message type"),
+        ('{"type":1}', "unknown message type"),
+        ('{"type":"talk"}', "needs the field 'on'"),
+        ('{"type":"talk","on":1}', "must be bool"),
+        ('{"type":"talk","on":true,"extra":1}', "unknown fields"),
+        ('{"type":"gains"}', "at least one"),
+        ('{"type":"gains","arms":1.5}', r"in \[0, 1\]"),
+        ('{"type":"gains","arms":-0.1}', r"in \[0, 1\]"),
+        ('{"type":"gains","arms":true}', "must be a number"),
+        ('{"type":"gains","arms":"1"}', "must be a number"),
+        ('{"type":"gains","arms":1e999}', "finite"),
+        ('{"type":"hello","token":5}', "must be str"),
+        ('{"type":"hello","token":"t","name":"a\\u0000b"}', "printable"),
+        (json.dumps({"type": "hello", "token": "t" * 300}), "longer than 256"),
+        (json.dumps({"type": "hello", "token": "t", "name": "n" * 41}), "longer than 40"),
+        (json.dumps({"type": "ping", "t": 1, "pad": "x" * MAX_TEXT_BYTES}), "over the limit"),
+    ],
+)
+def test_when_a_control_message_is_malformed_expect_a_protocol_error(text, match):
+    with pytest.raises(ProtocolError, match=match):
+        parse_control(text)
+
+
+# --- access -------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("host", "loopback"),
+    [
+        ("127.0.0.1", True),
+        ("127.3.2.1", True),
+        ("::1", True),
+        ("[::1]", True),
+        ("localhost", True),
+        ("app.localhost", True),
+        ("0.0.0.0", False),
+        ("192.168.1.20", False),
+        ("pepper.local", False),
+        ("localhost.evil.com", False),
+    ],
+)
+def test_when_a_host_is_given_expect_loopback_only_for_this_machine(host, loopback):
+    assert is_loopback(host) is loopback
+
+
+def test_when_bound_to_loopback_expect_no_token_needed_unless_set():
+    access = resolve_access(ConsoleSettings())
+    assert access.loopback
+    assert access.token == ""
+    assert access.token_matches("anything")
+    assert access.url(8765) == "http://127.0.0.1:8765/"
+    guarded = resolve_access(ConsoleSettings(token="abc"))
+    assert guarded.token_matches("abc")
+    assert not guarded.token_matches("abd")
+    assert not guarded.token_matches("")
+
+
+def test_when_bound_to_a_network_without_certificate_expect_a_configuration_error():
+    with pytest.raises(ConfigurationError, match=r"parameter host: .* needs HTTPS"):
+        resolve_access(ConsoleSettings(host="0.0.0.0"))
+
+
+def test_when_only_half_a_certificate_or_a_missing_file_is_given_expect_refused(tmp_path: Path):
+    with pytest.raises(ConfigurationError, match="give both"):
+        resolve_access(ConsoleSettings(certfile=str(tmp_path / "c.pem")))
+    with pytest.raises(ConfigurationError, match="not a readable file"):
+        resolve_access(
+            ConsoleSettings(certfile=str(tmp_path / "c.pem"), keyfile=str(tmp_path / "k.pem"))
+        )
+
+
+@pytest.fixture(scope="module")
+def certificate(tmp_path_factory) -> tuple[Path, Path]:
+    """A self-signed certificate for localhost, made with openssl as the README shows."""
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed")
+    directory = tmp_path_factory.mktemp("tls")
+    cert, key = directory / "console.crt", directory / "console.key"
+    subprocess.run(
+        [
+            *("openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1"),
+            *("-keyout", str(key), "-out", str(cert), "-subj", "/CN=localhost"),
+            *("-addext", "subjectAltName=DNS:localhost,IP:127.0.0.1"),
+        ],
+        check=True,
+        capture_output=True,
+    )
+    return cert, key
+
+
+def test_when_bound_to_a_network_expect_a_long_token_made_or_required(certificate):
+    cert, key = (str(p) for p in certificate)
+    made = resolve_access(ConsoleSettings(host="0.0.0.0", certfile=cert, keyfile=key))
+    assert len(made.token) >= MIN_TOKEN_CHARS
+    assert made.url(9).startswith("https://")
+    assert made.url(9).endswith(f":9/#token={made.token}")
+    assert not made.token_matches("")
+    again = resolve_access(ConsoleSettings(host="0.0.0.0", certfile=cert, keyfile=key))
+    assert again.token != made.token  # random, not a fixed default
+    with pytest.raises(ConfigurationError, match="too short"):
+        resolve_access(ConsoleSettings(host="10.0.0.2", certfile=cert, keyfile=key, token="1234"))
+
+
+@pytest.mark.parametrize(
+    ("host", "origin", "problem"),
+    [
+        ("127.0.0.1:8765", "http://127.0.0.1:8765", ""),
+        ("localhost:8765", "http://localhost:8765", ""),
+        (None, "http://127.0.0.1:8765", "no Host"),
+        ("127.0.0.1:8765", None, "no Origin"),
+        ("127.0.0.1:8765", "http://evil.example", "not this console"),
+        ("127.0.0.1:8765", "https://127.0.0.1:8765", "not this console"),
+        ("evil.example:8765", "http://evil.example:8765", "not a loopback name"),  # rebinding
+    ],
+)
+def test_when_a_websocket_request_comes_expect_host_and_origin_checked(host, origin, problem):
+    found = request_problem(resolve_access(ConsoleSettings()), host, origin)
+    assert (problem in found) if problem else found == ""
+
+
+# --- floor and latency --------------------------------------------------------------------------
+
+
+def test_when_one_operator_holds_the_floor_expect_others_wait_until_released():
+    floor = Floor()
+    assert floor.take(1, "Ann")
+    assert not floor.take(2, "Bob")
+    assert floor.holder_name == "Ann"
+    assert floor.free_for(1)
+    assert not floor.free_for(2)
+    assert not floor.release(2)
+    assert floor.release(1)
+    assert floor.free_for(2)
+    assert floor.take(2, "Bob")
+
+
+def test_when_chunks_poses_and_commands_arrive_expect_each_chunk_paired_with_its_command():
+    latency = VoiceLatency()
+    latency.chunk_published(stamp_s=9.990, received_s=9.995, published_s=10.000)  # no frame
+    latency.chunk_published(stamp_s=10.010, received_s=10.015, published_s=10.020)
+    latency.command_arrived(stamp_s=10.021, arrival_s=10.022)  # no raw pose yet: not paired
+    latency.raw_arrived(10.023)  # answers the newest chunk published before it
+    latency.command_arrived(stamp_s=10.015, arrival_s=10.024)  # ticked before the pose: not it
+    assert latency.summary() == {"n": 0}
+    latency.command_arrived(stamp_s=10.025, arrival_s=10.026)
+    summary = latency.summary()
+    assert summary["n"] == 1
+    assert summary["p50"] == pytest.approx(16.0)  # 10.026 - 10.010
+    assert summary["uplink_p50"] == pytest.approx(5.0)
+    assert summary["graph_p50"] == pytest.approx(6.0)
+
+
+def test_when_a_pose_is_never_commanded_expect_it_dropped_not_paired_late():
+    latency = VoiceLatency()
+    latency.chunk_published(1.0, 1.0, 1.0)
+    latency.raw_arrived(1.01)
+    latency.command_arrived(stamp_s=2.5, arrival_s=2.5)  # 1.5 s later (stopped): not a latency
+    assert latency.summary() == {"n": 0}
+
+
+# --- the server ---------------------------------------------------------------------------------
+
+
+class Bridge:
+    """The ROS side, recorded."""
+
+    def __init__(self) -> None:
+        self.joint_names = ["HeadYaw"]
+        self.neutral = {"HeadYaw": 0.0}
+        self.calls: list[tuple[str, Any]] = []
+
+    def publish_audio(self, frame, received_s) -> None:
+        self.calls.append(("audio", len(frame.pcm)))
+
+    def start_talk(self) -> None:
+        self.calls.append(("start", None))
+
+    def end_talk(self) -> None:
+        self.calls.append(("end", None))
+
+    def set_stop(self, on: bool) -> None:
+        self.calls.append(("stop", on))
+
+    def set_enable(self, on: bool) -> None:
+        self.calls.append(("enable", on))
+
+    def set_gains(self, gains) -> None:
+        self.calls.append(("gains", gains))
+
+    def pose(self) -> dict[str, Any]:
+        return {"commanded": {"HeadYaw": 0.1}, "measured": None}
+
+    def status(self) -> dict[str, Any]:
+        return {"stop": False, "latency": {"n": 0}}
+
+    def count(self, kind: str) -> int:
+        return sum(1 for name, _ in self.calls if name == kind)
+
+
+@contextmanager
+def serving(tmp_path: Path, web: bool = True, **settings: Any) -> Iterator[tuple[str, Bridge]]:
+    settings.setdefault("port", 0)
+    config = ConsoleSettings(**settings)
+    bridge = Bridge()
+    web_dir = tmp_path / "web"
+    web_dir.mkdir(exist_ok=True)
+    if web:
+        (web_dir / "index.html").write_text("<html>console</html>")
+        (web_dir / "console.js").write_text("1;")
+    server = ConsoleServer(
+        config,
+        resolve_access(config),
+        bridge,
+        web_dir,
+        share_path("urdf", "pepper.urdf"),
+        lambda level, message: None,
+    )
+    thread = ServerThread(server)
+    port = thread.start()
+    scheme = "https" if config.certfile else "http"
+    try:
+        yield f"{scheme}://127.0.0.1:{port}", bridge
+    finally:
+        thread.stop()
+
+
+def run(coroutine) -> Any:
+    return asyncio.run(asyncio.wait_for(coroutine, 30.0))
+
+
+async def connect(
+    session: aiohttp.ClientSession, base: str, token: str = TOKEN, name: str = "", **kwargs: Any
+) -> aiohttp.ClientWebSocketResponse:
+    """A WebSocket as the page opens one, after its hello; the welcome is read."""
+    ws = await session.ws_connect(f"{base.replace('http', 'ws', 1)}/ws", origin=base, **kwargs)
+    await ws.send_str(json.dumps({"type": "hello", "token": token, "name": name}))
+    return ws
+
+
+async def until(ws: aiohttp.ClientWebSocketResponse, kind: str, **fields: Any) -> dict[str, Any]:
+    """The next message of ``kind`` whose ``fields`` match (others are skipped)."""
+    while True:
+        message = await ws.receive(timeout=5.0)
+        assert message.type == aiohttp.WSMsgType.TEXT, message
+        data = json.loads(message.data)
+        if data["type"] == kind and all(data.get(k) == v for k, v in fields.items()):
+            return data
+
+
+def test_when_the_page_is_asked_for_expect_it_served_with_security_headers(tmp_path: Path):
+    async def scenario(base: str) -> None:
+        async with aiohttp.ClientSession() as session:
+            async with session.get(f"{base}/") as response:
+                assert response.status == 200
+                assert "default-src 'self'" in response.headers["Content-Security-Policy"]
+                assert response.headers["X-Frame-Options"] == "DENY"
+            async with session.get(f"{base}/urdf/pepper.urdf") as response:
+                assert "<robot" in await response.text()
+            for missing in ("/../setup.py", "/nothing.js", "/%2e%2e%2fsetup.py"):
+                async with session.get(base + missing) as response:
+                    assert response.status == 404
+
+    with serving(tmp_path) as (base, _):
+        run(scenario(base))
+
+
+def test_when_the_front_end_is_not_built_expect_a_page_that_says_how_to_build_it(tmp_path: Path):
+    async def scenario(base: str) -> None:
+        async with aiohttp.ClientSession() as session, session.get(f"{base}/") as response:
+            assert "npm ci" in await response.text()
+
+    with serving(tmp_path, web=False) as (base, _):
+        run(scenario(base))
+
+
+def test_when_the_token_is_wrong_or_missing_expect_the_connection_closed(tmp_path: Path):
+    async def scenario(base: str) -> None:
+        async with aiohttp.ClientSession() as session:
+            ws = await connect(session, base, token="wrong-token")
+            message = await until(ws, "error")
+            assert "wrong token" in message["message"]
+            assert (await ws.receive(timeout=5.0)).type == aiohttp.WSMsgType.CLOSE
+            assert ws.close_code == 4401
+            silent = await session.ws_connect(f"{base.replace('http', 'ws')}/ws", origin=base)
+            assert (await silent.receive(timeout=5.0)).type == aiohttp.WSMsgType.CLOSE
+            assert silent.close_code == 4400  # no hello within auth_timeout_s
+            ws = await connect(session, base)
+            assert (await until(ws, "welcome"))["joints"] == ["HeadYaw"]
+
+    with serving(tmp_path, token=TOKEN, auth_timeout_s=0.5) as (base, bridge):
+        run(scenario(base))
+        assert bridge.calls == []
+
+
+def test_when_another_site_opens_the_websocket_expect_refused_before_the_upgrade(tmp_path: Path):
+    async def scenario(base: str) -> None:
+        async with aiohttp.ClientSession() as session:
+            for headers in ({"Origin": "http://evil.example"}, {"Host": "evil.example"}):
+                with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
+                    await session.ws_connect(f"{base.replace('http', 'ws')}/ws", headers=headers)
+                assert refused.value.status == 403
+
+    with serving(tmp_path) as (base, bridge):
+        run(scenario(base))
+        assert bridge.calls == []
+
+
+def test_when_two_operators_talk_expect_one_floor_and_its_release_on_disconnect(tmp_path: Path):
+    async def scenario(base: str, bridge: Bridge) -> None:
+        async with aiohttp.ClientSession() as session:
+            ann = await connect(session, base, name="Ann")
+            bob = await connect(session, base, name="Bob")
+            await until(bob, "welcome")
+            await ann.send_str('{"type":"talk","on":true}')
+            assert (await until(bob, "floor", holder="Ann"))["you"] is False
+            await ann.send_bytes(audio_frame(0, 1.0, CHUNK))
+            await bob.send_bytes(audio_frame(0, 1.0, CHUNK))  # without the floor: dropped
+            assert "press Talk" in (await until(bob, "error"))["message"]
+            await bob.send_str('{"type":"talk","on":true}')
+            assert "Ann has the floor" in (await until(bob, "error"))["message"]
+            await bob.send_str('{"type":"stop","on":true}')  # a stop from anyone
+            await bob.send_str('{"type":"stop","on":false}')  # a release only from the holder
+            assert "only a stop" in (await until(bob, "error"))["message"]
+            await bob.send_str('{"type":"gains","arms":0.2}')
+            assert "only a stop" in (await until(bob, "error"))["message"]
+            await ann.close()  # the talker leaves: the floor is free
+            await until(bob, "floor", holder=None)
+            await bob.send_str('{"type":"talk","on":true}')
+            await until(bob, "floor", holder="Bob", you=True)
+            await bob.send_str('{"type":"gains","arms":0.2}')
+            await bob.send_str('{"type":"enable","on":false}')
+            await until(bob, "pose")
+
+    with serving(tmp_path) as (base, bridge):
+        run(scenario(base, bridge))
+    assert bridge.count("audio") == 1
+    assert [call for call in bridge.calls if call[0] != "audio"] == [
+        ("start", None),
+        ("stop", True),
+        ("end", None),
+        ("start", None),
+        ("gains", {"arms": 0.2}),
+        ("enable", False),
+        ("end", None),
+    ]
+
+
+def test_when_a_talker_floods_audio_expect_only_the_rate_bound_published(tmp_path: Path):
+    async def scenario(base: str) -> None:
+        async with aiohttp.ClientSession() as session:
+            ws = await connect(session, base)
+            await ws.send_str('{"type":"talk","on":true}')
+            await until(ws, "floor", you=True)
+            for seq in range(150):  # 3 s of audio at once
+                await ws.send_bytes(audio_frame(seq, 1.0, CHUNK))
+            assert "s per second" in (await until(ws, "error"))["message"]
+            await ws.send_str('{"type":"ping","t":1}')
+            assert (await until(ws, "pong"))["t"] == 1
+
+    with serving(tmp_path, max_browser_audio_s_per_s=1.0) as (base, bridge):
+        run(scenario(base))
+    # the bucket holds max(1.0 s/s, max_browser_chunk_s) = 1 s: about 50 chunks of 20 ms pass
+    assert 45 <= bridge.count("audio") <= 60
+
+
+def test_when_a_connection_sends_garbage_expect_it_closed_and_the_server_serving(tmp_path: Path):
+    async def scenario(base: str) -> None:
+        async with aiohttp.ClientSession() as session:
+            ws = await connect(session, base)
+            await until(ws, "welcome")
+            for _ in range(200):
+                await ws.send_str("{not json")
+            while (await ws.receive(timeout=5.0)).type != aiohttp.WSMsgType.CLOSE:
+                pass
+            assert ws.close_code == 1008
+            big = await connect(session, base)
+            await until(big, "welcome")
+            await big.send_bytes(struct.pack("<4sId", b"A2PA", 0, 0.0) + b"\0" * 100_000)
+            while (await big.receive(timeout=5.0)).type != aiohttp.WSMsgType.CLOSE:
+                pass
+            assert big.close_code == 1009  # too big: refused before it is read in full
+            after = await connect(session, base)
+            await until(after, "welcome")
+
+    with serving(tmp_path) as (base, bridge):
+        run(scenario(base))
+        assert bridge.count("audio") == 0
+
+
+def test_when_more_operators_connect_than_allowed_expect_the_extra_refused(tmp_path: Path):
+    async def scenario(base: str) -> None:
+        async with aiohttp.ClientSession() as session:
+            first = await connect(session, base)
+            await until(first, "welcome")
+            with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
+                await connect(session, base)
+            assert refused.value.status == 503
+            await first.close()
+            await asyncio.sleep(0.2)  # the server's side of the closed connection ends
+            silent = await session.ws_connect(f"{base.replace('http', 'ws')}/ws", origin=base)
+            with pytest.raises(aiohttp.WSServerHandshakeError) as refused:  # token not given yet
+                await connect(session, base)
+            assert refused.value.status == 503
+            await silent.close()
+
+    with serving(tmp_path, max_clients=1) as (base, _):
+        run(scenario(base))
+
+
+def test_when_served_over_https_expect_the_page_and_websocket_to_work(tmp_path: Path, certificate):
+    cert, key = certificate
+    trust = ssl.create_default_context(cafile=str(cert))
+
+    async def scenario(base: str) -> None:
+        async with aiohttp.ClientSession() as session:
+            async with session.get(f"{base}/", ssl=trust) as response:
+                assert response.status == 200
+            ws = await connect(session, base, ssl=trust)
+            await until(ws, "welcome")
+
+    with serving(tmp_path, certfile=str(cert), keyfile=str(key), token=TOKEN) as (base, _):
+        run(scenario(base))
+
+
+def test_when_the_port_is_taken_expect_a_configuration_error(tmp_path: Path):
+    with serving(tmp_path) as (base, _):
+        port = int(base.rsplit(":", 1)[1])
+        refused = pytest.raises(ConfigurationError, match=r"cannot listen on 127\.0\.0\.1")
+        with refused, serving(tmp_path, port=port):
+            pass
+
+
+def test_audio_header_is_16_bytes():
+    assert AUDIO_HEADER.size == 16  # the page writes it by hand (web/src/main.js)
+
+
+@pytest.mark.parametrize(
+    ("heard", "raw", "pairs", "ambiguous"),
+    [
+        ([0, 20, 40], [5, 25, 45], [(0, 0), (1, 1), (2, 2)], 0),
+        ([0, 20, 40, 60], [5, 45, 65], [(0, 0), (2, 1), (3, 2)], 1),  # chunk 1 dropped
+        ([0, 20, 40], [25, 45], [(1, 0), (2, 1)], 1),  # the first chunk completes no frame
+        ([10, 30], [5, 15, 16, 35], [(0, 1), (1, 3)], 0),  # answers to nothing measured
+    ],
+)
+def test_when_the_bench_pairs_chunks_and_raw_poses_expect_the_newest_unanswered_chunk(
+    heard, raw, pairs, ambiguous
+):
+    from audio2pose_ros.ros.console_bench import pair_chunks
+
+    assert pair_chunks(heard, raw) == (pairs, ambiguous)
+
+
+def test_when_the_console_command_is_given_a_network_bind_without_certificate_expect_refused(
+    capsys,
+):
+    from audio2pose_ros.cli.main import main
+
+    assert main(["console", "--host", "0.0.0.0"]) == 1  # before any process starts
+    assert "needs HTTPS" in capsys.readouterr().err
+
+
+DROPPING_CLIENT = """
+import asyncio, json, sys, aiohttp
+from audio2pose_ros.console.protocol import audio_frame
+async def main(base):
+    async with aiohttp.ClientSession() as session:
+        ws = await session.ws_connect(base.replace("http", "ws") + "/ws", origin=base)
+        await ws.send_str(json.dumps({"type": "hello", "token": "", "name": "Dee"}))
+        await ws.send_str(json.dumps({"type": "talk", "on": True}))
+        await ws.send_bytes(audio_frame(0, 1.0, bytes(640)))
+        print("talking", flush=True)
+        await asyncio.sleep(60)
+asyncio.run(main(sys.argv[1]))
+"""
+
+
+def test_when_the_talkers_process_dies_expect_the_floor_released(tmp_path: Path):
+    with serving(tmp_path) as (base, bridge):
+        client = subprocess.Popen(
+            [sys.executable, "-c", DROPPING_CLIENT, base], stdout=subprocess.PIPE, text=True
+        )
+        try:
+            assert client.stdout is not None
+            assert client.stdout.readline().strip() == "talking"
+            deadline = time.monotonic() + 10.0
+            while bridge.count("audio") == 0 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            client.kill()  # no close frame: the browser crashed or the laptop vanished
+        finally:
+            client.wait()
+        deadline = time.monotonic() + 10.0
+        while bridge.count("end") == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert [name for name, _ in bridge.calls] == ["start", "audio", "end"]
+
+        async def successor() -> None:
+            async with aiohttp.ClientSession() as session:
+                ws = await connect(session, base)
+                await ws.send_str('{"type":"talk","on":true}')
+                await until(ws, "floor", you=True)
+
+        run(successor())
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize(
+    ("ros_args", "expected"),
+    [
+        (("-p", "host:=0.0.0.0"), "parameter host: value '0.0.0.0' is reachable"),
+        (("-p", "port:=70000"), "parameter port: value 70000 is out of range"),
+        (("-p", "max_browser_audio_s_per_s:=9.0"), "max_browser_audio_s_per_s: value 9.0"),
+    ],
+)
+def test_when_console_node_is_misconfigured_expect_one_line_and_status_78(ros_args, expected):
+    from node_processes import configuration_error_line
+
+    assert expected in configuration_error_line("console_node", *ros_args)

@@ -1,0 +1,412 @@
+"""The operator console in a real browser: Debian's Chromium, driven by Playwright, with a fake
+microphone that plays bundled speech, against the real node graph over DDS.
+
+The graph's three nodes and console_node run as processes (as ``audio2pose console`` starts
+them); this process records ``/joint_angles`` with rclpy. Skipped, with the reason, where
+Chromium (``apt-get install chromium``) or Playwright (``pip install playwright``) is missing;
+``.ci/run`` installs both.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import socket
+import tempfile
+import threading
+import time
+import urllib.request
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from audio2pose_ros.resources import bundled_speech_path, share_path
+from audio2pose_ros.robot.description import load_robot
+
+CHROMIUM = Path(os.environ.get("AUDIO2POSE_CHROMIUM", "/usr/bin/chromium"))
+TOKEN = "browser-test-token-0123456789"
+MOVING_RAD = 0.05  # a joint that sweeps this much in a second is moving
+STILL_RAD = 0.01  # ... and one that sweeps less than this is still
+
+
+def _missing() -> str:
+    if not CHROMIUM.is_file():
+        return f"no browser: {CHROMIUM} is missing (apt-get install chromium)"
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "no browser driver: playwright is not installed (pip install playwright)"
+    if not share_path("web", "dist", "index.html").is_file():
+        return "the console's front end is not built (cd web && npm ci && npm run build)"
+    return ""
+
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+if _missing():
+    pytestmark.append(pytest.mark.skip(reason=_missing()))
+
+
+class Recorder:
+    """Records /joint_angles and /diagnostics in its own rclpy context and thread."""
+
+    def __init__(self) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        from sensor_msgs.msg import JointState
+
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = Node("console_test_recorder", context=self.context)
+        self.commands: list[tuple[float, np.ndarray]] = []
+        self.console_status = ""
+        self.node.create_subscription(JointAnglesWithSpeed, "/joint_angles", self._command, 100)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._diagnostics, 50)
+        self.measured = self.node.create_publisher(JointState, "/joint_states", 10)
+        self.joint_state = JointState
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        from rclpy.executors import ExternalShutdownException
+
+        with contextlib.suppress(ExternalShutdownException):
+            self.executor.spin()
+
+    def _command(self, msg) -> None:
+        self.commands.append((time.monotonic(), np.array(msg.joint_angles, dtype=np.float64)))
+
+    def _diagnostics(self, msg) -> None:
+        for status in msg.status:
+            if status.name.endswith(": console_node"):
+                self.console_status = status.message
+
+    def publish_measured(self, pose: dict[str, float]) -> None:
+        """Publish a measured pose on /joint_states, as a robot or simulator does."""
+        msg = self.joint_state(name=list(pose), position=list(pose.values()))
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        self.measured.publish(msg)
+
+    def between(self, start: float, end: float) -> np.ndarray:
+        """Commands received in [start, end] (monotonic s), one row each."""
+        rows = [angles for t, angles in list(self.commands) if start <= t <= end]
+        return np.array(rows).reshape(-1, 11)
+
+    def close(self) -> None:
+        import rclpy
+
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+        self.thread.join(timeout=2.0)
+
+
+@dataclass
+class Console:
+    url: str
+    recorder: Recorder
+    shots: Path
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def _wait(condition, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if condition():
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+
+
+def _answers(url: str) -> bool:
+    try:
+        with urllib.request.urlopen(url, timeout=1.0) as response:
+            return response.status == 200
+    except OSError:
+        return False
+
+
+@pytest.fixture(scope="module")
+def console(tmp_path_factory) -> Iterator[Console]:
+    from audio2pose_ros.ros.console_runner import CONSOLE_NODE, console_command
+    from audio2pose_ros.ros.graph import node_graph
+
+    tmp = tmp_path_factory.mktemp("console")
+    params = yaml.safe_load(share_path("config", "pepper.yaml").read_text(encoding="utf-8"))
+    filter_params = params["motion_filter_node"]["ros__parameters"]
+    filter_params["state_file"] = str(tmp / "filter_state.json")  # a stop stays in this test
+    params_file = tmp / "params.yaml"
+    params_file.write_text(yaml.safe_dump(params), encoding="utf-8")
+    port = _free_port()
+    command = console_command(params_file, {"port": port, "token": TOKEN}, tmp)
+    url = f"http://127.0.0.1:{port}/"
+    with node_graph(params_file, log_dir=tmp / "logs", more_nodes={CONSOLE_NODE: command}):
+        recorder = Recorder()
+        try:
+            _wait(lambda: _answers(url), 60.0, "the console's page")
+            _wait(lambda: bool(recorder.commands), 60.0, "the first /joint_angles command")
+            yield Console(url=url, recorder=recorder, shots=tmp)
+        finally:
+            recorder.close()
+    shots = os.environ.get("AUDIO2POSE_CONSOLE_SHOTS")
+    if shots:  # keep the screenshots for a person to look at
+        for png in tmp.glob("*.png"):
+            shutil.copy(png, Path(shots) / png.name)
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[object]:
+    from playwright.sync_api import sync_playwright
+
+    wav = bundled_speech_path()
+    profile_dir = tempfile.TemporaryDirectory(prefix="audio2pose_chromium_")
+    with profile_dir as profile, sync_playwright() as p:
+        context = p.chromium.launch_persistent_context(
+            profile,
+            executable_path=str(CHROMIUM),
+            headless=True,
+            viewport={"width": 1100, "height": 700},
+            bypass_csp=True,  # Playwright evaluates its wait conditions as strings
+            args=[
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--disable-quic",
+                "--no-first-run",
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+                "--use-fake-ui-for-media-stream",
+                "--use-fake-device-for-media-stream",
+                f"--use-file-for-fake-audio-capture={wav}",
+            ],
+        )
+        try:
+            yield context
+        finally:
+            context.close()
+
+
+OPEN_PAGES: list = []  # closed after each test, so a failed test leaves no floor held
+
+
+@pytest.fixture(autouse=True)
+def _close_pages() -> Iterator[None]:
+    yield
+    while OPEN_PAGES:
+        page = OPEN_PAGES.pop()
+        if not page.is_closed():
+            page.close()
+
+
+def _open(browser, console: Console, token: str = TOKEN, name: str = "", ready: bool = True):
+    page = browser.new_page()
+    OPEN_PAGES.append(page)
+    page.add_init_script(f"localStorage.setItem('a2p-name', {name!r})")  # the page's name field
+    page.goto(f"{console.url}#token={token}")
+    if ready:
+        page.wait_for_function(
+            "window.a2p.connected && window.a2p.viewReady && window.a2p.posesApplied > 0",
+            timeout=20000,
+        )
+    return page
+
+
+def _talk(page) -> float:
+    page.click("#talk")
+    page.wait_for_function("window.a2p.you === true", timeout=10000)
+    return time.monotonic()
+
+
+def _changed_fraction(before: bytes, after: bytes) -> float:
+    """Fraction of pixels of two screenshots of the same size that differ visibly."""
+    import io
+
+    from PIL import Image
+
+    a = np.asarray(Image.open(io.BytesIO(before)).convert("RGB"), dtype=np.int16)
+    b = np.asarray(Image.open(io.BytesIO(after)).convert("RGB"), dtype=np.int16)
+    assert a.shape == b.shape
+    return float((np.abs(a - b).max(axis=2) > 40).mean())
+
+
+def test_when_the_operator_talks_expect_the_robot_moves_and_the_view_follows(
+    console: Console, browser
+):
+    neutral = load_robot().neutral_rad
+    page = _open(browser, console, name="Alice")
+    page.wait_for_timeout(1000)
+    rest_shot = page.locator("#robot").screenshot(path=str(console.shots / "console_rest.png"))
+    start = _talk(page)
+    page.wait_for_timeout(4000)
+    talking = console.recorder.between(start + 1.0, time.monotonic())
+    assert len(talking) > 50, "commands stopped while the operator talked"
+    assert np.ptp(talking, axis=0).max() > MOVING_RAD, "the voice did not move the robot"
+    assert np.abs(talking - neutral).max() > MOVING_RAD
+
+    # the 3D view draws the commands: the page's pose is one /joint_angles sent just before
+    shown = page.evaluate("window.a2p.lastPose.commanded")
+    recent = console.recorder.between(time.monotonic() - 1.0, time.monotonic())
+    names = load_robot().names
+    shown_row = np.array([shown[name] for name in names])
+    assert np.abs(recent - shown_row).max(axis=1).min() < 1e-6
+    moving_shot = page.locator("#robot").screenshot(path=str(console.shots / "console_talking.png"))
+    changed = _changed_fraction(rest_shot, moving_shot)
+    assert changed > 0.005, f"the drawn robot did not move ({changed:.4f} of the pixels changed)"
+    page.screenshot(path=str(console.shots / "console_page_talking.png"))
+
+    # a second operator sees who has the floor and cannot take it
+    other = _open(browser, console, name="Bob")
+    other.wait_for_function("document.getElementById('floor').textContent.includes('Alice')")
+    other.click("#talk")
+    other.wait_for_function("window.a2p.lastError.includes('Alice has the floor')", timeout=10000)
+    assert other.evaluate("window.a2p.you") is False
+    other.close()
+
+    latency = page.evaluate("window.a2p.status.latency")
+    assert latency["n"] > 0, latency
+    assert latency["p50"] > 0, latency
+    print(f"voice to /joint_angles in the browser test: {latency}")
+    page.click("#talk")
+    page.wait_for_function("window.a2p.you === false", timeout=10000)
+    page.close()
+
+
+def test_when_stop_is_pressed_expect_the_robot_holds_until_released(console: Console, browser):
+    page = _open(browser, console)
+    _talk(page)
+    page.wait_for_timeout(2000)
+    page.click("#stop")
+    try:
+        page.wait_for_function("document.body.classList.contains('stopped')", timeout=5000)
+        stopped = time.monotonic()  # the page shows the latched stop: the filter has it too
+        page.wait_for_timeout(2500)
+        held = console.recorder.between(stopped + 0.5, time.monotonic())
+        assert len(held) > 20
+        assert np.ptp(held, axis=0).max() < STILL_RAD, "the robot moved while stopped"
+        page.screenshot(path=str(console.shots / "console_page_stopped.png"))
+    finally:
+        page.click("#release")  # the next tests need a robot that moves
+    released = time.monotonic()
+    page.wait_for_function("!document.body.classList.contains('stopped')", timeout=5000)
+    page.wait_for_timeout(3000)
+    resumed = console.recorder.between(released, time.monotonic())
+    assert np.ptp(resumed, axis=0).max() > MOVING_RAD, "motion did not resume after the release"
+    page.click("#talk")
+    page.close()
+
+
+def test_when_the_operator_sets_gains_and_disables_motion_expect_the_filter_to_follow(
+    console: Console, browser
+):
+    neutral = load_robot().neutral_rad
+    page = _open(browser, console)
+    page.locator("#gain-arms").fill("0")  # the filter's arms_gain, through its parameter service
+    page.wait_for_function(
+        "window.a2p.status && window.a2p.status.gains && window.a2p.status.gains.arms === 0",
+        timeout=10000,
+    )
+    _talk(page)
+    page.locator("#enable").uncheck()  # enable: false, latched: glide to neutral, ignore speech
+    try:
+        page.wait_for_function("window.a2p.status.enable === false", timeout=5000)
+        disabled = time.monotonic()
+        page.wait_for_timeout(2500)
+        resting = console.recorder.between(disabled + 1.5, time.monotonic())
+        assert len(resting) > 20
+        assert np.abs(resting - neutral).max() < 0.02, "disabled, the robot did not rest"
+    finally:
+        page.locator("#enable").check()
+    page.wait_for_function("window.a2p.status.enable === true", timeout=5000)
+    page.locator("#gain-arms").fill("1")
+    page.wait_for_function("window.a2p.status.gains.arms === 1", timeout=10000)
+    page.click("#talk")
+    page.close()
+
+
+def test_when_the_talking_tab_is_closed_expect_the_floor_free_and_the_robot_at_rest(
+    console: Console, browser
+):
+    neutral = load_robot().neutral_rad
+    page = _open(browser, console, name="Carol")
+    _talk(page)
+    page.wait_for_timeout(2500)
+    assert "Carol is talking" in console.recorder.console_status
+    page.close()
+    closed = time.monotonic()
+    # the filter's watchdog (0.5 s without poses) glides to neutral (1 s)
+    time.sleep(3.5)
+    rest = console.recorder.between(time.monotonic() - 0.5, time.monotonic())
+    assert len(rest) > 10
+    assert np.abs(rest - neutral).max() < 0.02, "the robot did not return to rest"
+    assert np.ptp(rest, axis=0).max() < 1e-3
+    _wait(lambda: "nobody is talking" in console.recorder.console_status, 5.0, "the floor")
+    after = console.recorder.between(closed, time.monotonic())
+    assert np.all(np.isfinite(after))
+
+    successor = _open(browser, console)
+    _talk(successor)  # the floor is free for the next operator
+    successor.click("#talk")
+    successor.close()
+
+
+def test_when_a_robot_reports_its_pose_expect_it_drawn_as_a_ghost(console: Console, browser):
+    robot = load_robot()
+    page = _open(browser, console)
+    page.wait_for_timeout(1000)
+    assert page.evaluate("window.a2p.lastPose.measured") is None
+    alone = page.locator("#robot").screenshot()
+    measured = dict(zip(robot.names, robot.neutral_rad.tolist(), strict=True))
+    measured.update(LShoulderPitch=0.0, RShoulderPitch=0.3, HeadYaw=0.6)  # arms out, head turned
+    reporting = threading.Event()
+    reporting.set()
+
+    def report() -> None:  # 20 Hz, as long as the robot is "on"
+        while reporting.is_set():
+            console.recorder.publish_measured(measured)
+            time.sleep(0.05)
+
+    reporter = threading.Thread(target=report, daemon=True)
+    reporter.start()
+    try:
+        page.wait_for_function("window.a2p.lastPose.measured !== null", timeout=10000)
+        page.wait_for_timeout(500)
+        shown = page.evaluate("window.a2p.lastPose.measured")
+        ghost = page.locator("#robot").screenshot(path=str(console.shots / "console_ghost.png"))
+    finally:
+        reporting.clear()
+        reporter.join()
+    assert max(abs(shown[name] - value) for name, value in measured.items()) < 1e-9
+    changed = _changed_fraction(alone, ghost)
+    assert changed > 0.005, f"no ghost drawn ({changed:.4f} of the pixels changed)"
+    # a robot that stops reporting leaves no ghost behind (MEASURED_TIMEOUT_S, 2 s)
+    page.wait_for_function("window.a2p.lastPose.measured === null", timeout=5000)
+    page.close()
+
+
+def test_when_the_token_is_wrong_expect_access_refused(console: Console, browser):
+    page = _open(browser, console, token="not-the-token-0123456789", ready=False)
+    page.wait_for_function(
+        "document.getElementById('connection').textContent === 'token refused'", timeout=10000
+    )
+    assert page.evaluate("window.a2p.connected") is False
+    assert page.is_disabled("#talk")
+    assert page.is_disabled("#release")
+    assert page.is_visible("#login")
+    page.screenshot(path=str(console.shots / "console_page_wrong_token.png"))
+    page.close()

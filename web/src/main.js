@@ -1,0 +1,366 @@
+// The operator console's page: microphone capture (AudioWorklet, 16 kHz mono S16LE in 20 ms
+// chunks), the WebSocket to console_node (in a Worker, link.js, so the chunks leave without
+// waiting for this thread), a 3D view of the robot from the package's URDF (commanded pose
+// solid, measured pose as a ghost), stop / enable / gesture amplitude, health and the
+// voice-to-command latency. Everything is served by the console itself.
+import * as THREE from 'three';
+import { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
+import URDFLoader from 'urdf-loader';
+
+const CHUNK_SAMPLES = 320; // 20 ms at 16 kHz
+const GAIN_SEND_PERIOD_MS = 150;
+
+const $ = (id) => document.getElementById(id);
+// State the browser test reads (window.a2p).
+const state = {
+  connected: false, floor: null, you: false, talking: false, chunksSent: 0, chunksDropped: 0,
+  posesApplied: 0, status: null, lastError: '', joints: [], viewReady: false,
+};
+window.a2p = state;
+
+const link = new Worker('link.js');
+let audio = null; // { context, stream, node }
+let reconnectTimer = null;
+
+// The token comes in the address's fragment (never sent to a server); it is kept for this tab
+// only and taken out of the address bar, so it does not stay on screen or in bookmarks.
+function token() {
+  const fromHash = new URLSearchParams(location.hash.slice(1)).get('token');
+  if (fromHash) {
+    sessionStorage.setItem('a2p-token', fromHash);
+    history.replaceState(null, '', location.pathname);
+  }
+  return sessionStorage.getItem('a2p-token') || '';
+}
+
+function showError(text) {
+  state.lastError = text;
+  $('error').textContent = text;
+}
+
+function setConnection(text, cls) {
+  const pill = $('connection');
+  pill.textContent = text;
+  pill.className = `pill ${cls || ''}`;
+}
+
+function send(message) {
+  link.postMessage({ cmd: 'send', message });
+}
+
+function setControls(enabled) {
+  for (const id of ['talk', 'stop', 'release', 'enable', 'gain-head', 'gain-arms', 'gain-hip']) {
+    $(id).disabled = !enabled;
+  }
+}
+
+function connect() {
+  clearTimeout(reconnectTimer);
+  const scheme = location.protocol === 'https:' ? 'wss' : 'ws';
+  const name = $('name').value.trim() || localStorage.getItem('a2p-name') || '';
+  setConnection('connecting…');
+  link.postMessage({
+    cmd: 'connect',
+    url: `${scheme}://${location.host}/ws`,
+    hello: { type: 'hello', token: token(), name },
+  });
+}
+
+function onClose(code) {
+  state.connected = false;
+  state.you = false;
+  setControls(false);
+  stopAudio();
+  if (code === 4401) {
+    setConnection('token refused', 'err');
+    $('login').hidden = false;
+    $('login-reason').textContent = 'The token was refused: enter the one the console printed.';
+    return;
+  }
+  setConnection('disconnected: retrying', 'err');
+  reconnectTimer = setTimeout(connect, 2000);
+}
+
+link.onmessage = (event) => {
+  const data = event.data;
+  if (data.type === 'message') onMessage(data.message);
+  else if (data.type === 'close') onClose(data.code);
+  else if (data.type === 'level') {
+    $('level').value = state.talking ? Math.min(1, data.rms * 4) : 0;
+    state.chunksSent = data.sent;
+    state.chunksDropped = data.dropped;
+  }
+};
+
+function onMessage(message) {
+  switch (message.type) {
+    case 'welcome':
+      state.connected = true;
+      state.joints = message.joints;
+      state.neutral = message.neutral;
+      if (view.commanded && !state.lastPose) setPose(view.commanded, state.neutral);
+      view.dirty = true;
+      $('login').hidden = true;
+      setConnection(`connected as ${message.name}`, 'ok');
+      setControls(true);
+      showError('');
+      break;
+    case 'floor':
+      state.floor = message.holder;
+      state.you = message.you;
+      updateFloor();
+      break;
+    case 'pose':
+      applyPose(message);
+      break;
+    case 'status':
+      state.status = message;
+      updateStatus(message);
+      break;
+    case 'error':
+      showError(message.message);
+      break;
+    default:
+      break;
+  }
+}
+
+// --- talking -------------------------------------------------------------------------------
+
+function updateFloor() {
+  const talk = $('talk');
+  if (state.you) {
+    $('floor').textContent = 'You have the floor: speak now.';
+    talk.textContent = 'Stop talking';
+    talk.classList.add('on');
+  } else {
+    $('floor').textContent = state.floor ? `${state.floor} is talking.` : 'Nobody is talking: press Talk.';
+    talk.textContent = 'Talk';
+    talk.classList.remove('on');
+    if (state.talking) stopAudio();
+  }
+}
+
+async function startAudio() {
+  const stream = await navigator.mediaDevices.getUserMedia({
+    audio: { channelCount: 1, echoCancellation: true, noiseSuppression: true, autoGainControl: true },
+  });
+  const context = new AudioContext();
+  await context.audioWorklet.addModule('worklet.js');
+  const source = context.createMediaStreamSource(stream);
+  const node = new AudioWorkletNode(context, 'a2p-capture', {
+    processorOptions: { chunkSamples: CHUNK_SAMPLES },
+  });
+  const mute = context.createGain();
+  mute.gain.value = 0;
+  source.connect(node).connect(mute).connect(context.destination);
+  // the chunks go from the worklet straight to the WebSocket's worker
+  const channel = new MessageChannel();
+  node.port.postMessage({ sink: channel.port1 }, [channel.port1]);
+  link.postMessage({ cmd: 'audio', port: channel.port2 }, [channel.port2]);
+  audio = { context, stream, node };
+}
+
+function stopAudio() {
+  state.talking = false;
+  $('level').value = 0;
+  if (!audio) return;
+  link.postMessage({ cmd: 'audio', port: null });
+  audio.stream.getTracks().forEach((track) => track.stop());
+  audio.context.close();
+  audio = null;
+}
+
+async function toggleTalk() {
+  if (state.you || state.talking) {
+    send({ type: 'talk', on: false });
+    stopAudio();
+    return;
+  }
+  try {
+    await startAudio();
+  } catch (error) {
+    showError(`No microphone: ${error.message}. The page needs microphone permission (and HTTPS when not on localhost).`);
+    return;
+  }
+  state.talking = true;
+  localStorage.setItem('a2p-name', $('name').value.trim());
+  send({ type: 'talk', on: true });
+}
+
+// --- controls ------------------------------------------------------------------------------
+
+const pendingGains = {};
+let gainTimer = null;
+let draggingSince = 0;
+let enableToggled = 0; // the operator's own change shows until the latched value comes back
+const SETTLE_MS = 1500;
+
+function queueGain(group, value) {
+  pendingGains[group] = value;
+  draggingSince = Date.now();
+  if (gainTimer) return;
+  gainTimer = setTimeout(() => {
+    gainTimer = null;
+    send({ type: 'gains', ...pendingGains });
+    for (const key of Object.keys(pendingGains)) delete pendingGains[key];
+  }, GAIN_SEND_PERIOD_MS);
+}
+
+function updateStatus(status) {
+  const stopped = status.stop === true;
+  document.body.classList.toggle('stopped', stopped);
+  const enabled = status.enable !== false;
+  if (Date.now() - enableToggled > SETTLE_MS) $('enable').checked = enabled;
+  $('robot-state').textContent = stopped
+    ? 'STOPPED: the robot holds still until the stop is released.'
+    : enabled ? 'Motion enabled.' : 'Motion disabled: the robot rests in its neutral pose.';
+  if (status.gains && Date.now() - draggingSince > SETTLE_MS) {
+    for (const [group, value] of Object.entries(status.gains)) {
+      $(`gain-${group}`).value = value;
+      $(`gain-${group}`).nextElementSibling.textContent = value.toFixed(2);
+    }
+  }
+  $('gains-problem').textContent = status.gains_problem || '';
+  const l = status.latency || {};
+  $('latency').textContent = l.n
+    ? `p50 ${l.p50.toFixed(1)} ms, p99 ${l.p99.toFixed(1)} ms, last ${l.last.toFixed(1)} ms ` +
+      `(browser to console ${l.uplink_p50.toFixed(1)} ms, graph ${l.graph_p50.toFixed(1)} ms; ` +
+      `${l.n} chunks; 20 ms chunk and 25 ms feature window come on top)`
+    : 'no measurement yet: press Talk and speak';
+  const list = $('health');
+  list.replaceChildren(...(status.health || []).map((item) => {
+    const li = document.createElement('li');
+    li.className = `l${item.level}`;
+    li.textContent = `${item.name}: ${item.message}`;
+    return li;
+  }));
+  if (status.floor !== undefined && status.floor !== state.floor) {
+    state.floor = status.floor;
+    updateFloor();
+  }
+}
+
+// --- 3D view -------------------------------------------------------------------------------
+
+const view = { renderer: null, scene: null, camera: null, commanded: null, measured: null, dirty: true };
+
+function ghostly(robot) {
+  robot.traverse((object) => {
+    if (object.isMesh) {
+      object.material = new THREE.MeshStandardMaterial({
+        color: 0x2196f3, transparent: true, opacity: 0.3, depthWrite: false,
+        // drawn in front where it coincides with the commanded robot: no z-fighting speckles
+        polygonOffset: true, polygonOffsetFactor: -2, polygonOffsetUnits: -2,
+      });
+    }
+  });
+  return robot;
+}
+
+async function initView() {
+  const canvas = $('robot');
+  try {
+    view.renderer = new THREE.WebGLRenderer({ canvas, antialias: true, alpha: true, preserveDrawingBuffer: true });
+  } catch (error) {
+    $('view-problem').hidden = false;
+    $('view-problem').textContent = `No 3D view: WebGL is not available in this browser (${error.message}).`;
+    return;
+  }
+  view.scene = new THREE.Scene();
+  view.camera = new THREE.PerspectiveCamera(35, 1, 0.05, 50);
+  view.scene.add(new THREE.HemisphereLight(0xffffff, 0x667788, 2.2));
+  const sun = new THREE.DirectionalLight(0xffffff, 1.5);
+  sun.position.set(2, 4, 3);
+  view.scene.add(sun);
+  const grid = new THREE.GridHelper(4, 16, 0x8899aa, 0xc0c8d0);
+  view.scene.add(grid);
+  const text = await (await fetch('urdf/pepper.urdf')).text();
+  const loader = new URDFLoader();
+  const upright = (robot) => { robot.rotation.x = -Math.PI / 2; view.scene.add(robot); return robot; };
+  view.commanded = upright(loader.parse(text));
+  view.measured = upright(ghostly(loader.parse(text)));
+  view.measured.visible = false;
+  if (state.neutral) setPose(view.commanded, state.neutral);
+  const box = new THREE.Box3().setFromObject(view.commanded);
+  const centre = box.getCenter(new THREE.Vector3());
+  const lift = -box.min.y;
+  view.commanded.position.y += lift;
+  view.measured.position.y += lift;
+  centre.y += lift;
+  const height = box.max.y - box.min.y;
+  // The robot faces +x in ROS: look at it from its front, a little from its left and above.
+  view.camera.position.set(centre.x + 2.2 * height, centre.y + 0.35 * height, centre.z + 0.9 * height);
+  const controls = new OrbitControls(view.camera, canvas);
+  controls.target.copy(centre);
+  controls.addEventListener('change', () => { view.dirty = true; });
+  controls.update();
+  new ResizeObserver(() => { view.dirty = true; }).observe(canvas);
+  state.viewReady = true;
+  requestAnimationFrame(render);
+}
+
+function render() {
+  const canvas = view.renderer.domElement;
+  const width = canvas.clientWidth;
+  const height = canvas.clientHeight;
+  if (canvas.width !== width || canvas.height !== height) {
+    view.renderer.setSize(width, height, false);
+    view.camera.aspect = width / Math.max(height, 1);
+    view.camera.updateProjectionMatrix();
+    view.dirty = true;
+  }
+  if (view.dirty) {
+    view.renderer.render(view.scene, view.camera);
+    view.dirty = false;
+  }
+  requestAnimationFrame(render);
+}
+
+function setPose(robot, pose) {
+  for (const [name, angle] of Object.entries(pose)) {
+    if (robot.joints[name] && Number.isFinite(angle)) robot.setJointValue(name, angle);
+  }
+}
+
+function applyPose(message) {
+  if (!view.commanded) return;
+  if (message.commanded) setPose(view.commanded, message.commanded);
+  view.measured.visible = Boolean(message.measured);
+  if (message.measured) setPose(view.measured, message.measured);
+  state.posesApplied += 1;
+  state.lastPose = message;
+  view.dirty = true;
+}
+
+// --- start ---------------------------------------------------------------------------------
+
+function wire() {
+  $('name').value = localStorage.getItem('a2p-name') || '';
+  $('talk').addEventListener('click', toggleTalk);
+  $('stop').addEventListener('click', () => send({ type: 'stop', on: true }));
+  $('release').addEventListener('click', () => send({ type: 'stop', on: false }));
+  $('enable').addEventListener('change', (event) => {
+    enableToggled = Date.now();
+    send({ type: 'enable', on: event.target.checked });
+  });
+  for (const group of ['head', 'arms', 'hip']) {
+    $(`gain-${group}`).addEventListener('input', (event) => {
+      const value = Number(event.target.value);
+      event.target.nextElementSibling.textContent = value.toFixed(2);
+      queueGain(group, value);
+    });
+  }
+  $('login').addEventListener('submit', (event) => {
+    event.preventDefault();
+    sessionStorage.setItem('a2p-token', $('token').value);
+    connect();
+  });
+}
+
+wire();
+connect();
+initView().catch((error) => {
+  $('view-problem').hidden = false;
+  $('view-problem').textContent = `No 3D view: ${error.message}`;
+});
