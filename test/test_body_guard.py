@@ -99,6 +99,55 @@ def test_when_started_inside_the_margin_expect_led_out_slowly_within_limits(body
     assert filt.status.faults == 0
 
 
+def test_when_arm_rests_just_inside_the_margin_expect_it_still_goes_to_neutral(body):
+    """Braking may leave an arm up to TOLERANCE_M inside the margin. From there every way out
+    that does not approach the body must stay open: the arm pressed against the torso (the
+    margin set half a millimetre above its clearance) glides to neutral when disabled, its
+    clearance never falling on the way."""
+    robot = body.robot
+    pressed = pose_with(robot, LShoulderRoll=robot.lower_rad[robot.names.index("LShoulderRoll")])
+    margin = float(body.clearance(pressed)) + 0.5e-3
+    assert body.clearance(robot.neutral_rad) > margin + 1e-3  # neutral itself is clear
+    filt = MotionFilter(robot, MotionFilterSettings(body_margin_m=margin), start_pose_rad=pressed)
+    filt.set_enabled(False)
+    out = np.array([filt.tick(PERIOD * (k + 1))[0].copy() for k in range(300)])
+    assert np.abs(out[-1] - filt.neutral_rad).max() < 1e-3, "held short of neutral"
+    clearance = body.clearance(out)
+    assert clearance[0] < margin  # the start was in the band
+    inside = clearance[:-1] < margin
+    assert np.all(np.diff(clearance)[inside] >= -1e-9)  # never closer while inside
+    assert filt.status.faults == 0
+
+
+def test_when_straight_way_to_neutral_passes_the_body_expect_the_arm_goes_round(body):
+    """The right arm raised behind, elbow across: its straight way down to neutral brings the
+    bicep to the torso. Braking alone left it at the margin; it must go round, along the
+    margin, and reach neutral, no command inside the margin."""
+    robot = body.robot
+    start = pose_with(
+        robot,
+        HeadPitch=-0.35,
+        HeadYaw=0.92,
+        LShoulderRoll=0.72,
+        LShoulderPitch=-1.85,
+        LElbowRoll=-0.02,
+        LElbowYaw=1.62,
+        RShoulderRoll=-0.14,
+        RShoulderPitch=-1.06,
+        RElbowRoll=0.62,
+        RElbowYaw=-1.14,
+        HipRoll=-0.39,
+    )
+    assert body.clearance(start) >= MARGIN_M
+    filt = MotionFilter(robot, start_pose_rad=start)
+    filt.set_enabled(False)
+    out = np.array([filt.tick(PERIOD * (k + 1))[0].copy() for k in range(400)])
+    assert np.abs(out[-1] - filt.neutral_rad).max() < 1e-3, "held short of neutral"
+    assert body.clearance(out).min() >= MARGIN_M - TOLERANCE_M
+    assert filt.body_guard.status.detour_steps > 0
+    assert filt.status.faults == 0
+
+
 def test_when_margin_raised_live_expect_arm_led_out_to_the_new_margin_and_kept_there(body):
     robot = body.robot
     filt = MotionFilter(robot)

@@ -27,6 +27,7 @@ import yaml
 
 from audio2pose_ros.resources import bundled_speech_path, share_path
 from audio2pose_ros.robot.description import load_robot
+from audio2pose_ros.ros.diagnosed_node import status_name
 
 CHROMIUM = Path(os.environ.get("AUDIO2POSE_CHROMIUM", "/usr/bin/chromium"))
 TOKEN = "browser-test-token-0123456789"
@@ -88,7 +89,7 @@ class Recorder:
 
     def _diagnostics(self, msg) -> None:
         for status in msg.status:
-            if status.name.endswith(": console_node"):
+            if status.name == status_name("/console_node"):
                 self.console_status = status.message
 
     def publish_measured(self, pose: dict[str, float]) -> None:

@@ -71,12 +71,6 @@ def test_when_audio_format_changes_mid_stream_expect_decoding_follows_new_audio_
     assert_commands_within_limits(probe, robot)
 
 
-@pytest.mark.xfail(
-    reason="known defect, unfinished: the self-collision guard can hold an arm a millimetre "
-    "inside its margin, short of the neutral pose, when the glide's straight way passes the "
-    "body (README, Safety: what it cannot do)",
-    strict=False,
-)
 def test_when_audio_stops_then_arrives_in_a_burst_expect_bounded_buffer_and_recovery(
     tmp_path: Path, probe: Probe, robot, speech
 ):

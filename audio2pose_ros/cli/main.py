@@ -481,6 +481,71 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--sim",
         action="store_true",
+        help="also run a simulated Pepper (pybullet) that follows joint_angles and publishes "
+        "the measured joint_states",
+    )
+    run.set_defaults(func=command_run)
+
+    demo = verbs.add_parser("demo", help="bundled speech -> live graph -> recorded bag and CSV")
+    demo.add_argument("--out", default=str(DEFAULT_OUT), help="output folder (default: out/)")
+    demo.set_defaults(func=command_demo)
+
+    synth = verbs.add_parser("synth", help="offline synthesis of a WAV to CSV (100 Hz, radians)")
+    synth.add_argument("wav", metavar="FILE.wav|BAG", help="a WAV file or a bag with audio")
+    synth.add_argument("-o", "--output", required=True, metavar="OUT.csv")
+    add_force(synth)
+    synth.add_argument("--model", help="checkpoint (default: packaged model)")
+    synth.add_argument("--no-smooth", action="store_true", help="skip the 4 Hz Butterworth filter")
+    synth.add_argument(
+        "--seed", type=seed, default=0, help="noise seed of a sampling model (default 0)"
+    )
+    synth.set_defaults(func=command_synth)
+
+    check = verbs.add_parser(
+        "check-body", help="how often the model's motion needs the self-collision guard"
+    )
+    check.add_argument("inputs", nargs="+", metavar="FILE.wav|BAG", help="speech to synthesize")
+    check.add_argument("--model", help="checkpoint (default: packaged model)")
+    check.add_argument(
+        "--seed", type=seed, default=0, help="noise seed of a sampling model (default 0)"
+    )
+    check.add_argument(
+        "--margin",
+        type=bounded_float(0.0, 0.1),
+        default=0.02,
+        help="clearance from the body (m), as the filter's body_margin_m (default 0.02)",
+    )
+    check.set_defaults(func=command_check_body)
+
+    bench = verbs.add_parser("bench", help="per-frame cost of the streaming path")
+    bench.add_argument("--model", help="checkpoint (default: packaged model)")
+    bench.add_argument(
+        "--frames",
+        type=bounded_int(10, 1_000_000),
+        default=3000,
+        help="frames to time, 10 to 1e6 (default 3000)",
+    )
+    bench.add_argument("--skip-models", action="store_true", help="skip the per-model table")
+    bench.add_argument(
+        "--graph",
+        action="store_true",
+        help="also run the live graph: latency, CPU, memory, start-up",
+    )
+    bench.add_argument(
+        "--duration",
+        type=bounded_float(1.0, 3600.0),
+        default=60.0,
+        help="seconds of speech for --graph and --console, 1 to 3600 (default 60)",
+    )
+    bench.add_argument(
+        "--graph-mode",
+        choices=("three", "single", "both"),
+        default="both",
+        help="--graph runs three node processes, one process, or both in turn (default both)",
+    )
+    bench.add_argument(
+        "--sim",
+        action="store_true",
         help="also run the graph against the simulated Pepper: tracking error commanded vs "
         "executed and self-collisions executed (--duration, at most 60 s)",
     )

@@ -15,10 +15,19 @@ allow and the previous command, and returns a command whose clearance
    the command of the limits: the head and the other arm keep following.
 3. **Sliding.** Each braked joint then takes its wanted value again if the result stays
    admissible, so an arm slides along the body instead of sticking to it, and follows again as
-   soon as the wanted poses are clear.
+   soon as the wanted poses are clear. An arm that has come to rest at the margin while its
+   straight way passes the body goes round: its joints move along the margin towards the command
+   (the wanted direction without its part along the clearance gradient), slowly
+   (``LEAD_OUT_SPEED_RAD_S``), within the acceleration limits, counted as ``detour_steps``.
+   An arm already within ``TOLERANCE_M`` inside the margin (where braking may leave it) needs
+   only not go deeper: there the floor is its present clearance, not the margin, so every
+   command that does not bring it closer passes, and the arm leaves the band by any way that
+   does not approach the body (else it would be held where braking left it, short of its goal).
 4. **Led out gently.** A robot that starts inside the margin (moved by hand, or a measured pose
    inside) is moved up the clearance gradient, in the offending joints only, with a speed that
-   ramps up from zero to ``LEAD_OUT_SPEED_RAD_S``; nothing else about it jumps.
+   ramps up from zero to ``LEAD_OUT_SPEED_RAD_S``; the other joints follow their command, or
+   brake if that would bring the body closer. No velocity changes faster than the joint limits
+   allow, so nothing about it jumps.
 5. **Last resort.** If braking cannot keep a command admissible (another joint moved into a
    resting arm in one step), the offending joints hold their previous positions, and if even that
    is not clear the whole previous command is repeated (counted as ``holds``).
@@ -39,6 +48,9 @@ from audio2pose_ros.robot.body import BodyModel
 
 LEAD_OUT_SPEED_RAD_S = 0.3  # joint-space speed of leading a robot out of the margin (rad/s)
 LEAD_OUT_ACCEL_RAD_S2 = 1.0  # ... reached with this acceleration from rest (rad/s^2)
+DETOUR_LIFT = 0.2  # a detour's part away from the body, per unit of its part along the margin
+DETOUR_REST_RAD_S = 0.05  # held joints slower than this are at rest: a detour may start
+DETOUR_MIN_RAD = 1e-3  # held joints closer than this to their command need no detour
 BRAKING_POINTS = (1.0,)  # fractions of the braking distance checked for clearance
 MAX_WIDENINGS = 3  # times the set of braked joints may grow within one step
 TOLERANCE_M = 1e-3  # braking may end this far inside the margin (m): the braking path between the
@@ -52,6 +64,7 @@ class GuardStatus:
     interventions: int = 0  # commands it changed (braking, sliding, leading out, holding)
     lead_out_steps: int = 0  # commands of leading a robot out of the margin
     holds: int = 0  # last-resort holds of the previous pose
+    detour_steps: int = 0  # commands that moved a stopped arm round the body along the margin
     active: bool = False  # the last command was changed
     clearance_m: float = float("inf")  # clearance of the last command (m)
     links: tuple[str, str] = ("", "")  # closest pair of the last command
@@ -72,6 +85,7 @@ class BodyGuard:
         self.body = body
         self.margin_m = float(margin_m)
         self.status = GuardStatus()
+        self._floor_m = self.margin_m  # the clearance commands need this step (see the module)
         self._lead_out_s = 0.0
         self._bounds = (body.robot.lower_rad, body.robot.upper_rad)
 
@@ -81,7 +95,7 @@ class BodyGuard:
         self.body.reset()
 
     def _clear(self, pose: np.ndarray) -> bool:
-        return bool(self.body.clearance(pose) >= self.margin_m)
+        return bool(self.body.clearance(pose) >= self._floor_m)
 
     def _stop_pose(
         self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray, fraction: float
@@ -102,7 +116,7 @@ class BodyGuard:
         if not self._clear(candidates[0]):
             return False
         return all(  # points of the braking path no joint can bring closer need no query
-            self.body.certainly_clear(pose, candidate, self.margin_m) or self._clear(candidate)
+            self.body.certainly_clear(pose, candidate, self._floor_m) or self._clear(candidate)
             for candidate in candidates[1:]
         )
 
@@ -124,10 +138,10 @@ class BodyGuard:
         clear = True
         candidates = self._candidates(pose, velocity, accel)
         for i, candidate in enumerate(candidates):
-            if i and self.body.certainly_clear(pose, candidate, self.margin_m):
+            if i and self.body.certainly_clear(pose, candidate, self._floor_m):
                 continue
-            clearance, more = self.body.violations(candidate, self.margin_m)
-            if clearance < self.margin_m:
+            clearance, more = self.body.violations(candidate, self._floor_m)
+            if clearance < self._floor_m:
                 clear = False
                 joints |= more
         return None if clear else joints
@@ -164,11 +178,13 @@ class BodyGuard:
         previous_velocity = np.asarray(previous_velocity_rad_s, dtype=np.float64)
         accel = limiter.max_acceleration_rad_s2
         self._bounds = (limiter.lower_rad, limiter.upper_rad)
+        previous_clearance = float(self.body.clearance(previous))
+        self._floor_m = min(self.margin_m, previous_clearance)
         result: tuple[np.ndarray, np.ndarray]
         if not (np.isfinite(dt_s) and dt_s > 0.0):
             result = (want, want_velocity) if self._clear(want) else (previous, previous_velocity)
-        elif self.body.clearance(previous) < self.margin_m - TOLERANCE_M:
-            result = self._lead_out(want, want_velocity, previous, dt_s)
+        elif previous_clearance < self.margin_m - TOLERANCE_M:
+            result = self._lead_out(want, want_velocity, previous, previous_velocity, dt_s, accel)
         else:
             self._lead_out_s = 0.0
             result = self._restrain(want, want_velocity, previous, previous_velocity, dt_s, accel)
@@ -201,7 +217,10 @@ class BodyGuard:
             velocity = np.where(held, (pose - previous) / dt_s, velocity)
             more = self._offending(pose, velocity, accel)
             if more is None or self._braking_close_enough(pose, velocity, accel):
-                return self._slide(pose, velocity, want, want_velocity, held, accel)
+                pose, velocity = self._slide(pose, velocity, want, want_velocity, held, accel)
+                return self._detour(
+                    pose, velocity, want, previous, previous_velocity, held, dt_s, accel
+                )
             if not np.any(more & ~held):
                 break
             held = held | more
@@ -232,28 +251,89 @@ class BodyGuard:
                 pose, velocity = trial, trial_velocity
         return pose, velocity
 
-    def _lead_out(
-        self, want: np.ndarray, want_velocity: np.ndarray, previous: np.ndarray, dt_s: float
+    def _detour(
+        self,
+        pose: np.ndarray,
+        velocity: np.ndarray,
+        want: np.ndarray,
+        previous: np.ndarray,
+        previous_velocity: np.ndarray,
+        held: np.ndarray,
+        dt_s: float,
+        accel: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Move the offending joints up the clearance gradient, slowly, from rest."""
+        """Move a stopped arm round the body towards its command, along the margin.
+
+        Braking and sliding leave an arm at rest at the margin when the straight way to its
+        command passes the body. Then the held joints move along the margin: the wanted
+        direction without its part towards the body (the clearance gradient), lifted a little
+        away from it, at most ``LEAD_OUT_SPEED_RAD_S`` and within the acceleration limits; the
+        arm follows its command again once the straight way is clear. Kept only if admissible.
+        """
+        resting = np.all(np.abs(velocity[held]) < DETOUR_REST_RAD_S)
+        wanted = np.where(held, want - pose, 0.0)
+        if not resting or float(np.abs(wanted).max()) < DETOUR_MIN_RAD:
+            return pose, velocity
+        gradient = self.body.gradient(previous, held)
+        squared = float(gradient @ gradient)
+        towards = float(wanted @ gradient)
+        if squared < 1e-12 or towards >= 0.0:
+            return pose, velocity  # the way is not into the body: braking had another cause
+        tangent = wanted - towards / squared * gradient
+        length = float(np.linalg.norm(tangent))
+        if length < DETOUR_MIN_RAD:
+            return pose, velocity  # the command is straight through the body: nowhere to go
+        direction = tangent / length + DETOUR_LIFT * gradient / np.sqrt(squared)
+        speed = min(LEAD_OUT_SPEED_RAD_S, length / dt_s)
+        target = direction / float(np.linalg.norm(direction)) * speed
+        change = np.clip(target - previous_velocity, -accel * dt_s, accel * dt_s)
+        lower, upper = self._bounds
+        trial = np.where(
+            held, np.clip(previous + (previous_velocity + change) * dt_s, lower, upper), pose
+        )
+        trial_velocity = np.where(held, (trial - previous) / dt_s, velocity)
+        if self._admissible(trial, trial_velocity, accel):
+            self.status.detour_steps += 1
+            return trial, trial_velocity
+        return pose, velocity
+
+    def _lead_out(
+        self,
+        want: np.ndarray,
+        want_velocity: np.ndarray,
+        previous: np.ndarray,
+        previous_velocity: np.ndarray,
+        dt_s: float,
+        accel: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Move the offending joints up the clearance gradient, slowly; brake what goes deeper.
+
+        The offending joints' velocity approaches the lead-out velocity (along the gradient,
+        ramped from zero at ``LEAD_OUT_ACCEL_RAD_S2`` up to ``LEAD_OUT_SPEED_RAD_S``) no faster
+        than their acceleration limit allows, so a moving arm brakes into it rather than
+        jumping. The other joints follow their command unless that brings the body closer than
+        the led-out pose alone; then they brake at their acceleration limit.
+        """
         self.status.lead_out_steps += 1
         body = self.body
         lower, upper = self._bounds
-        clearance, joints = body.violations(previous, self.margin_m)
+        _, joints = body.violations(previous, self.margin_m)
         gradient = body.gradient(previous, joints)
         norm = float(np.linalg.norm(gradient))
         self._lead_out_s += dt_s
         speed = min(LEAD_OUT_SPEED_RAD_S, LEAD_OUT_ACCEL_RAD_S2 * self._lead_out_s)
-        step = np.zeros_like(previous) if norm < 1e-9 else gradient / norm * speed * dt_s
-        led = np.clip(previous + step, lower, upper)
-        # The other joints follow their command unless that brings the body closer still.
+        target = np.zeros_like(previous) if norm < 1e-9 else gradient / norm * speed
+        change = np.clip(target - previous_velocity, -accel * dt_s, accel * dt_s)
+        led_velocity = np.where(joints, previous_velocity + change, 0.0)
+        led = np.where(joints, np.clip(previous + led_velocity * dt_s, lower, upper), previous)
         pose = np.where(joints, led, want)
         if body.clearance(pose) < body.clearance(led):
-            pose = led
-        velocity = (pose - previous) / dt_s
-        if body.clearance(pose) < clearance:  # never deeper in than before
-            return previous.copy(), np.zeros_like(previous)
-        return pose, velocity
+            braked_speed = np.maximum(np.abs(previous_velocity) - accel * dt_s, 0.0)
+            braked = np.clip(
+                previous + np.copysign(braked_speed, previous_velocity) * dt_s, lower, upper
+            )
+            pose = np.where(joints, led, braked)
+        return pose, (pose - previous) / dt_s
 
 
 def guard_trajectory(guard: BodyGuard, trajectory_rad: np.ndarray, rate_hz: float) -> np.ndarray:

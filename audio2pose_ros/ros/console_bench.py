@@ -43,6 +43,7 @@ from audio2pose_ros import topics
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.console.protocol import audio_frame
 from audio2pose_ros.ros.console_runner import CONSOLE_NODE, console_command
+from audio2pose_ros.ros.diagnosed_node import status_name
 from audio2pose_ros.ros.graph import GraphTimeoutError, node_graph
 from audio2pose_ros.ros.graph_bench import MATCH_TOLERANCE_RAD, STEADY_SKIP_S, _bench_params
 from audio2pose_ros.ros.player import rclpy_session, spin_until
@@ -104,7 +105,7 @@ class _Listener(Node):
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
-            if status.name.endswith(f": {CONSOLE_NODE}"):
+            if status.name == status_name(f"/{CONSOLE_NODE}"):
                 self.console_values = {kv.key: kv.value for kv in status.values}
 
 

@@ -99,6 +99,7 @@ function onMessage(message) {
       state.joints = message.joints;
       state.neutral = message.neutral;
       if (view.commanded && !state.lastPose) setPose(view.commanded, state.neutral);
+      if (view.commanded) view.commanded.visible = true;
       view.dirty = true;
       $('login').hidden = true;
       setConnection(`connected as ${message.name}`, 'ok');
@@ -281,6 +282,8 @@ async function initView() {
   view.commanded = upright(loader.parse(text));
   view.measured = upright(ghostly(loader.parse(text)));
   view.measured.visible = false;
+  // drawn once the console said where neutral is: no made-up pose before
+  view.commanded.visible = Boolean(state.neutral);
   if (state.neutral) setPose(view.commanded, state.neutral);
   const box = new THREE.Box3().setFromObject(view.commanded);
   const centre = box.getCenter(new THREE.Vector3());

@@ -81,6 +81,8 @@ def motion_filter_node() -> None:
 def pepper_sim_node() -> None:
     """Console script ``pepper_sim_node``."""
     _run("pepper_sim_node")
+
+
 def console_node() -> None:
     """Console script ``console_node``."""
     _run("console_node")
