@@ -386,9 +386,9 @@ def _realism_table(rows: Sequence[GroupRow]) -> str:
 def _percentile_table(result: QualityEvaluation) -> str:
     """Plain text: speed and acceleration percentiles per joint of every row that has them."""
     levels = "/".join(f"p{p}" for p in realism.PERCENTILES)
-    lines = [f"joint speed (rad/s) and acceleration (rad/s^2), {levels}"]
+    lines = [f"head joint speed (rad/s) and acceleration (rad/s^2), {levels}"]
     for row in [*result.floors, *result.rows]:
-        if row.percentiles is None:
+        if row.percentiles is None or row.group != "head":  # the head's goals are on them
             continue
         speed, accel = row.percentiles
         for j, name in enumerate(result.joint_names.get(row.group, ())):
@@ -409,6 +409,22 @@ def _ci(value: float, low: float, high: float) -> str:
     if not (math.isfinite(low) and math.isfinite(high)):
         return f"{value:.2f}"
     return f"{value:.2f} [{low:.2f},{high:.2f}]"
+
+
+def real_motion_of(clips: Sequence[Clip], others: Sequence[Clip]) -> dict[str, list[np.ndarray]]:
+    """A baseline: each clip gets the real motion of one of ``others`` (NaN where unknown).
+
+    Clip i gets ``others[i % len(others)]``'s motion, cut or played back and forth to its
+    length; its unknown angles stay NaN, which :func:`quality_evaluation` leaves out.
+    """
+    out = {}
+    for i, clip in enumerate(clips):
+        other = others[i % len(others)]
+        angles = np.where(other.mask, other.angles_rad, np.nan)
+        fitted = _fit_length(angles, clip.n_frames)
+        fitted[~_fit_mask(other.mask, clip.n_frames)] = np.nan
+        out[clip.info.clip_id] = [fitted]
+    return out
 
 
 def mismatched_order(speakers: Sequence[str]) -> list[int]:
@@ -512,7 +528,11 @@ def quality_evaluation(
             ([_fit_length(np.nan_to_num(other.angles_rad), n)], _fit_mask(other.mask, n))
         )
         for name, per_clip in predictions.items():
-            motion[name].append(([s[:n] for s in per_clip[clip.info.clip_id]], everywhere))
+            samples = per_clip[clip.info.clip_id]
+            known = np.isfinite(samples[0][:n])  # a baseline of real motion has unknown frames
+            motion[name].append(
+                ([np.where(known, s[:n], robot.neutral_rad) for s in samples], known)
+            )
     onsets = [realism.audio_onsets(c.audio) for c in clips]
     rows, floors, histograms = [], [], {}
     groups = [g for g in ("head", "arms", "hip") if robot.group_mask(g).any()]
