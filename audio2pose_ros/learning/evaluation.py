@@ -19,6 +19,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +32,9 @@ from audio2pose_ros.learning.training import TrainSettings
 from audio2pose_ros.offline.synthesis import synthesize_samples
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.timebase import FRAME_RATE_HZ, SAMPLE_RATE_HZ
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 NEUTRAL = "neutral pose"
 MEAN_MOTION = "mean training motion"
@@ -265,11 +269,7 @@ def plot_clip(
         ax.set_ylabel(f"{robot.names[j]}\n(deg)", fontsize=7)
     axes[1].legend(fontsize=6, loc="upper right")
     axes[-1].set_xlabel("time (s)")
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=70)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=70)
 
 
 # --- Distribution evaluation per joint group (issue 13 item 3) ---------------------------------
@@ -755,9 +755,16 @@ def plot_histograms(path: Path, result: QualityEvaluation, methods: Sequence[str
             ax.set_xlabel(unit, fontsize=8)
             ax.set_ylabel("fraction of frames", fontsize=8)
     axes[0, 0].legend(fontsize=7)
+    return save_figure(fig, path)
+
+
+def save_figure(fig: Figure, path: Path, dpi: int = 80) -> Path:
+    """Lay out, write (creating the folder) and close a matplotlib figure; return its path."""
+    from matplotlib import pyplot as plt
+
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path
 

@@ -13,7 +13,7 @@ import numpy as np
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Clip, Dataset
 from audio2pose_ros.learning import realism
-from audio2pose_ros.learning.evaluation import Evaluation, GroupRow, QualityEvaluation
+from audio2pose_ros.learning.evaluation import Evaluation, GroupRow, QualityEvaluation, save_figure
 from audio2pose_ros.learning.sampler_selection import (
     BURSTS,
     CORRELATIONS,
@@ -342,11 +342,7 @@ def plot_summary(path: Path, reports: Sequence[SourceReport]) -> Path:
         ax.set_title(f"{report.source} held out: {group}", fontsize=9)
         ax.set_ylabel("Hellinger distance to real", fontsize=8)
     axes[0, 0].legend(fontsize=7)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_percentiles(path: Path, reports: Sequence[SourceReport]) -> Path:
@@ -389,11 +385,7 @@ def plot_percentiles(path: Path, reports: Sequence[SourceReport]) -> Path:
             ax.set_xlabel("percentile", fontsize=8)
             ax.set_title(f"{report.source} held out: head {unit}", fontsize=9)
     axes[0, 0].legend(fontsize=7)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def _learned_from(checkpoint: Checkpoint, clips: Sequence[Clip]) -> str:
