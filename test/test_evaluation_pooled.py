@@ -8,12 +8,14 @@ from audio2pose_ros.data.dataset import Clip, ClipInfo
 from audio2pose_ros.learning import metrics
 from audio2pose_ros.learning.default_model import PROSODY_RULE
 from audio2pose_ros.learning.evaluation import (
+    REAL_FLOOR,
     STATIC,
     GroupRow,
     QualityEvaluation,
     quality_evaluation,
 )
-from audio2pose_ros.learning.model_card import _targets
+from audio2pose_ros.learning.model_card import SourceReport, source_checks
+from audio2pose_ros.learning.sampler_selection import SamplingChoice
 
 
 def test_when_adding_two_samples_segments_expect_summed_counts_and_moments():
@@ -52,13 +54,14 @@ def row(method, group, **values):
     return GroupRow(method, group, measures, math.nan, math.nan, math.nan)
 
 
-def test_when_listing_the_arm_targets_expect_size_and_the_static_and_rule_baselines():
+def test_when_listing_the_arm_goals_expect_size_and_the_static_and_rule_baselines():
+    model = "live_groups (shipped)"
     arms = QualityEvaluation(
         [
             row(STATIC, "arms", H_speed=(0.7, 0.6, 0.8), H_accel=(0.5, 0.4, 0.6)),
             row(PROSODY_RULE, "arms", H_speed=(0.3, 0.25, 0.35), H_accel=(0.2, 0.15, 0.3)),
             row(
-                "live_groups (default)",
+                model,
                 "arms",
                 H_speed=(0.2, 0.18, 0.24),
                 H_accel=(0.17, 0.15, 0.2),
@@ -68,12 +71,13 @@ def test_when_listing_the_arm_targets_expect_size_and_the_static_and_rule_baseli
         {},
         20.0,
         0.0,
+        floors=[row(REAL_FLOOR, "arms", H_speed=(0.1, 0.05, 0.15))],
     )
-    head = QualityEvaluation([], {}, 0.0, 0.0)
-    lines = _targets(head, arms, "live_groups (default)").splitlines()
-    assert "| arms | std ratio | 0.7 to 1.4 | 0.50 [0.40, 0.60] | **not met** |" in lines
-    assert any("H speed | below the static pose" in x and x.endswith("| met |") for x in lines)
-    assert any("H speed | below the prosody rule" in x and x.endswith("| met |") for x in lines)
+    report = SourceReport("lecture", "arms and hip", [], arms, SamplingChoice({}, (), ()))
+    lines = [" | ".join(map(str, check)) for check in source_checks(report)]
+    assert "arms | std ratio | 0.7 to 1.4 | 0.50 [0.40, 0.60] | False" in lines
+    assert any("H speed | below the static pose" in x and x.endswith("| True") for x in lines)
+    assert any("H speed | below the prosody rule" in x and x.endswith("| True") for x in lines)
     # 0.17 is not below the rule's interval [0.15, 0.30]: not clearly better
-    assert any("H accel | below the prosody rule" in x and "not met" in x for x in lines)
-    assert any("H speed | <= 0.15" in x and "not met" in x for x in lines)
+    assert any("H accel | below the prosody rule" in x and x.endswith("False") for x in lines)
+    assert any("H speed | <= 0.15" in x and x.endswith("False") for x in lines)

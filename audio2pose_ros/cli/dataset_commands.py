@@ -238,7 +238,6 @@ def command_build_default(args: argparse.Namespace) -> int:
         epochs = args.max_epochs or LearnedBuildSettings.max_epochs
         settings = LearnedBuildSettings(
             max_epochs=epochs,
-            loso_epochs=epochs,
             seed=args.seed,
             workers=args.jobs or default_workers(),
         )

@@ -5,12 +5,11 @@ talking-head clips (real head motion, arms out of frame) and the lecture video (
 motion, :mod:`audio2pose_ros.data.importers.lecture`), train one streaming sampler with a part per
 joint group (``live_groups``: the head part learns from the talking heads, the arm-and-hip part
 from the lecture, unobserved joints masked, never filled), choose its sampling settings on
-validation data (:mod:`audio2pose_ros.learning.sampler_selection`: the head's by cross-validation
-over the talking-head speakers, the arms' on a validation stretch of the lecture), and evaluate
-it where it was not trained: the head leave-one-speaker-out over the talking-head clips (every
-fold choosing its own settings on its training speakers only), the arms and hip on the held-out
-lecture stretch against the static pose, another clip's real motion and the prosody rule
-(:func:`audio2pose_ros.learning.evaluation.quality_evaluation`).
+validation clips (:mod:`audio2pose_ros.learning.sampler_selection`), and evaluate where it was not
+trained (:mod:`audio2pose_ros.learning.source_holdout`): the head on each talking-head source
+held out whole (GRID, Obama; each by a model that never saw that source and chose its settings
+without it), the arms and hip on the held-out lecture stretch against the static pose, other
+real motion and the prosody rule (:func:`audio2pose_ros.learning.evaluation.quality_evaluation`).
 
 With ``arms="prosody"`` or ``"neutral"`` (explicitly named options,
 :func:`build_default_model`): import the 13 clips (:mod:`audio2pose_ros.data.importers.video`: real
@@ -30,7 +29,7 @@ from __future__ import annotations
 
 import shutil
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -45,9 +44,7 @@ from audio2pose_ros.motion.prosody import prosody_trajectory
 from audio2pose_ros.robot.description import RobotDescription
 
 if TYPE_CHECKING:
-    from audio2pose_ros.checkpoints.torch_io import Checkpoint
     from audio2pose_ros.learning.evaluation import Predictions
-    from audio2pose_ros.learning.train_state import TrainReport
     from audio2pose_ros.learning.training import TrainSettings
 
 GRID_LICENCE = (
@@ -209,8 +206,6 @@ class LearnedBuildSettings:
         batch_size: 2 s windows per optimiser step.
         patience: epochs without validation improvement before training stops (the
             validation loss mixes head and arm clips, so this is more than the seed's 10).
-        loso_epochs: epochs per leave-one-speaker-out fold and per cross-validation model of
-            the sampling choice.
         samples: samples per clip, pooled by the distribution measures and compared by the
             diversity measure.
         seed: training seed.
@@ -222,7 +217,6 @@ class LearnedBuildSettings:
     max_epochs: int = 200
     batch_size: int = 8
     patience: int = 30
-    loso_epochs: int = 200
     samples: int = 3
     seed: int = 0
     workers: int = 1
@@ -287,6 +281,29 @@ def describe_learned_data() -> dict[str, str]:
     }
 
 
+def _import_both(
+    clips_dir: Path,
+    lecture_video: Path,
+    work_dir: Path,
+    robot: RobotDescription,
+    workers: int,
+    progress: Callable[[str], None],
+) -> tuple[Dataset, Dataset]:
+    """Import the talking heads and the lecture, side by side when there are two workers."""
+    from audio2pose_ros.data.importers.lecture import import_lecture
+    from audio2pose_ros.learning.parallel import report, run_tasks
+
+    step = progress if workers == 1 else report
+    heads, lecture = run_tasks(
+        [
+            partial(import_talking_heads, clips_dir, work_dir / "talking_heads", robot, step),
+            partial(import_lecture, lecture_video, work_dir / "lecture", robot, step),
+        ],
+        min(workers, 2),
+    )
+    return heads, lecture
+
+
 def build_learned_default_model(
     clips_dir: Path,
     lecture_video: Path,
@@ -296,7 +313,11 @@ def build_learned_default_model(
     settings: LearnedBuildSettings | None = None,
     progress: Callable[[str], None] = print,
 ) -> DefaultModelResult:
-    """Import, train ``live_groups``, evaluate on held-out speakers and lecture, write the card.
+    """Import, train ``live_groups``, evaluate on held-out sources and lecture, write the card.
+
+    The shipped model and one model per held-out talking-head source train side by side
+    (:mod:`audio2pose_ros.learning.source_holdout`); the head is scored per held-out source,
+    the arms and hip on the lecture's held-out stretch, each against its baselines.
 
     Args:
         clips_dir: the shared talking-head clips (``../shared/data/talking_heads``).
@@ -309,111 +330,92 @@ def build_learned_default_model(
 
     """
     from audio2pose_ros.checkpoints.torch_io import save_checkpoint
-    from audio2pose_ros.data.importers.lecture import LECTURE_SPEAKER, import_lecture
-    from audio2pose_ros.learning.evaluation import (
-        checkpoint_predictions,
-        loso_predictions,
-        quality_evaluation,
-    )
-    from audio2pose_ros.learning.model_card import write_learned_model_card
+    from audio2pose_ros.learning.evaluation import quality_evaluation, real_motion_of
+    from audio2pose_ros.learning.model_card import SourceReport, write_learned_model_card
     from audio2pose_ros.learning.parallel import run_tasks
-    from audio2pose_ros.learning.sampler_selection import (
-        FoldTuner,
-        apply_sampling,
-        choose_sampling,
-        cross_validation_tasks,
+    from audio2pose_ros.learning.source_holdout import (
+        HEAD_SOURCES,
+        LECTURE,
+        fold_predictions,
+        holdout_tasks,
+        recording_source,
     )
-    from audio2pose_ros.learning.training import train_on_clips
 
     settings = settings or LearnedBuildSettings()
     shutil.rmtree(work_dir, ignore_errors=True)
     out_dir.mkdir(parents=True, exist_ok=True)
-    heads = import_talking_heads(clips_dir, work_dir / "talking_heads", robot, progress)
-    lecture = import_lecture(lecture_video, work_dir / "lecture", robot, progress)
+    heads, lecture = _import_both(
+        clips_dir, lecture_video, work_dir, robot, settings.workers, progress
+    )
     head_clips = [heads.load(c.clip_id) for c in heads.clips]
     lecture_clips = [lecture.load(c.clip_id) for c in lecture.clips]
-    usable = head_clips + [c for c in lecture_clips if c.info.split == "train"]
-    validation_ids = _validation_ids(usable)
+    validation_ids = _validation_ids(
+        head_clips + [c for c in lecture_clips if c.info.split == "train"]
+    )
     train_settings = settings.train_settings(settings.max_epochs)
-    progress(
-        f"training live_groups on {len(usable) - len(validation_ids)} clips "
-        f"(validation: {sorted(validation_ids)})"
+    tasks = holdout_tasks(
+        head_clips + lecture_clips,
+        validation_ids,
+        robot,
+        train_settings,
+        settings.samples,
+        DEFAULT_SEED,
     )
-    validation = [c for c in usable if c.info.clip_id in validation_ids]
-    fold_settings = settings.train_settings(settings.loso_epochs)
-    progress(
-        "choosing the sampling settings: the head's by cross-validation over the talking-head "
-        "speakers, the arms' on the validation lecture stretch"
+    for task in tasks:
+        progress(
+            f"training live_groups ({task.name}) on {len(task.training)} clips, validation "
+            f"{sorted(c.info.clip_id for c in task.validation)}; then choosing its sampling "
+            "settings on the validation clips"
+        )
+    results = run_tasks(tasks, settings.workers)
+    shipped = results[0]
+    progress("  chosen (shipped): " + shipped.choice.summary())
+    checkpoint = replace(
+        shipped.checkpoint, info={**shipped.checkpoint.info, **describe_learned_data()}
     )
-    head_tasks, head_held = cross_validation_tasks(
-        "live_groups", head_clips, robot, fold_settings, progress=progress
-    )
-    # the shipped model and the head's cross-validation models train side by side
-    tasks: list[Callable[[], tuple[Checkpoint, TrainReport]]] = [
-        partial(
-            train_on_clips,
-            "live_groups",
-            [c for c in usable if c.info.clip_id not in validation_ids],
-            robot,
-            train_settings,
-            None,
-            validation,
-        ),
-        *head_tasks,
-    ]
-    trained = run_tasks(tasks, settings.workers)
-    checkpoint, report = trained[0]
-    head_folds = [(c, held) for (c, _), held in zip(trained[1:], head_held, strict=True)]
-    lecture_validation = [c for c in validation if c.info.speaker == LECTURE_SPEAKER]
-    choice = choose_sampling([*head_folds, (checkpoint, lecture_validation)], robot)
-    progress("  chosen: " + choice.summary())
-    checkpoint = apply_sampling(checkpoint, choice)
-    checkpoint.info.update(describe_learned_data())
     checkpoint_path = out_dir / "default.safetensors"
     save_checkpoint(checkpoint_path, checkpoint)
-    progress("evaluating the arms and hip on the held-out lecture stretch")
+    folds, folds_paused = fold_predictions(results)
+    reports = []
+    for source in HEAD_SOURCES:
+        progress(f"evaluating the head on {source}, held out")
+        held = [c for c in head_clips if recording_source(c.info) == source]
+        others = [c for c in head_clips if recording_source(c.info) != source]
+        baseline = {"real motion of another source": real_motion_of(held, others)}
+        fold = next(r for r in results if r.name == source)
+        quality = quality_evaluation(
+            held,
+            {k: {c.info.clip_id: v[c.info.clip_id] for c in held} for k, v in folds.items()}
+            | baseline,
+            robot,
+            out_dir / f"head_{source.lower()}_distributions.png",
+            paused={
+                k: {c.info.clip_id: v[c.info.clip_id] for c in held}
+                for k, v in folds_paused.items()
+            },
+        )
+        reports.append(SourceReport(source, "head", held, quality, fold.choice))
+    progress("evaluating the arms and hip on the lecture's held-out stretch")
     test = [c for c in lecture_clips if c.info.split == "test"]
-    samples, paused = checkpoint_predictions(
-        [(checkpoint_path, checkpoint)], test, settings.samples, DEFAULT_SEED
-    )
+    stretches = [c for c in lecture_clips if c.info.split == "train"]
     rule, rule_paused = prosody_predictions(test, robot)
+    label = next(iter(folds)).replace("source held out", "shipped")
     arms = quality_evaluation(
         test,
-        samples | rule,
+        {label: shipped.samples}
+        | rule
+        | {"other lecture stretches": real_motion_of(test, stretches)},
         robot,
         out_dir / "arms_distributions.png",
-        paused=paused | rule_paused,
+        paused={label: shipped.paused} | rule_paused,
     )
-    progress("evaluating the head leave-one-speaker-out over the talking-head clips")
-    fold_choices: dict[str, str] = {}
-    clips, loso, loso_paused = loso_predictions(
-        heads,
-        robot,
-        ["live_groups", "mlp"],
-        fold_settings,
-        settings.samples,
-        progress,
-        FoldTuner(robot, fold_settings, verbose=True),
-        settings.workers,
-        fold_choices,
-    )
-    head = quality_evaluation(
-        clips, loso, robot, out_dir / "head_distributions.png", paused=loso_paused
-    )
-    table = (
-        "head: leave one speaker out over the talking-head clips\n"
-        + head.table()
-        + "\n\narms and hip: held-out lecture stretch\n"
-        + arms.table()
-    )
-    selection = (
-        "sampling settings of the shipped model\n"
-        + choice.table()
-        + "\n\nsampling settings of the leave-one-speaker-out folds (head)\n"
-        + "\n".join(f"{speaker} held out: {note}" for speaker, note in fold_choices.items())
+    reports.append(SourceReport(LECTURE, "arms and hip", test, arms, shipped.choice))
+    table = "\n\n".join(report.heading() + "\n" + report.quality.table() for report in reports)
+    selection = "\n\n".join(
+        f"sampling settings of the {r.name} model\n" + r.choice.table() for r in results
     )
     (out_dir / "metrics.txt").write_text(table + "\n\n" + selection + "\n", encoding="utf-8")
     card = write_learned_model_card(
-        out_dir, checkpoint, report, heads, lecture, head, arms, choice, fold_choices
+        out_dir, checkpoint, shipped.report, heads, lecture, reports, results
     )
     return DefaultModelResult(checkpoint_path, card, table)

@@ -1,0 +1,194 @@
+"""Hold out whole recording sources: models that never saw a source, scored on it.
+
+A model scored on speakers of the recordings it was trained on (the same camera, the same kind
+of speech, settings tuned on look-alikes) does not say how it does on new recordings. So the
+default model's rebuild (:mod:`audio2pose_ros.learning.default_model`) scores the head on each
+talking-head **source** it holds out whole: all GRID clips (:data:`GRID`), or all Obama clips
+(:data:`OBAMA`). Each fold trains ``live_groups`` on the other sources (the other head source and
+the lecture's training stretches), stops early and chooses its sampling settings
+(:func:`~audio2pose_ros.learning.sampler_selection.choose_sampling`) on validation clips of its
+training sources only, and samples the held-out source's clips. The lecture (:data:`LECTURE`)
+is the only recording with arms: its held-out stretch (``TEST_SPAN_S`` of
+:mod:`~audio2pose_ros.data.importers.lecture`) is scored with the shipped model, which never
+trained on it, and whose arm settings were chosen on another stretch of the same lecture.
+
+Every fold (and the shipped model) is one :class:`HoldoutTask`: train, choose, sample, in one
+picklable call, so the folds run side by side (:func:`~audio2pose_ros.learning.parallel.run_tasks`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from audio2pose_ros.checkpoints.torch_io import Checkpoint
+from audio2pose_ros.data.dataset import Clip, ClipInfo
+from audio2pose_ros.learning.evaluation import Predictions, checkpoint_predictions
+from audio2pose_ros.learning.sampler_selection import (
+    SamplingChoice,
+    apply_sampling,
+    choose_sampling,
+)
+from audio2pose_ros.learning.train_state import TrainReport
+from audio2pose_ros.learning.training import TrainSettings, train_on_clips
+from audio2pose_ros.robot.description import RobotDescription
+
+GRID, OBAMA, LECTURE = "GRID", "Obama", "lecture"
+HEAD_SOURCES = (GRID, OBAMA)
+SHIPPED = "shipped"
+MODEL_NAME = "live_groups"
+
+
+def recording_source(info: ClipInfo) -> str:
+    """The recording source of a clip of the default model's data (by its speaker).
+
+    Raises:
+        ValueError: a speaker of none of the sources.
+
+    """
+    from audio2pose_ros.data.importers.lecture import LECTURE_SPEAKER
+
+    if info.speaker == LECTURE_SPEAKER:
+        return LECTURE
+    if info.speaker == "obama":
+        return OBAMA
+    if info.speaker.startswith("grid"):
+        return GRID
+    raise ValueError(f"clip {info.clip_id}: speaker {info.speaker!r} of no known source")
+
+
+@dataclass(frozen=True)
+class HoldoutResult:
+    """What one :class:`HoldoutTask` produced.
+
+    Attributes:
+        name: :data:`SHIPPED` or the held-out source.
+        checkpoint: the trained model with its chosen sampling settings.
+        report: its training report.
+        choice: the sampling choice (on the task's validation clips).
+        samples: clip id -> the model's samples of each scored clip.
+        paused: clip id -> its samples on the clip's audio with a pause inserted.
+
+    """
+
+    name: str
+    checkpoint: Checkpoint
+    report: TrainReport
+    choice: SamplingChoice
+    samples: dict[str, list[np.ndarray]]
+    paused: dict[str, list[np.ndarray]]
+
+
+@dataclass(frozen=True)
+class HoldoutTask:
+    """Train ``live_groups``, choose its sampling settings, sample the scored clips.
+
+    A picklable callable for :func:`~audio2pose_ros.learning.parallel.run_tasks`.
+
+    Attributes:
+        name: :data:`SHIPPED` or the held-out source.
+        training: the clips it trains on.
+        validation: early stopping and the sampling choice (never scored clips).
+        scored: clips to sample (the held-out source's, or the lecture's test stretch).
+        robot: joint order and limits.
+        settings: training settings.
+        n_samples: samples per scored clip (seeds ``seed`` .. ``seed + n_samples - 1``).
+        seed: first sampling seed.
+
+    """
+
+    name: str
+    training: tuple[Clip, ...]
+    validation: tuple[Clip, ...]
+    scored: tuple[Clip, ...]
+    robot: RobotDescription
+    settings: TrainSettings
+    n_samples: int
+    seed: int
+
+    def __call__(self) -> HoldoutResult:
+        """Run the task."""
+        checkpoint, report = train_on_clips(
+            MODEL_NAME, self.training, self.robot, self.settings, None, self.validation
+        )
+        choice = choose_sampling([(checkpoint, self.validation)], self.robot)
+        checkpoint = apply_sampling(checkpoint, choice)
+        label = f"{MODEL_NAME} ({self.name})"
+        samples, paused = checkpoint_predictions(
+            [(Path(label), checkpoint)], self.scored, self.n_samples, self.seed
+        )
+        return HoldoutResult(
+            self.name,
+            checkpoint,
+            report,
+            choice,
+            next(iter(samples.values())),
+            next(iter(paused.values())),
+        )
+
+
+def holdout_tasks(
+    clips: Sequence[Clip],
+    validation_ids: set[str],
+    robot: RobotDescription,
+    settings: TrainSettings,
+    n_samples: int,
+    seed: int,
+) -> list[HoldoutTask]:
+    """The shipped model's task, then one per held-out head source (:data:`HEAD_SOURCES`).
+
+    Args:
+        clips: every clip: the talking heads and all lecture stretches (split 'test' = the
+            lecture's held-out stretch, never trained on).
+        validation_ids: the shipped model's validation clips; a fold keeps those of its
+            training sources.
+        robot: joint order and limits.
+        settings: training settings.
+        n_samples: samples per scored clip.
+        seed: first sampling seed.
+
+    """
+    usable = [c for c in clips if c.info.split != "test"]
+    lecture_test = tuple(c for c in clips if c.info.split == "test")
+    tasks = [
+        HoldoutTask(
+            SHIPPED,
+            tuple(c for c in usable if c.info.clip_id not in validation_ids),
+            tuple(c for c in usable if c.info.clip_id in validation_ids),
+            lecture_test,
+            robot,
+            settings,
+            n_samples,
+            seed,
+        )
+    ]
+    for source in HEAD_SOURCES:
+        kept = [c for c in usable if recording_source(c.info) != source]
+        tasks.append(
+            HoldoutTask(
+                source,
+                tuple(c for c in kept if c.info.clip_id not in validation_ids),
+                tuple(c for c in kept if c.info.clip_id in validation_ids),
+                tuple(c for c in clips if recording_source(c.info) == source),
+                robot,
+                settings,
+                n_samples,
+                seed,
+            )
+        )
+    return tasks
+
+
+def fold_predictions(results: Sequence[HoldoutResult]) -> tuple[Predictions, Predictions]:
+    """The folds' samples as one method (each clip sampled by the fold that held it out)."""
+    label = f"{MODEL_NAME} (source held out)"
+    samples: Predictions = {label: {}}
+    paused: Predictions = {label: {}}
+    for result in results:
+        if result.name != SHIPPED:
+            samples[label] |= result.samples
+            paused[label] |= result.paused
+    return samples, paused
