@@ -171,6 +171,22 @@ def test_when_offline_trajectory_enters_the_body_expect_guarded_copy_outside(bod
     assert np.all(guarded <= robot.upper_rad)
 
 
+def test_when_offline_trajectory_leaves_the_body_expect_it_rejoined_within_the_limits(body):
+    """Into the hip and straight back out: the guard holds the arm at the margin, and when the
+    trajectory is clear again the guarded copy rejoins it within the velocity and acceleration
+    limits (it used to jump there in one frame, up to 19 times the velocity limit)."""
+    robot = body.robot
+    inside = hand_in_hip(robot)
+    fraction = np.concatenate([np.linspace(0.0, 1.0, 100), np.linspace(1.0, 0.0, 20)])[:, None]
+    trajectory = robot.neutral_rad + fraction * (inside - robot.neutral_rad)
+    trajectory = np.vstack([trajectory, np.tile(robot.neutral_rad, (100, 1))])
+    guarded = guard_trajectory(BodyGuard(body, MARGIN_M), trajectory, 100.0)
+    velocity = np.diff(guarded, axis=0) * 100.0
+    assert np.all(np.abs(velocity) <= robot.max_velocity_rad_s + 1e-9)
+    assert np.all(np.abs(np.diff(velocity, axis=0)) * 100.0 <= robot.max_acceleration_rad_s2 + 1e-6)
+    np.testing.assert_allclose(guarded[-1], robot.neutral_rad, atol=1e-6)  # rejoined
+
+
 settle = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 

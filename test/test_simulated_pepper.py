@@ -94,3 +94,30 @@ def test_when_arm_commanded_into_the_body_expect_the_self_collision_counted(sim)
     sim.step(1.0)
     assert sim.counts.self_collision_steps > 0
     assert sim.counts.deepest_m > 0.05
+
+
+def test_when_a_commanded_trajectory_is_executed_expect_it_tracked_and_measured():
+    """render --executed: the robot's measured pose follows a slow sweep closely, lags a sweep
+    faster than the commanded speed allows, and an unknown joint set is refused."""
+    from audio2pose_ros.offline.trajectory import Trajectory, TrajectoryError, executed_trajectory
+    from audio2pose_ros.robot.description import load_robot
+
+    robot = load_robot()
+    times = np.arange(200) * 0.01
+    pitch = robot.names.index("LShoulderPitch")
+
+    def sweep(rad_s: float) -> Trajectory:
+        angles = np.tile(robot.neutral_rad, (len(times), 1))
+        angles[:, pitch] -= np.minimum(rad_s * times, 3.0)  # within LShoulderPitch's range
+        return Trajectory("sweep", times, angles, tuple(robot.names))
+
+    slow = executed_trajectory(sweep(0.5), robot, 0.5)  # well under 0.5 x 7.3 rad/s
+    assert np.degrees(slow.error_rad).max() < 2.0
+    assert slow.self_collision_steps == 0
+    assert slow.trajectory.angles_rad.shape == (len(times), robot.n_joints)
+    fast = executed_trajectory(sweep(6.0), robot, 0.5)  # faster than 0.5 x 7.3 rad/s
+    assert fast.error_rad.max() > 0.5  # capped at 3.7 rad/s, it falls behind, as Pepper would
+    assert fast.error_rad[-1] < 0.02  # and catches up once the target holds still
+    wrong = Trajectory("wrong", times, np.zeros((len(times), 1)), ("Elbow",))
+    with pytest.raises(TrajectoryError, match="no angles for joints"):
+        executed_trajectory(wrong, robot, 0.5)

@@ -2,7 +2,8 @@
 
 The trajectory comes from offline synthesis with a checkpoint, from a bag recorded by
 ``audio2pose run --record``, or, side by side, from two checkpoints or from a checkpoint and a
-data set clip's ground truth.
+data set clip's ground truth; ``--executed`` adds, beside the first, what a simulated Pepper does
+with it.
 """
 
 from __future__ import annotations
@@ -10,6 +11,8 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 from pathlib import Path
+
+import numpy as np
 
 from audio2pose_ros.cli.options import (
     Verbs,
@@ -34,9 +37,11 @@ def _bag_path(args: argparse.Namespace) -> Path:
 def command_render(args: argparse.Namespace) -> int:
     """Render the requested trajectories to an MP4 with audio; write the first one as MCAP."""
     from audio2pose_ros.audio.wav import read_wav
+    from audio2pose_ros.motion.limits import LimitSettings
     from audio2pose_ros.offline.trajectory import (
         bag_trajectory,
         clip_trajectory,
+        executed_trajectory,
         synthesized_trajectory,
     )
     from audio2pose_ros.resources import default_checkpoint_path
@@ -91,6 +96,15 @@ def command_render(args: argparse.Namespace) -> int:
                     replace(t, label=f"{tag}: {t.label}")
                     for tag, t in zip("AB", trajectories, strict=True)
                 ]
+    if args.executed:  # the first trajectory as a simulated Pepper executes it, beside it
+        execution = executed_trajectory(trajectories[0], robot, LimitSettings().velocity_fraction)
+        trajectories = [trajectories[0], execution.trajectory]
+        print(
+            f"simulated Pepper: commanded vs executed, largest joint error median "
+            f"{np.degrees(np.median(execution.error_rad)):.2f} deg, p95 "
+            f"{np.degrees(np.percentile(execution.error_rad, 95)):.2f} deg; "
+            f"self-collisions executed: {execution.self_collision_steps} steps"
+        )
     kinematics = RobotKinematics()
     result = render_video(
         args.output,
@@ -127,6 +141,12 @@ def register(verbs: Verbs) -> None:
     source.add_argument("--data", metavar="DIR", help="data set: --model next to a clip's truth")
     render.add_argument("--clip", metavar="ID", help="clip id in the --data set")
     render.add_argument("--side", action="store_true", help="add a side view")
+    render.add_argument(
+        "--executed",
+        action="store_true",
+        help="beside the (first) trajectory, the robot as a simulated Pepper executes it "
+        "(setAngles at the filter's default speed)",
+    )
     render.add_argument(
         "--mcap", metavar="PATH", help="bag directory to write (default: OUT_mcap next to OUT.mp4)"
     )

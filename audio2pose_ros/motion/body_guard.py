@@ -339,9 +339,10 @@ class BodyGuard:
 def guard_trajectory(guard: BodyGuard, trajectory_rad: np.ndarray, rate_hz: float) -> np.ndarray:
     """Run a whole (n_frames, n_joints) trajectory through ``guard``, from its first pose at rest.
 
-    The offline counterpart of the filter's last stage: ``audio2pose synth`` and ``render`` pass
-    their trajectories through it, so offline motion obeys the same margin as live commands. It
-    brakes at the robot's own acceleration limits, within its full position ranges.
+    The offline counterpart of the filter's last two stages: ``audio2pose synth`` and ``render``
+    pass their trajectories through it, so offline motion obeys the same margin as live
+    commands. Each pose first goes through the joint limits (the robot's full position ranges,
+    velocity and acceleration limits), then the guard, which brakes at the acceleration limits.
     """
     trajectory = np.asarray(trajectory_rad, dtype=np.float64)
     if len(trajectory) == 0:
@@ -357,10 +358,10 @@ def guard_trajectory(guard: BodyGuard, trajectory_rad: np.ndarray, rate_hz: floa
     guard.reset()
     if guard.body.clearance(previous) < guard.margin_m:
         previous = guard.body.push_out(previous, guard.margin_m)  # offline: start clear
-    for i, want in enumerate(trajectory):
-        want = limiter.clamp_position(want)
-        previous, velocity = guard.enforce(
-            want, (want - previous) / dt_s, previous, velocity, dt_s, limiter
-        )
+    for i, desired in enumerate(trajectory):
+        # the joint limits first, as in the filter: after the guard has held an arm, it
+        # rejoins its trajectory within the velocity and acceleration limits, not in one jump
+        want, want_velocity = limiter.enforce(desired, previous, velocity, dt_s)
+        previous, velocity = guard.enforce(want, want_velocity, previous, velocity, dt_s, limiter)
         out[i] = previous
     return out

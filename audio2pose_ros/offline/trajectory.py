@@ -140,3 +140,57 @@ def bag_trajectory(bag_path: str | Path, robot: RobotDescription) -> Trajectory:
     stamps = np.asarray(stamps_ns, dtype=np.int64)
     times_s = (stamps - (start_ns if start_ns is not None else stamps[0])) * 1e-9
     return Trajectory(f"bag {Path(bag_path).name}", times_s, np.asarray(rows), robot.names)
+
+
+@dataclass(frozen=True)
+class Execution:
+    """What the simulated Pepper did with a commanded trajectory.
+
+    Attributes:
+        trajectory: the measured joint angles at the command times.
+        error_rad: (T,) largest joint error, commanded vs measured, at each command time.
+        self_collision_steps: simulation steps with an arm inside the body.
+    """
+
+    trajectory: Trajectory
+    error_rad: np.ndarray
+    self_collision_steps: int
+
+
+def executed_trajectory(commanded: Trajectory, robot: RobotDescription, speed: float) -> Execution:
+    """Send every sample of ``commanded`` to a simulated Pepper as naoqi_driver would, and measure.
+
+    Each sample becomes one ``setAngles`` call (ALMotion's meaning: the new target of every
+    joint, reached no faster than ``speed`` x its velocity limit) at its time, the way the motion
+    filter's ``JointAnglesWithSpeed`` commands reach the robot; the simulated robot
+    (:class:`~audio2pose_ros.robot.simulated_pepper.SimulatedPepper`, pybullet) starts at rest at
+    the first commanded pose. Its measured pose at each command time is the executed trajectory.
+    """
+    from audio2pose_ros.robot.simulated_pepper import STEP_S, SimulatedPepper
+
+    names = list(robot.names)
+    missing = [name for name in names if name not in commanded.joint_names]
+    if missing:
+        raise TrajectoryError(f"{commanded.label}: no angles for joints {missing}")
+    angles = commanded.angles_rad[:, [commanded.joint_names.index(name) for name in names]]
+    sim = SimulatedPepper(robot)
+    try:
+        sim.set_angles(names, angles[0], 1.0)
+        sim.step(2.0)  # settled at the first pose before the clock starts
+        start_s, start_steps = sim.time_s, sim.counts.self_collision_steps
+        measured = np.empty_like(angles)
+        for k, (t, pose) in enumerate(zip(commanded.times_s, angles, strict=True)):
+            while sim.time_s - start_s < t - commanded.times_s[0] - 0.5 * STEP_S:
+                sim.step(STEP_S)
+            measured[k] = sim.measured()[0]
+            sim.set_angles(names, pose, speed)
+        steps = sim.counts.self_collision_steps - start_steps
+    finally:
+        sim.close()
+    executed = Trajectory(
+        f"executed (simulated Pepper): {commanded.label}",
+        commanded.times_s.copy(),
+        measured,
+        tuple(names),
+    )
+    return Execution(executed, np.abs(measured - angles).max(axis=1), steps)

@@ -33,6 +33,7 @@ from audio2pose_ros.errors import InputError
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import RobotDescription, load_robot
 from audio2pose_ros.robot.kinematics import default_urdf_path
+from audio2pose_ros.robot.quiet import quiet_c_output
 
 STEP_S = 1.0 / 200.0  # pybullet time step (s); the node advances the simulation in these steps
 MOTOR_FORCE_N_M = 50.0  # enough to reach any target at the capped speed (no sag, no overshoot)
@@ -63,7 +64,8 @@ class SimulatedPepper:
         self._p: Any = pybullet
         self._client = pybullet.connect(pybullet.DIRECT)
         path = str(urdf_path or default_urdf_path())
-        self._body = pybullet.loadURDF(path, useFixedBase=True, physicsClientId=self._client)
+        with quiet_c_output():  # the URDF importer warns of links without inertia
+            self._body = pybullet.loadURDF(path, useFixedBase=True, physicsClientId=self._client)
         pybullet.setTimeStep(STEP_S, physicsClientId=self._client)
         pybullet.setGravity(0.0, 0.0, 0.0, physicsClientId=self._client)
         by_name = {

@@ -8,15 +8,11 @@ copy of that background and goes to ffmpeg (imageio-ffmpeg's binary), which muxe
 
 from __future__ import annotations
 
-import ctypes
 import math
-import os
 import subprocess
-import sys
 import tempfile
 import time
-from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +21,7 @@ import numpy as np
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.offline.trajectory import Trajectory
 from audio2pose_ros.robot.kinematics import RobotKinematics
+from audio2pose_ros.robot.quiet import quiet_c_output
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 VIEWS = ("front", "side")
@@ -93,34 +90,12 @@ class RenderResult:
     wall_time_s: float
 
 
-@contextmanager
-def _quiet_c_output() -> Iterator[None]:
-    """Silence C-level stdout and stderr (pybullet prints its build date and URDF warnings).
-
-    Failures still surface: pybullet raises ``pybullet.error`` for them.
-    """
-    libc = ctypes.CDLL(None)
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = {fd: os.dup(fd) for fd in (1, 2)}
-    try:
-        with open(os.devnull, "wb") as devnull:
-            for fd in saved:
-                os.dup2(devnull.fileno(), fd)
-        yield
-    finally:
-        libc.fflush(None)  # what C stdio buffered goes to /dev/null now, not later
-        for fd, copy in saved.items():
-            os.dup2(copy, fd)
-            os.close(copy)
-
-
 class RobotCamera:
     """The URDF in a headless pybullet world, photographed at given joint positions."""
 
     def __init__(self, kinematics: RobotKinematics, width_px: int, height_px: int) -> None:
         """Load the URDF (fixed base) and set every joint to its default position."""
-        with _quiet_c_output():  # pybullet prints its build date on import
+        with quiet_c_output():  # pybullet prints its build date on import
             import pybullet
             from pybullet_utils.bullet_client import BulletClient
 
