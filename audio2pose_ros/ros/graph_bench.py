@@ -99,6 +99,7 @@ def _bench_params(directory: Path) -> Path:
         velocity_fraction=1.0,
         silence_timeout_s=1000.0,
         max_buffer_s=1.0,
+        body_margin_m=0.0,  # the guard still runs, but changes only poses inside the body
         state_file=str(directory / "motion_filter_state.json"),  # not the user's saved pose
     )
     params_file = directory / "params.yaml"
