@@ -45,7 +45,12 @@ from audio2pose_ros.console.protocol import audio_frame
 from audio2pose_ros.ros.console_runner import CONSOLE_NODE, console_command
 from audio2pose_ros.ros.diagnosed_node import status_name
 from audio2pose_ros.ros.graph import GraphTimeoutError, node_graph
-from audio2pose_ros.ros.graph_bench import MATCH_TOLERANCE_RAD, STEADY_SKIP_S, _bench_params
+from audio2pose_ros.ros.graph_bench import (
+    MATCH_TOLERANCE_RAD,
+    STEADY_SKIP_S,
+    _bench_params,
+    latency_stats,
+)
 from audio2pose_ros.ros.player import rclpy_session, spin_until
 from audio2pose_ros.ros.process_stats import cpu_s, rss_mb
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
@@ -288,23 +293,12 @@ def measure_console(speech_16k: np.ndarray, duration_s: float = 60.0) -> Console
 
 def console_report(figures: ConsoleFigures) -> dict[str, object]:
     """Summary statistics (also the ``--json`` output)."""
-
-    def stats(values: np.ndarray) -> dict[str, float]:
-        if not len(values):
-            return {"n": 0}
-        return {
-            "n": len(values),
-            "p50_ms": float(np.median(values)),
-            "p99_ms": float(np.percentile(values, 99)),
-            "max_ms": float(values.max()),
-        }
-
     return {
         "audio_s": figures.audio_s,
         "chunks": figures.chunks,
         "ambiguous_pairs": figures.ambiguous,
-        "latency_browser_to_joint_angles": stats(figures.latency_ms),
-        "motion_lag_behind_sound": stats(figures.lag_behind_sound_ms),
+        "latency_browser_to_joint_angles": latency_stats(figures.latency_ms),
+        "motion_lag_behind_sound": latency_stats(figures.lag_behind_sound_ms),
         "console_live_estimate_ms": figures.live_estimate,
         "console_node_cpu_ms_per_audio_s": figures.cpu_ms_per_audio_s,
         "console_node_cpu_percent": figures.cpu_percent,

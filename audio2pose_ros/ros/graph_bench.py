@@ -261,24 +261,25 @@ def bundled_speech() -> np.ndarray:
     )
 
 
+def latency_stats(values_ms: np.ndarray) -> dict[str, float]:
+    """Count, median, 99th percentile and maximum of latencies in ms (``{"n": 0}`` if none)."""
+    if not len(values_ms):
+        return {"n": 0}
+    return {
+        "n": len(values_ms),
+        "p50_ms": float(np.median(values_ms)),
+        "p99_ms": float(np.percentile(values_ms, 99)),
+        "max_ms": float(values_ms.max()),
+    }
+
+
 def report(figures: GraphFigures) -> dict[str, object]:
     """Summary statistics (also the ``--json`` output)."""
-
-    def stats(values: np.ndarray) -> dict[str, float]:
-        if not len(values):
-            return {"n": 0}
-        return {
-            "n": len(values),
-            "p50_ms": float(np.median(values)),
-            "p99_ms": float(np.percentile(values, 99)),
-            "max_ms": float(values.max()),
-        }
-
     return {
         "mode": figures.mode,
         "audio_s": figures.audio_s,
-        "latency_audio_to_raw_pose": stats(figures.latency_raw_ms),
-        "latency_audio_to_joint_angles": stats(figures.latency_command_ms),
+        "latency_audio_to_raw_pose": latency_stats(figures.latency_raw_ms),
+        "latency_audio_to_joint_angles": latency_stats(figures.latency_command_ms),
         "startup_first_command_s": figures.startup_first_command_s,
         "startup_first_response_to_audio_s": figures.startup_first_response_s,
         "cpu_ms_per_frame": figures.cpu_ms_per_frame,
