@@ -224,3 +224,17 @@ def test_when_random_raw_poses_rates_and_restarts_expect_no_command_inside_margi
             assert clearance >= MARGIN_M - TOLERANCE_M, (k, body.closest_pair(positions))
         led_out = led_out or clearance >= MARGIN_M - TOLERANCE_M
     assert filt.status.faults == 0
+
+
+def test_when_glides_checked_expect_counts_of_a_real_run(body):
+    """check-body --glides: random clear start poses left to glide to neutral are counted, and
+    no command of theirs comes inside the margin."""
+    from audio2pose_ros.offline.body_check import check_glides
+
+    report = check_glides(body, 6, seed=3, margin_m=MARGIN_M, seconds=4.0)
+    assert report.poses == 6
+    assert report.reached >= 5
+    assert report.min_clearance_m >= MARGIN_M - TOLERANCE_M
+    assert f"{report.reached} of 6 random start poses" in report.row()
+    short = check_glides(body, 6, seed=3, margin_m=MARGIN_M, seconds=0.05)
+    assert short.reached < report.reached  # 50 ms is too short to reach neutral from anywhere

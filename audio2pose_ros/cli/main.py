@@ -186,17 +186,22 @@ def command_synth(args: argparse.Namespace) -> int:
 def command_check_body(args: argparse.Namespace) -> int:
     """Per clip: how often the model's raw motion needs the self-collision guard, and after it."""
     from audio2pose_ros.checkpoints.torch_io import load_checkpoint
-    from audio2pose_ros.offline.body_check import HEADER, check_trajectory
+    from audio2pose_ros.offline.body_check import HEADER, check_glides, check_trajectory
     from audio2pose_ros.offline.synthesis import synthesize
     from audio2pose_ros.resources import default_checkpoint_path
     from audio2pose_ros.robot.body import BodyModel
     from audio2pose_ros.robot.description import load_robot
 
+    if not args.inputs and args.glides is None:
+        raise UsageError("give speech (FILE.wav|BAG ...), --glides N, or both")
     checkpoint = load_checkpoint(args.model or default_checkpoint_path(), robot=load_robot())
     body = BodyModel.load(checkpoint.robot)
     inputs = [_speech_input(name) for name in args.inputs]
     print(f"margin {args.margin * 100:.1f} cm, seed {args.seed}")
-    print(f"{'clip':<40}{'motion':<9}{HEADER}")
+    if args.glides is not None:
+        print(check_glides(body, args.glides, args.seed, args.margin).row())
+    if inputs:
+        print(f"{'clip':<40}{'motion':<9}{HEADER}")
     for path in inputs:
         signal = _read_speech(path)
         for label, margin in (("raw", None), ("guarded", args.margin)):
@@ -504,7 +509,7 @@ def build_parser() -> argparse.ArgumentParser:
     check = verbs.add_parser(
         "check-body", help="how often the model's motion needs the self-collision guard"
     )
-    check.add_argument("inputs", nargs="+", metavar="FILE.wav|BAG", help="speech to synthesize")
+    check.add_argument("inputs", nargs="*", metavar="FILE.wav|BAG", help="speech to synthesize")
     check.add_argument("--model", help="checkpoint (default: packaged model)")
     check.add_argument(
         "--seed", type=seed, default=0, help="noise seed of a sampling model (default 0)"
@@ -514,6 +519,13 @@ def build_parser() -> argparse.ArgumentParser:
         type=bounded_float(0.0, 0.1),
         default=0.02,
         help="clearance from the body (m), as the filter's body_margin_m (default 0.02)",
+    )
+    check.add_argument(
+        "--glides",
+        type=bounded_int(1, 10000),
+        metavar="N",
+        help="also start the filter at N random poses clear of the body (--seed) and count how "
+        "many glide to neutral within 4 s (the guard going round the body)",
     )
     check.set_defaults(func=command_check_body)
 

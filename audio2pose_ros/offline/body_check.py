@@ -61,3 +61,55 @@ def check_trajectory(body: BodyModel, angles_rad: np.ndarray, margin_m: float) -
         min_clearance_cm=100.0 * float(clearance[worst]),
         closest_links=(link_a, link_b),
     )
+
+
+@dataclass(frozen=True)
+class GlideReport:
+    """Random start poses clear of the body, each left to glide to neutral (motion disabled)."""
+
+    poses: int
+    reached: int  # every joint within REACHED_RAD of neutral at the end
+    worst_error_rad: float  # largest joint error of the worst pose at the end
+    min_clearance_m: float  # closest any command came to the body on the way
+
+    def row(self) -> str:
+        """One line for ``audio2pose check-body --glides``."""
+        return (
+            f"{self.reached} of {self.poses} random start poses clear of the body reached "
+            f"neutral; worst joint error left {self.worst_error_rad:.3f} rad; closest command "
+            f"{self.min_clearance_m * 100:.2f} cm from the body"
+        )
+
+
+REACHED_RAD = 0.01  # a glide that ends this close to neutral (every joint) reached it
+
+
+def check_glides(
+    body: BodyModel, n_poses: int, seed: int, margin_m: float, seconds: float = 4.0
+) -> GlideReport:
+    """Start the motion filter at ``n_poses`` random poses clear of the body, disable motion.
+
+    Each pose is drawn uniformly within the joint ranges (``numpy.random.default_rng(seed)``),
+    kept only if its clearance is at least ``margin_m``; the filter (default settings, the body
+    margin ``margin_m``) then glides it to neutral for ``seconds``. What the self-collision guard
+    cannot go round shows as poses that do not reach neutral.
+    """
+    from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+
+    robot = body.robot
+    rng = np.random.default_rng(seed)
+    settings = MotionFilterSettings(body_margin_m=margin_m)
+    reached, worst, closest = 0, 0.0, float("inf")
+    for _ in range(n_poses):
+        start = rng.uniform(robot.lower_rad, robot.upper_rad)
+        while body.clearance(start) < margin_m:
+            start = rng.uniform(robot.lower_rad, robot.upper_rad)
+        filt = MotionFilter(robot, settings, start_pose_rad=start)
+        filt.set_enabled(False)
+        ticks = max(1, round(seconds / filt.period_s))
+        poses = np.array([filt.tick(filt.period_s * (k + 1))[0].copy() for k in range(ticks)])
+        error = float(np.abs(poses[-1] - filt.neutral_rad).max())
+        reached += int(error <= REACHED_RAD)
+        worst = max(worst, error)
+        closest = min(closest, float(body.clearance(poses).min()))
+    return GlideReport(n_poses, reached, worst, closest)
