@@ -58,3 +58,28 @@ def test_when_render_output_is_the_input_expect_exit_2(capsys, wav):
     status, err = audio2pose(capsys, "render", wav, "-o", wav)
     assert status == 2
     assert "is the input" in err
+
+
+def test_when_render_run_again_with_force_expect_its_bag_replaced_but_no_other_folder(
+    capsys, wav, tmp_path
+):
+    out = tmp_path / "out.mp4"
+    status, err = audio2pose(capsys, "render", wav, "-o", out, "--no-progress")
+    assert status == 0, err
+    bag = tmp_path / "out_mcap"
+    assert (bag / "metadata.yaml").is_file()
+    status, err = audio2pose(capsys, "render", wav, "-o", out, "--no-progress")
+    assert status == 2
+    assert "give --force" in err
+    status, err = audio2pose(capsys, "render", wav, "-o", out, "--no-progress", "--force")
+    assert status == 0, err
+    assert (bag / "metadata.yaml").is_file()
+    keep = tmp_path / "keep"
+    keep.mkdir()
+    (keep / "notes.txt").write_text("mine\n")
+    status, err = audio2pose(
+        capsys, "render", wav, "-o", out, "--mcap", keep, "--no-progress", "--force"
+    )
+    assert status == 2
+    assert "is not a rosbag2 bag" in err
+    assert (keep / "notes.txt").read_text() == "mine\n"

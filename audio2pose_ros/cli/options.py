@@ -213,6 +213,48 @@ def new_dir(name: str | os.PathLike[str], option: str, parents: bool = False) ->
     return path
 
 
+BAG_FILE_SUFFIXES = (".mcap", ".db3", ".yaml")  # what a rosbag2 folder holds (metadata.yaml)
+
+
+def _is_bag_dir(path: Path) -> bool:
+    """A real folder with ``metadata.yaml`` and nothing but bag files in it."""
+    if not path.is_dir() or path.is_symlink():
+        return False
+    return (path / "metadata.yaml").is_file() and all(
+        entry.is_file() and not entry.is_symlink() and entry.suffix in BAG_FILE_SUFFIXES
+        for entry in path.iterdir()
+    )
+
+
+def bag_dir(name: str | os.PathLike[str], option: str, force: bool) -> Path:
+    """``name`` as the folder of a new rosbag2 bag: missing, or an old bag and ``force`` given.
+
+    Only a folder that is a bag may be replaced (:func:`remove_bag_dir`, when the new one is
+    written); anything else stays refused, ``force`` or not, so a mistyped path cannot cost the
+    user a folder.
+
+    Raises:
+        UsageError: it exists and is not a bag, or ``force`` is not given, or its folder is
+            missing or not writable.
+    """
+    path = Path(name)
+    if not (path.exists() or path.is_symlink()):
+        return new_dir(path, option)
+    if not force:
+        raise UsageError(f"{option} {path}: exists already; give --force to replace it")
+    if not _is_bag_dir(path):
+        raise UsageError(f"{option} {path}: exists and is not a rosbag2 bag; give a new folder")
+    return path
+
+
+def remove_bag_dir(path: Path) -> None:
+    """Remove an old bag accepted by :func:`bag_dir` (its files, then the folder)."""
+    if _is_bag_dir(path):
+        for entry in path.iterdir():
+            entry.unlink()
+        path.rmdir()
+
+
 def one_line(message: str) -> str:
     """``message`` with its lines joined by `` | `` (a report is one line on stderr)."""
     return " | ".join(part.strip() for part in message.splitlines() if part.strip())

@@ -17,13 +17,14 @@ import numpy as np
 from audio2pose_ros.cli.options import (
     Verbs,
     add_force,
+    bag_dir,
     bounded_float,
     bounded_int,
     input_bag,
     input_dir,
     input_file,
-    new_dir,
     output_file,
+    remove_bag_dir,
 )
 from audio2pose_ros.errors import UsageError
 from audio2pose_ros.viz.render import MAX_FPS, MAX_VIEW_PX, RenderSettings
@@ -63,7 +64,7 @@ def command_render(args: argparse.Namespace) -> int:
         inputs=(args.wav, args.model, args.bag, *(args.compare or [])),
         force=args.force,
     )
-    bag_out = new_dir(_bag_path(args), "--mcap")
+    bag_out = bag_dir(_bag_path(args), "--mcap", args.force)
     for checkpoint in [args.model, *(args.compare or [])]:
         if checkpoint:
             input_file(checkpoint, "checkpoint")
@@ -119,6 +120,7 @@ def command_render(args: argparse.Namespace) -> int:
         f"wrote {result.path}: {result.n_frames} frames, {result.duration_s:.2f} s at "
         f"{settings.fps:g} fps, rendered in {result.wall_time_s:.1f} s"
     )
+    remove_bag_dir(bag_out)  # an old bag, replaced with --force now that the video is written
     bag = write_foxglove_bag(bag_out, trajectories[0], kinematics)
     print(f"wrote {bag} (/robot_description, /joint_states, /tf of {trajectories[0].label})")
     return 0
