@@ -288,6 +288,35 @@ def test_when_the_operator_talks_expect_the_robot_moves_and_the_view_follows(
     page.close()
 
 
+def test_while_the_view_follows_speech_expect_the_page_keeps_time_for_the_operator(
+    console: Console, browser
+):
+    """Drawing 50 poses a second with software WebGL (no GPU, as here and on many laptops in
+    a browser without acceleration) used to fill the page's main thread, so a click on a button
+    could wait for seconds. The view paces its drawing: the page stays mostly idle."""
+    page = _open(browser, console)
+    cdp = page.context.new_cdp_session(page)
+    cdp.send("Performance.enable")
+
+    def busy() -> tuple[float, float]:
+        metrics = {m["name"]: m["value"] for m in cdp.send("Performance.getMetrics")["metrics"]}
+        return metrics["TaskDuration"], metrics["Timestamp"]
+
+    _talk(page)
+    page.wait_for_timeout(1500)  # the pace settles
+    drawn_before = page.evaluate("window.a2p.posesApplied")
+    task0, t0 = busy()
+    page.wait_for_timeout(5000)
+    task1, t1 = busy()
+    share = (task1 - task0) / (t1 - t0)
+    print(f"page main thread busy {share:.0%} while following speech")
+    assert page.evaluate("window.a2p.posesApplied") > drawn_before + 100, "the view stopped"
+    assert share < 0.8, f"the page's main thread was busy {share:.0%} of the time"
+    page.click("#talk")
+    page.wait_for_function("window.a2p.you === false", timeout=10000)
+    page.close()
+
+
 def test_when_stop_is_pressed_expect_the_robot_holds_until_released(console: Console, browser):
     page = _open(browser, console)
     _talk(page)

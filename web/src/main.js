@@ -244,7 +244,15 @@ function updateStatus(status) {
 
 // --- 3D view -------------------------------------------------------------------------------
 
-const view = { renderer: null, scene: null, camera: null, commanded: null, measured: null, dirty: true };
+// Frame pacing: at most 30 frames per second, and drawing takes at most a third of the page's
+// time, so that with a slow (software) WebGL the buttons and the microphone stay responsive.
+const MIN_FRAME_MS = 1000 / 30;
+const RENDER_SHARE_INV = 3;
+const view = {
+  renderer: null, scene: null, camera: null, commanded: null, measured: null, dirty: true,
+  renderedAt: -Infinity, pacedAt: -Infinity, frameAt: 0, idleFrameMs: 1000 / 60,
+  renderEveryMs: MIN_FRAME_MS,
+};
 
 function ghostly(robot) {
   robot.traverse((object) => {
@@ -262,7 +270,7 @@ function ghostly(robot) {
 async function initView() {
   const canvas = $('robot');
   try {
-    view.renderer = new THREE.WebGLRenderer({ canvas, antialias: true, alpha: true, preserveDrawingBuffer: true });
+    view.renderer = new THREE.WebGLRenderer({ canvas, antialias: false, alpha: true });
   } catch (error) {
     $('view-problem').hidden = false;
     $('view-problem').textContent = `No 3D view: WebGL is not available in this browser (${error.message}).`;
@@ -313,9 +321,22 @@ function render() {
     view.camera.updateProjectionMatrix();
     view.dirty = true;
   }
-  if (view.dirty) {
+  const now = performance.now();
+  const sinceLast = now - view.frameAt;
+  view.frameAt = now;
+  if (view.renderedAt > view.pacedAt) {
+    // The first frame after a drawing arrives once that drawing is on screen: what that frame
+    // took beyond an idle frame is what a drawing costs (WebGL and compositing included).
+    view.pacedAt = now;
+    const cost = Math.max(0, sinceLast - view.idleFrameMs);
+    view.renderEveryMs = Math.max(MIN_FRAME_MS, 0.7 * view.renderEveryMs + 0.3 * RENDER_SHARE_INV * cost);
+  } else if (sinceLast < 1000) {
+    view.idleFrameMs = 0.9 * view.idleFrameMs + 0.1 * sinceLast;
+  }
+  if (view.dirty && now - view.renderedAt >= view.renderEveryMs) {
     view.renderer.render(view.scene, view.camera);
     view.dirty = false;
+    view.renderedAt = now;
   }
   requestAnimationFrame(render);
 }
