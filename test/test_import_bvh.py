@@ -41,6 +41,7 @@ def test_when_importing_a_bvh_of_known_motion_expect_angles_within_one_degree(bv
     for j, name in enumerate(robot.names):
         error_deg = np.rad2deg(np.abs(clip.angles_rad[inner, j] - expected[name][inner]))
         assert error_deg.max() < 1.0, f"{name}: {error_deg.max():.2f} deg"
+    assert not extras["body_moved_rad"].any()  # the known motion is clear of Pepper's body
     assert clip.mask[inner].all()
     assert np.abs(extras["head_roll_rad"][inner]).max() < np.deg2rad(1.0)
 

@@ -3,8 +3,10 @@
 Seed 003 section 4.2.3 turns per-video-frame joint angles into training targets in three steps:
 up-sampling to the audio feature rate f_f = 100 Hz by linear interpolation ("Synchronisation with
 audio features"), a 5th-order 4 Hz low-pass Butterworth filter ("Smoothing") and clamping to the
-robot's limits ("Constraining to robot operating limits"). The [0, 1] normalisation of eq. 3.14 is
-left to training (:meth:`RobotDescription.normalize`), so data sets store radians.
+robot's limits ("Constraining to robot operating limits"). A fourth step is ours: arms that the
+retargeting puts in or against the robot's body are moved clear of it (:mod:`.body_clearance`).
+The [0, 1] normalisation of eq. 3.14 is left to training (:meth:`RobotDescription.normalize`),
+so data sets store radians.
 
 Motion frame ``i`` of a clip sits at the centre of audio window ``i`` (samples
 ``[160 i, 160 i + 400)`` at 16 kHz, :mod:`audio2pose_ros.data.dataset`), i.e. at
@@ -16,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from audio2pose_ros.data.dataset import Clip, ClipInfo
+from audio2pose_ros.data.importers.body_clearance import clear_of_body
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
 from audio2pose_ros.robot.description import RobotDescription
@@ -182,7 +185,9 @@ def assemble_clip(
         mirror: exchange left and right (:func:`mirror_angles`; roll changes sign).
 
     Returns:
-        The clip and its extras ``{"head_roll_rad": (T,), "head_roll_mask": (T,) bool}``.
+        The clip and its extras ``{"head_roll_rad": (T,), "head_roll_mask": (T,) bool,
+        "body_moved_rad": (T,)}``; the last is how far each frame's arms were moved clear of the
+        robot's body (:func:`~.body_clearance.clear_of_body`, after seed 003's steps).
 
     """
     grid = frame_times_s(audio.size)
@@ -193,5 +198,7 @@ def assemble_clip(
     roll = smooth_track(roll[:, 0], roll_mask[:, 0])
     if mirror:
         angles, mask, roll = mirror_angles(angles, robot), mirror_mask(mask, robot), -roll
+    angles, moved = clear_of_body(angles, mask, robot)
     clip = Clip(info, np.asarray(audio, dtype=np.float32), angles, mask)
-    return clip, {"head_roll_rad": roll, "head_roll_mask": roll_mask[:, 0]}
+    extras = {"head_roll_rad": roll, "head_roll_mask": roll_mask[:, 0], "body_moved_rad": moved}
+    return clip, extras

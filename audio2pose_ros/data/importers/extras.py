@@ -5,7 +5,9 @@ that measure more keep it in ``clips/<clip_id>.extras.npz`` next to ``clips/<cli
 the same 100 Hz grid: the video and OpenFace importers store ``head_roll_rad`` (T,) (positive:
 the top of the head tilts to the speaker's right; mirrored with ``--mirror``) and
 ``head_roll_mask`` (T,) bool. Pepper has no head-roll joint, so training and the robot ignore
-roll; it is kept for analysis and for robots that have such a joint.
+roll; it is kept for analysis and for robots that have such a joint. Every importer also stores
+``body_moved_rad`` (T,): how far each frame's arms were moved clear of the robot's body
+(:mod:`.body_clearance`), so a changed target can be told from a measured one.
 """
 
 from __future__ import annotations
