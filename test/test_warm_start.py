@@ -51,6 +51,29 @@ def test_when_a_wrapped_predictor_starts_expect_it_warmed_up_once_per_reset():
     assert len(wrapped.run(np.zeros((0, 2)))) == 0
 
 
+class _Sampler(_Counter):
+    """A sampling predictor that records the temperature of every frame it samples."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.temperature = 1.5
+        self.temperatures: list[float] = []
+
+    def step(self, features: np.ndarray) -> np.ndarray:
+        self.temperatures.append(self.temperature)
+        return super().step(features)
+
+
+def test_when_a_sampler_warms_up_expect_its_most_likely_poses_then_its_own_temperature():
+    """Noise during the warm-up swung a trained sampler's head to its yaw limit and back."""
+    sampler = _Sampler()
+    wrapped = WarmStarted(sampler, n=4)
+    out = wrapped.run(np.ones((3, 2)))
+    np.testing.assert_array_equal(out[:, 0], [5, 6, 7])
+    assert sampler.temperatures == [0.0] * 4 + [1.5] * 3
+    assert sampler.temperature == 1.5
+
+
 @pytest.mark.parametrize("temperature", [0.0, 1.0])
 def test_when_the_packaged_model_starts_an_utterance_expect_no_start_jump(speech, temperature):
     """The first frames change no faster than the model later does (it jumped 0.4 rad)."""

@@ -141,8 +141,13 @@ class PoseModel(nn.Module, ABC):
         n_samples: int,
         generator: torch.Generator | None = None,
         temperature: float = 1.0,
+        quiet_frames: int = 0,
     ) -> torch.Tensor:
         """Draw ``n_samples`` motions per utterance: (B, T, F) -> (S, B, T, J) in [0, 1].
+
+        ``quiet_frames``: the first frames of a streaming sampler's warm-up
+        (:mod:`audio2pose_ros.models.warm_start`) draw their noise but sample at temperature 0,
+        as the streaming predictor does during its warm-up.
 
         Raises:
             NotImplementedError: the model is deterministic (``stochastic`` False).

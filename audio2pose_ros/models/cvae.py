@@ -97,8 +97,16 @@ class SpeechCVAE(PoseModel):
         n_samples: int,
         generator: torch.Generator | None = None,
         temperature: float = 1.0,
+        quiet_frames: int = 0,
     ) -> torch.Tensor:
-        """(B, T, F) -> (S, B, T, J): one z ~ N(0, temperature^2 I) per sample and utterance."""
+        """(B, T, F) -> (S, B, T, J): one z ~ N(0, temperature^2 I) per sample and utterance.
+
+        Raises:
+            ValueError: ``quiet_frames`` given: the CVAE does not stream, so it has no warm-up.
+
+        """
+        if quiet_frames:
+            raise ValueError("the cvae does not stream: it has no warm-up frames to keep quiet")
         batch = features.shape[0]
         z = temperature * torch.randn(
             n_samples * batch, self.config.latent_dim, generator=generator

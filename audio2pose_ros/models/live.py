@@ -17,7 +17,10 @@ several plausible motions and continue it.
 Training (teacher forcing): the previous ground-truth pose, corrupted with Gaussian noise of
 ``input_noise`` so the model does not learn to copy it, is the pose input; the loss is the
 Gaussian negative log-likelihood of the true pose (masked), Adam as in seed 003. The first
-frame's previous pose is a learned start pose.
+frame's previous pose is a learned start pose. Each training window starts with half a second
+of its first frame held, as an utterance starts online (:mod:`audio2pose_ros.models.warm_start`):
+without it, the warm-up's repeated frame was an input the model never saw, and its first
+poses drifted, then snapped back when the speech began.
 Streams: yes (one GRU cell step per frame; the streaming predictor is numpy and samples with a
 settable seed and temperature).
 """
@@ -36,6 +39,7 @@ from audio2pose_ros.models.base import PoseModel, StreamingPredictor
 from audio2pose_ros.models.recurrent_numpy import CellWeights, gru_step, linear_weights, sigmoid
 from audio2pose_ros.models.sampling_noise import MAX_BURST, NoiseShape, NoiseStream
 
+WARM_UP_TRAINING_FRAMES = 50  # a settled hold before every training window (warm_start)
 _MIN_LOG_STD = -7.0  # sigma >= 1e-3 of the joint range: keeps the likelihood finite
 _MAX_LOG_STD = 0.0
 
@@ -117,7 +121,16 @@ class LiveSampler(PoseModel):
     def training_loss(
         self, features: torch.Tensor, targets: torch.Tensor, mask: torch.Tensor
     ) -> torch.Tensor:
-        """Masked Gaussian negative log-likelihood under teacher forcing with noisy inputs."""
+        """Masked Gaussian negative log-likelihood under teacher forcing with noisy inputs.
+
+        Every window is preceded by :data:`WARM_UP_TRAINING_FRAMES` copies of its first frame,
+        its first pose as their target: what the model sees when it starts an utterance
+        (:mod:`audio2pose_ros.models.warm_start`), so that it learns to hold still there.
+        """
+        features, targets, mask = (
+            torch.cat([x[:, :1].expand(-1, WARM_UP_TRAINING_FRAMES, -1), x], dim=1)
+            for x in (features, targets, mask)
+        )
         start = self.start_pose.expand(features.shape[0], 1, -1)
         known = torch.where(mask, targets, start.expand_as(targets))
         previous = torch.cat([start, known[:, :-1]], dim=1)
@@ -134,14 +147,21 @@ class LiveSampler(PoseModel):
         n_samples: int,
         generator: torch.Generator | None = None,
         temperature: float = 1.0,
+        quiet_frames: int = 0,
     ) -> torch.Tensor:
-        """(B, T, F) -> (S, B, T, J); noise from ``generator``, recurrence run in numpy."""
+        """(B, T, F) -> (S, B, T, J); noise from ``generator``, recurrence run in numpy.
+
+        The first ``quiet_frames`` frames sample their most likely pose (their noise is drawn
+        and filtered, so the rest of the noise is the same).
+        """
         batch, n_frames, _ = features.shape
         core = self._core()
         draws = core.noise.draws(self.config.n_joints)
         white = torch.randn(n_samples * batch, n_frames, draws, generator=generator)
         x = np.tile(features.detach().cpu().double().numpy(), (n_samples, 1, 1))
-        poses = core.run(x, core.noise.filter(white.double().numpy()), temperature)
+        noise = core.noise.filter(white.double().numpy())
+        noise[:, :quiet_frames] = 0.0
+        poses = core.run(x, noise, temperature)
         return torch.from_numpy(poses).float().view(n_samples, batch, n_frames, -1)
 
     def _core(self) -> _LiveCore:

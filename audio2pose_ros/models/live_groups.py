@@ -169,6 +169,7 @@ class LiveGroups(PoseModel):
         n_samples: int,
         generator: torch.Generator | None = None,
         temperature: float = 1.0,
+        quiet_frames: int = 0,
     ) -> torch.Tensor:
         """(B, T, F) -> (S, B, T, J), the same motion as the streaming predictor.
 
@@ -176,7 +177,9 @@ class LiveGroups(PoseModel):
         from ``numpy.random.default_rng(seed + 2 i + k)``, where ``seed`` is the generator's
         initial seed (0 without one): sample 0 of a single utterance equals what
         ``streaming_predictor(seed)`` produces frame by frame, so ``audio2pose synth`` and the
-        inference node move alike for the same seed.
+        inference node move alike for the same seed. The first ``quiet_frames`` frames (a
+        warm-up) sample the most likely pose and leave the speech gate untouched, as the
+        streaming predictor does at temperature 0.
         """
         seed = generator.initial_seed() if generator is not None else 0
         batch, n_frames, _ = features.shape
@@ -184,7 +187,9 @@ class LiveGroups(PoseModel):
         gate = SpeechGate(
             self.config.silence_temperature, self.config.gate_margin, self.config.gate_width
         )
-        scale = np.stack([gate.run(row) for row in x])[..., None]  # (S * B, T, 1)
+        scale = np.zeros((*x.shape[:2], 1))  # (S * B, T, 1)
+        for row, factors in zip(x, scale, strict=True):
+            factors[quiet_frames:, 0] = gate.run(row[quiet_frames:])
         outputs = []
         for k, (part, factor) in enumerate(
             zip(self.samplers(), self.part_temperatures(), strict=True)

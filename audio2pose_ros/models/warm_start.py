@@ -11,15 +11,27 @@ continues from the state they reach. It needs nothing but the first frame, so it
 the offline path (:func:`with_warm_start` on the whole utterance) and the online path
 (:class:`WarmStarted` around a frame predictor) give the same poses for the same seed.
 A stateless model (the MLP) gives the same poses with or without it.
+
+Samplers warm up quietly, at temperature 0: they draw their noise (so the noise that follows is
+the same) but use none of it, and their speech gate is not stepped. With the noise on, a
+sampler trained on the shared clips swung its head to the yaw limit (2 rad) during the warm-up
+of a clip whose first frame was speech, and back within its first 0.2 s.
 """
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 WARM_START_FRAMES = 100  # 1 s at 100 Hz: the default sampler settles within about 0.2 s
+
+
+@runtime_checkable
+class _Sampler(Protocol):
+    """A sampling predictor: its ``temperature`` scales its noise (0: most likely poses)."""
+
+    temperature: float
 
 
 class _Predictor(Protocol):
@@ -64,7 +76,18 @@ class WarmStarted:
         if self._settled or len(frames) == 0:
             return self.predictor.run(frames)
         self._settled = True
-        return self.predictor.run(with_warm_start(np.asarray(frames), self.n))[self.n :]
+        frames = np.asarray(frames)
+        warm_up = with_warm_start(frames[:1], self.n)[: self.n]
+        if isinstance(self.predictor, _Sampler):  # quietly: its most likely poses
+            temperature = self.predictor.temperature
+            self.predictor.temperature = 0.0
+            try:
+                self.predictor.run(warm_up)
+            finally:
+                self.predictor.temperature = temperature
+        else:
+            self.predictor.run(warm_up)
+        return self.predictor.run(frames)
 
     def step(self, features: np.ndarray) -> np.ndarray:
         """One (n_features,) frame -> (n_joints,) pose."""

@@ -43,7 +43,8 @@ def sample_normalized(
 ) -> np.ndarray:
     """Model output for one utterance's normalised features: (n_samples, n_frames, n_joints).
 
-    Streaming models start settled (:mod:`audio2pose_ros.models.warm_start`). Samplers draw
+    Streaming models start settled (:mod:`audio2pose_ros.models.warm_start`; samplers keep
+    their noise out of the warm-up, as online). Samplers draw
     ``n_samples`` motions from a generator seeded with ``seed`` (sample 0 is the motion of
     ``seed``); deterministic models, and temperature 0, repeat their one motion.
     """
@@ -55,7 +56,7 @@ def sample_normalized(
     with torch.no_grad():
         if model.stochastic and temperature > 0:
             generator = torch.Generator().manual_seed(seed)
-            poses = model.sample(normalized, n_samples, generator, temperature)[:, 0]
+            poses = model.sample(normalized, n_samples, generator, temperature, warm_up)[:, 0]
         else:
             poses = model(normalized).expand(n_samples, -1, -1)
     return poses.numpy()[:, warm_up:]
