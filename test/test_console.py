@@ -542,6 +542,24 @@ def test_when_the_bench_pairs_chunks_and_raw_poses_expect_the_newest_unanswered_
     assert pair_chunks(heard, raw) == (pairs, ambiguous)
 
 
+@pytest.mark.parametrize(
+    ("sent", "heard", "which"),
+    [
+        (b"abcd", b"abcd", [0, 1, 2, 3]),
+        (b"abcd", b"acd", [0, 2, 3]),  # b lost: the rest still belongs to its own chunk
+        (b"a00b00", b"a0b0", [0, 1, 3, 4]),  # equal chunks (silence) match in order
+        (b"abc", b"axc", [0, None, 2]),  # something else on the topic matches nothing
+    ],
+)
+def test_when_chunks_are_lost_on_the_way_expect_each_heard_one_matched_to_its_own(
+    sent, heard, which
+):
+    """Audio is best effort: the bench reported a lost chunk as an error, not as a loss."""
+    from audio2pose_ros.ros.console_bench import match_heard
+
+    assert match_heard([bytes([c]) for c in sent], [bytes([c]) for c in heard]) == which
+
+
 def test_when_the_console_command_is_given_a_network_bind_without_certificate_expect_refused(
     capsys,
 ):

@@ -22,6 +22,7 @@ window does.
 from __future__ import annotations
 
 import asyncio
+import hashlib
 import json
 import socket
 import tempfile
@@ -71,6 +72,7 @@ class ConsoleFigures:
     latency_ms: np.ndarray  # chunk stamp -> the /joint_angles command carrying its pose
     lag_behind_sound_ms: np.ndarray  # chunk on audio/audio -> that command
     chunks: int = 0  # chunks measured
+    lost: int = 0  # of those, chunks never heard on audio/audio (best-effort audio under load)
     ambiguous: int = 0  # raw messages paired after several unanswered chunks (pair_chunks)
     live_estimate: dict[str, str] = field(default_factory=dict)  # console_node's own figures
     cpu_ms_per_audio_s: float = float("nan")
@@ -85,6 +87,7 @@ class _Listener(Node):
         super().__init__("audio2pose_console_bench")
         self.raw: list[tuple[float, np.ndarray]] = []
         self.sound: list[float] = []  # arrivals on audio/audio, as audio_play receives them
+        self.sound_digests: list[bytes] = []  # which chunk each arrival carried
         self.commands: list[tuple[float, np.ndarray]] = []
         self.console_values: dict[str, str] = {}
         self.create_subscription(
@@ -98,8 +101,11 @@ class _Listener(Node):
             AudioData, topics.absolute(topics.AUDIO), self._on_sound, 1000, raw=True
         )
 
-    def _on_sound(self, _data: bytes) -> None:
+    def _on_sound(self, data: bytes) -> None:
         self.sound.append(time.time())
+        # CDR: a 4-byte encapsulation header, then AudioData's uint8[] (uint32 length, bytes)
+        size = int.from_bytes(data[4:8], "little")
+        self.sound_digests.append(chunk_digest(data[8 : 8 + size]))
 
     def _on_raw(self, msg: JointTrajectory) -> None:
         now = time.time()
@@ -122,6 +128,7 @@ class _Page(threading.Thread):
         self.url = url
         self.payload = payload
         self.sent: list[float] = []  # stamps (s since the epoch) of every chunk, in order
+        self.digests: list[bytes] = []  # each chunk's chunk_digest
         self.streaming = threading.Event()
         self.error: BaseException | None = None
 
@@ -153,10 +160,10 @@ class _Page(threading.Thread):
                 if j == WARM_UP_CHUNKS:
                     self.streaming.set()
                 stamp = time.time()
-                await ws.send_bytes(
-                    audio_frame(j, stamp * 1e3, self.payload[offset : offset + step])
-                )
+                pcm = self.payload[offset : offset + step]
+                await ws.send_bytes(audio_frame(j, stamp * 1e3, pcm))
                 self.sent.append(stamp)
+                self.digests.append(chunk_digest(pcm))
             await ws.send_str(json.dumps({"type": "talk", "on": False}))
 
 
@@ -173,6 +180,35 @@ def _serves(url: str) -> bool:
             return bool(response.status == 200)
     except OSError:
         return False
+
+
+def chunk_digest(pcm: bytes) -> bytes:
+    """A short fingerprint of one chunk's PCM, to recognise it on audio/audio."""
+    return hashlib.blake2b(pcm, digest_size=8).digest()
+
+
+def match_heard(sent: list[bytes], heard: list[bytes]) -> list[int | None]:
+    """For each chunk heard on audio/audio, the index of the chunk sent that it is, or None.
+
+    Chunks arrive in order, some may be lost (audio is best effort), and equal chunks (digital
+    silence) occur: each heard chunk is the next sent chunk with its content after the last one
+    matched.
+    """
+    out: list[int | None] = []
+    later: dict[bytes, list[int]] = {}
+    for i in range(len(sent) - 1, -1, -1):  # per content, its indices in order (popped)
+        later.setdefault(sent[i], []).append(i)
+    after = -1
+    for digest in heard:
+        indices = later.get(digest, [])
+        while indices and indices[-1] <= after:
+            indices.pop()
+        if not indices:
+            out.append(None)
+            continue
+        after = indices.pop()
+        out.append(after)
+    return out
 
 
 def pair_chunks(heard: list[float], raw_s: list[float]) -> tuple[list[tuple[int, int]], int]:
@@ -262,23 +298,22 @@ def measure_console(speech_16k: np.ndarray, duration_s: float = 60.0) -> Console
         listener.destroy_node()
     if page.error is not None:
         raise GraphTimeoutError(f"the page's stream failed: {page.error!r}")
-    if len(listener.sound) != len(page.sent):  # every chunk is published, in order
-        raise GraphTimeoutError(
-            f"{len(page.sent)} chunks sent but {len(listener.sound)} heard on audio/audio"
-        )
+    which = match_heard(page.digests, listener.sound_digests)
     pairs, ambiguous = pair_chunks(listener.sound, [t for t, _ in listener.raw])
     answered = _first_commands(listener.raw, listener.commands)
     latency, lag = [], []
     for j, k in pairs:
-        command_s = answered[k]
-        if j >= WARM_UP_CHUNKS and command_s is not None:
-            latency.append((command_s - page.sent[j]) * 1e3)
+        command_s, i = answered[k], which[j]
+        if i is not None and i >= WARM_UP_CHUNKS and command_s is not None:
+            latency.append((command_s - page.sent[i]) * 1e3)
             lag.append((command_s - listener.sound[j]) * 1e3)
+    measured = [i for i in which if i is not None and i >= WARM_UP_CHUNKS]
     return ConsoleFigures(
         audio_s=(len(page.sent) - WARM_UP_CHUNKS) * CHUNK_S,
         latency_ms=np.array(latency),
         lag_behind_sound_ms=np.array(lag),
         chunks=len(page.sent) - WARM_UP_CHUNKS,
+        lost=len(page.sent) - WARM_UP_CHUNKS - len(set(measured)),
         ambiguous=ambiguous,
         live_estimate={
             k.removeprefix("latency_"): v
@@ -296,6 +331,7 @@ def console_report(figures: ConsoleFigures) -> dict[str, object]:
     return {
         "audio_s": figures.audio_s,
         "chunks": figures.chunks,
+        "chunks_lost": figures.lost,
         "ambiguous_pairs": figures.ambiguous,
         "latency_browser_to_joint_angles": latency_stats(figures.latency_ms),
         "motion_lag_behind_sound": latency_stats(figures.lag_behind_sound_ms),
