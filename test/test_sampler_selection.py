@@ -236,3 +236,31 @@ def test_when_loso_folds_train_in_two_processes_expect_the_serial_results(tmp_pa
     for clip_id, samples in serial["live_groups (LOSO)"].items():
         for a, b in zip(samples, parallel["live_groups (LOSO)"][clip_id], strict=True):
             np.testing.assert_allclose(a, b, atol=1e-3)
+
+
+def test_when_arm_samples_come_near_the_body_expect_the_best_setting_within_the_budget(
+    checkpoint, clips, robot, monkeypatch
+):
+    """The guard stays on the robot; the sampling settings keep it from shaping the motion."""
+    from audio2pose_ros.learning import sampler_selection
+
+    validation = [c for c in clips if c.info.split == "validation"]
+    _, free = select_sampling(checkpoint, validation, robot, n_seeds=2)
+    near = {
+        (t.correlation, t.burst, t.value): t.measures["near body %"]
+        for t in free.trials
+        if t.setting == "second_temperature" and t.group == "arms"
+    }
+    assert len(near) == len(CORRELATIONS) * len(BURSTS) * len(TEMPERATURES)
+    assert len(set(near.values())) > 1, "no setting brought the arms nearer the body than another"
+    budget = float(np.median(list(near.values())))
+    monkeypatch.setattr(sampler_selection, "BODY_BUDGET_PCT", budget)
+    _, bound = select_sampling(checkpoint, validation, robot, n_seeds=2)
+    settings = bound.settings
+    correlation = settings["noise_correlation"]
+    chosen = (correlation, settings["second_burst"], settings["second_temperature"])
+    scores = part_scores(bound.trials, "second_temperature", robot)
+    within = {k: v for k, v in scores.items() if k[0] == correlation and near[k] <= budget}
+    assert within, "the median budget leaves no setting at the chosen correlation"
+    assert chosen == min(within, key=within.get)
+    assert "near body %" in bound.table()

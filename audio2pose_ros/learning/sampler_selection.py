@@ -22,7 +22,11 @@ stretch of the lecture.
    temperature with the lowest score, averaged over its joint groups weighted by their joint
    counts; the correlation (shared by the parts) is the one whose parts' best scores, weighted
    by their joint counts, sum lowest. A part whose joints no clip observes keeps its configured
-   settings.
+   settings. The part that moves the arms also has a body budget: its samples, on every clip's
+   audio, may bring an arm closer than the self-collision guard's margin to the robot's body
+   (:class:`~audio2pose_ros.robot.body.BodyModel`) in at most :data:`BODY_BUDGET_PCT` of the
+   frames; a setting within the budget beats every setting over it, and if none is within, the
+   one least over it wins. The guard stays on the robot; this keeps it from shaping the motion.
 2. Rest level in silence. With those settings, every rest level of
    :data:`SILENCE_TEMPERATURES`, from the most noise left in silence to the least, samples the
    same clips' audio with a pause inserted
@@ -53,6 +57,8 @@ from audio2pose_ros.learning import metrics
 from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 from audio2pose_ros.models.live_groups import LiveGroups
+from audio2pose_ros.motion.filter import MotionFilterSettings
+from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.timebase import FRAME_RATE_HZ
 
@@ -64,6 +70,9 @@ PAUSE_TARGETS = {"head": 2.0, "arms": 1.5, "hip": 1.5}  # targets: speech / sile
 PAUSE_MARGIN = 1.25
 N_SEEDS = 4
 INNER_FOLDS = 3
+BODY_MARGIN_M = MotionFilterSettings.body_margin_m  # the self-collision guard's default margin
+BODY_BUDGET_PCT = 1.0  # sampled arm frames allowed closer to the body than the margin
+BODY_CHECK_EVERY = 4  # frames: the share is estimated on every 4th sampled frame
 GROUPS = ("head", "arms", "hip")
 _PART_SETTINGS = ("first_temperature", "second_temperature")
 _PART_BURSTS = {"first_temperature": "first_burst", "second_temperature": "second_burst"}
@@ -140,7 +149,7 @@ class SamplingChoice:
         lines = [
             self.summary(),
             f"{'setting':<21}{'corr':>6}{'burst':>6}{'value':>6}  {'group':<6}{'H speed':>8}"
-            f"{'H accel':>8}{'std/real':>9}{'score':>7}{'speech/pause':>13}",
+            f"{'H accel':>8}{'std/real':>9}{'score':>7}{'speech/pause':>13}{'near body %':>12}",
         ]
         for t in self.trials:
             m = t.measures
@@ -156,6 +165,7 @@ class SamplingChoice:
                 )
                 + (f"{score(m):>7.2f}" if "std ratio" in m else f"{'-':>7}")
                 + (f"{m['speech/pause speed']:>13.2f}" if "speech/pause speed" in m else "")
+                + (f"{'':>13}{m['near body %']:>12.1f}" if "near body %" in m else "")
             )
         return "\n".join(lines)
 
@@ -296,10 +306,17 @@ def _measures(
     robot: RobotDescription,
     n_seeds: int,
     paused: bool,
+    body: BodyModel | None = None,
 ) -> dict[str, dict[str, float]]:
-    """Group -> measures of the samples (``n_seeds`` per clip) with ``settings``, pooled."""
+    """Group -> measures of the samples (``n_seeds`` per clip) with ``settings``, pooled.
+
+    With ``body``, the arms' measures also hold ``near body %``: the share of sampled frames
+    (every :data:`BODY_CHECK_EVERY`-th, on every clip's audio) closer to the body than
+    :data:`BODY_MARGIN_M`.
+    """
     from audio2pose_ros.offline.synthesis import sample_normalized, to_angles
 
+    near = [0, 0]  # frames closer than the margin, frames checked
     real: dict[str, list[metrics.MotionSegments]] = {}
     generated: dict[str, list[metrics.MotionSegments]] = {}
     candidates: dict[int, Checkpoint] = {}
@@ -314,6 +331,10 @@ def _measures(
             to_angles(candidate, poses)[:n]
             for poses in sample_normalized(candidate, item.frames, n_seeds)
         ]
+        if body is not None:
+            checked = np.concatenate([m[::BODY_CHECK_EVERY] for m in samples])
+            near[0] += int(np.count_nonzero(body.clearance(checked) < BODY_MARGIN_M))
+            near[1] += len(checked)
         for g, known in item.known.items():
             joints = robot.group_mask(g)
             generated.setdefault(g, []).append(
@@ -334,6 +355,8 @@ def _measures(
             out[g] = {"speech/pause speed": ratio}
         else:
             out[g] = metrics.distribution_measures(metrics.concat_segments(real[g]), gen)
+    if body is not None and "arms" in out and near[1]:
+        out["arms"]["near body %"] = 100.0 * near[0] / near[1]
     return out
 
 
@@ -364,9 +387,11 @@ def choose_sampling(
     }
     weights = {s: [int(robot.group_mask(g).sum()) for g in part] for s, part in parts.items()}
     evidence = _evidence(folds, robot, paused=False)
+    body = BodyModel.load(robot) if any("arms" in part for part in parts.values()) else None
     trials: list[Trial] = []
-    # per correlation and part: (score, burst, temperature) of every combination tried
-    scored: dict[float, dict[str, list[tuple[float, float, float]]]] = {}
+    # per correlation and part: (% over the body budget, score, burst, temperature) of every
+    # combination tried; the lowest wins, so a setting within the budget beats any other
+    scored: dict[float, dict[str, list[tuple[float, float, float, float]]]] = {}
     for correlation in CORRELATIONS:
         scored[correlation] = {s: [] for s in parts}
         for burst in BURSTS:
@@ -376,21 +401,27 @@ def choose_sampling(
                     **{_PART_BURSTS[s]: burst for s in parts},
                     **dict.fromkeys(parts, value),
                 }
-                measured = _measures(evidence, settings, robot, n_seeds, False)
+                measured = _measures(evidence, settings, robot, n_seeds, False, body)
                 for s, part in parts.items():
                     trials += [Trial(s, value, g, measured[g], correlation, burst) for g in part]
                     total = float(
                         np.average([score(measured[g]) for g in part], weights=weights[s])
                     )
-                    scored[correlation][s].append((total, burst, value))
+                    near = measured["arms"].get("near body %", 0.0) if "arms" in part else 0.0
+                    over = max(0.0, near - BODY_BUDGET_PCT)
+                    scored[correlation][s].append((over, total, burst, value))
 
-    def cost(correlation: float) -> float:
-        return sum(min(scored[correlation][s])[0] * sum(weights[s]) for s in parts)
+    def cost(correlation: float) -> tuple[float, float]:
+        best = {s: min(scored[correlation][s]) for s in parts}
+        return (
+            sum(best[s][0] for s in parts),
+            sum(best[s][1] * sum(weights[s]) for s in parts),
+        )
 
     best = min(CORRELATIONS, key=cost)
     chosen: dict[str, float] = {"noise_correlation": best}
     for s in parts:
-        _, burst, value = min(scored[best][s])
+        _, _, burst, value = min(scored[best][s])
         chosen[s] = value
         chosen[_PART_BURSTS[s]] = burst
     paused = _evidence(folds, robot, paused=True)
