@@ -330,7 +330,8 @@ def build_learned_default_model(
 
     """
     from audio2pose_ros.checkpoints.torch_io import save_checkpoint
-    from audio2pose_ros.learning.evaluation import quality_evaluation, real_motion_of
+    from audio2pose_ros.learning.body_realism import body_realism, body_table
+    from audio2pose_ros.learning.evaluation import STATIC, quality_evaluation, real_motion_of
     from audio2pose_ros.learning.model_card import SourceReport, write_learned_model_card
     from audio2pose_ros.learning.parallel import run_tasks
     from audio2pose_ros.learning.source_holdout import (
@@ -340,6 +341,8 @@ def build_learned_default_model(
         holdout_tasks,
         recording_source,
     )
+    from audio2pose_ros.motion.filter import MotionFilterSettings
+    from audio2pose_ros.robot.body import BodyModel
 
     settings = settings or LearnedBuildSettings()
     shutil.rmtree(work_dir, ignore_errors=True)
@@ -410,12 +413,26 @@ def build_learned_default_model(
         paused={label: shipped.paused} | rule_paused,
     )
     reports.append(SourceReport(LECTURE, "arms and hip", test, arms, shipped.choice))
+    progress("measuring the arms against the body on the lecture's held-out stretch")
+    margin = MotionFilterSettings.body_margin_m
+    still = {c.info.clip_id: [np.tile(robot.neutral_rad, (c.n_frames, 1))] for c in test}
+    body_rows = body_realism(
+        test,
+        {label: shipped.samples, STATIC: still}
+        | {"other lecture stretches": real_motion_of(test, stretches)},
+        BodyModel.load(robot),
+        margin,
+    )
+    body = f"arms against the body, {LECTURE} held out (first sample of each clip)\n" + body_table(
+        body_rows, margin
+    )
     table = "\n\n".join(report.heading() + "\n" + report.quality.table() for report in reports)
+    table += "\n\n" + body
     selection = "\n\n".join(
         f"sampling settings of the {r.name} model\n" + r.choice.table() for r in results
     )
     (out_dir / "metrics.txt").write_text(table + "\n\n" + selection + "\n", encoding="utf-8")
     card = write_learned_model_card(
-        out_dir, checkpoint, shipped.report, heads, lecture, reports, results
+        out_dir, checkpoint, shipped.report, heads, lecture, reports, results, body
     )
     return DefaultModelResult(checkpoint_path, card, table)

@@ -445,8 +445,11 @@ def write_learned_model_card(
     lecture: Dataset,
     reports: Sequence[SourceReport],
     results: Sequence[HoldoutResult],
+    body: str,
 ) -> Path:
     """Write ``out_dir/MODEL_CARD.md`` of the learned default model (``live_groups``).
+
+    ``body`` is the table of :func:`~audio2pose_ros.learning.body_realism.body_table`.
 
     Also writes its figures: ``summary.png`` (:func:`plot_summary`), ``head_percentiles.png``
     (:func:`plot_percentiles`); the histograms come from the evaluation.
@@ -567,6 +570,20 @@ Print it again: `make default-model` (it writes `metrics.txt`, the tables below)
 {_selection(results)}## Held-out numbers
 
 {held_out}
+
+## The arms and the body
+
+Retargeted arms were moved clear of Pepper's body before training (the importers' last step,
+`audio2pose_ros/data/importers/body_clearance.py`), and the arm part's sampling settings keep
+its noise off the body on validation clips (see above). On the lecture's held-out stretch, the
+model's raw motion (before the robot's self-collision guard), how often it comes closer to the
+body than the guard's margin or goes inside it, and how far its wrists' positions in the torso
+frame are from the real ones (Hellinger distance per axis; the right wrist mirrored onto the
+left; `audio2pose_ros/learning/body_realism.py`); the real stretch's halves are the floor:
+
+```
+{body}
+```
 
 ## What it does not cover
 - The head learned from short clips of read or addressed speech (GRID sentences read to a

@@ -256,6 +256,24 @@ class BodyModel:
             raise ValueError("poses must be finite")
         return poses
 
+    def wrist_positions(self, poses_rad: np.ndarray) -> np.ndarray:
+        """(N, 2, 3) positions (m) of the left and right wrist in the torso's frame.
+
+        The torso frame (x forward, y left, z up) moves with the hip, so the positions describe
+        where the hands are relative to the chest, whatever the hip does.
+        """
+        poses = np.atleast_2d(self._pose_array(poses_rad))
+        pin, model, data = self._pin, self._model, self._data
+        frames = [model.getFrameId(name) for name in ("torso", "l_wrist", "r_wrist")]
+        out = np.empty((len(poses), 2, 3))
+        for i, pose in enumerate(poses):
+            self._placements(pose)
+            pin.updateFramePlacements(model, data)
+            torso = data.oMf[frames[0]]
+            for k, frame in enumerate(frames[1:]):
+                out[i, k] = torso.actInv(data.oMf[frame]).translation
+        return out
+
     def pair_distances(self, pose_rad: np.ndarray) -> np.ndarray:
         """Signed distance (m) of every pair of :attr:`link_pairs` in one pose."""
         self._query(self._pose_array(pose_rad).reshape(-1))
