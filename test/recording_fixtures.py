@@ -20,13 +20,13 @@ NAMES = (
     "HeadPitch", "HeadYaw", "LShoulderRoll", "LShoulderPitch", "LElbowRoll", "LElbowYaw",
     "RShoulderRoll", "RShoulderPitch", "RElbowRoll", "RElbowYaw", "HipRoll",
 )  # fmt: skip
-# (offset, amplitude, frequency Hz) per joint, radians; the arms stay 4 cm clear of Pepper's body,
+# (offset, amplitude, frequency Hz) per joint, radians; the arms stay 5.8 cm clear of Pepper's body,
 # so the importers' last step (moving arms out of the body) leaves the motion as it is
 MOTION = {
     "HeadPitch": (-0.15, 0.2, 0.4), "HeadYaw": (0.1, 0.5, 0.3),
-    "LShoulderRoll": (0.8, 0.25, 0.35), "LShoulderPitch": (0.8, 0.5, 0.25),
+    "LShoulderRoll": (1.1, 0.25, 0.35), "LShoulderPitch": (0.8, 0.5, 0.25),
     "LElbowRoll": (-0.9, 0.3, 0.45), "LElbowYaw": (-0.8, 0.4, 0.3),
-    "RShoulderRoll": (-0.8, 0.2, 0.3), "RShoulderPitch": (1.0, 0.4, 0.2),
+    "RShoulderRoll": (-1.1, 0.2, 0.3), "RShoulderPitch": (1.0, 0.4, 0.2),
     "RElbowRoll": (1.0, 0.3, 0.35), "RElbowYaw": (0.6, 0.4, 0.25), "HipRoll": (0.0, 0.2, 0.3),
 }  # fmt: skip
 # BVH body axes at rest: columns forward (+Z), left (+X), up (+Y)

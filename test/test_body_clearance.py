@@ -18,8 +18,8 @@ from audio2pose_ros.timebase import FRAME_RATE_HZ, frame_times_s
 
 # a speaker's forearm resting on the belly, retargeted: Pepper's forearm in its torso and tablet
 INSIDE = {"LShoulderPitch": 1.22, "LShoulderRoll": 0.04, "LElbowRoll": -1.32, "LElbowYaw": -0.19}
-AWAY = {"LShoulderPitch": 0.6, "LShoulderRoll": 0.5, "LElbowRoll": -0.6, "LElbowYaw": -1.0}
-RIGHT_AWAY = {"RShoulderPitch": 0.6, "RShoulderRoll": -0.5, "RElbowRoll": 0.6, "RElbowYaw": 1.0}
+AWAY = {"LShoulderPitch": 0.6, "LShoulderRoll": 0.9, "LElbowRoll": -0.6, "LElbowYaw": -1.0}
+RIGHT_AWAY = {"RShoulderPitch": 0.6, "RShoulderRoll": -0.9, "RElbowRoll": 0.6, "RElbowYaw": 1.0}
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ So every importer (:func:`~.common.assemble_clip`) moves each frame whose observ
 closer than :data:`TRAINING_CLEARANCE_M` to the nearest clear pose it finds
 (:meth:`~audio2pose_ros.robot.body.BodyModel.push_out`: only the joints of the offending pair,
 up the clearance gradient, within the joint limits). The clearance is the guard's margin and
-1 cm more, so that the sampling noise around a learned pose does not bring it back in. Frames
+3 cm more, so that the sampling noise around a learned pose does not bring it back in. Frames
 without an observed arm keep the neutral pose they were given (:func:`~.common.finish_angles`).
 
 A push takes about 30 ms per frame, and the targets are 4 Hz low-passed (seed 003 section
@@ -31,7 +31,7 @@ from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.timebase import FRAME_RATE_HZ
 
-TRAINING_CLEARANCE_M = 0.03  # the guard's default 2 cm margin and 1 cm for the sampling noise
+TRAINING_CLEARANCE_M = 0.05  # the guard's default 2 cm margin and 3 cm for the sampling noise
 KEYFRAME_STEP = 5  # 50 ms on the 100 Hz grid
 TOLERANCE_M = 0.002  # a smoothed frame this much short of the clearance is kept
 SMOOTHING_PASSES = 3
