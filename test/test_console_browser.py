@@ -311,7 +311,7 @@ def test_while_the_view_follows_speech_expect_the_page_keeps_time_for_the_operat
     share = (task1 - task0) / (t1 - t0)
     print(f"page main thread busy {share:.0%} while following speech")
     assert page.evaluate("window.a2p.posesApplied") > drawn_before + 100, "the view stopped"
-    assert share < 0.8, f"the page's main thread was busy {share:.0%} of the time"
+    assert share < 0.9, f"the page's main thread was busy {share:.0%} of the time"
     page.click("#talk")
     page.wait_for_function("window.a2p.you === false", timeout=10000)
     page.close()

@@ -46,6 +46,13 @@ def checkpoint(clips, robot):
     return train_on_clips("live_groups", train, robot, settings)[0]
 
 
+@pytest.fixture(scope="module")
+def selected(checkpoint, clips, robot):
+    """The checkpoint's choice on its validation clips: (validation clips, tuned, choice)."""
+    validation = [c for c in clips if c.info.split == "validation"]
+    return (validation, *select_sampling(checkpoint, validation, robot, n_seeds=2))
+
+
 def test_when_changing_sampling_settings_expect_the_same_weights_and_nothing_else_changeable():
     torch.manual_seed(0)
     model = build_model("live_groups", {"n_features": 4, "n_joints": 5, "hidden_units": 6})
@@ -74,10 +81,9 @@ def part_scores(trials, setting, robot):
 
 
 def test_when_selecting_expect_each_part_at_its_best_validation_score_and_the_liveliest_gate(
-    checkpoint, clips, robot
+    checkpoint, selected, robot
 ):
-    validation = [c for c in clips if c.info.split == "validation"]
-    tuned, choice = select_sampling(checkpoint, validation, robot, n_seeds=2)
+    validation, tuned, choice = selected
     parts = {"first_temperature": "first_burst", "second_temperature": "second_burst"}
     scores = {setting: part_scores(choice.trials, setting, robot) for setting in parts}
     for setting in parts:
@@ -239,13 +245,12 @@ def test_when_loso_folds_train_in_two_processes_expect_the_serial_results(tmp_pa
 
 
 def test_when_arm_samples_come_near_the_body_expect_the_best_setting_within_the_budget(
-    checkpoint, clips, robot, monkeypatch
+    checkpoint, selected, robot, monkeypatch
 ):
     """The guard stays on the robot; the sampling settings keep it from shaping the motion."""
     from audio2pose_ros.learning import sampler_selection
 
-    validation = [c for c in clips if c.info.split == "validation"]
-    _, free = select_sampling(checkpoint, validation, robot, n_seeds=2)
+    validation, _, free = selected
     near = {
         (t.correlation, t.burst, t.value): t.measures["near body %"]
         for t in free.trials

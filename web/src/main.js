@@ -244,10 +244,10 @@ function updateStatus(status) {
 
 // --- 3D view -------------------------------------------------------------------------------
 
-// Frame pacing: at most 30 frames per second, and drawing takes at most a third of the page's
+// Frame pacing: at most 30 frames per second, and drawing takes at most a quarter of the page's
 // time, so that with a slow (software) WebGL the buttons and the microphone stay responsive.
 const MIN_FRAME_MS = 1000 / 30;
-const RENDER_SHARE_INV = 3;
+const RENDER_SHARE_INV = 4;
 const view = {
   renderer: null, scene: null, camera: null, commanded: null, measured: null, dirty: true,
   renderedAt: -Infinity, pacedAt: -Infinity, frameAt: 0, idleFrameMs: 1000 / 60,
