@@ -5,7 +5,8 @@ answer, asked of every method's motion on held-out clips:
 
 - How often does the motion need the self-collision guard? The share of frames that bring an
   arm link closer than the guard's margin to the robot's body, and of frames more than 1 cm
-  inside it (:class:`~audio2pose_ros.robot.body.BodyModel`, before any guard).
+  inside it, as ``audio2pose check-body`` counts them
+  (:func:`~audio2pose_ros.offline.body_check.check_trajectory`, before any guard).
 - Are the hands where a speaker's are? Each wrist's position in the torso frame
   (:meth:`~audio2pose_ros.robot.body.BodyModel.wrist_positions`; the right wrist mirrored onto
   the left, so both count), and per axis the Hellinger distance between its histogram and the
@@ -24,11 +25,11 @@ import numpy as np
 
 from audio2pose_ros.data.dataset import Clip
 from audio2pose_ros.learning import metrics
+from audio2pose_ros.offline.body_check import check_trajectory
 from audio2pose_ros.robot.body import BodyModel
 
 WRIST_BINS = 20
 AXES = ("x (forward)", "y (outward)", "z (up)")
-INSIDE_M = 0.01  # deeper than this inside the body counts as "inside" (as check-body)
 REAL_HALVES = "real (split half)"
 
 
@@ -40,7 +41,7 @@ class BodyRow:
         method: the method's name.
         frames: frames measured (first sample of every clip, arm angles known).
         near_pct: frames closer than the margin to the body (%).
-        inside_pct: frames with an arm link more than :data:`INSIDE_M` inside it (%).
+        inside_pct: frames with an arm link more than 1 cm inside it (%).
         wrist_h: per axis of :data:`AXES`, the Hellinger distance to the real wrists.
 
     """
@@ -105,12 +106,12 @@ def body_realism(
     real_wrists = _wrists(body, real)
 
     def row(method: str, angles: np.ndarray, reference: np.ndarray) -> BodyRow:
-        clearance = body.clearance(angles)
+        report = check_trajectory(body, angles, margin_m)
         return BodyRow(
             method,
-            len(angles),
-            100.0 * float(np.mean(clearance < margin_m)),
-            100.0 * float(np.mean(clearance < -INSIDE_M)),
+            report.frames,
+            report.within_margin_pct,
+            report.inside_pct,
             wrist_hellinger(reference, _wrists(body, angles)),
         )
 
