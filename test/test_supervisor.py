@@ -16,6 +16,7 @@ from audio2pose_ros.errors import UsageError
 from audio2pose_ros.ros.diagnosed_node import (
     EXIT_CONFIGURATION_ERROR,
     HEARTBEAT_PERIOD_S,
+    STACK_DUMP_SIGNAL,
     STALE_AFTER_S,
 )
 from audio2pose_ros.ros.graph import (
@@ -74,9 +75,18 @@ def test_when_node_keeps_crashing_expect_backoff_then_give_up(tmp_path: Path):
         supervisor.stop()
 
 
-def test_when_node_goes_silent_expect_it_killed_and_restarted(tmp_path: Path):
+STUCK_CHILD = (  # registers the stack dump as node processes do, then hangs in a "callback"
+    "import faulthandler, signal, time\n"
+    f"faulthandler.register({int(STACK_DUMP_SIGNAL)}, all_threads=True)\n"
+    "def stuck_in_a_callback():\n"
+    "    time.sleep(60)\n"
+    "stuck_in_a_callback()\n"
+)
+
+
+def test_when_node_goes_silent_expect_its_stacks_logged_then_killed_and_restarted(tmp_path: Path):
     supervisor = NodeSupervisor(
-        {"quiet": _python("import time; time.sleep(60)")},
+        {"quiet": _python(STUCK_CHILD)},
         tmp_path,
         respawn_delay_s=0.05,
         startup_grace_s=30.0,
@@ -93,6 +103,7 @@ def test_when_node_goes_silent_expect_it_killed_and_restarted(tmp_path: Path):
         assert supervisor.processes["quiet"].poll() is None
     finally:
         supervisor.stop()
+    assert "stuck_in_a_callback" in (tmp_path / "quiet.log").read_text()
 
 
 def test_when_node_is_starved_for_a_moment_expect_it_kept_running(tmp_path: Path):

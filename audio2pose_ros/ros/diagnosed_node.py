@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import array
+import faulthandler
 import functools
 import math
 import os
@@ -52,6 +53,8 @@ HEARTBEAT_PERIOD_S = 0.5  # every node publishes /diagnostics this often, busy o
 # A supervisor passes the write end of a pipe in this variable: each heartbeat also writes a byte
 # there. Only the supervised process holds that descriptor, so no other process can fake it.
 HEARTBEAT_FD_ENV = "AUDIO2POSE_HEARTBEAT_FD"
+# A node process given this signal writes every thread's Python stack to stderr and runs on.
+STACK_DUMP_SIGNAL = signal.SIGUSR1
 STALE_AFTER_S = 1.2  # a node not heard from for this long is silent (stopped, frozen or dead)
 PROBLEM_HOLD_S = 5.0  # a reported problem is shown until this long after its last occurrence
 LOG_THROTTLE_S = 5.0  # one log line per problem per this many seconds
@@ -428,6 +431,9 @@ def run_nodes(
         # down under them: the signals wait until the nodes are ready (the node executables
         # block them from their first line, nodes.process), then rclpy's handler ends the spin.
         signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        # A supervisor about to kill a silent process first asks for every thread's stack
+        # (written to stderr, the node's log), so a silent node says where it was stuck.
+        faulthandler.register(STACK_DUMP_SIGNAL, all_threads=True)
         try:
             rclpy.init(args=args)  # not `with rclpy.init()`: Humble's init is no context manager
             executor = create_executor(events)

@@ -53,6 +53,7 @@ from audio2pose_ros.resources import share_path
 from audio2pose_ros.ros.diagnosed_node import (
     HEARTBEAT_FD_ENV,
     HEARTBEAT_PERIOD_S,
+    STACK_DUMP_SIGNAL,
     STALE_AFTER_S,
     status_name,
 )
@@ -73,6 +74,7 @@ MAX_BACKOFF_S = 16.0  # longest wait before a restart
 # deadlocked one is still replaced within seconds.
 RESTART_AFTER_S = 10 * HEARTBEAT_PERIOD_S
 WATCH_PERIOD_S = 0.1
+STACK_DUMP_WAIT_S = 0.2  # time a silent process gets to write its stacks before SIGKILL
 RECORDED_TOPICS = {
     topics.absolute(topics.JOINT_ANGLES): (
         JointAnglesWithSpeed,
@@ -277,10 +279,16 @@ class NodeSupervisor:
             started = self._started_s[name]
             silent = now - heard if heard is not None else now - started - self.startup_grace_s
             if silent > self.restart_after_s:
+                process.send_signal(STACK_DUMP_SIGNAL)  # where it was stuck, into its log
+                time.sleep(STACK_DUMP_WAIT_S)
                 process.kill()  # SIGKILL also ends a stopped (SIGSTOP) process
                 process.wait()
                 self.silences[name] += 1
-                self._failed(name, f"was silent for {silent:.1f} s (no heartbeat)", now)
+                self._failed(
+                    name,
+                    f"was silent for {silent:.1f} s (no heartbeat; its log has its stacks)",
+                    now,
+                )
 
     def _watch(self) -> None:
         while not self._stopping.wait(WATCH_PERIOD_S):
