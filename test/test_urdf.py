@@ -2,6 +2,7 @@
 
 import shutil
 import subprocess
+import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -21,7 +22,11 @@ def kinematics():
 
 
 def test_when_running_check_urdf_expect_it_parses_one_tree_from_base_link():
-    check_urdf = shutil.which("check_urdf")
+    # urdfdom's tool: Debian's liburdfdom-tools, or the pip wheel beside this interpreter (pin's
+    # dependencies bring it into .venv/bin, which is not on PATH when the venv is not activated).
+    check_urdf = shutil.which("check_urdf") or shutil.which(
+        "check_urdf", path=str(Path(sys.executable).parent)
+    )
     if check_urdf is None:
         pytest.skip("check_urdf not installed (Debian: apt-get install liburdfdom-tools)")
     result = subprocess.run([check_urdf, str(URDF)], capture_output=True, text=True, check=False)
