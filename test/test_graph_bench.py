@@ -54,3 +54,30 @@ def test_when_the_single_process_graph_is_benched_expect_steady_cpu_and_targets(
     assert 0.0 < figures["steady_cpu_ms_per_frame"]["audio2pose_nodes"] < 10.0
     assert figures["latency_audio_to_raw_pose"]["n"] >= 250
     assert len(figures["targets"]) == 4
+
+
+def _console_figures(lost: int) -> dict:
+    latency = {"n": 1440, "p50_ms": 11.0, "p99_ms": 25.0}
+    return {
+        "audio_s": 30.0,
+        "chunks": 1500,
+        "chunks_lost": lost,
+        "ambiguous_pairs": 3,
+        "latency_browser_to_joint_angles": latency,
+        "motion_lag_behind_sound": {"n": 0},
+        "console_live_estimate_ms": {},
+        "console_node_cpu_ms_per_audio_s": 90.0,
+        "console_node_cpu_percent": 9.0,
+        "console_node_rss_mb": 90.0,
+    }
+
+
+@pytest.mark.parametrize("lost", [0, 7])
+def test_when_console_chunks_were_paired_expect_no_claim_that_none_matched(capsys, lost):
+    from audio2pose_ros.cli.main import _print_console
+
+    _print_console(_console_figures(lost))
+    out = capsys.readouterr().out
+    assert "p50 / p99: 11.0 / 25.0 ms" in out
+    assert "no command matched" not in out
+    assert ("7 of 1500 chunks never reached audio/audio" in out) == (lost == 7)

@@ -344,13 +344,13 @@ def _print_console(console: dict[str, Any]) -> None:
             f"{console['ambiguous_pairs']} paired ambiguously; the chunk's own 20 ms and the "
             "25 ms feature window come on top)"
         )
+    else:
+        print("  browser chunk -> /joint_angles: no command matched a chunk's poses")
     if console.get("chunks_lost"):
         print(
             f"  {console['chunks_lost']} of {console['chunks']} chunks never reached audio/audio "
             "(best-effort audio QoS drops under load; the page's voice had gaps)"
         )
-    else:
-        print("  browser chunk -> /joint_angles: no command matched a chunk's poses")
     lag = console["motion_lag_behind_sound"]
     if lag["n"]:
         print(

@@ -19,9 +19,11 @@ import numpy as np
 import rclpy
 from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rclpy.subscription import MessageInfo, Subscription
@@ -213,6 +215,44 @@ class DiagnosedNode(Node):
         self.oversized_messages = 0
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_timer(HEARTBEAT_PERIOD_S, self.guarded(self.publish_diagnostics))
+
+    def create_publisher(
+        self, msg_type: Any, topic: str, qos_profile: QoSProfile | int, **kwargs: Any
+    ) -> Publisher[Any]:
+        """A publisher without rclpy's default QoS event handlers.
+
+        The SingleThreadedExecutor (the motion filter's) polls every event handler in Python at
+        each wait; with the default two per publisher and subscription they were a tenth of the
+        filter's CPU. A publisher's incompatible-QoS warning repeats what the subscriber's node
+        logs, so it is left out.
+        """
+        kwargs.setdefault("event_callbacks", PublisherEventCallbacks(use_default_callbacks=False))
+        return super().create_publisher(msg_type, topic, qos_profile, **kwargs)
+
+    def create_subscription(
+        self,
+        msg_type: Any,
+        topic: str,
+        callback: Callable[..., None],
+        qos_profile: QoSProfile | int,
+        **kwargs: Any,
+    ) -> Subscription[Any]:
+        """A subscription; a best-effort one without rclpy's default QoS event handlers.
+
+        Every publisher is compatible with a best-effort, volatile reader, so its
+        incompatible-QoS warning can never come; a reliable or latched reader keeps it (a
+        best-effort ``stop`` publisher is refused with that warning).
+        """
+        best_effort = (
+            isinstance(qos_profile, QoSProfile)
+            and qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+            and qos_profile.durability != DurabilityPolicy.TRANSIENT_LOCAL
+        )
+        if best_effort:
+            kwargs.setdefault(
+                "event_callbacks", SubscriptionEventCallbacks(use_default_callbacks=False)
+            )
+        return super().create_subscription(msg_type, topic, callback, qos_profile, **kwargs)
 
     # --- problems -----------------------------------------------------------------------------
 
