@@ -19,7 +19,6 @@ import numpy as np
 import rclpy
 from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
@@ -29,6 +28,11 @@ from rclpy.serialization import deserialize_message
 from rclpy.subscription import MessageInfo, Subscription
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+try:
+    from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+except ImportError:  # Humble: the same classes (with use_default_callbacks) in rclpy.qos_event
+    from rclpy.qos_event import PublisherEventCallbacks, SubscriptionEventCallbacks
 
 from audio2pose_ros import topics
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, ConfigurationError, InputError
