@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from audio2pose_ros.data.importers.runs import true_runs
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import RobotDescription
@@ -66,9 +67,8 @@ def clear_of_body(
     clearance = np.full(len(angles), np.inf)
     clearance[arms] = body.clearance(angles[arms])
     short = clearance < clearance_m
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], short.astype(np.int8), [0]])))
     target = angles.copy()
-    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+    for start, stop in true_runs(short):
         keys = np.unique(np.append(np.arange(start, stop, KEYFRAME_STEP), stop - 1))
         delta = body.push_out(angles[keys], clearance_m) - angles[keys]
         frames = np.arange(start, stop)

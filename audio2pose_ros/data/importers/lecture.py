@@ -34,6 +34,7 @@ import numpy as np
 from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
 from audio2pose_ros.data.importers.common import HEAD_JOINTS, assemble_clip
 from audio2pose_ros.data.importers.media import read_audio
+from audio2pose_ros.data.importers.runs import true_runs
 from audio2pose_ros.data.importers.video import VideoTracks, body_angles, track_video
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.timebase import SAMPLES_PER_FRAME, WINDOW_SAMPLES, complete_frames
@@ -87,8 +88,7 @@ def lecture_clips(
     mask &= both[:, None]  # one arm alone is mostly a close-up's guess (SOURCES.md)
     arms = both
     clips = []
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], arms.astype(int), [0]])))
-    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+    for start, stop in true_runs(arms):
         if stop - start < MIN_STRETCH_S * 100:
             continue
         start_s = start / 100.0
