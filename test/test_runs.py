@@ -1,9 +1,9 @@
-"""true_runs: the stretches of a per-frame mask that importers cut into clips or mend."""
+"""true_runs: the stretches of a per-frame mask that importers cut or mend and metrics time."""
 
 import numpy as np
 import pytest
 
-from audio2pose_ros.data.importers.runs import true_runs
+from audio2pose_ros.data.runs import true_runs
 
 
 @pytest.mark.parametrize(

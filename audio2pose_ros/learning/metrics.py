@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from audio2pose_ros.data.runs import true_runs
 from audio2pose_ros.timebase import SAMPLES_PER_FRAME, WINDOW_SAMPLES
 
 LCCA_WINDOW_S = 3.0  # seed 003 section 3.4.3: tau = 3 s, N_tau = tau * f_f frames
@@ -291,14 +292,9 @@ def long_silences(speech: np.ndarray, rate_hz: float, min_s: float = SILENCE_MIN
     """Frames inside runs of non-speech lasting at least ``min_s`` seconds."""
     silent = ~np.asarray(speech, dtype=bool)
     out = np.zeros_like(silent)
-    start = None
-    for i, value in enumerate([*silent, False]):
-        if value and start is None:
-            start = i
-        elif not value and start is not None:
-            if i - start >= min_s * rate_hz:
-                out[start:i] = True
-            start = None
+    for start, stop in true_runs(silent):
+        if stop - start >= min_s * rate_hz:
+            out[start:stop] = True
     return out
 
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from audio2pose_ros.data.importers.runs import true_runs
+from audio2pose_ros.data.runs import true_runs
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import RobotDescription

@@ -34,8 +34,8 @@ import numpy as np
 from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
 from audio2pose_ros.data.importers.common import HEAD_JOINTS, assemble_clip
 from audio2pose_ros.data.importers.media import read_audio
-from audio2pose_ros.data.importers.runs import true_runs
 from audio2pose_ros.data.importers.video import VideoTracks, body_angles, track_video
+from audio2pose_ros.data.runs import true_runs
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.timebase import SAMPLES_PER_FRAME, WINDOW_SAMPLES, complete_frames
 

@@ -1,4 +1,4 @@
-"""Runs of consecutive true frames in a per-frame mask (stretches an importer cuts or mends)."""
+"""Runs of consecutive true frames in a per-frame mask (clips cut, poses mended, silences found)."""
 
 from __future__ import annotations
 
