@@ -222,7 +222,7 @@ def _open(browser, console: Console, token: str = TOKEN, name: str = "", ready: 
     page.goto(f"{console.url}#token={token}")
     if ready:
         page.wait_for_function(
-            "window.a2p.connected && window.a2p.viewReady && window.a2p.posesApplied > 0",
+            "window.a2p.connected && window.a2p.viewReady && window.a2p.posesReceived > 0",
             timeout=20000,
         )
     return page
@@ -291,9 +291,12 @@ def test_when_the_operator_talks_expect_the_robot_moves_and_the_view_follows(
 def test_while_the_view_follows_speech_expect_the_page_keeps_time_for_the_operator(
     console: Console, browser
 ):
-    """Drawing 50 poses a second with software WebGL (no GPU, as here and on many laptops in
-    a browser without acceleration) used to fill the page's main thread, so a click on a button
-    could wait for seconds. The view paces its drawing: the page stays mostly idle."""
+    """With software WebGL and compositing (no GPU, as here and in many browsers without
+    acceleration), every frame the page makes waits tens of ms in its compositor commit. Drawing
+    each of 50 poses a second, and a meter and text written at every message, filled the page's
+    main thread on a slower machine (99 %), so a click on Stop could wait for seconds. The page
+    makes frames only to draw, paced on their measured share of its time, and changes the DOM
+    only where something changed."""
     page = _open(browser, console)
     cdp = page.context.new_cdp_session(page)
     cdp.send("Performance.enable")
@@ -304,13 +307,18 @@ def test_while_the_view_follows_speech_expect_the_page_keeps_time_for_the_operat
 
     _talk(page)
     page.wait_for_timeout(1500)  # the pace settles
-    drawn_before = page.evaluate("window.a2p.posesApplied")
+    received_before, drawn_before = page.evaluate(
+        "[window.a2p.posesReceived, window.a2p.view.draws]"
+    )
     task0, t0 = busy()
     page.wait_for_timeout(5000)
     task1, t1 = busy()
     share = (task1 - task0) / (t1 - t0)
-    print(f"page main thread busy {share:.0%} while following speech")
-    assert page.evaluate("window.a2p.posesApplied") > drawn_before + 100, "the view stopped"
+    pacing = page.evaluate("window.a2p.view")
+    print(f"page main thread busy {share:.0%} while following speech; view {pacing}")
+    received, drawn = page.evaluate("[window.a2p.posesReceived, window.a2p.view.draws]")
+    assert received > received_before + 100, "the poses stopped coming"
+    assert drawn >= drawn_before + 5, "the view stopped"  # at least once a second
     assert share < 0.9, f"the page's main thread was busy {share:.0%} of the time"
     page.click("#talk")
     page.wait_for_function("window.a2p.you === false", timeout=10000)

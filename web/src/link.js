@@ -2,15 +2,19 @@
 // their own MessagePort and leave at once, whatever the page's main thread is busy with
 // (drawing the robot in software costs tens of ms a frame). The page talks to this worker:
 //   to it:   {cmd: 'connect', url, hello}, {cmd: 'send', message}, {cmd: 'audio', port}
-//            (port: null stops the audio)
-//   from it: {type: 'message', message} (every JSON message of the console), {type: 'close',
-//            code}, {type: 'level', rms, sent, dropped} (each chunk the microphone made)
+//            (port: null stops the audio), {cmd: 'pose'} (the page is ready to draw a pose)
+//   from it: {type: 'message', message} (every JSON message of the console but poses),
+//            {type: 'pose', message, received} (the newest pose, once after each 'pose' asked:
+//            the page draws a few to 30 a second, the console sends 50), {type: 'close',
+//            code}, {type: 'level', rms, sent, dropped} (the loudest chunk of the last 100 ms
+//            and the counts so far: the page shows a meter, it needs no 50 a second)
 
 const MAGIC = [0x41, 0x32, 0x50, 0x41]; // "A2PA"
 const HEADER_BYTES = 16;
 const PING_PERIOD_MS = 2000;
 const MAX_BUFFERED_BYTES = 32768; // more unsent audio than this: drop chunks, not add delay
 const OFFSETS_KEPT = 9;
+const LEVEL_PERIOD_MS = 100;
 
 let ws = null;
 let you = false; // this page holds the floor
@@ -18,7 +22,10 @@ let seq = 0;
 let sent = 0;
 let dropped = 0;
 let chunks = null; // the MessagePort the worklet posts its chunks to
+let level = 0; // the loudest chunk since the last level went to the page
+let levelSentAt = 0;
 const offsets = []; // console clock - this clock (ms), from pings
+const poses = { newest: null, received: 0, asked: false };
 
 // One clock for stamps and pings: this worker's monotonic clock, in ms since the epoch.
 const clock = () => performance.timeOrigin + performance.now();
@@ -41,7 +48,20 @@ function onConsoleMessage(text) {
     offsets.push(message.server - (message.t + clock()) / 2);
     if (offsets.length > OFFSETS_KEPT) offsets.shift();
   }
-  postMessage({ type: 'message', message });
+  if (message.type === 'pose') {
+    poses.newest = message;
+    poses.received += 1;
+    postPose();
+  } else {
+    postMessage({ type: 'message', message });
+  }
+}
+
+function postPose() {
+  if (!poses.asked || !poses.newest) return;
+  postMessage({ type: 'pose', message: poses.newest, received: poses.received });
+  poses.newest = null;
+  poses.asked = false;
 }
 
 function connect(url, hello) {
@@ -80,13 +100,23 @@ function onChunk({ pcm, rms }) {
       sent += 1;
     }
   }
-  postMessage({ type: 'level', rms, sent, dropped });
+  level = Math.max(level, rms);
+  const now = performance.now();
+  if (now - levelSentAt >= LEVEL_PERIOD_MS) {
+    postMessage({ type: 'level', rms: level, sent, dropped });
+    level = 0;
+    levelSentAt = now;
+  }
 }
 
 onmessage = (event) => {
   const { cmd } = event.data;
   if (cmd === 'connect') connect(event.data.url, event.data.hello);
   else if (cmd === 'send') send(event.data.message);
+  else if (cmd === 'pose') {
+    poses.asked = true;
+    postPose();
+  }
   else if (cmd === 'audio') {
     if (chunks) chunks.onmessage = null;
     chunks = event.data.port;

@@ -14,7 +14,7 @@ const $ = (id) => document.getElementById(id);
 // State the browser test reads (window.a2p).
 const state = {
   connected: false, floor: null, you: false, talking: false, chunksSent: 0, chunksDropped: 0,
-  posesApplied: 0, status: null, lastError: '', joints: [], viewReady: false,
+  posesReceived: 0, status: null, lastError: '', joints: [], viewReady: false,
 };
 window.a2p = state;
 
@@ -84,13 +84,28 @@ function onClose(code) {
 link.onmessage = (event) => {
   const data = event.data;
   if (data.type === 'message') onMessage(data.message);
+  else if (data.type === 'pose') applyPose(data.message, data.received);
   else if (data.type === 'close') onClose(data.code);
-  else if (data.type === 'level') {
-    $('level').value = state.talking ? Math.min(1, data.rms * 4) : 0;
+  else if (data.type === 'level') { // ten a second
+    showLevel(state.talking ? Math.min(1, data.rms * 4) : 0);
     state.chunksSent = data.sent;
     state.chunksDropped = data.dropped;
   }
 };
+
+function showLevel(level) {
+  $('level').firstElementChild.style.transform = `scaleX(${level.toFixed(3)})`;
+}
+
+// A page update costs a style, layout, paint and compositor commit: text and values are
+// written only when they change.
+function setText(element, text) {
+  if (element.textContent !== text) element.textContent = text;
+}
+
+function setValue(element, value) {
+  if (element.value !== value) element.value = value;
+}
 
 function onMessage(message) {
   switch (message.type) {
@@ -100,7 +115,7 @@ function onMessage(message) {
       state.neutral = message.neutral;
       if (view.commanded && !state.lastPose) setPose(view.commanded, state.neutral);
       if (view.commanded) view.commanded.visible = true;
-      view.dirty = true;
+      markViewDirty();
       $('login').hidden = true;
       setConnection(`connected as ${message.name}`, 'ok');
       setControls(true);
@@ -110,9 +125,6 @@ function onMessage(message) {
       state.floor = message.holder;
       state.you = message.you;
       updateFloor();
-      break;
-    case 'pose':
-      applyPose(message);
       break;
     case 'status':
       state.status = message;
@@ -164,7 +176,7 @@ async function startAudio() {
 
 function stopAudio() {
   state.talking = false;
-  $('level').value = 0;
+  showLevel(0);
   if (!audio) return;
   link.postMessage({ cmd: 'audio', port: null });
   audio.stream.getTracks().forEach((track) => track.stop());
@@ -210,51 +222,67 @@ function queueGain(group, value) {
 
 function updateStatus(status) {
   const stopped = status.stop === true;
-  document.body.classList.toggle('stopped', stopped);
+  if (document.body.classList.contains('stopped') !== stopped) {
+    document.body.classList.toggle('stopped', stopped);
+  }
   const enabled = status.enable !== false;
-  if (Date.now() - enableToggled > SETTLE_MS) $('enable').checked = enabled;
-  $('robot-state').textContent = stopped
+  if (Date.now() - enableToggled > SETTLE_MS && $('enable').checked !== enabled) {
+    $('enable').checked = enabled;
+  }
+  setText($('robot-state'), stopped
     ? 'STOPPED: the robot holds still until the stop is released.'
-    : enabled ? 'Motion enabled.' : 'Motion disabled: the robot rests in its neutral pose.';
+    : enabled ? 'Motion enabled.' : 'Motion disabled: the robot rests in its neutral pose.');
   if (status.gains && Date.now() - draggingSince > SETTLE_MS) {
     for (const [group, value] of Object.entries(status.gains)) {
-      $(`gain-${group}`).value = value;
-      $(`gain-${group}`).nextElementSibling.textContent = value.toFixed(2);
+      setValue($(`gain-${group}`), String(value));
+      setText($(`gain-${group}`).nextElementSibling, value.toFixed(2));
     }
   }
-  $('gains-problem').textContent = status.gains_problem || '';
+  setText($('gains-problem'), status.gains_problem || '');
   const l = status.latency || {};
-  $('latency').textContent = l.n
+  setText($('latency'), l.n
     ? `p50 ${l.p50.toFixed(1)} ms, p99 ${l.p99.toFixed(1)} ms, last ${l.last.toFixed(1)} ms ` +
       `(browser to console ${l.uplink_p50.toFixed(1)} ms, graph ${l.graph_p50.toFixed(1)} ms; ` +
       `${l.n} chunks; 20 ms chunk and 25 ms feature window come on top)`
-    : 'no measurement yet: press Talk and speak';
+    : 'no measurement yet: press Talk and speak');
+  const health = (status.health || []).map((item) => [`l${item.level}`, `${item.name}: ${item.message}`]);
   const list = $('health');
-  list.replaceChildren(...(status.health || []).map((item) => {
-    const li = document.createElement('li');
-    li.className = `l${item.level}`;
-    li.textContent = `${item.name}: ${item.message}`;
-    return li;
-  }));
+  if (list.dataset.shown !== JSON.stringify(health)) {
+    list.dataset.shown = JSON.stringify(health);
+    list.replaceChildren(...health.map(([cls, text]) => {
+      const li = document.createElement('li');
+      li.className = cls;
+      li.textContent = text;
+      return li;
+    }));
+  }
   if (status.floor !== undefined && status.floor !== state.floor) {
     state.floor = status.floor;
     updateFloor();
   }
 }
 
-// --- 3D view -------------------------------------------------------------------------------
+// --- 3D view ---------------------------------------------------------------------------------
 
-// Frame pacing: at most 30 frames per second, and drawing takes at most a quarter of the page's
-// time, so that with a slow (software) WebGL the buttons and the microphone stay responsive.
+// Frame pacing. Every frame the page makes costs its main thread script, style, paint and a
+// compositor commit; with software WebGL and compositing (no GPU, as in many browsers) the commit
+// after a drawing waits tens of milliseconds for it. So frames are made only when something is
+// due (a pose to draw, a camera move, a resize), and the view draws at most 30 times a second and as
+// often as keeps the page's frames within a quarter of its main thread's time, measured, not
+// modelled: the buttons and the microphone stay responsive however slow the drawing is.
 const MIN_FRAME_MS = 1000 / 30;
-const RENDER_SHARE_INV = 4;
-const MAX_FRAME_MS = 500; // however slow the drawing, the view shows the pose twice a second
-const WARM_UP_DRAWS = 3;
+const MAX_FRAME_MS = 1000; // however slow the drawing, the view shows the pose every second
+const FRAME_SHARE = 0.25;
+const PACE_WINDOW_MS = 500;
+const VSYNC_MS = 1000 / 60; // a frame comes at the display's next refresh
+const WARM_UP_DRAWS = 3; // the first drawings compile shaders: they do not set the pace
 const view = {
   renderer: null, scene: null, camera: null, commanded: null, measured: null, dirty: true,
-  renderedAt: -Infinity, pacedAt: -Infinity, frameAt: 0, idleFrameMs: 1000 / 60, draws: 0,
-  renderEveryMs: MIN_FRAME_MS,
+  renderedAt: -Infinity, renderEveryMs: MIN_FRAME_MS, pose: null,
 };
+const pacing = { requested: false, windowStart: 0, busyMs: 0 };
+state.view = { draws: 0, frames: 0, renderEveryMs: MIN_FRAME_MS, frameShare: 0 };
+const frameDone = new MessageChannel();
 
 function ghostly(robot) {
   robot.traverse((object) => {
@@ -306,14 +334,60 @@ async function initView() {
   view.camera.position.set(centre.x + 2.2 * height, centre.y + 0.35 * height, centre.z + 0.9 * height);
   const controls = new OrbitControls(view.camera, canvas);
   controls.target.copy(centre);
-  controls.addEventListener('change', () => { view.dirty = true; });
+  controls.addEventListener('change', markViewDirty);
   controls.update();
-  new ResizeObserver(() => { view.dirty = true; }).observe(canvas);
+  new ResizeObserver(markViewDirty).observe(canvas);
   state.viewReady = true;
-  requestAnimationFrame(render);
+  link.postMessage({ cmd: 'pose' });
+  markViewDirty();
 }
 
-function render() {
+function markViewDirty() {
+  view.dirty = true;
+  requestPageFrame();
+}
+
+// Asks for one frame when the next update is due; none while nothing changes.
+function requestPageFrame() {
+  if (pacing.requested || !state.viewReady || !view.dirty) return;
+  pacing.requested = true;
+  const wait = view.renderedAt + view.renderEveryMs - performance.now() - VSYNC_MS / 2; // ask a little early: the frame waits for the refresh
+  if (wait > 0) setTimeout(() => requestAnimationFrame(pageFrame), wait);
+  else requestAnimationFrame(pageFrame);
+}
+
+function pageFrame() {
+  pacing.requested = false;
+  const start = performance.now();
+  drawView(start);
+  state.view.frames += 1;
+  // This task runs after the frame's task, so after its style, paint and commit as well.
+  frameDone.port2.postMessage(start);
+  requestPageFrame();
+}
+
+// Paces the view on what the page's frames took of the main thread's time in the last window.
+frameDone.port1.onmessage = (event) => {
+  const now = performance.now();
+  if (state.view.draws <= WARM_UP_DRAWS) {
+    pacing.windowStart = now;
+    pacing.busyMs = 0;
+    return;
+  }
+  pacing.busyMs += now - event.data;
+  const elapsed = now - pacing.windowStart;
+  if (elapsed < PACE_WINDOW_MS) return;
+  const share = pacing.busyMs / elapsed;
+  const scale = Math.min(2, Math.max(0.8, share / FRAME_SHARE));
+  view.renderEveryMs = Math.min(MAX_FRAME_MS, Math.max(MIN_FRAME_MS, view.renderEveryMs * scale));
+  state.view.renderEveryMs = view.renderEveryMs;
+  state.view.frameShare = share;
+  pacing.windowStart = now;
+  pacing.busyMs = 0;
+};
+
+function drawView(now) {
+  if (!view.dirty || now - view.renderedAt < view.renderEveryMs - VSYNC_MS / 2) return;
   const canvas = view.renderer.domElement;
   const width = canvas.clientWidth;
   const height = canvas.clientHeight;
@@ -321,29 +395,16 @@ function render() {
     view.renderer.setSize(width, height, false);
     view.camera.aspect = width / Math.max(height, 1);
     view.camera.updateProjectionMatrix();
-    view.dirty = true;
   }
-  const now = performance.now();
-  const sinceLast = now - view.frameAt;
-  view.frameAt = now;
-  if (view.renderedAt > view.pacedAt) {
-    // The first frame after a drawing arrives once that drawing is on screen: what that frame
-    // took beyond an idle frame is what a drawing costs (WebGL and compositing included).
-    // The first drawings compile shaders: they say nothing about the drawings that follow.
-    view.pacedAt = now;
-    view.draws += 1;
-    const cost = view.draws > WARM_UP_DRAWS ? Math.max(0, sinceLast - view.idleFrameMs) : 0;
-    const paced = 0.7 * view.renderEveryMs + 0.3 * RENDER_SHARE_INV * cost;
-    view.renderEveryMs = Math.min(MAX_FRAME_MS, Math.max(MIN_FRAME_MS, paced));
-  } else if (sinceLast < 1000) {
-    view.idleFrameMs = 0.9 * view.idleFrameMs + 0.1 * sinceLast;
+  if (view.pose) {
+    poseRobots(view.pose);
+    view.pose = null;
+    link.postMessage({ cmd: 'pose' });
   }
-  if (view.dirty && now - view.renderedAt >= view.renderEveryMs) {
-    view.renderer.render(view.scene, view.camera);
-    view.dirty = false;
-    view.renderedAt = now;
-  }
-  requestAnimationFrame(render);
+  view.renderer.render(view.scene, view.camera);
+  view.dirty = false;
+  view.renderedAt = now;
+  state.view.draws += 1;
 }
 
 function setPose(robot, pose) {
@@ -352,14 +413,19 @@ function setPose(robot, pose) {
   }
 }
 
-function applyPose(message) {
-  if (!view.commanded) return;
+// The newest pose from the console: put on the robots when the view next draws, and the
+// next one asked for after that drawing (link.js keeps only the newest meanwhile).
+function applyPose(message, received) {
+  state.posesReceived = received;
+  state.lastPose = message;
+  view.pose = message;
+  markViewDirty();
+}
+
+function poseRobots(message) {
   if (message.commanded) setPose(view.commanded, message.commanded);
   view.measured.visible = Boolean(message.measured);
   if (message.measured) setPose(view.measured, message.measured);
-  state.posesApplied += 1;
-  state.lastPose = message;
-  view.dirty = true;
 }
 
 // --- start ---------------------------------------------------------------------------------
