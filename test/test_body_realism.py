@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from body_poses import pose_with
 
 from audio2pose_ros.data.dataset import Clip, ClipInfo
@@ -57,3 +58,35 @@ def test_when_motion_is_real_or_still_expect_the_wrists_to_tell_them_apart(robot
     table = body_table(rows, MARGIN_M)
     assert "wrist H z" in table
     assert len(table.splitlines()) == 5
+
+
+def test_when_speech_is_sampled_at_several_seeds_expect_each_seed_counted_as_check_body_does(
+    robot,
+):
+    from audio2pose_ros.audio.wav import read_wav
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+    from audio2pose_ros.learning.body_realism import speech_body_rows, speech_body_table
+    from audio2pose_ros.offline.body_check import check_trajectory
+    from audio2pose_ros.offline.synthesis import synthesize
+    from audio2pose_ros.resources import bundled_speech_path, default_checkpoint_path
+
+    checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
+    body = BodyModel.load(robot)
+    speech = read_wav(bundled_speech_path())[0][: 16000 * 2]
+    silence = np.zeros(16000, np.float32)
+    seeds = [0, 3]
+    rows = speech_body_rows(checkpoint, body, {"speech": speech, "silence": silence}, seeds, 0.05)
+    assert [r.clip for r in rows] == ["speech", "silence"]
+    per_seed = [
+        check_trajectory(body, synthesize(checkpoint, speech, seed=s, body_margin_m=None)[1], 0.05)
+        for s in seeds
+    ]
+    first = rows[0]
+    assert first.seeds == 2
+    assert first.seconds == 2.0
+    assert first.near_pct == pytest.approx(np.mean([r.within_margin_pct for r in per_seed]))
+    assert first.worst_near_pct == max(r.within_margin_pct for r in per_seed)
+    assert first.worst_inside_pct == max(r.inside_pct for r in per_seed)
+    table = speech_body_table(rows, 0.05)
+    assert table.splitlines()[0].split()[:3] == ["clip", "seconds", "seeds"]
+    assert table.splitlines()[-1].startswith("all")

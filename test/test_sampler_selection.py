@@ -12,6 +12,7 @@ from audio2pose_ros.data.dataset import Clip, Dataset
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.learning.evaluation import loso_predictions
 from audio2pose_ros.learning.sampler_selection import (
+    BODY_BUDGET_PCT,
     BURSTS,
     CORRELATIONS,
     PAUSE_MARGIN,
@@ -89,20 +90,32 @@ def test_when_selecting_expect_each_part_at_its_best_validation_score_and_the_li
     for setting in parts:
         assert len(scores[setting]) == len(CORRELATIONS) * len(BURSTS) * len(TEMPERATURES)
 
+    # a part's cost: how far over the arms' body budget, then its score (lowest wins)
+    over = {
+        (t.correlation, t.burst, t.value): max(0.0, t.measures["near body %"] - BODY_BUDGET_PCT)
+        for t in choice.trials
+        if t.setting == "second_temperature" and t.group == "arms"
+    }
+    costs = {
+        s: {k: (over.get(k, 0.0) if s == "second_temperature" else 0.0, v) for k, v in at.items()}
+        for s, at in scores.items()
+    }
+
     def cost(correlation):
-        return sum(
-            min(v for k, v in scores[s].items() if k[0] == correlation)
-            * sum(
+        best = {s: min(v for k, v in costs[s].items() if k[0] == correlation) for s in parts}
+        weight = {
+            s: sum(
                 robot.group_mask(g).sum()
                 for g in {t.group for t in choice.trials if t.setting == s}
             )
             for s in parts
-        )
+        }
+        return sum(best[s][0] for s in parts), sum(best[s][1] * weight[s] for s in parts)
 
     correlation = choice.settings["noise_correlation"]
     assert correlation == min(CORRELATIONS, key=cost)
     for setting, burst in parts.items():
-        at = {k: v for k, v in scores[setting].items() if k[0] == correlation}
+        at = {k: v for k, v in costs[setting].items() if k[0] == correlation}
         assert (correlation, choice.settings[burst], choice.settings[setting]) == min(
             at, key=at.get
         )
@@ -269,3 +282,59 @@ def test_when_arm_samples_come_near_the_body_expect_the_best_setting_within_the_
     assert within, "the median budget leaves no setting at the chosen correlation"
     assert chosen == min(within, key=within.get)
     assert "near body %" in bound.table()
+
+
+def test_when_speech_without_arm_motion_is_given_expect_it_counted_for_the_body_budget_only(
+    checkpoint, clips, selected, robot
+):
+    """The arms learned from one lecturer: their body budget is checked on other speech too."""
+    validation, _, free = selected
+    others = [c.audio for c in clips if c.info.split == "train"]
+    more = choose_sampling([(checkpoint, validation)], robot, 2, body_audio=others)
+
+    def arms(choice, key):
+        return {
+            (t.correlation, t.burst, t.value): t.measures.get(key)
+            for t in choice.trials
+            if t.setting == "second_temperature" and t.group == "arms"
+        }
+
+    for key in ("H speed", "H accel", "std ratio"):  # nothing to compare their motion with
+        assert arms(more, key) == arms(free, key)
+    near_free, near_more = arms(free, "near body %"), arms(more, "near body %")
+    assert near_more != near_free, "the other speech was not sampled"
+    assert more.validation == free.validation
+    assert more.body_seconds == pytest.approx(sum(len(a) for a in others) / 16000)
+    assert "body budget also on" in more.summary()
+    assert free.body_seconds == 0.0
+
+
+def test_when_a_holdout_task_chooses_expect_its_unlabelled_training_speech_in_the_body_budget(
+    clips, robot, monkeypatch
+):
+    from audio2pose_ros.learning import source_holdout
+
+    arms = robot.group_mask("arms")
+    train = [c for c in clips if c.info.split == "train"]
+    heads = [replace(c, mask=c.mask & ~arms) for c in train[:2]]  # talking heads: no arms
+    given: list = []
+
+    def spy(folds, robot, n_seeds=2, body_audio=()):
+        given.extend(body_audio)
+        return choose_sampling(folds, robot, 1)
+
+    monkeypatch.setattr(source_holdout, "choose_sampling", spy)
+    task = source_holdout.HoldoutTask(
+        "shipped",
+        tuple(heads + train[2:]),
+        tuple(c for c in clips if c.info.split == "validation"),
+        (),
+        robot,
+        TrainSettings(max_epochs=1, batch_size=4, show_progress=False),
+        1,
+        0,
+    )
+    task()
+    assert len(given) == len(heads)
+    for audio, clip in zip(given, heads, strict=True):
+        assert audio is clip.audio

@@ -14,6 +14,10 @@ answer, asked of every method's motion on held-out clips:
 
 Baselines are rows like the model's: the static neutral pose and real motion of other clips; the
 floor is the real motion's first half against its second half.
+
+The arms learned from one lecturer, so the first question is also asked on speech of other
+speakers that no step of the build saw (:func:`speech_body_rows`): per clip, over several seeds,
+the share of frames the guard would act on, pooled and at the worst seed.
 """
 
 from __future__ import annotations
@@ -23,10 +27,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Clip
 from audio2pose_ros.learning import metrics
 from audio2pose_ros.offline.body_check import check_trajectory
 from audio2pose_ros.robot.body import BodyModel
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 WRIST_BINS = 20
 AXES = ("x (forward)", "y (outward)", "z (up)")
@@ -138,4 +144,75 @@ def body_table(rows: Sequence[BodyRow], margin_m: float) -> str:
             f"{r.method[:43]:<44}{r.frames:>7}{r.near_pct:>10.1f}{r.inside_pct:>10.1f}"
             + "".join(f"{h:>11.2f}" for h in r.wrist_h)
         )
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class SpeechBodyRow:
+    """One utterance's sampled motion against the body, over several seeds.
+
+    Attributes:
+        clip: the utterance's name.
+        seconds: its length.
+        seeds: how many seeds sampled it.
+        near_pct: frames closer than the margin to the body, pooled over the seeds (%).
+        worst_near_pct: the same at the worst seed (%).
+        worst_inside_pct: frames with an arm link more than 1 cm inside the body, worst seed (%).
+
+    """
+
+    clip: str
+    seconds: float
+    seeds: int
+    near_pct: float
+    worst_near_pct: float
+    worst_inside_pct: float
+
+
+def speech_body_rows(
+    checkpoint: Checkpoint,
+    body: BodyModel,
+    speech: Mapping[str, np.ndarray],
+    seeds: Sequence[int],
+    margin_m: float,
+) -> list[SpeechBodyRow]:
+    """Per utterance (16 kHz), the model's raw motion at every seed against the body."""
+    from audio2pose_ros.offline.synthesis import synthesize_samples
+
+    rows = []
+    for name, audio in speech.items():
+        reports = [
+            check_trajectory(body, angles, margin_m)
+            for angles in synthesize_samples(checkpoint, audio, seeds)
+        ]
+        frames = sum(r.frames for r in reports)
+        near = sum(r.within_margin_pct * r.frames for r in reports) / max(frames, 1)
+        rows.append(
+            SpeechBodyRow(
+                name,
+                len(audio) / SAMPLE_RATE_HZ,
+                len(reports),
+                near,
+                max((r.within_margin_pct for r in reports), default=0.0),
+                max((r.inside_pct for r in reports), default=0.0),
+            )
+        )
+    return rows
+
+
+def speech_body_table(rows: Sequence[SpeechBodyRow], margin_m: float) -> str:
+    """Plain text: one line per utterance, then all of them pooled."""
+    lines = [
+        f"{'clip':<44}{'seconds':>8}{'seeds':>6}{f'< {margin_m * 100:g} cm %':>10}"
+        f"{'worst seed %':>13}{'worst inside %':>15}"
+    ]
+    for r in rows:
+        lines.append(
+            f"{r.clip[:43]:<44}{r.seconds:>8.1f}{r.seeds:>6}{r.near_pct:>10.1f}"
+            f"{r.worst_near_pct:>13.1f}{r.worst_inside_pct:>15.1f}"
+        )
+    if rows:
+        seconds = sum(r.seconds for r in rows)
+        pooled = sum(r.near_pct * r.seconds for r in rows) / seconds
+        lines.append(f"{'all':<44}{seconds:>8.1f}{rows[0].seeds:>6}{pooled:>10.1f}")
     return "\n".join(lines)

@@ -59,6 +59,7 @@ DEFAULT_SEED = 0  # the seed the inference node samples with unless told otherwi
 LIVE_VALIDATION_LECTURE_S = (44.0, 60.0)  # the lecture clip starting here validates
 
 
+SPEECH_BODY_SEEDS = 8  # seeds per bundled speech clip in the card's body check
 PROSODY_RULE = "prosody rule"  # the hand-written arm rule, a baseline of the arm evaluation
 
 
@@ -267,6 +268,14 @@ def prosody_predictions(
     )
 
 
+def bundled_speech() -> dict[str, np.ndarray]:
+    """The bundled LibriVox clips (``data/speech``), 16 kHz: other speakers than the data's."""
+    from audio2pose_ros.audio.wav import read_wav
+    from audio2pose_ros.resources import share_path
+
+    return {p.stem: read_wav(p)[0] for p in sorted(share_path("data", "speech").glob("*.wav"))}
+
+
 def describe_learned_data() -> dict[str, str]:
     """What the learned default model learned from, stored in its checkpoint."""
     from audio2pose_ros.data.importers.lecture import LECTURE_LICENCE
@@ -330,7 +339,12 @@ def build_learned_default_model(
 
     """
     from audio2pose_ros.checkpoints.torch_io import save_checkpoint
-    from audio2pose_ros.learning.body_realism import body_realism, body_table
+    from audio2pose_ros.learning.body_realism import (
+        body_realism,
+        body_table,
+        speech_body_rows,
+        speech_body_table,
+    )
     from audio2pose_ros.learning.evaluation import STATIC, quality_evaluation, real_motion_of
     from audio2pose_ros.learning.model_card import SourceReport, write_learned_model_card
     from audio2pose_ros.learning.parallel import run_tasks
@@ -368,7 +382,8 @@ def build_learned_default_model(
         progress(
             f"training live_groups ({task.name}) on {len(task.training)} clips, validation "
             f"{sorted(c.info.clip_id for c in task.validation)}; then choosing its sampling "
-            "settings on the validation clips"
+            "settings on the validation clips (the arms' body budget also on the speech of "
+            "its training clips without arms)"
         )
     results = run_tasks(tasks, settings.workers)
     shipped = results[0]
@@ -425,6 +440,16 @@ def build_learned_default_model(
     )
     body = f"arms against the body, {LECTURE} held out (first sample of each clip)\n" + body_table(
         body_rows, margin
+    )
+    progress("measuring the arms against the body on other speakers' speech")
+    seeds = range(DEFAULT_SEED, DEFAULT_SEED + SPEECH_BODY_SEEDS)
+    speech_rows = speech_body_rows(
+        checkpoint, BodyModel.load(robot), bundled_speech(), seeds, margin
+    )
+    body += (
+        f"\n\narms against the body on the bundled LibriVox speech (other speakers, in no step "
+        f"of the build), seeds {seeds.start}..{seeds.stop - 1}\n"
+        + speech_body_table(speech_rows, margin)
     )
     table = "\n\n".join(report.heading() + "\n" + report.quality.table() for report in reports)
     table += "\n\n" + body

@@ -575,11 +575,15 @@ Print it again: `make default-model` (it writes `metrics.txt`, the tables below)
 
 Retargeted arms were moved clear of Pepper's body before training (the importers' last step,
 `audio2pose_ros/data/importers/body_clearance.py`), and the arm part's sampling settings keep
-its noise off the body on validation clips (see above). On the lecture's held-out stretch, the
-model's raw motion (before the robot's self-collision guard), how often it comes closer to the
-body than the guard's margin or goes inside it, and how far its wrists' positions in the torso
-frame are from the real ones (Hellinger distance per axis; the right wrist mirrored onto the
-left; `audio2pose_ros/learning/body_realism.py`); the real stretch's halves are the floor:
+its noise off the body on the validation clips and on the speech of the talking-head clips it
+trained on, which label no arms ({N_SEEDS} samples each; see above). On the
+lecture's held-out stretch, the model's raw motion (before the robot's self-collision guard),
+how often it comes closer to the body than the guard's margin or goes inside it, and how far
+its wrists' positions in the torso frame are from the real ones (Hellinger distance per axis;
+the right wrist mirrored onto the left; `audio2pose_ros/learning/body_realism.py`); the real
+stretch's halves are the floor. Then the same share on speech of other speakers that no step
+of the build used (the bundled LibriVox clips), at several seeds: the worst seed shows how far
+one sample can stray.
 
 ```
 {body}

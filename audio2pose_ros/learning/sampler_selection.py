@@ -23,7 +23,9 @@ stretch of the lecture.
    counts; the correlation (shared by the parts) is the one whose parts' best scores, weighted
    by their joint counts, sum lowest. A part whose joints no clip observes keeps its configured
    settings. The part that moves the arms also has a body budget: its samples, on every clip's
-   audio, may bring an arm closer than the self-collision guard's margin to the robot's body
+   audio and on the audio of clips that do not label the arms (other speakers, other rooms:
+   the arms must keep off the body on speech unlike the few minutes they learned from), may
+   bring an arm closer than the self-collision guard's margin to the robot's body
    (:class:`~audio2pose_ros.robot.body.BodyModel`) in at most :data:`BODY_BUDGET_PCT` of the
    frames; a setting within the budget beats every setting over it, and if none is within, the
    one least over it wins. The guard stays on the robot; this keeps it from shaping the motion.
@@ -60,7 +62,7 @@ from audio2pose_ros.models.live_groups import LiveGroups
 from audio2pose_ros.motion.filter import MotionFilterSettings
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import RobotDescription
-from audio2pose_ros.timebase import FRAME_RATE_HZ
+from audio2pose_ros.timebase import FRAME_RATE_HZ, SAMPLE_RATE_HZ
 
 TEMPERATURES = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0)
 BURSTS = (0.0, 0.6, 1.2)  # log-std of the noise's burst envelope (0 = steady noise)
@@ -119,6 +121,7 @@ class SamplingChoice:
         validation: ids of the clips the choice was made on.
         seconds: their length.
         n_models: how many trained models predicted them.
+        body_seconds: length of the further speech the arms' body budget was checked on.
 
     """
 
@@ -127,13 +130,19 @@ class SamplingChoice:
     validation: tuple[str, ...]
     seconds: float = 0.0
     n_models: int = 0
+    body_seconds: float = 0.0
 
     def summary(self) -> str:
         """One line: the chosen values and what they were chosen on."""
         chosen = ", ".join(f"{k} = {v:g}" for k, v in self.settings.items()) or "nothing"
+        more = (
+            f"; the arms' body budget also on {self.body_seconds:.0f} s of other speech"
+            if self.body_seconds
+            else ""
+        )
         return (
             f"{chosen} (on {len(self.validation)} validation clips, {self.seconds:.0f} s, "
-            f"predicted by {self.n_models} model(s), {N_SEEDS} samples each)"
+            f"predicted by {self.n_models} model(s), {N_SEEDS} samples each{more})"
         )
 
     def _chosen(self, trial: Trial) -> bool:
@@ -273,12 +282,25 @@ class _Evidence:
     real: dict[str, metrics.MotionSegments]
 
 
-def _evidence(folds: Sequence[Fold], robot: RobotDescription, paused: bool) -> list[_Evidence]:
-    """Every fold's clips, features and real motion computed once for all settings."""
+def _evidence(
+    folds: Sequence[Fold],
+    robot: RobotDescription,
+    paused: bool,
+    body_audio: Sequence[np.ndarray] = (),
+) -> list[_Evidence]:
+    """Every fold's clips, features and real motion computed once for all settings.
+
+    ``body_audio`` (16 kHz utterances) adds items without motion to compare: their samples
+    count for the body budget only, sampled by the first fold's model.
+    """
     from audio2pose_ros.learning.evaluation import with_pause
     from audio2pose_ros.offline.synthesis import normalized_features
 
     out = []
+    for audio in body_audio if folds else ():
+        checkpoint = folds[0][0]
+        frames = normalized_features(checkpoint, audio)
+        out.append(_Evidence(checkpoint, frames, metrics.energy_vad(audio, len(frames)), {}, {}))
     for checkpoint, clips in folds:
         groups = _observed(robot, clips)
         for clip in clips:
@@ -361,7 +383,10 @@ def _measures(
 
 
 def choose_sampling(
-    folds: Sequence[Fold], robot: RobotDescription, n_seeds: int = N_SEEDS
+    folds: Sequence[Fold],
+    robot: RobotDescription,
+    n_seeds: int = N_SEEDS,
+    body_audio: Sequence[np.ndarray] = (),
 ) -> SamplingChoice:
     """Choose the sampling settings on the folds' clips (see the module docstring).
 
@@ -370,6 +395,8 @@ def choose_sampling(
             folds of other models are ignored.
         robot: joint order and groups.
         n_seeds: samples per clip and setting.
+        body_audio: more 16 kHz utterances for the arms' body budget only (speech whose arm
+            motion the models did not learn; never the clips the model is scored on).
 
     """
     folds = [(c, v) for c, v in folds if isinstance(c.model, LiveGroups) and v]
@@ -386,8 +413,8 @@ def choose_sampling(
         if part_groups
     }
     weights = {s: [int(robot.group_mask(g).sum()) for g in part] for s, part in parts.items()}
-    evidence = _evidence(folds, robot, paused=False)
     body = BodyModel.load(robot) if any("arms" in part for part in parts.values()) else None
+    evidence = _evidence(folds, robot, False, body_audio if body is not None else ())
     trials: list[Trial] = []
     # per correlation and part: (% over the body budget, score, burst, temperature) of every
     # combination tried; the lowest wins, so a setting within the budget beats any other
@@ -432,7 +459,8 @@ def choose_sampling(
         chosen["silence_temperature"] = rest
         if all(ratios[g]["speech/pause speed"] >= PAUSE_MARGIN * PAUSE_TARGETS[g] for g in groups):
             break
-    return SamplingChoice(chosen, tuple(trials), names, seconds, len(folds))
+    body_seconds = sum(len(a) for a in body_audio) / SAMPLE_RATE_HZ if body is not None else 0.0
+    return SamplingChoice(chosen, tuple(trials), names, seconds, len(folds), body_seconds)
 
 
 def apply_sampling(checkpoint: Checkpoint, choice: SamplingChoice) -> Checkpoint:

@@ -91,7 +91,8 @@ class HoldoutTask:
     Attributes:
         name: :data:`SHIPPED` or the held-out source.
         training: the clips it trains on.
-        validation: early stopping and the sampling choice (never scored clips).
+        validation: early stopping and the sampling choice (never scored clips); the audio of
+            the training clips that do not label the arms also counts for the arms' body budget.
         scored: clips to sample (the held-out source's, or the lecture's test stretch).
         robot: joint order and limits.
         settings: training settings.
@@ -114,7 +115,9 @@ class HoldoutTask:
         checkpoint, report = train_on_clips(
             MODEL_NAME, self.training, self.robot, self.settings, None, self.validation
         )
-        choice = choose_sampling([(checkpoint, self.validation)], self.robot)
+        arms = self.robot.group_mask("arms")
+        unlabelled = [c.audio for c in self.training if not c.mask[:, arms].any()]
+        choice = choose_sampling([(checkpoint, self.validation)], self.robot, body_audio=unlabelled)
         checkpoint = apply_sampling(checkpoint, choice)
         label = f"{MODEL_NAME} ({self.name})"
         samples, paused = checkpoint_predictions(
