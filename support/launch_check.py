@@ -197,31 +197,31 @@ def scenario_defaults(probe: GraphProbe) -> None:
     probe.wait_for(lambda: controller in probe.topics_of("motion_filter_node", True), 10.0)
     filter_pubs = probe.topics_of("motion_filter_node", publishers=True)
     check(
-        "item 12: controller topic default",
+        "controller topic default",
         controller in filter_pubs,
         f"motion_filter_node publishes {sorted(filter_pubs)}",
     )
     check(
-        "item 9: no commanded /joint_states",
+        "no commanded /joint_states",
         "/joint_states" not in filter_pubs,
         "motion_filter_node does not publish /joint_states"
         if "/joint_states" not in filter_pubs
         else "motion_filter_node still publishes /joint_states (node rename pending)",
     )
     model = probe.parameter("inference_node", "model_path")
-    check("item 1: package default", model == "", f"inference_node model_path={model!r}")
+    check("model_path: package default", model == "", f"inference_node model_path={model!r}")
     children = launch.children()
     status, took_s = launch.stop(signal.SIGINT)
     left = alive(children)
     check(
-        "item 8: SIGINT",
+        "SIGINT",
         status is not None and not left,
         f"ros2 launch exit status {status} after {took_s:.1f} s; nodes left: {left or 'none'}",
     )
 
 
 def scenario_model_path(probe: GraphProbe, checkpoint: Path) -> None:
-    """Item 1: launch argument > parameters file > package default (two usable copies)."""
+    """Launch argument > parameters file > package default (two usable copies)."""
     in_file, in_argument = LOG_DIR / "file.safetensors", LOG_DIR / "argument.safetensors"
     for copy in (in_file, in_argument):
         copy.write_bytes(checkpoint.read_bytes())
@@ -239,7 +239,7 @@ def scenario_model_path(probe: GraphProbe, checkpoint: Path) -> None:
         launch = Launch(f"model_path_{len(RESULTS)}", *arguments)
         probe.wait_for(lambda: "inference_node" in probe.nodes(), 40.0)
         value = probe.parameter("inference_node", "model_path")
-        check(f"item 1: {label}", value == str(expected), f"{' '.join(arguments)} -> {value!r}")
+        check(f"model_path: {label}", value == str(expected), f"{' '.join(arguments)} -> {value!r}")
         launch.stop()
 
 
@@ -283,15 +283,13 @@ def scenario_booleans_and_namespaces(probe: GraphProbe) -> None:
     launch = Launch("bool_yes", "rviz:=yes")
     status = launch.wait(15.0)
     errors = [line for line in launch.output().splitlines() if "ERROR" in line]
-    check(
-        "item 2: rviz:=yes refused", status == 1 and len(errors) == 1, f"status {status}, {errors}"
-    )
+    check("rviz:=yes refused", status == 1 and len(errors) == 1, f"status {status}, {errors}")
 
     launch = Launch("audio_ns", "audio_ns:=/mic/")
     up = graph_up(probe, launch)
     subs = probe.topics_of("audio_features_node", publishers=False) if up else set()
     check(
-        "item 3: audio_ns:=/mic/",
+        "audio_ns:=/mic/",
         {"/mic/audio", "/mic/audio_info"} <= subs,
         f"audio_features_node subscribes {sorted(subs)}",
     )
@@ -299,9 +297,7 @@ def scenario_booleans_and_namespaces(probe: GraphProbe) -> None:
     launch = Launch("audio_ns_bad", "audio_ns:=/mic/2nd")
     status = launch.wait(15.0)
     errors = [line for line in launch.output().splitlines() if "ERROR" in line]
-    check(
-        "item 3: audio_ns:=/mic/2nd refused", status == 1 and len(errors) == 1, f"{status} {errors}"
-    )
+    check("audio_ns:=/mic/2nd refused", status == 1 and len(errors) == 1, f"{status} {errors}")
 
 
 def scenario_configuration_errors(probe: GraphProbe) -> None:
@@ -312,9 +308,9 @@ def scenario_configuration_errors(probe: GraphProbe) -> None:
         "motion_filter_node:\n  ros__parameters:\n    arms_gain: fast\n",
     )
     for label, arguments in (
-        ("item 7: YAML syntax error", [f"params_file:={bad_yaml}"]),
-        ("item 7: missing params_file", [f"params_file:={LOG_DIR / 'missing.yaml'}"]),
-        ("item 4: wrong parameter type", [f"params_file:={wrong_type}"]),
+        ("YAML syntax error", [f"params_file:={bad_yaml}"]),
+        ("missing params_file", [f"params_file:={LOG_DIR / 'missing.yaml'}"]),
+        ("wrong parameter type", [f"params_file:={wrong_type}"]),
     ):
         launch = Launch(label.split(":")[1].strip().replace(" ", "_"), *arguments)
         status = launch.wait(90.0)
@@ -335,7 +331,7 @@ def scenario_configuration_errors(probe: GraphProbe) -> None:
 
 
 def scenario_respawn(probe: GraphProbe) -> None:
-    """Item 4: a killed node comes back after 2 s; a crash loop gives up after 5 restarts."""
+    """A killed node comes back after 2 s; a crash loop gives up after 5 restarts."""
     launch = Launch("respawn")
     if not graph_up(probe, launch):
         check("respawn: graph up", False, launch.output()[-500:])
@@ -349,7 +345,7 @@ def scenario_respawn(probe: GraphProbe) -> None:
         10.0,
     )
     check(
-        "item 4: SIGKILL -> restart",
+        "SIGKILL -> restart",
         back,
         f"new motion_filter_node process after {time.monotonic() - killed_s:.1f} s",
     )
@@ -363,7 +359,7 @@ def scenario_respawn(probe: GraphProbe) -> None:
     status = launch.wait(60.0)
     lines = [line for line in launch.output().splitlines() if "audio2pose_ros]" in line]
     check(
-        "item 4: crash loop bounded",
+        "crash loop bounded",
         status == 1 and kills == 6,
         f"{kills} kills, launch status {status}, last: {lines[-1] if lines else None}",
     )
@@ -380,7 +376,7 @@ def gone_after(pids: dict[int, str], timeout_s: float) -> tuple[float, list[str]
 
 
 def scenario_signals(probe: GraphProbe) -> None:
-    """Item 8: SIGTERM and SIGINT to ros2 launch, at start-up (nodes importing) and when up."""
+    """SIGTERM and SIGINT to ros2 launch, at start-up (nodes importing) and when up."""
     for sig in (signal.SIGTERM, signal.SIGINT):
         for delay_s in (0.5, 1.5, 3.0, None):
             launch = Launch(f"{sig.name}_{delay_s}")
@@ -393,7 +389,7 @@ def scenario_signals(probe: GraphProbe) -> None:
             after_s, left = gone_after(children, 10.0)
             when = "when up" if delay_s is None else f"{delay_s} s after start"
             check(
-                f"item 8: {sig.name} {when}",
+                f"{sig.name} {when}",
                 not left,
                 f"{len(children)} node processes; ros2 launch ended in {took_s:.1f} s with "
                 f"status {status}; nodes gone {after_s:.1f} s later; left: {left or 'none'}",
