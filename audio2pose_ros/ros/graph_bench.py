@@ -10,7 +10,8 @@ causal one-step filters; their *signal* lag is a property of the filter, shown b
 ``audio2pose plot-filter``), so the /joint_angles command that carries raw pose j equals it and
 identifies it. End-to-end latency of chunk j = arrival of that command - publication of chunk j.
 The feature window's algorithmic delay (a 25 ms window is complete only with its last sample) is
-outside this figure, as the issue asks.
+outside this figure: it belongs to the features, not to the graph, and is the same in any
+implementation.
 
 CPU is read from /proc for each node process: ``cpu_ms_per_frame`` from the end of the warm-up
 to the end of the run (as before), and ``steady_cpu_ms_per_frame`` over the steady part only,
