@@ -424,7 +424,8 @@ def test_when_a_robot_reports_its_pose_expect_it_drawn_as_a_ghost(console: Conso
     reporter.start()
     try:
         page.wait_for_function("window.a2p.lastPose.measured !== null", timeout=10000)
-        page.wait_for_timeout(500)
+        drawn = page.evaluate("window.a2p.view.draws")  # the next drawing has the ghost
+        page.wait_for_function(f"window.a2p.view.draws > {drawn}", timeout=10000)
         shown = page.evaluate("window.a2p.lastPose.measured")
         ghost = page.locator("#robot").screenshot(path=str(console.shots / "console_ghost.png"))
     finally:
