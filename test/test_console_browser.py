@@ -4,7 +4,8 @@ microphone that plays bundled speech, against the real node graph over DDS.
 The graph's three nodes and console_node run as processes (as ``audio2pose console`` starts
 them); this process records ``/joint_angles`` with rclpy. Skipped, with the reason, where
 Chromium (``apt-get install chromium``) or Playwright (``pip install playwright``) is missing;
-``.ci/run`` installs both.
+``.ci/run`` installs both. ``AUDIO2POSE_BROWSER_SLOWDOWN=8`` runs every page's main thread 8
+times slower (Chromium's CPU throttling), as on a slow laptop or a loaded machine.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import status_name
 
 CHROMIUM = Path(os.environ.get("AUDIO2POSE_CHROMIUM", "/usr/bin/chromium"))
+SLOWDOWN = float(os.environ.get("AUDIO2POSE_BROWSER_SLOWDOWN", "1"))
 TOKEN = "browser-test-token-0123456789"
 MOVING_RAD = 0.05  # a joint that sweeps this much in a second is moving
 STILL_RAD = 0.01  # ... and one that sweeps less than this is still
@@ -204,6 +206,7 @@ def browser() -> Iterator[object]:
 
 
 OPEN_PAGES: list = []  # closed after each test, so a failed test leaves no floor held
+SLOWDOWN_SESSIONS: list = []
 
 
 @pytest.fixture(autouse=True)
@@ -213,11 +216,16 @@ def _close_pages() -> Iterator[None]:
         page = OPEN_PAGES.pop()
         if not page.is_closed():
             page.close()
+    SLOWDOWN_SESSIONS.clear()
 
 
 def _open(browser, console: Console, token: str = TOKEN, name: str = "", ready: bool = True):
     page = browser.new_page()
     OPEN_PAGES.append(page)
+    if SLOWDOWN > 1:  # kept open with the page: the emulation ends with its session
+        session = page.context.new_cdp_session(page)
+        session.send("Emulation.setCPUThrottlingRate", {"rate": SLOWDOWN})
+        SLOWDOWN_SESSIONS.append(session)
     page.add_init_script(f"localStorage.setItem('a2p-name', {name!r})")  # the page's name field
     page.goto(f"{console.url}#token={token}")
     if ready:
