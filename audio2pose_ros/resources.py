@@ -68,3 +68,8 @@ def default_checkpoint_path() -> Path:
 def bundled_speech_path(name: str = "librivox_sense_and_sensibility_01_0870.wav") -> Path:
     """A bundled public-domain speech clip (see data/speech/SOURCES.md)."""
     return share_path("data", "speech", name)
+
+
+def bundled_speech_paths() -> list[Path]:
+    """Every bundled speech clip (see data/speech/SOURCES.md), in name order."""
+    return sorted(share_path("data", "speech").glob("*.wav"))

@@ -56,7 +56,7 @@ from audio2pose_ros.data.bag import (
     AUDIO_TOPIC,
     audio_messages,
 )
-from audio2pose_ros.resources import default_checkpoint_path, share_path
+from audio2pose_ros.resources import bundled_speech_paths, default_checkpoint_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.player import MessagePlayer, spin_until, warm_up
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
@@ -159,7 +159,7 @@ class SpeechPlayer(Node):
 
     def play_speech(self, seconds: float) -> None:
         """Publish ``seconds`` of a packaged speech recording in real time."""
-        wav = sorted(share_path("data", "speech").glob("*.wav"))[0]
+        wav = bundled_speech_paths()[0]
         samples, _ = read_wav(wav)
         self.player.play(audio_messages(samples[: round(seconds * SAMPLE_RATE_HZ)]))
         self.spin_for(0.5)

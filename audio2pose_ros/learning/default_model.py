@@ -271,9 +271,9 @@ def prosody_predictions(
 def bundled_speech() -> dict[str, np.ndarray]:
     """The bundled LibriVox clips (``data/speech``), 16 kHz: other speakers than the data's."""
     from audio2pose_ros.audio.wav import read_wav
-    from audio2pose_ros.resources import share_path
+    from audio2pose_ros.resources import bundled_speech_paths
 
-    return {p.stem: read_wav(p)[0] for p in sorted(share_path("data", "speech").glob("*.wav"))}
+    return {p.stem: read_wav(p)[0] for p in bundled_speech_paths()}
 
 
 def describe_learned_data() -> dict[str, str]:

@@ -42,7 +42,7 @@ from audio2pose_ros import topics
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.data.bag import AUDIO_DATA_TYPE, AUDIO_INFO_TYPE, BagMessage
-from audio2pose_ros.resources import share_path
+from audio2pose_ros.resources import bundled_speech_paths, share_path
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.graph import SIM_NODE, GraphTimeoutError, node_graph
@@ -257,9 +257,7 @@ def measure_graph(
 
 def bundled_speech() -> np.ndarray:
     """All bundled speech clips, concatenated (24.7 s)."""
-    return np.concatenate(
-        [read_wav(p)[0] for p in sorted(share_path("data", "speech").glob("*.wav"))]
-    )
+    return np.concatenate([read_wav(p)[0] for p in bundled_speech_paths()])
 
 
 def latency_stats(values_ms: np.ndarray) -> dict[str, float]:
