@@ -297,10 +297,11 @@ def _evidence(
     from audio2pose_ros.offline.synthesis import normalized_features
 
     out = []
-    for audio in body_audio if folds else ():
-        checkpoint = folds[0][0]
-        frames = normalized_features(checkpoint, audio)
-        out.append(_Evidence(checkpoint, frames, metrics.energy_vad(audio, len(frames)), {}, {}))
+    if folds:
+        first = folds[0][0]
+        for audio in body_audio:
+            frames = normalized_features(first, audio)
+            out.append(_Evidence(first, frames, metrics.energy_vad(audio, len(frames)), {}, {}))
     for checkpoint, clips in folds:
         groups = _observed(robot, clips)
         for clip in clips:

@@ -222,13 +222,9 @@ function queueGain(group, value) {
 
 function updateStatus(status) {
   const stopped = status.stop === true;
-  if (document.body.classList.contains('stopped') !== stopped) {
-    document.body.classList.toggle('stopped', stopped);
-  }
+  document.body.classList.toggle('stopped', stopped); // no change, no restyle
   const enabled = status.enable !== false;
-  if (Date.now() - enableToggled > SETTLE_MS && $('enable').checked !== enabled) {
-    $('enable').checked = enabled;
-  }
+  if (Date.now() - enableToggled > SETTLE_MS) $('enable').checked = enabled;
   setText($('robot-state'), stopped
     ? 'STOPPED: the robot holds still until the stop is released.'
     : enabled ? 'Motion enabled.' : 'Motion disabled: the robot rests in its neutral pose.');
@@ -245,10 +241,13 @@ function updateStatus(status) {
       `(browser to console ${l.uplink_p50.toFixed(1)} ms, graph ${l.graph_p50.toFixed(1)} ms; ` +
       `${l.n} chunks; 20 ms chunk and 25 ms feature window come on top)`
     : 'no measurement yet: press Talk and speak');
-  const health = (status.health || []).map((item) => [`l${item.level}`, `${item.name}: ${item.message}`]);
+  const health = (status.health || []).map(
+    (item) => [`l${item.level}`, `${item.name}: ${item.message}`],
+  );
+  const shown = JSON.stringify(health);
   const list = $('health');
-  if (list.dataset.shown !== JSON.stringify(health)) {
-    list.dataset.shown = JSON.stringify(health);
+  if (list.dataset.shown !== shown) {
+    list.dataset.shown = shown;
     list.replaceChildren(...health.map(([cls, text]) => {
       const li = document.createElement('li');
       li.className = cls;
@@ -265,11 +264,12 @@ function updateStatus(status) {
 // --- 3D view ---------------------------------------------------------------------------------
 
 // Frame pacing. Every frame the page makes costs its main thread script, style, paint and a
-// compositor commit; with software WebGL and compositing (no GPU, as in many browsers) the commit
-// after a drawing waits tens of milliseconds for it. So frames are made only when something is
-// due (a pose to draw, a camera move, a resize), and the view draws at most 30 times a second and as
-// often as keeps the page's frames within a quarter of its main thread's time, measured, not
-// modelled: the buttons and the microphone stay responsive however slow the drawing is.
+// compositor commit; with software WebGL and compositing (no GPU, as in many browsers) the
+// commit after a drawing waits tens of milliseconds for it. So frames are made only when
+// something is due (a pose to draw, a camera move, a resize), and the view draws at most 30
+// times a second and as often as keeps the page's frames within a quarter of its main thread's
+// time, measured, not modelled: the buttons and the microphone stay responsive however slow the
+// drawing is.
 const MIN_FRAME_MS = 1000 / 30;
 const MAX_FRAME_MS = 1000; // however slow the drawing, the view shows the pose every second
 const FRAME_SHARE = 0.25;
@@ -278,10 +278,14 @@ const VSYNC_MS = 1000 / 60; // a frame comes at the display's next refresh
 const WARM_UP_DRAWS = 3; // the first drawings compile shaders: they do not set the pace
 const view = {
   renderer: null, scene: null, camera: null, commanded: null, measured: null, dirty: true,
-  renderedAt: -Infinity, renderEveryMs: MIN_FRAME_MS, pose: null,
+  renderedAt: -Infinity, pose: null,
 };
-const pacing = { requested: false, windowStart: 0, busyMs: 0 };
-state.view = { draws: 0, frames: 0, renderEveryMs: MIN_FRAME_MS, frameShare: 0 };
+// The pace, and what set it (the browser test reads it as window.a2p.view).
+const pacing = {
+  requested: false, windowStart: 0, busyMs: 0,
+  draws: 0, frames: 0, renderEveryMs: MIN_FRAME_MS, frameShare: 0,
+};
+state.view = pacing;
 const frameDone = new MessageChannel();
 
 function ghostly(robot) {
@@ -351,7 +355,8 @@ function markViewDirty() {
 function requestPageFrame() {
   if (pacing.requested || !state.viewReady || !view.dirty) return;
   pacing.requested = true;
-  const wait = view.renderedAt + view.renderEveryMs - performance.now() - VSYNC_MS / 2; // ask a little early: the frame waits for the refresh
+  // ask a little early: the frame waits for the display's refresh
+  const wait = view.renderedAt + pacing.renderEveryMs - performance.now() - VSYNC_MS / 2;
   if (wait > 0) setTimeout(() => requestAnimationFrame(pageFrame), wait);
   else requestAnimationFrame(pageFrame);
 }
@@ -360,7 +365,7 @@ function pageFrame() {
   pacing.requested = false;
   const start = performance.now();
   drawView(start);
-  state.view.frames += 1;
+  pacing.frames += 1;
   // This task runs after the frame's task, so after its style, paint and commit as well.
   frameDone.port2.postMessage(start);
   requestPageFrame();
@@ -369,7 +374,7 @@ function pageFrame() {
 // Paces the view on what the page's frames took of the main thread's time in the last window.
 frameDone.port1.onmessage = (event) => {
   const now = performance.now();
-  if (state.view.draws <= WARM_UP_DRAWS) {
+  if (pacing.draws <= WARM_UP_DRAWS) {
     pacing.windowStart = now;
     pacing.busyMs = 0;
     return;
@@ -379,15 +384,15 @@ frameDone.port1.onmessage = (event) => {
   if (elapsed < PACE_WINDOW_MS) return;
   const share = pacing.busyMs / elapsed;
   const scale = Math.min(2, Math.max(0.8, share / FRAME_SHARE));
-  view.renderEveryMs = Math.min(MAX_FRAME_MS, Math.max(MIN_FRAME_MS, view.renderEveryMs * scale));
-  state.view.renderEveryMs = view.renderEveryMs;
-  state.view.frameShare = share;
+  const every = pacing.renderEveryMs * scale;
+  pacing.renderEveryMs = Math.min(MAX_FRAME_MS, Math.max(MIN_FRAME_MS, every));
+  pacing.frameShare = share;
   pacing.windowStart = now;
   pacing.busyMs = 0;
 };
 
 function drawView(now) {
-  if (!view.dirty || now - view.renderedAt < view.renderEveryMs - VSYNC_MS / 2) return;
+  if (!view.dirty || now - view.renderedAt < pacing.renderEveryMs - VSYNC_MS / 2) return;
   const canvas = view.renderer.domElement;
   const width = canvas.clientWidth;
   const height = canvas.clientHeight;
@@ -404,7 +409,7 @@ function drawView(now) {
   view.renderer.render(view.scene, view.camera);
   view.dirty = false;
   view.renderedAt = now;
-  state.view.draws += 1;
+  pacing.draws += 1;
 }
 
 function setPose(robot, pose) {
