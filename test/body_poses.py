@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+# a speaker's forearm resting on the belly, retargeted: Pepper's forearm in its torso and tablet
+INSIDE = {"LShoulderPitch": 1.22, "LShoulderRoll": 0.04, "LElbowRoll": -1.32, "LElbowYaw": -0.19}
+AWAY = {"LShoulderPitch": 0.6, "LShoulderRoll": 0.9, "LElbowRoll": -0.6, "LElbowYaw": -1.0}
+RIGHT_AWAY = {"RShoulderPitch": 0.6, "RShoulderRoll": -0.9, "RElbowRoll": 0.6, "RElbowYaw": 1.0}
+
 
 def pose_with(robot, **angles) -> np.ndarray:
     """The robot's neutral pose with the named joints at the given angles (rad)."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from body_poses import pose_with
+from body_poses import AWAY, INSIDE, RIGHT_AWAY, pose_with
 
 from audio2pose_ros.data.dataset import ClipInfo
 from audio2pose_ros.data.importers.body_clearance import (
@@ -15,11 +15,6 @@ from audio2pose_ros.data.importers.body_clearance import (
 from audio2pose_ros.data.importers.common import assemble_clip
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.timebase import FRAME_RATE_HZ, frame_times_s
-
-# a speaker's forearm resting on the belly, retargeted: Pepper's forearm in its torso and tablet
-INSIDE = {"LShoulderPitch": 1.22, "LShoulderRoll": 0.04, "LElbowRoll": -1.32, "LElbowYaw": -0.19}
-AWAY = {"LShoulderPitch": 0.6, "LShoulderRoll": 0.9, "LElbowRoll": -0.6, "LElbowYaw": -1.0}
-RIGHT_AWAY = {"RShoulderPitch": 0.6, "RShoulderRoll": -0.9, "RElbowRoll": 0.6, "RElbowYaw": 1.0}
 
 
 @pytest.fixture(scope="module")

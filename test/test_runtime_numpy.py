@@ -120,6 +120,8 @@ def test_when_a_streaming_model_runs_on_real_speech_expect_numpy_kernel_equals_t
         ("live", {"noise_burst": 1.0}),
         ("live_groups", {}),
         ("live_groups", {"first_burst": 1.2, "second_burst": 0.6}),
+        ("live_groups", {"noise_order": 2, "first_correlation": 0.9, "second_correlation": 0.99}),
+        ("live_groups", {"body_margin_m": 0.0, "body_band_m": 0.5}),  # body-aware: every frame
     ],
 )
 def test_when_a_live_model_samples_expect_the_same_poses_as_its_torch_side_predictor(

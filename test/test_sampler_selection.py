@@ -101,24 +101,18 @@ def test_when_selecting_expect_each_part_at_its_best_validation_score_and_the_li
         for s, at in scores.items()
     }
 
-    def cost(correlation):
-        best = {s: min(v for k, v in costs[s].items() if k[0] == correlation) for s in parts}
-        weight = {
-            s: sum(
-                robot.group_mask(g).sum()
-                for g in {t.group for t in choice.trials if t.setting == s}
-            )
-            for s in parts
-        }
-        return sum(best[s][0] for s in parts), sum(best[s][1] * weight[s] for s in parts)
-
-    correlation = choice.settings["noise_correlation"]
-    assert correlation == min(CORRELATIONS, key=cost)
+    correlations = {
+        "first_temperature": "first_correlation",
+        "second_temperature": "second_correlation",
+    }
     for setting, burst in parts.items():
-        at = {k: v for k, v in costs[setting].items() if k[0] == correlation}
-        assert (correlation, choice.settings[burst], choice.settings[setting]) == min(
-            at, key=at.get
+        chosen = (
+            choice.settings[correlations[setting]],
+            choice.settings[burst],
+            choice.settings[setting],
         )
+        assert chosen == min(costs[setting], key=costs[setting].get)
+    assert "noise_correlation" not in choice.settings  # each part has its own
     met = [
         rest
         for rest in SILENCE_TEMPERATURES
@@ -232,8 +226,11 @@ def test_when_a_fold_is_tuned_expect_a_choice_made_on_its_training_speakers_and_
     tuned = tune(checkpoint, train)
     note = tuned.info["sampling_choice"]
     assert f"on {len(train)} validation clips" in note
-    for name in SAMPLING_SETTINGS:
-        assert f"{name} = {getattr(tuned.model.config, name):g}" in note
+    listed = dict(item.split(" = ") for item in note.split(" (on ")[0].split(", "))
+    assert {"first_temperature", "second_temperature", "silence_temperature"} <= set(listed)
+    assert set(listed) <= set(SAMPLING_SETTINGS)
+    for name, value in listed.items():
+        assert float(value) == pytest.approx(getattr(tuned.model.config, name), rel=1e-5)
     assert set(tuned.info["sampling_chosen_on"]) <= {c.info.clip_id for c in train}
     mlp, _ = train_on_clips("mlp", train, robot, TrainSettings(max_epochs=1, show_progress=False))
     assert tune(mlp, train) is mlp
@@ -275,11 +272,14 @@ def test_when_arm_samples_come_near_the_body_expect_the_best_setting_within_the_
     monkeypatch.setattr(sampler_selection, "BODY_BUDGET_PCT", budget)
     _, bound = select_sampling(checkpoint, validation, robot, n_seeds=2)
     settings = bound.settings
-    correlation = settings["noise_correlation"]
-    chosen = (correlation, settings["second_burst"], settings["second_temperature"])
+    chosen = (
+        settings["second_correlation"],
+        settings["second_burst"],
+        settings["second_temperature"],
+    )
     scores = part_scores(bound.trials, "second_temperature", robot)
-    within = {k: v for k, v in scores.items() if k[0] == correlation and near[k] <= budget}
-    assert within, "the median budget leaves no setting at the chosen correlation"
+    within = {k: v for k, v in scores.items() if near[k] <= budget}
+    assert within, "the median budget leaves no setting"
     assert chosen == min(within, key=within.get)
     assert "near body %" in bound.table()
 
@@ -338,3 +338,28 @@ def test_when_a_holdout_task_chooses_expect_its_unlabelled_training_speech_in_th
     assert len(given) == len(heads)
     for audio, clip in zip(given, heads, strict=True):
         assert audio is clip.audio
+
+
+def test_when_validation_holds_grid_and_addressed_speech_expect_the_head_chosen_on_the_latter(
+    clips, robot
+):
+    """GRID's readers barely move their heads: the head aims at people who speak to people."""
+    from audio2pose_ros.learning.source_holdout import selection_clips
+
+    head = robot.group_mask("head")
+    validation = [c for c in clips if c.info.split == "validation"]
+
+    def as_speaker(clip, speaker):
+        return replace(clip, info=replace(clip.info, speaker=speaker))
+
+    grid, obama = as_speaker(validation[0], "grid_s3"), as_speaker(validation[1], "obama")
+    chosen_on = selection_clips([grid, obama], robot)
+    assert [c.info.clip_id for c in chosen_on] == [grid.info.clip_id, obama.info.clip_id]
+    assert not chosen_on[0].mask[:, head].any()  # GRID's head: not the target ...
+    np.testing.assert_array_equal(chosen_on[0].mask[:, ~head], grid.mask[:, ~head])  # arms kept
+    assert chosen_on[1] is obama
+    assert selection_clips([grid], robot) == (grid,)  # ... unless it is the only head source
+    unknown = as_speaker(validation[1], "someone")  # a user's own speakers count as addressed
+    assert not selection_clips([grid, unknown], robot)[0].mask[:, head].any()
+    lecture_only = replace(obama, mask=obama.mask & ~head)  # no other clip labels the head
+    assert selection_clips([grid, lecture_only], robot)[0] is grid

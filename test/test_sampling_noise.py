@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import torch
 
 from audio2pose_ros.checkpoints.numpy_runtime import numpy_kernel_for
 from audio2pose_ros.errors import ConfigurationError
@@ -68,3 +69,32 @@ def test_when_a_model_has_no_burst_expect_its_config_without_the_key():
     assert "noise_burst" not in build_model("live", {"n_features": 4, "n_joints": 3}).config_dict()
     bursty = build_model("live", {"n_features": 4, "n_joints": 3, "noise_burst": 0.5})
     assert bursty.config_dict()["noise_burst"] == 0.5
+
+
+@pytest.mark.parametrize("correlation", [-0.1, 1.0, float("nan")])
+@pytest.mark.parametrize("key", ["first_correlation", "second_correlation"])
+def test_when_a_part_correlation_is_out_of_range_expect_a_configuration_error_and_no_kernel(
+    correlation, key
+):
+    with pytest.raises(ConfigurationError, match="correlation"):
+        build_model("live_groups", {"n_features": 4, "n_joints": 3, key: correlation})
+    groups = build_model("live_groups", {"n_features": 4, "n_joints": 3}).config_dict()
+    assert key not in groups  # parts that share the correlation keep the keys they had
+    assert numpy_kernel_for("live_groups", {**groups, key: correlation}) is None
+    assert numpy_kernel_for("live_groups", {**groups, key: 0.5}) is not None
+
+
+def test_when_one_part_has_its_own_correlation_expect_only_that_part_to_move_otherwise():
+    torch.manual_seed(0)
+    model = build_model("live_groups", {"n_features": 4, "n_joints": 3, "first_group": 1})
+    features = torch.randn(1, 300, 4)
+    generator = torch.Generator().manual_seed(3)
+    shared = model.sample(features, 1, generator)
+    quick = model.with_sampling(first_correlation=0.5).sample(features, 1, generator)
+    assert model.with_sampling(first_correlation=0.5).part_correlations() == (
+        0.5,
+        model.config.noise_correlation,
+    )
+    torch.testing.assert_close(quick[..., 1:], shared[..., 1:])  # the second part: unchanged
+    head_speed = [np.abs(np.diff(m[0, 0, :, 0].numpy())).mean() for m in (shared, quick)]
+    assert head_speed[1] > 1.5 * head_speed[0]  # less correlated noise moves faster

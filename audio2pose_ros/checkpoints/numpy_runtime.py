@@ -51,6 +51,8 @@ from audio2pose_ros.checkpoints.format import (
     read_checkpoint_file,
     verify_digest,
 )
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.models.body_noise import body_noise_for, check_body_noise
 from audio2pose_ros.models.sampling_noise import MAX_BURST, NoiseShape, NoiseStream
 from audio2pose_ros.models.speech_gate import GroupedSampler, SpeechGate
 from audio2pose_ros.models.warm_start import WarmStarted
@@ -248,8 +250,9 @@ class LiveGroupsKernel(GroupedSampler):
     """Two live kernels over disjoint joint groups, their noise scaled by the speech gate.
 
     Per frame: factor = the gate's temperature factor (0 at temperature 0); part k samples at
-    temperature * its own temperature * factor with seed ``seed + k``; the parts' poses are
-    scattered into the robot's joint order.
+    temperature * its own temperature * factor with seed ``seed + k``, with its own noise
+    correlation where the config gives one (``first_correlation``, ``second_correlation``) and
+    ``noise_correlation`` otherwise; the parts' poses are scattered into the robot's joint order.
     """
 
     def __init__(
@@ -258,28 +261,44 @@ class LiveGroupsKernel(GroupedSampler):
         config: Mapping[str, Any],
         seed: int = 0,
         temperature: float = 1.0,
+        robot: RobotDescription | None = None,
     ) -> None:
-        """Build both parts and the gate from the tensors and the config."""
+        """Build both parts and the gate from the tensors and the config.
+
+        With ``robot`` (the checkpoint's) and a ``body_band_m`` > 0, the arm part samples
+        with the body in mind (:mod:`audio2pose_ros.models.body_noise`), as the torch model.
+        """
         self._groups = _live_groups(config)
         self._n_joints = config["n_joints"]
         self._factors = (config["first_temperature"], config["second_temperature"])
         self._gate = SpeechGate(
             config["silence_temperature"], config["gate_margin"], config["gate_width"]
         )
-        rho, order = float(config["noise_correlation"]), config["noise_order"]
+        order = config["noise_order"]
         bursts = (config.get("first_burst", 0.0), config.get("second_burst", 0.0))
+        rhos = [
+            float(config.get(key, config["noise_correlation"]))
+            for key in ("first_correlation", "second_correlation")
+        ]
         self._parts = [
             LiveKernel(
                 tensors,
-                NoiseShape(rho, order, float(bursts[k])),
+                NoiseShape(rhos[k], order, float(bursts[k])),
                 seed + k,
                 temperature,
                 prefix=f"parts.{k}.",
             )
             for k in range(len(self._groups))
         ]
+        self._body_noise, self._body_part = body_noise_for(
+            robot,
+            self._groups,
+            float(config.get("body_margin_m", 0.0)),
+            float(config.get("body_band_m", 0.0)),
+        )
         self.seed = seed
         self.temperature = temperature
+        self.reset()
 
     def run(self, frames: np.ndarray) -> np.ndarray:
         """(N, n_features) frames in order -> (N, n_joints) sampled poses."""
@@ -299,7 +318,8 @@ class KernelSpec:
         accepts: whether a config's values lie in the kernel's range.
         shapes: the tensor names and shapes of a config (torch's ``state_dict`` layout).
         build: the predictor, from the tensors, the config, and keyword options (``seed``,
-            ``temperature`` for samplers).
+            ``temperature`` for samplers; ``robot``, the checkpoint's, where ``takes_robot``).
+        takes_robot: the kernel samples with the robot's body in mind (body-aware sampling).
     """
 
     config_keys: frozenset[str]
@@ -307,6 +327,7 @@ class KernelSpec:
     shapes: Callable[[Mapping[str, Any]], dict[str, tuple[int, ...]]]
     build: Callable[..., FramePredictor]
     optional_keys: frozenset[str] = frozenset()
+    takes_robot: bool = False
 
 
 def _is_int(value: object, low: int = 1) -> bool:
@@ -447,9 +468,19 @@ def _live_groups_accepts(config: Mapping[str, Any]) -> bool:
         and config["first_group"] < 1 << config["n_joints"]
         and all(_is_number(config[k]) for k in (*numbers, "gate_margin", "gate_width"))
         and all(_is_burst(config.get(k, 0.0)) for k in _GROUP_BURSTS)
+        and all(_is_fraction(config.get(k, 0.0)) for k in _GROUP_CORRELATIONS)
+        and _body_noise_ok(config)
     ):
         return False
     return all(len(joints) for joints in _live_groups(config))
+
+
+def _body_noise_ok(config: Mapping[str, Any]) -> bool:
+    try:
+        check_body_noise(config.get("body_margin_m", 0.0), config.get("body_band_m", 0.0))
+    except ConfigurationError:
+        return False
+    return True
 
 
 def _live_groups_shapes(config: Mapping[str, Any]) -> dict[str, tuple[int, ...]]:
@@ -461,6 +492,8 @@ def _live_groups_shapes(config: Mapping[str, Any]) -> dict[str, tuple[int, ...]]
 
 
 _GROUP_BURSTS = frozenset({"first_burst", "second_burst"})  # optional: older checkpoints lack them
+_GROUP_CORRELATIONS = frozenset({"first_correlation", "second_correlation"})  # optional: likewise
+_GROUP_BODY = frozenset({"body_margin_m", "body_band_m"})  # optional: likewise
 _LIVE_KEYS = frozenset(
     {"n_features", "n_joints", "hidden_units", "input_noise", "noise_correlation"}
 )
@@ -492,11 +525,14 @@ KERNELS: dict[str, KernelSpec] = {
             "gate_margin",
             "gate_width",
         }
-        | _GROUP_BURSTS,
+        | _GROUP_BURSTS
+        | _GROUP_CORRELATIONS
+        | _GROUP_BODY,
         _live_groups_accepts,
         _live_groups_shapes,
         LiveGroupsKernel,
-        _GROUP_BURSTS,
+        _GROUP_BURSTS | _GROUP_CORRELATIONS | _GROUP_BODY,
+        takes_robot=True,
     ),
 }
 
@@ -619,6 +655,8 @@ def load_streaming_model(
     tensors = _read_tensors(file, name, spec.shapes(config))
 
     def make_predictor(**options: Any) -> FramePredictor:
+        if spec.takes_robot:
+            options["robot"] = stored_robot
         return spec.build(tensors, config, **options)
 
     return StreamingModel(

@@ -61,6 +61,12 @@ class Checkpoint:
     robot: RobotDescription
     info: dict[str, Any] = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        """Tell a model that samples with the robot's body in mind which robot it drives."""
+        bind = getattr(self.model, "bind_robot", None)
+        if bind is not None:
+            bind(self.robot)
+
 
 def _digest(header: str, tensors: dict[str, torch.Tensor]) -> str:
     sha = hashlib.sha256(header.encode("utf-8"))

@@ -32,7 +32,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -40,6 +40,7 @@ from audio2pose_ros.audio.features import FeatureSpec, extract_features
 from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
 from audio2pose_ros.data.importers.extras import save_extras
 from audio2pose_ros.data.importers.video import VideoImportSettings, import_video
+from audio2pose_ros.models.live_groups import LiveGroups
 from audio2pose_ros.motion.prosody import prosody_trajectory
 from audio2pose_ros.robot.description import RobotDescription
 
@@ -355,6 +356,7 @@ def build_learned_default_model(
         holdout_tasks,
         recording_source,
     )
+    from audio2pose_ros.learning.speech_style import head_style_rows, head_style_table
     from audio2pose_ros.motion.filter import MotionFilterSettings
     from audio2pose_ros.robot.body import BodyModel
 
@@ -446,18 +448,35 @@ def build_learned_default_model(
     speech_rows = speech_body_rows(
         checkpoint, BodyModel.load(robot), bundled_speech(), seeds, margin
     )
+    learned = cast(LiveGroups, checkpoint.model)  # the shipped model is live_groups
+    unaware = replace(checkpoint, model=learned.with_sampling(body_band_m=0.0))
+    unaware_rows = speech_body_rows(unaware, BodyModel.load(robot), bundled_speech(), seeds, margin)
     body += (
         f"\n\narms against the body on the bundled LibriVox speech (other speakers, in no step "
         f"of the build), seeds {seeds.start}..{seeds.stop - 1}\n"
         + speech_body_table(speech_rows, margin)
+        + "\n\nthe same without body-aware sampling (body_band_m = 0: the arm noise ignores "
+        "the body)\n" + speech_body_table(unaware_rows, margin)
+    )
+    progress("measuring the head on other speakers' speech")
+    style_rows = head_style_rows(
+        checkpoint,
+        robot,
+        bundled_speech(),
+        seeds,
+        {s: [c for c in head_clips if recording_source(c.info) == s] for s in HEAD_SOURCES},
+        f"shipped, LibriVox, seeds {seeds.start}..{seeds.stop - 1}",
+    )
+    style = head_style_table(
+        style_rows, [n for n, m in zip(robot.names, robot.group_mask("head"), strict=True) if m]
     )
     table = "\n\n".join(report.heading() + "\n" + report.quality.table() for report in reports)
-    table += "\n\n" + body
+    table += "\n\n" + body + "\n\nthe head on other speakers' speech\n" + style
     selection = "\n\n".join(
         f"sampling settings of the {r.name} model\n" + r.choice.table() for r in results
     )
     (out_dir / "metrics.txt").write_text(table + "\n\n" + selection + "\n", encoding="utf-8")
     card = write_learned_model_card(
-        out_dir, checkpoint, shipped.report, heads, lecture, reports, results, body
+        out_dir, checkpoint, shipped.report, heads, lecture, reports, results, body, style
     )
     return DefaultModelResult(checkpoint_path, card, table)

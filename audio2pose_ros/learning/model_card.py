@@ -423,10 +423,14 @@ its training sources only: the model that holds GRID out chooses on an Obama cli
 lecture stretch, the one that holds Obama out on a GRID clip and a lecture stretch, so the
 head's settings are never chosen on the source they are scored on. (The arms have one source,
 the lecture: their settings are chosen on a training stretch of it, and scored on its held-out
-stretch.) Every combination of a correlation of {correlations}, a burstiness of {bursts} and a
-temperature of {temperatures} is sampled ({N_SEEDS} samples per clip) and scored per joint
-group by mean(H speed, H accel) + |ln(std ratio)|; each part keeps its best burstiness and
-temperature, and the shared correlation is the one whose parts' best scores sum lowest. Then
+stretch.) The head aims at people who speak to people: where a model's validation clips hold
+such a source (Obama's addresses), its head settings are chosen on that source only, not on
+GRID's readers, who hold their heads four to five times stiller (the shipped model chooses on
+the Obama clip; the model that holds Obama out has only GRID to choose on). Every combination
+of a correlation of {correlations}, a burstiness of {bursts} and a temperature of
+{temperatures} is sampled ({N_SEEDS} samples per clip) and scored per joint group by
+mean(H speed, H accel) + |ln(std ratio)|; each part keeps its best correlation, burstiness and
+temperature (the head and the arms each have their own noise correlation). Then
 the highest rest level of {rests} whose speech/pause speed ratio is at least {PAUSE_MARGIN:g}
 times the target (head 2, arms and hip 1.5). Fixed, not chosen per build: the noise's order
 (2), the gate's margin (1), width (0.2) and time constants, the burst envelope's time constant
@@ -446,10 +450,12 @@ def write_learned_model_card(
     reports: Sequence[SourceReport],
     results: Sequence[HoldoutResult],
     body: str,
+    style: str,
 ) -> Path:
     """Write ``out_dir/MODEL_CARD.md`` of the learned default model (``live_groups``).
 
-    ``body`` is the table of :func:`~audio2pose_ros.learning.body_realism.body_table`.
+    ``body`` is the table of :func:`~audio2pose_ros.learning.body_realism.body_table`,
+    ``style`` that of :func:`~audio2pose_ros.learning.speech_style.head_style_table`.
 
     Also writes its figures: ``summary.png`` (:func:`plot_summary`), ``head_percentiles.png``
     (:func:`plot_percentiles`); the histograms come from the evaluation.
@@ -457,7 +463,9 @@ def write_learned_model_card(
     from audio2pose_ros.data.importers.lecture import LECTURE_LICENCE, TEST_SPAN_S
 
     n_params = sum(p.numel() for p in checkpoint.model.parameters())
-    config = cast(LiveGroups, checkpoint.model).config  # the learned default is live_groups
+    model = cast(LiveGroups, checkpoint.model)  # the learned default is live_groups
+    config = model.config
+    correlations = model.part_correlations()
     validation = sorted(checkpoint.info.get("validation_clips", []))
     clips = [heads.load(c.clip_id) for c in heads.clips] + [
         lecture.load(c.clip_id) for c in lecture.clips
@@ -477,8 +485,9 @@ autoregressive GRU samplers side by side, one for HeadPitch and HeadYaw, one for
 HipRoll (config `{checkpoint.model.config_dict()}`, {n_params} parameters). At every 10 ms
 frame each reads the {checkpoint.features.label} audio features and its
 own previous pose and samples the next pose from a Gaussian, with smooth, time-correlated
-noise (correlation {config.noise_correlation:g}, burstiness {config.first_burst:g} for the head
-and {config.second_burst:g} for the arms: `audio2pose_ros/models/sampling_noise.py`): it samples
+noise (correlation {correlations[0]:g} and burstiness {config.first_burst:g} for the head,
+{correlations[1]:g} and {config.second_burst:g} for the arms:
+`audio2pose_ros/models/sampling_noise.py`): it samples
 motion instead of regressing to the mean, so it moves like a person rather than like the average
 of people. Every utterance starts settled: the model first runs 1 s of the utterance's first
 audio frame, discarded, so the first pose does not jump from the network's zero state
@@ -571,19 +580,36 @@ Print it again: `make default-model` (it writes `metrics.txt`, the tables below)
 
 {held_out}
 
+## The head on new voices
+
+The two talking-head sources differ in style more than any model does, so the held-out scores
+above say as much about GRID and Obama as about the model. On speech of other speakers that no
+step of the build used (the bundled LibriVox clips, no video), this is how the shipped model's
+head moves, beside the real motion of each source
+(`audio2pose_ros/learning/speech_style.py`): speed and acceleration percentiles and the
+standard deviation of the angle per clip.
+
+```
+{style}
+```
+
 ## The arms and the body
 
 Retargeted arms were moved clear of Pepper's body before training (the importers' last step,
-`audio2pose_ros/data/importers/body_clearance.py`), and the arm part's sampling settings keep
-its noise off the body on the validation clips and on the speech of the talking-head clips it
-trained on, which label no arms ({N_SEEDS} samples each; see above). On the
+`audio2pose_ros/data/importers/body_clearance.py`). The arm part samples with the body in mind
+(`audio2pose_ros/models/body_noise.py`): its noise fades as the previous pose comes within
+{config.body_band_m * 100:g} cm of the guard's margin ({config.body_margin_m * 100:g} cm), so
+near the body the pose is the network's mean, which learned from clear poses; the pose itself
+is never moved. Its sampling settings keep it off the body on the validation clips and on the
+speech of the talking-head clips it trained on, which label no arms ({N_SEEDS} samples each;
+see above). On the
 lecture's held-out stretch, the model's raw motion (before the robot's self-collision guard),
 how often it comes closer to the body than the guard's margin or goes inside it, and how far
 its wrists' positions in the torso frame are from the real ones (Hellinger distance per axis;
 the right wrist mirrored onto the left; `audio2pose_ros/learning/body_realism.py`); the real
 stretch's halves are the floor. Then the same share on speech of other speakers that no step
 of the build used (the bundled LibriVox clips), at several seeds: the worst seed shows how far
-one sample can stray.
+one sample can stray; and the same again with the arm noise blind to the body.
 
 ```
 {body}
@@ -593,7 +619,9 @@ one sample can stray.
 - The head learned from short clips of read or addressed speech (GRID sentences read to a
   camera, Obama's weekly addresses): front-facing, English. GRID's readers hold their heads
   far stiller than Obama, so a model trained on one source and scored on the other shows how
-  much the sources differ as much as how the model does.
+  much the sources differ as much as how the model does. The shipped head's sampling settings
+  aim at Obama's motion (speech addressed to people), chosen on one validation clip of his;
+  the motion filter's `head_gain` (0 to 1) scales the head's motion down for a stiller robot.
 - The arms learned from one lecturer (his style, often holding a ball or handling
   apparatus, 240p video at 15 fps: fast hand motion is blurred); they are scored on a held-out
   stretch of the same lecture, not on a new speaker.

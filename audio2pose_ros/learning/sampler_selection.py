@@ -18,17 +18,20 @@ stretch of the lecture.
    that observe the group is compared with the real motion (pooled over the samples and folds:
    :func:`~audio2pose_ros.learning.metrics.sum_segments`) by :func:`score`, which adds the mean
    of the Hellinger distances of speed and acceleration to how far the motion's size is from
-   real, ``|ln(std ratio)|``. For each correlation, each part keeps the burstiness and
-   temperature with the lowest score, averaged over its joint groups weighted by their joint
-   counts; the correlation (shared by the parts) is the one whose parts' best scores, weighted
-   by their joint counts, sum lowest. A part whose joints no clip observes keeps its configured
+   real, ``|ln(std ratio)|``. Each part keeps the correlation, burstiness and temperature
+   with the lowest score, averaged over its joint groups weighted by their joint counts (its own
+   ``first_correlation`` / ``second_correlation``: a head's quick nods and an arm's slow swings
+   need noise of different speeds). A part whose joints no clip observes keeps its configured
    settings. The part that moves the arms also has a body budget: its samples, on every clip's
    audio and on the audio of clips that do not label the arms (other speakers, other rooms:
    the arms must keep off the body on speech unlike the few minutes they learned from), may
    bring an arm closer than the self-collision guard's margin to the robot's body
    (:class:`~audio2pose_ros.robot.body.BodyModel`) in at most :data:`BODY_BUDGET_PCT` of the
    frames; a setting within the budget beats every setting over it, and if none is within, the
-   one least over it wins. The guard stays on the robot; this keeps it from shaping the motion.
+   one least over it wins. Every setting samples the arms with the body in mind
+   (:mod:`audio2pose_ros.models.body_noise`: the arm noise fades within :data:`BODY_BAND_M` of
+   the guard's margin), and the choice keeps that on. The guard stays on the robot; this keeps
+   it from shaping the motion.
 2. Rest level in silence. With those settings, every rest level of
    :data:`SILENCE_TEMPERATURES`, from the most noise left in silence to the least, samples the
    same clips' audio with a pause inserted
@@ -74,10 +77,15 @@ N_SEEDS = 4
 INNER_FOLDS = 3
 BODY_MARGIN_M = MotionFilterSettings.body_margin_m  # the self-collision guard's default margin
 BODY_BUDGET_PCT = 1.0  # sampled arm frames allowed closer to the body than the margin
+BODY_BAND_M = 0.05  # body-aware sampling: the arm noise is whole this far beyond the margin
 BODY_CHECK_EVERY = 4  # frames: the share is estimated on every 4th sampled frame
 GROUPS = ("head", "arms", "hip")
 _PART_SETTINGS = ("first_temperature", "second_temperature")
 _PART_BURSTS = {"first_temperature": "first_burst", "second_temperature": "second_burst"}
+_PART_CORRELATIONS = {
+    "first_temperature": "first_correlation",
+    "second_temperature": "second_correlation",
+}
 
 Fold = tuple[Checkpoint, Sequence[Clip]]  # a trained checkpoint and clips it was not trained on
 
@@ -151,7 +159,8 @@ class SamplingChoice:
         if trial.correlation is None:
             return True
         burst = self.settings.get(_PART_BURSTS.get(trial.setting, ""))
-        return self.settings.get("noise_correlation") == trial.correlation and burst == trial.burst
+        correlation = self.settings.get(_PART_CORRELATIONS.get(trial.setting, ""))
+        return correlation == trial.correlation and burst == trial.burst
 
     def table(self) -> str:
         """Plain text: the summary, then one line per trial, the chosen ones marked ``*``."""
@@ -417,15 +426,18 @@ def choose_sampling(
     body = BodyModel.load(robot) if any("arms" in part for part in parts.values()) else None
     evidence = _evidence(folds, robot, False, body_audio if body is not None else ())
     trials: list[Trial] = []
-    # per correlation and part: (% over the body budget, score, burst, temperature) of every
+    # per part: (% over the body budget, score, correlation, burst, temperature) of every
     # combination tried; the lowest wins, so a setting within the budget beats any other
-    scored: dict[float, dict[str, list[tuple[float, float, float, float]]]] = {}
+    scored: dict[str, list[tuple[float, float, float, float, float]]] = {s: [] for s in parts}
+    body_noise = (
+        {"body_margin_m": BODY_MARGIN_M, "body_band_m": BODY_BAND_M} if body is not None else {}
+    )
     for correlation in CORRELATIONS:
-        scored[correlation] = {s: [] for s in parts}
         for burst in BURSTS:
             for value in TEMPERATURES:
                 settings = {
-                    "noise_correlation": correlation,
+                    **body_noise,
+                    **{_PART_CORRELATIONS[s]: correlation for s in parts},
                     **{_PART_BURSTS[s]: burst for s in parts},
                     **dict.fromkeys(parts, value),
                 }
@@ -437,21 +449,13 @@ def choose_sampling(
                     )
                     near = measured["arms"].get("near body %", 0.0) if "arms" in part else 0.0
                     over = max(0.0, near - BODY_BUDGET_PCT)
-                    scored[correlation][s].append((over, total, burst, value))
-
-    def cost(correlation: float) -> tuple[float, float]:
-        best = {s: min(scored[correlation][s]) for s in parts}
-        return (
-            sum(best[s][0] for s in parts),
-            sum(best[s][1] * sum(weights[s]) for s in parts),
-        )
-
-    best = min(CORRELATIONS, key=cost)
-    chosen: dict[str, float] = {"noise_correlation": best}
+                    scored[s].append((over, total, correlation, burst, value))
+    chosen: dict[str, float] = dict(body_noise)
     for s in parts:
-        _, _, burst, value = min(scored[best][s])
+        _, _, correlation, burst, value = min(scored[s])
         chosen[s] = value
         chosen[_PART_BURSTS[s]] = burst
+        chosen[_PART_CORRELATIONS[s]] = correlation
     paused = _evidence(folds, robot, paused=True)
     for rest in SILENCE_TEMPERATURES:
         settings = {**chosen, "silence_temperature": rest}

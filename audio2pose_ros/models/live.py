@@ -27,6 +27,7 @@ settable seed and temperature).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any, ClassVar
 
@@ -217,11 +218,18 @@ class _LiveCore:
         pose = self._output(hidden, noise, temperature)
         return pose, (hidden, pose)
 
-    def run(self, x: np.ndarray, noise: np.ndarray, temperature: float) -> np.ndarray:
+    def run(
+        self,
+        x: np.ndarray,
+        noise: np.ndarray,
+        temperature: float,
+        noise_scale: Callable[[int, np.ndarray], np.ndarray] | None = None,
+    ) -> np.ndarray:
         """(N, T, F) utterances and (N, T, J) unit noise -> (N, T, J) poses.
 
         The same recurrence as :meth:`step`, with the audio half of the input projection
-        computed for all frames at once.
+        computed for all frames at once. ``noise_scale(t, previous)``, if given, returns (N,)
+        factors for frame t's noise from the (N, J) poses of frame t - 1 (t >= 1).
         """
         n, n_frames, n_features = x.shape
         hidden_units = self.cell.w_hh.shape[0]
@@ -236,7 +244,10 @@ class _LiveCore:
             rz = sigmoid(gx[:, :split] + gh[:, :split])
             new = np.tanh(gx[:, split:] + rz[:, :hidden_units] * gh[:, split:])
             hidden = new + rz[:, hidden_units:] * (hidden - new)
-            previous = poses[:, t] = self._output(hidden, noise[:, t], temperature)
+            unit = noise[:, t]
+            if noise_scale is not None and t:
+                unit = unit * noise_scale(t, previous)[:, None]
+            previous = poses[:, t] = self._output(hidden, unit, temperature)
         return poses
 
 

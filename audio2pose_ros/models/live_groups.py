@@ -18,10 +18,12 @@ is multiplied by
 silence_temperature + (1 - silence_temperature) v_t, and by each part's own temperature (a
 free-running sampler's motion is not as large as real motion at temperature 1: its one-step
 uncertainty does not add up to the real spread). Each part's noise also has its own
-burstiness (``first_burst``, ``second_burst``: :mod:`audio2pose_ros.models.sampling_noise`), the
-two parts share the noise's correlation. These :data:`SAMPLING_SETTINGS` act only
-when sampling; :mod:`audio2pose_ros.learning.sampler_selection` chooses them on validation clips
-after training, without retraining (:meth:`LiveGroups.with_sampling`). A relative gate (against the
+burstiness (``first_burst``, ``second_burst``: :mod:`audio2pose_ros.models.sampling_noise`) and
+its own noise correlation (``first_correlation``, ``second_correlation``; unset, a part takes
+``noise_correlation``): a head nods faster than an arm swings. These
+:data:`SAMPLING_SETTINGS` act only when sampling;
+:mod:`audio2pose_ros.learning.sampler_selection` chooses them on validation clips after training,
+without retraining (:meth:`LiveGroups.with_sampling`). A relative gate (against the
 recent peak) does not depend on the recording level.
 Streams: yes (two GRU cell steps per frame); the streaming predictor samples with a settable
 seed (the head part's noise from ``seed``, the body part's from ``seed + 1``).
@@ -29,6 +31,7 @@ seed (the head part's noise from ``seed``, the body part's from ``seed + 1``).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from typing import Any, ClassVar, cast
 
@@ -37,8 +40,10 @@ import torch
 
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.base import PoseModel, StreamingPredictor
+from audio2pose_ros.models.body_noise import BodyNoise, body_noise_for, check_body_noise
 from audio2pose_ros.models.live import LiveConfig, LivePredictor, LiveSampler
 from audio2pose_ros.models.speech_gate import GroupedSampler, SpeechGate
+from audio2pose_ros.robot.description import RobotDescription
 
 SAMPLING_SETTINGS = (
     "first_temperature",
@@ -46,7 +51,11 @@ SAMPLING_SETTINGS = (
     "first_burst",
     "second_burst",
     "noise_correlation",
+    "first_correlation",
+    "second_correlation",
     "silence_temperature",
+    "body_margin_m",
+    "body_band_m",
 )
 
 
@@ -57,6 +66,11 @@ class LiveGroupsConfig:
     Attributes:
         first_group: bit j set = joint j belongs to the first part (default 3: joints 0 and 1,
             HeadPitch and HeadYaw in Pepper's order); the other joints form the second part.
+        first_correlation: the first part's noise correlation; None = ``noise_correlation``.
+        second_correlation: the second part's; None = ``noise_correlation``.
+        body_margin_m, body_band_m: body-aware sampling of the part that moves the arms
+            (:mod:`audio2pose_ros.models.body_noise`; needs the robot, bound by the checkpoint
+            that holds the model); a band of 0 turns it off.
 
     """
 
@@ -64,7 +78,7 @@ class LiveGroupsConfig:
     n_joints: int = 11
     hidden_units: int = 32
     input_noise: float = 0.05
-    noise_correlation: float = 0.975  # both parts; `make default-model` chooses it
+    noise_correlation: float = 0.975  # of a part without its own correlation
     noise_order: int = 2
     first_group: int = 3
     first_temperature: float = 2.5  # head; `make default-model` chooses it on validation clips
@@ -74,6 +88,10 @@ class LiveGroupsConfig:
     silence_temperature: float = 0.05  # noise left in silence (1 = no speech gate); likewise
     gate_margin: float = 1.0  # z-units of the features' mean below the recent peak
     gate_width: float = 0.2
+    first_correlation: float | None = None  # head; `make default-model` chooses it
+    second_correlation: float | None = None  # arms and hip; likewise
+    body_margin_m: float = 0.02  # body-aware sampling (body_noise): the arm noise is 0 here
+    body_band_m: float = 0.0  # ... and whole this far beyond the margin (0 = off)
 
 
 class LiveGroups(PoseModel):
@@ -92,8 +110,12 @@ class LiveGroups(PoseModel):
                 f"first_group={config.first_group} must select some but not all of "
                 f"{config.n_joints} joints"
             )
+        check_body_noise(config.body_margin_m, config.body_band_m)
         self.config = config
         self.groups = (np.flatnonzero(first), np.flatnonzero(~first))
+        self._robot: RobotDescription | None = None
+        self._body_noise: BodyNoise | None = None
+        self._body_part = -1
         self.parts = torch.nn.ModuleList(
             LiveSampler(
                 LiveConfig(
@@ -101,19 +123,57 @@ class LiveGroups(PoseModel):
                     len(joints),
                     config.hidden_units,
                     config.input_noise,
-                    config.noise_correlation,
+                    correlation,
                     config.noise_order,
                     burst,
                 )
             )
-            for joints, burst in zip(
-                self.groups, (config.first_burst, config.second_burst), strict=True
+            for joints, burst, correlation in zip(
+                self.groups,
+                (config.first_burst, config.second_burst),
+                self.part_correlations(),
+                strict=True,
             )
         )
 
     def config_dict(self) -> dict[str, Any]:
-        """Constructor arguments as a dict."""
-        return asdict(self.config)
+        """Constructor arguments as a dict; a part's correlation only if it has its own.
+
+        Checkpoints whose parts share ``noise_correlation``, and without body-aware sampling,
+        keep the keys they always had.
+        """
+        config = {k: v for k, v in asdict(self.config).items() if v is not None}
+        if not self.config.body_band_m:
+            del config["body_margin_m"], config["body_band_m"]
+        return config
+
+    def bind_robot(self, robot: RobotDescription) -> None:
+        """The robot whose body the arm part's sampling keeps off (body-aware sampling)."""
+        if robot != self._robot:
+            self._robot, self._body_noise, self._body_part = robot, None, -1
+
+    def body_noise(self) -> tuple[BodyNoise | None, int]:
+        """The body-aware noise factors and the index of the part they scale (None, -1: off).
+
+        Off when the band is 0, no robot is bound, or no part moves an arm joint.
+        """
+        if self._body_noise is None:
+            self._body_noise, self._body_part = body_noise_for(
+                self._robot, self.groups, self.config.body_margin_m, self.config.body_band_m
+            )
+        return self._body_noise, self._body_part
+
+    def part_correlations(self) -> tuple[float, float]:
+        """Each part's noise correlation."""
+        config = self.config
+        return (
+            config.noise_correlation
+            if config.first_correlation is None
+            else config.first_correlation,
+            config.noise_correlation
+            if config.second_correlation is None
+            else config.second_correlation,
+        )
 
     def samplers(self) -> list[LiveSampler]:
         """The two parts, typed (``parts`` is a ``ModuleList`` of :class:`LiveSampler`)."""
@@ -157,6 +217,8 @@ class LiveGroups(PoseModel):
         # dataclasses.replace is typed per field; the names were checked just above
         model = LiveGroups(replace(self.config, **cast(dict[str, Any], settings)))
         model.load_state_dict(self.state_dict())
+        if self._robot is not None:
+            model.bind_robot(self._robot)
         return model.train(self.training)
 
     def part_temperatures(self) -> tuple[float, float]:
@@ -190,10 +252,10 @@ class LiveGroups(PoseModel):
         scale = np.zeros((*x.shape[:2], 1))  # (S * B, T, 1)
         for row, factors in zip(x, scale, strict=True):
             factors[quiet_frames:, 0] = gate.run(row[quiet_frames:])
-        outputs = []
-        for k, (part, factor) in enumerate(
-            zip(self.samplers(), self.part_temperatures(), strict=True)
-        ):
+        body, body_part = self.body_noise() if temperature else (None, -1)
+        outputs: list[np.ndarray] = [np.empty(0), np.empty(0)]
+        for k in sorted(range(2), key=lambda k: k == body_part):  # the body part last
+            part, factor = self.samplers()[k], self.part_temperatures()[k]
             core = part._core()
             draws = core.noise.draws(part.config.n_joints)
             white = np.stack(
@@ -203,9 +265,29 @@ class LiveGroups(PoseModel):
                 ]
             )
             noise = core.noise.filter(white) * scale * factor
-            poses = core.run(x, noise, temperature)
-            outputs.append(torch.from_numpy(poses).float().view(n_samples, batch, n_frames, -1))
-        return self._scatter(outputs)
+            noise_scale = None
+            if body is not None and k == body_part:
+                noise_scale = self._body_factors(body, k, outputs[1 - k], quiet_frames)
+            outputs[k] = core.run(x, noise, temperature, noise_scale)
+        return self._scatter(
+            [torch.from_numpy(p).float().view(n_samples, batch, n_frames, -1) for p in outputs]
+        )
+
+    def _body_factors(
+        self, body: BodyNoise, k: int, other: np.ndarray, quiet_frames: int
+    ) -> Callable[[int, np.ndarray], np.ndarray]:
+        """Part k's noise factors at frame t from both parts' poses at t - 1 (body_noise)."""
+        body.reset()
+        full = np.empty((len(other), self.config.n_joints))
+
+        def factors(t: int, previous: np.ndarray) -> np.ndarray:
+            if t < quiet_frames:  # the warm-up samples its mean: no noise to scale
+                return np.ones(len(previous))
+            full[:, self.groups[k]] = previous
+            full[:, self.groups[1 - k]] = other[:, t - 1]
+            return body.factors(full)
+
+        return factors
 
     def streaming_predictor(self, seed: int = 0, temperature: float = 1.0) -> LiveGroupsPredictor:
         """Per-frame sampler: same seed, same motion; ``temperature`` 0 = ``forward``."""
@@ -226,5 +308,9 @@ class LiveGroupsPredictor(GroupedSampler, StreamingPredictor):
             LivePredictor(part._core(), seed + k, temperature)
             for k, part in enumerate(model.samplers())
         ]
+        self._body_noise, self._body_part = body_noise_for(  # its own: one per thread
+            model._robot, model.groups, config.body_margin_m, config.body_band_m
+        )
         self.seed = seed
         self.temperature = temperature
+        self.reset()

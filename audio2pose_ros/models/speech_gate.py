@@ -13,9 +13,12 @@ recent peak, it does not depend on the recording level. Torch-free, so the numpy
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from audio2pose_ros.models.body_noise import BodyNoise
 
 GATE_TAU_S = 0.3  # smoothing of the speech gate
 PEAK_DECAY_PER_S = 0.3  # z-units per second the energy peak forgets
@@ -77,9 +80,11 @@ class GroupedSampler:
 
     Shared by the torch model's predictor and the numpy runtime's kernel of ``live_groups``.
     A subclass sets ``_groups`` (joint indices per part), ``_parts``, ``_factors`` (each part's
-    own temperature), ``_gate``, ``_n_joints``, ``seed`` and ``temperature``. Per frame part k
-    samples at temperature * its factor * the gate's factor (0 at temperature 0) with seed
-    ``seed + k``, and its pose is scattered into the robot's joint order.
+    own temperature), ``_gate``, ``_n_joints``, ``seed`` and ``temperature``, and may set
+    ``_body_noise`` and ``_body_part``. Per frame part k samples at temperature * its factor *
+    the gate's factor (0 at temperature 0) with seed ``seed + k``, the part ``_body_part`` also
+    times the body-aware factor of the previous pose (:mod:`audio2pose_ros.models.body_noise`),
+    and its pose is scattered into the robot's joint order.
     """
 
     _groups: Sequence[np.ndarray]
@@ -90,6 +95,10 @@ class GroupedSampler:
     seed: int
     temperature: float
 
+    _body_noise: BodyNoise | None = None  # with the index of the part it scales
+    _body_part: int = -1
+    _previous: np.ndarray | None = None
+
     def reset(self, seed: int | None = None) -> None:
         """Forget the state; optionally change the seed."""
         if seed is not None:
@@ -97,12 +106,21 @@ class GroupedSampler:
         self._gate.reset()
         for k, part in enumerate(self._parts):
             part.reset(self.seed + k)
+        self._previous = None
+        if self._body_noise is not None:
+            self._body_noise.reset()
 
     def step(self, features: np.ndarray) -> np.ndarray:
         """Sample the pose of one (n_features,) frame: (n_joints,) in [0, 1]."""
         scale = self._gate.step(features) if self.temperature else 0.0
         pose = np.empty(self._n_joints)
-        for joints, part, factor in zip(self._groups, self._parts, self._factors, strict=True):
+        for k, (joints, part, factor) in enumerate(
+            zip(self._groups, self._parts, self._factors, strict=True)
+        ):
             part.temperature = self.temperature * factor * scale
+            body = self._body_noise if k == self._body_part else None
+            if body is not None and part.temperature and self._previous is not None:
+                part.temperature *= float(body.factors(self._previous)[0])
             pose[joints] = part.step(features)
+        self._previous = pose
         return pose

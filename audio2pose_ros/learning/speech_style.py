@@ -1,0 +1,116 @@
+"""How a model's head moves on speech of speakers that no step of the build used (ours).
+
+The held-out sources of :mod:`audio2pose_ros.learning.source_holdout` have real head motion to
+compare with, but only two sources, which differ in style more than any model does: GRID's
+readers barely move their heads, Obama moves his four to five times more. Speech without video
+(the bundled LibriVox clips) says which of them a model's head resembles on a new voice. Per
+joint, the speed and acceleration percentiles p50 / p90 / p99 (as
+:func:`~audio2pose_ros.learning.realism.speed_percentiles`) and the standard deviation of the
+angle per clip (averaged over clips), of the model's samples over several seeds, beside the real
+motion of each talking-head source.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from audio2pose_ros.checkpoints.torch_io import Checkpoint
+from audio2pose_ros.data.dataset import Clip
+from audio2pose_ros.learning import realism
+from audio2pose_ros.robot.description import RobotDescription
+from audio2pose_ros.timebase import FRAME_RATE_HZ
+
+
+@dataclass(frozen=True)
+class StyleRow:
+    """One motion's head statistics.
+
+    Attributes:
+        method: what moved (a model on the speech, or a real source).
+        seconds: motion measured (summed over seeds).
+        speed: (J, 3) speed percentiles per head joint (rad/s).
+        accel: (J, 3) acceleration percentiles (rad/s^2).
+        std_deg: (J,) standard deviation of the angle per clip, averaged over clips (degrees).
+
+    """
+
+    method: str
+    seconds: float
+    speed: np.ndarray
+    accel: np.ndarray
+    std_deg: np.ndarray
+
+
+def _row(method: str, motions: Sequence[realism.Motion]) -> StyleRow:
+    speed, accel = realism.speed_percentiles(motions, FRAME_RATE_HZ)
+    stds = [
+        [np.std(angles[known[:, j], j]) for j in range(angles.shape[1])]
+        for angles, known in motions
+        if known.all(axis=1).sum() > 1
+    ]
+    return StyleRow(
+        method,
+        sum(len(angles) for angles, _ in motions) / FRAME_RATE_HZ,
+        speed,
+        accel,
+        np.degrees(np.mean(stds, axis=0)),
+    )
+
+
+def head_style_rows(
+    checkpoint: Checkpoint,
+    robot: RobotDescription,
+    speech: Mapping[str, np.ndarray],
+    seeds: Sequence[int],
+    real: Mapping[str, Sequence[Clip]],
+    label: str,
+) -> list[StyleRow]:
+    """The model's row (``label``) on ``speech`` (16 kHz) at every seed, then one per real source.
+
+    Args:
+        checkpoint: the model.
+        robot: joint order and groups.
+        speech: name -> utterance, speech the model never trained on.
+        seeds: sampling seeds.
+        real: source name -> its clips (head motion where the mask says so).
+        label: the model row's name.
+
+    """
+    from audio2pose_ros.offline.synthesis import synthesize_samples
+
+    head = robot.group_mask("head")
+    generated: list[realism.Motion] = []
+    for audio in speech.values():
+        for angles in synthesize_samples(checkpoint, audio, seeds):
+            generated.append((angles[:, head], np.ones((len(angles), int(head.sum())), bool)))
+    rows = [_row(label, generated)] if generated else []
+    for source, clips in real.items():
+        motions = [
+            (np.nan_to_num(c.angles_rad[:, head]), c.mask[:, head])
+            for c in clips
+            if c.mask[:, head].any()
+        ]
+        if motions:
+            rows.append(_row(f"real, {source}", motions))
+    return rows
+
+
+def head_style_table(rows: Sequence[StyleRow], joint_names: Sequence[str]) -> str:
+    """Plain text: per row and head joint, the percentiles and the standard deviation."""
+    levels = "/".join(f"p{p}" for p in realism.PERCENTILES)
+    lines = [
+        f"{'method':<40}{'seconds':>8}  {'joint':<11}{'speed ' + levels + ' rad/s':<26}"
+        f"{'accel ' + levels + ' rad/s^2':<28}{'std deg':>8}"
+    ]
+    for row in rows:
+        for j, name in enumerate(joint_names):
+            speed = "/".join(f"{v:.2f}" for v in row.speed[j])
+            accel = "/".join(f"{v:.1f}" for v in row.accel[j])
+            lines.append(
+                f"{row.method[:39]:<40}{row.seconds:>8.1f}  {name:<11}{speed:<26}{accel:<28}"
+                f"{row.std_deg[j]:>8.2f}"
+            )
+    return "\n".join(lines)

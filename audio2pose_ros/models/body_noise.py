@@ -1,0 +1,95 @@
+"""Body-aware sampling: the arm part's noise fades as its previous pose nears the body (ours).
+
+A sampler's pose is its network's mean plus time-correlated noise
+(:mod:`audio2pose_ros.models.live`). The network learned from poses kept clear of Pepper's body
+(:mod:`audio2pose_ros.data.importers.body_clearance`), but the noise knows nothing of the body:
+on speech unlike its training data, an excursion of the noise could carry a forearm to the
+torso, and the noise's correlation kept it there for a second or more. So, where
+``body_band_m`` > 0, the noise of the part that moves the arms is scaled at every frame by
+
+    f_t = clip((c_{t-1} - body_margin_m) / body_band_m, 0, 1),
+
+where c_{t-1} is the clearance of the previous sampled pose (the smallest signed distance between
+an arm link and the rest of the body, :meth:`~audio2pose_ros.robot.body.BodyModel.clearance`):
+far from the body the noise is whole; within ``body_band_m`` of the margin it fades, and at the
+margin the pose is the network's mean, which leads back to poses like its training data. The
+pose itself is never moved: the self-collision guard of the motion filter
+(:mod:`audio2pose_ros.motion.body_guard`) stays what enforces the margin on the robot; this keeps
+the model's own motion off the body, so the guard rarely has to act.
+
+The first frame (no previous pose) samples with its whole noise. Each :class:`BodyNoise` loads
+its own :class:`~audio2pose_ros.robot.body.BodyModel` (Pinocchio's workspaces are not shared
+between threads), on first use, and drops it when pickled.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.robot.body import BodyModel
+from audio2pose_ros.robot.description import RobotDescription
+from audio2pose_ros.robot.kinematics import default_urdf_path
+
+MAX_BODY_BAND_M = 0.5  # wider than Pepper's arm: any larger band is a mistake
+
+
+def check_body_noise(margin_m: float, band_m: float) -> None:
+    """Raise :class:`ConfigurationError` unless 0 <= margin <= 0.5 m and 0 <= band <= 0.5 m."""
+    for name, value in (("body_margin_m", margin_m), ("body_band_m", band_m)):
+        if not (isinstance(value, int | float) and math.isfinite(value)):
+            raise ConfigurationError(f"{name} must be a finite number, got {value!r}")
+        if not 0.0 <= value <= MAX_BODY_BAND_M:
+            raise ConfigurationError(f"{name} must be in [0, {MAX_BODY_BAND_M}] m, got {value}")
+
+
+class BodyNoise:
+    """Noise factors f_t of the module text, for previous poses in [0, 1] units."""
+
+    def __init__(self, robot: RobotDescription, margin_m: float, band_m: float) -> None:
+        """Check the margin and band (m); the body model loads on first use."""
+        check_body_noise(margin_m, band_m)
+        self.robot, self.margin_m, self.band_m = robot, float(margin_m), float(band_m)
+        self._body: BodyModel | None = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickle without the body model (Pinocchio's objects do not pickle)."""
+        return {**self.__dict__, "_body": None}
+
+    def reset(self) -> None:
+        """Start the distance searches afresh, so the same poses give the same factors."""
+        if self._body is not None:
+            self._body.reset()
+
+    def factors(self, previous_unit: np.ndarray) -> np.ndarray:
+        """(N, J) previous poses in [0, 1] -> (N,) noise factors in [0, 1]."""
+        if self._body is None:
+            self._body = BodyModel(self.robot, default_urdf_path())
+        clearance = self._body.clearance(self.robot.denormalize(np.atleast_2d(previous_unit)))
+        return np.clip((clearance - self.margin_m) / self.band_m, 0.0, 1.0)
+
+
+def body_noise_for(
+    robot: RobotDescription | None,
+    groups: Sequence[np.ndarray],
+    margin_m: float,
+    band_m: float,
+) -> tuple[BodyNoise | None, int]:
+    """Body-aware factors for the part of ``groups`` (joint indices) that moves an arm.
+
+    Returns:
+        The factors and the part's index; (None, -1) when the band is 0, there is no robot,
+        or no part moves an arm joint.
+
+    """
+    if robot is None or not band_m:
+        return None, -1
+    arms = np.flatnonzero(robot.group_mask("arms"))
+    part = next((k for k, joints in enumerate(groups) if np.isin(joints, arms).any()), -1)
+    if part < 0:
+        return None, -1
+    return BodyNoise(robot, margin_m, band_m), part

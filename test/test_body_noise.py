@@ -1,0 +1,113 @@
+"""Body-aware sampling: the arm part's noise fades as its previous pose nears Pepper's body."""
+
+import pickle
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+from body_poses import AWAY, INSIDE, RIGHT_AWAY, pose_with
+
+from audio2pose_ros.audio.wav import read_wav
+from audio2pose_ros.checkpoints.numpy_runtime import numpy_kernel_for
+from audio2pose_ros.checkpoints.torch_io import Checkpoint, load_checkpoint
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.models.body_noise import BodyNoise
+from audio2pose_ros.models.registry import build_model
+from audio2pose_ros.offline.synthesis import synthesize_samples
+from audio2pose_ros.resources import bundled_speech_paths, default_checkpoint_path
+from audio2pose_ros.robot.body import BodyModel
+
+
+@pytest.fixture(scope="module")
+def body(robot):
+    return BodyModel.load(robot)
+
+
+def test_when_a_pose_nears_the_body_expect_its_noise_to_fade_to_nothing_at_the_margin(robot, body):
+    noise = BodyNoise(robot, margin_m=0.02, band_m=0.03)
+    away, inside = (pose_with(robot, **pose, **RIGHT_AWAY) for pose in (AWAY, INSIDE))
+    track = away + np.linspace(0, 1, 40)[:, None] * (inside - away)
+    clearance = body.clearance(track)
+    assert clearance[0] > 0.06
+    assert clearance[-1] < 0.0
+    factors = noise.factors(robot.normalize(track))
+    np.testing.assert_allclose(factors, np.clip((clearance - 0.02) / 0.03, 0, 1), atol=1e-6)
+    assert factors[0] == 1.0
+    assert factors[-1] == 0.0
+    assert 0 < factors[(clearance > 0.025) & (clearance < 0.045)].min() < 1  # a fade, not a switch
+    restored = pickle.loads(pickle.dumps(noise))  # workers receive models that hold it
+    np.testing.assert_allclose(restored.factors(robot.normalize(track)), factors, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [
+        ("body_band_m", -0.01),
+        ("body_band_m", float("nan")),
+        ("body_band_m", 0.6),
+        ("body_margin_m", -0.1),
+        ("body_margin_m", float("inf")),
+    ],
+)
+def test_when_a_body_setting_is_out_of_range_expect_a_configuration_error_and_no_kernel(key, value):
+    with pytest.raises(ConfigurationError, match=r"body_|not finite"):
+        build_model("live_groups", {"n_features": 4, "n_joints": 11, key: value})
+    config = build_model("live_groups", {"n_features": 4, "n_joints": 11}).config_dict()
+    assert "body_band_m" not in config  # off: checkpoints keep the keys they always had
+    assert numpy_kernel_for("live_groups", {**config, key: value}) is None
+    assert numpy_kernel_for("live_groups", {**config, "body_band_m": 0.05}) is not None
+
+
+def test_when_a_model_samples_with_the_body_in_mind_expect_batch_and_stream_alike(robot):
+    torch.manual_seed(0)
+    model = build_model(
+        "live_groups",
+        {"n_features": 4, "n_joints": 11, "body_margin_m": 0.0, "body_band_m": 0.5},
+    )
+    features = torch.randn(1, 120, 4)
+    unbound = model.sample(features, 1, torch.Generator().manual_seed(2))
+    assert model.body_noise() == (None, -1)  # no robot, no body
+    model.bind_robot(robot)
+    noise, part = model.body_noise()
+    assert noise is not None
+    assert part == 1  # the arms' part
+    batch = model.sample(features, 1, torch.Generator().manual_seed(2))[0, 0].double().numpy()
+    head = robot.group_mask("head")
+    np.testing.assert_allclose(batch[:, head], unbound[0, 0][:, head].numpy())  # head untouched
+    assert np.abs(batch[:, ~head] - unbound[0, 0][:, ~head].numpy()).max() > 1e-3
+    predictor = model.streaming_predictor(seed=2)
+    stream = np.array([predictor.step(f) for f in features[0].double().numpy()])
+    np.testing.assert_allclose(stream, batch, atol=1e-5)
+    predictor.reset()
+    np.testing.assert_allclose(
+        [predictor.step(f) for f in features[0, :30].double().numpy()], batch[:30], atol=1e-5
+    )
+
+
+def test_when_a_checkpoint_holds_the_model_expect_it_bound_to_the_checkpoint_robot(robot):
+    loaded = load_checkpoint(default_checkpoint_path(), robot=robot)
+    fresh = build_model("live_groups", {"n_joints": 11, "body_band_m": 0.05})
+    assert fresh.body_noise() == (None, -1)
+    held = replace(loaded, model=fresh)
+    assert isinstance(held, Checkpoint)
+    assert held.model.body_noise()[0] is not None
+    tuned = held.model.with_sampling(second_temperature=2.0)  # copies keep the robot
+    assert tuned.body_noise()[0] is not None
+    assert pickle.loads(pickle.dumps(tuned)).body_noise()[0] is not None
+
+
+def test_when_the_default_model_speaks_new_voices_expect_its_arms_rarely_near_the_body(robot, body):
+    """Without the body in mind, the noise of a sample drifts onto the torso and stays."""
+    checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
+    assert checkpoint.model.config.body_band_m > 0
+    off = replace(checkpoint, model=checkpoint.model.with_sampling(body_band_m=0.0))
+    near = {"on": [], "off": []}
+    for path in bundled_speech_paths()[:3]:
+        audio = read_wav(path)[0]
+        for name, model in (("on", checkpoint), ("off", off)):
+            for angles in synthesize_samples(model, audio, range(8)):
+                near[name].append(body.clearance(angles) < 0.02)
+    share = {k: 100 * np.concatenate(v).mean() for k, v in near.items()}
+    assert share["on"] < 1.0, share
+    assert share["on"] < share["off"], share

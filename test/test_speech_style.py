@@ -1,0 +1,61 @@
+"""The head's motion on speech of other speakers, beside each real source's."""
+
+import numpy as np
+import pytest
+
+from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+from audio2pose_ros.data.dataset import Clip, ClipInfo
+from audio2pose_ros.learning.realism import speed_percentiles
+from audio2pose_ros.learning.speech_style import head_style_rows, head_style_table
+from audio2pose_ros.resources import default_checkpoint_path
+from audio2pose_ros.timebase import FRAME_RATE_HZ
+
+
+def _nodding(robot, clip_id, amplitude_deg, seconds=4.0):
+    """A clip whose HeadPitch is a 1 Hz sine; its second half is not observed (huge values)."""
+    n = int(seconds * FRAME_RATE_HZ)
+    t = np.arange(n) / FRAME_RATE_HZ
+    angles = np.tile(robot.neutral_rad, (n, 1))
+    angles[:, 0] += np.radians(amplitude_deg) * np.sin(2 * np.pi * t)
+    mask = np.zeros((n, robot.n_joints), bool)
+    mask[: n // 2, :2] = True
+    angles[n // 2 :] = 1e3  # never read: not observed
+    info = ClipInfo(clip_id, clip_id, "test", "CC0")
+    return Clip(info, np.zeros(int(seconds * 16000), np.float32), angles, mask)
+
+
+def test_when_real_sources_are_given_expect_their_observed_motion_only(robot):
+    clips = [_nodding(robot, "a", 2.0), _nodding(robot, "b", 4.0)]
+    checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
+    rows = head_style_rows(checkpoint, robot, {}, [0], {"nodders": clips}, "model")
+    assert [r.method for r in rows] == ["real, nodders"]  # no speech: no model row
+    (row,) = rows
+    head = robot.group_mask("head")
+    observed = [(c.angles_rad[:200][:, head], c.mask[:200][:, head]) for c in clips]
+    speed, accel = speed_percentiles(observed)
+    np.testing.assert_allclose(row.speed, speed)
+    np.testing.assert_allclose(row.accel, accel)
+    # a sine's standard deviation is its amplitude / sqrt 2; averaged over the two clips
+    assert row.std_deg[0] == pytest.approx(3.0 / np.sqrt(2), rel=0.01)
+    assert row.std_deg[1] == pytest.approx(0.0, abs=1e-9)
+    assert row.speed[0, 2] == pytest.approx(np.radians(4.0) * 2 * np.pi, rel=0.01)  # p99: peak
+    assert row.seconds == pytest.approx(8.0)
+
+
+def test_when_the_model_speaks_expect_a_row_per_seed_pooled_and_a_line_per_joint(robot, speech):
+    checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
+    utterance = speech[: 3 * 16000]
+    rows = head_style_rows(
+        checkpoint, robot, {"u": utterance}, [0, 1], {"nodders": [_nodding(robot, "a", 2.0)]}, "m"
+    )
+    assert [r.method for r in rows] == ["m", "real, nodders"]
+    model = rows[0]
+    assert model.seconds == pytest.approx(2 * len(utterance) / 16000, abs=0.05)
+    assert np.isfinite(model.speed).all()
+    assert np.isfinite(model.std_deg).all()
+    assert (model.speed[:, 2] > 0).all()  # the head moves on speech
+    table = head_style_table(rows, ["HeadPitch", "HeadYaw"])
+    lines = table.splitlines()
+    assert len(lines) == 1 + 2 * len(rows)
+    assert "HeadYaw" in lines[-1]
+    assert "real, nodders" in lines[-1]
