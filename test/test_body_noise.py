@@ -32,12 +32,13 @@ def test_when_a_pose_nears_the_body_expect_its_noise_to_fade_to_nothing_at_the_m
     assert clearance[0] > 0.06
     assert clearance[-1] < 0.0
     factors = noise.factors(robot.normalize(track))
-    np.testing.assert_allclose(factors, np.clip((clearance - 0.02) / 0.03, 0, 1), atol=1e-6)
+    # coal answers within 1e-6 m, starting from its previous answer: 1e-4 of a 3 cm band
+    np.testing.assert_allclose(factors, np.clip((clearance - 0.02) / 0.03, 0, 1), atol=1e-4)
     assert factors[0] == 1.0
     assert factors[-1] == 0.0
     assert 0 < factors[(clearance > 0.025) & (clearance < 0.045)].min() < 1  # a fade, not a switch
     restored = pickle.loads(pickle.dumps(noise))  # workers receive models that hold it
-    np.testing.assert_allclose(restored.factors(robot.normalize(track)), factors, atol=1e-6)
+    np.testing.assert_allclose(restored.factors(robot.normalize(track)), factors, atol=1e-4)
 
 
 @pytest.mark.parametrize(
@@ -111,3 +112,24 @@ def test_when_the_default_model_speaks_new_voices_expect_its_arms_rarely_near_th
     share = {k: 100 * np.concatenate(v).mean() for k, v in near.items()}
     assert share["on"] < 1.0, share
     assert share["on"] < share["off"], share
+
+
+def test_when_an_arm_stays_far_from_the_body_expect_no_distance_query_yet_the_same_factors(
+    robot, monkeypatch
+):
+    """A query costs about 0.1 ms a frame: far from the body, a bound on the travel suffices."""
+    noise = BodyNoise(robot, margin_m=0.02, band_m=0.03)
+    away, inside = (pose_with(robot, **pose, **RIGHT_AWAY) for pose in (AWAY, INSIDE))
+    track = away + np.linspace(0, 1, 200)[:, None] ** 3 * (inside - away)  # slow, then fast
+    expected = [float(BodyNoise(robot, 0.02, 0.03).factors(robot.normalize(p))[0]) for p in track]
+    noise.factors(robot.normalize(track[0]))
+    body = noise._body
+    queries = []
+    real_clearance = body.clearance
+    monkeypatch.setattr(
+        body, "clearance", lambda poses: queries.append(len(poses)) or real_clearance(poses)
+    )
+    got = [float(noise.factors(robot.normalize(p))[0]) for p in track[1:]]
+    np.testing.assert_allclose(got, expected[1:], atol=1e-4)
+    assert 0 < len(queries) < 0.8 * (len(track) - 1)  # queried only where the bound fell short
+    assert min(got) == 0.0
