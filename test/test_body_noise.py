@@ -12,11 +12,12 @@ from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.checkpoints.numpy_runtime import numpy_kernel_for
 from audio2pose_ros.checkpoints.torch_io import Checkpoint, load_checkpoint
 from audio2pose_ros.errors import ConfigurationError
-from audio2pose_ros.models.body_noise import BodyNoise
+from audio2pose_ros.models.body_noise import MAX_FACTOR_STEP, BodyNoise
 from audio2pose_ros.models.registry import build_model
 from audio2pose_ros.offline.synthesis import synthesize_samples
 from audio2pose_ros.resources import bundled_speech_paths, default_checkpoint_path
 from audio2pose_ros.robot.body import BodyModel
+from audio2pose_ros.robot.kinematics import default_urdf_path
 
 
 @pytest.fixture(scope="module")
@@ -24,21 +25,48 @@ def body(robot):
     return BodyModel.load(robot)
 
 
+def _faded(clearance, margin_m, band_m):
+    """The factors of one sequence: clip((c - margin) / band, 0, 1), at most 0.05 per frame."""
+    out, last = [], 1.0
+    for wanted in np.clip((np.asarray(clearance) - margin_m) / band_m, 0, 1):
+        last = float(np.clip(wanted, last - MAX_FACTOR_STEP, last + MAX_FACTOR_STEP))
+        out.append(last)
+    return np.array(out)
+
+
+def _track(robot, n, shape=lambda x: x):
+    """n poses of the left arm from away from the body into the torso (right arm away)."""
+    away, inside = (pose_with(robot, **pose, **RIGHT_AWAY) for pose in (AWAY, INSIDE))
+    return away + shape(np.linspace(0, 1, n))[:, None] * (inside - away)
+
+
 def test_when_a_pose_nears_the_body_expect_its_noise_to_fade_to_nothing_at_the_margin(robot, body):
     noise = BodyNoise(robot, margin_m=0.02, band_m=0.03)
-    away, inside = (pose_with(robot, **pose, **RIGHT_AWAY) for pose in (AWAY, INSIDE))
-    track = away + np.linspace(0, 1, 40)[:, None] * (inside - away)
+    track = _track(robot, 120)
     clearance = body.clearance(track)
     assert clearance[0] > 0.06
     assert clearance[-1] < 0.0
-    factors = noise.factors(robot.normalize(track))
+    factors = np.array([noise.factors(robot.normalize(p))[0] for p in track])
     # coal answers within 1e-6 m, starting from its previous answer: 1e-4 of a 3 cm band
-    np.testing.assert_allclose(factors, np.clip((clearance - 0.02) / 0.03, 0, 1), atol=1e-4)
+    np.testing.assert_allclose(factors, _faded(clearance, 0.02, 0.03), atol=1e-4)
     assert factors[0] == 1.0
     assert factors[-1] == 0.0
-    assert 0 < factors[(clearance > 0.025) & (clearance < 0.045)].min() < 1  # a fade, not a switch
+    assert np.abs(np.diff(factors)).max() <= MAX_FACTOR_STEP + 1e-12  # a fade, never a jump
+    assert 0 < factors[(clearance > 0.025) & (clearance < 0.045)].min() < 1
     restored = pickle.loads(pickle.dumps(noise))  # workers receive models that hold it
-    np.testing.assert_allclose(restored.factors(robot.normalize(track)), factors, atol=1e-4)
+    np.testing.assert_allclose(restored.factors(robot.normalize(track[-1])), [0.0], atol=1e-4)
+    restored.reset()
+    assert restored.factors(robot.normalize(track[-1]))[0] == 1 - MAX_FACTOR_STEP  # fades anew
+
+
+def test_when_sequences_run_side_by_side_expect_each_its_own_fade(robot, body):
+    """Row i of every call continues sequence i, as the batch sampler calls it."""
+    track = _track(robot, 60)
+    both = BodyNoise(robot, 0.02, 0.03)
+    rows = [both.factors(robot.normalize(np.stack([p, track[0]]))) for p in track]
+    clearance = body.clearance(track)
+    np.testing.assert_allclose([r[0] for r in rows], _faded(clearance, 0.02, 0.03), atol=1e-4)
+    np.testing.assert_allclose([r[1] for r in rows], _faded(clearance[:1].repeat(60), 0.02, 0.03))
 
 
 @pytest.mark.parametrize(
@@ -114,14 +142,17 @@ def test_when_the_default_model_speaks_new_voices_expect_its_arms_rarely_near_th
     assert share["on"] < share["off"], share
 
 
+def noise_free_clearance(robot, track):
+    return BodyModel(robot, default_urdf_path()).clearance(track)
+
+
 def test_when_an_arm_stays_far_from_the_body_expect_no_distance_query_yet_the_same_factors(
     robot, monkeypatch
 ):
     """A query costs about 0.1 ms a frame: far from the body, a bound on the travel suffices."""
     noise = BodyNoise(robot, margin_m=0.02, band_m=0.03)
-    away, inside = (pose_with(robot, **pose, **RIGHT_AWAY) for pose in (AWAY, INSIDE))
-    track = away + np.linspace(0, 1, 200)[:, None] ** 3 * (inside - away)  # slow, then fast
-    expected = [float(BodyNoise(robot, 0.02, 0.03).factors(robot.normalize(p))[0]) for p in track]
+    track = _track(robot, 200, lambda x: x**3)  # slow, then fast
+    expected = _faded(noise_free_clearance(robot, track), 0.02, 0.03)
     noise.factors(robot.normalize(track[0]))
     body = noise._body
     queries = []

@@ -270,6 +270,14 @@ def test_when_arm_samples_come_near_the_body_expect_the_best_setting_within_the_
     assert len(set(near.values())) > 1, "no setting brought the arms nearer the body than another"
     budget = float(np.median(list(near.values())))
     monkeypatch.setattr(sampler_selection, "BODY_BUDGET_PCT", budget)
+    monkeypatch.setattr(sampler_selection, "GATE_BUDGET_PCT", 100.0)
+    chosen, best, table = _arm_choice(checkpoint, validation, robot, lambda k: near[k] <= budget)
+    assert chosen == best
+    assert "near body %" in table
+
+
+def _arm_choice(checkpoint, validation, robot, allowed):
+    """Select again: (the arm part's chosen setting, the best-scoring allowed one, the table)."""
     _, bound = select_sampling(checkpoint, validation, robot, n_seeds=2)
     settings = bound.settings
     chosen = (
@@ -278,10 +286,9 @@ def test_when_arm_samples_come_near_the_body_expect_the_best_setting_within_the_
         settings["second_temperature"],
     )
     scores = part_scores(bound.trials, "second_temperature", robot)
-    within = {k: v for k, v in scores.items() if near[k] <= budget}
+    within = {k: v for k, v in scores.items() if allowed(k)}
     assert within, "the median budget leaves no setting"
-    assert chosen == min(within, key=within.get)
-    assert "near body %" in bound.table()
+    return chosen, min(within, key=within.get), bound.table()
 
 
 def test_when_speech_without_arm_motion_is_given_expect_it_counted_for_the_body_budget_only(
@@ -363,3 +370,24 @@ def test_when_validation_holds_grid_and_addressed_speech_expect_the_head_chosen_
     assert not selection_clips([grid, unknown], robot)[0].mask[:, head].any()
     lecture_only = replace(obama, mask=obama.mask & ~head)  # no other clip labels the head
     assert selection_clips([grid, lecture_only], robot)[0] is grid
+
+
+def test_when_raw_steps_outrun_the_filter_gate_expect_the_best_setting_within_the_gate_budget(
+    checkpoint, selected, robot, monkeypatch
+):
+    """The filter drops raw poses faster than the robot can move: such settings are over budget."""
+    from audio2pose_ros.learning import sampler_selection
+
+    validation, _, free = selected
+    refused: dict = {}
+    for t in free.trials:
+        if t.setting == "second_temperature":
+            key = (t.correlation, t.burst, t.value)
+            refused[key] = refused.get(key, 0.0) + t.measures["gate refused %"]
+    assert len(set(refused.values())) > 1, "no setting made more refused steps than another"
+    budget = float(np.median(list(refused.values())))
+    monkeypatch.setattr(sampler_selection, "GATE_BUDGET_PCT", budget)
+    monkeypatch.setattr(sampler_selection, "BODY_BUDGET_PCT", 100.0)
+    chosen, best, table = _arm_choice(checkpoint, validation, robot, lambda k: refused[k] <= budget)
+    assert chosen == best
+    assert "gate refused %" in table

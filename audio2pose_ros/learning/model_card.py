@@ -17,6 +17,7 @@ from audio2pose_ros.learning.evaluation import Evaluation, GroupRow, QualityEval
 from audio2pose_ros.learning.sampler_selection import (
     BURSTS,
     CORRELATIONS,
+    GATE_BUDGET_PCT,
     N_SEEDS,
     PAUSE_MARGIN,
     SILENCE_TEMPERATURES,
@@ -430,7 +431,9 @@ the Obama clip; the model that holds Obama out has only GRID to choose on). Ever
 of a correlation of {correlations}, a burstiness of {bursts} and a temperature of
 {temperatures} is sampled ({N_SEEDS} samples per clip) and scored per joint group by
 mean(H speed, H accel) + |ln(std ratio)|; each part keeps its best correlation, burstiness and
-temperature (the head and the arms each have their own noise correlation). Then
+temperature (the head and the arms each have their own noise correlation), among those whose
+raw steps the motion filter's input gate would refuse, as faster than the robot can move, in at
+most {GATE_BUDGET_PCT:g} % of frames, and, for the arms, within the body budget. Then
 the highest rest level of {rests} whose speech/pause speed ratio is at least {PAUSE_MARGIN:g}
 times the target (head 2, arms and hip 1.5). Fixed, not chosen per build: the noise's order
 (2), the gate's margin (1), width (0.2) and time constants, the burst envelope's time constant
@@ -597,8 +600,9 @@ standard deviation of the angle per clip.
 
 Retargeted arms were moved clear of Pepper's body before training (the importers' last step,
 `audio2pose_ros/data/importers/body_clearance.py`). The arm part samples with the body in mind
-(`audio2pose_ros/models/body_noise.py`): its noise fades as the previous pose comes within
-{config.body_band_m * 100:g} cm of the guard's margin ({config.body_margin_m * 100:g} cm), so
+(`audio2pose_ros/models/body_noise.py`): its noise fades, over 0.2 s at least, as the previous
+pose comes within {config.body_band_m * 100:g} cm of the guard's margin
+({config.body_margin_m * 100:g} cm), so
 near the body the pose is the network's mean, which learned from clear poses; the pose itself
 is never moved. Its sampling settings keep it off the body on the validation clips and on the
 speech of the talking-head clips it trained on, which label no arms ({N_SEEDS} samples each;

@@ -28,7 +28,11 @@ stretch of the lecture.
    bring an arm closer than the self-collision guard's margin to the robot's body
    (:class:`~audio2pose_ros.robot.body.BodyModel`) in at most :data:`BODY_BUDGET_PCT` of the
    frames; a setting within the budget beats every setting over it, and if none is within, the
-   one least over it wins. Every setting samples the arms with the body in mind
+   one least over it wins. Every part likewise has a budget of :data:`GATE_BUDGET_PCT` of raw
+   steps (consecutive sampled poses, before any smoothing) that the motion filter's input gate
+   would refuse as faster than the robot can move (:func:`_gate_bound`): the filter drops such
+   poses, so a setting that makes them is over budget by their share. Every setting samples the
+   arms with the body in mind
    (:mod:`audio2pose_ros.models.body_noise`: the arm noise fades within :data:`BODY_BAND_M` of
    the guard's margin), and the choice keeps that on. The guard stays on the robot; this keeps
    it from shaping the motion.
@@ -58,6 +62,7 @@ import numpy as np
 
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Clip
+from audio2pose_ros.data.importers.body_clearance import TRAINING_CLEARANCE_M
 from audio2pose_ros.learning import metrics
 from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.learning.training import TrainSettings, train_on_clips
@@ -77,7 +82,9 @@ N_SEEDS = 4
 INNER_FOLDS = 3
 BODY_MARGIN_M = MotionFilterSettings.body_margin_m  # the self-collision guard's default margin
 BODY_BUDGET_PCT = 1.0  # sampled arm frames allowed closer to the body than the margin
-BODY_BAND_M = 0.05  # body-aware sampling: the arm noise is whole this far beyond the margin
+# body-aware sampling: the arm noise is whole from the clearance the training targets keep
+BODY_BAND_M = round(TRAINING_CLEARANCE_M - BODY_MARGIN_M, 6)
+GATE_BUDGET_PCT = 0.05  # raw steps the motion filter's input gate may refuse as implausible
 BODY_CHECK_EVERY = 4  # frames: the share is estimated on every 4th sampled frame
 GROUPS = ("head", "arms", "hip")
 _PART_SETTINGS = ("first_temperature", "second_temperature")
@@ -167,7 +174,8 @@ class SamplingChoice:
         lines = [
             self.summary(),
             f"{'setting':<21}{'corr':>6}{'burst':>6}{'value':>6}  {'group':<6}{'H speed':>8}"
-            f"{'H accel':>8}{'std/real':>9}{'score':>7}{'speech/pause':>13}{'near body %':>12}",
+            f"{'H accel':>8}{'std/real':>9}{'score':>7}{'speech/pause':>13}{'near body %':>12}"
+            f"{'gate refused %':>15}",
         ]
         for t in self.trials:
             m = t.measures
@@ -183,7 +191,9 @@ class SamplingChoice:
                 )
                 + (f"{score(m):>7.2f}" if "std ratio" in m else f"{'-':>7}")
                 + (f"{m['speech/pause speed']:>13.2f}" if "speech/pause speed" in m else "")
-                + (f"{'':>13}{m['near body %']:>12.1f}" if "near body %" in m else "")
+                + (f"{'':>13}" if "near body %" in m or "gate refused %" in m else "")
+                + (f"{m['near body %']:>12.1f}" if "near body %" in m else f"{'':>12}")
+                + (f"{m['gate refused %']:>15.2f}" if "gate refused %" in m else "")
             )
         return "\n".join(lines)
 
@@ -349,6 +359,8 @@ def _measures(
     from audio2pose_ros.offline.synthesis import sample_normalized, to_angles
 
     near = [0, 0]  # frames closer than the margin, frames checked
+    jumps: dict[str, list[int]] = {}  # group -> [raw steps the filter's gate refuses, steps]
+    gate_bound = None
     real: dict[str, list[metrics.MotionSegments]] = {}
     generated: dict[str, list[metrics.MotionSegments]] = {}
     candidates: dict[int, Checkpoint] = {}
@@ -359,14 +371,21 @@ def _measures(
             candidates[id(checkpoint)] = replace(checkpoint, model=model.with_sampling(**settings))
         candidate = candidates[id(checkpoint)]
         n = len(item.speech)
-        samples = [
-            to_angles(candidate, poses)[:n]
-            for poses in sample_normalized(candidate, item.frames, n_seeds)
-        ]
+        raw = sample_normalized(candidate, item.frames, n_seeds)
+        samples = [to_angles(candidate, poses)[:n] for poses in raw]
+        if gate_bound is None:
+            gate_bound = _gate_bound(candidate)
+        steps = np.abs(np.diff(candidate.robot.denormalize(raw[:, :n]), axis=1)) > gate_bound
         if body is not None:
             checked = np.concatenate([m[::BODY_CHECK_EVERY] for m in samples])
             near[0] += int(np.count_nonzero(body.clearance(checked) < BODY_MARGIN_M))
             near[1] += len(checked)
+        for g in GROUPS:
+            if not robot.group_mask(g).any():
+                continue
+            count = jumps.setdefault(g, [0, 0])
+            count[0] += int(steps[..., robot.group_mask(g)].any(axis=-1).sum())
+            count[1] += steps.shape[0] * steps.shape[1]
         for g, known in item.known.items():
             joints = robot.group_mask(g)
             generated.setdefault(g, []).append(
@@ -389,7 +408,21 @@ def _measures(
             out[g] = metrics.distribution_measures(metrics.concat_segments(real[g]), gen)
     if body is not None and "arms" in out and near[1]:
         out["arms"]["near body %"] = 100.0 * near[0] / near[1]
+    for g, (refused, total) in jumps.items():
+        if g in out and total and not paused:
+            out[g]["gate refused %"] = 100.0 * refused / total
     return out
+
+
+def _gate_bound(checkpoint: Checkpoint) -> np.ndarray:
+    """Per joint, the largest step between consecutive raw poses the filter's gate accepts.
+
+    The gate (:class:`~audio2pose_ros.motion.gate.TrackGate`, default filter settings) takes
+    the poses of a message one filter period apart and accepts a step of at most the joint's
+    velocity limit times that period plus its tolerance.
+    """
+    settings = MotionFilterSettings()
+    return checkpoint.robot.max_velocity_rad_s / settings.rate_hz + settings.outlier_tolerance_rad
 
 
 def choose_sampling(
@@ -448,7 +481,8 @@ def choose_sampling(
                         np.average([score(measured[g]) for g in part], weights=weights[s])
                     )
                     near = measured["arms"].get("near body %", 0.0) if "arms" in part else 0.0
-                    over = max(0.0, near - BODY_BUDGET_PCT)
+                    refused = sum(measured[g].get("gate refused %", 0.0) for g in part)
+                    over = max(0.0, near - BODY_BUDGET_PCT) + max(0.0, refused - GATE_BUDGET_PCT)
                     scored[s].append((over, total, correlation, burst, value))
     chosen: dict[str, float] = dict(body_noise)
     for s in parts:

@@ -13,6 +13,9 @@ where c_{t-1} is the clearance of the previous sampled pose (the smallest signed
 an arm link and the rest of the body, :meth:`~audio2pose_ros.robot.body.BodyModel.clearance`):
 far from the body the noise is whole; within ``body_band_m`` of the margin it fades, and at the
 margin the pose is the network's mean, which leads back to poses like its training data. The
+factor changes by at most :data:`MAX_FACTOR_STEP` a frame: the noise term is the pose's largest
+part, and a factor that jumped would make the pose jump with it (faster than the robot can
+follow, so the motion filter's input gate would drop it). The
 pose itself is never moved: the self-collision guard of the motion filter
 (:mod:`audio2pose_ros.motion.body_guard`) stays what enforces the margin on the robot; this keeps
 the model's own motion off the body, so the guard rarely has to act.
@@ -40,6 +43,7 @@ from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.robot.kinematics import default_urdf_path
 
 MAX_BODY_BAND_M = 0.5  # wider than Pepper's arm: any larger band is a mistake
+MAX_FACTOR_STEP = 0.05  # per frame: the noise fades over 0.2 s, never in one jump
 
 
 def check_body_noise(margin_m: float, band_m: float) -> None:
@@ -61,6 +65,7 @@ class BodyNoise:
         self._body: BodyModel | None = None
         self._measured: np.ndarray | None = None  # per sequence: the last pose measured (rad)
         self._clearance = np.empty(0)  # ... and its clearance (m)
+        self._factors = np.empty(0)  # ... and its last factor
 
     def __getstate__(self) -> dict[str, Any]:
         """Pickle without the body model (Pinocchio's objects do not pickle)."""
@@ -85,6 +90,7 @@ class BodyNoise:
         poses = self.robot.denormalize(np.atleast_2d(previous_unit))
         if self._measured is None or self._measured.shape != poses.shape:
             self._measured, self._clearance = poses.copy(), np.full(len(poses), -np.inf)
+            self._factors = np.ones(len(poses))
         travel = np.abs(poses - self._measured) @ self._body.lever_m
         lower = self._clearance - travel  # no nearer than this: the arms cannot have come closer
         stale = lower < self.margin_m + self.band_m
@@ -92,7 +98,10 @@ class BodyNoise:
             self._measured[stale] = poses[stale]
             self._clearance[stale] = self._body.clearance(poses[stale])
             lower[stale] = self._clearance[stale]
-        return np.clip((lower - self.margin_m) / self.band_m, 0.0, 1.0)
+        wanted = np.clip((lower - self.margin_m) / self.band_m, 0.0, 1.0)
+        step = MAX_FACTOR_STEP
+        self._factors = np.clip(wanted, self._factors - step, self._factors + step)
+        return self._factors.copy()
 
 
 def body_noise_for(
