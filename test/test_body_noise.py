@@ -164,3 +164,22 @@ def test_when_an_arm_stays_far_from_the_body_expect_no_distance_query_yet_the_sa
     np.testing.assert_allclose(got, expected[1:], atol=1e-4)
     assert 0 < len(queries) < 0.8 * (len(track) - 1)  # queried only where the bound fell short
     assert min(got) == 0.0
+
+
+def test_when_a_streaming_predictor_is_made_expect_its_body_model_loaded_before_the_first_frame(
+    robot,
+):
+    """The first frame of a node's first utterance must not wait for Pinocchio and the URDF."""
+    from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
+
+    kernel = load_streaming_model(default_checkpoint_path(), robot=robot).predictor(seed=0)
+    torch_predictor = load_checkpoint(default_checkpoint_path(), robot=robot).model
+    for predictor in (kernel, torch_predictor.streaming_predictor(seed=0)):
+        inner = getattr(predictor, "predictor", predictor)  # under its warm start, if any
+        noise = inner._body_noise
+        assert noise is not None
+        assert noise.loaded
+    revived = pickle.loads(pickle.dumps(BodyNoise(robot, margin_m=0.02, band_m=0.03)))
+    assert not revived.loaded  # Pinocchio's objects do not pickle: loaded again on first use
+    revived.factors(robot.normalize(pose_with(robot, **AWAY, **RIGHT_AWAY)))
+    assert revived.loaded

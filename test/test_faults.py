@@ -26,6 +26,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 S16 = S16LE_MONO_16K
 S16_INFO = AudioInfo(**S16.audio_info_fields())
+SOAK_RESTART_AFTER_S = 30.0  # the soak's silence limit: a hung node, not a starved one
 
 
 def frames_published(probe: Probe) -> int:
@@ -202,17 +203,19 @@ def test_when_30_minutes_of_audio_stream_through_expect_flat_memory(
 ):
     """Soak: 30 min of real speech at 6x real time; resident memory of every node stays flat.
 
-    The inference node's sampler measures the arms' clearance from the body at nearly every
-    frame of this speech (about 0.25 ms; 0.4 ms a frame in all): at 10x it took most of a core
-    of a busy 2-core machine, missed its heartbeat and was restarted. Memory growth does not
-    need that speed.
+    At 6x the three nodes and this process share two cores with little to spare: on a busy CI
+    machine the inference node, whose executor serves events in arrival order, was once heard
+    from only after 5 s and was restarted, which starts its memory afresh and voids the
+    measurement. So the graph here restarts a node only after :data:`SOAK_RESTART_AFTER_S` of
+    silence (a hung node still fails the test) and the longest gaps are printed; how the
+    supervisor treats silence is tested in test_supervisor.py.
     """
     from audio2pose_ros.audio.wav import read_wav
 
     speech = np.concatenate([read_wav(f)[0] for f in speech_files])
     total_s, speed = 30 * 60, 6.0
     chunk = encode_pcm(speech, S16)
-    with node_graph(log_dir=tmp_path) as graph:
+    with node_graph(log_dir=tmp_path, restart_after_s=SOAK_RESTART_AFTER_S) as graph:
         start(probe)
         sent_bytes, samples = 0, {}
         start_time = time.monotonic()
@@ -221,15 +224,15 @@ def test_when_30_minutes_of_audio_stream_through_expect_flat_memory(
                 probe.audio.publish(AudioData(data=chunk[offset : offset + 4096]))
                 sent_bytes += len(chunk[offset : offset + 4096])
                 due = start_time + sent_bytes / 32000 / speed
-                while time.monotonic() < due:
-                    probe.spin_for(0.002)
+                probe.spin_for(due - time.monotonic())  # serves the probe, no busy wait
             for key in probe.received:
                 probe.received[key].clear()  # this process must not grow either
             fraction = sent_bytes / (total_s * 32000)
             if not samples and fraction > 0.1:  # after start-up allocations
                 samples["start"] = {n: rss_mb(p.pid) for n, p in graph.processes.items()}
         samples["end"] = {n: rss_mb(p.pid) for n, p in graph.processes.items()}
-        assert not any(graph.restarts.values())
+        print(f"longest heartbeat gaps (s): {graph.longest_gap_s}")
+        assert not any(graph.restarts.values()), graph.longest_gap_s
     growth = {n: samples["end"][n] - samples["start"][n] for n in samples["end"]}
     print(f"RSS MB at 10%: {samples['start']}, at end: {samples['end']}")
     assert all(g < 15.0 for g in growth.values()), growth

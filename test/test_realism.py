@@ -71,7 +71,7 @@ def test_when_percentiles_of_a_constant_speed_expect_that_speed():
 
 def test_when_resamples_are_biased_upwards_expect_the_corrected_interval_to_hold_its_estimate():
     point = 0.14
-    draws = list(np.linspace(0.16, 0.22, 200))  # every resample above the point (issue seen)
+    draws = list(np.linspace(0.16, 0.22, 200))  # every resample above the point, as seen on data
     estimate, low, high = metrics.bias_corrected(point, draws)
     assert low <= estimate <= high
     assert estimate == pytest.approx(point - (np.mean(draws) - point))

@@ -125,6 +125,7 @@ def test_when_node_is_starved_for_a_moment_expect_it_kept_running(tmp_path: Path
         assert supervisor.restarts["busy"] == []
         assert supervisor.processes["busy"] is process
         assert process.poll() is None
+        assert gap_s <= supervisor.longest_gap_s["busy"] < gap_s + 1.0  # the gap is on record
     finally:
         supervisor.stop()
 

@@ -26,7 +26,9 @@ most the arms can have come nearer since (:attr:`~audio2pose_ros.robot.body.Body
 times each joint's travel), is still beyond margin + band, the factor is 1 without a query (the
 query would give 1 too). Each :class:`BodyNoise` loads its own
 :class:`~audio2pose_ros.robot.body.BodyModel` (Pinocchio's workspaces are not shared between
-threads), on first use, and drops it when pickled.
+threads) when it is made, so that a streaming predictor's first frame does not wait for
+Pinocchio, coal and the URDF (0.3 s here, seconds on a cold, busy machine); it drops the model
+when pickled and loads it again on first use.
 """
 
 from __future__ import annotations
@@ -59,13 +61,18 @@ class BodyNoise:
     """Noise factors f_t of the module text, for previous poses in [0, 1] units."""
 
     def __init__(self, robot: RobotDescription, margin_m: float, band_m: float) -> None:
-        """Check the margin and band (m); the body model loads on first use."""
+        """Check the margin and band (m) and load the body model."""
         check_body_noise(margin_m, band_m)
         self.robot, self.margin_m, self.band_m = robot, float(margin_m), float(band_m)
-        self._body: BodyModel | None = None
+        self._body: BodyModel | None = BodyModel(robot, default_urdf_path())
         self._measured: np.ndarray | None = None  # per sequence: the last pose measured (rad)
         self._clearance = np.empty(0)  # ... and its clearance (m)
         self._factors = np.empty(0)  # ... and its last factor
+
+    @property
+    def loaded(self) -> bool:
+        """Whether the body model is loaded (False only after unpickling, until first use)."""
+        return self._body is not None
 
     def __getstate__(self) -> dict[str, Any]:
         """Pickle without the body model (Pinocchio's objects do not pickle)."""

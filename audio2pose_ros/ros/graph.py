@@ -159,6 +159,8 @@ class NodeSupervisor:
         self.restarts: dict[str, list[float]] = {name: [] for name in commands}
         self.given_up: set[str] = set()
         self.silences = dict.fromkeys(commands, 0)
+        # per node, the longest time (s) between two heartbeats of one process, as read here
+        self.longest_gap_s = dict.fromkeys(commands, 0.0)
         self._started_s: dict[str, float] = {}
         self._heard_s: dict[str, float] = {}  # since the current process started
         self._last_heard_s: dict[str, float] = {}  # by any process of the node
@@ -215,8 +217,12 @@ class NodeSupervisor:
         process = self.processes.get(name)
         if process is None or process.pid != pid:
             return
+        now = time.monotonic()
         with self._lock:
-            self._heard_s[name] = self._last_heard_s[name] = time.monotonic()
+            previous = self._heard_s.get(name)
+            if previous is not None:
+                self.longest_gap_s[name] = max(self.longest_gap_s[name], now - previous)
+            self._heard_s[name] = self._last_heard_s[name] = now
 
     def silent_s(self, name: str) -> float:
         """How long ``name`` has not been heard from, across restarts (0 before it ever was)."""
@@ -414,6 +420,7 @@ def node_graph(
     single_process: bool = False,
     sim: bool = False,
     more_nodes: Mapping[str, list[str]] | None = None,
+    restart_after_s: float = RESTART_AFTER_S,
 ) -> Iterator[NodeSupervisor]:
     """Run the three nodes as supervised processes for the duration of the context.
 
@@ -429,6 +436,8 @@ def node_graph(
             reports the measured ``joint_states`` the motion filter starts from.
         more_nodes: more node processes supervised with the graph, by node name: the command of
             each (``audio2pose console`` adds ``console_node``).
+        restart_after_s: how long a node may be silent before it is restarted (see
+            :class:`NodeSupervisor`).
     """
     params = params_file or share_path("config", "pepper.yaml")
     with ExitStack() as stack:
@@ -456,7 +465,9 @@ def node_graph(
             commands.update(more_nodes)
             if members is not None:
                 members.update({name: name for name in more_nodes})
-        supervisor = NodeSupervisor(commands, log_dir, members=members)
+        supervisor = NodeSupervisor(
+            commands, log_dir, members=members, restart_after_s=restart_after_s
+        )
         stack.callback(supervisor.stop)
         supervisor.start()
         if monitor:

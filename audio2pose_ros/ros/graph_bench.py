@@ -14,11 +14,11 @@ outside this figure: it belongs to the features, not to the graph, and is the sa
 implementation.
 
 CPU is read from /proc for each node process: ``cpu_ms_per_frame`` from the end of the warm-up
-to the end of the run (as before), and ``steady_cpu_ms_per_frame`` over the steady part only,
-from :data:`STEADY_SKIP_S` after the stream starts until its last chunk (no start-up, no idle
-tail). The graph runs as three processes (the default) or, with ``single_process``, as one
-(:mod:`audio2pose_ros.ros.nodes.single_process`). :func:`targets` compares the figures with issue
-15's targets.
+to the end of the run, and ``steady_cpu_ms_per_frame`` over the steady part only, from
+:data:`STEADY_SKIP_S` after the stream starts until its last chunk (no start-up, no idle tail).
+The graph runs as three processes (the default) or, with ``single_process``, as one
+(:mod:`audio2pose_ros.ros.nodes.single_process`). :func:`targets` compares the figures with the
+footprint targets in :data:`TARGETS`.
 """
 
 from __future__ import annotations
