@@ -54,7 +54,12 @@ from audio2pose_ros.checkpoints.format import (
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.body_noise import body_noise_for, check_body_noise
 from audio2pose_ros.models.sampling_noise import MAX_BURST, NoiseShape, NoiseStream
-from audio2pose_ros.models.speech_gate import GroupedSampler, SpeechGate
+from audio2pose_ros.models.speech_gate import (
+    PART_CORRELATION_KEYS,
+    GroupedSampler,
+    SpeechGate,
+    part_correlations,
+)
 from audio2pose_ros.models.warm_start import WarmStarted
 from audio2pose_ros.robot.description import RobotDescription
 
@@ -276,10 +281,7 @@ class LiveGroupsKernel(GroupedSampler):
         )
         order = config["noise_order"]
         bursts = (config.get("first_burst", 0.0), config.get("second_burst", 0.0))
-        rhos = [
-            float(config.get(key, config["noise_correlation"]))
-            for key in ("first_correlation", "second_correlation")
-        ]
+        rhos = part_correlations(config)
         self._parts = [
             LiveKernel(
                 tensors,
@@ -492,7 +494,7 @@ def _live_groups_shapes(config: Mapping[str, Any]) -> dict[str, tuple[int, ...]]
 
 
 _GROUP_BURSTS = frozenset({"first_burst", "second_burst"})  # optional: older checkpoints lack them
-_GROUP_CORRELATIONS = frozenset({"first_correlation", "second_correlation"})  # optional: likewise
+_GROUP_CORRELATIONS = frozenset(PART_CORRELATION_KEYS)  # optional: likewise
 _GROUP_BODY = frozenset({"body_margin_m", "body_band_m"})  # optional: likewise
 _LIVE_KEYS = frozenset(
     {"n_features", "n_joints", "hidden_units", "input_noise", "noise_correlation"}

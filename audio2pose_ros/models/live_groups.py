@@ -42,7 +42,7 @@ from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.base import PoseModel, StreamingPredictor
 from audio2pose_ros.models.body_noise import BodyNoise, body_noise_for, check_body_noise
 from audio2pose_ros.models.live import LiveConfig, LivePredictor, LiveSampler
-from audio2pose_ros.models.speech_gate import GroupedSampler, SpeechGate
+from audio2pose_ros.models.speech_gate import GroupedSampler, SpeechGate, part_correlations
 from audio2pose_ros.robot.description import RobotDescription
 
 SAMPLING_SETTINGS = (
@@ -165,15 +165,7 @@ class LiveGroups(PoseModel):
 
     def part_correlations(self) -> tuple[float, float]:
         """Each part's noise correlation."""
-        config = self.config
-        return (
-            config.noise_correlation
-            if config.first_correlation is None
-            else config.first_correlation,
-            config.noise_correlation
-            if config.second_correlation is None
-            else config.second_correlation,
-        )
+        return part_correlations(asdict(self.config))
 
     def samplers(self) -> list[LiveSampler]:
         """The two parts, typed (``parts`` is a ``ModuleList`` of :class:`LiveSampler`)."""

@@ -12,8 +12,8 @@ recent peak, it does not depend on the recording level. Torch-free, so the numpy
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, Protocol
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -22,6 +22,20 @@ if TYPE_CHECKING:
 
 GATE_TAU_S = 0.3  # smoothing of the speech gate
 PEAK_DECAY_PER_S = 0.3  # z-units per second the energy peak forgets
+PART_CORRELATION_KEYS = ("first_correlation", "second_correlation")  # of the two parts, in order
+
+
+def part_correlations(config: Mapping[str, Any]) -> tuple[float, float]:
+    """Each part's noise correlation: its own key where the config sets one, else the shared one.
+
+    ``config`` is a grouped sampler's configuration (``noise_correlation`` and, optionally,
+    :data:`PART_CORRELATION_KEYS`; a key that is absent or None takes ``noise_correlation``).
+    """
+    shared = float(config["noise_correlation"])
+    first, second = (
+        shared if config.get(key) is None else float(config[key]) for key in PART_CORRELATION_KEYS
+    )
+    return first, second
 
 
 class SpeechGate:
