@@ -173,8 +173,8 @@ def test_when_a_streaming_predictor_is_made_expect_its_body_model_loaded_before_
     from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 
     kernel = load_streaming_model(default_checkpoint_path(), robot=robot).predictor(seed=0)
-    torch_predictor = load_checkpoint(default_checkpoint_path(), robot=robot).model
-    for predictor in (kernel, torch_predictor.streaming_predictor(seed=0)):
+    model = load_checkpoint(default_checkpoint_path(), robot=robot).model
+    for predictor in (kernel, model.streaming_predictor(seed=0)):
         inner = getattr(predictor, "predictor", predictor)  # under its warm start, if any
         noise = inner._body_noise
         assert noise is not None
