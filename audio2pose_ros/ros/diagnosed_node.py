@@ -62,6 +62,8 @@ HEARTBEAT_FD_ENV = "AUDIO2POSE_HEARTBEAT_FD"
 # A node process given this signal writes every thread's Python stack to stderr and runs on.
 STACK_DUMP_SIGNAL = signal.SIGUSR1
 STALE_AFTER_S = 1.2  # a node not heard from for this long is silent (stopped, frozen or dead)
+# A heartbeat this late is sent at the end of whichever callback runs next (DiagnosedNode).
+HEARTBEAT_OVERDUE_S = 1.5 * HEARTBEAT_PERIOD_S
 PROBLEM_HOLD_S = 5.0  # a reported problem is shown until this long after its last occurrence
 LOG_THROTTLE_S = 5.0  # one log line per problem per this many seconds
 MAX_LOGGED_TRACEBACKS = 5  # callback exceptions beyond this are counted, not printed again
@@ -206,6 +208,12 @@ class DiagnosedNode(Node):
       so a WARN never outlives its cause by more than ``hold_s``; :meth:`clear_problem` ends it.
     - **Boundary.** :meth:`guarded` wraps a callback: any exception is caught, logged with its
       traceback (throttled per callback), counted and reported as ERROR; the node keeps serving.
+    - **A heartbeat behind a backlog.** rclpy's EventsExecutor serves events in arrival order, so
+      while messages arrive faster than the node serves them, its heartbeat timer waits behind
+      the whole backlog: flooded with features, inference_node went 10 s without one, and a
+      supervisor killed a node that was working. A guarded callback that ends with the heartbeat
+      ``HEARTBEAT_OVERDUE_S`` late therefore sends it, with the WARN ``falling behind``. A node
+      stuck inside a callback still sends nothing.
 
     Subclasses add their figures with :meth:`diagnostic_values` and their own state with
     :meth:`diagnostic_summary`.
@@ -217,6 +225,8 @@ class DiagnosedNode(Node):
         self._problems: dict[str, _Problem] = {}
         self.callback_errors = 0
         self.oversized_messages = 0
+        self.late_heartbeats = 0
+        self.last_heartbeat_s = time.monotonic()
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_timer(HEARTBEAT_PERIOD_S, self.guarded(self.publish_diagnostics))
 
@@ -315,6 +325,9 @@ class DiagnosedNode(Node):
                 )
                 if self.callback_errors <= MAX_LOGGED_TRACEBACKS:
                     self.get_logger().error(traceback.format_exc())
+            late_s = time.monotonic() - self.last_heartbeat_s
+            if late_s > HEARTBEAT_OVERDUE_S:
+                self.send_late_heartbeat(late_s)
 
         return boundary
 
@@ -369,14 +382,31 @@ class DiagnosedNode(Node):
         """Figures shown as key/values (override)."""
         return {}
 
+    def send_late_heartbeat(self, late_s: float) -> None:
+        """Send a heartbeat the timer has not sent for ``late_s``, and say the node is behind."""
+        self.late_heartbeats += 1
+        self.report_problem(
+            "falling behind",
+            DiagnosticStatus.WARN,
+            f"heartbeat timer {late_s:.1f} s late: messages arrive faster than the node serves "
+            "them, and its subscription queues keep only the newest (heartbeat sent between "
+            "messages)",
+        )
+        try:
+            self.publish_diagnostics()
+        except Exception:  # as the timer's heartbeat would be: counted, never fatal
+            self.callback_errors += 1
+
     def publish_diagnostics(self) -> None:
         """Publish the heartbeat: the worst of the summary and the current problems."""
+        self.last_heartbeat_s = time.monotonic()
         level, message = self.diagnostic_summary()
         problems = self.current_problems()
         values = dict(self.diagnostic_values())
         values["pid"] = os.getpid()  # tells a supervisor which process of the node is alive
         values["callback_errors"] = self.callback_errors
         values["oversized_messages_dropped"] = self.oversized_messages
+        values["late_heartbeats"] = self.late_heartbeats
         for key, (problem_level, problem_message, count) in problems.items():
             level = max(level, problem_level)
             message += f"; {problem_message}" + (f" ({count}x)" if count > 1 else "")
