@@ -55,9 +55,11 @@ from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.body_noise import body_noise_for, check_body_noise
 from audio2pose_ros.models.sampling_noise import MAX_BURST, NoiseShape, NoiseStream
 from audio2pose_ros.models.speech_gate import (
+    PART_BURST_KEYS,
     PART_CORRELATION_KEYS,
     GroupedSampler,
     SpeechGate,
+    part_bursts,
     part_correlations,
 )
 from audio2pose_ros.models.warm_start import WarmStarted
@@ -280,12 +282,12 @@ class LiveGroupsKernel(GroupedSampler):
             config["silence_temperature"], config["gate_margin"], config["gate_width"]
         )
         order = config["noise_order"]
-        bursts = (config.get("first_burst", 0.0), config.get("second_burst", 0.0))
+        bursts = part_bursts(config)
         rhos = part_correlations(config)
         self._parts = [
             LiveKernel(
                 tensors,
-                NoiseShape(rhos[k], order, float(bursts[k])),
+                NoiseShape(rhos[k], order, bursts[k]),
                 seed + k,
                 temperature,
                 prefix=f"parts.{k}.",
@@ -493,7 +495,7 @@ def _live_groups_shapes(config: Mapping[str, Any]) -> dict[str, tuple[int, ...]]
     return shapes
 
 
-_GROUP_BURSTS = frozenset({"first_burst", "second_burst"})  # optional: older checkpoints lack them
+_GROUP_BURSTS = frozenset(PART_BURST_KEYS)  # optional: older checkpoints lack them
 _GROUP_CORRELATIONS = frozenset(PART_CORRELATION_KEYS)  # optional: likewise
 _GROUP_BODY = frozenset({"body_margin_m", "body_band_m"})  # optional: likewise
 _LIVE_KEYS = frozenset(

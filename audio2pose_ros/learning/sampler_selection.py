@@ -67,6 +67,7 @@ from audio2pose_ros.learning import metrics
 from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 from audio2pose_ros.models.live_groups import LiveGroups
+from audio2pose_ros.models.speech_gate import PART_BURST_KEYS, PART_CORRELATION_KEYS
 from audio2pose_ros.motion.filter import MotionFilterSettings
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import RobotDescription
@@ -88,11 +89,8 @@ GATE_BUDGET_PCT = 0.05  # raw steps the motion filter's input gate may refuse as
 BODY_CHECK_EVERY = 4  # frames: the share is estimated on every 4th sampled frame
 GROUPS = ("head", "arms", "hip")
 _PART_SETTINGS = ("first_temperature", "second_temperature")
-_PART_BURSTS = {"first_temperature": "first_burst", "second_temperature": "second_burst"}
-_PART_CORRELATIONS = {
-    "first_temperature": "first_correlation",
-    "second_temperature": "second_correlation",
-}
+_PART_BURSTS = dict(zip(_PART_SETTINGS, PART_BURST_KEYS, strict=True))
+_PART_CORRELATIONS = dict(zip(_PART_SETTINGS, PART_CORRELATION_KEYS, strict=True))
 
 Fold = tuple[Checkpoint, Sequence[Clip]]  # a trained checkpoint and clips it was not trained on
 

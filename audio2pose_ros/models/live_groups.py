@@ -42,17 +42,22 @@ from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.base import PoseModel, StreamingPredictor
 from audio2pose_ros.models.body_noise import BodyNoise, body_noise_for, check_body_noise
 from audio2pose_ros.models.live import LiveConfig, LivePredictor, LiveSampler
-from audio2pose_ros.models.speech_gate import GroupedSampler, SpeechGate, part_correlations
+from audio2pose_ros.models.speech_gate import (
+    PART_BURST_KEYS,
+    PART_CORRELATION_KEYS,
+    GroupedSampler,
+    SpeechGate,
+    part_bursts,
+    part_correlations,
+)
 from audio2pose_ros.robot.description import RobotDescription
 
 SAMPLING_SETTINGS = (
     "first_temperature",
     "second_temperature",
-    "first_burst",
-    "second_burst",
+    *PART_BURST_KEYS,
     "noise_correlation",
-    "first_correlation",
-    "second_correlation",
+    *PART_CORRELATION_KEYS,
     "silence_temperature",
     "body_margin_m",
     "body_band_m",
@@ -130,7 +135,7 @@ class LiveGroups(PoseModel):
             )
             for joints, burst, correlation in zip(
                 self.groups,
-                (config.first_burst, config.second_burst),
+                part_bursts(asdict(config)),
                 self.part_correlations(),
                 strict=True,
             )

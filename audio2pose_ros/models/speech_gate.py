@@ -23,6 +23,7 @@ if TYPE_CHECKING:
 GATE_TAU_S = 0.3  # smoothing of the speech gate
 PEAK_DECAY_PER_S = 0.3  # z-units per second the energy peak forgets
 PART_CORRELATION_KEYS = ("first_correlation", "second_correlation")  # of the two parts, in order
+PART_BURST_KEYS = ("first_burst", "second_burst")  # likewise
 
 
 def part_correlations(config: Mapping[str, Any]) -> tuple[float, float]:
@@ -35,6 +36,12 @@ def part_correlations(config: Mapping[str, Any]) -> tuple[float, float]:
     first, second = (
         shared if config.get(key) is None else float(config[key]) for key in PART_CORRELATION_KEYS
     )
+    return first, second
+
+
+def part_bursts(config: Mapping[str, Any]) -> tuple[float, float]:
+    """Each part's noise burstiness (:data:`PART_BURST_KEYS`); absent (older checkpoints) is 0."""
+    first, second = (float(config.get(key, 0.0)) for key in PART_BURST_KEYS)
     return first, second
 
 
