@@ -19,9 +19,11 @@ import numpy as np
 import rclpy
 from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
@@ -63,6 +65,7 @@ HEARTBEAT_FD_ENV = "AUDIO2POSE_HEARTBEAT_FD"
 STACK_DUMP_SIGNAL = signal.SIGUSR1
 STALE_AFTER_S = 1.2  # a node not heard from for this long is silent (stopped, frozen or dead)
 # A heartbeat this late is sent at the end of whichever callback runs next (DiagnosedNode).
+USE_SIM_TIME = "use_sim_time"  # rclpy's parameter: the nodes keep it false (DiagnosedNode)
 HEARTBEAT_OVERDUE_S = 1.5 * HEARTBEAT_PERIOD_S
 PROBLEM_HOLD_S = 5.0  # a reported problem is shown until this long after its last occurrence
 LOG_THROTTLE_S = 5.0  # one log line per problem per this many seconds
@@ -214,6 +217,11 @@ class DiagnosedNode(Node):
       supervisor killed a node that was working. A guarded callback that ends with the heartbeat
       ``HEARTBEAT_OVERDUE_S`` late therefore sends it, with the WARN ``falling behind``. A node
       stuck inside a callback still sends nothing.
+    - **Wall clock.** The nodes pace a real robot and their own heartbeat, so they run on the
+      wall clock. With ``use_sim_time`` true (set globally to replay a bag with ``--clock``) and
+      no /clock, every timer stopped: no command, no heartbeat, and a supervisor restarted the
+      nodes again and again; a paused or looped bag would stop or rewind them. The node sets it
+      back to false at start-up with a logged warning, and refuses to set it true while it runs.
 
     Subclasses add their figures with :meth:`diagnostic_values` and their own state with
     :meth:`diagnostic_summary`.
@@ -227,6 +235,13 @@ class DiagnosedNode(Node):
         self.oversized_messages = 0
         self.late_heartbeats = 0
         self.last_heartbeat_s = time.monotonic()
+        if self.get_parameter(USE_SIM_TIME).value is True:
+            self.set_parameters([Parameter(USE_SIM_TIME, Parameter.Type.BOOL, False)])
+            self.get_logger().warning(
+                f"{USE_SIM_TIME} ignored: this node runs on the wall clock (it paces the robot "
+                "and its heartbeat); stamps are wall-clock times"
+            )
+        self.add_on_set_parameters_callback(self._keep_wall_clock)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_timer(HEARTBEAT_PERIOD_S, self.guarded(self.publish_diagnostics))
 
@@ -267,6 +282,15 @@ class DiagnosedNode(Node):
                 "event_callbacks", SubscriptionEventCallbacks(use_default_callbacks=False)
             )
         return super().create_subscription(msg_type, topic, callback, qos_profile, **kwargs)
+
+    def _keep_wall_clock(self, parameters: list[Parameter[Any]]) -> SetParametersResult:
+        for parameter in parameters:
+            if parameter.name == USE_SIM_TIME and parameter.value is True:
+                return SetParametersResult(
+                    successful=False,
+                    reason=f"{USE_SIM_TIME} cannot be true: this node runs on the wall clock",
+                )
+        return SetParametersResult(successful=True)
 
     # --- problems -----------------------------------------------------------------------------
 
