@@ -64,3 +64,39 @@ def test_when_the_real_node_gets_a_wrong_type_in_a_second_file_expect_exit_78_na
     )
     assert "rate_hz" in line
     assert "mine.yaml" in line
+
+
+def test_when_a_parameter_name_is_misspelt_expect_a_warning_naming_the_likely_one():
+    from audio2pose_ros.ros.node_parameters import unknown_parameter_warnings
+
+    specs = {spec.name: spec for spec in PARAMETERS}
+    given = [
+        "arms_gian",  # a typo of this node's parameter
+        "model_pth",  # a typo of another node's parameter
+        "arms_gain",  # this node's
+        "feature_limit_sd",  # another node's: launch and /** give every node the same set
+        "use_sim_time",  # rclpy's own
+        "qos_overrides./audio/audio.subscription.depth",
+        "zzz",
+    ]
+    lines = unknown_parameter_warnings(given, specs)
+    assert lines == [
+        "parameter arms_gian is not a parameter of any audio2pose_ros node and was ignored; "
+        "did you mean arms_gain?",
+        "parameter model_pth is not a parameter of any audio2pose_ros node and was ignored; "
+        "did you mean model_path?",
+        "parameter zzz is not a parameter of any audio2pose_ros node and was ignored",
+    ]
+    assert unknown_parameter_warnings(["arms_gain", "use_sim_time"], specs) == []
+
+
+def test_when_the_packaged_parameters_file_is_given_expect_no_unknown_name():
+    """config/pepper.yaml names only parameters some node declares."""
+    import yaml
+
+    from audio2pose_ros.ros.node_parameters import unknown_parameter_warnings
+
+    document = yaml.safe_load(share_path("config", "pepper.yaml").read_text())
+    names = {name for section in document.values() for name in section["ros__parameters"]}
+    assert names
+    assert unknown_parameter_warnings(names, {}) == []

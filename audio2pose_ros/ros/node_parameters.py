@@ -16,6 +16,7 @@ parameter, the value and the allowed range in one line:
 
 from __future__ import annotations
 
+import difflib
 import re
 import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -128,6 +129,50 @@ def check_parameter_files(
                     raise ConfigurationError(f"{file}: {exc}") from None
 
 
+# Parameters rclpy itself reads from a node's overrides, which no spec declares.
+ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
+ROS_PARAMETER_PREFIXES = ("qos_overrides.",)
+
+
+def unknown_parameter_warnings(
+    given: Iterable[str], specs: Mapping[str, ParameterSpec]
+) -> list[str]:
+    """One line per given parameter name that no node of this package declares: a typo.
+
+    rclpy ignores, without a word, an override it has no declaration for, so
+    ``-p feature_limt_sd:=3`` would leave the node on its default. A name another node of the
+    package declares passes (launch and ``/**`` sections give every node the same set), as do
+    rclpy's own (:data:`ROS_PARAMETERS`, ``qos_overrides.*``). The other nodes' declarations
+    are imported only when a name is unknown to this one.
+    """
+    strangers = sorted(
+        name
+        for name in given
+        if name not in specs
+        and name not in ROS_PARAMETERS
+        and not name.startswith(ROS_PARAMETER_PREFIXES)
+    )
+    if not strangers:
+        return []
+    from audio2pose_ros.ros.nodes import pepper_sim_node  # the package's nodes
+    from audio2pose_ros.ros.parameter_docs import node_parameters
+
+    known = {spec.name for node_specs in node_parameters().values() for spec in node_specs}
+    known |= {spec.name for spec in pepper_sim_node.PARAMETERS}
+    lines = []
+    for name in strangers:
+        if name in known:
+            continue
+        close = difflib.get_close_matches(name, list(specs), n=1) or difflib.get_close_matches(
+            name, sorted(known), n=1
+        )
+        hint = f"; did you mean {close[0]}?" if close else ""
+        lines.append(
+            f"parameter {name} is not a parameter of any audio2pose_ros node and was ignored" + hint
+        )
+    return lines
+
+
 class NodeParameters:
     """The declared, validated parameters of one node.
 
@@ -174,6 +219,8 @@ class NodeParameters:
             except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
                 raise ConfigurationError(f"parameter {name}: {exc}") from None
             self.values[name] = spec.validate(value)
+        for line in unknown_parameter_warnings(overrides, self.specs):
+            node.get_logger().warning(line)
         node.add_on_set_parameters_callback(self._on_set)
 
     def __getitem__(self, name: str) -> ParameterValue:
