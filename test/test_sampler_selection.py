@@ -11,6 +11,7 @@ from synthetic_motion import write_dataset
 from audio2pose_ros.data.dataset import Clip, Dataset
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.learning.evaluation import loso_predictions
+from audio2pose_ros.learning.realism import speed_percentiles
 from audio2pose_ros.learning.sampler_selection import (
     BODY_BUDGET_PCT,
     BURSTS,
@@ -21,9 +22,11 @@ from audio2pose_ros.learning.sampler_selection import (
     TEMPERATURES,
     FoldTuner,
     choose_sampling,
+    reference_percentiles,
     score,
     select_sampling,
     speaker_folds,
+    tail_distance,
 )
 from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 from audio2pose_ros.models.live_groups import SAMPLING_SETTINGS
@@ -340,8 +343,11 @@ def test_when_a_holdout_task_chooses_expect_its_unlabelled_training_speech_in_th
     heads = [replace(c, mask=c.mask & ~arms) for c in train[:2]]  # talking heads: no arms
     given: list = []
 
-    def spy(folds, robot, n_seeds=2, body_audio=()):
+    references: list = []
+
+    def spy(folds, robot, n_seeds=2, body_audio=(), reference=()):
         given.extend(body_audio)
+        references.append(reference)
         return choose_sampling(folds, robot, 1)
 
     monkeypatch.setattr(source_holdout, "choose_sampling", spy)
@@ -359,6 +365,11 @@ def test_when_a_holdout_task_chooses_expect_its_unlabelled_training_speech_in_th
     assert len(given) == len(heads)
     for audio, clip in zip(given, heads, strict=True):
         assert audio is clip.audio
+    # the head's percentile targets: real motion of the training and validation clips
+    (reference,) = references
+    assert {c.info.clip_id for c in reference} == {
+        c.info.clip_id for c in task.training + task.validation
+    }
 
 
 def test_when_validation_holds_grid_and_addressed_speech_expect_the_head_chosen_on_the_latter(
@@ -384,3 +395,50 @@ def test_when_validation_holds_grid_and_addressed_speech_expect_the_head_chosen_
     assert not selection_clips([grid, unknown], robot)[0].mask[:, head].any()
     lecture_only = replace(obama, mask=obama.mask & ~head)  # no other clip labels the head
     assert selection_clips([grid, lecture_only], robot)[0] is grid
+
+
+def _head_motion(seconds: float, nods: bool, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(frames, 2) head angles: slow drift, with or without quick nods (0.15 s, 0.1 rad)."""
+    rng = np.random.default_rng(seed)
+    n = int(seconds * 100)
+    angles = np.cumsum(rng.normal(0.0, 0.001, (n, 2)), axis=0)
+    if nods:
+        for start in rng.integers(0, n - 15, n // 100):
+            angles[start : start + 15, 0] += 0.1 * np.sin(np.linspace(0.0, np.pi, 15))
+    return angles, np.ones((n, 2), bool)
+
+
+def test_when_a_head_lacks_the_references_quick_nods_expect_a_larger_tail_distance():
+    reference = [_head_motion(60.0, True, 0)]
+    percentiles = speed_percentiles(reference)
+    assert tail_distance(reference, percentiles) == pytest.approx(0.0, abs=1e-12)
+    like = tail_distance([_head_motion(60.0, True, 1)], percentiles)
+    still = tail_distance([_head_motion(60.0, False, 1)], percentiles)
+    assert like < 0.3
+    assert still > like + 0.3
+    # twice as fast everywhere: every ratio is 2
+    doubled = [(2.0 * angles, known) for angles, known in reference]
+    assert tail_distance(doubled, percentiles) == pytest.approx(np.log(2.0))
+    # a motionless head is far, not infinitely far
+    frozen = [(np.zeros_like(angles), known) for angles, known in reference]
+    assert np.isfinite(tail_distance(frozen, percentiles))
+
+
+def test_when_a_reference_is_given_expect_the_head_scored_on_its_percentiles_too(
+    checkpoint, clips, robot
+):
+    validation = [c for c in clips if c.info.split == "validation"]
+    train = [c for c in clips if c.info.split == "train"]
+    targets = reference_percentiles(train, robot)
+    assert set(targets) == {"head"}
+    with_tail = choose_sampling([(checkpoint, validation)], robot, 1, reference=train)
+    without = choose_sampling([(checkpoint, validation)], robot, 1)
+    head_trials = [t for t in with_tail.trials if t.group == "head" and "std ratio" in t.measures]
+    assert head_trials
+    assert all(t.measures["tail"] >= 0.0 for t in head_trials)
+    assert all("tail" not in t.measures for t in with_tail.trials if t.group != "head")
+    assert all("tail" not in t.measures for t in without.trials)
+    for t in head_trials:  # the score adds the tail term
+        base = {k: v for k, v in t.measures.items() if k != "tail"}
+        assert score(t.measures) == pytest.approx(score(base) + t.measures["tail"])
+    assert " tail " in with_tail.table().splitlines()[1]

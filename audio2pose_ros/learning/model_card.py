@@ -430,7 +430,11 @@ GRID's readers, who hold their heads four to five times stiller (the shipped mod
 the Obama clip; the model that holds Obama out has only GRID to choose on). Every combination
 of a correlation of {correlations}, a burstiness of {bursts} and a temperature of
 {temperatures} is sampled ({N_SEEDS} samples per clip) and scored per joint group by
-mean(H speed, H accel) + |ln(std ratio)|; each part keeps its best correlation, burstiness and
+mean(H speed, H accel) + |ln(std ratio)|, plus, for the head, the mean |ln| of the ratios of
+its speed and acceleration percentiles (p50, p90, p99) to those of the chosen source's real
+motion pooled over all its training and validation clips (the "tail" column: a clip of a few
+seconds holds too few quick nods to judge them, and the Hellinger distance on 0.1 rad/s bins
+does not see them); each part keeps its best correlation, burstiness and
 temperature (the head and the arms each have their own noise correlation), among those whose
 raw steps the motion filter's input gate would refuse, as faster than the robot can move, in at
 most {GATE_BUDGET_PCT:g} % of frames, and, for the arms, within the body budget. Then

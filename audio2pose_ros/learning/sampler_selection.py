@@ -18,7 +18,10 @@ stretch of the lecture.
    that observe the group is compared with the real motion (pooled over the samples and folds:
    :func:`~audio2pose_ros.learning.metrics.sum_segments`) by :func:`score`, which adds the mean
    of the Hellinger distances of speed and acceleration to how far the motion's size is from
-   real, ``|ln(std ratio)|``. Each part keeps the correlation, burstiness and temperature
+   real, ``|ln(std ratio)|``, and, for the groups of :data:`TAIL_GROUPS` when a reference is
+   given, how far its speed and acceleration percentiles are from the reference's
+   (:func:`tail_distance`: whether the head makes real speakers' quick nods). Each part keeps
+   the correlation, burstiness and temperature
    with the lowest score, averaged over its joint groups weighted by their joint counts (its own
    ``first_correlation`` / ``second_correlation``: a head's quick nods and an arm's slow swings
    need noise of different speeds). A part whose joints no clip observes keeps its configured
@@ -63,7 +66,7 @@ import numpy as np
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Clip
 from audio2pose_ros.data.importers.body_clearance import TRAINING_CLEARANCE_M
-from audio2pose_ros.learning import metrics
+from audio2pose_ros.learning import metrics, realism
 from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 from audio2pose_ros.models.live_groups import LiveGroups
@@ -88,6 +91,7 @@ BODY_BAND_M = round(TRAINING_CLEARANCE_M - BODY_MARGIN_M, 6)
 GATE_BUDGET_PCT = 0.05  # raw steps the motion filter's input gate may refuse as implausible
 BODY_CHECK_EVERY = 4  # frames: the share is estimated on every 4th sampled frame
 GROUPS = ("head", "arms", "hip")
+TAIL_GROUPS = ("head",)  # groups whose speed percentiles are matched to a reference (score)
 _PART_SETTINGS = ("first_temperature", "second_temperature")
 _PART_BURSTS = dict(zip(_PART_SETTINGS, PART_BURST_KEYS, strict=True))
 _PART_CORRELATIONS = dict(zip(_PART_SETTINGS, PART_CORRELATION_KEYS, strict=True))
@@ -96,10 +100,35 @@ Fold = tuple[Checkpoint, Sequence[Clip]]  # a trained checkpoint and clips it wa
 
 
 def score(measures: dict[str, float]) -> float:
-    """Distance of generated from real motion: mean(H speed, H accel) + |ln(std ratio)|."""
+    """Distance of generated from real motion.
+
+    mean(H speed, H accel) + |ln(std ratio)|, plus the ``tail`` measure where there is one:
+    the mean |ln| of the ratios of the speed and acceleration percentiles to the reference's
+    (:func:`tail_distance`).
+    """
     ratio = measures["std ratio"]
     size = abs(math.log(ratio)) if ratio > 0 else math.inf
-    return 0.5 * (measures["H speed"] + measures["H accel"]) + size
+    return 0.5 * (measures["H speed"] + measures["H accel"]) + size + measures.get("tail", 0.0)
+
+
+def tail_distance(
+    generated: Sequence[realism.Motion], reference: tuple[np.ndarray, np.ndarray]
+) -> float:
+    """Mean |ln(generated / reference)| over the joints' speed and acceleration percentiles.
+
+    The percentiles are :data:`~audio2pose_ros.learning.realism.PERCENTILES` (p50, p90, p99):
+    the Hellinger distance on 0.1 rad/s bins barely sees a head whose speeds all lie in the
+    first few bins, and not at all whether its quick nods (p99) are there. Percentiles are
+    floored at 1e-4 so that a still motion is far, not infinitely far.
+    """
+    speed, accel = realism.speed_percentiles(generated, FRAME_RATE_HZ)
+    ratios = np.concatenate(
+        [
+            (np.maximum(speed, 1e-4) / np.maximum(reference[0], 1e-4)).ravel(),
+            (np.maximum(accel, 1e-4) / np.maximum(reference[1], 1e-4)).ravel(),
+        ]
+    )
+    return float(np.mean(np.abs(np.log(ratios))))
 
 
 @dataclass(frozen=True)
@@ -172,8 +201,8 @@ class SamplingChoice:
         lines = [
             self.summary(),
             f"{'setting':<21}{'corr':>6}{'burst':>6}{'value':>6}  {'group':<6}{'H speed':>8}"
-            f"{'H accel':>8}{'std/real':>9}{'score':>7}{'speech/pause':>13}{'near body %':>12}"
-            f"{'gate refused %':>15}",
+            f"{'H accel':>8}{'std/real':>9}{'tail':>6}{'score':>7}{'speech/pause':>13}"
+            f"{'near body %':>12}{'gate refused %':>15}",
         ]
         for t in self.trials:
             m = t.measures
@@ -185,7 +214,7 @@ class SamplingChoice:
                 f"{t.group:<6}"
                 + "".join(
                     f"{m[k]:>{w}.2f}" if k in m else f"{'-':>{w}}"
-                    for k, w in (("H speed", 8), ("H accel", 8), ("std ratio", 9))
+                    for k, w in (("H speed", 8), ("H accel", 8), ("std ratio", 9), ("tail", 6))
                 )
                 + (f"{score(m):>7.2f}" if "std ratio" in m else f"{'-':>7}")
                 + (f"{m['speech/pause speed']:>13.2f}" if "speech/pause speed" in m else "")
@@ -347,12 +376,14 @@ def _measures(
     n_seeds: int,
     paused: bool,
     body: BodyModel | None = None,
+    tails: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> dict[str, dict[str, float]]:
     """Group -> measures of the samples (``n_seeds`` per clip) with ``settings``, pooled.
 
     With ``body``, the arms' measures also hold ``near body %``: the share of sampled frames
     (every :data:`BODY_CHECK_EVERY`-th, on every clip's audio) closer to the body than
-    :data:`BODY_MARGIN_M`.
+    :data:`BODY_MARGIN_M`. A group of ``tails`` (group -> reference speed and acceleration
+    percentiles) also has ``tail``: :func:`tail_distance` of its samples.
     """
     from audio2pose_ros.offline.synthesis import sample_normalized, to_angles
 
@@ -361,6 +392,7 @@ def _measures(
     gate_bound = None
     real: dict[str, list[metrics.MotionSegments]] = {}
     generated: dict[str, list[metrics.MotionSegments]] = {}
+    motions: dict[str, list[realism.Motion]] = {}  # groups of ``tails``: the sampled motion
     candidates: dict[int, Checkpoint] = {}
     for item in evidence:
         checkpoint = item.checkpoint
@@ -396,6 +428,8 @@ def _measures(
             )
             if not paused:
                 real.setdefault(g, []).append(item.real[g])
+            if tails and g in tails:
+                motions.setdefault(g, []).extend((m[:, joints], known) for m in samples)
     out = {}
     for g, parts in generated.items():
         gen = metrics.concat_segments(parts)
@@ -404,6 +438,9 @@ def _measures(
             out[g] = {"speech/pause speed": ratio}
         else:
             out[g] = metrics.distribution_measures(metrics.concat_segments(real[g]), gen)
+    for g, motion in motions.items():
+        if g in out and not paused:
+            out[g]["tail"] = tail_distance(motion, tails[g]) if tails else math.nan
     if body is not None and "arms" in out and near[1]:
         out["arms"]["near body %"] = 100.0 * near[0] / near[1]
     for g, (refused, total) in jumps.items():
@@ -423,11 +460,29 @@ def _gate_bound(checkpoint: Checkpoint) -> np.ndarray:
     return checkpoint.robot.max_velocity_rad_s / settings.rate_hz + settings.outlier_tolerance_rad
 
 
+def reference_percentiles(
+    clips: Sequence[Clip], robot: RobotDescription
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per group of :data:`TAIL_GROUPS` that ``clips`` observe: its real motion's percentiles."""
+    out = {}
+    for g in TAIL_GROUPS:
+        joints = robot.group_mask(g)
+        observed = [
+            (np.nan_to_num(c.angles_rad[:, joints]), c.mask[:, joints])
+            for c in clips
+            if c.mask[:, joints].any()
+        ]
+        if observed:
+            out[g] = realism.speed_percentiles(observed, FRAME_RATE_HZ)
+    return out
+
+
 def choose_sampling(
     folds: Sequence[Fold],
     robot: RobotDescription,
     n_seeds: int = N_SEEDS,
     body_audio: Sequence[np.ndarray] = (),
+    reference: Sequence[Clip] = (),
 ) -> SamplingChoice:
     """Choose the sampling settings on the folds' clips (see the module docstring).
 
@@ -438,9 +493,13 @@ def choose_sampling(
         n_seeds: samples per clip and setting.
         body_audio: more 16 kHz utterances for the arms' body budget only (speech whose arm
             motion the models did not learn; never the clips the model is scored on).
+        reference: real motion whose speed and acceleration percentiles the groups of
+            :data:`TAIL_GROUPS` should have (the ``tail`` term of :func:`score`), pooled over
+            these clips where they observe the group; never the clips the model is scored on.
 
     """
     folds = [(c, v) for c, v in folds if isinstance(c.model, LiveGroups) and v]
+    tails = reference_percentiles(reference, robot)
     clips = [clip for _, v in folds for clip in v]
     names = tuple(c.info.clip_id for c in clips)
     seconds = sum(c.n_frames for c in clips) / FRAME_RATE_HZ
@@ -472,7 +531,7 @@ def choose_sampling(
                     **{_PART_BURSTS[s]: burst for s in parts},
                     **dict.fromkeys(parts, value),
                 }
-                measured = _measures(evidence, settings, robot, n_seeds, False, body)
+                measured = _measures(evidence, settings, robot, n_seeds, False, body, tails)
                 for s, part in parts.items():
                     trials += [Trial(s, value, g, measured[g], correlation, burst) for g in part]
                     total = float(

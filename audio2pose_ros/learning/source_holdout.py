@@ -19,7 +19,12 @@ speakers of other recordings we were scored on. A telepresence robot speaks to p
 task's validation clips include a source of speech addressed to people, the head's sampling
 settings are chosen on that source only (:func:`selection_clips`): GRID still teaches the head
 when to move, through training, but not how far. A task whose only head source is GRID (the
-fold that holds Obama out) chooses on GRID.
+fold that holds Obama out) chooses on GRID. The choice also asks the head's speed and
+acceleration percentiles (p50, p90, p99) to be those of that source's real motion, pooled over
+all its training and validation clips (the ``tail`` term of
+:func:`~audio2pose_ros.learning.sampler_selection.score`): a validation clip of a few seconds
+holds too few quick nods to judge them, and the Hellinger distance on 0.1 rad/s bins does not
+see them.
 
 Every fold (and the shipped model) is one :class:`HoldoutTask`: train, choose, sample, in one
 picklable call, so the folds run side by side (:func:`~audio2pose_ros.learning.parallel.run_tasks`).
@@ -122,7 +127,9 @@ class HoldoutTask:
         training: the clips it trains on.
         validation: early stopping and the sampling choice (never scored clips;
             :func:`selection_clips` of them for the choice); the audio of the training clips
-            that do not label the arms also counts for the arms' body budget.
+            that do not label the arms also counts for the arms' body budget, and the real head
+            motion of :func:`selection_clips` of the training and validation clips together
+            sets the head's percentile targets (the ``tail`` term of the choice's score).
         scored: clips to sample (the held-out source's, or the lecture's test stretch).
         robot: joint order and limits.
         settings: training settings.
@@ -151,6 +158,7 @@ class HoldoutTask:
             [(checkpoint, selection_clips(self.validation, self.robot))],
             self.robot,
             body_audio=unlabelled,
+            reference=selection_clips(self.training + self.validation, self.robot),
         )
         checkpoint = apply_sampling(checkpoint, choice)
         label = f"{MODEL_NAME} ({self.name})"
