@@ -64,8 +64,8 @@ HEARTBEAT_FD_ENV = "AUDIO2POSE_HEARTBEAT_FD"
 # A node process given this signal writes every thread's Python stack to stderr and runs on.
 STACK_DUMP_SIGNAL = signal.SIGUSR1
 STALE_AFTER_S = 1.2  # a node not heard from for this long is silent (stopped, frozen or dead)
-# A heartbeat this late is sent at the end of whichever callback runs next (DiagnosedNode).
 USE_SIM_TIME = "use_sim_time"  # rclpy's parameter: the nodes keep it false (DiagnosedNode)
+# A heartbeat this late is sent at the end of whichever callback runs next (DiagnosedNode).
 HEARTBEAT_OVERDUE_S = 1.5 * HEARTBEAT_PERIOD_S
 PROBLEM_HOLD_S = 5.0  # a reported problem is shown until this long after its last occurrence
 LOG_THROTTLE_S = 5.0  # one log line per problem per this many seconds
@@ -215,8 +215,9 @@ class DiagnosedNode(Node):
       while messages arrive faster than the node serves them, its heartbeat timer waits behind
       the whole backlog: flooded with features, inference_node went 10 s without one, and a
       supervisor killed a node that was working. A guarded callback that ends with the heartbeat
-      ``HEARTBEAT_OVERDUE_S`` late therefore sends it, with the WARN ``falling behind``. A node
-      stuck inside a callback still sends nothing.
+      ``HEARTBEAT_OVERDUE_S`` late therefore sends it, with the WARN ``falling behind`` (not
+      before the first heartbeat: building a node may take longer than that). A node stuck
+      inside a callback still sends nothing.
     - **Wall clock.** The nodes pace a real robot and their own heartbeat, so they run on the
       wall clock. With ``use_sim_time`` true (set globally to replay a bag with ``--clock``) and
       no /clock, every timer stopped: no command, no heartbeat, and a supervisor restarted the
@@ -234,6 +235,7 @@ class DiagnosedNode(Node):
         self.callback_errors = 0
         self.oversized_messages = 0
         self.late_heartbeats = 0
+        self.heartbeats = 0
         self.last_heartbeat_s = time.monotonic()
         if self.get_parameter(USE_SIM_TIME).value is True:
             self.set_parameters([Parameter(USE_SIM_TIME, Parameter.Type.BOOL, False)])
@@ -407,15 +409,20 @@ class DiagnosedNode(Node):
         return {}
 
     def send_late_heartbeat(self, late_s: float) -> None:
-        """Send a heartbeat the timer has not sent for ``late_s``, and say the node is behind."""
-        self.late_heartbeats += 1
-        self.report_problem(
-            "falling behind",
-            DiagnosticStatus.WARN,
-            f"heartbeat timer {late_s:.1f} s late: messages arrive faster than the node serves "
-            "them, and its subscription queues keep only the newest (heartbeat sent between "
-            "messages)",
-        )
+        """Send a heartbeat the timer has not sent for ``late_s``, and say the node is behind.
+
+        Before the first heartbeat the lateness is the node's start-up, not a backlog: the
+        heartbeat is sent without a warning.
+        """
+        if self.heartbeats:
+            self.late_heartbeats += 1
+            self.report_problem(
+                "falling behind",
+                DiagnosticStatus.WARN,
+                f"heartbeat timer {late_s:.1f} s late: callbacks kept the node busy (messages "
+                "arriving faster than it serves them, whose subscription queues keep only the "
+                "newest, or a slow callback); heartbeat sent between callbacks",
+            )
         try:
             self.publish_diagnostics()
         except Exception:  # as the timer's heartbeat would be: counted, never fatal
@@ -424,6 +431,7 @@ class DiagnosedNode(Node):
     def publish_diagnostics(self) -> None:
         """Publish the heartbeat: the worst of the summary and the current problems."""
         self.last_heartbeat_s = time.monotonic()
+        self.heartbeats += 1
         level, message = self.diagnostic_summary()
         problems = self.current_problems()
         values = dict(self.diagnostic_values())
