@@ -39,6 +39,7 @@ from audio2pose_ros.cli.options import (
     bounded_float,
     bounded_int,
     input_bag,
+    input_dir,
     input_file,
     new_dir,
     output_file,
@@ -208,6 +209,35 @@ def command_check_body(args: argparse.Namespace) -> int:
             _, angles = synthesize(checkpoint, signal, seed=args.seed, body_margin_m=margin)
             report = check_trajectory(body, angles, args.margin)
             print(f"{path.stem[:39]:<40}{label:<9}{report.row()}")
+    return 0
+
+
+def command_check_head(args: argparse.Namespace) -> int:
+    """How the model's head moves on the speech, at several seeds, beside real head motion."""
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+    from audio2pose_ros.data.dataset import Clip, Dataset
+    from audio2pose_ros.learning.speech_style import head_style_rows, head_style_table
+    from audio2pose_ros.resources import default_checkpoint_path
+    from audio2pose_ros.robot.description import load_robot
+
+    checkpoint = load_checkpoint(args.model or default_checkpoint_path(), robot=load_robot())
+    robot = checkpoint.robot
+    speech = {str(path): _read_speech(path) for path in map(_speech_input, args.inputs)}
+    real: dict[str, list[Clip]] = {}
+    if args.data is not None:
+        dataset = Dataset.open(input_dir(args.data, "data set folder"), robot)
+        for info in dataset.clips:
+            clip = dataset.load(info.clip_id)
+            if clip.mask[:, robot.group_mask("head")].any():
+                real.setdefault(info.speaker, []).append(clip)
+        if not real:
+            raise InputError(f"{args.data}: no clip of the data set labels the head")
+    label = f"model, {len(speech)} input(s), seeds 0..{args.seeds - 1}"
+    rows = head_style_rows(checkpoint, robot, speech, range(args.seeds), real, label)
+    head_names = [
+        name for name, on in zip(robot.names, robot.group_mask("head"), strict=True) if on
+    ]
+    print(head_style_table(rows, head_names))
     return 0
 
 
@@ -533,6 +563,24 @@ def build_parser() -> argparse.ArgumentParser:
         "many glide to neutral within 4 s (the guard going round the body)",
     )
     check.set_defaults(func=command_check_body)
+
+    head = verbs.add_parser(
+        "check-head", help="speed, acceleration and size of the model's head motion on speech"
+    )
+    head.add_argument("inputs", nargs="+", metavar="FILE.wav|BAG", help="speech to synthesize")
+    head.add_argument("--model", help="checkpoint (default: packaged model)")
+    head.add_argument(
+        "--seeds",
+        type=bounded_int(1, 100),
+        default=8,
+        help="sample at seeds 0..N-1 (default 8)",
+    )
+    head.add_argument(
+        "--data",
+        metavar="DIR",
+        help="a data set (audio2pose dataset ...): its real head motion, per speaker, beside it",
+    )
+    head.set_defaults(func=command_check_head)
 
     bench = verbs.add_parser("bench", help="per-frame cost of the streaming path")
     bench.add_argument("--model", help="checkpoint (default: packaged model)")
