@@ -89,7 +89,10 @@ def test_when_audio_stops_then_arrives_in_a_burst_expect_bounded_buffer_and_reco
     np.testing.assert_allclose(resting, robot.neutral_rad, atol=0.02)
     assert frames_published(probe) == len(speech[: 4 * 16000]) // 160  # every frame computed
     filter_diag = diagnostics_of(probe, "motion_filter_node")
-    assert int(filter_diag["poses_dropped"]) > 200  # ~300 burst poses, 30 kept
+    # ~300 burst poses, at most 30 queued: here about 270 are dropped, but the filter commands
+    # poses while the burst flows through the graph (on a busy CI machine for 0.8 s: 189
+    # dropped). A filter that queued the whole burst would drop none and lag 3 s.
+    assert int(filter_diag["poses_dropped"]) > 100
     assert_commands_within_limits(probe, robot)
 
 
