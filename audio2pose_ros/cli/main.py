@@ -223,21 +223,19 @@ def command_check_head(args: argparse.Namespace) -> int:
     checkpoint = load_checkpoint(args.model or default_checkpoint_path(), robot=load_robot())
     robot = checkpoint.robot
     speech = {str(path): _read_speech(path) for path in map(_speech_input, args.inputs)}
+    head = robot.group_mask("head")
     real: dict[str, list[Clip]] = {}
     if args.data is not None:
         dataset = Dataset.open(input_dir(args.data, "data set folder"), robot)
         for info in dataset.clips:
             clip = dataset.load(info.clip_id)
-            if clip.mask[:, robot.group_mask("head")].any():
+            if clip.mask[:, head].any():
                 real.setdefault(info.speaker, []).append(clip)
         if not real:
             raise InputError(f"{args.data}: no clip of the data set labels the head")
     label = f"model, {len(speech)} input(s), seeds 0..{args.seeds - 1}"
     rows = head_style_rows(checkpoint, robot, speech, range(args.seeds), real, label)
-    head_names = [
-        name for name, on in zip(robot.names, robot.group_mask("head"), strict=True) if on
-    ]
-    print(head_style_table(rows, head_names))
+    print(head_style_table(rows, [name for name, on in zip(robot.names, head, strict=True) if on]))
     return 0
 
 

@@ -34,11 +34,15 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from audio2pose_ros.audio.features import FeatureSpec, extract_features
 from audio2pose_ros.timebase import FRAME_RATE_HZ, SAMPLES_PER_FRAME, WINDOW_SAMPLES
+
+if TYPE_CHECKING:
+    from audio2pose_ros.data.dataset import Clip
 
 WINDOW_S = 1.0
 WINDOW_STRIDE_S = 0.1
@@ -56,6 +60,15 @@ _TOP_DB = 80.0  # librosa's power_to_db clips this far below the clip's loudest 
 
 
 Motion = tuple[np.ndarray, np.ndarray]  # (N, J) angles of one clip and its (N, J) known mask
+
+
+def clip_motions(clips: Sequence[Clip], joints: np.ndarray) -> list[Motion]:
+    """The real motion of the ``joints`` (a boolean mask) in every clip that observes them."""
+    return [
+        (np.nan_to_num(c.angles_rad[:, joints]), c.mask[:, joints])
+        for c in clips
+        if c.mask[:, joints].any()
+    ]
 
 
 def _windows(motion: Motion, rate_hz: float) -> np.ndarray:

@@ -56,7 +56,7 @@ sampling, not feature extraction.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
 from typing import cast
@@ -376,7 +376,7 @@ def _measures(
     n_seeds: int,
     paused: bool,
     body: BodyModel | None = None,
-    tails: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
+    tails: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> dict[str, dict[str, float]]:
     """Group -> measures of the samples (``n_seeds`` per clip) with ``settings``, pooled.
 
@@ -386,6 +386,8 @@ def _measures(
     percentiles) also has ``tail``: :func:`tail_distance` of its samples.
     """
     from audio2pose_ros.offline.synthesis import sample_normalized, to_angles
+
+    tails = tails or {}  # paused audio is never given tails: it has no real motion
 
     near = [0, 0]  # frames closer than the margin, frames checked
     jumps: dict[str, list[int]] = {}  # group -> [raw steps the filter's gate refuses, steps]
@@ -428,7 +430,7 @@ def _measures(
             )
             if not paused:
                 real.setdefault(g, []).append(item.real[g])
-            if tails and g in tails:
+            if g in tails:
                 motions.setdefault(g, []).extend((m[:, joints], known) for m in samples)
     out = {}
     for g, parts in generated.items():
@@ -439,8 +441,7 @@ def _measures(
         else:
             out[g] = metrics.distribution_measures(metrics.concat_segments(real[g]), gen)
     for g, motion in motions.items():
-        if g in out and not paused:
-            out[g]["tail"] = tail_distance(motion, tails[g]) if tails else math.nan
+        out[g]["tail"] = tail_distance(motion, tails[g])
     if body is not None and "arms" in out and near[1]:
         out["arms"]["near body %"] = 100.0 * near[0] / near[1]
     for g, (refused, total) in jumps.items():
@@ -466,12 +467,7 @@ def reference_percentiles(
     """Per group of :data:`TAIL_GROUPS` that ``clips`` observe: its real motion's percentiles."""
     out = {}
     for g in TAIL_GROUPS:
-        joints = robot.group_mask(g)
-        observed = [
-            (np.nan_to_num(c.angles_rad[:, joints]), c.mask[:, joints])
-            for c in clips
-            if c.mask[:, joints].any()
-        ]
+        observed = realism.clip_motions(clips, robot.group_mask(g))
         if observed:
             out[g] = realism.speed_percentiles(observed, FRAME_RATE_HZ)
     return out

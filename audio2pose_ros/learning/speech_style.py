@@ -88,11 +88,7 @@ def head_style_rows(
             generated.append((angles[:, head], np.ones((len(angles), int(head.sum())), bool)))
     rows = [_row(label, generated)] if generated else []
     for source, clips in real.items():
-        motions = [
-            (np.nan_to_num(c.angles_rad[:, head]), c.mask[:, head])
-            for c in clips
-            if c.mask[:, head].any()
-        ]
+        motions = realism.clip_motions(clips, head)
         if motions:
             rows.append(_row(f"real, {source}", motions))
     return rows
