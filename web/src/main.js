@@ -269,10 +269,16 @@ function updateStatus(status) {
 // something is due (a pose to draw, a camera move, a resize), and the view draws at most 30
 // times a second and as often as keeps the page's frames within a quarter of its main thread's
 // time, measured, not modelled: the buttons and the microphone stay responsive however slow the
-// drawing is.
+// drawing is. Software drawing costs in proportion to the pixels drawn (9 times the pixels took
+// 4.5 times as long in the browser test), so before the view draws fewer than 4 times a second
+// it draws fewer pixels, down to a quarter of the width and height (the browser scales the
+// picture up), and draws sharp again when there is time to spare.
 const MIN_FRAME_MS = 1000 / 30;
+const SLOW_FRAME_MS = 250; // below 4 drawings a second, lower the resolution first
 const MAX_FRAME_MS = 1000; // however slow the drawing, the view shows the pose every second
 const FRAME_SHARE = 0.25;
+const MIN_SCALE = 0.25; // of the canvas's width and height
+const SHARP_SHARE = 0.6 * FRAME_SHARE; // spare time enough to draw more pixels (hysteresis)
 const PACE_WINDOW_MS = 500;
 const VSYNC_MS = 1000 / 60; // a frame comes at the display's next refresh
 const WARM_UP_DRAWS = 3; // the first drawings compile shaders: they do not set the pace
@@ -283,7 +289,7 @@ const view = {
 // The pace, and what set it (the browser test reads it as window.a2p.view).
 const pacing = {
   requested: false, windowStart: 0, busyMs: 0,
-  draws: 0, frames: 0, renderEveryMs: MIN_FRAME_MS, frameShare: 0,
+  draws: 0, frames: 0, renderEveryMs: MIN_FRAME_MS, frameShare: 0, scale: 1,
 };
 state.view = pacing;
 const frameDone = new MessageChannel();
@@ -383,20 +389,39 @@ frameDone.port1.onmessage = (event) => {
   const elapsed = now - pacing.windowStart;
   if (elapsed < PACE_WINDOW_MS) return;
   const share = pacing.busyMs / elapsed;
-  const scale = Math.min(2, Math.max(0.8, share / FRAME_SHARE));
-  const every = pacing.renderEveryMs * scale;
-  pacing.renderEveryMs = Math.min(MAX_FRAME_MS, Math.max(MIN_FRAME_MS, every));
+  pace(share);
   pacing.frameShare = share;
   pacing.windowStart = now;
   pacing.busyMs = 0;
 };
+
+// Sets the next interval between drawings and their resolution from the share of the main
+// thread's time the last window's frames took.
+function pace(share) {
+  const ratio = share / FRAME_SHARE;
+  const clamp = (value, low, high) => Math.min(high, Math.max(low, value));
+  const every = pacing.renderEveryMs;
+  if (ratio > 1 && every >= SLOW_FRAME_MS && pacing.scale > MIN_SCALE) {
+    // the cost is in proportion to the pixels: scale each side by the root of the excess
+    pacing.scale = Math.max(MIN_SCALE, pacing.scale / Math.sqrt(Math.min(2, ratio)));
+  } else if (ratio > 1) {
+    const limit = pacing.scale > MIN_SCALE ? SLOW_FRAME_MS : MAX_FRAME_MS;
+    pacing.renderEveryMs = clamp(every * Math.min(2, ratio), MIN_FRAME_MS, Math.max(limit, every));
+  } else if (share < SHARP_SHARE && pacing.scale < 1 && every <= SLOW_FRAME_MS) {
+    pacing.scale = Math.min(1, pacing.scale * Math.min(1.25, Math.sqrt(FRAME_SHARE / share)));
+  } else {
+    pacing.renderEveryMs = clamp(every * Math.max(0.8, ratio), MIN_FRAME_MS, MAX_FRAME_MS);
+  }
+}
 
 function drawView(now) {
   if (!view.dirty || now - view.renderedAt < pacing.renderEveryMs - VSYNC_MS / 2) return;
   const canvas = view.renderer.domElement;
   const width = canvas.clientWidth;
   const height = canvas.clientHeight;
-  if (canvas.width !== width || canvas.height !== height) {
+  const ratio = window.devicePixelRatio * pacing.scale;
+  if (canvas.width !== Math.floor(width * ratio) || canvas.height !== Math.floor(height * ratio)) {
+    view.renderer.setPixelRatio(ratio);
     view.renderer.setSize(width, height, false);
     view.camera.aspect = width / Math.max(height, 1);
     view.camera.updateProjectionMatrix();
