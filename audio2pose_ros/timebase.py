@@ -38,3 +38,36 @@ def frame_times_s(n_samples: int) -> np.ndarray:
 def duration_s(n_samples: int) -> float:
     """Duration (s) of ``n_samples`` samples at :data:`SAMPLE_RATE_HZ`."""
     return n_samples / SAMPLE_RATE_HZ
+
+
+class FrameSequence:
+    """Frames missing from a stream whose batches say the index of their first frame.
+
+    A publisher numbers its frames from 0 and each batch carries the index of its first frame.
+    A batch that starts past the frame the receiver expects shows that the frames between were
+    lost on the way (a reliable subscription's queue keeps only the newest messages when the
+    receiver falls behind). A batch that starts before it is a new stream (the publisher
+    restarted), and a batch without an index (another publisher, or an older one) says nothing.
+    The frames after the last batch received cannot be known lost until a later batch arrives.
+    """
+
+    def __init__(self) -> None:
+        """No stream seen yet."""
+        self.expected: int | None = None
+        self.lost = 0  # frames known missing, over every stream
+        self.restarts = 0  # batches that started a new stream (index before the expected one)
+
+    def observe(self, first: int | None, n_frames: int) -> int:
+        """Frames missing just before a batch of ``n_frames`` starting at index ``first``."""
+        missing = 0
+        if first is None:
+            self.expected = None
+            return 0
+        if self.expected is not None:
+            if first > self.expected:
+                missing = first - self.expected
+            elif first < self.expected:
+                self.restarts += 1
+        self.lost += missing
+        self.expected = first + n_frames
+        return missing

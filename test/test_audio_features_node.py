@@ -24,7 +24,12 @@ from std_msgs.msg import Float32MultiArray
 from audio2pose_ros.audio.features import FeatureSpec
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmDecoder, PcmFormat, encode_pcm
 from audio2pose_ros.audio.streaming import StreamingFeatureExtractor
-from audio2pose_ros.ros.diagnosed_node import AUDIO_QOS, EXIT_CONFIGURATION_ERROR, LATCHED_QOS
+from audio2pose_ros.ros.diagnosed_node import (
+    AUDIO_QOS,
+    EXIT_CONFIGURATION_ERROR,
+    LATCHED_QOS,
+    msg_to_features,
+)
 from audio2pose_ros.ros.process_stats import rss_mb
 from audio2pose_ros.topics import DIAGNOSTICS
 
@@ -46,13 +51,15 @@ class Peer(Node):
             self.info = self.create_publisher(AudioInfo, "audio/audio_info", LATCHED_QOS)
             self.audio = self.create_publisher(AudioData, "audio/audio", AUDIO_QOS)
         self.frames: list[np.ndarray] = []
+        self.first_frames: list[int | None] = []
         self.statuses: list[tuple[float, DiagnosticStatus]] = []
         self.create_subscription(Float32MultiArray, "features", self._on_features, 1000)
         self.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, 100)
 
     def _on_features(self, msg: Float32MultiArray) -> None:
-        rows, cols = msg.layout.dim[0].size, msg.layout.dim[1].size
-        self.frames.append(np.asarray(msg.data, dtype=np.float32).reshape(rows, cols))
+        batch = msg_to_features(msg)
+        self.frames.append(batch.frames)
+        self.first_frames.append(batch.first_frame)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -204,6 +211,9 @@ def test_when_naoqi_audio_buffer_plays_expect_features_of_the_selected_channel(
     np.testing.assert_allclose(frames[: expected.shape[0]], expected, rtol=0, atol=1e-4)
     assert status.level == DiagnosticStatus.OK
     assert values_of(status)["channels_used"] == "(2,)"
+    # each message numbers its first frame: the receiver sees that none was lost
+    sizes = [len(f) for f in peer.frames]
+    assert peer.first_frames == list(np.cumsum([0, *sizes[:-1]])), peer.first_frames
 
 
 @pytest.mark.parametrize(

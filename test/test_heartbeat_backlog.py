@@ -80,25 +80,45 @@ def test_when_a_callback_ends_with_the_heartbeat_overdue_expect_it_sent_with_a_w
     assert served == [True] * 4
 
 
-def _features_flood(probe: Node) -> Callable[[], None]:
-    """inference_node's input: 20 frames a message of plausible features."""
+FRAMES_PER_MESSAGE = 20
+
+
+def _features_flood(probe: Node) -> Callable[[], int]:
+    """inference_node's input: 20 frames a message of plausible features, numbered as
+    audio_features_node numbers them; returns the frames sent so far."""
     model = load_streaming_model(default_checkpoint_path())
     spec = model.features
     rng = np.random.default_rng(0)
-    frames = model.normalizer.mean + rng.standard_normal((20, spec.dim)) * model.normalizer.std
-    msg = features_to_msg(frames.astype(np.float32), f"{spec.kind}{spec.dim}")
+    shape = (FRAMES_PER_MESSAGE, spec.dim)
+    frames = model.normalizer.mean + rng.standard_normal(shape) * model.normalizer.std
+    msg = features_to_msg(frames.astype(np.float32), f"{spec.kind}{spec.dim}", 0)
     publisher = probe.create_publisher(Float32MultiArray, absolute(FEATURES), STREAM_QOS)
-    return lambda: publisher.publish(msg)
+    sent = [0]
+
+    def send() -> int:
+        msg.layout.dim[0].label = f"frames from {sent[0]}"
+        publisher.publish(msg)
+        sent[0] += FRAMES_PER_MESSAGE
+        return sent[0]
+
+    return send
 
 
-def _audio_flood(probe: Node) -> Callable[[], None]:
+def _audio_flood(probe: Node) -> Callable[[], int]:
     """audio_features_node's input: 0.1 s chunks of 16 kHz speech-level noise, after AudioInfo."""
     info = probe.create_publisher(AudioInfo, absolute(AUDIO_INFO), LATCHED_QOS)
     info.publish(AudioInfo(**S16LE_MONO_16K.audio_info_fields()))
     noise = np.random.default_rng(0).normal(0.0, 0.1, 1600).astype(np.float32)
     msg = AudioData(data=encode_pcm(noise, S16LE_MONO_16K))
     publisher = probe.create_publisher(AudioData, absolute(AUDIO), AUDIO_QOS)
-    return lambda: publisher.publish(msg)
+    sent = [0]
+
+    def send() -> int:
+        publisher.publish(msg)
+        sent[0] += 10
+        return sent[0]
+
+    return send
 
 
 @pytest.mark.parametrize(
@@ -114,7 +134,7 @@ def _audio_flood(probe: Node) -> Callable[[], None]:
 def test_when_a_node_is_flooded_expect_heartbeats_throughout(
     tmp_path,
     executable: str,
-    flood: Callable[[Node], Callable[[], None]],
+    flood: Callable[[Node], Callable[[], int]],
     served_key: str,
     falls_behind: bool | None,
 ):
@@ -135,11 +155,22 @@ def test_when_a_node_is_flooded_expect_heartbeats_throughout(
             start = time.monotonic()
             sent = 0
             while time.monotonic() - start < FLOOD_S:
-                send()
+                frames_sent = send()
                 sent += 1
                 rclpy.spin_once(probe, timeout_sec=0)
             end = time.monotonic()
             spin_until(probe, end + 1.0)
+            if executable == "inference_node":
+                # once it has caught up, one more message shows what was lost before it
+                frames_sent = send()
+                assert spin_until(
+                    probe,
+                    time.monotonic() + 10.0,
+                    lambda: (
+                        _value(beats[-1][1], "frames_in") + _value(beats[-1][1], "frames_lost")
+                        == frames_sent
+                    ),
+                ), f"sent {frames_sent} frames; last report {beats[-1][1].values}"
         finally:
             process.terminate()
             process.wait(20)
@@ -158,4 +189,12 @@ def test_when_a_node_is_flooded_expect_heartbeats_throughout(
     behind = [s for s in statuses if "problem: falling behind" in [kv.key for kv in s.values]]
     if falls_behind:
         assert behind
+        # every frame sent was either served or reported lost: no silent loss
+        lost = [s for s in statuses if "problem: frames lost" in [kv.key for kv in s.values]]
+        assert lost
+        assert all(s.level == DiagnosticStatus.WARN for s in lost)
     assert all(s.level == DiagnosticStatus.WARN for s in behind)
+
+
+def _value(status: DiagnosticStatus, key: str) -> int:
+    return int({kv.key: kv.value for kv in status.values}[key])

@@ -13,7 +13,7 @@ import time
 import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import rclpy
@@ -72,12 +72,31 @@ LOG_THROTTLE_S = 5.0  # one log line per problem per this many seconds
 MAX_LOGGED_TRACEBACKS = 5  # callback exceptions beyond this are counted, not printed again
 
 
-def features_to_msg(frames: np.ndarray, label: str) -> Float32MultiArray:
-    """Pack (n_frames, n_features) features; dim[1].label names the feature set."""
+FRAMES_LABEL = "frames"  # dim[0] of a features message; "frames from N" numbers its first frame
+
+
+class FeatureBatch(NamedTuple):
+    """An unpacked features message."""
+
+    frames: np.ndarray  # (n_frames, n_features) float32
+    label: str  # the feature set (dim[1].label)
+    first_frame: int | None  # index of the first frame in its stream, if the sender numbers them
+
+
+def features_to_msg(
+    frames: np.ndarray, label: str, first_frame: int | None = None
+) -> Float32MultiArray:
+    """Pack (n_frames, n_features) features; dim[1].label names the feature set.
+
+    With ``first_frame``, dim[0].label is ``"frames from <first_frame>"``: the receiver counts
+    the frames lost between messages (:class:`~audio2pose_ros.timebase.FrameSequence`). A
+    receiver that reads only the sizes is unaffected.
+    """
     n_frames, n_features = frames.shape
     msg = Float32MultiArray()
+    frames_label = FRAMES_LABEL if first_frame is None else f"{FRAMES_LABEL} from {first_frame}"
     msg.layout.dim = [
-        MultiArrayDimension(label="frames", size=n_frames, stride=n_frames * n_features),
+        MultiArrayDimension(label=frames_label, size=n_frames, stride=n_frames * n_features),
         MultiArrayDimension(label=label, size=n_features, stride=n_features),
     ]
     # An array.array of the right type code is stored as is; a list is checked value by value.
@@ -85,8 +104,8 @@ def features_to_msg(frames: np.ndarray, label: str) -> Float32MultiArray:
     return msg
 
 
-def msg_to_features(msg: Float32MultiArray) -> tuple[np.ndarray, str]:
-    """Unpack a features message.
+def msg_to_features(msg: Float32MultiArray) -> FeatureBatch:
+    """Unpack a features message; a dim[0].label other than ``"frames from <n>"`` numbers nothing.
 
     Raises:
         InputError: the layout does not describe the data (2 dims, frames x features).
@@ -100,7 +119,10 @@ def msg_to_features(msg: Float32MultiArray) -> tuple[np.ndarray, str]:
         raise InputError(
             f"features message holds {data.size} values, layout says {n_frames}x{n_features}"
         )
-    return data.reshape(n_frames, n_features), dims[1].label
+    number = dims[0].label.removeprefix(f"{FRAMES_LABEL} from ")
+    numbered = number != dims[0].label and number.isascii() and number.isdigit()
+    first = int(number) if numbered and len(number) <= 18 else None  # within int64
+    return FeatureBatch(data.reshape(n_frames, n_features), dims[1].label, first)
 
 
 def duration_msg(seconds: float) -> Duration:

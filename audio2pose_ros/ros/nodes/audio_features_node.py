@@ -10,7 +10,9 @@ Subscriptions (``input_type`` chooses one of two inputs):
 Publications:
     features (std_msgs/Float32MultiArray): frames x features, un-normalised, at 100 frames/s
         of audio, one message per audio chunk (while something subscribes to it); dim[1].label
-        names the feature set (e.g. ``logfbank26``).
+        names the feature set (e.g. ``logfbank26``) and dim[0].label ``frames from N`` the
+        index of the message's first frame since the node started, so a receiver counts the
+        frames lost on the way.
     voice_activity (std_msgs/Bool): energy-based voice activity, published when it changes and
         at least every ``VOICE_REFRESH_S`` (0.5 s) while audio arrives (while something
         subscribes to it); a value holds until the next one.
@@ -210,10 +212,11 @@ class AudioFeaturesNode(DiagnosedNode):
                 if self.voice_pub.get_subscription_count():  # no message for nobody
                     self.voice_pub.publish(Bool(data=active))
         if len(frames):
+            first = self.frames_out  # numbered: the receiver counts frames lost on the way
             self.frames_out += len(frames)
             batch = np.asarray(frames, dtype=np.float32)  # what the topic carries, either way
             if self.features_pub.get_subscription_count():
-                self.features_pub.publish(features_to_msg(batch, self.label))
+                self.features_pub.publish(features_to_msg(batch, self.label, first))
             if self.features_sink is not None:
                 self.features_sink(batch)
 

@@ -24,6 +24,10 @@ joints is a ConfigurationError at start-up: ``run_node`` prints one line and exi
 Bad input never reaches the model and never stops the node:
 
 - a message of the wrong layout or feature set is dropped and reported;
+- frames lost on the way are counted (``frames_lost``) and reported as WARN: audio_features_node
+  numbers its messages' first frames (``"frames from N"`` in the layout), and a message that
+  starts past the next expected frame shows that the messages between were dropped, as a
+  reliable subscription's queue does when the node falls behind;
 - at most :data:`MAX_FRAMES_PER_MESSAGE` frames of one message are used (10 s of audio; the
   rest is dropped and counted), so one message cannot block the node for long;
 - after normalisation, non-finite values are replaced by 0 (the training mean) and values
@@ -63,6 +67,7 @@ from audio2pose_ros.ros.diagnosed_node import (
     trajectory_msg,
 )
 from audio2pose_ros.ros.node_parameters import NodeParameters
+from audio2pose_ros.timebase import FrameSequence
 
 # 10 s of 10 ms frames (about 20 ms of work for the packaged model); audio_features_node sends
 # one message per audio chunk, typically 1 to 20 frames.
@@ -164,6 +169,7 @@ class InferenceNode(DiagnosedNode):
         self.period_s = spec.step_s
         self.frames_in = 0
         self.frames_dropped = 0
+        self.sequence = FrameSequence()  # frames lost between features messages
         self.values_replaced = 0
         self.values_clamped = 0
         self.compute_s = 0.0
@@ -190,13 +196,22 @@ class InferenceNode(DiagnosedNode):
     def on_features(self, msg: Float32MultiArray) -> None:
         """Unpack a features message and run it (:meth:`on_frames`)."""
         try:
-            frames, label = msg_to_features(msg)
+            batch = msg_to_features(msg)
         except InputError as exc:  # msg_to_features refuses a layout that does not fit the data
             self.report_problem(
                 "malformed", DiagnosticStatus.WARN, f"malformed features message dropped: {exc}"
             )
             return
-        self.on_frames(frames, label)
+        missing = self.sequence.observe(batch.first_frame, len(batch.frames))
+        if missing:
+            self.report_problem(
+                "frames lost",
+                DiagnosticStatus.WARN,
+                f"{missing} feature frames lost before frame {batch.first_frame} (the node fell "
+                "behind and its subscription queue kept only the newest messages); "
+                f"{self.sequence.lost} lost in all",
+            )
+        self.on_frames(batch.frames, batch.label)
 
     def on_frames(self, frames: np.ndarray, label: str) -> None:
         """Normalise, make safe, predict each frame, send one trajectory point per frame.
@@ -257,6 +272,7 @@ class InferenceNode(DiagnosedNode):
             "runtime": self.model.runtime,
             "frames_in": self.frames_in,
             "frames_dropped": self.frames_dropped,
+            "frames_lost": self.sequence.lost,
             "feature_values_replaced": self.values_replaced,
             "feature_values_clamped": self.values_clamped,
             "feature_limit_sd": self.settings.feature_limit_sd,
