@@ -10,6 +10,7 @@ from synthetic_motion import write_dataset
 
 from audio2pose_ros.data.dataset import Clip, Dataset
 from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.learning import sampler_selection
 from audio2pose_ros.learning.evaluation import loso_predictions
 from audio2pose_ros.learning.realism import speed_percentiles
 from audio2pose_ros.learning.sampler_selection import (
@@ -33,6 +34,28 @@ from audio2pose_ros.models.live_groups import SAMPLING_SETTINGS
 from audio2pose_ros.models.registry import build_model
 
 torch.set_num_threads(1)
+
+# The shipped grid, and the cut of it these tests choose on: 12 of its 42 settings (each a
+# sampling of every validation clip). The tests check how a choice is made, which does not
+# depend on the grid's size; the loso test's worker processes import the shipped grid.
+SHIPPED_GRID = {"TEMPERATURES": TEMPERATURES, "BURSTS": BURSTS, "CORRELATIONS": CORRELATIONS}
+TEST_GRID = {"TEMPERATURES": (0.5, 1.5, 3.0), "BURSTS": (0.0, 1.2), "CORRELATIONS": (0.95, 0.975)}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def test_grid():
+    with pytest.MonkeyPatch.context() as patch:
+        for name, values in TEST_GRID.items():
+            patch.setattr(sampler_selection, name, values)
+        yield
+
+
+def grid_size() -> int:
+    return (
+        len(sampler_selection.TEMPERATURES)
+        * len(sampler_selection.BURSTS)
+        * len(sampler_selection.CORRELATIONS)
+    )
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +114,7 @@ def test_when_selecting_expect_each_part_at_its_best_validation_score_and_the_li
     parts = {"first_temperature": "first_burst", "second_temperature": "second_burst"}
     scores = {setting: part_scores(choice.trials, setting, robot) for setting in parts}
     for setting in parts:
-        assert len(scores[setting]) == len(CORRELATIONS) * len(BURSTS) * len(TEMPERATURES)
+        assert len(scores[setting]) == grid_size() < 42
 
     # a part's cost: how far over the arms' body budget, then its score (lowest wins)
     over = {
@@ -240,7 +263,11 @@ def test_when_a_fold_is_tuned_expect_a_choice_made_on_its_training_speakers_and_
     assert pickle.loads(pickle.dumps(tune)) == tune  # workers receive it
 
 
-def test_when_loso_folds_train_in_two_processes_expect_the_serial_results(tmp_path, robot):
+def test_when_loso_folds_train_in_two_processes_expect_the_serial_results(
+    tmp_path, robot, monkeypatch
+):
+    for name, values in SHIPPED_GRID.items():  # what the spawned workers import
+        monkeypatch.setattr(sampler_selection, name, values)
     dataset = write_dataset(tmp_path / "loso", robot, {"train": 4}, seconds=1.5, seed=4)
     settings = TrainSettings(max_epochs=2, batch_size=4, show_progress=False)
     serial_choices, parallel_choices = {}, {}
@@ -273,15 +300,13 @@ def test_when_arm_settings_lean_on_a_safety_stage_expect_the_best_setting_within
     lose to every setting within budget. The budget is set at the median of the measure over
     the arm settings, so some settings are over it.
     """
-    from audio2pose_ros.learning import sampler_selection
-
     validation, _, free = selected
     per_setting: dict = {}
     for t in free.trials:
         if t.setting == "second_temperature" and group in (None, t.group):
             key = (t.correlation, t.burst, t.value)
             per_setting[key] = per_setting.get(key, 0.0) + t.measures[measure]
-    assert len(per_setting) == len(CORRELATIONS) * len(BURSTS) * len(TEMPERATURES)
+    assert len(per_setting) == grid_size() < 42
     assert len(set(per_setting.values())) > 1, f"every arm setting has the same {measure}"
     limit = float(np.median(list(per_setting.values())))
     monkeypatch.setattr(sampler_selection, budget, limit)
