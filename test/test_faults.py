@@ -201,10 +201,15 @@ def test_when_a_node_is_killed_expect_it_restarted_and_the_graph_recovers(
     assert_commands_within_limits(probe, robot)
 
 
-def test_when_30_minutes_of_audio_stream_through_expect_flat_memory(
+def test_when_10_minutes_of_audio_stream_through_expect_flat_memory(
     tmp_path: Path, probe: Probe, robot, speech_files
 ):
-    """Soak: 30 min of real speech at 10x real time; resident memory of every node stays flat.
+    """Soak: 10 min of real speech at 10x real time; resident memory of every node stays flat.
+
+    Growth is measured from 1 min in (after start-up allocations) to the end, and bounded at
+    5 MB: 0.55 MB a minute of audio. Over 27 min the three nodes grew by 0.02 to 0.07 MB (the
+    30 min soak this replaced, 3 min of the suite). ``audio2pose bench --graph --duration 1800``
+    reports each node's resident memory after half an hour of speech in real time.
 
     At 10x the three nodes and this process share two cores with little to spare, and a node
     may fall behind its input; it then sends its heartbeat between messages (DiagnosedNode, and
@@ -216,7 +221,7 @@ def test_when_30_minutes_of_audio_stream_through_expect_flat_memory(
     from audio2pose_ros.audio.wav import read_wav
 
     speech = np.concatenate([read_wav(f)[0] for f in speech_files])
-    total_s, speed = 30 * 60, 10.0
+    total_s, speed = 10 * 60, 10.0
     chunk = encode_pcm(speech, S16)
     with node_graph(log_dir=tmp_path, restart_after_s=SOAK_RESTART_AFTER_S) as graph:
         start(probe)
@@ -238,5 +243,5 @@ def test_when_30_minutes_of_audio_stream_through_expect_flat_memory(
         assert not any(graph.restarts.values()), graph.longest_gap_s
     growth = {n: samples["end"][n] - samples["start"][n] for n in samples["end"]}
     print(f"RSS MB at 10%: {samples['start']}, at end: {samples['end']}")
-    assert all(g < 15.0 for g in growth.values()), growth
+    assert all(g < 5.0 for g in growth.values()), growth
     assert all(v < 400.0 for v in samples["end"].values()), samples["end"]
