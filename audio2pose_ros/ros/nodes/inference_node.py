@@ -207,9 +207,9 @@ class InferenceNode(DiagnosedNode):
             self.report_problem(
                 "frames lost",
                 DiagnosticStatus.WARN,
-                f"{missing} feature frames lost before frame {batch.first_frame} (the node fell "
-                "behind and its subscription queue kept only the newest messages); "
-                f"{self.sequence.lost} lost in all",
+                f"{missing} feature frames lost before frame {batch.first_frame} (messages "
+                "dropped on the way: the node fell behind and its subscription queue kept only "
+                f"the newest, or the network lost them); {self.sequence.lost} lost in all",
             )
         self.on_frames(batch.frames, batch.label)
 
