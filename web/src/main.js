@@ -265,20 +265,23 @@ function updateStatus(status) {
 
 // Frame pacing. Every frame the page makes costs its main thread script, style, paint and a
 // compositor commit; with software WebGL and compositing (no GPU, as in many browsers) the
-// commit after a drawing waits tens of milliseconds for it. So frames are made only when
-// something is due (a pose to draw, a camera move, a resize), and the view draws at most 30
-// times a second and as often as keeps the page's frames within a quarter of its main thread's
-// time, measured, not modelled: the buttons and the microphone stay responsive however slow the
-// drawing is. Software drawing costs in proportion to the pixels drawn (9 times the pixels took
-// 4.5 times as long in the browser test), so before the view draws fewer than 4 times a second
-// it draws fewer pixels, down to a quarter of the width and height (the browser scales the
-// picture up), and draws sharp again when there is time to spare.
+// commit after a drawing waits for it. So frames are made only when something is due (a pose to
+// draw, a camera move, a resize), and the view draws at most 30 times a second and as often as
+// keeps the page's frames within a quarter of its main thread's time, measured, not modelled:
+// the buttons and the microphone stay responsive however slow the drawing is.
+// Software drawing costs in proportion to the pixels drawn (9 times the pixels took 4.5 times
+// as long in the browser test; one full drawing took 0.7 s on a slow machine). So each drawing
+// also measures what a pixel costs, and the view draws as many pixels as fit in
+// FRAME_BUDGET_MS, down to an eighth of the width and height (the browser scales the picture
+// up): at a quarter of the time, that is 5 drawings a second before it draws less often. A
+// resize takes the pixels that fit at once; after a cheaper drawing the budget grows by a
+// quarter, so the view sharpens again within a second.
 const MIN_FRAME_MS = 1000 / 30;
-const SLOW_FRAME_MS = 250; // below 4 drawings a second, lower the resolution first
 const MAX_FRAME_MS = 1000; // however slow the drawing, the view shows the pose every second
 const FRAME_SHARE = 0.25;
-const MIN_SCALE = 0.25; // of the canvas's width and height
-const SHARP_SHARE = 0.6 * FRAME_SHARE; // spare time enough to draw more pixels (hysteresis)
+const FRAME_BUDGET_MS = 50; // a drawing's cost: at FRAME_SHARE, 5 drawings a second
+const MIN_SCALE = 0.125; // of the canvas's width and height
+const BUDGET_GROWTH = 1.25; // per drawing, when drawings cost less than the budget
 const PACE_WINDOW_MS = 500;
 const VSYNC_MS = 1000 / 60; // a frame comes at the display's next refresh
 const WARM_UP_DRAWS = 3; // the first drawings compile shaders: they do not set the pace
@@ -289,7 +292,8 @@ const view = {
 // The pace, and what set it (the browser test reads it as window.a2p.view).
 const pacing = {
   requested: false, windowStart: 0, busyMs: 0,
-  draws: 0, frames: 0, renderEveryMs: MIN_FRAME_MS, frameShare: 0, scale: 1,
+  draws: 0, frames: 0, renderEveryMs: MIN_FRAME_MS, frameShare: 0,
+  scale: 1, pixelBudget: Infinity, // the pixels a drawing may have, from the measured cost
 };
 state.view = pacing;
 const frameDone = new MessageChannel();
@@ -370,55 +374,50 @@ function requestPageFrame() {
 function pageFrame() {
   pacing.requested = false;
   const start = performance.now();
-  drawView(start);
+  const pixels = drawView(start);
   pacing.frames += 1;
   // This task runs after the frame's task, so after its style, paint and commit as well.
-  frameDone.port2.postMessage(start);
+  frameDone.port2.postMessage({ start, pixels });
   requestPageFrame();
 }
 
-// Paces the view on what the page's frames took of the main thread's time in the last window.
+// Paces the view on what the page's frames took of the main thread's time in the last window,
+// and sizes its drawings on what the last one cost.
 frameDone.port1.onmessage = (event) => {
   const now = performance.now();
+  const { start, pixels } = event.data;
   if (pacing.draws <= WARM_UP_DRAWS) {
     pacing.windowStart = now;
     pacing.busyMs = 0;
     return;
   }
-  pacing.busyMs += now - event.data;
+  const took = now - start;
+  if (pixels > 0 && took > 0) {
+    // down at once to what fits; up by at most a quarter of what was drawn
+    const fits = (pixels * FRAME_BUDGET_MS) / took;
+    pacing.pixelBudget = fits < pixels ? fits : Math.min(fits, pixels * BUDGET_GROWTH);
+  }
+  pacing.busyMs += took;
   const elapsed = now - pacing.windowStart;
   if (elapsed < PACE_WINDOW_MS) return;
   const share = pacing.busyMs / elapsed;
-  pace(share);
+  const scale = Math.min(2, Math.max(0.8, share / FRAME_SHARE));
+  const every = pacing.renderEveryMs * scale;
+  pacing.renderEveryMs = Math.min(MAX_FRAME_MS, Math.max(MIN_FRAME_MS, every));
   pacing.frameShare = share;
   pacing.windowStart = now;
   pacing.busyMs = 0;
 };
 
-// Sets the next interval between drawings and their resolution from the share of the main
-// thread's time the last window's frames took.
-function pace(share) {
-  const ratio = share / FRAME_SHARE;
-  const clamp = (value, low, high) => Math.min(high, Math.max(low, value));
-  const every = pacing.renderEveryMs;
-  if (ratio > 1 && every >= SLOW_FRAME_MS && pacing.scale > MIN_SCALE) {
-    // the cost is in proportion to the pixels: scale each side by the root of the excess
-    pacing.scale = Math.max(MIN_SCALE, pacing.scale / Math.sqrt(Math.min(2, ratio)));
-  } else if (ratio > 1) {
-    const limit = pacing.scale > MIN_SCALE ? SLOW_FRAME_MS : MAX_FRAME_MS;
-    pacing.renderEveryMs = clamp(every * Math.min(2, ratio), MIN_FRAME_MS, Math.max(limit, every));
-  } else if (share < SHARP_SHARE && pacing.scale < 1 && every <= SLOW_FRAME_MS) {
-    pacing.scale = Math.min(1, pacing.scale * Math.min(1.25, Math.sqrt(FRAME_SHARE / share)));
-  } else {
-    pacing.renderEveryMs = clamp(every * Math.max(0.8, ratio), MIN_FRAME_MS, MAX_FRAME_MS);
-  }
-}
-
+// Draws the view if it is due: the pixels drawn, or 0.
 function drawView(now) {
-  if (!view.dirty || now - view.renderedAt < pacing.renderEveryMs - VSYNC_MS / 2) return;
+  if (!view.dirty || now - view.renderedAt < pacing.renderEveryMs - VSYNC_MS / 2) return 0;
   const canvas = view.renderer.domElement;
   const width = canvas.clientWidth;
   const height = canvas.clientHeight;
+  const full = width * height * window.devicePixelRatio ** 2;
+  const fit = full > 0 ? Math.sqrt(pacing.pixelBudget / full) : 1;
+  pacing.scale = Math.min(1, Math.max(MIN_SCALE, fit));
   const ratio = window.devicePixelRatio * pacing.scale;
   if (canvas.width !== Math.floor(width * ratio) || canvas.height !== Math.floor(height * ratio)) {
     view.renderer.setPixelRatio(ratio);
@@ -435,6 +434,7 @@ function drawView(now) {
   view.dirty = false;
   view.renderedAt = now;
   pacing.draws += 1;
+  return canvas.width * canvas.height;
 }
 
 function setPose(robot, pose) {
