@@ -311,8 +311,8 @@ def test_while_the_view_follows_speech_expect_the_page_keeps_time_for_the_operat
     Software drawing costs in proportion to the pixels: a view paced only by its interval drew
     once a second on a slow CI machine and still kept the main thread 90 % busy (one frame
     0.7 s), and drew about twice a second on a large screen here. The view draws as many pixels
-    as fit in its per-drawing budget, down to an eighth of each side, before it draws less
-    often."""
+    as fit in its per-drawing budget (from a fit of a drawing's fixed and per-pixel cost), down
+    to an eighth of each side, before it draws less often."""
     page = _open(browser, console)
     page.set_viewport_size({"width": screen[0], "height": screen[1]})
     cdp = page.context.new_cdp_session(page)
@@ -337,8 +337,13 @@ def test_while_the_view_follows_speech_expect_the_page_keeps_time_for_the_operat
     assert received > received_before + 100, "the poses stopped coming"
     assert drawn >= drawn_before + 5, "the view stopped"  # at least once a second
     assert share < 0.9, f"the page's main thread was busy {share:.0%} of the time"
-    # fewer drawings than 2.5 a second only at the lowest resolution (the budget aims at 5)
-    assert pacing["renderEveryMs"] <= 400 or pacing["scale"] == 0.125, pacing
+    # Fewer drawings than 2.5 a second (the pixel budget aims at 5) only at the lowest
+    # resolution, or where the fitted fixed cost of a drawing alone nearly takes the budget
+    # (50 ms) and fewer pixels would not help.
+    cost = pacing["cost"]
+    assert (
+        pacing["renderEveryMs"] <= 400 or pacing["scale"] == 0.125 or cost["fixedMs"] >= 0.75 * 50
+    ), pacing
     # and draws at the resolution it chose (a drawing follows each change within 250 ms)
     page.wait_for_function(
         """(() => {

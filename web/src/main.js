@@ -269,19 +269,22 @@ function updateStatus(status) {
 // draw, a camera move, a resize), and the view draws at most 30 times a second and as often as
 // keeps the page's frames within a quarter of its main thread's time, measured, not modelled:
 // the buttons and the microphone stay responsive however slow the drawing is.
-// Software drawing costs in proportion to the pixels drawn (9 times the pixels took 4.5 times
-// as long in the browser test; one full drawing took 0.7 s on a slow machine). So each drawing
-// also measures what a pixel costs, and the view draws as many pixels as fit in
-// FRAME_BUDGET_MS, down to an eighth of the width and height (the browser scales the picture
-// up): at a quarter of the time, that is 5 drawings a second before it draws less often. A
-// resize takes the pixels that fit at once; after a cheaper drawing the budget grows by a
-// quarter, so the view sharpens again within a second.
+// Software drawing costs mostly in proportion to the pixels drawn (9 times the pixels took 4.5
+// times as long in the browser test; one full drawing took 0.7 s on a slow machine). So the page
+// fits what its drawings cost, a fixed part and a part per pixel, and draws as many pixels as
+// fit in FRAME_BUDGET_MS, down to an eighth of the width and height (the browser scales the
+// picture up): at a quarter of the time, 5 drawings a second before it draws less often. Where
+// the fixed part alone takes the budget (slow script rather than slow drawing), fewer pixels
+// would only blur the view: the pixels may then add a quarter to it. A resize takes the pixels
+// that fit at once; after a drawing that cost less, the next may have a quarter more pixels.
 const MIN_FRAME_MS = 1000 / 30;
 const MAX_FRAME_MS = 1000; // however slow the drawing, the view shows the pose every second
 const FRAME_SHARE = 0.25;
 const FRAME_BUDGET_MS = 50; // a drawing's cost: at FRAME_SHARE, 5 drawings a second
 const MIN_SCALE = 0.125; // of the canvas's width and height
 const BUDGET_GROWTH = 1.25; // per drawing, when drawings cost less than the budget
+const PIXEL_SHARE_OF_FIXED = 0.25; // the pixels' cost where the fixed cost takes the budget
+const COST_MEMORY = 0.9; // weight of a drawing in the cost fit, per later drawing
 const PACE_WINDOW_MS = 500;
 const VSYNC_MS = 1000 / 60; // a frame comes at the display's next refresh
 const WARM_UP_DRAWS = 3; // the first drawings compile shaders: they do not set the pace
@@ -294,7 +297,10 @@ const pacing = {
   requested: false, windowStart: 0, busyMs: 0,
   draws: 0, frames: 0, renderEveryMs: MIN_FRAME_MS, frameShare: 0,
   scale: 1, pixelBudget: Infinity, // the pixels a drawing may have, from the measured cost
+  cost: { fixedMs: 0, msPerPixel: 0, fitted: false }, // what a drawing costs
 };
+// decayed sums of the drawings' pixels x and costs y, for the least-squares fit
+const costSums = { n: 0, x: 0, y: 0, xx: 0, xy: 0 };
 state.view = pacing;
 const frameDone = new MessageChannel();
 
@@ -393,8 +399,9 @@ frameDone.port1.onmessage = (event) => {
   }
   const took = now - start;
   if (pixels > 0 && took > 0) {
+    learnCost(pixels, took);
     // down at once to what fits; up by at most a quarter of what was drawn
-    const fits = (pixels * FRAME_BUDGET_MS) / took;
+    const fits = pixelsThatFit();
     pacing.pixelBudget = fits < pixels ? fits : Math.min(fits, pixels * BUDGET_GROWTH);
   }
   pacing.busyMs += took;
@@ -408,6 +415,40 @@ frameDone.port1.onmessage = (event) => {
   pacing.windowStart = now;
   pacing.busyMs = 0;
 };
+
+// Fits took = fixedMs + msPerPixel * pixels over the recent drawings (least squares, each older
+// drawing weighing COST_MEMORY times less). Until drawings of different sizes have been seen,
+// the whole cost counts as per pixel (the cautious reading); later, while the sizes stay alike,
+// the last fit holds.
+function learnCost(pixels, took) {
+  const sums = costSums;
+  sums.n = COST_MEMORY * sums.n + 1;
+  sums.x = COST_MEMORY * sums.x + pixels;
+  sums.y = COST_MEMORY * sums.y + took;
+  sums.xx = COST_MEMORY * sums.xx + pixels * pixels;
+  sums.xy = COST_MEMORY * sums.xy + pixels * took;
+  const meanX = sums.x / sums.n;
+  const meanY = sums.y / sums.n;
+  const varianceX = sums.xx / sums.n - meanX * meanX;
+  const cost = pacing.cost;
+  if (varianceX > (0.1 * meanX) ** 2) {
+    cost.msPerPixel = Math.max(0, (sums.xy / sums.n - meanX * meanY) / varianceX);
+    cost.fitted = true;
+  } else if (!cost.fitted) {
+    cost.msPerPixel = meanY / meanX;
+  } else {
+    return;
+  }
+  cost.fixedMs = Math.max(0, meanY - cost.msPerPixel * meanX);
+}
+
+// The pixels a drawing may have: those that fit in the budget with the fixed cost, or, where the
+// fixed cost alone takes it, those that add PIXEL_SHARE_OF_FIXED to it.
+function pixelsThatFit() {
+  const { fixedMs, msPerPixel } = pacing.cost;
+  if (msPerPixel <= 0) return Infinity;
+  return Math.max(FRAME_BUDGET_MS - fixedMs, PIXEL_SHARE_OF_FIXED * fixedMs) / msPerPixel;
+}
 
 // Draws the view if it is due: the pixels drawn, or 0.
 function drawView(now) {
