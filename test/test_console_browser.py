@@ -355,6 +355,8 @@ def test_while_the_view_follows_speech_expect_the_page_keeps_time_for_the_operat
         polling=50,
         timeout=5000,
     )
+    # for a person to look at: the picture at the chosen resolution, scaled up by the browser
+    page.locator("#robot").screenshot(path=str(console.shots / f"console_view_{screen[0]}.png"))
     page.click("#talk")
     page.wait_for_function("window.a2p.you === false", timeout=10000)
     page.close()
