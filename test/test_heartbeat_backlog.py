@@ -178,7 +178,7 @@ def test_when_a_node_is_flooded_expect_heartbeats_throughout(
     times = [start] + [t for t, _ in beats if start <= t <= end]
     longest_gap_s = max(np.diff([*times, end]))
     statuses = [s for t, s in beats if t >= start]
-    served = max(int({kv.key: kv.value for kv in s.values}[served_key]) for s in statuses)
+    served = max(_value(s, served_key) for s in statuses)
     print(
         f"{executable}: sent {sent} messages in {FLOOD_S} s; {served_key} {served}; "
         f"heartbeats {len(times) - 1}, longest gap {longest_gap_s:.2f} s"

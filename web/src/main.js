@@ -408,8 +408,8 @@ frameDone.port1.onmessage = (event) => {
   const elapsed = now - pacing.windowStart;
   if (elapsed < PACE_WINDOW_MS) return;
   const share = pacing.busyMs / elapsed;
-  const scale = Math.min(2, Math.max(0.8, share / FRAME_SHARE));
-  const every = pacing.renderEveryMs * scale;
+  const stretch = Math.min(2, Math.max(0.8, share / FRAME_SHARE)); // of the interval
+  const every = pacing.renderEveryMs * stretch;
   pacing.renderEveryMs = Math.min(MAX_FRAME_MS, Math.max(MIN_FRAME_MS, every));
   pacing.frameShare = share;
   pacing.windowStart = now;
