@@ -24,7 +24,9 @@ from audio2pose_ros.cli.options import MAX_SEED, Verbs, bounded_float, bounded_i
 from audio2pose_ros.errors import Audio2PoseError, UsageError
 
 if TYPE_CHECKING:
+    from audio2pose_ros.checkpoints.torch_io import Checkpoint
     from audio2pose_ros.data.dataset import Clip, ClipInfo
+    from audio2pose_ros.robot.description import RobotDescription
 
 VIDEO_SUFFIXES = (".mp4", ".mpg", ".mpeg", ".mov", ".avi", ".mkv", ".webm", ".m4v")
 AUDIO_SUFFIXES = (".wav", ".flac", ".mp3", ".ogg", ".m4a", *VIDEO_SUFFIXES)
@@ -204,6 +206,27 @@ def command_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _start_checkpoint(path: str | None, robot: RobotDescription) -> Checkpoint | None:
+    """The ``--start`` checkpoint of ``build-default``: a ``live_groups`` model, or None.
+
+    Raises:
+        CheckpointError: the file is missing or unreadable, or made for another robot.
+        UsageError: it holds another model family.
+
+    """
+    if path is None:
+        return None
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+    from audio2pose_ros.learning.source_holdout import MODEL_NAME
+
+    start = load_checkpoint(Path(path), robot=robot)
+    if start.model.name != MODEL_NAME:
+        raise UsageError(
+            f"--start {path}: a {start.model.name} checkpoint; the rebuild trains {MODEL_NAME}"
+        )
+    return start
+
+
 def command_build_default(args: argparse.Namespace) -> int:
     """Rebuild the default model from the shared recordings (import, train, evaluate, card).
 
@@ -241,10 +264,14 @@ def command_build_default(args: argparse.Namespace) -> int:
             seed=args.seed,
             workers=args.jobs or default_workers(),
         )
+        robot = load_robot()
+        start = _start_checkpoint(args.start, robot)
         result = build_learned_default_model(
-            clips, lecture, out, work, load_robot(), settings, progress
+            clips, lecture, out, work, robot, settings, progress, start
         )
     else:
+        if args.start:
+            raise UsageError("--start needs --arms learned (it pretrains live_groups)")
         result = build_default_model(
             clips,
             out,
@@ -333,6 +360,12 @@ def register(verbs: Verbs) -> None:
         help="default 200 (learned; also per evaluation fold) or 2000 (prosody, neutral)",
     )
     build.add_argument("--seed", type=bounded_int(0, MAX_SEED), default=0)
+    build.add_argument(
+        "--start",
+        metavar="CKPT",
+        help="learned: start every training from this pretrained live_groups checkpoint (a "
+        "fold that holds out a source it learned from starts from new weights)",
+    )
     build.add_argument(
         "--jobs",
         type=bounded_int(1, 256),

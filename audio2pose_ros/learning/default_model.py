@@ -45,6 +45,7 @@ from audio2pose_ros.motion.prosody import prosody_trajectory
 from audio2pose_ros.robot.description import RobotDescription
 
 if TYPE_CHECKING:
+    from audio2pose_ros.checkpoints.torch_io import Checkpoint
     from audio2pose_ros.learning.evaluation import Predictions
     from audio2pose_ros.learning.training import TrainSettings
 
@@ -322,6 +323,7 @@ def build_learned_default_model(
     robot: RobotDescription,
     settings: LearnedBuildSettings | None = None,
     progress: Callable[[str], None] = print,
+    start: Checkpoint | None = None,
 ) -> DefaultModelResult:
     """Import, train ``live_groups``, evaluate on held-out sources and lecture, write the card.
 
@@ -337,6 +339,9 @@ def build_learned_default_model(
         robot: joint order, limits and neutral pose.
         settings: training and evaluation budget.
         progress: receives one line per step.
+        start: a pretrained ``live_groups`` checkpoint every training starts from, except a
+            fold that holds out a source it learned from
+            (:func:`~audio2pose_ros.learning.source_holdout.holdout_tasks`); None = new weights.
 
     """
     from audio2pose_ros.checkpoints.torch_io import save_checkpoint
@@ -379,10 +384,13 @@ def build_learned_default_model(
         train_settings,
         settings.samples,
         DEFAULT_SEED,
+        start,
     )
     for task in tasks:
+        begin = "from the given checkpoint" if task.start is not None else "from new weights"
         progress(
-            f"training live_groups ({task.name}) on {len(task.training)} clips, validation "
+            f"training live_groups ({task.name}, {begin}) on {len(task.training)} clips, "
+            "validation "
             f"{sorted(c.info.clip_id for c in task.validation)}; then choosing its sampling "
             "settings on the validation clips (the arms' body budget also on the speech of "
             "its training clips without arms)"

@@ -409,6 +409,33 @@ def _learned_from(checkpoint: Checkpoint, clips: Sequence[Clip]) -> str:
     return "\n".join(lines)
 
 
+def _started_from(results: Sequence[HoldoutResult]) -> str:
+    """Markdown: which trainings started from a pretrained checkpoint, and whose data it held.
+
+    Empty when every training started from new weights.
+    """
+    started = [r for r in results if "started_from" in r.checkpoint.info]
+    if not started:
+        return ""
+    speakers = sorted(
+        {str(s) for r in started for s in r.checkpoint.info["started_from"].get("speakers", [])}
+    )
+    fresh = [r.name for r in results if "started_from" not in r.checkpoint.info]
+    names = ", ".join(r.name for r in started)
+    listed = ", ".join(speakers[:8]) + (", ..." if len(speakers) > 8 else "")
+    text = (
+        f"\nPretrained: {names} started from a checkpoint (`build-default --start`) that "
+        f"learned from {len(speakers)} speaker(s) ({listed}), not counted in the table; the "
+        "licences of its data apply to this model too."
+    )
+    if fresh:
+        text += (
+            f" {', '.join(fresh)} started from new weights: it holds out a source the "
+            "checkpoint learned from."
+        )
+    return text + "\n"
+
+
 def _selection(results: Sequence[HoldoutResult]) -> str:
     """The card's account of how the sampling settings were chosen."""
     temperatures = ", ".join(f"{t:g}" for t in TEMPERATURES)
@@ -511,7 +538,7 @@ validation clips {", ".join(validation)}). Rebuild it with `make default-model`.
 
 ## What it learned from people
 {_learned_from(checkpoint, clips)}
-
+{_started_from(results)}
 - **HeadYaw and HeadPitch**: head rotation measured with MediaPipe FaceMesh in real
   talking-head videos (rigid fit of the canonical face model, unwrapped, outliers rejected,
   4 Hz Butterworth, 100 Hz; each clip's median head pose mapped to the robot's neutral pose).

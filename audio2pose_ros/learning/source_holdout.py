@@ -35,6 +35,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -135,6 +136,7 @@ class HoldoutTask:
         settings: training settings.
         n_samples: samples per scored clip (seeds ``seed`` .. ``seed + n_samples - 1``).
         seed: first sampling seed.
+        start: a pretrained ``live_groups`` checkpoint to train from (None = new weights).
 
     """
 
@@ -146,11 +148,18 @@ class HoldoutTask:
     settings: TrainSettings
     n_samples: int
     seed: int
+    start: Checkpoint | None = None
 
     def __call__(self) -> HoldoutResult:
         """Run the task."""
         checkpoint, report = train_on_clips(
-            MODEL_NAME, self.training, self.robot, self.settings, None, self.validation
+            MODEL_NAME,
+            self.training,
+            self.robot,
+            self.settings,
+            None,
+            self.validation,
+            self.start,
         )
         arms = self.robot.group_mask("arms")
         unlabelled = [c.audio for c in self.training if not c.mask[:, arms].any()]
@@ -182,8 +191,13 @@ def holdout_tasks(
     settings: TrainSettings,
     n_samples: int,
     seed: int,
+    start: Checkpoint | None = None,
 ) -> list[HoldoutTask]:
     """The shipped model's task, then one per held-out head source (:data:`HEAD_SOURCES`).
+
+    With a pretrained ``start``, every task trains from it except a fold that holds out a
+    source ``start`` learned from (:func:`learned_sources`): that fold would otherwise be
+    scored on recordings its weights have seen, so it starts from new weights.
 
     Args:
         clips: every clip: the talking heads and all lecture stretches (split 'test' = the
@@ -194,8 +208,10 @@ def holdout_tasks(
         settings: training settings.
         n_samples: samples per scored clip.
         seed: first sampling seed.
+        start: a pretrained ``live_groups`` checkpoint (None = every task from new weights).
 
     """
+    seen = learned_sources(start) if start is not None else frozenset()
     usable = [c for c in clips if c.info.split != "test"]
     lecture_test = tuple(c for c in clips if c.info.split == "test")
     tasks = [
@@ -208,6 +224,7 @@ def holdout_tasks(
             settings,
             n_samples,
             seed,
+            start,
         )
     ]
     for source in HEAD_SOURCES:
@@ -222,9 +239,30 @@ def holdout_tasks(
                 settings,
                 n_samples,
                 seed,
+                None if source in seen else start,
             )
         )
     return tasks
+
+
+def learned_sources(checkpoint: Checkpoint) -> frozenset[str]:
+    """The recording sources of the speakers a checkpoint learned from (its ``speakers``).
+
+    A checkpoint started from another (``started_from``) learned from that one's speakers too.
+    Speakers of no known source (:func:`recording_source`) count as their own source.
+    """
+    speakers: set[str] = set()
+    info: Any = checkpoint.info
+    while isinstance(info, dict):
+        speakers.update(str(s) for s in info.get("speakers", []))
+        info = info.get("started_from")
+    sources = set()
+    for speaker in speakers:
+        try:
+            sources.add(recording_source(ClipInfo("clip", speaker, "", "")))
+        except ValueError:
+            sources.add(speaker)
+    return frozenset(sources)
 
 
 def fold_predictions(results: Sequence[HoldoutResult]) -> tuple[Predictions, Predictions]:

@@ -281,8 +281,9 @@ def train_on_clips(
     settings: TrainSettings | None = None,
     config: dict[str, Any] | None = None,
     validation: Sequence[Clip] | None = None,
+    start: Checkpoint | None = None,
 ) -> tuple[Checkpoint, TrainReport]:
-    """Train a new model on in-memory clips, validating on held-out speakers (or clips).
+    """Train a model on in-memory clips, validating on held-out speakers (or clips).
 
     Used by the leave-one-speaker-out evaluation (:mod:`audio2pose_ros.learning.evaluation`) and the
     default model's rebuild: a fifth of the speakers (at least one) is held out for early
@@ -296,17 +297,27 @@ def train_on_clips(
         settings: training settings (no training state is saved).
         config: model config beyond the feature and joint counts.
         validation: clips for early stopping; None = held out from ``clips``.
+        start: a trained checkpoint of ``model_name`` to start from (pretraining, e.g. on
+            many clips of other speakers), with its features and config; None = new weights.
+            Its weights are copied, not changed; the feature normaliser is fitted anew on
+            ``clips``, as when fine-tuning (:func:`train_from_dataset`).
 
     Raises:
-        TrainingError: fewer than two clips (without ``validation``).
+        TrainingError: fewer than two clips (without ``validation``), or ``start`` is
+            another model family than ``model_name``.
 
     """
     settings = settings or TrainSettings()
-    spec = FeatureSpec()
     torch.manual_seed(settings.seed)
-    model = build_model(
-        model_name, {"n_features": spec.dim, "n_joints": robot.n_joints, **(config or {})}
-    )
+    if start is not None:
+        if start.model.name != model_name:
+            raise TrainingError(f"cannot start {model_name} from a {start.model.name} checkpoint")
+        spec, model = start.features, copy.deepcopy(start.model)
+    else:
+        spec = FeatureSpec()
+        model = build_model(
+            model_name, {"n_features": spec.dim, "n_joints": robot.n_joints, **(config or {})}
+        )
     if validation:
         train_clips, val_clips = list(clips), list(validation)
     else:
@@ -314,7 +325,12 @@ def train_on_clips(
         train_clips, val_clips = hold_out(list(clips), 0.2, holdout, settings.seed)
     data = training_data_from_clips(train_clips, val_clips, robot, spec)
     report = train_model(model, data.train, data.validation, settings)
-    info = training_info(model, data, settings, report, subject="independent")
+    extra: dict[str, Any] = {"subject": "independent"}
+    if start is not None:
+        extra["started_from"] = {
+            k: start.info[k] for k in ("speakers", "started_from") if k in start.info
+        }
+    info = training_info(model, data, settings, report, **extra)
     return Checkpoint(model, spec, data.normalizer, robot, info), report
 
 
