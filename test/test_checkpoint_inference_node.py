@@ -78,6 +78,18 @@ def test_when_a_message_holds_a_minute_of_frames_expect_only_the_cap_used(node):
 
 
 @pytest.mark.ros
+def test_when_the_features_publisher_restarts_expect_a_counted_restart_not_lost_frames(node):
+    frames = np.tile(node.model.normalizer.mean, (5, 1)).astype(np.float32)
+    label = f"{node.model.features.kind}{node.model.features.dim}"
+    for first in (0, 5, 20, 0, 5):  # 10 frames lost before frame 20; a new stream at 0
+        node.on_features(features_to_msg(frames, label, first))
+    values = node.diagnostic_values()
+    assert values["frames_lost"] == 10
+    assert values["feature_stream_restarts"] == 1
+    assert len(node.published) == 5  # every message served
+
+
+@pytest.mark.ros
 @pytest.mark.slow
 @pytest.mark.parametrize(
     ("content", "problem"),

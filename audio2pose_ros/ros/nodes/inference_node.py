@@ -27,7 +27,9 @@ Bad input never reaches the model and never stops the node:
 - frames lost on the way are counted (``frames_lost``) and reported as WARN: audio_features_node
   numbers its messages' first frames (``"frames from N"`` in the layout), and a message that
   starts past the next expected frame shows that the messages between were dropped, as a
-  reliable subscription's queue does when the node falls behind;
+  reliable subscription's queue does when the node falls behind; a message that starts before
+  it is a new stream (its publisher restarted), counted as ``feature_stream_restarts`` and
+  logged, not a loss;
 - at most :data:`MAX_FRAMES_PER_MESSAGE` frames of one message are used (10 s of audio; the
   rest is dropped and counted), so one message cannot block the node for long;
 - after normalisation, non-finite values are replaced by 0 (the training mean) and values
@@ -202,7 +204,14 @@ class InferenceNode(DiagnosedNode):
                 "malformed", DiagnosticStatus.WARN, f"malformed features message dropped: {exc}"
             )
             return
+        restarts = self.sequence.restarts
         missing = self.sequence.observe(batch.first_frame, len(batch.frames))
+        if self.sequence.restarts > restarts:
+            self.get_logger().info(
+                f"the features stream started again at frame {batch.first_frame} (its publisher "
+                f"restarted); {self.sequence.restarts} restarts in all",
+                throttle_duration_sec=5.0,
+            )
         if missing:
             self.report_problem(
                 "frames lost",
@@ -273,6 +282,7 @@ class InferenceNode(DiagnosedNode):
             "frames_in": self.frames_in,
             "frames_dropped": self.frames_dropped,
             "frames_lost": self.sequence.lost,
+            "feature_stream_restarts": self.sequence.restarts,
             "feature_values_replaced": self.values_replaced,
             "feature_values_clamped": self.values_clamped,
             "feature_limit_sd": self.settings.feature_limit_sd,
