@@ -124,6 +124,8 @@ def test_when_finetuned_on_one_speaker_expect_subject_dependent_checkpoint(
     assert sd.info["subject"] == "dependent"
     assert sd.info["finetuned_from"] == str(si)
     assert sd.info["speakers"] == ["s1"]
+    # the base's speakers stay known (a rebuild's fold must not start from weights that saw them)
+    assert sd.info["started_from"] == {"speakers": ["s0", "s1"]}
     assert state_path_for(tmp_path / "sd.safetensors").exists()
     with pytest.raises(TrainingError, match="differs from the fine-tuned"):
         train_from_dataset(

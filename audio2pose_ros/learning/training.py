@@ -274,6 +274,17 @@ def training_info(
     }
 
 
+def lineage(start: Checkpoint) -> dict[str, Any]:
+    """What a checkpoint trained from ``start`` records of it (its ``started_from`` entry).
+
+    The speakers ``start`` learned from, and its own ``started_from`` in turn, so that the
+    speakers behind a chain of pretraining and fine-tuning stay known: a fold of the default
+    model's rebuild must not start from weights that saw the source it is scored on
+    (:func:`~audio2pose_ros.learning.source_holdout.learned_sources`).
+    """
+    return {k: start.info[k] for k in ("speakers", "started_from") if k in start.info}
+
+
 def train_on_clips(
     model_name: str,
     clips: Sequence[Clip],
@@ -327,9 +338,7 @@ def train_on_clips(
     report = train_model(model, data.train, data.validation, settings)
     extra: dict[str, Any] = {"subject": "independent"}
     if start is not None:
-        extra["started_from"] = {
-            k: start.info[k] for k in ("speakers", "started_from") if k in start.info
-        }
+        extra["started_from"] = lineage(start)
     info = training_info(model, data, settings, report, **extra)
     return Checkpoint(model, spec, data.normalizer, robot, info), report
 
@@ -389,6 +398,7 @@ def train_from_dataset(
         dataset=str(Path(data_dir).resolve()),
         subject="dependent" if speaker else "independent",
         finetuned_from=str(finetune) if finetune else None,
+        **({"started_from": lineage(base)} if finetune is not None else {}),
     )
     checkpoint = Checkpoint(model, spec, data.normalizer, robot, info)
     save_checkpoint(output, checkpoint)
