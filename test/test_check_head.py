@@ -15,7 +15,8 @@ from audio2pose_ros.data.dataset import Dataset
 
 ROW = re.compile(
     r"^(?P<method>.+?)\s+(?P<seconds>[\d.]+)\s+(?P<joint>Head\w+)\s+"
-    r"(?P<speed>[\d.]+/[\d.]+/[\d.]+)\s+(?P<accel>[\d.]+/[\d.]+/[\d.]+)\s+(?P<std>[\d.]+)$"
+    r"(?P<speed>[\d.]+/[\d.]+/[\d.]+)\s+(?P<accel>[\d.]+/[\d.]+/[\d.]+)\s+(?P<std>[\d.]+)"
+    r"(?:\s+(?P<bc>[\d.]+|-)\s+(?P<shuffled>[\d.]+|-))?$"  # beat consistency: first joint's line
 )
 
 
@@ -39,6 +40,8 @@ def test_when_checked_on_speech_expect_the_models_head_beside_each_real_speaker(
     rows = _rows(captured.out)
     model = [r for r in rows if r["method"].startswith("model")]
     assert [r["joint"] for r in model] == ["HeadPitch", "HeadYaw"]
+    assert 0.0 < float(model[0]["bc"]) <= 1.0
+    assert model[0]["shuffled"] == "-"  # one utterance: no other audio to pair it with
     speakers = {info.speaker for info in Dataset.open(heads).clips}
     assert {r["method"] for r in rows} - {model[0]["method"]} == {f"real, {s}" for s in speakers}
     for r in rows:

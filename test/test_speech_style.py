@@ -59,3 +59,55 @@ def test_when_the_model_speaks_expect_a_row_per_seed_pooled_and_a_line_per_joint
     assert len(lines) == 1 + 2 * len(rows)
     assert "HeadYaw" in lines[-1]
     assert "real, nodders" in lines[-1]
+
+
+def _beating(robot, clip_id, beats_s, seconds=4.0, seed=0):
+    """Noise bursts at ``beats_s`` in silence; HeadPitch turns (speed minima) at those times."""
+    rng = np.random.default_rng(seed)
+    audio = np.zeros(int(seconds * 16000), np.float32)
+    for t in beats_s:
+        start = int(t * 16000)
+        audio[start : start + 3200] = 0.3 * rng.uniform(-1, 1, 3200)
+    n = int(seconds * FRAME_RATE_HZ)
+    t = np.arange(n) / FRAME_RATE_HZ
+    angles = np.tile(robot.neutral_rad, (n, 1))
+    period = 2 * (beats_s[1] - beats_s[0])  # extrema one beat apart, one at each burst
+    # the turn half a frame late: one frame interval holds the slowest speed, a strict minimum
+    phase = t - beats_s[0] - 0.5 / FRAME_RATE_HZ
+    angles[:, 0] += np.radians(3.0) * np.cos(2 * np.pi * phase / period)
+    mask = np.zeros((n, robot.n_joints), bool)
+    mask[:, :2] = True
+    return Clip(ClipInfo(clip_id, clip_id, "test", "CC0"), audio, angles, mask)
+
+
+def test_when_real_heads_turn_on_their_onsets_expect_bc_above_their_shuffled_pairing(robot):
+    on_time = [
+        _beating(robot, "a", [0.5, 1.5, 2.5, 3.5], seed=1),
+        _beating(robot, "b", [1.0, 2.0, 3.0], seed=2),
+    ]
+    checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
+    (row,) = head_style_rows(checkpoint, robot, {}, [0], {"beaters": on_time}, "m")
+    assert row.bc > 0.9  # every onset on a turn
+    assert row.bc_shuffled < 0.5  # a's onsets half a second from b's turns, and b's from a's
+    (alone,) = head_style_rows(checkpoint, robot, {}, [0], {"one": on_time[:1]}, "m")
+    assert alone.bc > 0.9
+    assert np.isnan(alone.bc_shuffled)  # nothing to pair with
+    table = head_style_table([row, alone], ["HeadPitch", "HeadYaw"])
+    header, first, second, third, _ = table.splitlines()
+    assert header.split()[-2:] == ["BC", "shuffled"]
+    assert first.split()[-2:] == [f"{row.bc:.3f}", f"{row.bc_shuffled:.3f}"]
+    assert second.split()[-1] == f"{row.std_deg[1]:.2f}"  # BC once per row, not per joint
+    assert third.split()[-1] == "-"
+
+
+def test_when_the_model_speaks_two_utterances_expect_its_bc_shuffled_within_each_seed(
+    robot, speech
+):
+    checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
+    utterances = {"u": speech[: 3 * 16000], "v": speech[3 * 16000 : 6 * 16000]}
+    (row,) = head_style_rows(checkpoint, robot, utterances, [0, 1], {}, "m")
+    assert 0.0 < row.bc <= 1.0
+    assert 0.0 < row.bc_shuffled <= 1.0
+    assert row.bc != row.bc_shuffled
+    (single,) = head_style_rows(checkpoint, robot, {"u": utterances["u"]}, [0, 1], {}, "m")
+    assert np.isnan(single.bc_shuffled)

@@ -625,21 +625,6 @@ def quality_evaluation(
 REAL_FLOOR = "real (split half)"
 
 
-def _beat_consistency(
-    onsets: Sequence[np.ndarray], motions: Sequence[realism.Motion], pairing: Sequence[int]
-) -> float:
-    """BC pooled over clips: clip i's onsets against the beats of ``motions[pairing[i]]``."""
-    total = np.zeros(2)
-    for i, clip_onsets in enumerate(onsets):
-        angles, known = motions[pairing[i]]
-        beats = realism.motion_beats(angles)
-        frames = np.minimum(np.round(beats * FRAME_RATE_HZ).astype(int), known.shape[0] - 1)
-        beats = beats[known[frames].all(axis=1)]  # only beats inside observed motion
-        duration = motions[i][0].shape[0] / FRAME_RATE_HZ
-        total += realism.beat_consistency(clip_onsets[clip_onsets < duration], beats)
-    return float(total[0] / total[1]) if total[1] else math.nan
-
-
 def _realism_measures(
     real: Sequence[realism.Motion],
     generated: Sequence[realism.Motion],
@@ -655,8 +640,8 @@ def _realism_measures(
         "H accel plug-in": plug_in["H accel"],
         "FD windows": windows.generated,
         **realism.motion_ratios(real, motions),
-        "BC": _beat_consistency(onsets, motions, range(len(motions))),
-        "BC shuffled": _beat_consistency(onsets, motions, order),
+        "BC": realism.pooled_beat_consistency(onsets, motions, range(len(motions))),
+        "BC shuffled": realism.pooled_beat_consistency(onsets, motions, order),
     }
 
 
@@ -678,8 +663,8 @@ def _floor_row(
         "FD windows": windows.floor,
         "L1div ratio": 1.0,
         "jerk ratio": 1.0,
-        "BC": _beat_consistency(onsets, real, range(len(real))),
-        "BC shuffled": _beat_consistency(onsets, real, order),
+        "BC": realism.pooled_beat_consistency(onsets, real, range(len(real))),
+        "BC shuffled": realism.pooled_beat_consistency(onsets, real, order),
     }
     return GroupRow(
         REAL_FLOOR,

@@ -620,8 +620,11 @@ The two talking-head sources differ in style more than any model does, so the he
 above say as much about GRID and Obama as about the model. On speech of other speakers that no
 step of the build used (the bundled LibriVox clips, no video), this is how the shipped model's
 head moves, beside the real motion of each source
-(`audio2pose_ros/learning/speech_style.py`): speed and acceleration percentiles and the
-standard deviation of the angle per clip.
+(`audio2pose_ros/learning/speech_style.py`): speed and acceleration percentiles, the
+standard deviation of the angle per clip, and beat consistency (BC) with each clip's own audio
+and with another clip's motion of the same seed or source (shuffled). BC is only evidence that
+the head moves in time with the speech where it is above its shuffled value: on speech with
+frequent onsets, any motion's turns land near some onset.
 
 ```
 {style}

@@ -319,3 +319,23 @@ def beat_consistency(onsets_s: np.ndarray, beats_s: np.ndarray) -> tuple[float, 
         return 0.0, int(onsets_s.size)
     nearest = np.abs(onsets_s[:, None] - beats_s[None, :]).min(axis=1)
     return float(np.exp(-(nearest**2) / (2.0 * BEAT_SIGMA_S**2)).sum()), int(onsets_s.size)
+
+
+def pooled_beat_consistency(
+    onsets: Sequence[np.ndarray], motions: Sequence[Motion], pairing: Sequence[int]
+) -> float:
+    """BC pooled over clips: clip i's onsets against the beats of ``motions[pairing[i]]``.
+
+    Only beats inside known motion count, and only onsets within clip i's motion. A pairing
+    other than the identity gives the "shuffled audio" BC: how much of BC any motion gets from
+    onsets being frequent. NaN when no clip has an onset.
+    """
+    total = np.zeros(2)
+    for i, clip_onsets in enumerate(onsets):
+        angles, known = motions[pairing[i]]
+        beats = motion_beats(angles)
+        frames = np.minimum(np.round(beats * FRAME_RATE_HZ).astype(int), known.shape[0] - 1)
+        beats = beats[known[frames].all(axis=1)]  # only beats inside observed motion
+        duration = motions[i][0].shape[0] / FRAME_RATE_HZ
+        total += beat_consistency(clip_onsets[clip_onsets < duration], beats)
+    return float(total[0] / total[1]) if total[1] else math.nan

@@ -7,11 +7,16 @@ readers barely move their heads, Obama moves his four to five times more. Speech
 joint, the speed and acceleration percentiles p50 / p90 / p99 (as
 :func:`~audio2pose_ros.learning.realism.speed_percentiles`) and the standard deviation of the
 angle per clip (averaged over clips), of the model's samples over several seeds, beside the real
-motion of each talking-head source.
+motion of each talking-head source; and whether the head moves in time with the speech: EMAGE's
+beat consistency (:func:`~audio2pose_ros.learning.realism.pooled_beat_consistency`) of each
+utterance's onsets against the motion made on it, and against the motion made on the next
+utterance (shuffled audio). Beats that land near onsets by chance score the shuffled value, so
+only BC above it says the motion follows the speech.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -34,6 +39,8 @@ class StyleRow:
         speed: (J, 3) speed percentiles per head joint (rad/s).
         accel: (J, 3) acceleration percentiles (rad/s^2).
         std_deg: (J,) standard deviation of the angle per clip, averaged over clips (degrees).
+        bc: beat consistency with each clip's own audio (NaN without onsets).
+        bc_shuffled: the same with the next clip's motion (NaN with fewer than two clips).
 
     """
 
@@ -42,9 +49,31 @@ class StyleRow:
     speed: np.ndarray
     accel: np.ndarray
     std_deg: np.ndarray
+    bc: float = math.nan
+    bc_shuffled: float = math.nan
 
 
-def _row(method: str, motions: Sequence[realism.Motion]) -> StyleRow:
+def _beats(
+    onsets: Sequence[np.ndarray], motions: Sequence[realism.Motion], groups: Sequence[range]
+) -> tuple[float, float]:
+    """BC with own audio, and with the next motion of the same group (seed) of clips."""
+    shuffled = [
+        group[(i + 1) % len(group)] if len(group) > 1 else -1
+        for group in groups
+        for i in range(len(group))
+    ]
+    own = realism.pooled_beat_consistency(onsets, motions, range(len(motions)))
+    if min(shuffled, default=-1) < 0:
+        return own, math.nan
+    return own, realism.pooled_beat_consistency(onsets, motions, shuffled)
+
+
+def _row(
+    method: str,
+    motions: Sequence[realism.Motion],
+    onsets: Sequence[np.ndarray],
+    groups: Sequence[range],
+) -> StyleRow:
     speed, accel = realism.speed_percentiles(motions, FRAME_RATE_HZ)
     stds = [
         [np.std(angles[known[:, j], j]) for j in range(angles.shape[1])]
@@ -57,6 +86,7 @@ def _row(method: str, motions: Sequence[realism.Motion]) -> StyleRow:
         speed,
         accel,
         np.degrees(np.mean(stds, axis=0)),
+        *_beats(onsets, motions, groups),
     )
 
 
@@ -82,31 +112,47 @@ def head_style_rows(
     from audio2pose_ros.offline.synthesis import synthesize_samples
 
     head = robot.group_mask("head")
+    utterances = list(speech.values())
+    onsets = [realism.audio_onsets(audio) for audio in utterances]
+    samples = [synthesize_samples(checkpoint, audio, seeds) for audio in utterances]
     generated: list[realism.Motion] = []
-    for audio in speech.values():
-        for angles in synthesize_samples(checkpoint, audio, seeds):
-            generated.append((angles[:, head], np.ones((len(angles), int(head.sum())), bool)))
-    rows = [_row(label, generated)] if generated else []
+    for k in range(len(seeds) if utterances else 0):  # grouped by seed: shuffled within a seed
+        for per_seed in samples:
+            angles = per_seed[k][:, head]
+            generated.append((angles, np.ones(angles.shape, bool)))
+    n = len(utterances)
+    groups = [range(k * n, (k + 1) * n) for k in range(len(generated) // n if n else 0)]
+    rows = [_row(label, generated, onsets * len(groups), groups)] if generated else []
     for source, clips in real.items():
         motions = realism.clip_motions(clips, head)
         if motions:
-            rows.append(_row(f"real, {source}", motions))
+            observed = [c for c in clips if c.mask[:, head].any()]  # as clip_motions keeps
+            clip_onsets = [realism.audio_onsets(c.audio) for c in observed]
+            rows.append(_row(f"real, {source}", motions, clip_onsets, [range(len(motions))]))
     return rows
 
 
 def head_style_table(rows: Sequence[StyleRow], joint_names: Sequence[str]) -> str:
-    """Plain text: per row and head joint, the percentiles and the standard deviation."""
+    """Plain text: per row and head joint, the percentiles and the standard deviation.
+
+    The row's beat consistency (own audio, shuffled) is on its first joint's line.
+    """
     levels = "/".join(f"p{p}" for p in realism.PERCENTILES)
     lines = [
         f"{'method':<40}{'seconds':>8}  {'joint':<11}{'speed ' + levels + ' rad/s':<26}"
-        f"{'accel ' + levels + ' rad/s^2':<28}{'std deg':>8}"
+        f"{'accel ' + levels + ' rad/s^2':<28}{'std deg':>8}{'BC':>7}{'shuffled':>9}"
     ]
     for row in rows:
         for j, name in enumerate(joint_names):
             speed = "/".join(f"{v:.2f}" for v in row.speed[j])
             accel = "/".join(f"{v:.1f}" for v in row.accel[j])
+            beats = f"{_num(row.bc):>7}{_num(row.bc_shuffled):>9}" if j == 0 else ""
             lines.append(
                 f"{row.method[:39]:<40}{row.seconds:>8.1f}  {name:<11}{speed:<26}{accel:<28}"
-                f"{row.std_deg[j]:>8.2f}"
+                f"{row.std_deg[j]:>8.2f}{beats}"
             )
     return "\n".join(lines)
+
+
+def _num(value: float) -> str:
+    return f"{value:.3f}" if math.isfinite(value) else "-"
