@@ -41,6 +41,32 @@ def test_when_motion_rests_at_the_onsets_expect_beat_consistency_near_one_and_lo
     assert realism.beat_consistency(times, np.zeros(0)) == (0.0, 4)
 
 
+def _resting_at(times, seconds):
+    """Angles whose speed falls to zero at each of ``times`` (and moves in between).
+
+    Each rest is half a frame late, so that one frame interval holds it: a strict minimum.
+    """
+    t = np.arange(int(seconds * RATE)) / RATE
+    knots = np.concatenate([[0.0], np.asarray(times) + 0.5 / RATE, [seconds]])
+    phase = np.interp(t, knots, np.arange(knots.size) * np.pi)
+    angles = np.stack([0.1 * np.cos(phase), np.zeros_like(t)], axis=1)
+    return angles, np.ones(angles.shape, bool)
+
+
+def test_when_the_paired_motion_is_shorter_expect_bc_over_the_time_both_cover():
+    # a's onsets every 0.8 s over 8 s; b is a's first 4 s of motion: it rests at a's onsets
+    onsets_a = np.arange(0.5, 8.0, 0.8)
+    long_a = _resting_at(onsets_a, 8.0)
+    short_b = (long_a[0][:400], long_a[1][:400])
+    onsets_b = onsets_a[onsets_a < 4.0]
+    own = realism.pooled_beat_consistency([onsets_a, onsets_b], [long_a, short_b], [0, 1])
+    swapped = realism.pooled_beat_consistency([onsets_a, onsets_b], [long_a, short_b], [1, 0])
+    assert own > 0.95
+    # a's onsets after b's end have no motion to be timed against: they do not count
+    assert swapped == pytest.approx(own, abs=0.02)
+    assert np.isnan(realism.pooled_beat_consistency([np.zeros(0)], [short_b], [0]))
+
+
 def test_when_motion_is_scaled_expect_l1_diversity_and_jerk_ratios_of_the_scale():
     rng = np.random.default_rng(1)
     real = np.cumsum(rng.normal(0, 0.01, (300, 2)), axis=0)

@@ -326,9 +326,10 @@ def pooled_beat_consistency(
 ) -> float:
     """BC pooled over clips: clip i's onsets against the beats of ``motions[pairing[i]]``.
 
-    Only beats inside known motion count, and only onsets within clip i's motion. A pairing
-    other than the identity gives the "shuffled audio" BC: how much of BC any motion gets from
-    onsets being frequent. NaN when no clip has an onset.
+    Only beats inside known motion count, and only onsets within both clip i's motion and the
+    paired motion: an onset past the paired motion's end has no beat near it for want of
+    motion, not of timing. A pairing other than the identity gives the "shuffled audio" BC:
+    how much of BC any motion gets from onsets being frequent. NaN when no clip has an onset.
     """
     total = np.zeros(2)
     for i, clip_onsets in enumerate(onsets):
@@ -336,6 +337,6 @@ def pooled_beat_consistency(
         beats = motion_beats(angles)
         frames = np.minimum(np.round(beats * FRAME_RATE_HZ).astype(int), known.shape[0] - 1)
         beats = beats[known[frames].all(axis=1)]  # only beats inside observed motion
-        duration = motions[i][0].shape[0] / FRAME_RATE_HZ
+        duration = min(motions[i][0].shape[0], angles.shape[0]) / FRAME_RATE_HZ
         total += beat_consistency(clip_onsets[clip_onsets < duration], beats)
     return float(total[0] / total[1]) if total[1] else math.nan
