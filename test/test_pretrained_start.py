@@ -143,7 +143,7 @@ def test_when_a_fold_started_fresh_expect_the_card_to_say_which_and_whose_data_t
     text = _started_from(results)
     assert "shipped, Obama started from a checkpoint" in text
     assert "1 speaker(s) (grid_s1)" in text
-    assert "GRID started from new weights" in text
+    assert "GRID started from new weights: each holds out a source" in text
     assert _started_from(results[1:2]) == ""
     assert LECTURE not in text
 

@@ -430,7 +430,7 @@ def _started_from(results: Sequence[HoldoutResult]) -> str:
     )
     if fresh:
         text += (
-            f" {', '.join(fresh)} started from new weights: it holds out a source the "
+            f" {', '.join(fresh)} started from new weights: each holds out a source the "
             "checkpoint learned from."
         )
     return text + "\n"
