@@ -81,3 +81,18 @@ def test_when_listing_the_arm_goals_expect_size_and_the_static_and_rule_baseline
     # 0.17 is not below the rule's interval [0.15, 0.30]: not clearly better
     assert any("H accel | below the prosody rule" in x and x.endswith("False") for x in lines)
     assert any("H speed | <= 0.15" in x and x.endswith("False") for x in lines)
+
+
+def test_when_checking_beats_expect_the_real_motions_own_margin_beside_the_models():
+    from dataclasses import replace
+
+    from audio2pose_ros.learning.model_card import _beat_check
+
+    model = replace(row("m", "head"), realism={"BC": 0.866, "BC shuffled": 0.829})
+    real = replace(row(REAL_FLOOR, "head"), realism={"BC": 0.852, "BC shuffled": 0.842})
+    near, above = _beat_check(model, real)
+    assert near[-1] is True  # 0.014 from real
+    assert above[3] == "0.866 (shuffled 0.829; real 0.852, shuffled 0.842)"
+    assert above[-1] is True  # 0.037 above shuffled
+    close = replace(model, realism={"BC": 0.85, "BC shuffled": 0.84})
+    assert _beat_check(close, real)[1][-1] is False  # 0.01 above: not clearly

@@ -225,10 +225,11 @@ def _percentile_check(row: GroupRow, real: GroupRow, names: Sequence[str]) -> Ch
 
 
 def _beat_check(row: GroupRow, real: GroupRow) -> list[Check]:
-    bc, shuffled, truth = (
+    bc, shuffled, truth, truth_shuffled = (
         row.realism["BC"],
         row.realism["BC shuffled"],
         real.realism["BC"],
+        real.realism["BC shuffled"],
     )
     return [
         (
@@ -242,7 +243,7 @@ def _beat_check(row: GroupRow, real: GroupRow) -> list[Check]:
             row.group,
             "beat consistency",
             f"above shuffled audio by {BEAT_MARGIN:g}",
-            f"{bc:.3f} (shuffled {shuffled:.3f})",
+            f"{bc:.3f} (shuffled {shuffled:.3f}; real {truth:.3f}, shuffled {truth_shuffled:.3f})",
             bc >= shuffled + BEAT_MARGIN,
         ),
     ]
