@@ -80,3 +80,11 @@ def write_dataset(
             info = ClipInfo(f"{split}{i}", speaker, "synthetic", "CC0-1.0", split)
             dataset.add(Clip(info, audio, angles, np.ones_like(angles, dtype=bool)), robot)
     return dataset
+
+
+def synthetic_clips(
+    root, robot, clips_per_split: dict[str, int], seconds: float, seed: int
+) -> list[Clip]:
+    """The clips of a new :func:`write_dataset` folder, loaded in index order."""
+    dataset = write_dataset(root, robot, clips_per_split, seconds, seed)
+    return [dataset.load(c.clip_id) for c in dataset.clips]

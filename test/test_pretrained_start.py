@@ -13,11 +13,11 @@ from types import SimpleNamespace
 
 import pytest
 import torch
-from synthetic_motion import write_dataset
+from synthetic_motion import synthetic_clips
 
 from audio2pose_ros.checkpoints.torch_io import save_checkpoint
 from audio2pose_ros.cli import main as cli
-from audio2pose_ros.data.dataset import ClipInfo, Dataset
+from audio2pose_ros.data.dataset import ClipInfo
 from audio2pose_ros.learning import training
 from audio2pose_ros.learning.batches import TrainingError
 from audio2pose_ros.learning.model_card import _started_from
@@ -39,9 +39,7 @@ SETTINGS = TrainSettings(max_epochs=1, batch_size=4, show_progress=False)
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory, robot):
     root = tmp_path_factory.mktemp("start") / "data"
-    write_dataset(root, robot, {"train": 3, "validation": 1}, seconds=2.0, seed=3)
-    dataset = Dataset.open(root, robot)
-    return [dataset.load(c.clip_id) for c in dataset.clips]
+    return synthetic_clips(root, robot, {"train": 3, "validation": 1}, seconds=2.0, seed=3)
 
 
 @pytest.fixture(scope="module")

@@ -6,9 +6,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from synthetic_motion import write_dataset
+from synthetic_motion import synthetic_clips, write_dataset
 
-from audio2pose_ros.data.dataset import Clip, Dataset
+from audio2pose_ros.data.dataset import Clip
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.learning import sampler_selection
 from audio2pose_ros.learning.evaluation import loso_predictions
@@ -61,9 +61,7 @@ def grid_size() -> int:
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory, robot):
     root = tmp_path_factory.mktemp("selection") / "data"
-    write_dataset(root, robot, {"train": 4, "validation": 2}, seconds=2.0, seed=5)
-    dataset = Dataset.open(root, robot)
-    return [dataset.load(c.clip_id) for c in dataset.clips]
+    return synthetic_clips(root, robot, {"train": 4, "validation": 2}, seconds=2.0, seed=5)
 
 
 @pytest.fixture(scope="module")
