@@ -335,7 +335,9 @@ def test_while_the_view_follows_speech_expect_the_page_keeps_time_for_the_operat
     print(f"page main thread busy {share:.0%} while following speech; view {pacing}")
     received, drawn = page.evaluate("[window.a2p.posesReceived, window.a2p.view.draws]")
     assert received > received_before + 100, "the poses stopped coming"
-    assert drawn >= drawn_before + 5, "the view stopped"  # at least once a second
+    # At its slowest the view waits 1 s between drawings, and a drawing itself takes up to
+    # 0.7 s on a slow machine: at least 3 in 5 s. A view that stopped draws none.
+    assert drawn >= drawn_before + 3, "the view stopped"
     assert share < 0.9, f"the page's main thread was busy {share:.0%} of the time"
     # Fewer drawings than 2.5 a second (the pixel budget aims at 5) only at the lowest
     # resolution, or where the fitted fixed cost of a drawing alone nearly takes the budget
