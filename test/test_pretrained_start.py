@@ -14,9 +14,9 @@ from types import SimpleNamespace
 import pytest
 import torch
 from synthetic_motion import synthetic_clips
+from test_cli_errors import assert_one_line, audio2pose
 
 from audio2pose_ros.checkpoints.torch_io import save_checkpoint
-from audio2pose_ros.cli import main as cli
 from audio2pose_ros.data.dataset import ClipInfo
 from audio2pose_ros.learning import training
 from audio2pose_ros.learning.batches import TrainingError
@@ -146,20 +146,6 @@ def test_when_a_fold_started_fresh_expect_the_card_to_say_which_and_whose_data_t
     assert LECTURE not in text
 
 
-def assert_one_line(stderr: str, pattern: str) -> None:
-    assert "Traceback" not in stderr, stderr
-    assert stderr.count("\n") == 1, stderr
-    assert pattern in stderr, stderr
-
-
-def run(capsys, *argv: object) -> tuple[int, str]:
-    try:
-        status = cli.main([str(a) for a in argv])
-    except SystemExit as exc:
-        status = exc.code
-    return status, capsys.readouterr().err
-
-
 def test_when_build_default_is_given_a_bad_start_expect_one_line_before_any_import(
     clips, pretrained, robot, tmp_path, capsys
 ):
@@ -175,13 +161,13 @@ def test_when_build_default_is_given_a_bad_start_expect_one_line_before_any_impo
     out = tmp_path / "out"
     base = ("dataset", "build-default", heads, "-o", out, "--lecture", lecture)
 
-    status, err = run(capsys, *base, "--start", mlp)
+    status, err = audio2pose(capsys, *base, "--start", mlp)
     assert status == 2
     assert_one_line(err, "a mlp checkpoint; the rebuild trains live_groups")
-    status, err = run(capsys, *base, "--start", tmp_path / "missing.safetensors")
+    status, err = audio2pose(capsys, *base, "--start", tmp_path / "missing.safetensors")
     assert status == 1
     assert_one_line(err, "missing.safetensors")
-    status, err = run(capsys, *base, "--arms", "prosody", "--start", live)
+    status, err = audio2pose(capsys, *base, "--arms", "prosody", "--start", live)
     assert status == 2
     assert_one_line(err, "--start needs --arms learned")
     assert not out.exists() or not any(out.iterdir())

@@ -42,11 +42,15 @@ SHIPPED_GRID = {"TEMPERATURES": TEMPERATURES, "BURSTS": BURSTS, "CORRELATIONS": 
 TEST_GRID = {"TEMPERATURES": (0.5, 1.5, 3.0), "BURSTS": (0.0, 1.2), "CORRELATIONS": (0.95, 0.975)}
 
 
+def use_grid(patch: pytest.MonkeyPatch, grid: dict[str, tuple[float, ...]]) -> None:
+    for name, values in grid.items():
+        patch.setattr(sampler_selection, name, values)
+
+
 @pytest.fixture(scope="module", autouse=True)
 def test_grid():
     with pytest.MonkeyPatch.context() as patch:
-        for name, values in TEST_GRID.items():
-            patch.setattr(sampler_selection, name, values)
+        use_grid(patch, TEST_GRID)
         yield
 
 
@@ -264,8 +268,7 @@ def test_when_a_fold_is_tuned_expect_a_choice_made_on_its_training_speakers_and_
 def test_when_loso_folds_train_in_two_processes_expect_the_serial_results(
     tmp_path, robot, monkeypatch
 ):
-    for name, values in SHIPPED_GRID.items():  # what the spawned workers import
-        monkeypatch.setattr(sampler_selection, name, values)
+    use_grid(monkeypatch, SHIPPED_GRID)  # what the spawned workers import
     dataset = write_dataset(tmp_path / "loso", robot, {"train": 4}, seconds=1.5, seed=4)
     settings = TrainSettings(max_epochs=2, batch_size=4, show_progress=False)
     serial_choices, parallel_choices = {}, {}

@@ -58,6 +58,19 @@ SHIPPED = "shipped"
 MODEL_NAME = "live_groups"
 
 
+def speaker_source(speaker: str) -> str | None:
+    """The recording source of a speaker of the default model's data; None for another."""
+    from audio2pose_ros.data.importers.lecture import LECTURE_SPEAKER
+
+    if speaker == LECTURE_SPEAKER:
+        return LECTURE
+    if speaker == "obama":
+        return OBAMA
+    if speaker.startswith("grid"):
+        return GRID
+    return None
+
+
 def recording_source(info: ClipInfo) -> str:
     """The recording source of a clip of the default model's data (by its speaker).
 
@@ -65,15 +78,10 @@ def recording_source(info: ClipInfo) -> str:
         ValueError: a speaker of none of the sources.
 
     """
-    from audio2pose_ros.data.importers.lecture import LECTURE_SPEAKER
-
-    if info.speaker == LECTURE_SPEAKER:
-        return LECTURE
-    if info.speaker == "obama":
-        return OBAMA
-    if info.speaker.startswith("grid"):
-        return GRID
-    raise ValueError(f"clip {info.clip_id}: speaker {info.speaker!r} of no known source")
+    source = speaker_source(info.speaker)
+    if source is None:
+        raise ValueError(f"clip {info.clip_id}: speaker {info.speaker!r} of no known source")
+    return source
 
 
 def selection_clips(validation: Sequence[Clip], robot: RobotDescription) -> tuple[Clip, ...]:
@@ -249,20 +257,14 @@ def learned_sources(checkpoint: Checkpoint) -> frozenset[str]:
     """The recording sources of the speakers a checkpoint learned from (its ``speakers``).
 
     A checkpoint started from another (``started_from``) learned from that one's speakers too.
-    Speakers of no known source (:func:`recording_source`) count as their own source.
+    Speakers of no known source (:func:`speaker_source`) count as their own source.
     """
     speakers: set[str] = set()
     info: Any = checkpoint.info
     while isinstance(info, dict):
         speakers.update(str(s) for s in info.get("speakers", []))
         info = info.get("started_from")
-    sources = set()
-    for speaker in speakers:
-        try:
-            sources.add(recording_source(ClipInfo("clip", speaker, "", "")))
-        except ValueError:
-            sources.add(speaker)
-    return frozenset(sources)
+    return frozenset(speaker_source(speaker) or speaker for speaker in speakers)
 
 
 def fold_predictions(results: Sequence[HoldoutResult]) -> tuple[Predictions, Predictions]:

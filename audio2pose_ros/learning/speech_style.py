@@ -56,15 +56,14 @@ class StyleRow:
 def _beats(
     onsets: Sequence[np.ndarray], motions: Sequence[realism.Motion], groups: Sequence[range]
 ) -> tuple[float, float]:
-    """BC with own audio, and with the next motion of the same group (seed) of clips."""
-    shuffled = [
-        group[(i + 1) % len(group)] if len(group) > 1 else -1
-        for group in groups
-        for i in range(len(group))
-    ]
+    """BC with own audio, and with the next motion of the same group (seed) of clips.
+
+    The shuffled BC is NaN when a group has no other motion to pair with.
+    """
     own = realism.pooled_beat_consistency(onsets, motions, range(len(motions)))
-    if min(shuffled, default=-1) < 0:
+    if any(len(group) < 2 for group in groups):
         return own, math.nan
+    shuffled = [group[(i + 1) % len(group)] for group in groups for i in range(len(group))]
     return own, realism.pooled_beat_consistency(onsets, motions, shuffled)
 
 
@@ -115,14 +114,15 @@ def head_style_rows(
     utterances = list(speech.values())
     onsets = [realism.audio_onsets(audio) for audio in utterances]
     samples = [synthesize_samples(checkpoint, audio, seeds) for audio in utterances]
-    generated: list[realism.Motion] = []
-    for k in range(len(seeds) if utterances else 0):  # grouped by seed: shuffled within a seed
-        for per_seed in samples:
-            angles = per_seed[k][:, head]
-            generated.append((angles, np.ones(angles.shape, bool)))
+    # grouped by seed, each group the utterances in order: shuffled pairs within a seed
+    generated: list[realism.Motion] = [
+        (per_utterance[k][:, head], np.ones((len(per_utterance[k]), int(head.sum())), bool))
+        for k in range(len(seeds))
+        for per_utterance in samples
+    ]
     n = len(utterances)
-    groups = [range(k * n, (k + 1) * n) for k in range(len(generated) // n if n else 0)]
-    rows = [_row(label, generated, onsets * len(groups), groups)] if generated else []
+    groups = [range(k * n, (k + 1) * n) for k in range(len(seeds))] if n else []
+    rows = [_row(label, generated, onsets * len(seeds), groups)] if generated else []
     for source, clips in real.items():
         motions = realism.clip_motions(clips, head)
         if motions:
