@@ -87,6 +87,7 @@ def _checkpoint(
         ("live", {"noise_order": 2, "noise_burst": 0.8}),
         ("live_groups", {}),
         ("live_groups", {"first_burst": 0.6, "second_burst": 1.2}),
+        ("live_groups", {"first_burst": [0.0, 1.2]}),  # per joint, as a checkpoint's JSON holds it
     ],
 )
 def test_when_a_streaming_model_runs_on_real_speech_expect_numpy_kernel_equals_torch(
@@ -120,6 +121,7 @@ def test_when_a_streaming_model_runs_on_real_speech_expect_numpy_kernel_equals_t
         ("live", {"noise_burst": 1.0}),
         ("live_groups", {}),
         ("live_groups", {"first_burst": 1.2, "second_burst": 0.6}),
+        ("live_groups", {"first_burst": [1.2, 0.0], "second_burst": 0.6}),  # one per head joint
         ("live_groups", {"noise_order": 2, "first_correlation": 0.9, "second_correlation": 0.99}),
         ("live_groups", {"body_margin_m": 0.0, "body_band_m": 0.5}),  # body-aware: every frame
     ],

@@ -115,8 +115,21 @@ def test_when_selecting_expect_each_part_at_its_best_validation_score_and_the_li
     validation, tuned, choice = selected
     parts = {"first_temperature": "first_burst", "second_temperature": "second_burst"}
     scores = {setting: part_scores(choice.trials, setting, robot) for setting in parts}
+    shared = {
+        s: {k: v for k, v in at.items() if not isinstance(k[1], tuple)} for s, at in scores.items()
+    }
     for setting in parts:
-        assert len(scores[setting]) == grid_size() < 42
+        assert len(shared[setting]) == grid_size() < 42
+    # the head's burstiness is then also tried per joint (pitch, yaw), where the shared grid's
+    # best correlation and temperature were, and at the temperatures beside it
+    assert len(scores["second_temperature"]) == grid_size()  # the arms: one burst for all
+    correlation, _, value = min(shared["first_temperature"], key=shared["first_temperature"].get)
+    grid, bursts = sampler_selection.TEMPERATURES, sampler_selection.BURSTS
+    beside = grid[max(grid.index(value) - 1, 0) : grid.index(value) + 2]
+    per_joint = set(scores["first_temperature"]) - set(shared["first_temperature"])
+    assert per_joint == {
+        (correlation, (a, b), t) for a in bursts for b in bursts if a != b for t in beside
+    }
 
     # a part's cost: how far over the arms' body budget, then its score (lowest wins)
     over = {
@@ -257,8 +270,9 @@ def test_when_a_fold_is_tuned_expect_a_choice_made_on_its_training_speakers_and_
     listed = dict(item.split(" = ") for item in note.split(" (on ")[0].split(", "))
     assert {"first_temperature", "second_temperature", "silence_temperature"} <= set(listed)
     assert set(listed) <= set(SAMPLING_SETTINGS)
-    for name, value in listed.items():
-        assert float(value) == pytest.approx(getattr(tuned.model.config, name), rel=1e-5)
+    for name, value in listed.items():  # a per-joint burstiness reads "0/1.2"
+        applied = np.atleast_1d(getattr(tuned.model.config, name))
+        np.testing.assert_allclose([float(v) for v in value.split("/")], applied, rtol=1e-5)
     assert set(tuned.info["sampling_chosen_on"]) <= {c.info.clip_id for c in train}
     mlp, _ = train_on_clips("mlp", train, robot, TrainSettings(max_epochs=1, show_progress=False))
     assert tune(mlp, train) is mlp

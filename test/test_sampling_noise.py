@@ -1,5 +1,7 @@
 """The live sampler's noise: offline and streaming agree, unit variance, bursts give heavy tails."""
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -11,7 +13,15 @@ from audio2pose_ros.models.registry import build_model
 from audio2pose_ros.models.sampling_noise import MAX_BURST, NoiseShape, NoiseStream
 
 
-@pytest.mark.parametrize("shape", [NoiseShape(0.9), NoiseShape(0.95, 2), NoiseShape(0.975, 2, 1.2)])
+@pytest.mark.parametrize(
+    "shape",
+    [
+        NoiseShape(0.9),
+        NoiseShape(0.95, 2),
+        NoiseShape(0.975, 2, 1.2),
+        NoiseShape(0.95, 2, (0.0, 1.2, 0.6, 2.0)),
+    ],
+)
 def test_when_streaming_frame_by_frame_expect_the_offline_noise_of_the_same_draws(shape):
     white = np.random.default_rng(1).standard_normal((3, 400, shape.draws(4)))
     offline = shape.filter(white)
@@ -44,8 +54,55 @@ def test_when_very_bursty_expect_unit_variance_pooled_over_frames():
 def _speed_kurtosis(burst: float) -> float:
     shape = NoiseShape(0.95, 2, burst)
     noise = shape.filter(np.random.default_rng(3).standard_normal((20, 3000, shape.draws(1))))
-    speed = np.diff(noise[..., 0], axis=1).ravel()
-    return float(np.mean(speed**4) / np.mean(speed**2) ** 2)
+    return _kurtosis(noise)[0]
+
+
+def _kurtosis(noise: np.ndarray) -> np.ndarray:
+    """Per joint, the kurtosis of the noise's frame-to-frame step (3 for Gaussian steps)."""
+    speed = np.diff(noise, axis=1).reshape(-1, noise.shape[-1])
+    return np.mean(speed**4, axis=0) / np.mean(speed**2, axis=0) ** 2
+
+
+def test_when_bursty_per_joint_expect_each_joint_as_heavy_tailed_as_its_own_burstiness():
+    shape = NoiseShape(0.95, 2, (0.0, 1.2))
+    noise = shape.filter(np.random.default_rng(3).standard_normal((20, 3000, shape.draws(2))))
+    steady, bursty = _kurtosis(noise)
+    assert abs(steady - 3.0) < 0.3  # a joint of burstiness 0 keeps Gaussian speed
+    assert bursty > steady + 2.0
+    calm = np.abs(np.diff(noise[..., 1], axis=1)) < np.median(np.abs(np.diff(noise[..., 1])))
+    # one envelope: the steady joint's steps do not care; the bursts are the envelope's alone
+    steps = np.abs(np.diff(noise[..., 0], axis=1))
+    assert abs(steps[calm].mean() / steps[~calm].mean() - 1.0) < 0.1
+    many = shape.filter(np.random.default_rng(4).standard_normal((4000, 600, shape.draws(2))))
+    np.testing.assert_allclose(many[:, 100:].var(axis=(0, 1)), 1.0, atol=0.25)  # unit variance
+
+
+def test_when_every_joint_has_the_same_burstiness_expect_the_shared_bursts_draw_for_draw():
+    white = np.random.default_rng(5).standard_normal((2, 500, 3))
+    np.testing.assert_array_equal(
+        NoiseShape(0.95, 2, (0.8, 0.8)).filter(white), NoiseShape(0.95, 2, 0.8).filter(white)
+    )
+    assert NoiseShape(0.95, 2, (0.0, 0.0)).draws(2) == 2  # no envelope: the steady draws
+
+
+@pytest.mark.parametrize(
+    "burst", [(0.6,), (0.6, 0.6, 0.6), (0.6, float("nan")), (0.6, -0.1), (True, 0.6), "0.6"]
+)
+def test_when_a_per_joint_burst_is_malformed_expect_a_configuration_error_and_no_kernel(burst):
+    config = {"n_features": 4, "n_joints": 3, "first_group": 3}
+    with pytest.raises(ConfigurationError, match="first_burst"):
+        build_model("live_groups", {**config, "first_burst": burst})
+    groups = build_model("live_groups", config).config_dict()
+    assert numpy_kernel_for("live_groups", {**groups, "first_burst": burst}) is None
+    assert numpy_kernel_for("live_groups", {**groups, "first_burst": [0.0, 1.2]}) is not None
+
+
+def test_when_a_checkpoint_holds_a_per_joint_burst_as_a_list_expect_a_tuple_that_round_trips():
+    model = build_model("live_groups", {"n_features": 4, "n_joints": 3, "first_burst": [0, 1.2]})
+    assert model.config.first_burst == (0.0, 1.2)
+    assert model.samplers()[0].config.noise_burst == (0.0, 1.2)
+    again = build_model("live_groups", json.loads(json.dumps(model.config_dict())))
+    assert again.config == model.config
 
 
 def test_when_bursty_expect_heavier_tailed_speed_than_steady_noise():

@@ -53,7 +53,7 @@ from audio2pose_ros.checkpoints.format import (
 )
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.body_noise import body_noise_for, check_body_noise
-from audio2pose_ros.models.sampling_noise import MAX_BURST, NoiseShape, NoiseStream
+from audio2pose_ros.models.sampling_noise import NoiseShape, NoiseStream, check_burst
 from audio2pose_ros.models.speech_gate import (
     PART_BURST_KEYS,
     PART_CORRELATION_KEYS,
@@ -287,7 +287,7 @@ class LiveGroupsKernel(GroupedSampler):
         self._parts = [
             LiveKernel(
                 tensors,
-                NoiseShape(rhos[k], order, bursts[k]),
+                NoiseShape(rhos[k], order, check_burst(bursts[k], len(self._groups[k]))),
                 seed + k,
                 temperature,
                 prefix=f"parts.{k}.",
@@ -433,7 +433,7 @@ def _build_live(
     noise = NoiseShape(
         float(config["noise_correlation"]),
         config.get("noise_order", 1),
-        float(config.get("noise_burst", 0.0)),
+        check_burst(config.get("noise_burst", 0.0), config["n_joints"]),
     )
     return LiveKernel(tensors, noise, seed, temperature)
 
@@ -442,8 +442,12 @@ def _is_number(value: object) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def _is_burst(value: object) -> bool:
-    return isinstance(value, int | float) and _is_number(value) and 0.0 <= value <= MAX_BURST
+def _is_burst(value: object, n_joints: int) -> bool:
+    try:
+        check_burst(value, n_joints)
+    except ConfigurationError:
+        return False
+    return True
 
 
 def _live_accepts(config: Mapping[str, Any]) -> bool:
@@ -454,7 +458,7 @@ def _live_accepts(config: Mapping[str, Any]) -> bool:
         and _is_number(config["input_noise"])
         and not isinstance(order, bool)
         and order in (1, 2)
-        and _is_burst(config.get("noise_burst", 0.0))
+        and _is_burst(config.get("noise_burst", 0.0), config["n_joints"])
     )
 
 
@@ -471,12 +475,15 @@ def _live_groups_accepts(config: Mapping[str, Any]) -> bool:
         and _is_int(config["first_group"])
         and config["first_group"] < 1 << config["n_joints"]
         and all(_is_number(config[k]) for k in (*numbers, "gate_margin", "gate_width"))
-        and all(_is_burst(config.get(k, 0.0)) for k in _GROUP_BURSTS)
         and all(_is_fraction(config.get(k, 0.0)) for k in _GROUP_CORRELATIONS)
         and _body_noise_ok(config)
     ):
         return False
-    return all(len(joints) for joints in _live_groups(config))
+    groups = _live_groups(config)
+    return all(len(joints) for joints in groups) and all(
+        _is_burst(burst, len(joints))
+        for burst, joints in zip(part_bursts(config), groups, strict=True)
+    )
 
 
 def _body_noise_ok(config: Mapping[str, Any]) -> bool:

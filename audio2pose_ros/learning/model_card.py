@@ -26,6 +26,7 @@ from audio2pose_ros.learning.sampler_selection import (
 )
 from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.models.live_groups import LiveGroups
+from audio2pose_ros.models.sampling_noise import format_burst
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 if TYPE_CHECKING:
@@ -462,10 +463,15 @@ mean(H speed, H accel) + |ln(std ratio)|, plus, for the head, the mean |ln| of t
 its speed and acceleration percentiles (p50, p90, p99) to those of the chosen source's real
 motion pooled over all its training and validation clips (the "tail" column: a clip of a few
 seconds holds too few quick nods to judge them, and the Hellinger distance on 0.1 rad/s bins
-does not see them); each part keeps its best correlation, burstiness and
-temperature (the head and the arms each have their own noise correlation), among those whose
-raw steps the motion filter's input gate would refuse, as faster than the robot can move, in at
-most {GATE_BUDGET_PCT:g} % of frames, and, for the arms, within the body budget. Then
+does not see them). The head's burstiness is then also tried per joint (HeadPitch, HeadYaw:
+each pair of two different values of the list), at the best correlation and at the best
+temperature and the ones beside it: people turn their heads in rarer, quicker bursts than they
+nod (in Obama's addresses the p99/p50 ratio of yaw speed is about 8, of pitch about 6),
+which one burstiness for both joints cannot give. Each part keeps its best correlation,
+burstiness and temperature (the head and the arms each have their own noise correlation),
+among those whose raw steps the motion filter's input gate would refuse, as faster than the
+robot can move, in at most {GATE_BUDGET_PCT:g} % of frames, and, for the arms, within the
+body budget. Then
 the highest rest level of {rests} whose speech/pause speed ratio is at least {PAUSE_MARGIN:g}
 times the target (head 2, arms and hip 1.5). Fixed, not chosen per build: the noise's order
 (2), the gate's margin (1), width (0.2) and time constants, the burst envelope's time constant
@@ -501,6 +507,9 @@ def write_learned_model_card(
     model = cast(LiveGroups, checkpoint.model)  # the learned default is live_groups
     config = model.config
     correlations = model.part_correlations()
+    head_burst = format_burst(config.first_burst)
+    if isinstance(config.first_burst, tuple):
+        head_burst += f" ({'/'.join(checkpoint.robot.names[j] for j in model.groups[0])})"
     validation = sorted(checkpoint.info.get("validation_clips", []))
     clips = [heads.load(c.clip_id) for c in heads.clips] + [
         lecture.load(c.clip_id) for c in lecture.clips
@@ -520,8 +529,8 @@ autoregressive GRU samplers side by side, one for HeadPitch and HeadYaw, one for
 HipRoll (config `{checkpoint.model.config_dict()}`, {n_params} parameters). At every 10 ms
 frame each reads the {checkpoint.features.label} audio features and its
 own previous pose and samples the next pose from a Gaussian, with smooth, time-correlated
-noise (correlation {correlations[0]:g} and burstiness {config.first_burst:g} for the head,
-{correlations[1]:g} and {config.second_burst:g} for the arms:
+noise (correlation {correlations[0]:g} and burstiness {head_burst} for the head,
+{correlations[1]:g} and {format_burst(config.second_burst)} for the arms:
 `audio2pose_ros/models/sampling_noise.py`): it samples
 motion instead of regressing to the mean, so it moves like a person rather than like the average
 of people. Every utterance starts settled: the model first runs 1 s of the utterance's first

@@ -39,6 +39,14 @@ stretch of the lecture.
    (:mod:`audio2pose_ros.models.body_noise`: the arm noise fades within :data:`BODY_BAND_M` of
    the guard's margin), and the choice keeps that on. The guard stays on the robot; this keeps
    it from shaping the motion.
+
+   A part of at most :data:`PER_JOINT_MAX` joints, all in :data:`TAIL_GROUPS` (the head), then
+   also tries one burstiness per joint (:func:`_per_joint_parts`): every tuple of
+   :data:`BURSTS` values that are not all equal, at the part's best correlation so far and at
+   its best temperature and the ones beside it in :data:`TEMPERATURES`, sampled on the clips
+   that observe the part. People turn their heads in rarer, quicker bursts than they nod,
+   which one burstiness for both head joints cannot give; the arms keep one burstiness for
+   all their joints (3^8 tuples would be too many to sample).
 2. Rest level in silence. With those settings, every rest level of
    :data:`SILENCE_TEMPERATURES`, from the most noise left in silence to the least, samples the
    same clips' audio with a pause inserted
@@ -55,6 +63,7 @@ sampling, not feature extraction.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -70,6 +79,7 @@ from audio2pose_ros.learning import metrics, realism
 from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 from audio2pose_ros.models.live_groups import LiveGroups
+from audio2pose_ros.models.sampling_noise import Burst, format_burst
 from audio2pose_ros.models.speech_gate import PART_BURST_KEYS, PART_CORRELATION_KEYS
 from audio2pose_ros.motion.filter import MotionFilterSettings
 from audio2pose_ros.robot.body import BodyModel
@@ -92,11 +102,13 @@ GATE_BUDGET_PCT = 0.05  # raw steps the motion filter's input gate may refuse as
 BODY_CHECK_EVERY = 4  # frames: the share is estimated on every 4th sampled frame
 GROUPS = ("head", "arms", "hip")
 TAIL_GROUPS = ("head",)  # groups whose speed percentiles are matched to a reference (score)
+PER_JOINT_MAX = 2  # joints of a part whose burstiness is also tried per joint (BURSTS^joints)
 _PART_SETTINGS = ("first_temperature", "second_temperature")
 _PART_BURSTS = dict(zip(_PART_SETTINGS, PART_BURST_KEYS, strict=True))
 _PART_CORRELATIONS = dict(zip(_PART_SETTINGS, PART_CORRELATION_KEYS, strict=True))
 
 Fold = tuple[Checkpoint, Sequence[Clip]]  # a trained checkpoint and clips it was not trained on
+Setting = float | tuple[float, ...]  # a sampling setting's value: a burst may be one per joint
 
 
 def score(measures: dict[str, float]) -> float:
@@ -150,7 +162,7 @@ class Trial:
     group: str
     measures: dict[str, float]
     correlation: float | None = None
-    burst: float | None = None
+    burst: Burst | None = None
 
 
 @dataclass(frozen=True)
@@ -167,7 +179,7 @@ class SamplingChoice:
 
     """
 
-    settings: dict[str, float]
+    settings: dict[str, Setting]
     trials: tuple[Trial, ...]
     validation: tuple[str, ...]
     seconds: float = 0.0
@@ -176,7 +188,9 @@ class SamplingChoice:
 
     def summary(self) -> str:
         """One line: the chosen values and what they were chosen on."""
-        chosen = ", ".join(f"{k} = {v:g}" for k, v in self.settings.items()) or "nothing"
+        chosen = (
+            ", ".join(f"{k} = {format_burst(v)}" for k, v in self.settings.items()) or "nothing"
+        )
         more = (
             f"; the arms' body budget also on {self.body_seconds:.0f} s of other speech"
             if self.body_seconds
@@ -200,14 +214,14 @@ class SamplingChoice:
         """Plain text: the summary, then one line per trial, the chosen ones marked ``*``."""
         lines = [
             self.summary(),
-            f"{'setting':<21}{'corr':>6}{'burst':>6}{'value':>6}  {'group':<6}{'H speed':>8}"
+            f"{'setting':<21}{'corr':>6}{'burst':>8}{'value':>6}  {'group':<6}{'H speed':>8}"
             f"{'H accel':>8}{'std/real':>9}{'tail':>6}{'score':>7}{'speech/pause':>13}"
             f"{'near body %':>12}{'gate refused %':>15}",
         ]
         for t in self.trials:
             m = t.measures
-            noise = "".join(
-                f"{v:>6g}" if v is not None else f"{'-':>6}" for v in (t.correlation, t.burst)
+            noise = (f"{t.correlation:>6g}" if t.correlation is not None else f"{'-':>6}") + (
+                f"{format_burst(t.burst):>8}" if t.burst is not None else f"{'-':>8}"
             )
             lines.append(
                 f"{t.setting:<21}{noise}{t.value:>6g}{'*' if self._chosen(t) else ' '} "
@@ -371,7 +385,7 @@ def _evidence(
 
 def _measures(
     evidence: Sequence[_Evidence],
-    settings: dict[str, float],
+    settings: Mapping[str, Setting],
     robot: RobotDescription,
     n_seeds: int,
     paused: bool,
@@ -473,6 +487,26 @@ def reference_percentiles(
     return out
 
 
+def _rank(scored: tuple[float, float, float, Burst, float]) -> tuple[float, float]:
+    """Budget overrun, then score: the lower the better; ties keep the first tried."""
+    return scored[0], scored[1]
+
+
+def _per_joint_parts(model: LiveGroups, parts: Mapping[str, list[str]]) -> dict[str, int]:
+    """Parts whose burstiness is also tried per joint: part setting -> its joint count.
+
+    Those of at most :data:`PER_JOINT_MAX` joints whose groups are all :data:`TAIL_GROUPS`
+    (the head: people turn their heads in rarer, quicker bursts than they nod).
+    """
+    return {
+        s: len(joints)
+        for s, joints in zip(_PART_SETTINGS, model.groups, strict=True)
+        if s in parts
+        and 1 < len(joints) <= PER_JOINT_MAX
+        and all(g in TAIL_GROUPS for g in parts[s])
+    }
+
+
 def choose_sampling(
     folds: Sequence[Fold],
     robot: RobotDescription,
@@ -514,34 +548,44 @@ def choose_sampling(
     trials: list[Trial] = []
     # per part: (% over the body budget, score, correlation, burst, temperature) of every
     # combination tried; the lowest wins, so a setting within the budget beats any other
-    scored: dict[str, list[tuple[float, float, float, float, float]]] = {s: [] for s in parts}
+    scored: dict[str, list[tuple[float, float, float, Burst, float]]] = {s: [] for s in parts}
     body_noise = (
         {"body_margin_m": BODY_MARGIN_M, "body_band_m": BODY_BAND_M} if body is not None else {}
     )
+
+    def trial(noise: Mapping[str, tuple[float, Burst, float]], items: Sequence[_Evidence]) -> None:
+        """Sample with part -> (correlation, burst, temperature) and score those parts."""
+        settings: dict[str, Setting] = dict(body_noise)
+        for s, (correlation, burst, value) in noise.items():
+            settings |= {s: value, _PART_BURSTS[s]: burst, _PART_CORRELATIONS[s]: correlation}
+        arms = any("arms" in parts[s] for s in noise)
+        measured = _measures(items, settings, robot, n_seeds, False, body if arms else None, tails)
+        for s, (correlation, burst, value) in noise.items():
+            part = parts[s]
+            trials.extend(Trial(s, value, g, measured[g], correlation, burst) for g in part)
+            total = float(np.average([score(measured[g]) for g in part], weights=weights[s]))
+            near = measured["arms"].get("near body %", 0.0) if "arms" in part else 0.0
+            refused = sum(measured[g].get("gate refused %", 0.0) for g in part)
+            over = max(0.0, near - BODY_BUDGET_PCT) + max(0.0, refused - GATE_BUDGET_PCT)
+            scored[s].append((over, total, correlation, burst, value))
+
     for correlation in CORRELATIONS:
         for burst in BURSTS:
             for value in TEMPERATURES:
-                settings = {
-                    **body_noise,
-                    **{_PART_CORRELATIONS[s]: correlation for s in parts},
-                    **{_PART_BURSTS[s]: burst for s in parts},
-                    **dict.fromkeys(parts, value),
-                }
-                measured = _measures(evidence, settings, robot, n_seeds, False, body, tails)
-                for s, part in parts.items():
-                    trials += [Trial(s, value, g, measured[g], correlation, burst) for g in part]
-                    total = float(
-                        np.average([score(measured[g]) for g in part], weights=weights[s])
-                    )
-                    near = measured["arms"].get("near body %", 0.0) if "arms" in part else 0.0
-                    refused = sum(measured[g].get("gate refused %", 0.0) for g in part)
-                    over = max(0.0, near - BODY_BUDGET_PCT) + max(0.0, refused - GATE_BUDGET_PCT)
-                    scored[s].append((over, total, correlation, burst, value))
-    chosen: dict[str, float] = dict(body_noise)
+                trial(dict.fromkeys(parts, (correlation, burst, value)), evidence)
+    for s, joints in _per_joint_parts(first, parts).items():
+        _, _, correlation, _, value = min(scored[s], key=_rank)
+        near = TEMPERATURES.index(value)
+        head_items = [item for item in evidence if set(item.known) & set(parts[s])]
+        for per_joint in itertools.product(BURSTS, repeat=joints):
+            if len(set(per_joint)) > 1:  # equal values were tried above
+                for t in TEMPERATURES[max(near - 1, 0) : near + 2]:
+                    trial({s: (correlation, per_joint, t)}, head_items)
+    chosen: dict[str, Setting] = dict(body_noise)
     for s in parts:
-        _, _, correlation, burst, value = min(scored[s])
+        _, _, correlation, best, value = min(scored[s], key=_rank)
         chosen[s] = value
-        chosen[_PART_BURSTS[s]] = burst
+        chosen[_PART_BURSTS[s]] = best
         chosen[_PART_CORRELATIONS[s]] = correlation
     paused = _evidence(folds, robot, paused=True)
     for rest in SILENCE_TEMPERATURES:

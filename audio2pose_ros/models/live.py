@@ -28,7 +28,7 @@ settable seed and temperature).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any, ClassVar
 
 import numpy as np
@@ -38,7 +38,13 @@ from torch import nn
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.base import PoseModel, StreamingPredictor
 from audio2pose_ros.models.recurrent_numpy import CellWeights, gru_step, linear_weights, sigmoid
-from audio2pose_ros.models.sampling_noise import MAX_BURST, NoiseShape, NoiseStream
+from audio2pose_ros.models.sampling_noise import (
+    Burst,
+    NoiseShape,
+    NoiseStream,
+    check_burst,
+    is_bursty,
+)
 
 WARM_UP_TRAINING_FRAMES = 50  # a settled hold before every training window (warm_start)
 _MIN_LOG_STD = -7.0  # sigma >= 1e-3 of the joint range: keeps the likelihood finite
@@ -55,7 +61,7 @@ class LiveConfig:
     input_noise: float = 0.05  # std of the noise on teacher-forced poses, [0, 1] units
     noise_correlation: float = 0.95  # rho of the sampling noise (0 = white)
     noise_order: int = 1  # AR(1) filters in cascade on the sampling noise: 1 or 2
-    noise_burst: float = 0.0  # log-std of the noise's burst envelope (0 = steady noise)
+    noise_burst: Burst = 0.0  # log-std of the noise's burst envelope (0 = steady); or per joint
 
     def noise_shape(self) -> NoiseShape:
         """The sampling noise this config describes."""
@@ -78,10 +84,9 @@ class LiveSampler(PoseModel):
             )
         if config.noise_order not in (1, 2):
             raise ConfigurationError(f"noise_order must be 1 or 2, got {config.noise_order}")
-        if not 0.0 <= config.noise_burst <= MAX_BURST:
-            raise ConfigurationError(
-                f"noise_burst must be in [0, {MAX_BURST}], got {config.noise_burst}"
-            )
+        config = replace(
+            config, noise_burst=check_burst(config.noise_burst, config.n_joints, "noise_burst")
+        )
         self.config = config
         self.gru = nn.GRU(
             config.n_features + config.n_joints, config.hidden_units, batch_first=True
@@ -98,7 +103,7 @@ class LiveSampler(PoseModel):
         config = asdict(self.config)
         if config["noise_order"] == 1:
             del config["noise_order"]
-        if not config["noise_burst"]:
+        if not is_bursty(config["noise_burst"]):
             del config["noise_burst"]
         return config
 

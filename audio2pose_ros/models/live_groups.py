@@ -42,6 +42,7 @@ from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.base import PoseModel, StreamingPredictor
 from audio2pose_ros.models.body_noise import BodyNoise, body_noise_for, check_body_noise
 from audio2pose_ros.models.live import LiveConfig, LivePredictor, LiveSampler
+from audio2pose_ros.models.sampling_noise import Burst, check_burst
 from audio2pose_ros.models.speech_gate import (
     PART_BURST_KEYS,
     PART_CORRELATION_KEYS,
@@ -88,8 +89,8 @@ class LiveGroupsConfig:
     first_group: int = 3
     first_temperature: float = 2.5  # head; `make default-model` chooses it on validation clips
     second_temperature: float = 1.0  # arms and hip; likewise
-    first_burst: float = 0.0  # burstiness of the head part's noise (sampling_noise); likewise
-    second_burst: float = 0.0  # of the arm part's noise; likewise
+    first_burst: Burst = 0.0  # burstiness of the head part's noise (sampling_noise), or one
+    second_burst: Burst = 0.0  # per joint of the part; of the arm part's; likewise
     silence_temperature: float = 0.05  # noise left in silence (1 = no speech gate); likewise
     gate_margin: float = 1.0  # z-units of the features' mean below the recent peak
     gate_width: float = 0.2
@@ -116,8 +117,15 @@ class LiveGroups(PoseModel):
                 f"{config.n_joints} joints"
             )
         check_body_noise(config.body_margin_m, config.body_band_m)
-        self.config = config
         self.groups = (np.flatnonzero(first), np.flatnonzero(~first))
+        first_burst, second_burst = (
+            check_burst(burst, len(joints), key)
+            for key, burst, joints in zip(
+                PART_BURST_KEYS, part_bursts(asdict(config)), self.groups, strict=True
+            )
+        )
+        config = replace(config, first_burst=first_burst, second_burst=second_burst)
+        self.config = config
         self._robot: RobotDescription | None = None
         self._body_noise: BodyNoise | None = None
         self._body_part = -1
@@ -135,7 +143,7 @@ class LiveGroups(PoseModel):
             )
             for joints, burst, correlation in zip(
                 self.groups,
-                part_bursts(asdict(config)),
+                (first_burst, second_burst),
                 self.part_correlations(),
                 strict=True,
             )
@@ -198,7 +206,7 @@ class LiveGroups(PoseModel):
                 total = total + part.training_loss(features, targets[..., index], mask[..., index])
         return total
 
-    def with_sampling(self, **settings: float) -> LiveGroups:
+    def with_sampling(self, **settings: float | tuple[float, ...]) -> LiveGroups:
         """A copy with the same weights and other :data:`SAMPLING_SETTINGS` (no retraining).
 
         The temperatures and the gate's rest level act only when sampling, so they can be chosen

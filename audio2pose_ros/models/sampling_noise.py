@@ -15,6 +15,12 @@ E[exp(2 b z - 2 b^2)] = 1 for z ~ N(0, 1) the noise keeps unit variance, only it
 over quiet stretches and bursts (a stochastic-volatility process). ``burst`` 0 is the plain
 noise, drawing exactly as before.
 
+``burst`` may also be one value per joint, b_j, over the one envelope z_t:
+n_(t,j) = w_(t,j) exp(b_j z_t - b_j^2). Each joint keeps unit variance; the joints move in
+bursts at the same moments, each as bursty as its b_j. People turn their heads in rarer,
+quicker bursts than they nod (in the Obama clips the p99/p50 ratio of yaw speed is about 8, of
+pitch about 6), which one shared b cannot give both joints.
+
 Offline (:meth:`NoiseShape.filter`, a whole utterance at once) and streaming
 (:class:`NoiseStream`, frame by frame) produce the same numbers from the same draws: per frame
 :meth:`NoiseShape.draws` standard normals, the joints' first and the envelope's last.
@@ -23,13 +29,56 @@ Offline (:meth:`NoiseShape.filter`, a whole utterance at once) and streaming
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 
+from audio2pose_ros.errors import ConfigurationError
+
+Burst = float | tuple[float, ...]  # one burstiness for every joint, or one per joint
+
 BURST_CORRELATION = 0.98  # AR(1) coefficient of the burst envelope's log: ~0.5 s at 100 Hz
 MAX_BURST = 2.0  # exp(2 b^2) inflates rare peaks; beyond this the envelope is mostly spikes
+
+
+def check_burst(value: object, n_joints: int, name: str = "burst") -> Burst:
+    """``value`` as a :data:`Burst`: a number, or one number per joint, each in [0, MAX_BURST].
+
+    A list (as a checkpoint's JSON config holds it) becomes a tuple.
+
+    Raises:
+        ConfigurationError: not a number or a sequence of ``n_joints`` numbers, or a value
+            outside [0, :data:`MAX_BURST`] (NaN included).
+
+    """
+    per_joint = isinstance(value, Sequence) and not isinstance(value, str)
+    values: list[object] = list(value) if isinstance(value, Sequence) and per_joint else [value]
+    if per_joint and len(values) != n_joints:
+        raise ConfigurationError(
+            f"{name} must be a number or {n_joints} numbers (one per joint), got {value!r}"
+        )
+    checked = []
+    for v in values:
+        if (
+            not isinstance(v, int | float)
+            or isinstance(v, bool)
+            or not 0.0 <= v <= MAX_BURST  # False for NaN
+        ):
+            raise ConfigurationError(f"{name} must be in [0, {MAX_BURST}], got {value!r}")
+        checked.append(float(v))
+    return tuple(checked) if per_joint else checked[0]
+
+
+def is_bursty(burst: Burst) -> bool:
+    """Whether any joint's burstiness is above 0 (the noise then draws an envelope)."""
+    return any(burst) if isinstance(burst, tuple) else bool(burst)
+
+
+def format_burst(burst: Burst) -> str:
+    """``0.6``, or per joint ``0/1.2``."""
+    return "/".join(f"{b:g}" for b in burst) if isinstance(burst, tuple) else f"{burst:g}"
 
 
 @dataclass(frozen=True)
@@ -39,13 +88,14 @@ class NoiseShape:
     Attributes:
         rho: AR(1) coefficient in [0, 1) (0 = white).
         order: AR(1) stages in cascade, 1 or 2.
-        burst: log-std of the burst envelope, in [0, :data:`MAX_BURST`] (0 = none).
+        burst: log-std of the burst envelope, in [0, :data:`MAX_BURST`] (0 = none); a
+            number for every joint or a tuple of one per joint (:func:`check_burst`).
 
     """
 
     rho: float
     order: int = 1
-    burst: float = 0.0
+    burst: Burst = 0.0
 
     @cached_property
     def innovation(self) -> float:
@@ -59,21 +109,27 @@ class NoiseShape:
 
     def draws(self, n_joints: int) -> int:
         """Standard normals drawn per frame: one per joint, and one for the envelope."""
-        return n_joints + (1 if self.burst else 0)
+        return n_joints + (1 if is_bursty(self.burst) else 0)
+
+    @cached_property
+    def _b(self) -> np.ndarray:
+        """The burstiness as an array: () for every joint, or (J,) per joint."""
+        return np.asarray(self.burst, dtype=float)
 
     def _envelope(self, z_draws: np.ndarray) -> np.ndarray:
-        """exp(b z_t - b^2) for the envelope's draws along the last axis' frames (..., T)."""
-        z = _ar1(z_draws, BURST_CORRELATION, axis=-1)
-        return np.exp(self.burst * z - self.burst * self.burst)
+        """exp(b z_t - b^2) per joint for the envelope's draws (..., T) -> (..., T, 1 or J)."""
+        z = _ar1(z_draws, BURST_CORRELATION, axis=-1)[..., None]
+        return np.exp(self._b * z - self._b * self._b)
 
     def filter(self, white: np.ndarray) -> np.ndarray:
         """(N, T, draws) standard normals -> (N, T, J) unit-variance noise, whole utterances."""
         from scipy import signal
 
-        joints = white.shape[-1] - (1 if self.burst else 0)
+        bursty = is_bursty(self.burst)
+        joints = white.shape[-1] - (1 if bursty else 0)
         innovations = white[..., :joints]
-        if self.burst:
-            innovations = innovations * self._envelope(white[..., joints])[..., None]
+        if bursty:
+            innovations = innovations * self._envelope(white[..., joints])
         first = _ar1(innovations, self.rho, axis=1)
         if self.order == 1:
             return first
@@ -104,13 +160,15 @@ class NoiseStream:
         self._noise = np.zeros(n_joints)
         self._smooth = np.zeros(n_joints)
         self._z = 0.0
+        self._bursty = is_bursty(shape.burst)
+        self._b = np.asarray(shape.burst, dtype=float)
 
     def _innovations(self, draw: np.ndarray, first: bool) -> np.ndarray:
-        if not self.shape.burst:
+        if not self._bursty:
             return draw
         z = float(draw[self.n_joints])
         self._z = z if first else self._rho_z * self._z + self._innovation_z * z
-        return draw[: self.n_joints] * math.exp(self.shape.burst * (self._z - self.shape.burst))
+        return draw[: self.n_joints] * np.exp(self._b * (self._z - self._b))
 
     def start(self, draw: np.ndarray) -> np.ndarray:
         """The first frame's noise from its :meth:`NoiseShape.draws` standard normals."""

@@ -39,9 +39,14 @@ def part_correlations(config: Mapping[str, Any]) -> tuple[float, float]:
     return first, second
 
 
-def part_bursts(config: Mapping[str, Any]) -> tuple[float, float]:
-    """Each part's noise burstiness (:data:`PART_BURST_KEYS`); absent (older checkpoints) is 0."""
-    first, second = (float(config.get(key, 0.0)) for key in PART_BURST_KEYS)
+def part_bursts(config: Mapping[str, Any]) -> tuple[object, object]:
+    """Each part's noise burstiness (:data:`PART_BURST_KEYS`) as given; absent is 0.
+
+    Older checkpoints lack the keys. A part's value is a number, or one number per joint of
+    the part; :func:`~audio2pose_ros.models.sampling_noise.check_burst` checks it against the
+    part's joints.
+    """
+    first, second = (config.get(key, 0.0) for key in PART_BURST_KEYS)
     return first, second
 
 
