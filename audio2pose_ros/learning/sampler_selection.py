@@ -108,7 +108,7 @@ _PART_BURSTS = dict(zip(_PART_SETTINGS, PART_BURST_KEYS, strict=True))
 _PART_CORRELATIONS = dict(zip(_PART_SETTINGS, PART_CORRELATION_KEYS, strict=True))
 
 Fold = tuple[Checkpoint, Sequence[Clip]]  # a trained checkpoint and clips it was not trained on
-Setting = float | tuple[float, ...]  # a sampling setting's value: a burst may be one per joint
+Setting = Burst  # a sampling setting's value: a number, or a burstiness per joint
 
 
 def score(measures: dict[str, float]) -> float:
