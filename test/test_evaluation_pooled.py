@@ -96,3 +96,24 @@ def test_when_checking_beats_expect_the_real_motions_own_margin_beside_the_model
     assert above[-1] is True  # 0.037 above shuffled
     close = replace(model, realism={"BC": 0.85, "BC shuffled": 0.84})
     assert _beat_check(close, real)[1][-1] is False  # 0.01 above: not clearly
+
+
+def test_when_checking_percentiles_expect_those_within_25_percent_of_real_counted():
+    from dataclasses import replace
+
+    from audio2pose_ros.learning.model_card import _percentile_check
+
+    speed, accel = np.array([[0.1, 0.4, 1.0], [0.1, 0.5, 1.4]]), np.full((2, 3), 5.0)
+    real = replace(row(REAL_FLOOR, "head"), percentiles=(speed, accel))
+    near = replace(row("m", "head"), percentiles=(speed * 1.2, accel * 0.8))
+    far = replace(row("m", "head"), percentiles=(speed * [[1.0, 1.3, 1.0]] * [[1], [1]], accel))
+    names = ["HeadPitch", "HeadYaw"]
+    assert _percentile_check(near, real, names)[3:] == (
+        "12 of 12 (model / real 0.80 to 1.20)",
+        True,
+    )
+    assert _percentile_check(far, real, names)[3:] == (
+        "10 of 12 (model / real 1.00 to 1.30)",
+        False,
+    )
+    assert _percentile_check(row("m", "head"), real, names)[3:] == ("-", False)  # no percentiles

@@ -6,7 +6,7 @@ import pytest
 from audio2pose_ros.checkpoints.torch_io import load_checkpoint
 from audio2pose_ros.data.dataset import Clip, ClipInfo
 from audio2pose_ros.learning.realism import speed_percentiles
-from audio2pose_ros.learning.speech_style import head_style_rows, head_style_table
+from audio2pose_ros.learning.speech_style import StyleRow, head_style_rows, head_style_table
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.timebase import FRAME_RATE_HZ
 
@@ -56,9 +56,44 @@ def test_when_the_model_speaks_expect_a_row_per_seed_pooled_and_a_line_per_joint
     assert (model.speed[:, 2] > 0).all()  # the head moves on speech
     table = head_style_table(rows, ["HeadPitch", "HeadYaw"])
     lines = table.splitlines()
-    assert len(lines) == 1 + 2 * len(rows)
-    assert "HeadYaw" in lines[-1]
-    assert "real, nodders" in lines[-1]
+    assert "HeadYaw" in lines[2 * len(rows)]
+    assert "real, nodders" in lines[2 * len(rows)]
+    assert lines[1 + 2 * len(rows)] == ""  # then the model against each real source
+    assert lines[-1].split()[0] == "m"
+
+
+def _style(method, speed, accel, source=""):
+    return StyleRow(method, 1.0, np.array(speed), np.array(accel), np.ones(2), source=source)
+
+
+def test_when_a_model_row_meets_real_sources_expect_its_percentiles_within_25_percent_counted():
+    real = [[0.1, 0.4, 1.0], [0.1, 0.5, 1.4]], [[1.0, 5.0, 10.0], [1.0, 5.0, 15.0]]
+    still = np.zeros((2, 3)), np.zeros((2, 3))  # a source whose head never moves
+    rows = [
+        _style("same", *real),
+        _style("twice", *(2 * np.array(p) for p in real)),
+        _style("mixed", *(np.array(p) * [[1.24, 1.26, 0.76], [0.74, 1.0, 1.0]] for p in real)),
+        _style("real, people", *real, source="people"),
+        _style("real, statues", *still, source="statues"),
+    ]
+    lines = head_style_table(rows, ["HeadPitch", "HeadYaw"]).splitlines()
+    header = lines[lines.index("") + 1]
+    assert "within 25 %" in header
+    assert "of 12" in header
+    assert lines[lines.index("") + 2].split() == ["method", "people", "statues"]
+    counts = {line.split()[0]: line.split()[1:] for line in lines[lines.index("") + 3 :]}
+    assert counts["same"] == ["12", "(1.00", "to", "1.00)", "0", "(-)"]
+    assert counts["twice"][:4] == ["0", "(2.00", "to", "2.00)"]
+    # 1.24 and 0.76 are inside, 1.26 and 0.74 outside: twice per row (speed and acceleration)
+    assert counts["mixed"][:4] == ["8", "(0.74", "to", "1.26)"]
+    assert len(counts) == 3  # real rows are not compared with each other
+
+
+def test_when_there_is_no_model_row_or_no_real_source_expect_no_comparison():
+    real = _style("real, people", np.ones((2, 3)), np.ones((2, 3)), source="people")
+    model = _style("m", np.ones((2, 3)), np.ones((2, 3)))
+    for rows in ([real], [model]):
+        assert "" not in head_style_table(rows, ["HeadPitch", "HeadYaw"]).splitlines()
 
 
 def _beating(robot, clip_id, beats_s, seconds=4.0, seed=0):

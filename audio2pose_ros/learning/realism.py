@@ -52,6 +52,7 @@ VARIANCE_KEPT = 0.95
 BEAT_SIGMA_S = 0.3  # EMAGE's sigma
 BEAT_ORDER_S = 7 / 30  # EMAGE's argrelextrema order of 7 frames at 30 fps
 PERCENTILES = (50, 90, 99)
+PERCENTILE_TOLERANCE = 0.25  # |model / real - 1|: a percentile "within 25 % of real"
 # librosa.onset.onset_detect's peak picking (seconds): pre_max 0.03, post_max 0 (+1 frame),
 # pre_avg 0.1, post_avg 0.1 (+1 frame), wait 0.03, delta 0.07 on the envelope scaled to [0, 1]
 _PEAK_PRE_MAX_S, _PEAK_PRE_AVG_S, _PEAK_POST_AVG_S, _PEAK_WAIT_S = 0.03, 0.1, 0.1, 0.03
@@ -237,6 +238,23 @@ def speed_percentiles(
             if pooled.size:
                 out[order - 1, j] = np.percentile(pooled, PERCENTILES)
     return out[0], out[1]
+
+
+def percentile_ratios(
+    model: tuple[np.ndarray, np.ndarray], real: tuple[np.ndarray, np.ndarray]
+) -> np.ndarray:
+    """Model / real for every speed and acceleration percentile (:func:`speed_percentiles`).
+
+    Flat, speed first; NaN where the real percentile is 0 (a still joint has no scale).
+    """
+    model_flat = np.concatenate([np.ravel(p) for p in model])
+    real_flat = np.concatenate([np.ravel(p) for p in real])
+    return model_flat / np.where(real_flat > 0, real_flat, np.nan)
+
+
+def within_tolerance(ratios: np.ndarray) -> np.ndarray:
+    """Which :func:`percentile_ratios` lie within :data:`PERCENTILE_TOLERANCE` of 1."""
+    return np.abs(ratios - 1.0) <= PERCENTILE_TOLERANCE
 
 
 # --- beat consistency --------------------------------------------------------------------------

@@ -41,6 +41,7 @@ class StyleRow:
         std_deg: (J,) standard deviation of the angle per clip, averaged over clips (degrees).
         bc: beat consistency with each clip's own audio (NaN without onsets).
         bc_shuffled: the same with the next clip's motion (NaN with fewer than two clips).
+        source: the real source's name; empty for a model's row.
 
     """
 
@@ -51,6 +52,7 @@ class StyleRow:
     std_deg: np.ndarray
     bc: float = math.nan
     bc_shuffled: float = math.nan
+    source: str = ""
 
 
 def _beats(
@@ -72,6 +74,7 @@ def _row(
     motions: Sequence[realism.Motion],
     onsets: Sequence[np.ndarray],
     groups: Sequence[range],
+    source: str = "",
 ) -> StyleRow:
     speed, accel = realism.speed_percentiles(motions, FRAME_RATE_HZ)
     stds = [
@@ -86,6 +89,7 @@ def _row(
         accel,
         np.degrees(np.mean(stds, axis=0)),
         *_beats(onsets, motions, groups),
+        source,
     )
 
 
@@ -128,14 +132,19 @@ def head_style_rows(
         if motions:
             observed = [c for c in clips if c.mask[:, head].any()]  # as clip_motions keeps
             clip_onsets = [realism.audio_onsets(c.audio) for c in observed]
-            rows.append(_row(f"real, {source}", motions, clip_onsets, [range(len(motions))]))
+            rows.append(
+                _row(f"real, {source}", motions, clip_onsets, [range(len(motions))], source)
+            )
     return rows
 
 
 def head_style_table(rows: Sequence[StyleRow], joint_names: Sequence[str]) -> str:
     """Plain text: per row and head joint, the percentiles and the standard deviation.
 
-    The row's beat consistency (own audio, shuffled) is on its first joint's line.
+    The row's beat consistency (own audio, shuffled) is on its first joint's line. Then, where
+    there are both, how many of each model row's speed and acceleration percentiles lie within
+    25 % of each real source's (:func:`~audio2pose_ros.learning.realism.within_tolerance`), with
+    the range of model / real.
     """
     levels = "/".join(f"p{p}" for p in realism.PERCENTILES)
     lines = [
@@ -151,7 +160,33 @@ def head_style_table(rows: Sequence[StyleRow], joint_names: Sequence[str]) -> st
                 f"{row.method[:39]:<40}{row.seconds:>8.1f}  {name:<11}{speed:<26}{accel:<28}"
                 f"{row.std_deg[j]:>8.2f}{beats}"
             )
-    return "\n".join(lines)
+    return "\n".join(lines + _tolerance_lines(rows))
+
+
+def _tolerance_lines(rows: Sequence[StyleRow]) -> list[str]:
+    """The model rows' percentiles within 25 % of each real source's (none without both)."""
+    models = [row for row in rows if not row.source]
+    real = [row for row in rows if row.source]
+    if not models or not real:
+        return []
+    n = sum(np.size(p) for p in (real[0].speed, real[0].accel))
+    percent = round(100 * realism.PERCENTILE_TOLERANCE)
+    lines = [
+        "",
+        f"speed and acceleration percentiles within {percent} % of each real source's, of {n}"
+        " (model / real, lowest to highest)",
+        f"{'method':<40}" + "".join(f"{row.source[:21]:<22}" for row in real),
+    ]
+    for row in models:
+        cells = []
+        for truth in real:
+            ratios = realism.percentile_ratios((row.speed, row.accel), (truth.speed, truth.accel))
+            inside = int(realism.within_tolerance(ratios).sum())
+            known = ratios[np.isfinite(ratios)]  # a still real joint gives no ratio
+            spread = f"{known.min():.2f} to {known.max():.2f}" if known.size else "-"
+            cells.append(f"{inside} ({spread})")
+        lines.append(f"{row.method[:39]:<40}" + "".join(f"{c:<22}" for c in cells))
+    return lines
 
 
 def _num(value: float) -> str:
