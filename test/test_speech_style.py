@@ -77,6 +77,7 @@ def test_when_a_model_row_meets_real_sources_expect_its_percentiles_within_25_pe
         _style("real, statues", *still, source="statues"),
     ]
     lines = head_style_table(rows, ["HeadPitch", "HeadYaw"]).splitlines()
+    assert all(line == line.rstrip() for line in lines[lines.index("") :])
     header = lines[lines.index("") + 1]
     assert "within 25 %" in header
     assert "of 12" in header

@@ -175,7 +175,7 @@ def _tolerance_lines(rows: Sequence[StyleRow]) -> list[str]:
         "",
         f"speed and acceleration percentiles within {percent} % of each real source's, of {n}"
         " (model / real, lowest to highest)",
-        f"{'method':<40}" + "".join(f"{row.source[:21]:<22}" for row in real),
+        (f"{'method':<40}" + "".join(f"{row.source[:21]:<22}" for row in real)).rstrip(),
     ]
     for row in models:
         cells = []
@@ -185,7 +185,7 @@ def _tolerance_lines(rows: Sequence[StyleRow]) -> list[str]:
             known = ratios[np.isfinite(ratios)]  # a still real joint gives no ratio
             spread = f"{known.min():.2f} to {known.max():.2f}" if known.size else "-"
             cells.append(f"{inside} ({spread})")
-        lines.append(f"{row.method[:39]:<40}" + "".join(f"{c:<22}" for c in cells))
+        lines.append((f"{row.method[:39]:<40}" + "".join(f"{c:<22}" for c in cells)).rstrip())
     return lines
 
 
