@@ -109,26 +109,31 @@ class NoiseShape:
 
     def draws(self, n_joints: int) -> int:
         """Standard normals drawn per frame: one per joint, and one for the envelope."""
-        return n_joints + (1 if is_bursty(self.burst) else 0)
+        return n_joints + (1 if self.bursty else 0)
 
     @cached_property
-    def _b(self) -> np.ndarray:
+    def bursty(self) -> bool:
+        """Whether the noise has a burst envelope (:func:`is_bursty`)."""
+        return is_bursty(self.burst)
+
+    @cached_property
+    def burst_array(self) -> np.ndarray:
         """The burstiness as an array: () for every joint, or (J,) per joint."""
         return np.asarray(self.burst, dtype=float)
 
     def _envelope(self, z_draws: np.ndarray) -> np.ndarray:
         """exp(b z_t - b^2) per joint for the envelope's draws (..., T) -> (..., T, 1 or J)."""
         z = _ar1(z_draws, BURST_CORRELATION, axis=-1)[..., None]
-        return np.exp(self._b * z - self._b * self._b)
+        b = self.burst_array
+        return np.exp(b * z - b * b)
 
     def filter(self, white: np.ndarray) -> np.ndarray:
         """(N, T, draws) standard normals -> (N, T, J) unit-variance noise, whole utterances."""
         from scipy import signal
 
-        bursty = is_bursty(self.burst)
-        joints = white.shape[-1] - (1 if bursty else 0)
+        joints = white.shape[-1] - (1 if self.bursty else 0)
         innovations = white[..., :joints]
-        if bursty:
+        if self.bursty:
             innovations = innovations * self._envelope(white[..., joints])
         first = _ar1(innovations, self.rho, axis=1)
         if self.order == 1:
@@ -160,15 +165,14 @@ class NoiseStream:
         self._noise = np.zeros(n_joints)
         self._smooth = np.zeros(n_joints)
         self._z = 0.0
-        self._bursty = is_bursty(shape.burst)
-        self._b = np.asarray(shape.burst, dtype=float)
 
     def _innovations(self, draw: np.ndarray, first: bool) -> np.ndarray:
-        if not self._bursty:
+        if not self.shape.bursty:
             return draw
         z = float(draw[self.n_joints])
         self._z = z if first else self._rho_z * self._z + self._innovation_z * z
-        return draw[: self.n_joints] * np.exp(self._b * (self._z - self._b))
+        b = self.shape.burst_array
+        return draw[: self.n_joints] * np.exp(b * (self._z - b))
 
     def start(self, draw: np.ndarray) -> np.ndarray:
         """The first frame's noise from its :meth:`NoiseShape.draws` standard normals."""
