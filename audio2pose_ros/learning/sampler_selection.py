@@ -575,11 +575,11 @@ def choose_sampling(
                 trial(dict.fromkeys(parts, (correlation, burst, value)), evidence)
     for s, joints in _per_joint_parts(first, parts).items():
         _, _, correlation, _, value = min(scored[s], key=_rank)
-        near = TEMPERATURES.index(value)
+        at = TEMPERATURES.index(value)
         head_items = [item for item in evidence if set(item.known) & set(parts[s])]
         for per_joint in itertools.product(BURSTS, repeat=joints):
             if len(set(per_joint)) > 1:  # equal values were tried above
-                for t in TEMPERATURES[max(near - 1, 0) : near + 2]:
+                for t in TEMPERATURES[max(at - 1, 0) : at + 2]:
                     trial({s: (correlation, per_joint, t)}, head_items)
     chosen: dict[str, Setting] = dict(body_noise)
     for s in parts:

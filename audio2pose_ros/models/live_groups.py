@@ -48,7 +48,6 @@ from audio2pose_ros.models.speech_gate import (
     PART_CORRELATION_KEYS,
     GroupedSampler,
     SpeechGate,
-    part_bursts,
     part_correlations,
 )
 from audio2pose_ros.robot.description import RobotDescription
@@ -121,7 +120,7 @@ class LiveGroups(PoseModel):
         first_burst, second_burst = (
             check_burst(burst, len(joints), key)
             for key, burst, joints in zip(
-                PART_BURST_KEYS, part_bursts(asdict(config)), self.groups, strict=True
+                PART_BURST_KEYS, (config.first_burst, config.second_burst), self.groups, strict=True
             )
         )
         config = replace(config, first_burst=first_burst, second_burst=second_burst)
