@@ -8,8 +8,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, cast
 
-import numpy as np
-
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Clip, Dataset
 from audio2pose_ros.learning import realism
@@ -216,11 +214,11 @@ def _percentile_check(row: GroupRow, real: GroupRow, names: Sequence[str]) -> Ch
     measure = f"speed, accel {levels} of {', '.join(names)}"
     if row.percentiles is None or real.percentiles is None:
         return row.group, measure, "within 25 % of real", "-", False
-    ratio = realism.percentile_ratios(row.percentiles, real.percentiles)
-    inside = realism.within_tolerance(ratio)
-    worst = float(np.nanmin(ratio)), float(np.nanmax(ratio))
-    shown = f"{int(inside.sum())} of {inside.size} (model / real {worst[0]:.2f} to {worst[1]:.2f})"
-    return row.group, measure, "within 25 % of real", shown, bool(inside.all())
+    agree = realism.percentile_agreement(row.percentiles, real.percentiles)
+    shown = (
+        f"{agree.inside} of {agree.total} (model / real {agree.lowest:.2f} to {agree.highest:.2f})"
+    )
+    return row.group, measure, "within 25 % of real", shown, agree.inside == agree.total
 
 
 def _beat_check(row: GroupRow, real: GroupRow) -> list[Check]:

@@ -240,21 +240,39 @@ def speed_percentiles(
     return out[0], out[1]
 
 
-def percentile_ratios(
-    model: tuple[np.ndarray, np.ndarray], real: tuple[np.ndarray, np.ndarray]
-) -> np.ndarray:
-    """Model / real for every speed and acceleration percentile (:func:`speed_percentiles`).
+@dataclass(frozen=True)
+class PercentileAgreement:
+    """How a motion's speed and acceleration percentiles compare with real ones.
 
-    Flat, speed first; NaN where the real percentile is 0 (a still joint has no scale).
+    Attributes:
+        inside: how many lie within :data:`PERCENTILE_TOLERANCE` of real (|model / real - 1|).
+        total: how many were compared, those of a still real joint included (never inside).
+        lowest: the smallest model / real (NaN when no real percentile is above 0).
+        highest: the largest.
+
+    """
+
+    inside: int
+    total: int
+    lowest: float
+    highest: float
+
+
+def percentile_agreement(
+    model: tuple[np.ndarray, np.ndarray], real: tuple[np.ndarray, np.ndarray]
+) -> PercentileAgreement:
+    """Compare (speed, acceleration) percentiles of :func:`speed_percentiles` with real ones.
+
+    A real percentile of 0 (a still joint) has no scale: its ratio is undefined and never
+    inside.
     """
     model_flat = np.concatenate([np.ravel(p) for p in model])
     real_flat = np.concatenate([np.ravel(p) for p in real])
-    return model_flat / np.where(real_flat > 0, real_flat, np.nan)
-
-
-def within_tolerance(ratios: np.ndarray) -> np.ndarray:
-    """Which :func:`percentile_ratios` lie within :data:`PERCENTILE_TOLERANCE` of 1."""
-    return np.abs(ratios - 1.0) <= PERCENTILE_TOLERANCE
+    ratios = model_flat / np.where(real_flat > 0, real_flat, np.nan)
+    inside = np.abs(ratios - 1.0) <= PERCENTILE_TOLERANCE
+    known = ratios[np.isfinite(ratios)]
+    lowest, highest = (float(known.min()), float(known.max())) if known.size else (math.nan,) * 2
+    return PercentileAgreement(int(inside.sum()), int(inside.size), lowest, highest)
 
 
 # --- beat consistency --------------------------------------------------------------------------

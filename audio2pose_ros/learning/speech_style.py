@@ -143,8 +143,8 @@ def head_style_table(rows: Sequence[StyleRow], joint_names: Sequence[str]) -> st
 
     The row's beat consistency (own audio, shuffled) is on its first joint's line. Then, where
     there are both, how many of each model row's speed and acceleration percentiles lie within
-    25 % of each real source's (:func:`~audio2pose_ros.learning.realism.within_tolerance`), with
-    the range of model / real.
+    25 % of each real source's, with the range of model / real
+    (:func:`~audio2pose_ros.learning.realism.percentile_agreement`).
     """
     levels = "/".join(f"p{p}" for p in realism.PERCENTILES)
     lines = [
@@ -180,11 +180,11 @@ def _tolerance_lines(rows: Sequence[StyleRow]) -> list[str]:
     for row in models:
         cells = []
         for truth in real:
-            ratios = realism.percentile_ratios((row.speed, row.accel), (truth.speed, truth.accel))
-            inside = int(realism.within_tolerance(ratios).sum())
-            known = ratios[np.isfinite(ratios)]  # a still real joint gives no ratio
-            spread = f"{known.min():.2f} to {known.max():.2f}" if known.size else "-"
-            cells.append(f"{inside} ({spread})")
+            agree = realism.percentile_agreement((row.speed, row.accel), (truth.speed, truth.accel))
+            spread = (  # a still real source gives no ratio
+                "-" if math.isnan(agree.lowest) else f"{agree.lowest:.2f} to {agree.highest:.2f}"
+            )
+            cells.append(f"{agree.inside} ({spread})")
         lines.append((f"{row.method[:39]:<40}" + "".join(f"{c:<22}" for c in cells)).rstrip())
     return lines
 
