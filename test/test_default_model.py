@@ -9,7 +9,7 @@ from audio2pose_ros.audio.features import FeatureSpec, extract_features
 from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
 from audio2pose_ros.learning.default_model import TEST_CLIPS, clip_info, fill_unobserved
 from audio2pose_ros.motion.prosody import prosody_trajectory
-from audio2pose_ros.timebase import complete_frames
+from audio2pose_ros.timebase import FRAME_PERIOD_S, complete_frames
 
 
 def test_when_naming_the_shared_clips_expect_grid_attribution_and_held_out_clips():
@@ -87,6 +87,11 @@ def test_when_loading_the_packaged_default_expect_a_seeded_streaming_sampler_lea
     assert np.degrees(np.abs(other - first).max(axis=0)).max() > 2.0  # visibly different
     # within the limits; denormalize(1.0) lands up to one rounding step (7e-17 rad) above them
     assert np.all((first >= robot.lower_rad) & (first <= robot.upper_rad))
+    # it samples within the joints' velocity limits: the filter's gate has nothing to drop
+    assert checkpoint.model.config.velocity_limit == 1.0
+    steps = np.abs(np.diff(np.concatenate([first, other]), axis=0))
+    steps = np.delete(steps, len(first) - 1, axis=0)  # not the seam between the two runs
+    assert (steps <= robot.max_velocity_rad_s * FRAME_PERIOD_S + 1e-9).all()
 
 
 def test_when_loading_the_packaged_default_expect_sampling_chosen_on_clips_it_is_not_tested_on(

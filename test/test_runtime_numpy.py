@@ -124,6 +124,12 @@ def test_when_a_streaming_model_runs_on_real_speech_expect_numpy_kernel_equals_t
         ("live_groups", {"first_burst": [1.2, 0.0], "second_burst": 0.6}),  # one per head joint
         ("live_groups", {"noise_order": 2, "first_correlation": 0.9, "second_correlation": 0.99}),
         ("live_groups", {"body_margin_m": 0.0, "body_band_m": 0.5}),  # body-aware: every frame
+        ("live_groups", {"second_temperature": [3.0] * 8 + [0.5]}),  # the hip colder
+        # hot enough that the velocity limit bounds many steps
+        (
+            "live_groups",
+            {"first_temperature": 40.0, "second_temperature": 40.0, "velocity_limit": 1},
+        ),
     ],
 )
 def test_when_a_live_model_samples_expect_the_same_poses_as_its_torch_side_predictor(

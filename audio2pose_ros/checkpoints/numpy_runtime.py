@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -53,14 +54,24 @@ from audio2pose_ros.checkpoints.format import (
 )
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.body_noise import body_noise_for, check_body_noise
-from audio2pose_ros.models.sampling_noise import NoiseShape, NoiseStream, check_burst
+from audio2pose_ros.models.sampling_noise import (
+    NoiseShape,
+    NoiseStream,
+    check_burst,
+    check_per_joint,
+)
 from audio2pose_ros.models.speech_gate import (
     PART_BURST_KEYS,
     PART_CORRELATION_KEYS,
+    PART_TEMPERATURE_KEYS,
+    Factor,
     GroupedSampler,
     SpeechGate,
+    check_velocity_limit,
     part_bursts,
     part_correlations,
+    part_factor,
+    part_step_limits,
 )
 from audio2pose_ros.models.warm_start import WarmStarted
 from audio2pose_ros.robot.description import RobotDescription
@@ -191,7 +202,9 @@ class LiveKernel:
     (AR(1), or two stages, optionally bursty) with draws from
     ``numpy.random.default_rng(seed)``; pose = clip(mu + temperature * sigma * noise, 0, 1),
     mu = sigmoid of the first half of the output layer, sigma = exp of the second half clamped
-    to [-7, 0]; the pose is the next frame's previous pose.
+    to [-7, 0] (``temperature`` a number or one per joint); with ``max_step`` set, each
+    joint's step from the previous pose is bounded by it; the pose is the next frame's previous
+    pose.
     """
 
     def __init__(
@@ -213,7 +226,8 @@ class LiveKernel:
         self._shape = noise
         self._draws = noise.draws(int(self._start_pose.shape[0]))
         self.seed = seed
-        self.temperature = temperature
+        self.temperature: Factor = temperature
+        self.max_step: np.ndarray | None = None
         self.reset()
 
     def reset(self, seed: int | None = None) -> None:
@@ -242,9 +256,11 @@ class LiveKernel:
         raw = self._hidden @ self._w_out + self._b_out
         joints = raw.shape[0] // 2
         pose = sigmoid(raw[:joints])
-        if self.temperature:
+        if np.any(self.temperature):
             std = np.exp(np.clip(raw[joints:], _MIN_LOG_STD, _MAX_LOG_STD))
             pose = np.clip(pose + self.temperature * std * noise, 0.0, 1.0)
+        if self.max_step is not None:
+            pose = np.clip(pose, self._previous - self.max_step, self._previous + self.max_step)
         self._previous = pose
         return pose
 
@@ -277,7 +293,7 @@ class LiveGroupsKernel(GroupedSampler):
         """
         self._groups = _live_groups(config)
         self._n_joints = config["n_joints"]
-        self._factors = (config["first_temperature"], config["second_temperature"])
+        self._factors = tuple(part_factor(config[key]) for key in PART_TEMPERATURE_KEYS)
         self._gate = SpeechGate(
             config["silence_temperature"], config["gate_margin"], config["gate_width"]
         )
@@ -299,6 +315,9 @@ class LiveGroupsKernel(GroupedSampler):
             self._groups,
             float(config.get("body_margin_m", 0.0)),
             float(config.get("body_band_m", 0.0)),
+        )
+        self._max_steps = part_step_limits(
+            robot, self._groups, float(config.get("velocity_limit", 0.0))
         )
         self.seed = seed
         self.temperature = temperature
@@ -443,11 +462,7 @@ def _is_number(value: object) -> bool:
 
 
 def _is_burst(value: object, n_joints: int) -> bool:
-    try:
-        check_burst(value, n_joints)
-    except ConfigurationError:
-        return False
-    return True
+    return _accepted(partial(check_burst, n_joints=n_joints), value)
 
 
 def _live_accepts(config: Mapping[str, Any]) -> bool:
@@ -469,29 +484,39 @@ def _live_groups(config: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _live_groups_accepts(config: Mapping[str, Any]) -> bool:
-    numbers = ("first_temperature", "second_temperature", "silence_temperature")
+    numbers = ("silence_temperature", "gate_margin", "gate_width")
     if not (
         _live_accepts(config)
         and _is_int(config["first_group"])
         and config["first_group"] < 1 << config["n_joints"]
-        and all(_is_number(config[k]) for k in (*numbers, "gate_margin", "gate_width"))
+        and all(_is_number(config[k]) for k in numbers)
         and all(_is_fraction(config.get(k, 0.0)) for k in _GROUP_CORRELATIONS)
         and _body_noise_ok(config)
+        and _accepted(check_velocity_limit, config.get("velocity_limit", 0.0))
     ):
         return False
     groups = _live_groups(config)
     return all(len(joints) for joints in groups) and all(
         _is_burst(burst, len(joints))
-        for burst, joints in zip(part_bursts(config), groups, strict=True)
+        and _accepted(partial(check_per_joint, n_joints=len(joints), name=key), config[key])
+        for burst, key, joints in zip(
+            part_bursts(config), PART_TEMPERATURE_KEYS, groups, strict=True
+        )
     )
 
 
-def _body_noise_ok(config: Mapping[str, Any]) -> bool:
+def _accepted(check: Callable[[object], object], value: object) -> bool:
+    """Whether ``check`` takes ``value`` without a :class:`ConfigurationError`."""
     try:
-        check_body_noise(config.get("body_margin_m", 0.0), config.get("body_band_m", 0.0))
+        check(value)
     except ConfigurationError:
         return False
     return True
+
+
+def _body_noise_ok(config: Mapping[str, Any]) -> bool:
+    margin, band = config.get("body_margin_m", 0.0), config.get("body_band_m", 0.0)
+    return _accepted(lambda _: check_body_noise(margin, band), None)
 
 
 def _live_groups_shapes(config: Mapping[str, Any]) -> dict[str, tuple[int, ...]]:
@@ -505,6 +530,7 @@ def _live_groups_shapes(config: Mapping[str, Any]) -> dict[str, tuple[int, ...]]
 _GROUP_BURSTS = frozenset(PART_BURST_KEYS)  # optional: older checkpoints lack them
 _GROUP_CORRELATIONS = frozenset(PART_CORRELATION_KEYS)  # optional: likewise
 _GROUP_BODY = frozenset({"body_margin_m", "body_band_m"})  # optional: likewise
+_GROUP_LIMIT = frozenset({"velocity_limit"})  # optional: likewise
 _LIVE_KEYS = frozenset(
     {"n_features", "n_joints", "hidden_units", "input_noise", "noise_correlation"}
 )
@@ -538,11 +564,12 @@ KERNELS: dict[str, KernelSpec] = {
         }
         | _GROUP_BURSTS
         | _GROUP_CORRELATIONS
-        | _GROUP_BODY,
+        | _GROUP_BODY
+        | _GROUP_LIMIT,
         _live_groups_accepts,
         _live_groups_shapes,
         LiveGroupsKernel,
-        _GROUP_BURSTS | _GROUP_CORRELATIONS | _GROUP_BODY,
+        _GROUP_BURSTS | _GROUP_CORRELATIONS | _GROUP_BODY | _GROUP_LIMIT,
         takes_robot=True,
     ),
 }

@@ -8,6 +8,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, cast
 
+import numpy as np
+
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Clip, Dataset
 from audio2pose_ros.learning import realism
@@ -20,11 +22,13 @@ from audio2pose_ros.learning.sampler_selection import (
     PAUSE_MARGIN,
     SILENCE_TEMPERATURES,
     TEMPERATURES,
+    VELOCITY_LIMIT,
     SamplingChoice,
 )
 from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.models.live_groups import LiveGroups
-from audio2pose_ros.models.sampling_noise import format_burst
+from audio2pose_ros.models.sampling_noise import PerJoint, format_per_joint
+from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 if TYPE_CHECKING:
@@ -462,7 +466,12 @@ does not see them). The head's burstiness is then also tried per joint (HeadPitc
 each pair of two different values of the list), at the best correlation and at the best
 temperature and the ones beside it: people turn their heads in rarer, quicker bursts than they
 nod (in Obama's addresses the p99/p50 ratio of yaw speed is about 8, of pitch about 6),
-which one burstiness for both joints cannot give. Each part keeps its best correlation,
+which one burstiness for both joints cannot give. The arm part then tries the hip at every
+temperature of the list, the arms at the part's best: at the temperature that sizes the
+arms' motion the hip sways more than the lecturer's. Every setting samples within the
+joints' velocity limits (`velocity_limit` {VELOCITY_LIMIT:g}: a step is clamped to what the
+joint can move in 10 ms, and the sampler reads the clamped pose back), so the motion filter's
+input gate refuses none of its raw steps. Each part keeps its best correlation,
 burstiness and temperature (the head and the arms each have their own noise correlation),
 among those whose raw steps the motion filter's input gate would refuse, as faster than the
 robot can move, in at most {GATE_BUDGET_PCT:g} % of frames, and, for the arms, within the
@@ -475,6 +484,29 @@ times the target (head 2, arms and hip 1.5). Fixed, not chosen per build: the no
 {chosen}
 
 """
+
+
+def _part_temperature(value: PerJoint, joints: np.ndarray, robot: RobotDescription) -> str:
+    """``3``, or one per joint group: ``4 (arms), 1.5 (hip)``."""
+    if not isinstance(value, tuple):
+        return f"{value:g}"
+    groups: dict[str, set[float]] = {}
+    for j, v in zip(joints, value, strict=True):
+        groups.setdefault(robot.joints[j].group, set()).add(v)
+    if any(len(values) > 1 for values in groups.values()):
+        return format_per_joint(value)
+    return ", ".join(f"{values.pop():g} ({group})" for group, values in groups.items())
+
+
+def _velocity_limit(share: float) -> str:
+    """The sentence part on the sampler's velocity limit, or nothing when it is off."""
+    if not share:
+        return ""
+    limit = "its velocity limit" if share == 1 else f"{share:g} of its velocity limit"
+    return (
+        f"; no sampled step moves a joint faster than {limit}, so the motion filter's input "
+        "gate drops none (`velocity_limit`)"
+    )
 
 
 def write_learned_model_card(
@@ -502,7 +534,7 @@ def write_learned_model_card(
     model = cast(LiveGroups, checkpoint.model)  # the learned default is live_groups
     config = model.config
     correlations = model.part_correlations()
-    head_burst = format_burst(config.first_burst)
+    head_burst = format_per_joint(config.first_burst)
     if isinstance(config.first_burst, tuple):
         head_burst += f" ({'/'.join(checkpoint.robot.names[j] for j in model.groups[0])})"
     validation = sorted(checkpoint.info.get("validation_clips", []))
@@ -525,7 +557,7 @@ HipRoll (config `{checkpoint.model.config_dict()}`, {n_params} parameters). At e
 frame each reads the {checkpoint.features.label} audio features and its
 own previous pose and samples the next pose from a Gaussian, with smooth, time-correlated
 noise (correlation {correlations[0]:g} and burstiness {head_burst} for the head,
-{correlations[1]:g} and {format_burst(config.second_burst)} for the arms:
+{correlations[1]:g} and {format_per_joint(config.second_burst)} for the arms:
 `audio2pose_ros/models/sampling_noise.py`): it samples
 motion instead of regressing to the mean, so it moves like a person rather than like the average
 of people. Every utterance starts settled: the model first runs 1 s of the utterance's first
@@ -533,8 +565,10 @@ audio frame, discarded, so the first pose does not jump from the network's zero 
 (`audio2pose_ros/models/warm_start.py`; offline and online alike). A causal speech gate
 (mean filter-bank energy against its recent peak) scales the sampling noise down to
 {config.silence_temperature:g} of itself in silence, so the robot comes to rest when nobody
-speaks; the head part samples at temperature {config.first_temperature:g}, the arm part at
-{config.second_temperature:g} (chosen on validation clips, see below). It streams
+speaks; the head part samples at temperature
+{_part_temperature(config.first_temperature, model.groups[0], checkpoint.robot)}, the arm
+part at {_part_temperature(config.second_temperature, model.groups[1], checkpoint.robot)}
+(chosen on validation clips, see below){_velocity_limit(config.velocity_limit)}. It streams
 (two GRU cell steps per frame, about 0.1 ms), so `inference_node` runs it. Same seed, same
 motion; another seed, another motion on the same audio (`streaming_predictor(seed=N)` online,
 `audio2pose_ros.offline.synthesis.synthesize(..., seed=N)` offline; the default seed is 0).

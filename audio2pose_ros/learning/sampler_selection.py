@@ -38,7 +38,19 @@ stretch of the lecture.
    arms with the body in mind
    (:mod:`audio2pose_ros.models.body_noise`: the arm noise fades within :data:`BODY_BAND_M` of
    the guard's margin), and the choice keeps that on. The guard stays on the robot; this keeps
-   it from shaping the motion.
+   it from shaping the motion. Every setting also samples within the robot's velocity limits
+   (``velocity_limit`` = :data:`VELOCITY_LIMIT`: no sampled step outruns a joint), and the
+   choice keeps that on too: the gate then refuses no step, and a hot setting whose network
+   widens its spread for a frame or two no longer loses on the gate's budget (the arms' raw
+   samples did, which held their temperature at 2 and their motion at 0.64 of real).
+
+   A part whose joints span several groups (the arms and the hip) then tries one temperature
+   per group: the grid's choice is its largest group's (the score weighs groups by their
+   joint counts), so each smaller group in turn tries every temperature of
+   :data:`TEMPERATURES`, the rest of the part at its best so far, at its best correlation and
+   burstiness, sampled on the clips that observe the part and the body budget's speech (the
+   hip sways less than the arms swing: at the temperature that sizes the arms, the hip moved
+   up to twice as much as the lecturer's).
 
    A part of at most :data:`PER_JOINT_MAX` joints, all in :data:`TAIL_GROUPS` (the head), then
    also tries one burstiness per joint (:func:`_per_joint_parts`): every tuple of
@@ -79,7 +91,7 @@ from audio2pose_ros.learning import metrics, realism
 from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 from audio2pose_ros.models.live_groups import LiveGroups
-from audio2pose_ros.models.sampling_noise import Burst, format_burst
+from audio2pose_ros.models.sampling_noise import Burst, format_per_joint
 from audio2pose_ros.models.speech_gate import PART_BURST_KEYS, PART_CORRELATION_KEYS
 from audio2pose_ros.motion.filter import MotionFilterSettings
 from audio2pose_ros.robot.body import BodyModel
@@ -99,6 +111,7 @@ BODY_BUDGET_PCT = 1.0  # sampled arm frames allowed closer to the body than the 
 # body-aware sampling: the arm noise is whole from the clearance the training targets keep
 BODY_BAND_M = round(TRAINING_CLEARANCE_M - BODY_MARGIN_M, 6)
 GATE_BUDGET_PCT = 0.05  # raw steps the motion filter's input gate may refuse as implausible
+VELOCITY_LIMIT = 1.0  # sampled steps within the robot's velocity limits (velocity_limit)
 BODY_CHECK_EVERY = 4  # frames: the share is estimated on every 4th sampled frame
 GROUPS = ("head", "arms", "hip")
 TAIL_GROUPS = ("head",)  # groups whose speed percentiles are matched to a reference (score)
@@ -158,7 +171,7 @@ class Trial:
     """
 
     setting: str
-    value: float
+    value: Setting
     group: str
     measures: dict[str, float]
     correlation: float | None = None
@@ -189,7 +202,7 @@ class SamplingChoice:
     def summary(self) -> str:
         """One line: the chosen values and what they were chosen on."""
         chosen = (
-            ", ".join(f"{k} = {format_burst(v)}" for k, v in self.settings.items()) or "nothing"
+            ", ".join(f"{k} = {format_per_joint(v)}" for k, v in self.settings.items()) or "nothing"
         )
         more = (
             f"; the arms' body budget also on {self.body_seconds:.0f} s of other speech"
@@ -214,17 +227,18 @@ class SamplingChoice:
         """Plain text: the summary, then one line per trial, the chosen ones marked ``*``."""
         lines = [
             self.summary(),
-            f"{'setting':<21}{'corr':>6}{'burst':>8}{'value':>6}  {'group':<6}{'H speed':>8}"
+            f"{'setting':<21}{'corr':>6}{'burst':>8}{'value':>8}  {'group':<6}{'H speed':>8}"
             f"{'H accel':>8}{'std/real':>9}{'tail':>6}{'score':>7}{'speech/pause':>13}"
             f"{'near body %':>12}{'gate refused %':>15}",
         ]
         for t in self.trials:
             m = t.measures
             noise = (f"{t.correlation:>6g}" if t.correlation is not None else f"{'-':>6}") + (
-                f"{format_burst(t.burst):>8}" if t.burst is not None else f"{'-':>8}"
+                f"{format_per_joint(t.burst):>8}" if t.burst is not None else f"{'-':>8}"
             )
             lines.append(
-                f"{t.setting:<21}{noise}{t.value:>6g}{'*' if self._chosen(t) else ' '} "
+                f"{t.setting:<21}{noise}{format_per_joint(t.value):>8}"
+                f"{'*' if self._chosen(t) else ' '} "
                 f"{t.group:<6}"
                 + "".join(
                     f"{m[k]:>{w}.2f}" if k in m else f"{'-':>{w}}"
@@ -487,9 +501,19 @@ def reference_percentiles(
     return out
 
 
-def _rank(scored: tuple[float, float, float, Burst, float]) -> tuple[float, float]:
+def _rank(scored: tuple[float, float, float, Burst, Setting]) -> tuple[float, float]:
     """Budget overrun, then score: the lower the better; ties keep the first tried."""
     return scored[0], scored[1]
+
+
+def _with_group(value: Setting, in_group: np.ndarray, temperature: float) -> Setting:
+    """A part's temperature with the joints ``in_group`` at ``temperature``, one per joint.
+
+    All joints equal gives one number (the form the shared grid tried).
+    """
+    values = np.broadcast_to(np.asarray(value, dtype=np.float64), in_group.shape).copy()
+    values[in_group] = temperature
+    return float(values[0]) if (values == values[0]).all() else tuple(map(float, values))
 
 
 def _per_joint_parts(model: LiveGroups, parts: Mapping[str, list[str]]) -> dict[str, int]:
@@ -548,14 +572,16 @@ def choose_sampling(
     trials: list[Trial] = []
     # per part: (% over the body budget, score, correlation, burst, temperature) of every
     # combination tried; the lowest wins, so a setting within the budget beats any other
-    scored: dict[str, list[tuple[float, float, float, Burst, float]]] = {s: [] for s in parts}
-    body_noise = (
-        {"body_margin_m": BODY_MARGIN_M, "body_band_m": BODY_BAND_M} if body is not None else {}
-    )
+    scored: dict[str, list[tuple[float, float, float, Burst, Setting]]] = {s: [] for s in parts}
+    fixed: dict[str, Setting] = {"velocity_limit": VELOCITY_LIMIT}
+    if body is not None:
+        fixed |= {"body_margin_m": BODY_MARGIN_M, "body_band_m": BODY_BAND_M}
 
-    def trial(noise: Mapping[str, tuple[float, Burst, float]], items: Sequence[_Evidence]) -> None:
+    def trial(
+        noise: Mapping[str, tuple[float, Burst, Setting]], items: Sequence[_Evidence]
+    ) -> None:
         """Sample with part -> (correlation, burst, temperature) and score those parts."""
-        settings: dict[str, Setting] = dict(body_noise)
+        settings: dict[str, Setting] = dict(fixed)
         for s, (correlation, burst, value) in noise.items():
             settings |= {s: value, _PART_BURSTS[s]: burst, _PART_CORRELATIONS[s]: correlation}
         arms = any("arms" in parts[s] for s in noise)
@@ -570,22 +596,35 @@ def choose_sampling(
             scored[s].append((over, total, correlation, burst, value))
 
     for correlation in CORRELATIONS:
-        for burst in BURSTS:
+        for shared in BURSTS:
             for value in TEMPERATURES:
-                trial(dict.fromkeys(parts, (correlation, burst, value)), evidence)
-    for s, joints in _per_joint_parts(first, parts).items():
-        _, _, correlation, _, value = min(scored[s], key=_rank)
-        at = TEMPERATURES.index(value)
+                trial(dict.fromkeys(parts, (correlation, shared, value)), evidence)
+    for s, n_joints in _per_joint_parts(first, parts).items():
+        _, _, correlation, _, on_grid = min(scored[s], key=_rank)
+        at = TEMPERATURES.index(cast(float, on_grid))  # only the grid was tried so far
         head_items = [item for item in evidence if set(item.known) & set(parts[s])]
-        for per_joint in itertools.product(BURSTS, repeat=joints):
+        for per_joint in itertools.product(BURSTS, repeat=n_joints):
             if len(set(per_joint)) > 1:  # equal values were tried above
                 for t in TEMPERATURES[max(at - 1, 0) : at + 2]:
                     trial({s: (correlation, per_joint, t)}, head_items)
-    chosen: dict[str, Setting] = dict(body_noise)
+    for s, part_joints in zip(_PART_SETTINGS, first.groups, strict=True):
+        # the largest group set the grid's choice (the score weighs groups by joint count);
+        # each other group tries every temperature, the rest of the part at its best so far
+        smaller = sorted(parts.get(s, ()), key=lambda g: -int(robot.group_mask(g).sum()))[1:]
+        part_items = [
+            item for item in evidence if not item.known or set(item.known) & set(parts[s])
+        ]
+        for g in smaller:
+            _, _, correlation, burst, best = min(scored[s], key=_rank)
+            for t in TEMPERATURES:
+                varied = _with_group(best, robot.group_mask(g)[part_joints], t)
+                if isinstance(varied, tuple) and varied != best:  # one value: tried on the grid
+                    trial({s: (correlation, burst, varied)}, part_items)
+    chosen: dict[str, Setting] = dict(fixed)
     for s in parts:
-        _, _, correlation, best, value = min(scored[s], key=_rank)
-        chosen[s] = value
-        chosen[_PART_BURSTS[s]] = best
+        _, _, correlation, burst, temperature = min(scored[s], key=_rank)
+        chosen[s] = temperature
+        chosen[_PART_BURSTS[s]] = burst
         chosen[_PART_CORRELATIONS[s]] = correlation
     paused = _evidence(folds, robot, paused=True)
     for rest in SILENCE_TEMPERATURES:

@@ -39,12 +39,13 @@ from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.base import PoseModel, StreamingPredictor
 from audio2pose_ros.models.recurrent_numpy import CellWeights, gru_step, linear_weights, sigmoid
 from audio2pose_ros.models.sampling_noise import (
-    Burst,
     NoiseShape,
     NoiseStream,
+    PerJoint,
     check_burst,
     is_bursty,
 )
+from audio2pose_ros.models.speech_gate import Factor
 
 WARM_UP_TRAINING_FRAMES = 50  # a settled hold before every training window (warm_start)
 _MIN_LOG_STD = -7.0  # sigma >= 1e-3 of the joint range: keeps the likelihood finite
@@ -61,7 +62,7 @@ class LiveConfig:
     input_noise: float = 0.05  # std of the noise on teacher-forced poses, [0, 1] units
     noise_correlation: float = 0.95  # rho of the sampling noise (0 = white)
     noise_order: int = 1  # AR(1) filters in cascade on the sampling noise: 1 or 2
-    noise_burst: Burst = 0.0  # log-std of the noise's burst envelope (0 = steady); or per joint
+    noise_burst: PerJoint = 0.0  # log-std of the noise's burst envelope (0 = steady); or per joint
 
     def noise_shape(self) -> NoiseShape:
         """The sampling noise this config describes."""
@@ -201,26 +202,40 @@ class _LiveCore:
         """Initial (hidden, previous pose) for ``n`` sequences."""
         return np.zeros((n, self.cell.w_hh.shape[0])), np.tile(self.start_pose, (n, 1))
 
-    def _output(self, hidden: np.ndarray, noise: np.ndarray, temperature: float) -> np.ndarray:
+    def _output(
+        self,
+        hidden: np.ndarray,
+        noise: np.ndarray,
+        temperature: Factor,
+        previous: np.ndarray,
+        max_step: np.ndarray | None,
+    ) -> np.ndarray:
         raw = hidden @ self.w_out + self.b_out
         joints = raw.shape[-1] // 2
-        mean = sigmoid(raw[..., :joints])
-        if not temperature:
-            return mean
-        std = np.exp(np.minimum(np.maximum(raw[..., joints:], _MIN_LOG_STD), _MAX_LOG_STD))
-        return np.minimum(np.maximum(mean + temperature * std * noise, 0.0), 1.0)
+        pose = sigmoid(raw[..., :joints])
+        if np.any(temperature):
+            std = np.exp(np.minimum(np.maximum(raw[..., joints:], _MIN_LOG_STD), _MAX_LOG_STD))
+            pose = np.minimum(np.maximum(pose + temperature * std * noise, 0.0), 1.0)
+        if max_step is not None:
+            pose = np.minimum(np.maximum(pose, previous - max_step), previous + max_step)
+        return pose
 
     def step(
         self,
         x: np.ndarray,
         state: tuple[np.ndarray, np.ndarray],
         noise: np.ndarray,
-        temperature: float,
+        temperature: Factor,
+        max_step: np.ndarray | None = None,
     ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-        """(N, F) frame, state, (N, J) unit noise -> (N, J) poses and the new state."""
+        """(N, F) frame, state, (N, J) unit noise -> (N, J) poses and the new state.
+
+        ``temperature`` is a number or one per joint; ``max_step`` (J,), if given, bounds each
+        joint's step from the previous pose (a velocity limit in the pose's units per frame).
+        """
         hidden, previous = state
         hidden = gru_step(self.cell, np.concatenate([x, previous], axis=-1), hidden)
-        pose = self._output(hidden, noise, temperature)
+        pose = self._output(hidden, noise, temperature, previous, max_step)
         return pose, (hidden, pose)
 
     def run(
@@ -229,12 +244,15 @@ class _LiveCore:
         noise: np.ndarray,
         temperature: float,
         noise_scale: Callable[[int, np.ndarray], np.ndarray] | None = None,
+        max_step: np.ndarray | None = None,
+        free_frames: int = 0,
     ) -> np.ndarray:
         """(N, T, F) utterances and (N, T, J) unit noise -> (N, T, J) poses.
 
         The same recurrence as :meth:`step`, with the audio half of the input projection
         computed for all frames at once. ``noise_scale(t, previous)``, if given, returns (N,)
         factors for frame t's noise from the (N, J) poses of frame t - 1 (t >= 1).
+        ``max_step`` bounds the steps of frames t >= ``free_frames``, as in :meth:`step`.
         """
         n, n_frames, n_features = x.shape
         hidden_units = self.cell.w_hh.shape[0]
@@ -252,17 +270,23 @@ class _LiveCore:
             unit = noise[:, t]
             if noise_scale is not None and t:
                 unit = unit * noise_scale(t, previous)[:, None]
-            previous = poses[:, t] = self._output(hidden, unit, temperature)
+            limit = max_step if t >= free_frames else None
+            previous = poses[:, t] = self._output(hidden, unit, temperature, previous, limit)
         return poses
 
 
 class LivePredictor(StreamingPredictor):
     """Streaming sampler of :class:`LiveSampler` with a settable seed and temperature."""
 
-    def __init__(self, core: _LiveCore, seed: int = 0, temperature: float = 1.0) -> None:
-        """Start a new utterance with noise from ``numpy.random.default_rng(seed)``."""
+    def __init__(self, core: _LiveCore, seed: int = 0, temperature: Factor = 1.0) -> None:
+        """Start a new utterance with noise from ``numpy.random.default_rng(seed)``.
+
+        ``temperature`` may be one per joint; ``max_step`` (None: unbounded) may be set to
+        bound each joint's step per frame (:meth:`_LiveCore.step`).
+        """
         self._core = core
         self.temperature = temperature
+        self.max_step: np.ndarray | None = None
         self.seed = seed
         self.reset()
 
@@ -284,6 +308,10 @@ class LivePredictor(StreamingPredictor):
             self._noise = self._stream.next(self._rng.standard_normal(self._draws))
         self._first = False
         pose, self._state = self._core.step(
-            np.asarray(features, dtype=np.float64), self._state, self._noise, self.temperature
+            np.asarray(features, dtype=np.float64),
+            self._state,
+            self._noise,
+            self.temperature,
+            self.max_step,
         )
         return pose

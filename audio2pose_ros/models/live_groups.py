@@ -17,7 +17,12 @@ v_t = sigmoid((e_t - peak_t + gate_margin) / gate_width), smoothed over 0.3 s; t
 is multiplied by
 silence_temperature + (1 - silence_temperature) v_t, and by each part's own temperature (a
 free-running sampler's motion is not as large as real motion at temperature 1: its one-step
-uncertainty does not add up to the real spread). Each part's noise also has its own
+uncertainty does not add up to the real spread; a part's temperature may be one per joint). With
+``velocity_limit`` > 0 and the robot bound, no sampled step moves a joint faster than that
+share of its velocity limit (the sample is clamped to the previous pose plus or minus the
+step, :func:`~audio2pose_ros.models.speech_gate.part_step_limits`), and the clamped pose is
+what the part reads back: the sampler never asks the robot for a jump the motion filter would
+drop. Each part's noise also has its own
 burstiness (``first_burst``, ``second_burst``: :mod:`audio2pose_ros.models.sampling_noise`) and
 its own noise correlation (``first_correlation``, ``second_correlation``; unset, a part takes
 ``noise_correlation``): a head nods faster than an arm swings. These
@@ -42,25 +47,30 @@ from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.base import PoseModel, StreamingPredictor
 from audio2pose_ros.models.body_noise import BodyNoise, body_noise_for, check_body_noise
 from audio2pose_ros.models.live import LiveConfig, LivePredictor, LiveSampler
-from audio2pose_ros.models.sampling_noise import Burst, check_burst
+from audio2pose_ros.models.sampling_noise import PerJoint, check_burst, check_per_joint
 from audio2pose_ros.models.speech_gate import (
     PART_BURST_KEYS,
     PART_CORRELATION_KEYS,
+    PART_TEMPERATURE_KEYS,
+    Factor,
     GroupedSampler,
     SpeechGate,
+    check_velocity_limit,
     part_correlations,
+    part_factor,
+    part_step_limits,
 )
 from audio2pose_ros.robot.description import RobotDescription
 
 SAMPLING_SETTINGS = (
-    "first_temperature",
-    "second_temperature",
+    *PART_TEMPERATURE_KEYS,
     *PART_BURST_KEYS,
     "noise_correlation",
     *PART_CORRELATION_KEYS,
     "silence_temperature",
     "body_margin_m",
     "body_band_m",
+    "velocity_limit",
 )
 
 
@@ -73,9 +83,15 @@ class LiveGroupsConfig:
             HeadPitch and HeadYaw in Pepper's order); the other joints form the second part.
         first_correlation: the first part's noise correlation; None = ``noise_correlation``.
         second_correlation: the second part's; None = ``noise_correlation``.
+        first_temperature, second_temperature: each part's temperature factor, one for all
+            its joints or one per joint (the hip sways less than the arms swing).
         body_margin_m, body_band_m: body-aware sampling of the part that moves the arms
             (:mod:`audio2pose_ros.models.body_noise`; needs the robot, bound by the checkpoint
             that holds the model); a band of 0 turns it off.
+        velocity_limit: when sampling, no joint's step from one frame to the next exceeds
+            this share of the robot's velocity limit for that joint
+            (:func:`~audio2pose_ros.models.speech_gate.part_step_limits`; needs the robot);
+            0 turns it off.
 
     """
 
@@ -86,10 +102,10 @@ class LiveGroupsConfig:
     noise_correlation: float = 0.975  # of a part without its own correlation
     noise_order: int = 2
     first_group: int = 3
-    first_temperature: float = 2.5  # head; `make default-model` chooses it on validation clips
-    second_temperature: float = 1.0  # arms and hip; likewise
-    first_burst: Burst = 0.0  # burstiness of the head part's noise (sampling_noise), or one
-    second_burst: Burst = 0.0  # per joint of the part; of the arm part's; likewise
+    first_temperature: PerJoint = 2.5  # head, or one per joint; `make default-model` chooses it
+    second_temperature: PerJoint = 1.0  # arms and hip, or one per joint; likewise
+    first_burst: PerJoint = 0.0  # burstiness of the head part's noise (sampling_noise), or one
+    second_burst: PerJoint = 0.0  # per joint of the part; of the arm part's; likewise
     silence_temperature: float = 0.05  # noise left in silence (1 = no speech gate); likewise
     gate_margin: float = 1.0  # z-units of the features' mean below the recent peak
     gate_width: float = 0.2
@@ -97,6 +113,7 @@ class LiveGroupsConfig:
     second_correlation: float | None = None  # arms and hip; likewise
     body_margin_m: float = 0.02  # body-aware sampling (body_noise): the arm noise is 0 here
     body_band_m: float = 0.0  # ... and whole this far beyond the margin (0 = off)
+    velocity_limit: float = 0.0  # sampled steps within this share of the joints' speed limit
 
 
 class LiveGroups(PoseModel):
@@ -123,7 +140,23 @@ class LiveGroups(PoseModel):
                 PART_BURST_KEYS, (config.first_burst, config.second_burst), self.groups, strict=True
             )
         )
-        config = replace(config, first_burst=first_burst, second_burst=second_burst)
+        first_temperature, second_temperature = (
+            check_per_joint(value, len(joints), key)
+            for key, value, joints in zip(
+                PART_TEMPERATURE_KEYS,
+                (config.first_temperature, config.second_temperature),
+                self.groups,
+                strict=True,
+            )
+        )
+        config = replace(
+            config,
+            first_burst=first_burst,
+            second_burst=second_burst,
+            first_temperature=first_temperature,
+            second_temperature=second_temperature,
+            velocity_limit=check_velocity_limit(config.velocity_limit),
+        )
         self.config = config
         self._robot: RobotDescription | None = None
         self._body_noise: BodyNoise | None = None
@@ -151,12 +184,14 @@ class LiveGroups(PoseModel):
     def config_dict(self) -> dict[str, Any]:
         """Constructor arguments as a dict; a part's correlation only if it has its own.
 
-        Checkpoints whose parts share ``noise_correlation``, and without body-aware sampling,
-        keep the keys they always had.
+        Checkpoints whose parts share ``noise_correlation``, without body-aware sampling and
+        without a velocity limit, keep the keys they always had.
         """
         config = {k: v for k, v in asdict(self.config).items() if v is not None}
         if not self.config.body_band_m:
             del config["body_margin_m"], config["body_band_m"]
+        if not self.config.velocity_limit:
+            del config["velocity_limit"]
         return config
 
     def bind_robot(self, robot: RobotDescription) -> None:
@@ -225,9 +260,16 @@ class LiveGroups(PoseModel):
             model.bind_robot(self._robot)
         return model.train(self.training)
 
-    def part_temperatures(self) -> tuple[float, float]:
-        """Each part's own temperature factor."""
-        return self.config.first_temperature, self.config.second_temperature
+    def part_temperatures(self) -> tuple[Factor, Factor]:
+        """Each part's own temperature factor: a number, or an array of one per joint."""
+        return (
+            part_factor(self.config.first_temperature),
+            part_factor(self.config.second_temperature),
+        )
+
+    def step_limits(self) -> tuple[np.ndarray, ...] | None:
+        """Per part, each joint's largest sampled step (normalised units); None: unbounded."""
+        return part_step_limits(self._robot, self.groups, self.config.velocity_limit)
 
     def sample(
         self,
@@ -245,7 +287,8 @@ class LiveGroups(PoseModel):
         ``streaming_predictor(seed)`` produces frame by frame, so ``audio2pose synth`` and the
         inference node move alike for the same seed. The first ``quiet_frames`` frames (a
         warm-up) sample the most likely pose and leave the speech gate untouched, as the
-        streaming predictor does at temperature 0.
+        streaming predictor does at temperature 0; the frames after them keep each joint's step
+        within :meth:`step_limits`.
         """
         seed = generator.initial_seed() if generator is not None else 0
         batch, n_frames, _ = features.shape
@@ -257,6 +300,7 @@ class LiveGroups(PoseModel):
         for row, factors in zip(x, scale, strict=True):
             factors[quiet_frames:, 0] = gate.run(row[quiet_frames:])
         body, body_part = self.body_noise() if temperature else (None, -1)
+        limits = self.step_limits() if temperature else None
         outputs: list[np.ndarray] = [np.empty(0), np.empty(0)]
         for k in sorted(range(2), key=lambda k: k == body_part):  # the body part last
             part, factor = self.samplers()[k], self.part_temperatures()[k]
@@ -272,7 +316,14 @@ class LiveGroups(PoseModel):
             noise_scale = None
             if body is not None and k == body_part:
                 noise_scale = self._body_factors(body, k, outputs[1 - k], quiet_frames)
-            outputs[k] = core.run(x, noise, temperature, noise_scale)
+            outputs[k] = core.run(
+                x,
+                noise,
+                temperature,
+                noise_scale,
+                None if limits is None else limits[k],
+                quiet_frames,
+            )
         return self._scatter(
             [torch.from_numpy(p).float().view(n_samples, batch, n_frames, -1) for p in outputs]
         )
@@ -315,6 +366,7 @@ class LiveGroupsPredictor(GroupedSampler, StreamingPredictor):
         self._body_noise, self._body_part = body_noise_for(  # its own: one per thread
             model._robot, model.groups, config.body_margin_m, config.body_band_m
         )
+        self._max_steps = model.step_limits()
         self.seed = seed
         self.temperature = temperature
         self.reset()

@@ -23,7 +23,7 @@ from audio2pose_ros.models.live import LiveConfig, LiveSampler
 from audio2pose_ros.models.live_groups import LiveGroups, LiveGroupsConfig
 from audio2pose_ros.models.lstm import CausalLSTM, LSTMConfig
 from audio2pose_ros.models.mlp import FramewiseMLP, MLPConfig
-from audio2pose_ros.models.sampling_noise import Burst
+from audio2pose_ros.models.sampling_noise import PerJoint
 
 MODEL_REGISTRY: dict[str, tuple[type[PoseModel], type]] = {
     model.name: (model, config)
@@ -64,8 +64,8 @@ def build_model(name: str, config: dict[str, Any]) -> PoseModel:
         raise ConfigurationError(
             f"model {name!r}: unknown config keys {unknown}; known {sorted(kinds)}"
         )
-    # a Burst may be one number per joint: the model checks it against its joints (check_burst)
-    per_joint = {f.name for f in dataclasses.fields(config_cls) if f.type in ("Burst", Burst)}
+    # a PerJoint may be one number per joint: the model checks it against its joints
+    per_joint = {f.name for f in dataclasses.fields(config_cls) if f.type in ("PerJoint", PerJoint)}
     for key, value in config.items():
         if not (key in per_joint and isinstance(value, list | tuple)):
             _check_config_value(name, key, value, kinds[key])

@@ -28,6 +28,7 @@ Offline (:meth:`NoiseShape.filter`, a whole utterance at once) and streaming
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -37,20 +38,21 @@ import numpy as np
 
 from audio2pose_ros.errors import ConfigurationError
 
-Burst = float | tuple[float, ...]  # one burstiness for every joint, or one per joint
+PerJoint = float | tuple[float, ...]  # one value for every joint of a part, or one per joint
+Burst = PerJoint  # a burstiness: one for every joint, or one per joint
 
 BURST_CORRELATION = 0.98  # AR(1) coefficient of the burst envelope's log: ~0.5 s at 100 Hz
 MAX_BURST = 2.0  # exp(2 b^2) inflates rare peaks; beyond this the envelope is mostly spikes
 
 
-def check_burst(value: object, n_joints: int, name: str = "burst") -> Burst:
-    """``value`` as a :data:`Burst`: a number, or one number per joint, each in [0, MAX_BURST].
+def check_per_joint(value: object, n_joints: int, name: str, high: float = math.inf) -> PerJoint:
+    """``value`` as a :data:`PerJoint`: a number, or one number per joint, each in [0, high].
 
     A list (as a checkpoint's JSON config holds it) becomes a tuple.
 
     Raises:
         ConfigurationError: not a number or a sequence of ``n_joints`` numbers, or a value
-            outside [0, :data:`MAX_BURST`] (NaN included).
+            outside [0, ``high``] (NaN and infinity included).
 
     """
     per_joint = isinstance(value, Sequence) and not isinstance(value, str)
@@ -64,11 +66,18 @@ def check_burst(value: object, n_joints: int, name: str = "burst") -> Burst:
         if (
             not isinstance(v, int | float)
             or isinstance(v, bool)
-            or not 0.0 <= v <= MAX_BURST  # False for NaN
+            or not 0.0 <= v <= high  # False for NaN
+            or not math.isfinite(v)
         ):
-            raise ConfigurationError(f"{name} must be in [0, {MAX_BURST}], got {value!r}")
+            bound = f"[0, {high}]" if math.isfinite(high) else "finite and >= 0"
+            raise ConfigurationError(f"{name} must be {bound}, got {value!r}")
         checked.append(float(v))
     return tuple(checked) if per_joint else checked[0]
+
+
+def check_burst(value: object, n_joints: int, name: str = "burst") -> Burst:
+    """``value`` as a :data:`Burst`: :func:`check_per_joint` with values in [0, MAX_BURST]."""
+    return check_per_joint(value, n_joints, name, MAX_BURST)
 
 
 def is_bursty(burst: Burst) -> bool:
@@ -76,9 +85,12 @@ def is_bursty(burst: Burst) -> bool:
     return any(burst) if isinstance(burst, tuple) else bool(burst)
 
 
-def format_burst(burst: Burst) -> str:
-    """``0.6``, or per joint ``0/1.2``."""
-    return "/".join(f"{b:g}" for b in burst) if isinstance(burst, tuple) else f"{burst:g}"
+def format_per_joint(value: PerJoint) -> str:
+    """``0.6``, or per joint ``0/1.2``; a run of n equal joints as ``4x8`` (``4x8/1``)."""
+    if not isinstance(value, tuple):
+        return f"{value:g}"
+    runs = [(v, len(list(same))) for v, same in itertools.groupby(value)]
+    return "/".join(f"{v:g}x{n}" if n > 1 else f"{v:g}" for v, n in runs)
 
 
 @dataclass(frozen=True)

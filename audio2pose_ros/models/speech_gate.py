@@ -12,18 +12,26 @@ recent peak, it does not depend on the recording level. Torch-free, so the numpy
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.timebase import FRAME_PERIOD_S
+
 if TYPE_CHECKING:
     from audio2pose_ros.models.body_noise import BodyNoise
+    from audio2pose_ros.robot.description import RobotDescription
 
 GATE_TAU_S = 0.3  # smoothing of the speech gate
 PEAK_DECAY_PER_S = 0.3  # z-units per second the energy peak forgets
 PART_CORRELATION_KEYS = ("first_correlation", "second_correlation")  # of the two parts, in order
 PART_BURST_KEYS = ("first_burst", "second_burst")  # likewise
+PART_TEMPERATURE_KEYS = ("first_temperature", "second_temperature")  # likewise
+
+Factor = float | np.ndarray  # a part's temperature factor: one, or (J,) one per joint of the part
 
 
 def part_correlations(config: Mapping[str, Any]) -> tuple[float, float]:
@@ -48,6 +56,48 @@ def part_bursts(config: Mapping[str, Any]) -> tuple[object, object]:
     """
     first, second = (config.get(key, 0.0) for key in PART_BURST_KEYS)
     return first, second
+
+
+def part_factor(value: float | Sequence[float]) -> Factor:
+    """A part's temperature as a sampler multiplies it: a number, or an array of one per joint."""
+    return np.array(value, dtype=np.float64) if isinstance(value, Sequence) else float(value)
+
+
+def check_velocity_limit(value: object) -> float:
+    """A velocity limit factor in [0, 1] (0 = off).
+
+    Raises:
+        ConfigurationError: not a number, or outside [0, 1] (NaN included).
+
+    """
+    if (
+        not isinstance(value, int | float)
+        or isinstance(value, bool)
+        or not (math.isfinite(value) and 0.0 <= value <= 1.0)
+    ):
+        raise ConfigurationError(f"velocity_limit must be in [0, 1], got {value!r}")
+    return float(value)
+
+
+def part_step_limits(
+    robot: RobotDescription | None,
+    groups: Sequence[np.ndarray],
+    velocity_limit: float,
+    frame_period_s: float = FRAME_PERIOD_S,
+) -> tuple[np.ndarray, ...] | None:
+    """Per part, the largest step per frame of each of its joints, in normalised pose units.
+
+    ``velocity_limit`` times the joint's velocity limit times the frame period, over the
+    joint's range (poses are normalised to [0, 1] by the range: seed 003 eq. 3.14): a sampled
+    pose then never moves a joint faster than the robot can, so the motion filter's input gate
+    (:mod:`audio2pose_ros.motion.gate`) never drops one, and the sampler is fed back the pose
+    the robot can follow. None (no limit) without a robot or with a factor of 0.
+    """
+    if robot is None or not velocity_limit:
+        return None
+    step = velocity_limit * robot.max_velocity_rad_s * frame_period_s
+    unit = step / (robot.upper_rad - robot.lower_rad)
+    return tuple(unit[joints] for joints in groups)
 
 
 class SpeechGate:
@@ -92,7 +142,8 @@ class SpeechGate:
 class SamplerPart(Protocol):
     """One part of a grouped sampler: a seeded per-frame sampler with a settable temperature."""
 
-    temperature: float
+    temperature: Factor
+    max_step: np.ndarray | None
 
     def reset(self, seed: int) -> None:
         """Forget the state and restart the noise from ``seed``."""
@@ -106,16 +157,18 @@ class GroupedSampler:
 
     Shared by the torch model's predictor and the numpy runtime's kernel of ``live_groups``.
     A subclass sets ``_groups`` (joint indices per part), ``_parts``, ``_factors`` (each part's
-    own temperature), ``_gate``, ``_n_joints``, ``seed`` and ``temperature``, and may set
-    ``_body_noise`` and ``_body_part``. Per frame part k samples at temperature * its factor *
+    own temperature, :func:`part_factor`), ``_gate``, ``_n_joints``, ``seed`` and
+    ``temperature``, and may set ``_body_noise``, ``_body_part`` and ``_max_steps``
+    (:func:`part_step_limits`). Per frame part k samples at temperature * its factor *
     the gate's factor (0 at temperature 0) with seed ``seed + k``, the part ``_body_part`` also
     times the body-aware factor of the previous pose (:mod:`audio2pose_ros.models.body_noise`),
-    and its pose is scattered into the robot's joint order.
+    each joint's step bounded by ``_max_steps`` when sampling (temperature > 0), and its pose
+    is scattered into the robot's joint order.
     """
 
     _groups: Sequence[np.ndarray]
     _parts: Sequence[SamplerPart]
-    _factors: Sequence[float]
+    _factors: Sequence[Factor]
     _gate: SpeechGate
     _n_joints: int
     seed: int
@@ -123,6 +176,7 @@ class GroupedSampler:
 
     _body_noise: BodyNoise | None = None  # with the index of the part it scales
     _body_part: int = -1
+    _max_steps: Sequence[np.ndarray] | None = None
     _previous: np.ndarray | None = None
 
     def reset(self, seed: int | None = None) -> None:
@@ -139,14 +193,16 @@ class GroupedSampler:
     def step(self, features: np.ndarray) -> np.ndarray:
         """Sample the pose of one (n_features,) frame: (n_joints,) in [0, 1]."""
         scale = self._gate.step(features) if self.temperature else 0.0
+        limits = self._max_steps if self.temperature else None
         pose = np.empty(self._n_joints)
         for k, (joints, part, factor) in enumerate(
             zip(self._groups, self._parts, self._factors, strict=True)
         ):
             part.temperature = self.temperature * factor * scale
             body = self._body_noise if k == self._body_part else None
-            if body is not None and part.temperature and self._previous is not None:
+            if body is not None and np.any(part.temperature) and self._previous is not None:
                 part.temperature *= float(body.factors(self._previous)[0])
+            part.max_step = None if limits is None else limits[k]
             pose[joints] = part.step(features)
         self._previous = pose
         return pose
