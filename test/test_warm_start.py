@@ -1,10 +1,12 @@
 """Streaming models start an utterance settled: no start jump, offline and online alike."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
-from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+from audio2pose_ros.checkpoints.torch_io import load_checkpoint, save_checkpoint
 from audio2pose_ros.models.warm_start import WARM_START_FRAMES, WarmStarted, with_warm_start
 from audio2pose_ros.offline.synthesis import normalized_features, predict_normalized
 from audio2pose_ros.resources import default_checkpoint_path
@@ -85,11 +87,27 @@ def test_when_the_packaged_model_starts_an_utterance_expect_no_start_jump(speech
     assert (step[:20].max(axis=0) <= later + 1e-3).all(), (step[:20].max(axis=0), later)
 
 
-def test_when_the_packaged_model_runs_online_expect_the_offline_synthesis_poses(speech):
-    checkpoint = load_checkpoint(default_checkpoint_path())
-    online = load_streaming_model(default_checkpoint_path()).predictor(seed=3)
+# Body-aware sampling reads the arms' clearance from coal, whose distance search stops within
+# 1e-6 m: the batch and the stream compute the same poses in another order (last-bit
+# differences), so a search may stop at another point within that tolerance. Through the 3 cm
+# band that is 3e-5 of the arm noise, which the sampler's feedback carries on; on this clip the
+# two then differ by up to 3e-4 of a joint's range (0.07 degrees on a 4.2 rad range).
+BODY_AWARE_TOLERANCE = 1e-3
+
+
+@pytest.mark.parametrize(
+    ("settings", "atol"), [({"body_band_m": 0.0}, 1e-5), ({}, BODY_AWARE_TOLERANCE)]
+)
+def test_when_the_packaged_model_runs_online_expect_the_offline_synthesis_poses(
+    speech, tmp_path, settings, atol
+):
+    shipped = load_checkpoint(default_checkpoint_path())
+    checkpoint = replace(shipped, model=shipped.model.with_sampling(**settings))
+    path = save_checkpoint(tmp_path / "model.safetensors", checkpoint)
+    online = load_streaming_model(path).predictor(seed=3)
     frames = normalized_features(checkpoint, speech)
     offline = predict_normalized(checkpoint, speech, seed=3)
     halves = np.concatenate([online.run(frames[:37]), *[online.step(f)[None] for f in frames[37:]]])
-    np.testing.assert_allclose(halves, offline, atol=1e-5)
+    np.testing.assert_allclose(halves, offline, atol=atol)
+    assert np.ptp(offline, axis=0).max() > 100 * atol  # the motion is not flat
     assert WARM_START_FRAMES >= 50  # the default sampler settles within about 20 frames
