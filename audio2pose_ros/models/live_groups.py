@@ -285,7 +285,9 @@ class LiveGroups(PoseModel):
         from ``numpy.random.default_rng(seed + 2 i + k)``, where ``seed`` is the generator's
         initial seed (0 without one): sample 0 of a single utterance equals what
         ``streaming_predictor(seed)`` produces frame by frame, so ``audio2pose synth`` and the
-        inference node move alike for the same seed. The first ``quiet_frames`` frames (a
+        inference node move alike for the same seed (to rounding; with body-aware sampling,
+        coal's 1e-6 m distance tolerance, carried on by the feedback, lets them drift apart by
+        up to about 1e-3 of a joint's range). The first ``quiet_frames`` frames (a
         warm-up) sample the most likely pose and leave the speech gate untouched, as the
         streaming predictor does at temperature 0; the frames after them keep each joint's step
         within :meth:`step_limits`.
