@@ -272,6 +272,19 @@ def test_when_folds_observe_different_groups_expect_each_part_scored_on_its_own_
     assert choice.validation == tuple(c.info.clip_id for c in heads_only + body_only)
 
 
+def test_when_no_clip_observes_the_arm_part_expect_the_head_chosen_and_the_arm_part_untouched(
+    checkpoint, clips, robot
+):
+    """Recordings of talking heads only: the part of the arms and hip has nothing to score."""
+    head = robot.group_mask("head")
+    heads_only = [replace(c, mask=c.mask & head) for c in clips if c.info.split == "validation"]
+    choice = choose_sampling([(checkpoint, heads_only)], robot, 2)
+    parts = {t.setting for t in choice.trials if t.setting != "silence_temperature"}
+    assert parts == {"first_temperature"}
+    assert "second_temperature" not in choice.settings
+    assert choice.settings["first_temperature"] in sampler_selection.TEMPERATURES
+
+
 def test_when_a_fold_is_tuned_expect_a_choice_made_on_its_training_speakers_and_applied(
     clips, checkpoint, robot
 ):

@@ -516,6 +516,18 @@ def _with_group(value: Setting, in_group: np.ndarray, temperature: float) -> Set
     return float(values[0]) if (values == values[0]).all() else tuple(map(float, values))
 
 
+def _part_evidence(evidence: Sequence[_Evidence], groups: Sequence[str]) -> list[_Evidence]:
+    """The items that observe one of ``groups``, and the body budget's speech if they hold the arms.
+
+    A trial of one part samples only these: the other items tell nothing about that part.
+    """
+    return [
+        item
+        for item in evidence
+        if set(item.known) & set(groups) or (not item.known and "arms" in groups)
+    ]
+
+
 def _per_joint_parts(model: LiveGroups, parts: Mapping[str, list[str]]) -> dict[str, int]:
     """Parts whose burstiness is also tried per joint: part setting -> its joint count.
 
@@ -602,18 +614,17 @@ def choose_sampling(
     for s, n_joints in _per_joint_parts(first, parts).items():
         _, _, correlation, _, on_grid = min(scored[s], key=_rank)
         at = TEMPERATURES.index(cast(float, on_grid))  # only the grid was tried so far
-        head_items = [item for item in evidence if set(item.known) & set(parts[s])]
+        head_items = _part_evidence(evidence, parts[s])
         for per_joint in itertools.product(BURSTS, repeat=n_joints):
             if len(set(per_joint)) > 1:  # equal values were tried above
                 for t in TEMPERATURES[max(at - 1, 0) : at + 2]:
                     trial({s: (correlation, per_joint, t)}, head_items)
-    for s, part_joints in zip(_PART_SETTINGS, first.groups, strict=True):
+    for s, part_groups in parts.items():
         # the largest group set the grid's choice (the score weighs groups by joint count);
         # each other group tries every temperature, the rest of the part at its best so far
-        smaller = sorted(parts.get(s, ()), key=lambda g: -int(robot.group_mask(g).sum()))[1:]
-        part_items = [
-            item for item in evidence if not item.known or set(item.known) & set(parts[s])
-        ]
+        part_joints = first.groups[_PART_SETTINGS.index(s)]
+        smaller = sorted(part_groups, key=lambda g: -int(robot.group_mask(g).sum()))[1:]
+        part_items = _part_evidence(evidence, part_groups) if smaller else []
         for g in smaller:
             _, _, correlation, burst, best = min(scored[s], key=_rank)
             for t in TEMPERATURES:
