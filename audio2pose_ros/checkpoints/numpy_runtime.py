@@ -462,7 +462,7 @@ def _is_number(value: object) -> bool:
 
 
 def _is_burst(value: object, n_joints: int) -> bool:
-    return _accepted(partial(check_burst, n_joints=n_joints), value)
+    return _accepted(partial(check_burst, value, n_joints))
 
 
 def _live_accepts(config: Mapping[str, Any]) -> bool:
@@ -492,23 +492,23 @@ def _live_groups_accepts(config: Mapping[str, Any]) -> bool:
         and all(_is_number(config[k]) for k in numbers)
         and all(_is_fraction(config.get(k, 0.0)) for k in _GROUP_CORRELATIONS)
         and _body_noise_ok(config)
-        and _accepted(check_velocity_limit, config.get("velocity_limit", 0.0))
+        and _accepted(partial(check_velocity_limit, config.get("velocity_limit", 0.0)))
     ):
         return False
     groups = _live_groups(config)
     return all(len(joints) for joints in groups) and all(
         _is_burst(burst, len(joints))
-        and _accepted(partial(check_per_joint, n_joints=len(joints), name=key), config[key])
+        and _accepted(partial(check_per_joint, config[key], len(joints), key))
         for burst, key, joints in zip(
             part_bursts(config), PART_TEMPERATURE_KEYS, groups, strict=True
         )
     )
 
 
-def _accepted(check: Callable[[object], object], value: object) -> bool:
-    """Whether ``check`` takes ``value`` without a :class:`ConfigurationError`."""
+def _accepted(check: Callable[[], object]) -> bool:
+    """Whether ``check()`` returns without a :class:`ConfigurationError`."""
     try:
-        check(value)
+        check()
     except ConfigurationError:
         return False
     return True
@@ -516,7 +516,7 @@ def _accepted(check: Callable[[object], object], value: object) -> bool:
 
 def _body_noise_ok(config: Mapping[str, Any]) -> bool:
     margin, band = config.get("body_margin_m", 0.0), config.get("body_band_m", 0.0)
-    return _accepted(lambda _: check_body_noise(margin, band), None)
+    return _accepted(partial(check_body_noise, margin, band))
 
 
 def _live_groups_shapes(config: Mapping[str, Any]) -> dict[str, tuple[int, ...]]:

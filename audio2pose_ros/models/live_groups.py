@@ -134,27 +134,17 @@ class LiveGroups(PoseModel):
             )
         check_body_noise(config.body_margin_m, config.body_band_m)
         self.groups = (np.flatnonzero(first), np.flatnonzero(~first))
-        first_burst, second_burst = (
-            check_burst(burst, len(joints), key)
-            for key, burst, joints in zip(
-                PART_BURST_KEYS, (config.first_burst, config.second_burst), self.groups, strict=True
+        per_part = {  # each part's burstiness and temperature: one, or one per joint of the part
+            key: check(getattr(config, key), len(joints), key)
+            for keys, check in (
+                (PART_BURST_KEYS, check_burst),
+                (PART_TEMPERATURE_KEYS, check_per_joint),
             )
-        )
-        first_temperature, second_temperature = (
-            check_per_joint(value, len(joints), key)
-            for key, value, joints in zip(
-                PART_TEMPERATURE_KEYS,
-                (config.first_temperature, config.second_temperature),
-                self.groups,
-                strict=True,
-            )
-        )
+            for key, joints in zip(keys, self.groups, strict=True)
+        }
         config = replace(
             config,
-            first_burst=first_burst,
-            second_burst=second_burst,
-            first_temperature=first_temperature,
-            second_temperature=second_temperature,
+            **cast(dict[str, Any], per_part),  # the names are the config's own fields
             velocity_limit=check_velocity_limit(config.velocity_limit),
         )
         self.config = config
@@ -175,7 +165,7 @@ class LiveGroups(PoseModel):
             )
             for joints, burst, correlation in zip(
                 self.groups,
-                (first_burst, second_burst),
+                (config.first_burst, config.second_burst),
                 self.part_correlations(),
                 strict=True,
             )
