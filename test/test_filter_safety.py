@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from audio2pose_ros.errors import ConfigurationError, InputError
-from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings, online_filter
 from audio2pose_ros.motion.limits import LimitSettings
 
 PERIOD = 0.01
@@ -203,7 +203,6 @@ def test_when_default_model_speaks_expect_gate_rejects_none_of_its_poses(speech)
     from audio2pose_ros.checkpoints.torch_io import load_checkpoint
     from audio2pose_ros.offline.synthesis import predict_normalized
     from audio2pose_ros.resources import default_checkpoint_path
-    from audio2pose_ros.viz.filter_plot import online_filter
 
     checkpoint = load_checkpoint(default_checkpoint_path())
     raw = checkpoint.robot.denormalize(predict_normalized(checkpoint, speech))

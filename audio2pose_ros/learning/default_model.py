@@ -351,6 +351,7 @@ def build_learned_default_model(
         speech_body_rows,
         speech_body_table,
     )
+    from audio2pose_ros.learning.command_path import command_path_predictions
     from audio2pose_ros.learning.evaluation import STATIC, quality_evaluation, real_motion_of
     from audio2pose_ros.learning.model_card import SourceReport, write_learned_model_card
     from audio2pose_ros.learning.parallel import run_tasks
@@ -438,6 +439,21 @@ def build_learned_default_model(
         paused={label: shipped.paused} | rule_paused,
     )
     reports.append(SourceReport(LECTURE, "arms and hip", test, arms, shipped.choice))
+    progress("scoring what the motion filter commands on the lecture's held-out stretch")
+    sample_seeds = range(DEFAULT_SEED, DEFAULT_SEED + settings.samples)
+    on_robot = quality_evaluation(
+        test,
+        {"shipped, offline synthesis": shipped.samples}
+        | command_path_predictions(checkpoint, test, "shipped", sample_seeds),
+        robot,
+    )
+    command = (
+        f"what the robot is commanded, {LECTURE} held out: the raw samples (seeds "
+        f"{sample_seeds.start}..{sample_seeds.stop - 1}) through the motion filter at its "
+        "shipped settings (and with the causal low-pass), the real motion through the same "
+        "filter (what the robot's limits alone cost), the offline synthesis for reference\n"
+        + on_robot.table()
+    )
     progress("measuring the arms against the body on the lecture's held-out stretch")
     margin = MotionFilterSettings.body_margin_m
     still = {c.info.clip_id: [np.tile(robot.neutral_rad, (c.n_frames, 1))] for c in test}
@@ -479,12 +495,13 @@ def build_learned_default_model(
         style_rows, [n for n, m in zip(robot.names, robot.group_mask("head"), strict=True) if m]
     )
     table = "\n\n".join(report.heading() + "\n" + report.quality.table() for report in reports)
-    table += "\n\n" + body + "\n\nthe head on other speakers' speech\n" + style
+    table += "\n\n" + command + "\n\n" + body
+    table += "\n\nthe head on other speakers' speech\n" + style
     selection = "\n\n".join(
         f"sampling settings of the {r.name} model\n" + r.choice.table() for r in results
     )
     (out_dir / "metrics.txt").write_text(table + "\n\n" + selection + "\n", encoding="utf-8")
     card = write_learned_model_card(
-        out_dir, checkpoint, shipped.report, heads, lecture, reports, results, body, style
+        out_dir, checkpoint, shipped.report, heads, lecture, reports, results, body, style, command
     )
     return DefaultModelResult(checkpoint_path, card, table)

@@ -519,11 +519,14 @@ def write_learned_model_card(
     results: Sequence[HoldoutResult],
     body: str,
     style: str,
+    command: str,
 ) -> Path:
     """Write ``out_dir/MODEL_CARD.md`` of the learned default model (``live_groups``).
 
     ``body`` is the table of :func:`~audio2pose_ros.learning.body_realism.body_table`,
-    ``style`` that of :func:`~audio2pose_ros.learning.speech_style.head_style_table`.
+    ``style`` that of :func:`~audio2pose_ros.learning.speech_style.head_style_table`,
+    ``command`` the evaluation of the commanded motion
+    (:mod:`~audio2pose_ros.learning.command_path`).
 
     Also writes its figures: ``summary.png`` (:func:`plot_summary`), ``head_percentiles.png``
     (:func:`plot_percentiles`); the histograms come from the evaluation.
@@ -668,6 +671,23 @@ percentiles lie within 25 % of each source's, as the goals above count them.
 
 ```
 {style}
+```
+
+## On the robot: what the motion filter commands
+
+Every table above scores the offline synthesis (`audio2pose synth`: the raw samples through
+the seed's zero-phase 4 Hz Butterworth). On the robot, `motion_filter_node` moves the joints:
+a causal smoother (the seed's Kalman filter by default), Pepper's velocity limits (half of
+them by default) and acceleration limits, and the self-collision guard. Here the raw samples
+of the lecture's held-out stretch go through that filter's own code, one 10 ms tick per frame
+(`audio2pose_ros/learning/command_path.py`), with the shipped smoother and with the causal
+low-pass; and the lecturer's real motion goes through the same filter. The real motion's
+distances to itself ("real, commanded") are what the robot's limits alone cost: the
+lecturer's retargeted arms accelerate faster than Pepper's limits allow in many frames, so no
+commanded motion can be expected closer to the real than that row.
+
+```
+{command}
 ```
 
 ## The arms and the body

@@ -706,3 +706,23 @@ class MotionFilter:
             positions, velocities = self.position_rad.copy(), np.zeros(self.robot.n_joints)
         self.position_rad, self.velocity_rad_s = positions, velocities
         return self.position_rad, self.velocity_rad_s
+
+
+def online_filter(filt: MotionFilter, raw_rad: np.ndarray, tail_s: float = 2.0) -> np.ndarray:
+    """What ``filt`` commands for a steady stream: one raw pose per tick, then ``tail_s`` more.
+
+    The node's own loop without ROS (``push`` then ``tick`` every period), for plots and for
+    scoring the motion the robot is commanded (:mod:`audio2pose_ros.learning.command_path`).
+
+    Returns:
+        (n_frames + tail frames, n_joints) commanded positions.
+    """
+    out, t = [], 0.0
+    for pose in raw_rad:
+        t += filt.period_s
+        filt.push(pose[None, :], t)
+        out.append(filt.tick(t)[0].copy())
+    for _ in range(round(tail_s / filt.period_s)):
+        t += filt.period_s
+        out.append(filt.tick(t)[0].copy())
+    return np.array(out)

@@ -17,27 +17,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
-from audio2pose_ros.motion.filter import MotionFilter
+from audio2pose_ros.motion.filter import MotionFilter, online_filter
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
 from audio2pose_ros.offline.synthesis import predict_normalized
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
-
-
-def online_filter(filt: MotionFilter, raw_rad: np.ndarray, tail_s: float = 2.0) -> np.ndarray:
-    """Feed one raw pose per tick, as the node does with a steady stream, then ``tail_s`` more.
-
-    Returns:
-        (n_frames + tail frames, n_joints) commanded positions.
-    """
-    out, t = [], 0.0
-    for pose in raw_rad:
-        t += filt.period_s
-        filt.push(pose[None, :], t)
-        out.append(filt.tick(t)[0].copy())
-    for _ in range(round(tail_s / filt.period_s)):
-        t += filt.period_s
-        out.append(filt.tick(t)[0].copy())
-    return np.array(out)
 
 
 def plot_raw_vs_filtered(

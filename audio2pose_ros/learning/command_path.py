@@ -1,0 +1,80 @@
+"""What the robot is commanded: samples through the motion filter, scored against real motion.
+
+The realism tables of the model card score the offline synthesis (``audio2pose synth``: the raw
+samples through the seed's zero-phase 4 Hz Butterworth, seed 003 section 4.4.1). On the robot,
+``motion_filter_node`` moves the joints instead: a causal smoother (the Kalman filter of seed
+003 section 4.4.2 by default), the velocity and acceleration limits and the self-collision guard.
+This module runs that core (:func:`~audio2pose_ros.motion.filter.online_filter`, the node's own
+code without ROS) over the model's raw samples, one 10 ms tick per frame, with each smoother of
+:data:`SMOOTHERS`; and over the real motion of the same clips, whose distances to itself are
+then what the robot's limits alone cost: no model's commanded motion can be expected closer to
+the real than that ceiling.
+
+Each trajectory starts the filter at rest in its first pose (as a robot that waits there), so
+its first fraction of a second includes the approach to a moving track.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from audio2pose_ros.checkpoints.torch_io import Checkpoint
+from audio2pose_ros.data.dataset import Clip
+from audio2pose_ros.learning.evaluation import Predictions
+from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings, online_filter
+from audio2pose_ros.offline.synthesis import normalized_features, sample_normalized, to_angles
+from audio2pose_ros.robot.description import RobotDescription
+
+SHIPPED_SMOOTHING = MotionFilterSettings.smoothing  # the node's default (config/pepper.yaml)
+SMOOTHERS = (SHIPPED_SMOOTHING, "lowpass")  # scored side by side
+REAL_LABEL = f"real, commanded ({SHIPPED_SMOOTHING})"
+
+
+def commanded(
+    robot: RobotDescription, motions: Sequence[np.ndarray], smoothing: str = SHIPPED_SMOOTHING
+) -> list[np.ndarray]:
+    """Each (T, J) trajectory in radians as the motion filter commands it: (T, J) each.
+
+    The filter has its default settings but ``smoothing`` and starts at rest in the first pose.
+    """
+    settings = MotionFilterSettings(smoothing=smoothing)
+    return [
+        online_filter(MotionFilter(robot, settings, start_pose_rad=m[0]), m, tail_s=0.0)
+        for m in motions
+    ]
+
+
+def raw_samples(
+    checkpoint: Checkpoint, clips: Sequence[Clip], seeds: range
+) -> dict[str, list[np.ndarray]]:
+    """Per clip id, the model's samples in radians, unsmoothed (what the inference node sends)."""
+    out: dict[str, list[np.ndarray]] = {}
+    for clip in clips:
+        frames = normalized_features(checkpoint, clip.audio)
+        out[clip.info.clip_id] = [
+            to_angles(checkpoint, sample_normalized(checkpoint, frames, 1, s)[0], smooth=False)
+            for s in seeds
+        ]
+    return out
+
+
+def command_path_predictions(
+    checkpoint: Checkpoint, clips: Sequence[Clip], label: str, seeds: range
+) -> Predictions:
+    """Method -> clip id -> commanded motion: the model's per smoother, and the real motion's.
+
+    ``label`` names the model; its rows are ``"{label}, commanded ({smoothing})"``, the real
+    motion's :data:`REAL_LABEL`.
+    """
+    robot = checkpoint.robot
+    raw = raw_samples(checkpoint, clips, seeds)
+    rows: Predictions = {
+        f"{label}, commanded ({smoothing})": {
+            clip_id: commanded(robot, motions, smoothing) for clip_id, motions in raw.items()
+        }
+        for smoothing in SMOOTHERS
+    }
+    rows[REAL_LABEL] = {c.info.clip_id: commanded(robot, [c.angles_rad]) for c in clips}
+    return rows

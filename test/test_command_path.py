@@ -1,0 +1,83 @@
+"""Scoring what the robot is commanded: samples and real motion through the motion filter."""
+
+import numpy as np
+import pytest
+
+from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+from audio2pose_ros.data.dataset import Clip, ClipInfo
+from audio2pose_ros.learning.command_path import (
+    REAL_LABEL,
+    SMOOTHERS,
+    command_path_predictions,
+    commanded,
+    raw_samples,
+)
+from audio2pose_ros.motion.limits import LimitSettings
+from audio2pose_ros.resources import default_checkpoint_path
+from audio2pose_ros.timebase import FRAME_PERIOD_S
+
+SHOULDER = 3  # LShoulderPitch
+
+
+def _swing(robot, hz: float, amplitude_rad: float, seconds: float = 4.0) -> np.ndarray:
+    """The neutral pose with the left shoulder swinging from rest: (T, J) radians."""
+    t = np.arange(round(seconds / FRAME_PERIOD_S)) * FRAME_PERIOD_S
+    motion = np.tile(robot.neutral_rad, (len(t), 1))
+    motion[:, SHOULDER] -= amplitude_rad * (1.0 - np.cos(2.0 * np.pi * hz * t))
+    return motion
+
+
+def test_when_real_motion_is_slower_than_the_limits_expect_the_command_close_to_it(robot):
+    slow = _swing(robot, 0.3, 0.2)  # peak 0.38 rad/s, 0.7 rad/s^2
+    (out,) = commanded(robot, [slow], "none")
+    assert out.shape == slow.shape
+    assert np.abs(out - slow).max() < 0.02  # the limiter's braking before a still target
+
+
+def test_when_real_motion_outruns_the_acceleration_limit_expect_the_command_to_lag_within_it(
+    robot,
+):
+    fast = _swing(robot, 3.0, 0.3)  # peak 106 rad/s^2, five times Pepper's limit
+    (out,) = commanded(robot, [fast], "none")
+    limit = robot.max_acceleration_rad_s2[SHOULDER] * LimitSettings.acceleration_fraction
+    acceleration = np.diff(out[:, SHOULDER], 2) / FRAME_PERIOD_S**2
+    assert np.abs(acceleration).max() <= limit + 1e-6
+    assert np.abs(out[:, SHOULDER] - fast[:, SHOULDER]).max() > 0.1  # the cost of the limits
+    # every smoother keeps to the same limits
+    for smoothing in SMOOTHERS:
+        (smoothed,) = commanded(robot, [fast], smoothing)
+        assert np.abs(np.diff(smoothed[:, SHOULDER], 2)).max() <= limit * FRAME_PERIOD_S**2 + 1e-9
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    return load_checkpoint(default_checkpoint_path())
+
+
+def test_when_the_command_path_is_scored_expect_each_smoother_and_the_real_ceiling(shipped, speech):
+    robot = shipped.robot
+    audio = speech[: 16000 * 2]
+    n_frames = len(raw_samples(shipped, [_clip(audio, robot)], range(1))["c"][0])
+    clip = _clip(audio, robot, n_frames)
+    rows = command_path_predictions(shipped, [clip], "m", range(2))
+    assert sorted(rows) == sorted([*(f"m, commanded ({s})" for s in SMOOTHERS), REAL_LABEL])
+    raw = raw_samples(shipped, [clip], range(2))["c"]
+    for method, per_clip in rows.items():
+        motions = per_clip["c"]
+        assert len(motions) == (1 if method == REAL_LABEL else 2)
+        for motion in motions:
+            assert motion.shape == (n_frames, robot.n_joints)
+            assert np.isfinite(motion).all()
+            assert (motion >= robot.lower_rad).all()
+            assert (motion <= robot.upper_rad).all()
+    # the commands follow each raw sample, not some other motion: closer to their own sample
+    first, second = rows[f"m, commanded ({SMOOTHERS[0]})"]["c"]
+    assert np.abs(first - raw[0]).mean() < np.abs(first - raw[1]).mean()
+    assert np.abs(second - raw[1]).mean() < np.abs(second - raw[0]).mean()
+
+
+def _clip(audio: np.ndarray, robot, n_frames: int = 1) -> Clip:
+    angles = np.tile(robot.neutral_rad, (n_frames, 1))
+    angles[:, SHOULDER] += 0.2 * np.sin(np.arange(n_frames) * 0.05)
+    info = ClipInfo("c", "s", "synthetic", "CC0", "test")
+    return Clip(info, audio, angles, np.ones_like(angles, dtype=bool))
