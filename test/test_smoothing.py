@@ -3,7 +3,12 @@
 import numpy as np
 import pytest
 
-from audio2pose_ros.motion.smoothing import CausalLowPass, KalmanSmoother, butterworth_zero_phase
+from audio2pose_ros.motion.smoothing import (
+    CausalLowPass,
+    KalmanSmoother,
+    butterworth_sos,
+    butterworth_zero_phase,
+)
 
 RATE = 100.0
 
@@ -64,3 +69,50 @@ def test_when_kalman_gets_nan_expect_prediction_only_and_finite():
 def test_when_kalman_noise_not_positive_expect_error():
     with pytest.raises(ValueError, match="must be positive"):
         KalmanSmoother(n_joints=1, q=0.0)
+
+
+@pytest.mark.parametrize(
+    ("order", "rate_hz", "cutoff_hz"),
+    [(1, 100, 4), (2, 50, 4), (5, 100, 4), (6, 1000, 0.5), (3, 100, 45)],
+)
+def test_when_the_butterworth_is_designed_in_numpy_expect_scipy_s_response(
+    order, rate_hz, cutoff_hz
+):
+    from scipy import signal
+
+    ours = butterworth_sos(rate_hz, cutoff_hz, order)
+    reference = signal.butter(order, cutoff_hz, fs=rate_hz, output="sos")
+    x = np.random.default_rng(order).standard_normal(600)
+    np.testing.assert_allclose(signal.sosfilt(ours, x), signal.sosfilt(reference, x), atol=1e-9)
+    streamed = CausalLowPass(1, rate_hz, cutoff_hz, order)
+    streamed.reset(np.zeros(1))
+    online = np.array([streamed.step(np.array([v]))[0] for v in x])
+    np.testing.assert_allclose(online, signal.sosfilt(reference, x), atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("rate_hz", "cutoff_hz", "order"), [(100, 0, 5), (100, 50, 5), (100, 4, 0)]
+)
+def test_when_the_butterworth_is_impossible_expect_value_error(rate_hz, cutoff_hz, order):
+    with pytest.raises(ValueError, match=r"cutoff_hz|order"):
+        butterworth_sos(rate_hz, cutoff_hz, order)
+
+
+@pytest.mark.parametrize("freq_hz", [0.5, 1.0, 1.5, 2.0, 3.0])
+def test_when_the_motion_filter_smooths_as_shipped_expect_no_frequency_raised(robot, freq_hz):
+    # The seed's Kalman filter (q 0.5, r 0.01) raises 1 to 2 Hz by about 1.3: gestures come out
+    # larger and faster than the model made them. The shipped smoother raises none.
+    from audio2pose_ros.motion.filter import MotionFilter, online_filter
+
+    t = np.arange(int(6 * RATE)) / RATE
+    raw = np.tile(robot.neutral_rad, (len(t), 1))
+    raw[:, 0] += 0.03 * (1.0 - np.cos(2 * np.pi * freq_hz * t))  # HeadPitch, within every limit
+    commanded = online_filter(MotionFilter(robot, start_pose_rad=raw[0]), raw, tail_s=0.0)
+    settled = slice(int(2 * RATE), None)
+    gain = commanded[settled, 0].std() / raw[settled, 0].std()
+    assert gain <= 1.01
+    kalman = KalmanSmoother(1)
+    kalman.reset(raw[:1, 0])
+    seed = np.array([kalman.step(raw[i : i + 1, 0])[0] for i in range(len(t))])
+    if 1.0 <= freq_hz <= 2.0:
+        assert seed[settled].std() / raw[settled, 0].std() > 1.2  # what it replaced

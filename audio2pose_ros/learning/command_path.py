@@ -2,13 +2,14 @@
 
 The realism tables of the model card score the offline synthesis (``audio2pose synth``: the raw
 samples through the seed's zero-phase 4 Hz Butterworth, seed 003 section 4.4.1). On the robot,
-``motion_filter_node`` moves the joints instead: a causal smoother (the Kalman filter of seed
-003 section 4.4.2 by default), the velocity and acceleration limits and the self-collision guard.
-This module runs that core (:func:`~audio2pose_ros.motion.filter.online_filter`, the node's own
-code without ROS) over the model's raw samples, one 10 ms tick per frame, with each smoother of
-:data:`SMOOTHERS`; and over the real motion of the same clips, whose distances to itself are
-then what the robot's limits alone cost: no model's commanded motion can be expected closer to
-the real than that ceiling.
+``motion_filter_node`` moves the joints instead: a causal smoother (by default the seed's
+Butterworth run forwards; or the Kalman filter of seed 003 section 4.4.2), the velocity and
+acceleration limits and the self-collision guard. This module runs that core
+(:func:`~audio2pose_ros.motion.filter.online_filter`, the node's own code without ROS) over
+the model's raw samples, one 10 ms tick per frame, with each smoother of :data:`SMOOTHERS`;
+and over the real motion of the same clips, whose distances to itself are then what the
+robot's limits alone cost: no model's commanded motion can be expected closer to the real
+than that ceiling.
 
 Each trajectory starts the filter at rest in its first pose (as a robot that waits there), so
 its first fraction of a second includes the approach to a moving track.
@@ -28,7 +29,7 @@ from audio2pose_ros.offline.synthesis import normalized_features, sample_normali
 from audio2pose_ros.robot.description import RobotDescription
 
 SHIPPED_SMOOTHING = MotionFilterSettings.smoothing  # the node's default (config/pepper.yaml)
-SMOOTHERS = (SHIPPED_SMOOTHING, "lowpass")  # scored side by side
+SMOOTHERS = tuple(dict.fromkeys((SHIPPED_SMOOTHING, "lowpass", "kalman")))  # scored side by side
 REAL_LABEL = f"real, commanded ({SHIPPED_SMOOTHING})"
 
 

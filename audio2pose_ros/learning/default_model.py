@@ -351,7 +351,7 @@ def build_learned_default_model(
         speech_body_rows,
         speech_body_table,
     )
-    from audio2pose_ros.learning.command_path import command_path_predictions
+    from audio2pose_ros.learning.command_path import SMOOTHERS, command_path_predictions
     from audio2pose_ros.learning.evaluation import STATIC, quality_evaluation, real_motion_of
     from audio2pose_ros.learning.model_card import SourceReport, write_learned_model_card
     from audio2pose_ros.learning.parallel import run_tasks
@@ -450,9 +450,9 @@ def build_learned_default_model(
     command = (
         f"what the robot is commanded, {LECTURE} held out: the raw samples (seeds "
         f"{sample_seeds.start}..{sample_seeds.stop - 1}) through the motion filter at its "
-        "shipped settings (and with the causal low-pass), the real motion through the same "
-        "filter (what the robot's limits alone cost), the offline synthesis for reference\n"
-        + on_robot.table()
+        f"shipped settings (smoothing {SMOOTHERS[0]}; and with {', '.join(SMOOTHERS[1:])}), the "
+        "real motion through the same filter (what the robot's limits alone cost), the offline "
+        "synthesis for reference\n" + on_robot.table()
     )
     progress("measuring the arms against the body on the lecture's held-out stretch")
     margin = MotionFilterSettings.body_margin_m
