@@ -23,7 +23,7 @@ import numpy as np
 
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Clip
-from audio2pose_ros.learning.evaluation import Predictions
+from audio2pose_ros.learning.evaluation import Predictions, quality_evaluation
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings, online_filter
 from audio2pose_ros.offline.synthesis import normalized_features, sample_normalized, to_angles
 from audio2pose_ros.robot.description import RobotDescription
@@ -79,3 +79,32 @@ def command_path_predictions(
     }
     rows[REAL_LABEL] = {c.info.clip_id: commanded(robot, [c.angles_rad]) for c in clips}
     return rows
+
+
+def command_path_table(
+    checkpoint: Checkpoint,
+    clips: Sequence[Clip],
+    offline: dict[str, list[np.ndarray]],
+    name: str,
+    seeds: range,
+    where: str,
+) -> str:
+    """The realism table of the commanded motion on ``clips``, with its heading.
+
+    Rows: the model's commanded motion per smoother (:func:`command_path_predictions`, the
+    model named ``name``), the real motion's (:data:`REAL_LABEL`) and, for reference, the
+    model's ``offline`` synthesis (clip id -> samples); the evaluation adds its baselines.
+    """
+    quality = quality_evaluation(
+        clips,
+        {f"{name}, offline synthesis": offline}
+        | command_path_predictions(checkpoint, clips, name, seeds),
+        checkpoint.robot,
+    )
+    return (
+        f"what the robot is commanded, {where}: the raw samples (seeds {seeds.start}.."
+        f"{seeds.stop - 1}) through the motion filter at its shipped settings (smoothing "
+        f"{SMOOTHERS[0]}; and with {', '.join(SMOOTHERS[1:])}), the real motion through the same "
+        "filter (what the robot's limits alone cost), the offline synthesis for reference\n"
+        + quality.table()
+    )

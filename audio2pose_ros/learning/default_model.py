@@ -351,7 +351,7 @@ def build_learned_default_model(
         speech_body_rows,
         speech_body_table,
     )
-    from audio2pose_ros.learning.command_path import SMOOTHERS, command_path_predictions
+    from audio2pose_ros.learning.command_path import command_path_table
     from audio2pose_ros.learning.evaluation import STATIC, quality_evaluation, real_motion_of
     from audio2pose_ros.learning.model_card import SourceReport, write_learned_model_card
     from audio2pose_ros.learning.parallel import run_tasks
@@ -406,8 +406,10 @@ def build_learned_default_model(
     save_checkpoint(checkpoint_path, checkpoint)
     folds, folds_paused = fold_predictions(results)
     reports = []
+    commands = []  # what the motion filter commands, per held-out source (command_path)
+    sample_seeds = range(DEFAULT_SEED, DEFAULT_SEED + settings.samples)
     for source in HEAD_SOURCES:
-        progress(f"evaluating the head on {source}, held out")
+        progress(f"evaluating the head on {source}, held out, offline and as commanded")
         held = [c for c in head_clips if recording_source(c.info) == source]
         others = [c for c in head_clips if recording_source(c.info) != source]
         baseline = {"real motion of another source": real_motion_of(held, others)}
@@ -424,7 +426,12 @@ def build_learned_default_model(
             },
         )
         reports.append(SourceReport(source, "head", held, quality, fold.choice))
-    progress("evaluating the arms and hip on the lecture's held-out stretch")
+        commands.append(
+            command_path_table(
+                fold.checkpoint, held, fold.samples, "held out", sample_seeds, f"{source} held out"
+            )
+        )
+    progress("evaluating the arms and hip on the lecture's held-out stretch, also as commanded")
     test = [c for c in lecture_clips if c.info.split == "test"]
     stretches = [c for c in lecture_clips if c.info.split == "train"]
     rule, rule_paused = prosody_predictions(test, robot)
@@ -439,21 +446,12 @@ def build_learned_default_model(
         paused={label: shipped.paused} | rule_paused,
     )
     reports.append(SourceReport(LECTURE, "arms and hip", test, arms, shipped.choice))
-    progress("scoring what the motion filter commands on the lecture's held-out stretch")
-    sample_seeds = range(DEFAULT_SEED, DEFAULT_SEED + settings.samples)
-    on_robot = quality_evaluation(
-        test,
-        {"shipped, offline synthesis": shipped.samples}
-        | command_path_predictions(checkpoint, test, "shipped", sample_seeds),
-        robot,
+    commands.append(
+        command_path_table(
+            checkpoint, test, shipped.samples, "shipped", sample_seeds, f"{LECTURE} held out"
+        )
     )
-    command = (
-        f"what the robot is commanded, {LECTURE} held out: the raw samples (seeds "
-        f"{sample_seeds.start}..{sample_seeds.stop - 1}) through the motion filter at its "
-        f"shipped settings (smoothing {SMOOTHERS[0]}; and with {', '.join(SMOOTHERS[1:])}), the "
-        "real motion through the same filter (what the robot's limits alone cost), the offline "
-        "synthesis for reference\n" + on_robot.table()
-    )
+    command = "\n\n".join(commands)
     progress("measuring the arms against the body on the lecture's held-out stretch")
     margin = MotionFilterSettings.body_margin_m
     still = {c.info.clip_id: [np.tile(robot.neutral_rad, (c.n_frames, 1))] for c in test}

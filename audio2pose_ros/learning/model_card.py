@@ -679,13 +679,15 @@ Every table above scores the offline synthesis (`audio2pose synth`: the raw samp
 the seed's zero-phase 4 Hz Butterworth). On the robot, `motion_filter_node` moves the joints:
 a causal smoother (by default the same Butterworth run forwards only, `smoothing: lowpass`),
 Pepper's velocity limits (half of them by default) and acceleration limits, and the
-self-collision guard. Here the raw samples of the lecture's held-out stretch go through that
-filter's own code, one 10 ms tick per frame (`audio2pose_ros/learning/command_path.py`), with
-the shipped smoother and with the seed's Kalman filter (`smoothing: kalman`, section 4.4.2);
-and the lecturer's real motion goes through the filter as shipped. The real motion's
-distances to itself ("real, commanded") are what the robot's limits alone cost: the
-lecturer's retargeted arms accelerate faster than Pepper's limits allow in many frames, so no
-commanded motion can be expected closer to the real than that row.
+self-collision guard. Here the raw samples of each held-out source (the head: the model that
+never saw that source; the arms and hip: the shipped model on the lecture's held-out stretch)
+go through that filter's own code, one 10 ms tick per frame
+(`audio2pose_ros/learning/command_path.py`), with the shipped smoother and with the seed's
+Kalman filter (`smoothing: kalman`, section 4.4.2); and the real motion goes through the
+filter as shipped. The real motion's distances to itself ("real, commanded") are what the
+robot's limits alone cost: the lecturer's retargeted arms accelerate faster than Pepper's
+limits allow in many frames, so no commanded motion can be expected closer to the real than
+that row.
 
 ```
 {command}
