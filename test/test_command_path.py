@@ -9,6 +9,7 @@ from audio2pose_ros.learning.command_path import (
     REAL_LABEL,
     SMOOTHERS,
     command_path_predictions,
+    command_path_table,
     commanded,
     raw_samples,
 )
@@ -81,3 +82,16 @@ def _clip(audio: np.ndarray, robot, n_frames: int = 1) -> Clip:
     angles[:, SHOULDER] += 0.2 * np.sin(np.arange(n_frames) * 0.05)
     info = ClipInfo("c", "s", "synthetic", "CC0", "test")
     return Clip(info, audio, angles, np.ones_like(angles, dtype=bool))
+
+
+def test_when_the_command_path_table_is_written_expect_every_row_and_its_heading(shipped, speech):
+    robot = shipped.robot
+    audio = speech[: 16000 * 2]
+    n_frames = len(raw_samples(shipped, [_clip(audio, robot)], range(1))["c"][0])
+    clip = _clip(audio, robot, n_frames)
+    offline = {"c": [np.tile(robot.neutral_rad, (n_frames, 1))]}
+    table = command_path_table(shipped, [clip], offline, "m", range(3, 5), "somewhere")
+    assert table.startswith("what the robot is commanded, somewhere: the raw samples (seeds 3..4)")
+    for method in ("m, offline synthesis", *(f"m, commanded ({s})" for s in SMOOTHERS)):
+        assert any(line.startswith(f"arms  {method}") for line in table.splitlines()), method
+    assert any(line.startswith(f"head  {REAL_LABEL}") for line in table.splitlines())
