@@ -648,6 +648,10 @@ Print it again: `make default-model` (it writes `metrics.txt`, the tables below)
 
 ### Goals per held-out source
 
+Scored on the offline synthesis (`audio2pose synth`). What the motion filter commands from the
+same samples, against what Pepper's limits allow the real motion, is in the section "On the
+robot" below: there the arms' accelerations are limited by the robot, not by the model.
+
 | source | group | measure | goal | measured [95 % CI] | |
 |---|---|---|---|---|---|
 {_checks_table(reports)}
