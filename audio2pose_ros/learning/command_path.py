@@ -25,7 +25,7 @@ from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Clip
 from audio2pose_ros.learning.evaluation import Predictions, quality_evaluation
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings, online_filter
-from audio2pose_ros.offline.synthesis import normalized_features, sample_normalized, to_angles
+from audio2pose_ros.offline.synthesis import synthesize_samples
 from audio2pose_ros.robot.description import RobotDescription
 
 SHIPPED_SMOOTHING = MotionFilterSettings.smoothing  # the node's default (config/pepper.yaml)
@@ -51,14 +51,7 @@ def raw_samples(
     checkpoint: Checkpoint, clips: Sequence[Clip], seeds: range
 ) -> dict[str, list[np.ndarray]]:
     """Per clip id, the model's samples in radians, unsmoothed (what the inference node sends)."""
-    out: dict[str, list[np.ndarray]] = {}
-    for clip in clips:
-        frames = normalized_features(checkpoint, clip.audio)
-        out[clip.info.clip_id] = [
-            to_angles(checkpoint, sample_normalized(checkpoint, frames, 1, s)[0], smooth=False)
-            for s in seeds
-        ]
-    return out
+    return {c.info.clip_id: synthesize_samples(checkpoint, c.audio, seeds, False) for c in clips}
 
 
 def command_path_predictions(

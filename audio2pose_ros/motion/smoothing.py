@@ -100,7 +100,6 @@ class CausalLowPass:
     ) -> None:
         """Design the filter; call :meth:`reset` with the starting pose before use."""
         self._sos = butterworth_sos(rate_hz, cutoff_hz, order)
-        self._state = np.zeros((len(self._sos), 2, n_joints))
         self.reset(np.zeros(n_joints))
 
     def reset(self, pose: np.ndarray) -> None:

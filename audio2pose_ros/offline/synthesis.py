@@ -92,15 +92,18 @@ def to_angles(checkpoint: Checkpoint, poses: np.ndarray, smooth: bool = True) ->
 
 
 def synthesize_samples(
-    checkpoint: Checkpoint, signal_16k: np.ndarray, seeds: Sequence[int]
+    checkpoint: Checkpoint, signal_16k: np.ndarray, seeds: Sequence[int], smooth: bool = True
 ) -> list[np.ndarray]:
     """One utterance's angles for each seed, its features extracted once.
 
-    Element i equals ``synthesize(checkpoint, signal_16k, seed=seeds[i])[1]`` (smoothed,
-    temperature 1).
+    Element i equals ``synthesize(checkpoint, signal_16k, smooth, seeds[i],
+    body_margin_m=None)[1]`` (temperature 1, before the body guard); unsmoothed, they are the
+    poses the inference node sends.
     """
     frames = normalized_features(checkpoint, signal_16k)
-    return [to_angles(checkpoint, sample_normalized(checkpoint, frames, 1, s)[0]) for s in seeds]
+    return [
+        to_angles(checkpoint, sample_normalized(checkpoint, frames, 1, s)[0], smooth) for s in seeds
+    ]
 
 
 def synthesize(
