@@ -87,6 +87,39 @@ def test_when_many_poses_expect_clearance_equal_to_the_smallest_pair_distance(bo
     assert body.clearance(poses[0]).shape == ()
 
 
+def test_when_other_poses_were_queried_since_expect_pair_distances_of_the_asked_pose(body):
+    """A pose asked again is answered from the cache of its smallest distance only."""
+    first, second = random_poses(body.robot, 2, seed=4)
+    body.clearance(first)
+    fresh = body.pair_distances(first)
+    body.clearance(second)
+    np.testing.assert_allclose(body.pair_distances(first), fresh, atol=1e-5)  # coal: 1e-6 m
+    assert body.pair_distances(first).min() == pytest.approx(float(body.clearance(first)), abs=1e-5)
+
+
+def test_when_one_pair_is_closest_expect_gradient_of_the_whole_clearance(body):
+    """The gradient queries the closest pair only: it must be the clearance's own."""
+    step = 1e-3
+    compared = 0
+    for pose in random_poses(body.robot, 40, seed=5):
+        distances = np.sort(body.pair_distances(pose))
+        if distances[1] - distances[0] < 0.01:  # another pair as close: the minimum may switch
+            continue
+        joints = np.ones(body.robot.n_joints, dtype=bool)
+        expected = np.zeros(body.robot.n_joints)
+        for i in range(body.robot.n_joints):
+            up, down = pose.copy(), pose.copy()
+            up[i] += step
+            down[i] -= step
+            expected[i] = (body.pair_distances(up).min() - body.pair_distances(down).min()) / (
+                2 * step
+            )
+        # coal answers within 1e-6 m, so a 1e-3 rad difference is good to about 1e-3 m/rad
+        np.testing.assert_allclose(body.gradient(pose, joints), expected, atol=2e-3)
+        compared += 1
+    assert compared >= 20
+
+
 def test_when_poses_inside_expect_push_out_clears_them_moving_only_the_offending_arm(body):
     poses = random_poses(body.robot, 60, seed=3)
     inside = poses[body.clearance(poses) < MARGIN_M]

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -244,9 +245,11 @@ def command_build_default(args: argparse.Namespace) -> int:
     out = Path(args.output)
     clips = input_dir(args.clips, "clips folder")
     work = Path(args.work_dir) if args.work_dir else out / "work"
+    began = time.monotonic()
 
     def progress(message: str) -> None:
-        print(message, file=sys.stderr, flush=True)
+        minutes, seconds = divmod(int(time.monotonic() - began), 60)
+        print(f"[{minutes:2d}:{seconds:02d}] {message}", file=sys.stderr, flush=True)
 
     if args.arms == "learned":
         lecture = (
@@ -282,6 +285,7 @@ def command_build_default(args: argparse.Namespace) -> int:
             seed=args.seed,
             progress=progress,
         )
+    progress(f"built {result.checkpoint}")
     print(result.table)
     print(f"wrote {result.checkpoint} and {result.model_card}")
     return 0

@@ -398,6 +398,8 @@ def build_learned_default_model(
         )
     results = run_tasks(tasks, settings.workers)
     shipped = results[0]
+    for result in results:
+        progress("  " + result.timing())
     progress("  chosen (shipped): " + shipped.choice.summary())
     checkpoint = replace(
         shipped.checkpoint, info={**shipped.checkpoint.info, **describe_learned_data()}

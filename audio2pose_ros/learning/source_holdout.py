@@ -32,8 +32,9 @@ picklable call, so the folds run side by side (:func:`~audio2pose_ros.learning.p
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -114,6 +115,8 @@ class HoldoutResult:
         choice: the sampling choice (on the task's validation clips).
         samples: clip id -> the model's samples of each scored clip.
         paused: clip id -> its samples on the clip's audio with a pause inserted.
+        seconds: wall-clock seconds of each step (``train``, ``choose``, ``sample``), for the
+            rebuild's progress lines.
 
     """
 
@@ -123,6 +126,12 @@ class HoldoutResult:
     choice: SamplingChoice
     samples: dict[str, list[np.ndarray]]
     paused: dict[str, list[np.ndarray]]
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    def timing(self) -> str:
+        """One line: how long each step of the task took."""
+        steps = ", ".join(f"{step} {s:.0f} s" for step, s in self.seconds.items())
+        return f"{self.name}: {steps} ({self.report.best_epoch + 1} epochs to the best)"
 
 
 @dataclass(frozen=True)
@@ -160,6 +169,7 @@ class HoldoutTask:
 
     def __call__(self) -> HoldoutResult:
         """Run the task."""
+        start = time.perf_counter()
         checkpoint, report = train_on_clips(
             MODEL_NAME,
             self.training,
@@ -169,6 +179,8 @@ class HoldoutTask:
             self.validation,
             self.start,
         )
+        seconds = {"train": time.perf_counter() - start}
+        start = time.perf_counter()
         arms = self.robot.group_mask("arms")
         unlabelled = [c.audio for c in self.training if not c.mask[:, arms].any()]
         choice = choose_sampling(
@@ -178,10 +190,13 @@ class HoldoutTask:
             reference=selection_clips(self.training + self.validation, self.robot),
         )
         checkpoint = apply_sampling(checkpoint, choice)
+        seconds["choose"] = time.perf_counter() - start
+        start = time.perf_counter()
         label = f"{MODEL_NAME} ({self.name})"
         samples, paused = checkpoint_predictions(
             [(Path(label), checkpoint)], self.scored, self.n_samples, self.seed
         )
+        seconds["sample"] = time.perf_counter() - start
         return HoldoutResult(
             self.name,
             checkpoint,
@@ -189,6 +204,7 @@ class HoldoutTask:
             choice,
             next(iter(samples.values())),
             next(iter(paused.values())),
+            seconds,
         )
 
 

@@ -110,8 +110,9 @@ class MotionFilterSettings:
             lie outside its joint's range (it is clamped) and how much further than the
             velocity limit allows it may be from the recent track (rad). The default 0.3 rad
             passes the default model's largest frame-to-frame jump on the bundled speech (0.25
-            rad beyond the velocity limit); a single accepted spike of that size moves the
-            command about 0.04 rad (Kalman smoothing and limits).
+            rad beyond the velocity limit); a single accepted one-frame spike of 0.25 rad moves
+            the command 0.023 rad through the low-pass and the limits (0.027 rad with the
+            Kalman filter).
         max_head_offset_rad: largest head offset accepted per joint (rad); larger ones are
             rejected.
         max_points_per_message: poses of one message beyond this many are dropped and counted.

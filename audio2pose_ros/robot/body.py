@@ -275,9 +275,15 @@ class BodyModel:
         return out
 
     def pair_distances(self, pose_rad: np.ndarray) -> np.ndarray:
-        """Signed distance (m) of every pair of :attr:`link_pairs` in one pose."""
-        self._query(self._pose_array(pose_rad).reshape(-1))
-        return np.array([r.min_distance for r in self._pairs.data.distanceResults])
+        """Signed distance (m) of every pair of :attr:`link_pairs` in one pose.
+
+        Always computed afresh: the cache of :meth:`_query` keeps the smallest distance only.
+        """
+        pin, group = self._pin, self._pairs
+        self._placements(self._pose_array(pose_rad).reshape(-1))
+        pin.updateGeometryPlacements(self._model, self._data, group.geometry, group.data)
+        pin.computeDistances(group.geometry, group.data)
+        return np.array([r.min_distance for r in group.data.distanceResults])
 
     def clearance(self, poses_rad: np.ndarray) -> np.ndarray:
         """Smallest signed distance (m) of the checked pairs: shape () for one pose, (N,) for N."""
@@ -314,16 +320,30 @@ class BodyModel:
         self._recent.clear()
         self._pairs.reset_guesses()
 
+    def _pair_distance(self, pose_rad: np.ndarray, k: int) -> float:
+        """Signed distance (m) of pair ``k`` of :attr:`link_pairs` alone in one pose."""
+        pin, group = self._pin, self._pairs
+        self._placements(pose_rad)
+        pin.updateGeometryPlacements(self._model, self._data, group.geometry, group.data)
+        return float(pin.computeDistance(group.geometry, group.data, k).min_distance)
+
     def gradient(self, pose_rad: np.ndarray, joints: np.ndarray) -> np.ndarray:
-        """Central-difference gradient (m/rad) of the clearance in the ``joints`` (mask) only."""
+        """Central-difference gradient (m/rad) of the clearance in the ``joints`` (mask) only.
+
+        The clearance is the smallest distance of the checked pairs, so its gradient is its
+        closest pair's: only that pair is queried at the displaced poses (on the bundled URDF,
+        one pair of the 145 costs about a fiftieth of them all). Where another pair is as
+        close, the gradient is the one of the pair :meth:`closest_pair` names.
+        """
         gradient = np.zeros(self.robot.n_joints)
         pose = np.array(pose_rad, dtype=np.float64)
+        k = self._query(pose)[1]
         for i in np.flatnonzero(joints):
             saved = pose[i]
             pose[i] = saved + GRADIENT_STEP_RAD
-            up = self._query(pose)[0]
+            up = self._pair_distance(pose, k)
             pose[i] = saved - GRADIENT_STEP_RAD
-            down = self._query(pose)[0]
+            down = self._pair_distance(pose, k)
             pose[i] = saved
             gradient[i] = (up - down) / (2.0 * GRADIENT_STEP_RAD)
         return gradient

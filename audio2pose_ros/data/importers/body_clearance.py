@@ -14,12 +14,13 @@ up the clearance gradient, within the joint limits). The clearance is the guard'
 3 cm more, so that the sampling noise around a learned pose does not bring it back in. Frames
 without an observed arm keep the neutral pose they were given (:func:`~.common.finish_angles`).
 
-A push takes about 30 ms per frame, and the targets are 4 Hz low-passed (seed 003 section
-4.2.3), so within a run of frames that need it only every :data:`KEYFRAME_STEP`-th frame and
-the run's last are pushed and the correction is interpolated linearly in between. Neighbouring
-pushes can find different ways out, so the correction is then low-passed like the targets, and
-the frames that leaves short of the clearance are pushed again (by little), up to
-:data:`SMOOTHING_PASSES` times; the last pass is not smoothed.
+A push takes a few milliseconds per frame (3 ms for random poses inside the body), and the
+targets are 4 Hz low-passed (seed 003 section 4.2.3), so within a run of frames that need it
+only every :data:`KEYFRAME_STEP`-th frame and the run's last are pushed and the correction is
+interpolated linearly in between. Neighbouring pushes can find different ways out, so the
+correction is then low-passed like the targets, and the frames that leaves short of the
+clearance are pushed again (by little), up to :data:`SMOOTHING_PASSES` times; the last pass is
+not smoothed.
 """
 
 from __future__ import annotations
