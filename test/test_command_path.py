@@ -12,12 +12,16 @@ from audio2pose_ros.learning.command_path import (
     command_path_table,
     commanded,
     raw_samples,
+    smoother_name,
 )
+from audio2pose_ros.motion.filter import MotionFilterSettings, delay_s
 from audio2pose_ros.motion.limits import LimitSettings
+from audio2pose_ros.motion.smoothing import butterworth_zero_phase
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.timebase import FRAME_PERIOD_S
 
 SHOULDER = 3  # LShoulderPitch
+UNSMOOTHED = MotionFilterSettings(smoothing="none")
 
 
 def _swing(robot, hz: float, amplitude_rad: float, seconds: float = 4.0) -> np.ndarray:
@@ -30,7 +34,7 @@ def _swing(robot, hz: float, amplitude_rad: float, seconds: float = 4.0) -> np.n
 
 def test_when_real_motion_is_slower_than_the_limits_expect_the_command_close_to_it(robot):
     slow = _swing(robot, 0.3, 0.2)  # peak 0.38 rad/s, 0.7 rad/s^2
-    (out,) = commanded(robot, [slow], "none")
+    (out,) = commanded(robot, [slow], UNSMOOTHED)
     assert out.shape == slow.shape
     assert np.abs(out - slow).max() < 0.02  # the limiter's braking before a still target
 
@@ -39,14 +43,14 @@ def test_when_real_motion_outruns_the_acceleration_limit_expect_the_command_to_l
     robot,
 ):
     fast = _swing(robot, 3.0, 0.3)  # peak 106 rad/s^2, five times Pepper's limit
-    (out,) = commanded(robot, [fast], "none")
+    (out,) = commanded(robot, [fast], UNSMOOTHED)
     limit = robot.max_acceleration_rad_s2[SHOULDER] * LimitSettings.acceleration_fraction
     acceleration = np.diff(out[:, SHOULDER], 2) / FRAME_PERIOD_S**2
     assert np.abs(acceleration).max() <= limit + 1e-6
     assert np.abs(out[:, SHOULDER] - fast[:, SHOULDER]).max() > 0.1  # the cost of the limits
     # every smoother keeps to the same limits
-    for smoothing in SMOOTHERS:
-        (smoothed,) = commanded(robot, [fast], smoothing)
+    for settings in SMOOTHERS:
+        (smoothed,) = commanded(robot, [fast], settings)
         assert np.abs(np.diff(smoothed[:, SHOULDER], 2)).max() <= limit * FRAME_PERIOD_S**2 + 1e-9
 
 
@@ -61,7 +65,9 @@ def test_when_the_command_path_is_scored_expect_each_smoother_and_the_real_ceili
     n_frames = len(raw_samples(shipped, [_clip(audio, robot)], range(1))["c"][0])
     clip = _clip(audio, robot, n_frames)
     rows = command_path_predictions(shipped, [clip], "m", range(2))
-    assert sorted(rows) == sorted([*(f"m, commanded ({s})" for s in SMOOTHERS), REAL_LABEL])
+    assert sorted(rows) == sorted(
+        [*(f"m, commanded ({smoother_name(s)})" for s in SMOOTHERS), REAL_LABEL]
+    )
     raw = raw_samples(shipped, [clip], range(2))["c"]
     for method, per_clip in rows.items():
         motions = per_clip["c"]
@@ -72,7 +78,7 @@ def test_when_the_command_path_is_scored_expect_each_smoother_and_the_real_ceili
             assert (motion >= robot.lower_rad).all()
             assert (motion <= robot.upper_rad).all()
     # the commands follow each raw sample, not some other motion: closer to their own sample
-    first, second = rows[f"m, commanded ({SMOOTHERS[0]})"]["c"]
+    first, second = rows[f"m, commanded ({smoother_name(SMOOTHERS[0])})"]["c"]
     assert np.abs(first - raw[0]).mean() < np.abs(first - raw[1]).mean()
     assert np.abs(second - raw[1]).mean() < np.abs(second - raw[0]).mean()
 
@@ -89,9 +95,37 @@ def test_when_the_command_path_table_is_written_expect_every_row_and_its_heading
     audio = speech[: 16000 * 2]
     n_frames = len(raw_samples(shipped, [_clip(audio, robot)], range(1))["c"][0])
     clip = _clip(audio, robot, n_frames)
-    offline = {"c": [np.tile(robot.neutral_rad, (n_frames, 1))]}
+    offline = {"c": raw_samples(shipped, [clip], range(3, 5))["c"]}
     table = command_path_table(shipped, [clip], offline, "m", range(3, 5), "somewhere")
     assert table.startswith("what the robot is commanded, somewhere: the raw samples (seeds 3..4)")
-    for method in ("m, offline synthesis", *(f"m, commanded ({s})" for s in SMOOTHERS)):
+    heading = table.splitlines()[0]
+    delays = {
+        smoother_name(s): float(heading.split(f"{smoother_name(s)} ")[-1].split(" s")[0])
+        for s in SMOOTHERS
+    }
+    assert all(0.0 <= d < 0.5 for d in delays.values()), delays
+    names = [f"m, commanded ({smoother_name(s)})" for s in SMOOTHERS]
+    for method in ("m, offline synthesis", *names):
         assert any(line.startswith(f"arms  {method}") for line in table.splitlines()), method
     assert any(line.startswith(f"head  {REAL_LABEL}") for line in table.splitlines())
+
+
+def test_when_a_trajectory_is_a_late_copy_expect_its_delay():
+    moving = butterworth_zero_phase(np.random.default_rng(0).normal(size=(1000, 1)))
+    reference = np.concatenate([moving, np.zeros_like(moving)], axis=1)  # one joint still
+    late = np.concatenate([np.repeat(reference[:1], 12, axis=0), reference[:-12]])
+    assert delay_s([reference], [late]) == pytest.approx(0.12)
+    assert np.isnan(delay_s([reference[:, 1:]], [late[:, 1:]]))  # nothing moves
+
+
+def test_when_the_shipped_smoother_commands_the_model_expect_less_delay_than_the_seed_s(
+    shipped, speech
+):
+    """The shipped low-pass (3 Hz, order 2) was chosen for less delay than the seed's 4 Hz, 5."""
+    robot = shipped.robot
+    clip = _clip(speech[: 16000 * 4], robot)
+    raw = raw_samples(shipped, [clip], range(2))["c"]
+    offline = [butterworth_zero_phase(m) for m in raw]
+    shipped_delay = delay_s(offline, commanded(robot, raw, SMOOTHERS[0]))
+    seed = next(s for s in SMOOTHERS if s.lowpass_order == 5 and s.smoothing == "lowpass")
+    assert shipped_delay < delay_s(offline, commanded(robot, raw, seed)) - 0.03

@@ -116,3 +116,29 @@ def test_when_the_motion_filter_smooths_as_shipped_expect_no_frequency_raised(ro
     seed = np.array([kalman.step(raw[i : i + 1, 0])[0] for i in range(len(t))])
     if 1.0 <= freq_hz <= 2.0:
         assert seed[settled].std() / raw[settled, 0].std() > 1.2  # what it replaced
+
+
+@pytest.mark.parametrize("order", [0, 9, 2.5, True])
+def test_when_the_low_pass_order_is_impossible_expect_a_configuration_error(order):
+    from audio2pose_ros.errors import ConfigurationError
+    from audio2pose_ros.motion.filter import MotionFilterSettings
+
+    with pytest.raises(ConfigurationError, match="lowpass_order"):
+        MotionFilterSettings(lowpass_order=order)
+
+
+@pytest.mark.parametrize(("cutoff_hz", "order"), [(4.0, 5), (3.0, 2), (2.0, 1)])
+def test_when_the_low_pass_is_configured_expect_the_filter_to_smooth_with_it(
+    robot, cutoff_hz, order
+):
+    from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings, online_filter
+
+    t = np.arange(int(3 * RATE)) / RATE
+    raw = np.tile(robot.neutral_rad, (len(t), 1))
+    raw[:, 0] += 0.02 * np.sin(2 * np.pi * 0.8 * t) ** 2  # slow enough for every limit
+    settings = MotionFilterSettings(lowpass_cutoff_hz=cutoff_hz, lowpass_order=order)
+    commanded = online_filter(MotionFilter(robot, settings, start_pose_rad=raw[0]), raw, tail_s=0.0)
+    expected = CausalLowPass(1, RATE, cutoff_hz, order)
+    expected.reset(raw[:1, 0])
+    reference = np.array([expected.step(raw[i : i + 1, 0])[0] for i in range(len(t))])
+    np.testing.assert_allclose(commanded[:, 0], reference, atol=2e-3)

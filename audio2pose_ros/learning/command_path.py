@@ -2,9 +2,10 @@
 
 The realism tables of the model card score the offline synthesis (``audio2pose synth``: the raw
 samples through the seed's zero-phase 4 Hz Butterworth, seed 003 section 4.4.1). On the robot,
-``motion_filter_node`` moves the joints instead: a causal smoother (by default the seed's
-Butterworth run forwards; or the Kalman filter of seed 003 section 4.4.2), the velocity and
-acceleration limits and the self-collision guard. This module runs that core
+``motion_filter_node`` moves the joints instead: a causal smoother (by default a 3 Hz,
+2nd-order Butterworth run forwards; the seed's 4 Hz, 5th order run forwards, or its Kalman
+filter of seed 003 section 4.4.2, on request), the velocity and acceleration limits and the
+self-collision guard. This module runs that core
 (:func:`~audio2pose_ros.motion.filter.online_filter`, the node's own code without ROS) over
 the model's raw samples, one 10 ms tick per frame, with each smoother of :data:`SMOOTHERS`;
 and over the real motion of the same clips, whose distances to itself are then what the
@@ -18,29 +19,48 @@ its first fraction of a second includes the approach to a moving track.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Clip
 from audio2pose_ros.learning.evaluation import Predictions, quality_evaluation
-from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings, online_filter
+from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings, delay_s, online_filter
+from audio2pose_ros.motion.smoothing import SEED_CUTOFF_HZ, SEED_ORDER
 from audio2pose_ros.offline.synthesis import synthesize_samples
 from audio2pose_ros.robot.description import RobotDescription
 
-SHIPPED_SMOOTHING = MotionFilterSettings.smoothing  # the node's default (config/pepper.yaml)
-SMOOTHERS = tuple(dict.fromkeys((SHIPPED_SMOOTHING, "lowpass", "kalman")))  # scored side by side
-REAL_LABEL = f"real, commanded ({SHIPPED_SMOOTHING})"
+SHIPPED = MotionFilterSettings()  # the node's defaults (config/pepper.yaml)
+# scored side by side: the shipped smoother, the seed's Butterworth run forwards, its Kalman filter
+SMOOTHERS = (
+    SHIPPED,
+    replace(
+        SHIPPED, smoothing="lowpass", lowpass_cutoff_hz=SEED_CUTOFF_HZ, lowpass_order=SEED_ORDER
+    ),
+    replace(SHIPPED, smoothing="kalman"),
+)
+
+
+def smoother_name(settings: MotionFilterSettings) -> str:
+    """How a table names a smoother: ``lowpass 3 Hz order 2``, ``kalman`` or ``none``."""
+    if settings.smoothing == "lowpass":
+        return f"lowpass {settings.lowpass_cutoff_hz:g} Hz order {settings.lowpass_order}"
+    return settings.smoothing
+
+
+REAL_LABEL = f"real, commanded ({smoother_name(SHIPPED)})"
 
 
 def commanded(
-    robot: RobotDescription, motions: Sequence[np.ndarray], smoothing: str = SHIPPED_SMOOTHING
+    robot: RobotDescription,
+    motions: Sequence[np.ndarray],
+    settings: MotionFilterSettings = SHIPPED,
 ) -> list[np.ndarray]:
     """Each (T, J) trajectory in radians as the motion filter commands it: (T, J) each.
 
-    The filter has its default settings but ``smoothing`` and starts at rest in the first pose.
+    The filter has ``settings`` and starts at rest in the first pose.
     """
-    settings = MotionFilterSettings(smoothing=smoothing)
     return [
         online_filter(MotionFilter(robot, settings, start_pose_rad=m[0]), m, tail_s=0.0)
         for m in motions
@@ -59,16 +79,16 @@ def command_path_predictions(
 ) -> Predictions:
     """Method -> clip id -> commanded motion: the model's per smoother, and the real motion's.
 
-    ``label`` names the model; its rows are ``"{label}, commanded ({smoothing})"``, the real
-    motion's :data:`REAL_LABEL`.
+    ``label`` names the model; its rows are ``"{label}, commanded ({smoother_name})"``, the
+    real motion's :data:`REAL_LABEL`.
     """
     robot = checkpoint.robot
     raw = raw_samples(checkpoint, clips, seeds)
     rows: Predictions = {
-        f"{label}, commanded ({smoothing})": {
-            clip_id: commanded(robot, motions, smoothing) for clip_id, motions in raw.items()
+        f"{label}, commanded ({smoother_name(settings)})": {
+            clip_id: commanded(robot, motions, settings) for clip_id, motions in raw.items()
         }
-        for smoothing in SMOOTHERS
+        for settings in SMOOTHERS
     }
     rows[REAL_LABEL] = {c.info.clip_id: commanded(robot, [c.angles_rad]) for c in clips}
     return rows
@@ -87,17 +107,24 @@ def command_path_table(
     Rows: the model's commanded motion per smoother (:func:`command_path_predictions`, the
     model named ``name``), the real motion's (:data:`REAL_LABEL`) and, for reference, the
     model's ``offline`` synthesis (clip id -> samples); the evaluation adds its baselines.
+    The heading gives each smoother's delay behind the offline synthesis
+    (:func:`~audio2pose_ros.motion.filter.delay_s`, median over joints and samples).
     """
+    rows = command_path_predictions(checkpoint, clips, name, seeds)
     quality = quality_evaluation(
-        clips,
-        {f"{name}, offline synthesis": offline}
-        | command_path_predictions(checkpoint, clips, name, seeds),
-        checkpoint.robot,
+        clips, {f"{name}, offline synthesis": offline} | rows, checkpoint.robot
     )
+    references = [m for c in clips for m in offline[c.info.clip_id]]
+    delays = []
+    for settings in SMOOTHERS:
+        label = smoother_name(settings)
+        motions = [m for c in clips for m in rows[f"{name}, commanded ({label})"][c.info.clip_id]]
+        delays.append(f"{label} {delay_s(references, motions):.2f} s")
     return (
         f"what the robot is commanded, {where}: the raw samples (seeds {seeds.start}.."
         f"{seeds.stop - 1}) through the motion filter at its shipped settings (smoothing "
-        f"{SMOOTHERS[0]}; and with {', '.join(SMOOTHERS[1:])}), the real motion through the same "
-        "filter (what the robot's limits alone cost), the offline synthesis for reference\n"
-        + quality.table()
+        f"{smoother_name(SMOOTHERS[0])}; and with "
+        f"{', '.join(smoother_name(s) for s in SMOOTHERS[1:])}), the real motion through the "
+        "shipped filter (what the robot's limits alone cost), the offline synthesis for "
+        f"reference; delay behind the offline synthesis: {', '.join(delays)}\n" + quality.table()
     )

@@ -17,7 +17,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
-from audio2pose_ros.motion.filter import MotionFilter, online_filter
+from audio2pose_ros.motion.filter import MotionFilter, delay_s, online_filter
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
 from audio2pose_ros.offline.synthesis import predict_normalized
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
@@ -83,15 +83,8 @@ def plot_raw_vs_filtered(
         return float(np.mean(np.sqrt(np.mean((np.diff(x, axis=0) * rate_hz) ** 2, axis=0))))
 
     n = len(raw)
-    lags = []
-    for j in range(robot.n_joints):
-        a = offline[:, j] - offline[:, j].mean()
-        b = online[:n, j] - online[:n, j].mean()
-        if a.std() > 1e-6 and b.std() > 1e-6:
-            corr = np.correlate(b, a, mode="full")
-            lags.append((np.argmax(corr) - (n - 1)) / rate_hz)
     return {
         "raw_rms_speed_rad_s": rms_speed(raw),
         "online_rms_speed_rad_s": rms_speed(online[:n]),
-        "online_lag_s": float(np.median(lags)) if lags else float("nan"),
+        "online_lag_s": delay_s([offline], [online], rate_hz),
     }
