@@ -105,6 +105,12 @@ def test_when_the_command_path_table_is_written_expect_every_row_and_its_heading
     }
     assert all(0.0 <= d < 0.5 for d in delays.values()), delays
     names = [f"m, commanded ({smoother_name(s)})" for s in SMOOTHERS]
+    lines = table.splitlines()
+    first = lines[: lines.index("")]  # the first table: intervals
+    end = next(line for line in first if line.startswith("group method")).index("H speed") + 7
+    for line in first:
+        if line.startswith("arms  m, commanded"):  # long names keep the columns aligned
+            assert line[end - 1] == "]", line
     for method in ("m, offline synthesis", *names):
         assert any(line.startswith(f"arms  {method}") for line in table.splitlines()), method
     assert any(line.startswith(f"head  {REAL_LABEL}") for line in table.splitlines())

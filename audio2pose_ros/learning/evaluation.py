@@ -335,11 +335,12 @@ class QualityEvaluation:
 
     def table(self) -> str:
         """Plain text: the histogram measures, the realism measures and the percentiles."""
+        names = _method_width([*self.rows, *self.floors])
         lines = [
             f"{self.seconds:.0f} s of held-out motion ({self.silence_seconds:.0f} s in silences "
             f">= {metrics.SILENCE_MIN_S:.0f} s); bias-corrected [95 % bootstrap interval over "
             "1 s segments]",
-            f"{'group':<6}{'method':<34}{'H speed':>20}{'H accel':>20}{'std/real':>20}"
+            f"{'group':<6}{'method':<{names}}{'H speed':>20}{'H accel':>20}{'std/real':>20}"
             f"{'speech/silence':>20}{'speech/pause':>20}{'RMSE deg':>10}{'LCCA':>7}{'div deg':>9}",
         ]
         for row in [*self.rows, *self.floors]:
@@ -348,7 +349,7 @@ class QualityEvaluation:
                 value, low, high = row.measures.get(key, (math.nan, math.nan, math.nan))
                 cells += f"{_ci(value, low, high):>20}"
             lines.append(
-                f"{row.group:<6}{row.method:<34}{cells}{_num(row.rmse_deg, 2):>10}"
+                f"{row.group:<6}{row.method:<{names}}{cells}{_num(row.rmse_deg, 2):>10}"
                 f"{_num(row.lcca, 2):>7}{_num(row.diversity_deg, 2):>9}"
             )
         lines += ["", _realism_table([*self.rows, *self.floors]), "", _percentile_table(self)]
@@ -366,20 +367,26 @@ REALISM_MEASURES = (
 )
 
 
+def _method_width(rows: Sequence[GroupRow]) -> int:
+    """Width of a table's method column: 34 characters, or the longest name's and a space."""
+    return max([34, *(len(row.method) + 1 for row in rows)])
+
+
 def _realism_table(rows: Sequence[GroupRow]) -> str:
     """Plain text: the :data:`REALISM_MEASURES` of every row."""
     width = 16
+    names = _method_width(rows)
     lines = [
         "plug-in Hellinger (not bias-corrected); Frechet distance of 1 s angle windows, half "
         "against half; L1 diversity and jerk relative to real; beat consistency (BC) with the "
         "clip's audio and with another clip's (shuffled)",
-        f"{'group':<6}{'method':<34}" + "".join(f"{m:>{width}}" for m in REALISM_MEASURES),
+        f"{'group':<6}{'method':<{names}}" + "".join(f"{m:>{width}}" for m in REALISM_MEASURES),
     ]
     for row in rows:
         cells = "".join(
             f"{_num(row.realism.get(m, math.nan), 3):>{width}}" for m in REALISM_MEASURES
         )
-        lines.append(f"{row.group:<6}{row.method:<34}{cells}")
+        lines.append(f"{row.group:<6}{row.method:<{names}}{cells}")
     return "\n".join(lines)
 
 
@@ -387,6 +394,7 @@ def _percentile_table(result: QualityEvaluation) -> str:
     """Plain text: speed and acceleration percentiles per joint of every row that has them."""
     levels = "/".join(f"p{p}" for p in realism.PERCENTILES)
     lines = [f"head joint speed (rad/s) and acceleration (rad/s^2), {levels}"]
+    names = _method_width([*result.floors, *result.rows])
     for row in [*result.floors, *result.rows]:
         if row.percentiles is None or row.group != "head":  # the head's goals are on them
             continue
@@ -395,7 +403,7 @@ def _percentile_table(result: QualityEvaluation) -> str:
             cells = "   ".join(
                 "/".join(_num(v, 2) for v in values) for values in (speed[j], accel[j])
             )
-            lines.append(f"{row.group:<6}{row.method:<34}{name:<16}{cells}")
+            lines.append(f"{row.group:<6}{row.method:<{names}}{name:<16}{cells}")
     return "\n".join(lines)
 
 
