@@ -18,7 +18,8 @@ a short jitter buffer and, at every :meth:`MotionFilter.tick`, produces one comm
    either brakes to a standstill and *holds* (``stop_behaviour: hold``) or glides to neutral
    (``neutral``); while stopped nothing else (generated motion, head target or offset) moves it.
 2. **Tracking.** Each joint group is scaled around the neutral pose by its gain, and the pose
-   is smoothed causally (seed 003 section 4.4.2: Kalman filter; or a low-pass; or none). When
+   is smoothed causally (a Butterworth low-pass, by default 3 Hz and 2nd order; or the Kalman
+   filter of seed 003 section 4.4.2; or none). When
    tracking resumes, the smoother restarts from the commanded pose, so nothing jumps, and when
    it resumes or the gate re-acquires a new track, the tracked pose is blended in along a
    minimum-jerk path timed for the distance (:class:`~audio2pose_ros.motion.approach.Approach`:

@@ -2,7 +2,7 @@
 
 Each 10 ms frame of the online path costs: pushing 160 new samples into the streaming feature
 extractor, z-normalising the frame, one step of the streaming model, mapping back to radians, and
-one step of the motion filter (jitter buffer, Kalman smoothing, limits, self-collision guard, the
+one step of the motion filter (jitter buffer, smoothing, limits, self-collision guard, the
 guard also timed alone). Seed 003 section 5.1.2
 reports 10 +- 6 ms for the whole per-frame processing on a laptop; the reference column here is
 the seed's own approach to online features: python_speech_features run on the latest 25 ms window
