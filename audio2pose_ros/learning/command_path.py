@@ -32,14 +32,6 @@ from audio2pose_ros.offline.synthesis import synthesize_samples
 from audio2pose_ros.robot.description import RobotDescription
 
 SHIPPED = MotionFilterSettings()  # the node's defaults (config/pepper.yaml)
-# scored side by side: the shipped smoother, the seed's Butterworth run forwards, its Kalman filter
-SMOOTHERS = (
-    SHIPPED,
-    replace(
-        SHIPPED, smoothing="lowpass", lowpass_cutoff_hz=SEED_CUTOFF_HZ, lowpass_order=SEED_ORDER
-    ),
-    replace(SHIPPED, smoothing="kalman"),
-)
 
 
 def smoother_name(settings: MotionFilterSettings) -> str:
@@ -49,6 +41,23 @@ def smoother_name(settings: MotionFilterSettings) -> str:
     return settings.smoothing
 
 
+# scored side by side: the shipped smoother, the seed's Butterworth run forwards, its Kalman
+# filter (each once, should the shipped one be one of the others)
+SMOOTHERS = tuple(
+    {
+        smoother_name(settings): settings
+        for settings in (
+            SHIPPED,
+            replace(
+                SHIPPED,
+                smoothing="lowpass",
+                lowpass_cutoff_hz=SEED_CUTOFF_HZ,
+                lowpass_order=SEED_ORDER,
+            ),
+            replace(SHIPPED, smoothing="kalman"),
+        )
+    }.values()
+)
 REAL_LABEL = f"real, commanded ({smoother_name(SHIPPED)})"
 
 
