@@ -229,16 +229,21 @@ class BodyModel:
         self._q[self._q_index] = pose_rad
         self._pin.forwardKinematics(self._model, self._data, self._q)
 
+    def _place_pairs(self, pose_rad: np.ndarray) -> _PairGroup:
+        """Place the checked pairs' shapes in one pose; returns the pair group to query."""
+        group = self._pairs
+        self._placements(pose_rad)
+        self._pin.updateGeometryPlacements(self._model, self._data, group.geometry, group.data)
+        return group
+
     def _query(self, pose_rad: np.ndarray) -> tuple[float, int]:
         """The closest pair's distance (m) and index in :attr:`link_pairs` (recent ones cached)."""
         key = pose_rad.tobytes()
         cached = self._recent.get(key)
         if cached is not None:
             return cached
-        pin, group = self._pin, self._pairs
-        self._placements(pose_rad)
-        pin.updateGeometryPlacements(self._model, self._data, group.geometry, group.data)
-        k = int(pin.computeDistances(group.geometry, group.data))
+        group = self._place_pairs(pose_rad)
+        k = int(self._pin.computeDistances(group.geometry, group.data))
         distance = float(group.data.distanceResults[k].min_distance)
         if len(self._recent) >= RECENT_QUERIES:
             self._recent.pop(next(iter(self._recent)))  # oldest first (dicts keep order)
@@ -279,10 +284,8 @@ class BodyModel:
 
         Always computed afresh: the cache of :meth:`_query` keeps the smallest distance only.
         """
-        pin, group = self._pin, self._pairs
-        self._placements(self._pose_array(pose_rad).reshape(-1))
-        pin.updateGeometryPlacements(self._model, self._data, group.geometry, group.data)
-        pin.computeDistances(group.geometry, group.data)
+        group = self._place_pairs(self._pose_array(pose_rad).reshape(-1))
+        self._pin.computeDistances(group.geometry, group.data)
         return np.array([r.min_distance for r in group.data.distanceResults])
 
     def clearance(self, poses_rad: np.ndarray) -> np.ndarray:
@@ -322,10 +325,8 @@ class BodyModel:
 
     def _pair_distance(self, pose_rad: np.ndarray, k: int) -> float:
         """Signed distance (m) of pair ``k`` of :attr:`link_pairs` alone in one pose."""
-        pin, group = self._pin, self._pairs
-        self._placements(pose_rad)
-        pin.updateGeometryPlacements(self._model, self._data, group.geometry, group.data)
-        return float(pin.computeDistance(group.geometry, group.data, k).min_distance)
+        group = self._place_pairs(pose_rad)
+        return float(self._pin.computeDistance(group.geometry, group.data, k).min_distance)
 
     def gradient(self, pose_rad: np.ndarray, joints: np.ndarray) -> np.ndarray:
         """Central-difference gradient (m/rad) of the clearance in the ``joints`` (mask) only.
