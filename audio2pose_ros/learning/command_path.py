@@ -61,6 +61,11 @@ SMOOTHERS = tuple(
 REAL_LABEL = f"real, commanded ({smoother_name(SHIPPED)})"
 
 
+def commanded_label(name: str, settings: MotionFilterSettings) -> str:
+    """The row of model ``name``'s motion as the filter with ``settings`` commands it."""
+    return f"{name}, commanded ({smoother_name(settings)})"
+
+
 def commanded(
     robot: RobotDescription,
     motions: Sequence[np.ndarray],
@@ -88,13 +93,13 @@ def command_path_predictions(
 ) -> Predictions:
     """Method -> clip id -> commanded motion: the model's per smoother, and the real motion's.
 
-    ``label`` names the model; its rows are ``"{label}, commanded ({smoother_name})"``, the
-    real motion's :data:`REAL_LABEL`.
+    ``label`` names the model; its rows are :func:`commanded_label`, the real motion's
+    :data:`REAL_LABEL`.
     """
     robot = checkpoint.robot
     raw = raw_samples(checkpoint, clips, seeds)
     rows: Predictions = {
-        f"{label}, commanded ({smoother_name(settings)})": {
+        commanded_label(label, settings): {
             clip_id: commanded(robot, motions, settings) for clip_id, motions in raw.items()
         }
         for settings in SMOOTHERS
@@ -126,9 +131,8 @@ def command_path_table(
     references = [m for c in clips for m in offline[c.info.clip_id]]
     delays = []
     for settings in SMOOTHERS:
-        label = smoother_name(settings)
-        motions = [m for c in clips for m in rows[f"{name}, commanded ({label})"][c.info.clip_id]]
-        delays.append(f"{label} {delay_s(references, motions):.2f} s")
+        motions = [m for c in clips for m in rows[commanded_label(name, settings)][c.info.clip_id]]
+        delays.append(f"{smoother_name(settings)} {delay_s(references, motions):.2f} s")
     return (
         f"what the robot is commanded, {where}: the raw samples (seeds {seeds.start}.."
         f"{seeds.stop - 1}) through the motion filter at its shipped settings (smoothing "

@@ -394,10 +394,10 @@ class MotionFilter:
 
     def _make_smoother(self) -> KalmanSmoother | CausalLowPass | None:
         n = self.robot.n_joints
-        if self.settings.smoothing == "kalman":
-            return KalmanSmoother(n, self.period_s, self.settings.kalman_q, self.settings.kalman_r)
-        if self.settings.smoothing == "lowpass":
-            settings = self.settings
+        settings = self.settings
+        if settings.smoothing == "kalman":
+            return KalmanSmoother(n, self.period_s, settings.kalman_q, settings.kalman_r)
+        if settings.smoothing == "lowpass":
             return CausalLowPass(
                 n, settings.rate_hz, settings.lowpass_cutoff_hz, settings.lowpass_order
             )
