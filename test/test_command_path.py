@@ -64,11 +64,11 @@ def test_when_the_command_path_is_scored_expect_each_smoother_and_the_real_ceili
     audio = speech[: 16000 * 2]
     n_frames = len(raw_samples(shipped, [_clip(audio, robot)], range(1))["c"][0])
     clip = _clip(audio, robot, n_frames)
-    rows = command_path_predictions(shipped, [clip], "m", range(2))
+    raw = raw_samples(shipped, [clip], range(2))["c"]
+    rows = command_path_predictions(robot, [clip], "m", {"c": raw})
     assert sorted(rows) == sorted(
         [*(f"m, commanded ({smoother_name(s)})" for s in SMOOTHERS), REAL_LABEL]
     )
-    raw = raw_samples(shipped, [clip], range(2))["c"]
     for method, per_clip in rows.items():
         motions = per_clip["c"]
         assert len(motions) == (1 if method == REAL_LABEL else 2)
@@ -95,8 +95,9 @@ def test_when_the_command_path_table_is_written_expect_every_row_and_its_heading
     audio = speech[: 16000 * 2]
     n_frames = len(raw_samples(shipped, [_clip(audio, robot)], range(1))["c"][0])
     clip = _clip(audio, robot, n_frames)
-    offline = {"c": raw_samples(shipped, [clip], range(3, 5))["c"]}
-    table = command_path_table(shipped, [clip], offline, "m", range(3, 5), "somewhere")
+    raw = raw_samples(shipped, [clip], range(3, 5))
+    offline = {"c": [butterworth_zero_phase(m) for m in raw["c"]]}
+    table = command_path_table(shipped, [clip], offline, raw, "m", range(3, 5), "somewhere")
     assert table.startswith("what the robot is commanded, somewhere: the raw samples (seeds 3..4)")
     heading = table.splitlines()[0]
     delays = {

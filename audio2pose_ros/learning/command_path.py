@@ -89,15 +89,17 @@ def raw_samples(
 
 
 def command_path_predictions(
-    checkpoint: Checkpoint, clips: Sequence[Clip], label: str, seeds: range
+    robot: RobotDescription,
+    clips: Sequence[Clip],
+    label: str,
+    raw: dict[str, list[np.ndarray]],
 ) -> Predictions:
     """Method -> clip id -> commanded motion: the model's per smoother, and the real motion's.
 
+    ``raw`` holds the model's unsmoothed samples of each clip (:func:`raw_samples`);
     ``label`` names the model; its rows are :func:`commanded_label`, the real motion's
     :data:`REAL_LABEL`.
     """
-    robot = checkpoint.robot
-    raw = raw_samples(checkpoint, clips, seeds)
     rows: Predictions = {
         commanded_label(label, settings): {
             clip_id: commanded(robot, motions, settings) for clip_id, motions in raw.items()
@@ -112,19 +114,20 @@ def command_path_table(
     checkpoint: Checkpoint,
     clips: Sequence[Clip],
     offline: dict[str, list[np.ndarray]],
+    raw: dict[str, list[np.ndarray]],
     name: str,
     seeds: range,
     where: str,
 ) -> str:
     """The realism table of the commanded motion on ``clips``, with its heading.
 
-    Rows: the model's commanded motion per smoother (:func:`command_path_predictions`, the
-    model named ``name``), the real motion's (:data:`REAL_LABEL`) and, for reference, the
-    model's ``offline`` synthesis (clip id -> samples); the evaluation adds its baselines.
-    The heading gives each smoother's delay behind the offline synthesis
-    (:func:`~audio2pose_ros.motion.filter.delay_s`, median over joints and samples).
+    Rows: the model's commanded motion per smoother (:func:`command_path_predictions` of its
+    ``raw`` samples, the model named ``name``), the real motion's (:data:`REAL_LABEL`) and, for
+    reference, the model's ``offline`` synthesis of the same seeds (clip id -> samples); the
+    evaluation adds its baselines. The heading gives each smoother's delay behind the offline
+    synthesis (:func:`~audio2pose_ros.motion.filter.delay_s`, median over joints and samples).
     """
-    rows = command_path_predictions(checkpoint, clips, name, seeds)
+    rows = command_path_predictions(checkpoint.robot, clips, name, raw)
     quality = quality_evaluation(
         clips, {f"{name}, offline synthesis": offline} | rows, checkpoint.robot
     )

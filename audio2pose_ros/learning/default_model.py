@@ -430,7 +430,13 @@ def build_learned_default_model(
         reports.append(SourceReport(source, "head", held, quality, fold.choice))
         commands.append(
             command_path_table(
-                fold.checkpoint, held, fold.samples, "held out", sample_seeds, f"{source} held out"
+                fold.checkpoint,
+                held,
+                fold.samples,
+                fold.raw,
+                "held out",
+                sample_seeds,
+                f"{source} held out",
             )
         )
     progress("evaluating the arms and hip on the lecture's held-out stretch, also as commanded")
@@ -450,7 +456,13 @@ def build_learned_default_model(
     reports.append(SourceReport(LECTURE, "arms and hip", test, arms, shipped.choice))
     commands.append(
         command_path_table(
-            checkpoint, test, shipped.samples, "shipped", sample_seeds, f"{LECTURE} held out"
+            checkpoint,
+            test,
+            shipped.samples,
+            shipped.raw,
+            "shipped",
+            sample_seeds,
+            f"{LECTURE} held out",
         )
     )
     command = "\n\n".join(commands)

@@ -35,14 +35,13 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Clip, ClipInfo
-from audio2pose_ros.learning.evaluation import Predictions, checkpoint_predictions
+from audio2pose_ros.learning.evaluation import Predictions, with_pause
 from audio2pose_ros.learning.sampler_selection import (
     SamplingChoice,
     apply_sampling,
@@ -50,6 +49,7 @@ from audio2pose_ros.learning.sampler_selection import (
 )
 from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.learning.training import TrainSettings, train_on_clips
+from audio2pose_ros.offline.synthesis import sample_poses, synthesize_samples, to_angles
 from audio2pose_ros.robot.description import RobotDescription
 
 GRID, OBAMA, LECTURE = "GRID", "Obama", "lecture"
@@ -113,7 +113,9 @@ class HoldoutResult:
         checkpoint: the trained model with its chosen sampling settings.
         report: its training report.
         choice: the sampling choice (on the task's validation clips).
-        samples: clip id -> the model's samples of each scored clip.
+        samples: clip id -> the model's samples of each scored clip (offline synthesis).
+        raw: clip id -> the same samples unsmoothed: the poses the inference node sends, which
+            the motion filter's tables (:mod:`~audio2pose_ros.learning.command_path`) command.
         paused: clip id -> its samples on the clip's audio with a pause inserted.
         seconds: wall-clock seconds of each step (``train``, ``choose``, ``sample``), for the
             rebuild's progress lines.
@@ -125,6 +127,7 @@ class HoldoutResult:
     report: TrainReport
     choice: SamplingChoice
     samples: dict[str, list[np.ndarray]]
+    raw: dict[str, list[np.ndarray]]
     paused: dict[str, list[np.ndarray]]
     seconds: dict[str, float] = field(default_factory=dict)
 
@@ -192,18 +195,21 @@ class HoldoutTask:
         checkpoint = apply_sampling(checkpoint, choice)
         seconds["choose"] = time.perf_counter() - start
         start = time.perf_counter()
-        label = f"{MODEL_NAME} ({self.name})"
-        samples, paused = checkpoint_predictions(
-            [(Path(label), checkpoint)], self.scored, self.n_samples, self.seed
-        )
+        seeds = range(self.seed, self.seed + self.n_samples)
+        poses = {c.info.clip_id: sample_poses(checkpoint, c.audio, seeds) for c in self.scored}
+        paused = {
+            c.info.clip_id: synthesize_samples(checkpoint, with_pause(c.audio), seeds)
+            for c in self.scored
+        }
         seconds["sample"] = time.perf_counter() - start
         return HoldoutResult(
             self.name,
             checkpoint,
             report,
             choice,
-            next(iter(samples.values())),
-            next(iter(paused.values())),
+            {i: [to_angles(checkpoint, p) for p in ps] for i, ps in poses.items()},
+            {i: [to_angles(checkpoint, p, smooth=False) for p in ps] for i, ps in poses.items()},
+            paused,
             seconds,
         )
 

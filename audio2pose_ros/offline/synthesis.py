@@ -100,10 +100,23 @@ def synthesize_samples(
     body_margin_m=None)[1]`` (temperature 1, before the body guard); unsmoothed, they are the
     poses the inference node sends.
     """
-    frames = normalized_features(checkpoint, signal_16k)
     return [
-        to_angles(checkpoint, sample_normalized(checkpoint, frames, 1, s)[0], smooth) for s in seeds
+        to_angles(checkpoint, poses, smooth)
+        for poses in sample_poses(checkpoint, signal_16k, seeds)
     ]
+
+
+def sample_poses(
+    checkpoint: Checkpoint, signal_16k: np.ndarray, seeds: Sequence[int]
+) -> list[np.ndarray]:
+    """One utterance's model output for each seed, (n_frames, n_joints) in [0, 1].
+
+    The features are extracted once. :func:`to_angles` turns an element into the offline
+    synthesis (smoothed) or into the poses the inference node sends (unsmoothed), so a caller
+    that needs both samples once.
+    """
+    frames = normalized_features(checkpoint, signal_16k)
+    return [sample_normalized(checkpoint, frames, 1, s)[0] for s in seeds]
 
 
 def synthesize(
