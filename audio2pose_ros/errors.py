@@ -17,6 +17,7 @@ __all__ = [
     "InvalidAudio",
     "UnsupportedAudioFormat",
     "UsageError",
+    "short_repr",
 ]
 
 # sysexits.h EX_CONFIG: a node cannot run with its configuration; supervisors never respawn it
@@ -45,3 +46,13 @@ class UnsupportedAudioFormat(InputError):  # noqa: N818 (name fixed by the node 
 
 class InvalidAudio(InputError):  # noqa: N818 (name fixed by the node API)
     """Audio data that cannot be decoded as samples (NaN or inf in F32LE, a broken WAV file)."""
+
+
+def short_repr(value: object, limit: int = 40) -> str:
+    """``repr(value)`` cut to ``limit`` characters, for errors that echo outside input.
+
+    A message field, a parameter value or a file's entry may be megabytes long; an error that
+    quotes it whole floods the log and every reply that carries the reason.
+    """
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"

@@ -10,11 +10,13 @@ Rules every value goes through (:meth:`ParameterSpec.validate`):
 
 - the type is the default's type; an integer is accepted where a float is meant (YAML ``0``
   for ``0.0``), a bool never counts as a number;
-- floats must be finite (NaN and inf are refused) and inside ``[minimum, maximum]`` where given;
+- floats must be finite (NaN and inf are refused), inside ``[minimum, maximum]`` where given
+  and outside ``excluded`` where given (a gap of meaningless values inside the range);
 - strings with ``choices`` must be one of them.
 
 A refused value raises :class:`~audio2pose_ros.errors.ConfigurationError` with one line naming
-the parameter, the value and what is allowed.
+the parameter, the value (cut short: :func:`~audio2pose_ros.errors.short_repr`) and what is
+allowed.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.errors import ConfigurationError, short_repr
 
 __all__ = [
     "ParameterSpec",
@@ -53,6 +55,8 @@ class ParameterSpec:
         description: one line for ParameterDescriptor.description and the README.
         minimum: inclusive lower bound for numbers, or None.
         maximum: inclusive upper bound for numbers, or None.
+        excluded: ``(low, high)``: numbers with low <= value < high are refused although
+            inside ``[minimum, maximum]`` (None: no gap).
         choices: allowed values of a string parameter (empty: any string).
         read_only: True when the value cannot change while the node runs (set at start-up).
         unit: unit shown in documentation ('' when dimensionless).
@@ -63,6 +67,7 @@ class ParameterSpec:
     description: str
     minimum: float | None = None
     maximum: float | None = None
+    excluded: tuple[float, float] | None = None
     choices: tuple[str, ...] = ()
     read_only: bool = False
     unit: str = ""
@@ -85,7 +90,12 @@ class ParameterSpec:
         low = "-inf" if self.minimum is None else f"{self.minimum:g}"
         high = "inf" if self.maximum is None else f"{self.maximum:g}"
         what = "an integer" if self.kind is int else "a finite number"
-        return f"{what} in [{low}, {high}]"
+        gap = (
+            ""
+            if self.excluded is None
+            else f" but not in [{self.excluded[0]:g}, {self.excluded[1]:g})"
+        )
+        return f"{what} in [{low}, {high}]{gap}"
 
     def validate(self, value: object) -> ParameterValue:
         """Return ``value`` converted to the parameter's type, or raise ConfigurationError.
@@ -116,11 +126,14 @@ class ParameterSpec:
                     self.maximum is not None and value > self.maximum
                 ):
                     problem = "is out of range"
+                elif self.excluded is not None and self.excluded[0] <= value < self.excluded[1]:
+                    problem = "is in the excluded gap"
         if converted is None and not problem:
             problem = f"has the wrong type ({type(value).__name__})"
         if problem:
             raise ConfigurationError(
-                f"parameter {self.name}: value {value!r} {problem}; allowed: {self.allowed()}"
+                f"parameter {self.name}: value {short_repr(value, 80)} {problem}; "
+                f"allowed: {self.allowed()}"
             )
         assert converted is not None
         return converted
@@ -131,6 +144,7 @@ def param(
     *,
     minimum: float | None = None,
     maximum: float | None = None,
+    excluded: tuple[float, float] | None = None,
     choices: Iterable[str] = (),
     read_only: bool = False,
     unit: str = "",
@@ -144,6 +158,7 @@ def param(
             "description": description,
             "minimum": minimum,
             "maximum": maximum,
+            "excluded": excluded,
             "choices": tuple(choices),
             "read_only": read_only,
             "unit": unit,
@@ -200,7 +215,9 @@ def validate_values(
     out: dict[str, ParameterValue] = {}
     for name, value in values.items():
         if name not in by_name:
-            raise ConfigurationError(f"unknown parameter {name!r}; known: {sorted(by_name)}")
+            raise ConfigurationError(
+                f"unknown parameter {short_repr(name, 80)}; known: {sorted(by_name)}"
+            )
         out[name] = by_name[name].validate(value)
     return out
 

@@ -15,6 +15,7 @@ from audio2pose_ros.motion.body_guard import (
     guard_trajectory,
 )
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.robot.body import BodyModel
 
 PERIOD = 0.01
@@ -107,6 +108,23 @@ def test_when_started_inside_the_margin_expect_led_out_slowly_within_limits(body
     assert clearance[once_out:].min() >= MARGIN_M - TOLERANCE_M  # and stays out
     assert np.all(np.diff(clearance[:once_out]) >= -1e-6)  # never deeper on the way
     assert filt.status.faults == 0
+
+
+@pytest.mark.parametrize("fraction", [0.02, 0.03])
+def test_when_led_out_under_a_low_velocity_fraction_expect_its_limit_kept_and_no_fault(
+    body, fraction
+):
+    """The lead-out's own speed yields to the configured velocity limit when that is lower."""
+    robot = body.robot
+    inside = hand_in_hip(robot)
+    filt = MotionFilter(robot, limits=LimitSettings(velocity_fraction=fraction))
+    filt.start_from(inside)
+    previous = filt.position_rad.copy()
+    out, _ = drive(filt, np.tile(inside, (1500, 1)))  # 15 s
+    steps = np.abs(np.diff(np.vstack([previous, out]), axis=0))
+    assert (steps <= filt.limiter.max_velocity_rad_s * PERIOD + 1e-9).all()
+    assert filt.status.faults == 0, filt.status.last_fault
+    assert body.clearance(out[-1]) >= MARGIN_M - TOLERANCE_M  # led out all the same
 
 
 def test_when_arm_rests_just_inside_the_margin_expect_it_still_goes_to_neutral(body):

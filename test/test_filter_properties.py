@@ -97,8 +97,12 @@ def check_command(filt, pos, vel, prev_pos, prev_vel, elapsed):
     limiter = filt.limiter
     assert np.all(np.isfinite(pos))
     assert np.all(np.isfinite(vel))
-    assert np.all(pos >= limiter.lower_rad - 1e-12)
-    assert np.all(pos <= limiter.upper_rad + 1e-12)
+    # inside the margin-shrunk range, or (a start between a limit and the margin) moving inward
+    lower, upper = limiter.allowed_range(prev_pos)
+    assert np.all(pos >= lower - 1e-12)
+    assert np.all(pos <= upper + 1e-12)
+    assert np.all(pos >= limiter.robot_lower_rad)
+    assert np.all(pos <= limiter.robot_upper_rad)
     assert np.all(np.abs(vel) <= limiter.max_velocity_rad_s + 1e-9)
     dt = min(elapsed, 2 * PERIOD)
     if dt >= 1e-6:

@@ -251,3 +251,26 @@ def test_when_started_and_no_pose_arrives_expect_robot_held_not_glided_to_neutra
     motion.push(start[None, :], 2.0)
     motion.tick(2.0)
     assert motion.status.mode == "tracking"
+
+
+@pytest.mark.parametrize("margin", [0.05, 0.2])
+def test_when_the_robot_starts_at_a_joint_limit_expect_it_brought_inside_the_margin_without_a_jump(
+    robot, margin
+):
+    """The measured pose may lie between a limit and the margin: the command starts there."""
+    measured = robot.neutral_rad.copy()
+    hip = robot.names.index("HipRoll")
+    measured[hip] = robot.upper_rad[hip]  # a real reading: HipRoll at its upper limit
+    filt = MotionFilter(robot, limits=LimitSettings(position_margin_rad=margin))
+    filt.start_from(measured)
+    previous, t = measured, 0.0
+    for _ in range(300):
+        t += PERIOD
+        position, _ = filt.tick(t)
+        # never faster than the joint's velocity limit, never further out than it started
+        step = np.abs(position - previous)
+        assert np.all(step <= filt.limiter.max_velocity_rad_s * PERIOD + 1e-9), step / PERIOD
+        assert position[hip] <= previous[hip] + 1e-12
+        previous = position
+    assert position[hip] <= filt.limiter.upper_rad[hip] + 1e-9  # inside the margin in 3 s
+    assert filt.status.faults == 0

@@ -142,6 +142,20 @@ def test_when_one_stamp_is_far_in_the_future_expect_it_rejected_and_later_ones_a
     assert check.counts.out_of_order == 0
 
 
+def test_when_the_clock_steps_back_expect_stamps_on_the_new_clock_accepted_at_once():
+    """An NTP step moves the node's clock and the sender's stamps back together."""
+    check = StampCheck(max_future_s=0.5, max_age_s=5.0)
+    for k in range(100):
+        now = 1000.0 + k * 0.01
+        assert check.check(now, now) == ""
+    accepted = [check.check(940.0 + k * 0.01, 940.0 + k * 0.01) == "" for k in range(100)]
+    assert all(accepted)  # not dropped as out of order until the clock catches up
+    assert check.counts.clock_steps_back == 1
+    assert check.counts.out_of_order == 0
+    # a message from before the step, delivered late, is still refused: ahead of the clock
+    assert "ahead of the node clock" in check.check(1000.5, 941.0)
+
+
 def test_when_stamps_old_duplicated_or_unset_expect_each_handled():
     check = StampCheck(max_future_s=0.5, max_age_s=5.0)
     assert "behind the node clock" in check.check(10.0, 100.0)

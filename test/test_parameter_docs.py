@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import pytest
 import yaml
 
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.motion.filter import MotionFilterSettings
+from audio2pose_ros.parameters import specs_of, validate_values
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.ros.parameter_docs import node_parameters, parameters_markdown, parameters_yaml
 
@@ -42,3 +46,27 @@ def test_every_declared_parameter_has_a_description_and_is_written_once():
     for specs in node_parameters().values():
         for spec in specs:
             assert text.count(f"\n    {spec.name}: ") == 1, spec.name
+
+
+def test_when_a_refused_value_is_huge_expect_a_short_reason():
+    """A 100 kB string for a number is refused in one short line, not echoed whole."""
+    spec = {s.name: s for s in specs_of(MotionFilterSettings)}["watchdog_timeout_s"]
+    with pytest.raises(ConfigurationError, match="watchdog_timeout_s") as refused:
+        spec.validate("x" * 100_000)
+    assert len(str(refused.value)) < 300
+    assert "100002 characters" in str(refused.value)
+    with pytest.raises(ConfigurationError, match="unknown parameter") as unknown:
+        validate_values([spec], {"y" * 100_000: 1.0})
+    assert len(str(unknown.value)) < 300
+
+
+def test_when_a_value_lies_in_a_declared_gap_expect_it_refused_naming_the_gap():
+    """joint_angles_speed: negative means velocity_fraction; 0 is a speed the robot refuses."""
+    (spec,) = [s for s in node_parameters()["motion_filter_node"] if s.name == "joint_angles_speed"]
+    for bad in (0.0, 1e-300, 0.005):
+        with pytest.raises(
+            ConfigurationError, match=r"excluded gap; allowed: .*not in \[0, 0.01\)"
+        ):
+            spec.validate(bad)
+    for good in (-1.0, -1e-9, 0.01, 0.5, 1.0):
+        assert spec.validate(good) == good

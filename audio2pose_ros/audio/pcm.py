@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from audio2pose_ros.audio.resample import PolyphaseResampler
-from audio2pose_ros.errors import InvalidAudio, UnsupportedAudioFormat
+from audio2pose_ros.errors import InvalidAudio, UnsupportedAudioFormat, short_repr
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 SUPPORTED_SAMPLE_FORMATS: tuple[str, ...] = ("S16LE", "S32LE", "F32LE", "U8")
@@ -60,12 +60,6 @@ _DTYPES: dict[str, np.dtype] = {
 
 # Largest float32 below 1.0: the decoder's output is clipped to [-1, _MAX_SAMPLE].
 _MAX_SAMPLE = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
-
-
-def short_repr(value: object, limit: int = 40) -> str:
-    """``repr(value)`` cut to ``limit`` characters: a message field may be megabytes long."""
-    text = repr(value)
-    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
 @dataclass(frozen=True)

@@ -35,12 +35,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from audio2pose_ros.audio.pcm import MAX_CHANNELS, PcmDecoder, PcmFormat, short_repr
+from audio2pose_ros.audio.pcm import MAX_CHANNELS, PcmDecoder, PcmFormat
 from audio2pose_ros.errors import (
     ConfigurationError,
     InputError,
     InvalidAudio,
     UnsupportedAudioFormat,
+    short_repr,
 )
 from audio2pose_ros.parameters import param, validate_settings
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ

@@ -18,14 +18,16 @@ allow and the previous command, and returns a command whose clearance
    soon as the wanted poses are clear. An arm that has come to rest at the margin while its
    straight way passes the body goes round: its joints move along the margin towards the command
    (the wanted direction without its part along the clearance gradient), slowly
-   (``LEAD_OUT_SPEED_RAD_S``), within the acceleration limits, counted as ``detour_steps``.
+   (``LEAD_OUT_SPEED_RAD_S``, or slower where the limiter's velocity limit is lower), within
+   the acceleration limits, counted as ``detour_steps``.
    An arm already within ``TOLERANCE_M`` inside the margin (where braking may leave it) needs
    only not go deeper: there the floor is its present clearance, not the margin, so every
    command that does not bring it closer passes, and the arm leaves the band by any way that
    does not approach the body (else it would be held where braking left it, short of its goal).
 4. **Led out gently.** A robot that starts inside the margin (moved by hand, or a measured pose
    inside) is moved up the clearance gradient, in the offending joints only, with a speed that
-   ramps up from zero to ``LEAD_OUT_SPEED_RAD_S``; the other joints follow their command, or
+   ramps up from zero to ``LEAD_OUT_SPEED_RAD_S`` (scaled down to the limiter's velocity limit,
+   direction kept, when that is lower); the other joints follow their command, or
    brake if that would bring the body closer. No velocity changes faster than the joint limits
    allow, so nothing about it jumps.
 5. **Last resort.** If braking cannot keep a command admissible (another joint moved into a
@@ -88,6 +90,7 @@ class BodyGuard:
         self._floor_m = self.margin_m  # the clearance commands need this step (see the module)
         self._lead_out_s = 0.0
         self._bounds = (body.robot.lower_rad, body.robot.upper_rad)
+        self._max_speed = body.robot.max_velocity_rad_s  # the limiter's, from each step on
 
     def reset(self) -> None:
         """Start again from rest: forget the lead-out ramp and the body model's earlier queries."""
@@ -177,7 +180,8 @@ class BodyGuard:
         previous = np.asarray(previous_rad, dtype=np.float64)
         previous_velocity = np.asarray(previous_velocity_rad_s, dtype=np.float64)
         accel = limiter.max_acceleration_rad_s2
-        self._bounds = (limiter.lower_rad, limiter.upper_rad)
+        self._bounds = limiter.allowed_range(previous)
+        self._max_speed = limiter.max_velocity_rad_s
         previous_clearance = float(self.body.clearance(previous))
         self._floor_m = min(self.margin_m, previous_clearance)
         result: tuple[np.ndarray, np.ndarray]
@@ -285,7 +289,7 @@ class BodyGuard:
             return pose, velocity  # the command is straight through the body: nowhere to go
         direction = tangent / length + DETOUR_LIFT * gradient / np.sqrt(squared)
         speed = min(LEAD_OUT_SPEED_RAD_S, length / dt_s)
-        target = direction / float(np.linalg.norm(direction)) * speed
+        target = self._within_speed(direction / float(np.linalg.norm(direction)) * speed)
         change = np.clip(target - previous_velocity, -accel * dt_s, accel * dt_s)
         lower, upper = self._bounds
         trial = np.where(
@@ -296,6 +300,16 @@ class BodyGuard:
             self.status.detour_steps += 1
             return trial, trial_velocity
         return pose, velocity
+
+    def _within_speed(self, velocity: np.ndarray) -> np.ndarray:
+        """``velocity`` scaled down, direction kept, to the limiter's velocity limit per joint.
+
+        The guard's own slow moves (lead-out, detour) are slower than a joint's limit at the
+        default ``velocity_fraction``, but the fraction may be set far lower.
+        """
+        ratio = np.abs(velocity) / self._max_speed
+        worst = float(ratio.max()) if ratio.size else 0.0
+        return velocity / worst if worst > 1.0 else velocity
 
     def _lead_out(
         self,
@@ -322,7 +336,9 @@ class BodyGuard:
         norm = float(np.linalg.norm(gradient))
         self._lead_out_s += dt_s
         speed = min(LEAD_OUT_SPEED_RAD_S, LEAD_OUT_ACCEL_RAD_S2 * self._lead_out_s)
-        target = np.zeros_like(previous) if norm < 1e-9 else gradient / norm * speed
+        target = (
+            np.zeros_like(previous) if norm < 1e-9 else self._within_speed(gradient / norm * speed)
+        )
         change = np.clip(target - previous_velocity, -accel * dt_s, accel * dt_s)
         led_velocity = np.where(joints, previous_velocity + change, 0.0)
         led = np.where(joints, np.clip(previous + led_velocity * dt_s, lower, upper), previous)

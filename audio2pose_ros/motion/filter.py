@@ -413,7 +413,9 @@ class MotionFilter:
         """Take ``pose_rad`` as the commanded pose, at rest: the next command starts there.
 
         Used at start-up with the robot's measured (or last commanded) pose. The pose is clamped
-        into the limits; the buffer, the smoother and the gate's track start from it.
+        into the robot's limits, not into the margin: a joint between its limit and the margin
+        is brought inside at the velocity and acceleration limits, not in one step. The buffer,
+        the smoother and the gate's track start from it.
 
         Raises:
             InputError: the pose has the wrong size or is not finite.
@@ -421,7 +423,7 @@ class MotionFilter:
         pose = np.asarray(pose_rad, dtype=np.float64)
         if pose.shape != (self.robot.n_joints,) or not np.isfinite(pose).all():
             raise InputError(f"start pose must be {self.robot.n_joints} finite angles, got {pose}")
-        self.position_rad = self.limiter.clamp_position(pose)
+        self.position_rad = self.limiter.clamp_to_robot(pose)
         self.velocity_rad_s = np.zeros(self.robot.n_joints)
         self.body_guard.reset()  # a start pose inside the body's margin is led out from rest
         self._target = self.position_rad.copy()
@@ -661,11 +663,12 @@ class MotionFilter:
         # After a live decrease of velocity_fraction the limiter brakes from the old velocity at
         # the acceleration limit, so a step may use the previous speed for a few ticks.
         speed = np.maximum(limiter.max_velocity_rad_s, np.abs(self.velocity_rad_s))
+        lower, upper = limiter.allowed_range(self.position_rad)
         return bool(
             np.isfinite(positions).all()
             and np.isfinite(velocities).all()
-            and np.all(positions >= limiter.lower_rad)
-            and np.all(positions <= limiter.upper_rad)
+            and np.all(positions >= lower)
+            and np.all(positions <= upper)
             and np.all(np.abs(positions - self.position_rad) <= speed * dt_s + STEP_SLACK_RAD)
         )
 

@@ -97,6 +97,7 @@ class JointLimiter:
                 f"parameter position_margin_rad: value {margin} leaves no range for some joint of "
                 f"{robot.name}; allowed: less than {half_range.min():g}"
             )
+        self.robot_lower_rad, self.robot_upper_rad = robot.lower_rad, robot.upper_rad
         self.lower_rad = robot.lower_rad + margin
         self.upper_rad = robot.upper_rad - margin
         self.max_velocity_rad_s = robot.max_velocity_rad_s * self.settings.velocity_fraction
@@ -112,6 +113,30 @@ class JointLimiter:
         return np.clip(
             np.where(np.isfinite(positions), positions, middle), self.lower_rad, self.upper_rad
         )
+
+    def clamp_to_robot(self, positions_rad: np.ndarray) -> np.ndarray:
+        """Clamp positions into the robot's own range, without the margin (non-finite: midpoint).
+
+        A pose the robot is in (measured at start-up) may lie inside the margin; the command
+        starts there and moves inward at the limits (:meth:`allowed_range`) instead of jumping.
+        """
+        positions = np.asarray(positions_rad, dtype=np.float64)
+        middle = (self.lower_rad + self.upper_rad) / 2.0
+        return np.clip(
+            np.where(np.isfinite(positions), positions, middle),
+            self.robot_lower_rad,
+            self.robot_upper_rad,
+        )
+
+    def allowed_range(self, previous_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) a command may take after ``previous_rad``.
+
+        The margin-shrunk range, widened to a previous position that lies between it and the
+        robot's limit: such a joint may stay or move inward, never further out, so it reaches
+        the margin-shrunk range at the velocity and acceleration limits.
+        """
+        previous = self.clamp_to_robot(previous_rad)
+        return np.minimum(self.lower_rad, previous), np.maximum(self.upper_rad, previous)
 
     def _braking_velocity(self, distance_rad: np.ndarray, dt_s: float) -> np.ndarray:
         """Largest speed from which the joint can still stop within ``distance_rad``.
@@ -135,7 +160,8 @@ class JointLimiter:
 
         Args:
             desired_rad: (n_joints,) wanted positions; NaN/inf entries hold the previous position.
-            previous_rad: (n_joints,) last commanded positions (inside the limits).
+            previous_rad: (n_joints,) last commanded positions (inside the robot's limits;
+                a joint between its limit and the margin moves inward, :meth:`allowed_range`).
             previous_velocity_rad_s: (n_joints,) last commanded velocities.
             dt_s: time since the previous command in seconds; a value below ``MIN_DT_S`` or
                 non-finite means no time has passed, and the previous command is returned
@@ -180,8 +206,10 @@ class JointLimiter:
         )
         self.counts.acceleration += int(np.count_nonzero(accelerated != limited))
 
-        # Final guard against rounding: positions never leave the range.
+        # Final guard against rounding: positions never leave the range (nor, for a joint that
+        # started between its limit and the margin, move further out).
         unclamped = previous + accelerated * dt_s
-        positions = np.minimum(np.maximum(unclamped, lower), upper)
+        low, high = self.allowed_range(previous)
+        positions = np.minimum(np.maximum(unclamped, low), high)
         velocities = np.where(positions == unclamped, accelerated, (positions - previous) / dt_s)
         return positions, velocities

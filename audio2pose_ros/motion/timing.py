@@ -4,7 +4,10 @@
 reordered message is dropped). A stamp far from the node's clock (once, one message
 stamped 1e6 s in the future made every later message look late, forever) is rejected and
 counted instead, and only accepted stamps move the ordering forward. A zero stamp means
-"unstamped" and is accepted without ordering.
+"unstamped" and is accepted without ordering. When the clock itself steps back (an NTP or
+chrony correction on a wall clock), the newest stamp seen lies ahead of the clock by more than a
+stamp may: it is forgotten and the step counted, so motion resumes with the next message stamped
+on the new clock instead of being dropped as out of order until the clock catches up.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ class StampCounts:
     future: int = 0
     too_old: int = 0
     out_of_order: int = 0
+    clock_steps_back: int = 0  # the newest accepted stamp lay ahead of the clock: forgotten
 
 
 class StampCheck:
@@ -39,6 +43,9 @@ class StampCheck:
         """
         if stamp_s == 0.0:
             return ""
+        if self.last_s > now_s + self.max_future_s:  # the clock stepped back past it
+            self.counts.clock_steps_back += 1
+            self.last_s = 0.0
         if stamp_s > now_s + self.max_future_s:
             self.counts.future += 1
             return (

@@ -255,6 +255,7 @@ class DiagnosedNode(Node):
         super().__init__(node_name)
         self._problems: dict[str, _Problem] = {}
         self.callback_errors = 0
+        self.input_messages_refused = 0  # InputError at the boundary: bad input, not a bug
         self.oversized_messages = 0
         self.late_heartbeats = 0
         self.heartbeats = 0
@@ -357,13 +358,26 @@ class DiagnosedNode(Node):
     # --- exception boundary -------------------------------------------------------------------
 
     def guarded(self, callback: Callable[..., None]) -> Callable[..., None]:
-        """``callback`` behind the node boundary: an exception is reported, never fatal."""
+        """``callback`` behind the node boundary: an exception is reported, never fatal.
+
+        An :class:`~audio2pose_ros.errors.InputError` is bad input, not a bug: the message is
+        dropped, counted (``input_messages_refused``) and reported as a WARN naming the
+        callback, without a traceback. Any other exception is a bug: counted in
+        ``callback_errors``, reported as an ERROR, its traceback logged.
+        """
         name = getattr(callback, "__name__", "callback")
 
         @functools.wraps(callback)
         def boundary(*args: object) -> None:
             try:
                 callback(*args)
+            except InputError as exc:
+                self.input_messages_refused += 1
+                self.report_problem(
+                    f"bad input to {name}",
+                    DiagnosticStatus.WARN,
+                    f"{name}: input refused and dropped: {exc}",
+                )
             except Exception as exc:  # the boundary: a bug or bad input must not kill the node
                 self.callback_errors += 1
                 self.report_problem(
@@ -459,6 +473,7 @@ class DiagnosedNode(Node):
         values = dict(self.diagnostic_values())
         values["pid"] = os.getpid()  # tells a supervisor which process of the node is alive
         values["callback_errors"] = self.callback_errors
+        values["input_messages_refused"] = self.input_messages_refused
         values["oversized_messages_dropped"] = self.oversized_messages
         values["late_heartbeats"] = self.late_heartbeats
         for key, (problem_level, problem_message, count) in problems.items():

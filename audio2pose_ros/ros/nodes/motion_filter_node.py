@@ -122,7 +122,8 @@ class MotionFilterNodeSettings:
 
     Attributes:
         robot_description: robot description YAML ('' = config/pepper_robot.yaml).
-        joint_angles_speed: JointAnglesWithSpeed.speed; negative = velocity_fraction.
+        joint_angles_speed: JointAnglesWithSpeed.speed, a fraction of the maximum speed in
+            [0.01, 1] (naoqi's setAngles refuses 0); negative = velocity_fraction.
         joint_angles_rate_hz: rate of /joint_angles (0 = off); 50 Hz = one command per
             ALMotion 20 ms cycle.
         joint_trajectory_rate_hz: rate of joint_trajectory (0 = off); Pepper's ros2_control
@@ -146,6 +147,7 @@ class MotionFilterNodeSettings:
             "JointAnglesWithSpeed.speed (fraction of max velocity); negative = velocity_fraction",
             minimum=-1.0,
             maximum=1.0,
+            excluded=(0.0, 0.01),  # the robot refuses 0 and would crawl below velocity_fraction's
         ),
     )
     joint_angles_rate_hz: float = field(
@@ -305,6 +307,7 @@ class MotionFilterNode(DiagnosedNode):
         self.started_from = ""
         self.created_s = time.monotonic()
         self.measured_rad: np.ndarray | None = None
+        self.measured_partial = 0  # joint states without every joint of the robot: not used
         self.tracking = TrackingWatch()
 
         self.state_path = (
@@ -507,7 +510,8 @@ class MotionFilterNode(DiagnosedNode):
             )
         index = {name: i for i, name in enumerate(msg.name)}
         if any(name not in index for name in self.robot.names):
-            return  # another robot's, or a partial message: nothing to learn from it
+            self.measured_partial += 1  # another robot's, or a partial message: not a pose
+            return
         pose = np.array([msg.position[index[name]] for name in self.robot.names], dtype=float)
         if not np.isfinite(pose).any():
             self.report_problem(
@@ -629,7 +633,16 @@ class MotionFilterNode(DiagnosedNode):
         self.input_messages += 1
         if not self.started:
             return None  # the start pose is not known yet: generated motion waits
+        steps_back = self.stamps.counts.clock_steps_back
         problem = self.stamps.check(stamp_s, self.now_s())
+        if self.stamps.counts.clock_steps_back > steps_back:
+            self.report_problem(
+                "clock_step",
+                DiagnosticStatus.WARN,
+                "the clock stepped back behind the newest raw trajectory stamp: ordering "
+                "restarted from the next message",
+                hold_s=10.0,
+            )
         if problem:
             self.dropped_messages += 1
             self.report_problem(
@@ -919,6 +932,7 @@ class MotionFilterNode(DiagnosedNode):
             "stale_messages_dropped": stamps.counts.out_of_order,
             "future_stamps_rejected": stamps.counts.future,
             "old_stamps_rejected": stamps.counts.too_old,
+            "clock_steps_back": stamps.counts.clock_steps_back,
             "poses_received": status.received,
             "poses_rejected": status.rejected,
             "poses_out_of_range": status.out_of_range,
@@ -950,13 +964,14 @@ class MotionFilterNode(DiagnosedNode):
             "body_closest_links": " / ".join(self.filter.body_guard.status.links),
             "command_finite_and_in_limits": bool(
                 np.isfinite(self.filter.position_rad).all()
-                and np.all(self.filter.position_rad >= self.filter.limiter.lower_rad)
-                and np.all(self.filter.position_rad <= self.filter.limiter.upper_rad)
+                and np.all(self.filter.position_rad >= self.robot.lower_rad)
+                and np.all(self.filter.position_rad <= self.robot.upper_rad)
             ),
             "last_command_age_ms": (
                 f"{(now - self.last_tick_s) * 1e3:.0f}" if self.started else "none"
             ),
         }
+        values["measured_partial_messages"] = self.measured_partial
         if self.measured_rad is not None:
             deviation = np.abs(self.measured_rad - self.filter.position_rad).max()
             values["measured_deviation_rad"] = f"{deviation:.3f}"
