@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import stat
 from pathlib import Path
+from typing import Any
 
 import yaml
 
-from audio2pose_ros.errors import Audio2PoseError
+from audio2pose_ros.errors import Audio2PoseError, ConfigurationError
+from audio2pose_ros.resources import share_path
 
-__all__ = ["MAX_YAML_BYTES", "load_yaml_text", "read_yaml_file"]
+__all__ = ["MAX_YAML_BYTES", "load_yaml_text", "packaged_mapping", "read_yaml_file"]
 
 MAX_YAML_BYTES = 1 << 20  # 1 MiB: the packaged YAML files are 1 to 10 KB
 
@@ -87,3 +89,16 @@ def read_yaml_file(
         where = f" at line {mark.line + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or type(exc).__name__
         raise error(f"{file}: not valid YAML{where} ({problem})") from None
+
+
+def packaged_mapping(*parts: str) -> dict[str, Any]:
+    """A YAML mapping the package ships (``share_path(*parts)``), read as any YAML file is.
+
+    Raises:
+        ConfigurationError: the file is missing, unreadable or not a mapping (a broken install).
+    """
+    path = share_path(*parts)
+    data = read_yaml_file(path, "packaged YAML", ConfigurationError)
+    if not isinstance(data, dict):
+        raise ConfigurationError(f"{path}: expected a mapping")
+    return data

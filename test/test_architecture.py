@@ -147,3 +147,28 @@ def test_checker_accepts_imports_within_a_folder_and_downwards_and_among_the_bas
     )
     assert violations("audio2pose_ros.motion.filter", source) == []
     assert violations("audio2pose_ros.parameters", "from audio2pose_ros.errors import E\n") == []
+
+
+def yaml_parsing_calls(source: str) -> list[int]:
+    """Lines of ``yaml.<loader>(...)`` calls (safe_load, load, full_load, ...) in ``source``."""
+    return [
+        node.lineno
+        for node in ast.walk(ast.parse(source))
+        if isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Attribute)
+        and isinstance(node.func.value, ast.Name)
+        and node.func.value.id == "yaml"
+        and "load" in node.func.attr
+    ]
+
+
+@pytest.mark.parametrize(("module", "path"), package_modules(), ids=lambda value: str(value))
+def test_yaml_is_parsed_only_by_the_bounded_alias_free_reader(module, path):
+    """A few hundred bytes of nested YAML aliases expand to gigabytes: one reader refuses them."""
+    if module == f"{PACKAGE}.yaml_files":
+        return
+    assert yaml_parsing_calls(path.read_text()) == [], f"{module}: use audio2pose_ros.yaml_files"
+
+
+def test_yaml_checker_finds_a_direct_parse():
+    assert yaml_parsing_calls("import yaml\nx = yaml.safe_load(t)\ny = yaml.safe_dump(x)\n") == [2]

@@ -88,6 +88,37 @@ def test_when_record_without_play_expect_clear_error(tmp_path: Path):
     assert "--record needs --play" in result.stderr
 
 
+@pytest.mark.ros
+@pytest.mark.parametrize(
+    ("content", "gave_up"),
+    [
+        (b"motion_filter_node:\n  ros__parameters: [1, 2]\n", "_node"),  # rcl: all three
+        (b"motion_filter_node:\n  ros__parameters:\n    head_gain: .nan\n", "motion_filter_node"),
+    ],
+    ids=["every-node", "the-filter"],
+)
+def test_when_a_node_refuses_its_parameters_expect_run_to_stop_and_fail(
+    tmp_path: Path, content: bytes, gave_up: str
+):
+    """Without the filter (or any node) nothing reaches the robot: `run` must not carry on.
+
+    The graph stops as soon as the supervisor gives up on a node, naming the nodes it gave up on.
+    """
+    params = tmp_path / "params.yaml"
+    params.write_bytes(content)
+    result = subprocess.run(
+        [*AUDIO2POSE, "run", "--params-file", str(params), "--log-dir", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert "refused its configuration" in result.stderr
+    assert result.returncode == 1, result.stderr[-500:]
+    last = result.stderr.strip().splitlines()[-1]
+    assert "the graph stopped: gave up on" in last
+    assert gave_up in last
+
+
 def test_when_synth_wav_expect_csv_at_100hz_within_limits(tmp_path: Path, robot, speech_path):
     out = tmp_path / "traj.csv"
     result = subprocess.run(

@@ -340,3 +340,43 @@ def test_when_a_bag_spans_centuries_expect_replay_refused_not_sleeping(capsys, t
     status, stderr = audio2pose(capsys, "bag", "replay", tmp_path / "bag", "--wait-s", "0")
     assert status == 1
     assert_one_line(stderr, r"replaying would take 4\.61e\+09 s at --rate 1; at most 86400 s")
+
+
+@pytest.fixture
+def console_not_started(monkeypatch):
+    """Should a bad file pass the check, the console would start: the test fails instead."""
+    import audio2pose_ros.ros.console_runner as runner
+
+    def refuse(*_args, **_kwargs):
+        raise AssertionError("the parameters file passed the check; the console would start")
+
+    monkeypatch.setattr(runner, "run_console", refuse)
+
+
+def _alias_bomb(levels: int) -> str:
+    """Nested YAML aliases: 9**levels leaves from a few hundred bytes ("billion laughs")."""
+    lines = ['a0: &a0 ["x","x","x","x","x","x","x","x","x"]']
+    lines += [f"a{i}: &a{i} [" + ",".join([f"*a{i - 1}"] * 9) + "]" for i in range(1, levels)]
+    return "\n".join([*lines, f"console_node:\n  ros__parameters:\n    host: *a{levels - 1}\n"])
+
+
+@pytest.mark.parametrize(
+    ("content", "problem"),
+    [
+        (b'console_node:\n  ros__parameters:\n    token: "\xff\xfe"\n', "not UTF-8"),
+        (b"console_node:\n  ros__parameters: [1, 2]\n", "ros__parameters must be a mapping"),
+        (b"- just\n- a list\n", "a parameters file is a mapping of node names"),
+        (_alias_bomb(6).encode(), "aliases"),
+    ],
+    ids=["not-utf8", "parameters-list", "document-list", "alias-bomb"],
+)
+def test_when_the_console_parameters_file_is_malformed_expect_one_line_not_a_bug(
+    capsys, tmp_path, console_not_started, content, problem
+):
+    """The console's check before anything starts reads the file as every parameters file is."""
+    params = tmp_path / "params.yaml"
+    params.write_bytes(content)
+    status, stderr = audio2pose(capsys, "console", "--no-graph", "--params-file", params)
+    assert status == 1
+    assert_one_line(stderr, problem)
+    assert len(stderr) < 500

@@ -20,7 +20,8 @@ import yaml
 
 from audio2pose_ros.console.access import resolve_access
 from audio2pose_ros.console.settings import ConsoleSettings
-from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.errors import ConfigurationError, InputError
+from audio2pose_ros.offline.parameters_file import node_parameters
 from audio2pose_ros.parameters import settings_from
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.ros.graph import (
@@ -60,17 +61,21 @@ def console_command(
 def check_console_settings(params_file: Path | None, values: Mapping[str, object]) -> None:
     """Check the console's settings as console_node will, before any process starts.
 
-    The settings are the parameters file's ``console_node`` section, then ``values`` over it.
+    The settings are the parameters file's ``console_node`` parameters (its ``/**`` section,
+    then its own, as rcl resolves them), then ``values`` over them. The file is read as the
+    package's other parameters files are
+    (:func:`~audio2pose_ros.offline.parameters_file.node_parameters`: bounded, UTF-8, no YAML
+    aliases, sections that are mappings).
 
     Raises:
-        ConfigurationError: a refused value, bind, certificate or token (one line).
+        ConfigurationError: an unreadable or malformed file, a refused value, bind, certificate
+            or token (one line).
     """
     params = params_file or share_path("config", "pepper.yaml")
     try:
-        document = yaml.safe_load(params.read_text(encoding="utf-8")) or {}
-        section = document.get(CONSOLE_NODE, {}).get("ros__parameters", {}) or {}
-    except (OSError, yaml.YAMLError, AttributeError) as exc:
-        raise ConfigurationError(f"parameters file {params}: cannot be read ({exc})") from None
+        section = node_parameters(params, CONSOLE_NODE)
+    except InputError as exc:
+        raise ConfigurationError(str(exc)) from None
     resolve_access(settings_from(ConsoleSettings, {**section, **values}))
 
 

@@ -37,7 +37,6 @@ from rclpy.serialization import serialize_message
 from std_msgs.msg import Bool
 
 from audio2pose_ros import topics
-from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
 from audio2pose_ros.ros.fault_cases_runtime import impersonated_sigstop_case, runtime_cases
@@ -54,6 +53,7 @@ from audio2pose_ros.ros.fault_harness import (
 from audio2pose_ros.ros.graph import node_graph
 from audio2pose_ros.ros.process_stats import rss_mb
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
+from audio2pose_ros.yaml_files import packaged_mapping
 
 __all__ = ["cases", "run_campaign", "table"]
 
@@ -397,7 +397,7 @@ def run_campaign(
     with tempfile.TemporaryDirectory(prefix="audio2pose_faults_") as tmp:
         state = Path(tmp) / "state" / "filter_state.json"  # alone in its directory
         params = Path(tmp) / "params.yaml"
-        document = yaml.safe_load(share_path("config", "pepper.yaml").read_text())
+        document = packaged_mapping("config", "pepper.yaml")
         document.setdefault("motion_filter_node", {}).setdefault("ros__parameters", {})
         document["motion_filter_node"]["ros__parameters"]["state_file"] = str(state)
         params.write_text(yaml.safe_dump(document), encoding="utf-8")

@@ -48,7 +48,12 @@ from audio2pose_ros.data.bag import (
     audio_messages,
     read_checked_messages,
 )
-from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, Audio2PoseError, UsageError
+from audio2pose_ros.errors import (
+    EXIT_CONFIGURATION_ERROR,
+    Audio2PoseError,
+    ConfigurationError,
+    UsageError,
+)
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.ros.diagnosed_node import (
     HEARTBEAT_FD_ENV,
@@ -59,6 +64,7 @@ from audio2pose_ros.ros.diagnosed_node import (
 )
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.ros.player import MessagePlayer, rclpy_session, spin_until, warm_up
+from audio2pose_ros.yaml_files import load_yaml_text
 
 NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
 RECORD_FLUSH_PERIOD_S = 0.5  # a killed recording loses at most about this much (BagWriter.flush)
@@ -402,7 +408,7 @@ def overrides_file(overrides: Sequence[str], directory: Path) -> Path:
         if not sep or not name.strip():
             raise UsageError(f"parameter override {override!r} is not name:=value")
         try:
-            values[name.strip()] = yaml.safe_load(text) if text else ""
+            values[name.strip()] = load_yaml_text(text) if text else ""
         except yaml.YAMLError:
             values[name.strip()] = text
     path = directory / "overrides.yaml"
@@ -611,8 +617,13 @@ def run_graph(
 ) -> PlaybackResult | None:
     """Start the graph; with ``play`` (a WAV or a bag) play it and return what was recorded.
 
-    Without ``play`` the graph runs until Ctrl-C or until a node exits. ``single_process`` runs
-    the three nodes in one process, ``sim`` adds the simulated Pepper (:func:`node_graph`).
+    Without ``play`` the graph runs until Ctrl-C. ``single_process`` runs the three nodes in one
+    process, ``sim`` adds the simulated Pepper (:func:`node_graph`).
+
+    Raises:
+        ConfigurationError: the supervisor gave up on a node (it refused its configuration, or
+            failed again and again): the graph cannot command the robot, so it is stopped and
+            the command fails instead of running on without that node.
     """
     messages = audio_source(play) if play is not None else None
     with node_graph(
@@ -620,13 +631,22 @@ def run_graph(
     ) as supervisor:
         if messages is None:
             try:
-                while supervisor.running:
+                while not supervisor.given_up:
                     time.sleep(0.2)
             except KeyboardInterrupt:
-                pass
-            return None
+                return None
+            raise _stopped(supervisor)
         with rclpy_session():
-            return play_and_record(messages, record, rate=rate)
+            result = play_and_record(messages, record, rate=rate)
+        if supervisor.given_up:
+            raise _stopped(supervisor)
+        return result
+
+
+def _stopped(supervisor: NodeSupervisor) -> ConfigurationError:
+    """The error of a graph whose supervisor gave up on some nodes (named, sorted)."""
+    names = ", ".join(sorted(supervisor.given_up))
+    return ConfigurationError(f"the graph stopped: gave up on {names}: see the lines above")
 
 
 def summarize(result: PlaybackResult) -> str:

@@ -42,7 +42,7 @@ from audio2pose_ros import topics
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.data.bag import AUDIO_DATA_TYPE, AUDIO_INFO_TYPE, BagMessage
-from audio2pose_ros.resources import bundled_speech_paths, share_path
+from audio2pose_ros.resources import bundled_speech_paths
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.graph import SIM_NODE, GraphTimeoutError, node_graph
@@ -55,6 +55,7 @@ from audio2pose_ros.ros.player import (
 )
 from audio2pose_ros.ros.process_stats import cpu_s, rss_mb
 from audio2pose_ros.timebase import FRAME_PERIOD_S, SAMPLE_RATE_HZ, SAMPLES_PER_FRAME
+from audio2pose_ros.yaml_files import packaged_mapping
 
 CHUNK_SAMPLES = SAMPLES_PER_FRAME  # one 10 ms frame step per chunk (seed 003 section 4.2.2)
 MATCH_TOLERANCE_RAD = 1e-5  # float32 /joint_angles against float64 raw poses
@@ -86,7 +87,7 @@ class GraphFigures:
 
 def _bench_params(directory: Path) -> Path:
     """Parameter and robot files: smoothing off, limits wide, so commands equal raw poses."""
-    params = yaml.safe_load(share_path("config", "pepper.yaml").read_text(encoding="utf-8"))
+    params = packaged_mapping("config", "pepper.yaml")
     robot = load_robot().to_dict()
     for joint in robot["joints"]:
         joint["max_acceleration_rad_s2"] = 1e12  # braking bounds then cost < 1e-9 rad

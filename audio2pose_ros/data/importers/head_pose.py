@@ -32,9 +32,8 @@ from dataclasses import dataclass
 from functools import cache
 
 import numpy as np
-import yaml
 
-from audio2pose_ros.resources import share_path
+from audio2pose_ros.yaml_files import packaged_mapping
 
 FACE_MODEL_FILE = "canonical_face_rigid.yaml"
 HAMPEL_HALF_WINDOW = 3  # frames each side of the median window (7 frames: 0.28 s at 25 fps)
@@ -58,7 +57,7 @@ class FaceModel:
 @cache
 def canonical_face_model() -> FaceModel:
     """MediaPipe's canonical face model, rigid part (``config/canonical_face_rigid.yaml``)."""
-    data = yaml.safe_load(share_path("config", FACE_MODEL_FILE).read_text(encoding="utf-8"))
+    data = packaged_mapping("config", FACE_MODEL_FILE)
     items = sorted(data["landmarks_cm"].items())
     indices = np.array([int(k) for k, _ in items])
     model_up = np.array([v for _, v in items], dtype=np.float64)  # x right, y up, z to camera
