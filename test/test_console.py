@@ -5,8 +5,14 @@ with a recording stand-in for the ROS side (console_node is tested in test_conso
 from __future__ import annotations
 
 import asyncio
+import base64
 import json
+import logging
+import math
+import os
+import select
 import shutil
+import socket
 import ssl
 import struct
 import subprocess
@@ -30,13 +36,22 @@ from audio2pose_ros.console.floor import Floor
 from audio2pose_ros.console.latency import VoiceLatency
 from audio2pose_ros.console.protocol import (
     AUDIO_HEADER,
+    MAX_STAMP_SKEW_S,
     MAX_TEXT_BYTES,
+    AudioDroppedError,
     ProtocolError,
     audio_frame,
+    encode,
     parse_audio_frame,
     parse_control,
 )
-from audio2pose_ros.console.server import ConsoleServer, ServerThread
+from audio2pose_ros.console.server import (
+    AUDIO_FRAMES_BURST,
+    CONNECTIONS_PER_CLIENT,
+    MAX_AUDIO_FRAMES_PER_S,
+    ConsoleServer,
+    ServerThread,
+)
 from audio2pose_ros.console.settings import ConsoleSettings
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.resources import share_path
@@ -44,11 +59,17 @@ from audio2pose_ros.resources import share_path
 CHUNK = b"\x01\x00" * 320  # 20 ms of 16 kHz S16LE
 TOKEN = "unit-test-token-0123456789"
 
+
+def now_ms() -> float:
+    """The console's clock (ms since the epoch): what the page stamps its chunks with."""
+    return time.time() * 1e3
+
+
 # --- protocol -----------------------------------------------------------------------------------
 
 
 def test_when_an_audio_frame_is_well_formed_expect_its_fields():
-    frame = parse_audio_frame(audio_frame(7, 1.7e12, CHUNK), max_pcm_bytes=3200)
+    frame = parse_audio_frame(audio_frame(7, 1.7e12, CHUNK), max_pcm_bytes=3200, now_ms=1.7e12)
     assert (frame.seq, frame.stamp_ms, frame.pcm) == (7, 1.7e12, CHUNK)
     assert frame.duration_s == pytest.approx(0.02)
 
@@ -67,7 +88,20 @@ def test_when_an_audio_frame_is_well_formed_expect_its_fields():
 )
 def test_when_an_audio_frame_is_malformed_expect_a_protocol_error(data, match):
     with pytest.raises(ProtocolError, match=match):
-        parse_audio_frame(data, max_pcm_bytes=3200)
+        parse_audio_frame(data, max_pcm_bytes=3200, now_ms=0.0)
+
+
+@pytest.mark.parametrize(
+    "stamp_ms",
+    [-1e308, 1e308, -MAX_STAMP_SKEW_S * 1e3 - 1.0, MAX_STAMP_SKEW_S * 1e3 + 1.0],
+)
+def test_when_a_chunk_is_stamped_off_the_consoles_clock_expect_it_dropped(stamp_ms):
+    """A finite stamp of -1e308 ms passed, and its latency (about 1e308 ms) made the latency
+    medians infinite: the status JSON then failed on every tick, for every page."""
+    with pytest.raises(AudioDroppedError, match="from the console's clock"):
+        parse_audio_frame(audio_frame(0, stamp_ms, CHUNK), max_pcm_bytes=3200, now_ms=0.0)
+    for edge_ms in (-MAX_STAMP_SKEW_S * 1e3, MAX_STAMP_SKEW_S * 1e3):
+        parse_audio_frame(audio_frame(0, edge_ms, CHUNK), max_pcm_bytes=3200, now_ms=0.0)
 
 
 def test_when_control_messages_are_valid_expect_their_fields():
@@ -102,6 +136,8 @@ def test_when_control_messages_are_valid_expect_their_fields():
         ('{"type":"gains","arms":1e999}', "finite"),
         ('{"type":"hello","token":5}', "must be str"),
         ('{"type":"hello","token":"t","name":"a\\u0000b"}', "printable"),
+        ('{"type":"hello","token":"\\ud800"}', "hello.token must be valid UTF-8"),
+        ('{"type":"hello","token":"t","name":"\\udfff"}', "hello.name must be valid UTF-8"),
         (json.dumps({"type": "hello", "token": "t" * 300}), "longer than 256"),
         (json.dumps({"type": "hello", "token": "t", "name": "n" * 41}), "longer than 40"),
         (json.dumps({"type": "ping", "t": 1, "pad": "x" * MAX_TEXT_BYTES}), "over the limit"),
@@ -110,6 +146,19 @@ def test_when_control_messages_are_valid_expect_their_fields():
 def test_when_a_control_message_is_malformed_expect_a_protocol_error(text, match):
     with pytest.raises(ProtocolError, match=match):
         parse_control(text)
+
+
+def test_when_a_control_number_is_a_huge_integer_expect_a_protocol_error():
+    """float(10**400) raises OverflowError, which escaped parse_control (the server answered
+    'could not act on that message' and logged it as a failed message)."""
+    for text in (
+        '{"type":"ping","t":1' + "0" * 400 + "}",
+        '{"type":"gains","arms":-1' + "0" * 400 + "}",
+        '{"type":"talk","on":true,"extra":1' + "0" * 400 + "}",  # in any field, known or not
+    ):
+        with pytest.raises(ProtocolError, match="out of range"):
+            parse_control(text)
+    assert parse_control('{"type":"ping","t":9007199254740992}').fields == {"t": 2.0**53}
 
 
 # --- access -------------------------------------------------------------------------------------
@@ -249,6 +298,22 @@ def test_when_a_pose_is_never_commanded_expect_it_dropped_not_paired_late():
     assert latency.summary() == {"n": 0}
 
 
+def test_when_chunk_stamps_are_absurd_expect_no_latency_kept_and_the_summary_json():
+    """Latencies of about 1e308 ms made np.median of two of them inf: encode('status') raised
+    on every tick from then on (the window kept them, whatever the talker)."""
+    latency = VoiceLatency()
+    now = time.time()
+    for stamp_s in (-1e305, -1e305, float("nan"), float("inf"), now - 7200.0, now):
+        latency.chunk_published(stamp_s, now, now)
+        latency.raw_arrived(now + 0.001)
+        latency.command_arrived(now + 0.001, now + 0.002)
+        now += 0.02
+    summary = latency.summary()
+    assert summary["n"] == 1  # only the chunk stamped on the console's clock
+    assert all(math.isfinite(value) for value in summary.values())
+    encode("status", latency=summary)
+
+
 # --- the server ---------------------------------------------------------------------------------
 
 
@@ -289,10 +354,21 @@ class Bridge:
 
 
 @contextmanager
-def serving(tmp_path: Path, web: bool = True, **settings: Any) -> Iterator[tuple[str, Bridge]]:
+def serving(
+    tmp_path: Path,
+    web: bool = True,
+    bridge: Bridge | None = None,
+    logged: list[tuple[str, str]] | None = None,
+    servers: list[ConsoleServer] | None = None,
+    **settings: Any,
+) -> Iterator[tuple[str, Bridge]]:
+    """The console on a free loopback port with ``bridge`` (a new one by default), its log
+    lines appended to ``logged`` and the server to ``servers``; yields its address and the
+    bridge."""
     settings.setdefault("port", 0)
     config = ConsoleSettings(**settings)
-    bridge = Bridge()
+    bridge = bridge or Bridge()
+    lines: list[tuple[str, str]] = [] if logged is None else logged
     web_dir = tmp_path / "web"
     web_dir.mkdir(exist_ok=True)
     if web:
@@ -304,8 +380,10 @@ def serving(tmp_path: Path, web: bool = True, **settings: Any) -> Iterator[tuple
         bridge,
         web_dir,
         share_path("urdf", "pepper.urdf"),
-        lambda level, message: None,
+        lambda level, message: lines.append((level, message)),
     )
+    if servers is not None:
+        servers.append(server)
     thread = ServerThread(server)
     port = thread.start()
     scheme = "https" if config.certfile else "http"
@@ -336,6 +414,69 @@ async def until(ws: aiohttp.ClientWebSocketResponse, kind: str, **fields: Any) -
         data = json.loads(message.data)
         if data["type"] == kind and all(data.get(k) == v for k, v in fields.items()):
             return data
+
+
+async def closed(ws: aiohttp.ClientWebSocketResponse) -> int | None:
+    """Read until the connection closes; its close code."""
+    while (await ws.receive(timeout=5.0)).type not in (
+        aiohttp.WSMsgType.CLOSE,
+        aiohttp.WSMsgType.CLOSED,
+    ):
+        pass
+    return ws.close_code
+
+
+@contextmanager
+def escaped_exceptions() -> Iterator[list[logging.LogRecord]]:
+    """What aiohttp and asyncio log as errors: an exception that escaped a handler or a task."""
+    records: list[logging.LogRecord] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            records.append(record)
+
+    handler = Keep(level=logging.ERROR)
+    loggers = [logging.getLogger(name) for name in ("aiohttp.server", "asyncio")]
+    for logger in loggers:
+        logger.addHandler(handler)
+    try:
+        yield records
+    finally:
+        for logger in loggers:
+            logger.removeHandler(handler)
+
+
+def described(records: list[logging.LogRecord]) -> list[str]:
+    return [f"{r.getMessage()} {r.exc_info and r.exc_info[1]!r}" for r in records]
+
+
+def raw_websocket(port: int) -> socket.socket:
+    """A WebSocket opened by hand, with the page's Host and Origin; the 101 is read."""
+    sock = socket.create_connection(("127.0.0.1", port), timeout=5.0)
+    key = base64.b64encode(os.urandom(16)).decode()
+    sock.sendall(
+        (
+            f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nOrigin: http://127.0.0.1:{port}\r\n"
+            f"Upgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+            "Sec-WebSocket-Version: 13\r\n\r\n"
+        ).encode()
+    )
+    answer = b""
+    while b"\r\n\r\n" not in answer:
+        answer += sock.recv(4096)
+    assert b" 101 " in answer.split(b"\r\n")[0], answer
+    return sock
+
+
+def client_frame(text: bytes) -> bytes:
+    """One masked, final text frame from a client (shorter than 126 bytes)."""
+    mask = os.urandom(4)
+    masked = bytes(b ^ mask[i % 4] for i, b in enumerate(text))
+    return bytes([0x81, 0x80 | len(text)]) + mask + masked
+
+
+def port_of(base: str) -> int:
+    return int(base.rsplit(":", 1)[1])
 
 
 def test_when_the_page_is_asked_for_expect_it_served_with_security_headers(tmp_path: Path):
@@ -404,8 +545,8 @@ def test_when_two_operators_talk_expect_one_floor_and_its_release_on_disconnect(
             await until(bob, "welcome")
             await ann.send_str('{"type":"talk","on":true}')
             assert (await until(bob, "floor", holder="Ann"))["you"] is False
-            await ann.send_bytes(audio_frame(0, 1.0, CHUNK))
-            await bob.send_bytes(audio_frame(0, 1.0, CHUNK))  # without the floor: dropped
+            await ann.send_bytes(audio_frame(0, now_ms(), CHUNK))
+            await bob.send_bytes(audio_frame(0, now_ms(), CHUNK))  # without the floor: dropped
             assert "press Talk" in (await until(bob, "error"))["message"]
             await bob.send_str('{"type":"talk","on":true}')
             assert "Ann has the floor" in (await until(bob, "error"))["message"]
@@ -443,7 +584,7 @@ def test_when_a_talker_floods_audio_expect_only_the_rate_bound_published(tmp_pat
             await ws.send_str('{"type":"talk","on":true}')
             await until(ws, "floor", you=True)
             for seq in range(150):  # 3 s of audio at once
-                await ws.send_bytes(audio_frame(seq, 1.0, CHUNK))
+                await ws.send_bytes(audio_frame(seq, now_ms(), CHUNK))
             assert "s per second" in (await until(ws, "error"))["message"]
             await ws.send_str('{"type":"ping","t":1}')
             assert (await until(ws, "pong"))["t"] == 1
@@ -496,6 +637,302 @@ def test_when_more_operators_connect_than_allowed_expect_the_extra_refused(tmp_p
 
     with serving(tmp_path, max_clients=1) as (base, _):
         run(scenario(base))
+
+
+def test_when_the_hello_token_holds_a_lone_surrogate_expect_a_refusal_not_an_escaped_exception(
+    tmp_path: Path,
+):
+    """JSON's "\\ud800" is a str that UTF-8 cannot encode: the token comparison raised out of
+    the handler (aiohttp logged a traceback, the page saw 1006, nothing was counted)."""
+
+    async def scenario(base: str) -> int | None:
+        async with aiohttp.ClientSession() as session:
+            ws = await session.ws_connect(f"{base.replace('http', 'ws')}/ws", origin=base)
+            await ws.send_str('{"type":"hello","token":"\\ud800"}')
+            return await closed(ws)
+
+    servers: list[ConsoleServer] = []
+    with (
+        escaped_exceptions() as escaped,
+        serving(tmp_path, token=TOKEN, servers=servers) as (
+            base,
+            bridge,
+        ),
+    ):
+        code = run(scenario(base))
+    assert code == 4400  # a malformed hello
+    assert not escaped, described(escaped)
+    assert servers[0].refused_frames == 1
+    assert bridge.calls == []
+
+
+class BrokenModelBridge(Bridge):
+    """A bridge whose robot model cannot be sent: the welcome fails."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.neutral = None  # type: ignore[assignment]
+
+
+def test_when_a_connections_handler_fails_unexpectedly_expect_one_warning_and_close_1011(
+    tmp_path: Path,
+):
+    """An exception outside the per-message boundary (here in the welcome) escaped to aiohttp,
+    which logged a traceback and dropped the connection without a close code."""
+
+    async def scenario(base: str) -> int | None:
+        async with aiohttp.ClientSession() as session:
+            ws = await connect(session, base, name="Ann")
+            return await closed(ws)
+
+    logged: list[tuple[str, str]] = []
+    bridge = BrokenModelBridge()
+    with (
+        escaped_exceptions() as escaped,
+        serving(tmp_path, bridge=bridge, logged=logged) as (
+            base,
+            _,
+        ),
+    ):
+        code = run(scenario(base))
+    assert code == 1011
+    assert not escaped, described(escaped)
+    warnings = [message for level, message in logged if level == "warning"]
+    assert len(warnings) == 1, warnings
+    assert "'Ann'" in warnings[0]
+    assert "TypeError" in warnings[0]
+
+
+def test_when_a_page_drops_its_connection_mid_exchange_expect_no_escaped_exception(
+    tmp_path: Path,
+):
+    """A hello and pings, then a TCP reset: the pong's send failed, the per-message boundary
+    logged it as a failed message and answered with an error, whose send failed again, out of
+    the handler (aiohttp: 'Error handling request ... ClientConnectionResetError')."""
+    pages = 10
+    logged: list[tuple[str, str]] = []
+    with escaped_exceptions() as escaped, serving(tmp_path, logged=logged) as (base, _):
+        for _ in range(pages):
+            sock = raw_websocket(port_of(base))
+            sock.sendall(
+                client_frame(b'{"type":"hello","token":""}')
+                + client_frame(b'{"type":"ping","t":1}') * 5
+            )
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            sock.close()  # a reset, no close frame: the page's tab is gone
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            if sum(" left" in message for _, message in logged) == pages:
+                break
+            time.sleep(0.05)
+    assert sum(" left" in message for _, message in logged) == pages, logged
+    assert not escaped, described(escaped[:3])
+    assert not [message for level, message in logged if level == "warning"], logged[:3]
+
+
+def test_when_a_page_stamps_its_chunks_off_the_consoles_clock_expect_them_dropped_not_fatal(
+    tmp_path: Path,
+):
+    """Stamps of -1e308 ms were published and measured (then the status failed for every page);
+    they are dropped and counted, and the connection stays: a page whose clock offset is
+    catching up after a clock step sends such stamps for a moment."""
+
+    async def scenario(base: str) -> list[str]:
+        async with aiohttp.ClientSession() as session:
+            ws = await connect(session, base)
+            await ws.send_str('{"type":"talk","on":true}')
+            await until(ws, "floor", you=True)
+            for seq in range(60):  # more than VIOLATION_BURST refused frames
+                await ws.send_bytes(audio_frame(seq, -1e308 if seq % 2 else 1.0, CHUNK))
+            await ws.send_bytes(audio_frame(60, now_ms(), CHUNK))
+            await ws.send_str('{"type":"ping","t":1}')
+            errors = []
+            while (message := json.loads((await ws.receive(timeout=5.0)).data))["type"] != "pong":
+                if message["type"] == "error":
+                    errors.append(message["message"])
+            return errors
+
+    servers: list[ConsoleServer] = []
+    with serving(tmp_path, servers=servers) as (base, bridge):
+        errors = run(scenario(base))
+    assert bridge.count("audio") == 1  # only the chunk stamped on the console's clock
+    assert servers[0].refused_frames == 60
+    assert errors
+    assert all("from the console's clock" in error for error in errors), errors
+
+
+class NonFiniteStatusBridge(Bridge):
+    """A bridge whose statistics went wrong: an infinite latency, a NaN gain."""
+
+    def status(self) -> dict[str, Any]:
+        return {"stop": False, "latency": {"n": 2, "p50": math.inf}, "gains": {"head": math.nan}}
+
+
+def test_when_a_status_value_is_not_finite_expect_it_sent_as_null_and_the_rest_kept(
+    tmp_path: Path,
+):
+    """One infinite statistic made encode('status') raise: no page got the stop, enable, gains,
+    health or floor again, and the failure was logged every 0.5 s."""
+
+    async def scenario(base: str) -> dict[str, Any]:
+        async with aiohttp.ClientSession() as session:
+            ws = await connect(session, base)
+            first = await asyncio.wait_for(until(ws, "status"), 3.0)
+            await asyncio.wait_for(until(ws, "status"), 3.0)  # a second tick, not logged again
+            return first
+
+    logged: list[tuple[str, str]] = []
+    with serving(tmp_path, bridge=NonFiniteStatusBridge(), logged=logged) as (base, _):
+        status = run(scenario(base))
+    assert status["stop"] is False
+    assert status["latency"] == {"n": 2, "p50": None}
+    assert status["gains"] == {"head": None}
+    assert status["operators"] == 1
+    warnings = [message for level, message in logged if level == "warning"]
+    assert len(warnings) == 1, warnings
+    assert "status.latency.p50" in warnings[0]
+    assert "status.gains.head" in warnings[0]
+
+
+def test_when_a_talker_sends_one_sample_chunks_expect_the_message_rate_bounded(tmp_path: Path):
+    """The budget counted seconds of audio, not messages: 1-sample chunks (2 bytes) passed at up
+    to 24,000 a second, each one ROS message to audio_features_node. The page sends 50 a
+    second; frames beyond MAX_AUDIO_FRAMES_PER_S are dropped and counted, the talker stays."""
+
+    async def scenario(base: str) -> tuple[float, list[str]]:
+        async with aiohttp.ClientSession() as session:
+            ws = await connect(session, base)
+            await ws.send_str('{"type":"talk","on":true}')
+            await until(ws, "floor", you=True)
+            start = time.monotonic()
+            stamp = now_ms()
+            for seq in range(3000):  # 0.19 s of audio in 3000 messages
+                await ws.send_bytes(audio_frame(seq, stamp, b"\x10\x00"))
+            await ws.send_str('{"type":"ping","t":1}')
+            errors = []
+            while (message := json.loads((await ws.receive(timeout=5.0)).data))["type"] != "pong":
+                if message["type"] == "error":
+                    errors.append(message["message"])
+            return time.monotonic() - start, errors
+
+    servers: list[ConsoleServer] = []
+    with serving(tmp_path, servers=servers) as (base, bridge):
+        elapsed, errors = run(scenario(base))
+    published = bridge.count("audio")
+    assert published <= AUDIO_FRAMES_BURST + MAX_AUDIO_FRAMES_PER_S * elapsed + 1, (
+        published,
+        elapsed,
+    )
+    assert servers[0].refused_frames == 3000 - published
+    assert errors
+    assert all("audio frames per second" in error for error in errors), errors
+
+
+def closed_by_the_server(sock: socket.socket, within_s: float) -> bool:
+    """Whether the server closes ``sock`` (an end of stream or a reset) within ``within_s``."""
+    sock.settimeout(within_s)
+    try:
+        return sock.recv(1024) == b""
+    except ConnectionResetError:
+        return True
+    except TimeoutError:
+        return False
+
+
+def test_when_a_client_never_finishes_its_request_expect_the_connection_closed(tmp_path: Path):
+    """Before the upgrade only aiohttp's keep-alive timeout (3630 s by default) bounded a
+    connection: a half-sent request, or one trickled a byte at a time (slowloris), held its
+    socket for an hour, without a token. Now auth_timeout_s bounds the whole request."""
+    request = b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n" + b"X-Slow: 1\r\n" * 100
+    with serving(tmp_path, auth_timeout_s=0.5) as (base, _):
+        port = port_of(base)
+        with socket.create_connection(("127.0.0.1", port), timeout=5.0) as half:
+            start = time.monotonic()
+            half.sendall(b"GET /ws HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ")
+            half_closed = closed_by_the_server(half, 5.0)
+            half_s = time.monotonic() - start
+        with socket.create_connection(("127.0.0.1", port), timeout=5.0) as trickle:
+            start = time.monotonic()
+            trickle_closed = False
+            for byte in request:  # a byte every 50 ms: 60 s of request
+                try:
+                    trickle.sendall(bytes([byte]))
+                except OSError:  # a reset or a broken pipe: the server closed it
+                    trickle_closed = True
+                    break
+                if select.select([trickle], [], [], 0.05)[0]:
+                    trickle_closed = closed_by_the_server(trickle, 1.0)
+                    break
+                if time.monotonic() - start > 5.0:
+                    break
+            trickle_s = time.monotonic() - start
+    assert half_closed, "a half-sent request was held open"
+    assert half_s < 3.0, half_s
+    assert trickle_closed, "a request sent a byte at a time was held open"
+    assert trickle_s < 3.0, trickle_s
+
+
+def test_when_a_client_never_finishes_its_tls_handshake_expect_the_connection_closed(
+    tmp_path: Path, certificate
+):
+    """asyncio waits 60 s for a TLS handshake by default, and aiohttp's clock starts after it:
+    a connection that never says hello held its socket that long."""
+    cert, key = (str(p) for p in certificate)
+    settings = {"certfile": cert, "keyfile": key, "token": TOKEN, "auth_timeout_s": 0.5}
+    with serving(tmp_path, **settings) as (base, _):
+        sock = socket.create_connection(("127.0.0.1", port_of(base)), timeout=5.0)
+        start = time.monotonic()
+        try:
+            closed = closed_by_the_server(sock, 5.0)
+        finally:
+            sock.close()
+        elapsed = time.monotonic() - start
+    assert closed, "a connection without a TLS handshake was held open"
+    assert elapsed < 3.0, elapsed
+
+
+def test_when_more_connections_are_opened_than_allowed_expect_the_extra_answered_503_at_once(
+    tmp_path: Path,
+):
+    """max_clients counted WebSockets only: any number of TCP connections could wait before
+    their upgrade, each holding a socket (300 of 300 were still open 8 s later)."""
+    limit = CONNECTIONS_PER_CLIENT * 1  # max_clients=1
+    logged: list[tuple[str, str]] = []
+    servers: list[ConsoleServer] = []
+
+    def answer(sock: socket.socket) -> bytes:
+        try:
+            return sock.recv(1024)
+        except ConnectionResetError:  # closed with our request unread: refused all the same
+            return b"(reset)"
+        except TimeoutError:
+            return b"(nothing within 3 s)"
+
+    with serving(tmp_path, max_clients=1, logged=logged, servers=servers) as (base, _):
+        port = port_of(base)
+        sockets = []
+        try:
+            for _ in range(limit + 4):
+                sock = socket.create_connection(("127.0.0.1", port), timeout=3.0)
+                sock.sendall(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ")
+                sockets.append(sock)
+            answers = [answer(sock) for sock in sockets[limit:]]
+            held = select.select(sockets[:limit], [], [], 0.1)[0]
+        finally:
+            for sock in sockets:
+                sock.close()
+        assert all(a.startswith((b"HTTP/1.1 503", b"(reset)")) for a in answers), answers
+        assert held == [], "a connection within the limit was answered or closed"
+        deadline = time.monotonic() + 5.0
+        while True:  # the slots come back as the connections end
+            with socket.create_connection(("127.0.0.1", port), timeout=3.0) as sock:
+                sock.sendall(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n")
+                if answer(sock).startswith(b"HTTP/1.1 200") or time.monotonic() > deadline:
+                    break
+            time.sleep(0.05)
+        assert time.monotonic() <= deadline
+    assert servers[0].refused_connections >= 4
+    assert sum("refusing more" in message for _, message in logged) >= 1
 
 
 def test_when_served_over_https_expect_the_page_and_websocket_to_work(tmp_path: Path, certificate):
@@ -570,14 +1007,14 @@ def test_when_the_console_command_is_given_a_network_bind_without_certificate_ex
 
 
 DROPPING_CLIENT = """
-import asyncio, json, sys, aiohttp
+import asyncio, json, sys, time, aiohttp
 from audio2pose_ros.console.protocol import audio_frame
 async def main(base):
     async with aiohttp.ClientSession() as session:
         ws = await session.ws_connect(base.replace("http", "ws") + "/ws", origin=base)
         await ws.send_str(json.dumps({"type": "hello", "token": "", "name": "Dee"}))
         await ws.send_str(json.dumps({"type": "talk", "on": True}))
-        await ws.send_bytes(audio_frame(0, 1.0, bytes(640)))
+        await ws.send_bytes(audio_frame(0, time.time() * 1e3, bytes(640)))
         print("talking", flush=True)
         await asyncio.sleep(60)
 asyncio.run(main(sys.argv[1]))

@@ -16,12 +16,15 @@ carry the first pose it caused. The console sees three events and relates them:
    which DDS delivers one message to two subscribers) carries it.
 
 The window a chunk spends filling in the page (its duration) and the feature window (25 ms) are
-the algorithmic delay, outside this figure as in ``audio2pose bench --graph``. This module does
-not import rclpy; times are seconds since the epoch.
+the algorithmic delay, outside this figure as in ``audio2pose bench --graph``. A latency that is
+not finite or beyond :data:`MAX_LATENCY_S` either way (a stamp off the console's clock) is no
+measurement and is not kept, so the summary is finite whatever the stamps. This module does not
+import rclpy; times are seconds since the epoch.
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -33,6 +36,10 @@ STAMP_TOLERANCE_S = 0.003  # a command ticked this long before the console saw t
 # still carries it (the filter may receive the same message a little earlier than the console)
 MAX_PAIRING_S = 1.0  # a chunk unanswered for this long, or a raw pose uncommanded, is dropped
 MAX_UNPAIRED = 64  # chunks waiting for their raw pose, at most
+# A latency (any of the three, either sign) beyond an hour is a wrong clock, not a measurement:
+# dropped. The protocol already refuses stamps a minute off; this bound keeps the summary finite
+# (JSON for the pages) whatever the stamps handed in.
+MAX_LATENCY_S = 3600.0
 
 
 @dataclass(frozen=True)
@@ -82,20 +89,21 @@ class VoiceLatency:
             if stamp_s < raw_s - STAMP_TOLERANCE_S:
                 break
             self._pending.popleft()
-            self._samples.append(
-                (
-                    arrival_s - chunk.stamp_s,
-                    chunk.received_s - chunk.stamp_s,
-                    arrival_s - chunk.published_s,
-                )
+            sample = (
+                arrival_s - chunk.stamp_s,
+                chunk.received_s - chunk.stamp_s,
+                arrival_s - chunk.published_s,
             )
+            if all(math.isfinite(value) and abs(value) <= MAX_LATENCY_S for value in sample):
+                self._samples.append(sample)
 
     def summary(self) -> dict[str, float | int]:
         """The latencies kept so far (ms).
 
         Returns:
             ``n`` (how many), and once there is one: ``p50``, ``p99`` and ``last`` voice to
-            command, ``uplink_p50`` (page to console) and ``graph_p50`` (publication to command).
+            command, ``uplink_p50`` (page to console) and ``graph_p50`` (publication to command);
+            all finite (samples are within :data:`MAX_LATENCY_S`).
         """
         if not self._samples:
             return {"n": 0}

@@ -4,18 +4,23 @@ Two kinds of WebSocket frames come from the page:
 
 - **Binary: one audio chunk.** A 16-byte header, little-endian: the magic ``A2PA``, a uint32
   sequence number, a float64 stamp (ms since the Unix epoch, on the console's clock: the page
-  corrects its own by the offset its pings measure), then 16 kHz mono S16LE samples, a whole
-  number of them, at most ``max_browser_chunk_s`` long (:func:`parse_audio_frame`). The page
-  sends 20 ms (320 samples).
+  corrects its own by the offset its pings measure; within :data:`MAX_STAMP_SKEW_S` of the
+  console's clock), then 16 kHz mono S16LE samples, a whole number of them, at most
+  ``max_browser_chunk_s`` long (:func:`parse_audio_frame`). The page sends 20 ms (320 samples).
 - **Text: one control message**, a JSON object of at most :data:`MAX_TEXT_BYTES` whose ``type``
   says what it is and whose fields are exactly those of :data:`CONTROL_FIELDS`, of the right
   type and range (:func:`parse_control`): ``hello`` (token and display name, the first message),
   ``talk`` (take or release the floor), ``stop`` (emergency stop or release), ``enable``,
   ``gains`` (``head``, ``arms``, ``hip`` in [0, 1]) and ``ping`` (clock offset and round trip).
+  Every string is text that UTF-8 can encode (JSON can carry lone surrogates, which it
+  cannot) and every integer within :data:`MAX_JSON_INT` of zero, so every number is a finite
+  float.
 
 Anything else raises :class:`ProtocolError` with a one-line reason sent back to the page; the
 connection, the graph and the robot carry on. Rates are bounded per connection by the server
-(:class:`~audio2pose_ros.audio.source.AudioBudget` for seconds of audio and for messages).
+(:class:`~audio2pose_ros.audio.source.AudioBudget` for seconds of audio, audio frames and
+messages). What the console sends is made of finite numbers (:func:`encode`,
+:func:`json_ready`).
 """
 
 from __future__ import annotations
@@ -26,20 +31,24 @@ import struct
 from dataclasses import dataclass
 from typing import Any
 
-from audio2pose_ros.errors import InputError
+from audio2pose_ros.errors import InputError, short_repr
 
 __all__ = [
     "AUDIO_HEADER",
     "AUDIO_MAGIC",
     "CONTROL_FIELDS",
     "GAIN_GROUPS",
+    "MAX_JSON_INT",
     "MAX_NAME_CHARS",
+    "MAX_STAMP_SKEW_S",
     "MAX_TEXT_BYTES",
+    "AudioDroppedError",
     "AudioFrame",
     "Control",
     "ProtocolError",
     "audio_frame",
     "encode",
+    "json_ready",
     "parse_audio_frame",
     "parse_control",
 ]
@@ -49,6 +58,14 @@ AUDIO_HEADER = struct.Struct("<4sId")  # magic, sequence number, stamp (ms since
 MAX_TEXT_BYTES = 1024  # a control message is a few dozen bytes
 MAX_TOKEN_CHARS = 256
 MAX_NAME_CHARS = 40
+# JavaScript's largest exact integer: the page's numbers are doubles, so no integer it sends is
+# larger; beyond it an integer would not even convert to a float (10**400 overflows).
+MAX_JSON_INT = 2**53
+# A chunk's stamp further than this from the console's clock (either way) cannot be the page's
+# corrected clock: its pings measure the offset to within a round trip, and it drops chunks that
+# wait in its buffer for more than about a second. What is left is a clock stepped under a
+# running page (its offset follows within a few pings) or a client that stamps at random.
+MAX_STAMP_SKEW_S = 60.0
 GAIN_GROUPS = ("head", "arms", "hip")  # the filter's head_gain, arms_gain, hip_gain
 # Every control message type and its fields: (name, type, required).
 CONTROL_FIELDS: dict[str, tuple[tuple[str, type, bool], ...]] = {
@@ -63,6 +80,15 @@ CONTROL_FIELDS: dict[str, tuple[tuple[str, type, bool], ...]] = {
 
 class ProtocolError(InputError):
     """A frame from a browser that the console does not act on (the reason is sent back)."""
+
+
+class AudioDroppedError(ProtocolError):
+    """An audio chunk dropped and counted that is no fault of the connection, which stays open.
+
+    Audio beyond its rate, or stamped off the console's clock: a page catching up after a
+    stall, or whose clock offset is catching up after a clock step, sends such chunks for a
+    moment (the server does not count them towards closing the connection).
+    """
 
 
 @dataclass(frozen=True)
@@ -98,16 +124,18 @@ def audio_frame(seq: int, stamp_ms: float, pcm: bytes) -> bytes:
     return AUDIO_HEADER.pack(AUDIO_MAGIC, seq & 0xFFFFFFFF, stamp_ms) + pcm
 
 
-def parse_audio_frame(data: bytes, max_pcm_bytes: int) -> AudioFrame:
+def parse_audio_frame(data: bytes, max_pcm_bytes: int, now_ms: float) -> AudioFrame:
     """Check and unpack one binary frame.
 
     Args:
         data: the frame as received.
         max_pcm_bytes: largest PCM payload allowed (``ConsoleSettings.max_chunk_bytes``).
+        now_ms: the console's clock when the frame arrived (ms since the epoch).
 
     Raises:
         ProtocolError: too short, wrong magic, a non-finite stamp, an odd or empty payload, or
             one longer than ``max_pcm_bytes``.
+        AudioDroppedError: a stamp more than :data:`MAX_STAMP_SKEW_S` from ``now_ms``.
     """
     if len(data) < AUDIO_HEADER.size + 2:
         raise ProtocolError(f"audio frame of {len(data)} bytes is shorter than header + 1 sample")
@@ -116,6 +144,11 @@ def parse_audio_frame(data: bytes, max_pcm_bytes: int) -> AudioFrame:
         raise ProtocolError(f"audio frame with magic {magic!r}, expected {AUDIO_MAGIC!r}")
     if not math.isfinite(stamp_ms):
         raise ProtocolError("audio frame with a non-finite stamp")
+    if not abs(stamp_ms - now_ms) <= MAX_STAMP_SKEW_S * 1e3:
+        raise AudioDroppedError(
+            f"audio frame stamped {(stamp_ms - now_ms) * 1e-3:+.3g} s from the console's clock "
+            f"(at most {MAX_STAMP_SKEW_S:g} s either way): dropped"
+        )
     n_pcm = len(data) - AUDIO_HEADER.size
     if n_pcm % 2:
         raise ProtocolError(f"audio frame of {n_pcm} bytes is not whole 16-bit samples")
@@ -132,7 +165,7 @@ def _field(kind: str, name: str, expected: type, value: object) -> object:
     if expected is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ProtocolError(f"{kind}.{name} must be a number, got {type(value).__name__}")
-        number = float(value)
+        number = float(value)  # an int is within MAX_JSON_INT (_parse_int): no OverflowError
         if not math.isfinite(number):
             raise ProtocolError(f"{kind}.{name} must be finite")
         if kind == "gains" and not 0.0 <= number <= 1.0:
@@ -147,6 +180,10 @@ def _field(kind: str, name: str, expected: type, value: object) -> object:
         limit = MAX_TOKEN_CHARS if name == "token" else MAX_NAME_CHARS
         if len(value) > limit:
             raise ProtocolError(f"{kind}.{name} is longer than {limit} characters")
+        try:  # JSON's "\ud800" is a str that no UTF-8 encoder (hmac, logs, replies) accepts
+            value.encode("utf-8")
+        except UnicodeEncodeError:
+            raise ProtocolError(f"{kind}.{name} must be valid UTF-8 text") from None
         if name == "name" and not value.isprintable():
             raise ProtocolError("hello.name must be printable text")
     return value
@@ -157,13 +194,17 @@ def parse_control(text: str | bytes) -> Control:
 
     Raises:
         ProtocolError: too long, not JSON, not an object, an unknown type, a missing or unknown
-            field, a field of the wrong type, a gain outside [0, 1] or a non-finite number.
+            field, a field of the wrong type, a string that is not valid UTF-8 text, a gain
+            outside [0, 1], a non-finite number or an integer beyond :data:`MAX_JSON_INT`.
     """
-    size = len(text.encode("utf-8") if isinstance(text, str) else text)
+    try:
+        size = len(text.encode("utf-8") if isinstance(text, str) else text)
+    except UnicodeEncodeError:
+        raise ProtocolError("message is not valid UTF-8 text") from None
     if size > MAX_TEXT_BYTES:
         raise ProtocolError(f"message of {size} bytes is over the limit of {MAX_TEXT_BYTES}")
     try:
-        message = json.loads(text, parse_constant=_refuse_constant)
+        message = json.loads(text, parse_constant=_refuse_constant, parse_int=_parse_int)
     except (ValueError, RecursionError):
         raise ProtocolError("message is not JSON") from None
     if not isinstance(message, dict):
@@ -194,6 +235,49 @@ def _refuse_constant(name: str) -> float:
     raise ValueError(name)
 
 
+def _parse_int(text: str) -> int:
+    """A JSON integer, refused beyond :data:`MAX_JSON_INT` whatever field it is in."""
+    value = int(text)  # at most MAX_TEXT_BYTES digits: cheap, and below Python's digit limit
+    if abs(value) > MAX_JSON_INT:
+        raise ProtocolError(
+            f"integer {short_repr(text, 24)} is out of range (at most 2**53 in magnitude)"
+        )
+    return value
+
+
 def encode(kind: str, **fields: object) -> str:
-    """A message to the page: a JSON object with ``type`` and ``fields`` (finite numbers only)."""
+    """A message to the page: a JSON object with ``type`` and ``fields`` (finite numbers only).
+
+    Raises:
+        ValueError: a number is NaN or infinite (:func:`json_ready` replaces them first).
+    """
     return json.dumps({"type": kind, **fields}, allow_nan=False, separators=(",", ":"))
+
+
+def json_ready(value: object) -> tuple[object, list[str]]:
+    """``value`` with everything JSON cannot carry replaced by None, and where that was.
+
+    A snapshot for the pages (status, pose) holds statistics and values from other nodes: a NaN,
+    an infinity or an object that is not JSON becomes ``null`` in its own field, so one bad
+    value never stops the whole message.
+
+    Returns:
+        The cleaned copy (dicts, with their keys as text, lists, strings, booleans, integers,
+        finite floats, None) and the paths of the values replaced (``latency.p50``,
+        ``health[2].level``).
+    """
+    replaced: list[str] = []
+
+    def clean(item: object, at: str) -> object:
+        if item is None or isinstance(item, str | bool | int):
+            return item
+        if isinstance(item, float) and math.isfinite(item):
+            return item
+        if isinstance(item, dict):
+            return {str(k): clean(v, f"{at}.{k}" if at else str(k)) for k, v in item.items()}
+        if isinstance(item, list | tuple):
+            return [clean(v, f"{at}[{i}]") for i, v in enumerate(item)]
+        replaced.append(at or "(the value)")
+        return None
+
+    return clean(value, ""), replaced

@@ -4,27 +4,39 @@ It serves the page (the built front end, ``web/dist``), the robot's URDF and one
 ``/ws``, and talks to the robot only through a :class:`GraphBridge` (``console_node`` is one;
 tests use their own). What a connection goes through:
 
-1. **Before the upgrade**: the Host and Origin checks of
+1. **The TCP connection**: at most :data:`CONNECTIONS_PER_CLIENT` times ``max_clients`` are
+   open at once, page loads and WebSockets together (more are answered 503 and closed at
+   once). A connection must complete its TLS handshake, and then its request, within
+   ``auth_timeout_s`` each, and an idle keep-alive connection is closed after as long
+   (aiohttp's own default is an hour: half-sent requests would hold sockets that long).
+2. **Before the upgrade**: the Host and Origin checks of
    :func:`~audio2pose_ros.console.access.request_problem` (403) and ``max_clients`` open
-   connections, identified or still waiting for their token (503).
-2. **Token**: the first message must be a ``hello`` with the token, within ``auth_timeout_s``;
+   WebSockets, identified or still waiting for their token (503).
+3. **Token**: the first message must be a ``hello`` with the token, within ``auth_timeout_s``;
    otherwise the connection is closed (code 4401 for a wrong token, 4400 for anything else).
-3. **Bounded use**: a frame larger than the largest allowed chunk closes the connection (1009,
+4. **Bounded use**: a frame larger than the largest allowed chunk closes the connection (1009,
    before it is read in full); every other frame is checked by
    :mod:`~audio2pose_ros.console.protocol`; audio counts against
-   ``max_browser_audio_s_per_s`` and text against ``max_messages_per_s``. A refused frame is
-   dropped, counted and answered with an ``error`` message (at most :data:`ERRORS_PER_S` a
-   second after a burst of :data:`ERRORS_BURST`); a connection that keeps sending refused
-   frames (:data:`VIOLATION_BURST` more than :data:`VIOLATIONS_PER_S` allow) is closed. Audio
-   beyond its rate is only dropped and counted: the page may be catching up after a stall.
-4. **The floor**: only the holder's audio is published; a ``stop`` is accepted from anyone, a
+   ``max_browser_audio_s_per_s`` seconds and :data:`MAX_AUDIO_FRAMES_PER_S` frames, text
+   against ``max_messages_per_s``. A refused frame is dropped, counted (``refused_frames``) and
+   answered with an ``error`` message (at most :data:`ERRORS_PER_S` a second after a burst of
+   :data:`ERRORS_BURST`); a connection that keeps sending refused frames
+   (:data:`VIOLATION_BURST` more than :data:`VIOLATIONS_PER_S` allow) is closed. Audio beyond
+   its rates or stamped off the console's clock is only dropped and counted
+   (:class:`~audio2pose_ros.console.protocol.AudioDroppedError`): the page may be catching up
+   after a stall or a clock step.
+5. **The floor**: only the holder's audio is published; a ``stop`` is accepted from anyone, a
    release of the stop, ``enable`` and ``gains`` only while the floor is free or one's own.
-5. **The end**: a closed or dropped connection (WebSocket pings every :data:`HEARTBEAT_S`)
-   releases its floor: audio stops, and the filter's watchdog brings the robot to rest.
+6. **The end**: a closed or dropped connection (WebSocket pings every :data:`HEARTBEAT_S`)
+   releases its floor: audio stops, and the filter's watchdog brings the robot to rest. A page
+   that leaves while it is being answered ends its session quietly; any other exception in a
+   connection's handler is logged in one line and closes that connection (1011), never
+   escaping to aiohttp.
 
 Every page is sent the pose at ``pose_rate_hz`` and the status (stop, enable, gains, health,
 latency, floor, operators) every :data:`STATUS_PERIOD_S`; a page that reads slower than that
-skips frames rather than making the server queue them.
+skips frames rather than making the server queue them. A value in them that JSON cannot carry
+(a NaN statistic) is sent as ``null`` and logged once, the rest of the message as usual.
 """
 
 from __future__ import annotations
@@ -32,6 +44,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
+import socket
 import ssl
 import threading
 import time
@@ -48,10 +61,12 @@ from audio2pose_ros.console.floor import Floor
 from audio2pose_ros.console.protocol import (
     AUDIO_HEADER,
     MAX_TEXT_BYTES,
+    AudioDroppedError,
     AudioFrame,
     Control,
     ProtocolError,
     encode,
+    json_ready,
     parse_audio_frame,
     parse_control,
 )
@@ -66,10 +81,26 @@ ERRORS_PER_S = 2.0  # error messages sent back to one connection at most ...
 ERRORS_BURST = 10.0  # ... after a burst of this many
 VIOLATIONS_PER_S = 5.0  # refused frames a connection may keep sending ...
 VIOLATION_BURST = 50.0  # ... after a burst of this many; beyond it the connection is closed
+# Audio frames (binary messages) a connection may send per second: twice the page's 50 (20 ms
+# chunks) ...
+MAX_AUDIO_FRAMES_PER_S = 100.0
+# ... after a burst of this many: 2 s of the page's chunks, more than the 75 the seconds budget
+# (max_browser_audio_s_per_s, 1.5 s) lets through at once. So the page, even catching up after a
+# stall, meets the seconds budget first; only chunks shorter than 15 ms meet this one, which
+# bounds the messages a talker causes downstream (one ROS message each), not only their seconds.
+AUDIO_FRAMES_BURST = 100.0
+# Open TCP connections at most, per max_clients: a browser loads the page over up to 6, and
+# keeps its WebSocket beside them. Beyond it a connection is answered 503 and closed.
+CONNECTIONS_PER_CLIENT = 8
 CLOSE_BAD_TOKEN = 4401
 CLOSE_NO_HELLO = 4400
 CLOSE_POLICY = 1008  # RFC 6455: policy violation
+CLOSE_INTERNAL = 1011  # RFC 6455: the server met an unexpected condition
+MAX_CLOSE_REASON_BYTES = 120  # a close frame's reason is at most 123 bytes of UTF-8
 SEND_TIMEOUT_S = 2.0
+BUSY_RESPONSE = (
+    b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 0\r\nConnection: close\r\n\r\n"
+)
 CONTENT_TYPES = {
     ".html": "text/html",
     ".js": "text/javascript",
@@ -97,8 +128,8 @@ restart the console.</p></body></html>
 """
 
 
-class AudioOverRateError(ProtocolError):
-    """Audio beyond ``max_browser_audio_s_per_s``: dropped and counted, the connection stays."""
+class _PeerLeftError(Exception):
+    """A send to a page failed because its connection is closing: its session ends quietly."""
 
 
 class GraphBridge(Protocol):
@@ -141,6 +172,9 @@ class _Session:
     peer: str
     audio: AudioBudget
     messages: AudioBudget
+    frames: AudioBudget = field(
+        default_factory=lambda: AudioBudget(MAX_AUDIO_FRAMES_PER_S, AUDIO_FRAMES_BURST)
+    )
     violations: AudioBudget = field(
         default_factory=lambda: AudioBudget(VIOLATIONS_PER_S, VIOLATION_BURST)
     )
@@ -186,6 +220,11 @@ class ConsoleServer:
         self._ids = itertools.count(1)
         self._runner: web.AppRunner | None = None
         self._tasks: list[asyncio.Task[None]] = []
+        self._tcp = _Connections(
+            CONNECTIONS_PER_CLIENT * settings.max_clients, settings.auth_timeout_s
+        )
+        self._full = False  # connections are being refused (logged once per episode)
+        self._unsent: set[str] = set()  # snapshot fields sent as null, logged once each
         self.files = {
             path.name: path.read_bytes()
             for path in sorted(web_dir.glob("*"))
@@ -221,10 +260,22 @@ class ConsoleServer:
         app.router.add_get("/urdf/pepper.urdf", self._urdf)
         app.router.add_get("/favicon.ico", self._no_icon)
         app.router.add_get("/{name}", self._file)
-        self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
+        # A connection's clock starts when it is made: a request not complete by then, or an
+        # idle keep-alive connection, is closed (the page's few files load within milliseconds).
+        self._runner = web.AppRunner(
+            app,
+            access_log=None,
+            handle_signals=False,
+            keepalive_timeout=self.settings.auth_timeout_s,
+        )
         await self._runner.setup()
-        site = web.TCPSite(
-            self._runner, self.access.host, self.access.port, ssl_context=self._ssl_context()
+        site = _Site(
+            self._runner,
+            self.access.host,
+            self.access.port,
+            self._ssl_context(),
+            self._accept,
+            handshake_timeout_s=self.settings.auth_timeout_s,
         )
         try:
             await site.start()
@@ -234,8 +285,7 @@ class ConsoleServer:
                 f"parameters host and port: cannot listen on {self.access.host}:"
                 f"{self.access.port}: {exc.strerror or exc}"
             ) from None
-        server = site._server  # the bound socket tells the port chosen for port 0
-        sockets = getattr(server, "sockets", None) or []
+        sockets = site.sockets  # the bound socket tells the port chosen for port 0
         self.port = int(sockets[0].getsockname()[1]) if sockets else self.access.port
         self._tasks = [
             asyncio.create_task(self._every(1.0 / self.settings.pose_rate_hz, self._send_pose)),
@@ -253,12 +303,34 @@ class ConsoleServer:
             await self._runner.cleanup()
 
     async def _every(self, period_s: float, send: Callable[[], Awaitable[None]]) -> None:
+        failed = ""  # the last failure, logged once until it changes or sending works again
         while True:
             await asyncio.sleep(period_s)
             try:
                 await send()
             except Exception as exc:  # the boundary: a bad snapshot must not end the loop
-                self.log("warning", f"console: sending to the pages failed: {exc!r}")
+                if repr(exc) != failed:
+                    self.log("warning", f"console: sending to the pages failed: {exc!r}")
+                failed = repr(exc)
+            else:
+                failed = ""
+
+    def _accept(self) -> asyncio.BaseProtocol:
+        """The protocol for a new TCP connection: aiohttp's, or a refusal beyond the limit."""
+        if not self._tcp.admit():
+            self.refused_connections += 1
+            if not self._full:
+                self.log(
+                    "warning",
+                    f"console: {self._tcp.limit} connections open, the most allowed "
+                    f"({CONNECTIONS_PER_CLIENT} per max_clients): refusing more",
+                )
+            self._full = True
+            return _Busy()
+        self._full = False
+        assert self._runner is not None
+        assert self._runner.server is not None
+        return self._tcp.counted(self._runner.server())
 
     # --- HTTP -----------------------------------------------------------------------------------
 
@@ -283,6 +355,7 @@ class ConsoleServer:
     # --- WebSocket ------------------------------------------------------------------------------
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
+        """One WebSocket from upgrade to end: the boundary no exception crosses."""
         peer = request.remote or "?"
         problem = request_problem(
             self.access, request.headers.get("Host"), request.headers.get("Origin")
@@ -300,7 +373,10 @@ class ConsoleServer:
             heartbeat=HEARTBEAT_S,
             max_msg_size=AUDIO_HEADER.size + self.settings.max_chunk_bytes,
         )
-        await ws.prepare(request)
+        try:
+            await ws.prepare(request)
+        except ConnectionError:  # the page left during the upgrade
+            return ws
         self.connections += 1
         session = _Session(
             id=next(self._ids),
@@ -320,15 +396,28 @@ class ConsoleServer:
                 self.log("info", f"console: operator {session.name!r} connected from {peer}")
                 await self._welcome(session)
                 await self._serve(session)
+        except (_PeerLeftError, ConnectionError):
+            pass  # the page left while it was being answered: nothing failed here
+        except Exception as exc:  # the boundary: one line, this connection closed, no traceback
+            self._failed(session, "closing it after an error", exc)
+            await ws.close(code=CLOSE_INTERNAL, message=b"console error")
         finally:
             self.connections -= 1
             self.sessions.pop(session.id, None)
-            if self.floor.release(session.id):
-                self.bridge.end_talk()
-                await self._send_floor()
+            try:
+                if self.floor.release(session.id):
+                    self.bridge.end_talk()
+                    await self._send_floor()
+            except Exception as exc:  # the boundary, for the end of the session too
+                self._failed(session, "releasing its floor failed", exc)
             if session.name:
                 self.log("info", f"console: operator {session.name!r} left")
         return ws
+
+    def _failed(self, session: _Session, what: str, exc: Exception) -> None:
+        """Log an unexpected exception of a connection's handler: one line, no traceback."""
+        who = repr(session.name) if session.name else "a page not yet identified"
+        self.log("warning", f"console: {who} ({session.peer}): {what}: {exc!r}")
 
     async def _authenticate(self, session: _Session) -> bool:
         """Wait for the hello with the token; close the connection if it does not come."""
@@ -346,12 +435,12 @@ class ConsoleServer:
                 raise ProtocolError("the first message must be a hello with the token")
         except ProtocolError as exc:
             self.refused_frames += 1
-            await ws.close(code=CLOSE_NO_HELLO, message=str(exc)[:120].encode())
+            await ws.close(code=CLOSE_NO_HELLO, message=_close_reason(str(exc)))
             return False
         if not self.access.token_matches(control.fields["token"]):
             self.refused_connections += 1
             self.log("warning", f"console: wrong token from {session.peer}: connection closed")
-            await ws.send_str(encode("error", message="wrong token: access refused"))
+            await self._send_now(session, encode("error", message="wrong token: access refused"))
             await ws.close(code=CLOSE_BAD_TOKEN, message=b"wrong token")
             return False
         name = " ".join(control.fields.get("name", "").split()) or f"operator {session.id}"
@@ -359,7 +448,8 @@ class ConsoleServer:
         return True
 
     async def _welcome(self, session: _Session) -> None:
-        await session.ws.send_str(
+        await self._send_now(
+            session,
             encode(
                 "welcome",
                 id=session.id,
@@ -367,11 +457,16 @@ class ConsoleServer:
                 joints=list(self.bridge.joint_names),
                 neutral=dict(self.bridge.neutral),
                 urdf="urdf/pepper.urdf",
-            )
+            ),
         )
         await self._send_floor()
 
     async def _serve(self, session: _Session) -> None:
+        """Act on each message until the connection ends.
+
+        Raises:
+            _PeerLeftError: the page left while it was being answered.
+        """
         async for message in session.ws:
             try:
                 if message.type == WSMsgType.BINARY:
@@ -385,20 +480,41 @@ class ConsoleServer:
                     await self._on_control(session, parse_control(message.data))
                 else:  # an oversized frame or a broken connection: aiohttp closes it
                     break
-            except AudioOverRateError as exc:  # a page catching up after a stall: not a fault
+            except AudioDroppedError as exc:  # a page catching up: not a fault
                 await self._refuse(session, str(exc), violation=False)
             except ProtocolError as exc:
                 if not await self._refuse(session, str(exc)):
                     break
+            except _PeerLeftError:
+                raise  # no answer can reach the page: not a failed message
             except Exception as exc:  # the boundary: a bug must not end the operator's session
                 self.log("warning", f"console: {session.name!r}'s message failed: {exc!r}")
                 if not await self._refuse(session, "the console could not act on that message"):
                     break
 
+    async def _send_now(self, session: _Session, text: str) -> None:
+        """Send one message to the page and wait until it is on its way.
+
+        Every send on a connection's own path goes through here (broadcasts use :meth:`_send`).
+
+        Raises:
+            _PeerLeftError: the connection is closing or closed, or the page has not read for
+                :data:`SEND_TIMEOUT_S`.
+        """
+        if session.ws.closed:
+            raise _PeerLeftError("the connection is closed")
+        try:
+            await asyncio.wait_for(session.ws.send_str(text), SEND_TIMEOUT_S)
+        except (ConnectionError, asyncio.TimeoutError, RuntimeError) as exc:
+            raise _PeerLeftError(repr(exc)) from None
+
     async def _refuse(self, session: _Session, reason: str, violation: bool = True) -> bool:
         """Count a refused frame and tell the page; False when the connection is closed for it.
 
         Only a ``violation`` counts towards closing the connection.
+
+        Raises:
+            _PeerLeftError: the page left.
         """
         session.refused += 1
         self.refused_frames += 1
@@ -411,16 +527,20 @@ class ConsoleServer:
             await session.ws.close(code=CLOSE_POLICY, message=b"too many refused frames")
             return False
         if session.errors.take(1.0):
-            await session.ws.send_str(encode("error", message=reason))
+            await self._send_now(session, encode("error", message=reason))
         return True
 
     def _on_audio(self, session: _Session, data: bytes) -> None:
         received_s = time.time()
-        frame = parse_audio_frame(data, self.settings.max_chunk_bytes)
+        if not session.frames.take(1.0):
+            raise AudioDroppedError(
+                f"more than {MAX_AUDIO_FRAMES_PER_S:g} audio frames per second: dropped"
+            )
+        frame = parse_audio_frame(data, self.settings.max_chunk_bytes, received_s * 1e3)
         if not self.floor.holds(session.id):
             raise ProtocolError("audio without the floor: press Talk first")
         if not session.audio.take(frame.duration_s):
-            raise AudioOverRateError(
+            raise AudioDroppedError(
                 f"audio beyond {self.settings.max_browser_audio_s_per_s:g} s per second: dropped"
             )
         self.bridge.publish_audio(frame, received_s)
@@ -428,8 +548,8 @@ class ConsoleServer:
     async def _on_control(self, session: _Session, control: Control) -> None:
         on = control.fields.get("on")
         if control.type == "ping":
-            await session.ws.send_str(
-                encode("pong", t=control.fields["t"], server=time.time() * 1e3)
+            await self._send_now(
+                session, encode("pong", t=control.fields["t"], server=time.time() * 1e3)
             )
         elif control.type == "hello":
             raise ProtocolError("already identified")
@@ -477,7 +597,7 @@ class ConsoleServer:
 
     async def _send_pose(self) -> None:
         if self.sessions:
-            text = encode("pose", **self.bridge.pose())
+            text = self._snapshot("pose", self.bridge.pose())
             for session in list(self.sessions.values()):
                 self._send(session, text)
 
@@ -486,9 +606,22 @@ class ConsoleServer:
             status = self.bridge.status()
             status["operators"] = len(self.sessions)
             status["floor"] = self.floor.holder_name or None
-            text = encode("status", **status)
+            text = self._snapshot("status", status)
             for session in list(self.sessions.values()):
                 self._send(session, text)
+
+    def _snapshot(self, kind: str, fields: dict[str, Any]) -> str:
+        """``fields`` as a message to the pages, a value JSON cannot carry sent as null.
+
+        Each such field is logged once (the first time), not on every tick.
+        """
+        ready, replaced = json_ready(fields)
+        assert isinstance(ready, dict)
+        new = [f"{kind}.{path}" for path in replaced if f"{kind}.{path}" not in self._unsent]
+        if new:
+            self._unsent.update(new)
+            self.log("warning", f"console: sent as null (not a finite number or JSON): {new}")
+        return encode(kind, **ready)
 
     def _send(self, session: _Session, text: str, droppable: bool = True) -> None:
         """Send without waiting.
@@ -511,6 +644,153 @@ class ConsoleServer:
                     session.sending = False
 
         asyncio.get_running_loop().create_task(send())
+
+
+def _close_reason(text: str) -> bytes:
+    """``text`` as a close frame's reason: UTF-8, cut to whole characters within the limit."""
+    encoded = text.encode("utf-8", "replace")[:MAX_CLOSE_REASON_BYTES]
+    return encoded.decode("utf-8", "ignore").encode("utf-8")
+
+
+class _Connections:
+    """The TCP connections open at once, those still in their TLS handshake included.
+
+    A connection counts from its acceptance until it is lost; one that is not connected within
+    ``handshake_timeout_s`` of its acceptance (its TLS handshake failed or timed out, which
+    asyncio does not tell the protocol) stops counting then.
+
+    Args:
+        limit: connections open at once, at most.
+        handshake_timeout_s: the bound on a TLS handshake.
+    """
+
+    def __init__(self, limit: int, handshake_timeout_s: float) -> None:
+        self.limit = limit
+        self.handshake_timeout_s = handshake_timeout_s
+        self._connected: set[_Counted] = set()
+        self._handshaking: dict[_Counted, float] = {}  # -> the time its handshake has ended by
+
+    def number_open(self) -> int:
+        """Connections open now (forgetting handshakes that have ended without a connection)."""
+        now = time.monotonic()
+        self._handshaking = {c: t for c, t in self._handshaking.items() if now < t}
+        return len(self._connected) + len(self._handshaking)
+
+    def admit(self) -> bool:
+        """Whether one more connection may open."""
+        return self.number_open() < self.limit
+
+    def counted(self, protocol: asyncio.Protocol) -> asyncio.Protocol:
+        """``protocol`` for a connection just accepted, counted until its connection ends."""
+        counted = _Counted(protocol, self)
+        self._handshaking[counted] = time.monotonic() + self.handshake_timeout_s
+        return counted
+
+    def made(self, connection: _Counted) -> None:
+        """``connection`` is connected (its TLS handshake, if any, done)."""
+        self._handshaking.pop(connection, None)
+        self._connected.add(connection)
+
+    def lost(self, connection: _Counted) -> None:
+        """``connection`` has ended."""
+        self._handshaking.pop(connection, None)
+        self._connected.discard(connection)
+
+
+class _Counted(asyncio.Protocol):
+    """aiohttp's protocol for one TCP connection, telling :class:`_Connections` its life."""
+
+    def __init__(self, inner: asyncio.Protocol, connections: _Connections) -> None:
+        self._inner = inner
+        self._connections = connections
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        """Count it as connected, then hand it to aiohttp."""
+        self._connections.made(self)
+        self._inner.connection_made(transport)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        """Stop counting it, then tell aiohttp."""
+        self._connections.lost(self)
+        self._inner.connection_lost(exc)
+
+    def data_received(self, data: bytes) -> None:
+        """To aiohttp."""
+        self._inner.data_received(data)
+
+    def eof_received(self) -> bool | None:
+        """To aiohttp."""
+        return self._inner.eof_received()
+
+    def pause_writing(self) -> None:
+        """To aiohttp."""
+        self._inner.pause_writing()
+
+    def resume_writing(self) -> None:
+        """To aiohttp."""
+        self._inner.resume_writing()
+
+
+class _Busy(asyncio.Protocol):
+    """A TCP connection beyond the limit: answered 503 and closed at once."""
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        """Answer and close."""
+        if isinstance(transport, asyncio.WriteTransport):
+            transport.write(BUSY_RESPONSE)
+        transport.close()
+
+
+class _Site(web.BaseSite):
+    """aiohttp's TCP site with its own protocol factory and a bound on the TLS handshake.
+
+    Args:
+        runner: the application's runner (set up).
+        host: address to bind.
+        port: TCP port (0: any free one).
+        ssl_context: TLS, or None for plain HTTP.
+        accept: makes the protocol of each new connection.
+        handshake_timeout_s: a TLS handshake not done within this time is dropped.
+    """
+
+    def __init__(
+        self,
+        runner: web.AppRunner,
+        host: str,
+        port: int,
+        ssl_context: ssl.SSLContext | None,
+        accept: Callable[[], asyncio.BaseProtocol],
+        handshake_timeout_s: float,
+    ) -> None:
+        super().__init__(runner, ssl_context=ssl_context)
+        self._host = host
+        self._port = port
+        self._accept = accept
+        self._handshake_timeout_s = handshake_timeout_s
+        self.sockets: list[socket.socket] = []
+
+    @property
+    def name(self) -> str:
+        """The site's address."""
+        return f"{'https' if self._ssl_context else 'http'}://{self._host}:{self._port}"
+
+    async def start(self) -> None:
+        """Bind and serve.
+
+        Raises:
+            OSError: the address cannot be bound.
+        """
+        await super().start()
+        server = await asyncio.get_running_loop().create_server(
+            self._accept,
+            self._host,
+            self._port,
+            ssl=self._ssl_context,
+            ssl_handshake_timeout=self._handshake_timeout_s if self._ssl_context else None,
+            backlog=self._backlog,
+        )
+        self._server = server
+        self.sockets = list(server.sockets)
 
 
 @web.middleware
