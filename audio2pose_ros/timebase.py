@@ -20,6 +20,10 @@ SAMPLES_PER_FRAME = 160  # 10 ms frame step (hop)
 FRAME_RATE_HZ = SAMPLE_RATE_HZ / SAMPLES_PER_FRAME  # 100 frames (poses) per second
 FRAME_PERIOD_S = SAMPLES_PER_FRAME / SAMPLE_RATE_HZ  # 0.01 s between frames
 WINDOW_S = WINDOW_SAMPLES / SAMPLE_RATE_HZ  # 0.025 s
+# A features stream runs at most this many times real time (``audio2pose run --rate`` and bag
+# replay go up to 100) ...
+MAX_STREAM_SPEEDUP = 100.0
+MAX_STREAM_SLACK_FRAMES = 10_000  # ... give or take this many frames (100 s) of timing
 
 
 def complete_frames(n_samples: int) -> int:
@@ -49,6 +53,9 @@ class FrameSequence:
     receiver falls behind). A batch that starts before it is a new stream (the publisher
     restarted), and a batch without an index (another publisher, or an older one) says nothing.
     The frames after the last batch received cannot be known lost until a later batch arrives.
+    A batch further ahead than the time since the last one allows, even at
+    :data:`MAX_STREAM_SPEEDUP` times real time (a bag replayed fast), is not a count of lost
+    frames but a new stream too: an index says what its sender claims.
     """
 
     def __init__(self) -> None:
@@ -56,16 +63,27 @@ class FrameSequence:
         self.expected: int | None = None
         self.lost = 0  # frames known missing, over every stream
         self.restarts = 0  # batches that started a new stream (index before the expected one)
+        self._last_s: float | None = None
 
-    def observe(self, first: int | None, n_frames: int) -> int:
-        """Frames missing just before a batch of ``n_frames`` starting at index ``first``."""
+    def observe(self, first: int | None, n_frames: int, now_s: float | None = None) -> int:
+        """Frames missing just before a batch of ``n_frames`` starting at index ``first``.
+
+        ``now_s`` (a monotonic clock) bounds the frames that can have gone missing since the
+        previous batch; None: unbounded.
+        """
         missing = 0
         if first is None:
             self.expected = None
             return 0
+        previous_s, self._last_s = self._last_s, now_s
         if self.expected is not None:
             if first > self.expected:
                 missing = first - self.expected
+                if now_s is not None and previous_s is not None:
+                    possible = (now_s - previous_s) * FRAME_RATE_HZ * MAX_STREAM_SPEEDUP
+                    if missing > possible + MAX_STREAM_SLACK_FRAMES:
+                        missing = 0
+                        self.restarts += 1
             elif first < self.expected:
                 self.restarts += 1
         self.lost += missing

@@ -361,3 +361,17 @@ def test_when_audio_info_strings_are_megabytes_long_expect_a_short_message():
         audio_input().set_audio_info(1, 16000, "S" * 10_000_000, "wave")
     assert len(str(caught.value)) < 200
     assert "(10000002 characters)" in str(caught.value)
+
+
+@pytest.mark.parametrize("dropped_by", ["not whole frames", "max_chunk_s"])
+def test_when_a_new_audio_buffer_format_comes_in_a_dropped_message_expect_the_next_flagged(
+    dropped_by,
+):
+    """What follows the decoder (features, voice detection) restarts with the new format."""
+    source = AudioInput(AudioInputSettings(input_type="naoqi", max_chunk_s=0.1))
+    assert source.decode_audio_buffer(48000, PEPPER_MAP, [0] * 400)[1] is True
+    bad = [0] * 401 if dropped_by == "not whole frames" else [0] * (2 * 16000)  # 1 s > 0.1 s
+    with pytest.raises(InputError):
+        source.decode_audio_buffer(16000, (0, 2), bad)
+    assert source.decode_audio_buffer(16000, (0, 2), [0] * 400)[1] is True
+    assert source.decode_audio_buffer(16000, (0, 2), [0] * 400)[1] is False

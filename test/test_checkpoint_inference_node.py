@@ -106,3 +106,45 @@ def test_when_the_checkpoint_is_crafted_expect_one_line_and_exit_78(
     line = configuration_error_line("inference_node", "-p", f"model_path:={model}")
     assert "crafted.safetensors" in line
     assert problem in line
+
+
+@pytest.mark.ros
+def test_when_a_features_label_is_huge_expect_its_warning_and_heartbeat_short(node, monkeypatch):
+    """A label quoted in a warning would otherwise ride on every heartbeat for seconds."""
+    heartbeats = []
+    monkeypatch.setattr(node.diagnostics_pub, "publish", heartbeats.append)
+    node.on_features(
+        features_to_msg(np.zeros((1, node.model.features.dim), np.float32), "x" * 300_000)
+    )
+    node.publish_diagnostics()
+    (status,) = heartbeats[-1].status
+    assert node.frames_dropped == 1
+    assert len(status.message) < 2000
+    assert all(len(kv.key) + len(kv.value) < 2000 for kv in status.values)
+
+
+@pytest.mark.ros
+def test_when_a_layout_claims_frames_without_data_expect_a_malformed_message_not_a_count(node):
+    """A 100-byte message whose layout says 4294967295 frames of 0 features carries no frame."""
+    from std_msgs.msg import Float32MultiArray, MultiArrayDimension
+
+    msg = Float32MultiArray()
+    msg.layout.dim = [
+        MultiArrayDimension(label="frames from 0", size=2**32 - 1, stride=0),
+        MultiArrayDimension(label=node.expected_label, size=0, stride=0),
+    ]
+    node.on_features(msg)
+    assert node.frames_dropped == 0
+    assert node.diagnostic_values()["malformed_messages_dropped"] == 1
+
+
+@pytest.mark.ros
+def test_when_a_frame_index_jumps_beyond_what_time_allows_expect_a_new_stream_not_a_loss(node):
+    """'frames from 10**15' right after frame 0: not 10**15 frames lost."""
+    frames = np.zeros((2, node.model.features.dim), np.float32)
+    node.on_features(features_to_msg(frames, node.expected_label, 0))
+    node.on_features(features_to_msg(frames, node.expected_label, 10**15))
+    assert node.diagnostic_values()["frames_lost"] == 0
+    assert node.sequence.restarts == 1
+    node.on_features(features_to_msg(frames, node.expected_label, 10**15 + 12))
+    assert node.diagnostic_values()["frames_lost"] == 10  # a plausible gap still counts

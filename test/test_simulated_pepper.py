@@ -121,3 +121,40 @@ def test_when_a_commanded_trajectory_is_executed_expect_it_tracked_and_measured(
     wrong = Trajectory("wrong", times, np.zeros((len(times), 1)), ("Elbow",))
     with pytest.raises(TrajectoryError, match="no angles for joints"):
         executed_trajectory(wrong, robot, 0.5)
+
+
+def test_when_the_arms_swing_between_their_limits_expect_every_measured_pose_within_them(sim):
+    """pybullet's motors overshoot a target at a limit: the simulated joint stops there."""
+    robot, names = sim.robot, list(sim.robot.names)
+    worst = np.zeros(robot.n_joints)
+    for target in (robot.upper_rad, robot.lower_rad, robot.upper_rad):
+        sim.set_angles(names, list(target), 1.0)
+        for _ in range(200):
+            sim.step(0.005)
+            position, _ = sim.measured()
+            beyond = np.maximum(position - robot.upper_rad, robot.lower_rad - position)
+            worst = np.maximum(worst, beyond)
+    assert worst.max() <= 1e-9, dict(zip(names, worst.round(4), strict=True))
+
+
+@pytest.mark.ros
+def test_when_a_command_names_a_huge_joint_expect_a_short_refusal_on_the_heartbeat(monkeypatch):
+    """The refusal quotes the name; the node's status must not carry 60 kB twice a second."""
+    import rclpy
+    from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+
+    from audio2pose_ros.ros.nodes.pepper_sim_node import PepperSimNode
+
+    with rclpy.init():
+        node = PepperSimNode()
+        try:
+            sent = []
+            monkeypatch.setattr(node.diagnostics_pub, "publish", sent.append)
+            msg = JointAnglesWithSpeed(joint_names=["y" * 60_000], joint_angles=[0.0], speed=0.5)
+            node.on_joint_angles(msg)
+            node.publish_diagnostics()
+            (status,) = sent[-1].status
+            assert node.sim.counts.refused == 1
+            assert len(status.message) < 2000
+        finally:
+            node.destroy_node()

@@ -254,3 +254,25 @@ def test_when_a_stopped_node_is_impersonated_on_diagnostics_expect_stale_and_rep
         rclpy.try_shutdown()
         monitor.close()
         supervisor.stop()
+
+
+def test_when_a_restart_cannot_be_started_expect_a_failure_like_a_crash_and_the_others_watched(
+    tmp_path: Path,
+):
+    """A node whose executable is gone (an upgrade while it runs) does not end the supervision."""
+    vanishing = tmp_path / "vanishing_node"
+    vanishing.write_text('#!/bin/sh\nrm -f "$0"\nexit 1\n')  # runs once, then cannot start
+    vanishing.chmod(0o755)
+    supervisor = NodeSupervisor(
+        {"vanishing": [str(vanishing)], "crashing": _python("import sys; sys.exit(1)")},
+        tmp_path / "logs",
+        respawn_delay_s=0.1,
+        max_restarts=3,
+    )
+    supervisor.start()
+    try:
+        assert _wait(lambda: "vanishing" in supervisor.given_up, 10.0)  # retried, then given up
+        assert _wait(lambda: "crashing" in supervisor.given_up, 10.0)  # still supervised
+        assert len(supervisor.restarts["crashing"]) == 3
+    finally:
+        supervisor.stop()

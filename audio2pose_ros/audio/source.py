@@ -305,6 +305,9 @@ class AudioInput:
         )
         self.info_rejected = False
         self.format_changes = 0
+        # an AudioBuffer format adopted but no message of it decoded yet: the next decoded one
+        # says the stream restarted, even when the message that brought the format was dropped
+        self._buffer_restart = False
         self.chunks = 0
         self.dropped_chunks = 0
         self.dropped_bytes = 0
@@ -380,9 +383,10 @@ class AudioInput:
         """Decode one naoqi_bridge_msgs AudioBuffer (interleaved int16, ``channel_map`` order).
 
         Returns:
-            ``(samples, format_changed)``: format_changed is True when this message's
-            frequency or channel map differs from the previous message's (the stream
-            restarts: reset what follows it).
+            ``(samples, format_changed)``: format_changed is True for the first message decoded
+            in a frequency or channel map other than the previous decoded message's (the
+            stream restarts: reset what follows it), also when the message that brought the
+            new format was dropped.
 
         Raises:
             AudioDropped: the message is over a limit.
@@ -397,7 +401,7 @@ class AudioInput:
             if not channel_map:
                 raise UnsupportedAudioFormat("AudioBuffer with an empty channel_map")
             fmt = PcmFormat("S16LE", len(channel_map), int(frequency), "wave")
-            changed = self._adopt(fmt, channel_map)
+            self._buffer_restart |= self._adopt(fmt, channel_map)
         except UnsupportedAudioFormat as exc:
             self._reject(f"AudioBuffer rejected: {exc}")
             raise self._dropped(n_bytes, UnsupportedAudioFormat(self.format_problem)) from None
@@ -411,7 +415,9 @@ class AudioInput:
             )
         assert self._decoder is not None  # adopted above
         samples = np.asarray(data, dtype="<i2")
-        return self._decode("AudioBuffer", self._decoder, samples.tobytes(), n_bytes), changed
+        decoded = self._decode("AudioBuffer", self._decoder, samples.tobytes(), n_bytes)
+        changed, self._buffer_restart = self._buffer_restart, False
+        return decoded, changed
 
     def _adopt(self, fmt: PcmFormat, channel_map: tuple[int, ...]) -> bool:
         """Switch to ``fmt`` unless already decoding it; True when switched."""

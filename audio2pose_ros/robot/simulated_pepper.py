@@ -10,7 +10,9 @@ states look like) is tested against this model when no Pepper is at hand:
   qiBullet, SoftBank's research simulator, maps ``setAngles``), with targets clamped into the
   joint's range. A ros2_control trajectory is followed point by point in time, at full speed.
 - **Physics**: pybullet steps of ``STEP_S`` with the base fixed and gravity compensated (Pepper's
-  motors hold the arms; what matters here is speed and lag, not sag).
+  motors hold the arms; what matters here is speed and lag, not sag). A joint that a step
+  carries past its limit (pybullet's motors overshoot a target at the limit by up to about
+  0.01 rad) is put back on it at rest, as a mechanical stop would hold it.
 - **Measured**: positions and velocities of the robot description's joints, as naoqi_driver
   publishes them on ``joint_states``.
 - **Self-collisions executed**: every step the measured pose is checked against the body model
@@ -181,10 +183,20 @@ class SimulatedPepper:
             self._p.stepSimulation(physicsClientId=self._client)
             self.time_s += STEP_S
             self.counts.steps += 1
-            clearance = float(self.body.clearance(self.measured()[0]))
+            position = self._stop_at_limits(self.measured()[0])
+            clearance = float(self.body.clearance(position))
             if clearance < 0.0:
                 self.counts.self_collision_steps += 1
                 self.counts.deepest_m = max(self.counts.deepest_m, -clearance)
+
+    def _stop_at_limits(self, position: np.ndarray) -> np.ndarray:
+        """Put every joint beyond its limit back on it, at rest; the positions after that."""
+        held = np.clip(position, self.robot.lower_rad, self.robot.upper_rad)
+        for k in np.flatnonzero(held != position):
+            self._p.resetJointState(
+                self._body, self._index[k], float(held[k]), 0.0, physicsClientId=self._client
+            )
+        return held
 
     def measured(self) -> tuple[np.ndarray, np.ndarray]:
         """``(positions_rad, velocities_rad_s)`` of the robot description's joints."""

@@ -70,6 +70,9 @@ HEARTBEAT_OVERDUE_S = 1.5 * HEARTBEAT_PERIOD_S
 PROBLEM_HOLD_S = 5.0  # a reported problem is shown until this long after its last occurrence
 LOG_THROTTLE_S = 5.0  # one log line per problem per this many seconds
 MAX_LOGGED_TRACEBACKS = 5  # callback exceptions beyond this are counted, not printed again
+# A problem's message, and a diagnostic value, at most this long: they may quote input (a label,
+# a joint name) that a message can make hundreds of kilobytes long, on every heartbeat.
+MAX_STATUS_TEXT = 400
 
 
 FRAMES_LABEL = "frames"  # dim[0] of a features message; "frames from N" numbers its first frame
@@ -108,12 +111,15 @@ def msg_to_features(msg: Float32MultiArray) -> FeatureBatch:
     """Unpack a features message; a dim[0].label other than ``"frames from <n>"`` numbers nothing.
 
     Raises:
-        InputError: the layout does not describe the data (2 dims, frames x features).
+        InputError: the layout does not describe the data (2 dims, frames x features, at least
+            one feature per frame: a count of frames without data would be a claim, not data).
     """
     dims = msg.layout.dim
     if len(dims) != 2:
         raise InputError(f"features message needs 2 layout dims, got {len(dims)}")
     n_frames, n_features = dims[0].size, dims[1].size
+    if n_features == 0:
+        raise InputError(f"features message of {n_frames} frames of 0 features")
     data = np.frombuffer(msg.data, dtype=np.float32) if msg.data else np.zeros(0, np.float32)
     if data.size != n_frames * n_features:
         raise InputError(
@@ -190,16 +196,27 @@ def status_name(fully_qualified_name: str) -> str:
     return f"audio2pose_ros: {fully_qualified_name}"
 
 
+def bounded_text(text: str, limit: int = MAX_STATUS_TEXT) -> str:
+    """``text`` cut to ``limit`` characters, saying how long it was."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
 def diagnostic_array(
     node: Node, level: bytes, message: str, values: dict[str, object]
 ) -> DiagnosticArray:
-    """A DiagnosticArray with one status named after the node (namespace included)."""
+    """A DiagnosticArray with one status named after the node (namespace included).
+
+    Each key and value is cut to :data:`MAX_STATUS_TEXT` characters (:func:`bounded_text`);
+    the message holds the node's summary and its problems, each already cut so.
+    """
     status = DiagnosticStatus(
         level=level,
         name=status_name(node.get_fully_qualified_name()),
         message=message,
         hardware_id="pepper",
-        values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
+        values=[
+            KeyValue(key=bounded_text(k), value=bounded_text(str(v))) for k, v in values.items()
+        ],
     )
     array = DiagnosticArray()
     array.header.stamp = node.get_clock().now().to_msg()
@@ -327,10 +344,12 @@ class DiagnosedNode(Node):
         Args:
             key: what went wrong, as a stable identifier (e.g. ``"audio_info_rejected"``).
             level: DiagnosticStatus.WARN or DiagnosticStatus.ERROR.
-            message: one line saying what happened and what was done about it.
+            message: one line saying what happened and what was done about it (cut to
+                :data:`MAX_STATUS_TEXT` characters: it may quote input).
             hold_s: the problem is reported until this long after its last report (s).
         """
         now = time.monotonic()
+        message = bounded_text(message)  # it may quote input of any length
         problem = self._problems.get(key)
         if problem is None or problem.expires_s < now:
             problem = self._problems[key] = _Problem(level, message, now + hold_s, count=0)

@@ -180,30 +180,38 @@ class NodeSupervisor:
         print(f"audio2pose run: {message}", file=sys.stderr, flush=True)
 
     def _spawn(self, name: str, mode: str) -> None:
+        """Start the process of ``name``.
+
+        Raises:
+            OSError: it cannot be started (its executable gone, no memory for a process, the
+                log unwritable).
+        """
         stdout = None
         if self.log_dir is not None:
             self.log_dir.mkdir(parents=True, exist_ok=True)
             stdout = (self.log_dir / f"{name}.log").open(mode)
-        read_end, write_end = os.pipe()
-        os.set_blocking(read_end, False)
-        old = self._pipes.pop(name, None)
-        if old is not None:
-            os.close(old)
-        self._pipes[name] = read_end
         try:
-            self.processes[name] = subprocess.Popen(
-                self.commands[name],
-                stdout=stdout,
-                stderr=subprocess.STDOUT if stdout else None,
-                pass_fds=(write_end,),
-                env={**os.environ, HEARTBEAT_FD_ENV: str(write_end)},
-            )
+            read_end, write_end = os.pipe()
+            os.set_blocking(read_end, False)
+            old = self._pipes.pop(name, None)
+            if old is not None:
+                os.close(old)
+            self._pipes[name] = read_end
+            try:
+                self.processes[name] = subprocess.Popen(
+                    self.commands[name],
+                    stdout=stdout,
+                    stderr=subprocess.STDOUT if stdout else None,
+                    pass_fds=(write_end,),
+                    env={**os.environ, HEARTBEAT_FD_ENV: str(write_end)},
+                )
+            finally:
+                os.close(write_end)  # the child holds its own
         finally:
-            os.close(write_end)  # the child holds its own
+            if stdout is not None:
+                stdout.close()  # the child holds its own descriptor
         self._started_s[name] = time.monotonic()
         self._heard_s.pop(name, None)
-        if stdout is not None:
-            stdout.close()  # the child holds its own descriptor
 
     def start(self) -> None:
         """Start every node and the watchdog thread."""
@@ -274,7 +282,10 @@ class NodeSupervisor:
         if due is not None:
             if now >= due:
                 del self._due_s[name]
-                self._spawn(name, "a")
+                try:
+                    self._spawn(name, "a")
+                except OSError as exc:  # a start that fails is a failure like a crash
+                    self._failed(name, f"could not be started again ({exc})", now)
             return
         code = process.poll()
         if code == EXIT_CONFIGURATION_ERROR:
@@ -303,10 +314,14 @@ class NodeSupervisor:
                 )
 
     def _watch(self) -> None:
+        """The watchdog thread: check every node each period; nothing ends the supervision."""
         while not self._stopping.wait(WATCH_PERIOD_S):
             now = time.monotonic()
             for name, process in list(self.processes.items()):
-                self._check(name, process, now)
+                try:
+                    self._check(name, process, now)
+                except Exception as exc:  # the boundary: the other nodes stay supervised
+                    self._say(f"supervising {name} failed, retrying: {exc!r}")
 
     @property
     def running(self) -> bool:

@@ -171,6 +171,7 @@ class InferenceNode(DiagnosedNode):
         self.period_s = spec.step_s
         self.frames_in = 0
         self.frames_dropped = 0
+        self.malformed_messages = 0  # features messages whose layout does not fit their data
         self.sequence = FrameSequence()  # frames lost between features messages
         self.values_replaced = 0
         self.values_clamped = 0
@@ -200,12 +201,13 @@ class InferenceNode(DiagnosedNode):
         try:
             batch = msg_to_features(msg)
         except InputError as exc:  # msg_to_features refuses a layout that does not fit the data
+            self.malformed_messages += 1
             self.report_problem(
                 "malformed", DiagnosticStatus.WARN, f"malformed features message dropped: {exc}"
             )
             return
         restarts = self.sequence.restarts
-        missing = self.sequence.observe(batch.first_frame, len(batch.frames))
+        missing = self.sequence.observe(batch.first_frame, len(batch.frames), time.monotonic())
         if self.sequence.restarts > restarts:
             self.get_logger().info(
                 f"the features stream started again at frame {batch.first_frame} (its publisher "
@@ -281,6 +283,7 @@ class InferenceNode(DiagnosedNode):
             "runtime": self.model.runtime,
             "frames_in": self.frames_in,
             "frames_dropped": self.frames_dropped,
+            "malformed_messages_dropped": self.malformed_messages,
             "frames_lost": self.sequence.lost,
             "feature_stream_restarts": self.sequence.restarts,
             "feature_values_replaced": self.values_replaced,
