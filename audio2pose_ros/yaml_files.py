@@ -10,13 +10,13 @@ nested aliases ("billion laughs") expand to gigabytes.
 
 from __future__ import annotations
 
-import stat
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from audio2pose_ros.errors import Audio2PoseError, ConfigurationError
+from audio2pose_ros.files import read_bounded
 from audio2pose_ros.resources import share_path
 
 __all__ = ["MAX_YAML_BYTES", "load_yaml_text", "packaged_mapping", "read_yaml_file"]
@@ -66,20 +66,7 @@ def read_yaml_file(
         Audio2PoseError: ``error`` for a missing, special, oversized, non-UTF-8 or invalid file.
     """
     file = Path(path)
-    try:
-        mode = file.stat().st_mode
-        if stat.S_ISDIR(mode):
-            raise error(f"{file}: is a directory, expected a {what} file")
-        if not stat.S_ISREG(mode):
-            raise error(f"{file}: not a regular file, expected a {what} file")
-        with file.open("rb") as stream:
-            raw = stream.read(max_bytes + 1)
-    except FileNotFoundError:
-        raise error(f"{file}: {what} file not found") from None
-    except OSError as exc:
-        raise error(f"{file}: cannot read ({exc.strerror or exc})") from None
-    if len(raw) > max_bytes:
-        raise error(f"{file}: larger than {max_bytes} bytes, not a {what} file")
+    raw = read_bounded(file, what, error, max_bytes)
     try:
         return load_yaml_text(raw.decode("utf-8"))
     except UnicodeDecodeError:

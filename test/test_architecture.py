@@ -20,6 +20,7 @@ PACKAGE_DIR = Path(__file__).resolve().parent.parent / PACKAGE
 LAYERS: dict[str, int] = {
     "__init__": 0,
     "errors": 0,
+    "files": 0,
     "timebase": 0,
     "topics": 0,
     "parameters": 0,
