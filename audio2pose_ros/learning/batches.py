@@ -182,13 +182,24 @@ def training_data_from_clips(
     robot: RobotDescription,
     spec: FeatureSpec,
 ) -> TrainingData:
-    """Utterances of given training and validation clips, normalised by the training clips."""
+    """Utterances of given training and validation clips, normalised by the training clips.
+
+    Raises:
+        TrainingError: no joint angle of the training clips, or (when there are validation
+            clips) of the validation clips, is observed: the loss over nothing observed is 0,
+            which would read as a perfect fit of an untrained model.
+    """
     normalizer = FeatureNormalizer.fit(
         np.concatenate([extract_features(c.audio, spec) for c in train_clips])
     )
-    return TrainingData(
+    data = TrainingData(
         train=[clip_utterance(c, spec, normalizer, robot) for c in train_clips],
         validation=[clip_utterance(c, spec, normalizer, robot) for c in val_clips],
         normalizer=normalizer,
         speakers=sorted({c.info.speaker for c in train_clips}),
     )
+    for split, utterances in (("training", data.train), ("validation", data.validation)):
+        if utterances and not any(u.mask.any() for u in utterances):
+            names = ", ".join(u.name for u in utterances[:3]) + ", ..." * (len(utterances) > 3)
+            raise TrainingError(f"no joint angle is observed in the {split} clips ({names})")
+    return data

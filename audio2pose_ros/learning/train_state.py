@@ -143,6 +143,11 @@ def load_state(
         raise TrainingError(f"{path}: unreadable training state ({exc})") from None
     try:
         return _restore_state(path, model, tensors, meta)
+    except TrainingError as exc:
+        message = str(exc)
+        raise TrainingError(
+            message if message.startswith(str(path)) else f"{path}: {message}"
+        ) from None
     except (KeyError, TypeError, AttributeError, RuntimeError) as exc:
         # the metadata or tensors do not have the structure save_state writes (RuntimeError:
         # load_state_dict's shape mismatch)
@@ -162,14 +167,68 @@ def _restore_state(
     model.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
     report_data = meta["report"]
     report = TrainReport(
-        train_loss=report_data["train_loss"],
-        val_loss=report_data["val_loss"],
-        best_epoch=report_data["best_epoch"],
-        best_val_loss=report_data["best_val_loss"],
-        stages=[StageReport(**s) for s in report_data["stages"]],
+        train_loss=_losses(report_data["train_loss"], "report.train_loss"),
+        val_loss=_losses(report_data["val_loss"], "report.val_loss"),
+        best_epoch=_count(report_data["best_epoch"], "report.best_epoch", low=-1),
+        best_val_loss=_loss(report_data["best_val_loss"], "report.best_val_loss"),
+        stages=[
+            StageReport(
+                name=_text(stage["name"], f"report.stages[{i}].name"),
+                epochs=_count(stage["epochs"], f"report.stages[{i}].epochs"),
+                best_epoch=_count(stage["best_epoch"], f"report.stages[{i}].best_epoch", low=-1),
+                best_val_loss=_loss(stage["best_val_loss"], f"report.stages[{i}].best_val_loss"),
+                learning_rate=_rate(stage["learning_rate"], f"report.stages[{i}].learning_rate"),
+            )
+            for i, stage in enumerate(report_data["stages"])
+        ],
     )
-    progress = Progress(report=report, **meta["progress"])
+    saved = meta["progress"]
+    progress = Progress(
+        stage=_count(saved["stage"], "progress.stage"),
+        epoch=_count(saved["epoch"], "progress.epoch"),
+        learning_rate=_rate(saved["learning_rate"], "progress.learning_rate"),
+        since_best=_count(saved["since_best"], "progress.since_best"),
+        report=report,
+    )
+    if progress.epoch > 0 and not report.stages:
+        raise TrainingError(f"{path}: malformed training state (an epoch into no stage)")
     return tensors, meta["optimizer"], progress
+
+
+def _count(value: object, name: str, low: int = 0) -> int:
+    """An integer of the state's metadata, at least ``low``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise TrainingError(f"malformed training state: {name} must be an integer >= {low}")
+    return value
+
+
+def _loss(value: object, name: str) -> float:
+    """A loss: a number, not NaN (infinity is the loss before any epoch)."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or math.isnan(value):
+        raise TrainingError(f"malformed training state: {name} must be a number")
+    return float(value)
+
+
+def _losses(values: object, name: str) -> list[float]:
+    """A list of losses."""
+    if not isinstance(values, list):
+        raise TrainingError(f"malformed training state: {name} must be a list")
+    return [_loss(v, f"{name}[{i}]") for i, v in enumerate(values)]
+
+
+def _rate(value: object, name: str) -> float:
+    """A learning rate: finite and >= 0."""
+    number = _loss(value, name)
+    if not (math.isfinite(number) and number >= 0.0):
+        raise TrainingError(f"malformed training state: {name} must be finite and >= 0")
+    return number
+
+
+def _text(value: object, name: str) -> str:
+    """A name of the state's metadata."""
+    if not isinstance(value, str):
+        raise TrainingError(f"malformed training state: {name} must be text")
+    return value
 
 
 def restore_optimizer(

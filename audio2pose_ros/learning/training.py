@@ -174,6 +174,11 @@ def train_model(
     progress = Progress()
     if resume and state_path is not None and state_path.exists():
         tensors, optim_meta, progress = load_state(state_path, model)
+        if progress.stage > len(stages):
+            raise TrainingError(
+                f"{state_path}: training state at stage {progress.stage} of a model with "
+                f"{len(stages)}; delete it or train without --resume"
+            )
         saved = (tensors, optim_meta)
         torch.set_rng_state(tensors["rng.torch"])
         generator.set_state(tensors["rng.batches"])
