@@ -14,8 +14,10 @@ import sys
 from audio2pose_ros.cli.options import (
     MAX_SEED,
     Verbs,
+    bag_inputs,
     bounded_float,
     bounded_int,
+    check_apart,
     input_bag,
     input_file,
     new_dir,
@@ -110,7 +112,11 @@ def command_replay(args: argparse.Namespace) -> int:
 
 
 def command_repair(args: argparse.Namespace) -> int:
-    """Write what a damaged (killed) MCAP recording still holds into a new, complete bag."""
+    """Write what a damaged (killed) MCAP recording still holds into a new, complete bag.
+
+    The new bag is never written into the damaged one's folder.
+    """
+    check_apart(args.output, "-o", bag_inputs("the input", args.bag), "a new folder")
     output = new_dir(args.output, "-o")
     counts = repair_bag(input_bag(args.bag), output)
     total = sum(counts.values())

@@ -31,10 +31,13 @@ Verbs: TypeAlias = "argparse._SubParsersAction[OneLineParser]"
 
 __all__ = [
     "MAX_SEED",
+    "NamedPath",
     "OneLineParser",
     "add_force",
+    "bag_inputs",
     "bounded_float",
     "bounded_int",
+    "check_apart",
     "input_bag",
     "input_dir",
     "input_file",
@@ -263,3 +266,74 @@ def one_line(message: str) -> str:
 def report(prog: str, message: str) -> None:
     """Print ``<prog>: <message>`` as one line on stderr."""
     print(f"{prog}: {one_line(message)}", file=sys.stderr, flush=True)
+
+
+#: A path a command reads or writes, for :func:`check_apart`: its description (naming the
+#: option and the path, as the user gave them) and the path (``None``: not given).
+NamedPath: TypeAlias = tuple[str, str | os.PathLike[str] | None]
+
+
+def _lineage(path: Path) -> list[Path]:
+    """``path`` with symlinks resolved (as far as it exists), then each folder above it."""
+    real = Path(os.path.realpath(path))
+    return [real, *real.parents]
+
+
+def _same(a: Path, b: Path) -> bool:
+    """One path, or one existing file or folder by two paths (a bind mount, a hard link)."""
+    if a == b:
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def bag_inputs(label: str, name: str | os.PathLike[str] | None) -> list[NamedPath]:
+    """A bag input for :func:`check_apart`, its folder included.
+
+    ``label`` describes it ("the input --bag"). A storage file of a bag folder (one with
+    ``metadata.yaml``) brings that folder, which an output must not touch either.
+    """
+    if name is None:
+        return []
+    path = Path(name)
+    named: list[NamedPath] = [(f"{label} {path}", path)]
+    if not path.is_dir() and (path.parent / "metadata.yaml").is_file():
+        named.append((f"the folder {path.parent} of {label} {path}", path.parent))
+    return named
+
+
+def check_apart(
+    output: str | os.PathLike[str], option: str, others: Iterable[NamedPath], instead: str
+) -> None:
+    """Refuse an output that is, contains or is inside one of ``others``.
+
+    ``others`` are what the command reads, or its other outputs; call this before anything is
+    written or deleted. Paths are compared with symlinks resolved and, where they exist, as
+    files (a bind mount or a hard link is the same file): an output reached through a link is
+    still caught.
+
+    Args:
+        output: the file or folder the command will write (it may not exist yet).
+        option: the option that named it, for the message.
+        others: (description, path) of each path to keep apart; ``None`` paths are skipped.
+        instead: what to give instead, for the message ("another folder").
+
+    Raises:
+        UsageError: one line, naming both paths and how they overlap.
+    """
+    out = _lineage(Path(output))
+    for description, name in others:
+        if name is None:
+            continue
+        other = _lineage(Path(name))
+        if _same(out[0], other[0]):
+            relation = "is"
+        elif any(_same(folder, out[0]) for folder in other[1:]):
+            relation = "contains"
+        elif any(_same(folder, other[0]) for folder in out[1:]):
+            relation = "is inside"
+        else:
+            continue
+        raise UsageError(f"{option} {output}: {relation} {description}; give {instead}")

@@ -15,11 +15,14 @@ from pathlib import Path
 import numpy as np
 
 from audio2pose_ros.cli.options import (
+    NamedPath,
     Verbs,
     add_force,
     bag_dir,
+    bag_inputs,
     bounded_float,
     bounded_int,
+    check_apart,
     input_bag,
     input_dir,
     input_file,
@@ -27,12 +30,51 @@ from audio2pose_ros.cli.options import (
     remove_bag_dir,
 )
 from audio2pose_ros.errors import UsageError
-from audio2pose_ros.viz.render import MAX_FPS, MAX_VIEW_PX, RenderSettings
+from audio2pose_ros.viz.render import MAX_FPS, MAX_VIEW_PX, MIN_SIZE_PX, RenderSettings
+
+# Each size option and the RenderSettings field it sets (the field's bounds are the option's).
+SIZE_OPTIONS = {
+    "--view-width": "view_width_px",
+    "--view-height": "view_height_px",
+    "--curves-height": "curves_height_px",
+}
 
 
 def _bag_path(args: argparse.Namespace) -> Path:
     out = Path(args.output)
     return Path(args.mcap) if args.mcap else out.with_name(f"{out.stem}_mcap")
+
+
+def _inputs(args: argparse.Namespace) -> list[NamedPath]:
+    """Every file or folder the render reads, described by the option that names it."""
+    named: list[NamedPath] = [
+        (f"the input {args.wav}", args.wav),
+        (f"the input --model {args.model}", args.model),
+        (f"the input --data {args.data}", args.data),
+        *((f"the input --compare {c}", c) for c in args.compare or []),
+    ]
+    return [*named, *bag_inputs("the input --bag", args.bag)]
+
+
+def _check_outputs(args: argparse.Namespace) -> Path:
+    """Check the MP4 and the bag folder may be written; return the bag folder.
+
+    Neither may be, contain or lie inside an input (a bag folder replaced with ``--force`` is
+    deleted before the new one is written; a video written into a bag folder spoils it), and the
+    bag may not be, contain or lie inside the MP4. This runs before any work starts.
+
+    Raises:
+        UsageError: naming the output, the path it overlaps and how.
+    """
+    inputs = _inputs(args)
+    video = output_file(args.output, "-o", inputs=[path for _, path in inputs], force=args.force)
+    check_apart(video, "-o", inputs, "another output file")
+    bag_path = _bag_path(args)
+    option = "--mcap" if args.mcap else "--mcap (default OUT_mcap)"
+    check_apart(
+        bag_path, option, [*inputs, (f"the output -o {video}", video)], "another --mcap folder"
+    )
+    return bag_dir(bag_path, option, args.force)
 
 
 def command_render(args: argparse.Namespace) -> int:
@@ -58,13 +100,7 @@ def command_render(args: argparse.Namespace) -> int:
     for name in ("view_width", "view_height", "curves_height"):
         if getattr(args, name) % 2:
             raise UsageError(f"--{name.replace('_', '-')} {getattr(args, name)} must be even")
-    output_file(
-        args.output,
-        "-o",
-        inputs=(args.wav, args.model, args.bag, *(args.compare or [])),
-        force=args.force,
-    )
-    bag_out = bag_dir(_bag_path(args), "--mcap", args.force)
+    bag_out = _check_outputs(args)
     for checkpoint in [args.model, *(args.compare or [])]:
         if checkpoint:
             input_file(checkpoint, "checkpoint")
@@ -159,14 +195,13 @@ def register(verbs: Verbs) -> None:
         default=defaults.fps,
         help=f"frame rate in (0, {MAX_FPS:g}] (%(default)s)",
     )
-    px = bounded_int(32, MAX_VIEW_PX)
-    for name, default in (
-        ("--view-width", defaults.view_width_px),
-        ("--view-height", defaults.view_height_px),
-        ("--curves-height", defaults.curves_height_px),
-    ):
+    for option, field in SIZE_OPTIONS.items():
+        low = MIN_SIZE_PX[field]
         render.add_argument(
-            name, type=px, default=default, help=f"even px, 32 to {MAX_VIEW_PX} (%(default)s)"
+            option,
+            type=bounded_int(low, MAX_VIEW_PX),
+            default=getattr(defaults, field),
+            help=f"even px, {low} to {MAX_VIEW_PX} (%(default)s)",
         )
     render.add_argument("--no-progress", action="store_true", help="no progress bar")
     render.set_defaults(func=command_render)

@@ -18,7 +18,7 @@ rate cannot make a small bag grow into gigabytes.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from struct import error as struct_error
@@ -168,8 +168,8 @@ class BagWriter:
         self.path = Path(path)
         self.store = typestore()
         self._writer = Writer(self.path, version=8, storage_plugin=plugins[storage])
-        self._connections: dict[str, Any] = {}
-        self.counts: dict[str, int] = {}
+        self._connections: dict[tuple[str, str], Any] = {}  # (topic, type) -> connection
+        self.counts: dict[str, int] = {}  # messages written per topic (all its types)
         self._flush_period_s = flush_period_s if storage == "mcap" else None
         self._flushed_s = time.monotonic()
 
@@ -200,14 +200,19 @@ class BagWriter:
         self._writer.close()
 
     def write(self, topic: str, msgtype: str, timestamp_ns: int, data: bytes) -> None:
-        """Append one message; the first message on a topic creates its connection."""
-        if topic not in self._connections:
-            self._connections[topic] = self._writer.add_connection(
+        """Append one message under its own type.
+
+        The first message of each (topic, type) pair creates that pair's connection: a topic
+        recorded with two types keeps two connections, and bytes are never stored under a type
+        they were not serialised with.
+        """
+        key = (topic, msgtype)
+        if key not in self._connections:
+            self._connections[key] = self._writer.add_connection(
                 topic, msgtype, typestore=self.store
             )
-            self.counts[topic] = 0
-        self._writer.write(self._connections[topic], timestamp_ns, data)
-        self.counts[topic] += 1
+        self._writer.write(self._connections[key], timestamp_ns, data)
+        self.counts[topic] = self.counts.get(topic, 0) + 1
         if (
             self._flush_period_s is not None
             and time.monotonic() - self._flushed_s >= self._flush_period_s
@@ -219,6 +224,8 @@ AUDIO_TOPIC = absolute(topics.AUDIO)  # where bags keep the audio: the root name
 AUDIO_INFO_TOPIC = absolute(topics.AUDIO_INFO)
 AUDIO_DATA_TYPE = "audio_common_msgs/msg/AudioData"
 AUDIO_INFO_TYPE = "audio_common_msgs/msg/AudioInfo"
+# The audio topics and the type each must have for :func:`read_bag_audio` to decode them.
+AUDIO_TOPIC_TYPES = {AUDIO_INFO_TOPIC: AUDIO_INFO_TYPE, AUDIO_TOPIC: AUDIO_DATA_TYPE}
 AUDIO_INFO_PERIOD_S = 5.0  # audio_capture republishes its latched AudioInfo every 5 s
 MAX_CHUNK_BYTES = 1 << 20  # largest AudioData payload write_audio_bag cuts
 
@@ -412,22 +419,36 @@ def bag_topics(bag: str | Path) -> dict[str, str]:
         reader.close()
 
 
-def read_messages(bag: str | Path, topics: Iterable[str] | None = None) -> Iterator[BagMessage]:
+def read_messages(
+    bag: str | Path,
+    topics: Iterable[str] | None = None,
+    types: Mapping[str, str] | None = None,
+) -> Iterator[BagMessage]:
     """Messages of a rosbag2 (MCAP or SQLite 3) in time order, optionally only ``topics``.
 
     Only connections whose type is in :data:`KNOWN_MESSAGE_TYPES` are read; with ``topics``
-    given, a wanted topic of another type is refused.
+    given, a wanted topic of another type is refused. ``types`` maps a topic to the one type
+    its messages must have (a decoder relies on it): a connection of another type on that
+    topic is refused, before any message is read, even when the bag also holds one of the
+    expected type.
 
     Raises:
-        BagError: the bag cannot be opened, or a wanted topic has an unknown type.
+        BagError: the bag cannot be opened, or a wanted topic has an unknown type or is not of
+            the type ``types`` expects.
     """
     wanted = set(topics) if topics is not None else None
+    expected = dict(types or {})
     reader = _open_reader(bag)
     try:
         connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
-        if wanted is not None:
-            for connection in connections:
+        for connection in connections:
+            if wanted is not None:
                 check_known_type(connection.msgtype, f"{bag}: {connection.topic}")
+            if expected.get(connection.topic, connection.msgtype) != connection.msgtype:
+                raise BagError(
+                    f"{bag}: {connection.topic} is {connection.msgtype}, expected "
+                    f"{expected[connection.topic]}"
+                )
         connections = [c for c in connections if c.msgtype in KNOWN_MESSAGE_TYPES]
         if not connections:  # rosbags reads every connection when given none
             return
@@ -437,17 +458,22 @@ def read_messages(bag: str | Path, topics: Iterable[str] | None = None) -> Itera
         reader.close()
 
 
-def read_checked_messages(bag: str | Path, topics: Iterable[str] | None = None) -> list[BagMessage]:
+def read_checked_messages(
+    bag: str | Path,
+    topics: Iterable[str] | None = None,
+    types: Mapping[str, str] | None = None,
+) -> list[BagMessage]:
     """:func:`read_messages` as a list, each message's CDR checked by deserializing it.
 
     Use it before publishing a bag's bytes: a subscriber then never receives bytes it cannot
     deserialize. Memory is bounded by the bag's size.
 
     Raises:
-        BagError: the bag cannot be opened, or a message has an unknown type or invalid CDR.
+        BagError: the bag cannot be opened, or a message has an unknown type, a type other
+            than ``types`` expects for its topic, or invalid CDR.
     """
     store = typestore()
-    messages = list(read_messages(bag, topics))
+    messages = list(read_messages(bag, topics, types))
     for message in messages:
         deserialize(store, message, bag)
     return messages
@@ -462,14 +488,16 @@ def read_bag_audio(bag: str | Path) -> np.ndarray:
     the sample rate before it is decoded.
 
     Raises:
-        BagError: no AudioInfo precedes the audio, an AudioInfo is unusable, a message is not
-            valid CDR, the decoded audio would exceed the cap, or the bag holds no audio.
+        BagError: an audio topic holds a connection of another type than
+            :data:`AUDIO_TOPIC_TYPES` names (AudioDataStamped on /audio/audio, say), no
+            AudioInfo precedes the audio, an AudioInfo is unusable, a message is not valid CDR,
+            the decoded audio would exceed the cap, or the bag holds no audio.
     """
     store = typestore()
     decoder: PcmDecoder | None = None
     pieces: list[np.ndarray] = []
     budget = MAX_BAG_AUDIO_S * SAMPLE_RATE_HZ  # output samples left
-    for message in read_messages(bag, (AUDIO_TOPIC, AUDIO_INFO_TOPIC)):
+    for message in read_messages(bag, AUDIO_TOPIC_TYPES, AUDIO_TOPIC_TYPES):
         msg = deserialize(store, message, bag)
         if message.topic == AUDIO_INFO_TOPIC:
             try:

@@ -41,6 +41,7 @@ from audio2pose_ros.data.bag import (
     AUDIO_INFO_TOPIC,
     AUDIO_INFO_TYPE,
     AUDIO_TOPIC,
+    AUDIO_TOPIC_TYPES,
     BagError,
     BagMessage,
     BagWriter,
@@ -573,7 +574,7 @@ def audio_source(path: Path, chunking: Chunking | None = None) -> list[BagMessag
     if path.suffix.lower() == ".wav":
         samples, _ = read_wav(path)
         return audio_messages(samples, chunking)
-    messages = read_checked_messages(path, (AUDIO_TOPIC, AUDIO_INFO_TOPIC))
+    messages = read_checked_messages(path, AUDIO_TOPIC_TYPES, AUDIO_TOPIC_TYPES)
     if not any(m.topic == AUDIO_TOPIC for m in messages):
         raise BagError(f"{path}: no {AUDIO_TOPIC} messages to play")
     start = messages[0].timestamp_ns

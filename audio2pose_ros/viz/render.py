@@ -35,7 +35,35 @@ CAMERA_FOV_DEG = 30.0
 LIGHT_DIRECTION = (2.0, 1.0, 3.0)
 TITLE_HEIGHT_PX = 28
 JOINT_GROUPS = ("head", "arms", "hip")
+# The joint-curve panel: one axes per group, stacked, with fixed margins for the tick labels.
+CURVES_MARGIN_LEFT_PX = 52  # the y tick labels and the group's name
+CURVES_MARGIN_RIGHT_PX = 8
+CURVES_MARGIN_BOTTOM_PX = 26  # the time ticks and their label, under the last axes
+CURVES_GAP_PX = 6  # above each axes
+MIN_AXES_PX = 8  # smallest width and height of one group's axes
+MIN_VIEW_PX = 32  # smallest robot view side
 GROUND_LINK = "Tibia"  # Pepper's wheeled base: kept still while the hips move the body above it
+
+
+def _even_up(px: int) -> int:
+    return px + px % 2
+
+
+# The smallest value of each size in RenderSettings (and of its --view-width, --view-height,
+# --curves-height option): what the layout above needs, rounded up to even for yuv420p. A
+# column (one view per camera) must hold the axes between their margins; the curve panel must
+# hold every group's axes, the gaps and the bottom margin.
+MIN_SIZE_PX = {
+    "view_width_px": _even_up(
+        max(MIN_VIEW_PX, CURVES_MARGIN_LEFT_PX + MIN_AXES_PX + CURVES_MARGIN_RIGHT_PX)
+    ),
+    "view_height_px": _even_up(MIN_VIEW_PX),
+    "curves_height_px": _even_up(
+        CURVES_MARGIN_BOTTOM_PX
+        + (len(JOINT_GROUPS) + 1) * CURVES_GAP_PX
+        + len(JOINT_GROUPS) * MIN_AXES_PX
+    ),
+}
 
 
 class RenderError(InputError):
@@ -54,6 +82,8 @@ class RenderSettings:
         side_view: add a view from the robot's right next to the front view.
         crf: x264 constant rate factor (lower is better and bigger).
 
+    Each size is even and lies in [:data:`MIN_SIZE_PX`, :data:`MAX_VIEW_PX`].
+
     """
 
     fps: float = 25.0
@@ -64,14 +94,14 @@ class RenderSettings:
     crf: int = 23
 
     def __post_init__(self) -> None:
-        """Reject sizes x264 cannot encode (yuv420p needs even dimensions)."""
+        """Reject sizes the layout cannot hold or x264 cannot encode (yuv420p needs even ones)."""
         if not (math.isfinite(self.fps) and 0 < self.fps <= MAX_FPS):
             raise ConfigurationError(f"fps must be a finite positive number, got {self.fps}")
-        for name in ("view_width_px", "view_height_px", "curves_height_px"):
+        for name, low in MIN_SIZE_PX.items():
             value = getattr(self, name)
-            if not 32 <= value <= MAX_VIEW_PX or value % 2:
+            if not low <= value <= MAX_VIEW_PX or value % 2:
                 raise ConfigurationError(
-                    f"{name} must be an even number in [32, {MAX_VIEW_PX}], got {value}"
+                    f"{name} must be an even number in [{low}, {MAX_VIEW_PX}], got {value}"
                 )
 
     @property
@@ -201,9 +231,12 @@ def _build_layout(
     height_px = TITLE_HEIGHT_PX + settings.view_height_px + settings.curves_height_px
     figure = Figure(figsize=(width_px / dpi, height_px / dpi), dpi=dpi, facecolor="white")
     canvas = FigureCanvasAgg(figure)
-    margin_left_px, margin_right_px, margin_bottom_px, gap_px = 52, 8, 26, 6
+    margin_left_px, margin_right_px = CURVES_MARGIN_LEFT_PX, CURVES_MARGIN_RIGHT_PX
+    gap_px = CURVES_GAP_PX
     curves_top_px = TITLE_HEIGHT_PX + settings.view_height_px
-    panel_px = (settings.curves_height_px - margin_bottom_px - 4 * gap_px) / len(JOINT_GROUPS)
+    panel_px = (
+        settings.curves_height_px - CURVES_MARGIN_BOTTOM_PX - (len(JOINT_GROUPS) + 1) * gap_px
+    ) / len(JOINT_GROUPS)
     axes_by_trajectory = []
     for i, trajectory in enumerate(trajectories):
         x0_px = i * column_px
