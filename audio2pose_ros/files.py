@@ -3,18 +3,23 @@
 A path given to the package (a data set's index, a clip, an importer's input, a YAML file) may
 name a directory, a FIFO that never ends (reading it would hang), a device such as ``/dev/zero``
 (reading it would fill the memory) or a file far larger than what it claims to be.
-:func:`regular_file` refuses what is not a regular file before anything opens it, and
-:func:`read_bounded` reads at most a cap, each with one line naming the file and the problem.
+:func:`regular_file` refuses what is not a regular file before anything opens it,
+:func:`open_bounded` opens one of at most a cap for streaming, and :func:`read_bounded` reads
+one whole, each with one line naming the file and the problem.
 """
 
 from __future__ import annotations
 
+import os
 import stat
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import BinaryIO
 
 from audio2pose_ros.errors import Audio2PoseError
 
-__all__ = ["read_bounded", "regular_file"]
+__all__ = ["open_bounded", "read_bounded", "regular_file"]
 
 
 def regular_file(path: str | Path, what: str, error: type[Audio2PoseError]) -> Path:
@@ -43,18 +48,49 @@ def regular_file(path: str | Path, what: str, error: type[Audio2PoseError]) -> P
 def read_bounded(
     path: str | Path, what: str, error: type[Audio2PoseError], max_bytes: int
 ) -> bytes:
-    """The bytes of a regular file of at most ``max_bytes`` (:func:`regular_file` first).
+    """The bytes of a regular file of at most ``max_bytes`` (:func:`open_bounded`).
 
     Raises:
-        Audio2PoseError: ``error`` for what :func:`regular_file` refuses, a file larger than
-            ``max_bytes`` (refused before it is read) or one that cannot be read.
+        Audio2PoseError: ``error`` for what :func:`open_bounded` refuses, or a file that
+            cannot be read (or grew beyond ``max_bytes`` while it was read).
+    """
+    with open_bounded(path, what, error, max_bytes) as stream:
+        try:
+            size = os.fstat(stream.fileno()).st_size
+            raw = stream.read(min(size, max_bytes) + 1)  # no buffer of max_bytes reserved
+            if len(raw) > size:
+                raw += stream.read(max_bytes + 1 - len(raw))
+        except OSError as exc:
+            raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if len(raw) > max_bytes:
+        raise error(f"{path}: larger than {max_bytes} bytes, not a {what} file")
+    return raw
+
+
+@contextmanager
+def open_bounded(
+    path: str | Path, what: str, error: type[Audio2PoseError], max_bytes: int
+) -> Iterator[BinaryIO]:
+    """``path`` opened for reading, once it is known to be a regular file of at most ``max_bytes``.
+
+    :func:`~audio2pose_ros.files.regular_file` refuses a FIFO or a device before it is opened
+    (reading one would hang or never end); the type and size are checked again on the opened
+    file, so the file that is read is the one that was checked. Nothing is read ahead: the
+    caller streams the file, or reads it whole, and no buffer of ``max_bytes`` is reserved.
+
+    Raises:
+        Audio2PoseError: ``error`` for a missing path, a directory, a special file, a file
+            larger than ``max_bytes`` or one that cannot be opened.
     """
     file = regular_file(path, what, error)
     try:
-        with file.open("rb") as stream:
-            raw = stream.read(max_bytes + 1)
+        stream = file.open("rb")
     except OSError as exc:
         raise error(f"{file}: cannot read ({exc.strerror or exc})") from None
-    if len(raw) > max_bytes:
-        raise error(f"{file}: larger than {max_bytes} bytes, not a {what} file")
-    return raw
+    with stream:
+        status = os.fstat(stream.fileno())
+        if not stat.S_ISREG(status.st_mode):
+            raise error(f"{file}: not a regular file, expected a {what} file")
+        if status.st_size > max_bytes:
+            raise error(f"{file}: larger than {max_bytes} bytes, not a {what} file")
+        yield stream

@@ -5,8 +5,11 @@ MediaPipe Pose where visible), ``import-openface`` (OpenFace 2.0 CSV + its audio
 ``import-bvh`` (BVH mocap + its audio, through a skeleton mapping), ``info`` and
 ``build-default`` (rebuild the default model from the shared clips, end to end). Importers take
 files or folders; a file that fails is reported with its name and the reason, the others are
-imported, and the exit code is 1 when any failed. :func:`register` adds the verb to the main
-parser.
+imported, and the exit code is 1 when any failed. Each file becomes the clip named after its
+stem: two inputs of one run that would get the same id, or an id the data set holds already
+(unless ``--replace`` is given), are reported as failed files, never written over. The output
+(``-o``) is an existing data set, an empty folder or a new folder in an existing one; anything
+else is refused before any input is read. :func:`register` adds the verb to the main parser.
 """
 
 from __future__ import annotations
@@ -21,12 +24,20 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from audio2pose_ros.cli.options import MAX_SEED, Verbs, bounded_float, bounded_int, input_dir
-from audio2pose_ros.errors import Audio2PoseError, UsageError
+from audio2pose_ros.cli.options import (
+    MAX_SEED,
+    Verbs,
+    bounded_float,
+    bounded_int,
+    input_dir,
+    input_file,
+    new_dir,
+)
+from audio2pose_ros.errors import Audio2PoseError, InputError, UsageError
 
 if TYPE_CHECKING:
     from audio2pose_ros.checkpoints.torch_io import Checkpoint
-    from audio2pose_ros.data.dataset import Clip, ClipInfo
+    from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
     from audio2pose_ros.robot.description import RobotDescription
 
 VIDEO_SUFFIXES = (".mp4", ".mpg", ".mpeg", ".mov", ".avi", ".mkv", ".webm", ".m4v")
@@ -64,39 +75,68 @@ def _paired_audio(path: Path, audio_dir: str | None) -> Path:
     )
 
 
+def _output_dataset(name: str, robot: RobotDescription) -> Dataset:
+    """The data set ``-o`` names: an existing one, or a new one in an empty or a new folder.
+
+    Raises:
+        UsageError: it exists and is neither a data set nor an empty folder, or it is new and
+            its folder is missing or not writable (:func:`~audio2pose_ros.cli.options.new_dir`).
+        DatasetError: the data set there is unusable (its index, its joints).
+    """
+    from audio2pose_ros.data.dataset import INDEX_FILE, Dataset
+
+    path = Path(name)
+    if not (path.exists() or path.is_symlink()):
+        return Dataset.create(new_dir(path, "-o"), robot)
+    if path.is_dir() and ((path / INDEX_FILE).exists() or (path / INDEX_FILE).is_symlink()):
+        return Dataset.open(input_dir(path, "data set folder"), robot)
+    if path.is_dir() and not any(input_dir(path, "data set folder").iterdir()):
+        return Dataset.create(path, robot)
+    raise UsageError(f"-o {path}: exists and is not a data set folder")
+
+
 def _run_import(
     args: argparse.Namespace,
     files: list[Path],
+    what: str,
     import_one: Callable[[Path, ClipInfo], tuple[Clip, dict[str, np.ndarray]]],
 ) -> int:
-    """Import every file into the data set, reporting failures per file; exit code 1 if any."""
+    """Import every file into the data set, reporting failures per file; exit code 1 if any.
+
+    Each file must be a regular file (``what`` names its kind in the message); its clip id must
+    not be that of an earlier file of this run, nor one already in the data set unless
+    ``args.replace``.
+    """
     from tqdm import tqdm
 
-    from audio2pose_ros.data.dataset import ClipInfo, Dataset
+    from audio2pose_ros.data.dataset import ClipInfo
     from audio2pose_ros.data.importers.extras import save_extras
     from audio2pose_ros.robot.description import load_robot
 
     if not files:
         raise UsageError("no input files")
     robot = load_robot()
-    out = Path(args.output)
-    dataset = Dataset.open(out, robot) if (out / "index.json").exists() else None
-    dataset = dataset or Dataset.create(out, robot)
+    dataset = _output_dataset(args.output, robot)
+    out = dataset.root
     failures: list[str] = []
+    imported: dict[str, Path] = {}  # clip id -> the file of this run it came from
     progress = tqdm(files, desc=f"dataset {args.dataset_verb}", unit="file", file=sys.stderr)
     for path in progress:
         progress.set_postfix_str(path.name)
-        info = ClipInfo(
-            clip_id=_clip_id(path),
-            speaker=args.speaker or path.stem,
-            source=args.source or path.name,
-            licence=args.licence,
-            split=args.split,
-        )
         try:
+            input_file(path, what)
+            info = ClipInfo(
+                clip_id=_clip_id(path),
+                speaker=args.speaker or path.stem,
+                source=args.source or path.name,
+                licence=args.licence,
+                split=args.split,
+            )
+            _check_clip_id(info.clip_id, imported, dataset, args.replace)
             clip, extras = import_one(path, info)
-            dataset.add(clip, robot)
+            dataset.add(clip, robot, replace=args.replace)
             save_extras(dataset, info.clip_id, extras)
+            imported[info.clip_id] = path
         except (Audio2PoseError, OSError) as exc:  # this file failed; go on with the others
             failures.append(f"{path}: {exc}" if str(path) not in str(exc) else str(exc))
             progress.write(f"FAILED {failures[-1]}", file=sys.stderr)
@@ -105,6 +145,25 @@ def _run_import(
     for failure in failures:
         print(f"  failed: {failure}", file=sys.stderr)
     return 1 if failures else 0
+
+
+def _check_clip_id(
+    clip_id: str, imported: dict[str, Path], dataset: Dataset, replace: bool
+) -> None:
+    """Refuse a clip id taken by an earlier file of this run, or by the data set (no ``replace``).
+
+    Raises:
+        InputError: the id is taken; the message names the file or data set that has it.
+    """
+    if clip_id in imported:
+        raise InputError(
+            f"clip id {clip_id!r} is that of {imported[clip_id]} imported before it; rename one "
+            "of the two files"
+        )
+    if not replace and any(c.clip_id == clip_id for c in dataset.clips):
+        raise InputError(
+            f"clip id {clip_id!r} is in {dataset.root} already; give --replace to replace it"
+        )
 
 
 def command_import_video(args: argparse.Namespace) -> int:
@@ -124,6 +183,7 @@ def command_import_video(args: argparse.Namespace) -> int:
     code = _run_import(
         args,
         _expand(args.inputs, VIDEO_SUFFIXES),
+        "video file",
         lambda path, info: import_video(path, info, robot, settings, on_tracks=count),
     )
     if totals["frames"]:
@@ -151,6 +211,7 @@ def command_import_openface(args: argparse.Namespace) -> int:
     return _run_import(
         args,
         _expand(args.inputs, (".csv",)),
+        "CSV file",
         lambda path, info: import_openface(
             path, read_audio(_paired_audio(path, args.audio_dir)), info, robot, settings
         ),
@@ -170,6 +231,7 @@ def command_import_bvh(args: argparse.Namespace) -> int:
     return _run_import(
         args,
         _expand(args.inputs, (".bvh",)),
+        "BVH file",
         lambda path, info: import_bvh(
             path,
             read_audio(_paired_audio(path, args.audio_dir)),
@@ -302,6 +364,11 @@ def _common_import_options(parser: argparse.ArgumentParser, what: str) -> None:
     parser.add_argument("--split", default="train", choices=("train", "validation", "test"))
     parser.add_argument(
         "--mirror", action="store_true", help="exchange left and right (mirror image)"
+    )
+    parser.add_argument(
+        "--replace",
+        action="store_true",
+        help="replace clips of the same id already in the data set (default: refuse the file)",
     )
 
 

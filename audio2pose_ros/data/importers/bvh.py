@@ -19,12 +19,19 @@ BVH conventions: rotation channels are Euler angles in degrees applied in the li
 (``Zrotation Xrotation Yrotation`` means ``R = Rz Rx Ry``); a child's position is its parent's
 plus the parent's global rotation times (OFFSET + its position channels); the first frame of the
 motion is at time 0 of the audio.
+
+Files are untrusted input: :func:`read_bvh` reads only a regular file of at most
+:data:`MAX_BVH_BYTES`, as a stream; counts must be whole numbers, channels one of the six names,
+the frame time a period between :data:`MIN_FRAME_TIME_S` and :data:`MAX_FRAME_TIME_S`, and the
+hierarchy may nest to any depth. Every refusal is an :class:`ImporterError` naming the file.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass
+import io
+import re
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +40,7 @@ from scipy.spatial.transform import Rotation
 from audio2pose_ros.data.dataset import Clip, ClipInfo
 from audio2pose_ros.data.importers import head_pose, upper_body
 from audio2pose_ros.data.importers.common import HEAD_JOINTS, ImporterError, assemble_clip
+from audio2pose_ros.files import open_bounded
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.yaml_files import read_yaml_file
@@ -43,6 +51,12 @@ ROLES = (
     "right_shoulder", "right_elbow", "right_wrist",
 )  # fmt: skip
 _AXES = {"X": 0, "Y": 1, "Z": 2}
+CHANNELS = tuple(f"{axis}{kind}" for kind in ("position", "rotation") for axis in "xyz")
+# A 10-minute take of a 70-joint skeleton at 60 frames/s is about 85 MB of text: room for 30 min
+MAX_BVH_BYTES = 256 * 1024 * 1024
+MIN_FRAME_TIME_S = 1e-4  # 10 000 frames/s, beyond any motion capture system
+MAX_FRAME_TIME_S = 1.0  # 1 frame/s, below which nothing of a gesture is left
+_DIGITS = re.compile(r"[0-9]{1,12}")
 
 
 @dataclass(frozen=True)
@@ -72,22 +86,34 @@ class BvhMotion:
 
 
 class _Tokens:
-    """Whitespace-separated tokens with their line numbers, for error messages."""
+    """Whitespace-separated tokens of a text stream, read line by line, for the hierarchy.
 
-    def __init__(self, text: str, path: Path) -> None:
-        self.items = [
-            (tok, n) for n, line in enumerate(text.splitlines(), 1) for tok in line.split()
-        ]
-        self.pos = 0
+    Line numbers are kept for error messages; :meth:`rest` hands over what follows the last
+    token read (the MOTION values) one line at a time, so the file is never held whole.
+    """
+
+    def __init__(self, lines: Iterator[str], path: Path) -> None:
+        self.lines = lines
         self.path = path
+        self.line = 0  # number of the line the last token came from (1-based)
+        self.words: list[str] = []
+        self.at = 0  # next token in self.words
 
     def next(self, expected: str | None = None) -> str:
-        if self.pos >= len(self.items):
-            raise ImporterError(f"{self.path}: truncated BVH (ends while reading the hierarchy)")
-        token, line = self.items[self.pos]
-        self.pos += 1
+        while self.at >= len(self.words):
+            text = next(self.lines, None)
+            if text is None:
+                raise ImporterError(
+                    f"{self.path}: truncated BVH (ends while reading the hierarchy)"
+                )
+            self.line += 1
+            self.words, self.at = text.split(), 0
+        token = self.words[self.at]
+        self.at += 1
         if expected is not None and token.upper() != expected.upper():
-            raise ImporterError(f"{self.path}: line {line}: expected {expected!r}, got {token!r}")
+            raise ImporterError(
+                f"{self.path}: line {self.line}: expected {expected!r}, got {token!r}"
+            )
         return token
 
     def number(self) -> float:
@@ -95,25 +121,67 @@ class _Tokens:
         try:
             return float(token)
         except ValueError:
-            line = self.items[self.pos - 1][1]
-            raise ImporterError(f"{self.path}: line {line}: {token!r} is not a number") from None
+            raise ImporterError(
+                f"{self.path}: line {self.line}: {token!r} is not a number"
+            ) from None
+
+    def count(self, what: str, high: int) -> int:
+        """A whole number in [0, ``high``], in decimal digits (no sign, point or exponent)."""
+        token = self.next()
+        if not _DIGITS.fullmatch(token) or int(token) > high:
+            raise ImporterError(
+                f"{self.path}: line {self.line}: {what} {token!r} is not a whole number in "
+                f"[0, {high}]"
+            )
+        return int(token)
+
+    def rest(self) -> Iterator[tuple[int, list[str]]]:
+        """``(line number, tokens)`` of the rest of the current line, then of each next line."""
+        yield self.line, self.words[self.at :]
+        for text in self.lines:
+            self.line += 1
+            yield self.line, text.split()
 
 
-def _parse_joint(tokens: _Tokens, name: str, parent: int, joints: list[BvhJoint]) -> None:
-    tokens.next("{")
-    tokens.next("OFFSET")
-    offset = np.array([tokens.number() for _ in range(3)])
-    channels: tuple[str, ...] = ()
-    index = len(joints)
-    joints.append(BvhJoint(name, parent, offset, channels))
-    while True:
+def _channels(tokens: _Tokens) -> tuple[str, ...]:
+    """The names after ``CHANNELS``: each of Xposition ... Zrotation at most once."""
+    channels = tuple(tokens.next() for _ in range(tokens.count("CHANNELS count", len(CHANNELS))))
+    for k, name in enumerate(channels):
+        if name.lower() not in CHANNELS:
+            raise ImporterError(
+                f"{tokens.path}: line {tokens.line}: unknown channel {name!r} (expected "
+                "Xposition, Yposition, Zposition, Xrotation, Yrotation or Zrotation)"
+            )
+        if name.lower() in (c.lower() for c in channels[:k]):
+            raise ImporterError(f"{tokens.path}: line {tokens.line}: channel {name!r} twice")
+    return channels
+
+
+def _parse_hierarchy(tokens: _Tokens) -> list[BvhJoint]:
+    """Joints of the HIERARCHY section in file order (a parent before its children).
+
+    Nesting is followed with a stack of open joints, not recursion, so any depth is read.
+    """
+    tokens.next("HIERARCHY")
+    tokens.next("ROOT")
+    joints: list[BvhJoint] = []
+    open_joints: list[int] = []
+
+    def begin(name: str, parent: int) -> None:
+        tokens.next("{")
+        tokens.next("OFFSET")
+        offset = np.array([tokens.number() for _ in range(3)])
+        joints.append(BvhJoint(name, parent, offset, ()))
+        open_joints.append(len(joints) - 1)
+
+    begin(tokens.next(), -1)
+    while open_joints:
+        index = open_joints[-1]
         keyword = tokens.next()
         if keyword.upper() == "CHANNELS":
-            count = int(tokens.number())
-            channels = tuple(tokens.next() for _ in range(count))
-            joints[index] = BvhJoint(name, parent, offset, channels)
+            joints[index] = replace(joints[index], channels=_channels(tokens))
         elif keyword.upper() == "JOINT":
-            _parse_joint(tokens, tokens.next(), index, joints)
+            begin(tokens.next(), index)
         elif keyword.upper() == "END":
             tokens.next("Site")
             tokens.next("{")
@@ -122,48 +190,71 @@ def _parse_joint(tokens: _Tokens, name: str, parent: int, joints: list[BvhJoint]
                 tokens.number()
             tokens.next("}")
         elif keyword == "}":
-            return
+            open_joints.pop()
         else:
-            line = tokens.items[tokens.pos - 1][1]
-            raise ImporterError(f"{tokens.path}: line {line}: unexpected {keyword!r}")
+            raise ImporterError(f"{tokens.path}: line {tokens.line}: unexpected {keyword!r}")
+    return joints
+
+
+def _motion_values(tokens: _Tokens, n_frames: int, n_channels: int) -> np.ndarray:
+    """The (n_frames, n_channels) values of the MOTION section, parsed line by line."""
+    needed = n_frames * n_channels
+    chunks: list[np.ndarray] = []
+    count = 0
+    for line, words in tokens.rest():
+        if count >= needed:
+            break
+        try:
+            values = np.array(words[: needed - count], dtype=np.float64)
+        except ValueError:
+            raise ImporterError(
+                f"{tokens.path}: line {line}: non-numeric values in the MOTION section"
+            ) from None
+        chunks.append(values)
+        count += values.size
+    if count < needed:
+        raise ImporterError(
+            f"{tokens.path}: truncated BVH: {count} values for {n_frames} frames of "
+            f"{n_channels} channels ({count // n_channels} complete frames)"
+        )
+    return np.concatenate(chunks).reshape(n_frames, n_channels)
 
 
 def read_bvh(path: Path) -> BvhMotion:
-    """Parse a BVH file.
+    """Parse a BVH file (a regular file of at most :data:`MAX_BVH_BYTES`, read as a stream).
 
     Raises:
-        ImporterError: unreadable, malformed or truncated file (message names file and line).
+        ImporterError: not a regular file, too large, unreadable, malformed or truncated: a
+            count that is not a whole number, an unknown channel, no channel at all, no frame,
+            or a frame time outside [:data:`MIN_FRAME_TIME_S`, :data:`MAX_FRAME_TIME_S`]
+            (the message names the file, and the line where it helps).
 
     """
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError as exc:
-        raise ImporterError(f"{path}: cannot read ({exc})") from None
-    tokens = _Tokens(text, path)
-    tokens.next("HIERARCHY")
-    tokens.next("ROOT")
-    joints: list[BvhJoint] = []
-    _parse_joint(tokens, tokens.next(), -1, joints)
-    tokens.next("MOTION")
-    tokens.next("Frames:")
-    n_frames = int(tokens.number())
-    tokens.next("Frame")
-    tokens.next("Time:")
-    frame_time_s = tokens.number()
-    n_channels = sum(len(j.channels) for j in joints)
-    numbers = [tok for tok, _ in tokens.items[tokens.pos :]]
-    if n_frames <= 0 or frame_time_s <= 0:
-        raise ImporterError(f"{path}: {n_frames} frames of {frame_time_s} s: nothing to import")
-    if len(numbers) < n_frames * n_channels:
-        raise ImporterError(
-            f"{path}: truncated BVH: {len(numbers)} values for {n_frames} frames of "
-            f"{n_channels} channels ({len(numbers) // max(n_channels, 1)} complete frames)"
-        )
-    try:
-        values = np.array(numbers[: n_frames * n_channels], dtype=np.float64)
-    except ValueError:
-        raise ImporterError(f"{path}: non-numeric values in the MOTION section") from None
-    return BvhMotion(joints, frame_time_s, values.reshape(n_frames, n_channels))
+    with open_bounded(path, "BVH", ImporterError, MAX_BVH_BYTES) as raw:
+        text = io.TextIOWrapper(raw, encoding="utf-8", errors="replace")
+        tokens = _Tokens(iter(text), path)
+        try:
+            joints = _parse_hierarchy(tokens)
+            n_channels = sum(len(j.channels) for j in joints)
+            if n_channels == 0:
+                raise ImporterError(f"{path}: no CHANNELS in the hierarchy: no motion to import")
+            tokens.next("MOTION")
+            tokens.next("Frames:")
+            n_frames = tokens.count("Frames:", MAX_BVH_BYTES // 2)  # a value takes 2 bytes or more
+            tokens.next("Frame")
+            tokens.next("Time:")
+            frame_time_s = tokens.number()
+            if n_frames == 0:
+                raise ImporterError(f"{path}: 0 frames: nothing to import")
+            if not MIN_FRAME_TIME_S <= frame_time_s <= MAX_FRAME_TIME_S:  # NaN included
+                raise ImporterError(
+                    f"{path}: line {tokens.line}: Frame Time {frame_time_s:g} s is not a period "
+                    f"in [{MIN_FRAME_TIME_S:g}, {MAX_FRAME_TIME_S:g}] s"
+                )
+            values = _motion_values(tokens, n_frames, n_channels)
+        except OSError as exc:
+            raise ImporterError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    return BvhMotion(joints, frame_time_s, values)
 
 
 def forward_kinematics(motion: BvhMotion, rest: bool = False) -> tuple[np.ndarray, np.ndarray]:

@@ -11,6 +11,11 @@ so data sets store radians.
 Motion frame ``i`` of a clip sits at the centre of audio window ``i`` (samples
 ``[160 i, 160 i + 400)`` at 16 kHz, :mod:`audio2pose_ros.data.dataset`), i.e. at
 ``0.0125 + 0.01 i`` seconds: the importers sample their angle tracks at these instants.
+
+Source files are untrusted input: the text readers open them with
+:func:`~audio2pose_ros.files.open_bounded` (a regular file of bounded size, streamed),
+and :func:`assemble_clip` refuses a clip in which no joint is observed at any frame of the
+audio, whichever importer made it.
 """
 
 from __future__ import annotations
@@ -189,9 +194,18 @@ def assemble_clip(
         "body_moved_rad": (T,)}``; the last is how far each frame's arms were moved clear of the
         robot's body (:func:`~.body_clearance.clear_of_body`, after seed 003's steps).
 
+    Raises:
+        ImporterError: no joint is observed at any frame of the audio (nothing to learn from:
+            no source frame is observed, or none lies within :data:`MAX_GAP_S` of the audio).
+
     """
     grid = frame_times_s(audio.size)
     angles, mask = resample_to_grid(times_s, angles_rad, observed, grid)
+    if not mask.any():
+        raise ImporterError(
+            f"clip {info.clip_id}: no joint observed at any of the {grid.size} frames of the "
+            f"audio ({np.count_nonzero(observed)} observed values in {len(times_s)} source frames)"
+        )
     head = observed[:, robot.names.index(HEAD_JOINTS[0])]
     roll, roll_mask = resample_to_grid(times_s, head_roll_rad[:, None], head, grid)
     angles, mask = finish_angles(angles, mask, robot)

@@ -16,7 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from audio2pose_ros.data.dataset import Dataset, DatasetError
+from audio2pose_ros.data.dataset import (
+    MAX_EXTRAS_FILE_BYTES,
+    Dataset,
+    DatasetError,
+    check_extras_headers,
+    read_arrays,
+)
 
 EXTRAS_SUFFIX = ".extras.npz"
 
@@ -36,9 +42,16 @@ def save_extras(dataset: Dataset, clip_id: str, arrays: dict[str, np.ndarray]) -
 
 
 def load_extras(dataset: Dataset, clip_id: str) -> dict[str, np.ndarray]:
-    """The extras of a clip; empty when it has none."""
+    """The extras of a clip; empty when it has none.
+
+    Read as a clip is (:func:`~audio2pose_ros.data.dataset.read_arrays`): a regular file of
+    bounded size whose arrays are 1-d float or bool tracks of at most a clip's length.
+
+    Raises:
+        DatasetError: the file exists but is not a regular file, is too large or unreadable, or
+            holds other arrays.
+    """
     path = extras_path(dataset, clip_id)
-    if not path.is_file():
+    if not (path.exists() or path.is_symlink()):
         return {}
-    with np.load(path, allow_pickle=False) as data:
-        return {key: data[key] for key in data.files}
+    return read_arrays(path, "clip extras", MAX_EXTRAS_FILE_BYTES, check_extras_headers)

@@ -14,6 +14,7 @@ is not imported. The audio comes from a separate file (the video OpenFace analys
 from __future__ import annotations
 
 import csv
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,8 +29,12 @@ from audio2pose_ros.data.importers.common import (
     assemble_clip,
     head_neutral,
 )
+from audio2pose_ros.errors import short_repr
+from audio2pose_ros.files import open_bounded
 from audio2pose_ros.robot.description import RobotDescription
 
+# OpenFace's full output is about 5 KB per frame: 1 GiB is two hours at 30 frames/s.
+MAX_CSV_BYTES = 1 << 30
 REQUIRED_COLUMNS = ("timestamp", "confidence", "success", "pose_Rx", "pose_Ry", "pose_Rz")
 
 
@@ -68,30 +73,41 @@ def _rotation_xyz(rx: np.ndarray, ry: np.ndarray, rz: np.ndarray) -> np.ndarray:
 def read_openface_csv(path: Path, settings: OpenFaceImportSettings) -> OpenFaceTrack:
     """Read the head rotation track of one face from an OpenFace 2.0 CSV.
 
+    The file must be a regular file of at most :data:`MAX_CSV_BYTES`; it is streamed, and only
+    the columns the track needs are kept.
+
     Raises:
-        ImporterError: unreadable file, missing columns, non-numeric values, no rows or
-            non-increasing timestamps; the message names the file.
+        ImporterError: not a regular file, too large, unreadable, malformed CSV, missing
+            columns, non-numeric values, no rows or non-increasing timestamps; the message names
+            the file.
 
     """
-    try:
-        with path.open(newline="", encoding="utf-8") as stream:
-            rows = list(csv.reader(stream, skipinitialspace=True))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ImporterError(f"{path}: cannot read ({exc})") from None
-    if not rows:
-        raise ImporterError(f"{path}: empty file")
-    header = [name.strip() for name in rows[0]]
-    missing = [c for c in REQUIRED_COLUMNS if c not in header]
-    if missing:
-        raise ImporterError(
-            f"{path}: not an OpenFace 2.0 CSV: missing columns {missing} (has {header[:8]}...)"
-        )
-    columns = [*REQUIRED_COLUMNS, *(["face_id"] if "face_id" in header else [])]
-    index = [header.index(c) for c in columns]
-    try:
-        data = np.array([[float(row[i]) for i in index] for row in rows[1:] if row], ndmin=2)
-    except (ValueError, IndexError) as exc:
-        raise ImporterError(f"{path}: malformed row ({exc})") from None
+    with open_bounded(path, "CSV", ImporterError, MAX_CSV_BYTES) as raw:
+        stream = io.TextIOWrapper(raw, encoding="utf-8", newline="")
+        try:
+            reader = csv.reader(stream, skipinitialspace=True)
+            first = next(reader, None)
+            if first is None:
+                raise ImporterError(f"{path}: empty file")
+            header = [name.strip() for name in first]
+            missing = [c for c in REQUIRED_COLUMNS if c not in header]
+            if missing:
+                raise ImporterError(
+                    f"{path}: not an OpenFace 2.0 CSV: missing columns {missing} "
+                    f"(has {short_repr(header[:8], 200)}...)"
+                )
+            columns = [*REQUIRED_COLUMNS, *(["face_id"] if "face_id" in header else [])]
+            index = [header.index(c) for c in columns]
+            rows = [[float(row[i]) for i in index] for row in reader if row]
+        except UnicodeDecodeError as exc:
+            raise ImporterError(f"{path}: not UTF-8 text ({exc})") from None
+        except (ValueError, IndexError) as exc:
+            raise ImporterError(f"{path}: line {reader.line_num}: malformed row ({exc})") from None
+        except csv.Error as exc:
+            raise ImporterError(f"{path}: line {reader.line_num}: malformed CSV ({exc})") from None
+        except OSError as exc:
+            raise ImporterError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    data: np.ndarray = np.array(rows, dtype=np.float64, ndmin=2)
     if data.shape[0] == 0 or data.shape[1] != len(columns):
         raise ImporterError(f"{path}: no data rows")
     if "face_id" in columns:
