@@ -14,21 +14,18 @@ import json
 import os
 import re
 import subprocess
-import sys
 import tracemalloc
 import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+from node_processes import cli_in_child
 from test_cli_errors import assert_one_line, audio2pose
 from test_train_inputs import small_dataset
 
-import audio2pose_ros
 from audio2pose_ros.data.dataset import Dataset, DatasetError
 from audio2pose_ros.data.importers.extras import extras_path, load_extras, save_extras
-
-PACKAGE_ROOT = Path(audio2pose_ros.__file__).resolve().parent.parent
 
 
 def edit_index(root: Path, edit) -> None:
@@ -61,23 +58,6 @@ def claim_audio_samples(root: Path, clip_id: str, n_samples: int) -> None:
             buffer = io.BytesIO()
             np.save(buffer, arrays[name])
             archive.writestr(f"{name}.npy", buffer.getvalue())
-
-
-def cli_in_child(*argv: object, timeout: float) -> subprocess.CompletedProcess[str]:
-    """The real entry point in a child with 1 GiB of address space, killed after ``timeout``."""
-    code = (
-        "import resource, sys\n"
-        "resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))\n"
-        "from audio2pose_ros.cli.main import main\n"
-        "sys.exit(main(sys.argv[1:]))\n"
-    )
-    return subprocess.run(
-        [sys.executable, "-c", code, *map(str, argv)],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        env={**os.environ, "PYTHONPATH": str(PACKAGE_ROOT)},
-    )
 
 
 @pytest.mark.parametrize(

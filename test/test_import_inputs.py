@@ -12,21 +12,19 @@ from __future__ import annotations
 import os
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from node_processes import cli_in_child
 from recording_fixtures import openface_rotation, write_bvh, write_openface_csv, write_wav
 from test_cli_errors import assert_one_line, audio2pose
 
-import audio2pose_ros
 from audio2pose_ros.cli import main as cli
 from audio2pose_ros.data.dataset import ClipInfo, Dataset
 from audio2pose_ros.data.importers import ImporterError
 from audio2pose_ros.data.importers.common import assemble_clip
 
-PACKAGE_ROOT = Path(audio2pose_ros.__file__).resolve().parent.parent
 BVH = ["--licence", "CC0", "--skeleton", "genea2020"]
 
 
@@ -54,23 +52,6 @@ def deep_hierarchy(text: str) -> str:
     chain = "".join(f"JOINT j{k}\n{{\nOFFSET 0 1 0\n" for k in range(5000))
     chain += "End Site\n{\nOFFSET 0 1 0\n}\n" + "}\n" * 5000
     return text.replace("  JOINT Spine3", chain + "  JOINT Spine3", 1)
-
-
-def cli_in_child(*argv: object, timeout: float) -> subprocess.CompletedProcess[str]:
-    """The real entry point in a child with 1 GiB of address space, killed after ``timeout``."""
-    code = (
-        "import resource, sys\n"
-        "resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))\n"
-        "from audio2pose_ros.cli.main import main\n"
-        "sys.exit(main(sys.argv[1:]))\n"
-    )
-    return subprocess.run(
-        [sys.executable, "-c", code, *map(str, argv)],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        env={**os.environ, "PYTHONPATH": str(PACKAGE_ROOT)},
-    )
 
 
 def test_when_two_inputs_map_to_one_clip_id_expect_the_later_reported_and_none_replaced(
