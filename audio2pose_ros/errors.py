@@ -18,6 +18,7 @@ __all__ = [
     "UnsupportedAudioFormat",
     "UsageError",
     "short_repr",
+    "short_text",
 ]
 
 # sysexits.h EX_CONFIG: a node cannot run with its configuration; supervisors never respawn it
@@ -48,11 +49,15 @@ class InvalidAudio(InputError):  # noqa: N818 (name fixed by the node API)
     """Audio data that cannot be decoded as samples (NaN or inf in F32LE, a broken WAV file)."""
 
 
-def short_repr(value: object, limit: int = 40) -> str:
-    """``repr(value)`` cut to ``limit`` characters, for errors that echo outside input.
+def short_text(text: str, limit: int) -> str:
+    """``text`` cut to ``limit`` characters, saying how long it was, for text that quotes input.
 
-    A message field, a parameter value or a file's entry may be megabytes long; an error that
-    quotes it whole floods the log and every reply that carries the reason.
+    A message field, a parameter value or a file's entry may be megabytes long; an error or a
+    status that quotes it whole floods the log and every reply that carries it.
     """
-    text = repr(value)
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def short_repr(value: object, limit: int = 40) -> str:
+    """``repr(value)`` cut to ``limit`` characters (:func:`short_text`), for errors."""
+    return short_text(repr(value), limit)

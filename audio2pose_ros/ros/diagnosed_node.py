@@ -37,7 +37,12 @@ except ImportError:  # Humble: the same classes (with use_default_callbacks) in 
     from rclpy.qos_event import PublisherEventCallbacks, SubscriptionEventCallbacks
 
 from audio2pose_ros import topics
-from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, ConfigurationError, InputError
+from audio2pose_ros.errors import (
+    EXIT_CONFIGURATION_ERROR,
+    ConfigurationError,
+    InputError,
+    short_text,
+)
 from audio2pose_ros.ros.nodes.process import STOP_SIGNALS
 
 # Audio: best effort matches both reliable and best-effort publishers (audio_capture is reliable);
@@ -196,17 +201,13 @@ def status_name(fully_qualified_name: str) -> str:
     return f"audio2pose_ros: {fully_qualified_name}"
 
 
-def bounded_text(text: str, limit: int = MAX_STATUS_TEXT) -> str:
-    """``text`` cut to ``limit`` characters, saying how long it was."""
-    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
-
-
 def diagnostic_array(
     node: Node, level: bytes, message: str, values: dict[str, object]
 ) -> DiagnosticArray:
     """A DiagnosticArray with one status named after the node (namespace included).
 
-    Each key and value is cut to :data:`MAX_STATUS_TEXT` characters (:func:`bounded_text`);
+    Each key and value is cut to :data:`MAX_STATUS_TEXT` characters
+    (:func:`~audio2pose_ros.errors.short_text`);
     the message holds the node's summary and its problems, each already cut so.
     """
     status = DiagnosticStatus(
@@ -215,7 +216,8 @@ def diagnostic_array(
         message=message,
         hardware_id="pepper",
         values=[
-            KeyValue(key=bounded_text(k), value=bounded_text(str(v))) for k, v in values.items()
+            KeyValue(key=short_text(k, MAX_STATUS_TEXT), value=short_text(str(v), MAX_STATUS_TEXT))
+            for k, v in values.items()
         ],
     )
     array = DiagnosticArray()
@@ -349,7 +351,7 @@ class DiagnosedNode(Node):
             hold_s: the problem is reported until this long after its last report (s).
         """
         now = time.monotonic()
-        message = bounded_text(message)  # it may quote input of any length
+        message = short_text(message, MAX_STATUS_TEXT)  # it may quote input of any length
         problem = self._problems.get(key)
         if problem is None or problem.expires_s < now:
             problem = self._problems[key] = _Problem(level, message, now + hold_s, count=0)
