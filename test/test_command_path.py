@@ -11,12 +11,12 @@ from audio2pose_ros.learning.command_path import (
     command_path_predictions,
     command_path_table,
     commanded,
-    raw_samples,
     smoother_name,
 )
 from audio2pose_ros.motion.filter import MotionFilterSettings, delay_s
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
+from audio2pose_ros.offline.synthesis import synthesize_samples
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.timebase import FRAME_PERIOD_S
 
@@ -62,9 +62,9 @@ def shipped():
 def test_when_the_command_path_is_scored_expect_each_smoother_and_the_real_ceiling(shipped, speech):
     robot = shipped.robot
     audio = speech[: 16000 * 2]
-    n_frames = len(raw_samples(shipped, [_clip(audio, robot)], range(1))["c"][0])
+    n_frames = len(synthesize_samples(shipped, audio, range(1), False)[0])
     clip = _clip(audio, robot, n_frames)
-    raw = raw_samples(shipped, [clip], range(2))["c"]
+    raw = synthesize_samples(shipped, clip.audio, range(2), False)
     rows = command_path_predictions(robot, [clip], "m", {"c": raw})
     assert sorted(rows) == sorted(
         [*(f"m, commanded ({smoother_name(s)})" for s in SMOOTHERS), REAL_LABEL]
@@ -93,9 +93,9 @@ def _clip(audio: np.ndarray, robot, n_frames: int = 1) -> Clip:
 def test_when_the_command_path_table_is_written_expect_every_row_and_its_heading(shipped, speech):
     robot = shipped.robot
     audio = speech[: 16000 * 2]
-    n_frames = len(raw_samples(shipped, [_clip(audio, robot)], range(1))["c"][0])
+    n_frames = len(synthesize_samples(shipped, audio, range(1), False)[0])
     clip = _clip(audio, robot, n_frames)
-    raw = raw_samples(shipped, [clip], range(3, 5))
+    raw = {"c": synthesize_samples(shipped, clip.audio, range(3, 5), False)}
     offline = {"c": [butterworth_zero_phase(m) for m in raw["c"]]}
     table = command_path_table(shipped, [clip], offline, raw, "m", range(3, 5), "somewhere")
     assert table.startswith("what the robot is commanded, somewhere: the raw samples (seeds 3..4)")
@@ -131,7 +131,7 @@ def test_when_the_shipped_smoother_commands_the_model_expect_less_delay_than_the
     """The shipped low-pass (3 Hz, order 2) was chosen for less delay than the seed's 4 Hz, 5."""
     robot = shipped.robot
     clip = _clip(speech[: 16000 * 4], robot)
-    raw = raw_samples(shipped, [clip], range(2))["c"]
+    raw = synthesize_samples(shipped, clip.audio, range(2), False)
     offline = [butterworth_zero_phase(m) for m in raw]
     shipped_delay = delay_s(offline, commanded(robot, raw, SMOOTHERS[0]))
     seed = next(s for s in SMOOTHERS if s.lowpass_order == 5 and s.smoothing == "lowpass")

@@ -28,7 +28,6 @@ from audio2pose_ros.data.dataset import Clip
 from audio2pose_ros.learning.evaluation import Predictions, quality_evaluation
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings, delay_s, online_filter
 from audio2pose_ros.motion.smoothing import SEED_CUTOFF_HZ, SEED_ORDER
-from audio2pose_ros.offline.synthesis import synthesize_samples
 from audio2pose_ros.robot.description import RobotDescription
 
 SHIPPED = MotionFilterSettings()  # the node's defaults (config/pepper.yaml)
@@ -81,13 +80,6 @@ def commanded(
     ]
 
 
-def raw_samples(
-    checkpoint: Checkpoint, clips: Sequence[Clip], seeds: range
-) -> dict[str, list[np.ndarray]]:
-    """Per clip id, the model's samples in radians, unsmoothed (what the inference node sends)."""
-    return {c.info.clip_id: synthesize_samples(checkpoint, c.audio, seeds, False) for c in clips}
-
-
 def command_path_predictions(
     robot: RobotDescription,
     clips: Sequence[Clip],
@@ -96,7 +88,8 @@ def command_path_predictions(
 ) -> Predictions:
     """Method -> clip id -> commanded motion: the model's per smoother, and the real motion's.
 
-    ``raw`` holds the model's unsmoothed samples of each clip (:func:`raw_samples`);
+    ``raw`` holds the model's samples of each clip unsmoothed, as the inference node sends them
+    (:func:`~audio2pose_ros.offline.synthesis.synthesize_samples` with ``smooth=False``);
     ``label`` names the model; its rows are :func:`commanded_label`, the real motion's
     :data:`REAL_LABEL`.
     """
