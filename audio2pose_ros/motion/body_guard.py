@@ -70,7 +70,7 @@ LEAD_OUT_ACCEL_RAD_S2 = 1.0  # ... reached with this acceleration from rest (rad
 DETOUR_LIFT = 0.2  # a detour's part away from the body, per unit of its part along the margin
 DETOUR_REST_RAD_S = 0.05  # held joints slower than this are at rest: a detour may start
 DETOUR_MIN_RAD = 1e-3  # held joints closer than this to their command need no detour
-MAX_WIDENINGS = 3  # times the set of braked joints may grow within one step
+MAX_WIDENINGS = 4  # times the set of braked joints may grow within one step
 TOLERANCE_M = 1e-3  # braking may end this far inside the floor (m): the braking path between the
 # checked points can curve closer than they are; a robot further inside is led out
 SAMPLE_TRAVEL_M = 1e-3  # largest travel of any checked pair between two samples of a path (m):
@@ -212,17 +212,19 @@ class BodyGuard:
     def _admissible(self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray) -> bool:
         return self._check(pose, velocity, accel).clear
 
-    def _braking_close_enough(
+    def _braking_short_of(
         self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray
-    ) -> bool:
-        """Whether a braked command and its path keep the guaranteed floor less ``TOLERANCE_M``.
+    ) -> np.ndarray | None:
+        """None if a braked command keeps the guaranteed floor within ``TOLERANCE_M``.
 
-        Braking follows the previous command's checked path, but that was checked with the
-        previous tick's length and acceleration.
+        Else the joints of the first pair too close (of the command or of its path). Braking
+        follows the previous command's checked path, but that was checked with the previous
+        tick's length and acceleration.
         """
         assert self._guaranteed_m is not None
         limit = self._guaranteed_m - TOLERANCE_M
-        return self._sweep(pose, velocity, accel, limit, limit).clear
+        found = self._sweep(pose, velocity, accel, limit, limit)
+        return None if found.clear else self.body.pair_joints(found.pair)
 
     def _offending(
         self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray
@@ -345,15 +347,17 @@ class BodyGuard:
             pose = np.where(held, np.clip(previous + velocity * dt_s, lower, upper), want)
             velocity = np.where(held, (pose - previous) / dt_s, velocity)
             more = self._offending(pose, velocity, accel)
-            widen = more is not None and bool(np.any(more & ~held))
-            if more is None or (not widen and self._braking_close_enough(pose, velocity, brake)):
+            if more is not None and not np.any(more & ~held):
+                # braking every offending joint is not enough: within the tolerance it is,
+                # unless another pair is the one too close
+                more = self._braking_short_of(pose, velocity, brake)
+            if more is None:
                 pose, velocity = self._slide(pose, velocity, want, want_velocity, held, accel)
                 return self._detour(
                     pose, velocity, want, previous, previous_velocity, held, dt_s, accel
                 )
-            if not widen:
+            if not np.any(more & ~held):
                 break
-            assert more is not None
             held = held | more
         # Last resort: the offending joints stay where they are; failing that, everything does.
         self.status.holds += 1

@@ -866,7 +866,8 @@ class MotionFilterNode(DiagnosedNode):
             "body_guard",
             DiagnosticStatus.WARN,
             f"self-collision guard acting: {link_a} {action} the {margin_cm:.1f} cm margin of "
-            f"{link_b} ({guard.clearance_m * 100.0:.1f} cm); the arm is slowed or held there",
+            f"{link_b} ({guard.clearance_m * 100.0:.1f} cm); the arm is slowed or held there "
+            f"(last-resort holds so far: {guard.holds})",
         )
 
     def _stamp(self) -> object:
