@@ -7,9 +7,9 @@ diagnostics count it and say so in the guard's warning.
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 import rclpy
+from test_body_guard_pressure import state_that_cannot_stop
 
 from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
 
@@ -29,15 +29,8 @@ def node(tmp_path, monkeypatch):
 
 
 def test_when_the_guard_holds_as_a_last_resort_expect_it_counted_on_diagnostics(node):
-    robot = node.robot
     guard = node.filter.body_guard
-    roll = robot.names.index("LShoulderRoll")
-    pose = robot.neutral_rad.copy()
-    pose[roll] = 0.6
-    while guard.body.clearance(pose) > 0.03:  # the left arm 3 cm from the torso
-        pose[roll] -= 0.005
-    velocity = np.zeros(robot.n_joints)
-    velocity[roll] = -5.0  # into the torso, faster than it can stop in one command
+    pose, velocity = state_that_cannot_stop(guard.body)
     assert node.diagnostic_values()["body_guard_holds"] == 0
     guard.enforce(pose + velocity * PERIOD, velocity, pose, velocity, PERIOD, node.filter.limiter)
     assert node.diagnostic_values()["body_guard_holds"] == 1
