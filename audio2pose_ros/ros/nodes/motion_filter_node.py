@@ -19,7 +19,8 @@ Publications:
         robot_state_publisher / RViz in simulation (never ``joint_states``: on a robot that topic
         carries the driver's measured states).
     /diagnostics (diagnostic_msgs/DiagnosticArray): heartbeat, counters, problems.
-Parameters: the fields of MotionFilterSettings, LimitSettings and MotionFilterNodeSettings
+Parameters: the fields of MotionFilterSettings, StyleSettings (the style: per part a size and a
+    tempo, the arms' rest and height), LimitSettings and MotionFilterNodeSettings
     (``ros2 param describe`` shows each one's description and range).
 
 Safety: every command passes the input gate first and the joint limiter last; the node
@@ -78,6 +79,7 @@ from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.body_guard import GuardStatus
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
+from audio2pose_ros.motion.style import StyleSettings
 from audio2pose_ros.motion.sources import SingleSource
 from audio2pose_ros.motion.state_file import (
     FilterMemory,
@@ -236,7 +238,7 @@ class MotionFilterNodeSettings:
         validate_settings(self)
 
 
-SETTINGS_CLASSES = (MotionFilterSettings, LimitSettings, MotionFilterNodeSettings)
+SETTINGS_CLASSES = (MotionFilterSettings, StyleSettings, LimitSettings, MotionFilterNodeSettings)
 # A JointState of a whole humanoid (names, positions, velocities, efforts) is a few KiB.
 MAX_JOINT_STATE_BYTES = 65536
 
@@ -296,7 +298,12 @@ class MotionFilterNode(DiagnosedNode):
             self.robot = load_robot(self.settings.robot_description or None)
         except (OSError, ValueError) as exc:
             raise ConfigurationError(f"parameter robot_description: {exc}") from None
-        self.filter = MotionFilter(self.robot, settings, settings_from(LimitSettings, values))
+        self.filter = MotionFilter(
+            self.robot,
+            settings,
+            settings_from(LimitSettings, values),
+            style=settings_from(StyleSettings, values),
+        )
         self.stamps = StampCheck(self.settings.max_stamp_future_s, self.settings.max_stamp_age_s)
         self.input_messages = 0
         self.dropped_messages = 0
@@ -426,6 +433,7 @@ class MotionFilterNode(DiagnosedNode):
         self.filter.update_settings(
             settings_with(self.filter.settings, changes),
             settings_with(self.filter.limiter.settings, changes),
+            settings_with(self.filter.style.settings, changes),
         )
         self.settings = node_settings
         self.stamps.max_future_s = node_settings.max_stamp_future_s
