@@ -57,6 +57,13 @@ from aiohttp import WSMsgType, web
 
 from audio2pose_ros.audio.source import AudioBudget
 from audio2pose_ros.console.access import Access, request_problem
+from audio2pose_ros.console.enrollment import (
+    MAX_RECORDING_BYTES,
+    EnrollmentError,
+    Enrollments,
+    Ticket,
+    default_work_dir,
+)
 from audio2pose_ros.console.floor import Floor
 from audio2pose_ros.console.protocol import (
     AUDIO_HEADER,
@@ -156,6 +163,9 @@ class GraphBridge(Protocol):
     def set_gains(self, gains: dict[str, float]) -> None:
         """Set the filter's gains (``head``, ``arms``, ``hip``: the ``*_gain`` parameters)."""
 
+    def set_style(self, settings: dict[str, float] | None) -> None:
+        """Apply learned style settings to the filter, or (None) restore the graph's own."""
+
     def pose(self) -> dict[str, Any]:
         """The latest commanded and measured pose: name -> angle (rad), or None each."""
 
@@ -204,8 +214,11 @@ class ConsoleServer:
         web_dir: Path,
         urdf_path: Path,
         log: Callable[[str, str], None],
+        enrollments: Enrollments | None = None,
     ) -> None:
         self.settings = settings
+        self.enrollments = enrollments or Enrollments(default_work_dir())
+        self.style_in_use = "default"  # or "personal": the learned style is applied
         self.access = access
         self.bridge = bridge
         self.web_dir = web_dir
@@ -260,6 +273,7 @@ class ConsoleServer:
         app.router.add_get("/urdf/pepper.urdf", self._urdf)
         app.router.add_get("/favicon.ico", self._no_icon)
         app.router.add_get("/{name}", self._file)
+        app.router.add_post("/enroll/{ticket}", self._enroll_upload)
         # A connection's clock starts when it is made: a request not complete by then, or an
         # idle keep-alive connection, is closed (the page's few files load within milliseconds).
         self._runner = web.AppRunner(
@@ -352,6 +366,65 @@ class ConsoleServer:
     async def _urdf(self, _request: web.Request) -> web.Response:
         return web.Response(text=self.urdf, content_type="application/xml")
 
+    # --- learn my style -------------------------------------------------------------------------
+
+    async def _enroll_upload(self, request: web.Request) -> web.Response:
+        """One recording, streamed under a ticket a page asked for; learned in the background."""
+        problem = request_problem(
+            self.access, request.headers.get("Host"), request.headers.get("Origin")
+        )
+        if problem:
+            self.log("warning", f"console: upload from {request.remote or '?'} refused: {problem}")
+            raise web.HTTPForbidden(text=problem)
+        length = request.content_length
+        if length is not None and length > MAX_RECORDING_BYTES:
+            raise web.HTTPRequestEntityTooLarge(
+                max_size=MAX_RECORDING_BYTES, actual_size=length, text="recording too large"
+            )
+        try:
+            ticket, recording = await self.enrollments.receive(
+                request.match_info["ticket"],
+                request.headers.get("Content-Type", ""),
+                request.content.iter_chunked(1 << 16),
+            )
+        except EnrollmentError as exc:
+            self.log("warning", f"console: recording from {request.remote or '?'} refused: {exc}")
+            raise web.HTTPBadRequest(text=str(exc)) from None
+        self.log("info", f"console: learning {ticket.owner!r}'s style from their recording")
+        self._tasks.append(asyncio.create_task(self._learn(ticket, recording)))
+        return web.json_response({"learning": True}, status=202)
+
+    async def _learn(self, ticket: Ticket, recording: Path) -> None:
+        """Learn; then apply the style if its operator may still act on the robot's settings."""
+        try:
+            result = await self.enrollments.run(ticket, recording)
+        except Exception as exc:  # the boundary: the console carries on with the old style
+            self.log("warning", f"console: learning {ticket.owner!r}'s style failed: {exc}")
+            return
+        kept = f", recording kept in {result.kept_recording}" if result.kept_recording else ""
+        self.log("info", f"console: learned {ticket.owner!r}'s style: {result.folder}{kept}")
+        if ticket.session in self.sessions and self.floor.free_for(ticket.session):
+            self.bridge.set_style(result.settings)
+            self.style_in_use = "personal"
+
+    async def _on_style(self, session: _Session, control: Control) -> None:
+        """``enroll`` (a ticket for an upload) and ``style`` (which style the graph uses)."""
+        if control.type == "enroll":
+            try:
+                key = self.enrollments.ticket(session.id, session.name, control.fields["keep"])
+            except EnrollmentError as exc:
+                raise ProtocolError(str(exc)) from None
+            self._send(session, encode("enroll_ticket", ticket=key), droppable=False)
+        elif control.fields["use"] == "personal":
+            result = self.enrollments.result
+            if result is None:
+                raise ProtocolError("no style has been learned yet: press Learn my style")
+            self.bridge.set_style(result.settings)
+            self.style_in_use = "personal"
+        else:
+            self.bridge.set_style(None)
+            self.style_in_use = "default"
+
     # --- WebSocket ------------------------------------------------------------------------------
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
@@ -404,6 +477,7 @@ class ConsoleServer:
         finally:
             self.connections -= 1
             self.sessions.pop(session.id, None)
+            self.enrollments.forget_session(session.id)
             try:
                 if self.floor.release(session.id):
                     self.bridge.end_talk()
@@ -568,6 +642,8 @@ class ConsoleServer:
                 self.bridge.set_stop(False)
             elif control.type == "enable":
                 self.bridge.set_enable(bool(on))
+            elif control.type in ("enroll", "style"):
+                await self._on_style(session, control)
             else:
                 self.bridge.set_gains({k: float(v) for k, v in control.fields.items()})
 
@@ -606,6 +682,8 @@ class ConsoleServer:
             status = self.bridge.status()
             status["operators"] = len(self.sessions)
             status["floor"] = self.floor.holder_name or None
+            status["enrollment"] = self.enrollments.status()
+            status["style"] = self.style_in_use
             text = self._snapshot("status", status)
             for session in list(self.sessions.values()):
                 self._send(session, text)

@@ -6,6 +6,7 @@
 import * as THREE from 'three';
 import { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
 import URDFLoader from 'urdf-loader';
+import { createEnroll } from './enroll.js';
 
 const CHUNK_SAMPLES = 320; // 20 ms at 16 kHz
 const GAIN_SEND_PERIOD_MS = 150;
@@ -49,7 +50,7 @@ function send(message) {
 }
 
 function setControls(enabled) {
-  for (const id of ['talk', 'stop', 'release', 'enable', 'gain-head', 'gain-arms', 'gain-hip']) {
+  for (const id of ['talk', 'stop', 'release', 'enable', 'gain-head', 'gain-arms', 'gain-hip', 'learn']) {
     $(id).disabled = !enabled;
   }
 }
@@ -129,6 +130,9 @@ function onMessage(message) {
     case 'status':
       state.status = message;
       updateStatus(message);
+      break;
+    case 'enroll_ticket':
+      styleLearning.onTicket(message);
       break;
     case 'error':
       showError(message.message);
@@ -235,6 +239,7 @@ function updateStatus(status) {
     }
   }
   setText($('gains-problem'), status.gains_problem || '');
+  styleLearning.update(status);
   const l = status.latency || {};
   setText($('latency'), l.n
     ? `p50 ${l.p50.toFixed(1)} ms, p99 ${l.p99.toFixed(1)} ms, last ${l.last.toFixed(1)} ms ` +
@@ -525,6 +530,7 @@ function wire() {
 }
 
 wire();
+const styleLearning = createEnroll({ $, send, state, showError });
 connect();
 initView().catch((error) => {
   $('view-problem').hidden = false;
