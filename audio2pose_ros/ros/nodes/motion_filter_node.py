@@ -79,7 +79,6 @@ from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.body_guard import GuardStatus
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
-from audio2pose_ros.motion.style import StyleSettings
 from audio2pose_ros.motion.sources import SingleSource
 from audio2pose_ros.motion.state_file import (
     FilterMemory,
@@ -89,6 +88,7 @@ from audio2pose_ros.motion.state_file import (
     load_memory,
     save_memory,
 )
+from audio2pose_ros.motion.style import StyleSettings
 from audio2pose_ros.motion.timing import StampCheck
 from audio2pose_ros.motion.tracking import TrackingWatch
 from audio2pose_ros.parameters import (
