@@ -259,20 +259,24 @@ class Enrollments:
             recording.replace(kept)
         else:
             recording.unlink(missing_ok=True)
+        (job / "learning.log").unlink(missing_ok=True)
         self.completed += 1
         self.result = Result(folder, settings, kept)
         self._set("ready", f"learned {ticket.owner}'s style", ticket.owner)
         return self.result
 
     async def _child(self, recording: Path, folder: Path) -> dict[str, float]:
-        process = await asyncio.create_subprocess_exec(
-            *self.command,
-            str(recording),
-            str(folder),
-            stdin=asyncio.subprocess.DEVNULL,
-            stdout=asyncio.subprocess.PIPE,
-            stderr=asyncio.subprocess.STDOUT,
-        )
+        # the libraries' own chatter (MediaPipe, protobuf) goes to a log beside the recording,
+        # deleted with it; the pages see the worker's progress lines only
+        with open(recording.parent / "learning.log", "wb") as log:
+            process = await asyncio.create_subprocess_exec(
+                *self.command,
+                str(recording),
+                str(folder),
+                stdin=asyncio.subprocess.DEVNULL,
+                stdout=asyncio.subprocess.PIPE,
+                stderr=log,
+            )
         found: list[dict[str, float]] = []
         last = [""]
 
