@@ -119,6 +119,23 @@ def test_when_an_upload_is_refused_expect_nothing_of_it_kept(
     assert jobs.status()["state"] == "idle"
 
 
+def test_when_an_upload_trickles_expect_it_dropped_and_the_slot_free(tmp_path, monkeypatch):
+    monkeypatch.setattr(enrollment, "UPLOAD_TIMEOUT_S", 0.5)
+
+    async def trickle() -> AsyncIterator[bytes]:
+        while True:
+            yield b"x"
+            await asyncio.sleep(0.05)
+
+    jobs = Enrollments(tmp_path / "work", LEARNS)
+    key = jobs.ticket(1, "Ann", keep=False)
+    with pytest.raises(EnrollmentError, match=r"did not arrive within 0\.5 s"):
+        run(jobs.receive(key, "video/webm", trickle()))
+    assert not [p for p in (tmp_path / "work").rglob("*") if p.is_file()]
+    assert not jobs.busy
+    assert jobs.ticket(2, "Bob", keep=False)
+
+
 # --- learning -------------------------------------------------------------------------------
 
 

@@ -10,9 +10,9 @@ The operator's page asks for consent, records camera and microphone for up to
    time (the machine has few cores, and the robot one style): a ticket is refused while another
    recording is being uploaded or learned.
 2. **The upload** (:meth:`Enrollments.receive`): the recording is streamed into a private folder
-   (mode 0700) under the console's work folder, at most :data:`MAX_RECORDING_BYTES`; a larger
-   or empty upload, or one with an unknown, used or expired ticket, is refused and nothing of it
-   is kept.
+   (mode 0700) under the console's work folder, at most :data:`MAX_RECORDING_BYTES` within
+   :data:`UPLOAD_TIMEOUT_S`; a larger, slower or empty upload, or one with an unknown, used or
+   expired ticket, is refused and nothing of it is kept.
 3. **Learning** (:meth:`Enrollments.run`): the recording goes through the same importer and
    style fit as ``audio2pose enroll`` (:func:`audio2pose_ros.style.personal.enroll`), in a child
    process (:mod:`audio2pose_ros.console.enroll_worker`; the console itself never loads the
@@ -50,6 +50,7 @@ __all__ = [
     "MAX_RECORDING_BYTES",
     "MAX_RECORDING_S",
     "TICKET_TTL_S",
+    "UPLOAD_TIMEOUT_S",
     "EnrollmentError",
     "Enrollments",
     "Result",
@@ -60,6 +61,7 @@ __all__ = [
 MAX_RECORDING_S = 60.0  # the page stops recording after this long
 MAX_RECORDING_BYTES = 64 * 1024 * 1024  # 60 s of camera and microphone at about 8 Mbit/s
 TICKET_TTL_S = 120.0  # an upload must start this soon after its ticket (recording included)
+UPLOAD_TIMEOUT_S = 120.0  # an upload that takes longer is dropped (a trickle holds no slot)
 ENROLL_TIMEOUT_S = 300.0  # the child process is killed after this long
 SETTINGS_PREFIX = "STYLE_SETTINGS "  # the worker's last line: the resolved settings as JSON
 MAX_PROGRESS_CHARS = 200  # a progress line shown to the pages is cut to this length
@@ -217,8 +219,9 @@ class Enrollments:
             )
         )
         path = job / RECORDING_NAME
-        size = 0
-        try:
+
+        async def store() -> int:
+            size = 0
             with open(path, "xb") as out:
                 async for chunk in chunks:
                     size += len(chunk)
@@ -227,6 +230,15 @@ class Enrollments:
                             f"the recording is over {MAX_RECORDING_BYTES // 2**20} MB"
                         )
                     out.write(chunk)
+            return size
+
+        try:
+            try:
+                size = await asyncio.wait_for(store(), UPLOAD_TIMEOUT_S)
+            except asyncio.TimeoutError:
+                raise EnrollmentError(
+                    f"the recording did not arrive within {UPLOAD_TIMEOUT_S:g} s"
+                ) from None
             if size == 0:
                 raise EnrollmentError("the recording is empty")
         except BaseException:
