@@ -71,6 +71,11 @@ _ARM_FIELDS = ("rest_pitch_rad", "rest_bend_rad", "raise_p1_rad")
 _LIST_FIELDS = ("speed_deciles_rad_s", "accel_deciles_rad_s2")
 
 
+def _rounded(value: float) -> float:
+    """A figure as kept (6 significant digits): what is written is what was measured."""
+    return float(f"{float(value):.6g}")
+
+
 class StyleError(InputError):
     """A style file, preset name or figure is refused (the message says which and why)."""
 
@@ -112,9 +117,11 @@ class PartFigures:
                         f"[{low:g}, {high:g}]"
                     )
             if many:
-                object.__setattr__(self, name, tuple(float(v) for v in value))
                 if any(b < a for a, b in itertools.pairwise(value)):
                     raise StyleError(f"style figure {name}: deciles must not decrease")
+                object.__setattr__(self, name, tuple(_rounded(v) for v in value))
+            elif value is not None:
+                object.__setattr__(self, name, _rounded(value))
 
     @property
     def speed_p50_rad_s(self) -> float:
@@ -122,13 +129,13 @@ class PartFigures:
         return self.speed_deciles_rad_s[DECILES.index(50)]
 
     def as_dict(self) -> dict[str, object]:
-        """The figures to write (arm fields only where set), rounded for a readable file."""
+        """The figures to write (arm fields only where set)."""
         out: dict[str, object] = {}
         for key, value in asdict(self).items():
             if isinstance(value, tuple | list):
-                out[key] = [round(float(v), 5) for v in value]
+                out[key] = list(value)
             elif value is not None:
-                out[key] = round(float(value), 5)
+                out[key] = value
         return out
 
 
