@@ -179,7 +179,7 @@ class StyleFile:
                     if getattr(self.fitted[1], name) != getattr(IDENTITY, name)
                 },
             }
-        return yaml.safe_dump(document, sort_keys=False, width=100)
+        return yaml.safe_dump(document, sort_keys=False, width=100, default_flow_style=None)
 
     def write(self, path: Path) -> Path:
         """Write the file (its folder must exist)."""
