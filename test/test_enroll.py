@@ -183,7 +183,7 @@ def test_when_presets_shipped_expect_each_readable_with_figures_and_command():
     for name in names:
         style = load_style(name)
         assert style.parts
-        assert style.command.startswith("audio2pose")
+        assert style.command == "make style-presets"
         assert style.source
 
 

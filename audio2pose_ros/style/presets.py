@@ -47,8 +47,10 @@ PRESETS = {
 def measure_preset(
     dataset_dir: Path, prefix: str, name: str, description: str, robot: RobotDescription
 ) -> StyleFile:
-    """The preset ``name`` measured from the clips of ``dataset_dir`` whose id starts with
-    ``prefix``, with their sources and licences."""
+    """The preset ``name`` measured from the clips of ``dataset_dir`` starting with ``prefix``.
+
+    Its source names the clips' count and licences.
+    """
     dataset = Dataset.open(dataset_dir, robot)
     infos = [info for info in dataset.clips if info.clip_id.startswith(prefix)]
     clips = [dataset.load(info.clip_id) for info in infos]
