@@ -47,7 +47,7 @@ MIN_TEMPO, MAX_TEMPO = 0.2, 2.0
 MAX_GAIN = 2.0
 MAX_REST_OFFSET_RAD = 0.6
 RAISE_SOFTNESS_RAD = 0.08  # width w of the soft height limit
-STYLE_BLEND_S = 1.5  # a live style change blends in over this long (minimum-jerk)
+STYLE_BLEND_S = 1.0  # a live style change blends in over this long (minimum-jerk)
 
 
 def _gain(part: str) -> dict[str, object]:
