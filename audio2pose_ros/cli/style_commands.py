@@ -109,8 +109,9 @@ def command_enroll(args: argparse.Namespace) -> int:
 
 def command_evaluate_style(args: argparse.Namespace) -> int:
     """Enroll on the start of each source, score on the rest: the SI-vs-SD table."""
+    from audio2pose_ros.learning.style_card import write_card_section
     from audio2pose_ros.robot.description import load_robot
-    from audio2pose_ros.style.evaluation import evaluate_sources, write_card_section
+    from audio2pose_ros.style.evaluation import evaluate_sources
 
     table = evaluate_sources(
         [Path(d) for d in args.data],

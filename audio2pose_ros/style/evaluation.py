@@ -48,10 +48,8 @@ from audio2pose_ros.style.figures import Motion, _derivatives, measure_part
 from audio2pose_ros.style.personal import fit, synthesizer
 from audio2pose_ros.timebase import FRAME_RATE_HZ
 
-PARTS = ("head", "arms")
+PARTS: tuple[str, ...] = ("head", "arms")
 SCORE_MIN_S = 1.0  # a scored part needs this much known motion
-CARD_BEGIN = "<!-- begin: evaluate-style (generated; do not edit by hand) -->"
-CARD_END = "<!-- end: evaluate-style -->"
 
 
 @dataclass(frozen=True)
@@ -153,6 +151,50 @@ def _split(clips: Sequence[Clip], enroll_s: float) -> tuple[list[Clip], list[Cli
     return enrol, list(clips[len(enrol) :])
 
 
+def _synthesized(clip: Clip, synthesize_clip: Callable[[Clip], np.ndarray]) -> np.ndarray:
+    """The model's angles of a clip's speech, as many frames as the clip (last pose held)."""
+    angles = synthesize_clip(clip)
+    n = min(len(angles), clip.n_frames)
+    return np.vstack([angles[:n], np.repeat(angles[n - 1 :], clip.n_frames - n, axis=0)])
+
+
+def figure_rows(
+    name: str,
+    clips: Sequence[Clip],
+    robot: RobotDescription,
+    synthesize_clip: Callable[[Clip], np.ndarray],
+) -> list[str]:
+    """Table lines: the source's figures per observed part, then the default model's.
+
+    The model's are of the same speech, over the source's known frames only.
+    """
+    real = [(c.angles_rad, c.mask) for c in clips]
+    model = [(_synthesized(c, synthesize_clip), c.mask) for c in clips]
+    lines = []
+    for part in (*PARTS, "hip"):
+        for who, motions in ((f"{name} (real)", real), ("default model, same speech", model)):
+            f = measure_part(motions, robot, part, FRAME_RATE_HZ, SCORE_MIN_S)
+            if f is None:
+                break
+            arms = (
+                f"{f.rest_pitch_rad:.2f} / {f.rest_bend_rad:.2f} / {f.raise_p1_rad:.2f}"
+                if f.rest_pitch_rad is not None
+                else "-"
+            )
+            lines.append(
+                f"| {who} | {part} | {f.seconds:.0f} | {f.std_rad:.3f} | "
+                f"{f.speed_deciles_rad_s[4]:.3f} / {f.speed_deciles_rad_s[8]:.3f} | "
+                f"{f.accel_deciles_rad_s2[4]:.2f} / {f.accel_deciles_rad_s2[8]:.2f} | {arms} |"
+            )
+    return lines
+
+
+FIGURES_HEADER = (
+    "| motion | part | s | std (rad) | speed p50 / p90 (rad/s) | accel p50 / p90 (rad/s²) | "
+    "arm rest pitch / bend / raise p1 (rad) |\n|---|---|---|---|---|---|---|"
+)
+
+
 def evaluate_source(
     name: str,
     clips: Sequence[Clip],
@@ -169,9 +211,7 @@ def evaluate_source(
     onsets = [audio_onsets(c.audio) for c in held]
     si, sd = [], []
     for clip in held:
-        angles = synthesize_clip(clip)
-        n = min(len(angles), clip.n_frames)
-        angles = np.vstack([angles[:n], np.repeat(angles[n - 1 :], clip.n_frames - n, axis=0)])
+        angles = _synthesized(clip, synthesize_clip)
         si.append((angles, clip.mask))
         sd.append((style_trajectory(robot, settings, angles, FRAME_RATE_HZ), clip.mask))
     first, second = real[0::2], real[1::2]
@@ -223,6 +263,7 @@ def evaluate_sources(
     """The SI-vs-SD table of every source in ``datasets`` (clips grouped by :func:`source_of`)."""
     synthesize_clip = synthesizer(default_checkpoint_path(), robot)
     rows: list[Row] = []
+    figures: list[str] = []
     for path in datasets:
         dataset = Dataset.open(path, robot)
         by_source: dict[str, list[Clip]] = {}
@@ -231,34 +272,27 @@ def evaluate_sources(
         for name, clips in by_source.items():
             progress(f"{name}: {len(clips)} clips")
             rows += evaluate_source(name, clips, robot, synthesize_clip, enroll_s, progress)
-    return table(rows)
-
-
-def write_card_section(card: Path, text: str, command: str) -> None:
-    """Put ``text`` into the card between :data:`CARD_BEGIN` and :data:`CARD_END`.
-
-    The section is replaced, or appended when the card has none.
-    """
-    section = "\n".join(
+            figures += figure_rows(name, clips, robot, synthesize_clip)
+    return "\n\n".join(
         [
-            CARD_BEGIN,
-            "## Speaking style: default (subject-independent) vs enrolled (subject-dependent)",
-            "",
-            "Enrolled on the start of each source (whole clips, at most 60 s and at most half), "
-            "scored on the rest against the real motion; the real split half is the floor. "
-            "Goals: enrolled within 25 % on the percentiles, H <= 0.12, std ratio 0.8 to 1.25, "
-            "and better than the default.",
-            "",
-            text,
-            "",
-            f"Rebuild: `{command}`",
-            CARD_END,
+            table(rows),
+            "Each source's figures (all its clips) next to the default model's on the same "
+            "speech (the presets of config/styles hold these figures):",
+            "\n".join([FIGURES_HEADER, *figures]),
+            presets_table(robot),
         ]
     )
-    old = card.read_text(encoding="utf-8") if card.exists() else ""
-    if CARD_BEGIN in old and CARD_END in old:
-        head, rest = old.split(CARD_BEGIN, 1)
-        new = head + section + rest.split(CARD_END, 1)[1]
-    else:
-        new = old.rstrip("\n") + "\n\n" + section + "\n"
-    card.write_text(new, encoding="utf-8")
+
+
+def presets_table(robot: RobotDescription) -> str:
+    """The shipped presets and the filter's style parameters they mean for the packaged model."""
+    from audio2pose_ros.style.figures import load_style, preset_names
+    from audio2pose_ros.style.personal import style_overrides, style_settings
+
+    lines = ["| preset | parts | style parameters against the packaged model |", "|---|---|---|"]
+    for name in preset_names():
+        style = load_style(name)
+        settings = style_settings(default_checkpoint_path(), style, robot)
+        values = ", ".join(o.replace(":=", " ") for o in style_overrides(settings))
+        lines.append(f"| `{name}` | {', '.join(style.parts)} | {values} |")
+    return "\n".join(lines)
