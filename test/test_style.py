@@ -139,3 +139,16 @@ def test_when_extreme_style_expect_finite_output(robot):
     )  # fmt: skip
     out = StyleTransform(robot, extreme, RATE).run(motion)
     assert np.isfinite(out).all()
+
+
+def test_when_deprecated_filter_gain_given_expect_warning_and_the_style_size_set(robot):
+    from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+
+    with pytest.warns(DeprecationWarning, match="use StyleSettings"):
+        settings = MotionFilterSettings(arms_gain=0.0)
+    assert MotionFilter(robot, settings).style.settings.arms_gain == 0.0
+    with (
+        pytest.raises(ConfigurationError, match="arms_gain"),
+        pytest.warns(DeprecationWarning, match="deprecated"),
+    ):
+        MotionFilterSettings(arms_gain=math.nan)
