@@ -190,7 +190,7 @@ def test_when_presets_shipped_expect_each_readable_with_figures_and_command():
 @pytest.mark.slow
 @pytest.mark.skipif(not OBAMA, reason="the shared talking-head clips are not here")
 def test_when_enrolling_a_real_video_expect_a_head_style_and_progress(tmp_path, capsys):
-    """15 s of real talking-head video (the Obama clips joined) enrols the head only."""
+    """Real talking-head video (the Obama clips joined, 15 s): its first 8 s enrol the head."""
     joined = tmp_path / "obama.mp4"
     inputs = [arg for clip in OBAMA for arg in ("-i", str(clip))]
     streams = "".join(f"[{k}:v][{k}:a]" for k in range(len(OBAMA)))
@@ -200,12 +200,13 @@ def test_when_enrolling_a_real_video_expect_a_head_style_and_progress(tmp_path, 
          "-s", "640x360", str(joined)],
         check=True,
     )  # fmt: skip
-    assert main(["enroll", str(joined), "-o", str(tmp_path / "me")]) == 0
+    assert main(["enroll", str(joined), "-o", str(tmp_path / "me"), "--max-seconds", "8"]) == 0
     captured = capsys.readouterr()
     assert "enroll: tracking face and body" in captured.err
     assert "head_gain:=" in captured.out
     style = read_style(tmp_path / "me" / "style.yaml")
     assert set(style.parts) == {"head"}  # head and shoulders: the arms are not seen
+    assert 5.0 <= style.parts["head"].seconds <= 8.0  # only the first 8 s were tracked
     assert style.fitted is not None
     assert style.fitted[1].head_gain < 1.5
     assert style.fitted[1] != StyleSettings()

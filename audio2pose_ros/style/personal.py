@@ -187,9 +187,14 @@ def _first_seconds(clips: Sequence[Clip], seconds: float) -> list[Clip]:
 
 
 def recording_clips(
-    source: Path, robot: RobotDescription, progress: Callable[[str], None]
+    source: Path,
+    robot: RobotDescription,
+    progress: Callable[[str], None],
+    max_seconds: float | None = None,
 ) -> list[Clip]:
     """A recording's clips: a data set folder (any importer's) or one video with speech.
+
+    Of a video only the first ``max_seconds`` are decoded and tracked.
 
     Raises:
         InputError: missing source, a data set that cannot be read, or a video the importer
@@ -207,7 +212,8 @@ def recording_clips(
 
     progress(f"tracking face and body in {source.name} (MediaPipe)")
     info = ClipInfo(source.stem[:64] or "recording", "enrolled", source.name, LICENCE, "train")
-    clip, _ = import_video(source, info, robot, VideoImportSettings(body=True))
+    settings = VideoImportSettings(body=True, max_seconds=max_seconds)
+    clip, _ = import_video(source, info, robot, settings)
     return [clip]
 
 
@@ -237,7 +243,7 @@ def enroll(
         InputError: unreadable source, or no part observed long enough.
     """
     start = time.monotonic()
-    clips = _first_seconds(recording_clips(source, robot, progress), max_seconds)
+    clips = _first_seconds(recording_clips(source, robot, progress, max_seconds), max_seconds)
     seconds = sum(c.n_frames for c in clips) / FRAME_RATE_HZ
     parts = measure([(c.angles_rad, c.mask) for c in clips], robot)
     if not parts:
