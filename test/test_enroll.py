@@ -210,3 +210,26 @@ def test_when_enrolling_a_real_video_expect_a_head_style_and_progress(tmp_path, 
     assert style.fitted is not None
     assert style.fitted[1].head_gain < 1.5
     assert style.fitted[1] != StyleSettings()
+
+
+def test_when_run_gets_a_personal_model_expect_its_checkpoint_and_style_as_overrides(tmp_path):
+    """``audio2pose run --model me/``: the graph's parameters (the run itself is a DDS test)."""
+    import argparse
+
+    from audio2pose_ros.cli.main import _model_overrides
+
+    source = tmp_path / "style.yaml"
+    source.write_text(GOOD)
+    style = read_style(source)
+    folder = tmp_path / "me"
+    folder.mkdir()
+    from audio2pose_ros.resources import default_checkpoint_path
+    from audio2pose_ros.style.figures import StyleFile
+    from audio2pose_ros.style.personal import checkpoint_digest
+
+    fitted = (checkpoint_digest(default_checkpoint_path()), StyleSettings(head_gain=0.5))
+    StyleFile("me", "", "", "", style.parts, fitted).write(folder / "style.yaml")
+    args = argparse.Namespace(model=str(folder), style=None, style_set=["head_tempo=0.8"])
+    overrides = _model_overrides(args)
+    assert overrides[0] == f"model_path:={default_checkpoint_path().resolve()}"
+    assert set(overrides[1:]) == {"head_gain:=0.5", "head_tempo:=0.8"}
