@@ -260,8 +260,7 @@ def _within(low: float, high: float) -> Callable[[float], bool]:
 
 def source_checks(report: SourceReport) -> list[Check]:
     """The goals for one held-out source, met or not, with the measured values."""
-    from audio2pose_ros.learning.default_model import PROSODY_RULE
-    from audio2pose_ros.learning.evaluation import REAL_FLOOR, STATIC
+    from audio2pose_ros.learning.evaluation import PROSODY_RULE, REAL_FLOOR, STATIC
 
     quality, model = report.quality, report.model()
     checks: list[Check] = []
