@@ -37,6 +37,7 @@ from rclpy.serialization import serialize_message
 from std_msgs.msg import Bool
 
 from audio2pose_ros import topics
+from audio2pose_ros.files import packaged_mapping
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
 from audio2pose_ros.ros.fault_cases_runtime import impersonated_sigstop_case, runtime_cases
@@ -53,7 +54,6 @@ from audio2pose_ros.ros.fault_harness import (
 from audio2pose_ros.ros.graph import node_graph
 from audio2pose_ros.ros.process_stats import rss_mb
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
-from audio2pose_ros.yaml_files import packaged_mapping
 
 __all__ = ["cases", "run_campaign", "table"]
 

@@ -55,6 +55,7 @@ from audio2pose_ros.errors import (
     ConfigurationError,
     UsageError,
 )
+from audio2pose_ros.files import load_yaml_text
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.ros.diagnosed_node import (
     HEARTBEAT_FD_ENV,
@@ -65,7 +66,6 @@ from audio2pose_ros.ros.diagnosed_node import (
 )
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.ros.player import MessagePlayer, rclpy_session, spin_until, warm_up
-from audio2pose_ros.yaml_files import load_yaml_text
 
 NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
 RECORD_FLUSH_PERIOD_S = 0.5  # a killed recording loses at most about this much (BagWriter.flush)

@@ -42,6 +42,7 @@ from audio2pose_ros import topics
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.data.bag import AUDIO_DATA_TYPE, AUDIO_INFO_TYPE, BagMessage
+from audio2pose_ros.files import packaged_mapping
 from audio2pose_ros.resources import bundled_speech_paths
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import load_robot
@@ -55,7 +56,6 @@ from audio2pose_ros.ros.player import (
 )
 from audio2pose_ros.ros.process_stats import cpu_s, rss_mb
 from audio2pose_ros.timebase import FRAME_PERIOD_S, SAMPLE_RATE_HZ, SAMPLES_PER_FRAME
-from audio2pose_ros.yaml_files import packaged_mapping
 
 CHUNK_SAMPLES = SAMPLES_PER_FRAME  # one 10 ms frame step per chunk (seed 003 section 4.2.2)
 MATCH_TOLERANCE_RAD = 1e-5  # float32 /joint_angles against float64 raw poses

@@ -35,9 +35,9 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.files import read_yaml_file
 from audio2pose_ros.parameters import ParameterSpec, ParameterValue
 from audio2pose_ros.ros.parameter_names import NODE_PARAMETER_NAMES
-from audio2pose_ros.yaml_files import read_yaml_file
 
 __all__ = ["NodeParameters", "check_parameter_files", "descriptor_of", "parameter_files"]
 
