@@ -60,7 +60,13 @@ from audio2pose_ros.console.settings import ConsoleSettings
 from audio2pose_ros.parameters import settings_from, specs_of
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STALE_AFTER_S, DiagnosedNode, run_node
+from audio2pose_ros.ros.diagnosed_node import (
+    LATCHED_QOS,
+    STALE_AFTER_S,
+    DiagnosedNode,
+    run_node,
+    to_terminal,
+)
 from audio2pose_ros.ros.node_parameters import NodeParameters
 
 PARAMETERS = specs_of(ConsoleSettings)
@@ -184,10 +190,12 @@ class ConsoleNode(DiagnosedNode):
                 f"the console's front end is not built ({share_path('web', 'dist')} has no "
                 "index.html): install Node.js and npm and run `make setup`; the page says so"
             )
-        self.get_logger().info(
+        address = (
             f"operator console: open {self.access.url(port)} and press Talk "
             f"({'token required' if self.access.token else 'no token: this machine only'})"
         )
+        self.get_logger().info(address)
+        to_terminal(f"[{self.get_name()}] {address}")  # also when the log goes to a file
 
     def _log(self, level: str, message: str) -> None:
         # rclpy refuses two severities from one line of code: one call each
