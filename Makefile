@@ -30,8 +30,10 @@ bench: setup
 	$(VENV_BIN)/audio2pose bench
 
 # The documentation (doc/: Sphinx with MyST, as rosdoc2 builds it) into out/docs/, offline; a
-# warning fails the build. The Python API pages are generated into doc/generated/.
+# warning fails the build. The Python API pages are generated into doc/generated/ (anew each
+# time: stubs of removed modules would stay).
 docs: setup
+	rm -rf doc/generated
 	$(VENV_BIN)/python -m sphinx -W --keep-going -q -b html doc out/docs
 
 TALKING_HEADS ?= ../shared/data/talking_heads
