@@ -211,7 +211,7 @@ def test_when_only_half_a_certificate_or_a_missing_file_is_given_expect_refused(
 
 @pytest.fixture(scope="module")
 def certificate(tmp_path_factory) -> tuple[Path, Path]:
-    """A self-signed certificate for localhost, made with openssl as the README shows."""
+    """A self-signed certificate for localhost, made with openssl as doc/console.md shows."""
     if shutil.which("openssl") is None:
         pytest.skip("openssl is not installed")
     directory = tmp_path_factory.mktemp("tls")

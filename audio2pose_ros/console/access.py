@@ -127,8 +127,8 @@ def resolve_access(
             raise ConfigurationError(
                 f"parameter host: value {host!r} is reachable from the network, which needs "
                 "HTTPS (browsers allow the microphone only on localhost or HTTPS, and the token "
-                "must not travel in clear): set certfile and keyfile (README: Operator console), "
-                "or use host 127.0.0.1"
+                "must not travel in clear): set certfile and keyfile (doc/console.md: On a "
+                "network), or use host 127.0.0.1"
             )
         if not token:
             token = make_token(TOKEN_BYTES)

@@ -101,7 +101,7 @@ def write_default_model_card(
 A frame-wise MLP (seed 003 section 4.3.3; config `{checkpoint.model.config_dict()}`,
 {n_params} parameters) from {checkpoint.features.label} audio features to
 Pepper's {checkpoint.robot.n_joints} joints. It streams (no state), so `inference_node` runs it.
-Rebuild it with `audio2pose dataset build-default` (see README); training stopped at epoch
+Rebuild it with `audio2pose dataset build-default` (see doc/training.md); training stopped at epoch
 {report.best_epoch} (validation loss {report.best_val_loss:.5f}).
 
 ## What it learned from people, and what it did not

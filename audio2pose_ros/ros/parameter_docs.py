@@ -170,7 +170,7 @@ GENERATED: dict[str, Callable[[], str]] = {
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Print the parameters file, or ``--write`` it and the README table into a checkout."""
+    """Print the parameters file, or ``--write`` every generated file into a checkout."""
     parser = argparse.ArgumentParser(prog="python -m audio2pose_ros.ros.parameter_docs")
     parser.add_argument(
         "--write", metavar="CHECKOUT", help="rewrite the generated files: " + ", ".join(GENERATED)
