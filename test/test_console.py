@@ -551,8 +551,10 @@ def test_when_two_operators_talk_expect_one_floor_and_its_release_on_disconnect(
             await bob.send_str('{"type":"talk","on":true}')
             assert "Ann has the floor" in (await until(bob, "error"))["message"]
             await bob.send_str('{"type":"stop","on":true}')  # a stop from anyone
-            await bob.send_str('{"type":"stop","on":false}')  # a release only from the holder
-            assert "only a stop" in (await until(bob, "error"))["message"]
+            holders = [{"name": "Bob", "present": True}]
+            await until(ann, "stop_holders", holders=holders, you=False)
+            await ann.send_str('{"type":"stop","on":false}')  # the talker cannot release it
+            assert "held by Bob" in (await until(ann, "error"))["message"]
             await bob.send_str('{"type":"gains","arms":0.2}')
             assert "only a stop" in (await until(bob, "error"))["message"]
             await ann.close()  # the talker leaves: the floor is free
@@ -561,7 +563,8 @@ def test_when_two_operators_talk_expect_one_floor_and_its_release_on_disconnect(
             await until(bob, "floor", holder="Bob", you=True)
             await bob.send_str('{"type":"gains","arms":0.2}')
             await bob.send_str('{"type":"enable","on":false}')
-            await until(bob, "pose")
+            await bob.send_str('{"type":"stop","on":false}')  # his own stop: his to release
+            await until(bob, "stop_holders", holders=[], you=False)
 
     with serving(tmp_path) as (base, bridge):
         run(scenario(base, bridge))
@@ -573,6 +576,7 @@ def test_when_two_operators_talk_expect_one_floor_and_its_release_on_disconnect(
         ("start", None),
         ("gains", {"arms": 0.2}),
         ("enable", False),
+        ("stop", False),
         ("end", None),
     ]
 
