@@ -272,6 +272,11 @@ class TokenThrottle:
             return 0.0
         return float(min(self.max_delay_s, self.base_delay_s * 2.0 ** min(failures - 1, 64)))
 
+    def failures(self, key: str) -> int:
+        """The recent wrong tokens of ``key`` remembered."""
+        entry = self._failures.get(key)
+        return entry.count if entry is not None else 0
+
     def __len__(self) -> int:
         """Addresses remembered."""
         return len(self._failures)
@@ -345,9 +350,15 @@ class TokenThrottle:
         most = ", ".join(f"{address} {count}" for address, count in worst)
         counts = [self._failures[a].count for a in window.by_address if a in self._failures]
         longest = self.delay_s(max(counts, default=0))
+        unchecked = (
+            f"; {window.unchecked} attempt(s) refused unchecked while another of their address "
+            "waited"
+            if window.unchecked
+            else ""
+        )
         return (
             f"{window.wrong} wrong token(s) from {len(window.by_address)} address(es)"
             + (f" (most: {most})" if most else "")
-            + f"; {window.unchecked} attempt(s) refused unchecked while one of their address "
-            f"waited; the slowest address now waits {longest:g} s per attempt"
+            + unchecked
+            + f"; the slowest of them now waits {longest:g} s before its next token is checked"
         )

@@ -240,7 +240,7 @@ class ConsoleServer:
         self.log = log
         self.floor = Floor()
         self.stops = StopHolders()
-        self.tokens = tokens or TokenThrottle()
+        self.tokens = tokens if tokens is not None else TokenThrottle()
         self.summary_period_s = summary_period_s
         self.sessions: dict[int, _Session] = {}
         self.refused_connections = 0
