@@ -1011,6 +1011,36 @@ def test_when_one_address_holds_tls_connections_expect_more_refused_before_their
     assert bridge.calls == [("stop", True)]
 
 
+def test_when_many_addresses_fill_every_slot_expect_a_newcomer_in_and_operators_kept(
+    tmp_path: Path,
+):
+    """Several addresses, each within its share, filled every connection slot together: new
+    pages got 503. A newcomer takes the place of the oldest connection of the address that
+    holds the most, never an identified operator's WebSocket."""
+    servers: list[ConsoleServer] = []
+
+    async def scenario() -> None:
+        async with from_address("127.0.0.4") as session:
+            operator = await connect(session, base, name="Ann")
+            await until(operator, "welcome")
+            flood = [
+                idle_socket(port, f"127.0.2.{i % 4 + 1}") for i in range(servers[0]._tcp.limit + 8)
+            ]
+            try:
+                await operator_stops(base, "127.0.0.3")
+                await operator.send_str('{"type":"ping","t":1}')
+                await until(operator, "pong")  # Ann's WebSocket was kept
+            finally:
+                for sock in flood:
+                    sock.close()
+
+    with serving(tmp_path, servers=servers, max_clients=2, auth_timeout_s=30.0) as (base, bridge):
+        port = port_of(base)
+        run(scenario())
+    assert servers[0]._tcp.evicted >= 1  # the newcomer took a flood connection's place
+    assert bridge.calls == [("stop", True)]
+
+
 def test_when_one_address_opens_more_connections_than_its_share_expect_the_extra_refused(
     tmp_path: Path,
 ):

@@ -9,9 +9,11 @@ tests use their own). What a connection goes through:
    handshake (:class:`_Gate`): one address may hold at most :data:`CONNECTIONS_PER_ADDRESS`
    open at once, page loads and WebSockets together, and all addresses together
    :data:`CONNECTIONS_PER_CLIENT` times ``max_clients`` more than that, so an address that
-   holds its whole share leaves room for ``max_clients`` operators elsewhere. A connection
-   beyond either limit is closed at once (answered 503 on plain HTTP; over TLS before its
-   handshake). A connection must complete its TLS handshake, and then its request, within
+   holds its whole share leaves room for ``max_clients`` operators elsewhere. When all are
+   open, a newcomer whose address holds fewer than another takes the place of that address's
+   oldest connection that is not an identified operator's (:class:`_Connections`), so many
+   addresses together cannot hold the door shut either. Otherwise a connection beyond a limit
+   is closed at once (answered 503 on plain HTTP; over TLS before its handshake). A connection must complete its TLS handshake, and then its request, within
    ``auth_timeout_s`` each, and an idle connection is closed after as long (aiohttp's own
    default is an hour: idle or half-sent requests would hold sockets that long).
 2. **Before the upgrade**: the Host and Origin checks of
@@ -346,9 +348,12 @@ class ConsoleServer:
         """The protocol for a new TCP connection: its gate, which admits it or not."""
         return _Gate(self)
 
-    def _admit(self, key: str) -> bool:
-        """Whether a connection of ``key`` may open (counted if so; a refusal is tallied)."""
-        problem = self._tcp.admit(key)
+    def _admit(self, key: str, gate: _Gate) -> bool:
+        """Whether ``gate``, a connection of ``key``, may open (counted if so).
+
+        A refusal is tallied for the next summary.
+        """
+        problem = self._tcp.admit(key, gate)
         if not problem:
             return True
         self.refused_connections += 1
@@ -455,6 +460,7 @@ class ConsoleServer:
             identified = await self._authenticate(session)
             pending = self._unpend(key)
             if identified and await self._room_for(session):
+                self._tcp.keep(request.transport)
                 self.sessions[session.id] = session
                 self.log("info", f"console: operator {session.name!r} connected from {peer}")
                 await self._welcome(session)
@@ -847,6 +853,11 @@ def _close_reason(text: str) -> bytes:
 class _Connections:
     """The TCP connections open at once, by client address, from acceptance until they end.
 
+    When all ``limit`` are open, a new connection still gets in if some address holds more
+    connections than the newcomer's: the oldest of that address's connections that is not an
+    identified operator's WebSocket is closed for it. So many addresses together cannot hold
+    the door shut either, and an operator's WebSocket is never closed for anyone.
+
     Args:
         limit: connections open at once, at most.
         per_address: connections of one client address open at once, at most.
@@ -856,27 +867,54 @@ class _Connections:
         self.limit = limit
         self.per_address = per_address
         self.total = 0
-        self.by_address: dict[str, int] = {}  # only addresses with connections open
+        self.by_address: dict[str, list[_Gate]] = {}  # in order of acceptance; only open ones
+        self.evicted = 0
 
-    def admit(self, key: str) -> str:
-        """Count one more connection of ``key`` and return '', or return why it is refused."""
-        mine = self.by_address.get(key, 0)
-        if mine >= self.per_address:
-            return f"{mine} connections open, the most one address may"
+    def admit(self, key: str, gate: _Gate) -> str:
+        """Count ``gate``, a new connection of ``key``, and return '', or return why not."""
+        mine = self.by_address.get(key, [])
+        if len(mine) >= self.per_address:
+            return f"{len(mine)} connections open, the most one address may"
         if self.total >= self.limit:
-            return f"{self.total} connections open, the most allowed"
-        self.by_address[key] = mine + 1
+            victim = self._victim(len(mine))
+            if victim is None:
+                return f"{self.total} connections open, the most allowed"
+            self.evicted += 1
+            victim.evict()
+        self.by_address.setdefault(key, []).append(gate)
         self.total += 1
         return ""
 
-    def lost(self, key: str) -> None:
-        """A connection of ``key`` has ended."""
-        left = self.by_address.get(key, 0) - 1
-        if left > 0:
-            self.by_address[key] = left
-        else:
+    def _victim(self, newcomer_has: int) -> _Gate | None:
+        """The connection to close for a newcomer whose address holds ``newcomer_has``.
+
+        It is the oldest connection that is not an operator's, of the address that holds the
+        most, if that is more than the newcomer's (None otherwise).
+        """
+        most = max(
+            (gates for gates in self.by_address.values() if any(not g.operator for g in gates)),
+            key=len,
+            default=[],
+        )
+        if len(most) <= newcomer_has:
+            return None
+        return next(g for g in most if not g.operator)
+
+    def keep(self, transport: object) -> None:
+        """The connection on ``transport`` is an identified operator's: never closed for others."""
+        for gates in self.by_address.values():
+            for gate in gates:
+                if gate.handed is transport:
+                    gate.operator = True
+
+    def lost(self, key: str, gate: _Gate) -> None:
+        """``gate``, a connection of ``key``, has ended (or been closed for a newcomer)."""
+        gates = self.by_address.get(key, [])
+        if gate in gates:
+            gates.remove(gate)
+            self.total -= 1
+        if not gates:
             self.by_address.pop(key, None)
-        self.total -= 1
 
 
 class _Gate(asyncio.Protocol):
@@ -895,6 +933,9 @@ class _Gate(asyncio.Protocol):
         self._server = server
         self._inner: asyncio.Protocol | None = None
         self._key: str | None = None  # counted under this address until it ends
+        self._transport: asyncio.BaseTransport | None = None
+        self.handed: asyncio.BaseTransport | None = None  # the transport aiohttp has
+        self.operator = False  # an identified operator's WebSocket
         self._early: list[bytes] = []  # application data before aiohttp has the connection
         self._eof = False
         self._handshake: asyncio.Task[None] | None = None
@@ -904,7 +945,8 @@ class _Gate(asyncio.Protocol):
         peer = transport.get_extra_info("peername")
         key = client_key(str(peer[0]) if isinstance(peer, tuple) and peer else "?")
         tls = self._server._tls
-        if not self._server._admit(key):
+        self._transport = transport
+        if not self._server._admit(key, self):
             if tls is None and isinstance(transport, asyncio.WriteTransport):
                 transport.write(BUSY_RESPONSE)
             transport.close()
@@ -933,7 +975,16 @@ class _Gate(asyncio.Protocol):
             return
         self._hand_over(secure)
 
+    def evict(self) -> None:
+        """Close this connection for a newcomer (it stops counting at once)."""
+        if self._key is not None:
+            self._server._tcp.lost(self._key, self)
+            self._key = None
+        if isinstance(self._transport, asyncio.WriteTransport):
+            self._transport.abort()
+
     def _hand_over(self, transport: asyncio.BaseTransport) -> None:
+        self.handed = transport
         inner = self._inner = self._server._http_protocol()
         inner.connection_made(transport)
         for data in self._early:
@@ -945,7 +996,7 @@ class _Gate(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         """Stop counting it, then tell aiohttp."""
         if self._key is not None:
-            self._server._tcp.lost(self._key)
+            self._server._tcp.lost(self._key, self)
             self._key = None
         if self._handshake is not None and not self._handshake.done():
             self._handshake.cancel()
