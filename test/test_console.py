@@ -58,7 +58,7 @@ from audio2pose_ros.console.server import (
     ServerThread,
 )
 from audio2pose_ros.console.settings import ConsoleSettings
-from audio2pose_ros.console.stop import OUTSIDE, StopHolders, unique_name
+from audio2pose_ros.console.stop import MAX_PRESSES, OUTSIDE, StopHolders, unique_name
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.resources import share_path
 
@@ -1461,3 +1461,8 @@ def test_when_names_are_taken_expect_a_unique_one_and_never_the_outside_holder()
     assert not holders.release_absent("Bob")
     assert holders.release_absent("Ann")
     assert not holders.held
+    for session in range(10 * MAX_PRESSES):  # press and leave, over and over
+        holders.press(session, f"op {session}")
+        holders.left(session)
+    assert len(holders.presses) == MAX_PRESSES
+    assert holders.held

@@ -13,7 +13,8 @@ tests use their own). What a connection goes through:
    open, a newcomer whose address holds fewer than another takes the place of that address's
    oldest connection that is not an identified operator's (:class:`_Connections`), so many
    addresses together cannot hold the door shut either. Otherwise a connection beyond a limit
-   is closed at once (answered 503 on plain HTTP; over TLS before its handshake). A connection must complete its TLS handshake, and then its request, within
+   is closed at once (answered 503 on plain HTTP; over TLS before its handshake). A
+   connection must complete its TLS handshake, and then its request, within
    ``auth_timeout_s`` each, and an idle connection is closed after as long (aiohttp's own
    default is an hour: idle or half-sent requests would hold sockets that long).
 2. **Before the upgrade**: the Host and Origin checks of

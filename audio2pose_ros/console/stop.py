@@ -11,6 +11,9 @@ of someone who holds the stop, nor be mistaken for them.
 - A holder who leaves (page closed, connection lost) keeps holding. Another operator may then
   release that press, but only by naming that holder in the release (the page's confirmation
   button says whose stop it releases); a holder still connected cannot be overruled.
+- At most :data:`MAX_PRESSES` presses are kept: beyond that a new press replaces the oldest one
+  of someone who has left (the stop stays held, by the new press), so operators who press and
+  leave over and over cannot grow the list without bound.
 - A stop that the console did not press (another tool on the stop topic, or a press before the
   console restarted) is held by :data:`OUTSIDE`, released the same way.
 """
@@ -21,9 +24,10 @@ from dataclasses import dataclass, field
 
 from audio2pose_ros.console.protocol import MAX_NAME_CHARS
 
-__all__ = ["OUTSIDE", "StopHolders", "StopPress", "unique_name"]
+__all__ = ["MAX_PRESSES", "OUTSIDE", "StopHolders", "StopPress", "unique_name"]
 
 OUTSIDE = "outside the console"  # the holder of a stop the console's operators did not press
+MAX_PRESSES = 100  # presses kept at once (those of connected operators are at most max_clients)
 
 
 @dataclass
@@ -60,6 +64,10 @@ class StopHolders:
         """``session`` presses STOP; True if it did not hold it yet."""
         if self.holds(session):
             return False
+        if len(self.presses) >= MAX_PRESSES:
+            absent = next((p for p in self.presses if not p.present), None)
+            if absent is not None:
+                self.presses.remove(absent)
         self.presses.append(StopPress(session, name))
         return True
 
