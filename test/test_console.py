@@ -1041,6 +1041,37 @@ def test_when_many_addresses_fill_every_slot_expect_a_newcomer_in_and_operators_
     assert bridge.calls == [("stop", True)]
 
 
+def test_when_tls_connections_fail_in_every_way_expect_each_counted_until_it_ends(
+    tmp_path: Path, certificate
+):
+    """A connection counts from its acceptance; one that sends garbage instead of a TLS hello,
+    resets mid-handshake, or closes before a byte must stop counting, or its address would
+    lose its share for good."""
+    cert, key = (str(p) for p in certificate)
+    trust = ssl.create_default_context(cafile=cert)
+    settings = {"certfile": cert, "keyfile": key, "token": TOKEN, "auth_timeout_s": 1.0}
+    servers: list[ConsoleServer] = []
+    with serving(tmp_path, servers=servers, **settings) as (base, bridge):
+        port = port_of(base)
+        for i in range(3 * CONNECTIONS_PER_ADDRESS):
+            sock = idle_socket(port, "127.0.0.2")
+            if i % 3 == 0:
+                sock.sendall(b"GET / HTTP/1.1\r\n\r\n")  # plain HTTP on a TLS port
+                answer(sock, 5.0)
+            elif i % 3 == 1:
+                sock.sendall(b"\x16\x03\x01\x00")  # the start of a hello, then a reset
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            sock.close()
+        tcp = servers[0]._tcp
+        deadline = time.monotonic() + 10.0
+        while tcp.total and time.monotonic() < deadline:
+            time.sleep(0.05)
+        counted = dict(tcp.by_address)
+        run(operator_stops(base, "127.0.0.2", ssl=trust))
+    assert counted == {}
+    assert bridge.calls == [("stop", True)]
+
+
 def test_when_one_address_opens_more_connections_than_its_share_expect_the_extra_refused(
     tmp_path: Path,
 ):

@@ -961,6 +961,12 @@ class _Gate(asyncio.Protocol):
         self._handshake = asyncio.get_running_loop().create_task(self._start_tls(transport, tls))
 
     async def _start_tls(self, transport: asyncio.Transport, context: ssl.SSLContext) -> None:
+        """The TLS handshake, then aiohttp.
+
+        asyncio tells the protocol nothing of a connection lost, failed or timed out during
+        its handshake (``start_tls`` raises or returns None): it stops counting here.
+        """
+        secure: asyncio.BaseTransport | None = None
         try:
             secure = await asyncio.get_running_loop().start_tls(
                 transport,
@@ -971,16 +977,21 @@ class _Gate(asyncio.Protocol):
             )
         except (OSError, ssl.SSLError, asyncio.TimeoutError, ConnectionError, RuntimeError):
             transport.close()  # a failed or late handshake ends this connection only
-            return
-        if secure is None or secure.is_closing():
-            return
-        self._hand_over(secure)
+        finally:
+            if secure is None or secure.is_closing():
+                self._forget()
+        if secure is not None and not secure.is_closing():
+            self._hand_over(secure)
 
-    def evict(self) -> None:
-        """Close this connection for a newcomer (it stops counting at once)."""
+    def _forget(self) -> None:
+        """Stop counting this connection (once)."""
         if self._key is not None:
             self._server._tcp.lost(self._key, self)
             self._key = None
+
+    def evict(self) -> None:
+        """Close this connection for a newcomer (it stops counting at once)."""
+        self._forget()
         if isinstance(self._transport, asyncio.WriteTransport):
             self._transport.abort()
 
@@ -996,9 +1007,7 @@ class _Gate(asyncio.Protocol):
 
     def connection_lost(self, exc: Exception | None) -> None:
         """Stop counting it, then tell aiohttp."""
-        if self._key is not None:
-            self._server._tcp.lost(self._key, self)
-            self._key = None
+        self._forget()
         if self._handshake is not None and not self._handshake.done():
             self._handshake.cancel()
         if self._inner is not None:
