@@ -1045,14 +1045,15 @@ def test_when_tls_connections_fail_in_every_way_expect_each_counted_until_it_end
     tmp_path: Path, certificate
 ):
     """A connection counts from its acceptance; one that sends garbage instead of a TLS hello,
-    resets mid-handshake, or closes before a byte must stop counting, or its address would
-    lose its share for good."""
+    resets mid-handshake, closes before a byte or never starts its handshake must stop
+    counting, or its address would lose its share for good."""
     cert, key = (str(p) for p in certificate)
     trust = ssl.create_default_context(cafile=cert)
     settings = {"certfile": cert, "keyfile": key, "token": TOKEN, "auth_timeout_s": 1.0}
     servers: list[ConsoleServer] = []
     with serving(tmp_path, servers=servers, **settings) as (base, bridge):
         port = port_of(base)
+        silent = [idle_socket(port, "127.0.0.2") for _ in range(4)]  # timed out by the server
         for i in range(3 * CONNECTIONS_PER_ADDRESS):
             sock = idle_socket(port, "127.0.0.2")
             if i % 3 == 0:
@@ -1067,6 +1068,8 @@ def test_when_tls_connections_fail_in_every_way_expect_each_counted_until_it_end
         while tcp.total and time.monotonic() < deadline:
             time.sleep(0.05)
         counted = dict(tcp.by_address)
+        for sock in silent:
+            sock.close()
         run(operator_stops(base, "127.0.0.2", ssl=trust))
     assert counted == {}
     assert bridge.calls == [("stop", True)]
