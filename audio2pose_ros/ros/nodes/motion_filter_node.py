@@ -107,11 +107,13 @@ from audio2pose_ros.ros.diagnosed_node import (
     trajectory_positions,
 )
 from audio2pose_ros.ros.node_parameters import NodeParameters
+from audio2pose_ros.ros.request_budget import RequestBudget
 
 MIN_TICK_SPACING = 0.5  # of a period: an arriving pose is commanded at once if the last tick
 # is at least this long ago (so ticks are never closer than half a period: no bursts)
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
 MEASURED_WAIT_S = 3.0  # while the measured topic has a publisher, wait this long for its pose
+REQUESTS_PER_TICK = 1  # service requests (set_parameters, ...) served per tick at most
 MIN_SAVE_SPACING_S = 0.1  # the state file is written at most this often (flash wear)
 SAVED_POSE_RESOLUTION_RAD = 1e-4  # a pose that moved less than this is not saved again
 
@@ -281,6 +283,8 @@ class MotionFilterNode(DiagnosedNode):
             ConfigurationError: a parameter or the robot description is refused.
         """
         super().__init__("motion_filter_node")
+        # settings validated at a set_parameters request, for the filter's next tick
+        self.pending_settings: tuple[MotionFilterSettings, LimitSettings] | None = None
         self.parameters = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
         values = self.parameters.values
         self.settings: MotionFilterNodeSettings = settings_from(MotionFilterNodeSettings, values)
@@ -378,6 +382,9 @@ class MotionFilterNode(DiagnosedNode):
                 f"parameter measured_joint_states_topic: value "
                 f"{self.settings.measured_joint_states_topic!r} is not a valid topic name"
             ) from None
+        # rclpy's parameter services (all the node's services): a few requests per tick at most
+        self.request_budget = RequestBudget(REQUESTS_PER_TICK)
+        self.request_budget.adopt_services(self)
         self.period_ns = round(self.filter.period_s * 1e9)
         self.tick_timer = self.create_timer(self.filter.period_s, guarded(self.on_timer))
         self.startup_timer = self.create_timer(
@@ -417,19 +424,39 @@ class MotionFilterNode(DiagnosedNode):
     # --- parameters ---------------------------------------------------------------------------
 
     def apply_parameters(self, changes: Mapping[str, ParameterValue]) -> None:
-        """Validate a run-time change as a whole and apply it from the next tick.
+        """Validate a run-time change as a whole now; the filter takes it at the next tick.
+
+        A request costs a validation (no filter, limiter or body model is built here); the
+        filter's settings change once per tick, however many requests came since the last one
+        (the newest wins), so a storm of set_parameters requests never holds up a command.
 
         Raises:
             ConfigurationError: the new combination is refused (nothing changes then).
         """
         node_settings = settings_with(self.settings, changes)
-        self.filter.update_settings(
-            settings_with(self.filter.settings, changes),
-            settings_with(self.filter.limiter.settings, changes),
+        filter_settings, limit_settings = self.pending_settings or (
+            self.filter.settings,
+            self.filter.limiter.settings,
         )
+        filter_settings = settings_with(filter_settings, changes)
+        limit_settings = settings_with(limit_settings, changes)
+        self.filter.check_settings(filter_settings, limit_settings)
+        if (filter_settings, limit_settings) != (
+            self.filter.settings,
+            self.filter.limiter.settings,
+        ):
+            self.pending_settings = (filter_settings, limit_settings)
+        else:
+            self.pending_settings = None
         self.settings = node_settings
         self.stamps.max_future_s = node_settings.max_stamp_future_s
         self.stamps.max_age_s = node_settings.max_stamp_age_s
+
+    def _take_pending_settings(self) -> None:
+        """Hand the filter the settings requested since the last tick (once per tick)."""
+        if self.pending_settings is not None:
+            pending, self.pending_settings = self.pending_settings, None
+            self.filter.update_settings(*pending)
 
     # --- start-up -----------------------------------------------------------------------------
 
@@ -833,11 +860,16 @@ class MotionFilterNode(DiagnosedNode):
         """The fallback clock: tick, and return to the nominal period."""
         if self.tick_timer.timer_period_ns != self.period_ns:
             self.tick_timer.timer_period_ns = self.period_ns
+        self.request_budget.renew()
         if self.started:
             self.on_tick()
+        else:
+            self._take_pending_settings()
 
     def on_tick(self) -> None:
         """Advance the filter by one period and publish the outputs due at this tick."""
+        self._take_pending_settings()
+        self.request_budget.renew()
         self.last_tick_s = time.monotonic()
         self.tick_stamp = self.get_clock().now()
         status = self.filter.status
@@ -957,6 +989,8 @@ class MotionFilterNode(DiagnosedNode):
             "acceleration_limit_hits": counts.acceleration,
             "gaps": status.gaps,
             "filter_faults": status.faults,
+            "service_requests_served": self.request_budget.served_total,
+            "most_service_requests_in_a_tick": self.request_budget.most_in_a_tick,
             "body_guard_interventions": self.filter.body_guard.status.interventions,
             "body_guard_lead_out_steps": self.filter.body_guard.status.lead_out_steps,
             "body_guard_holds": self.filter.body_guard.status.holds,
