@@ -78,6 +78,7 @@ from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.body_guard import GuardStatus
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
+from audio2pose_ros.motion.measured import SOURCE_WINDOW_S, MeasuredPoseCheck
 from audio2pose_ros.motion.sources import SingleSource
 from audio2pose_ros.motion.state_file import (
     FilterMemory,
@@ -113,6 +114,7 @@ MIN_TICK_SPACING = 0.5  # of a period: an arriving pose is commanded at once if 
 # is at least this long ago (so ticks are never closer than half a period: no bursts)
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
 MEASURED_WAIT_S = 3.0  # while the measured topic has a publisher, wait this long for its pose
+MEASURED_LISTEN_S = 1.0  # with several publishers on it, hear a pose's source this long first
 REQUESTS_PER_TICK = 1  # service requests (set_parameters, ...) served per tick at most
 MIN_SAVE_SPACING_S = 0.1  # the state file is written at most this often (flash wear)
 SAVED_POSE_RESOLUTION_RAD = 1e-4  # a pose that moved less than this is not saved again
@@ -268,6 +270,12 @@ def _published_s(info: MessageInfo) -> float:
     return source_ns * 1e-9 if source_ns else time.time()
 
 
+def _publisher_of(info: MessageInfo) -> bytes | str:
+    """The identity of a message's publisher (its DDS gid)."""
+    gid = info.get("publisher_gid") or {}
+    return bytes(gid.get("data", b"")) if isinstance(gid, dict) else repr(gid)
+
+
 class MotionFilterNode(DiagnosedNode):
     """Gate, pace, smooth and limit poses; publish them in three message types."""
 
@@ -312,6 +320,8 @@ class MotionFilterNode(DiagnosedNode):
         self.created_s = time.monotonic()
         self.measured_rad: np.ndarray | None = None
         self.measured_partial = 0  # joint states without every joint of the robot: not used
+        self.measured_check = MeasuredPoseCheck(self.robot.names, self.robot.max_velocity_rad_s)
+        self.measured_conflicts = 0  # poses ignored because two sources disagreed
         self.tracking = TrackingWatch()
 
         self.state_path = (
@@ -376,6 +386,7 @@ class MotionFilterNode(DiagnosedNode):
                 self.on_measured,
                 qos_profile_sensor_data,
                 MAX_JOINT_STATE_BYTES,
+                with_info=True,  # the publisher's gid (sources) and source stamp (unstamped)
             )
         except (InvalidTopicNameException, ValueError):
             raise ConfigurationError(
@@ -529,24 +540,74 @@ class MotionFilterNode(DiagnosedNode):
                 )
         return np.clip(filled, lower, upper)
 
-    def on_measured(self, msg: JointState) -> None:
-        """The robot's measured joint states: the start pose, then checked against the commands."""
-        if len(msg.name) != len(msg.position):
-            raise InputError(
-                f"measured joint states: {len(msg.name)} names, {len(msg.position)} positions"
-            )
-        index = {name: i for i, name in enumerate(msg.name)}
-        if any(name not in index for name in self.robot.names):
+    def on_measured(self, msg: JointState, info: MessageInfo | None = None) -> None:
+        """The robot's measured joint states: the start pose, then checked against the commands.
+
+        Only a believable reading counts (:mod:`audio2pose_ros.motion.measured`): a joint listed
+        twice, or a stamp too old or ahead, is refused and reported (WARN); two publishers whose
+        poses disagree are an ERROR, and no pose of either is used while they do. With more
+        than one publisher on the topic, the start waits until the pose's publisher has been
+        heard for ``MEASURED_LISTEN_S``, so a second source shows before the filter starts.
+        """
+        arrival_s = time.monotonic()
+        source: bytes | str = b""  # called directly (tests): no publisher to tell apart
+        published_ns = 0
+        if info is not None:
+            source, published_ns = _publisher_of(info), info.get("source_timestamp") or 0
+        reading = self.measured_check.read(
+            msg.name,
+            msg.position,
+            _stamp_s(msg.header.stamp),
+            published_ns * 1e-9 if published_ns else None,
+            self.now_s(),
+            source,
+            arrival_s,
+        )
+        if reading.kind == "partial":
             self.measured_partial += 1  # another robot's, or a partial message: not a pose
             return
-        pose = np.array([msg.position[index[name]] for name in self.robot.names], dtype=float)
+        if reading.pose_rad is None:
+            self.report_problem("measured_refused", DiagnosticStatus.WARN, reading.reason)
+            return
+        pose = reading.pose_rad
         if not np.isfinite(pose).any():
             self.report_problem(
                 "measured_invalid", DiagnosticStatus.WARN, "measured joint states all non-finite"
             )
             return
+        topic = self.settings.measured_joint_states_topic
+        if self.measured_check.conflict(arrival_s):
+            self.measured_conflicts += 1
+            held = (
+                "measured poses ignored until one stops"
+                if self.started
+                else "cannot tell which is the robot: commanding nothing until one stops"
+            )
+            self.report_problem(
+                "measured_sources",
+                DiagnosticStatus.ERROR,
+                f"{self.measured_check.live_sources(arrival_s)} publishers send the robot's "
+                f"pose on {topic} and disagree by "
+                f"{self.measured_check.disagreement_rad(arrival_s):.2f} rad (another robot's "
+                f"driver, a replay, a simulator?): {held}",
+                hold_s=SOURCE_WINDOW_S,
+            )
+            return
+        if not self.started:
+            publishers = self.count_publishers(topic)
+            heard_s = self.measured_check.heard_for_s(source, arrival_s)
+            if publishers > 1 and heard_s < MEASURED_LISTEN_S:
+                self.report_problem(
+                    "start_pose",
+                    DiagnosticStatus.WARN,
+                    f"{publishers} publishers on {topic}: listening {MEASURED_LISTEN_S:g} s for "
+                    "a second source of the robot's pose before starting, commanding nothing",
+                    hold_s=SOURCE_WINDOW_S,
+                )
+                return
         self.measured_rad = pose
         if not self.started:
+            self.clear_problem("start_pose")
             self._start(self._measured_start_pose(pose), "measured pose")
             self.get_logger().info("starting from the robot's measured pose")
             return
@@ -575,7 +636,19 @@ class MotionFilterNode(DiagnosedNode):
             self.startup_timer.cancel()
             return
         topic = self.settings.measured_joint_states_topic
-        waited_s = time.monotonic() - self.created_s
+        now = time.monotonic()
+        doubt = self._measured_doubt(now)
+        if doubt:  # something says where the robot is, but it cannot be believed: no guess
+            self.report_problem(
+                "start_pose",
+                DiagnosticStatus.ERROR,
+                f"cannot tell where the robot is: {doubt}; commanding nothing until a "
+                f"believable pose arrives on {topic}",
+                hold_s=SOURCE_WINDOW_S,
+            )
+            self.startup_timer.timer_period_ns = max(self.startup_timer.timer_period_ns, 10**8)
+            return
+        waited_s = now - self.created_s
         reported_before = self.memory is not None and self.memory.measured
         if (self.count_publishers(topic) or reported_before) and waited_s < MEASURED_WAIT_S:
             self.report_problem(
@@ -607,6 +680,20 @@ class MotionFilterNode(DiagnosedNode):
                 "the first commands move the robot there at the velocity limit",
                 hold_s=10.0,
             )
+
+    def _measured_doubt(self, now_s: float) -> str:
+        """Why the measured joint states cannot be believed now ('' when nothing says so).
+
+        Measured messages refused within ``SOURCE_WINDOW_S`` (a joint listed twice, an old or a
+        future stamp), or live sources that disagree: the robot's pose is being published but
+        cannot be known, so neither the saved pose nor neutral may stand in for it.
+        """
+        check = self.measured_check
+        if check.conflict(now_s):
+            return f"{check.live_sources(now_s)} publishers send poses that disagree"
+        if check.refusing(now_s):
+            return check.last_reason
+        return ""
 
     def save_state(self) -> None:
         """Rewrite the state file when the pose, the stop or enable changed (atomically).
@@ -688,10 +775,8 @@ class MotionFilterNode(DiagnosedNode):
 
     def on_raw(self, msg: JointTrajectory, info: MessageInfo) -> None:
         """Check and queue the poses of one raw trajectory message (of the one source in use)."""
-        gid = info.get("publisher_gid") or {}
-        source = bytes(gid.get("data", b"")) if isinstance(gid, dict) else repr(gid)
         now = time.monotonic()
-        if not self.sources.admit(source, now):
+        if not self.sources.admit(_publisher_of(info), now):
             self.dropped_messages += 1
             self.report_problem(
                 "raw_second_source",
@@ -1006,6 +1091,13 @@ class MotionFilterNode(DiagnosedNode):
             ),
         }
         values["measured_partial_messages"] = self.measured_partial
+        check = self.measured_check
+        values["measured_refused_duplicate_names"] = check.counts.duplicate
+        values["measured_refused_old_stamps"] = check.counts.old
+        values["measured_refused_future_stamps"] = check.counts.future
+        values["measured_unstamped"] = check.counts.unstamped
+        values["measured_sources"] = check.live_sources(now)
+        values["measured_ignored_sources_disagree"] = self.measured_conflicts
         if self.measured_rad is not None:
             deviation = np.abs(self.measured_rad - self.filter.position_rad).max()
             values["measured_deviation_rad"] = f"{deviation:.3f}"
