@@ -568,6 +568,8 @@ class MotionFilterNode(DiagnosedNode):
             return
         if reading.pose_rad is None:
             self.report_problem("measured_refused", DiagnosticStatus.WARN, reading.reason)
+            if not self.started:
+                self._hold_start(reading.reason)
             return
         pose = reading.pose_rad
         if not np.isfinite(pose).any():
@@ -639,13 +641,7 @@ class MotionFilterNode(DiagnosedNode):
         now = time.monotonic()
         doubt = self._measured_doubt(now)
         if doubt:  # something says where the robot is, but it cannot be believed: no guess
-            self.report_problem(
-                "start_pose",
-                DiagnosticStatus.ERROR,
-                f"cannot tell where the robot is: {doubt}; commanding nothing until a "
-                f"believable pose arrives on {topic}",
-                hold_s=SOURCE_WINDOW_S,
-            )
+            self._hold_start(doubt)
             self.startup_timer.timer_period_ns = max(self.startup_timer.timer_period_ns, 10**8)
             return
         waited_s = now - self.created_s
@@ -680,6 +676,16 @@ class MotionFilterNode(DiagnosedNode):
                 "the first commands move the robot there at the velocity limit",
                 hold_s=10.0,
             )
+
+    def _hold_start(self, doubt: str) -> None:
+        """ERROR: the start waits, commanding nothing, because of ``doubt``."""
+        self.report_problem(
+            "start_pose",
+            DiagnosticStatus.ERROR,
+            f"cannot tell where the robot is: {doubt}; commanding nothing until a believable "
+            f"pose arrives on {self.settings.measured_joint_states_topic}",
+            hold_s=SOURCE_WINDOW_S,
+        )
 
     def _measured_doubt(self, now_s: float) -> str:
         """Why the measured joint states cannot be believed now ('' when nothing says so).
