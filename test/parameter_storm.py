@@ -3,7 +3,9 @@
 Keeps ``IN_FLIGHT`` requests to ``/motion_filter_node/set_parameters`` waiting for an answer,
 setting parameter NAME to the values V in turn, for SECONDS after the service is found; prints
 ``answered refused`` at the end. Run beside a test, it storms the node while the test's own
-process stays free to stream poses and record commands.
+process stays free to stream poses and record commands. It sleeps until an answer comes and
+sends the next request from the answer's callback, so its own CPU use follows the node's
+answers instead of polling.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import sys
 import time
 
 import rclpy
+import rclpy.task
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 
@@ -37,19 +40,27 @@ def main(name: str, seconds: float, values: list[float]) -> None:
             )
             for value in values
         ]
-        pending: list = []
         sent = answered = refused = 0
+
+        def send() -> None:
+            nonlocal sent
+            future = client.call_async(requests[sent % len(requests)])
+            future.add_done_callback(answer)
+            sent += 1
+
+        def answer(future: rclpy.task.Future) -> None:
+            nonlocal answered, refused
+            answered += 1
+            refused += not future.result().results[0].successful
+            if time.monotonic() < end:
+                send()  # another one in its place: IN_FLIGHT waiting at any time
+
         print("storming", flush=True)
         end = time.monotonic() + seconds
+        for _ in range(IN_FLIGHT):
+            send()
         while time.monotonic() < end:
-            for future in [f for f in pending if f.done()]:
-                pending.remove(future)
-                answered += 1
-                refused += not future.result().results[0].successful
-            while len(pending) < IN_FLIGHT:
-                pending.append(client.call_async(requests[sent % len(requests)]))
-                sent += 1
-            rclpy.spin_once(node, timeout_sec=0.001)
+            rclpy.spin_once(node, timeout_sec=0.05)
         print(answered, refused, flush=True)
         node.destroy_node()
 

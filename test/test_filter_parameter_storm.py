@@ -1,10 +1,13 @@
 """motion_filter_node under a storm of set_parameters requests: the commands keep their clock.
 
-The node runs as its own process (the real executable); this process streams a pose on
-raw_trajectory, as inference_node does, and keeps 50 set_parameters requests in flight at all
-times from each of two processes of its own (parameter_storm.py), as fast as the node answers. The verdict is read from the header stamps of the
-commanded joint states (the tick each command was computed at, on the node's clock), so a slow
-test process does not make a gap that the node did not make, and from the commanded positions.
+In this process (an order verdict, not a rate): 100 requests wait at once; the node serves at
+most one per tick and hands its filter the newest settings at most once per tick. Over DDS: the
+node runs as its own process; this process streams a pose on raw_trajectory, as inference_node
+does, while two processes of their own (parameter_storm.py) each keep 50 requests in flight. The
+verdict is read from the header stamps of the commanded joint states (the tick each command was
+computed at, on the node's clock), so a slow test process does not make a gap the node did not
+make, and from the commanded positions. On a machine loaded far beyond its cores the node's own
+share of the CPU can fall below what 50 Hz needs, storm or not: the DDS test then fails.
 """
 
 from __future__ import annotations
@@ -19,19 +22,24 @@ import numpy as np
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue, SetParametersResult
+from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.ros.diagnosed_node import trajectory_msg
 from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
 from audio2pose_ros.topics import COMMANDED_JOINT_STATES, DIAGNOSTICS, RAW_TRAJECTORY, absolute
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 PERIOD = 0.01
 STORM_S = 3.0
 STORM_PROCESSES = 2  # each keeps 50 requests waiting for an answer (parameter_storm.py)
-STORM_SCRIPT = Path(__file__).with_name("parameter_storm.py")
+STORM_SCRIPT = str(Path(__file__).with_name("parameter_storm.py"))
+# The storm processes run at the lowest priority: the verdict is on what the node does with
+# requests, not on how a busy neighbour process shares the machine's cores with it.
 MIN_COMMANDS_PER_S = 40  # in every 1 s window (commanded_joint_states runs at 50 Hz here)
 MAX_GAP_S = 0.1
 
@@ -131,7 +139,6 @@ def raised(robot) -> np.ndarray:
     [
         ("head_gain", (1.0,)),  # the same value again and again (a slider held still)
         ("velocity_fraction", (0.5, 0.49)),  # alternating: a new limiter each time, before
-        ("max_stamp_age_s", (5.0, 6.0)),  # alternating, a node setting
     ],
 )
 def test_when_set_parameters_storms_expect_commands_every_tick_and_on_their_track(
@@ -147,7 +154,8 @@ def test_when_set_parameters_storms_expect_commands_every_tick_and_on_their_trac
 
     storms = [
         subprocess.Popen(
-            [sys.executable, str(STORM_SCRIPT), name, str(STORM_S), *map(str, values)],
+            ["nice", "-n", "19", sys.executable, STORM_SCRIPT, name, str(STORM_S)]
+            + [str(v) for v in values],
             stdout=subprocess.PIPE,
             text=True,
         )
@@ -155,29 +163,95 @@ def test_when_set_parameters_storms_expect_commands_every_tick_and_on_their_trac
     ]
     lines = spin_until_each_says(operator, pose, storms)  # each found the service
     assert all(line == "storming" for line in lines), lines
-    first = len(operator.commands)
+    storm_start = time.time()  # the node stamps its commands with this clock (same machine)
     operator.spin_for(STORM_S, pose)
-    during = operator.commands[first:]
+    storm_end = time.time()
     results = [line.split() for line in spin_until_each_says(operator, pose, storms)]
     answered = sum(int(answered) for answered, _ in results)
     refused = sum(int(refused) for _, refused in results)
+    operator.spin_for(0.5, pose)  # commands computed during the storm, still on their way
+    during = [(s, p) for s, p in operator.commands if storm_start <= s <= storm_end]
 
     assert answered >= 100, f"only {answered} requests answered: no storm"
     assert refused == 0
-    stamps = np.array([s for s, _ in during])
+    stamps = np.array([storm_start] + [s for s, _ in during] + [storm_end])
     positions = np.array([p for _, p in during])
-    storm_start, storm_end = stamps[0], stamps[-1]
-    assert storm_end - storm_start > STORM_S - 0.5, "commands stopped during the storm"
     gaps = np.diff(stamps)
     worst_gap = gaps.max()
-    windows = np.arange(storm_start, storm_end - 1.0, 0.1)
+    windows = np.arange(storm_start, storm_end - 1.0, 0.1)  # every 1 s window of the storm
     per_window = [int(((stamps >= w) & (stamps < w + 1.0)).sum()) for w in windows]
     drift = float(np.abs(positions - pose).max())
     print(
-        f"{answered / STORM_S:.0f} requests/s answered; {len(stamps)} commands, fewest "
+        f"{answered / STORM_S:.0f} requests/s answered; {len(during)} commands, fewest "
         f"{min(per_window)} in a 1 s window, largest gap {worst_gap * 1e3:.0f} ms, drift "
         f"{drift:.4f} rad"
     )
     assert min(per_window) >= MIN_COMMANDS_PER_S
     assert worst_gap <= MAX_GAP_S
     assert drift < 0.01
+
+
+@pytest.fixture
+def node_in_process(tmp_path, monkeypatch):
+    """The filter node and a client node in one executor of this process."""
+    monkeypatch.setenv("ROS_HOME", str(tmp_path))
+    args = ["--ros-args", "-p", f"state_file:={tmp_path / 'state.json'}"]
+    with rclpy.init(args=args):
+        node = MotionFilterNode(subscribe_graph=False)
+        client_node = rclpy.create_node("storm_client")
+        executor = rclpy.executors.SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.add_node(client_node)
+        yield node, client_node, executor
+        executor.shutdown()
+        client_node.destroy_node()
+        node.destroy_node()
+
+
+def test_when_requests_wait_expect_at_most_one_served_and_one_filter_update_per_tick(
+    node_in_process,
+):
+    node, client_node, executor = node_in_process
+    node.on_startup_timeout()  # started (from neutral): the filter ticks
+    events: list[str] = []
+
+    def served(parameters):
+        events.append("request")
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(served)
+    on_tick, update = node.on_tick, node.filter.update_settings
+    node.on_tick = lambda: (events.append("tick"), on_tick())[1]
+    node.filter.update_settings = lambda *a: (events.append("update"), update(*a))[1]
+
+    client = client_node.create_client(SetParameters, "/motion_filter_node/set_parameters")
+    assert client.wait_for_service(timeout_sec=10)
+    values = [0.5, 0.49] * 50
+    futures = [
+        client.call_async(
+            SetParameters.Request(
+                parameters=[
+                    Parameter(
+                        name="velocity_fraction",
+                        value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=v),
+                    )
+                ]
+            )
+        )
+        for v in values
+    ]
+    end = time.monotonic() + 60
+    while time.monotonic() < end and not all(f.done() for f in futures):
+        executor.spin_once(timeout_sec=0.01)
+    assert all(f.result().results[0].successful for f in futures)
+    executor.spin_once(timeout_sec=0.05)
+    while "tick" not in events[-1:]:  # the last request's settings reach the filter at a tick
+        executor.spin_once(timeout_sec=0.05)
+
+    between = "".join("r" if e == "request" else "u" if e == "update" else "|" for e in events)
+    assert between.count("r") == len(values)
+    runs = between.split("|")
+    assert max(run.count("r") for run in runs) <= 1, between  # one request per tick at most
+    assert max(run.count("u") for run in runs) <= 1, between  # one filter update per tick
+    assert node.filter.limiter.settings.velocity_fraction == values[-1]  # the newest won
+    assert node.diagnostic_values()["most_service_requests_in_a_tick"] == 1
