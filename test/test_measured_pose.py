@@ -10,6 +10,7 @@ from audio2pose_ros.motion.measured import (
     AGREE_TOLERANCE_RAD,
     MAX_AGE_S,
     MAX_FUTURE_S,
+    MAX_SOURCES,
     SOURCE_WINDOW_S,
     MeasuredPoseCheck,
 )
@@ -120,3 +121,11 @@ def test_when_a_source_is_heard_expect_how_long_it_has_been_heard(check, robot):
     read(check, robot, robot.neutral_rad, arrival=1.0)
     read(check, robot, robot.neutral_rad, arrival=1.5)
     assert check.heard_for_s("driver", 1.5) == pytest.approx(0.5)
+
+
+def test_when_more_sources_than_compared_send_poses_expect_a_conflict(check, robot):
+    for k in range(MAX_SOURCES + 1):  # all agree, but one is more than is compared
+        read(check, robot, robot.neutral_rad, source=f"publisher {k}", arrival=0.01 * k)
+    assert check.live_sources(0.1) == MAX_SOURCES
+    assert check.conflict(0.1)
+    assert not check.conflict(0.1 + SOURCE_WINDOW_S + 0.01)  # ...until they have gone quiet

@@ -18,6 +18,7 @@ message could put the first command 1.37 rad away from the real robot:
   them, plus :data:`AGREE_TOLERANCE_RAD`; more than that, within :data:`SOURCE_WINDOW_S` of each
   other, is a conflict. While there is one, no pose of either can be told to be the robot's.
   A publisher that sends other joints only (a gripper, another robot's partial state) is none.
+  At most :data:`MAX_SOURCES` sources are compared; more at once count as a conflict.
 
 :class:`MeasuredPoseCheck` keeps what it needs for that and says, for each message, what it is;
 the node decides what to do (``ros/nodes/motion_filter_node.py``: refuse, report, hold the start).
@@ -39,6 +40,7 @@ MAX_FUTURE_S = 0.5  # ...nor one stamped further ahead of the node clock than th
 SOURCE_WINDOW_S = 1.0  # a source heard within this long is live (and compared with the others)
 AGREE_TOLERANCE_RAD = 0.1  # two readings of one robot differ by no more (beyond its velocity)
 READINGS_KEPT = 64  # readings per source kept for the comparison (over a second at 50 Hz)
+MAX_SOURCES = 8  # live sources compared at most; more at once is a conflict by itself
 
 
 @dataclass(frozen=True)
@@ -94,6 +96,7 @@ class MeasuredPoseCheck:
         self.last_refused_s = -math.inf  # arrival of the last refused message (monotonic)
         self.last_reason = ""
         self._sources: dict[Hashable, _Source] = {}
+        self.crowded_s = -math.inf  # arrival of the last pose of a source beyond MAX_SOURCES
 
     def read(
         self,
@@ -157,6 +160,9 @@ class MeasuredPoseCheck:
                 arrival_s,
             )
         pose = np.array([positions[index[name]] for name in self.names], dtype=np.float64)
+        if source not in self._sources and self.live_sources(arrival_s) >= MAX_SOURCES:
+            self.crowded_s = arrival_s  # not compared (bounded work), but not believed either
+            return Reading(pose, "pose")
         heard = self._sources.setdefault(source, _Source())
         heard.first_heard_s = min(heard.first_heard_s, arrival_s)
         heard.last_heard_s = arrival_s
@@ -212,5 +218,11 @@ class MeasuredPoseCheck:
         return worst
 
     def conflict(self, arrival_s: float) -> bool:
-        """Whether two live sources disagree by more than :data:`AGREE_TOLERANCE_RAD`."""
+        """Whether two live sources disagree by more than :data:`AGREE_TOLERANCE_RAD`.
+
+        More than :data:`MAX_SOURCES` live sources at once count as a conflict too: they are
+        not all compared (the work per message stays bounded), so none can be believed.
+        """
+        if arrival_s - self.crowded_s <= SOURCE_WINDOW_S:
+            return True
         return self.disagreement_rad(arrival_s) > AGREE_TOLERANCE_RAD
