@@ -29,6 +29,19 @@ neutral), or, when no measured pose arrives within ``startup_timeout_s`` and not
 one (while a publisher exists it waits up to ``MEASURED_WAIT_S``), the pose it last commanded,
 saved in ``state_file`` (refused when outside the joint ranges), or else neutral.
 
+A measured pose is believed only when it can be (:mod:`audio2pose_ros.motion.measured`): a
+message listing a joint twice, or stamped too old or ahead, is refused (WARN); two publishers
+whose poses disagree are an ERROR and neither is used. While that lasts, the start waits with an
+ERROR, commanding nothing (neither the saved pose nor neutral stands in for a pose that is
+published but cannot be believed), and it starts from the robot's pose once the conflict has
+been over for ``SOURCE_WINDOW_S``. With several publishers on the topic, the start first
+listens ``MEASURED_LISTEN_S`` to the pose's publisher, so a second source shows in time.
+
+Parameter requests: the node's services (rclpy's parameter services) are served at most
+``REQUESTS_PER_TICK`` per tick (:class:`~audio2pose_ros.ros.request_budget.RequestBudget`); a
+request is validated at once and its settings reach the filter at the next tick, once per tick
+however many came, so a storm of set_parameters requests delays answers, never commands.
+
 Stop and disable: a stop stays in force across restarts until a ``stop: false`` *published
 after the stop* arrives, as does ``enable: false`` until a later ``enable: true``. "After" is
 judged by the message's source timestamp (the publisher's wall clock, which DDS carries with
