@@ -129,3 +129,14 @@ def test_when_more_sources_than_compared_send_poses_expect_a_conflict(check, rob
     assert check.live_sources(0.1) == MAX_SOURCES
     assert check.conflict(0.1)
     assert not check.conflict(0.1 + SOURCE_WINDOW_S + 0.01)  # ...until they have gone quiet
+
+
+def test_when_a_second_source_stamps_its_poses_apart_expect_the_conflict_still_seen(check, robot):
+    """Stamps 0.3 s behind the robot's would excuse 2.2 rad of motion at the velocity limit."""
+    other = robot.neutral_rad.copy()
+    other[robot.names.index("LShoulderPitch")] -= 1.37
+    for k in range(30):
+        t = k * 0.02
+        read(check, robot, robot.neutral_rad, stamp=NOW + t, source="robot", arrival=t)
+        read(check, robot, other, stamp=NOW + t - 0.3, source="replay", arrival=t)
+    assert check.conflict(0.6)

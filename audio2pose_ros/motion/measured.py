@@ -15,10 +15,11 @@ message could put the first command 1.37 rad away from the real robot:
 - **Two sources.** Two publishers sending the robot's whole pose (a second robot's driver on the
   same topic, a simulator left running) are two sources. Their readings are compared at nearby
   stamps: two readings of one robot differ by at most its velocity limit times the time between
-  them, plus :data:`AGREE_TOLERANCE_RAD`; more than that, within :data:`SOURCE_WINDOW_S` of each
-  other, is a conflict. While there is one, no pose of either can be told to be the robot's.
-  A publisher that sends other joints only (a gripper, another robot's partial state) is none.
-  At most :data:`MAX_SOURCES` sources are compared; more at once count as a conflict.
+  them (counted up to :data:`MOTION_ALLOWANCE_S`), plus :data:`AGREE_TOLERANCE_RAD`; more than
+  that, within :data:`SOURCE_WINDOW_S` of each other, is a conflict. While there is one, no
+  pose of either can be told to be the robot's. A publisher that sends other joints only (a
+  gripper, another robot's partial state) is none. At most :data:`MAX_SOURCES` sources are
+  compared; more at once count as a conflict.
 
 :class:`MeasuredPoseCheck` keeps what it needs for that and says, for each message, what it is;
 the node decides what to do (``ros/nodes/motion_filter_node.py``: refuse, report, hold the start).
@@ -39,6 +40,7 @@ MAX_AGE_S = 2.0  # a measured pose stamped longer ago than this is not where the
 MAX_FUTURE_S = 0.5  # ...nor one stamped further ahead of the node clock than this
 SOURCE_WINDOW_S = 1.0  # a source heard within this long is live (and compared with the others)
 AGREE_TOLERANCE_RAD = 0.1  # two readings of one robot differ by no more (beyond its velocity)
+MOTION_ALLOWANCE_S = 0.05  # ...and the velocity limit excuses at most this much stamp difference
 READINGS_KEPT = 64  # readings per source kept for the comparison (over a second at 50 Hz)
 MAX_SOURCES = 8  # live sources compared at most; more at once is a conflict by itself
 
@@ -196,7 +198,8 @@ class MeasuredPoseCheck:
         """How far the live sources disagree, beyond what one moving robot explains (rad).
 
         Each source's newest reading is compared with each other source's reading nearest in
-        stamp: per joint, the difference less the velocity limit times the stamp difference.
+        stamp: per joint, the difference less the velocity limit times the stamp difference (at
+        most :data:`MOTION_ALLOWANCE_S` of it, so stamps set apart on purpose excuse no more).
         0 with fewer than two live sources.
         """
         self.live_sources(arrival_s)
@@ -210,7 +213,8 @@ class MeasuredPoseCheck:
                 stamp_b, pose_b = min(b.readings, key=lambda r: abs(r[0] - stamp_a))
                 if abs(stamp_b - stamp_a) > SOURCE_WINDOW_S:
                     continue
-                allowed = self.max_velocity_rad_s * abs(stamp_b - stamp_a)
+                gap_s = min(abs(stamp_b - stamp_a), MOTION_ALLOWANCE_S)
+                allowed = self.max_velocity_rad_s * gap_s
                 off = np.abs(pose_a - pose_b) - allowed
                 finite = np.isfinite(off)
                 if finite.any():
