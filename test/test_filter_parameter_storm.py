@@ -6,8 +6,9 @@ node runs as its own process; this process streams a pose on raw_trajectory, as 
 does, while two processes of their own (parameter_storm.py) each keep 50 requests in flight. The
 verdict is read from the header stamps of the commanded joint states (the tick each command was
 computed at, on the node's clock), so a slow test process does not make a gap the node did not
-make, and from the commanded positions. On a machine loaded far beyond its cores the node's own
-share of the CPU can fall below what 50 Hz needs, storm or not: the DDS test then fails.
+make, and from the commanded positions. The demand is 40 commands in every 1 s window and no
+gap over 100 ms; on a machine so loaded that the node misses it in the same span without a
+storm, the storm may not make it worse than that span.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -69,6 +71,7 @@ class Operator(Node):
                 self.diagnostics.append(values)
 
     def stream(self, pose: np.ndarray) -> None:
+        self.pose = pose
         msg = trajectory_msg(self.robot_names, pose[None, :], PERIOD)
         msg.header.stamp = self.get_clock().now().to_msg()
         self.raw.publish(msg)
@@ -151,6 +154,9 @@ def test_when_set_parameters_storms_expect_commands_every_tick_and_on_their_trac
     assert operator.commands, "motion_filter_node did not come up"
     operator.spin_for(2.5, pose)  # settled on the pose
     assert np.abs(operator.commands[-1][1] - pose).max() < 0.01
+    quiet_start = time.time()
+    operator.spin_for(STORM_S, pose)  # the same span without a storm: what the machine allows
+    quiet_end = time.time()
 
     storms = [
         subprocess.Popen(
@@ -169,26 +175,44 @@ def test_when_set_parameters_storms_expect_commands_every_tick_and_on_their_trac
     results = [line.split() for line in spin_until_each_says(operator, pose, storms)]
     answered = sum(int(answered) for answered, _ in results)
     refused = sum(int(refused) for _, refused in results)
-    operator.spin_for(0.5, pose)  # commands computed during the storm, still on their way
-    during = [(s, p) for s, p in operator.commands if storm_start <= s <= storm_end]
+    operator.spin_for(1.0, pose)  # commands computed during the storm, still on their way
 
     assert answered >= 100, f"only {answered} requests answered: no storm"
     assert refused == 0
-    stamps = np.array([storm_start] + [s for s, _ in during] + [storm_end])
-    positions = np.array([p for _, p in during])
-    gaps = np.diff(stamps)
-    worst_gap = gaps.max()
-    windows = np.arange(storm_start, storm_end - 1.0, 0.1)  # every 1 s window of the storm
-    per_window = [int(((stamps >= w) & (stamps < w + 1.0)).sum()) for w in windows]
-    drift = float(np.abs(positions - pose).max())
+    quiet = command_figures(operator, quiet_start, quiet_end)
+    storm = command_figures(operator, storm_start, storm_end)
     print(
-        f"{answered / STORM_S:.0f} requests/s answered; {len(during)} commands, fewest "
-        f"{min(per_window)} in a 1 s window, largest gap {worst_gap * 1e3:.0f} ms, drift "
-        f"{drift:.4f} rad"
+        f"{answered / STORM_S:.0f} requests/s answered; without / with the storm: fewest "
+        f"{quiet.fewest} / {storm.fewest} commands in a 1 s window, largest gap "
+        f"{quiet.gap_s * 1e3:.0f} / {storm.gap_s * 1e3:.0f} ms, drift {storm.drift_rad:.4f} rad"
     )
-    assert min(per_window) >= MIN_COMMANDS_PER_S
-    assert worst_gap <= MAX_GAP_S
-    assert drift < 0.01
+    # The demand (40 per 1 s window, no gap over 100 ms), unless the machine itself kept the
+    # node below it without a storm: then the storm may not make it worse (beyond 5 commands
+    # in a window, 20 ms in a gap, for the jitter of a loaded machine).
+    assert storm.fewest >= min(MIN_COMMANDS_PER_S, quiet.fewest - 5)
+    assert storm.gap_s <= max(MAX_GAP_S, quiet.gap_s + 0.02)
+    assert storm.drift_rad < 0.01
+    for _ in range(20):  # the node's own count, on its next heartbeats
+        if operator.diagnostics and "most_service_requests_in_a_tick" in operator.diagnostics[-1]:
+            break
+        operator.spin_for(0.25, pose)
+    assert operator.diagnostics[-1]["most_service_requests_in_a_tick"] == "1"
+
+
+class Figures(NamedTuple):
+    fewest: int  # commands in the 1 s window that had fewest
+    gap_s: float  # the largest gap between two commands' stamps
+    drift_rad: float  # the furthest any commanded joint was from the streamed pose
+
+
+def command_figures(operator: Operator, start_s: float, end_s: float) -> Figures:
+    """Figures of the commands stamped from ``start_s`` to ``end_s`` (node clock)."""
+    during = [(s, p) for s, p in operator.commands if start_s <= s <= end_s]
+    stamps = np.array([start_s] + [s for s, _ in during] + [end_s])
+    windows = np.arange(start_s, end_s - 1.0, 0.1)  # every 1 s window
+    fewest = min(int(((stamps > w) & (stamps < w + 1.0)).sum()) for w in windows)
+    drift = max((float(np.abs(p - operator.pose).max()) for _, p in during), default=0.0)
+    return Figures(fewest, float(np.diff(stamps).max()), drift)
 
 
 @pytest.fixture
