@@ -12,7 +12,8 @@ Publications:
         republished every :data:`AUDIO_INFO_PERIOD_S` like audio_capture's.
     stop, enable (std_msgs/Bool, transient local): the page's stop button and enable switch, as
         motion_filter_node expects them.
-    /diagnostics: heartbeat, operators, floor, audio published and refused, latency.
+    /diagnostics: heartbeat, operators, floor, audio published and refused, wrong tokens, who
+        holds the stop, latency.
 Subscriptions:
     joint_angles (naoqi_bridge_msgs/JointAnglesWithSpeed) and commanded_joint_states
         (sensor_msgs/JointState): the commanded pose for the 3D view, and the commands that end
@@ -386,7 +387,16 @@ class ConsoleNode(DiagnosedNode):
             "chunks_published": chunks,
             "refused_connections": self.server.refused_connections,
             "refused_frames": self.server.refused_frames,
+            **self._front_door_values(),
             **{f"latency_{key}": value for key, value in latency.items()},
+        }
+
+    def _front_door_values(self) -> dict[str, object]:
+        """Wrong tokens, and who holds the stop (an absent holder marked as such)."""
+        holders = [p.name if p.present else f"{p.name} (left)" for p in self.server.stops.presses]
+        return {
+            "wrong_tokens": self.server.tokens.wrong_tokens,
+            "stop_held_by": ", ".join(holders) or "nobody",
         }
 
 
