@@ -57,7 +57,7 @@ from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.approach import Approach, minimum_jerk
 from audio2pose_ros.motion.body_guard import BodyGuard
 from audio2pose_ros.motion.gate import TrackGate
-from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
+from audio2pose_ros.motion.limits import JointLimiter, LimitSettings, check_limit_settings
 from audio2pose_ros.motion.smoothing import CausalLowPass, KalmanSmoother
 from audio2pose_ros.motion.style import StyleSettings, StyleTransform
 from audio2pose_ros.parameters import param, specs_of, validate_settings
@@ -459,6 +459,26 @@ class MotionFilter:
         self._glide_start: tuple[float, np.ndarray] | None = None
         self._holding = True
 
+    def check_settings(self, settings: MotionFilterSettings, limits: LimitSettings) -> None:
+        """Refuse settings :meth:`update_settings` would refuse, changing nothing (cheap).
+
+        A node validates a run-time change with this when it is requested and applies it at its
+        next tick, so a storm of requests costs one application per tick, not one per request.
+
+        Raises:
+            ConfigurationError: a read-only setting differs from the running one, or the limit
+                settings leave no range for some joint.
+        """
+        for name in READ_ONLY_SETTINGS:
+            new, running = (
+                (limits, self.limiter.settings)
+                if name in LIMIT_SETTINGS
+                else (settings, self.settings)
+            )
+            if getattr(new, name) != getattr(running, name):
+                raise ConfigurationError(f"parameter {name} cannot change while the node runs")
+        check_limit_settings(self.robot, limits)
+
     def update_settings(
         self,
         settings: MotionFilterSettings,
@@ -470,17 +490,10 @@ class MotionFilter:
         A new ``style`` blends in over ``STYLE_BLEND_S`` (no jump); None keeps the style.
 
         Raises:
-            ConfigurationError: a read-only setting differs from the running one.
+            ConfigurationError: refused by :meth:`check_settings` (nothing changes then).
         """
         limits = limits or self.limiter.settings
-        for name in READ_ONLY_SETTINGS:
-            new, running = (
-                (limits, self.limiter.settings)
-                if name in LIMIT_SETTINGS
-                else (settings, self.settings)
-            )
-            if getattr(new, name) != getattr(running, name):
-                raise ConfigurationError(f"parameter {name} cannot change while the node runs")
+        self.check_settings(settings, limits)
         self.settings = settings
         if limits != self.limiter.settings:
             counts = self.limiter.counts
