@@ -37,6 +37,7 @@ import numpy as np
 import yaml
 
 from audio2pose_ros.errors import ConfigurationError, InputError, short_repr
+from audio2pose_ros.files import read_yaml_file
 from audio2pose_ros.motion.style import (
     IDENTITY,
     MAX_GAIN,
@@ -48,7 +49,6 @@ from audio2pose_ros.motion.style import (
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import JOINT_GROUPS, RobotDescription
 from audio2pose_ros.timebase import FRAME_RATE_HZ
-from audio2pose_ros.yaml_files import read_yaml_file
 
 Motion = tuple[np.ndarray, np.ndarray]  # (T, J) angles in radians, (T, J) known mask
 STYLE_FORMAT = 1
