@@ -216,7 +216,7 @@ def test_when_run_gets_a_personal_model_expect_its_checkpoint_and_style_as_overr
     """``audio2pose run --model me/``: the graph's parameters (the run itself is a DDS test)."""
     import argparse
 
-    from audio2pose_ros.cli.main import _model_overrides
+    from audio2pose_ros.cli.style_commands import graph_overrides
 
     source = tmp_path / "style.yaml"
     source.write_text(GOOD)
@@ -230,6 +230,6 @@ def test_when_run_gets_a_personal_model_expect_its_checkpoint_and_style_as_overr
     fitted = (checkpoint_digest(default_checkpoint_path()), StyleSettings(head_gain=0.5))
     StyleFile("me", "", "", "", style.parts, fitted).write(folder / "style.yaml")
     args = argparse.Namespace(model=str(folder), style=None, style_set=["head_tempo=0.8"])
-    overrides = _model_overrides(args)
+    overrides = graph_overrides(args)
     assert overrides[0] == f"model_path:={default_checkpoint_path().resolve()}"
     assert set(overrides[1:]) == {"head_gain:=0.5", "head_tempo:=0.8"}

@@ -47,7 +47,7 @@ from audio2pose_ros.cli.options import (
     output_file,
     report,
 )
-from audio2pose_ros.cli.style_commands import add_style_options
+from audio2pose_ros.cli.style_commands import add_style_options, graph_overrides
 from audio2pose_ros.errors import Audio2PoseError, InputError, UsageError
 from audio2pose_ros.timebase import duration_s
 
@@ -70,7 +70,7 @@ def command_run(args: argparse.Namespace) -> int:
     log_dir = Path(args.log_dir) if args.log_dir else None
     if log_dir is not None and log_dir.exists() and not log_dir.is_dir():
         raise UsageError(f"--log-dir {log_dir}: exists and is not a directory")
-    overrides = _model_overrides(args)
+    overrides = graph_overrides(args)
     result = run_graph(
         play,
         record,
@@ -84,21 +84,6 @@ def command_run(args: argparse.Namespace) -> int:
     if result is not None:
         print(summarize(result))
     return 0
-
-
-def _model_overrides(args: argparse.Namespace) -> list[str]:
-    """Parameter overrides of ``--model`` (a checkpoint or personal model) and the style."""
-    from audio2pose_ros.cli.style_commands import model_and_style_settings
-    from audio2pose_ros.robot.description import load_robot
-    from audio2pose_ros.style.personal import style_overrides
-
-    if not (args.model or args.style or args.style_set):
-        return []
-    if args.model and not Path(args.model).is_dir():
-        input_file(args.model, "checkpoint")
-    checkpoint, style = model_and_style_settings(args, load_robot())
-    overrides = [f"model_path:={Path(checkpoint).resolve()}"] if args.model else []
-    return overrides + (style_overrides(style) if style is not None else [])
 
 
 def command_demo(args: argparse.Namespace) -> int:
