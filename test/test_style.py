@@ -139,3 +139,30 @@ def test_when_extreme_style_expect_finite_output(robot):
     )  # fmt: skip
     out = StyleTransform(robot, extreme, RATE).run(motion)
     assert np.isfinite(out).all()
+
+
+def test_when_deprecated_filter_gain_given_expect_warning_and_the_style_size_set(robot):
+    from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+
+    with pytest.warns(DeprecationWarning, match="use StyleSettings"):
+        settings = MotionFilterSettings(arms_gain=0.0)
+    assert MotionFilter(robot, settings).style.settings.arms_gain == 0.0
+    with (
+        pytest.raises(ConfigurationError, match="arms_gain"),
+        pytest.warns(DeprecationWarning, match="deprecated"),
+    ):
+        MotionFilterSettings(arms_gain=math.nan)
+
+
+def test_when_a_style_is_set_on_the_identity_mid_stream_expect_no_jump(robot):
+    motion = wander(robot, 400)
+    transform = StyleTransform(robot, rate_hz=RATE)
+    out = [transform.step(p) for p in motion[:200]]
+    style = StyleSettings(arms_tempo=0.3, arms_gain=2.0, head_tempo=2.0)
+    transform.update(style)
+    out += [transform.step(p) for p in motion[200:]]
+    steps = np.abs(np.diff(np.array(out), axis=0)).max(axis=1)
+    styled = StyleTransform(robot, style, RATE).run(motion)
+    assert steps[199] < 1.01 * steps[:199].max()  # the change itself adds no step
+    # during and after the blend no faster than the style applied from the start
+    assert steps[200:].max() <= 1.2 * np.abs(np.diff(styled, axis=0)).max()

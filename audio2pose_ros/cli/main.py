@@ -47,7 +47,7 @@ from audio2pose_ros.cli.options import (
     output_file,
     report,
 )
-from audio2pose_ros.cli.style_commands import add_style_options
+from audio2pose_ros.cli.style_commands import add_style_options, graph_overrides
 from audio2pose_ros.errors import Audio2PoseError, InputError, UsageError
 from audio2pose_ros.timebase import duration_s
 
@@ -70,7 +70,7 @@ def command_run(args: argparse.Namespace) -> int:
     log_dir = Path(args.log_dir) if args.log_dir else None
     if log_dir is not None and log_dir.exists() and not log_dir.is_dir():
         raise UsageError(f"--log-dir {log_dir}: exists and is not a directory")
-    overrides = _model_overrides(args)
+    overrides = graph_overrides(args)
     result = run_graph(
         play,
         record,
@@ -84,21 +84,6 @@ def command_run(args: argparse.Namespace) -> int:
     if result is not None:
         print(summarize(result))
     return 0
-
-
-def _model_overrides(args: argparse.Namespace) -> list[str]:
-    """Parameter overrides of ``--model`` (a checkpoint or personal model) and the style."""
-    from audio2pose_ros.cli.style_commands import model_and_style_settings
-    from audio2pose_ros.robot.description import load_robot
-    from audio2pose_ros.style.personal import style_overrides
-
-    if not (args.model or args.style or args.style_set):
-        return []
-    if args.model and not Path(args.model).is_dir():
-        input_file(args.model, "checkpoint")
-    checkpoint, style = model_and_style_settings(args, load_robot())
-    overrides = [f"model_path:={Path(checkpoint).resolve()}"] if args.model else []
-    return overrides + (style_overrides(style) if style is not None else [])
 
 
 def command_demo(args: argparse.Namespace) -> int:
@@ -262,7 +247,7 @@ def command_check_head(args: argparse.Namespace) -> int:
     return 0
 
 
-BENCH_SCHEMA_VERSION = 2  # 1: before versioning (graph figures became a list of modes)
+BENCH_SCHEMA_VERSION = 3  # 1: before versioning; 2: graph figures a list of modes; 3: floor
 
 
 def command_bench(args: argparse.Namespace) -> int:
@@ -294,7 +279,11 @@ def command_bench(args: argparse.Namespace) -> int:
 
         speech = bundled_speech()
         results["graph"] = [
-            report(measure_graph(speech, duration_s=args.duration, single_process=single))
+            report(
+                measure_graph(
+                    speech, duration_s=args.duration, single_process=single, with_floor=True
+                )
+            )
             for single in {"three": [False], "single": [True], "both": [False, True]}[
                 args.graph_mode
             ]
@@ -452,6 +441,20 @@ def _print_graph(runs: list[dict[str, Any]]) -> None:
                 for run in runs
             ],
         )
+    for run in runs:
+        floor = run.get("floor")
+        if floor:
+            for name, cpu in floor["steady_cpu_ms_per_frame"].items():
+                row(
+                    f"bare rclpy relay for {name}: CPU, MB",
+                    [f"({cpu:.3f}), {floor['rss_mb'][name]:.0f}"],
+                )
+            print(
+                f"{run['mode']}: the nodes' steady CPU is {floor['steady_cpu_ratio']:.2f}x the bare"
+                " rclpy relays' (the floor: the same topology, QoS and executors, no work), "
+                f"{sum(run['rss_mb'].values()):.0f} MB against their "
+                f"{sum(floor['rss_mb'].values()):.0f} MB"
+            )
     print("footprint targets")
     for run in runs:
         for target in run["targets"]:

@@ -78,6 +78,28 @@ def model_and_style_settings(
     return checkpoint, settings
 
 
+def graph_overrides(args: argparse.Namespace) -> list[str]:
+    """The node graph's parameter overrides of ``--model``, ``--style`` and ``--style-set``.
+
+    ``--model`` is a checkpoint or a personal model folder (``run``, ``console``).
+
+    Raises:
+        InputError: a missing checkpoint or an unreadable style.
+        UsageError: a bad ``--style-set``.
+    """
+    from audio2pose_ros.cli.options import input_file
+    from audio2pose_ros.robot.description import load_robot
+    from audio2pose_ros.style.personal import style_overrides
+
+    if not (args.model or args.style or args.style_set):
+        return []
+    if args.model and not Path(args.model).is_dir():
+        input_file(args.model, "checkpoint")
+    checkpoint, style = model_and_style_settings(args, load_robot())
+    overrides = [f"model_path:={Path(checkpoint).resolve()}"] if args.model else []
+    return overrides + (style_overrides(style) if style is not None else [])
+
+
 def command_enroll(args: argparse.Namespace) -> int:
     """Learn a person's style from a video or data set folder; write a personal model."""
     from audio2pose_ros.robot.description import load_robot
@@ -109,8 +131,9 @@ def command_enroll(args: argparse.Namespace) -> int:
 
 def command_evaluate_style(args: argparse.Namespace) -> int:
     """Enroll on the start of each source, score on the rest: the SI-vs-SD table."""
+    from audio2pose_ros.learning.style_card import write_card_section
     from audio2pose_ros.robot.description import load_robot
-    from audio2pose_ros.style.evaluation import evaluate_sources, write_card_section
+    from audio2pose_ros.style.evaluation import evaluate_sources
 
     table = evaluate_sources(
         [Path(d) for d in args.data],

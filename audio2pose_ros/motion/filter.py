@@ -46,6 +46,7 @@ a short jitter buffer and, at every :meth:`MotionFilter.tick`, produces one comm
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -56,7 +57,7 @@ from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.approach import Approach, minimum_jerk
 from audio2pose_ros.motion.body_guard import BodyGuard
 from audio2pose_ros.motion.gate import TrackGate
-from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
+from audio2pose_ros.motion.limits import JointLimiter, LimitSettings, check_limit_settings
 from audio2pose_ros.motion.smoothing import CausalLowPass, KalmanSmoother
 from audio2pose_ros.motion.style import StyleSettings, StyleTransform
 from audio2pose_ros.parameters import param, specs_of, validate_settings
@@ -115,6 +116,10 @@ class MotionFilterSettings:
         max_points_per_message: poses of one message beyond this many are dropped and counted.
         body_margin_m: no command brings an arm closer than this to the robot's body or the
             other arm (m; :mod:`~audio2pose_ros.motion.body_guard`, the last stage).
+        head_gain: deprecated, use ``StyleSettings(head_gain=...)`` (the node parameter keeps
+            its name); when given, it sets the style's head size (with a DeprecationWarning).
+        arms_gain: deprecated, as ``head_gain``.
+        hip_gain: deprecated, as ``head_gain``.
     """
 
     rate_hz: float = field(
@@ -266,6 +271,11 @@ class MotionFilterSettings:
         ),
     )
 
+    # Deprecated (the sizes are part of the style now): not node parameters here.
+    head_gain: float | None = None
+    arms_gain: float | None = None
+    hip_gain: float | None = None
+
     def __post_init__(self) -> None:
         """Validate every field against its declaration, then the one cross-field rule.
 
@@ -273,11 +283,25 @@ class MotionFilterSettings:
             ConfigurationError: a value is refused; the message names it and the allowed range.
         """
         validate_settings(self)
+        legacy = self.legacy_gains()
+        if legacy:
+            warnings.warn(
+                f"MotionFilterSettings({', '.join(legacy)}=...) is deprecated: use "
+                "StyleSettings (audio2pose_ros.motion.style); the node parameters keep their names",
+                DeprecationWarning,
+                stacklevel=3,
+            )
+            StyleSettings(**legacy)  # refused values fail here, as they did before
         if self.lowpass_cutoff_hz >= self.rate_hz / 2.0:
             raise ConfigurationError(
                 f"parameter lowpass_cutoff_hz: value {self.lowpass_cutoff_hz!r} is out of range; "
                 f"allowed: below rate_hz / 2 = {self.rate_hz / 2.0:g}"
             )
+
+    def legacy_gains(self) -> dict[str, float]:
+        """The deprecated ``<group>_gain`` fields that were given."""
+        names = ("head_gain", "arms_gain", "hip_gain")
+        return {name: getattr(self, name) for name in names if getattr(self, name) is not None}
 
 
 LIMIT_SETTINGS = frozenset(f.name for f in dataclasses.fields(LimitSettings))
@@ -329,6 +353,13 @@ class _External:
         return self.mask if now_s - self.stamp_s <= timeout_s else np.zeros_like(self.mask)
 
 
+def _with_legacy_gains(
+    settings: MotionFilterSettings, style: StyleSettings | None
+) -> StyleSettings:
+    """``style`` with the deprecated gains of ``settings`` (if any) as its sizes."""
+    return dataclasses.replace(style or StyleSettings(), **settings.legacy_gains())
+
+
 class MotionFilter:
     """Gate, jitter buffer, modes, style, smoothing, head composition, limits and health guard."""
 
@@ -354,7 +385,9 @@ class MotionFilter:
         self.body_guard = BodyGuard(BodyModel.load(robot), self.settings.body_margin_m)
         self.period_s = 1.0 / self.settings.rate_hz
         self.neutral_rad = self.limiter.clamp_position(robot.neutral_rad)
-        self.style = StyleTransform(robot, style, self.settings.rate_hz)
+        self.style = StyleTransform(
+            robot, _with_legacy_gains(self.settings, style), self.settings.rate_hz
+        )
         self._head = robot.group_mask("head")
         self.gate = TrackGate(
             robot.lower_rad,
@@ -426,6 +459,26 @@ class MotionFilter:
         self._glide_start: tuple[float, np.ndarray] | None = None
         self._holding = True
 
+    def check_settings(self, settings: MotionFilterSettings, limits: LimitSettings) -> None:
+        """Refuse settings :meth:`update_settings` would refuse, changing nothing (cheap).
+
+        A node validates a run-time change with this when it is requested and applies it at its
+        next tick, so a storm of requests costs one application per tick, not one per request.
+
+        Raises:
+            ConfigurationError: a read-only setting differs from the running one, or the limit
+                settings leave no range for some joint.
+        """
+        for name in READ_ONLY_SETTINGS:
+            new, running = (
+                (limits, self.limiter.settings)
+                if name in LIMIT_SETTINGS
+                else (settings, self.settings)
+            )
+            if getattr(new, name) != getattr(running, name):
+                raise ConfigurationError(f"parameter {name} cannot change while the node runs")
+        check_limit_settings(self.robot, limits)
+
     def update_settings(
         self,
         settings: MotionFilterSettings,
@@ -437,24 +490,17 @@ class MotionFilter:
         A new ``style`` blends in over ``STYLE_BLEND_S`` (no jump); None keeps the style.
 
         Raises:
-            ConfigurationError: a read-only setting differs from the running one.
+            ConfigurationError: refused by :meth:`check_settings` (nothing changes then).
         """
         limits = limits or self.limiter.settings
-        for name in READ_ONLY_SETTINGS:
-            new, running = (
-                (limits, self.limiter.settings)
-                if name in LIMIT_SETTINGS
-                else (settings, self.settings)
-            )
-            if getattr(new, name) != getattr(running, name):
-                raise ConfigurationError(f"parameter {name} cannot change while the node runs")
+        self.check_settings(settings, limits)
         self.settings = settings
         if limits != self.limiter.settings:
             counts = self.limiter.counts
             self.limiter = JointLimiter(self.robot, limits)
             self.limiter.counts = counts
-        if style is not None:
-            self.style.update(style)
+        if style is not None or settings.legacy_gains():
+            self.style.update(_with_legacy_gains(settings, style or self.style.settings))
         self._apply_live_settings()
 
     @property

@@ -47,7 +47,7 @@ MIN_TEMPO, MAX_TEMPO = 0.2, 2.0
 MAX_GAIN = 2.0
 MAX_REST_OFFSET_RAD = 0.6
 RAISE_SOFTNESS_RAD = 0.08  # width w of the soft height limit
-STYLE_BLEND_S = 1.5  # a live style change blends in over this long (minimum-jerk)
+STYLE_BLEND_S = 1.0  # a live style change blends in over this long (minimum-jerk)
 
 
 def _gain(part: str) -> dict[str, object]:
@@ -254,6 +254,9 @@ class StyleTransform:
         pose = np.asarray(pose_rad, dtype=np.float64)
         if pose.shape != (self.robot.n_joints,):
             raise InputError(f"a pose must have {self.robot.n_joints} angles, got {pose.shape}")
+        if self.is_identity:  # the filter's default: no work, and the tempo filters start fresh
+            self._slow = self._fast = None  # from the pose in force when a style is set
+            return pose.copy()
         eff = self._effective()
         if self._blend_from is not None:
             self._blend_s += self.period_s

@@ -5,9 +5,9 @@ A style file (a preset under ``config/styles/``, or ``style.yaml`` of a personal
 motion at 100 Hz (:func:`measure`):
 
 - ``std_rad``: the part's size, the RMS over its joints of each joint's angle std;
-- ``speed_p50_rad_s``, ``speed_p90_rad_s``, ``accel_p50_rad_s2``: percentiles of joint speed and
-  acceleration pooled over the part's joints (seed 003 section 5.3 compares the same derivative
-  distributions by the Hellinger distance);
+- ``speed_deciles_rad_s``, ``accel_deciles_rad_s2``: the deciles (p10 to p90) of joint speed
+  and acceleration pooled over the part's joints (seed 003 section 5.3 compares the same
+  derivative distributions by the Hellinger distance);
 - arms only: ``rest_pitch_rad`` (median shoulder pitch: where the hands rest), ``rest_bend_rad``
   (median elbow bend) and ``raise_p1_rad`` (1st percentile of the shoulder pitch: how high the
   arms go).
@@ -15,16 +15,20 @@ motion at 100 Hz (:func:`measure`):
 A part observed for less than :data:`MIN_PART_S` is left out, and a part left out keeps the
 model's own motion. The figures are absolute, so a style means the same after a model is rebuilt:
 :func:`resolve` turns them into :class:`~audio2pose_ros.motion.style.StyleSettings` against the
-model's own figures, measured on the model's synthesis of the bundled speech
-(:func:`~audio2pose_ros.style.personal.model_reference`): the tempo is chosen (bisection) so that
-the ratio speed p50 / std of the styled model equals the person's, the size then so that the
-std equals the person's; the arm rest offsets move the styled model's rest onto the person's,
-and the height limit is the person's ``raise_p1_rad``.
+model's own motion on reference speech (the enrolment recording's speech when there is one, else
+the bundled speech: :func:`~audio2pose_ros.style.personal.model_reference`): the tempo and size
+whose styled model motion has deciles and std closest to the person's (as log ratios); the arm
+rest offsets move the styled model's rest onto the person's, and the height limit is the
+person's ``raise_p1_rad``. A linear, causal transform cannot make continuous motion
+intermittent (a person at rest between fast gestures): the loss then settles between the
+slow and the fast deciles.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -32,37 +36,44 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from audio2pose_ros.errors import InputError, short_repr
+from audio2pose_ros.errors import ConfigurationError, InputError, short_repr
+from audio2pose_ros.files import read_yaml_file
 from audio2pose_ros.motion.style import (
+    IDENTITY,
     MAX_GAIN,
     MAX_REST_OFFSET_RAD,
-    MAX_TEMPO,
-    MIN_TEMPO,
+    STYLE_FIELDS,
     StyleSettings,
     StyleTransform,
 )
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import JOINT_GROUPS, RobotDescription
 from audio2pose_ros.timebase import FRAME_RATE_HZ
-from audio2pose_ros.yaml_files import read_yaml_file
 
 Motion = tuple[np.ndarray, np.ndarray]  # (T, J) angles in radians, (T, J) known mask
 STYLE_FORMAT = 1
 MIN_PART_S = 5.0  # a part observed for less than this is not measured (not adapted)
-TEMPO_STEPS = 10  # bisection steps of the tempo (to 1.8 / 2**10 of the tempo range)
+TEMPO_GRID = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.2, 1.4, 1.7, 2.0)
+GAIN_GRID = np.geomspace(0.02, MAX_GAIN, 141)  # sizes tried per tempo (about 3.3 % apart)
+DECILES = tuple(range(10, 100, 10))
 MAX_STYLE_BYTES = 65536
 # plausible bounds of the figures in a style file (hostile or broken files are refused)
 _BOUNDS = {
     "seconds": (0.0, 1e6),
     "std_rad": (1e-4, 2.0),
-    "speed_p50_rad_s": (1e-5, 20.0),
-    "speed_p90_rad_s": (1e-5, 40.0),
-    "accel_p50_rad_s2": (1e-4, 2000.0),
+    "speed_deciles_rad_s": (1e-6, 40.0),
+    "accel_deciles_rad_s2": (1e-5, 5000.0),
     "rest_pitch_rad": (-2.1, 2.1),
     "rest_bend_rad": (-0.1, 1.6),
     "raise_p1_rad": (-2.1, 2.1),
 }
 _ARM_FIELDS = ("rest_pitch_rad", "rest_bend_rad", "raise_p1_rad")
+_LIST_FIELDS = ("speed_deciles_rad_s", "accel_deciles_rad_s2")
+
+
+def _rounded(value: float) -> float:
+    """A figure as kept (6 significant digits): what is written is what was measured."""
+    return float(f"{float(value):.6g}")
 
 
 class StyleError(InputError):
@@ -75,9 +86,8 @@ class PartFigures:
 
     seconds: float
     std_rad: float
-    speed_p50_rad_s: float
-    speed_p90_rad_s: float
-    accel_p50_rad_s2: float
+    speed_deciles_rad_s: tuple[float, ...]
+    accel_deciles_rad_s2: tuple[float, ...]
     rest_pitch_rad: float | None = None
     rest_bend_rad: float | None = None
     raise_p1_rad: float | None = None
@@ -92,20 +102,41 @@ class PartFigures:
             value = getattr(self, name)
             if value is None and name in _ARM_FIELDS:
                 continue
-            if (
-                isinstance(value, bool)
-                or not isinstance(value, int | float)
-                or not math.isfinite(value)
-                or not low <= value <= high
-            ):
-                raise StyleError(
-                    f"style figure {name}: {short_repr(value, 40)} is not a number in "
-                    f"[{low:g}, {high:g}]"
-                )
+            many = name in _LIST_FIELDS
+            if many and not (isinstance(value, list | tuple) and len(value) == len(DECILES)):
+                raise StyleError(f"style figure {name}: needs {len(DECILES)} numbers (p10..p90)")
+            for item in value if many else (value,):
+                if (
+                    isinstance(item, bool)
+                    or not isinstance(item, int | float)
+                    or not math.isfinite(item)
+                    or not low <= item <= high
+                ):
+                    raise StyleError(
+                        f"style figure {name}: {short_repr(item, 40)} is not a number in "
+                        f"[{low:g}, {high:g}]"
+                    )
+            if many:
+                if any(b < a for a, b in itertools.pairwise(value)):
+                    raise StyleError(f"style figure {name}: deciles must not decrease")
+                object.__setattr__(self, name, tuple(_rounded(v) for v in value))
+            elif value is not None:
+                object.__setattr__(self, name, _rounded(value))
 
-    def as_dict(self) -> dict[str, float]:
-        """The figures to write (arm fields only where set), rounded for a readable file."""
-        return {k: round(float(v), 5) for k, v in asdict(self).items() if v is not None}
+    @property
+    def speed_p50_rad_s(self) -> float:
+        """Median joint speed (rad/s)."""
+        return self.speed_deciles_rad_s[DECILES.index(50)]
+
+    def as_dict(self) -> dict[str, object]:
+        """The figures to write (arm fields only where set)."""
+        out: dict[str, object] = {}
+        for key, value in asdict(self).items():
+            if isinstance(value, tuple | list):
+                out[key] = list(value)
+            elif value is not None:
+                out[key] = value
+        return out
 
 
 @dataclass(frozen=True)
@@ -118,6 +149,8 @@ class StyleFile:
         source: the recording(s) measured, with their licence or attribution.
         command: the command that re-measures the figures.
         parts: part -> figures; parts not present are not adapted.
+        fitted: (SHA-256 of a checkpoint, the settings fitted to it on the person's own speech),
+            or None; used instead of resolving the figures when that checkpoint runs.
     """
 
     name: str
@@ -125,6 +158,7 @@ class StyleFile:
     source: str
     command: str
     parts: Mapping[str, PartFigures]
+    fitted: tuple[str, StyleSettings] | None = None
 
     def to_yaml(self) -> str:
         """The file's text."""
@@ -136,7 +170,16 @@ class StyleFile:
             "command": self.command,
             "parts": {part: figures.as_dict() for part, figures in self.parts.items()},
         }
-        return yaml.safe_dump(document, sort_keys=False, width=100)
+        if self.fitted is not None:
+            document["fitted"] = {
+                "checkpoint_sha256": self.fitted[0],
+                "settings": {
+                    name: getattr(self.fitted[1], name)
+                    for name in STYLE_FIELDS
+                    if getattr(self.fitted[1], name) != getattr(IDENTITY, name)
+                },
+            }
+        return yaml.safe_dump(document, sort_keys=False, width=100, default_flow_style=None)
 
     def write(self, path: Path) -> Path:
         """Write the file (its folder must exist)."""
@@ -189,7 +232,25 @@ def read_style(path: str | Path) -> StyleFile:
         source=_text(document, "source", file),
         command=_text(document, "command", file),
         parts=parts,
+        fitted=_fitted(document.get("fitted"), file),
     )
+
+
+def _fitted(raw: object, file: Path) -> tuple[str, StyleSettings] | None:
+    """The ``fitted`` entry of a style file, checked (the settings by their declarations)."""
+    if raw is None:
+        return None
+    if not isinstance(raw, dict) or set(raw) != {"checkpoint_sha256", "settings"}:
+        raise StyleError(f"{file}: 'fitted' needs checkpoint_sha256 and settings only")
+    digest, settings = raw["checkpoint_sha256"], raw["settings"]
+    if not isinstance(digest, str) or not re.fullmatch(r"[0-9a-f]{64}", digest):
+        raise StyleError(f"{file}: fitted checkpoint_sha256 must be 64 hex digits")
+    if not isinstance(settings, dict) or not set(settings) <= set(STYLE_FIELDS):
+        raise StyleError(f"{file}: fitted settings must map style parameters {STYLE_FIELDS}")
+    try:
+        return digest, StyleSettings(**settings)
+    except ConfigurationError as exc:
+        raise StyleError(f"{file}: fitted {exc}") from None
 
 
 def presets_dir() -> Path:
@@ -240,14 +301,18 @@ def _derivatives(motions: Sequence[Motion], j: int, order: int, rate_hz: float) 
 
 
 def measure_part(
-    motions: Sequence[Motion], robot: RobotDescription, part: str, rate_hz: float = FRAME_RATE_HZ
+    motions: Sequence[Motion],
+    robot: RobotDescription,
+    part: str,
+    rate_hz: float = FRAME_RATE_HZ,
+    min_seconds: float = MIN_PART_S,
 ) -> PartFigures | None:
-    """The figures of ``part`` in ``motions``; None when observed less than :data:`MIN_PART_S`."""
+    """The figures of ``part`` in ``motions``; None when observed less than ``min_seconds``."""
     joints = [int(j) for j in np.flatnonzero(robot.group_mask(part))]
     if not joints or not motions:
         return None
     seconds = min(sum(int(k[:, j].sum()) for _, k in motions) for j in joints) / rate_hz
-    if seconds < MIN_PART_S:
+    if seconds < min_seconds or seconds <= 0:
         return None
     variances = [np.var(_values(motions, j)) for j in joints]
     speeds = np.concatenate([_derivatives(motions, j, 1, rate_hz) for j in joints])
@@ -269,13 +334,16 @@ def measure_part(
                 "rest_bend_rad": float(np.clip(np.median(bends), *_BOUNDS["rest_bend_rad"])),
                 "raise_p1_rad": float(np.percentile(pitches, 1)),
             }
-    floor = _BOUNDS["std_rad"][0]
+
+    def deciles(values: np.ndarray, name: str) -> tuple[float, ...]:
+        low, high = _BOUNDS[name]
+        return tuple(float(v) for v in np.clip(np.percentile(values, DECILES), low, high))
+
     return PartFigures(
         seconds=seconds,
-        std_rad=max(float(np.sqrt(np.mean(variances))), floor),
-        speed_p50_rad_s=max(float(np.percentile(speeds, 50)), _BOUNDS["speed_p50_rad_s"][0]),
-        speed_p90_rad_s=max(float(np.percentile(speeds, 90)), _BOUNDS["speed_p90_rad_s"][0]),
-        accel_p50_rad_s2=max(float(np.percentile(accels, 50)), _BOUNDS["accel_p50_rad_s2"][0]),
+        std_rad=float(np.clip(np.sqrt(np.mean(variances)), *_BOUNDS["std_rad"])),
+        speed_deciles_rad_s=deciles(speeds, "speed_deciles_rad_s"),
+        accel_deciles_rad_s2=deciles(accels, "accel_deciles_rad_s2"),
         **extra,
     )
 
@@ -302,13 +370,40 @@ def _styled(
     return [(transform.run(angles), known) for angles, known in motions]
 
 
+def _log_ratios(target: PartFigures, model: PartFigures) -> tuple[np.ndarray, float]:
+    """log(target / model) of the speed and acceleration deciles, and of the std."""
+    deciles = np.log(
+        np.array([*target.speed_deciles_rad_s, *target.accel_deciles_rad_s2])
+        / np.array([*model.speed_deciles_rad_s, *model.accel_deciles_rad_s2])
+    )
+    return deciles, float(np.log(target.std_rad / model.std_rad))
+
+
+def _fit_gain(deciles: np.ndarray, std: float) -> tuple[float, float]:
+    """The log gain that minimises the style loss for one tempo, and the loss.
+
+    The loss is half the mean |log ratio| of the speed and acceleration deciles plus half the
+    |log ratio| of the std (every ratio scales by the gain alike: log gain shifts them all).
+    """
+    candidates = np.log(GAIN_GRID)
+    losses = [0.5 * float(np.mean(np.abs(deciles - c))) + 0.5 * abs(std - c) for c in candidates]
+    best = int(np.argmin(losses))
+    return float(np.exp(candidates[best])), losses[best]
+
+
 def resolve(
     person: Mapping[str, PartFigures],
     model_motions: Sequence[Motion],
     robot: RobotDescription,
     rate_hz: float = FRAME_RATE_HZ,
 ) -> StyleSettings:
-    """The filter settings that bring the model's motion to the person's figures.
+    """The filter settings that bring the model's motion closest to the person's figures.
+
+    Per part, every tempo of :data:`TEMPO_GRID` styles ``model_motions``; for each, the size
+    that minimises the loss of :func:`_fit_gain` (speed and acceleration deciles and std as
+    ratios to the person's); the tempo and size of the smallest loss win (a tempo within 2 %
+    of the identity's loss keeps the identity). Then the arms' rest offsets move the styled
+    model's rest onto the person's, and the height limit is the person's ``raise_p1_rad``.
 
     Args:
         person: the person's figures per part (parts left out keep the model's motion).
@@ -321,35 +416,24 @@ def resolve(
     """
     values: dict[str, float] = {}
     for part, target in person.items():
-        model = measure_part(model_motions, robot, part, rate_hz)
-        if model is None:
+        if measure_part(model_motions, robot, part, rate_hz) is None:
             continue
-        wanted = (target.speed_p50_rad_s / target.std_rad) / (model.speed_p50_rad_s / model.std_rad)
-
-        def frequency(tempo: float, part: str = part) -> tuple[float, PartFigures]:
+        fits = {}
+        for tempo in TEMPO_GRID:
             styled = _styled(
                 robot, StyleSettings(**{f"{part}_tempo": tempo}), model_motions, rate_hz
             )
-            figures = measure_part(styled, robot, part, rate_hz)
-            assert figures is not None
-            return figures.speed_p50_rad_s / figures.std_rad, figures
-
-        base = model.speed_p50_rad_s / model.std_rad
-        low, high = MIN_TEMPO, MAX_TEMPO
-        for _ in range(TEMPO_STEPS):
-            middle = 0.5 * (low + high)
-            if frequency(middle)[0] / base < wanted:
-                low = middle
-            else:
-                high = middle
-        tempo = 0.5 * (low + high)
-        tempo = 1.0 if abs(tempo - 1.0) < 0.01 else tempo
-        paced = frequency(tempo)[1]
-        gain = min(max(target.std_rad / paced.std_rad, 0.0), MAX_GAIN)
-        values[f"{part}_tempo"] = round(tempo, 4)
+            paced = measure_part(styled, robot, part, rate_hz)
+            if paced is not None:
+                fits[tempo] = _fit_gain(*_log_ratios(target, paced))
+        tempo = min(fits, key=lambda t: fits[t][1])
+        if fits[tempo][1] >= 0.98 * fits[1.0][1]:
+            tempo = 1.0
+        gain = min(max(fits[tempo][0], 0.0), MAX_GAIN)
+        values[f"{part}_tempo"] = tempo
         values[f"{part}_gain"] = round(gain, 4)
         if part == "arms" and target.rest_pitch_rad is not None:
-            settings = StyleSettings(arms_tempo=values["arms_tempo"], arms_gain=gain)
+            settings = StyleSettings(arms_tempo=tempo, arms_gain=gain)
             shaped = measure_part(_styled(robot, settings, model_motions, rate_hz), robot, part)
             assert shaped is not None
             assert shaped.rest_pitch_rad is not None

@@ -24,6 +24,7 @@ last) and leaves the model's timing on the speech as it is. The held-out evaluat
 
 from __future__ import annotations
 
+import hashlib
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -40,6 +41,7 @@ from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.style.figures import (
     MIN_PART_S,
     Motion,
+    PartFigures,
     StyleError,
     StyleFile,
     load_style,
@@ -74,17 +76,34 @@ def model_and_style(model: str | None) -> tuple[Path, StyleFile | None]:
     return (own if own.is_file() else default_checkpoint_path()), style
 
 
+Synthesizer = Callable[[Clip], np.ndarray]  # a clip's speech -> the model's (T, J) angles
+
+
+def synthesizer(checkpoint_path: Path, robot: RobotDescription) -> Synthesizer:
+    """The model's offline synthesis (seed 0, before the body guard) of a clip's speech."""
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+    from audio2pose_ros.offline.synthesis import synthesize
+
+    checkpoint = load_checkpoint(checkpoint_path, robot=robot)
+
+    def run(clip: Clip) -> np.ndarray:
+        return synthesize(checkpoint, clip.audio, body_margin_m=None)[1]
+
+    return run
+
+
 @lru_cache(maxsize=4)
 def _reference(checkpoint_path: str) -> tuple[Motion, ...]:
     from audio2pose_ros.audio.wav import read_wav
-    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
-    from audio2pose_ros.offline.synthesis import synthesize
     from audio2pose_ros.robot.description import load_robot
 
-    checkpoint = load_checkpoint(checkpoint_path, robot=load_robot())
+    robot = load_robot()
+    run = synthesizer(Path(checkpoint_path), robot)
     motions = []
     for wav in bundled_speech_paths():
-        angles = synthesize(checkpoint, read_wav(wav)[0], body_margin_m=None)[1]
+        info = ClipInfo(wav.stem, "bundled", wav.name, "public domain", "train")
+        empty = np.zeros((0, robot.n_joints))
+        angles = run(Clip(info, read_wav(wav)[0], empty, empty.astype(bool)))
         motions.append((angles, np.ones(angles.shape, dtype=bool)))
     return tuple(motions)
 
@@ -94,13 +113,41 @@ def model_reference(checkpoint_path: Path) -> list[Motion]:
     return list(_reference(str(Path(checkpoint_path).resolve())))
 
 
+def checkpoint_digest(checkpoint_path: Path) -> str:
+    """SHA-256 of a checkpoint file (which model a fitted style was fitted to)."""
+    return hashlib.sha256(Path(checkpoint_path).read_bytes()).hexdigest()
+
+
 def style_settings(
     checkpoint_path: Path, style: StyleFile | None, robot: RobotDescription
 ) -> StyleSettings:
-    """The filter's style settings of ``style`` for the model at ``checkpoint_path``."""
+    """The filter's style settings of ``style`` for the model at ``checkpoint_path``.
+
+    A style fitted to this very checkpoint (enrolment keeps the fit on the person's own speech)
+    is used as fitted; otherwise the figures are resolved against the model's motion on the
+    bundled speech.
+    """
     if style is None or not style.parts:
         return StyleSettings()
+    if style.fitted is not None and style.fitted[0] == checkpoint_digest(checkpoint_path):
+        return style.fitted[1]
     return resolve(style.parts, model_reference(checkpoint_path), robot)
+
+
+def fit(
+    clips: Sequence[Clip], robot: RobotDescription, synthesize_clip: Synthesizer
+) -> tuple[dict[str, PartFigures], StyleSettings]:
+    """A person's figures in ``clips`` and the style settings fitted on their own speech.
+
+    The model's motion on the same speech (``synthesize_clip``) is the reference of
+    :func:`~audio2pose_ros.style.figures.resolve`: the model's figures on what the person said.
+    """
+    parts = measure([(c.angles_rad, c.mask) for c in clips], robot)
+    reference = []
+    for clip in clips:
+        angles = synthesize_clip(clip)
+        reference.append((angles, np.ones(angles.shape, dtype=bool)))
+    return parts, resolve(parts, reference, robot)
 
 
 def style_overrides(settings: StyleSettings) -> list[str]:
@@ -140,9 +187,14 @@ def _first_seconds(clips: Sequence[Clip], seconds: float) -> list[Clip]:
 
 
 def recording_clips(
-    source: Path, robot: RobotDescription, progress: Callable[[str], None]
+    source: Path,
+    robot: RobotDescription,
+    progress: Callable[[str], None],
+    max_seconds: float | None = None,
 ) -> list[Clip]:
     """A recording's clips: a data set folder (any importer's) or one video with speech.
+
+    Of a video only the first ``max_seconds`` are decoded and tracked.
 
     Raises:
         InputError: missing source, a data set that cannot be read, or a video the importer
@@ -160,7 +212,8 @@ def recording_clips(
 
     progress(f"tracking face and body in {source.name} (MediaPipe)")
     info = ClipInfo(source.stem[:64] or "recording", "enrolled", source.name, LICENCE, "train")
-    clip, _ = import_video(source, info, robot, VideoImportSettings(body=True))
+    settings = VideoImportSettings(body=True, max_seconds=max_seconds)
+    clip, _ = import_video(source, info, robot, settings)
     return [clip]
 
 
@@ -190,7 +243,7 @@ def enroll(
         InputError: unreadable source, or no part observed long enough.
     """
     start = time.monotonic()
-    clips = _first_seconds(recording_clips(source, robot, progress), max_seconds)
+    clips = _first_seconds(recording_clips(source, robot, progress, max_seconds), max_seconds)
     seconds = sum(c.n_frames for c in clips) / FRAME_RATE_HZ
     parts = measure([(c.angles_rad, c.mask) for c in clips], robot)
     if not parts:
@@ -199,15 +252,17 @@ def enroll(
             f"the {seconds:.1f} s used: nothing to learn"
         )
     progress(f"measured {', '.join(parts)} over {seconds:.1f} s")
+    progress("fitting the style to the packaged model on the recording's speech")
+    checkpoint = default_checkpoint_path()
+    parts, settings = fit(clips, robot, synthesizer(checkpoint, robot))
     style = StyleFile(
         name=folder.name,
         description=f"personal style measured from {source.name}",
         source=f"{source.name} (first {seconds:.1f} s)",
         command=command or f"audio2pose enroll {source} -o {folder}",
         parts=parts,
+        fitted=(checkpoint_digest(checkpoint), settings),
     )
-    progress("fitting the style to the packaged model")
-    settings = resolve(parts, model_reference(default_checkpoint_path()), robot)
     folder.mkdir(parents=True, exist_ok=True)
     style.write(folder / STYLE_FILE)
     _write_summary(folder, style, settings, seconds)
