@@ -241,6 +241,65 @@ class _Problem:
     logged_s: float = -math.inf
 
 
+class PacedTimer:
+    """A periodic callback that a backlog of messages cannot delay by more than one message.
+
+    rclpy's EventsExecutor serves its events first come, first served: a timer that falls due
+    while messages arrive faster than the node serves them waits behind every message queued
+    before it, which under a flood is all of them (a flooded simulated Pepper sent 0-2
+    joint_states a second, and no heartbeat for seconds). The executor is therefore spun one
+    event at a time (:func:`spin_executor`) and, between two events, a paced timer more than
+    ``OVERDUE_GRACE`` of its period past its due time runs there
+    (:meth:`run_if_overdue`, counted in ``runs_between_events``); when the executor's own timer
+    event comes later, it finds the run done and skips it (:meth:`on_timer`). Due times keep
+    their phase: a timer served between events keeps its rate, never bursts to make up for a
+    missed period, and an idle node runs it from the executor's timer as before.
+    """
+
+    OVERDUE_GRACE = 0.25  # of the period: a timer this late is run between events
+
+    def __init__(self, period_s: float, callback: Callable[[], None]) -> None:
+        """Due first one period from now, like rclpy's timer created beside it."""
+        self.period_s = period_s
+        self.callback = callback
+        self.next_due_s = time.monotonic() + period_s
+        self.runs_between_events = 0
+
+    def on_timer(self) -> None:
+        """The executor's timer event: run unless the last run already served this period."""
+        now = time.monotonic()
+        if now >= self.next_due_s - 0.5 * self.period_s:
+            self._run(now)
+
+    def run_if_overdue(self, now: float) -> None:
+        """Run now if the executor's timer event is overdue (it waits behind messages)."""
+        if now >= self.next_due_s + self.OVERDUE_GRACE * self.period_s:
+            self.runs_between_events += 1
+            self._run(now)
+
+    def _run(self, now: float) -> None:
+        self.next_due_s += self.period_s
+        if self.next_due_s <= now:  # a whole period missed (a slow callback): no catch-up burst
+            self.next_due_s = now + self.period_s
+        self.callback()
+
+
+class LatestMessage:
+    """The newest serialized message of a coalescing subscription, until it is served."""
+
+    def __init__(self, msg_type: type, callback: Callable[[Any], None]) -> None:
+        """Nothing waits yet; ``callback`` gets the decoded message."""
+        self.msg_type = msg_type
+        self.callback = callback
+        self.data: bytes | None = None
+
+    def serve(self) -> None:
+        """Decode the waiting message, if any, and pass it to the callback."""
+        data, self.data = self.data, None
+        if data is not None:
+            self.callback(deserialize_message(data, self.msg_type))
+
+
 class DiagnosedNode(Node):
     """Base of the three nodes: heartbeat, problems that describe the present, a callback boundary.
 
@@ -277,6 +336,7 @@ class DiagnosedNode(Node):
         self.input_messages_refused = 0  # InputError at the boundary: bad input, not a bug
         self.oversized_messages = 0
         self.late_heartbeats = 0
+        self.messages_superseded = 0  # coalesced unserved by a newer one (LatestMessage)
         self.heartbeats = 0
         self.last_heartbeat_s = time.monotonic()
         if self.get_parameter(USE_SIM_TIME).value is True:
@@ -286,8 +346,19 @@ class DiagnosedNode(Node):
                 "and its heartbeat); stamps are wall-clock times"
             )
         self.add_on_set_parameters_callback(self._keep_wall_clock)
+        self.paced_timers: list[PacedTimer] = []  # run between events when overdue (spin_paced)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.create_timer(HEARTBEAT_PERIOD_S, self.guarded(self.publish_diagnostics))
+        self.create_paced_timer(HEARTBEAT_PERIOD_S, self.publish_diagnostics)
+
+    def create_paced_timer(self, period_s: float, callback: Callable[[], None]) -> PacedTimer:
+        """A guarded timer that keeps its rate behind any backlog of messages (:class:`PacedTimer`).
+
+        For the timers safety depends on: the heartbeat, a robot's joint_states, a command tick.
+        """
+        timer = PacedTimer(period_s, self.guarded(callback))
+        self.create_timer(period_s, timer.on_timer)
+        self.paced_timers.append(timer)
+        return timer
 
     def create_publisher(
         self, msg_type: Any, topic: str, qos_profile: QoSProfile | int, **kwargs: Any
@@ -455,6 +526,44 @@ class DiagnosedNode(Node):
         entry.__name__ = getattr(callback, "__name__", "callback")
         return self.create_subscription(msg_type, topic, self.guarded(entry), qos, raw=True)
 
+    def create_latest_subscription(
+        self,
+        msg_type: type,
+        topic: str,
+        callback: Callable[[Any], None],
+        qos: QoSProfile | int,
+        max_bytes: int,
+    ) -> LatestMessage:
+        """A bounded subscription whose messages coalesce: the newest waits, the rest are counted.
+
+        For inputs where the newest message replaces the ones before it (a robot's command):
+        receiving stores the serialized message and nothing else, so a flood costs the node one
+        copy per message, not a decode and a callback. :meth:`LatestMessage.serve` (called from
+        the timer that uses the input) decodes the newest and passes it to ``callback``
+        (guarded); each message replaced unserved by a newer one is counted in
+        ``messages_superseded``. A message over ``max_bytes`` is dropped and counted as by
+        :meth:`create_bounded_subscription`.
+        """
+        latest = LatestMessage(msg_type, self.guarded(callback))
+
+        def receive(data: bytes) -> None:
+            if len(data) > max_bytes:
+                self.oversized_messages += 1
+                self.report_problem(
+                    f"oversized message on {topic}",
+                    DiagnosticStatus.WARN,
+                    f"dropped a {len(data)}-byte message on {topic} before decoding it "
+                    f"(at most {max_bytes} bytes)",
+                )
+                return
+            if latest.data is not None:
+                self.messages_superseded += 1
+            latest.data = data
+
+        receive.__name__ = getattr(callback, "__name__", "callback")
+        self.create_subscription(msg_type, topic, self.guarded(receive), qos, raw=True)
+        return latest
+
     # --- publication --------------------------------------------------------------------------
 
     def diagnostic_summary(self) -> tuple[bytes, str]:
@@ -497,6 +606,8 @@ class DiagnosedNode(Node):
         values["input_messages_refused"] = self.input_messages_refused
         values["oversized_messages_dropped"] = self.oversized_messages
         values["late_heartbeats"] = self.late_heartbeats
+        values["messages_superseded"] = self.messages_superseded
+        values["timer_runs_between_messages"] = sum(t.runs_between_events for t in self.paced_timers)
         for key, (problem_level, problem_message, count) in problems.items():
             level = max(level, problem_level)
             message += f"; {problem_message}" + (f" ({count}x)" if count > 1 else "")
@@ -549,17 +660,24 @@ def create_executor(events: bool = True) -> Executor:
     return SingleThreadedExecutor()
 
 
-def spin_executor(executor: Executor) -> None:
+def spin_executor(executor: Executor, nodes: Sequence[Node] = ()) -> None:
     """Spin until the context shuts down (Ctrl-C, SIGTERM, ``rclpy.shutdown``).
 
     The EventsExecutor is spun one event at a time: its ``spin()`` (rclpy 9.1) never ran a
-    callback here, while ``spin_once`` serves timers and subscriptions as expected.
+    callback here, while ``spin_once`` serves timers and subscriptions as expected. Between two
+    events, the :class:`PacedTimer` of ``nodes`` that are overdue run, so no backlog of messages
+    holds them back by more than one message. The SingleThreadedExecutor needs no help: each
+    round of its wait set serves every ready timer.
     """
     if isinstance(executor, SingleThreadedExecutor):
         executor.spin()
         return
+    timers = [t for node in nodes if isinstance(node, DiagnosedNode) for t in node.paced_timers]
     while executor.context.ok():
         executor.spin_once(timeout_sec=SPIN_ONCE_TIMEOUT_S)
+        now = time.monotonic()
+        for timer in timers:
+            timer.run_if_overdue(now)
 
 
 def run_node(
@@ -607,7 +725,7 @@ def run_nodes(
             for node in nodes:
                 executor.add_node(node)
             signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
-            spin_executor(executor)
+            spin_executor(executor, nodes)
         finally:
             signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
             rclpy.try_shutdown()

@@ -72,20 +72,23 @@ class PepperSimNode(DiagnosedNode):
         self.parameters = NodeParameters(self, PARAMETERS)
         self.settings = settings_from(PepperSimSettings, self.parameters.values)
         self.sim = SimulatedPepper()
+        # Commands coalesce: the newest one received before a step is followed, those it
+        # replaced are counted (messages_superseded), so a flood costs a copy per message.
         if self.settings.command_input == "joint_angles":
-            self.create_bounded_subscription(
+            self.commands = self.create_latest_subscription(
                 JointAnglesWithSpeed, topics.JOINT_ANGLES, self.on_joint_angles, 10,
                 MAX_COMMAND_BYTES,
             )  # fmt: skip
         else:
-            self.create_bounded_subscription(
+            self.commands = self.create_latest_subscription(
                 JointTrajectory, topics.JOINT_TRAJECTORY, self.on_trajectory, 10,
                 MAX_COMMAND_BYTES,
             )  # fmt: skip
         self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, 10)
         self.last_step_s = time.monotonic()
-        self.create_timer(STEP_PERIOD_S, self.guarded(self.on_step))
-        self.create_timer(STATE_PERIOD_S, self.guarded(self.publish_state))
+        # paced: no backlog of commands delays the simulation or its joint_states
+        self.create_paced_timer(STEP_PERIOD_S, self.on_step)
+        self.create_paced_timer(STATE_PERIOD_S, self.publish_state)
 
     def refuse(self, kind: str, exc: InputError) -> None:
         """WARN about a refused command; the robot keeps its previous targets."""
@@ -116,7 +119,9 @@ class PepperSimNode(DiagnosedNode):
             self.refuse("joint_trajectory", exc)
 
     def on_step(self) -> None:
-        """Advance the simulation to the wall clock (at most MAX_CATCH_UP_S at once)."""
+        """Take the newest command, advance the simulation to the wall clock (at most
+        MAX_CATCH_UP_S at once)."""
+        self.commands.serve()
         now = time.monotonic()
         elapsed = min(now - self.last_step_s, MAX_CATCH_UP_S)
         self.last_step_s = now

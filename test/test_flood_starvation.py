@@ -1,0 +1,129 @@
+"""No flood of any input starves the timers a node's safety depends on.
+
+Each case runs the real node process on its usual executor, floods one of its inputs from a
+separate process publishing as fast as it can, and reads the outcome from what the node sends,
+by the stamps the node put on it (so a probe that is itself slow to read does not matter):
+
+- its heartbeat is never silent for a second;
+- the simulated Pepper's joint_states keep their rate (>= 40 per 1 s window at 50 Hz);
+- the node served the flood (its counters grew) and counted what it dropped.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+
+from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.player import spin_until
+from audio2pose_ros.topics import DIAGNOSTICS, JOINT_STATES, absolute
+
+pytestmark = pytest.mark.ros
+
+FLOOD_S = 5.0
+FLOODER = Path(__file__).with_name("flood_publisher.py")
+MAX_SILENCE_S = 1.0  # a heartbeat every 0.5 s; today's flooded nodes went 1-10 s without one
+MIN_STATES_PER_S = 40  # joint_states at 50 Hz; flooded, today's simulated Pepper sent 0-2 a second
+WINDOW_S = 1.0
+
+
+def _stamp_s(msg: DiagnosticArray | JointState) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+@dataclass
+class Heard:
+    """What the flooded node sent, by the stamps it put on it."""
+
+    beats: list[tuple[float, DiagnosticStatus]] = field(default_factory=list)
+    states: list[float] = field(default_factory=list)
+    sent: int = 0
+    first_s: float = 0.0  # wall clock, the flood's first and last message
+    last_s: float = 0.0
+
+    def during(self) -> tuple[list[float], list[DiagnosticStatus]]:
+        inside = [(t, s) for t, s in self.beats if self.first_s <= t <= self.last_s]
+        return [t for t, _ in inside], [s for _, s in inside]
+
+    def longest_silence_s(self) -> float:
+        times, _ = self.during()
+        return float(max(np.diff([self.first_s, *times, self.last_s])))
+
+    def fewest_states_per_window(self) -> int:
+        stamps = np.array(sorted(self.states))
+        starts = np.arange(self.first_s, self.last_s - WINDOW_S, 0.1)
+        counts = np.searchsorted(stamps, starts + WINDOW_S) - np.searchsorted(stamps, starts)
+        return int(counts.min())
+
+    def value(self, key: str, status: DiagnosticStatus | None = None) -> int:
+        status = status if status is not None else self.beats[-1][1]
+        return int(float({kv.key: kv.value for kv in status.values}[key]))
+
+
+def flood(tmp_path: Path, executable: str, kind: str, *ros_args: str) -> Heard:
+    """Start ``executable``, flood it with ``kind`` (flood_publisher.py) for FLOOD_S, listen."""
+    heard = Heard()
+    log = (tmp_path / f"{executable}.log").open("w")
+    command = [*executable_command(executable), *(["--ros-args", *ros_args] if ros_args else [])]
+    node_process = subprocess.Popen(command, stdout=log, stderr=log)
+
+    def on_diagnostics(array: DiagnosticArray) -> None:
+        heard.beats.extend((_stamp_s(array), s) for s in array.status if s.name.endswith(executable))
+
+    with rclpy.init():
+        probe = Node("flood_probe")
+        probe.create_subscription(DiagnosticArray, DIAGNOSTICS, on_diagnostics, 1000)
+        probe.create_subscription(
+            JointState, absolute(JOINT_STATES), lambda m: heard.states.append(_stamp_s(m)), 1000
+        )
+        flooder = None
+        try:
+            assert spin_until(probe, time.monotonic() + 60.0, lambda: bool(heard.beats)), "silent"
+            flooder = subprocess.Popen(
+                [sys.executable, str(FLOODER), kind, str(FLOOD_S)],
+                stdout=subprocess.PIPE,
+                stderr=log,
+                text=True,
+            )
+            assert flooder.stdout is not None
+            assert flooder.stdout.readline().strip() == "ready"
+            while flooder.poll() is None:
+                rclpy.spin_once(probe, timeout_sec=0.01)
+            words = flooder.stdout.read().split()
+            heard.sent, heard.first_s, heard.last_s = int(words[1]), *map(float, words[2:4])
+            spin_until(probe, time.monotonic() + 2.0)
+        finally:
+            if flooder is not None and flooder.poll() is None:
+                flooder.kill()
+            node_process.terminate()
+            node_process.wait(20)
+            probe.destroy_node()
+    print(
+        f"{executable} flooded with {kind}: {heard.sent} messages in "
+        f"{heard.last_s - heard.first_s:.1f} s; longest heartbeat silence "
+        f"{heard.longest_silence_s():.2f} s"
+        + (
+            f"; fewest joint_states per 1 s window {heard.fewest_states_per_window()}"
+            if heard.states
+            else ""
+        )
+        + f"; last report {dict((kv.key, kv.value) for kv in heard.beats[-1][1].values)}"
+    )
+    return heard
+
+
+def test_when_joint_angles_flood_the_simulated_pepper_expect_its_states_and_heartbeat(tmp_path):
+    heard = flood(tmp_path, "pepper_sim_node", "joint_angles")
+    assert heard.value("commands") > 0  # the flood was served
+    assert heard.longest_silence_s() < MAX_SILENCE_S
+    assert heard.fewest_states_per_window() >= MIN_STATES_PER_S
