@@ -78,7 +78,8 @@ def flood(tmp_path: Path, executable: str, kind: str, *ros_args: str) -> Heard:
     node_process = subprocess.Popen(command, stdout=log, stderr=log)
 
     def on_diagnostics(array: DiagnosticArray) -> None:
-        heard.beats.extend((_stamp_s(array), s) for s in array.status if s.name.endswith(executable))
+        stamp = _stamp_s(array)
+        heard.beats.extend((stamp, s) for s in array.status if s.name.endswith(executable))
 
     with rclpy.init():
         probe = Node("flood_probe")

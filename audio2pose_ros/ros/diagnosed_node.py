@@ -607,7 +607,9 @@ class DiagnosedNode(Node):
         values["oversized_messages_dropped"] = self.oversized_messages
         values["late_heartbeats"] = self.late_heartbeats
         values["messages_superseded"] = self.messages_superseded
-        values["timer_runs_between_messages"] = sum(t.runs_between_events for t in self.paced_timers)
+        values["timer_runs_between_messages"] = sum(
+            timer.runs_between_events for timer in self.paced_timers
+        )
         for key, (problem_level, problem_message, count) in problems.items():
             level = max(level, problem_level)
             message += f"; {problem_message}" + (f" ({count}x)" if count > 1 else "")

@@ -119,8 +119,10 @@ class PepperSimNode(DiagnosedNode):
             self.refuse("joint_trajectory", exc)
 
     def on_step(self) -> None:
-        """Take the newest command, advance the simulation to the wall clock (at most
-        MAX_CATCH_UP_S at once)."""
+        """Take the newest command; advance the simulation to the wall clock.
+
+        At most MAX_CATCH_UP_S is made up at once.
+        """
         self.commands.serve()
         now = time.monotonic()
         elapsed = min(now - self.last_step_s, MAX_CATCH_UP_S)
