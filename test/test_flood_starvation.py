@@ -128,3 +128,20 @@ def test_when_joint_angles_flood_the_simulated_pepper_expect_its_states_and_hear
     assert heard.value("commands") > 0  # the flood was served
     assert heard.longest_silence_s() < MAX_SILENCE_S
     assert heard.fewest_states_per_window() >= MIN_STATES_PER_S
+
+
+def test_when_one_byte_audio_chunks_flood_the_features_node_expect_its_heartbeat(tmp_path):
+    heard = flood(tmp_path, "audio_features_node", "audio_bytes")
+    chunks, decodes = heard.value("chunks_received"), heard.value("audio_decodes")
+    assert chunks > 0  # the flood was served
+    assert heard.longest_silence_s() < MAX_SILENCE_S
+    # accumulated: one decode per 10 ms of audio (320 one-byte chunks), not one per chunk
+    assert decodes * 10 <= chunks
+
+
+def test_when_features_flood_the_inference_node_expect_its_heartbeat_and_counted_drops(
+    tmp_path,
+):
+    heard = flood(tmp_path, "inference_node", "features")
+    assert heard.value("frames_in") > 0  # the flood was served
+    assert heard.longest_silence_s() < MAX_SILENCE_S
