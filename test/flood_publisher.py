@@ -7,7 +7,7 @@ up with). Kinds:
 
 - ``joint_angles``: naoqi_driver's JointAnglesWithSpeed, one joint, alternating targets;
 - ``audio_bytes``: 1-byte audio_common AudioData chunks after a 16 kHz mono S16LE AudioInfo;
-- ``features``: audio_features_node's 20-frame messages of plausible features, numbered.
+- ``features``: 1 s messages (100 frames) of plausible features, numbered.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.ros.diagnosed_node import AUDIO_QOS, LATCHED_QOS, STREAM_QOS, features_to_msg
 from audio2pose_ros.topics import AUDIO, AUDIO_INFO, FEATURES, JOINT_ANGLES, absolute
 
-FRAMES_PER_MESSAGE = 20
+FRAMES_PER_MESSAGE = 100
 
 
 def joint_angles(node: Node) -> tuple[Publisher, Callable[[int], None]]:

@@ -145,3 +145,6 @@ def test_when_features_flood_the_inference_node_expect_its_heartbeat_and_counted
     heard = flood(tmp_path, "inference_node", "features")
     assert heard.value("frames_in") > 0  # the flood was served
     assert heard.longest_silence_s() < MAX_SILENCE_S
+    # a second of frames a message, a hundred queued: those that waited over 0.5 s are dropped
+    # unserved and counted, not computed seconds late
+    assert heard.value("frames_behind_real_time") > 0

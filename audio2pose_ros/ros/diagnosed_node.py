@@ -248,7 +248,8 @@ class PacedTimer:
     while messages arrive faster than the node serves them waits behind every message queued
     before it, which under a flood is all of them (a flooded simulated Pepper sent 0-2
     joint_states a second, and no heartbeat for seconds). The executor is therefore spun one
-    event at a time (:func:`spin_executor`) and, between two events, a paced timer more than
+    event at a time (:func:`spin_executor`) and, between two events and after every guarded
+    callback (:meth:`DiagnosedNode.run_overdue_timers`), a paced timer more than
     ``OVERDUE_GRACE`` of its period past its due time runs there
     (:meth:`run_if_overdue`, counted in ``runs_between_events``); when the executor's own timer
     event comes later, it finds the run done and skips it (:meth:`on_timer`). Due times keep
@@ -346,7 +347,8 @@ class DiagnosedNode(Node):
                 "and its heartbeat); stamps are wall-clock times"
             )
         self.add_on_set_parameters_callback(self._keep_wall_clock)
-        self.paced_timers: list[PacedTimer] = []  # run between events when overdue (spin_paced)
+        self.paced_timers: list[PacedTimer] = []  # run between callbacks when overdue
+        self._running_overdue = False
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_paced_timer(HEARTBEAT_PERIOD_S, self.publish_diagnostics)
 
@@ -479,11 +481,30 @@ class DiagnosedNode(Node):
                 )
                 if self.callback_errors <= MAX_LOGGED_TRACEBACKS:
                     self.get_logger().error(traceback.format_exc())
-            late_s = time.monotonic() - self.last_heartbeat_s
+            now = time.monotonic()
+            late_s = now - self.last_heartbeat_s
             if late_s > HEARTBEAT_OVERDUE_S:
                 self.send_late_heartbeat(late_s)
+            self.run_overdue_timers(now)
 
         return boundary
+
+    def run_overdue_timers(self, now: float) -> None:
+        """Run the paced timers overdue at ``now`` (monotonic), between two callbacks.
+
+        Called at the end of every guarded callback and by :func:`spin_executor` between two
+        events: the executor may serve many messages in one event (the middleware reports
+        several at once), so a timer waits behind at most one callback. Not nested: a paced
+        timer's own callback ends here too.
+        """
+        if self._running_overdue:
+            return
+        self._running_overdue = True
+        try:
+            for timer in self.paced_timers:
+                timer.run_if_overdue(now)
+        finally:
+            self._running_overdue = False
 
     def create_bounded_subscription(
         self,
@@ -502,7 +523,8 @@ class DiagnosedNode(Node):
         above ``max_bytes`` (an int, or a function giving the current cap) is dropped, counted in
         ``oversized_messages`` and reported, and only messages within the cap are decoded.
         With ``with_info`` the callback also gets rclpy's MessageInfo (publisher gid, source
-        timestamp).
+        and reception timestamps), under either executor: the SingleThreadedExecutor passes
+        the message and its info as two arguments, rclpy 9's EventsExecutor as one tuple.
         """
         handler = self.guarded(callback)
 
@@ -519,12 +541,20 @@ class DiagnosedNode(Node):
                 return
             handler(deserialize_message(data, msg_type), *info)
 
-        def receive_with_info(data: bytes, info: MessageInfo) -> None:
+        def receive_with_info(
+            data: bytes | tuple[bytes, MessageInfo], info: MessageInfo | None = None
+        ) -> None:
+            if isinstance(data, tuple):  # the EventsExecutor: (message, info) as one argument
+                data, info = data
+            assert info is not None
             receive(data, info)
 
-        entry = receive_with_info if with_info else receive  # rclpy counts the parameters
+        entry = receive_with_info if with_info else receive
         entry.__name__ = getattr(callback, "__name__", "callback")
-        return self.create_subscription(msg_type, topic, self.guarded(entry), qos, raw=True)
+        subscription = self.create_subscription(msg_type, topic, self.guarded(entry), qos, raw=True)
+        if with_info:  # rclpy takes a callback with a default second parameter for message-only
+            subscription._callback_type = Subscription.CallbackType.WithMessageInfo
+        return subscription
 
     def create_latest_subscription(
         self,
@@ -674,12 +704,12 @@ def spin_executor(executor: Executor, nodes: Sequence[Node] = ()) -> None:
     if isinstance(executor, SingleThreadedExecutor):
         executor.spin()
         return
-    timers = [t for node in nodes if isinstance(node, DiagnosedNode) for t in node.paced_timers]
+    paced = [node for node in nodes if isinstance(node, DiagnosedNode) and node.paced_timers]
     while executor.context.ok():
         executor.spin_once(timeout_sec=SPIN_ONCE_TIMEOUT_S)
         now = time.monotonic()
-        for timer in timers:
-            timer.run_if_overdue(now)
+        for node in paced:
+            node.run_overdue_timers(now)
 
 
 def run_node(
