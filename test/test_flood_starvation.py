@@ -101,6 +101,7 @@ def flood(tmp_path: Path, executable: str, kind: str, *ros_args: str) -> Heard:
             while flooder.poll() is None:
                 rclpy.spin_once(probe, timeout_sec=0.01)
             words = flooder.stdout.read().split()
+            assert len(words) == 4, f"the flooder failed (see {log.name}): {words}"
             heard.sent, heard.first_s, heard.last_s = int(words[1]), *map(float, words[2:4])
             spin_until(probe, time.monotonic() + 2.0)
         finally:
