@@ -7,7 +7,9 @@ up with). Kinds:
 
 - ``joint_angles``: naoqi_driver's JointAnglesWithSpeed, one joint, alternating targets;
 - ``audio_bytes``: 1-byte audio_common AudioData chunks after a 16 kHz mono S16LE AudioInfo;
-- ``features``: 1 s messages (100 frames) of plausible features, numbered.
+- ``features``: 1 s messages (100 frames) of plausible features, numbered;
+- ``set_parameters:<node>``: requests to set ``<node>``'s read-only ``command_input``, sent
+  without waiting for the answers.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ import numpy as np
 import rclpy
 from audio_common_msgs.msg import AudioData, AudioInfo
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.publisher import Publisher
@@ -33,26 +37,31 @@ from audio2pose_ros.topics import AUDIO, AUDIO_INFO, FEATURES, JOINT_ANGLES, abs
 
 FRAMES_PER_MESSAGE = 100
 RCLError = rclpy_implementation.RCLError
+Flood = tuple[Callable[[], bool], Callable[[int], None]]  # (ready to flood?, send message i)
 
 
-def joint_angles(node: Node) -> tuple[Publisher, Callable[[int], None]]:
+def _subscribed(publisher: Publisher) -> Callable[[], bool]:
+    return lambda: bool(publisher.get_subscription_count())
+
+
+def joint_angles(node: Node) -> Flood:
     publisher = node.create_publisher(JointAnglesWithSpeed, absolute(JOINT_ANGLES), 10)
     messages = [
         JointAnglesWithSpeed(joint_names=["HeadYaw"], joint_angles=[angle], speed=0.5)
         for angle in (0.2, -0.2)
     ]
-    return publisher, lambda i: publisher.publish(messages[i % 2])
+    return _subscribed(publisher), lambda i: publisher.publish(messages[i % 2])
 
 
-def audio_bytes(node: Node) -> tuple[Publisher, Callable[[int], None]]:
+def audio_bytes(node: Node) -> Flood:
     info = node.create_publisher(AudioInfo, absolute(AUDIO_INFO), LATCHED_QOS)
     info.publish(AudioInfo(**S16LE_MONO_16K.audio_info_fields()))
     publisher = node.create_publisher(AudioData, absolute(AUDIO), AUDIO_QOS)
     messages = [AudioData(data=[value]) for value in (0x10, 0x02)]  # a quiet 16-bit sample
-    return publisher, lambda i: publisher.publish(messages[i % 2])
+    return _subscribed(publisher), lambda i: publisher.publish(messages[i % 2])
 
 
-def features(node: Node) -> tuple[Publisher, Callable[[int], None]]:
+def features(node: Node) -> Flood:
     model = load_streaming_model(default_checkpoint_path())
     spec = model.features
     rng = np.random.default_rng(0)
@@ -65,18 +74,32 @@ def features(node: Node) -> tuple[Publisher, Callable[[int], None]]:
         msg.layout.dim[0].label = f"frames from {i * FRAMES_PER_MESSAGE}"
         publisher.publish(msg)
 
-    return publisher, send
+    return _subscribed(publisher), send
 
 
-KINDS = {"joint_angles": joint_angles, "audio_bytes": audio_bytes, "features": features}
+def set_parameters(node: Node, target: str) -> Flood:
+    """Requests to set a read-only parameter of ``target``, never waiting for the answer."""
+    client = node.create_client(SetParameters, f"/{target}/set_parameters")
+    value = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value="joint_trajectory")
+    request = SetParameters.Request(parameters=[Parameter(name="command_input", value=value)])
+    return client.service_is_ready, lambda i: client.call_async(request)
+
+
+KINDS: dict[str, Callable[..., Flood]] = {
+    "joint_angles": joint_angles,
+    "audio_bytes": audio_bytes,
+    "features": features,
+    "set_parameters": set_parameters,
+}
 
 
 def main(kind: str, seconds: float) -> None:
     with rclpy.init():
         node = Node("flood_publisher")
-        publisher, send = KINDS[kind](node)
+        name, *target = kind.split(":")
+        ready, send = KINDS[name](node, *target)
         deadline = time.monotonic() + 60.0
-        while not publisher.get_subscription_count() and time.monotonic() < deadline:
+        while not ready() and time.monotonic() < deadline:
             time.sleep(0.05)
         time.sleep(0.5)  # discovery complete both ways
         print("ready", flush=True)

@@ -149,3 +149,9 @@ def test_when_features_flood_the_inference_node_expect_its_heartbeat_and_counted
     # a second of frames a message, a hundred queued: those that waited over 0.5 s are dropped
     # unserved and counted, not computed seconds late
     assert heard.value("frames_behind_real_time") > 0
+
+
+def test_when_set_parameters_requests_flood_the_simulated_pepper_expect_its_states(tmp_path):
+    heard = flood(tmp_path, "pepper_sim_node", "set_parameters:pepper_sim_node")
+    assert heard.longest_silence_s() < MAX_SILENCE_S
+    assert heard.fewest_states_per_window() >= MIN_STATES_PER_S

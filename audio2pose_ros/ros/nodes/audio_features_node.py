@@ -22,6 +22,10 @@ Parameters: the fields of :class:`FeaturesNodeSettings` (model_path) and of
 :class:`~audio2pose_ros.audio.source.AudioInputSettings` (``ros2 param describe`` shows each with
 its range); all but input_type and model_path can change live.
 
+AudioData chunks shorter than ``ACCUMULATE_S`` (10 ms) of audio are accumulated and decoded
+together (``audio_decodes`` counts the decodes), so a flood of tiny chunks costs a copy per
+chunk, not a decode; they wait at most ``FLUSH_PERIOD_S`` for more.
+
 Audio that cannot be used (no or a rejected format, a message over a limit, NaN samples) is
 dropped, counted and reported on /diagnostics while it happens; a rejected AudioInfo is
 reported with its reason until a valid AudioInfo arrives, and decoding resumes at once then.

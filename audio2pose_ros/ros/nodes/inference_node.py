@@ -31,7 +31,13 @@ Bad input never reaches the model and never stops the node:
   it is a new stream (its publisher restarted), counted as ``feature_stream_restarts`` and
   logged, not a loss;
 - at most :data:`MAX_FRAMES_PER_MESSAGE` frames of one message are used (10 s of audio; the
-  rest is dropped and counted), so one message cannot block the node for long;
+  rest is dropped and counted), computed :data:`SLICE_FRAMES` at a time with the node's
+  heartbeat free to run between slices, so one message cannot silence the node;
+- a message that waited more than :data:`MAX_FEATURES_WAIT_S` for the node (fed faster than it
+  computes, or on a machine slower than real time) is behind real time: its frames are dropped
+  unserved and counted (``frames_behind_real_time``, WARN ``behind real time``), so the node
+  catches up instead of computing stale poses, and keeps its heartbeat: a supervisor never
+  restarts it for being busy;
 - after normalisation, non-finite values are replaced by 0 (the training mean) and values
   beyond +-``feature_limit_sd`` are clamped; both are counted and reported as WARN. The frame
   is kept, so the output stays one pose per 10 ms frame.
