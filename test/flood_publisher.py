@@ -9,7 +9,7 @@ up with). Kinds:
 - ``audio_bytes``: 1-byte audio_common AudioData chunks after a 16 kHz mono S16LE AudioInfo;
 - ``features``: 1 s messages (100 frames) of plausible features, numbered;
 - ``set_parameters:<node>``: requests to set ``<node>``'s read-only ``command_input``, sent
-  without waiting for the answers.
+  without waiting for the answers (taken when there).
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from audio_common_msgs.msg import AudioData, AudioInfo
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.publisher import Publisher
@@ -78,11 +79,18 @@ def features(node: Node) -> Flood:
 
 
 def set_parameters(node: Node, target: str) -> Flood:
-    """Requests to set a read-only parameter of ``target``, never waiting for the answer."""
+    """Requests to set a read-only parameter of ``target``, never waiting for an answer."""
     client = node.create_client(SetParameters, f"/{target}/set_parameters")
     value = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value="joint_trajectory")
     request = SetParameters.Request(parameters=[Parameter(name="command_input", value=value)])
-    return client.service_is_ready, lambda i: client.call_async(request)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+
+    def send(i: int) -> None:
+        client.call_async(request)
+        executor.spin_once(timeout_sec=0)  # takes an answer when one is there
+
+    return client.service_is_ready, send
 
 
 KINDS: dict[str, Callable[..., Flood]] = {

@@ -349,6 +349,8 @@ class DiagnosedNode(Node):
         self.add_on_set_parameters_callback(self._keep_wall_clock)
         self.paced_timers: list[PacedTimer] = []  # run between callbacks when overdue
         self._running_overdue = False
+        for service in self.services:  # rclpy's parameter services: a storm is a flood too
+            service.callback = self._then_overdue_timers(service.callback)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_paced_timer(HEARTBEAT_PERIOD_S, self.publish_diagnostics)
 
@@ -489,12 +491,26 @@ class DiagnosedNode(Node):
 
         return boundary
 
+    def _then_overdue_timers(self, serve: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Any]:
+        """A service callback after which the overdue paced timers run."""
+
+        @functools.wraps(serve)
+        def then(request: Any, response: Any) -> Any:
+            try:
+                return serve(request, response)
+            finally:
+                self.run_overdue_timers(time.monotonic())
+
+        return then
+
     def run_overdue_timers(self, now: float) -> None:
         """Run the paced timers overdue at ``now`` (monotonic), between two callbacks.
 
-        Called at the end of every guarded callback and by :func:`spin_executor` between two
-        events: the executor may serve many messages in one event (the middleware reports
-        several at once), so a timer waits behind at most one callback. Not nested: a paced
+        Called at the end of every guarded callback and service request (the parameter
+        services: a storm of set_parameters requests is a flood too) and by
+        :func:`spin_executor` between two events: the executor may serve many messages in one
+        event (the middleware reports several at once), so a timer waits behind at most one
+        callback. Not nested: a paced
         timer's own callback ends here too.
         """
         if self._running_overdue:

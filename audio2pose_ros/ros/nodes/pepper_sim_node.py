@@ -15,8 +15,9 @@ The simulation itself is :class:`~audio2pose_ros.robot.simulated_pepper.Simulate
 node advances it with the wall clock. Commands coalesce: the newest received before a
 simulation step (10 ms) is followed, and those it replaced unserved are counted
 (``messages_superseded``), so a flood of commands costs a copy per message and delays neither
-the simulation nor its joint_states (paced timers, see DiagnosedNode). A malformed command (unknown joints, NaN, a speed outside
-(0, 1], relative angles) is refused with a WARN; nothing a command holds can stop the node.
+the simulation nor its joint_states (paced timers, see DiagnosedNode). A malformed command
+(unknown joints, NaN, a speed outside (0, 1], relative angles) is refused with a WARN; nothing a
+command holds can stop the node.
 """
 
 from __future__ import annotations
