@@ -22,11 +22,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
+from audio_common_msgs.msg import AudioData, AudioInfo
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
+from audio2pose_ros.ros.diagnosed_node import DiagnosedNode, PacedTimer
 from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.nodes.audio_features_node import AudioFeaturesNode
 from audio2pose_ros.ros.player import spin_until
 from audio2pose_ros.topics import DIAGNOSTICS, JOINT_STATES, absolute
 
@@ -161,3 +166,88 @@ def test_when_set_parameters_requests_flood_the_simulated_pepper_expect_its_stat
     # at a load of 10 on 2 cores it kept 18-34 a second against 0 before, so the bound here is
     # below MIN_STATES_PER_S (see the module docstring).
     assert heard.fewest_states_per_window() >= MIN_STATES_UNDER_REQUESTS
+
+
+def test_when_a_paced_timer_waits_behind_messages_expect_it_run_between_them_at_its_rate():
+    clock = [0.0]
+    runs: list[float] = []
+    timer = PacedTimer(0.02, lambda: runs.append(clock[0]), clock=lambda: clock[0])
+
+    # idle: the executor's timer event runs it, on time
+    clock[0] = 0.02
+    timer.on_timer()
+    assert runs == [0.02]
+    timer.run_if_overdue(0.021)  # between events, not overdue: nothing
+    assert runs == [0.02]
+
+    # flooded: the executor's event waits behind messages; between them the timer runs when
+    # overdue, once per period, in phase, never in a burst
+    for step in range(1, 187):  # a message every millisecond until 0.206 s
+        clock[0] = 0.02 + step * 0.001
+        timer.run_if_overdue(clock[0])
+    assert len(runs) == 1 + 9  # one run per 20 ms
+    assert max(np.diff(runs)) <= 0.02 * (1 + PacedTimer.OVERDUE_GRACE) + 0.001
+    assert timer.runs_between_events == 9
+    timer.on_timer()  # the late executor event finds this period served
+    assert len(runs) == 10
+
+    # a callback that overran several periods: one run, then the rate again (no catch-up)
+    clock[0] += 0.1
+    timer.run_if_overdue(clock[0])
+    timer.run_if_overdue(clock[0])
+    assert len(runs) == 11
+
+
+def test_when_commands_flood_a_coalescing_subscription_expect_the_newest_and_a_count():
+    with rclpy.init():
+        node = DiagnosedNode("coalescing_check")
+        try:
+            served: list[JointAnglesWithSpeed] = []
+            latest = node.create_latest_subscription(
+                JointAnglesWithSpeed, "/coalescing_check", served.append, 10, 1024
+            )
+            publisher = node.create_publisher(JointAnglesWithSpeed, "/coalescing_check", 10)
+            big = JointAnglesWithSpeed(joint_names=["HeadYaw"] * 100, joint_angles=[0.0] * 100)
+            publisher.publish(big)  # oversized: dropped before decoding
+            angles = [0.1 * k for k in range(1, 8)]
+            for angle in angles:
+                publisher.publish(
+                    JointAnglesWithSpeed(joint_names=["HeadYaw"], joint_angles=[angle], speed=0.5)
+                )
+            deadline = time.monotonic() + 30.0
+            while not (served and served[-1].joint_angles[0] == pytest.approx(angles[-1])):
+                assert time.monotonic() < deadline, "the newest command never came"
+                latest.serve()  # as the simulation step does
+                time.sleep(0.01)
+            # each command was followed or counted as replaced: none lost silently, the newest
+            # always followed, never an older one after a newer
+            assert len(served) + node.messages_superseded == len(angles)
+            followed = [m.joint_angles[0] for m in served]
+            assert followed == sorted(followed)
+            assert node.oversized_messages == 1
+            assert not list(node.subscriptions)  # the executor never serves it
+        finally:
+            node.destroy_node()
+
+
+def test_when_audio_comes_in_one_byte_chunks_expect_the_features_of_whole_chunks(speech):
+    pcm = encode_pcm(speech[:16000], S16LE_MONO_16K)  # 1 s of speech
+    outputs = []
+    for chunk_bytes in (len(pcm), 1):
+        with rclpy.init():
+            node = AudioFeaturesNode()
+            try:
+                frames: list[np.ndarray] = []
+                node.features_sink = frames.append
+                node.on_audio_info(AudioInfo(**S16LE_MONO_16K.audio_info_fields()))
+                for start in range(0, len(pcm), chunk_bytes):
+                    node.on_audio_data(AudioData(data=pcm[start : start + chunk_bytes]))
+                node.flush_audio()
+                outputs.append(np.concatenate(frames))
+                assert node.input.chunks == -(-len(pcm) // chunk_bytes)  # every chunk counted
+                # one decode per 10 ms of audio (320 bytes), not one per chunk
+                assert node.audio_batches <= len(pcm) // 320 + 1
+            finally:
+                node.destroy_node()
+    whole, bytewise = outputs
+    np.testing.assert_array_equal(bytewise, whole)

@@ -28,6 +28,7 @@ from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rclpy.subscription import MessageInfo, Subscription
+from rclpy.type_support import check_is_valid_msg_type
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -259,16 +260,22 @@ class PacedTimer:
 
     OVERDUE_GRACE = 0.25  # of the period: a timer this late is run between events
 
-    def __init__(self, period_s: float, callback: Callable[[], None]) -> None:
-        """Due first one period from now, like rclpy's timer created beside it."""
+    def __init__(
+        self,
+        period_s: float,
+        callback: Callable[[], None],
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        """Due first one period from now (``clock``), like rclpy's timer created beside it."""
         self.period_s = period_s
         self.callback = callback
-        self.next_due_s = time.monotonic() + period_s
+        self.clock = clock
+        self.next_due_s = clock() + period_s
         self.runs_between_events = 0
 
     def on_timer(self) -> None:
         """The executor's timer event: run unless the last run already served this period."""
-        now = time.monotonic()
+        now = self.clock()
         if now >= self.next_due_s - 0.5 * self.period_s:
             self._run(now)
 
@@ -285,20 +292,78 @@ class PacedTimer:
         self.callback()
 
 
-class LatestMessage:
-    """The newest serialized message of a coalescing subscription, until it is served."""
+MAX_PUBLISHERS_TRACKED = 64  # per polled input: publishers whose sequence numbers are followed
 
-    def __init__(self, msg_type: type, callback: Callable[[Any], None]) -> None:
-        """Nothing waits yet; ``callback`` gets the decoded message."""
+
+class LatestMessage:
+    """A subscription the executor never serves: the timer that uses it takes the newest message.
+
+    For inputs where the newest message replaces the ones before it (a robot's command). The
+    rcl subscription is not registered with the node, so no executor takes its messages one by
+    one: the middleware keeps the newest ``depth`` of them and :meth:`serve` (called from the
+    timer that uses the input) takes them all, decodes only the newest and passes it to the
+    callback. A flood therefore costs the node no Python work per message, and no event queued
+    before its timers. Every message replaced unserved is counted: those taken and passed over,
+    and those the middleware dropped, from each publisher's sequence numbers.
+    """
+
+    def __init__(
+        self,
+        node: DiagnosedNode,
+        msg_type: type,
+        topic: str,
+        callback: Callable[[Any], None],
+        qos: QoSProfile,
+        max_bytes: int,
+    ) -> None:
+        """Create the rcl subscription on ``node`` (``topic`` resolved as any of its topics)."""
+        self.node = node
         self.msg_type = msg_type
+        self.topic = topic
         self.callback = callback
-        self.data: bytes | None = None
+        self.max_bytes = max_bytes
+        self.depth = qos.depth
+        self.last_sequence: dict[bytes, int] = {}  # publisher gid -> last sequence number seen
+        check_is_valid_msg_type(msg_type)  # loads its type support, as create_subscription does
+        with node.handle:
+            self.handle: Any = rclpy_implementation.Subscription(
+                node.handle, msg_type, topic, qos.get_c_qos_profile(), None
+            )
 
     def serve(self) -> None:
-        """Decode the waiting message, if any, and pass it to the callback."""
-        data, self.data = self.data, None
-        if data is not None:
-            self.callback(deserialize_message(data, self.msg_type))
+        """Take every waiting message, count the superseded ones, pass on the newest."""
+        newest: bytes | None = None
+        for _ in range(self.depth):  # the middleware holds at most this many
+            taken = self.handle.take_message(self.msg_type, True)
+            if taken is None:
+                break
+            data, info = taken
+            self._count_dropped_before(info)
+            if len(data) > self.max_bytes:
+                self.node.drop_oversized(self.topic, len(data), self.max_bytes)
+                continue
+            if newest is not None:
+                self.node.messages_superseded += 1
+            newest = data
+        if newest is not None:
+            self.callback(deserialize_message(newest, self.msg_type))
+
+    def _count_dropped_before(self, info: MessageInfo) -> None:
+        sequence = info.get("publication_sequence_number")
+        gid = info.get("publisher_gid")
+        if not isinstance(sequence, int) or not isinstance(gid, dict):
+            return
+        key = bytes(gid.get("data", b""))
+        last = self.last_sequence.pop(key, None)
+        if last is not None and sequence > last + 1:
+            self.node.messages_superseded += sequence - last - 1
+        if len(self.last_sequence) >= MAX_PUBLISHERS_TRACKED:
+            del self.last_sequence[next(iter(self.last_sequence))]  # the longest unheard
+        self.last_sequence[key] = sequence
+
+    def destroy(self) -> None:
+        """Destroy the rcl subscription (before its node)."""
+        self.handle.destroy_when_not_in_use()
 
 
 class DiagnosedNode(Node):
@@ -337,7 +402,7 @@ class DiagnosedNode(Node):
         self.input_messages_refused = 0  # InputError at the boundary: bad input, not a bug
         self.oversized_messages = 0
         self.late_heartbeats = 0
-        self.messages_superseded = 0  # coalesced unserved by a newer one (LatestMessage)
+        self.messages_superseded = 0  # replaced unserved by a newer one (LatestMessage)
         self.heartbeats = 0
         self.last_heartbeat_s = time.monotonic()
         if self.get_parameter(USE_SIM_TIME).value is True:
@@ -349,6 +414,7 @@ class DiagnosedNode(Node):
         self.add_on_set_parameters_callback(self._keep_wall_clock)
         self.paced_timers: list[PacedTimer] = []  # run between callbacks when overdue
         self._running_overdue = False
+        self._polled: list[LatestMessage] = []  # subscriptions served by a timer's serve()
         for service in self.services:  # rclpy's parameter services: a storm is a flood too
             service.callback = self._then_overdue_timers(service.callback)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
@@ -547,13 +613,7 @@ class DiagnosedNode(Node):
         def receive(data: bytes, *info: MessageInfo) -> None:
             cap = max_bytes() if callable(max_bytes) else max_bytes
             if len(data) > cap:
-                self.oversized_messages += 1
-                self.report_problem(
-                    f"oversized message on {topic}",
-                    DiagnosticStatus.WARN,
-                    f"dropped a {len(data)}-byte message on {topic} before decoding it "
-                    f"(at most {cap} bytes)",
-                )
+                self.drop_oversized(topic, len(data), cap)
                 return
             handler(deserialize_message(data, msg_type), *info)
 
@@ -577,38 +637,39 @@ class DiagnosedNode(Node):
         msg_type: type,
         topic: str,
         callback: Callable[[Any], None],
-        qos: QoSProfile | int,
+        depth: int,
         max_bytes: int,
     ) -> LatestMessage:
-        """A bounded subscription whose messages coalesce: the newest waits, the rest are counted.
+        """A best-effort subscription of ``depth`` whose messages coalesce (:class:`LatestMessage`).
 
-        For inputs where the newest message replaces the ones before it (a robot's command):
-        receiving stores the serialized message and nothing else, so a flood costs the node one
-        copy per message, not a decode and a callback. :meth:`LatestMessage.serve` (called from
-        the timer that uses the input) decodes the newest and passes it to ``callback``
-        (guarded); each message replaced unserved by a newer one is counted in
-        ``messages_superseded``. A message over ``max_bytes`` is dropped and counted as by
-        :meth:`create_bounded_subscription`.
+        Call its ``serve()`` from the timer that uses the input: ``callback`` (guarded) gets the
+        newest message; those it replaced unserved are counted in ``messages_superseded``, one
+        over ``max_bytes`` is dropped and counted as by :meth:`create_bounded_subscription`.
+        Best effort, which every publisher matches: a reliable reader acknowledges each message
+        in the middleware's threads, which under a flood took the CPU the timers needed (27
+        joint_states a second instead of 49), and only the newest is used anyway; a message
+        lost on the way shows in the publisher's sequence numbers and is counted too.
         """
-        latest = LatestMessage(msg_type, self.guarded(callback))
-
-        def receive(data: bytes) -> None:
-            if len(data) > max_bytes:
-                self.oversized_messages += 1
-                self.report_problem(
-                    f"oversized message on {topic}",
-                    DiagnosticStatus.WARN,
-                    f"dropped a {len(data)}-byte message on {topic} before decoding it "
-                    f"(at most {max_bytes} bytes)",
-                )
-                return
-            if latest.data is not None:
-                self.messages_superseded += 1
-            latest.data = data
-
-        receive.__name__ = getattr(callback, "__name__", "callback")
-        self.create_subscription(msg_type, topic, self.guarded(receive), qos, raw=True)
+        qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT)
+        latest = LatestMessage(self, msg_type, topic, self.guarded(callback), qos, max_bytes)
+        self._polled.append(latest)
         return latest
+
+    def drop_oversized(self, topic: str, n_bytes: int, cap: int) -> None:
+        """Count and report a message on ``topic`` of ``n_bytes`` over ``cap``, not decoded."""
+        self.oversized_messages += 1
+        self.report_problem(
+            f"oversized message on {topic}",
+            DiagnosticStatus.WARN,
+            f"dropped a {n_bytes}-byte message on {topic} before decoding it (at most {cap} bytes)",
+        )
+
+    def destroy_node(self) -> None:
+        """Destroy the polled subscriptions, then the node."""
+        for latest in self._polled:
+            latest.destroy()
+        self._polled.clear()
+        super().destroy_node()
 
     # --- publication --------------------------------------------------------------------------
 

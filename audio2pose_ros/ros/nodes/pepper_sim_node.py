@@ -14,7 +14,7 @@ Publications:
 The simulation itself is :class:`~audio2pose_ros.robot.simulated_pepper.SimulatedPepper`; this
 node advances it with the wall clock. Commands coalesce: the newest received before a
 simulation step (10 ms) is followed, and those it replaced unserved are counted
-(``messages_superseded``), so a flood of commands costs a copy per message and delays neither
+(``messages_superseded``), so a flood of commands costs no work per message and delays neither
 the simulation nor its joint_states (paced timers, see DiagnosedNode). A malformed command
 (unknown joints, NaN, a speed outside (0, 1], relative angles) is refused with a WARN; nothing a
 command holds can stop the node.
@@ -77,7 +77,7 @@ class PepperSimNode(DiagnosedNode):
         self.settings = settings_from(PepperSimSettings, self.parameters.values)
         self.sim = SimulatedPepper()
         # Commands coalesce: the newest one received before a step is followed, those it
-        # replaced are counted (messages_superseded), so a flood costs a copy per message.
+        # replaced are counted (messages_superseded); a flood costs the node nothing per message.
         if self.settings.command_input == "joint_angles":
             self.commands = self.create_latest_subscription(
                 JointAnglesWithSpeed, topics.JOINT_ANGLES, self.on_joint_angles, 10,
