@@ -1,7 +1,8 @@
 """A separate process that publishes one node input as fast as it can (the flood tests).
 
-Run as ``python flood_publisher.py <kind> <seconds>``: it waits until the input's node
-subscribes, writes ``ready`` on stdout, publishes for ``seconds`` and then writes
+Run as ``python flood_publisher.py <kind> <seconds>``, at the lowest CPU priority: it waits
+until the input's node subscribes, writes ``ready`` on stdout, publishes for ``seconds`` and
+then writes
 ``sent <n> <first wall-clock s> <last wall-clock s>`` (what the tests line the probe's windows
 up with). Kinds:
 
@@ -14,6 +15,7 @@ up with). Kinds:
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from collections.abc import Callable
@@ -102,6 +104,9 @@ KINDS: dict[str, Callable[..., Flood]] = {
 
 
 def main(kind: str, seconds: float) -> None:
+    # Lowest priority: on a machine shared with other work the tests measure what the node does
+    # with the CPU it gets, not how a saturated core is split between the flooder and the node.
+    os.nice(19)
     with rclpy.init():
         node = Node("flood_publisher")
         name, *target = kind.split(":")

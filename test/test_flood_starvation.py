@@ -6,7 +6,7 @@ by the stamps the node put on it (so a probe that is itself slow to read does no
 
 - its heartbeat is never silent for a second;
 - the simulated Pepper's joint_states keep their rate (>= 40 per 1 s window at 50 Hz; under a
-  storm of parameter requests, whose every one costs the node rclpy's own work, >= 15 on a
+  storm of parameter requests, whose every one costs the node rclpy's own work, >= 20 on a
   loaded machine);
 - the node served the flood (its counters grew) and counted what it dropped.
 """
@@ -42,7 +42,7 @@ FLOODER = Path(__file__).with_name("flood_publisher.py")
 MAX_SILENCE_S = 1.0  # a heartbeat every 0.5 s; today's flooded nodes went 1-10 s without one
 MIN_STATES_PER_S = 40  # joint_states at 50 Hz; flooded, today's simulated Pepper sent 0-2 a second
 WINDOW_S = 1.0
-MIN_STATES_UNDER_REQUESTS = 15  # a set_parameters storm: today 0 a second, see the test
+MIN_STATES_UNDER_REQUESTS = 20  # a set_parameters storm: today 0 a second, see the test
 
 
 def _stamp_s(msg: DiagnosticArray | JointState) -> float:
@@ -163,8 +163,8 @@ def test_when_set_parameters_requests_flood_the_simulated_pepper_expect_its_stat
     heard = flood(tmp_path, "pepper_sim_node", "set_parameters:pepper_sim_node")
     assert heard.longest_silence_s() < MAX_SILENCE_S
     # Each request costs the node rclpy's take and answer (the timers run between requests):
-    # at a load of 10 on 2 cores it kept 18-34 a second against 0 before, so the bound here is
-    # below MIN_STATES_PER_S (see the module docstring).
+    # on 2 busy cores it kept 34-45 a second against 0 before, so the bound here is below
+    # MIN_STATES_PER_S (see the module docstring).
     assert heard.fewest_states_per_window() >= MIN_STATES_UNDER_REQUESTS
 
 
