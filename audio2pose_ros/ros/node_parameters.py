@@ -35,8 +35,9 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.files import read_yaml_file
 from audio2pose_ros.parameters import ParameterSpec, ParameterValue
-from audio2pose_ros.yaml_files import read_yaml_file
+from audio2pose_ros.ros.parameter_names import NODE_PARAMETER_NAMES
 
 __all__ = ["NodeParameters", "check_parameter_files", "descriptor_of", "parameter_files"]
 
@@ -143,7 +144,8 @@ def unknown_parameter_warnings(
     ``-p feature_limt_sd:=3`` would leave the node on its default. A name another node of the
     package declares passes (launch and ``/**`` sections give every node the same set), as do
     rclpy's own (:data:`ROS_PARAMETERS`, ``qos_overrides.*``). The other nodes' declarations
-    are imported only when a name is unknown to this one.
+    are the generated :data:`~audio2pose_ros.ros.parameter_names.NODE_PARAMETER_NAMES`, so that
+    this module, which every node imports, imports no node.
     """
     strangers = sorted(
         name
@@ -152,19 +154,12 @@ def unknown_parameter_warnings(
         and name not in ROS_PARAMETERS
         and not name.startswith(ROS_PARAMETER_PREFIXES)
     )
-    if not strangers:
-        return []
-    from audio2pose_ros.ros.nodes import pepper_sim_node  # the package's nodes
-    from audio2pose_ros.ros.parameter_docs import node_parameters
-
-    known = {spec.name for node_specs in node_parameters().values() for spec in node_specs}
-    known |= {spec.name for spec in pepper_sim_node.PARAMETERS}
     lines = []
     for name in strangers:
-        if name in known:
+        if name in NODE_PARAMETER_NAMES:
             continue
         close = difflib.get_close_matches(name, list(specs), n=1) or difflib.get_close_matches(
-            name, sorted(known), n=1
+            name, sorted(NODE_PARAMETER_NAMES), n=1
         )
         hint = f"; did you mean {close[0]}?" if close else ""
         lines.append(

@@ -94,7 +94,7 @@ MAX_FEATURES_WAIT_S = 0.5
 
 @dataclass(frozen=True)
 class InferenceNodeSettings:
-    """The inference node's parameters (one definition: descriptors, YAML, README, settings)."""
+    """The inference node's parameters (one definition: descriptors, YAML, docs, settings)."""
 
     model_path: str = field(
         default="",
