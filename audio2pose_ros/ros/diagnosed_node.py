@@ -29,10 +29,13 @@ from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rclpy.subscription import MessageInfo, Subscription
-from rclpy.type_support import check_is_valid_msg_type
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+try:
+    from rclpy.type_support import check_is_valid_msg_type
+except ImportError:  # Humble
+    from rclpy.type_support import check_for_type_support as check_is_valid_msg_type  # type: ignore[assignment]
 try:
     from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 except ImportError:  # Humble: the same classes (with use_default_callbacks) in rclpy.qos_event
@@ -330,9 +333,14 @@ class LatestMessage:
         self.last_sequence: dict[bytes, int] = {}  # publisher gid -> last sequence number seen
         check_is_valid_msg_type(msg_type)  # loads its type support, as create_subscription does
         with node.handle:
-            self.handle: Any = rclpy_implementation.Subscription(
-                node.handle, msg_type, topic, qos.get_c_qos_profile(), None
-            )
+            try:  # rclpy 9 takes content filter options; older ones do not
+                self.handle: Any = rclpy_implementation.Subscription(
+                    node.handle, msg_type, topic, qos.get_c_qos_profile(), None
+                )
+            except TypeError:
+                self.handle = rclpy_implementation.Subscription(
+                    node.handle, msg_type, topic, qos.get_c_qos_profile()
+                )
 
     def serve(self) -> None:
         """Take every waiting message, count the superseded ones, pass on the newest."""
