@@ -34,6 +34,7 @@ _PUBLIC = {
     "BodyGuard": "audio2pose_ros.motion.body_guard",
     "MotionFilter": "audio2pose_ros.motion.filter",
     "MotionFilterSettings": "audio2pose_ros.motion.filter",
+    "StyleSettings": "audio2pose_ros.motion.style",
     "load_checkpoint": "audio2pose_ros.checkpoints.torch_io",
     "load_streaming_model": "audio2pose_ros.checkpoints.numpy_runtime",
     "synthesize": "audio2pose_ros.offline.synthesis",

@@ -183,22 +183,25 @@ def settings_from(settings_class: type[SettingsT], values: Mapping[str, object])
     """An instance of a settings dataclass from the values of its fields in ``values``.
 
     Every node builds its settings this way from its parameter values (names of other settings
-    classes in ``values`` are ignored); fields missing from ``values`` keep their defaults.
+    classes in ``values``, and fields not declared with :func:`param`, are ignored); fields
+    missing from ``values`` keep their defaults.
 
     Raises:
         ConfigurationError: a value is refused by the class's validation.
     """
-    names = {field.name for field in dataclasses.fields(settings_class)}  # type: ignore[arg-type]
+    names = {spec.name for spec in specs_of(settings_class)}
     return settings_class(**{k: v for k, v in values.items() if k in names})
 
 
 def settings_with(settings: SettingsT, changes: Mapping[str, object]) -> SettingsT:
-    """A copy of ``settings`` with the values of its fields in ``changes`` (a live change).
+    """A copy of ``settings`` with the values of its :func:`param` fields in ``changes``.
+
+    A live change: names of other settings classes in ``changes`` are ignored.
 
     Raises:
         ConfigurationError: a changed value is refused by the class's validation.
     """
-    names = {field.name for field in dataclasses.fields(settings)}  # type: ignore[arg-type]
+    names = {spec.name for spec in specs_of(type(settings))}
     ours = {k: v for k, v in changes.items() if k in names}
     return dataclasses.replace(settings, **ours) if ours else settings  # type: ignore[type-var]
 

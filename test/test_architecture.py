@@ -36,8 +36,9 @@ LAYERS: dict[str, int] = {
     "viz": 7,
     "learning": 8,
     "console": 8,
-    "ros": 9,
-    "cli": 10,
+    "style": 9,
+    "ros": 10,
+    "cli": 11,
 }
 
 #: Top-level modules of ROS 2 (client library, launch, message packages) that only ``ros/`` may
@@ -131,7 +132,7 @@ def test_checker_reports_an_upward_import_and_ros_outside_ros():
     found = violations("audio2pose_ros.motion.filter", source)
     assert len(found) == 2
     assert "only audio2pose_ros.ros may import ROS" in found[0]
-    assert "layer ros (9) is not below motion (2)" in found[1]
+    assert "layer ros (10) is not below motion (2)" in found[1]
 
 
 def test_checker_reports_a_sideways_import_between_folders_of_one_rank():

@@ -25,6 +25,7 @@ from audio2pose_ros.learning.sampler_selection import (
     VELOCITY_LIMIT,
     SamplingChoice,
 )
+from audio2pose_ros.learning.style_card import with_style_section
 from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.models.live_groups import LiveGroups
 from audio2pose_ros.models.sampling_noise import PerJoint, format_per_joint
@@ -160,7 +161,7 @@ resembles real head motion.
 - FaceMesh's pose estimate has errors of a few degrees; the targets inherit them.
 """
     path = out_dir / "MODEL_CARD.md"
-    path.write_text(card, encoding="utf-8")
+    path.write_text(with_style_section(path, card), encoding="utf-8")
     return path
 
 
@@ -743,5 +744,5 @@ one sample can stray; and the same again with the arm noise blind to the body.
   degrees (head) to tens of degrees (elbow yaw at low resolution); the targets inherit them.
 """
     path = out_dir / "MODEL_CARD.md"
-    path.write_text(card, encoding="utf-8")
+    path.write_text(with_style_section(path, card), encoding="utf-8")
     return path

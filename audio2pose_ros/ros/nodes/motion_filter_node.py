@@ -19,7 +19,8 @@ Publications:
         robot_state_publisher / RViz in simulation (never ``joint_states``: on a robot that topic
         carries the driver's measured states).
     /diagnostics (diagnostic_msgs/DiagnosticArray): heartbeat, counters, problems.
-Parameters: the fields of MotionFilterSettings, LimitSettings and MotionFilterNodeSettings
+Parameters: the fields of MotionFilterSettings, StyleSettings (the style: per part a size and a
+    tempo, the arms' rest and height), LimitSettings and MotionFilterNodeSettings
     (``ros2 param describe`` shows each one's description and range).
 
 Safety: every command passes the input gate first and the joint limiter last; the node
@@ -101,6 +102,7 @@ from audio2pose_ros.motion.state_file import (
     load_memory,
     save_memory,
 )
+from audio2pose_ros.motion.style import StyleSettings
 from audio2pose_ros.motion.timing import StampCheck
 from audio2pose_ros.motion.tracking import TrackingWatch
 from audio2pose_ros.parameters import (
@@ -253,7 +255,7 @@ class MotionFilterNodeSettings:
         validate_settings(self)
 
 
-SETTINGS_CLASSES = (MotionFilterSettings, LimitSettings, MotionFilterNodeSettings)
+SETTINGS_CLASSES = (MotionFilterSettings, StyleSettings, LimitSettings, MotionFilterNodeSettings)
 # A JointState of a whole humanoid (names, positions, velocities, efforts) is a few KiB.
 MAX_JOINT_STATE_BYTES = 65536
 
@@ -305,7 +307,9 @@ class MotionFilterNode(DiagnosedNode):
         """
         super().__init__("motion_filter_node")
         # settings validated at a set_parameters request, for the filter's next tick
-        self.pending_settings: tuple[MotionFilterSettings, LimitSettings] | None = None
+        self.pending_settings: tuple[MotionFilterSettings, LimitSettings, StyleSettings] | None = (
+            None
+        )
         self.parameters = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
         values = self.parameters.values
         self.settings: MotionFilterNodeSettings = settings_from(MotionFilterNodeSettings, values)
@@ -321,7 +325,12 @@ class MotionFilterNode(DiagnosedNode):
             self.robot = load_robot(self.settings.robot_description or None)
         except (OSError, ValueError) as exc:
             raise ConfigurationError(f"parameter robot_description: {exc}") from None
-        self.filter = MotionFilter(self.robot, settings, settings_from(LimitSettings, values))
+        self.filter = MotionFilter(
+            self.robot,
+            settings,
+            settings_from(LimitSettings, values),
+            style=settings_from(StyleSettings, values),
+        )
         self.stamps = StampCheck(self.settings.max_stamp_future_s, self.settings.max_stamp_age_s)
         self.input_messages = 0
         self.dropped_messages = 0
@@ -458,18 +467,21 @@ class MotionFilterNode(DiagnosedNode):
             ConfigurationError: the new combination is refused (nothing changes then).
         """
         node_settings = settings_with(self.settings, changes)
-        filter_settings, limit_settings = self.pending_settings or (
+        filter_settings, limit_settings, style_settings = self.pending_settings or (
             self.filter.settings,
             self.filter.limiter.settings,
+            self.filter.style.settings,
         )
         filter_settings = settings_with(filter_settings, changes)
         limit_settings = settings_with(limit_settings, changes)
+        style_settings = settings_with(style_settings, changes)
         self.filter.check_settings(filter_settings, limit_settings)
-        if (filter_settings, limit_settings) != (
+        if (filter_settings, limit_settings, style_settings) != (
             self.filter.settings,
             self.filter.limiter.settings,
+            self.filter.style.settings,
         ):
-            self.pending_settings = (filter_settings, limit_settings)
+            self.pending_settings = (filter_settings, limit_settings, style_settings)
         else:
             self.pending_settings = None
         self.settings = node_settings
