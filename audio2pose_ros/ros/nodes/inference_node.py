@@ -86,7 +86,7 @@ MAX_FRAMES_PER_MESSAGE = 1000
 MAX_FEATURES_BYTES = 4096 + MAX_FRAMES_PER_MESSAGE * 256 * 4
 # A message's frames are computed this many at a time, the node's paced timers (its heartbeat)
 # running between slices: one message of MAX_FRAMES_PER_MESSAGE frames never silences the node.
-SLICE_FRAMES = 20
+SLICE_FRAMES = 5
 # A features message that waited longer than this between its reception and the node serving
 # it is behind real time: its frames are dropped unserved and counted (frames_behind_real_time).
 MAX_FEATURES_WAIT_S = 0.5
