@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import array
+import contextlib
 import faulthandler
 import functools
 import math
@@ -13,7 +14,7 @@ import time
 import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, NoReturn
 
 import numpy as np
 import rclpy
@@ -31,6 +32,10 @@ from rclpy.subscription import MessageInfo, Subscription
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+try:
+    from rclpy.type_support import check_is_valid_msg_type
+except ImportError:  # Humble
+    from rclpy.type_support import check_for_type_support as check_is_valid_msg_type  # type: ignore[assignment]
 try:
     from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 except ImportError:  # Humble: the same classes (with use_default_callbacks) in rclpy.qos_event
@@ -66,6 +71,9 @@ HEARTBEAT_PERIOD_S = 0.5  # every node publishes /diagnostics this often, busy o
 # A supervisor passes the write end of a pipe in this variable: each heartbeat also writes a byte
 # there. Only the supervised process holds that descriptor, so no other process can fake it.
 HEARTBEAT_FD_ENV = "AUDIO2POSE_HEARTBEAT_FD"
+# A supervisor that writes a node's output to a log file passes its own stderr (the user's
+# terminal) in this variable: what the user must act on is written there too (to_terminal).
+TERMINAL_FD_ENV = "AUDIO2POSE_TERMINAL_FD"
 # A node process given this signal writes every thread's Python stack to stderr and runs on.
 STACK_DUMP_SIGNAL = signal.SIGUSR1
 STALE_AFTER_S = 1.2  # a node not heard from for this long is silent (stopped, frozen or dead)
@@ -241,6 +249,135 @@ class _Problem:
     logged_s: float = -math.inf
 
 
+class PacedTimer:
+    """A periodic callback that a backlog of messages cannot delay by more than one message.
+
+    rclpy's EventsExecutor serves its events first come, first served: a timer that falls due
+    while messages arrive faster than the node serves them waits behind every message queued
+    before it, which under a flood is all of them (a flooded simulated Pepper sent 0-2
+    joint_states a second, and no heartbeat for seconds). The executor is therefore spun one
+    event at a time (:func:`spin_executor`) and, between two events and after every guarded
+    callback (:meth:`DiagnosedNode.run_overdue_timers`), a paced timer more than
+    ``OVERDUE_GRACE`` of its period past its due time runs there
+    (:meth:`run_if_overdue`, counted in ``runs_between_events``); when the executor's own timer
+    event comes later, it finds the run done and skips it (:meth:`on_timer`). Due times keep
+    their phase: a timer served between events keeps its rate, never bursts to make up for a
+    missed period, and an idle node runs it from the executor's timer as before.
+    """
+
+    OVERDUE_GRACE = 0.25  # of the period: a timer this late is run between events
+
+    def __init__(
+        self,
+        period_s: float,
+        callback: Callable[[], None],
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        """Due first one period from now (``clock``), like rclpy's timer created beside it."""
+        self.period_s = period_s
+        self.callback = callback
+        self.clock = clock
+        self.next_due_s = clock() + period_s
+        self.runs_between_events = 0
+
+    def on_timer(self) -> None:
+        """The executor's timer event: run unless the last run already served this period."""
+        now = self.clock()
+        if now >= self.next_due_s - 0.5 * self.period_s:
+            self._run(now)
+
+    def run_if_overdue(self, now: float) -> None:
+        """Run now if the executor's timer event is overdue (it waits behind messages)."""
+        if now >= self.next_due_s + self.OVERDUE_GRACE * self.period_s:
+            self.runs_between_events += 1
+            self._run(now)
+
+    def _run(self, now: float) -> None:
+        self.next_due_s += self.period_s
+        if self.next_due_s <= now:  # a whole period missed (a slow callback): no catch-up burst
+            self.next_due_s = now + self.period_s
+        self.callback()
+
+
+MAX_PUBLISHERS_TRACKED = 64  # per polled input: publishers whose sequence numbers are followed
+
+
+class LatestMessage:
+    """A subscription the executor never serves: the timer that uses it takes the newest message.
+
+    For inputs where the newest message replaces the ones before it (a robot's command). The
+    rcl subscription is not registered with the node, so no executor takes its messages one by
+    one: the middleware keeps the newest ``depth`` of them and :meth:`serve` (called from the
+    timer that uses the input) takes them all, decodes only the newest and passes it to the
+    callback. A flood therefore costs the node no Python work per message, and no event queued
+    before its timers. Every message replaced unserved is counted: those taken and passed over,
+    and those the middleware dropped, from each publisher's sequence numbers.
+    """
+
+    def __init__(
+        self,
+        node: DiagnosedNode,
+        msg_type: type,
+        topic: str,
+        callback: Callable[[Any], None],
+        qos: QoSProfile,
+        max_bytes: int,
+    ) -> None:
+        """Create the rcl subscription on ``node`` (``topic`` resolved as any of its topics)."""
+        self.node = node
+        self.msg_type = msg_type
+        self.topic = topic
+        self.callback = callback
+        self.max_bytes = max_bytes
+        self.depth = qos.depth
+        self.last_sequence: dict[bytes, int] = {}  # publisher gid -> last sequence number seen
+        check_is_valid_msg_type(msg_type)  # loads its type support, as create_subscription does
+        with node.handle:
+            try:  # rclpy 9 takes content filter options; older ones do not
+                self.handle: Any = rclpy_implementation.Subscription(
+                    node.handle, msg_type, topic, qos.get_c_qos_profile(), None
+                )
+            except TypeError:
+                self.handle = rclpy_implementation.Subscription(
+                    node.handle, msg_type, topic, qos.get_c_qos_profile()
+                )
+
+    def serve(self) -> None:
+        """Take every waiting message, count the superseded ones, pass on the newest."""
+        newest: bytes | None = None
+        for _ in range(self.depth):  # the middleware holds at most this many
+            taken = self.handle.take_message(self.msg_type, True)
+            if taken is None:
+                break
+            data, info = taken
+            self._count_dropped_before(info)
+            if len(data) > self.max_bytes:
+                self.node.drop_oversized(self.topic, len(data), self.max_bytes)
+                continue
+            if newest is not None:
+                self.node.messages_superseded += 1
+            newest = data
+        if newest is not None:
+            self.callback(deserialize_message(newest, self.msg_type))
+
+    def _count_dropped_before(self, info: MessageInfo) -> None:
+        sequence = info.get("publication_sequence_number")
+        gid = info.get("publisher_gid")
+        if not isinstance(sequence, int) or not isinstance(gid, dict):
+            return
+        key = bytes(gid.get("data", b""))
+        last = self.last_sequence.pop(key, None)
+        if last is not None and sequence > last + 1:
+            self.node.messages_superseded += sequence - last - 1
+        if len(self.last_sequence) >= MAX_PUBLISHERS_TRACKED:
+            del self.last_sequence[next(iter(self.last_sequence))]  # the longest unheard
+        self.last_sequence[key] = sequence
+
+    def destroy(self) -> None:
+        """Destroy the rcl subscription (before its node)."""
+        self.handle.destroy_when_not_in_use()
+
+
 class DiagnosedNode(Node):
     """Base of the three nodes: heartbeat, problems that describe the present, a callback boundary.
 
@@ -277,6 +414,7 @@ class DiagnosedNode(Node):
         self.input_messages_refused = 0  # InputError at the boundary: bad input, not a bug
         self.oversized_messages = 0
         self.late_heartbeats = 0
+        self.messages_superseded = 0  # replaced unserved by a newer one (LatestMessage)
         self.heartbeats = 0
         self.last_heartbeat_s = time.monotonic()
         if self.get_parameter(USE_SIM_TIME).value is True:
@@ -286,8 +424,23 @@ class DiagnosedNode(Node):
                 "and its heartbeat); stamps are wall-clock times"
             )
         self.add_on_set_parameters_callback(self._keep_wall_clock)
+        self.paced_timers: list[PacedTimer] = []  # run between callbacks when overdue
+        self._running_overdue = False
+        self._polled: list[LatestMessage] = []  # subscriptions served by a timer's serve()
+        for service in self.services:  # rclpy's parameter services: a storm is a flood too
+            service.callback = self._then_overdue_timers(service.callback)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.create_timer(HEARTBEAT_PERIOD_S, self.guarded(self.publish_diagnostics))
+        self.create_paced_timer(HEARTBEAT_PERIOD_S, self.publish_diagnostics)
+
+    def create_paced_timer(self, period_s: float, callback: Callable[[], None]) -> PacedTimer:
+        """A guarded timer that keeps its rate behind any backlog of messages (:class:`PacedTimer`).
+
+        For the timers safety depends on: the heartbeat, a robot's joint_states, a command tick.
+        """
+        timer = PacedTimer(period_s, self.guarded(callback))
+        self.create_timer(period_s, timer.on_timer)
+        self.paced_timers.append(timer)
+        return timer
 
     def create_publisher(
         self, msg_type: Any, topic: str, qos_profile: QoSProfile | int, **kwargs: Any
@@ -408,11 +561,44 @@ class DiagnosedNode(Node):
                 )
                 if self.callback_errors <= MAX_LOGGED_TRACEBACKS:
                     self.get_logger().error(traceback.format_exc())
-            late_s = time.monotonic() - self.last_heartbeat_s
+            now = time.monotonic()
+            late_s = now - self.last_heartbeat_s
             if late_s > HEARTBEAT_OVERDUE_S:
                 self.send_late_heartbeat(late_s)
+            self.run_overdue_timers(now)
 
         return boundary
+
+    def _then_overdue_timers(self, serve: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Any]:
+        """A service callback after which the overdue paced timers run."""
+
+        @functools.wraps(serve)
+        def then(request: Any, response: Any) -> Any:
+            try:
+                return serve(request, response)
+            finally:
+                self.run_overdue_timers(time.monotonic())
+
+        return then
+
+    def run_overdue_timers(self, now: float) -> None:
+        """Run the paced timers overdue at ``now`` (monotonic), between two callbacks.
+
+        Called at the end of every guarded callback and service request (the parameter
+        services: a storm of set_parameters requests is a flood too) and by
+        :func:`spin_executor` between two events: the executor may serve many messages in one
+        event (the middleware reports several at once), so a timer waits behind at most one
+        callback. Not nested: a paced
+        timer's own callback ends here too.
+        """
+        if self._running_overdue:
+            return
+        self._running_overdue = True
+        try:
+            for timer in self.paced_timers:
+                timer.run_if_overdue(now)
+        finally:
+            self._running_overdue = False
 
     def create_bounded_subscription(
         self,
@@ -431,29 +617,71 @@ class DiagnosedNode(Node):
         above ``max_bytes`` (an int, or a function giving the current cap) is dropped, counted in
         ``oversized_messages`` and reported, and only messages within the cap are decoded.
         With ``with_info`` the callback also gets rclpy's MessageInfo (publisher gid, source
-        timestamp).
+        and reception timestamps), under either executor: the SingleThreadedExecutor passes
+        the message and its info as two arguments, rclpy 9's EventsExecutor as one tuple.
         """
         handler = self.guarded(callback)
 
         def receive(data: bytes, *info: MessageInfo) -> None:
             cap = max_bytes() if callable(max_bytes) else max_bytes
             if len(data) > cap:
-                self.oversized_messages += 1
-                self.report_problem(
-                    f"oversized message on {topic}",
-                    DiagnosticStatus.WARN,
-                    f"dropped a {len(data)}-byte message on {topic} before decoding it "
-                    f"(at most {cap} bytes)",
-                )
+                self.drop_oversized(topic, len(data), cap)
                 return
             handler(deserialize_message(data, msg_type), *info)
 
-        def receive_with_info(data: bytes, info: MessageInfo) -> None:
+        def receive_with_info(
+            data: bytes | tuple[bytes, MessageInfo], info: MessageInfo | None = None
+        ) -> None:
+            if isinstance(data, tuple):  # the EventsExecutor: (message, info) as one argument
+                data, info = data
+            assert info is not None
             receive(data, info)
 
-        entry = receive_with_info if with_info else receive  # rclpy counts the parameters
+        entry = receive_with_info if with_info else receive
         entry.__name__ = getattr(callback, "__name__", "callback")
-        return self.create_subscription(msg_type, topic, self.guarded(entry), qos, raw=True)
+        subscription = self.create_subscription(msg_type, topic, self.guarded(entry), qos, raw=True)
+        if with_info:  # rclpy takes a callback with a default second parameter for message-only
+            subscription._callback_type = Subscription.CallbackType.WithMessageInfo
+        return subscription
+
+    def create_latest_subscription(
+        self,
+        msg_type: type,
+        topic: str,
+        callback: Callable[[Any], None],
+        depth: int,
+        max_bytes: int,
+    ) -> LatestMessage:
+        """A best-effort subscription of ``depth`` whose messages coalesce (:class:`LatestMessage`).
+
+        Call its ``serve()`` from the timer that uses the input: ``callback`` (guarded) gets the
+        newest message; those it replaced unserved are counted in ``messages_superseded``, one
+        over ``max_bytes`` is dropped and counted as by :meth:`create_bounded_subscription`.
+        Best effort, which every publisher matches: a reliable reader acknowledges each message
+        in the middleware's threads, which under a flood took the CPU the timers needed (27
+        joint_states a second instead of 49), and only the newest is used anyway; a message
+        lost on the way shows in the publisher's sequence numbers and is counted too.
+        """
+        qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT)
+        latest = LatestMessage(self, msg_type, topic, self.guarded(callback), qos, max_bytes)
+        self._polled.append(latest)
+        return latest
+
+    def drop_oversized(self, topic: str, n_bytes: int, cap: int) -> None:
+        """Count and report a message on ``topic`` of ``n_bytes`` over ``cap``, not decoded."""
+        self.oversized_messages += 1
+        self.report_problem(
+            f"oversized message on {topic}",
+            DiagnosticStatus.WARN,
+            f"dropped a {n_bytes}-byte message on {topic} before decoding it (at most {cap} bytes)",
+        )
+
+    def destroy_node(self) -> None:
+        """Destroy the polled subscriptions, then the node."""
+        for latest in self._polled:
+            latest.destroy()
+        self._polled.clear()
+        super().destroy_node()
 
     # --- publication --------------------------------------------------------------------------
 
@@ -497,6 +725,10 @@ class DiagnosedNode(Node):
         values["input_messages_refused"] = self.input_messages_refused
         values["oversized_messages_dropped"] = self.oversized_messages
         values["late_heartbeats"] = self.late_heartbeats
+        values["messages_superseded"] = self.messages_superseded
+        values["timer_runs_between_messages"] = sum(
+            timer.runs_between_events for timer in self.paced_timers
+        )
         for key, (problem_level, problem_message, count) in problems.items():
             level = max(level, problem_level)
             message += f"; {problem_message}" + (f" ({count}x)" if count > 1 else "")
@@ -517,6 +749,21 @@ def beat_to_supervisor() -> None:
             os.write(int(fd), b".")
         except OSError:
             pass
+
+
+def to_terminal(line: str) -> None:
+    """Write ``line`` to the user's terminal as well, when the node's output goes to a log file.
+
+    ``audio2pose run``, ``console`` and ``demo`` with a log directory send each node's stdout and
+    stderr to ``<dir>/<node>.log`` and pass their own stderr in ``TERMINAL_FD_ENV``: the lines a
+    user must see (the console's address with its token, a refused configuration) are written
+    there too. Without it (output on a terminal already, or ``ros2 launch``) nothing is written.
+    A terminal that is gone is ignored: the line is in the log either way.
+    """
+    fd = os.environ.get(TERMINAL_FD_ENV, "")
+    if fd.isdigit():
+        with contextlib.suppress(OSError):
+            os.write(int(fd), (line.rstrip("\n") + "\n").encode("utf-8", "replace"))
 
 
 SPIN_ONCE_TIMEOUT_S = 0.5  # an idle EventsExecutor checks for shutdown this often
@@ -549,17 +796,31 @@ def create_executor(events: bool = True) -> Executor:
     return SingleThreadedExecutor()
 
 
-def spin_executor(executor: Executor) -> None:
+def spin_executor(executor: Executor, nodes: Sequence[Node] = ()) -> None:
     """Spin until the context shuts down (Ctrl-C, SIGTERM, ``rclpy.shutdown``).
 
     The EventsExecutor is spun one event at a time: its ``spin()`` (rclpy 9.1) never ran a
-    callback here, while ``spin_once`` serves timers and subscriptions as expected.
+    callback here, while ``spin_once`` serves timers and subscriptions as expected. Between two
+    events, the :class:`PacedTimer` of ``nodes`` that are overdue run, so no backlog of messages
+    holds them back by more than one message. The SingleThreadedExecutor needs no help: each
+    round of its wait set serves every ready timer.
     """
     if isinstance(executor, SingleThreadedExecutor):
         executor.spin()
         return
+    paced = [node for node in nodes if isinstance(node, DiagnosedNode) and node.paced_timers]
     while executor.context.ok():
         executor.spin_once(timeout_sec=SPIN_ONCE_TIMEOUT_S)
+        now = time.monotonic()
+        for node in paced:
+            node.run_overdue_timers(now)
+
+
+def _refused(line: str) -> NoReturn:
+    """End the process for a refused configuration: ``line`` on stderr and the terminal, exit 78."""
+    print(line, file=sys.stderr, flush=True)
+    to_terminal(line)
+    raise SystemExit(EXIT_CONFIGURATION_ERROR) from None
 
 
 def run_node(
@@ -587,7 +848,8 @@ def run_nodes(
     :func:`create_executor`. A
     :class:`~audio2pose_ros.errors.ConfigurationError` while a node is built (a refused
     parameter, a bad model or robot file), or arguments rcl cannot parse (a parameters file with
-    a YAML syntax error, a missing file), end the process with one line on stderr and exit status
+    a YAML syntax error, a missing file), end the process with one line on stderr (and on the
+    user's terminal when stderr goes to a log: :func:`to_terminal`) and exit status
     :data:`EXIT_CONFIGURATION_ERROR`, which ``audio2pose run`` and the launch file never respawn.
     """
     try:
@@ -607,20 +869,14 @@ def run_nodes(
             for node in nodes:
                 executor.add_node(node)
             signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
-            spin_executor(executor)
+            spin_executor(executor, nodes)
         finally:
             signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
             rclpy.try_shutdown()
     except ConfigurationError as exc:
-        print(f"[{process_name}] configuration error: {exc}", file=sys.stderr, flush=True)
-        raise SystemExit(EXIT_CONFIGURATION_ERROR) from None
+        _refused(f"[{process_name}] configuration error: {exc}")
     except rclpy_implementation.RCLError as exc:
-        print(
-            f"[{process_name}] configuration error: ROS arguments refused: "
-            + " ".join(str(exc).split()),
-            file=sys.stderr,
-            flush=True,
-        )
-        raise SystemExit(EXIT_CONFIGURATION_ERROR) from None
+        refused = " ".join(str(exc).split())
+        _refused(f"[{process_name}] configuration error: ROS arguments refused: {refused}")
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
