@@ -79,7 +79,6 @@ MAX_SAMPLES = 2000  # samples of one straight piece of a path at most
 MAX_BRAKING_TICKS = 50  # ticks of a braking path at most (at full acceleration it needs 19)
 PATH_SLACK_M = 0.5 * TOLERANCE_M  # the samples between two commands and of the braking path may
 # come this much closer than the margin (the path between samples another half a sample travel)
-QUERY_TOLERANCE_M = 1e-6  # distance queries of one pose agree to this (coal's GJK tolerance)
 RECENT_PATHS = 8  # paths whose sweep is kept: a guard step checks the same command again
 
 
@@ -201,12 +200,11 @@ class BodyGuard:
     def _check(self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray) -> PathClearance:
         """The admissibility check: the command keeps the floor, and so does its path.
 
-        The path may come ``PATH_SLACK_M`` inside the guaranteed floor, but no closer than the
-        present clearance once inside it (so that braking along it cannot creep deeper step by
-        step), less the distance queries' own tolerance (``QUERY_TOLERANCE_M``).
+        The path may come ``PATH_SLACK_M`` inside the margin, but no closer than the present
+        clearance once inside it (so that braking along it cannot creep deeper step by step).
         """
-        assert self._guaranteed_m is not None
-        path_floor = min(self._floor_m, self._guaranteed_m - PATH_SLACK_M) - QUERY_TOLERANCE_M
+        inside = self._floor_m < self.margin_m  # the floor is the present clearance
+        path_floor = self._floor_m if inside else self._floor_m - PATH_SLACK_M
         return self._sweep(pose, velocity, accel, self._floor_m, path_floor)
 
     def _admissible(self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray) -> bool:
