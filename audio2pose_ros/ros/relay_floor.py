@@ -16,7 +16,7 @@ nodes add to rclpy's own cost:
 
 Each relay also publishes a heartbeat on ``/diagnostics`` every
 :data:`~audio2pose_ros.ros.diagnosed_node.HEARTBEAT_PERIOD_S` and spins in the executor its node
-spins in (:func:`~audio2pose_ros.ros.diagnosed_node.create_executor`: the filter in the
+spins in (:func:`~audio2pose_ros.ros.spin.create_executor`: the filter in the
 single-threaded one), with the nodes' QoS. Nothing else is imported: no numpy, no model, no body.
 
 Run one relay with ``python -m audio2pose_ros.ros.relay_floor ROLE [--features N] [--joints J]``.
@@ -41,16 +41,10 @@ from std_msgs.msg import Float32MultiArray, Header, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from audio2pose_ros import topics
-from audio2pose_ros.ros.diagnosed_node import (
-    AUDIO_QOS,
-    HEARTBEAT_PERIOD_S,
-    LATCHED_QOS,
-    STREAM_QOS,
-    create_executor,
-    spin_executor,
-)
+from audio2pose_ros.ros.diagnosed_node import AUDIO_QOS, HEARTBEAT_PERIOD_S, LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.ros.nodes.process import STOP_SIGNALS, prepare_node_process
+from audio2pose_ros.ros.spin import create_executor, spin_executor
 
 ROLES = ("audio_features_node", "inference_node", "motion_filter_node")
 FILTER_RATE_HZ = 100.0  # the filter's tick (config/pepper.yaml rate_hz)
