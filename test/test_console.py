@@ -1178,7 +1178,7 @@ def test_audio_header_is_16_bytes():
 def test_when_the_bench_pairs_chunks_and_raw_poses_expect_the_newest_unanswered_chunk(
     heard, raw, pairs, ambiguous
 ):
-    from audio2pose_ros.ros.console_bench import pair_chunks
+    from audio2pose_ros.ros.tools.console_bench import pair_chunks
 
     assert pair_chunks(heard, raw) == (pairs, ambiguous)
 
@@ -1196,7 +1196,7 @@ def test_when_chunks_are_lost_on_the_way_expect_each_heard_one_matched_to_its_ow
     sent, heard, which
 ):
     """Audio is best effort: the bench reported a lost chunk as an error, not as a loss."""
-    from audio2pose_ros.ros.console_bench import match_heard
+    from audio2pose_ros.ros.tools.console_bench import match_heard
 
     assert match_heard([bytes([c]) for c in sent], [bytes([c]) for c in heard]) == which
 

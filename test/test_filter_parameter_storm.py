@@ -30,8 +30,8 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.ros.diagnosed_node import trajectory_msg
 from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.messages import trajectory_msg
 from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
 from audio2pose_ros.topics import COMMANDED_JOINT_STATES, DIAGNOSTICS, RAW_TRAJECTORY, absolute
 

@@ -31,9 +31,9 @@ from audio2pose_ros.ros.diagnosed_node import (
     STALE_AFTER_S,
     STREAM_QOS,
     DiagnosedNode,
-    features_to_msg,
 )
 from audio2pose_ros.ros.graph import RESTART_AFTER_S, executable_command
+from audio2pose_ros.ros.messages import features_to_msg
 from audio2pose_ros.ros.player import spin_until
 from audio2pose_ros.topics import AUDIO, AUDIO_INFO, DIAGNOSTICS, FEATURES, absolute
 

@@ -24,8 +24,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.ros.diagnosed_node import EXIT_CONFIGURATION_ERROR, LATCHED_QOS, trajectory_msg
+from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR
+from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
 from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.messages import trajectory_msg
 from audio2pose_ros.topics import (
     COMMANDED_JOINT_STATES,
     DIAGNOSTICS,

@@ -270,12 +270,12 @@ def command_bench(args: argparse.Namespace) -> int:
     # --json: one object; its layout is versioned, and a change of it is in CHANGELOG.md
     results: dict[str, object] = {"schema_version": BENCH_SCHEMA_VERSION}
     if args.console:  # the operator's voice through the web console to /joint_angles
-        from audio2pose_ros.ros.console_bench import console_report, measure_console
-        from audio2pose_ros.ros.graph_bench import bundled_speech
+        from audio2pose_ros.ros.tools.console_bench import console_report, measure_console
+        from audio2pose_ros.ros.tools.graph_bench import bundled_speech
 
         results["console"] = console_report(measure_console(bundled_speech(), args.duration))
     if args.graph:  # before pinning this process to one core: the nodes need the machine
-        from audio2pose_ros.ros.graph_bench import bundled_speech, measure_graph, report
+        from audio2pose_ros.ros.tools.graph_bench import bundled_speech, measure_graph, report
 
         speech = bundled_speech()
         results["graph"] = [
@@ -289,7 +289,7 @@ def command_bench(args: argparse.Namespace) -> int:
             ]
         ]
     if args.sim:  # the graph against the simulated Pepper: commanded vs executed
-        from audio2pose_ros.ros.graph_bench import bundled_speech, measure_sim_tracking
+        from audio2pose_ros.ros.tools.graph_bench import bundled_speech, measure_sim_tracking
 
         tracking = measure_sim_tracking(bundled_speech(), duration_s=min(args.duration, 60.0))
         results["sim_tracking"] = dataclasses.asdict(tracking)

@@ -1,27 +1,24 @@
-"""What the three nodes share: QoS profiles, message <-> numpy conversions, diagnostics, main()."""
+"""What the nodes share: QoS profiles, the diagnosed node (heartbeat, problems, callback boundary).
+
+Message conversions live in :mod:`audio2pose_ros.ros.messages`, the executor and ``main()`` in
+:mod:`audio2pose_ros.ros.spin`.
+"""
 
 from __future__ import annotations
 
-import array
 import contextlib
-import faulthandler
 import functools
 import math
 import os
 import signal
-import sys
 import time
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, NamedTuple, NoReturn
+from typing import Any
 
-import numpy as np
-import rclpy
-from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -29,8 +26,6 @@ from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rclpy.subscription import MessageInfo, Subscription
-from std_msgs.msg import Float32MultiArray, MultiArrayDimension
-from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 try:
     from rclpy.type_support import check_is_valid_msg_type
@@ -42,13 +37,7 @@ except ImportError:  # Humble: the same classes (with use_default_callbacks) in 
     from rclpy.qos_event import PublisherEventCallbacks, SubscriptionEventCallbacks
 
 from audio2pose_ros import topics
-from audio2pose_ros.errors import (
-    EXIT_CONFIGURATION_ERROR,
-    ConfigurationError,
-    InputError,
-    short_text,
-)
-from audio2pose_ros.ros.nodes.process import STOP_SIGNALS
+from audio2pose_ros.errors import ConfigurationError, InputError, short_text
 
 # Audio: best effort matches both reliable and best-effort publishers (audio_capture is reliable);
 # a deep queue absorbs bursts from GStreamer without dropping chunks.
@@ -86,118 +75,6 @@ MAX_LOGGED_TRACEBACKS = 5  # callback exceptions beyond this are counted, not pr
 # A problem's message, and a diagnostic value, at most this long: they may quote input (a label,
 # a joint name) that a message can make hundreds of kilobytes long, on every heartbeat.
 MAX_STATUS_TEXT = 400
-
-
-FRAMES_LABEL = "frames"  # dim[0] of a features message; "frames from N" numbers its first frame
-
-
-class FeatureBatch(NamedTuple):
-    """An unpacked features message."""
-
-    frames: np.ndarray  # (n_frames, n_features) float32
-    label: str  # the feature set (dim[1].label)
-    first_frame: int | None  # index of the first frame in its stream, if the sender numbers them
-
-
-def features_to_msg(
-    frames: np.ndarray, label: str, first_frame: int | None = None
-) -> Float32MultiArray:
-    """Pack (n_frames, n_features) features; dim[1].label names the feature set.
-
-    With ``first_frame``, dim[0].label is ``"frames from <first_frame>"``: the receiver counts
-    the frames lost between messages (:class:`~audio2pose_ros.timebase.FrameSequence`). A
-    receiver that reads only the sizes is unaffected.
-    """
-    n_frames, n_features = frames.shape
-    msg = Float32MultiArray()
-    frames_label = FRAMES_LABEL if first_frame is None else f"{FRAMES_LABEL} from {first_frame}"
-    msg.layout.dim = [
-        MultiArrayDimension(label=frames_label, size=n_frames, stride=n_frames * n_features),
-        MultiArrayDimension(label=label, size=n_features, stride=n_features),
-    ]
-    # An array.array of the right type code is stored as is; a list is checked value by value.
-    msg.data = array.array("f", np.ascontiguousarray(frames, dtype=np.float32).tobytes())
-    return msg
-
-
-def msg_to_features(msg: Float32MultiArray) -> FeatureBatch:
-    """Unpack a features message; a dim[0].label other than ``"frames from <n>"`` numbers nothing.
-
-    Raises:
-        InputError: the layout does not describe the data (2 dims, frames x features, at least
-            one feature per frame: a count of frames without data would be a claim, not data).
-    """
-    dims = msg.layout.dim
-    if len(dims) != 2:
-        raise InputError(f"features message needs 2 layout dims, got {len(dims)}")
-    n_frames, n_features = dims[0].size, dims[1].size
-    if n_features == 0:
-        raise InputError(f"features message of {n_frames} frames of 0 features")
-    data = np.frombuffer(msg.data, dtype=np.float32) if msg.data else np.zeros(0, np.float32)
-    if data.size != n_frames * n_features:
-        raise InputError(
-            f"features message holds {data.size} values, layout says {n_frames}x{n_features}"
-        )
-    number = dims[0].label.removeprefix(f"{FRAMES_LABEL} from ")
-    numbered = number != dims[0].label and number.isascii() and number.isdigit()
-    first = int(number) if numbered and len(number) <= 18 else None  # within int64
-    return FeatureBatch(data.reshape(n_frames, n_features), dims[1].label, first)
-
-
-def duration_msg(seconds: float) -> Duration:
-    """A builtin_interfaces/Duration of ``seconds``."""
-    nanoseconds = round(seconds * 1e9)
-    return Duration(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
-
-
-def trajectory_msg(
-    joint_names: Sequence[str],
-    positions_rad: np.ndarray,
-    period_s: float,
-    velocities_rad_s: np.ndarray | None = None,
-) -> JointTrajectory:
-    """A JointTrajectory with one point per row of ``positions_rad``, ``period_s`` apart.
-
-    The first point is due one period after the header stamp.
-    """
-    msg = JointTrajectory()
-    msg.joint_names = list(joint_names)
-    positions = np.ascontiguousarray(np.atleast_2d(positions_rad), dtype=np.float64)
-    velocities = (
-        None
-        if velocities_rad_s is None
-        else np.ascontiguousarray(np.atleast_2d(velocities_rad_s), dtype=np.float64)
-    )
-    for i, row in enumerate(positions):
-        point = JointTrajectoryPoint()
-        point.positions = array.array("d", row.tobytes())  # stored as is, unlike a list
-        if velocities is not None:
-            point.velocities = array.array("d", velocities[i].tobytes())
-        point.time_from_start = duration_msg((i + 1) * period_s)
-        msg.points.append(point)
-    return msg
-
-
-def trajectory_positions(msg: JointTrajectory, joint_names: Sequence[str]) -> np.ndarray:
-    """(n_points, n_joints) positions reordered to ``joint_names``.
-
-    Raises:
-        ValueError: a joint is missing, or a point has the wrong number of positions.
-
-    """
-    index = {name: i for i, name in enumerate(msg.joint_names)}
-    missing = [n for n in joint_names if n not in index]
-    if missing:
-        raise ValueError(f"trajectory lacks joints {missing}")
-    order = [index[n] for n in joint_names]
-    rows = []
-    for k, point in enumerate(msg.points):
-        if len(point.positions) != len(msg.joint_names):
-            raise ValueError(
-                f"point {k} has {len(point.positions)} positions for {len(msg.joint_names)} joints"
-            )
-        rows.append(np.asarray(point.positions, dtype=np.float64)[order])
-    return np.array(rows).reshape(-1, len(joint_names))
 
 
 def status_name(fully_qualified_name: str) -> str:
@@ -256,9 +133,9 @@ class PacedTimer:
     while messages arrive faster than the node serves them waits behind every message queued
     before it, which under a flood is all of them (a flooded simulated Pepper sent 0-2
     joint_states a second, and no heartbeat for seconds). The executor is therefore spun one
-    event at a time (:func:`spin_executor`) and, between two events and after every guarded
-    callback (:meth:`DiagnosedNode.run_overdue_timers`), a paced timer more than
-    ``OVERDUE_GRACE`` of its period past its due time runs there
+    event at a time (:func:`~audio2pose_ros.ros.spin.spin_executor`) and, between two events
+    and after every guarded callback (:meth:`DiagnosedNode.run_overdue_timers`), a paced timer
+    more than ``OVERDUE_GRACE`` of its period past its due time runs there
     (:meth:`run_if_overdue`, counted in ``runs_between_events``); when the executor's own timer
     event comes later, it finds the run done and skips it (:meth:`on_timer`). Due times keep
     their phase: a timer served between events keeps its rate, never bursts to make up for a
@@ -586,10 +463,9 @@ class DiagnosedNode(Node):
 
         Called at the end of every guarded callback and service request (the parameter
         services: a storm of set_parameters requests is a flood too) and by
-        :func:`spin_executor` between two events: the executor may serve many messages in one
-        event (the middleware reports several at once), so a timer waits behind at most one
-        callback. Not nested: a paced
-        timer's own callback ends here too.
+        :func:`~audio2pose_ros.ros.spin.spin_executor` between two events: the executor may serve
+        many messages in one event (the middleware reports several at once), so a timer waits behind
+        at most one callback. Not nested: a paced timer's own callback ends here too.
         """
         if self._running_overdue:
             return
@@ -764,119 +640,3 @@ def to_terminal(line: str) -> None:
     if fd.isdigit():
         with contextlib.suppress(OSError):
             os.write(int(fd), (line.rstrip("\n") + "\n").encode("utf-8", "replace"))
-
-
-SPIN_ONCE_TIMEOUT_S = 0.5  # an idle EventsExecutor checks for shutdown this often
-EXECUTOR_ENV = "AUDIO2POSE_EXECUTOR"  # "events" (default where available) or "single_threaded"
-
-
-def create_executor(events: bool = True) -> Executor:
-    """The executor the nodes spin in: rclpy's EventsExecutor where available, else single-threaded.
-
-    The EventsExecutor (``rclpy.experimental``, Jazzy and later) is driven by middleware events
-    instead of rebuilding a wait set in Python for every callback, which was the largest single
-    item of the nodes' CPU (20-40 % of each node's samples under traffic); with it the
-    three nodes used 2.9 instead of 4.2 ms CPU per 10 ms frame. Humble has none and gets the
-    SingleThreadedExecutor; ``AUDIO2POSE_EXECUTOR=single_threaded`` forces it (for comparison,
-    or should a distro's EventsExecutor misbehave). Spin it with :func:`spin_executor`.
-
-    ``events=False`` asks for the SingleThreadedExecutor: the motion filter needs it, because the
-    EventsExecutor (rclpy 9) hands no MessageInfo to a callback (the filter reads the publisher
-    gid and the source timestamp of its inputs) and serves events first come, first served, so a
-    flood on one topic delays the command timer by the whole backlog; the SingleThreadedExecutor
-    serves every ready timer and subscription once per round, so the tick keeps its rate.
-    """
-    if events and os.environ.get(EXECUTOR_ENV, "events") != "single_threaded":
-        try:
-            from rclpy.experimental.events_executor import EventsExecutor
-        except ImportError:  # Humble
-            pass
-        else:
-            return EventsExecutor()
-    return SingleThreadedExecutor()
-
-
-def spin_executor(executor: Executor, nodes: Sequence[Node] = ()) -> None:
-    """Spin until the context shuts down (Ctrl-C, SIGTERM, ``rclpy.shutdown``).
-
-    The EventsExecutor is spun one event at a time: its ``spin()`` (rclpy 9.1) never ran a
-    callback here, while ``spin_once`` serves timers and subscriptions as expected. Between two
-    events, the :class:`PacedTimer` of ``nodes`` that are overdue run, so no backlog of messages
-    holds them back by more than one message. The SingleThreadedExecutor needs no help: each
-    round of its wait set serves every ready timer.
-    """
-    if isinstance(executor, SingleThreadedExecutor):
-        executor.spin()
-        return
-    paced = [node for node in nodes if isinstance(node, DiagnosedNode) and node.paced_timers]
-    while executor.context.ok():
-        executor.spin_once(timeout_sec=SPIN_ONCE_TIMEOUT_S)
-        now = time.monotonic()
-        for node in paced:
-            node.run_overdue_timers(now)
-
-
-def _refused(line: str) -> NoReturn:
-    """End the process for a refused configuration: ``line`` on stderr and the terminal, exit 78."""
-    print(line, file=sys.stderr, flush=True)
-    to_terminal(line)
-    raise SystemExit(EXIT_CONFIGURATION_ERROR) from None
-
-
-def run_node(
-    factory: Callable[[], Node],
-    node_name: str,
-    args: list[str] | None = None,
-    events: bool = True,
-) -> None:
-    """The ros2/examples main for one node: see :func:`run_nodes`."""
-    run_nodes([factory], node_name, args, events=events)
-
-
-def run_nodes(
-    factories: Sequence[Callable[[], Node]],
-    process_name: str,
-    args: list[str] | None = None,
-    connect: Callable[[list[Node]], None] | None = None,
-    events: bool = True,
-) -> None:
-    """Init, build the nodes, spin them in one executor until Ctrl-C / SIGTERM, clean up.
-
-    One factory is the usual one node per process; several put nodes in one process and one
-    executor (``audio2pose run --single-process``), where ``connect`` (called with the built
-    nodes, in order, before spinning) wires them to each other; ``events`` goes to
-    :func:`create_executor`. A
-    :class:`~audio2pose_ros.errors.ConfigurationError` while a node is built (a refused
-    parameter, a bad model or robot file), or arguments rcl cannot parse (a parameters file with
-    a YAML syntax error, a missing file), end the process with one line on stderr (and on the
-    user's terminal when stderr goes to a log: :func:`to_terminal`) and exit status
-    :data:`EXIT_CONFIGURATION_ERROR`, which ``audio2pose run`` and the launch file never respawn.
-    """
-    try:
-        # Ctrl-C or SIGTERM while rcl initialises or the nodes are built would shut the context
-        # down under them: the signals wait until the nodes are ready (the node executables
-        # block them from their first line, nodes.process), then rclpy's handler ends the spin.
-        signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
-        # A supervisor about to kill a silent process first asks for every thread's stack
-        # (written to stderr, the node's log), so a silent node says where it was stuck.
-        faulthandler.register(STACK_DUMP_SIGNAL, all_threads=True)
-        try:
-            rclpy.init(args=args)  # not `with rclpy.init()`: Humble's init is no context manager
-            executor = create_executor(events)
-            nodes = [factory() for factory in factories]
-            if connect is not None:
-                connect(nodes)
-            for node in nodes:
-                executor.add_node(node)
-            signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
-            spin_executor(executor, nodes)
-        finally:
-            signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
-            rclpy.try_shutdown()
-    except ConfigurationError as exc:
-        _refused(f"[{process_name}] configuration error: {exc}")
-    except rclpy_implementation.RCLError as exc:
-        refused = " ".join(str(exc).split())
-        _refused(f"[{process_name}] configuration error: ROS arguments refused: {refused}")
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass

@@ -61,15 +61,10 @@ from audio2pose_ros.parameters import (
     validate_settings,
 )
 from audio2pose_ros.resources import default_checkpoint_path
-from audio2pose_ros.ros.diagnosed_node import (
-    AUDIO_QOS,
-    LATCHED_QOS,
-    STREAM_QOS,
-    DiagnosedNode,
-    features_to_msg,
-    run_node,
-)
+from audio2pose_ros.ros.diagnosed_node import AUDIO_QOS, LATCHED_QOS, STREAM_QOS, DiagnosedNode
+from audio2pose_ros.ros.messages import features_to_msg
 from audio2pose_ros.ros.node_parameters import NodeParameters
+from audio2pose_ros.ros.spin import run_node
 
 
 @dataclasses.dataclass(frozen=True)

@@ -68,14 +68,10 @@ from audio2pose_ros.parameters import (
 )
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.diagnosed_node import (
-    STREAM_QOS,
-    DiagnosedNode,
-    msg_to_features,
-    run_node,
-    trajectory_msg,
-)
+from audio2pose_ros.ros.diagnosed_node import STREAM_QOS, DiagnosedNode
+from audio2pose_ros.ros.messages import msg_to_features, trajectory_msg
 from audio2pose_ros.ros.node_parameters import NodeParameters
+from audio2pose_ros.ros.spin import run_node
 from audio2pose_ros.timebase import FrameSequence
 
 # 10 s of 10 ms frames (about 20 ms of work for the packaged model); audio_features_node sends

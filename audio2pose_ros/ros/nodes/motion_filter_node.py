@@ -114,16 +114,11 @@ from audio2pose_ros.parameters import (
     validate_settings,
 )
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.diagnosed_node import (
-    LATCHED_QOS,
-    STREAM_QOS,
-    DiagnosedNode,
-    run_node,
-    trajectory_msg,
-    trajectory_positions,
-)
+from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, DiagnosedNode
+from audio2pose_ros.ros.messages import trajectory_msg, trajectory_positions
 from audio2pose_ros.ros.node_parameters import NodeParameters
 from audio2pose_ros.ros.request_budget import RequestBudget
+from audio2pose_ros.ros.spin import run_node
 
 MIN_TICK_SPACING = 0.5  # of a period: an arriving pose is commanded at once if the last tick
 # is at least this long ago (so ticks are never closer than half a period: no bursts)

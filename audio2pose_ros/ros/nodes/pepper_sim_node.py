@@ -34,8 +34,9 @@ from audio2pose_ros import topics
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.parameters import param, settings_from, specs_of, validate_settings
 from audio2pose_ros.robot.simulated_pepper import SimulatedPepper
-from audio2pose_ros.ros.diagnosed_node import DiagnosedNode, run_node
+from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
 from audio2pose_ros.ros.node_parameters import NodeParameters
+from audio2pose_ros.ros.spin import run_node
 
 COMMAND_INPUTS = ("joint_angles", "joint_trajectory")
 STEP_PERIOD_S = 0.01  # the simulation follows the wall clock in steps of about this (s)

@@ -1,6 +1,6 @@
 """Fault cases of the runtime: tracks, start poses, state files, stops, liveness, names, floods.
 
-Part of ``audio2pose faults`` (:func:`~audio2pose_ros.ros.fault_campaign.cases` appends
+Part of ``audio2pose faults`` (:func:`~audio2pose_ros.ros.tools.fault_campaign.cases` appends
 :func:`runtime_cases`). Each case attacks the live graph over DDS as in the rest of the
 campaign and reads the outcome from what the robot receives, the nodes' /diagnostics, the
 supervisor and the state file:
@@ -41,7 +41,8 @@ from audio2pose_ros.motion.body_guard import TOLERANCE_M as BODY_TOLERANCE_M
 from audio2pose_ros.motion.filter import MotionFilterSettings
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, status_name
-from audio2pose_ros.ros.fault_harness import (
+from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.tools.fault_harness import (
     MAX_DEVIATION_RAD,
     STREAM_PERIOD_S,
     Campaign,
@@ -49,7 +50,6 @@ from audio2pose_ros.ros.fault_harness import (
     Commands,
     Outcome,
 )
-from audio2pose_ros.ros.graph import executable_command
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 FILTER = "motion_filter_node"

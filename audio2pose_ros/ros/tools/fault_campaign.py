@@ -2,7 +2,7 @@
 
 The campaign starts the three nodes as supervised processes (:func:`~audio2pose_ros.ros.graph.
 node_graph`, as ``audio2pose run`` does), plays the part of the rest of the world with one probe
-participant (:mod:`~audio2pose_ros.ros.fault_harness`), and runs each case in turn over real
+participant (:mod:`~audio2pose_ros.ros.tools.fault_harness`), and runs each case in turn over real
 DDS:
 
 - the probe streams a benign pose ``P`` on ``raw_trajectory`` (2 points every 20 ms, like
@@ -40,8 +40,9 @@ from audio2pose_ros import topics
 from audio2pose_ros.files import packaged_mapping
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
-from audio2pose_ros.ros.fault_cases_runtime import impersonated_sigstop_case, runtime_cases
-from audio2pose_ros.ros.fault_harness import (
+from audio2pose_ros.ros.graph import node_graph
+from audio2pose_ros.ros.tools.fault_cases_runtime import impersonated_sigstop_case, runtime_cases
+from audio2pose_ros.ros.tools.fault_harness import (
     MAX_COMMAND_GAP_S,
     MAX_DEVIATION_RAD,
     OBSERVE_S,
@@ -51,8 +52,7 @@ from audio2pose_ros.ros.fault_harness import (
     Case,
     Outcome,
 )
-from audio2pose_ros.ros.graph import node_graph
-from audio2pose_ros.ros.process_stats import rss_mb
+from audio2pose_ros.ros.tools.process_stats import rss_mb
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 __all__ = ["cases", "run_campaign", "table"]
