@@ -296,17 +296,18 @@ class BodyModel:
     def sweep(self, points_rad: np.ndarray, floor_m: float) -> PathClearance:
         """Whether the path through ``points_rad`` keeps ``floor_m`` (conservative advancement).
 
-        The path is the polyline through the (m, n_joints) samples, each joint moving
-        monotonically between two of them. Pair k's distance cannot fall by more than
-        ``pair_lever_m[k] @ |q - q_known|`` from a pose where it is known (only the joints that
-        move one of its shapes and not the other count). From the first sample's clearance,
-        the pairs that this bound keeps at ``floor_m`` or more along the whole path are done;
-        the others (the few near the moving arm) are queried alone, pair by pair, at the first
-        sample their bound does not keep clear, and so on. Between two samples the path can
-        come closer than their bounds by at most half its travel there (``slack_m``), so
-        samples dense for the fastest joint and the thinnest shape make the check continuous
-        to that slack. A path far from the body costs one (usually cached) query; the rest
-        are matrix products.
+        The path is the polyline through the (m, n_joints) samples. Pair k's distance cannot
+        fall by more than ``pair_lever_m[k] @ |q - q_known|`` from a pose where it is known (only
+        the joints that move one of its shapes and not the other count), and ``|q - q_known|``
+        is at most each joint's travel along the path between the two (equal where the joint
+        moves one way). From the first sample's clearance, the pairs that this bound keeps at
+        ``floor_m`` or more along the whole path are done; the others (the few near the moving
+        arm) are queried alone, pair by pair, at the first sample their bound does not keep
+        clear, and so on. Between two samples the path can come closer than their bounds by at
+        most half its travel there (``slack_m``), so samples dense for the fastest joint and the
+        thinnest shape make the check continuous to that slack. A path far from the body costs
+        one (usually cached) query; the rest are cumulative sums and comparisons, linear in the
+        samples (no (samples x pairs) products: they cost milliseconds on a long braking path).
 
         Args:
             points_rad: (m, n_joints) finite samples of the path, in order.
@@ -319,15 +320,23 @@ class BodyModel:
             return PathClearance(False, 0, k, distance, 0.0, 1)
         if len(points) == 1:
             return PathClearance(True, -1, -1, distance, 0.0, 1)
-        slack = 0.5 * float((np.abs(np.diff(points, axis=0)) @ levers).max())
-        travel = np.abs(points - points[0]) @ levers  # (m, n_pairs)
-        reach = travel.max(axis=0)
+        steps = np.abs(np.diff(points, axis=0))  # (m - 1, n_joints)
+        # each joint's largest step, against each pair's levers: no pair moves further
+        slack = 0.5 * float((steps.max(axis=0) @ levers).max())
+        walked = np.zeros_like(points)  # each joint's travel from the first sample to each
+        np.cumsum(steps, axis=0, out=walked[1:])
+        reach = walked[-1] @ levers  # (n_pairs,): how far each pair can move along the path
         near = np.flatnonzero(distance - reach < floor_m)
         far = np.delete(reach, near)
         lowest = distance - (float(far.max()) if far.size else 0.0)
-        start, queries = 0, 1
+        queries = 1
+        if not near.size:
+            return PathClearance(True, -1, -1, lowest - slack, slack, queries)
+        # (m, near): how far each near pair can have moved from the first sample; never falls
+        moved = walked @ levers[:, near]
+        start = 0
         known = np.full(near.size, distance)  # at the first sample: no pair is nearer than that
-        while near.size:
+        while True:
             if start:
                 known = self._some_pairs(points[start], near)
                 queries += 1
@@ -335,21 +344,23 @@ class BodyModel:
                     worst = int(np.argmin(known))
                     pair, nearest = int(near[worst]), float(known[worst])
                     return PathClearance(False, start, pair, nearest, slack, queries)
-            rest = points[start + 1 :]
-            if not len(rest):
-                lowest = min(lowest, float(known.min()))
-                break
-            bound = known - np.abs(rest - points[start]) @ levers[:, near]  # (rest, near)
             lowest = min(lowest, float(known.min()))
-            keep = bound.min(axis=0) < floor_m  # pairs that need another query further on
-            if not keep.all():
-                lowest = min(lowest, float(bound[:, ~keep].min()))
+            if start == len(points) - 1:
+                break
+            # sample i > start is kept clear of pair j while moved[i, j] <= allowed[j]
+            allowed = moved[start] + known - floor_m
+            beyond = moved[start + 1 :] > allowed  # (rest, near)
+            keep = beyond[-1]  # pairs that need another query further on (moved never falls)
+            done = ~keep
+            if done.any():
+                lowest = min(lowest, float((known - moved[-1] + moved[start])[done].min()))
             if not keep.any():
                 break
-            bound, near = bound[:, keep], near[keep]
-            short = int(np.flatnonzero(bound.min(axis=1) < floor_m)[0])
+            short = int(np.argmax(beyond[:, keep].any(axis=1)))
             if short:
-                lowest = min(lowest, float(bound[:short].min()))
+                last = moved[start + short] - moved[start]
+                lowest = min(lowest, float((known - last)[keep].min()))
+            near, moved = near[keep], moved[:, keep]
             start += short + 1
         return PathClearance(True, -1, -1, lowest - slack, slack, queries)
 
