@@ -63,7 +63,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
-from audio2pose_ros.robot.body import BodyModel, PathClearance
+from audio2pose_ros.robot.body import BodyModel, PathClearance, blocked_product
 
 LEAD_OUT_SPEED_RAD_S = 0.3  # joint-space speed of leading a robot out of the margin (rad/s)
 LEAD_OUT_ACCEL_RAD_S2 = 1.0  # ... reached with this acceleration from rest (rad/s^2)
@@ -157,7 +157,7 @@ class BodyGuard:
         )
         nodes = np.vstack([self._previous, pose, braking])
         pieces = np.diff(nodes, axis=0)
-        travel = (np.abs(pieces) @ self._travel.T).max(axis=1)
+        travel = blocked_product(np.abs(pieces), self._travel.T).max(axis=1)
         counts = np.clip(np.ceil(travel / SAMPLE_TRAVEL_M), 1, MAX_SAMPLES).astype(np.int64)
         piece = np.repeat(np.arange(len(pieces)), counts)
         fraction = (np.arange(len(piece)) - np.repeat(np.cumsum(counts) - counts, counts) + 1.0) / (

@@ -38,6 +38,7 @@ SHOULDER_LINKS = {"left": "LShoulder", "right": "RShoulder"}
 PUSH_OUT_STEP_RAD = 0.02  # joint-space step of push_out's climb along the clearance gradient
 PUSH_OUT_MAX_STEPS = 400  # push_out gives up after this many steps (8 rad of travel)
 GRADIENT_STEP_RAD = 1e-3  # finite-difference step of the clearance gradient
+BLAS_BLOCK_ELEMENTS = 1 << 16  # products of rows x inner x columns up to this stay on one thread
 RECENT_QUERIES = 16  # poses whose clearance is kept: a guard step asks about the same few poses
 
 
@@ -88,6 +89,19 @@ def _bounding_radius(shape: Any) -> float:
 def _link_of(geometry_name: str) -> str:
     """``LForeArm_0`` -> ``LForeArm`` (Pinocchio numbers the shapes of a link)."""
     return geometry_name.rsplit("_", 1)[0]
+
+
+def blocked_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` in blocks of rows small enough for one thread of OpenBLAS.
+
+    OpenBLAS splits a larger product over its threads, which it starts at import, one per core:
+    pinned to one core (as the bench and a real-time node are), the product then waits for
+    them to take turns, up to tens of milliseconds for a (500, 11) x (11, 145) one.
+    """
+    rows = max(1, BLAS_BLOCK_ELEMENTS // max(1, a.shape[1] * b.shape[1]))
+    if len(a) <= rows:
+        return a @ b
+    return np.vstack([a[i : i + rows] @ b for i in range(0, len(a), rows)])
 
 
 class _PairGroup:
@@ -333,7 +347,7 @@ class BodyModel:
         if not near.size:
             return PathClearance(True, -1, -1, lowest - slack, slack, queries)
         # (m, near): how far each near pair can have moved from the first sample; never falls
-        moved = walked @ levers[:, near]
+        moved = blocked_product(walked, levers[:, near])
         start = 0
         known = np.full(near.size, distance)  # at the first sample: no pair is nearer than that
         while True:
