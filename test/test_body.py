@@ -214,3 +214,33 @@ def test_when_a_path_crosses_a_thin_part_between_two_clear_poses_expect_the_swee
     assert found.clear
     assert found.lowest_m <= body.clearance(clear).min()
     assert found.queries < len(clear)  # most of a way far from the body needs no query
+
+
+def test_when_a_path_is_given_as_sampled_pieces_expect_the_sweep_of_its_samples(body):
+    """The guard gives the sweep its path's corners and each piece's sample count (it makes only
+    the samples it queries): that must find what the sweep of every sample finds, at the same
+    sample, and bound a clear path's clearance no higher than any of its samples."""
+    a = np.array([0.28, 0.51, 0.31, 2.0, -1.46, 1.04, -0.82, 0.96, 0.49, 1.83, -0.3])
+    b = np.array([-0.51, -0.73, 0.39, -0.31, -0.44, -1.87, -0.35, 1.58, 0.13, 1.01, 0.11])
+    c = body.robot.neutral_rad
+    for corners, counts, floor in (
+        (np.array([a, b]), np.array([399]), 0.02),
+        (np.array([a, 0.5 * (a + b), b]), np.array([150, 250]), 0.02),
+        (np.array([c, a, c, a]), np.array([80, 3, 120]), 0.0),
+    ):
+        samples = [corners[:1]]
+        for start, end, count in zip(corners[:-1], corners[1:], counts, strict=True):
+            samples.append(start + (np.arange(1, count + 1) / count)[:, None] * (end - start))
+        dense = np.vstack(samples)
+        body.reset()
+        pieces = body.sweep(corners, floor, counts)
+        body.reset()
+        every = body.sweep(dense, floor)
+        assert (pieces.clear, pieces.index, pieces.pair) == (every.clear, every.index, every.pair)
+        assert pieces.queries == every.queries  # at the same samples: each first one in reach
+        if pieces.clear:
+            assert pieces.lowest_m <= body.clearance(dense).min()
+            assert pieces.queries < len(dense)
+        else:
+            assert body.clearance(dense[pieces.index]) < floor
+            assert body.clearance(dense[: pieces.index]).min() >= floor

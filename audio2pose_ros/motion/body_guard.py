@@ -136,8 +136,8 @@ class BodyGuard:
 
     def _path(
         self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray, dt_s: float
-    ) -> np.ndarray:
-        """Samples of the step from the previous command to ``pose`` and of its braking path.
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The step from the previous command to ``pose`` and its braking path, as sweep pieces.
 
         The braking path is the one the guard commands when it brakes (:meth:`_restrain`):
         each tick of ``dt_s`` every joint's speed falls by ``accel * dt_s`` until it rests, so
@@ -145,6 +145,10 @@ class BodyGuard:
         (at most ``MAX_BRAKING_TICKS`` ticks: a low acceleration limit takes longer ones).
         Between ticks the joints move in a straight line; each straight piece is sampled so
         that no checked pair travels more than ``SAMPLE_TRAVEL_M`` between two samples.
+
+        Returns:
+            ``(points, counts)`` for :meth:`~audio2pose_ros.robot.body.BodyModel.sweep`: the
+            previous command, ``pose`` and the braking path's ticks, and each piece's samples.
         """
         speed = np.abs(velocity)
         ticks = float((speed / (accel * dt_s)).max()) if dt_s > 0.0 else 0.0
@@ -158,12 +162,7 @@ class BodyGuard:
         nodes = np.vstack([self._previous, pose, braking])
         pieces = np.diff(nodes, axis=0)
         travel = blocked_product(np.abs(pieces), self._travel.T).max(axis=1)
-        counts = np.clip(np.ceil(travel / SAMPLE_TRAVEL_M), 1, MAX_SAMPLES).astype(np.int64)
-        piece = np.repeat(np.arange(len(pieces)), counts)
-        fraction = (np.arange(len(piece)) - np.repeat(np.cumsum(counts) - counts, counts) + 1.0) / (
-            np.repeat(counts, counts)
-        )
-        return np.vstack([nodes[:1], nodes[piece] + fraction[:, None] * pieces[piece]])
+        return nodes, np.clip(np.ceil(travel / SAMPLE_TRAVEL_M), 1, MAX_SAMPLES)
 
     def _sweep(
         self,
@@ -190,8 +189,8 @@ class BodyGuard:
             if distance < floor_m:
                 found = PathClearance(False, -1, pair, distance, 0.0, 1)
             else:
-                path = self._path(pose, velocity, accel, self._dt_s)
-                found = self.body.sweep(path, path_floor_m)
+                points, counts = self._path(pose, velocity, accel, self._dt_s)
+                found = self.body.sweep(points, path_floor_m, counts)
             if len(self._paths) >= RECENT_PATHS:
                 self._paths.pop(next(iter(self._paths)))
             self._paths[key] = found

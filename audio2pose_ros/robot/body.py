@@ -307,25 +307,33 @@ class BodyModel:
         distance = self._pin.computeDistance
         return np.array([distance(group.geometry, group.data, int(k)).min_distance for k in pairs])
 
-    def sweep(self, points_rad: np.ndarray, floor_m: float) -> PathClearance:
+    def sweep(
+        self, points_rad: np.ndarray, floor_m: float, counts: np.ndarray | None = None
+    ) -> PathClearance:
         """Whether the path through ``points_rad`` keeps ``floor_m`` (conservative advancement).
 
-        The path is the polyline through the (m, n_joints) samples. Pair k's distance cannot
-        fall by more than ``pair_lever_m[k] @ |q - q_known|`` from a pose where it is known (only
-        the joints that move one of its shapes and not the other count), and ``|q - q_known|``
-        is at most each joint's travel along the path between the two (equal where the joint
-        moves one way). From the first sample's clearance, the pairs that this bound keeps at
-        ``floor_m`` or more along the whole path are done; the others (the few near the moving
-        arm) are queried alone, pair by pair, at the first sample their bound does not keep
-        clear, and so on. Between two samples the path can come closer than their bounds by at
-        most half its travel there (``slack_m``), so samples dense for the fastest joint and the
-        thinnest shape make the check continuous to that slack. A path far from the body costs
-        one (usually cached) query; the rest are cumulative sums and comparisons, linear in the
-        samples (no (samples x pairs) products: they cost milliseconds on a long braking path).
+        The path is the polyline through the (m, n_joints) points; with ``counts`` (m - 1
+        positive integers) its piece p is sampled at ``counts[p]`` evenly spaced samples
+        (fractions 1/c, 2/c, ..., 1 of it; the first point is sample 0), else at its ends only.
+        Pair k's distance cannot fall by more than ``pair_lever_m[k] @ |q - q_known|`` from a
+        pose where it is known (only the joints that move one of its shapes and not the other
+        count), and ``|q - q_known|`` is at most each joint's travel along the path between
+        the two (equal where the joint moves one way). From the first sample's clearance, the
+        pairs that this bound keeps at ``floor_m`` or more along the whole path are done; the
+        others (the few near the moving arm) are queried alone, pair by pair, at the first
+        sample their bound does not keep clear, and so on. Between two samples the path can
+        come closer than their bounds by at most half its travel there (``slack_m``), so
+        samples dense for the fastest joint and the thinnest shape make the check continuous to
+        that slack. A path far from the body costs one (usually cached) query; the rest is
+        arithmetic on the pieces, not on the samples (only the queried samples are made).
 
         Args:
-            points_rad: (m, n_joints) finite samples of the path, in order.
+            points_rad: (m, n_joints) finite points of the path, in order.
             floor_m: clearance every sample must keep (m).
+            counts: (m - 1,) samples of each piece (default: one, its end).
+
+        Returns:
+            The :class:`PathClearance`; its ``index`` counts the samples from 0.
         """
         points = np.asarray(points_rad, dtype=np.float64)
         levers = self.pair_lever_m.T  # (n_joints, n_pairs)
@@ -334,48 +342,61 @@ class BodyModel:
             return PathClearance(False, 0, k, distance, 0.0, 1)
         if len(points) == 1:
             return PathClearance(True, -1, -1, distance, 0.0, 1)
-        steps = np.abs(np.diff(points, axis=0))  # (m - 1, n_joints)
-        # each joint's largest step, against each pair's levers: no pair moves further
-        slack = 0.5 * float((steps.max(axis=0) @ levers).max())
-        walked = np.zeros_like(points)  # each joint's travel from the first sample to each
-        np.cumsum(steps, axis=0, out=walked[1:])
+        pieces = np.diff(points, axis=0)
+        per = np.ones(len(pieces)) if counts is None else np.asarray(counts, dtype=np.float64)
+        spans = np.abs(pieces)  # (pieces, n_joints): each joint's travel along each piece
+        walked = np.zeros_like(points)  # each joint's travel from the first point to each
+        np.cumsum(spans, axis=0, out=walked[1:])
         reach = walked[-1] @ levers  # (n_pairs,): how far each pair can move along the path
+        slack = 0.5 * float(blocked_product(spans / per[:, None], levers).max())
         near = np.flatnonzero(distance - reach < floor_m)
         far = np.delete(reach, near)
         lowest = distance - (float(far.max()) if far.size else 0.0)
         queries = 1
         if not near.size:
             return PathClearance(True, -1, -1, lowest - slack, slack, queries)
-        # (m, near): how far each near pair can have moved from the first sample; never falls
-        moved = blocked_product(walked, levers[:, near])
-        start = 0
+        # how far each near pair can have moved from the first point, at each point (never
+        # falls), and along each piece; sample j of piece p has moved[p] + j / per[p] * along[p]
+        moved = blocked_product(walked, levers[:, near])  # (points, near)
+        along = np.diff(moved, axis=0)  # (pieces, near)
+        ends = np.cumsum(per).astype(np.int64)  # the sample at the end of each piece
+        now, last = 0, int(ends[-1])  # the present sample, the last one
+        at = moved[0]
         known = np.full(near.size, distance)  # at the first sample: no pair is nearer than that
         while True:
-            if start:
-                known = self._some_pairs(points[start], near)
-                queries += 1
-                if known.min() < floor_m:
-                    worst = int(np.argmin(known))
-                    pair, nearest = int(near[worst]), float(known[worst])
-                    return PathClearance(False, start, pair, nearest, slack, queries)
             lowest = min(lowest, float(known.min()))
-            if start == len(points) - 1:
-                break
-            # sample i > start is kept clear of pair j while moved[i, j] <= allowed[j]
-            allowed = moved[start] + known - floor_m
-            beyond = moved[start + 1 :] > allowed  # (rest, near)
-            keep = beyond[-1]  # pairs that need another query further on (moved never falls)
+            # a later sample is kept clear of pair j while it has moved no further than this
+            allowed = at + known - floor_m
+            keep = moved[-1] > allowed  # pairs that need another query further on
             done = ~keep
             if done.any():
-                lowest = min(lowest, float((known - moved[-1] + moved[start])[done].min()))
-            if not keep.any():
+                lowest = min(lowest, float((known - moved[-1] + at)[done].min()))
+            if not keep.any() or now == last:
                 break
-            short = int(np.argmax(beyond[:, keep].any(axis=1)))
-            if short:
-                last = moved[start + short] - moved[start]
-                lowest = min(lowest, float((known - last)[keep].min()))
-            near, moved = near[keep], moved[:, keep]
-            start += short + 1
+            near, moved, along = near[keep], moved[:, keep], along[:, keep]
+            at, known, allowed = at[keep], known[keep], allowed[keep]
+            # each pair's first piece that ends beyond, and its first sample there
+            first = np.argmax(moved[1:] > allowed, axis=0)
+            share = (allowed - moved[first, np.arange(near.size)]) / np.maximum(
+                along[first, np.arange(near.size)], 1e-300
+            )
+            steps = np.clip(np.floor(share * per[first]) + 1.0, 1.0, per[first])
+            samples = ends[first] - per[first].astype(np.int64) + steps.astype(np.int64)
+            target = min(max(int(samples.min()), now + 1), last)
+            piece = int(np.searchsorted(ends, target))
+            step = target - int(ends[piece] - per[piece])
+            before = moved[piece] + (step - 1) / per[piece] * along[piece]
+            if target - 1 > now:  # the samples passed: bounded by the one before the target
+                lowest = min(lowest, float((known - before + at).min()))
+            fraction = step / per[piece]
+            pose = points[piece] + fraction * pieces[piece]
+            at = moved[piece] + fraction * along[piece]
+            known = self._some_pairs(pose, near)
+            queries, now = queries + 1, target
+            if known.min() < floor_m:
+                worst = int(np.argmin(known))
+                pair, nearest = int(near[worst]), float(known[worst])
+                return PathClearance(False, target, pair, nearest, slack, queries)
         return PathClearance(True, -1, -1, lowest - slack, slack, queries)
 
     def pair_joints(self, pair: int) -> np.ndarray:
