@@ -62,7 +62,9 @@ def test_when_a_hand_stays_above_the_shoulder_expect_a_board_stretch_but_not_a_b
     start, pad = 440, round(BOARD_PAD_S * 100)
     assert not board[: start - pad].any()  # a gesture of 0.4 s is talking
     assert board[start : start + long_up].all()
-    assert board[start - pad] and board[start + long_up + pad - 1]  # reaching up, coming down
-    assert not board[start - pad - 1] and not board[start + long_up + pad]
+    assert board[start - pad]
+    assert board[start + long_up + pad - 1]
+    assert not board[start - pad - 1]
+    assert not board[start + long_up + pad]
     assert not board[-100:].any()
     assert not board_frames(body, angles, np.zeros(angles.shape, bool)).any()  # unseen: no call
