@@ -499,6 +499,7 @@ def test_when_styles_are_given_expect_the_head_percentile_targets_between_them(c
         np.testing.assert_allclose(between[k], np.sqrt(one[k] * other[k]), rtol=1e-9)
 
 
+@pytest.mark.slow  # every arm setting is commanded through the filter, twice
 def test_when_arm_settings_are_livelier_than_people_commanded_expect_the_best_within_the_calm(
     checkpoint, selected, robot, monkeypatch
 ):
