@@ -1,5 +1,5 @@
 # audio2pose_ros on a machine without a ROS distro: everything runs from .venv (see README.md).
-.PHONY: setup demo test test-fast lint bench default-model clean
+.PHONY: setup demo test test-fast lint bench docs default-model clean
 
 # DDS stays on loopback and each run gets its own domain unless the caller chose one.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
@@ -29,6 +29,13 @@ lint: setup
 bench: setup
 	$(VENV_BIN)/audio2pose bench
 
+# The documentation (doc/: Sphinx with MyST, as rosdoc2 builds it) into out/docs/, offline; a
+# warning fails the build. The Python API pages are generated into doc/generated/ (anew each
+# time: stubs of removed modules would stay).
+docs: setup
+	rm -rf doc/generated
+	$(VENV_BIN)/python -m sphinx -W --keep-going -q -b html doc out/docs
+
 TALKING_HEADS ?= ../shared/data/talking_heads
 LECTURE_VIDEO ?= ../shared/data/lecture_video/physicsworks.webm
 # Rebuild models/default/ from the shared talking-head clips and lecture video: import, train,
@@ -37,4 +44,4 @@ default-model: setup
 	nice -n 10 $(VENV_BIN)/audio2pose dataset build-default $(TALKING_HEADS) --lecture $(LECTURE_VIDEO) -o models/default --work-dir out/default-model-work
 
 clean:
-	rm -rf .venv out build install log .pytest_cache .ruff_cache .mypy_cache .hypothesis web/dist web/node_modules
+	rm -rf .venv out doc/generated build install log .pytest_cache .ruff_cache .mypy_cache .hypothesis web/dist web/node_modules

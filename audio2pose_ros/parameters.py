@@ -4,7 +4,7 @@ A settings dataclass of the core (``MotionFilterSettings``, ``LimitSettings``, .
 field with :func:`param`; the field's default, type and metadata are then the single definition
 that the node's ParameterDescriptors (``audio2pose_ros.ros.node_parameters``), the settings
 validation (:func:`validate_settings`, called from ``__post_init__``), ``config/pepper.yaml`` and
-the README table are checked against. This module does not import rclpy.
+the parameter page (``doc/parameters.md``) are checked against. This module does not import rclpy.
 
 Rules every value goes through (:meth:`ParameterSpec.validate`):
 
@@ -47,12 +47,12 @@ _METADATA_KEY = "audio2pose_parameter"
 
 @dataclass(frozen=True)
 class ParameterSpec:
-    """One parameter: everything a node, a YAML file and the README need to know about it.
+    """One parameter: everything a node, a YAML file and the docs need to know about it.
 
     Attributes:
         name: parameter name (as in the YAML file under ``ros__parameters``).
         default: default value; its type is the parameter's type.
-        description: one line for ParameterDescriptor.description and the README.
+        description: one line for ParameterDescriptor.description and the docs.
         minimum: inclusive lower bound for numbers, or None.
         maximum: inclusive upper bound for numbers, or None.
         excluded: ``(low, high)``: numbers with low <= value < high are refused although

@@ -44,7 +44,7 @@ Visualisation and simulation (urdf/pepper.urdf, primitive shapes):
 (``python -m audio2pose_ros.ros.nodes.single_process``, the same parameters and remappings): the
 smallest footprint. The default stays three processes.
 
-``console:=true`` starts console_node, the operator's web console (README "Operator console"):
+``console:=true`` starts console_node, the operator's web console (doc/console.md):
 it prints the address to open; its settings (host, port, token, certificate) come from the
 parameters file's ``console_node`` section.
 

@@ -10,8 +10,10 @@ Two kinds of WebSocket frames come from the page:
 - **Text: one control message**, a JSON object of at most :data:`MAX_TEXT_BYTES` whose ``type``
   says what it is and whose fields are exactly those of :data:`CONTROL_FIELDS`, of the right
   type and range (:func:`parse_control`): ``hello`` (token and display name, the first message),
-  ``talk`` (take or release the floor), ``stop`` (emergency stop or release), ``enable``,
-  ``gains`` (``head``, ``arms``, ``hip`` in [0, 1]) and ``ping`` (clock offset and round trip).
+  ``talk`` (take or release the floor), ``stop`` (emergency stop or release; the release of a
+  holder who has left names them in ``confirm``: :mod:`~audio2pose_ros.console.stop`),
+  ``enable``, ``gains`` (``head``, ``arms``, ``hip`` in [0, 1]) and ``ping`` (clock offset and
+  round trip).
   Every string is text that UTF-8 can encode (JSON can carry lone surrogates, which it
   cannot) and every integer within :data:`MAX_JSON_INT` of zero, so every number is a finite
   float.
@@ -71,7 +73,7 @@ GAIN_GROUPS = ("head", "arms", "hip")  # the filter's head_gain, arms_gain, hip_
 CONTROL_FIELDS: dict[str, tuple[tuple[str, type, bool], ...]] = {
     "hello": (("token", str, True), ("name", str, False)),
     "talk": (("on", bool, True),),
-    "stop": (("on", bool, True),),
+    "stop": (("on", bool, True), ("confirm", str, False)),
     "enable": (("on", bool, True),),
     "gains": tuple((group, float, False) for group in GAIN_GROUPS),
     "ping": (("t", float, True),),
@@ -184,8 +186,8 @@ def _field(kind: str, name: str, expected: type, value: object) -> object:
             value.encode("utf-8")
         except UnicodeEncodeError:
             raise ProtocolError(f"{kind}.{name} must be valid UTF-8 text") from None
-        if name == "name" and not value.isprintable():
-            raise ProtocolError("hello.name must be printable text")
+        if name in ("name", "confirm") and not value.isprintable():
+            raise ProtocolError(f"{kind}.{name} must be printable text")
     return value
 
 

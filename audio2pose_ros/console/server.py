@@ -4,16 +4,30 @@ It serves the page (the built front end, ``web/dist``), the robot's URDF and one
 ``/ws``, and talks to the robot only through a :class:`GraphBridge` (``console_node`` is one;
 tests use their own). What a connection goes through:
 
-1. **The TCP connection**: at most :data:`CONNECTIONS_PER_CLIENT` times ``max_clients`` are
-   open at once, page loads and WebSockets together (more are answered 503 and closed at
-   once). A connection must complete its TLS handshake, and then its request, within
-   ``auth_timeout_s`` each, and an idle keep-alive connection is closed after as long
-   (aiohttp's own default is an hour: half-sent requests would hold sockets that long).
+1. **The TCP connection**, counted by its client address
+   (:func:`~audio2pose_ros.console.access.client_key`) from its acceptance, before any TLS
+   handshake (:class:`_Gate`): one address may hold at most :data:`CONNECTIONS_PER_ADDRESS`
+   open at once, page loads and WebSockets together, and all addresses together
+   :data:`CONNECTIONS_PER_CLIENT` times ``max_clients`` more than that, so an address that
+   holds its whole share leaves room for ``max_clients`` operators elsewhere. When all are
+   open, a newcomer whose address holds fewer than another takes the place of that address's
+   oldest connection that is not an identified operator's (:class:`_Connections`), so many
+   addresses together cannot hold the door shut either. Otherwise a connection beyond a limit
+   is closed at once (answered 503 on plain HTTP; over TLS before its handshake). A
+   connection must complete its TLS handshake, and then its request, within
+   ``auth_timeout_s`` each, and an idle connection is closed after as long (aiohttp's own
+   default is an hour: idle or half-sent requests would hold sockets that long).
 2. **Before the upgrade**: the Host and Origin checks of
-   :func:`~audio2pose_ros.console.access.request_problem` (403) and ``max_clients`` open
-   WebSockets, identified or still waiting for their token (503).
+   :func:`~audio2pose_ros.console.access.request_problem` (403), ``max_clients`` identified
+   operators, and :data:`PENDING_PER_ADDRESS` WebSockets of one address still waiting for their
+   token (503): connections without the token cannot take the operators' places.
 3. **Token**: the first message must be a ``hello`` with the token, within ``auth_timeout_s``;
    otherwise the connection is closed (code 4401 for a wrong token, 4400 for anything else).
+   Wrong tokens slow their address down
+   (:class:`~audio2pose_ros.console.access.TokenThrottle`: the next one is checked only after
+   a delay that doubles with each, one at a time; one that comes meanwhile is closed
+   unchecked, code 4429). Refused connections and wrong tokens are logged in one summary line
+   every :data:`SUMMARY_PERIOD_S` at most, not one line each.
 4. **Bounded use**: a frame larger than the largest allowed chunk closes the connection (1009,
    before it is read in full); every other frame is checked by
    :mod:`~audio2pose_ros.console.protocol`; audio counts against
@@ -25,10 +39,13 @@ tests use their own). What a connection goes through:
    its rates or stamped off the console's clock is only dropped and counted
    (:class:`~audio2pose_ros.console.protocol.AudioDroppedError`): the page may be catching up
    after a stall or a clock step.
-5. **The floor**: only the holder's audio is published; a ``stop`` is accepted from anyone, a
-   release of the stop, ``enable`` and ``gains`` only while the floor is free or one's own.
+5. **The floor and the stop**: only the holder's audio is published; ``enable`` and ``gains``
+   only while the floor is free or one's own. A ``stop`` is accepted from anyone, and released
+   only by whoever pressed it, or, once they have left, by another operator who names them
+   (:mod:`~audio2pose_ros.console.stop`); every page is told who holds the stop.
 6. **The end**: a closed or dropped connection (WebSocket pings every :data:`HEARTBEAT_S`)
-   releases its floor: audio stops, and the filter's watchdog brings the robot to rest. A page
+   releases its floor: audio stops, and the filter's watchdog brings the robot to rest. Its
+   presses of STOP stay, held by someone who has left. A page
    that leaves while it is being answered ends its session quietly; any other exception in a
    connection's handler is logged in one line and closes that connection (1011), never
    escaping to aiohttp.
@@ -56,7 +73,7 @@ from typing import Any, Protocol
 from aiohttp import WSMsgType, web
 
 from audio2pose_ros.audio.source import AudioBudget
-from audio2pose_ros.console.access import Access, request_problem
+from audio2pose_ros.console.access import Access, TokenThrottle, client_key, request_problem
 from audio2pose_ros.console.floor import Floor
 from audio2pose_ros.console.protocol import (
     AUDIO_HEADER,
@@ -71,6 +88,7 @@ from audio2pose_ros.console.protocol import (
     parse_control,
 )
 from audio2pose_ros.console.settings import ConsoleSettings
+from audio2pose_ros.console.stop import OUTSIDE, StopHolders, unique_name
 from audio2pose_ros.errors import ConfigurationError
 
 __all__ = ["ConsoleServer", "GraphBridge", "ServerThread"]
@@ -92,8 +110,16 @@ AUDIO_FRAMES_BURST = 100.0
 # Open TCP connections at most, per max_clients: a browser loads the page over up to 6, and
 # keeps its WebSocket beside them. Beyond it a connection is answered 503 and closed.
 CONNECTIONS_PER_CLIENT = 8
+# Open TCP connections of one client address at most: two browsers' worth (two operators behind
+# one address). The total limit is this more than CONNECTIONS_PER_CLIENT * max_clients.
+CONNECTIONS_PER_ADDRESS = 2 * CONNECTIONS_PER_CLIENT
+PENDING_PER_ADDRESS = 2  # WebSockets of one address waiting for their token, at most
+SUMMARY_PERIOD_S = 10.0  # refused connections and wrong tokens are logged this often at most
+MAX_TALLIED_ADDRESSES = 1024  # addresses named in one summary's counts, at most
 CLOSE_BAD_TOKEN = 4401
 CLOSE_NO_HELLO = 4400
+CLOSE_TOKEN_WAIT = 4429  # another attempt of this address waits for its turn: not checked
+CLOSE_FULL = 4503  # max_clients operators were identified meanwhile
 CLOSE_POLICY = 1008  # RFC 6455: policy violation
 CLOSE_INTERNAL = 1011  # RFC 6455: the server met an unexpected condition
 MAX_CLOSE_REASON_BYTES = 120  # a close frame's reason is at most 123 bytes of UTF-8
@@ -194,6 +220,8 @@ class ConsoleServer:
         web_dir: the built front end (``index.html`` and its files, flat).
         urdf_path: the robot model the page draws.
         log: ``log(level, message)`` with level ``info`` or ``warning``.
+        tokens: the wrong-token throttle (a default one; tests pass their own delays).
+        summary_period_s: the period of the log's summaries of refusals and wrong tokens.
     """
 
     def __init__(
@@ -204,6 +232,8 @@ class ConsoleServer:
         web_dir: Path,
         urdf_path: Path,
         log: Callable[[str, str], None],
+        tokens: TokenThrottle | None = None,
+        summary_period_s: float = SUMMARY_PERIOD_S,
     ) -> None:
         self.settings = settings
         self.access = access
@@ -212,18 +242,23 @@ class ConsoleServer:
         self.urdf = urdf_path.read_text(encoding="utf-8")
         self.log = log
         self.floor = Floor()
+        self.stops = StopHolders()
+        self.tokens = tokens if tokens is not None else TokenThrottle()
+        self.summary_period_s = summary_period_s
         self.sessions: dict[int, _Session] = {}
         self.refused_connections = 0
         self.refused_frames = 0
-        self.connections = 0  # open WebSockets, with or without their token yet
         self.port = 0
         self._ids = itertools.count(1)
         self._runner: web.AppRunner | None = None
         self._tasks: list[asyncio.Task[None]] = []
         self._tcp = _Connections(
-            CONNECTIONS_PER_CLIENT * settings.max_clients, settings.auth_timeout_s
+            CONNECTIONS_PER_CLIENT * settings.max_clients + CONNECTIONS_PER_ADDRESS,
+            CONNECTIONS_PER_ADDRESS,
         )
-        self._full = False  # connections are being refused (logged once per episode)
+        self._tls: ssl.SSLContext | None = None
+        self._pending: dict[str, int] = {}  # WebSockets waiting for their token, by address
+        self._refusals: dict[str, int] = {}  # refused connections since the last summary
         self._unsent: set[str] = set()  # snapshot fields sent as null, logged once each
         self.files = {
             path.name: path.read_bytes()
@@ -269,14 +304,8 @@ class ConsoleServer:
             keepalive_timeout=self.settings.auth_timeout_s,
         )
         await self._runner.setup()
-        site = _Site(
-            self._runner,
-            self.access.host,
-            self.access.port,
-            self._ssl_context(),
-            self._accept,
-            handshake_timeout_s=self.settings.auth_timeout_s,
-        )
+        self._tls = self._ssl_context()
+        site = _Site(self._runner, self.access.host, self.access.port, self._tls, self._accept)
         try:
             await site.start()
         except OSError as exc:
@@ -290,6 +319,7 @@ class ConsoleServer:
         self._tasks = [
             asyncio.create_task(self._every(1.0 / self.settings.pose_rate_hz, self._send_pose)),
             asyncio.create_task(self._every(STATUS_PERIOD_S, self._send_status)),
+            asyncio.create_task(self._every(self.summary_period_s, self._log_summary)),
         ]
         return self.port
 
@@ -316,21 +346,49 @@ class ConsoleServer:
                 failed = ""
 
     def _accept(self) -> asyncio.BaseProtocol:
-        """The protocol for a new TCP connection: aiohttp's, or a refusal beyond the limit."""
-        if not self._tcp.admit():
-            self.refused_connections += 1
-            if not self._full:
-                self.log(
-                    "warning",
-                    f"console: {self._tcp.limit} connections open, the most allowed "
-                    f"({CONNECTIONS_PER_CLIENT} per max_clients): refusing more",
-                )
-            self._full = True
-            return _Busy()
-        self._full = False
+        """The protocol for a new TCP connection: its gate, which admits it or not."""
+        return _Gate(self)
+
+    def _admit(self, key: str, gate: _Gate) -> bool:
+        """Whether ``gate``, a connection of ``key``, may open (counted if so).
+
+        A refusal is tallied for the next summary.
+        """
+        problem = self._tcp.admit(key, gate)
+        if not problem:
+            return True
+        self.refused_connections += 1
+        self._tally(self._refusals, f"{key} ({problem})")
+        return False
+
+    def _http_protocol(self) -> asyncio.Protocol:
+        """The protocol of aiohttp for an admitted connection."""
         assert self._runner is not None
         assert self._runner.server is not None
-        return self._tcp.counted(self._runner.server())
+        return self._runner.server()
+
+    @staticmethod
+    def _tally(counts: dict[str, int], key: str) -> None:
+        """Count ``key`` in ``counts``, which names at most :data:`MAX_TALLIED_ADDRESSES`."""
+        if key not in counts and len(counts) >= MAX_TALLIED_ADDRESSES:
+            key = "other addresses"
+        counts[key] = counts.get(key, 0) + 1
+
+    async def _log_summary(self) -> None:
+        """One line for the connections refused and one for the wrong tokens of the last period."""
+        refusals, self._refusals = self._refusals, {}
+        if refusals:
+            worst = sorted(refusals.items(), key=lambda item: -item[1])[:3]
+            self.log(
+                "warning",
+                f"console: {sum(refusals.values())} connection(s) refused in the last "
+                f"{self.summary_period_s:g} s: "
+                + ", ".join(f"{count} from {why}" for why, count in worst)
+                + (" and more" if len(refusals) > len(worst) else ""),
+            )
+        tokens = self.tokens.summary()
+        if tokens:
+            self.log("warning", f"console: in the last {self.summary_period_s:g} s: {tokens}")
 
     # --- HTTP -----------------------------------------------------------------------------------
 
@@ -364,10 +422,18 @@ class ConsoleServer:
             self.refused_connections += 1
             self.log("warning", f"console: WebSocket from {peer} refused: {problem}")
             raise web.HTTPForbidden(text=problem)
-        if self.connections >= self.settings.max_clients:  # identified or not yet
+        key = client_key(peer)
+        if len(self.sessions) >= self.settings.max_clients:
             self.refused_connections += 1
             raise web.HTTPServiceUnavailable(
                 text=f"at most {self.settings.max_clients} operators at once"
+            )
+        if self._pending.get(key, 0) >= PENDING_PER_ADDRESS:
+            self.refused_connections += 1
+            self._tally(self._refusals, f"{key} (WebSockets waiting for their token)")
+            raise web.HTTPServiceUnavailable(
+                text=f"at most {PENDING_PER_ADDRESS} connections of one address wait for "
+                "their token at once"
             )
         ws = web.WebSocketResponse(
             heartbeat=HEARTBEAT_S,
@@ -377,7 +443,8 @@ class ConsoleServer:
             await ws.prepare(request)
         except ConnectionError:  # the page left during the upgrade
             return ws
-        self.connections += 1
+        self._pending[key] = self._pending.get(key, 0) + 1
+        pending = True
         session = _Session(
             id=next(self._ids),
             ws=ws,
@@ -391,7 +458,10 @@ class ConsoleServer:
             ),
         )
         try:
-            if await self._authenticate(session):
+            identified = await self._authenticate(session)
+            pending = self._unpend(key)
+            if identified and await self._room_for(session):
+                self._tcp.keep(request.transport)
                 self.sessions[session.id] = session
                 self.log("info", f"console: operator {session.name!r} connected from {peer}")
                 await self._welcome(session)
@@ -402,17 +472,40 @@ class ConsoleServer:
             self._failed(session, "closing it after an error", exc)
             await ws.close(code=CLOSE_INTERNAL, message=b"console error")
         finally:
-            self.connections -= 1
+            if pending:
+                self._unpend(key)
             self.sessions.pop(session.id, None)
             try:
                 if self.floor.release(session.id):
                     self.bridge.end_talk()
                     await self._send_floor()
+                await self._stop_holder_left(session)
             except Exception as exc:  # the boundary, for the end of the session too
                 self._failed(session, "releasing its floor failed", exc)
             if session.name:
                 self.log("info", f"console: operator {session.name!r} left")
         return ws
+
+    def _unpend(self, key: str) -> bool:
+        """A WebSocket of ``key`` no longer waits for its token; False (no longer pending)."""
+        left = self._pending.get(key, 0) - 1
+        if left > 0:
+            self._pending[key] = left
+        else:
+            self._pending.pop(key, None)
+        return False
+
+    async def _room_for(self, session: _Session) -> bool:
+        """Whether an identified operator finds a place; closed (4503) if not."""
+        if len(self.sessions) < self.settings.max_clients:
+            return True
+        self.refused_connections += 1
+        await self._send_now(
+            session,
+            encode("error", message=f"at most {self.settings.max_clients} operators at once"),
+        )
+        await session.ws.close(code=CLOSE_FULL, message=b"too many operators")
+        return False
 
     def _failed(self, session: _Session, what: str, exc: Exception) -> None:
         """Log an unexpected exception of a connection's handler: one line, no traceback."""
@@ -437,15 +530,48 @@ class ConsoleServer:
             self.refused_frames += 1
             await ws.close(code=CLOSE_NO_HELLO, message=_close_reason(str(exc)))
             return False
-        if not self.access.token_matches(control.fields["token"]):
-            self.refused_connections += 1
-            self.log("warning", f"console: wrong token from {session.peer}: connection closed")
-            await self._send_now(session, encode("error", message="wrong token: access refused"))
-            await ws.close(code=CLOSE_BAD_TOKEN, message=b"wrong token")
+        if not await self._token_accepted(session, control.fields["token"]):
             return False
         name = " ".join(control.fields.get("name", "").split()) or f"operator {session.id}"
-        session.name = name
+        taken = {other.name for other in self.sessions.values()} | self.stops.names()
+        session.name = unique_name(name, taken)
         return True
+
+    async def _token_accepted(self, session: _Session, presented: str) -> bool:
+        """Check the token after its address's wait; close the connection if it is refused.
+
+        Raises:
+            _PeerLeftError: the page left before it could be told.
+        """
+        if not self.access.token:
+            return True
+        key = client_key(session.peer)
+        wait_s = self.tokens.wait_s(key)
+        if wait_s is None:
+            self.refused_connections += 1
+            await self._send_now(
+                session,
+                encode(
+                    "error",
+                    message="too many wrong tokens from this address: another attempt is "
+                    "waiting its turn, try again later",
+                ),
+            )
+            await session.ws.close(code=CLOSE_TOKEN_WAIT, message=b"wait for your turn")
+            return False
+        matched: bool | None = None
+        try:
+            if wait_s > 0:
+                await asyncio.sleep(wait_s)
+            matched = self.access.token_matches(presented)
+        finally:
+            self.tokens.done(key, matched)
+        if matched:
+            return True
+        self.refused_connections += 1
+        await self._send_now(session, encode("error", message="wrong token: access refused"))
+        await session.ws.close(code=CLOSE_BAD_TOKEN, message=b"wrong token")
+        return False
 
     async def _welcome(self, session: _Session) -> None:
         await self._send_now(
@@ -460,6 +586,7 @@ class ConsoleServer:
             ),
         )
         await self._send_floor()
+        self._send(session, self._stop_holders(session), droppable=False)
 
     async def _serve(self, session: _Session) -> None:
         """Act on each message until the connection ends.
@@ -555,18 +682,14 @@ class ConsoleServer:
             raise ProtocolError("already identified")
         elif control.type == "talk":
             await self._talk(session, bool(on))
-        elif control.type == "stop" and on:
-            self.log("warning", f"console: STOP pressed by {session.name!r}")
-            self.bridge.set_stop(True)
+        elif control.type == "stop":
+            await self._on_stop(session, bool(on), control.fields.get("confirm"))
         else:
             if not self.floor.free_for(session.id):
                 raise ProtocolError(
                     f"{self.floor.holder_name} has the floor: only a stop is accepted meanwhile"
                 )
-            if control.type == "stop":
-                self.log("info", f"console: stop released by {session.name!r}")
-                self.bridge.set_stop(False)
-            elif control.type == "enable":
+            if control.type == "enable":
                 self.bridge.set_enable(bool(on))
             else:
                 self.bridge.set_gains({k: float(v) for k, v in control.fields.items()})
@@ -583,6 +706,82 @@ class ConsoleServer:
         else:
             return
         await self._send_floor()
+
+    # --- the stop and who holds it -----------------------------------------------------------
+
+    async def _on_stop(self, session: _Session, on: bool, confirm: str | None) -> None:
+        """A press of STOP, the release of one's own, or a confirmed one for someone who left.
+
+        Raises:
+            ProtocolError: a release that is not the operator's to make (the reason names who
+                holds the stop).
+        """
+        if on:
+            if self.stops.press(session.id, session.name):
+                self.log("warning", f"console: STOP pressed by {session.name!r}")
+            self.bridge.set_stop(True)  # each press latches it again, whatever came meanwhile
+            await self._send_stop_holders()
+            return
+        if confirm is None:
+            if not self.stops.release(session.id):
+                if self.stops.held or self._stopped_outside():
+                    raise ProtocolError(self._stop_refusal())
+                return  # nothing held, nothing stopped: nothing to release
+            self.log("info", f"console: {session.name!r} released their stop")
+        elif confirm in self.stops.present_holders():
+            raise ProtocolError(
+                f"{confirm} is still connected: only {confirm} can release their stop"
+            )
+        elif self.stops.release_absent(confirm):
+            self.log(
+                "warning",
+                f"console: {session.name!r} released the stop of {confirm!r}, who has left "
+                "(confirmed by name)",
+            )
+        elif confirm == OUTSIDE and not self.stops.held and self._stopped_outside():
+            self.log("warning", f"console: {session.name!r} released a stop set {OUTSIDE}")
+        else:
+            raise ProtocolError(f"no stop of {confirm!r} to release; {self._stop_refusal()}")
+        if not self.stops.held:
+            self.bridge.set_stop(False)
+        await self._send_stop_holders()
+
+    def _stopped_outside(self) -> bool:
+        """Whether the robot is stopped with no press from this console holding it."""
+        return not self.stops.held and self.bridge.status().get("stop") is True
+
+    def _stop_refusal(self) -> str:
+        """Why a release is not the sender's to make, naming who may make it."""
+        present = self.stops.present_holders()
+        absent = [p.name for p in self.stops.presses if not p.present]
+        if present:
+            return f"the stop is held by {', '.join(present)}: only they can release it"
+        if absent:
+            return (
+                f"the stop is held by {', '.join(absent)}, who left: releasing it needs a "
+                "confirmation that names them"
+            )
+        if self._stopped_outside():
+            return f"the stop was set {OUTSIDE}: releasing it needs a confirmation naming that"
+        return "the robot is not stopped"
+
+    async def _stop_holder_left(self, session: _Session) -> None:
+        """``session`` has ended: its presses stay, held by someone absent."""
+        if self.stops.left(session.id):
+            self.log(
+                "warning",
+                f"console: {session.name!r} left holding the stop: the robot stays stopped "
+                f"until another operator releases it with a confirmation naming them",
+            )
+            await self._send_stop_holders()
+
+    def _stop_holders(self, session: _Session) -> str:
+        """The message that tells a page who holds the stop, and whether it does."""
+        return encode("stop_holders", holders=self.stops.view(), you=self.stops.holds(session.id))
+
+    async def _send_stop_holders(self) -> None:
+        for session in list(self.sessions.values()):
+            self._send(session, self._stop_holders(session), droppable=False)
 
     # --- broadcasts -----------------------------------------------------------------------------
 
@@ -653,104 +852,201 @@ def _close_reason(text: str) -> bytes:
 
 
 class _Connections:
-    """The TCP connections open at once, those still in their TLS handshake included.
+    """The TCP connections open at once, by client address, from acceptance until they end.
 
-    A connection counts from its acceptance until it is lost; one that is not connected within
-    ``handshake_timeout_s`` of its acceptance (its TLS handshake failed or timed out, which
-    asyncio does not tell the protocol) stops counting then.
+    When all ``limit`` are open, a new connection still gets in if some address holds more
+    connections than the newcomer's: the oldest of that address's connections that is not an
+    identified operator's WebSocket is closed for it. So many addresses together cannot hold
+    the door shut either, and an operator's WebSocket is never closed for anyone.
 
     Args:
         limit: connections open at once, at most.
-        handshake_timeout_s: the bound on a TLS handshake.
+        per_address: connections of one client address open at once, at most.
     """
 
-    def __init__(self, limit: int, handshake_timeout_s: float) -> None:
+    def __init__(self, limit: int, per_address: int) -> None:
         self.limit = limit
-        self.handshake_timeout_s = handshake_timeout_s
-        self._connected: set[_Counted] = set()
-        self._handshaking: dict[_Counted, float] = {}  # -> the time its handshake has ended by
+        self.per_address = per_address
+        self.total = 0
+        self.by_address: dict[str, list[_Gate]] = {}  # in order of acceptance; only open ones
+        self.evicted = 0
 
-    def number_open(self) -> int:
-        """Connections open now (forgetting handshakes that have ended without a connection)."""
-        now = time.monotonic()
-        self._handshaking = {c: t for c, t in self._handshaking.items() if now < t}
-        return len(self._connected) + len(self._handshaking)
+    def admit(self, key: str, gate: _Gate) -> str:
+        """Count ``gate``, a new connection of ``key``, and return '', or return why not."""
+        mine = self.by_address.get(key, [])
+        if len(mine) >= self.per_address:
+            return f"{len(mine)} connections open, the most one address may"
+        if self.total >= self.limit:
+            victim = self._victim(len(mine))
+            if victim is None:
+                return f"{self.total} connections open, the most allowed"
+            self.evicted += 1
+            victim.evict()
+        self.by_address.setdefault(key, []).append(gate)
+        self.total += 1
+        return ""
 
-    def admit(self) -> bool:
-        """Whether one more connection may open."""
-        return self.number_open() < self.limit
+    def _victim(self, newcomer_has: int) -> _Gate | None:
+        """The connection to close for a newcomer whose address holds ``newcomer_has``.
 
-    def counted(self, protocol: asyncio.Protocol) -> asyncio.Protocol:
-        """``protocol`` for a connection just accepted, counted until its connection ends."""
-        counted = _Counted(protocol, self)
-        self._handshaking[counted] = time.monotonic() + self.handshake_timeout_s
-        return counted
+        It is the oldest connection that is not an operator's, of the address that holds the
+        most, if that is more than the newcomer's (None otherwise).
+        """
+        most = max(
+            (gates for gates in self.by_address.values() if any(not g.operator for g in gates)),
+            key=len,
+            default=[],
+        )
+        if len(most) <= newcomer_has:
+            return None
+        return next(g for g in most if not g.operator)
 
-    def made(self, connection: _Counted) -> None:
-        """``connection`` is connected (its TLS handshake, if any, done)."""
-        self._handshaking.pop(connection, None)
-        self._connected.add(connection)
+    def keep(self, transport: object) -> None:
+        """The connection on ``transport`` is an identified operator's: never closed for others."""
+        for gates in self.by_address.values():
+            for gate in gates:
+                if gate.handed is transport:
+                    gate.operator = True
 
-    def lost(self, connection: _Counted) -> None:
-        """``connection`` has ended."""
-        self._handshaking.pop(connection, None)
-        self._connected.discard(connection)
+    def lost(self, key: str, gate: _Gate) -> None:
+        """``gate``, a connection of ``key``, has ended (or been closed for a newcomer)."""
+        gates = self.by_address.get(key, [])
+        if gate in gates:
+            gates.remove(gate)
+            self.total -= 1
+        if not gates:
+            self.by_address.pop(key, None)
 
 
-class _Counted(asyncio.Protocol):
-    """aiohttp's protocol for one TCP connection, telling :class:`_Connections` its life."""
+class _Gate(asyncio.Protocol):
+    """One TCP connection from its acceptance: admitted by its address, then given to aiohttp.
 
-    def __init__(self, inner: asyncio.Protocol, connections: _Connections) -> None:
-        self._inner = inner
-        self._connections = connections
+    The connection counts towards its address's limit (:class:`_Connections`) as soon as it is
+    accepted; beyond a limit it is closed at once: answered 503 on plain HTTP, and over TLS
+    before its handshake, so a refused client costs the console no handshake. An admitted
+    TLS connection is handed to aiohttp after its handshake (``auth_timeout_s`` at most).
+
+    Args:
+        server: the console.
+    """
+
+    def __init__(self, server: ConsoleServer) -> None:
+        self._server = server
+        self._inner: asyncio.Protocol | None = None
+        self._key: str | None = None  # counted under this address until it ends
+        self._transport: asyncio.BaseTransport | None = None
+        self.handed: asyncio.BaseTransport | None = None  # the transport aiohttp has
+        self.operator = False  # an identified operator's WebSocket
+        self._early: list[bytes] = []  # application data before aiohttp has the connection
+        self._eof = False
+        self._handshake: asyncio.Task[None] | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        """Count it as connected, then hand it to aiohttp."""
-        self._connections.made(self)
-        self._inner.connection_made(transport)
+        """Admit or refuse; start TLS or hand it over."""
+        peer = transport.get_extra_info("peername")
+        key = client_key(str(peer[0]) if isinstance(peer, tuple) and peer else "?")
+        tls = self._server._tls
+        self._transport = transport
+        if not self._server._admit(key, self):
+            if tls is None and isinstance(transport, asyncio.WriteTransport):
+                transport.write(BUSY_RESPONSE)
+            transport.close()
+            return
+        self._key = key
+        if tls is None:
+            self._hand_over(transport)
+            return
+        assert isinstance(transport, asyncio.Transport)
+        transport.pause_reading()  # its first bytes are the handshake's, not ours to read
+        self._handshake = asyncio.get_running_loop().create_task(self._start_tls(transport, tls))
+
+    async def _start_tls(self, transport: asyncio.Transport, context: ssl.SSLContext) -> None:
+        """The TLS handshake, then aiohttp.
+
+        asyncio tells the protocol nothing of a connection lost, failed or timed out during
+        its handshake (``start_tls`` raises or returns None): it stops counting here.
+        """
+        secure: asyncio.BaseTransport | None = None
+        try:
+            secure = await asyncio.get_running_loop().start_tls(
+                transport,
+                self,
+                context,
+                server_side=True,
+                ssl_handshake_timeout=self._server.settings.auth_timeout_s,
+            )
+        except (OSError, ssl.SSLError, asyncio.TimeoutError, ConnectionError, RuntimeError):
+            transport.close()  # a failed or late handshake ends this connection only
+        finally:
+            if secure is None or secure.is_closing():
+                self._forget()
+        if secure is not None and not secure.is_closing():
+            self._hand_over(secure)
+
+    def _forget(self) -> None:
+        """Stop counting this connection (once)."""
+        if self._key is not None:
+            self._server._tcp.lost(self._key, self)
+            self._key = None
+
+    def evict(self) -> None:
+        """Close this connection for a newcomer (it stops counting at once)."""
+        self._forget()
+        if isinstance(self._transport, asyncio.WriteTransport):
+            self._transport.abort()
+
+    def _hand_over(self, transport: asyncio.BaseTransport) -> None:
+        self.handed = transport
+        inner = self._inner = self._server._http_protocol()
+        inner.connection_made(transport)
+        for data in self._early:
+            inner.data_received(data)
+        self._early.clear()
+        if self._eof and not inner.eof_received():
+            transport.close()
 
     def connection_lost(self, exc: Exception | None) -> None:
         """Stop counting it, then tell aiohttp."""
-        self._connections.lost(self)
-        self._inner.connection_lost(exc)
+        self._forget()
+        if self._handshake is not None and not self._handshake.done():
+            self._handshake.cancel()
+        if self._inner is not None:
+            self._inner.connection_lost(exc)
 
     def data_received(self, data: bytes) -> None:
-        """To aiohttp."""
-        self._inner.data_received(data)
+        """To aiohttp (kept until aiohttp has the connection)."""
+        if self._inner is not None:
+            self._inner.data_received(data)
+        else:
+            self._early.append(data)
 
     def eof_received(self) -> bool | None:
-        """To aiohttp."""
-        return self._inner.eof_received()
+        """To aiohttp (kept until aiohttp has the connection)."""
+        if self._inner is not None:
+            return self._inner.eof_received()
+        self._eof = True
+        return True  # keep the transport open until it is handed over
 
     def pause_writing(self) -> None:
         """To aiohttp."""
-        self._inner.pause_writing()
+        if self._inner is not None:
+            self._inner.pause_writing()
 
     def resume_writing(self) -> None:
         """To aiohttp."""
-        self._inner.resume_writing()
-
-
-class _Busy(asyncio.Protocol):
-    """A TCP connection beyond the limit: answered 503 and closed at once."""
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        """Answer and close."""
-        if isinstance(transport, asyncio.WriteTransport):
-            transport.write(BUSY_RESPONSE)
-        transport.close()
+        if self._inner is not None:
+            self._inner.resume_writing()
 
 
 class _Site(web.BaseSite):
-    """aiohttp's TCP site with its own protocol factory and a bound on the TLS handshake.
+    """aiohttp's TCP site with its own protocol factory; TLS is started by each :class:`_Gate`.
 
     Args:
         runner: the application's runner (set up).
         host: address to bind.
         port: TCP port (0: any free one).
-        ssl_context: TLS, or None for plain HTTP.
+        ssl_context: TLS, or None for plain HTTP (for the site's name only).
         accept: makes the protocol of each new connection.
-        handshake_timeout_s: a TLS handshake not done within this time is dropped.
     """
 
     def __init__(
@@ -760,13 +1056,11 @@ class _Site(web.BaseSite):
         port: int,
         ssl_context: ssl.SSLContext | None,
         accept: Callable[[], asyncio.BaseProtocol],
-        handshake_timeout_s: float,
     ) -> None:
         super().__init__(runner, ssl_context=ssl_context)
         self._host = host
         self._port = port
         self._accept = accept
-        self._handshake_timeout_s = handshake_timeout_s
         self.sockets: list[socket.socket] = []
 
     @property
@@ -782,12 +1076,7 @@ class _Site(web.BaseSite):
         """
         await super().start()
         server = await asyncio.get_running_loop().create_server(
-            self._accept,
-            self._host,
-            self._port,
-            ssl=self._ssl_context,
-            ssl_handshake_timeout=self._handshake_timeout_s if self._ssl_context else None,
-            backlog=self._backlog,
+            self._accept, self._host, self._port, backlog=self._backlog
         )
         self._server = server
         self.sockets = list(server.sockets)

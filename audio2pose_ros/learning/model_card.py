@@ -101,7 +101,7 @@ def write_default_model_card(
 A frame-wise MLP (seed 003 section 4.3.3; config `{checkpoint.model.config_dict()}`,
 {n_params} parameters) from {checkpoint.features.label} audio features to
 Pepper's {checkpoint.robot.n_joints} joints. It streams (no state), so `inference_node` runs it.
-Rebuild it with `audio2pose dataset build-default` (see README); training stopped at epoch
+Rebuild it with `audio2pose dataset build-default` (see doc/training.md); training stopped at epoch
 {report.best_epoch} (validation loss {report.best_val_loss:.5f}).
 
 ## What it learned from people, and what it did not
@@ -260,8 +260,7 @@ def _within(low: float, high: float) -> Callable[[float], bool]:
 
 def source_checks(report: SourceReport) -> list[Check]:
     """The goals for one held-out source, met or not, with the measured values."""
-    from audio2pose_ros.learning.default_model import PROSODY_RULE
-    from audio2pose_ros.learning.evaluation import REAL_FLOOR, STATIC
+    from audio2pose_ros.learning.evaluation import PROSODY_RULE, REAL_FLOOR, STATIC
 
     quality, model = report.quality, report.model()
     checks: list[Check] = []

@@ -55,7 +55,7 @@ from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.approach import Approach, minimum_jerk
 from audio2pose_ros.motion.body_guard import BodyGuard
 from audio2pose_ros.motion.gate import TrackGate
-from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
+from audio2pose_ros.motion.limits import JointLimiter, LimitSettings, check_limit_settings
 from audio2pose_ros.motion.smoothing import CausalLowPass, KalmanSmoother
 from audio2pose_ros.parameters import param, specs_of, validate_settings
 from audio2pose_ros.robot.body import BodyModel
@@ -436,15 +436,16 @@ class MotionFilter:
         self._glide_start: tuple[float, np.ndarray] | None = None
         self._holding = True
 
-    def update_settings(
-        self, settings: MotionFilterSettings, limits: LimitSettings | None = None
-    ) -> None:
-        """Take new settings from the next tick on (``ros2 param set`` at run time).
+    def check_settings(self, settings: MotionFilterSettings, limits: LimitSettings) -> None:
+        """Refuse settings :meth:`update_settings` would refuse, changing nothing (cheap).
+
+        A node validates a run-time change with this when it is requested and applies it at its
+        next tick, so a storm of requests costs one application per tick, not one per request.
 
         Raises:
-            ConfigurationError: a read-only setting differs from the running one.
+            ConfigurationError: a read-only setting differs from the running one, or the limit
+                settings leave no range for some joint.
         """
-        limits = limits or self.limiter.settings
         for name in READ_ONLY_SETTINGS:
             new, running = (
                 (limits, self.limiter.settings)
@@ -453,6 +454,18 @@ class MotionFilter:
             )
             if getattr(new, name) != getattr(running, name):
                 raise ConfigurationError(f"parameter {name} cannot change while the node runs")
+        check_limit_settings(self.robot, limits)
+
+    def update_settings(
+        self, settings: MotionFilterSettings, limits: LimitSettings | None = None
+    ) -> None:
+        """Take new settings from the next tick on (``ros2 param set`` at run time).
+
+        Raises:
+            ConfigurationError: refused by :meth:`check_settings` (nothing changes then).
+        """
+        limits = limits or self.limiter.settings
+        self.check_settings(settings, limits)
         self.settings = settings
         if limits != self.limiter.settings:
             counts = self.limiter.counts

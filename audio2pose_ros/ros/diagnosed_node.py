@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import array
+import contextlib
 import faulthandler
 import functools
 import math
@@ -13,7 +14,7 @@ import time
 import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, NoReturn
 
 import numpy as np
 import rclpy
@@ -66,6 +67,9 @@ HEARTBEAT_PERIOD_S = 0.5  # every node publishes /diagnostics this often, busy o
 # A supervisor passes the write end of a pipe in this variable: each heartbeat also writes a byte
 # there. Only the supervised process holds that descriptor, so no other process can fake it.
 HEARTBEAT_FD_ENV = "AUDIO2POSE_HEARTBEAT_FD"
+# A supervisor that writes a node's output to a log file passes its own stderr (the user's
+# terminal) in this variable: what the user must act on is written there too (to_terminal).
+TERMINAL_FD_ENV = "AUDIO2POSE_TERMINAL_FD"
 # A node process given this signal writes every thread's Python stack to stderr and runs on.
 STACK_DUMP_SIGNAL = signal.SIGUSR1
 STALE_AFTER_S = 1.2  # a node not heard from for this long is silent (stopped, frozen or dead)
@@ -519,6 +523,21 @@ def beat_to_supervisor() -> None:
             pass
 
 
+def to_terminal(line: str) -> None:
+    """Write ``line`` to the user's terminal as well, when the node's output goes to a log file.
+
+    ``audio2pose run``, ``console`` and ``demo`` with a log directory send each node's stdout and
+    stderr to ``<dir>/<node>.log`` and pass their own stderr in ``TERMINAL_FD_ENV``: the lines a
+    user must see (the console's address with its token, a refused configuration) are written
+    there too. Without it (output on a terminal already, or ``ros2 launch``) nothing is written.
+    A terminal that is gone is ignored: the line is in the log either way.
+    """
+    fd = os.environ.get(TERMINAL_FD_ENV, "")
+    if fd.isdigit():
+        with contextlib.suppress(OSError):
+            os.write(int(fd), (line.rstrip("\n") + "\n").encode("utf-8", "replace"))
+
+
 SPIN_ONCE_TIMEOUT_S = 0.5  # an idle EventsExecutor checks for shutdown this often
 EXECUTOR_ENV = "AUDIO2POSE_EXECUTOR"  # "events" (default where available) or "single_threaded"
 
@@ -562,6 +581,13 @@ def spin_executor(executor: Executor) -> None:
         executor.spin_once(timeout_sec=SPIN_ONCE_TIMEOUT_S)
 
 
+def _refused(line: str) -> NoReturn:
+    """End the process for a refused configuration: ``line`` on stderr and the terminal, exit 78."""
+    print(line, file=sys.stderr, flush=True)
+    to_terminal(line)
+    raise SystemExit(EXIT_CONFIGURATION_ERROR) from None
+
+
 def run_node(
     factory: Callable[[], Node],
     node_name: str,
@@ -587,7 +613,8 @@ def run_nodes(
     :func:`create_executor`. A
     :class:`~audio2pose_ros.errors.ConfigurationError` while a node is built (a refused
     parameter, a bad model or robot file), or arguments rcl cannot parse (a parameters file with
-    a YAML syntax error, a missing file), end the process with one line on stderr and exit status
+    a YAML syntax error, a missing file), end the process with one line on stderr (and on the
+    user's terminal when stderr goes to a log: :func:`to_terminal`) and exit status
     :data:`EXIT_CONFIGURATION_ERROR`, which ``audio2pose run`` and the launch file never respawn.
     """
     try:
@@ -612,15 +639,9 @@ def run_nodes(
             signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
             rclpy.try_shutdown()
     except ConfigurationError as exc:
-        print(f"[{process_name}] configuration error: {exc}", file=sys.stderr, flush=True)
-        raise SystemExit(EXIT_CONFIGURATION_ERROR) from None
+        _refused(f"[{process_name}] configuration error: {exc}")
     except rclpy_implementation.RCLError as exc:
-        print(
-            f"[{process_name}] configuration error: ROS arguments refused: "
-            + " ".join(str(exc).split()),
-            file=sys.stderr,
-            flush=True,
-        )
-        raise SystemExit(EXIT_CONFIGURATION_ERROR) from None
+        refused = " ".join(str(exc).split())
+        _refused(f"[{process_name}] configuration error: ROS arguments refused: {refused}")
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

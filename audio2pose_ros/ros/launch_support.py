@@ -31,7 +31,7 @@ import yaml
 
 from audio2pose_ros import topics
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, Audio2PoseError, ConfigurationError
-from audio2pose_ros.yaml_files import MAX_YAML_BYTES, load_yaml_text
+from audio2pose_ros.files import MAX_YAML_BYTES, load_yaml_text
 
 __all__ = [
     "ARGUMENTS",

@@ -12,7 +12,8 @@ Publications:
         republished every :data:`AUDIO_INFO_PERIOD_S` like audio_capture's.
     stop, enable (std_msgs/Bool, transient local): the page's stop button and enable switch, as
         motion_filter_node expects them.
-    /diagnostics: heartbeat, operators, floor, audio published and refused, latency.
+    /diagnostics: heartbeat, operators, floor, audio published and refused, wrong tokens, who
+        holds the stop, latency.
 Subscriptions:
     joint_angles (naoqi_bridge_msgs/JointAnglesWithSpeed) and commanded_joint_states
         (sensor_msgs/JointState): the commanded pose for the 3D view, and the commands that end
@@ -60,7 +61,13 @@ from audio2pose_ros.console.settings import ConsoleSettings
 from audio2pose_ros.parameters import settings_from, specs_of
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STALE_AFTER_S, DiagnosedNode, run_node
+from audio2pose_ros.ros.diagnosed_node import (
+    LATCHED_QOS,
+    STALE_AFTER_S,
+    DiagnosedNode,
+    run_node,
+    to_terminal,
+)
 from audio2pose_ros.ros.node_parameters import NodeParameters
 
 PARAMETERS = specs_of(ConsoleSettings)
@@ -184,10 +191,12 @@ class ConsoleNode(DiagnosedNode):
                 f"the console's front end is not built ({share_path('web', 'dist')} has no "
                 "index.html): install Node.js and npm and run `make setup`; the page says so"
             )
-        self.get_logger().info(
+        address = (
             f"operator console: open {self.access.url(port)} and press Talk "
             f"({'token required' if self.access.token else 'no token: this machine only'})"
         )
+        self.get_logger().info(address)
+        to_terminal(f"[{self.get_name()}] {address}")  # also when the log goes to a file
 
     def _log(self, level: str, message: str) -> None:
         # rclpy refuses two severities from one line of code: one call each
@@ -386,7 +395,16 @@ class ConsoleNode(DiagnosedNode):
             "chunks_published": chunks,
             "refused_connections": self.server.refused_connections,
             "refused_frames": self.server.refused_frames,
+            **self._front_door_values(),
             **{f"latency_{key}": value for key, value in latency.items()},
+        }
+
+    def _front_door_values(self) -> dict[str, object]:
+        """Wrong tokens, and who holds the stop (an absent holder marked as such)."""
+        holders = [p.name if p.present else f"{p.name} (left)" for p in self.server.stops.presses]
+        return {
+            "wrong_tokens": self.server.tokens.wrong_tokens,
+            "stop_held_by": ", ".join(holders) or "nobody",
         }
 
 

@@ -81,7 +81,7 @@ MAX_FEATURES_BYTES = 4096 + MAX_FRAMES_PER_MESSAGE * 256 * 4
 
 @dataclass(frozen=True)
 class InferenceNodeSettings:
-    """The inference node's parameters (one definition: descriptors, YAML, README, settings)."""
+    """The inference node's parameters (one definition: descriptors, YAML, docs, settings)."""
 
     model_path: str = field(
         default="",
