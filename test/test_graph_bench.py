@@ -5,10 +5,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from audio2pose_ros.ros.graph_bench import GraphFigures, measure_graph, report, targets
+from audio2pose_ros.ros.graph_bench import (
+    FloorFigures,
+    GraphFigures,
+    measure_floor,
+    measure_graph,
+    report,
+    targets,
+)
 
 
-def _figures(mode: str, cpu: dict[str, float], rss: dict[str, float]) -> GraphFigures:
+def _figures(
+    mode: str, cpu: dict[str, float], rss: dict[str, float], floor: FloorFigures | None = None
+) -> GraphFigures:
     return GraphFigures(
         mode=mode,
         audio_s=10.0,
@@ -19,6 +28,7 @@ def _figures(mode: str, cpu: dict[str, float], rss: dict[str, float]) -> GraphFi
         cpu_ms_per_frame=cpu,
         steady_cpu_ms_per_frame=cpu,
         rss_mb=rss,
+        floor=floor,
     )
 
 
@@ -53,7 +63,37 @@ def test_when_the_single_process_graph_is_benched_expect_steady_cpu_and_targets(
     assert set(figures["steady_cpu_ms_per_frame"]) == {"audio2pose_nodes"}
     assert 0.0 < figures["steady_cpu_ms_per_frame"]["audio2pose_nodes"] < 10.0
     assert figures["latency_audio_to_raw_pose"]["n"] >= 250
-    assert len(figures["targets"]) == 4
+    assert len(figures["targets"]) == 5
+    assert figures["floor"] is None  # the relays are three processes: no like-for-like floor
+
+
+def test_when_the_floor_was_measured_expect_the_nodes_cpu_as_a_ratio_of_it():
+    floor = FloorFigures({"a": 0.2, "b": 0.2, "c": 0.6}, {"a": 60.0, "b": 60.0, "c": 60.0})
+    three = _figures("three-process", {"a": 0.3, "b": 0.3, "c": 0.2}, {"a": 70.0}, floor)
+    verdicts = {t["figure"]: (t["value"], t["target"], t["met"]) for t in targets(three)}
+    assert verdicts["steady CPU against the bare rclpy floor"] == (pytest.approx(0.8), 0.8, True)
+    slower = _figures("three-process", {"a": 0.3, "b": 0.3, "c": 0.3}, {"a": 70.0}, floor)
+    ratio = {t["figure"]: t for t in targets(slower)}["steady CPU against the bare rclpy floor"]
+    assert ratio["met"] is False
+    assert report(three)["floor"]["steady_cpu_ratio"] == pytest.approx(0.8)
+
+
+def test_when_no_floor_was_measured_expect_its_target_not_met_rather_than_guessed():
+    three = _figures("three-process", {"a": 0.1}, {"a": 70.0})
+    ratio = {t["figure"]: t for t in targets(three)}["steady CPU against the bare rclpy floor"]
+    assert np.isnan(ratio["value"])
+    assert ratio["met"] is False
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_when_the_floor_is_measured_expect_three_relays_that_carry_audio_to_commands(
+    speech: np.ndarray,
+) -> None:
+    floor = measure_floor(speech, duration_s=3.0)
+    assert set(floor.rss_mb) == {"audio_features_node", "inference_node", "motion_filter_node"}
+    assert all(0.0 < mb < 1000.0 for mb in floor.rss_mb.values())
+    assert all(cpu > 0.0 for cpu in floor.steady_cpu_ms_per_frame.values())
 
 
 def _console_figures(lost: int) -> dict:

@@ -239,7 +239,7 @@ def command_check_head(args: argparse.Namespace) -> int:
     return 0
 
 
-BENCH_SCHEMA_VERSION = 2  # 1: before versioning (graph figures became a list of modes)
+BENCH_SCHEMA_VERSION = 3  # 1: before versioning; 2: graph figures a list of modes; 3: floor
 
 
 def command_bench(args: argparse.Namespace) -> int:
@@ -271,7 +271,11 @@ def command_bench(args: argparse.Namespace) -> int:
 
         speech = bundled_speech()
         results["graph"] = [
-            report(measure_graph(speech, duration_s=args.duration, single_process=single))
+            report(
+                measure_graph(
+                    speech, duration_s=args.duration, single_process=single, with_floor=True
+                )
+            )
             for single in {"three": [False], "single": [True], "both": [False, True]}[
                 args.graph_mode
             ]
@@ -429,6 +433,20 @@ def _print_graph(runs: list[dict[str, Any]]) -> None:
                 for run in runs
             ],
         )
+    for run in runs:
+        floor = run.get("floor")
+        if floor:
+            for name, cpu in floor["steady_cpu_ms_per_frame"].items():
+                row(
+                    f"bare rclpy relay for {name}: CPU, MB",
+                    [f"({cpu:.3f}), {floor['rss_mb'][name]:.0f}"],
+                )
+            print(
+                f"{run['mode']}: the nodes' steady CPU is {floor['steady_cpu_ratio']:.2f}x the bare"
+                " rclpy relays' (the floor: the same topology, QoS and executors, no work), "
+                f"{sum(run['rss_mb'].values()):.0f} MB against their "
+                f"{sum(floor['rss_mb'].values()):.0f} MB"
+            )
     print("footprint targets")
     for run in runs:
         for target in run["targets"]:

@@ -23,9 +23,12 @@ footprint targets in :data:`TARGETS`.
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from contextlib import ExitStack
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -41,8 +44,9 @@ from trajectory_msgs.msg import JointTrajectory
 from audio2pose_ros import topics
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.audio.wav import read_wav
+from audio2pose_ros.checkpoints.format import feature_spec_of
 from audio2pose_ros.data.bag import AUDIO_DATA_TYPE, AUDIO_INFO_TYPE, BagMessage
-from audio2pose_ros.resources import bundled_speech_paths
+from audio2pose_ros.resources import bundled_speech_paths, default_checkpoint_path
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.graph import SIM_NODE, GraphTimeoutError, node_graph
@@ -54,6 +58,7 @@ from audio2pose_ros.ros.player import (
     warm_up,
 )
 from audio2pose_ros.ros.process_stats import cpu_s, rss_mb
+from audio2pose_ros.ros.relay_floor import ROLES as RELAY_ROLES
 from audio2pose_ros.timebase import FRAME_PERIOD_S, SAMPLE_RATE_HZ, SAMPLES_PER_FRAME
 from audio2pose_ros.yaml_files import packaged_mapping
 
@@ -64,10 +69,19 @@ ANSWER_TIMEOUT_S = 60.0  # the graph must command and answer audio this soon aft
 # Footprint targets: (figure, three-process target, single-process target, unit); at most.
 TARGETS = (
     ("steady CPU of the node processes per 10 ms frame", 1.0, 0.5, "ms"),
+    ("steady CPU against the bare rclpy floor", 0.8, 0.8, "x"),
     ("resident memory of the node processes", 250.0, 150.0, "MB"),
     ("first command after start", 1.5, 1.5, "s"),
     ("latency audio -> /joint_angles p99", 10.0, 10.0, "ms"),
 )
+
+
+@dataclass
+class FloorFigures:
+    """The bare rclpy relays of :mod:`audio2pose_ros.ros.relay_floor` (ms per frame, MB)."""
+
+    steady_cpu_ms_per_frame: dict[str, float]
+    rss_mb: dict[str, float]
 
 
 @dataclass
@@ -83,6 +97,16 @@ class GraphFigures:
     cpu_ms_per_frame: dict[str, float]
     steady_cpu_ms_per_frame: dict[str, float]
     rss_mb: dict[str, float]
+    floor: FloorFigures | None = field(default=None)  # the relays, measured in the same run
+
+    @property
+    def floor_ratio(self) -> float:
+        """Steady CPU of the nodes over the relay floor's (NaN without a floor)."""
+        if self.floor is None:
+            return float("nan")
+        return sum(self.steady_cpu_ms_per_frame.values()) / max(
+            sum(self.floor.steady_cpu_ms_per_frame.values()), 1e-9
+        )
 
 
 def _bench_params(directory: Path) -> Path:
@@ -168,11 +192,16 @@ def _speech_chunks(
 
 
 def measure_graph(
-    speech_16k: np.ndarray, duration_s: float = 60.0, single_process: bool = False
+    speech_16k: np.ndarray,
+    duration_s: float = 60.0,
+    single_process: bool = False,
+    with_floor: bool = False,
 ) -> GraphFigures:
     """Run the graph on ``duration_s`` of ``speech_16k`` (repeated) and measure it.
 
-    ``single_process`` runs the three nodes in one process instead of three.
+    ``single_process`` runs the three nodes in one process instead of three. ``with_floor``
+    (three processes only) then runs the bare rclpy relays on the same chunks
+    (:func:`measure_floor`), so that both figures come from one run on one machine state.
     """
     audio, chunks = _speech_chunks(speech_16k, duration_s)
     audio_topic = topics.absolute(topics.AUDIO)
@@ -200,29 +229,9 @@ def measure_graph(
             spin_until(player, time.monotonic() + 0.5)
             player.raw.clear()
             player.commands.clear()
-            cpu_start = {n: cpu_s(p.pid) for n, p in graph.processes.items()}
-            sent: list[float] = []
-            steady_start: dict[str, float] = {}
-            steady_from = 0
-            play_start = time.monotonic()
-
-            def stamp(_: BagMessage) -> None:
-                nonlocal steady_from
-                now = time.monotonic()
-                if not steady_start and now - play_start >= STEADY_SKIP_S:
-                    steady_start.update({n: cpu_s(p.pid) for n, p in graph.processes.items()})
-                    steady_from = len(sent)
-                sent.append(now)
-
-            player.player.play(chunks, on_publish=stamp)
-            steady = {
-                n: cpu_s(p.pid) - steady_start.get(n, cpu_start[n])
-                for n, p in graph.processes.items()
-            }
-            steady_frames = max(len(sent) - steady_from, 1)
-            spin_until(player, time.monotonic() + 1.0)
-            cpu = {n: cpu_s(p.pid) - cpu_start[n] for n, p in graph.processes.items()}
-            rss = {n: rss_mb(p.pid) for n, p in graph.processes.items()}
+            pids = {n: p.pid for n, p in graph.processes.items()}
+            sent, cpu, steady, steady_frames = _play_measured(player, chunks, pids)
+            rss = {n: rss_mb(pid) for n, pid in pids.items()}
         player.destroy_node()
 
     n = min(len(sent), len(player.raw))
@@ -253,7 +262,84 @@ def measure_graph(
         cpu_ms_per_frame={k: 1e3 * v / max(n, 1) for k, v in cpu.items()},
         steady_cpu_ms_per_frame={k: 1e3 * v / steady_frames for k, v in steady.items()},
         rss_mb=rss,
+        floor=measure_floor(speech_16k, duration_s) if with_floor and not single_process else None,
     )
+
+
+def _play_measured(
+    player: _Player, chunks: list[BagMessage], pids: dict[str, int]
+) -> tuple[list[float], dict[str, float], dict[str, float], int]:
+    """Play ``chunks`` in real time; CPU of each process over the run and its steady part.
+
+    Returns the publication time of each chunk, each process's CPU time (s) from the start of
+    the play to 1 s after its end, its CPU time in the steady part (from :data:`STEADY_SKIP_S`
+    after the start to the last chunk) and the number of chunks in that part.
+    """
+    cpu_start = {n: cpu_s(pid) for n, pid in pids.items()}
+    sent: list[float] = []
+    steady_start: dict[str, float] = {}
+    steady_from = 0
+    play_start = time.monotonic()
+
+    def stamp(_: BagMessage) -> None:
+        nonlocal steady_from
+        now = time.monotonic()
+        if not steady_start and now - play_start >= STEADY_SKIP_S:
+            steady_start.update({n: cpu_s(pid) for n, pid in pids.items()})
+            steady_from = len(sent)
+        sent.append(now)
+
+    player.player.play(chunks, on_publish=stamp)
+    steady = {n: cpu_s(pid) - steady_start.get(n, cpu_start[n]) for n, pid in pids.items()}
+    steady_frames = max(len(sent) - steady_from, 1)
+    spin_until(player, time.monotonic() + 1.0)
+    cpu = {n: cpu_s(pid) - cpu_start[n] for n, pid in pids.items()}
+    return sent, cpu, steady, steady_frames
+
+
+def measure_floor(speech_16k: np.ndarray, duration_s: float = 60.0) -> FloorFigures:
+    """The bare rclpy floor (:mod:`audio2pose_ros.ros.relay_floor`) on the graph's input.
+
+    Three relay processes with the graph's topology, QoS and executors play the same chunks as
+    :func:`measure_graph`, measured the same way: steady CPU per frame and resident memory.
+    """
+    _, chunks = _speech_chunks(speech_16k, duration_s)
+    audio_topic = topics.absolute(topics.AUDIO)
+    n_features = feature_spec_of(default_checkpoint_path()).dim
+    n_joints = load_robot().n_joints
+    module = [sys.executable, "-m", "audio2pose_ros.ros.relay_floor"]
+    with tempfile.TemporaryDirectory() as tmp, rclpy_session(), ExitStack() as stack:
+        player = _Player()
+        stack.callback(player.destroy_node)
+        processes: dict[str, subprocess.Popen[bytes]] = {}
+        for role in RELAY_ROLES:
+            log = stack.enter_context(open(Path(tmp) / f"{role}.log", "wb"))
+            command = [*module, role, "--features", str(n_features), "--joints", str(n_joints)]
+            processes[role] = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+            stack.callback(_stop, processes[role])
+        deadline = time.monotonic() + ANSWER_TIMEOUT_S
+        if not spin_until(player, deadline, lambda: bool(player.commands)):
+            raise _timed_out("no /joint_angles command from the relay floor")
+        if not warm_up(player.player, audio_topic, lambda: bool(player.raw), ANSWER_TIMEOUT_S):
+            raise _timed_out("no raw pose from the relay floor")
+        spin_until(player, time.monotonic() + 0.5)
+        pids = {role: p.pid for role, p in processes.items()}
+        _, _, steady, steady_frames = _play_measured(player, chunks, pids)
+        rss = {role: rss_mb(pid) for role, pid in pids.items()}
+    return FloorFigures(
+        steady_cpu_ms_per_frame={k: 1e3 * v / steady_frames for k, v in steady.items()},
+        rss_mb=rss,
+    )
+
+
+def _stop(process: subprocess.Popen[bytes]) -> None:
+    """SIGTERM, then SIGKILL after 5 s."""
+    process.terminate()
+    try:
+        process.wait(timeout=5.0)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
 
 
 def bundled_speech() -> np.ndarray:
@@ -285,6 +371,13 @@ def report(figures: GraphFigures) -> dict[str, object]:
         "cpu_ms_per_frame": figures.cpu_ms_per_frame,
         "steady_cpu_ms_per_frame": figures.steady_cpu_ms_per_frame,
         "rss_mb": figures.rss_mb,
+        "floor": None
+        if figures.floor is None
+        else {
+            "steady_cpu_ms_per_frame": figures.floor.steady_cpu_ms_per_frame,
+            "rss_mb": figures.floor.rss_mb,
+            "steady_cpu_ratio": figures.floor_ratio,
+        },
         "targets": targets(figures),
     }
 
@@ -299,6 +392,7 @@ def targets(figures: GraphFigures) -> list[dict[str, object]]:
     )
     values = (
         sum(figures.steady_cpu_ms_per_frame.values()),
+        figures.floor_ratio,
         sum(figures.rss_mb.values()),
         figures.startup_first_command_s,
         p99,
