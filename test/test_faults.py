@@ -19,6 +19,7 @@ from graph_probe import Probe, diagnostics_of
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmFormat, encode_pcm
 from audio2pose_ros.ros.diagnosed_node import trajectory_msg
 from audio2pose_ros.ros.graph import node_graph
+from audio2pose_ros.ros.player import spin_until
 from audio2pose_ros.ros.process_stats import rss_mb
 from audio2pose_ros.timebase import SAMPLES_PER_FRAME
 from audio2pose_ros.topics import RAW_TRAJECTORY, absolute
@@ -251,12 +252,22 @@ def test_when_10_minutes_of_audio_stream_through_expect_flat_memory(
         start(probe)
         sent_bytes, samples = 0, {}
         poses, counted = 0, 0  # raw poses back so far; messages of ``raw`` counted in ``poses``
+        lost = 0  # frames of audio not answered after a quiet second (best-effort audio)
 
         def caught_up() -> bool:
             nonlocal poses, counted
             poses += sum(len(m.points) for m in raw[counted:])
             counted = len(raw)
-            return poses >= sent_bytes // (2 * SAMPLES_PER_FRAME) - SOAK_AHEAD_FRAMES
+            return poses + lost >= sent_bytes // (2 * SAMPLES_PER_FRAME) - SOAK_AHEAD_FRAMES
+
+        def pace() -> None:
+            """Wait for the graph's answer; what it has not answered after a quiet second was
+            lost on the way and is not waited for (a pace, not a verdict)."""
+            nonlocal lost
+            while not caught_up():
+                heard = len(raw)
+                if not spin_until(probe, time.monotonic() + 1.0, caught_up) and len(raw) == heard:
+                    lost = sent_bytes // (2 * SAMPLES_PER_FRAME) - poses
 
         start_time = time.monotonic()
         while sent_bytes < total_s * 32000:
@@ -265,7 +276,7 @@ def test_when_10_minutes_of_audio_stream_through_expect_flat_memory(
                 sent_bytes += len(chunk[offset : offset + 4096])
                 due = start_time + sent_bytes / 32000 / speed
                 probe.spin_for(due - time.monotonic())  # serves the probe, no busy wait
-                probe.wait_until(caught_up, timeout_s=SOAK_RESTART_AFTER_S)  # the graph's pace
+                pace()
             for key in probe.received:
                 probe.received[key].clear()  # this process must not grow either
             counted = 0
@@ -274,7 +285,7 @@ def test_when_10_minutes_of_audio_stream_through_expect_flat_memory(
                 samples["start"] = {n: rss_mb(p.pid) for n, p in graph.processes.items()}
         samples["end"] = {n: rss_mb(p.pid) for n, p in graph.processes.items()}
         print(f"longest heartbeat gaps (s): {graph.longest_gap_s}")
-        print(f"{total_s} s of audio in {time.monotonic() - start_time:.0f} s")
+        print(f"{total_s} s of audio in {time.monotonic() - start_time:.0f} s; {lost} frames lost")
         assert not any(graph.restarts.values()), graph.longest_gap_s
     growth = {n: samples["end"][n] - samples["start"][n] for n in samples["end"]}
     print(f"RSS MB at 10%: {samples['start']}, at end: {samples['end']}")
