@@ -1,5 +1,5 @@
 # audio2pose_ros on a machine without a ROS distro: everything runs from .venv (see README.md).
-.PHONY: setup demo test test-long test-fast lint bench default-model clean
+.PHONY: setup demo test test-long test-fast lint bench docs default-model style-presets evaluate-style clean
 
 # DDS stays on loopback and each run gets its own domain unless the caller chose one.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
@@ -35,6 +35,13 @@ lint: setup
 bench: setup
 	$(VENV_BIN)/audio2pose bench
 
+# The documentation (doc/: Sphinx with MyST, as rosdoc2 builds it) into out/docs/, offline; a
+# warning fails the build. The Python API pages are generated into doc/generated/ (anew each
+# time: stubs of removed modules would stay).
+docs: setup
+	rm -rf doc/generated
+	$(VENV_BIN)/python -m sphinx -W --keep-going -q -b html doc out/docs
+
 TALKING_HEADS ?= ../shared/data/talking_heads
 LECTURE_VIDEO ?= ../shared/data/lecture_video/physicsworks.webm
 # Rebuild models/default/ from the shared talking-head clips and lecture video: import, train,
@@ -42,5 +49,14 @@ LECTURE_VIDEO ?= ../shared/data/lecture_video/physicsworks.webm
 default-model: setup
 	nice -n 10 $(VENV_BIN)/audio2pose dataset build-default $(TALKING_HEADS) --lecture $(LECTURE_VIDEO) -o models/default --work-dir out/default-model-work
 
+# The named style presets (config/styles/*.yaml), measured from the same shared sources with the
+# training importers (imported into out/style-sources once).
+style-presets: setup
+	nice -n 10 $(VENV_BIN)/python -m audio2pose_ros.style.presets $(TALKING_HEADS) $(LECTURE_VIDEO) out/style-sources
+
+# Default vs enrolled (on each source's first 60 s at most) vs the real floor, into the model card.
+evaluate-style: style-presets
+	nice -n 10 $(VENV_BIN)/audio2pose evaluate-style out/style-sources/talking_heads out/style-sources/lecture --card models/default/MODEL_CARD.md
+
 clean:
-	rm -rf .venv out build install log .pytest_cache .ruff_cache .mypy_cache .hypothesis web/dist web/node_modules
+	rm -rf .venv out doc/generated build install log .pytest_cache .ruff_cache .mypy_cache .hypothesis web/dist web/node_modules

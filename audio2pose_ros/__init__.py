@@ -1,8 +1,8 @@
 """audio2pose_ros: speech-driven upper-body motion for the Pepper humanoid.
 
-The folders are the layers of the pipeline (README's code map): a ROS-free core (``audio``,
-``robot``, ``motion``, ``models``, ``checkpoints``, ``data``, ``offline``, ``viz``,
-``learning``), the thin rclpy nodes in ``ros`` and the ``audio2pose`` command in ``cli``.
+The folders are the layers of the pipeline (the code map of doc/architecture.md): a ROS-free
+core (``audio``, ``robot``, ``motion``, ``models``, ``checkpoints``, ``data``, ``offline``,
+``viz``, ``learning``), the thin rclpy nodes in ``ros`` and the ``audio2pose`` command in ``cli``.
 
 The public Python API is the names of :data:`__all__`, importable from here (``from
 audio2pose_ros import FeatureSpec, MotionFilter``); they are loaded on first use, so importing
@@ -34,6 +34,7 @@ _PUBLIC = {
     "BodyGuard": "audio2pose_ros.motion.body_guard",
     "MotionFilter": "audio2pose_ros.motion.filter",
     "MotionFilterSettings": "audio2pose_ros.motion.filter",
+    "StyleSettings": "audio2pose_ros.motion.style",
     "load_checkpoint": "audio2pose_ros.checkpoints.torch_io",
     "load_streaming_model": "audio2pose_ros.checkpoints.numpy_runtime",
     "synthesize": "audio2pose_ros.offline.synthesis",

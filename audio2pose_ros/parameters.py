@@ -4,7 +4,7 @@ A settings dataclass of the core (``MotionFilterSettings``, ``LimitSettings``, .
 field with :func:`param`; the field's default, type and metadata are then the single definition
 that the node's ParameterDescriptors (``audio2pose_ros.ros.node_parameters``), the settings
 validation (:func:`validate_settings`, called from ``__post_init__``), ``config/pepper.yaml`` and
-the README table are checked against. This module does not import rclpy.
+the parameter page (``doc/parameters.md``) are checked against. This module does not import rclpy.
 
 Rules every value goes through (:meth:`ParameterSpec.validate`):
 
@@ -47,12 +47,12 @@ _METADATA_KEY = "audio2pose_parameter"
 
 @dataclass(frozen=True)
 class ParameterSpec:
-    """One parameter: everything a node, a YAML file and the README need to know about it.
+    """One parameter: everything a node, a YAML file and the docs need to know about it.
 
     Attributes:
         name: parameter name (as in the YAML file under ``ros__parameters``).
         default: default value; its type is the parameter's type.
-        description: one line for ParameterDescriptor.description and the README.
+        description: one line for ParameterDescriptor.description and the docs.
         minimum: inclusive lower bound for numbers, or None.
         maximum: inclusive upper bound for numbers, or None.
         excluded: ``(low, high)``: numbers with low <= value < high are refused although
@@ -183,22 +183,25 @@ def settings_from(settings_class: type[SettingsT], values: Mapping[str, object])
     """An instance of a settings dataclass from the values of its fields in ``values``.
 
     Every node builds its settings this way from its parameter values (names of other settings
-    classes in ``values`` are ignored); fields missing from ``values`` keep their defaults.
+    classes in ``values``, and fields not declared with :func:`param`, are ignored); fields
+    missing from ``values`` keep their defaults.
 
     Raises:
         ConfigurationError: a value is refused by the class's validation.
     """
-    names = {field.name for field in dataclasses.fields(settings_class)}  # type: ignore[arg-type]
+    names = {spec.name for spec in specs_of(settings_class)}
     return settings_class(**{k: v for k, v in values.items() if k in names})
 
 
 def settings_with(settings: SettingsT, changes: Mapping[str, object]) -> SettingsT:
-    """A copy of ``settings`` with the values of its fields in ``changes`` (a live change).
+    """A copy of ``settings`` with the values of its :func:`param` fields in ``changes``.
+
+    A live change: names of other settings classes in ``changes`` are ignored.
 
     Raises:
         ConfigurationError: a changed value is refused by the class's validation.
     """
-    names = {field.name for field in dataclasses.fields(settings)}  # type: ignore[arg-type]
+    names = {spec.name for spec in specs_of(type(settings))}
     ours = {k: v for k, v in changes.items() if k in names}
     return dataclasses.replace(settings, **ours) if ours else settings  # type: ignore[type-var]
 

@@ -4,6 +4,8 @@ Usage:
     ros2 launch audio2pose_ros pepper.launch.py
     ros2 launch audio2pose_ros pepper.launch.py params_file:=/path/to/my.yaml \
         model_path:=/path/to/model.safetensors audio_ns:=/audio
+    ros2 launch audio2pose_ros pepper.launch.py style:=calm_reader      # a speaking style
+    ros2 launch audio2pose_ros pepper.launch.py model_path:=/path/to/me  # a personal model
 
     ros2 launch audio2pose_ros pepper.launch.py rviz:=true     # + robot_state_publisher, RViz
     ros2 launch audio2pose_ros pepper.launch.py sim:=gz rviz:=true  # + gz sim with ros2_control
@@ -44,7 +46,7 @@ Visualisation and simulation (urdf/pepper.urdf, primitive shapes):
 (``python -m audio2pose_ros.ros.nodes.single_process``, the same parameters and remappings): the
 smallest footprint. The default stays three processes.
 
-``console:=true`` starts console_node, the operator's web console (README "Operator console"):
+``console:=true`` starts console_node, the operator's web console (doc/console.md):
 it prints the address to open; its settings (host, port, token, certificate) come from the
 parameters file's ``console_node`` section.
 
@@ -107,6 +109,13 @@ def declare_arguments() -> list[DeclareLaunchArgument]:
             "model_path",
             default_value="",
             description="Checkpoint; '' = the params_file's model_path, else the packaged model",
+        ),
+        DeclareLaunchArgument(
+            "style",
+            default_value="",
+            description="Speaking style: a preset (config/styles: calm_reader, "
+            "addressing_camera, lecturer), a style file or a personal model folder "
+            "(audio2pose enroll); '' = the parameters file's style parameters",
         ),
         DeclareLaunchArgument(
             "audio_ns",
@@ -194,6 +203,7 @@ class NodeSupervisor:
             remappings = list(self.plan.audio_topics.items())
         if executable == "motion_filter_node":
             remappings = [(topics.JOINT_TRAJECTORY, self.plan.controller_topic)]
+            parameters += [dict(self.plan.style)] if self.plan.style else []
         return Node(
             package=PACKAGE,
             executable=executable,

@@ -12,6 +12,7 @@ def arguments(**overrides: str) -> dict[str, str]:
     values = {
         "params_file": str(ROOT / "config" / "pepper.yaml"),
         "model_path": "",
+        "style": "",
         "audio_ns": "/audio",
         "controller_topic": "/pepper_joint_trajectory_controller/joint_trajectory",
         "rviz": "false",

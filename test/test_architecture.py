@@ -1,10 +1,11 @@
 """The package layout is the pipeline: a folder imports only folders below it, and only ``ros/``
 imports ROS.
 
-Layers, bottom to top (README "Code map"): the shared base (errors, the frame grid, parameter
-specs, resources, YAML reading), then ``audio`` and ``robot``, ``motion``, ``models``,
-``checkpoints``, ``data``, ``offline``, ``viz``, ``learning``, ``ros``, ``cli``. Every import in
-every module is checked, function-level ones included, from the source with :mod:`ast`.
+Layers, bottom to top (doc/architecture.md): the shared base (errors, the frame grid, parameter
+specs, resources, bounded file and YAML reading), then ``audio`` and ``robot``, ``motion``,
+``models``, ``checkpoints``, ``data``, ``offline``, ``viz``, ``learning``, ``ros``, ``cli``. Every
+import in every module is checked, function-level ones included, from the source with
+:mod:`ast`; so is the absence of import circles.
 """
 
 import ast
@@ -25,7 +26,6 @@ LAYERS: dict[str, int] = {
     "topics": 0,
     "parameters": 0,
     "resources": 0,
-    "yaml_files": 0,
     "audio": 1,
     "robot": 1,
     "motion": 2,
@@ -35,9 +35,10 @@ LAYERS: dict[str, int] = {
     "offline": 6,
     "viz": 7,
     "learning": 8,
-    "console": 8,
-    "ros": 9,
-    "cli": 10,
+    "style": 9,
+    "console": 10,  # its learning child process runs style's enrollment
+    "ros": 11,
+    "cli": 12,
 }
 
 #: Top-level modules of ROS 2 (client library, launch, message packages) that only ``ros/`` may
@@ -131,7 +132,7 @@ def test_checker_reports_an_upward_import_and_ros_outside_ros():
     found = violations("audio2pose_ros.motion.filter", source)
     assert len(found) == 2
     assert "only audio2pose_ros.ros may import ROS" in found[0]
-    assert "layer ros (9) is not below motion (2)" in found[1]
+    assert "layer ros (11) is not below motion (2)" in found[1]
 
 
 def test_checker_reports_a_sideways_import_between_folders_of_one_rank():
@@ -166,10 +167,130 @@ def yaml_parsing_calls(source: str) -> list[int]:
 @pytest.mark.parametrize(("module", "path"), package_modules(), ids=lambda value: str(value))
 def test_yaml_is_parsed_only_by_the_bounded_alias_free_reader(module, path):
     """A few hundred bytes of nested YAML aliases expand to gigabytes: one reader refuses them."""
-    if module == f"{PACKAGE}.yaml_files":
+    if module == f"{PACKAGE}.files":
         return
-    assert yaml_parsing_calls(path.read_text()) == [], f"{module}: use audio2pose_ros.yaml_files"
+    assert yaml_parsing_calls(path.read_text()) == [], f"{module}: use audio2pose_ros.files"
 
 
 def test_yaml_checker_finds_a_direct_parse():
     assert yaml_parsing_calls("import yaml\nx = yaml.safe_load(t)\ny = yaml.safe_dump(x)\n") == [2]
+
+
+# --- No import circles ---------------------------------------------------------------------------
+
+
+def module_names() -> frozenset[str]:
+    """The dotted names of the package's modules and packages (``a.b`` for ``a/b/__init__.py``)."""
+    return frozenset(name.removesuffix(".__init__") for name, _ in package_modules())
+
+
+def package_imports(module: str, source: str, known: frozenset[str]) -> set[str]:
+    """The package's modules that ``module`` imports, at any depth (function-level included).
+
+    ``from a.b import c`` names the module ``a.b.c`` when that is a module, else ``a.b``; relative
+    imports are resolved against ``module``. Imports under ``if TYPE_CHECKING:`` are left out:
+    they never run, so they cannot form a circle at run time.
+    """
+    tree = ast.parse(source)
+    type_only = {
+        id(inner)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
+        for statement in node.body
+        for inner in ast.walk(statement)
+    }
+    package = module if module in known and any(k.startswith(module + ".") for k in known) else None
+    base = package or module.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if id(node) in type_only:
+            continue
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                parts = base.split(".")
+                parent = ".".join(parts[: len(parts) - node.level + 1])
+                origin = f"{parent}.{node.module}" if node.module else parent
+            else:
+                origin = node.module or ""
+            for alias in node.names:
+                child = f"{origin}.{alias.name}"
+                found.add(child if child in known else origin)
+    return {name for name in found if name in known and name != module}
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Module -> the package modules it imports, for every module of the package."""
+    known = module_names()
+    return {
+        name.removesuffix(".__init__"): package_imports(
+            name.removesuffix(".__init__"), path.read_text(), known
+        )
+        for name, path in package_modules()
+    }
+
+
+def import_circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected groups of more than one module (Tarjan), each sorted, sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    circles: list[list[str]] = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for target in sorted(graph.get(node, ())):
+            if target not in index:
+                visit(target)
+                low[node] = min(low[node], low[target])
+            elif target in on_stack:
+                low[node] = min(low[node], index[target])
+        if low[node] == index[node]:
+            group = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                group.append(member)
+                if member == node:
+                    break
+            if len(group) > 1:
+                circles.append(sorted(group))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return sorted(circles)
+
+
+def test_no_import_circle_in_the_package():
+    """No module imports, directly or through others, a module that imports it.
+
+    Function-level imports count: deferring an import hides a circle from Python, not from the
+    reader. Only ``if TYPE_CHECKING:`` imports (annotations, never executed) are left out.
+    """
+    assert import_circles(import_graph()) == []
+
+
+TYPE_ONLY = "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+
+
+def test_circle_finder_sees_a_circle_through_a_function_level_import():
+    known = frozenset({"p", "p.a", "p.b", "p.c", "p.sub", "p.sub.d"})
+    graph = {
+        "p.a": package_imports("p.a", "from p import b\n", known),
+        "p.b": package_imports("p.b", "def f():\n    from p.c import x\n", known),
+        "p.c": package_imports("p.c", "import p.a\n", known),
+        "p.sub.d": package_imports(
+            "p.sub.d",
+            "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import p.a\n",
+            known,
+        ),
+    }
+    assert (graph["p.a"], graph["p.b"], graph["p.sub.d"]) == ({"p.b"}, {"p.c"}, set())
+    assert import_circles(graph) == [["p.a", "p.b", "p.c"]]
+    relative = package_imports("p.sub.d", "from .. import a\nfrom . import x\n", known)
+    assert relative == {"p.a", "p.sub"}

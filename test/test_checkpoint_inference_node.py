@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from node_processes import configuration_error_line
 
-from audio2pose_ros.ros.diagnosed_node import features_to_msg
+from audio2pose_ros.ros.messages import features_to_msg
 
 
 @pytest.fixture

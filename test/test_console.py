@@ -10,6 +10,7 @@ import json
 import logging
 import math
 import os
+import re
 import select
 import shutil
 import socket
@@ -28,6 +29,8 @@ import pytest
 
 from audio2pose_ros.console.access import (
     MIN_TOKEN_CHARS,
+    TokenThrottle,
+    client_key,
     is_loopback,
     request_problem,
     resolve_access,
@@ -47,12 +50,15 @@ from audio2pose_ros.console.protocol import (
 )
 from audio2pose_ros.console.server import (
     AUDIO_FRAMES_BURST,
-    CONNECTIONS_PER_CLIENT,
+    CONNECTIONS_PER_ADDRESS,
     MAX_AUDIO_FRAMES_PER_S,
+    PENDING_PER_ADDRESS,
+    SUMMARY_PERIOD_S,
     ConsoleServer,
     ServerThread,
 )
 from audio2pose_ros.console.settings import ConsoleSettings
+from audio2pose_ros.console.stop import MAX_PRESSES, OUTSIDE, StopHolders, unique_name
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.resources import share_path
 
@@ -211,7 +217,7 @@ def test_when_only_half_a_certificate_or_a_missing_file_is_given_expect_refused(
 
 @pytest.fixture(scope="module")
 def certificate(tmp_path_factory) -> tuple[Path, Path]:
-    """A self-signed certificate for localhost, made with openssl as the README shows."""
+    """A self-signed certificate for localhost, made with openssl as doc/console.md shows."""
     if shutil.which("openssl") is None:
         pytest.skip("openssl is not installed")
     directory = tmp_path_factory.mktemp("tls")
@@ -360,11 +366,13 @@ def serving(
     bridge: Bridge | None = None,
     logged: list[tuple[str, str]] | None = None,
     servers: list[ConsoleServer] | None = None,
+    tokens: TokenThrottle | None = None,
+    summary_period_s: float = SUMMARY_PERIOD_S,
     **settings: Any,
 ) -> Iterator[tuple[str, Bridge]]:
     """The console on a free loopback port with ``bridge`` (a new one by default), its log
     lines appended to ``logged`` and the server to ``servers``; yields its address and the
-    bridge."""
+    bridge. ``tokens`` and ``summary_period_s`` go to the server."""
     settings.setdefault("port", 0)
     config = ConsoleSettings(**settings)
     bridge = bridge or Bridge()
@@ -381,6 +389,8 @@ def serving(
         web_dir,
         share_path("urdf", "pepper.urdf"),
         lambda level, message: lines.append((level, message)),
+        tokens=tokens,
+        summary_period_s=summary_period_s,
     )
     if servers is not None:
         servers.append(server)
@@ -551,8 +561,10 @@ def test_when_two_operators_talk_expect_one_floor_and_its_release_on_disconnect(
             await bob.send_str('{"type":"talk","on":true}')
             assert "Ann has the floor" in (await until(bob, "error"))["message"]
             await bob.send_str('{"type":"stop","on":true}')  # a stop from anyone
-            await bob.send_str('{"type":"stop","on":false}')  # a release only from the holder
-            assert "only a stop" in (await until(bob, "error"))["message"]
+            holders = [{"name": "Bob", "present": True}]
+            await until(ann, "stop_holders", holders=holders, you=False)
+            await ann.send_str('{"type":"stop","on":false}')  # the talker cannot release it
+            assert "held by Bob" in (await until(ann, "error"))["message"]
             await bob.send_str('{"type":"gains","arms":0.2}')
             assert "only a stop" in (await until(bob, "error"))["message"]
             await ann.close()  # the talker leaves: the floor is free
@@ -561,7 +573,8 @@ def test_when_two_operators_talk_expect_one_floor_and_its_release_on_disconnect(
             await until(bob, "floor", holder="Bob", you=True)
             await bob.send_str('{"type":"gains","arms":0.2}')
             await bob.send_str('{"type":"enable","on":false}')
-            await until(bob, "pose")
+            await bob.send_str('{"type":"stop","on":false}')  # his own stop: his to release
+            await until(bob, "stop_holders", holders=[], you=False)
 
     with serving(tmp_path) as (base, bridge):
         run(scenario(base, bridge))
@@ -573,6 +586,7 @@ def test_when_two_operators_talk_expect_one_floor_and_its_release_on_disconnect(
         ("start", None),
         ("gains", {"arms": 0.2}),
         ("enable", False),
+        ("stop", False),
         ("end", None),
     ]
 
@@ -629,13 +643,22 @@ def test_when_more_operators_connect_than_allowed_expect_the_extra_refused(tmp_p
             assert refused.value.status == 503
             await first.close()
             await asyncio.sleep(0.2)  # the server's side of the closed connection ends
-            silent = await session.ws_connect(f"{base.replace('http', 'ws')}/ws", origin=base)
-            with pytest.raises(aiohttp.WSServerHandshakeError) as refused:  # token not given yet
-                await connect(session, base)
+            url = f"{base.replace('http', 'ws')}/ws"
+            silent = [
+                await session.ws_connect(url, origin=base) for _ in range(PENDING_PER_ADDRESS)
+            ]
+            with pytest.raises(aiohttp.WSServerHandshakeError) as refused:  # one waiting more
+                await session.ws_connect(url, origin=base)
             assert refused.value.status == 503
-            await silent.close()
+            # WebSockets without their token take no operator's place: they held all
+            # max_clients places, and every page got 503, for as long as they kept reopening
+            async with from_address("127.0.0.3") as other:
+                operator = await connect(other, base)
+                await until(operator, "welcome")
+            for ws in silent:
+                await ws.close()
 
-    with serving(tmp_path, max_clients=1) as (base, _):
+    with serving(tmp_path, max_clients=1, auth_timeout_s=30.0) as (base, _):
         run(scenario(base))
 
 
@@ -891,37 +914,190 @@ def test_when_a_client_never_finishes_its_tls_handshake_expect_the_connection_cl
     assert elapsed < 3.0, elapsed
 
 
-def test_when_more_connections_are_opened_than_allowed_expect_the_extra_answered_503_at_once(
+def from_address(source: str) -> aiohttp.ClientSession:
+    """A client whose connections come from ``source`` (every 127.x.y.z is this machine)."""
+    return aiohttp.ClientSession(connector=aiohttp.TCPConnector(local_addr=(source, 0)))
+
+
+def idle_socket(port: int, source: str) -> socket.socket:
+    """A TCP connection from ``source`` that sends nothing."""
+    sock = socket.socket()
+    sock.settimeout(5.0)
+    sock.bind((source, 0))
+    sock.connect(("127.0.0.1", port))
+    return sock
+
+
+def answer(sock: socket.socket, within_s: float = 3.0) -> bytes:
+    """What the server says on ``sock`` until it closes it (or what became of it)."""
+    sock.settimeout(within_s)
+    said = b""
+    try:
+        while chunk := sock.recv(1024):
+            said += chunk
+    except ConnectionResetError:  # closed with our request unread: refused all the same
+        return said or b"(reset)"
+    except TimeoutError:
+        return said + b"(open after %.0f s)" % within_s
+    return said or b"(closed)"
+
+
+def answers(socks: list[socket.socket], within_s: float = 5.0) -> list[bytes]:
+    """What the server says on each of ``socks``, those it has not closed within ``within_s``
+    (all together) marked as still open."""
+    deadline = time.monotonic() + within_s
+    waiting = list(socks)
+    while waiting and time.monotonic() < deadline:
+        ready = select.select(waiting, [], [], max(0.0, deadline - time.monotonic()))[0]
+        waiting = [sock for sock in waiting if sock not in ready]
+    return [answer(sock, 0.5) if sock not in waiting else b"(open)" for sock in socks]
+
+
+REFUSED = (b"HTTP/1.1 503", b"(reset)", b"(closed)")
+
+
+async def operator_stops(base: str, source: str, **kwargs: Any) -> None:
+    """A page from ``source``: its file, its WebSocket, its hello and a STOP."""
+    async with from_address(source) as session:
+        async with session.get(f"{base}/", **kwargs) as response:
+            assert response.status == 200
+        ws = await connect(session, base, name="Observer", **kwargs)
+        await until(ws, "welcome")
+        await ws.send_str('{"type":"stop","on":true}')
+        await until(ws, "stop_holders", you=True)
+
+
+def test_when_one_address_holds_idle_connections_expect_another_operator_connects_and_stops(
     tmp_path: Path,
 ):
-    """max_clients counted WebSockets only: any number of TCP connections could wait before
-    their upgrade, each holding a socket (300 of 300 were still open 8 s later)."""
-    limit = CONNECTIONS_PER_CLIENT * 1  # max_clients=1
+    """Idle TCP connections (no request, no TLS handshake, no token) from one client held all
+    64 connection slots: every new page, with its STOP button, was answered 503 (0 of 10
+    connects). One address holds at most CONNECTIONS_PER_ADDRESS; more are refused at once."""
+    with serving(tmp_path, token=TOKEN, auth_timeout_s=30.0) as (base, bridge):
+        port = port_of(base)
+        held = [idle_socket(port, "127.0.0.2") for _ in range(100)]
+        try:
+            extra = answers(held[CONNECTIONS_PER_ADDRESS:])
+            run(operator_stops(base, "127.0.0.3"))
+            answered = select.select(held[:CONNECTIONS_PER_ADDRESS], [], [], 0.1)[0]
+        finally:
+            for sock in held:
+                sock.close()
+    assert all(a.startswith(REFUSED) for a in extra), extra
+    assert answered == [], "a connection within the address's share was answered or closed"
+    assert bridge.calls == [("stop", True)]
+
+
+def test_when_one_address_holds_tls_connections_expect_more_refused_before_their_handshake(
+    tmp_path: Path, certificate
+):
+    """Over TLS a connection was counted but not attributed before its handshake: idle ones
+    held every slot, and one beyond the limit was refused only after a full handshake."""
+    cert, key = (str(p) for p in certificate)
+    trust = ssl.create_default_context(cafile=cert)
+    settings = {"certfile": cert, "keyfile": key, "token": TOKEN, "auth_timeout_s": 30.0}
+    with serving(tmp_path, **settings) as (base, bridge):
+        port = port_of(base)
+        held = [idle_socket(port, "127.0.0.2") for _ in range(CONNECTIONS_PER_ADDRESS)]
+        extra = idle_socket(port, "127.0.0.2")
+        try:
+            with pytest.raises((ssl.SSLError, ConnectionError)):  # closed before any handshake
+                trust.wrap_socket(extra, server_hostname="localhost")
+            run(operator_stops(base, "127.0.0.3", ssl=trust))
+        finally:
+            extra.close()
+            for sock in held:
+                sock.close()
+    assert bridge.calls == [("stop", True)]
+
+
+def test_when_many_addresses_fill_every_slot_expect_a_newcomer_in_and_operators_kept(
+    tmp_path: Path,
+):
+    """Several addresses, each within its share, filled every connection slot together: new
+    pages got 503. A newcomer takes the place of the oldest connection of the address that
+    holds the most, never an identified operator's WebSocket."""
+    servers: list[ConsoleServer] = []
+
+    async def scenario() -> None:
+        async with from_address("127.0.0.4") as session:
+            operator = await connect(session, base, name="Ann")
+            await until(operator, "welcome")
+            flood = [
+                idle_socket(port, f"127.0.2.{i % 4 + 1}") for i in range(servers[0]._tcp.limit + 8)
+            ]
+            try:
+                await operator_stops(base, "127.0.0.3")
+                await operator.send_str('{"type":"ping","t":1}')
+                await until(operator, "pong")  # Ann's WebSocket was kept
+            finally:
+                for sock in flood:
+                    sock.close()
+
+    with serving(tmp_path, servers=servers, max_clients=2, auth_timeout_s=30.0) as (base, bridge):
+        port = port_of(base)
+        run(scenario())
+    assert servers[0]._tcp.evicted >= 1  # the newcomer took a flood connection's place
+    assert bridge.calls == [("stop", True)]
+
+
+def test_when_tls_connections_fail_in_every_way_expect_each_counted_until_it_ends(
+    tmp_path: Path, certificate
+):
+    """A connection counts from its acceptance; one that sends garbage instead of a TLS hello,
+    resets mid-handshake, closes before a byte or never starts its handshake must stop
+    counting, or its address would lose its share for good."""
+    cert, key = (str(p) for p in certificate)
+    trust = ssl.create_default_context(cafile=cert)
+    settings = {"certfile": cert, "keyfile": key, "token": TOKEN, "auth_timeout_s": 1.0}
+    servers: list[ConsoleServer] = []
+    with serving(tmp_path, servers=servers, **settings) as (base, bridge):
+        port = port_of(base)
+        silent = [idle_socket(port, "127.0.0.2") for _ in range(4)]  # timed out by the server
+        for i in range(3 * CONNECTIONS_PER_ADDRESS):
+            sock = idle_socket(port, "127.0.0.2")
+            if i % 3 == 0:
+                sock.sendall(b"GET / HTTP/1.1\r\n\r\n")  # plain HTTP on a TLS port
+                answer(sock, 5.0)
+            elif i % 3 == 1:
+                sock.sendall(b"\x16\x03\x01\x00")  # the start of a hello, then a reset
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            sock.close()
+        tcp = servers[0]._tcp
+        deadline = time.monotonic() + 10.0
+        while tcp.total and time.monotonic() < deadline:
+            time.sleep(0.05)
+        counted = dict(tcp.by_address)
+        for sock in silent:
+            sock.close()
+        run(operator_stops(base, "127.0.0.2", ssl=trust))
+    assert counted == {}
+    assert bridge.calls == [("stop", True)]
+
+
+def test_when_one_address_opens_more_connections_than_its_share_expect_the_extra_refused(
+    tmp_path: Path,
+):
+    """max_clients counted WebSockets only, then every TCP connection together (8 per
+    max_clients): one address could take them all. It may hold CONNECTIONS_PER_ADDRESS, its
+    slots come back as its connections end, and its refusals are logged in summaries."""
     logged: list[tuple[str, str]] = []
     servers: list[ConsoleServer] = []
 
-    def answer(sock: socket.socket) -> bytes:
-        try:
-            return sock.recv(1024)
-        except ConnectionResetError:  # closed with our request unread: refused all the same
-            return b"(reset)"
-        except TimeoutError:
-            return b"(nothing within 3 s)"
-
-    with serving(tmp_path, max_clients=1, logged=logged, servers=servers) as (base, _):
+    with serving(tmp_path, logged=logged, servers=servers, summary_period_s=0.2) as (base, _):
         port = port_of(base)
         sockets = []
         try:
-            for _ in range(limit + 4):
-                sock = socket.create_connection(("127.0.0.1", port), timeout=3.0)
+            for _ in range(CONNECTIONS_PER_ADDRESS + 4):
+                sock = idle_socket(port, "127.0.0.1")
                 sock.sendall(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ")
                 sockets.append(sock)
-            answers = [answer(sock) for sock in sockets[limit:]]
-            held = select.select(sockets[:limit], [], [], 0.1)[0]
+            extra = answers(sockets[CONNECTIONS_PER_ADDRESS:])
+            held = select.select(sockets[:CONNECTIONS_PER_ADDRESS], [], [], 0.1)[0]
         finally:
             for sock in sockets:
                 sock.close()
-        assert all(a.startswith((b"HTTP/1.1 503", b"(reset)")) for a in answers), answers
+        assert all(a.startswith(REFUSED) for a in extra), extra
         assert held == [], "a connection within the limit was answered or closed"
         deadline = time.monotonic() + 5.0
         while True:  # the slots come back as the connections end
@@ -931,8 +1107,36 @@ def test_when_more_connections_are_opened_than_allowed_expect_the_extra_answered
                     break
             time.sleep(0.05)
         assert time.monotonic() <= deadline
+        summaries = [m for _, m in logged if "connection(s) refused" in m]
+        deadline = time.monotonic() + 5.0
+        while not summaries and time.monotonic() < deadline:
+            time.sleep(0.1)
+            summaries = [m for _, m in logged if "connection(s) refused" in m]
     assert servers[0].refused_connections >= 4
-    assert sum("refusing more" in message for _, message in logged) >= 1
+    assert summaries
+    assert "4 from 127.0.0.1" in summaries[0], summaries
+    assert servers[0]._tcp.by_address == {}  # nothing kept for addresses without connections
+
+
+def test_when_connections_stay_idle_before_their_request_expect_them_closed_in_seconds(
+    tmp_path: Path,
+):
+    """A connection that sends nothing is closed after auth_timeout_s, and its address gets
+    its share back."""
+    with serving(tmp_path, auth_timeout_s=0.5) as (base, bridge):
+        port = port_of(base)
+        idle = [idle_socket(port, "127.0.0.2") for _ in range(CONNECTIONS_PER_ADDRESS)]
+        try:
+            start = time.monotonic()
+            ends = answers(idle, within_s=10.0)
+            elapsed = time.monotonic() - start
+        finally:
+            for sock in idle:
+                sock.close()
+        run(operator_stops(base, "127.0.0.2"))
+    assert ends == [b"(closed)"] * CONNECTIONS_PER_ADDRESS, ends
+    assert elapsed < 10.0  # a generous bound on 0.5 s: minutes (aiohttp's default) fail it
+    assert bridge.calls == [("stop", True)]
 
 
 def test_when_served_over_https_expect_the_page_and_websocket_to_work(tmp_path: Path, certificate):
@@ -974,7 +1178,7 @@ def test_audio_header_is_16_bytes():
 def test_when_the_bench_pairs_chunks_and_raw_poses_expect_the_newest_unanswered_chunk(
     heard, raw, pairs, ambiguous
 ):
-    from audio2pose_ros.ros.console_bench import pair_chunks
+    from audio2pose_ros.ros.tools.console_bench import pair_chunks
 
     assert pair_chunks(heard, raw) == (pairs, ambiguous)
 
@@ -992,7 +1196,7 @@ def test_when_chunks_are_lost_on_the_way_expect_each_heard_one_matched_to_its_ow
     sent, heard, which
 ):
     """Audio is best effort: the bench reported a lost chunk as an error, not as a loss."""
-    from audio2pose_ros.ros.console_bench import match_heard
+    from audio2pose_ros.ros.tools.console_bench import match_heard
 
     assert match_heard([bytes([c]) for c in sent], [bytes([c]) for c in heard]) == which
 
@@ -1062,3 +1266,237 @@ def test_when_console_node_is_misconfigured_expect_one_line_and_status_78(ros_ar
     from node_processes import configuration_error_line
 
     assert expected in configuration_error_line("console_node", *ros_args)
+
+
+# --- wrong tokens and who holds the stop --------------------------------------------------------
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_when_an_address_keeps_sending_wrong_tokens_expect_its_wait_to_double_up_to_a_bound():
+    clock = FakeClock()
+    throttle = TokenThrottle(base_delay_s=0.5, max_delay_s=30.0, clock=clock)
+    waits = []
+    for _ in range(9):  # each attempt comes as soon as it may: its wait is the whole delay
+        wait = throttle.wait_s("10.0.0.9")
+        assert wait is not None
+        waits.append(wait)
+        clock.now += wait
+        throttle.done("10.0.0.9", matched=False)
+    assert waits == [0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 30.0, 30.0]
+    assert throttle.wait_s("10.0.0.7") == 0.0  # another address is not slowed
+    throttle.done("10.0.0.7", matched=True)
+    assert len(throttle) == 1  # an address without wrong tokens is not remembered
+
+
+def test_when_an_address_tries_tokens_in_parallel_expect_one_checked_at_a_time():
+    clock = FakeClock()
+    throttle = TokenThrottle(base_delay_s=0.5, clock=clock)
+    assert throttle.wait_s("10.0.0.9") == 0.0
+    throttle.done("10.0.0.9", matched=False)
+    assert throttle.wait_s("10.0.0.9") == 0.5  # this one waits its turn ...
+    assert throttle.wait_s("10.0.0.9") is None  # ... and one meanwhile is refused unchecked
+    assert throttle.refused_unchecked == 1
+    throttle.done("10.0.0.9", matched=None)  # the waiting one left before its check
+    clock.now += 0.5
+    assert throttle.wait_s("10.0.0.9") == 0.0
+
+
+def test_when_wrong_tokens_come_from_many_addresses_expect_bounded_memory_and_the_worst_kept():
+    clock = FakeClock()
+    throttle = TokenThrottle(base_delay_s=0.5, max_addresses=64, forget_s=600.0, clock=clock)
+    for _ in range(10):  # one address guesses ten times ...
+        clock.now += throttle.wait_s("10.9.9.9") or 0.0
+        throttle.done("10.9.9.9", matched=False)
+    for i in range(10_000):  # ... then 10,000 others once each, to wash it out
+        clock.now += 0.001
+        key = f"10.{i // 65536}.{i // 256 % 256}.{i % 256}"
+        assert throttle.wait_s(key) == 0.0
+        throttle.done(key, matched=False)
+        assert len(throttle) <= 64
+    assert throttle.wait_s("10.9.9.9") == pytest.approx(30.0 - 10.0, abs=0.01)
+    throttle.done("10.9.9.9", matched=None)
+    clock.now += 600.0  # forgotten once quiet for forget_s
+    assert throttle.wait_s("10.9.9.9") == 0.0
+    assert len(throttle) <= 64
+
+
+def test_when_wrong_tokens_are_summarized_expect_one_line_with_the_counts():
+    throttle = TokenThrottle(clock=FakeClock())
+    for key in ("10.0.0.1", "10.0.0.1", "10.0.0.2"):
+        throttle.wait_s(key)
+        throttle.done(key, matched=False)
+    summary = throttle.summary()
+    assert summary.startswith("3 wrong token(s) from 2 address(es) (most: 10.0.0.1 2, 10.0.0.2 1)")
+    assert throttle.summary() == ""  # a new window
+    assert throttle.wrong_tokens == 3
+
+
+@pytest.mark.parametrize(
+    ("address", "key"),
+    [
+        ("192.0.2.7", "192.0.2.7"),
+        ("::ffff:192.0.2.7", "192.0.2.7"),
+        ("2001:db8:1:2:aaaa::1", "2001:db8:1:2::/64"),
+        ("2001:db8:1:2:bbbb::9", "2001:db8:1:2::/64"),  # the same host's /64
+        ("fe80::1%eth0", "fe80::/64"),
+        ("?", "?"),
+    ],
+)
+def test_when_a_client_connects_expect_it_counted_by_its_address_or_ipv6_network(address, key):
+    assert client_key(address) == key
+
+
+def test_when_one_address_guesses_tokens_expect_a_growing_wait_and_summarized_log_lines(
+    tmp_path: Path,
+):
+    """Wrong tokens were never slowed (122 to 216 guesses a second from one client) and each
+    was logged in its own line."""
+    throttle = TokenThrottle(base_delay_s=0.2, max_delay_s=0.8)
+    logged: list[tuple[str, str]] = []
+
+    async def guess(source: str, token: str = "wrong-token") -> int | None:
+        async with from_address(source) as session:
+            return await closed(await connect(session, base, token=token))
+
+    async def one_address() -> tuple[float, list[int | None]]:
+        start = time.monotonic()
+        codes = [await guess("127.0.0.2") for _ in range(4)]
+        elapsed = time.monotonic() - start
+        async with from_address("127.0.0.2") as session:  # two at once: one waits its turn
+            first = await connect(session, base, token="wrong-token")
+            second = await connect(session, base, token="wrong-token")
+            codes += sorted([await closed(first), await closed(second)])
+            operator = await connect(session, base)  # the token still opens, after the wait
+            await until(operator, "welcome")
+        return elapsed, codes
+
+    async def many_addresses(n: int) -> None:
+        for i in range(n):  # each address's first wrong token: checked at once
+            assert await guess(f"127.0.1.{i + 1}") == 4401
+
+    with serving(tmp_path, token=TOKEN, logged=logged, tokens=throttle, summary_period_s=0.5) as (
+        base,
+        _,
+    ):
+        elapsed, codes = run(one_address())
+        start, before = time.monotonic(), len(logged)
+        run(many_addresses(100))
+        deadline = time.monotonic() + 10.0
+
+        def counted() -> int:
+            found = [re.search(r"(\d+) wrong token", m) for _, m in logged]
+            return sum(int(f.group(1)) for f in found if f)
+
+        while counted() < 105 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        periods = (time.monotonic() - start) / 0.5
+    assert codes == [4401] * 5 + [4429]
+    # the 2nd, 3rd and 4th guesses waited 0.2, 0.4 and 0.8 s after the one before
+    assert elapsed >= 0.2 + 0.4 + 0.8
+    assert throttle.failures("127.0.0.2") == 5
+    assert counted() == 105
+    lines = [m for _, m in logged[before:] if "token" in m]
+    assert len(lines) <= periods + 2, lines  # one summary a period, not one line a token
+    assert len(lines) < 100 / 4
+
+
+def test_when_an_observer_stops_the_robot_expect_only_they_release_it_or_a_confirmation(
+    tmp_path: Path,
+):
+    """A STOP pressed by one operator was released by the talking operator with one message."""
+    ann_here = [{"name": "Ann", "present": True}]
+    ann_left = [{"name": "Ann", "present": False}]
+
+    async def error(ws: aiohttp.ClientWebSocketResponse) -> str:
+        return str((await until(ws, "error"))["message"])
+
+    async def scenario() -> None:
+        async with aiohttp.ClientSession() as session:
+            ann = await connect(session, base, name="Ann")
+            bob = await connect(session, base, name="Bob")
+            await until(bob, "welcome")
+            await bob.send_str('{"type":"talk","on":true}')
+            await until(bob, "floor", you=True)
+            await ann.send_str('{"type":"stop","on":true}')
+            await until(ann, "stop_holders", holders=ann_here, you=True)
+            await until(bob, "stop_holders", holders=ann_here, you=False)
+            await bob.send_str('{"type":"stop","on":false}')  # the talker: not his stop
+            assert "held by Ann: only they can release it" in await error(bob)
+            await bob.send_str('{"type":"stop","on":false,"confirm":"Ann"}')
+            assert "Ann is still connected" in await error(bob)
+            await ann.send_str('{"type":"stop","on":false}')  # hers to release
+            await until(bob, "stop_holders", holders=[])
+
+            await ann.send_str('{"type":"stop","on":true}')
+            await bob.send_str('{"type":"stop","on":true}')  # two holders: both must release
+            await until(bob, "stop_holders", you=True)
+            await bob.send_str('{"type":"stop","on":false}')
+            await until(bob, "stop_holders", holders=ann_here, you=False)
+            await ann.close()  # she leaves: her stop stays
+            await until(bob, "stop_holders", holders=ann_left)
+            impostor = await connect(session, base, name="Ann")  # her name is not hers to take
+            assert (await until(impostor, "welcome"))["name"] == "Ann (2)"
+            await impostor.send_str('{"type":"stop","on":false}')
+            assert "held by Ann, who left" in await error(impostor)
+            await bob.send_str('{"type":"stop","on":false,"confirm":"Zed"}')
+            assert "no stop of 'Zed'" in await error(bob)
+            await bob.send_str('{"type":"stop","on":false,"confirm":"Ann"}')
+            await until(bob, "stop_holders", holders=[])
+
+    logged: list[tuple[str, str]] = []
+    with serving(tmp_path, logged=logged) as (base, bridge):
+        run(scenario())
+    assert [on for kind, on in bridge.calls if kind == "stop"] == [True, False, True, True, False]
+    assert any("released the stop of 'Ann', who has left" in m for _, m in logged), logged
+
+
+class StoppedOutsideBridge(Bridge):
+    """A robot stopped by another tool on the stop topic (or before the console started)."""
+
+    def status(self) -> dict[str, Any]:
+        return {"stop": True, "latency": {"n": 0}}
+
+
+def test_when_the_stop_was_set_outside_the_console_expect_its_release_confirmed(tmp_path: Path):
+    async def scenario() -> str:
+        async with aiohttp.ClientSession() as session:
+            ws = await connect(session, base, name="Bob")
+            await until(ws, "stop_holders", holders=[])
+            await ws.send_str('{"type":"stop","on":false}')
+            refused = str((await until(ws, "error"))["message"])
+            await ws.send_str(json.dumps({"type": "stop", "on": False, "confirm": OUTSIDE}))
+            await ws.send_str('{"type":"ping","t":1}')
+            await until(ws, "pong")
+            return refused
+
+    with serving(tmp_path, bridge=StoppedOutsideBridge()) as (base, bridge):
+        refused = run(scenario())
+    assert f"set {OUTSIDE}" in refused
+    assert bridge.calls == [("stop", False)]
+
+
+def test_when_names_are_taken_expect_a_unique_one_and_never_the_outside_holder():
+    assert unique_name("Ann", {"Bob"}) == "Ann"
+    assert unique_name("Ann", {"Ann", "Ann (2)"}) == "Ann (3)"
+    assert unique_name(OUTSIDE, set()) == f"{OUTSIDE} (2)"
+    assert len(unique_name("x" * 40, {"x" * 40})) == 40
+    holders = StopHolders()
+    assert holders.press(1, "Ann")
+    assert not holders.press(1, "Ann")
+    assert holders.left(1)
+    assert not holders.release(2)  # a new connection is not her
+    assert not holders.release_absent("Bob")
+    assert holders.release_absent("Ann")
+    assert not holders.held
+    for session in range(10 * MAX_PRESSES):  # press and leave, over and over
+        holders.press(session, f"op {session}")
+        holders.left(session)
+    assert len(holders.presses) == MAX_PRESSES
+    assert holders.held

@@ -389,6 +389,47 @@ def test_when_stop_is_pressed_expect_the_robot_holds_until_released(console: Con
     page.close()
 
 
+def test_when_an_observer_stops_the_robot_expect_every_page_names_them_and_only_they_release(
+    console: Console, browser
+):
+    """A STOP pressed by one operator (a safety observer) was released by the talking operator
+    with one click. Only the observer releases it; once they have left, another operator
+    releases it through a confirmation that names them."""
+    observer = _open(browser, console, name="Observer")
+    talker = _open(browser, console, name="Talker")
+    _talk(talker)
+    observer.click("#stop")
+    holder = "document.getElementById('stop-holder').textContent"
+    try:
+        talker.wait_for_function(f"{holder} === 'Stop held by Observer.'", timeout=10000)
+        observer.wait_for_function(f"{holder} === 'Stop held by you.'", timeout=10000)
+        talker.wait_for_function("document.body.classList.contains('stopped')", timeout=10000)
+        talker.click("#release")  # not the talker's stop: refused, the robot stays stopped
+        talker.wait_for_function("window.a2p.lastError.includes('held by Observer')", timeout=10000)
+        assert talker.is_hidden("#release-confirm")  # no confirmation while Observer is here
+        observer.close()  # the observer leaves: the stop stays, and says so
+        talker.wait_for_function(f"{holder} === 'Stop held by Observer (has left).'", timeout=10000)
+        assert talker.evaluate("document.body.classList.contains('stopped')")
+        talker.click("#release")
+        talker.wait_for_function(
+            "!document.getElementById('release-confirm').hidden", timeout=10000
+        )
+        assert "Observer" in talker.text_content("#release-confirm-yes")
+        talker.screenshot(path=str(console.shots / "console_page_confirm_release.png"))
+        talker.click("#release-confirm-yes")
+        talker.wait_for_function(f"{holder} === ''", timeout=10000)
+        talker.wait_for_function("!document.body.classList.contains('stopped')", timeout=10000)
+    finally:  # the next tests need a robot that moves
+        if not observer.is_closed():
+            observer.click("#release")
+        elif talker.evaluate("window.a2p.stopHolders.length > 0"):
+            talker.click("#release")
+            with contextlib.suppress(Exception):
+                talker.click("#release-confirm-yes", timeout=5000)
+    talker.click("#talk")
+    talker.close()
+
+
 def test_when_the_operator_sets_gains_and_disables_motion_expect_the_filter_to_follow(
     console: Console, browser
 ):

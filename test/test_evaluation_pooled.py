@@ -6,8 +6,8 @@ import numpy as np
 
 from audio2pose_ros.data.dataset import Clip, ClipInfo
 from audio2pose_ros.learning import metrics
-from audio2pose_ros.learning.default_model import PROSODY_RULE
 from audio2pose_ros.learning.evaluation import (
+    PROSODY_RULE,
     REAL_FLOOR,
     STATIC,
     GroupRow,

@@ -12,8 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from audio2pose_ros.ros.fault_campaign import cases, run_campaign, table
-from audio2pose_ros.ros.fault_harness import Case, Commands, Outcome
+from audio2pose_ros.ros.tools.fault_campaign import cases, run_campaign, table
+from audio2pose_ros.ros.tools.fault_harness import Case, Commands, Outcome
 
 
 def test_commands_measure_deviation_gaps_and_non_finite_commands():

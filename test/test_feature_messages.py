@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from audio2pose_ros.ros.diagnosed_node import features_to_msg, msg_to_features
+from audio2pose_ros.ros.messages import features_to_msg, msg_to_features
 from audio2pose_ros.timebase import FrameSequence
 
 

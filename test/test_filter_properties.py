@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.motion.filter import GAP_PERIODS, MotionFilter, MotionFilterSettings
+from audio2pose_ros.motion.style import STYLE_FIELDS
 from audio2pose_ros.motion.timing import StampCheck
 
 PERIOD = 0.01
@@ -75,8 +76,11 @@ def event_sequences(draw):
                 (
                     kind,
                     {
-                        "arms_gain": draw(unit),
-                        "head_gain": draw(unit),
+                        "arms_gain": draw(st.floats(min_value=0.0, max_value=2.0)),
+                        "head_gain": draw(st.floats(min_value=0.0, max_value=2.0)),
+                        "arms_tempo": draw(st.floats(min_value=0.2, max_value=2.0)),
+                        "arms_rest_pitch_rad": draw(st.floats(min_value=-0.6, max_value=0.6)),
+                        "arms_raise_limit_rad": draw(st.floats(min_value=-2.0857, max_value=1.5)),
                         "head_target_weight": draw(unit),
                         "outlier_tolerance_rad": draw(unit),
                         "max_head_offset_rad": draw(unit),
@@ -144,7 +148,13 @@ def test_when_any_input_expect_every_command_finite_and_within_all_limits(
         elif kind == "time":
             t += payload
         elif kind == "settings":
-            filt.update_settings(dataclasses.replace(filt.settings, **payload))
+            style = {k: v for k, v in payload.items() if k in STYLE_FIELDS}
+            filt.update_settings(
+                dataclasses.replace(
+                    filt.settings, **{k: v for k, v in payload.items() if k not in style}
+                ),
+                style=dataclasses.replace(filt.style.settings, **style),
+            )
         elif kind == "restart":
             start = np.array(payload)
             if np.isfinite(start).all():

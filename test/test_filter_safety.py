@@ -14,6 +14,7 @@ import pytest
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings, online_filter
 from audio2pose_ros.motion.limits import LimitSettings
+from audio2pose_ros.motion.style import StyleSettings
 
 PERIOD = 0.01
 MAX_DEVIATION_RAD = 0.1
@@ -191,7 +192,7 @@ def test_when_started_from_measured_pose_expect_first_command_within_one_velocit
 
 def test_when_gain_changed_live_expect_effect_from_next_tick_and_read_only_refused(robot):
     filt, t = settled_filter(robot)
-    filt.update_settings(MotionFilterSettings(arms_gain=0.0))
+    filt.update_settings(MotionFilterSettings(), style=StyleSettings(arms_gain=0.0))
     arms = robot.group_mask("arms")
     for _ in range(200):
         t += PERIOD

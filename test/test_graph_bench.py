@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from audio2pose_ros.ros.graph_bench import (
+from audio2pose_ros.ros.tools.graph_bench import (
     FloorFigures,
     GraphFigures,
     measure_floor,

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import yaml
 from launch_arguments import arguments
 
 from audio2pose_ros.errors import ConfigurationError
@@ -27,6 +28,7 @@ from audio2pose_ros.ros.launch_support import (
     normalize_topic,
     parse_bool,
     plan_launch,
+    single_process_arguments,
 )
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -259,3 +261,45 @@ def test_when_the_console_argument_is_given_expect_it_read_as_a_boolean(text, ex
 def test_when_the_console_argument_is_not_a_boolean_expect_one_line_naming_it():
     with pytest.raises(ConfigurationError, match="launch argument console:='web' is not a boolean"):
         plan_launch(arguments(console="web"))
+
+
+def personal_model(folder, **fitted):
+    """A personal model folder whose style was fitted to the packaged checkpoint."""
+    from audio2pose_ros.resources import default_checkpoint_path
+    from audio2pose_ros.style.personal import checkpoint_digest
+
+    folder.mkdir()
+    digest = checkpoint_digest(default_checkpoint_path())
+    settings = ", ".join(f"{k}: {v}" for k, v in fitted.items())
+    (folder / "style.yaml").write_text(
+        "audio2pose_style: 1\nparts:\n  head:\n    seconds: 10\n    std_rad: 0.05\n"
+        f"    speed_deciles_rad_s: {[0.01 * k for k in range(1, 10)]}\n"
+        f"    accel_deciles_rad_s2: {[0.1 * k for k in range(1, 10)]}\n"
+        f"fitted: {{checkpoint_sha256: {digest}, settings: {{{settings}}}}}\n"
+    )
+    return folder
+
+
+def test_when_model_path_is_a_personal_model_expect_its_checkpoint_and_style(tmp_path):
+    folder = personal_model(tmp_path / "me", head_gain=0.4, head_tempo=0.7)
+    plan = plan_launch(arguments(model_path=str(folder)))
+    assert plan.model_path["model_path"].endswith("default.safetensors")
+    assert plan.style == {"head_gain": 0.4, "head_tempo": 0.7}
+    document = yaml.safe_load(
+        Path(single_process_arguments(plan, tmp_path)[4]).read_text(encoding="utf-8")
+    )
+    assert document["motion_filter_node"]["ros__parameters"] == plan.style
+    assert plan_launch(arguments()).style == {}
+
+
+def test_when_style_is_a_preset_expect_filter_style_parameters():
+    plan = plan_launch(arguments(style="calm_reader"))
+    assert plan.style["head_gain"] < 0.5  # a calm reader's head moves far less than the model's
+    assert set(plan.style) <= {"head_gain", "head_tempo"}  # GRID shows the head only
+    assert plan.model_path == {}
+
+
+@pytest.mark.parametrize("style", ["nobody", "/no/such/style.yaml"])
+def test_when_style_is_unusable_expect_one_line_naming_the_argument(style):
+    with pytest.raises(ConfigurationError, match=r"launch argument style / model_path: .*style"):
+        plan_launch(arguments(style=style))

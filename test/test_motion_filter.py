@@ -5,6 +5,7 @@ import pytest
 
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+from audio2pose_ros.motion.style import StyleSettings
 
 PERIOD = 0.01
 
@@ -49,7 +50,7 @@ def test_when_input_stops_expect_glide_to_neutral_within_timeout_plus_settling(r
 
 
 def test_when_arms_gain_zero_expect_arms_at_neutral_head_moving(robot):
-    filt = MotionFilter(robot, MotionFilterSettings(arms_gain=0.0))
+    filt = MotionFilter(robot, MotionFilterSettings(), style=StyleSettings(arms_gain=0.0))
     target = robot.neutral_rad + 0.3 * (robot.upper_rad - robot.neutral_rad)
     out = run(filt, np.tile(target, (150, 1)))
     arms = robot.group_mask("arms")
@@ -75,8 +76,8 @@ def test_when_burst_exceeds_buffer_expect_oldest_dropped_and_counted(robot):
 def test_when_settings_invalid_expect_configuration_error_naming_parameter_and_range():
     with pytest.raises(ConfigurationError, match="parameter smoothing: value 'median'"):
         MotionFilterSettings(smoothing="median")
-    with pytest.raises(ConfigurationError, match=r"arms_gain: value 2.0 .* in \[0, 1\]"):
-        MotionFilterSettings(arms_gain=2.0)
+    with pytest.raises(ConfigurationError, match=r"arms_gain: value 2.5 .* in \[0, 2\]"):
+        StyleSettings(arms_gain=2.5)
 
 
 def raised_pose(robot):

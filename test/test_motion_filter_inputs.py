@@ -93,7 +93,8 @@ def test_when_measured_names_and_positions_disagree_expect_a_warning_not_a_bug(m
     node = make_node()
     subscription = next(s for s in node.subscriptions if s.topic_name == "/joint_states")
     bad = JointState(name=list(robot.names), position=[0.0] * (robot.n_joints - 1))
-    subscription.callback(serialize_message(bad))  # what the executor hands over
+    info = {"publisher_gid": {"data": bytes(24)}, "source_timestamp": 0}
+    subscription.callback(serialize_message(bad), info)  # what the executor hands over
     assert node.callback_errors == 0  # bad input, not a bug in the node
     assert node.input_messages_refused == 1
     problems = node.current_problems()
@@ -102,6 +103,6 @@ def test_when_measured_names_and_positions_disagree_expect_a_warning_not_a_bug(m
     assert level == DiagnosticStatus.WARN
     assert "11 names, 10 positions" in message
     partial = JointState(name=list(robot.names[:3]), position=[0.0] * 3)  # another robot's
-    subscription.callback(serialize_message(partial))
+    subscription.callback(serialize_message(partial), info)
     assert node.diagnostic_values()["measured_partial_messages"] == 1
     assert not node.started  # neither was taken for the robot's pose

@@ -24,8 +24,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.ros.diagnosed_node import EXIT_CONFIGURATION_ERROR, LATCHED_QOS, trajectory_msg
+from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR
+from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
 from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.messages import trajectory_msg
 from audio2pose_ros.topics import (
     COMMANDED_JOINT_STATES,
     DIAGNOSTICS,
@@ -423,6 +425,32 @@ def test_when_stopped_with_neutral_behaviour_expect_head_target_ignored(driver, 
     driver.spin_for(1.0, every=look_away)
     yaw = driver.positions()[:, robot.names.index("HeadYaw")]
     np.testing.assert_allclose(yaw, robot.neutral_rad[robot.names.index("HeadYaw")], atol=1e-6)
+
+
+def test_when_the_style_changes_live_expect_it_blended_in_without_a_jump(
+    driver, filter_node, robot
+):
+    filter_node()
+    driver.wait_for_node()
+    driver.spin_for(1.5, every=stream(driver, robot, raised(robot)))
+    driver.states.clear()
+    for name, value in (("head_gain", 0.2), ("arms_rest_pitch_rad", 0.4)):
+        result = driver.set_parameter(name, value)
+        assert result.successful, result.reason
+    driver.spin_for(2.5, every=stream(driver, robot, raised(robot)))
+    positions = driver.positions()
+    pitch = robot.names.index("LShoulderPitch")
+    change = (positions[:, pitch] - positions[0, pitch]) / (
+        positions[-1, pitch] - positions[0, pitch]
+    )
+    # counted in commands (filter ticks), not wall-clock time: the blend takes 100 ticks and
+    # crosses 10 % to 90 % in about 52 (minimum-jerk); a step through the limits in under 20
+    assert np.argmax(change > 0.9) - np.argmax(change > 0.1) >= 40
+    assert change.min() > -0.05  # no swing the wrong way
+    assert change.max() < 1.05  # no overshoot
+    yaw, neutral = robot.names.index("HeadYaw"), robot.neutral_rad
+    assert positions[-1, yaw] == pytest.approx(neutral[yaw] + 0.2 * 0.4, abs=0.01)
+    assert positions[-1, pitch] - positions[0, pitch] == pytest.approx(0.4, abs=0.01)
 
 
 def test_when_parameters_set_at_run_time_expect_live_effect_or_refusal_with_reason(

@@ -1,4 +1,4 @@
-"""config/pepper.yaml and the README's parameter table are the nodes' declarations, written out."""
+"""config/pepper.yaml, the parameter page and the name list: the declarations, written out."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.motion.filter import MotionFilterSettings
 from audio2pose_ros.parameters import specs_of, validate_values
 from audio2pose_ros.resources import share_path
-from audio2pose_ros.ros.parameter_docs import node_parameters, parameters_markdown, parameters_yaml
+from audio2pose_ros.ros.parameter_docs import GENERATED, node_parameters, parameters_yaml
 
 ROOT = share_path("config", "pepper.yaml").parent.parent
 
@@ -22,8 +22,22 @@ def test_shipped_parameters_file_is_the_declarations_written_out():
     )
 
 
-def test_readme_table_is_the_declarations_written_out():
-    assert parameters_markdown() in (ROOT / "README.md").read_text(encoding="utf-8")
+@pytest.mark.parametrize("relative", sorted(GENERATED))
+def test_every_generated_file_is_the_declarations_written_out(relative):
+    """The parameter page and the name list too: a parameter added to a node shows in both."""
+    shipped = (ROOT / relative).read_text(encoding="utf-8")
+    assert shipped == GENERATED[relative](), (
+        f"{relative} differs from the declarations: run "
+        "python -m audio2pose_ros.ros.parameter_docs --write ."
+    )
+
+
+def test_the_name_list_holds_every_declared_name_and_the_simulated_robots():
+    from audio2pose_ros.ros.nodes import pepper_sim_node
+    from audio2pose_ros.ros.parameter_names import NODE_PARAMETER_NAMES
+
+    every = {spec.name for specs in node_parameters().values() for spec in specs}
+    assert every | {spec.name for spec in pepper_sim_node.PARAMETERS} == NODE_PARAMETER_NAMES
 
 
 def test_every_value_in_the_parameters_file_is_declared_by_a_node_and_valid():

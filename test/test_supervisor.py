@@ -12,13 +12,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from audio2pose_ros.errors import UsageError
-from audio2pose_ros.ros.diagnosed_node import (
-    EXIT_CONFIGURATION_ERROR,
-    HEARTBEAT_PERIOD_S,
-    STACK_DUMP_SIGNAL,
-    STALE_AFTER_S,
-)
+from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, UsageError
+from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_PERIOD_S, STACK_DUMP_SIGNAL, STALE_AFTER_S
 from audio2pose_ros.ros.graph import (
     RESTART_AFTER_S,
     NodeSupervisor,

@@ -8,7 +8,7 @@ The computation follows seed 003 section 3.2, steps 1-8, with the settings of se
    zero-padded;
 3. windowing: rectangular (no window) by default, as python_speech_features' default ``winfunc``
    that the seed used, or the Hamming window of eq. 3.2;
-4. power spectrum P = |FFT(y_i)|^2 / N_FFT (eq. 3.3);
+4. power spectrum ``P = |FFT(y_i)|^2 / N_FFT`` (eq. 3.3);
 5. triangular mel filters (eq. 3.4), logarithm -> LogFB;
 6. DCT-II (orthonormal), first ``numcep`` coefficients, sinusoidal lifter, coefficient 0
    replaced by the log frame energy -> MFCC;

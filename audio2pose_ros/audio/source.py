@@ -309,6 +309,7 @@ class AudioInput:
         # says the stream restarted, even when the message that brought the format was dropped
         self._buffer_restart = False
         self.chunks = 0
+        self._chunks_in_call = 1  # messages in the payload being decoded
         self.dropped_chunks = 0
         self.dropped_bytes = 0
 
@@ -364,14 +365,22 @@ class AudioInput:
             self.info_rejected = True
             raise UnsupportedAudioFormat(self.format_problem) from None
 
-    def decode_audio_data(self, data: bytes | bytearray | memoryview | Sequence[int]) -> np.ndarray:
-        """Decode the bytes of one audio_common_msgs AudioData.
+    def decode_audio_data(
+        self, data: bytes | bytearray | memoryview | Sequence[int], chunks: int = 1
+    ) -> np.ndarray:
+        """Decode the bytes of one audio_common_msgs AudioData, or of several small ones.
+
+        Args:
+            data: the payload of ``chunks`` consecutive messages.
+            chunks: how many messages ``data`` holds (a node accumulates tiny chunks and
+                decodes them at once); they are counted, and dropped, together.
 
         Raises:
             AudioDropped: no usable AudioInfo, or the message is over a limit.
             InvalidAudio: the samples are not finite.
         """
-        self.chunks += 1
+        self.chunks += chunks
+        self._chunks_in_call = chunks
         self._check_bytes("AudioData", len(data))
         if self._decoder is None:
             raise self._dropped(len(data), AudioDropped(f"audio dropped: {self.format_problem}"))
@@ -394,6 +403,7 @@ class AudioInput:
             InvalidAudio: the data is not a whole number of frames.
         """
         self.chunks += 1
+        self._chunks_in_call = 1
         n_bytes = 2 * len(data)
         self._check_bytes("AudioBuffer", n_bytes)
         channel_map = tuple(int(code) for code in channel_map)
@@ -473,6 +483,6 @@ class AudioInput:
 
     def _dropped(self, n_bytes: int, error: InputError) -> InputError:
         """Count a dropped message of ``n_bytes``; return ``error`` for the caller to raise."""
-        self.dropped_chunks += 1
+        self.dropped_chunks += self._chunks_in_call
         self.dropped_bytes += n_bytes
         return error

@@ -5,12 +5,14 @@ time; torch costs about 250 MB of resident memory and seconds of import for that
 loads a checkpoint with safetensors' numpy API and runs the streaming models that have a numpy
 kernel here, frame by frame, with float64 arithmetic:
 
-| model | kernel |
-|---|---|
-| ``mlp`` | seed 003 section 4.3.3: ReLU layers, sigmoid output; a message's frames at once |
-| ``lstm`` | seed 003 section 4.3.4 made causal: one LSTM cell step per frame, (h, c) carried |
-| ``live`` | a GRU step on audio and the last pose, Gaussian output, smooth (bursty) noise |
-| ``live_groups`` | two ``live`` kernels (head; arms and hip) and the causal speech gate |
+=============== ==================================================================================
+model           kernel
+=============== ==================================================================================
+``mlp``         seed 003 section 4.3.3: ReLU layers, sigmoid output; a message's frames at once
+``lstm``        seed 003 section 4.3.4 made causal: one LSTM cell step per frame, (h, c) carried
+``live``        a GRU step on audio and the last pose, Gaussian output, smooth (bursty) noise
+``live_groups`` two ``live`` kernels (head; arms and hip) and the causal speech gate
+=============== ==================================================================================
 
 Gate layouts are torch's (LSTM: input, forget, cell, output; GRU: reset, update, new, the reset
 gate scaling the hidden projection including its bias), so the kernels give the same poses as

@@ -7,6 +7,7 @@ import tempfile
 from pathlib import Path
 
 from audio2pose_ros.cli.options import Verbs, bounded_int, input_file
+from audio2pose_ros.cli.style_commands import add_style_options, graph_overrides
 
 
 def command_console(args: argparse.Namespace) -> int:
@@ -21,8 +22,7 @@ def command_console(args: argparse.Namespace) -> int:
         if getattr(args, name):
             values[name] = str(input_file(getattr(args, name), f"--{name}").resolve())
     params = input_file(args.params_file, "parameters file") if args.params_file else None
-    model = input_file(args.model, "checkpoint") if args.model else None
-    overrides = [f"model_path:={model.resolve()}"] if model else []
+    overrides = graph_overrides(args)
     check_console_settings(params, values)  # a refused bind or token stops before anything runs
     with tempfile.TemporaryDirectory(prefix="audio2pose_console_") as tmp:
         run_console(
@@ -58,7 +58,10 @@ def register(verbs: Verbs) -> None:
     console.add_argument(
         "--no-graph", action="store_true", help="only the console: the graph runs elsewhere"
     )
-    console.add_argument("--model", help="checkpoint for the graph (default: packaged model)")
+    console.add_argument(
+        "--model", help="checkpoint or personal model folder (default: packaged model)"
+    )
+    add_style_options(console)
     console.add_argument("--params-file", help="ROS parameter YAML (default: config/pepper.yaml)")
     console.add_argument("--log-dir", help="write each node's output to <dir>/<node>.log")
     console.add_argument(

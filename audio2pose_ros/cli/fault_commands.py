@@ -10,7 +10,7 @@ from audio2pose_ros.cli.options import Verbs
 
 def command_faults(args: argparse.Namespace) -> int:
     """Run the campaign and print its table; exit status 1 if a case failed."""
-    from audio2pose_ros.ros.fault_campaign import cases, run_campaign, table
+    from audio2pose_ros.ros.tools.fault_campaign import cases, run_campaign, table
 
     chosen = cases()
     if args.case:

@@ -31,6 +31,8 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     import numpy as np
 
+    from audio2pose_ros.motion.style import StyleSettings
+
 from audio2pose_ros.cli.options import (
     MAX_SEED,
     OneLineParser,
@@ -45,6 +47,7 @@ from audio2pose_ros.cli.options import (
     output_file,
     report,
 )
+from audio2pose_ros.cli.style_commands import add_style_options, graph_overrides
 from audio2pose_ros.errors import Audio2PoseError, InputError, UsageError
 from audio2pose_ros.timebase import duration_s
 
@@ -63,12 +66,11 @@ def command_run(args: argparse.Namespace) -> int:
         raise UsageError("--record needs --play (recording stops when the file ends)")
     play = _speech_input(args.play) if args.play else None
     record = new_dir(args.record, "--record") if args.record else None
-    model = input_file(args.model, "checkpoint") if args.model else None
     params = input_file(args.params_file, "parameters file") if args.params_file else None
     log_dir = Path(args.log_dir) if args.log_dir else None
     if log_dir is not None and log_dir.exists() and not log_dir.is_dir():
         raise UsageError(f"--log-dir {log_dir}: exists and is not a directory")
-    overrides = [f"model_path:={model.resolve()}"] if model else []
+    overrides = graph_overrides(args)
     result = run_graph(
         play,
         record,
@@ -155,6 +157,7 @@ def _synthesize_to_csv(
     smooth: bool,
     seed: int = 0,
     force: bool = False,
+    style: StyleSettings | None = None,
 ) -> Path:
     from audio2pose_ros.checkpoints.torch_io import load_checkpoint
     from audio2pose_ros.offline.synthesis import synthesize, write_trajectory_csv
@@ -163,7 +166,7 @@ def _synthesize_to_csv(
 
     output_file(out, "-o", inputs=(wav, model), force=force)
     checkpoint = load_checkpoint(model or default_checkpoint_path(), robot=load_robot())
-    times, angles = synthesize(checkpoint, _read_speech(wav), smooth=smooth, seed=seed)
+    times, angles = synthesize(checkpoint, _read_speech(wav), smooth=smooth, seed=seed, style=style)
     try:
         return write_trajectory_csv(out, times, angles, checkpoint.robot.names)
     except OSError as exc:
@@ -171,14 +174,19 @@ def _synthesize_to_csv(
 
 
 def command_synth(args: argparse.Namespace) -> int:
-    """Offline synthesis of a WAV to a CSV of joint angles at 100 Hz."""
+    """Offline synthesis of a WAV to a CSV of joint angles at 100 Hz, in a style if asked."""
+    from audio2pose_ros.cli.style_commands import model_and_style_settings
+    from audio2pose_ros.robot.description import load_robot
+
+    checkpoint, style = model_and_style_settings(args, load_robot())
     out = _synthesize_to_csv(
         Path(args.wav),
         Path(args.output),
-        args.model,
+        str(checkpoint),
         not args.no_smooth,
         seed=args.seed,
         force=args.force,
+        style=style,
     )
     print(f"wrote {out}")
     return 0
@@ -262,12 +270,12 @@ def command_bench(args: argparse.Namespace) -> int:
     # --json: one object; its layout is versioned, and a change of it is in CHANGELOG.md
     results: dict[str, object] = {"schema_version": BENCH_SCHEMA_VERSION}
     if args.console:  # the operator's voice through the web console to /joint_angles
-        from audio2pose_ros.ros.console_bench import console_report, measure_console
-        from audio2pose_ros.ros.graph_bench import bundled_speech
+        from audio2pose_ros.ros.tools.console_bench import console_report, measure_console
+        from audio2pose_ros.ros.tools.graph_bench import bundled_speech
 
         results["console"] = console_report(measure_console(bundled_speech(), args.duration))
     if args.graph:  # before pinning this process to one core: the nodes need the machine
-        from audio2pose_ros.ros.graph_bench import bundled_speech, measure_graph, report
+        from audio2pose_ros.ros.tools.graph_bench import bundled_speech, measure_graph, report
 
         speech = bundled_speech()
         results["graph"] = [
@@ -281,7 +289,7 @@ def command_bench(args: argparse.Namespace) -> int:
             ]
         ]
     if args.sim:  # the graph against the simulated Pepper: commanded vs executed
-        from audio2pose_ros.ros.graph_bench import bundled_speech, measure_sim_tracking
+        from audio2pose_ros.ros.tools.graph_bench import bundled_speech, measure_sim_tracking
 
         tracking = measure_sim_tracking(bundled_speech(), duration_s=min(args.duration, 60.0))
         results["sim_tracking"] = dataclasses.asdict(tracking)
@@ -526,7 +534,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--rate", type=rate, default=1.0, help="playback speed factor in (0, 100] (default 1)"
     )
     run.add_argument("--record", metavar="OUT", help="record the commands to this rosbag2 (MCAP)")
-    run.add_argument("--model", help="checkpoint for the graph (default: packaged model)")
+    run.add_argument(
+        "--model", help="checkpoint or personal model folder (default: packaged model)"
+    )
+    add_style_options(run)
     run.add_argument("--params-file", help="ROS parameter YAML (default: config/pepper.yaml)")
     run.add_argument("--log-dir", help="write each node's output to <dir>/<node>.log")
     run.add_argument(
@@ -550,7 +561,10 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("wav", metavar="FILE.wav|BAG", help="a WAV file or a bag with audio")
     synth.add_argument("-o", "--output", required=True, metavar="OUT.csv")
     add_force(synth)
-    synth.add_argument("--model", help="checkpoint (default: packaged model)")
+    synth.add_argument(
+        "--model", help="checkpoint or personal model folder (default: packaged model)"
+    )
+    add_style_options(synth)
     synth.add_argument("--no-smooth", action="store_true", help="skip the 4 Hz Butterworth filter")
     synth.add_argument(
         "--seed", type=seed, default=0, help="noise seed of a sampling model (default 0)"
@@ -677,6 +691,7 @@ def _command_modules() -> list[Callable[[Verbs], None]]:
         fault_commands,
         model_commands,
         render_commands,
+        style_commands,
     )
 
     return [
@@ -686,6 +701,7 @@ def _command_modules() -> list[Callable[[Verbs], None]]:
         render_commands.register,
         fault_commands.register,
         console_commands.register,
+        style_commands.register,
     ]
 
 

@@ -29,6 +29,7 @@ from audio2pose_ros.cli.options import (
     output_file,
     remove_bag_dir,
 )
+from audio2pose_ros.cli.style_commands import add_style_options
 from audio2pose_ros.errors import UsageError
 from audio2pose_ros.viz.render import MAX_FPS, MAX_VIEW_PX, MIN_SIZE_PX, RenderSettings
 
@@ -80,6 +81,7 @@ def _check_outputs(args: argparse.Namespace) -> Path:
 def command_render(args: argparse.Namespace) -> int:
     """Render the requested trajectories to an MP4 with audio; write the first one as MCAP."""
     from audio2pose_ros.audio.wav import read_wav
+    from audio2pose_ros.cli.style_commands import model_and_style_settings
     from audio2pose_ros.motion.limits import LimitSettings
     from audio2pose_ros.offline.trajectory import (
         bag_trajectory,
@@ -101,7 +103,10 @@ def command_render(args: argparse.Namespace) -> int:
         if getattr(args, name) % 2:
             raise UsageError(f"--{name.replace('_', '-')} {getattr(args, name)} must be even")
     bag_out = _check_outputs(args)
-    for checkpoint in [args.model, *(args.compare or [])]:
+    for checkpoint in [
+        *([args.model] if args.model and not Path(args.model).is_dir() else []),
+        *(args.compare or []),
+    ]:
         if checkpoint:
             input_file(checkpoint, "checkpoint")
     if args.bag:
@@ -116,18 +121,25 @@ def command_render(args: argparse.Namespace) -> int:
         side_view=args.side,
     )
     robot = load_robot()
-    model = args.model or default_checkpoint_path()
+    model, style = model_and_style_settings(args, robot)
     if args.data is not None:
         truth, audio = clip_trajectory(args.data, args.clip, robot)
-        trajectories = [synthesized_trajectory(model, audio, robot), truth]
+        trajectories = [synthesized_trajectory(model, audio, robot, style), truth]
+        if args.beside_default:
+            default = synthesized_trajectory(
+                default_checkpoint_path(), audio, robot, label="default model"
+            )
+            trajectories = [truth, default, replace(trajectories[0], label="styled model")]
     else:
         audio, _ = read_wav(input_file(args.wav, "WAV file"))
         if args.bag:
             trajectories = [bag_trajectory(args.bag, robot)]
         else:
-            trajectories = [
-                synthesized_trajectory(c, audio, robot) for c in args.compare or [model]
-            ]
+            trajectories = (
+                [synthesized_trajectory(c, audio, robot) for c in args.compare]
+                if args.compare
+                else [synthesized_trajectory(model, audio, robot, style)]
+            )
             if args.compare:  # the two checkpoints may share a file name
                 trajectories = [
                     replace(t, label=f"{tag}: {t.label}")
@@ -170,7 +182,15 @@ def register(verbs: Verbs) -> None:
     render.add_argument("wav", nargs="?", metavar="FILE.wav", help="speech (not with --data)")
     render.add_argument("-o", "--output", required=True, metavar="OUT.mp4")
     add_force(render)
-    render.add_argument("--model", help="checkpoint (default: packaged model)")
+    render.add_argument(
+        "--model", help="checkpoint or personal model folder (default: packaged model)"
+    )
+    add_style_options(render)
+    render.add_argument(
+        "--beside-default",
+        action="store_true",
+        help="with --data: the person, the default model and the styled --model side by side",
+    )
     source = render.add_mutually_exclusive_group()
     source.add_argument("--bag", help="render the joint angles recorded in this rosbag2")
     source.add_argument(

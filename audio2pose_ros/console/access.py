@@ -12,6 +12,12 @@ Safe by default:
   the browser asked for (``Host``), so another web site open in the operator's browser cannot
   drive the robot; on a loopback bind ``Host`` must also be a loopback name, which defeats DNS
   rebinding (a foreign name resolved to 127.0.0.1).
+- Wrong tokens are slowed per client address (:class:`TokenThrottle`): after each wrong token,
+  that address waits twice as long before its next token is checked (from
+  :data:`TOKEN_BASE_DELAY_S` up to :data:`TOKEN_MAX_DELAY_S`), one attempt at a time; the
+  wrong tokens are logged in summaries (:meth:`TokenThrottle.summary`), not one line each. A
+  client address is its IPv4 address or its IPv6 /64 network (:func:`client_key`): one host
+  can have a whole /64 to itself.
 """
 
 from __future__ import annotations
@@ -20,19 +26,34 @@ import hmac
 import ipaddress
 import secrets
 import socket
+import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import urlsplit
 
 from audio2pose_ros.console.settings import ConsoleSettings
 from audio2pose_ros.errors import ConfigurationError
 
-__all__ = ["MIN_TOKEN_CHARS", "Access", "is_loopback", "request_problem", "resolve_access"]
+__all__ = [
+    "MIN_TOKEN_CHARS",
+    "TOKEN_BASE_DELAY_S",
+    "TOKEN_MAX_DELAY_S",
+    "Access",
+    "TokenThrottle",
+    "client_key",
+    "is_loopback",
+    "request_problem",
+    "resolve_access",
+]
 
 MIN_TOKEN_CHARS = 16  # a network token shorter than this is refused
 TOKEN_BYTES = 24  # a generated token: 24 random bytes, 32 URL-safe characters
 LOOPBACK_NAMES = ("localhost",)
+TOKEN_BASE_DELAY_S = 0.5  # the wait before the token after an address's first wrong one ...
+TOKEN_MAX_DELAY_S = 30.0  # ... doubling with each further wrong one, up to this
+TOKEN_FORGET_S = 600.0  # an address's wrong tokens are forgotten this long after its last one
+MAX_TOKEN_ADDRESSES = 1024  # addresses with wrong tokens remembered at once, at most
 
 
 def is_loopback(host: str) -> bool:
@@ -127,8 +148,8 @@ def resolve_access(
             raise ConfigurationError(
                 f"parameter host: value {host!r} is reachable from the network, which needs "
                 "HTTPS (browsers allow the microphone only on localhost or HTTPS, and the token "
-                "must not travel in clear): set certfile and keyfile (README: Operator console), "
-                "or use host 127.0.0.1"
+                "must not travel in clear): set certfile and keyfile (doc/console.md: On a "
+                "network), or use host 127.0.0.1"
             )
         if not token:
             token = make_token(TOKEN_BYTES)
@@ -166,3 +187,178 @@ def request_problem(access: Access, host_header: str | None, origin: str | None)
     if origin.strip().lower() != expected:
         return f"Origin {origin!r} is not this console ({expected})"
     return ""
+
+
+def client_key(address: str) -> str:
+    """The client address that connection and token limits count by.
+
+    An IPv4 address (an IPv4-mapped IPv6 one included) is itself; an IPv6 address counts as its
+    /64 network, which a single host may hold entirely. Anything else (a Unix socket's name,
+    '?') is kept as it is.
+    """
+    try:
+        ip = ipaddress.ip_address(address.split("%", 1)[0])
+    except ValueError:
+        return address
+    if isinstance(ip, ipaddress.IPv6Address):
+        if ip.ipv4_mapped is not None:
+            return str(ip.ipv4_mapped)
+        return str(ipaddress.IPv6Network((ip, 64), strict=False))
+    return str(ip)
+
+
+@dataclass
+class _Failures:
+    """One address's recent wrong tokens."""
+
+    count: int = 0
+    last_s: float = 0.0
+    waiting: bool = False  # one of its attempts is waiting for its turn or being checked
+
+
+@dataclass
+class _Window:
+    """Wrong tokens and unchecked refusals since the last summary."""
+
+    wrong: int = 0
+    unchecked: int = 0
+    by_address: dict[str, int] = field(default_factory=dict)  # at most MAX_TOKEN_ADDRESSES
+
+
+class TokenThrottle:
+    """Slows wrong tokens per client address, with bounded memory, and sums them up for the log.
+
+    An address with no recent wrong token is checked at once. After its ``n``-th wrong token an
+    address's next token is checked only ``base_delay_s * 2 ** (n - 1)`` (at most
+    ``max_delay_s``) after that wrong one, and only one attempt of that address waits or is
+    checked at a time: another one meanwhile is refused unchecked. So one address, however
+    many connections it opens, gets at most one guess per delay. The delay is taken before the
+    check, whatever the token: how long an answer takes tells nothing about the token.
+
+    At most ``max_addresses`` addresses are remembered; a new one beyond that first makes room
+    by forgetting those whose wrong tokens are older than ``forget_s``, then the one with the
+    fewest (the oldest among equals): many addresses with a wrong token each cannot wash out an
+    address that has guessed many times.
+
+    Args:
+        base_delay_s: the wait after an address's first wrong token.
+        max_delay_s: the longest wait.
+        forget_s: an address's wrong tokens are forgotten this long after its last one.
+        max_addresses: addresses remembered at once, at most.
+        clock: monotonic seconds (tests pass their own).
+    """
+
+    def __init__(
+        self,
+        base_delay_s: float = TOKEN_BASE_DELAY_S,
+        max_delay_s: float = TOKEN_MAX_DELAY_S,
+        forget_s: float = TOKEN_FORGET_S,
+        max_addresses: int = MAX_TOKEN_ADDRESSES,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.base_delay_s = base_delay_s
+        self.max_delay_s = max_delay_s
+        self.forget_s = forget_s
+        self.max_addresses = max_addresses
+        self._clock = clock
+        self._failures: dict[str, _Failures] = {}
+        self._window = _Window()
+        self.wrong_tokens = 0  # since the start
+        self.refused_unchecked = 0
+
+    def delay_s(self, failures: int) -> float:
+        """The wait before the next token of an address with ``failures`` recent wrong ones."""
+        if failures <= 0:
+            return 0.0
+        return float(min(self.max_delay_s, self.base_delay_s * 2.0 ** min(failures - 1, 64)))
+
+    def failures(self, key: str) -> int:
+        """The recent wrong tokens of ``key`` remembered."""
+        entry = self._failures.get(key)
+        return entry.count if entry is not None else 0
+
+    def __len__(self) -> int:
+        """Addresses remembered."""
+        return len(self._failures)
+
+    def wait_s(self, key: str) -> float | None:
+        """How long the attempt of ``key`` that has just come waits before its token is checked.
+
+        Returns:
+            The wait (0.0: at once), or None when an attempt of ``key`` is already waiting or
+            being checked: this one is refused unchecked. Unless None, the caller must call
+            :meth:`done` for this attempt, whatever becomes of it.
+        """
+        now = self._clock()
+        entry = self._failures.get(key)
+        if entry is not None and not entry.waiting and now - entry.last_s >= self.forget_s:
+            del self._failures[key]
+            entry = None
+        if entry is None:
+            return 0.0
+        if entry.waiting:
+            self.refused_unchecked += 1
+            self._window.unchecked += 1
+            return None
+        entry.waiting = True
+        return max(0.0, entry.last_s + self.delay_s(entry.count) - now)
+
+    def done(self, key: str, matched: bool | None) -> None:
+        """The attempt of ``key`` has ended.
+
+        Args:
+            key: the client address.
+            matched: its token matched, did not, or (None) was never checked.
+        """
+        entry = self._failures.get(key)
+        if entry is not None:
+            entry.waiting = False
+        if matched is not False:
+            return
+        if entry is None:
+            entry = self._remember(key)
+        entry.count += 1
+        entry.last_s = self._clock()
+        self.wrong_tokens += 1
+        window = self._window
+        window.wrong += 1
+        if key in window.by_address or len(window.by_address) < self.max_addresses:
+            window.by_address[key] = window.by_address.get(key, 0) + 1
+
+    def _remember(self, key: str) -> _Failures:
+        if len(self._failures) >= self.max_addresses:
+            now = self._clock()
+            for old in [
+                k
+                for k, e in self._failures.items()
+                if not e.waiting and now - e.last_s >= self.forget_s
+            ]:
+                del self._failures[old]
+        if len(self._failures) >= self.max_addresses:
+            idle = [(e.count, e.last_s, k) for k, e in self._failures.items() if not e.waiting]
+            if idle:
+                del self._failures[min(idle)[2]]
+        entry = self._failures[key] = _Failures()
+        return entry
+
+    def summary(self) -> str:
+        """The wrong tokens since the last summary, in one line ('' if none); starts a new one."""
+        window, self._window = self._window, _Window()
+        if not window.wrong and not window.unchecked:
+            return ""
+        worst = sorted(window.by_address.items(), key=lambda item: -item[1])[:3]
+        most = ", ".join(f"{address} {count}" for address, count in worst)
+        counts = [self._failures[a].count for a in window.by_address if a in self._failures]
+        longest = self.delay_s(max(counts, default=0))
+        unchecked = (
+            f"; {window.unchecked} attempt(s) refused unchecked while another of their address "
+            "waited"
+            if window.unchecked
+            else ""
+        )
+        return (
+            f"{window.wrong} wrong token(s) from {len(window.by_address)} address(es)"
+            + (f" (most: {most})" if most else "")
+            + unchecked
+            + f"; the slowest of them now waits {longest:g} s before its next token is checked"
+        )

@@ -10,8 +10,12 @@ Two kinds of WebSocket frames come from the page:
 - **Text: one control message**, a JSON object of at most :data:`MAX_TEXT_BYTES` whose ``type``
   says what it is and whose fields are exactly those of :data:`CONTROL_FIELDS`, of the right
   type and range (:func:`parse_control`): ``hello`` (token and display name, the first message),
-  ``talk`` (take or release the floor), ``stop`` (emergency stop or release), ``enable``,
-  ``gains`` (``head``, ``arms``, ``hip`` in [0, 1]) and ``ping`` (clock offset and round trip).
+  ``talk`` (take or release the floor), ``stop`` (emergency stop or release; the release of a
+  holder who has left names them in ``confirm``: :mod:`~audio2pose_ros.console.stop`),
+  ``enable``, ``gains`` (``head``, ``arms``, ``hip`` in [0, 1]), ``ping`` (clock offset and
+  round trip), ``enroll`` (a ticket to upload a recording of one's style:
+  :mod:`~audio2pose_ros.console.enrollment`) and ``style`` (use the learned style, or go back to
+  the graph's own).
   Every string is text that UTF-8 can encode (JSON can carry lone surrogates, which it
   cannot) and every integer within :data:`MAX_JSON_INT` of zero, so every number is a finite
   float.
@@ -42,6 +46,7 @@ __all__ = [
     "MAX_NAME_CHARS",
     "MAX_STAMP_SKEW_S",
     "MAX_TEXT_BYTES",
+    "STYLE_CHOICES",
     "AudioDroppedError",
     "AudioFrame",
     "Control",
@@ -71,11 +76,14 @@ GAIN_GROUPS = ("head", "arms", "hip")  # the filter's head_gain, arms_gain, hip_
 CONTROL_FIELDS: dict[str, tuple[tuple[str, type, bool], ...]] = {
     "hello": (("token", str, True), ("name", str, False)),
     "talk": (("on", bool, True),),
-    "stop": (("on", bool, True),),
+    "stop": (("on", bool, True), ("confirm", str, False)),
     "enable": (("on", bool, True),),
     "gains": tuple((group, float, False) for group in GAIN_GROUPS),
     "ping": (("t", float, True),),
+    "enroll": (("keep", bool, True),),  # ask for a ticket to upload a recording of one's style
+    "style": (("use", str, True),),  # STYLE_CHOICES: the learned style or the graph's own
 }
+STYLE_CHOICES = ("personal", "default")
 
 
 class ProtocolError(InputError):
@@ -184,8 +192,10 @@ def _field(kind: str, name: str, expected: type, value: object) -> object:
             value.encode("utf-8")
         except UnicodeEncodeError:
             raise ProtocolError(f"{kind}.{name} must be valid UTF-8 text") from None
-        if name == "name" and not value.isprintable():
-            raise ProtocolError("hello.name must be printable text")
+        if name in ("name", "confirm") and not value.isprintable():
+            raise ProtocolError(f"{kind}.{name} must be printable text")
+        if kind == "style" and value not in STYLE_CHOICES:
+            raise ProtocolError(f"style.use must be one of {list(STYLE_CHOICES)}")
     return value
 
 

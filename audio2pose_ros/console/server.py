@@ -4,16 +4,26 @@ It serves the page (the built front end, ``web/dist``), the robot's URDF and one
 ``/ws``, and talks to the robot only through a :class:`GraphBridge` (``console_node`` is one;
 tests use their own). What a connection goes through:
 
-1. **The TCP connection**: at most :data:`CONNECTIONS_PER_CLIENT` times ``max_clients`` are
-   open at once, page loads and WebSockets together (more are answered 503 and closed at
-   once). A connection must complete its TLS handshake, and then its request, within
-   ``auth_timeout_s`` each, and an idle keep-alive connection is closed after as long
-   (aiohttp's own default is an hour: half-sent requests would hold sockets that long).
+1. **The TCP connection**, counted by its client address from its acceptance, before any TLS
+   handshake, by the console's front door (:mod:`~audio2pose_ros.console.door`): one address
+   may hold a limited share, all addresses together enough for ``max_clients`` operators more,
+   and a newcomer may take the place of the oldest connection of the address holding the most
+   (never an identified operator's). A connection beyond a limit is closed at once (answered
+   503 on plain HTTP; over TLS before its handshake). A connection must complete its TLS
+   handshake, and then its request, within ``auth_timeout_s`` each, and an idle connection is
+   closed after as long (aiohttp's own default is an hour: idle or half-sent requests would
+   hold sockets that long).
 2. **Before the upgrade**: the Host and Origin checks of
-   :func:`~audio2pose_ros.console.access.request_problem` (403) and ``max_clients`` open
-   WebSockets, identified or still waiting for their token (503).
+   :func:`~audio2pose_ros.console.access.request_problem` (403), ``max_clients`` identified
+   operators, and :data:`PENDING_PER_ADDRESS` WebSockets of one address still waiting for their
+   token (503): connections without the token cannot take the operators' places.
 3. **Token**: the first message must be a ``hello`` with the token, within ``auth_timeout_s``;
    otherwise the connection is closed (code 4401 for a wrong token, 4400 for anything else).
+   Wrong tokens slow their address down
+   (:class:`~audio2pose_ros.console.access.TokenThrottle`: the next one is checked only after
+   a delay that doubles with each, one at a time; one that comes meanwhile is closed
+   unchecked, code 4429). Refused connections and wrong tokens are logged in one summary line
+   every :data:`SUMMARY_PERIOD_S` at most, not one line each.
 4. **Bounded use**: a frame larger than the largest allowed chunk closes the connection (1009,
    before it is read in full); every other frame is checked by
    :mod:`~audio2pose_ros.console.protocol`; audio counts against
@@ -25,10 +35,13 @@ tests use their own). What a connection goes through:
    its rates or stamped off the console's clock is only dropped and counted
    (:class:`~audio2pose_ros.console.protocol.AudioDroppedError`): the page may be catching up
    after a stall or a clock step.
-5. **The floor**: only the holder's audio is published; a ``stop`` is accepted from anyone, a
-   release of the stop, ``enable`` and ``gains`` only while the floor is free or one's own.
+5. **The floor and the stop**: only the holder's audio is published; ``enable`` and ``gains``
+   only while the floor is free or one's own. A ``stop`` is accepted from anyone, and released
+   only by whoever pressed it, or, once they have left, by another operator who names them
+   (:mod:`~audio2pose_ros.console.stop`); every page is told who holds the stop.
 6. **The end**: a closed or dropped connection (WebSocket pings every :data:`HEARTBEAT_S`)
-   releases its floor: audio stops, and the filter's watchdog brings the robot to rest. A page
+   releases its floor: audio stops, and the filter's watchdog brings the robot to rest. Its
+   presses of STOP stay, held by someone who has left. A page
    that leaves while it is being answered ends its session quietly; any other exception in a
    connection's handler is logged in one line and closes that connection (1011), never
    escaping to aiohttp.
@@ -44,7 +57,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
-import socket
 import ssl
 import threading
 import time
@@ -56,7 +68,21 @@ from typing import Any, Protocol
 from aiohttp import WSMsgType, web
 
 from audio2pose_ros.audio.source import AudioBudget
-from audio2pose_ros.console.access import Access, request_problem
+from audio2pose_ros.console.access import Access, TokenThrottle, client_key, request_problem
+from audio2pose_ros.console.door import (
+    CONNECTIONS_PER_ADDRESS,
+    CONNECTIONS_PER_CLIENT,
+    Connections,
+    Gate,
+    Site,
+)
+from audio2pose_ros.console.enrollment import (
+    MAX_RECORDING_BYTES,
+    EnrollmentError,
+    Enrollments,
+    Ticket,
+    default_work_dir,
+)
 from audio2pose_ros.console.floor import Floor
 from audio2pose_ros.console.protocol import (
     AUDIO_HEADER,
@@ -71,6 +97,7 @@ from audio2pose_ros.console.protocol import (
     parse_control,
 )
 from audio2pose_ros.console.settings import ConsoleSettings
+from audio2pose_ros.console.stop import OUTSIDE, StopHolders, unique_name
 from audio2pose_ros.errors import ConfigurationError
 
 __all__ = ["ConsoleServer", "GraphBridge", "ServerThread"]
@@ -89,18 +116,17 @@ MAX_AUDIO_FRAMES_PER_S = 100.0
 # stall, meets the seconds budget first; only chunks shorter than 15 ms meet this one, which
 # bounds the messages a talker causes downstream (one ROS message each), not only their seconds.
 AUDIO_FRAMES_BURST = 100.0
-# Open TCP connections at most, per max_clients: a browser loads the page over up to 6, and
-# keeps its WebSocket beside them. Beyond it a connection is answered 503 and closed.
-CONNECTIONS_PER_CLIENT = 8
+PENDING_PER_ADDRESS = 2  # WebSockets of one address waiting for their token, at most
+SUMMARY_PERIOD_S = 10.0  # refused connections and wrong tokens are logged this often at most
+MAX_TALLIED_ADDRESSES = 1024  # addresses named in one summary's counts, at most
 CLOSE_BAD_TOKEN = 4401
 CLOSE_NO_HELLO = 4400
+CLOSE_TOKEN_WAIT = 4429  # another attempt of this address waits for its turn: not checked
+CLOSE_FULL = 4503  # max_clients operators were identified meanwhile
 CLOSE_POLICY = 1008  # RFC 6455: policy violation
 CLOSE_INTERNAL = 1011  # RFC 6455: the server met an unexpected condition
 MAX_CLOSE_REASON_BYTES = 120  # a close frame's reason is at most 123 bytes of UTF-8
 SEND_TIMEOUT_S = 2.0
-BUSY_RESPONSE = (
-    b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 0\r\nConnection: close\r\n\r\n"
-)
 CONTENT_TYPES = {
     ".html": "text/html",
     ".js": "text/javascript",
@@ -156,6 +182,9 @@ class GraphBridge(Protocol):
     def set_gains(self, gains: dict[str, float]) -> None:
         """Set the filter's gains (``head``, ``arms``, ``hip``: the ``*_gain`` parameters)."""
 
+    def set_style(self, settings: dict[str, float] | None) -> None:
+        """Apply learned style settings to the filter, or (None) restore the graph's own."""
+
     def pose(self) -> dict[str, Any]:
         """The latest commanded and measured pose: name -> angle (rad), or None each."""
 
@@ -194,6 +223,8 @@ class ConsoleServer:
         web_dir: the built front end (``index.html`` and its files, flat).
         urdf_path: the robot model the page draws.
         log: ``log(level, message)`` with level ``info`` or ``warning``.
+        tokens: the wrong-token throttle (a default one; tests pass their own delays).
+        summary_period_s: the period of the log's summaries of refusals and wrong tokens.
     """
 
     def __init__(
@@ -204,26 +235,37 @@ class ConsoleServer:
         web_dir: Path,
         urdf_path: Path,
         log: Callable[[str, str], None],
+        tokens: TokenThrottle | None = None,
+        summary_period_s: float = SUMMARY_PERIOD_S,
+        enrollments: Enrollments | None = None,
     ) -> None:
         self.settings = settings
+        self.enrollments = enrollments or Enrollments(default_work_dir())
+        self.style_in_use = "default"  # or "personal": the learned style is applied
         self.access = access
         self.bridge = bridge
         self.web_dir = web_dir
         self.urdf = urdf_path.read_text(encoding="utf-8")
         self.log = log
         self.floor = Floor()
+        self.stops = StopHolders()
+        self.tokens = tokens if tokens is not None else TokenThrottle()
+        self.summary_period_s = summary_period_s
         self.sessions: dict[int, _Session] = {}
         self.refused_connections = 0
         self.refused_frames = 0
-        self.connections = 0  # open WebSockets, with or without their token yet
         self.port = 0
         self._ids = itertools.count(1)
         self._runner: web.AppRunner | None = None
         self._tasks: list[asyncio.Task[None]] = []
-        self._tcp = _Connections(
-            CONNECTIONS_PER_CLIENT * settings.max_clients, settings.auth_timeout_s
+        self._tcp = Connections(
+            CONNECTIONS_PER_CLIENT * settings.max_clients + CONNECTIONS_PER_ADDRESS,
+            CONNECTIONS_PER_ADDRESS,
         )
-        self._full = False  # connections are being refused (logged once per episode)
+        self.tls: ssl.SSLContext | None = None
+        self.handshake_timeout_s = settings.auth_timeout_s
+        self._pending: dict[str, int] = {}  # WebSockets waiting for their token, by address
+        self._refusals: dict[str, int] = {}  # refused connections since the last summary
         self._unsent: set[str] = set()  # snapshot fields sent as null, logged once each
         self.files = {
             path.name: path.read_bytes()
@@ -260,6 +302,7 @@ class ConsoleServer:
         app.router.add_get("/urdf/pepper.urdf", self._urdf)
         app.router.add_get("/favicon.ico", self._no_icon)
         app.router.add_get("/{name}", self._file)
+        app.router.add_post("/enroll/{ticket}", self._enroll_upload)
         # A connection's clock starts when it is made: a request not complete by then, or an
         # idle keep-alive connection, is closed (the page's few files load within milliseconds).
         self._runner = web.AppRunner(
@@ -269,14 +312,8 @@ class ConsoleServer:
             keepalive_timeout=self.settings.auth_timeout_s,
         )
         await self._runner.setup()
-        site = _Site(
-            self._runner,
-            self.access.host,
-            self.access.port,
-            self._ssl_context(),
-            self._accept,
-            handshake_timeout_s=self.settings.auth_timeout_s,
-        )
+        self.tls = self._ssl_context()
+        site = Site(self._runner, self.access.host, self.access.port, self.tls, self._accept)
         try:
             await site.start()
         except OSError as exc:
@@ -290,6 +327,7 @@ class ConsoleServer:
         self._tasks = [
             asyncio.create_task(self._every(1.0 / self.settings.pose_rate_hz, self._send_pose)),
             asyncio.create_task(self._every(STATUS_PERIOD_S, self._send_status)),
+            asyncio.create_task(self._every(self.summary_period_s, self._log_summary)),
         ]
         return self.port
 
@@ -316,21 +354,53 @@ class ConsoleServer:
                 failed = ""
 
     def _accept(self) -> asyncio.BaseProtocol:
-        """The protocol for a new TCP connection: aiohttp's, or a refusal beyond the limit."""
-        if not self._tcp.admit():
-            self.refused_connections += 1
-            if not self._full:
-                self.log(
-                    "warning",
-                    f"console: {self._tcp.limit} connections open, the most allowed "
-                    f"({CONNECTIONS_PER_CLIENT} per max_clients): refusing more",
-                )
-            self._full = True
-            return _Busy()
-        self._full = False
+        """The protocol for a new TCP connection: its gate, which admits it or not."""
+        return Gate(self)
+
+    def admit(self, key: str, gate: Gate) -> bool:
+        """Whether ``gate``, a connection of ``key``, may open (counted if so).
+
+        A refusal is tallied for the next summary.
+        """
+        problem = self._tcp.admit(key, gate)
+        if not problem:
+            return True
+        self.refused_connections += 1
+        self._tally(self._refusals, f"{key} ({problem})")
+        return False
+
+    def lost(self, key: str, gate: Gate) -> None:
+        """``gate``, an admitted connection of ``key``, has ended: it stops counting."""
+        self._tcp.lost(key, gate)
+
+    def http_protocol(self) -> asyncio.Protocol:
+        """The protocol of aiohttp for an admitted connection."""
         assert self._runner is not None
         assert self._runner.server is not None
-        return self._tcp.counted(self._runner.server())
+        return self._runner.server()
+
+    @staticmethod
+    def _tally(counts: dict[str, int], key: str) -> None:
+        """Count ``key`` in ``counts``, which names at most :data:`MAX_TALLIED_ADDRESSES`."""
+        if key not in counts and len(counts) >= MAX_TALLIED_ADDRESSES:
+            key = "other addresses"
+        counts[key] = counts.get(key, 0) + 1
+
+    async def _log_summary(self) -> None:
+        """One line for the connections refused and one for the wrong tokens of the last period."""
+        refusals, self._refusals = self._refusals, {}
+        if refusals:
+            worst = sorted(refusals.items(), key=lambda item: -item[1])[:3]
+            self.log(
+                "warning",
+                f"console: {sum(refusals.values())} connection(s) refused in the last "
+                f"{self.summary_period_s:g} s: "
+                + ", ".join(f"{count} from {why}" for why, count in worst)
+                + (" and more" if len(refusals) > len(worst) else ""),
+            )
+        tokens = self.tokens.summary()
+        if tokens:
+            self.log("warning", f"console: in the last {self.summary_period_s:g} s: {tokens}")
 
     # --- HTTP -----------------------------------------------------------------------------------
 
@@ -352,6 +422,67 @@ class ConsoleServer:
     async def _urdf(self, _request: web.Request) -> web.Response:
         return web.Response(text=self.urdf, content_type="application/xml")
 
+    # --- learn my style -------------------------------------------------------------------------
+
+    async def _enroll_upload(self, request: web.Request) -> web.Response:
+        """One recording, streamed under a ticket a page asked for; learned in the background."""
+        key = client_key(request.remote or "?")
+        problem = request_problem(
+            self.access, request.headers.get("Host"), request.headers.get("Origin")
+        )
+        if problem:
+            self._tally(self._refusals, f"{key} (upload: {problem})")
+            raise web.HTTPForbidden(text=problem)
+        length = request.content_length
+        if length is not None and length > MAX_RECORDING_BYTES:
+            self._tally(self._refusals, f"{key} (upload too large)")
+            raise web.HTTPRequestEntityTooLarge(
+                max_size=MAX_RECORDING_BYTES, actual_size=length, text="recording too large"
+            )
+        try:
+            ticket, recording = await self.enrollments.receive(
+                request.match_info["ticket"],
+                request.headers.get("Content-Type", ""),
+                request.content.iter_chunked(1 << 16),
+            )
+        except EnrollmentError as exc:  # tallied: a stream of guesses is one line per summary
+            self._tally(self._refusals, f"{key} (upload refused)")
+            raise web.HTTPBadRequest(text=str(exc)) from None
+        self.log("info", f"console: learning {ticket.owner!r}'s style from their recording")
+        self._tasks.append(asyncio.create_task(self._learn(ticket, recording)))
+        return web.json_response({"learning": True}, status=202)
+
+    async def _learn(self, ticket: Ticket, recording: Path) -> None:
+        """Learn; then apply the style if its operator may still act on the robot's settings."""
+        try:
+            result = await self.enrollments.run(ticket, recording)
+        except Exception as exc:  # the boundary: the console carries on with the old style
+            self.log("warning", f"console: learning {ticket.owner!r}'s style failed: {exc}")
+            return
+        kept = f", recording kept in {result.kept_recording}" if result.kept_recording else ""
+        self.log("info", f"console: learned {ticket.owner!r}'s style: {result.folder}{kept}")
+        if ticket.session in self.sessions and self.floor.free_for(ticket.session):
+            self.bridge.set_style(result.settings)
+            self.style_in_use = "personal"
+
+    async def _on_style(self, session: _Session, control: Control) -> None:
+        """``enroll`` (a ticket for an upload) and ``style`` (which style the graph uses)."""
+        if control.type == "enroll":
+            try:
+                key = self.enrollments.ticket(session.id, session.name, control.fields["keep"])
+            except EnrollmentError as exc:
+                raise ProtocolError(str(exc)) from None
+            self._send(session, encode("enroll_ticket", ticket=key), droppable=False)
+        elif control.fields["use"] == "personal":
+            result = self.enrollments.result
+            if result is None:
+                raise ProtocolError("no style has been learned yet: press Learn my style")
+            self.bridge.set_style(result.settings)
+            self.style_in_use = "personal"
+        else:
+            self.bridge.set_style(None)
+            self.style_in_use = "default"
+
     # --- WebSocket ------------------------------------------------------------------------------
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
@@ -364,10 +495,18 @@ class ConsoleServer:
             self.refused_connections += 1
             self.log("warning", f"console: WebSocket from {peer} refused: {problem}")
             raise web.HTTPForbidden(text=problem)
-        if self.connections >= self.settings.max_clients:  # identified or not yet
+        key = client_key(peer)
+        if len(self.sessions) >= self.settings.max_clients:
             self.refused_connections += 1
             raise web.HTTPServiceUnavailable(
                 text=f"at most {self.settings.max_clients} operators at once"
+            )
+        if self._pending.get(key, 0) >= PENDING_PER_ADDRESS:
+            self.refused_connections += 1
+            self._tally(self._refusals, f"{key} (WebSockets waiting for their token)")
+            raise web.HTTPServiceUnavailable(
+                text=f"at most {PENDING_PER_ADDRESS} connections of one address wait for "
+                "their token at once"
             )
         ws = web.WebSocketResponse(
             heartbeat=HEARTBEAT_S,
@@ -377,7 +516,8 @@ class ConsoleServer:
             await ws.prepare(request)
         except ConnectionError:  # the page left during the upgrade
             return ws
-        self.connections += 1
+        self._pending[key] = self._pending.get(key, 0) + 1
+        pending = True
         session = _Session(
             id=next(self._ids),
             ws=ws,
@@ -391,7 +531,10 @@ class ConsoleServer:
             ),
         )
         try:
-            if await self._authenticate(session):
+            identified = await self._authenticate(session)
+            pending = self._unpend(key)
+            if identified and await self._room_for(session):
+                self._tcp.keep(request.transport)
                 self.sessions[session.id] = session
                 self.log("info", f"console: operator {session.name!r} connected from {peer}")
                 await self._welcome(session)
@@ -402,17 +545,41 @@ class ConsoleServer:
             self._failed(session, "closing it after an error", exc)
             await ws.close(code=CLOSE_INTERNAL, message=b"console error")
         finally:
-            self.connections -= 1
+            if pending:
+                self._unpend(key)
             self.sessions.pop(session.id, None)
+            self.enrollments.forget_session(session.id)
             try:
                 if self.floor.release(session.id):
                     self.bridge.end_talk()
                     await self._send_floor()
+                await self._stop_holder_left(session)
             except Exception as exc:  # the boundary, for the end of the session too
                 self._failed(session, "releasing its floor failed", exc)
             if session.name:
                 self.log("info", f"console: operator {session.name!r} left")
         return ws
+
+    def _unpend(self, key: str) -> bool:
+        """A WebSocket of ``key`` no longer waits for its token; False (no longer pending)."""
+        left = self._pending.get(key, 0) - 1
+        if left > 0:
+            self._pending[key] = left
+        else:
+            self._pending.pop(key, None)
+        return False
+
+    async def _room_for(self, session: _Session) -> bool:
+        """Whether an identified operator finds a place; closed (4503) if not."""
+        if len(self.sessions) < self.settings.max_clients:
+            return True
+        self.refused_connections += 1
+        await self._send_now(
+            session,
+            encode("error", message=f"at most {self.settings.max_clients} operators at once"),
+        )
+        await session.ws.close(code=CLOSE_FULL, message=b"too many operators")
+        return False
 
     def _failed(self, session: _Session, what: str, exc: Exception) -> None:
         """Log an unexpected exception of a connection's handler: one line, no traceback."""
@@ -437,15 +604,48 @@ class ConsoleServer:
             self.refused_frames += 1
             await ws.close(code=CLOSE_NO_HELLO, message=_close_reason(str(exc)))
             return False
-        if not self.access.token_matches(control.fields["token"]):
-            self.refused_connections += 1
-            self.log("warning", f"console: wrong token from {session.peer}: connection closed")
-            await self._send_now(session, encode("error", message="wrong token: access refused"))
-            await ws.close(code=CLOSE_BAD_TOKEN, message=b"wrong token")
+        if not await self._token_accepted(session, control.fields["token"]):
             return False
         name = " ".join(control.fields.get("name", "").split()) or f"operator {session.id}"
-        session.name = name
+        taken = {other.name for other in self.sessions.values()} | self.stops.names()
+        session.name = unique_name(name, taken)
         return True
+
+    async def _token_accepted(self, session: _Session, presented: str) -> bool:
+        """Check the token after its address's wait; close the connection if it is refused.
+
+        Raises:
+            _PeerLeftError: the page left before it could be told.
+        """
+        if not self.access.token:
+            return True
+        key = client_key(session.peer)
+        wait_s = self.tokens.wait_s(key)
+        if wait_s is None:
+            self.refused_connections += 1
+            await self._send_now(
+                session,
+                encode(
+                    "error",
+                    message="too many wrong tokens from this address: another attempt is "
+                    "waiting its turn, try again later",
+                ),
+            )
+            await session.ws.close(code=CLOSE_TOKEN_WAIT, message=b"wait for your turn")
+            return False
+        matched: bool | None = None
+        try:
+            if wait_s > 0:
+                await asyncio.sleep(wait_s)
+            matched = self.access.token_matches(presented)
+        finally:
+            self.tokens.done(key, matched)
+        if matched:
+            return True
+        self.refused_connections += 1
+        await self._send_now(session, encode("error", message="wrong token: access refused"))
+        await session.ws.close(code=CLOSE_BAD_TOKEN, message=b"wrong token")
+        return False
 
     async def _welcome(self, session: _Session) -> None:
         await self._send_now(
@@ -460,6 +660,7 @@ class ConsoleServer:
             ),
         )
         await self._send_floor()
+        self._send(session, self._stop_holders(session), droppable=False)
 
     async def _serve(self, session: _Session) -> None:
         """Act on each message until the connection ends.
@@ -555,19 +756,17 @@ class ConsoleServer:
             raise ProtocolError("already identified")
         elif control.type == "talk":
             await self._talk(session, bool(on))
-        elif control.type == "stop" and on:
-            self.log("warning", f"console: STOP pressed by {session.name!r}")
-            self.bridge.set_stop(True)
+        elif control.type == "stop":
+            await self._on_stop(session, bool(on), control.fields.get("confirm"))
         else:
             if not self.floor.free_for(session.id):
                 raise ProtocolError(
                     f"{self.floor.holder_name} has the floor: only a stop is accepted meanwhile"
                 )
-            if control.type == "stop":
-                self.log("info", f"console: stop released by {session.name!r}")
-                self.bridge.set_stop(False)
-            elif control.type == "enable":
+            if control.type == "enable":
                 self.bridge.set_enable(bool(on))
+            elif control.type in ("enroll", "style"):
+                await self._on_style(session, control)
             else:
                 self.bridge.set_gains({k: float(v) for k, v in control.fields.items()})
 
@@ -583,6 +782,82 @@ class ConsoleServer:
         else:
             return
         await self._send_floor()
+
+    # --- the stop and who holds it -----------------------------------------------------------
+
+    async def _on_stop(self, session: _Session, on: bool, confirm: str | None) -> None:
+        """A press of STOP, the release of one's own, or a confirmed one for someone who left.
+
+        Raises:
+            ProtocolError: a release that is not the operator's to make (the reason names who
+                holds the stop).
+        """
+        if on:
+            if self.stops.press(session.id, session.name):
+                self.log("warning", f"console: STOP pressed by {session.name!r}")
+            self.bridge.set_stop(True)  # each press latches it again, whatever came meanwhile
+            await self._send_stop_holders()
+            return
+        if confirm is None:
+            if not self.stops.release(session.id):
+                if self.stops.held or self._stopped_outside():
+                    raise ProtocolError(self._stop_refusal())
+                return  # nothing held, nothing stopped: nothing to release
+            self.log("info", f"console: {session.name!r} released their stop")
+        elif confirm in self.stops.present_holders():
+            raise ProtocolError(
+                f"{confirm} is still connected: only {confirm} can release their stop"
+            )
+        elif self.stops.release_absent(confirm):
+            self.log(
+                "warning",
+                f"console: {session.name!r} released the stop of {confirm!r}, who has left "
+                "(confirmed by name)",
+            )
+        elif confirm == OUTSIDE and not self.stops.held and self._stopped_outside():
+            self.log("warning", f"console: {session.name!r} released a stop set {OUTSIDE}")
+        else:
+            raise ProtocolError(f"no stop of {confirm!r} to release; {self._stop_refusal()}")
+        if not self.stops.held:
+            self.bridge.set_stop(False)
+        await self._send_stop_holders()
+
+    def _stopped_outside(self) -> bool:
+        """Whether the robot is stopped with no press from this console holding it."""
+        return not self.stops.held and self.bridge.status().get("stop") is True
+
+    def _stop_refusal(self) -> str:
+        """Why a release is not the sender's to make, naming who may make it."""
+        present = self.stops.present_holders()
+        absent = [p.name for p in self.stops.presses if not p.present]
+        if present:
+            return f"the stop is held by {', '.join(present)}: only they can release it"
+        if absent:
+            return (
+                f"the stop is held by {', '.join(absent)}, who left: releasing it needs a "
+                "confirmation that names them"
+            )
+        if self._stopped_outside():
+            return f"the stop was set {OUTSIDE}: releasing it needs a confirmation naming that"
+        return "the robot is not stopped"
+
+    async def _stop_holder_left(self, session: _Session) -> None:
+        """``session`` has ended: its presses stay, held by someone absent."""
+        if self.stops.left(session.id):
+            self.log(
+                "warning",
+                f"console: {session.name!r} left holding the stop: the robot stays stopped "
+                f"until another operator releases it with a confirmation naming them",
+            )
+            await self._send_stop_holders()
+
+    def _stop_holders(self, session: _Session) -> str:
+        """The message that tells a page who holds the stop, and whether it does."""
+        return encode("stop_holders", holders=self.stops.view(), you=self.stops.holds(session.id))
+
+    async def _send_stop_holders(self) -> None:
+        for session in list(self.sessions.values()):
+            self._send(session, self._stop_holders(session), droppable=False)
 
     # --- broadcasts -----------------------------------------------------------------------------
 
@@ -606,6 +881,8 @@ class ConsoleServer:
             status = self.bridge.status()
             status["operators"] = len(self.sessions)
             status["floor"] = self.floor.holder_name or None
+            status["enrollment"] = self.enrollments.status()
+            status["style"] = self.style_in_use
             text = self._snapshot("status", status)
             for session in list(self.sessions.values()):
                 self._send(session, text)
@@ -650,147 +927,6 @@ def _close_reason(text: str) -> bytes:
     """``text`` as a close frame's reason: UTF-8, cut to whole characters within the limit."""
     encoded = text.encode("utf-8", "replace")[:MAX_CLOSE_REASON_BYTES]
     return encoded.decode("utf-8", "ignore").encode("utf-8")
-
-
-class _Connections:
-    """The TCP connections open at once, those still in their TLS handshake included.
-
-    A connection counts from its acceptance until it is lost; one that is not connected within
-    ``handshake_timeout_s`` of its acceptance (its TLS handshake failed or timed out, which
-    asyncio does not tell the protocol) stops counting then.
-
-    Args:
-        limit: connections open at once, at most.
-        handshake_timeout_s: the bound on a TLS handshake.
-    """
-
-    def __init__(self, limit: int, handshake_timeout_s: float) -> None:
-        self.limit = limit
-        self.handshake_timeout_s = handshake_timeout_s
-        self._connected: set[_Counted] = set()
-        self._handshaking: dict[_Counted, float] = {}  # -> the time its handshake has ended by
-
-    def number_open(self) -> int:
-        """Connections open now (forgetting handshakes that have ended without a connection)."""
-        now = time.monotonic()
-        self._handshaking = {c: t for c, t in self._handshaking.items() if now < t}
-        return len(self._connected) + len(self._handshaking)
-
-    def admit(self) -> bool:
-        """Whether one more connection may open."""
-        return self.number_open() < self.limit
-
-    def counted(self, protocol: asyncio.Protocol) -> asyncio.Protocol:
-        """``protocol`` for a connection just accepted, counted until its connection ends."""
-        counted = _Counted(protocol, self)
-        self._handshaking[counted] = time.monotonic() + self.handshake_timeout_s
-        return counted
-
-    def made(self, connection: _Counted) -> None:
-        """``connection`` is connected (its TLS handshake, if any, done)."""
-        self._handshaking.pop(connection, None)
-        self._connected.add(connection)
-
-    def lost(self, connection: _Counted) -> None:
-        """``connection`` has ended."""
-        self._handshaking.pop(connection, None)
-        self._connected.discard(connection)
-
-
-class _Counted(asyncio.Protocol):
-    """aiohttp's protocol for one TCP connection, telling :class:`_Connections` its life."""
-
-    def __init__(self, inner: asyncio.Protocol, connections: _Connections) -> None:
-        self._inner = inner
-        self._connections = connections
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        """Count it as connected, then hand it to aiohttp."""
-        self._connections.made(self)
-        self._inner.connection_made(transport)
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        """Stop counting it, then tell aiohttp."""
-        self._connections.lost(self)
-        self._inner.connection_lost(exc)
-
-    def data_received(self, data: bytes) -> None:
-        """To aiohttp."""
-        self._inner.data_received(data)
-
-    def eof_received(self) -> bool | None:
-        """To aiohttp."""
-        return self._inner.eof_received()
-
-    def pause_writing(self) -> None:
-        """To aiohttp."""
-        self._inner.pause_writing()
-
-    def resume_writing(self) -> None:
-        """To aiohttp."""
-        self._inner.resume_writing()
-
-
-class _Busy(asyncio.Protocol):
-    """A TCP connection beyond the limit: answered 503 and closed at once."""
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        """Answer and close."""
-        if isinstance(transport, asyncio.WriteTransport):
-            transport.write(BUSY_RESPONSE)
-        transport.close()
-
-
-class _Site(web.BaseSite):
-    """aiohttp's TCP site with its own protocol factory and a bound on the TLS handshake.
-
-    Args:
-        runner: the application's runner (set up).
-        host: address to bind.
-        port: TCP port (0: any free one).
-        ssl_context: TLS, or None for plain HTTP.
-        accept: makes the protocol of each new connection.
-        handshake_timeout_s: a TLS handshake not done within this time is dropped.
-    """
-
-    def __init__(
-        self,
-        runner: web.AppRunner,
-        host: str,
-        port: int,
-        ssl_context: ssl.SSLContext | None,
-        accept: Callable[[], asyncio.BaseProtocol],
-        handshake_timeout_s: float,
-    ) -> None:
-        super().__init__(runner, ssl_context=ssl_context)
-        self._host = host
-        self._port = port
-        self._accept = accept
-        self._handshake_timeout_s = handshake_timeout_s
-        self.sockets: list[socket.socket] = []
-
-    @property
-    def name(self) -> str:
-        """The site's address."""
-        return f"{'https' if self._ssl_context else 'http'}://{self._host}:{self._port}"
-
-    async def start(self) -> None:
-        """Bind and serve.
-
-        Raises:
-            OSError: the address cannot be bound.
-        """
-        await super().start()
-        server = await asyncio.get_running_loop().create_server(
-            self._accept,
-            self._host,
-            self._port,
-            ssl=self._ssl_context,
-            ssl_handshake_timeout=self._handshake_timeout_s if self._ssl_context else None,
-            backlog=self._backlog,
-        )
-        self._server = server
-        self.sockets = list(server.sockets)
 
 
 @web.middleware

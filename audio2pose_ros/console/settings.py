@@ -64,7 +64,7 @@ class ConsoleSettings:
     max_clients: int = field(
         default=8,
         metadata=param(
-            "open WebSocket connections at most; more are refused",
+            "operators (WebSockets with their token) at once; more are refused",
             minimum=1,
             maximum=64,
             read_only=True,

@@ -372,7 +372,7 @@ def check_bag_files(bag: str | Path, mcap_summaries: bool = True) -> None:
     """
     import stat
 
-    from audio2pose_ros.yaml_files import read_yaml_file
+    from audio2pose_ros.files import read_yaml_file
 
     path = Path(bag)
     if not path.exists():

@@ -62,7 +62,6 @@ LIVE_VALIDATION_LECTURE_S = (44.0, 60.0)  # the lecture clip starting here valid
 
 
 SPEECH_BODY_SEEDS = 8  # seeds per bundled speech clip in the card's body check
-PROSODY_RULE = "prosody rule"  # the hand-written arm rule, a baseline of the arm evaluation
 
 
 @dataclass(frozen=True)
@@ -257,7 +256,7 @@ def prosody_predictions(
     clips: Sequence[Clip], robot: RobotDescription
 ) -> tuple[Predictions, Predictions]:
     """The prosody rule's motion on the clips and on their audio with a pause (a baseline)."""
-    from audio2pose_ros.learning.evaluation import with_pause
+    from audio2pose_ros.learning.evaluation import PROSODY_RULE, with_pause
 
     spec = FeatureSpec()  # LogFB-26: what the rule reads
 

@@ -275,6 +275,7 @@ def plot_clip(
 # --- Distribution evaluation per joint group ------------------------------------------------
 
 STATIC = "static pose"
+PROSODY_RULE = "prosody rule"  # the hand-written arm rule, a baseline of the arm evaluation
 MISMATCHED = "mismatched real motion"
 QUALITY_MEASURES = ("H speed", "H accel", "std ratio", "speech/silence speed", "speech/pause speed")
 Predictions = dict[str, dict[str, list[np.ndarray]]]  # method -> clip id -> samples (N, J) rad

@@ -143,7 +143,7 @@ def delta_lcca(
     rate_hz: float,
     mask: np.ndarray | None = None,
 ) -> float:
-    """|LCCA(Omega, true) - LCCA(Omega, predicted)|, seed 003 eq. 3.20."""
+    """``|LCCA(Omega, true) - LCCA(Omega, predicted)|``, seed 003 eq. 3.20."""
     joints = _complete_joints(mask, true_rad.shape[1])
     window = window_frames_for(rate_hz)
     return abs(
@@ -173,7 +173,7 @@ def jerk(theta_rad: np.ndarray, rate_hz: float, mask: np.ndarray | None = None) 
 def delta_jerk(
     true_rad: np.ndarray, pred_rad: np.ndarray, rate_hz: float, mask: np.ndarray | None = None
 ) -> float:
-    """Delta J = |J(true) - J(predicted)|, seed 003 section 3.4.4."""
+    """``Delta J = |J(true) - J(predicted)|``, seed 003 section 3.4.4."""
     return abs(jerk(true_rad, rate_hz, mask) - jerk(pred_rad, rate_hz, mask))
 
 

@@ -25,6 +25,7 @@ from audio2pose_ros.learning.sampler_selection import (
     VELOCITY_LIMIT,
     SamplingChoice,
 )
+from audio2pose_ros.learning.style_card import with_style_section
 from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.models.live_groups import LiveGroups
 from audio2pose_ros.models.sampling_noise import PerJoint, format_per_joint
@@ -101,7 +102,7 @@ def write_default_model_card(
 A frame-wise MLP (seed 003 section 4.3.3; config `{checkpoint.model.config_dict()}`,
 {n_params} parameters) from {checkpoint.features.label} audio features to
 Pepper's {checkpoint.robot.n_joints} joints. It streams (no state), so `inference_node` runs it.
-Rebuild it with `audio2pose dataset build-default` (see README); training stopped at epoch
+Rebuild it with `audio2pose dataset build-default` (see doc/training.md); training stopped at epoch
 {report.best_epoch} (validation loss {report.best_val_loss:.5f}).
 
 ## What it learned from people, and what it did not
@@ -160,7 +161,7 @@ resembles real head motion.
 - FaceMesh's pose estimate has errors of a few degrees; the targets inherit them.
 """
     path = out_dir / "MODEL_CARD.md"
-    path.write_text(card, encoding="utf-8")
+    path.write_text(with_style_section(path, card), encoding="utf-8")
     return path
 
 
@@ -260,8 +261,7 @@ def _within(low: float, high: float) -> Callable[[float], bool]:
 
 def source_checks(report: SourceReport) -> list[Check]:
     """The goals for one held-out source, met or not, with the measured values."""
-    from audio2pose_ros.learning.default_model import PROSODY_RULE
-    from audio2pose_ros.learning.evaluation import REAL_FLOOR, STATIC
+    from audio2pose_ros.learning.evaluation import PROSODY_RULE, REAL_FLOOR, STATIC
 
     quality, model = report.quality, report.model()
     checks: list[Check] = []
@@ -744,5 +744,5 @@ one sample can stray; and the same again with the arm noise blind to the body.
   degrees (head) to tens of degrees (elbow yaw at low resolution); the targets inherit them.
 """
     path = out_dir / "MODEL_CARD.md"
-    path.write_text(card, encoding="utf-8")
+    path.write_text(with_style_section(path, card), encoding="utf-8")
     return path

@@ -90,7 +90,7 @@ def _windows(motion: Motion, rate_hz: float) -> np.ndarray:
 def frechet_distance(a: np.ndarray, b: np.ndarray) -> float:
     """Fréchet distance between Gaussian fits of two sets of rows (the FID formula).
 
-    ||mu_a - mu_b||^2 + tr(S_a + S_b - 2 (S_a S_b)^(1/2)); NaN with fewer than two rows.
+    ``||mu_a - mu_b||^2 + tr(S_a + S_b - 2 (S_a S_b)^(1/2))``; NaN with fewer than two rows.
     """
     if a.shape[0] < 2 or b.shape[0] < 2:
         return math.nan
@@ -172,7 +172,7 @@ def frechet_windows(
 def l1_diversity(angles: np.ndarray, known: np.ndarray) -> tuple[float, int]:
     """EMAGE's L1 diversity of one clip as (sum over known frames, number of frames).
 
-    Per frame: the sum over joints of |angle - the clip's mean angle| (over known frames).
+    Per frame: the sum over joints of ``|angle - the clip's mean angle|`` (over known frames).
     """
     frames = known.all(axis=1)
     if frames.sum() < 2:
@@ -245,7 +245,7 @@ class PercentileAgreement:
     """How a motion's speed and acceleration percentiles compare with real ones.
 
     Attributes:
-        inside: how many lie within :data:`PERCENTILE_TOLERANCE` of real (|model / real - 1|).
+        inside: how many lie within :data:`PERCENTILE_TOLERANCE` of real (``|model / real - 1|``).
         total: how many were compared, those of a still real joint included (never inside).
         lowest: the smallest model / real (NaN when no real percentile is above 0).
         highest: the largest.

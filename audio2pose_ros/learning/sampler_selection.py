@@ -127,8 +127,8 @@ Setting = Burst  # a sampling setting's value: a number, or a burstiness per joi
 def score(measures: dict[str, float]) -> float:
     """Distance of generated from real motion.
 
-    mean(H speed, H accel) + |ln(std ratio)|, plus the ``tail`` measure where there is one:
-    the mean |ln| of the ratios of the speed and acceleration percentiles to the reference's
+    ``mean(H speed, H accel) + |ln(std ratio)|``, plus the ``tail`` measure where there is one:
+    the mean ``|ln|`` of the ratios of the speed and acceleration percentiles to the reference's
     (:func:`tail_distance`).
     """
     ratio = measures["std ratio"]
@@ -139,7 +139,7 @@ def score(measures: dict[str, float]) -> float:
 def tail_distance(
     generated: Sequence[realism.Motion], reference: tuple[np.ndarray, np.ndarray]
 ) -> float:
-    """Mean |ln(generated / reference)| over the joints' speed and acceleration percentiles.
+    """Mean ``|ln(generated / reference)|`` over the joints' speed and acceleration percentiles.
 
     The percentiles are :data:`~audio2pose_ros.learning.realism.PERCENTILES` (p50, p90, p99):
     the Hellinger distance on 0.1 rad/s bins barely sees a head whose speeds all lie in the

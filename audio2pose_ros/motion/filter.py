@@ -17,7 +17,8 @@ a short jitter buffer and, at every :meth:`MotionFilter.tick`, produces one comm
    minimum-jerk path of ``neutral_glide_s`` that starts where the robot is. An emergency stop
    either brakes to a standstill and *holds* (``stop_behaviour: hold``) or glides to neutral
    (``neutral``); while stopped nothing else (generated motion, head target or offset) moves it.
-2. **Tracking.** Each joint group is scaled around the neutral pose by its gain, and the pose
+2. **Tracking.** The style (:mod:`~audio2pose_ros.motion.style`: per joint group a tempo and a
+   size about the neutral pose, the arms' rest and height) is applied, and the pose
    is smoothed causally (a Butterworth low-pass, by default 3 Hz and 2nd order; or the Kalman
    filter of seed 003 section 4.4.2; or none). When
    tracking resumes, the smoother restarts from the commanded pose, so nothing jumps, and when
@@ -45,6 +46,7 @@ a short jitter buffer and, at every :meth:`MotionFilter.tick`, produces one comm
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -55,25 +57,18 @@ from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.approach import Approach, minimum_jerk
 from audio2pose_ros.motion.body_guard import BodyGuard
 from audio2pose_ros.motion.gate import TrackGate
-from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
+from audio2pose_ros.motion.limits import JointLimiter, LimitSettings, check_limit_settings
 from audio2pose_ros.motion.smoothing import CausalLowPass, KalmanSmoother
+from audio2pose_ros.motion.style import StyleSettings, StyleTransform
 from audio2pose_ros.parameters import param, specs_of, validate_settings
 from audio2pose_ros.robot.body import BodyModel
-from audio2pose_ros.robot.description import JOINT_GROUPS, RobotDescription
+from audio2pose_ros.robot.description import RobotDescription
 
 SMOOTHING_METHODS = ("lowpass", "kalman", "none")
 STOP_BEHAVIOURS = ("hold", "neutral")
 MODES = ("waiting", "tracking", "neutral", "stopped")
 GAP_PERIODS = 3.0  # ticks further apart than this many periods are a gap (the process stalled)
 STEP_SLACK_RAD = 1e-9  # rounding allowance of the step check of the health guard
-
-
-def _gain(group: str) -> dict[str, object]:
-    return param(
-        f"scale of {group} motion around neutral (0 = still, 1 = as generated)",
-        minimum=0.0,
-        maximum=1.0,
-    )
 
 
 @dataclass(frozen=True)
@@ -107,9 +102,6 @@ class MotionFilterSettings:
         max_buffer_s: poses queued beyond this much motion are dropped, oldest first (s).
         backlog_window_s: when the buffer never ran empty after a tick during this whole window,
             the poses it never went below are skipped, so a standing backlog (latency) drains (s).
-        head_gain: scale of head motion around neutral (0 = head still, 1 = as generated).
-        arms_gain: scale of arm motion around neutral.
-        hip_gain: scale of hip motion around neutral.
         head_target_weight: weight of an external head target against generated head motion.
         external_timeout_s: an external head target or offset counts for this long (s).
         outlier_tolerance_rad: slack of the input gate: how far a raw target or head target may
@@ -124,6 +116,10 @@ class MotionFilterSettings:
         max_points_per_message: poses of one message beyond this many are dropped and counted.
         body_margin_m: no command brings an arm closer than this to the robot's body or the
             other arm (m; :mod:`~audio2pose_ros.motion.body_guard`, the last stage).
+        head_gain: deprecated, use ``StyleSettings(head_gain=...)`` (the node parameter keeps
+            its name); when given, it sets the style's head size (with a DeprecationWarning).
+        arms_gain: deprecated, as ``head_gain``.
+        hip_gain: deprecated, as ``head_gain``.
     """
 
     rate_hz: float = field(
@@ -223,9 +219,6 @@ class MotionFilterSettings:
             unit="s",
         ),
     )
-    head_gain: float = field(default=1.0, metadata=_gain("head"))
-    arms_gain: float = field(default=1.0, metadata=_gain("arm"))
-    hip_gain: float = field(default=1.0, metadata=_gain("hip"))
     head_target_weight: float = field(
         default=0.8,
         metadata=param(
@@ -278,6 +271,11 @@ class MotionFilterSettings:
         ),
     )
 
+    # Deprecated (the sizes are part of the style now): not node parameters here.
+    head_gain: float | None = None
+    arms_gain: float | None = None
+    hip_gain: float | None = None
+
     def __post_init__(self) -> None:
         """Validate every field against its declaration, then the one cross-field rule.
 
@@ -285,11 +283,25 @@ class MotionFilterSettings:
             ConfigurationError: a value is refused; the message names it and the allowed range.
         """
         validate_settings(self)
+        legacy = self.legacy_gains()
+        if legacy:
+            warnings.warn(
+                f"MotionFilterSettings({', '.join(legacy)}=...) is deprecated: use "
+                "StyleSettings (audio2pose_ros.motion.style); the node parameters keep their names",
+                DeprecationWarning,
+                stacklevel=3,
+            )
+            StyleSettings(**legacy)  # refused values fail here, as they did before
         if self.lowpass_cutoff_hz >= self.rate_hz / 2.0:
             raise ConfigurationError(
                 f"parameter lowpass_cutoff_hz: value {self.lowpass_cutoff_hz!r} is out of range; "
                 f"allowed: below rate_hz / 2 = {self.rate_hz / 2.0:g}"
             )
+
+    def legacy_gains(self) -> dict[str, float]:
+        """The deprecated ``<group>_gain`` fields that were given."""
+        names = ("head_gain", "arms_gain", "hip_gain")
+        return {name: getattr(self, name) for name in names if getattr(self, name) is not None}
 
 
 LIMIT_SETTINGS = frozenset(f.name for f in dataclasses.fields(LimitSettings))
@@ -341,8 +353,15 @@ class _External:
         return self.mask if now_s - self.stamp_s <= timeout_s else np.zeros_like(self.mask)
 
 
+def _with_legacy_gains(
+    settings: MotionFilterSettings, style: StyleSettings | None
+) -> StyleSettings:
+    """``style`` with the deprecated gains of ``settings`` (if any) as its sizes."""
+    return dataclasses.replace(style or StyleSettings(), **settings.legacy_gains())
+
+
 class MotionFilter:
-    """Gate, jitter buffer, modes, gains, smoothing, head composition, limits and health guard."""
+    """Gate, jitter buffer, modes, style, smoothing, head composition, limits and health guard."""
 
     def __init__(
         self,
@@ -350,8 +369,11 @@ class MotionFilter:
         settings: MotionFilterSettings | None = None,
         limits: LimitSettings | None = None,
         start_pose_rad: np.ndarray | None = None,
+        style: StyleSettings | None = None,
     ) -> None:
         """Start at rest in ``start_pose_rad`` (the robot's pose), or in the neutral pose.
+
+        ``style`` is applied to the generated motion before smoothing (default: the identity).
 
         Raises:
             ConfigurationError: the limit settings leave no range for some joint.
@@ -363,7 +385,9 @@ class MotionFilter:
         self.body_guard = BodyGuard(BodyModel.load(robot), self.settings.body_margin_m)
         self.period_s = 1.0 / self.settings.rate_hz
         self.neutral_rad = self.limiter.clamp_position(robot.neutral_rad)
-        self._gains = np.ones(robot.n_joints)
+        self.style = StyleTransform(
+            robot, _with_legacy_gains(self.settings, style), self.settings.rate_hz
+        )
         self._head = robot.group_mask("head")
         self.gate = TrackGate(
             robot.lower_rad,
@@ -404,8 +428,6 @@ class MotionFilter:
         return None
 
     def _apply_live_settings(self) -> None:
-        for group in JOINT_GROUPS:
-            self._gains[self.robot.group_mask(group)] = getattr(self.settings, f"{group}_gain")
         self.gate.tolerance_rad = self.settings.outlier_tolerance_rad
         self.body_guard.margin_m = self.settings.body_margin_m
 
@@ -432,19 +454,21 @@ class MotionFilter:
         self._queue.clear()
         self._depths.clear()
         self.gate.reset()
+        self.style.reset()
         self._last_tick_s: float | None = None
         self._glide_start: tuple[float, np.ndarray] | None = None
         self._holding = True
 
-    def update_settings(
-        self, settings: MotionFilterSettings, limits: LimitSettings | None = None
-    ) -> None:
-        """Take new settings from the next tick on (``ros2 param set`` at run time).
+    def check_settings(self, settings: MotionFilterSettings, limits: LimitSettings) -> None:
+        """Refuse settings :meth:`update_settings` would refuse, changing nothing (cheap).
+
+        A node validates a run-time change with this when it is requested and applies it at its
+        next tick, so a storm of requests costs one application per tick, not one per request.
 
         Raises:
-            ConfigurationError: a read-only setting differs from the running one.
+            ConfigurationError: a read-only setting differs from the running one, or the limit
+                settings leave no range for some joint.
         """
-        limits = limits or self.limiter.settings
         for name in READ_ONLY_SETTINGS:
             new, running = (
                 (limits, self.limiter.settings)
@@ -453,11 +477,30 @@ class MotionFilter:
             )
             if getattr(new, name) != getattr(running, name):
                 raise ConfigurationError(f"parameter {name} cannot change while the node runs")
+        check_limit_settings(self.robot, limits)
+
+    def update_settings(
+        self,
+        settings: MotionFilterSettings,
+        limits: LimitSettings | None = None,
+        style: StyleSettings | None = None,
+    ) -> None:
+        """Take new settings from the next tick on (``ros2 param set`` at run time).
+
+        A new ``style`` blends in over ``STYLE_BLEND_S`` (no jump); None keeps the style.
+
+        Raises:
+            ConfigurationError: refused by :meth:`check_settings` (nothing changes then).
+        """
+        limits = limits or self.limiter.settings
+        self.check_settings(settings, limits)
         self.settings = settings
         if limits != self.limiter.settings:
             counts = self.limiter.counts
             self.limiter = JointLimiter(self.robot, limits)
             self.limiter.counts = counts
+        if style is not None or settings.legacy_gains():
+            self.style.update(_with_legacy_gains(settings, style or self.style.settings))
         self._apply_live_settings()
 
     @property
@@ -500,7 +543,8 @@ class MotionFilter:
             self.status.dropped += old
             self._queue.clear()
             admitted = admitted[self.gate.new_track_at :]
-            scaled = self.neutral_rad + self._gains * (admitted[-1] - self.neutral_rad)
+            self.style.reset()
+            scaled = self.style.static(admitted[-1])
             if self._smoother is not None:
                 self._smoother.reset(scaled)
             self.approach.begin(now_s, self.position_rad, scaled, self.limiter.max_velocity_rad_s)
@@ -614,6 +658,7 @@ class MotionFilter:
             if self._smoother is not None:
                 self._smoother.reset(self.position_rad)
             self._target = self.position_rad.copy()
+            self.style.reset()
         if self._queue:
             self._target = self._queue.popleft()
         else:
@@ -625,7 +670,7 @@ class MotionFilter:
                 self._queue.popleft()
             self.status.skipped += standing
             self._depths.clear()
-        scaled = self.neutral_rad + self._gains * (self._target - self.neutral_rad)
+        scaled = self.style.step(self._target)
         return scaled if self._smoother is None else self._smoother.step(scaled)
 
     def _compose_head(self, desired: np.ndarray, now_s: float) -> np.ndarray:

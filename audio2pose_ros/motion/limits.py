@@ -76,6 +76,21 @@ class LimitCounts:
         self.non_finite = self.position = self.velocity = self.acceleration = 0
 
 
+def check_limit_settings(robot: RobotDescription, settings: LimitSettings) -> None:
+    """Check that ``settings`` leave every joint of ``robot`` a range (cheap; changes nothing).
+
+    Raises:
+        ConfigurationError: the margin leaves no range for some joint.
+    """
+    margin = settings.position_margin_rad
+    half_range = (robot.upper_rad - robot.lower_rad) / 2.0
+    if np.any(margin >= half_range):
+        raise ConfigurationError(
+            f"parameter position_margin_rad: value {margin} leaves no range for some joint of "
+            f"{robot.name}; allowed: less than {half_range.min():g}"
+        )
+
+
 class JointLimiter:
     """Saturating limiter for a vector of joints, with per-joint limits from a robot description.
 
@@ -90,13 +105,8 @@ class JointLimiter:
             ConfigurationError: the margin leaves no range for some joint.
         """
         self.settings = settings or LimitSettings()
+        check_limit_settings(robot, self.settings)
         margin = self.settings.position_margin_rad
-        half_range = (robot.upper_rad - robot.lower_rad) / 2.0
-        if np.any(margin >= half_range):
-            raise ConfigurationError(
-                f"parameter position_margin_rad: value {margin} leaves no range for some joint of "
-                f"{robot.name}; allowed: less than {half_range.min():g}"
-            )
         self.robot_lower_rad, self.robot_upper_rad = robot.lower_rad, robot.upper_rad
         self.lower_rad = robot.lower_rad + margin
         self.upper_rad = robot.upper_rad - margin

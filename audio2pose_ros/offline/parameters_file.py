@@ -13,12 +13,12 @@ from pathlib import Path
 from typing import Any
 
 from audio2pose_ros.errors import Audio2PoseError, InputError
+from audio2pose_ros.files import read_yaml_file
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.parameters import settings_from
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.yaml_files import read_yaml_file
 
 FILTER_NODE = "motion_filter_node"  # the node whose section configures the motion filter
 

@@ -26,6 +26,7 @@ from audio2pose_ros.models.warm_start import WARM_START_FRAMES, with_warm_start
 from audio2pose_ros.motion.body_guard import BodyGuard, guard_trajectory
 from audio2pose_ros.motion.filter import MotionFilterSettings
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
+from audio2pose_ros.motion.style import StyleSettings, style_trajectory
 from audio2pose_ros.robot.body import BodyModel
 
 
@@ -126,6 +127,7 @@ def synthesize(
     seed: int = 0,
     temperature: float = 1.0,
     body_margin_m: float | None = MotionFilterSettings.body_margin_m,
+    style: StyleSettings | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Synthesize joint angles for a whole 16 kHz mono utterance.
 
@@ -138,6 +140,8 @@ def synthesize(
         body_margin_m: clearance kept between the arms and the body (m), as the live filter's
             parameter of that name; None returns the model's motion unguarded (for measuring
             how often the guard is needed).
+        style: the speaker's style, applied as the live filter applies it
+            (:mod:`~audio2pose_ros.motion.style`), before the body guard; None: as generated.
 
     Returns:
         ``(times_s, angles_rad)``: (n_frames,) frame times from 0 at the feature step, and
@@ -147,6 +151,8 @@ def synthesize(
     angles = to_angles(
         checkpoint, predict_normalized(checkpoint, signal_16k, seed, temperature), smooth
     )
+    if style is not None:
+        angles = style_trajectory(checkpoint.robot, style, angles, 1.0 / checkpoint.features.step_s)
     if body_margin_m is not None:
         guard = BodyGuard(BodyModel.load(checkpoint.robot), body_margin_m)
         angles = guard_trajectory(guard, angles, 1.0 / checkpoint.features.step_s)

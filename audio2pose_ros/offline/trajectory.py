@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from audio2pose_ros.errors import InputError
+from audio2pose_ros.motion.style import StyleSettings
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.topics import (
     AUDIO,
@@ -71,15 +72,23 @@ class Trajectory:
 
 
 def synthesized_trajectory(
-    checkpoint_path: str | Path, signal_16k: np.ndarray, robot: RobotDescription
+    checkpoint_path: str | Path,
+    signal_16k: np.ndarray,
+    robot: RobotDescription,
+    style: StyleSettings | None = None,
+    label: str = "",
 ) -> Trajectory:
-    """Offline synthesis (seed 003 section 4.4.1) of a 16 kHz utterance with a checkpoint."""
+    """Offline synthesis (seed 003 section 4.4.1) of a 16 kHz utterance with a checkpoint.
+
+    ``style`` is applied as the live filter applies it; ``label`` names the trajectory
+    (default: the checkpoint's file stem).
+    """
     from audio2pose_ros.checkpoints.torch_io import load_checkpoint
     from audio2pose_ros.offline.synthesis import synthesize
 
     checkpoint = load_checkpoint(checkpoint_path, robot=robot)
-    times_s, angles_rad = synthesize(checkpoint, signal_16k)
-    return Trajectory(Path(checkpoint_path).stem, times_s, angles_rad, robot.names)
+    times_s, angles_rad = synthesize(checkpoint, signal_16k, style=style)
+    return Trajectory(label or Path(checkpoint_path).stem, times_s, angles_rad, robot.names)
 
 
 def clip_trajectory(

@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 
 from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.files import read_yaml_file
 from audio2pose_ros.resources import share_path
-from audio2pose_ros.yaml_files import read_yaml_file
 
 DEFAULT_ROBOT_FILE = "pepper_robot.yaml"
 JOINT_GROUPS = ("head", "arms", "hip")

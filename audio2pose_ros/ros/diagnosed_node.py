@@ -1,26 +1,24 @@
-"""What the three nodes share: QoS profiles, message <-> numpy conversions, diagnostics, main()."""
+"""What the nodes share: QoS profiles, the diagnosed node (heartbeat, problems, callback boundary).
+
+Message conversions live in :mod:`audio2pose_ros.ros.messages`, the executor and ``main()`` in
+:mod:`audio2pose_ros.ros.spin`.
+"""
 
 from __future__ import annotations
 
-import array
-import faulthandler
+import contextlib
 import functools
 import math
 import os
 import signal
-import sys
 import time
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
-import numpy as np
-import rclpy
-from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -28,22 +26,18 @@ from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rclpy.subscription import MessageInfo, Subscription
-from std_msgs.msg import Float32MultiArray, MultiArrayDimension
-from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+try:
+    from rclpy.type_support import check_is_valid_msg_type
+except ImportError:  # Humble
+    from rclpy.type_support import check_for_type_support as check_is_valid_msg_type  # type: ignore[assignment]
 try:
     from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 except ImportError:  # Humble: the same classes (with use_default_callbacks) in rclpy.qos_event
     from rclpy.qos_event import PublisherEventCallbacks, SubscriptionEventCallbacks
 
 from audio2pose_ros import topics
-from audio2pose_ros.errors import (
-    EXIT_CONFIGURATION_ERROR,
-    ConfigurationError,
-    InputError,
-    short_text,
-)
-from audio2pose_ros.ros.nodes.process import STOP_SIGNALS
+from audio2pose_ros.errors import ConfigurationError, InputError, short_text
 
 # Audio: best effort matches both reliable and best-effort publishers (audio_capture is reliable);
 # a deep queue absorbs bursts from GStreamer without dropping chunks.
@@ -66,6 +60,9 @@ HEARTBEAT_PERIOD_S = 0.5  # every node publishes /diagnostics this often, busy o
 # A supervisor passes the write end of a pipe in this variable: each heartbeat also writes a byte
 # there. Only the supervised process holds that descriptor, so no other process can fake it.
 HEARTBEAT_FD_ENV = "AUDIO2POSE_HEARTBEAT_FD"
+# A supervisor that writes a node's output to a log file passes its own stderr (the user's
+# terminal) in this variable: what the user must act on is written there too (to_terminal).
+TERMINAL_FD_ENV = "AUDIO2POSE_TERMINAL_FD"
 # A node process given this signal writes every thread's Python stack to stderr and runs on.
 STACK_DUMP_SIGNAL = signal.SIGUSR1
 STALE_AFTER_S = 1.2  # a node not heard from for this long is silent (stopped, frozen or dead)
@@ -78,118 +75,6 @@ MAX_LOGGED_TRACEBACKS = 5  # callback exceptions beyond this are counted, not pr
 # A problem's message, and a diagnostic value, at most this long: they may quote input (a label,
 # a joint name) that a message can make hundreds of kilobytes long, on every heartbeat.
 MAX_STATUS_TEXT = 400
-
-
-FRAMES_LABEL = "frames"  # dim[0] of a features message; "frames from N" numbers its first frame
-
-
-class FeatureBatch(NamedTuple):
-    """An unpacked features message."""
-
-    frames: np.ndarray  # (n_frames, n_features) float32
-    label: str  # the feature set (dim[1].label)
-    first_frame: int | None  # index of the first frame in its stream, if the sender numbers them
-
-
-def features_to_msg(
-    frames: np.ndarray, label: str, first_frame: int | None = None
-) -> Float32MultiArray:
-    """Pack (n_frames, n_features) features; dim[1].label names the feature set.
-
-    With ``first_frame``, dim[0].label is ``"frames from <first_frame>"``: the receiver counts
-    the frames lost between messages (:class:`~audio2pose_ros.timebase.FrameSequence`). A
-    receiver that reads only the sizes is unaffected.
-    """
-    n_frames, n_features = frames.shape
-    msg = Float32MultiArray()
-    frames_label = FRAMES_LABEL if first_frame is None else f"{FRAMES_LABEL} from {first_frame}"
-    msg.layout.dim = [
-        MultiArrayDimension(label=frames_label, size=n_frames, stride=n_frames * n_features),
-        MultiArrayDimension(label=label, size=n_features, stride=n_features),
-    ]
-    # An array.array of the right type code is stored as is; a list is checked value by value.
-    msg.data = array.array("f", np.ascontiguousarray(frames, dtype=np.float32).tobytes())
-    return msg
-
-
-def msg_to_features(msg: Float32MultiArray) -> FeatureBatch:
-    """Unpack a features message; a dim[0].label other than ``"frames from <n>"`` numbers nothing.
-
-    Raises:
-        InputError: the layout does not describe the data (2 dims, frames x features, at least
-            one feature per frame: a count of frames without data would be a claim, not data).
-    """
-    dims = msg.layout.dim
-    if len(dims) != 2:
-        raise InputError(f"features message needs 2 layout dims, got {len(dims)}")
-    n_frames, n_features = dims[0].size, dims[1].size
-    if n_features == 0:
-        raise InputError(f"features message of {n_frames} frames of 0 features")
-    data = np.frombuffer(msg.data, dtype=np.float32) if msg.data else np.zeros(0, np.float32)
-    if data.size != n_frames * n_features:
-        raise InputError(
-            f"features message holds {data.size} values, layout says {n_frames}x{n_features}"
-        )
-    number = dims[0].label.removeprefix(f"{FRAMES_LABEL} from ")
-    numbered = number != dims[0].label and number.isascii() and number.isdigit()
-    first = int(number) if numbered and len(number) <= 18 else None  # within int64
-    return FeatureBatch(data.reshape(n_frames, n_features), dims[1].label, first)
-
-
-def duration_msg(seconds: float) -> Duration:
-    """A builtin_interfaces/Duration of ``seconds``."""
-    nanoseconds = round(seconds * 1e9)
-    return Duration(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
-
-
-def trajectory_msg(
-    joint_names: Sequence[str],
-    positions_rad: np.ndarray,
-    period_s: float,
-    velocities_rad_s: np.ndarray | None = None,
-) -> JointTrajectory:
-    """A JointTrajectory with one point per row of ``positions_rad``, ``period_s`` apart.
-
-    The first point is due one period after the header stamp.
-    """
-    msg = JointTrajectory()
-    msg.joint_names = list(joint_names)
-    positions = np.ascontiguousarray(np.atleast_2d(positions_rad), dtype=np.float64)
-    velocities = (
-        None
-        if velocities_rad_s is None
-        else np.ascontiguousarray(np.atleast_2d(velocities_rad_s), dtype=np.float64)
-    )
-    for i, row in enumerate(positions):
-        point = JointTrajectoryPoint()
-        point.positions = array.array("d", row.tobytes())  # stored as is, unlike a list
-        if velocities is not None:
-            point.velocities = array.array("d", velocities[i].tobytes())
-        point.time_from_start = duration_msg((i + 1) * period_s)
-        msg.points.append(point)
-    return msg
-
-
-def trajectory_positions(msg: JointTrajectory, joint_names: Sequence[str]) -> np.ndarray:
-    """(n_points, n_joints) positions reordered to ``joint_names``.
-
-    Raises:
-        ValueError: a joint is missing, or a point has the wrong number of positions.
-
-    """
-    index = {name: i for i, name in enumerate(msg.joint_names)}
-    missing = [n for n in joint_names if n not in index]
-    if missing:
-        raise ValueError(f"trajectory lacks joints {missing}")
-    order = [index[n] for n in joint_names]
-    rows = []
-    for k, point in enumerate(msg.points):
-        if len(point.positions) != len(msg.joint_names):
-            raise ValueError(
-                f"point {k} has {len(point.positions)} positions for {len(msg.joint_names)} joints"
-            )
-        rows.append(np.asarray(point.positions, dtype=np.float64)[order])
-    return np.array(rows).reshape(-1, len(joint_names))
 
 
 def status_name(fully_qualified_name: str) -> str:
@@ -241,6 +126,135 @@ class _Problem:
     logged_s: float = -math.inf
 
 
+class PacedTimer:
+    """A periodic callback that a backlog of messages cannot delay by more than one message.
+
+    rclpy's EventsExecutor serves its events first come, first served: a timer that falls due
+    while messages arrive faster than the node serves them waits behind every message queued
+    before it, which under a flood is all of them (a flooded simulated Pepper sent 0-2
+    joint_states a second, and no heartbeat for seconds). The executor is therefore spun one
+    event at a time (:func:`~audio2pose_ros.ros.spin.spin_executor`) and, between two events
+    and after every guarded callback (:meth:`DiagnosedNode.run_overdue_timers`), a paced timer
+    more than ``OVERDUE_GRACE`` of its period past its due time runs there
+    (:meth:`run_if_overdue`, counted in ``runs_between_events``); when the executor's own timer
+    event comes later, it finds the run done and skips it (:meth:`on_timer`). Due times keep
+    their phase: a timer served between events keeps its rate, never bursts to make up for a
+    missed period, and an idle node runs it from the executor's timer as before.
+    """
+
+    OVERDUE_GRACE = 0.25  # of the period: a timer this late is run between events
+
+    def __init__(
+        self,
+        period_s: float,
+        callback: Callable[[], None],
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        """Due first one period from now (``clock``), like rclpy's timer created beside it."""
+        self.period_s = period_s
+        self.callback = callback
+        self.clock = clock
+        self.next_due_s = clock() + period_s
+        self.runs_between_events = 0
+
+    def on_timer(self) -> None:
+        """The executor's timer event: run unless the last run already served this period."""
+        now = self.clock()
+        if now >= self.next_due_s - 0.5 * self.period_s:
+            self._run(now)
+
+    def run_if_overdue(self, now: float) -> None:
+        """Run now if the executor's timer event is overdue (it waits behind messages)."""
+        if now >= self.next_due_s + self.OVERDUE_GRACE * self.period_s:
+            self.runs_between_events += 1
+            self._run(now)
+
+    def _run(self, now: float) -> None:
+        self.next_due_s += self.period_s
+        if self.next_due_s <= now:  # a whole period missed (a slow callback): no catch-up burst
+            self.next_due_s = now + self.period_s
+        self.callback()
+
+
+MAX_PUBLISHERS_TRACKED = 64  # per polled input: publishers whose sequence numbers are followed
+
+
+class LatestMessage:
+    """A subscription the executor never serves: the timer that uses it takes the newest message.
+
+    For inputs where the newest message replaces the ones before it (a robot's command). The
+    rcl subscription is not registered with the node, so no executor takes its messages one by
+    one: the middleware keeps the newest ``depth`` of them and :meth:`serve` (called from the
+    timer that uses the input) takes them all, decodes only the newest and passes it to the
+    callback. A flood therefore costs the node no Python work per message, and no event queued
+    before its timers. Every message replaced unserved is counted: those taken and passed over,
+    and those the middleware dropped, from each publisher's sequence numbers.
+    """
+
+    def __init__(
+        self,
+        node: DiagnosedNode,
+        msg_type: type,
+        topic: str,
+        callback: Callable[[Any], None],
+        qos: QoSProfile,
+        max_bytes: int,
+    ) -> None:
+        """Create the rcl subscription on ``node`` (``topic`` resolved as any of its topics)."""
+        self.node = node
+        self.msg_type = msg_type
+        self.topic = topic
+        self.callback = callback
+        self.max_bytes = max_bytes
+        self.depth = qos.depth
+        self.last_sequence: dict[bytes, int] = {}  # publisher gid -> last sequence number seen
+        check_is_valid_msg_type(msg_type)  # loads its type support, as create_subscription does
+        with node.handle:
+            try:  # rclpy 9 takes content filter options; older ones do not
+                self.handle: Any = rclpy_implementation.Subscription(
+                    node.handle, msg_type, topic, qos.get_c_qos_profile(), None
+                )
+            except TypeError:
+                self.handle = rclpy_implementation.Subscription(
+                    node.handle, msg_type, topic, qos.get_c_qos_profile()
+                )
+
+    def serve(self) -> None:
+        """Take every waiting message, count the superseded ones, pass on the newest."""
+        newest: bytes | None = None
+        for _ in range(self.depth):  # the middleware holds at most this many
+            taken = self.handle.take_message(self.msg_type, True)
+            if taken is None:
+                break
+            data, info = taken
+            self._count_dropped_before(info)
+            if len(data) > self.max_bytes:
+                self.node.drop_oversized(self.topic, len(data), self.max_bytes)
+                continue
+            if newest is not None:
+                self.node.messages_superseded += 1
+            newest = data
+        if newest is not None:
+            self.callback(deserialize_message(newest, self.msg_type))
+
+    def _count_dropped_before(self, info: MessageInfo) -> None:
+        sequence = info.get("publication_sequence_number")
+        gid = info.get("publisher_gid")
+        if not isinstance(sequence, int) or not isinstance(gid, dict):
+            return
+        key = bytes(gid.get("data", b""))
+        last = self.last_sequence.pop(key, None)
+        if last is not None and sequence > last + 1:
+            self.node.messages_superseded += sequence - last - 1
+        if len(self.last_sequence) >= MAX_PUBLISHERS_TRACKED:
+            del self.last_sequence[next(iter(self.last_sequence))]  # the longest unheard
+        self.last_sequence[key] = sequence
+
+    def destroy(self) -> None:
+        """Destroy the rcl subscription (before its node)."""
+        self.handle.destroy_when_not_in_use()
+
+
 class DiagnosedNode(Node):
     """Base of the three nodes: heartbeat, problems that describe the present, a callback boundary.
 
@@ -277,6 +291,7 @@ class DiagnosedNode(Node):
         self.input_messages_refused = 0  # InputError at the boundary: bad input, not a bug
         self.oversized_messages = 0
         self.late_heartbeats = 0
+        self.messages_superseded = 0  # replaced unserved by a newer one (LatestMessage)
         self.heartbeats = 0
         self.last_heartbeat_s = time.monotonic()
         if self.get_parameter(USE_SIM_TIME).value is True:
@@ -286,8 +301,23 @@ class DiagnosedNode(Node):
                 "and its heartbeat); stamps are wall-clock times"
             )
         self.add_on_set_parameters_callback(self._keep_wall_clock)
+        self.paced_timers: list[PacedTimer] = []  # run between callbacks when overdue
+        self._running_overdue = False
+        self._polled: list[LatestMessage] = []  # subscriptions served by a timer's serve()
+        for service in self.services:  # rclpy's parameter services: a storm is a flood too
+            service.callback = self._then_overdue_timers(service.callback)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.create_timer(HEARTBEAT_PERIOD_S, self.guarded(self.publish_diagnostics))
+        self.create_paced_timer(HEARTBEAT_PERIOD_S, self.publish_diagnostics)
+
+    def create_paced_timer(self, period_s: float, callback: Callable[[], None]) -> PacedTimer:
+        """A guarded timer that keeps its rate behind any backlog of messages (:class:`PacedTimer`).
+
+        For the timers safety depends on: the heartbeat, a robot's joint_states, a command tick.
+        """
+        timer = PacedTimer(period_s, self.guarded(callback))
+        self.create_timer(period_s, timer.on_timer)
+        self.paced_timers.append(timer)
+        return timer
 
     def create_publisher(
         self, msg_type: Any, topic: str, qos_profile: QoSProfile | int, **kwargs: Any
@@ -408,11 +438,43 @@ class DiagnosedNode(Node):
                 )
                 if self.callback_errors <= MAX_LOGGED_TRACEBACKS:
                     self.get_logger().error(traceback.format_exc())
-            late_s = time.monotonic() - self.last_heartbeat_s
+            now = time.monotonic()
+            late_s = now - self.last_heartbeat_s
             if late_s > HEARTBEAT_OVERDUE_S:
                 self.send_late_heartbeat(late_s)
+            self.run_overdue_timers(now)
 
         return boundary
+
+    def _then_overdue_timers(self, serve: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Any]:
+        """A service callback after which the overdue paced timers run."""
+
+        @functools.wraps(serve)
+        def then(request: Any, response: Any) -> Any:
+            try:
+                return serve(request, response)
+            finally:
+                self.run_overdue_timers(time.monotonic())
+
+        return then
+
+    def run_overdue_timers(self, now: float) -> None:
+        """Run the paced timers overdue at ``now`` (monotonic), between two callbacks.
+
+        Called at the end of every guarded callback and service request (the parameter
+        services: a storm of set_parameters requests is a flood too) and by
+        :func:`~audio2pose_ros.ros.spin.spin_executor` between two events: the executor may serve
+        many messages in one event (the middleware reports several at once), so a timer waits behind
+        at most one callback. Not nested: a paced timer's own callback ends here too.
+        """
+        if self._running_overdue:
+            return
+        self._running_overdue = True
+        try:
+            for timer in self.paced_timers:
+                timer.run_if_overdue(now)
+        finally:
+            self._running_overdue = False
 
     def create_bounded_subscription(
         self,
@@ -431,29 +493,71 @@ class DiagnosedNode(Node):
         above ``max_bytes`` (an int, or a function giving the current cap) is dropped, counted in
         ``oversized_messages`` and reported, and only messages within the cap are decoded.
         With ``with_info`` the callback also gets rclpy's MessageInfo (publisher gid, source
-        timestamp).
+        and reception timestamps), under either executor: the SingleThreadedExecutor passes
+        the message and its info as two arguments, rclpy 9's EventsExecutor as one tuple.
         """
         handler = self.guarded(callback)
 
         def receive(data: bytes, *info: MessageInfo) -> None:
             cap = max_bytes() if callable(max_bytes) else max_bytes
             if len(data) > cap:
-                self.oversized_messages += 1
-                self.report_problem(
-                    f"oversized message on {topic}",
-                    DiagnosticStatus.WARN,
-                    f"dropped a {len(data)}-byte message on {topic} before decoding it "
-                    f"(at most {cap} bytes)",
-                )
+                self.drop_oversized(topic, len(data), cap)
                 return
             handler(deserialize_message(data, msg_type), *info)
 
-        def receive_with_info(data: bytes, info: MessageInfo) -> None:
+        def receive_with_info(
+            data: bytes | tuple[bytes, MessageInfo], info: MessageInfo | None = None
+        ) -> None:
+            if isinstance(data, tuple):  # the EventsExecutor: (message, info) as one argument
+                data, info = data
+            assert info is not None
             receive(data, info)
 
-        entry = receive_with_info if with_info else receive  # rclpy counts the parameters
+        entry = receive_with_info if with_info else receive
         entry.__name__ = getattr(callback, "__name__", "callback")
-        return self.create_subscription(msg_type, topic, self.guarded(entry), qos, raw=True)
+        subscription = self.create_subscription(msg_type, topic, self.guarded(entry), qos, raw=True)
+        if with_info:  # rclpy takes a callback with a default second parameter for message-only
+            subscription._callback_type = Subscription.CallbackType.WithMessageInfo
+        return subscription
+
+    def create_latest_subscription(
+        self,
+        msg_type: type,
+        topic: str,
+        callback: Callable[[Any], None],
+        depth: int,
+        max_bytes: int,
+    ) -> LatestMessage:
+        """A best-effort subscription of ``depth`` whose messages coalesce (:class:`LatestMessage`).
+
+        Call its ``serve()`` from the timer that uses the input: ``callback`` (guarded) gets the
+        newest message; those it replaced unserved are counted in ``messages_superseded``, one
+        over ``max_bytes`` is dropped and counted as by :meth:`create_bounded_subscription`.
+        Best effort, which every publisher matches: a reliable reader acknowledges each message
+        in the middleware's threads, which under a flood took the CPU the timers needed (27
+        joint_states a second instead of 49), and only the newest is used anyway; a message
+        lost on the way shows in the publisher's sequence numbers and is counted too.
+        """
+        qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT)
+        latest = LatestMessage(self, msg_type, topic, self.guarded(callback), qos, max_bytes)
+        self._polled.append(latest)
+        return latest
+
+    def drop_oversized(self, topic: str, n_bytes: int, cap: int) -> None:
+        """Count and report a message on ``topic`` of ``n_bytes`` over ``cap``, not decoded."""
+        self.oversized_messages += 1
+        self.report_problem(
+            f"oversized message on {topic}",
+            DiagnosticStatus.WARN,
+            f"dropped a {n_bytes}-byte message on {topic} before decoding it (at most {cap} bytes)",
+        )
+
+    def destroy_node(self) -> None:
+        """Destroy the polled subscriptions, then the node."""
+        for latest in self._polled:
+            latest.destroy()
+        self._polled.clear()
+        super().destroy_node()
 
     # --- publication --------------------------------------------------------------------------
 
@@ -497,6 +601,10 @@ class DiagnosedNode(Node):
         values["input_messages_refused"] = self.input_messages_refused
         values["oversized_messages_dropped"] = self.oversized_messages
         values["late_heartbeats"] = self.late_heartbeats
+        values["messages_superseded"] = self.messages_superseded
+        values["timer_runs_between_messages"] = sum(
+            timer.runs_between_events for timer in self.paced_timers
+        )
         for key, (problem_level, problem_message, count) in problems.items():
             level = max(level, problem_level)
             message += f"; {problem_message}" + (f" ({count}x)" if count > 1 else "")
@@ -519,108 +627,16 @@ def beat_to_supervisor() -> None:
             pass
 
 
-SPIN_ONCE_TIMEOUT_S = 0.5  # an idle EventsExecutor checks for shutdown this often
-EXECUTOR_ENV = "AUDIO2POSE_EXECUTOR"  # "events" (default where available) or "single_threaded"
+def to_terminal(line: str) -> None:
+    """Write ``line`` to the user's terminal as well, when the node's output goes to a log file.
 
-
-def create_executor(events: bool = True) -> Executor:
-    """The executor the nodes spin in: rclpy's EventsExecutor where available, else single-threaded.
-
-    The EventsExecutor (``rclpy.experimental``, Jazzy and later) is driven by middleware events
-    instead of rebuilding a wait set in Python for every callback, which was the largest single
-    item of the nodes' CPU (20-40 % of each node's samples under traffic); with it the
-    three nodes used 2.9 instead of 4.2 ms CPU per 10 ms frame. Humble has none and gets the
-    SingleThreadedExecutor; ``AUDIO2POSE_EXECUTOR=single_threaded`` forces it (for comparison,
-    or should a distro's EventsExecutor misbehave). Spin it with :func:`spin_executor`.
-
-    ``events=False`` asks for the SingleThreadedExecutor: the motion filter needs it, because the
-    EventsExecutor (rclpy 9) hands no MessageInfo to a callback (the filter reads the publisher
-    gid and the source timestamp of its inputs) and serves events first come, first served, so a
-    flood on one topic delays the command timer by the whole backlog; the SingleThreadedExecutor
-    serves every ready timer and subscription once per round, so the tick keeps its rate.
+    ``audio2pose run``, ``console`` and ``demo`` with a log directory send each node's stdout and
+    stderr to ``<dir>/<node>.log`` and pass their own stderr in ``TERMINAL_FD_ENV``: the lines a
+    user must see (the console's address with its token, a refused configuration) are written
+    there too. Without it (output on a terminal already, or ``ros2 launch``) nothing is written.
+    A terminal that is gone is ignored: the line is in the log either way.
     """
-    if events and os.environ.get(EXECUTOR_ENV, "events") != "single_threaded":
-        try:
-            from rclpy.experimental.events_executor import EventsExecutor
-        except ImportError:  # Humble
-            pass
-        else:
-            return EventsExecutor()
-    return SingleThreadedExecutor()
-
-
-def spin_executor(executor: Executor) -> None:
-    """Spin until the context shuts down (Ctrl-C, SIGTERM, ``rclpy.shutdown``).
-
-    The EventsExecutor is spun one event at a time: its ``spin()`` (rclpy 9.1) never ran a
-    callback here, while ``spin_once`` serves timers and subscriptions as expected.
-    """
-    if isinstance(executor, SingleThreadedExecutor):
-        executor.spin()
-        return
-    while executor.context.ok():
-        executor.spin_once(timeout_sec=SPIN_ONCE_TIMEOUT_S)
-
-
-def run_node(
-    factory: Callable[[], Node],
-    node_name: str,
-    args: list[str] | None = None,
-    events: bool = True,
-) -> None:
-    """The ros2/examples main for one node: see :func:`run_nodes`."""
-    run_nodes([factory], node_name, args, events=events)
-
-
-def run_nodes(
-    factories: Sequence[Callable[[], Node]],
-    process_name: str,
-    args: list[str] | None = None,
-    connect: Callable[[list[Node]], None] | None = None,
-    events: bool = True,
-) -> None:
-    """Init, build the nodes, spin them in one executor until Ctrl-C / SIGTERM, clean up.
-
-    One factory is the usual one node per process; several put nodes in one process and one
-    executor (``audio2pose run --single-process``), where ``connect`` (called with the built
-    nodes, in order, before spinning) wires them to each other; ``events`` goes to
-    :func:`create_executor`. A
-    :class:`~audio2pose_ros.errors.ConfigurationError` while a node is built (a refused
-    parameter, a bad model or robot file), or arguments rcl cannot parse (a parameters file with
-    a YAML syntax error, a missing file), end the process with one line on stderr and exit status
-    :data:`EXIT_CONFIGURATION_ERROR`, which ``audio2pose run`` and the launch file never respawn.
-    """
-    try:
-        # Ctrl-C or SIGTERM while rcl initialises or the nodes are built would shut the context
-        # down under them: the signals wait until the nodes are ready (the node executables
-        # block them from their first line, nodes.process), then rclpy's handler ends the spin.
-        signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
-        # A supervisor about to kill a silent process first asks for every thread's stack
-        # (written to stderr, the node's log), so a silent node says where it was stuck.
-        faulthandler.register(STACK_DUMP_SIGNAL, all_threads=True)
-        try:
-            rclpy.init(args=args)  # not `with rclpy.init()`: Humble's init is no context manager
-            executor = create_executor(events)
-            nodes = [factory() for factory in factories]
-            if connect is not None:
-                connect(nodes)
-            for node in nodes:
-                executor.add_node(node)
-            signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
-            spin_executor(executor)
-        finally:
-            signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
-            rclpy.try_shutdown()
-    except ConfigurationError as exc:
-        print(f"[{process_name}] configuration error: {exc}", file=sys.stderr, flush=True)
-        raise SystemExit(EXIT_CONFIGURATION_ERROR) from None
-    except rclpy_implementation.RCLError as exc:
-        print(
-            f"[{process_name}] configuration error: ROS arguments refused: "
-            + " ".join(str(exc).split()),
-            file=sys.stderr,
-            flush=True,
-        )
-        raise SystemExit(EXIT_CONFIGURATION_ERROR) from None
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+    fd = os.environ.get(TERMINAL_FD_ENV, "")
+    if fd.isdigit():
+        with contextlib.suppress(OSError):
+            os.write(int(fd), (line.rstrip("\n") + "\n").encode("utf-8", "replace"))

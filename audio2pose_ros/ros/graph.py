@@ -55,17 +55,18 @@ from audio2pose_ros.errors import (
     ConfigurationError,
     UsageError,
 )
+from audio2pose_ros.files import load_yaml_text
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.ros.diagnosed_node import (
     HEARTBEAT_FD_ENV,
     HEARTBEAT_PERIOD_S,
     STACK_DUMP_SIGNAL,
     STALE_AFTER_S,
+    TERMINAL_FD_ENV,
     status_name,
 )
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.ros.player import MessagePlayer, rclpy_session, spin_until, warm_up
-from audio2pose_ros.yaml_files import load_yaml_text
 
 NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
 RECORD_FLUSH_PERIOD_S = 0.5  # a killed recording loses at most about this much (BagWriter.flush)
@@ -120,9 +121,9 @@ class NodeSupervisor:
       ``restart_window_s`` is given up on, loudly, rather than restarted forever.
     - **Configuration error.** A node that exits with
       :data:`~audio2pose_ros.ros.diagnosed_node.EXIT_CONFIGURATION_ERROR` (a refused parameter, a
-      bad
-      model or robot file, a parameters file rcl cannot parse) is never restarted: the same
-      configuration would fail the same way. Its one-line reason is in its log.
+      bad model or robot file, a parameters file rcl cannot parse) is never restarted: the same
+      configuration would fail the same way. Its one-line reason is in its log and, when the
+      log is a file, on this process's stderr too (``TERMINAL_FD_ENV``).
     - **Silence.** A node whose process is alive but has not sent its heartbeat for
       ``restart_after_s`` (stopped with SIGSTOP, deadlocked) is killed and restarted like a
       crashed one. The heartbeat comes from the process itself, never from a topic anyone can
@@ -188,6 +189,7 @@ class NodeSupervisor:
                 log unwritable).
         """
         stdout = None
+        env = {key: value for key, value in os.environ.items() if key != TERMINAL_FD_ENV}
         if self.log_dir is not None:
             self.log_dir.mkdir(parents=True, exist_ok=True)
             stdout = (self.log_dir / f"{name}.log").open(mode)
@@ -198,16 +200,22 @@ class NodeSupervisor:
             if old is not None:
                 os.close(old)
             self._pipes[name] = read_end
+            passed = [write_end]
+            env[HEARTBEAT_FD_ENV] = str(write_end)
+            if stdout is not None:  # the user's terminal, for the lines they must see
+                passed.append(os.dup(sys.stderr.fileno()))
+                env[TERMINAL_FD_ENV] = str(passed[-1])
             try:
                 self.processes[name] = subprocess.Popen(
                     self.commands[name],
                     stdout=stdout,
                     stderr=subprocess.STDOUT if stdout else None,
-                    pass_fds=(write_end,),
-                    env={**os.environ, HEARTBEAT_FD_ENV: str(write_end)},
+                    pass_fds=passed,
+                    env=env,
                 )
             finally:
-                os.close(write_end)  # the child holds its own
+                for fd in passed:
+                    os.close(fd)  # the child holds its own
         finally:
             if stdout is not None:
                 stdout.close()  # the child holds its own descriptor

@@ -13,7 +13,11 @@ stopped as :class:`RespawnBudget` decides. Keeping the decisions here lets them 
 - The parameters file must exist and parse as a YAML mapping before any node starts: rcl would
   otherwise fail inside every node at start-up (a YAML error) or ignore it (a missing file).
 - ``model_path`` is passed to the nodes only when the launch argument is not empty, so the
-  precedence is ROS's own: launch argument > parameters file > package default.
+  precedence is ROS's own: launch argument > parameters file > package default. A personal
+  model folder (``audio2pose enroll``) there means its checkpoint and its style.
+- ``style`` (a preset, a style file or a personal model folder) becomes the motion filter's
+  style parameters, resolved against the model (:func:`style_parameters`); they win over the
+  parameters file and stay settable live.
 - Crashed nodes are restarted with back-off and a bounded count instead of launch's
   ``respawn=True`` (``respawn_max_retries`` does not exist on Humble); a node that exits with
   :data:`EXIT_CONFIGURATION_ERROR` is never restarted.
@@ -31,7 +35,7 @@ import yaml
 
 from audio2pose_ros import topics
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, Audio2PoseError, ConfigurationError
-from audio2pose_ros.yaml_files import MAX_YAML_BYTES, load_yaml_text
+from audio2pose_ros.files import MAX_YAML_BYTES, load_yaml_text
 
 __all__ = [
     "ARGUMENTS",
@@ -50,6 +54,7 @@ __all__ = [
     "normalize_topic",
     "parse_bool",
     "plan_launch",
+    "style_parameters",
 ]
 
 # ros2_control for Pepper (naoqi_driver's ros2_control work) runs this controller at 50 Hz;
@@ -62,6 +67,7 @@ AUDIO_INPUTS = (topics.AUDIO, topics.AUDIO_INFO)  # the features node's inputs m
 ARGUMENTS = (
     "params_file",
     "model_path",
+    "style",
     "audio_ns",
     "controller_topic",
     "rviz",
@@ -241,6 +247,48 @@ def model_path_override(text: str) -> dict[str, str]:
     return {"model_path": model_path} if model_path else {}
 
 
+def style_parameters(
+    style: str, model_path: Mapping[str, str]
+) -> tuple[dict[str, str], dict[str, float]]:
+    """The checkpoint override and the filter's style parameters of ``style`` and ``model_path``.
+
+    Args:
+        style: the ``style`` launch argument: '' (none), a preset name, a style file or a
+            personal model folder.
+        model_path: :func:`model_path_override` of the ``model_path`` argument; a personal model
+            folder there stands for its checkpoint and (unless ``style`` is given) its style.
+
+    Returns:
+        ``(model_path, parameters)``: the ``model_path`` override to pass (a folder replaced
+        by its checkpoint) and the non-default style parameters of ``motion_filter_node``.
+
+    Raises:
+        ConfigurationError: an unknown preset, an unreadable style or personal model.
+    """
+    folder = model_path.get("model_path", "")
+    if not style.strip() and not (folder and Path(folder).is_dir()):
+        return dict(model_path), {}
+    from audio2pose_ros.errors import InputError
+    from audio2pose_ros.robot.description import load_robot
+    from audio2pose_ros.style.figures import load_style
+    from audio2pose_ros.style.personal import model_and_style, style_settings
+
+    try:
+        checkpoint, chosen = model_and_style(folder or None)
+        if style.strip():
+            chosen = load_style(style.strip())
+        settings = style_settings(checkpoint, chosen, load_robot())
+    except InputError as exc:
+        raise ConfigurationError(f"launch argument style / model_path: {exc}") from None
+    default = type(settings)()
+    parameters = {
+        name: getattr(settings, name)
+        for name in settings.__dataclass_fields__
+        if getattr(settings, name) != getattr(default, name)
+    }
+    return ({"model_path": str(checkpoint)} if folder else {}), parameters
+
+
 @dataclass(frozen=True)
 class LaunchPlan:
     """The launch file's arguments, validated and typed.
@@ -261,6 +309,8 @@ class LaunchPlan:
             (:data:`SINGLE_PROCESS_MODULE`) instead of one process each.
         console: start console_node, the operator's web console (its settings come from the
             parameters file's ``console_node`` section).
+        style: the motion filter's style parameters from the ``style`` argument (or a personal
+            model's), passed after the parameters file; ``{}`` when none.
 
     """
 
@@ -274,6 +324,7 @@ class LaunchPlan:
     diagnostic_aggregator: bool
     single_process: bool = False
     console: bool = False
+    style: dict[str, float] = field(default_factory=dict)
 
     @property
     def audio_topics(self) -> dict[str, str]:
@@ -305,9 +356,13 @@ def plan_launch(arguments: Mapping[str, str]) -> LaunchPlan:
         raise ConfigurationError(
             f"launch argument sim:={arguments['sim']!r} is not one of {', '.join(SIM_CHOICES)}"
         )
+    model_path, style = style_parameters(
+        arguments["style"], model_path_override(arguments["model_path"])
+    )
     return LaunchPlan(
         params_file=check_params_file(arguments["params_file"]),
-        model_path=model_path_override(arguments["model_path"]),
+        model_path=model_path,
+        style=style,
         audio_ns=normalize_namespace("audio_ns", arguments["audio_ns"]),
         controller_topic=normalize_topic("controller_topic", arguments["controller_topic"]),
         rviz=parse_bool("rviz", arguments["rviz"]),
@@ -333,17 +388,16 @@ def single_process_arguments(plan: LaunchPlan, directory: Path) -> list[str]:
     remapping applies to every node; each of these names belongs to one node only.
     """
     arguments = ["--ros-args", "--params-file", str(plan.params_file)]
-    if plan.model_path:
+    if plan.model_path or plan.style:
         override = directory / "single_process_model_path.yaml"
-        override.write_text(
-            yaml.safe_dump(
-                {
-                    node: {"ros__parameters": dict(plan.model_path)}
-                    for node in ("audio_features_node", "inference_node")
-                }
-            ),
-            encoding="utf-8",
-        )
+        document: dict[str, object] = {
+            node: {"ros__parameters": dict(plan.model_path)}
+            for node in ("audio_features_node", "inference_node")
+            if plan.model_path
+        }
+        if plan.style:
+            document["motion_filter_node"] = {"ros__parameters": dict(plan.style)}
+        override.write_text(yaml.safe_dump(document), encoding="utf-8")
         arguments += ["--params-file", str(override)]
     remaps = {
         **plan.audio_topics,

@@ -17,8 +17,10 @@ parameter, the value and the allowed range in one line:
 from __future__ import annotations
 
 import difflib
+import math
 import re
 import sys
+import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -35,8 +37,9 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.files import read_yaml_file
 from audio2pose_ros.parameters import ParameterSpec, ParameterValue
-from audio2pose_ros.yaml_files import read_yaml_file
+from audio2pose_ros.ros.parameter_names import NODE_PARAMETER_NAMES
 
 __all__ = ["NodeParameters", "check_parameter_files", "descriptor_of", "parameter_files"]
 
@@ -143,7 +146,8 @@ def unknown_parameter_warnings(
     ``-p feature_limt_sd:=3`` would leave the node on its default. A name another node of the
     package declares passes (launch and ``/**`` sections give every node the same set), as do
     rclpy's own (:data:`ROS_PARAMETERS`, ``qos_overrides.*``). The other nodes' declarations
-    are imported only when a name is unknown to this one.
+    are the generated :data:`~audio2pose_ros.ros.parameter_names.NODE_PARAMETER_NAMES`, so that
+    this module, which every node imports, imports no node.
     """
     strangers = sorted(
         name
@@ -152,25 +156,72 @@ def unknown_parameter_warnings(
         and name not in ROS_PARAMETERS
         and not name.startswith(ROS_PARAMETER_PREFIXES)
     )
-    if not strangers:
-        return []
-    from audio2pose_ros.ros.nodes import pepper_sim_node  # the package's nodes
-    from audio2pose_ros.ros.parameter_docs import node_parameters
-
-    known = {spec.name for node_specs in node_parameters().values() for spec in node_specs}
-    known |= {spec.name for spec in pepper_sim_node.PARAMETERS}
     lines = []
     for name in strangers:
-        if name in known:
+        if name in NODE_PARAMETER_NAMES:
             continue
         close = difflib.get_close_matches(name, list(specs), n=1) or difflib.get_close_matches(
-            name, sorted(known), n=1
+            name, sorted(NODE_PARAMETER_NAMES), n=1
         )
         hint = f"; did you mean {close[0]}?" if close else ""
         lines.append(
             f"parameter {name} is not a parameter of any audio2pose_ros node and was ignored" + hint
         )
     return lines
+
+
+LOG_SPACING_S = 1.0  # run-time parameter changes are logged at most this often, summarised
+
+
+class _ChangeLog:
+    """Run-time parameter changes and refusals, logged as at most one summary per period.
+
+    The first change after a quiet period is logged at once; later ones within
+    :data:`LOG_SPACING_S` are gathered (the newest value of each parameter, the number of
+    requests) and logged by :meth:`flush`, which the node's timer calls every period.
+    """
+
+    def __init__(self, node: Node) -> None:
+        self.node = node
+        self.values: dict[str, ParameterValue] = {}
+        self.changes = 0
+        self.refusals = 0
+        self.last_refusal = ""
+        self.logged_s = -math.inf
+
+    def changed(self, changes: Mapping[str, ParameterValue]) -> None:
+        """Record a request's changes (none: nothing to log)."""
+        if changes:
+            self.values.update(changes)
+            self.changes += 1
+            self._log_if_due()
+
+    def refused(self, reason: str) -> None:
+        """Record a refused request."""
+        self.refusals += 1
+        self.last_refusal = reason
+        self._log_if_due()
+
+    def _log_if_due(self) -> None:
+        if time.monotonic() - self.logged_s >= LOG_SPACING_S:
+            self.flush()
+
+    def flush(self) -> None:
+        """Log what was gathered since the last line, if anything."""
+        logger = self.node.get_logger()
+        if self.values:
+            times = f" ({self.changes} requests)" if self.changes > 1 else ""
+            logger.info(
+                "parameters changed: "
+                + ", ".join(f"{k}={v!r}" for k, v in self.values.items())
+                + times
+            )
+        if self.refusals:
+            times = f" ({self.refusals} requests refused)" if self.refusals > 1 else ""
+            logger.warning(f"parameter change refused: {self.last_refusal}{times}")
+        if self.values or self.refusals:
+            self.logged_s = time.monotonic()
+        self.values, self.changes, self.refusals = {}, 0, 0
 
 
 class NodeParameters:
@@ -221,6 +272,8 @@ class NodeParameters:
             self.values[name] = spec.validate(value)
         for line in unknown_parameter_warnings(overrides, self.specs):
             node.get_logger().warning(line)
+        self._log = _ChangeLog(node)
+        node.create_timer(LOG_SPACING_S, self._log.flush)
         node.add_on_set_parameters_callback(self._on_set)
 
     def __getitem__(self, name: str) -> ParameterValue:
@@ -228,6 +281,13 @@ class NodeParameters:
         return self.values[name]
 
     def _on_set(self, parameters: list[Parameter[Any]]) -> SetParametersResult:
+        """Validate a request and hand its changes to ``apply``; bounded work, throttled log.
+
+        A value equal to the current one is no change: a request of only such values costs its
+        validation and nothing else. Changes and refusals are logged in one summary line per
+        :data:`LOG_SPACING_S` (and at the end of a burst), not one line per request: a storm
+        of requests (a slider dragged, a script in a loop) costs the node no log output.
+        """
         changes: dict[str, ParameterValue] = {}
         try:
             for parameter in parameters:
@@ -238,15 +298,14 @@ class NodeParameters:
                     raise ConfigurationError(
                         f"parameter {spec.name} cannot change while the node runs"
                     )
-                changes[spec.name] = spec.validate(parameter.value)
+                value = spec.validate(parameter.value)
+                if value != self.values[spec.name]:  # both validated: of the spec's type
+                    changes[spec.name] = value
             if changes and self._apply is not None:
                 self._apply(changes)
         except ConfigurationError as exc:
-            self.node.get_logger().warning(f"parameter change refused: {exc}")
+            self._log.refused(str(exc))
             return SetParametersResult(successful=False, reason=str(exc))
         self.values.update(changes)
-        if changes:
-            self.node.get_logger().info(
-                "parameters changed: " + ", ".join(f"{k}={v!r}" for k, v in changes.items())
-            )
+        self._log.changed(changes)
         return SetParametersResult(successful=True)

@@ -6,6 +6,7 @@
 import * as THREE from 'three';
 import { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
 import URDFLoader from 'urdf-loader';
+import { createEnroll } from './enroll.js';
 
 const CHUNK_SAMPLES = 320; // 20 ms at 16 kHz
 const GAIN_SEND_PERIOD_MS = 150;
@@ -15,6 +16,7 @@ const $ = (id) => document.getElementById(id);
 const state = {
   connected: false, floor: null, you: false, talking: false, chunksSent: 0, chunksDropped: 0,
   posesReceived: 0, status: null, lastError: '', joints: [], viewReady: false,
+  name: '', stopHolders: [], stopYou: false,
 };
 window.a2p = state;
 
@@ -49,7 +51,7 @@ function send(message) {
 }
 
 function setControls(enabled) {
-  for (const id of ['talk', 'stop', 'release', 'enable', 'gain-head', 'gain-arms', 'gain-hip']) {
+  for (const id of ['talk', 'stop', 'release', 'enable', 'gain-head', 'gain-arms', 'gain-hip', 'learn']) {
     $(id).disabled = !enabled;
   }
 }
@@ -71,10 +73,12 @@ function onClose(code) {
   state.you = false;
   setControls(false);
   stopAudio();
-  if (code === 4401) {
+  if (code === 4401 || code === 4429) {
     setConnection('token refused', 'err');
     $('login').hidden = false;
-    $('login-reason').textContent = 'The token was refused: enter the one the console printed.';
+    $('login-reason').textContent = code === 4401
+      ? 'The token was refused: enter the one the console printed.'
+      : 'Too many wrong tokens from this address: wait a moment, then connect again.';
     return;
   }
   setConnection('disconnected: retrying', 'err');
@@ -117,6 +121,7 @@ function onMessage(message) {
       if (view.commanded) view.commanded.visible = true;
       markViewDirty();
       $('login').hidden = true;
+      state.name = message.name;
       setConnection(`connected as ${message.name}`, 'ok');
       setControls(true);
       showError('');
@@ -129,6 +134,15 @@ function onMessage(message) {
     case 'status':
       state.status = message;
       updateStatus(message);
+      showStopHolders();
+      break;
+    case 'stop_holders':
+      state.stopHolders = message.holders;
+      state.stopYou = message.you;
+      showStopHolders();
+      break;
+    case 'enroll_ticket':
+      styleLearning.onTicket(message);
       break;
     case 'error':
       showError(message.message);
@@ -235,6 +249,7 @@ function updateStatus(status) {
     }
   }
   setText($('gains-problem'), status.gains_problem || '');
+  styleLearning.update(status);
   const l = status.latency || {};
   setText($('latency'), l.n
     ? `p50 ${l.p50.toFixed(1)} ms, p99 ${l.p99.toFixed(1)} ms, last ${l.last.toFixed(1)} ms ` +
@@ -259,6 +274,59 @@ function updateStatus(status) {
     state.floor = status.floor;
     updateFloor();
   }
+}
+
+// --- who holds the stop --------------------------------------------------------------------
+
+// A stop is released only by whoever pressed it; that of an operator who has left, or one set
+// outside the console, only through a confirmation that names them (the console checks both).
+const OUTSIDE = 'outside the console'; // audio2pose_ros/console/stop.py
+
+function stopHolderText() {
+  const holders = state.stopHolders;
+  if (!holders.length) {
+    return state.status && state.status.stop === true ? `Stopped ${OUTSIDE}.` : '';
+  }
+  const names = holders.map((h) => {
+    if (!h.present) return `${h.name} (has left)`;
+    return state.stopYou && h.name === state.name ? 'you' : h.name;
+  });
+  return `Stop held by ${names.join(', ')}.`;
+}
+
+function showStopHolders() {
+  setText($('stop-holder'), stopHolderText());
+}
+
+// The Release button: one's own stop at once; anyone else's needs the confirmation, which is
+// offered only for someone who has left (the console refuses it for those still here).
+function releaseStop() {
+  if (state.stopYou) {
+    send({ type: 'stop', on: false });
+    return;
+  }
+  const absent = state.stopHolders.find((h) => !h.present);
+  const stoppedOutside = !state.stopHolders.length && state.status && state.status.stop === true;
+  const owner = absent ? absent.name : stoppedOutside ? OUTSIDE : null;
+  if (!owner) {
+    send({ type: 'stop', on: false }); // the console answers who may release it
+    return;
+  }
+  $('release-confirm-text').textContent = absent
+    ? `${owner} stopped the robot and has left. Release ${owner}'s stop only if the robot is safe to move.`
+    : `The robot was stopped ${OUTSIDE}. Release that stop only if the robot is safe to move.`;
+  $('release-confirm-yes').textContent = absent ? `Release ${owner}'s stop` : `Release the stop set ${OUTSIDE}`;
+  $('release-confirm-yes').dataset.owner = owner;
+  $('release-confirm').hidden = false;
+}
+
+function wireStopRelease() {
+  $('release').addEventListener('click', releaseStop);
+  $('release-confirm-yes').addEventListener('click', (event) => {
+    $('release-confirm').hidden = true;
+    send({ type: 'stop', on: false, confirm: event.target.dataset.owner });
+  });
+  $('release-confirm-no').addEventListener('click', () => { $('release-confirm').hidden = true; });
 }
 
 // --- 3D view ---------------------------------------------------------------------------------
@@ -505,7 +573,6 @@ function wire() {
   $('name').value = localStorage.getItem('a2p-name') || '';
   $('talk').addEventListener('click', toggleTalk);
   $('stop').addEventListener('click', () => send({ type: 'stop', on: true }));
-  $('release').addEventListener('click', () => send({ type: 'stop', on: false }));
   $('enable').addEventListener('change', (event) => {
     enableToggled = Date.now();
     send({ type: 'enable', on: event.target.checked });
@@ -525,6 +592,8 @@ function wire() {
 }
 
 wire();
+wireStopRelease();
+const styleLearning = createEnroll({ $, send, state, showError });
 connect();
 initView().catch((error) => {
   $('view-problem').hidden = false;

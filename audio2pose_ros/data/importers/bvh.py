@@ -40,10 +40,9 @@ from scipy.spatial.transform import Rotation
 from audio2pose_ros.data.dataset import Clip, ClipInfo
 from audio2pose_ros.data.importers import head_pose, upper_body
 from audio2pose_ros.data.importers.common import HEAD_JOINTS, ImporterError, assemble_clip
-from audio2pose_ros.files import open_bounded
+from audio2pose_ros.files import open_bounded, read_yaml_file
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import RobotDescription
-from audio2pose_ros.yaml_files import read_yaml_file
 
 MAPPINGS_FILE = "bvh_mappings.yaml"
 ROLES = (

@@ -190,8 +190,8 @@ def assemble_clip(
         mirror: exchange left and right (:func:`mirror_angles`; roll changes sign).
 
     Returns:
-        The clip and its extras ``{"head_roll_rad": (T,), "head_roll_mask": (T,) bool,
-        "body_moved_rad": (T,)}``; the last is how far each frame's arms were moved clear of the
+        The clip and its extras: ``head_roll_rad`` (T,), ``head_roll_mask`` (T,) bool and
+        ``body_moved_rad`` (T,), how far each frame's arms were moved clear of the
         robot's body (:func:`~.body_clearance.clear_of_body`, after seed 003's steps).
 
     Raises:

@@ -33,7 +33,7 @@ from functools import cache
 
 import numpy as np
 
-from audio2pose_ros.yaml_files import packaged_mapping
+from audio2pose_ros.files import packaged_mapping
 
 FACE_MODEL_FILE = "canonical_face_rigid.yaml"
 HAMPEL_HALF_WINDOW = 3  # frames each side of the median window (7 frames: 0.28 s at 25 fps)

@@ -1,10 +1,10 @@
 """A lecture recording -> arm and hip clips.
 
-The lecture the default model learns from ("Physicsworks" by Walter Lewin, CC BY 3.0; README
-"Data and credits"; ``LECTURE_VIDEO`` of ``make default-model``) shows one standing
-lecturer whose arms are visible in about 84 of its 203 s, between camera cuts. This module runs
-the video importer's trackers (:func:`~audio2pose_ros.data.importers.video.track_video`, MediaPipe
-Pose world landmarks) and its retargeting to Pepper's shoulder, elbow and hip joints
+The lecture the default model learns from ("Physicsworks" by Walter Lewin, CC BY 3.0; see
+doc/credits.md; ``LECTURE_VIDEO`` of ``make default-model``) shows one standing lecturer whose arms
+are visible in about 84 of its 203 s, between camera cuts. This module runs the video importer's
+trackers (:func:`~audio2pose_ros.data.importers.video.track_video`, MediaPipe Pose world landmarks)
+and its retargeting to Pepper's shoulder, elbow and hip joints
 (:func:`~audio2pose_ros.data.importers.video.body_angles`, geometry in
 :mod:`~audio2pose_ros.data.importers.upper_body`), resamples to the 100 Hz audio grid (seed 003
 section 4.2.3) and cuts the recording into clips at the stretches where the arms are seen:

@@ -27,6 +27,7 @@ from audio2pose_ros.data.importers.common import (
 )
 from audio2pose_ros.data.importers.media import read_audio, video_frames
 from audio2pose_ros.robot.description import RobotDescription
+from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 MIN_FACE_FRACTION = 0.5  # fewer frames with a face than this: the file is refused
 MIN_VISIBILITY = 0.5  # MediaPipe Pose visibility below which a keypoint counts as unseen
@@ -47,12 +48,15 @@ class VideoImportSettings:
         centre: the clip's median head orientation becomes the robot's neutral head pose (else
             angles are relative to facing the camera squarely).
         body: run MediaPipe Pose for the arms and hip (False: head only, arms/hip masked, faster).
+        max_seconds: import only the recording's first this many seconds (None: all of it);
+            enrolment bounds its time this way.
 
     """
 
     mirror: bool = False
     centre: bool = True
     body: bool = True
+    max_seconds: float | None = None
 
 
 @dataclass
@@ -75,8 +79,12 @@ def _face_points(landmarks: object, width: int, height: int, indices: np.ndarray
     return scale * np.array([[points[i].x, points[i].y, points[i].z] for i in indices])
 
 
-def track_video(path: Path, body: bool = True, face: bool = True) -> VideoTracks:
+def track_video(
+    path: Path, body: bool = True, face: bool = True, max_seconds: float | None = None
+) -> VideoTracks:
     """Run FaceMesh (unless ``face`` is False) and Pose (if ``body``) on every frame of a video.
+
+    With ``max_seconds``, frames after that time are not decoded.
 
     Raises:
         ImporterError: the file is not a readable video.
@@ -95,6 +103,8 @@ def track_video(path: Path, body: bool = True, face: bool = True) -> VideoTracks
     pose = mp.solutions.pose.Pose(static_image_mode=False, model_complexity=1) if body else None
     try:
         for time_s, rgb in video_frames(path):
+            if max_seconds is not None and time_s > max_seconds:
+                break
             times.append(time_s)
             faces = face_mesh.process(rgb).multi_face_landmarks if face_mesh is not None else None
             if faces:
@@ -214,7 +224,9 @@ def import_video(
     """
     settings = settings or VideoImportSettings()
     audio = read_audio(path)
-    tracks = track_video(path, body=settings.body)
+    if settings.max_seconds is not None:
+        audio = audio[: round(settings.max_seconds * SAMPLE_RATE_HZ)]
+    tracks = track_video(path, body=settings.body, max_seconds=settings.max_seconds)
     if on_tracks is not None:
         on_tracks(tracks)
     n_face, n_frames = int(tracks.face_found.sum()), tracks.times_s.size

@@ -12,7 +12,8 @@ Publications:
         republished every :data:`AUDIO_INFO_PERIOD_S` like audio_capture's.
     stop, enable (std_msgs/Bool, transient local): the page's stop button and enable switch, as
         motion_filter_node expects them.
-    /diagnostics: heartbeat, operators, floor, audio published and refused, latency.
+    /diagnostics: heartbeat, operators, floor, audio published and refused, wrong tokens, who
+        holds the stop, latency.
 Subscriptions:
     joint_angles (naoqi_bridge_msgs/JointAnglesWithSpeed) and commanded_joint_states
         (sensor_msgs/JointState): the commanded pose for the 3D view, and the commands that end
@@ -57,11 +58,13 @@ from audio2pose_ros.console.latency import VoiceLatency
 from audio2pose_ros.console.protocol import GAIN_GROUPS, AudioFrame
 from audio2pose_ros.console.server import ConsoleServer, ServerThread
 from audio2pose_ros.console.settings import ConsoleSettings
+from audio2pose_ros.motion.style import STYLE_FIELDS
 from audio2pose_ros.parameters import settings_from, specs_of
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STALE_AFTER_S, DiagnosedNode, run_node
+from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STALE_AFTER_S, DiagnosedNode, to_terminal
 from audio2pose_ros.ros.node_parameters import NodeParameters
+from audio2pose_ros.ros.spin import run_node
 
 PARAMETERS = specs_of(ConsoleSettings)
 AUDIO_INFO_PERIOD_S = 5.0  # audio_capture republishes its AudioInfo this often
@@ -113,6 +116,9 @@ class ConsoleNode(DiagnosedNode):
         self.enable_state: bool | None = None
         self.gains: dict[str, float] | None = None
         self.gains_problem = ""
+        # the filter's style before the console applied a learned one (restored on request)
+        self.own_style: dict[str, float] | None = None
+        self.style_problem = ""
         self.health: dict[str, tuple[int, str, float]] = {}
         self.chunks_published = 0
         self.talking = False
@@ -184,10 +190,12 @@ class ConsoleNode(DiagnosedNode):
                 f"the console's front end is not built ({share_path('web', 'dist')} has no "
                 "index.html): install Node.js and npm and run `make setup`; the page says so"
             )
-        self.get_logger().info(
+        address = (
             f"operator console: open {self.access.url(port)} and press Talk "
             f"({'token required' if self.access.token else 'no token: this machine only'})"
         )
+        self.get_logger().info(address)
+        to_terminal(f"[{self.get_name()}] {address}")  # also when the log goes to a file
 
     def _log(self, level: str, message: str) -> None:
         # rclpy refuses two severities from one line of code: one call each
@@ -252,6 +260,67 @@ class ConsoleNode(DiagnosedNode):
             for group, value in gains.items()
         ]
         self.set_client.call_async(request).add_done_callback(self._gains_set)
+
+    def set_style(self, settings: dict[str, float] | None) -> None:
+        """Apply learned style settings to the filter's live style parameters; None: restore.
+
+        Before the first learned style is applied, the filter's own style parameters are read
+        and kept, so that going back restores the style the graph was started with (a preset
+        of the launch file, say), not the identity.
+        """
+        if not (self.set_client.service_is_ready() and self.get_client.service_is_ready()):
+            with self._lock:
+                self.style_problem = (
+                    f"{self.settings.filter_node}'s parameter service is not available"
+                )
+            return
+        if settings is None:
+            with self._lock:
+                own, self.own_style = self.own_style, None
+            if own is not None:
+                self._set_style_parameters(own)
+            return
+        wanted = {name: float(settings[name]) for name in STYLE_FIELDS if name in settings}
+        with self._lock:
+            saved = self.own_style is not None
+        if saved:
+            self._set_style_parameters(wanted)
+            return
+        request = GetParameters.Request(names=list(STYLE_FIELDS))
+
+        def keep_then_set(future: Future[Any]) -> None:
+            values = [v.double_value for v in getattr(future.result(), "values", [])]
+            if len(values) == len(STYLE_FIELDS):
+                with self._lock:
+                    if self.own_style is None:
+                        self.own_style = dict(zip(STYLE_FIELDS, values, strict=True))
+                self._set_style_parameters(wanted)
+            else:
+                with self._lock:
+                    self.style_problem = "the filter's style parameters could not be read"
+
+        self.get_client.call_async(request).add_done_callback(keep_then_set)
+
+    def _set_style_parameters(self, values: dict[str, float]) -> None:
+        request = SetParameters.Request()
+        request.parameters = [
+            Parameter(
+                name=name,
+                value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value),
+            )
+            for name, value in values.items()
+        ]
+
+        def done(future: Future[Any]) -> None:
+            results = getattr(future.result(), "results", [])
+            refused = [r.reason for r in results if not r.successful]
+            with self._lock:
+                self.style_problem = "; ".join(refused)
+            if refused:
+                self.get_logger().warning(f"style refused by the filter: {'; '.join(refused)}")
+            self.refresh_gains()
+
+        self.set_client.call_async(request).add_done_callback(done)
 
     def _gains_set(self, future: Future[Any]) -> None:
         response = future.result()
@@ -361,6 +430,7 @@ class ConsoleNode(DiagnosedNode):
                 "enable": self.enable_state,
                 "gains": self.gains,
                 "gains_problem": self.gains_problem,
+                "style_problem": self.style_problem,
                 "health": health,
                 "latency": self.latency.summary(),
             }
@@ -386,7 +456,16 @@ class ConsoleNode(DiagnosedNode):
             "chunks_published": chunks,
             "refused_connections": self.server.refused_connections,
             "refused_frames": self.server.refused_frames,
+            **self._front_door_values(),
             **{f"latency_{key}": value for key, value in latency.items()},
+        }
+
+    def _front_door_values(self) -> dict[str, object]:
+        """Wrong tokens, and who holds the stop (an absent holder marked as such)."""
+        holders = [p.name if p.present else f"{p.name} (left)" for p in self.server.stops.presses]
+        return {
+            "wrong_tokens": self.server.tokens.wrong_tokens,
+            "stop_held_by": ", ".join(holders) or "nobody",
         }
 
 

@@ -31,7 +31,13 @@ Bad input never reaches the model and never stops the node:
   it is a new stream (its publisher restarted), counted as ``feature_stream_restarts`` and
   logged, not a loss;
 - at most :data:`MAX_FRAMES_PER_MESSAGE` frames of one message are used (10 s of audio; the
-  rest is dropped and counted), so one message cannot block the node for long;
+  rest is dropped and counted), computed :data:`SLICE_FRAMES` at a time with the node's
+  heartbeat free to run between slices, so one message cannot silence the node;
+- a message that waited more than :data:`MAX_FEATURES_WAIT_S` for the node (fed faster than it
+  computes, or on a machine slower than real time) is behind real time: its frames are dropped
+  unserved and counted (``frames_behind_real_time``, WARN ``behind real time``), so the node
+  catches up instead of computing stale poses, and keeps its heartbeat: a supervisor never
+  restarts it for being busy;
 - after normalisation, non-finite values are replaced by 0 (the training mean) and values
   beyond +-``feature_limit_sd`` are clamped; both are counted and reported as WARN. The frame
   is kept, so the output stays one pose per 10 ms frame.
@@ -45,6 +51,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.subscription import MessageInfo
 from std_msgs.msg import Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
@@ -61,14 +68,10 @@ from audio2pose_ros.parameters import (
 )
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.diagnosed_node import (
-    STREAM_QOS,
-    DiagnosedNode,
-    msg_to_features,
-    run_node,
-    trajectory_msg,
-)
+from audio2pose_ros.ros.diagnosed_node import STREAM_QOS, DiagnosedNode
+from audio2pose_ros.ros.messages import msg_to_features, trajectory_msg
 from audio2pose_ros.ros.node_parameters import NodeParameters
+from audio2pose_ros.ros.spin import run_node
 from audio2pose_ros.timebase import FrameSequence
 
 # 10 s of 10 ms frames (about 20 ms of work for the packaged model); audio_features_node sends
@@ -77,11 +80,17 @@ MAX_FRAMES_PER_MESSAGE = 1000
 # A features message of MAX_FRAMES_PER_MESSAGE frames of up to 256 float32 features and its layout;
 # anything larger is dropped before rclpy decodes it (its layout list could be any length).
 MAX_FEATURES_BYTES = 4096 + MAX_FRAMES_PER_MESSAGE * 256 * 4
+# A message's frames are computed this many at a time, the node's paced timers (its heartbeat)
+# running between slices: one message of MAX_FRAMES_PER_MESSAGE frames never silences the node.
+SLICE_FRAMES = 5
+# A features message that waited longer than this between its reception and the node serving
+# it is behind real time: its frames are dropped unserved and counted (frames_behind_real_time).
+MAX_FEATURES_WAIT_S = 0.5
 
 
 @dataclass(frozen=True)
 class InferenceNodeSettings:
-    """The inference node's parameters (one definition: descriptors, YAML, README, settings)."""
+    """The inference node's parameters (one definition: descriptors, YAML, docs, settings)."""
 
     model_path: str = field(
         default="",
@@ -171,6 +180,7 @@ class InferenceNode(DiagnosedNode):
         self.period_s = spec.step_s
         self.frames_in = 0
         self.frames_dropped = 0
+        self.frames_behind = 0  # frames of messages that waited over MAX_FEATURES_WAIT_S
         self.malformed_messages = 0  # features messages whose layout does not fit their data
         self.sequence = FrameSequence()  # frames lost between features messages
         self.values_replaced = 0
@@ -185,8 +195,9 @@ class InferenceNode(DiagnosedNode):
         )
         if subscribe:
             self.create_bounded_subscription(
-                Float32MultiArray, topics.FEATURES, self.on_features, STREAM_QOS, MAX_FEATURES_BYTES
-            )
+                Float32MultiArray, topics.FEATURES, self.on_features, STREAM_QOS,
+                MAX_FEATURES_BYTES, with_info=True,
+            )  # fmt: skip
         self.get_logger().info(
             f"streaming model {self.model.name} ({self.model.runtime} runtime) from "
             f"{model_path}, expects {self.expected_label} features"
@@ -196,8 +207,16 @@ class InferenceNode(DiagnosedNode):
         """Adopt a validated run-time change (only feature_limit_sd may change)."""
         self.settings = settings_with(self.settings, changes)
 
-    def on_features(self, msg: Float32MultiArray) -> None:
-        """Unpack a features message and run it (:meth:`on_frames`)."""
+    def on_features(self, msg: Float32MultiArray, info: MessageInfo | None = None) -> None:
+        """Unpack a features message and run it (:meth:`on_frames`), unless it is too late.
+
+        A message that waited more than :data:`MAX_FEATURES_WAIT_S` since the middleware
+        received it (``info``) came while the node was busy with the ones before: the node is
+        behind real time (fed faster than it computes, or on a machine too slow), and poses of
+        it would be stale. Its frames are dropped unserved, counted in
+        ``frames_behind_real_time`` and reported as WARN; dropping costs next to nothing, so
+        the node catches up with the stream instead of falling further behind.
+        """
         try:
             batch = msg_to_features(msg)
         except InputError as exc:  # msg_to_features refuses a layout that does not fit the data
@@ -222,6 +241,17 @@ class InferenceNode(DiagnosedNode):
                 "dropped on the way: the node fell behind and its subscription queue kept only "
                 f"the newest, or the network lost them); {self.sequence.lost} lost in all",
             )
+        waited_s = _waited_s(info)
+        if waited_s > MAX_FEATURES_WAIT_S:
+            self.frames_behind += len(batch.frames)
+            self.report_problem(
+                "behind real time",
+                DiagnosticStatus.WARN,
+                f"features dropped unserved: a message waited {waited_s:.2f} s for the node "
+                f"(more than {MAX_FEATURES_WAIT_S:g} s: fed faster than it computes); "
+                f"{self.frames_behind} frames in all",
+            )
+            return
         self.on_frames(batch.frames, batch.label)
 
     def on_frames(self, frames: np.ndarray, label: str) -> None:
@@ -263,8 +293,11 @@ class InferenceNode(DiagnosedNode):
                 f"feature values made safe: {replaced} non-finite replaced by the mean, "
                 f"{clamped} clamped to +-{self.settings.feature_limit_sd:g} sd",
             )
-        poses = self.predictor.run(safe)
-        angles = self.robot.denormalize(poses)
+        poses = []
+        for begin in range(0, len(safe), SLICE_FRAMES):  # the node's timers run between slices
+            poses.append(self.predictor.run(safe[begin : begin + SLICE_FRAMES]))
+            self.run_overdue_timers(time.monotonic())
+        angles = self.robot.denormalize(np.concatenate(poses))
         self.compute_s += time.perf_counter() - start
         self.frames_in += len(frames)
         stamp = self.get_clock().now()
@@ -283,6 +316,7 @@ class InferenceNode(DiagnosedNode):
             "runtime": self.model.runtime,
             "frames_in": self.frames_in,
             "frames_dropped": self.frames_dropped,
+            "frames_behind_real_time": self.frames_behind,
             "malformed_messages_dropped": self.malformed_messages,
             "frames_lost": self.sequence.lost,
             "feature_stream_restarts": self.sequence.restarts,
@@ -291,6 +325,14 @@ class InferenceNode(DiagnosedNode):
             "feature_limit_sd": self.settings.feature_limit_sd,
             "mean_compute_us_per_frame": f"{mean_us:.1f}",
         }
+
+
+def _waited_s(info: MessageInfo | None) -> float:
+    """How long a message waited since the middleware received it (0 when unknown)."""
+    if info is None:
+        return 0.0
+    received_ns = info.get("received_timestamp") or info.get("source_timestamp") or 0
+    return time.time() - received_ns * 1e-9 if received_ns else 0.0
 
 
 def main(args: list[str] | None = None) -> None:

@@ -19,7 +19,8 @@ Publications:
         robot_state_publisher / RViz in simulation (never ``joint_states``: on a robot that topic
         carries the driver's measured states).
     /diagnostics (diagnostic_msgs/DiagnosticArray): heartbeat, counters, problems.
-Parameters: the fields of MotionFilterSettings, LimitSettings and MotionFilterNodeSettings
+Parameters: the fields of MotionFilterSettings, StyleSettings (the style: per part a size and a
+    tempo, the arms' rest and height), LimitSettings and MotionFilterNodeSettings
     (``ros2 param describe`` shows each one's description and range).
 
 Safety: every command passes the input gate first and the joint limiter last; the node
@@ -28,6 +29,19 @@ an out-of-range reading is clamped and reported, a NaN joint is taken from the s
 neutral), or, when no measured pose arrives within ``startup_timeout_s`` and nothing publishes
 one (while a publisher exists it waits up to ``MEASURED_WAIT_S``), the pose it last commanded,
 saved in ``state_file`` (refused when outside the joint ranges), or else neutral.
+
+A measured pose is believed only when it can be (:mod:`audio2pose_ros.motion.measured`): a
+message listing a joint twice, or stamped too old or ahead, is refused (WARN); two publishers
+whose poses disagree are an ERROR and neither is used. While that lasts, the start waits with an
+ERROR, commanding nothing (neither the saved pose nor neutral stands in for a pose that is
+published but cannot be believed), and it starts from the robot's pose once the conflict has
+been over for ``SOURCE_WINDOW_S``. With several publishers on the topic, the start first
+listens ``MEASURED_LISTEN_S`` to the pose's publisher, so a second source shows in time.
+
+Parameter requests: the node's services (rclpy's parameter services) are served at most
+``REQUESTS_PER_TICK`` per tick (:class:`~audio2pose_ros.ros.request_budget.RequestBudget`); a
+request is validated at once and its settings reach the filter at the next tick, once per tick
+however many came, so a storm of set_parameters requests delays answers, never commands.
 
 Stop and disable: a stop stays in force across restarts until a ``stop: false`` *published
 after the stop* arrives, as does ``enable: false`` until a later ``enable: true``. "After" is
@@ -78,6 +92,7 @@ from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.body_guard import GuardStatus
 from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
+from audio2pose_ros.motion.measured import SOURCE_WINDOW_S, MeasuredPoseCheck
 from audio2pose_ros.motion.sources import SingleSource
 from audio2pose_ros.motion.state_file import (
     FilterMemory,
@@ -87,6 +102,7 @@ from audio2pose_ros.motion.state_file import (
     load_memory,
     save_memory,
 )
+from audio2pose_ros.motion.style import StyleSettings
 from audio2pose_ros.motion.timing import StampCheck
 from audio2pose_ros.motion.tracking import TrackingWatch
 from audio2pose_ros.parameters import (
@@ -98,20 +114,18 @@ from audio2pose_ros.parameters import (
     validate_settings,
 )
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.diagnosed_node import (
-    LATCHED_QOS,
-    STREAM_QOS,
-    DiagnosedNode,
-    run_node,
-    trajectory_msg,
-    trajectory_positions,
-)
+from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, DiagnosedNode
+from audio2pose_ros.ros.messages import trajectory_msg, trajectory_positions
 from audio2pose_ros.ros.node_parameters import NodeParameters
+from audio2pose_ros.ros.request_budget import RequestBudget
+from audio2pose_ros.ros.spin import run_node
 
 MIN_TICK_SPACING = 0.5  # of a period: an arriving pose is commanded at once if the last tick
 # is at least this long ago (so ticks are never closer than half a period: no bursts)
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
 MEASURED_WAIT_S = 3.0  # while the measured topic has a publisher, wait this long for its pose
+MEASURED_LISTEN_S = 1.0  # with several publishers on it, hear a pose's source this long first
+REQUESTS_PER_TICK = 1  # service requests (set_parameters, ...) served per tick at most
 MIN_SAVE_SPACING_S = 0.1  # the state file is written at most this often (flash wear)
 SAVED_POSE_RESOLUTION_RAD = 1e-4  # a pose that moved less than this is not saved again
 
@@ -236,7 +250,7 @@ class MotionFilterNodeSettings:
         validate_settings(self)
 
 
-SETTINGS_CLASSES = (MotionFilterSettings, LimitSettings, MotionFilterNodeSettings)
+SETTINGS_CLASSES = (MotionFilterSettings, StyleSettings, LimitSettings, MotionFilterNodeSettings)
 # A JointState of a whole humanoid (names, positions, velocities, efforts) is a few KiB.
 MAX_JOINT_STATE_BYTES = 65536
 
@@ -266,6 +280,12 @@ def _published_s(info: MessageInfo) -> float:
     return source_ns * 1e-9 if source_ns else time.time()
 
 
+def _publisher_of(info: MessageInfo) -> bytes | str:
+    """The identity of a message's publisher (its DDS gid)."""
+    gid = info.get("publisher_gid") or {}
+    return bytes(gid.get("data", b"")) if isinstance(gid, dict) else repr(gid)
+
+
 class MotionFilterNode(DiagnosedNode):
     """Gate, pace, smooth and limit poses; publish them in three message types."""
 
@@ -281,6 +301,10 @@ class MotionFilterNode(DiagnosedNode):
             ConfigurationError: a parameter or the robot description is refused.
         """
         super().__init__("motion_filter_node")
+        # settings validated at a set_parameters request, for the filter's next tick
+        self.pending_settings: tuple[MotionFilterSettings, LimitSettings, StyleSettings] | None = (
+            None
+        )
         self.parameters = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
         values = self.parameters.values
         self.settings: MotionFilterNodeSettings = settings_from(MotionFilterNodeSettings, values)
@@ -296,7 +320,12 @@ class MotionFilterNode(DiagnosedNode):
             self.robot = load_robot(self.settings.robot_description or None)
         except (OSError, ValueError) as exc:
             raise ConfigurationError(f"parameter robot_description: {exc}") from None
-        self.filter = MotionFilter(self.robot, settings, settings_from(LimitSettings, values))
+        self.filter = MotionFilter(
+            self.robot,
+            settings,
+            settings_from(LimitSettings, values),
+            style=settings_from(StyleSettings, values),
+        )
         self.stamps = StampCheck(self.settings.max_stamp_future_s, self.settings.max_stamp_age_s)
         self.input_messages = 0
         self.dropped_messages = 0
@@ -308,6 +337,8 @@ class MotionFilterNode(DiagnosedNode):
         self.created_s = time.monotonic()
         self.measured_rad: np.ndarray | None = None
         self.measured_partial = 0  # joint states without every joint of the robot: not used
+        self.measured_check = MeasuredPoseCheck(self.robot.names, self.robot.max_velocity_rad_s)
+        self.measured_conflicts = 0  # poses ignored because two sources disagreed
         self.tracking = TrackingWatch()
 
         self.state_path = (
@@ -372,12 +403,16 @@ class MotionFilterNode(DiagnosedNode):
                 self.on_measured,
                 qos_profile_sensor_data,
                 MAX_JOINT_STATE_BYTES,
+                with_info=True,  # the publisher's gid (sources) and source stamp (unstamped)
             )
         except (InvalidTopicNameException, ValueError):
             raise ConfigurationError(
                 f"parameter measured_joint_states_topic: value "
                 f"{self.settings.measured_joint_states_topic!r} is not a valid topic name"
             ) from None
+        # rclpy's parameter services (all the node's services): a few requests per tick at most
+        self.request_budget = RequestBudget(REQUESTS_PER_TICK)
+        self.request_budget.adopt_services(self)
         self.period_ns = round(self.filter.period_s * 1e9)
         self.tick_timer = self.create_timer(self.filter.period_s, guarded(self.on_timer))
         self.startup_timer = self.create_timer(
@@ -417,19 +452,42 @@ class MotionFilterNode(DiagnosedNode):
     # --- parameters ---------------------------------------------------------------------------
 
     def apply_parameters(self, changes: Mapping[str, ParameterValue]) -> None:
-        """Validate a run-time change as a whole and apply it from the next tick.
+        """Validate a run-time change as a whole now; the filter takes it at the next tick.
+
+        A request costs a validation (no filter, limiter or body model is built here); the
+        filter's settings change once per tick, however many requests came since the last one
+        (the newest wins), so a storm of set_parameters requests never holds up a command.
 
         Raises:
             ConfigurationError: the new combination is refused (nothing changes then).
         """
         node_settings = settings_with(self.settings, changes)
-        self.filter.update_settings(
-            settings_with(self.filter.settings, changes),
-            settings_with(self.filter.limiter.settings, changes),
+        filter_settings, limit_settings, style_settings = self.pending_settings or (
+            self.filter.settings,
+            self.filter.limiter.settings,
+            self.filter.style.settings,
         )
+        filter_settings = settings_with(filter_settings, changes)
+        limit_settings = settings_with(limit_settings, changes)
+        style_settings = settings_with(style_settings, changes)
+        self.filter.check_settings(filter_settings, limit_settings)
+        if (filter_settings, limit_settings, style_settings) != (
+            self.filter.settings,
+            self.filter.limiter.settings,
+            self.filter.style.settings,
+        ):
+            self.pending_settings = (filter_settings, limit_settings, style_settings)
+        else:
+            self.pending_settings = None
         self.settings = node_settings
         self.stamps.max_future_s = node_settings.max_stamp_future_s
         self.stamps.max_age_s = node_settings.max_stamp_age_s
+
+    def _take_pending_settings(self) -> None:
+        """Hand the filter the settings requested since the last tick (once per tick)."""
+        if self.pending_settings is not None:
+            pending, self.pending_settings = self.pending_settings, None
+            self.filter.update_settings(*pending)
 
     # --- start-up -----------------------------------------------------------------------------
 
@@ -502,24 +560,76 @@ class MotionFilterNode(DiagnosedNode):
                 )
         return np.clip(filled, lower, upper)
 
-    def on_measured(self, msg: JointState) -> None:
-        """The robot's measured joint states: the start pose, then checked against the commands."""
-        if len(msg.name) != len(msg.position):
-            raise InputError(
-                f"measured joint states: {len(msg.name)} names, {len(msg.position)} positions"
-            )
-        index = {name: i for i, name in enumerate(msg.name)}
-        if any(name not in index for name in self.robot.names):
+    def on_measured(self, msg: JointState, info: MessageInfo | None = None) -> None:
+        """The robot's measured joint states: the start pose, then checked against the commands.
+
+        Only a believable reading counts (:mod:`audio2pose_ros.motion.measured`): a joint listed
+        twice, or a stamp too old or ahead, is refused and reported (WARN); two publishers whose
+        poses disagree are an ERROR, and no pose of either is used while they do. With more
+        than one publisher on the topic, the start waits until the pose's publisher has been
+        heard for ``MEASURED_LISTEN_S``, so a second source shows before the filter starts.
+        """
+        arrival_s = time.monotonic()
+        source: bytes | str = b""  # called directly (tests): no publisher to tell apart
+        published_ns = 0
+        if info is not None:
+            source, published_ns = _publisher_of(info), info.get("source_timestamp") or 0
+        reading = self.measured_check.read(
+            msg.name,
+            msg.position,
+            _stamp_s(msg.header.stamp),
+            published_ns * 1e-9 if published_ns else None,
+            self.now_s(),
+            source,
+            arrival_s,
+        )
+        if reading.kind == "partial":
             self.measured_partial += 1  # another robot's, or a partial message: not a pose
             return
-        pose = np.array([msg.position[index[name]] for name in self.robot.names], dtype=float)
+        if reading.pose_rad is None:
+            self.report_problem("measured_refused", DiagnosticStatus.WARN, reading.reason)
+            if not self.started:
+                self._hold_start(reading.reason)
+            return
+        pose = reading.pose_rad
         if not np.isfinite(pose).any():
             self.report_problem(
                 "measured_invalid", DiagnosticStatus.WARN, "measured joint states all non-finite"
             )
             return
+        topic = self.settings.measured_joint_states_topic
+        if self.measured_check.conflict(arrival_s):
+            self.measured_conflicts += 1
+            held = (
+                "measured poses ignored until one stops"
+                if self.started
+                else "cannot tell which is the robot: commanding nothing until one stops"
+            )
+            self.report_problem(
+                "measured_sources",
+                DiagnosticStatus.ERROR,
+                f"{self.measured_check.live_sources(arrival_s)} publishers send the robot's "
+                f"pose on {topic} and disagree by "
+                f"{self.measured_check.disagreement_rad(arrival_s):.2f} rad (another robot's "
+                f"driver, a replay, a simulator?): {held}",
+                hold_s=SOURCE_WINDOW_S,
+            )
+            return
+        if not self.started:
+            publishers = self.count_publishers(topic)
+            heard_s = self.measured_check.heard_for_s(source, arrival_s)
+            if publishers > 1 and heard_s < MEASURED_LISTEN_S:
+                self.report_problem(
+                    "start_pose",
+                    DiagnosticStatus.WARN,
+                    f"{publishers} publishers on {topic}: listening {MEASURED_LISTEN_S:g} s for "
+                    "a second source of the robot's pose before starting, commanding nothing",
+                    hold_s=SOURCE_WINDOW_S,
+                )
+                return
         self.measured_rad = pose
         if not self.started:
+            self.clear_problem("start_pose")
             self._start(self._measured_start_pose(pose), "measured pose")
             self.get_logger().info("starting from the robot's measured pose")
             return
@@ -548,7 +658,13 @@ class MotionFilterNode(DiagnosedNode):
             self.startup_timer.cancel()
             return
         topic = self.settings.measured_joint_states_topic
-        waited_s = time.monotonic() - self.created_s
+        now = time.monotonic()
+        doubt = self._measured_doubt(now)
+        if doubt:  # something says where the robot is, but it cannot be believed: no guess
+            self._hold_start(doubt)
+            self.startup_timer.timer_period_ns = max(self.startup_timer.timer_period_ns, 10**8)
+            return
+        waited_s = now - self.created_s
         reported_before = self.memory is not None and self.memory.measured
         if (self.count_publishers(topic) or reported_before) and waited_s < MEASURED_WAIT_S:
             self.report_problem(
@@ -580,6 +696,30 @@ class MotionFilterNode(DiagnosedNode):
                 "the first commands move the robot there at the velocity limit",
                 hold_s=10.0,
             )
+
+    def _hold_start(self, doubt: str) -> None:
+        """ERROR: the start waits, commanding nothing, because of ``doubt``."""
+        self.report_problem(
+            "start_pose",
+            DiagnosticStatus.ERROR,
+            f"cannot tell where the robot is: {doubt}; commanding nothing until a believable "
+            f"pose arrives on {self.settings.measured_joint_states_topic}",
+            hold_s=SOURCE_WINDOW_S,
+        )
+
+    def _measured_doubt(self, now_s: float) -> str:
+        """Why the measured joint states cannot be believed now ('' when nothing says so).
+
+        Measured messages refused within ``SOURCE_WINDOW_S`` (a joint listed twice, an old or a
+        future stamp), or live sources that disagree: the robot's pose is being published but
+        cannot be known, so neither the saved pose nor neutral may stand in for it.
+        """
+        check = self.measured_check
+        if check.conflict(now_s):
+            return f"{check.live_sources(now_s)} publishers send poses that disagree"
+        if check.refusing(now_s):
+            return check.last_reason
+        return ""
 
     def save_state(self) -> None:
         """Rewrite the state file when the pose, the stop or enable changed (atomically).
@@ -661,10 +801,8 @@ class MotionFilterNode(DiagnosedNode):
 
     def on_raw(self, msg: JointTrajectory, info: MessageInfo) -> None:
         """Check and queue the poses of one raw trajectory message (of the one source in use)."""
-        gid = info.get("publisher_gid") or {}
-        source = bytes(gid.get("data", b"")) if isinstance(gid, dict) else repr(gid)
         now = time.monotonic()
-        if not self.sources.admit(source, now):
+        if not self.sources.admit(_publisher_of(info), now):
             self.dropped_messages += 1
             self.report_problem(
                 "raw_second_source",
@@ -833,11 +971,16 @@ class MotionFilterNode(DiagnosedNode):
         """The fallback clock: tick, and return to the nominal period."""
         if self.tick_timer.timer_period_ns != self.period_ns:
             self.tick_timer.timer_period_ns = self.period_ns
+        self.request_budget.renew()
         if self.started:
             self.on_tick()
+        else:
+            self._take_pending_settings()
 
     def on_tick(self) -> None:
         """Advance the filter by one period and publish the outputs due at this tick."""
+        self._take_pending_settings()
+        self.request_budget.renew()
         self.last_tick_s = time.monotonic()
         self.tick_stamp = self.get_clock().now()
         status = self.filter.status
@@ -957,6 +1100,8 @@ class MotionFilterNode(DiagnosedNode):
             "acceleration_limit_hits": counts.acceleration,
             "gaps": status.gaps,
             "filter_faults": status.faults,
+            "service_requests_served": self.request_budget.served_total,
+            "most_service_requests_in_a_tick": self.request_budget.most_in_a_tick,
             "body_guard_interventions": self.filter.body_guard.status.interventions,
             "body_guard_lead_out_steps": self.filter.body_guard.status.lead_out_steps,
             "body_guard_holds": self.filter.body_guard.status.holds,
@@ -972,6 +1117,13 @@ class MotionFilterNode(DiagnosedNode):
             ),
         }
         values["measured_partial_messages"] = self.measured_partial
+        check = self.measured_check
+        values["measured_refused_duplicate_names"] = check.counts.duplicate
+        values["measured_refused_old_stamps"] = check.counts.old
+        values["measured_refused_future_stamps"] = check.counts.future
+        values["measured_unstamped"] = check.counts.unstamped
+        values["measured_sources"] = check.live_sources(now)
+        values["measured_ignored_sources_disagree"] = self.measured_conflicts
         if self.measured_rad is not None:
             deviation = np.abs(self.measured_rad - self.filter.position_rad).max()
             values["measured_deviation_rad"] = f"{deviation:.3f}"

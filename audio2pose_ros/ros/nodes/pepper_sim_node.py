@@ -12,8 +12,12 @@ Publications:
         taken and refused and the self-collisions executed (steps with an arm inside the body).
 
 The simulation itself is :class:`~audio2pose_ros.robot.simulated_pepper.SimulatedPepper`; this
-node advances it with the wall clock. A malformed command (unknown joints, NaN, a speed outside
-(0, 1], relative angles) is refused with a WARN; nothing a command holds can stop the node.
+node advances it with the wall clock. Commands coalesce: the newest received before a
+simulation step (10 ms) is followed, and those it replaced unserved are counted
+(``messages_superseded``), so a flood of commands costs no work per message and delays neither
+the simulation nor its joint_states (paced timers, see DiagnosedNode). A malformed command
+(unknown joints, NaN, a speed outside (0, 1], relative angles) is refused with a WARN; nothing a
+command holds can stop the node.
 """
 
 from __future__ import annotations
@@ -30,8 +34,9 @@ from audio2pose_ros import topics
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.parameters import param, settings_from, specs_of, validate_settings
 from audio2pose_ros.robot.simulated_pepper import SimulatedPepper
-from audio2pose_ros.ros.diagnosed_node import DiagnosedNode, run_node
+from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
 from audio2pose_ros.ros.node_parameters import NodeParameters
+from audio2pose_ros.ros.spin import run_node
 
 COMMAND_INPUTS = ("joint_angles", "joint_trajectory")
 STEP_PERIOD_S = 0.01  # the simulation follows the wall clock in steps of about this (s)
@@ -72,20 +77,23 @@ class PepperSimNode(DiagnosedNode):
         self.parameters = NodeParameters(self, PARAMETERS)
         self.settings = settings_from(PepperSimSettings, self.parameters.values)
         self.sim = SimulatedPepper()
+        # Commands coalesce: the newest one received before a step is followed, those it
+        # replaced are counted (messages_superseded); a flood costs the node nothing per message.
         if self.settings.command_input == "joint_angles":
-            self.create_bounded_subscription(
+            self.commands = self.create_latest_subscription(
                 JointAnglesWithSpeed, topics.JOINT_ANGLES, self.on_joint_angles, 10,
                 MAX_COMMAND_BYTES,
             )  # fmt: skip
         else:
-            self.create_bounded_subscription(
+            self.commands = self.create_latest_subscription(
                 JointTrajectory, topics.JOINT_TRAJECTORY, self.on_trajectory, 10,
                 MAX_COMMAND_BYTES,
             )  # fmt: skip
         self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, 10)
         self.last_step_s = time.monotonic()
-        self.create_timer(STEP_PERIOD_S, self.guarded(self.on_step))
-        self.create_timer(STATE_PERIOD_S, self.guarded(self.publish_state))
+        # paced: no backlog of commands delays the simulation or its joint_states
+        self.create_paced_timer(STEP_PERIOD_S, self.on_step)
+        self.create_paced_timer(STATE_PERIOD_S, self.publish_state)
 
     def refuse(self, kind: str, exc: InputError) -> None:
         """WARN about a refused command; the robot keeps its previous targets."""
@@ -116,7 +124,11 @@ class PepperSimNode(DiagnosedNode):
             self.refuse("joint_trajectory", exc)
 
     def on_step(self) -> None:
-        """Advance the simulation to the wall clock (at most MAX_CATCH_UP_S at once)."""
+        """Take the newest command; advance the simulation to the wall clock.
+
+        At most MAX_CATCH_UP_S is made up at once.
+        """
+        self.commands.serve()
         now = time.monotonic()
         elapsed = min(now - self.last_step_s, MAX_CATCH_UP_S)
         self.last_step_s = now

@@ -8,7 +8,7 @@ instant of the process:
   process that started it (``ros2 launch``, ``audio2pose run``) ends in any way, even SIGKILL, so
   nodes are never left running as orphans; a process whose parent is already gone exits at once;
 - SIGTERM and Ctrl-C (SIGINT) end it quietly at any point of start-up: they are blocked from
-  here until the nodes are built (:func:`~audio2pose_ros.ros.diagnosed_node.run_nodes`), then
+  here until the nodes are built (:func:`~audio2pose_ros.ros.spin.run_nodes`), then
   delivered to the main thread only, where rclpy's handlers shut the nodes down. Threads started
   meanwhile (numpy's, the middleware's) inherit the block, so a signal never runs rclpy's
   handler on another thread while the main one is creating nodes in the context that handler

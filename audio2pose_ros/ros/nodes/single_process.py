@@ -64,10 +64,10 @@ def main(args: list[str] | None = None) -> None:
     """Build the three nodes in one context, connect them, spin them in one executor."""
     from functools import partial
 
-    from audio2pose_ros.ros.diagnosed_node import run_nodes
     from audio2pose_ros.ros.nodes.audio_features_node import AudioFeaturesNode
     from audio2pose_ros.ros.nodes.inference_node import InferenceNode
     from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
+    from audio2pose_ros.ros.spin import run_nodes
 
     run_nodes(
         [

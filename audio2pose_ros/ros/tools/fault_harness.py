@@ -3,7 +3,7 @@
 :class:`CampaignProbe` streams the benign pose, echoes the commands as the measured joint states
 and records what the robot receives; :class:`Campaign` settles the graph, runs one fault and
 reads the :class:`Outcome` (worst deviation, limits, steps, gaps) from the commands. The cases
-are in :mod:`~audio2pose_ros.ros.fault_campaign`.
+are in :mod:`~audio2pose_ros.ros.tools.fault_campaign`.
 """
 
 from __future__ import annotations

@@ -1,14 +1,14 @@
 """``audio2pose bench --console``: the operator's voice through the console to ``/joint_angles``.
 
 The graph and ``console_node`` run as processes (as ``audio2pose console`` starts them), with the
-graph benchmark's parameters (:mod:`audio2pose_ros.ros.graph_bench`: smoothing off, limits wide
-open, so a command equals the raw pose it carries and identifies it). This process plays the
-page: a WebSocket client that says hello, takes the floor and sends real speech in the page's
-20 ms chunks (16 kHz S16LE) in real time, each stamped when it is sent, as the page stamps a
-chunk when its last sample is captured. A chunk completes two feature frames, hence one
-``raw_trajectory`` message of two poses (:func:`pair_chunks` finds which); its latency runs from
-its stamp to the arrival of the first ``/joint_angles`` command carrying one of them
-(``/joint_angles`` runs at 50 Hz, the poses at 100 Hz: every other pose is commanded).
+graph benchmark's parameters (:mod:`audio2pose_ros.ros.tools.graph_bench`: smoothing off, limits
+wide open, so a command equals the raw pose it carries and identifies it). This process plays the
+page: a WebSocket client that says hello, takes the floor and sends real speech in the page's 20 ms
+chunks (16 kHz S16LE) in real time, each stamped when it is sent, as the page stamps a chunk when
+its last sample is captured. A chunk completes two feature frames, hence one ``raw_trajectory``
+message of two poses (:func:`pair_chunks` finds which); its latency runs from its stamp to the
+arrival of the first ``/joint_angles`` command carrying one of them (``/joint_angles`` runs at 50
+Hz, the poses at 100 Hz: every other pose is commanded).
 
 Reported: that latency's p50 / p99, the console's own live estimate of it (what the page shows,
 from ``/diagnostics``: :mod:`audio2pose_ros.console.latency`), how far the command lags the
@@ -46,14 +46,14 @@ from audio2pose_ros.console.protocol import audio_frame
 from audio2pose_ros.ros.console_runner import CONSOLE_NODE, console_command
 from audio2pose_ros.ros.diagnosed_node import status_name
 from audio2pose_ros.ros.graph import GraphTimeoutError, node_graph
-from audio2pose_ros.ros.graph_bench import (
+from audio2pose_ros.ros.player import rclpy_session, spin_until
+from audio2pose_ros.ros.tools.graph_bench import (
     MATCH_TOLERANCE_RAD,
     STEADY_SKIP_S,
     _bench_params,
     latency_stats,
 )
-from audio2pose_ros.ros.player import rclpy_session, spin_until
-from audio2pose_ros.ros.process_stats import cpu_s, rss_mb
+from audio2pose_ros.ros.tools.process_stats import cpu_s, rss_mb
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 __all__ = ["ConsoleFigures", "console_report", "measure_console"]

@@ -46,6 +46,7 @@ from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.checkpoints.format import feature_spec_of
 from audio2pose_ros.data.bag import AUDIO_DATA_TYPE, AUDIO_INFO_TYPE, BagMessage
+from audio2pose_ros.files import packaged_mapping
 from audio2pose_ros.resources import bundled_speech_paths, default_checkpoint_path
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import load_robot
@@ -57,10 +58,9 @@ from audio2pose_ros.ros.player import (
     spin_until,
     warm_up,
 )
-from audio2pose_ros.ros.process_stats import cpu_s, rss_mb
-from audio2pose_ros.ros.relay_floor import ROLES as RELAY_ROLES
+from audio2pose_ros.ros.tools.process_stats import cpu_s, rss_mb
+from audio2pose_ros.ros.tools.relay_floor import ROLES as RELAY_ROLES
 from audio2pose_ros.timebase import FRAME_PERIOD_S, SAMPLE_RATE_HZ, SAMPLES_PER_FRAME
-from audio2pose_ros.yaml_files import packaged_mapping
 
 CHUNK_SAMPLES = SAMPLES_PER_FRAME  # one 10 ms frame step per chunk (seed 003 section 4.2.2)
 MATCH_TOLERANCE_RAD = 1e-5  # float32 /joint_angles against float64 raw poses
@@ -78,7 +78,7 @@ TARGETS = (
 
 @dataclass
 class FloorFigures:
-    """The bare rclpy relays of :mod:`audio2pose_ros.ros.relay_floor` (ms per frame, MB)."""
+    """The bare rclpy relays of :mod:`audio2pose_ros.ros.tools.relay_floor` (ms per frame, MB)."""
 
     steady_cpu_ms_per_frame: dict[str, float]
     rss_mb: dict[str, float]
@@ -298,7 +298,7 @@ def _play_measured(
 
 
 def measure_floor(speech_16k: np.ndarray, duration_s: float = 60.0) -> FloorFigures:
-    """The bare rclpy floor (:mod:`audio2pose_ros.ros.relay_floor`) on the graph's input.
+    """The bare rclpy floor (:mod:`audio2pose_ros.ros.tools.relay_floor`) on the graph's input.
 
     Three relay processes with the graph's topology, QoS and executors play the same chunks as
     :func:`measure_graph`, measured the same way: steady CPU per frame and resident memory.
@@ -307,7 +307,7 @@ def measure_floor(speech_16k: np.ndarray, duration_s: float = 60.0) -> FloorFigu
     audio_topic = topics.absolute(topics.AUDIO)
     n_features = feature_spec_of(default_checkpoint_path()).dim
     n_joints = load_robot().n_joints
-    module = [sys.executable, "-m", "audio2pose_ros.ros.relay_floor"]
+    module = [sys.executable, "-m", "audio2pose_ros.ros.tools.relay_floor"]
     with tempfile.TemporaryDirectory() as tmp, rclpy_session(), ExitStack() as stack:
         player = _Player()
         stack.callback(player.destroy_node)

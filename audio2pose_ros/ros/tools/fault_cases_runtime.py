@@ -1,6 +1,6 @@
 """Fault cases of the runtime: tracks, start poses, state files, stops, liveness, names, floods.
 
-Part of ``audio2pose faults`` (:func:`~audio2pose_ros.ros.fault_campaign.cases` appends
+Part of ``audio2pose faults`` (:func:`~audio2pose_ros.ros.tools.fault_campaign.cases` appends
 :func:`runtime_cases`). Each case attacks the live graph over DDS as in the rest of the
 campaign and reads the outcome from what the robot receives, the nodes' /diagnostics, the
 supervisor and the state file:
@@ -14,7 +14,7 @@ supervisor and the state file:
 - older panels' latched ``stop: false`` (and a newer latched ``stop: true``) across a restart;
 - a stop that cannot be saved;
 - a SIGSTOPped filter impersonated on /diagnostics (:func:`impersonated_sigstop_case`, which
-  takes the place of the plain SIGSTOP case);
+  extends :func:`sigstop_case` and takes the place of the plain SIGSTOP case);
 - floods on stop, head_offset, joint_states, raw_trajectory and parameter sets;
 - SIGKILL of inference_node, twice: the time to its next raw pose.
 """
@@ -41,7 +41,8 @@ from audio2pose_ros.motion.body_guard import TOLERANCE_M as BODY_TOLERANCE_M
 from audio2pose_ros.motion.filter import MotionFilterSettings
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, status_name
-from audio2pose_ros.ros.fault_harness import (
+from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.tools.fault_harness import (
     MAX_DEVIATION_RAD,
     STREAM_PERIOD_S,
     Campaign,
@@ -49,7 +50,6 @@ from audio2pose_ros.ros.fault_harness import (
     Commands,
     Outcome,
 )
-from audio2pose_ros.ros.graph import executable_command
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 FILTER = "motion_filter_node"
@@ -305,9 +305,44 @@ def _unsaved_stop(c: Campaign) -> Outcome:
 # --- liveness ---------------------------------------------------------------------------------
 
 
-def _impersonated_sigstop(c: Campaign) -> Outcome:
-    from audio2pose_ros.ros.fault_campaign import sigstop_case  # the case it extends
+def sigstop_case(c: Campaign) -> Outcome:
+    """SIGSTOP the filter: it must be reported STALE before it is killed, then replaced.
 
+    On an idle machine STALE shows about 1.2 s after the stop (``STALE_AFTER_S`` after the last
+    heartbeat, read every 0.1 s, reported every 0.2 s). The case asks only that it shows before
+    the kill: a busy CI machine once delayed this process's report to 3.4 s, and the order is
+    what an operator relies on (a warning, then a restart).
+    """
+    node = "motion_filter_node"
+    old, silences = c.pid(node), c.supervisor.silences[node]
+    stale_before = c.probe.stale_reports.get(node, 0)
+    start = time.monotonic()
+    os.kill(old, signal.SIGSTOP)
+    deadline = start + 10.0
+    killed_s = noticed_s = math.inf
+    while time.monotonic() < deadline and killed_s == math.inf:
+        c.probe.spin_for(0.02)
+        now = time.monotonic() - start
+        if noticed_s == math.inf and c.probe.stale_reports.get(node, 0) != stale_before:
+            noticed_s = now
+        if c.supervisor.silences[node] != silences:
+            killed_s = now
+    if killed_s == math.inf:
+        os.kill(old, signal.SIGCONT)
+        return Outcome(f"STALE after {noticed_s:.1f} s, not restarted within 10 s", False)
+    while time.monotonic() < deadline + 10.0 and c.pid(node) == old:
+        c.probe.spin_for(0.05)
+    restarted_s = time.monotonic() - start
+    resumed = c.probe.settle(c.pose_a, timeout_s=15.0)
+    ok = noticed_s < killed_s and c.pid(node) != old and resumed
+    did = (
+        f"STALE on /diagnostics after {noticed_s:.1f} s, killed after {killed_s:.1f} s and "
+        f"restarted after {restarted_s:.1f} s; tracking again: {resumed}"
+    )
+    return Outcome(did, ok)
+
+
+def _impersonated_sigstop(c: Campaign) -> Outcome:
     impostor = c.probe.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
 
     def publish() -> None:

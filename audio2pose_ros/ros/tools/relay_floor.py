@@ -16,10 +16,12 @@ nodes add to rclpy's own cost:
 
 Each relay also publishes a heartbeat on ``/diagnostics`` every
 :data:`~audio2pose_ros.ros.diagnosed_node.HEARTBEAT_PERIOD_S` and spins in the executor its node
-spins in (:func:`~audio2pose_ros.ros.diagnosed_node.create_executor`: the filter in the
-single-threaded one), with the nodes' QoS. Nothing else is imported: no numpy, no model, no body.
+spins in (:func:`~audio2pose_ros.ros.spin.create_executor`: the filter in the
+single-threaded one), with the nodes' QoS. It loads what every node loads (rclpy, the message
+types, numpy) and nothing else: no features, no model, no body.
 
-Run one relay with ``python -m audio2pose_ros.ros.relay_floor ROLE [--features N] [--joints J]``.
+Run one relay with
+``python -m audio2pose_ros.ros.tools.relay_floor ROLE [--features N] [--joints J]``.
 """
 
 from __future__ import annotations
@@ -41,16 +43,10 @@ from std_msgs.msg import Float32MultiArray, Header, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from audio2pose_ros import topics
-from audio2pose_ros.ros.diagnosed_node import (
-    AUDIO_QOS,
-    HEARTBEAT_PERIOD_S,
-    LATCHED_QOS,
-    STREAM_QOS,
-    create_executor,
-    spin_executor,
-)
+from audio2pose_ros.ros.diagnosed_node import AUDIO_QOS, HEARTBEAT_PERIOD_S, LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.ros.nodes.process import STOP_SIGNALS, prepare_node_process
+from audio2pose_ros.ros.spin import create_executor, spin_executor
 
 ROLES = ("audio_features_node", "inference_node", "motion_filter_node")
 FILTER_RATE_HZ = 100.0  # the filter's tick (config/pepper.yaml rate_hz)
@@ -130,7 +126,7 @@ class _Relay(Node):
 def main(argv: Sequence[str] | None = None) -> None:
     """Run one relay until SIGTERM or Ctrl-C; it dies with the process that started it."""
     prepare_node_process()
-    parser = argparse.ArgumentParser(prog="python -m audio2pose_ros.ros.relay_floor")
+    parser = argparse.ArgumentParser(prog="python -m audio2pose_ros.ros.tools.relay_floor")
     parser.add_argument("role", choices=ROLES)
     parser.add_argument("--features", type=int, default=26, help="floats per feature frame")
     parser.add_argument("--joints", type=int, default=11, help="joints per pose")

@@ -2,7 +2,7 @@
 
 The campaign starts the three nodes as supervised processes (:func:`~audio2pose_ros.ros.graph.
 node_graph`, as ``audio2pose run`` does), plays the part of the rest of the world with one probe
-participant (:mod:`~audio2pose_ros.ros.fault_harness`), and runs each case in turn over real
+participant (:mod:`~audio2pose_ros.ros.tools.fault_harness`), and runs each case in turn over real
 DDS:
 
 - the probe streams a benign pose ``P`` on ``raw_trajectory`` (2 points every 20 ms, like
@@ -37,10 +37,12 @@ from rclpy.serialization import serialize_message
 from std_msgs.msg import Bool
 
 from audio2pose_ros import topics
+from audio2pose_ros.files import packaged_mapping
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
-from audio2pose_ros.ros.fault_cases_runtime import impersonated_sigstop_case, runtime_cases
-from audio2pose_ros.ros.fault_harness import (
+from audio2pose_ros.ros.graph import node_graph
+from audio2pose_ros.ros.tools.fault_cases_runtime import impersonated_sigstop_case, runtime_cases
+from audio2pose_ros.ros.tools.fault_harness import (
     MAX_COMMAND_GAP_S,
     MAX_DEVIATION_RAD,
     OBSERVE_S,
@@ -50,10 +52,8 @@ from audio2pose_ros.ros.fault_harness import (
     Case,
     Outcome,
 )
-from audio2pose_ros.ros.graph import node_graph
-from audio2pose_ros.ros.process_stats import rss_mb
+from audio2pose_ros.ros.tools.process_stats import rss_mb
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
-from audio2pose_ros.yaml_files import packaged_mapping
 
 __all__ = ["cases", "run_campaign", "table"]
 
@@ -242,43 +242,6 @@ def _restart(
         return Outcome(did, ok, worst)
 
     return run
-
-
-def sigstop_case(c: Campaign) -> Outcome:
-    """SIGSTOP the filter: it must be reported STALE before it is killed, then replaced.
-
-    On an idle machine STALE shows about 1.2 s after the stop (``STALE_AFTER_S`` after the last
-    heartbeat, read every 0.1 s, reported every 0.2 s). The case asks only that it shows before
-    the kill: a busy CI machine once delayed this process's report to 3.4 s, and the order is
-    what an operator relies on (a warning, then a restart).
-    """
-    node = "motion_filter_node"
-    old, silences = c.pid(node), c.supervisor.silences[node]
-    stale_before = c.probe.stale_reports.get(node, 0)
-    start = time.monotonic()
-    os.kill(old, signal.SIGSTOP)
-    deadline = start + 10.0
-    killed_s = noticed_s = math.inf
-    while time.monotonic() < deadline and killed_s == math.inf:
-        c.probe.spin_for(0.02)
-        now = time.monotonic() - start
-        if noticed_s == math.inf and c.probe.stale_reports.get(node, 0) != stale_before:
-            noticed_s = now
-        if c.supervisor.silences[node] != silences:
-            killed_s = now
-    if killed_s == math.inf:
-        os.kill(old, signal.SIGCONT)
-        return Outcome(f"STALE after {noticed_s:.1f} s, not restarted within 10 s", False)
-    while time.monotonic() < deadline + 10.0 and c.pid(node) == old:
-        c.probe.spin_for(0.05)
-    restarted_s = time.monotonic() - start
-    resumed = c.probe.settle(c.pose_a, timeout_s=15.0)
-    ok = noticed_s < killed_s and c.pid(node) != old and resumed
-    did = (
-        f"STALE on /diagnostics after {noticed_s:.1f} s, killed after {killed_s:.1f} s and "
-        f"restarted after {restarted_s:.1f} s; tracking again: {resumed}"
-    )
-    return Outcome(did, ok)
 
 
 def _audio_bomb(rate: int) -> Callable[[Campaign], Outcome]:

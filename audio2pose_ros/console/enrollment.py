@@ -1,0 +1,343 @@
+"""The console's "learn my style": a recording from the page becomes a personal style, here.
+
+The operator's page asks for consent, records camera and microphone for up to
+:data:`MAX_RECORDING_S` and uploads the recording to the console; nothing leaves the machine.
+:class:`Enrollments` is the console's side of it, free of ROS and of the web server:
+
+1. **A ticket.** An identified operator who may act on the robot's settings (the floor is free or
+   theirs) asks for one (:meth:`Enrollments.ticket`): a random, single-use name for one upload,
+   valid for :data:`TICKET_TTL_S`, bound to that operator's connection. One enrollment runs at a
+   time (the machine has few cores, and the robot one style): a ticket is refused while another
+   recording is being uploaded or learned.
+2. **The upload** (:meth:`Enrollments.receive`): the recording is streamed into a private folder
+   (mode 0700) under the console's work folder, at most :data:`MAX_RECORDING_BYTES` within
+   :data:`UPLOAD_TIMEOUT_S`; a larger, slower or empty upload, or one with an unknown, used or
+   expired ticket, is refused and nothing of it is kept.
+3. **Learning** (:meth:`Enrollments.run`): the recording goes through the same importer and
+   style fit as ``audio2pose enroll`` (:func:`audio2pose_ros.style.personal.enroll`), in a child
+   process (:mod:`audio2pose_ros.console.enroll_worker`; the console itself never loads the
+   model, MediaPipe or torch) at low priority, at most :data:`ENROLL_TIMEOUT_S`. Its progress
+   lines are the status every page sees.
+4. **The result**: the personal model folder (``style.yaml``, ``ENROLLMENT.md``) and the filter's
+   style settings it resolves to, which the console applies to the running graph (the filter's
+   live style parameters): no restart. The operator can go back to the style the graph started
+   with at any time.
+5. **The recording** is deleted when learning ends, whatever the outcome, unless the operator
+   asked to keep it: it is then moved into the personal model folder, beside the style learned
+   from it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import math
+import os
+import secrets
+import shutil
+import sys
+import time
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from audio2pose_ros.errors import InputError
+
+__all__ = [
+    "ENROLL_TIMEOUT_S",
+    "MAX_RECORDING_BYTES",
+    "MAX_RECORDING_S",
+    "TICKET_TTL_S",
+    "UPLOAD_TIMEOUT_S",
+    "EnrollmentError",
+    "Enrollments",
+    "Result",
+    "Ticket",
+    "default_work_dir",
+]
+
+MAX_RECORDING_S = 60.0  # the page stops recording after this long
+MAX_RECORDING_BYTES = 64 * 1024 * 1024  # 60 s of camera and microphone at about 8 Mbit/s
+TICKET_TTL_S = 120.0  # an upload must start this soon after its ticket (recording included)
+UPLOAD_TIMEOUT_S = 120.0  # an upload that takes longer is dropped (a trickle holds no slot)
+ENROLL_TIMEOUT_S = 300.0  # the child process is killed after this long
+SETTINGS_PREFIX = "STYLE_SETTINGS "  # the worker's last line: the resolved settings as JSON
+MAX_PROGRESS_CHARS = 200  # a progress line shown to the pages is cut to this length
+RECORDING_NAME = "recording.webm"
+CONTENT_TYPES = ("video/webm", "video/mp4", "video/x-matroska")
+
+
+class EnrollmentError(InputError):
+    """An enrollment request or upload is refused (the message says why)."""
+
+
+def default_work_dir() -> Path:
+    """``$ROS_HOME/audio2pose_ros/console/`` (ROS_HOME defaults to ``~/.ros``)."""
+    ros_home = os.environ.get("ROS_HOME") or str(Path.home() / ".ros")
+    return Path(ros_home) / "audio2pose_ros" / "console"
+
+
+@dataclass
+class Ticket:
+    """One upload's permission: whose connection asked, and whether to keep the recording."""
+
+    session: int
+    owner: str
+    keep: bool
+    expires_s: float
+
+
+@dataclass
+class Result:
+    """A finished enrollment: where the personal model is, and the settings it resolves to."""
+
+    folder: Path
+    settings: dict[str, float]
+    kept_recording: Path | None
+
+
+@dataclass
+class _State:
+    state: str = "idle"  # idle, waiting, uploading, learning, ready, failed
+    owner: str = ""
+    message: str = ""
+    started_s: float = 0.0
+    progress: list[str] = field(default_factory=list)
+
+
+class Enrollments:
+    """Tickets, uploads and learning runs of the console (see the module docstring).
+
+    Args:
+        work_dir: where recordings and personal models are kept (created, mode 0700).
+        command: the child process's command without its two arguments (recording, folder);
+            by default this interpreter running :mod:`audio2pose_ros.console.enroll_worker`.
+        clock: monotonic seconds (tests pass their own).
+    """
+
+    def __init__(
+        self,
+        work_dir: Path,
+        command: list[str] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.work_dir = work_dir
+        self.command = command or [sys.executable, "-m", "audio2pose_ros.console.enroll_worker"]
+        self.clock = clock
+        self._tickets: dict[str, Ticket] = {}
+        self._state = _State()
+        self.result: Result | None = None
+        self.completed = 0
+        self.failed = 0
+
+    # --- status ---------------------------------------------------------------------------------
+
+    def status(self) -> dict[str, Any]:
+        """What every page is shown: state, who started it, the last progress line."""
+        return {
+            "state": self._state.state,
+            "owner": self._state.owner,
+            "message": self._state.message,
+            "personal": str(self.result.folder.name) if self.result else "",
+        }
+
+    def _set(self, state: str, message: str, owner: str | None = None) -> None:
+        self._state.state = state
+        self._state.message = " ".join(message.split())[:MAX_PROGRESS_CHARS]
+        if owner is not None:
+            self._state.owner = owner
+
+    @property
+    def busy(self) -> bool:
+        """Whether a recording is awaited, being uploaded or being learned."""
+        self._expire()
+        return self._state.state in ("waiting", "uploading", "learning")
+
+    # --- tickets --------------------------------------------------------------------------------
+
+    def _expire(self) -> None:
+        now = self.clock()
+        for key in [k for k, t in self._tickets.items() if t.expires_s <= now]:
+            del self._tickets[key]
+        if self._state.state == "waiting" and not self._tickets:
+            self._set("idle", "the recording did not arrive in time")
+
+    def ticket(self, session: int, owner: str, keep: bool) -> str:
+        """A single-use upload ticket for ``session``.
+
+        Raises:
+            EnrollmentError: another enrollment is under way.
+        """
+        if self.busy:
+            raise EnrollmentError(
+                f"{self._state.owner or 'another operator'} is already teaching a style: "
+                "wait until it is done"
+            )
+        key = secrets.token_urlsafe(24)
+        self._tickets = {key: Ticket(session, owner, keep, self.clock() + TICKET_TTL_S)}
+        self._set("waiting", f"recording {owner}'s style", owner)
+        return key
+
+    def forget_session(self, session: int) -> None:
+        """A page left: its ticket, if any, is void."""
+        for key in [k for k, t in self._tickets.items() if t.session == session]:
+            del self._tickets[key]
+        if self._state.state == "waiting" and not self._tickets:
+            self._set("idle", "the operator left before uploading a recording")
+
+    def _take(self, key: str) -> Ticket:
+        self._expire()
+        for known, ticket in list(self._tickets.items()):
+            if secrets.compare_digest(known.encode(), key.encode("utf-8", "replace")):
+                del self._tickets[known]
+                return ticket
+        raise EnrollmentError("unknown, used or expired upload ticket")
+
+    # --- upload ---------------------------------------------------------------------------------
+
+    async def receive(
+        self, key: str, content_type: str, chunks: AsyncIterator[bytes]
+    ) -> tuple[Ticket, Path]:
+        """Store one upload under its ticket; returns the ticket and the recording's path.
+
+        Raises:
+            EnrollmentError: bad ticket or type, empty or larger than :data:`MAX_RECORDING_BYTES`
+                (nothing is kept then).
+        """
+        ticket = self._take(key)
+        kind = content_type.split(";", 1)[0].strip().lower()
+        if kind not in CONTENT_TYPES:
+            self._set("idle", "refused a recording that is not a video")
+            raise EnrollmentError(f"a recording must be one of {list(CONTENT_TYPES)}")
+        self._set("uploading", f"receiving {ticket.owner}'s recording", ticket.owner)
+        self.work_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
+        job = Path(
+            await asyncio.to_thread(
+                _private_dir, self.work_dir, time.strftime("style-%Y%m%d-%H%M%S")
+            )
+        )
+        path = job / RECORDING_NAME
+
+        async def store() -> int:
+            size = 0
+            with open(path, "xb") as out:
+                async for chunk in chunks:
+                    size += len(chunk)
+                    if size > MAX_RECORDING_BYTES:
+                        raise EnrollmentError(
+                            f"the recording is over {MAX_RECORDING_BYTES // 2**20} MB"
+                        )
+                    out.write(chunk)
+            return size
+
+        try:
+            try:
+                size = await asyncio.wait_for(store(), UPLOAD_TIMEOUT_S)
+            except asyncio.TimeoutError:
+                raise EnrollmentError(
+                    f"the recording did not arrive within {UPLOAD_TIMEOUT_S:g} s"
+                ) from None
+            if size == 0:
+                raise EnrollmentError("the recording is empty")
+        except BaseException:
+            shutil.rmtree(job, ignore_errors=True)
+            self._set("idle", "the recording was refused or did not arrive whole")
+            raise
+        return ticket, path
+
+    # --- learning -------------------------------------------------------------------------------
+
+    async def run(self, ticket: Ticket, recording: Path) -> Result:
+        """Learn the style of ``recording`` in a child process; delete it unless it is kept.
+
+        Raises:
+            EnrollmentError: the child failed (its last line says why) or took too long.
+        """
+        job = recording.parent
+        folder = job / "style"
+        self._set("learning", "learning the style (this takes up to two minutes)", ticket.owner)
+        try:
+            settings = await self._child(recording, folder)
+        except BaseException as exc:
+            self.failed += 1
+            shutil.rmtree(job, ignore_errors=True)
+            self._set("failed", f"could not learn the style: {exc}")
+            raise
+        kept: Path | None = None
+        if ticket.keep:
+            kept = folder / RECORDING_NAME
+            recording.replace(kept)
+        else:
+            recording.unlink(missing_ok=True)
+        (job / "learning.log").unlink(missing_ok=True)
+        self.completed += 1
+        self.result = Result(folder, settings, kept)
+        self._set("ready", f"learned {ticket.owner}'s style", ticket.owner)
+        return self.result
+
+    async def _child(self, recording: Path, folder: Path) -> dict[str, float]:
+        # the libraries' own chatter (MediaPipe, protobuf) goes to a log beside the recording,
+        # deleted with it; the pages see the worker's progress lines only
+        with open(recording.parent / "learning.log", "wb") as log:
+            process = await asyncio.create_subprocess_exec(
+                *self.command,
+                str(recording),
+                str(folder),
+                stdin=asyncio.subprocess.DEVNULL,
+                stdout=asyncio.subprocess.PIPE,
+                stderr=log,
+            )
+        found: list[dict[str, float]] = []
+        last = [""]
+
+        async def read() -> None:
+            assert process.stdout is not None
+            async for raw in process.stdout:
+                line = raw.decode("utf-8", "replace").strip()
+                if line.startswith(SETTINGS_PREFIX):
+                    found.append(_settings(line.removeprefix(SETTINGS_PREFIX)))
+                elif line:
+                    last[0] = line
+                    self._set("learning", line)
+            await process.wait()
+
+        try:
+            await asyncio.wait_for(read(), ENROLL_TIMEOUT_S)
+        except asyncio.TimeoutError:
+            raise EnrollmentError(f"learning took over {ENROLL_TIMEOUT_S:g} s") from None
+        finally:
+            if process.returncode is None:
+                with contextlib.suppress(ProcessLookupError):
+                    process.kill()
+                await process.wait()
+        if process.returncode != 0 or not found:
+            raise EnrollmentError(last[0] or f"the learning process exited {process.returncode}")
+        return found[-1]
+
+
+def _private_dir(parent: Path, stem: str) -> str:
+    """A new folder under ``parent`` only this user can read (never an existing one)."""
+    for n in range(1000):
+        candidate = parent / (stem if n == 0 else f"{stem}-{n}")
+        try:
+            candidate.mkdir(mode=0o700)
+        except FileExistsError:
+            continue
+        return str(candidate)
+    raise EnrollmentError(f"{parent}: no free folder name for a recording")
+
+
+def _settings(text: str) -> dict[str, float]:
+    """The worker's settings line: a JSON object of finite numbers."""
+    try:
+        values = json.loads(text)
+    except ValueError:
+        raise EnrollmentError("the learning process gave unreadable settings") from None
+    if not isinstance(values, dict) or not all(
+        isinstance(k, str) and isinstance(v, int | float) and math.isfinite(v)
+        for k, v in values.items()
+    ):
+        raise EnrollmentError("the learning process gave settings that are not finite numbers")
+    return {k: float(v) for k, v in values.items()}

@@ -1,0 +1,131 @@
+"""Message <-> numpy conversions the nodes share: features (Float32MultiArray) and trajectories.
+
+A features message carries (n_frames, n_features) float32 values, its feature set named in
+dim[1].label and, optionally, the index of its first frame in dim[0].label ("frames from N"), so
+the receiver counts the frames lost between messages. A raw trajectory is a JointTrajectory of
+one point per 10 ms frame.
+"""
+
+from __future__ import annotations
+
+import array
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+from builtin_interfaces.msg import Duration
+from std_msgs.msg import Float32MultiArray, MultiArrayDimension
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from audio2pose_ros.errors import InputError
+
+FRAMES_LABEL = "frames"  # dim[0] of a features message; "frames from N" numbers its first frame
+
+
+class FeatureBatch(NamedTuple):
+    """An unpacked features message."""
+
+    frames: np.ndarray  # (n_frames, n_features) float32
+    label: str  # the feature set (dim[1].label)
+    first_frame: int | None  # index of the first frame in its stream, if the sender numbers them
+
+
+def features_to_msg(
+    frames: np.ndarray, label: str, first_frame: int | None = None
+) -> Float32MultiArray:
+    """Pack (n_frames, n_features) features; dim[1].label names the feature set.
+
+    With ``first_frame``, dim[0].label is ``"frames from <first_frame>"``: the receiver counts
+    the frames lost between messages (:class:`~audio2pose_ros.timebase.FrameSequence`). A
+    receiver that reads only the sizes is unaffected.
+    """
+    n_frames, n_features = frames.shape
+    msg = Float32MultiArray()
+    frames_label = FRAMES_LABEL if first_frame is None else f"{FRAMES_LABEL} from {first_frame}"
+    msg.layout.dim = [
+        MultiArrayDimension(label=frames_label, size=n_frames, stride=n_frames * n_features),
+        MultiArrayDimension(label=label, size=n_features, stride=n_features),
+    ]
+    # An array.array of the right type code is stored as is; a list is checked value by value.
+    msg.data = array.array("f", np.ascontiguousarray(frames, dtype=np.float32).tobytes())
+    return msg
+
+
+def msg_to_features(msg: Float32MultiArray) -> FeatureBatch:
+    """Unpack a features message; a dim[0].label other than ``"frames from <n>"`` numbers nothing.
+
+    Raises:
+        InputError: the layout does not describe the data (2 dims, frames x features, at least
+            one feature per frame: a count of frames without data would be a claim, not data).
+    """
+    dims = msg.layout.dim
+    if len(dims) != 2:
+        raise InputError(f"features message needs 2 layout dims, got {len(dims)}")
+    n_frames, n_features = dims[0].size, dims[1].size
+    if n_features == 0:
+        raise InputError(f"features message of {n_frames} frames of 0 features")
+    data = np.frombuffer(msg.data, dtype=np.float32) if msg.data else np.zeros(0, np.float32)
+    if data.size != n_frames * n_features:
+        raise InputError(
+            f"features message holds {data.size} values, layout says {n_frames}x{n_features}"
+        )
+    number = dims[0].label.removeprefix(f"{FRAMES_LABEL} from ")
+    numbered = number != dims[0].label and number.isascii() and number.isdigit()
+    first = int(number) if numbered and len(number) <= 18 else None  # within int64
+    return FeatureBatch(data.reshape(n_frames, n_features), dims[1].label, first)
+
+
+def duration_msg(seconds: float) -> Duration:
+    """A builtin_interfaces/Duration of ``seconds``."""
+    nanoseconds = round(seconds * 1e9)
+    return Duration(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
+
+
+def trajectory_msg(
+    joint_names: Sequence[str],
+    positions_rad: np.ndarray,
+    period_s: float,
+    velocities_rad_s: np.ndarray | None = None,
+) -> JointTrajectory:
+    """A JointTrajectory with one point per row of ``positions_rad``, ``period_s`` apart.
+
+    The first point is due one period after the header stamp.
+    """
+    msg = JointTrajectory()
+    msg.joint_names = list(joint_names)
+    positions = np.ascontiguousarray(np.atleast_2d(positions_rad), dtype=np.float64)
+    velocities = (
+        None
+        if velocities_rad_s is None
+        else np.ascontiguousarray(np.atleast_2d(velocities_rad_s), dtype=np.float64)
+    )
+    for i, row in enumerate(positions):
+        point = JointTrajectoryPoint()
+        point.positions = array.array("d", row.tobytes())  # stored as is, unlike a list
+        if velocities is not None:
+            point.velocities = array.array("d", velocities[i].tobytes())
+        point.time_from_start = duration_msg((i + 1) * period_s)
+        msg.points.append(point)
+    return msg
+
+
+def trajectory_positions(msg: JointTrajectory, joint_names: Sequence[str]) -> np.ndarray:
+    """(n_points, n_joints) positions reordered to ``joint_names``.
+
+    Raises:
+        ValueError: a joint is missing, or a point has the wrong number of positions.
+
+    """
+    index = {name: i for i, name in enumerate(msg.joint_names)}
+    missing = [n for n in joint_names if n not in index]
+    if missing:
+        raise ValueError(f"trajectory lacks joints {missing}")
+    order = [index[n] for n in joint_names]
+    rows = []
+    for k, point in enumerate(msg.points):
+        if len(point.positions) != len(msg.joint_names):
+            raise ValueError(
+                f"point {k} has {len(point.positions)} positions for {len(msg.joint_names)} joints"
+            )
+        rows.append(np.asarray(point.positions, dtype=np.float64)[order])
+    return np.array(rows).reshape(-1, len(joint_names))

@@ -1,0 +1,1 @@
+"""Speaking styles: measured figures, presets, personal models (enrolment) and their evaluation."""

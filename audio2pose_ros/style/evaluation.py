@@ -1,0 +1,298 @@
+"""Does enrolment predict a person's motion? Default (SI) vs enrolled (SD) vs the real floor.
+
+Seed 003's Table 5.1 compares subject-independent models (trained on other people) with
+subject-dependent ones (trained on the same person) on held-out data. Here the subject-dependent
+model is the default model with the person's style (:mod:`audio2pose_ros.style.personal`),
+enrolled on the first :data:`~audio2pose_ros.style.personal.MAX_ENROLL_S` (at most half) of a
+source's clips and scored on the rest:
+
+- **SI**: the default model's offline synthesis (seed 0) of the held-out clips' speech;
+- **SD**: the same synthesis with the style enrolled on the first part
+  (:func:`~audio2pose_ros.style.personal.fit`, as ``audio2pose enroll`` does), applied as the
+  live filter applies it;
+- **floor**: the real held-out motion's first half of clips against its second (realism's
+  split half), what two stretches of the same person differ by;
+- **real enrolment part**: the person's own enrolment motion against the held-out motion: how
+  far the stretch enrolled on predicts the rest at all (no beat consistency: other speech).
+
+For each part the source observes (head, arms), against the real held-out motion (its known
+frames only): the Hellinger distances of joint speed and acceleration (seed 003 section 5.3,
+the bins of :mod:`~audio2pose_ros.learning.metrics`), the size ratio (part std, model / real),
+how many speed and acceleration percentiles (p50, p90, p99 per joint) lie within 25 % of real
+(:func:`~audio2pose_ros.learning.realism.percentile_agreement`) with the lowest and highest
+ratio, and the beat consistency (EMAGE's BC, :mod:`~audio2pose_ros.learning.realism`). Goals
+(per source): SD percentiles within 25 %, H <= 0.12, std 0.8 to 1.25 x, and SD better than SI.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from audio2pose_ros.data.dataset import Clip, Dataset
+from audio2pose_ros.learning.metrics import ACCELERATION_BINS_RAD_S2, SPEED_BINS_RAD_S, hellinger
+from audio2pose_ros.learning.realism import (
+    audio_onsets,
+    percentile_agreement,
+    pooled_beat_consistency,
+    speed_percentiles,
+)
+from audio2pose_ros.motion.style import style_trajectory
+from audio2pose_ros.resources import default_checkpoint_path
+from audio2pose_ros.robot.description import RobotDescription
+from audio2pose_ros.style.figures import Motion, _derivatives, measure_part
+from audio2pose_ros.style.personal import fit, synthesizer
+from audio2pose_ros.timebase import FRAME_RATE_HZ
+
+PARTS: tuple[str, ...] = ("head", "arms")
+SCORE_MIN_S = 1.0  # a scored part needs this much known motion
+
+
+@dataclass(frozen=True)
+class Row:
+    """One line of the table: a source, a part, a method and its measures."""
+
+    source: str
+    part: str
+    method: str
+    h_speed: float
+    h_accel: float
+    std_ratio: float
+    inside: int
+    total: int
+    lowest: float
+    highest: float
+    beat: float
+
+
+def source_of(clip_id: str) -> str:
+    """The source a clip belongs to: its id up to the first ``_`` (obama, grid, lecture)."""
+    return re.split(r"[_\d]", clip_id, maxsplit=1)[0] or clip_id
+
+
+def _part(motions: Sequence[Motion], joints: np.ndarray) -> list[Motion]:
+    return [(a[:, joints], k[:, joints]) for a, k in motions]
+
+
+def _hellinger(real: Sequence[Motion], model: Sequence[Motion], order: int) -> float:
+    bins = SPEED_BINS_RAD_S if order == 1 else ACCELERATION_BINS_RAD_S2
+    counts = []
+    for motions in (real, model):
+        values = np.concatenate(
+            [_derivatives(motions, j, order, FRAME_RATE_HZ) for j in range(motions[0][0].shape[1])]
+        )
+        counts.append(np.histogram(values, bins)[0])
+    return hellinger(counts[0], counts[1])
+
+
+def _row(
+    source: str,
+    part: str,
+    method: str,
+    real: Sequence[Motion],
+    model: Sequence[Motion],
+    onsets: Sequence[np.ndarray],
+    robot: RobotDescription,
+) -> Row:
+    joints = robot.group_mask(part)
+    real_p, model_p = _part(real, joints), _part(model, joints)
+    agreement = percentile_agreement(speed_percentiles(model_p), speed_percentiles(real_p))
+    real_fig = measure_part(real, robot, part, FRAME_RATE_HZ, SCORE_MIN_S)
+    model_fig = measure_part(model, robot, part, FRAME_RATE_HZ, SCORE_MIN_S)
+    ratio = (
+        model_fig.std_rad / real_fig.std_rad
+        if real_fig is not None and model_fig is not None
+        else float("nan")
+    )
+    return Row(
+        source,
+        part,
+        method,
+        _hellinger(real_p, model_p, 1),
+        _hellinger(real_p, model_p, 2),
+        ratio,
+        agreement.inside,
+        agreement.total,
+        agreement.lowest,
+        agreement.highest,
+        pooled_beat_consistency(onsets, model_p, range(len(model_p))),
+    )
+
+
+def _split(clips: Sequence[Clip], enroll_s: float) -> tuple[list[Clip], list[Clip]]:
+    """Enrol on whole clips from the start, at most ``enroll_s`` and half the frames.
+
+    A single clip is cut in two.
+    """
+    if len(clips) == 1:
+        clip = clips[0]
+        cut = min(round(enroll_s * FRAME_RATE_HZ), clip.n_frames // 2)
+        audio_cut = cut * (clip.audio.size // max(clip.n_frames, 1))
+
+        def piece(start: int, stop: int | None, a0: int, a1: int | None) -> Clip:
+            return Clip(
+                clip.info, clip.audio[a0:a1], clip.angles_rad[start:stop], clip.mask[start:stop]
+            )
+
+        return [piece(0, cut, 0, audio_cut)], [piece(cut, None, audio_cut, None)]
+    total = sum(c.n_frames for c in clips)
+    budget = min(enroll_s * FRAME_RATE_HZ, total / 2)
+    enrol: list[Clip] = []
+    used = 0
+    for clip in clips:
+        if enrol and used + clip.n_frames > budget:
+            break
+        enrol.append(clip)
+        used += clip.n_frames
+    return enrol, list(clips[len(enrol) :])
+
+
+def _synthesized(clip: Clip, synthesize_clip: Callable[[Clip], np.ndarray]) -> np.ndarray:
+    """The model's angles of a clip's speech, as many frames as the clip (last pose held)."""
+    angles = synthesize_clip(clip)
+    n = min(len(angles), clip.n_frames)
+    return np.vstack([angles[:n], np.repeat(angles[n - 1 :], clip.n_frames - n, axis=0)])
+
+
+def figure_rows(
+    name: str,
+    clips: Sequence[Clip],
+    robot: RobotDescription,
+    synthesize_clip: Callable[[Clip], np.ndarray],
+) -> list[str]:
+    """Table lines: the source's figures per observed part, then the default model's.
+
+    The model's are of the same speech, over the source's known frames only.
+    """
+    real = [(c.angles_rad, c.mask) for c in clips]
+    model = [(_synthesized(c, synthesize_clip), c.mask) for c in clips]
+    lines = []
+    for part in (*PARTS, "hip"):
+        for who, motions in ((f"{name} (real)", real), ("default model, same speech", model)):
+            f = measure_part(motions, robot, part, FRAME_RATE_HZ, SCORE_MIN_S)
+            if f is None:
+                break
+            arms = (
+                f"{f.rest_pitch_rad:.2f} / {f.rest_bend_rad:.2f} / {f.raise_p1_rad:.2f}"
+                if f.rest_pitch_rad is not None
+                else "-"
+            )
+            lines.append(
+                f"| {who} | {part} | {f.seconds:.0f} | {f.std_rad:.3f} | "
+                f"{f.speed_deciles_rad_s[4]:.3f} / {f.speed_deciles_rad_s[8]:.3f} | "
+                f"{f.accel_deciles_rad_s2[4]:.2f} / {f.accel_deciles_rad_s2[8]:.2f} | {arms} |"
+            )
+    return lines
+
+
+FIGURES_HEADER = (
+    "| motion | part | s | std (rad) | speed p50 / p90 (rad/s) | accel p50 / p90 (rad/s²) | "
+    "arm rest pitch / bend / raise p1 (rad) |\n|---|---|---|---|---|---|---|"
+)
+
+
+def evaluate_source(
+    name: str,
+    clips: Sequence[Clip],
+    robot: RobotDescription,
+    synthesize_clip: Callable[[Clip], np.ndarray],
+    enroll_s: float,
+    progress: Callable[[str], None] = print,
+) -> list[Row]:
+    """The rows of one source (see the module docstring)."""
+    enrol, held = _split(clips, enroll_s)
+    person, settings = fit(enrol, robot, synthesize_clip)
+    progress(f"{name}: enrolled {settings}")
+    real = [(c.angles_rad, c.mask) for c in held]
+    onsets = [audio_onsets(c.audio) for c in held]
+    si, sd = [], []
+    for clip in held:
+        angles = _synthesized(clip, synthesize_clip)
+        si.append((angles, clip.mask))
+        sd.append((style_trajectory(robot, settings, angles, FRAME_RATE_HZ), clip.mask))
+    first, second = real[0::2], real[1::2]
+    if not second:  # one held-out clip: its halves
+        angles, known = real[0]
+        middle = angles.shape[0] // 2
+        first, second = [(angles[:middle], known[:middle])], [(angles[middle:], known[middle:])]
+    rows = []
+    for part in PARTS:
+        if part not in person or measure_part(real, robot, part, min_seconds=SCORE_MIN_S) is None:
+            continue
+        where = f"{name} ({sum(c.n_frames for c in enrol) / 100:.0f} s / "
+        where += f"{sum(c.n_frames for c in held) / 100:.0f} s)"
+        rows.append(_row(where, part, "default (SI)", real, si, onsets, robot))
+        rows.append(_row(where, part, "enrolled (SD)", real, sd, onsets, robot))
+        floor_onsets = onsets[0::2] if len(real) > 1 else onsets[:1]
+        rows.append(_row(where, part, "real split half", second, first, floor_onsets, robot))
+        own = [(c.angles_rad, c.mask) for c in enrol]
+        rows.append(_row(where, part, "real enrolment part", real, own, onsets[:0], robot))
+    return rows
+
+
+def _num(value: float, digits: int = 2) -> str:
+    return "-" if not np.isfinite(value) else f"{value:.{digits}f}"
+
+
+def table(rows: Sequence[Row]) -> str:
+    """The rows as a Markdown table."""
+    lines = [
+        "| source (enrolled / scored) | part | motion | H speed | H accel | std ratio | "
+        "percentiles within 25 % | lowest / highest ratio | beat consistency |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r.source} | {r.part} | {r.method} | {_num(r.h_speed)} | {_num(r.h_accel)} | "
+            f"{_num(r.std_ratio)} | {r.inside}/{r.total} | {_num(r.lowest)} / "
+            f"{_num(r.highest)} | {_num(r.beat)} |"
+        )
+    return "\n".join(lines)
+
+
+def evaluate_sources(
+    datasets: Sequence[Path],
+    robot: RobotDescription,
+    enroll_s: float,
+    progress: Callable[[str], None] = print,
+) -> str:
+    """The SI-vs-SD table of every source in ``datasets`` (clips grouped by :func:`source_of`)."""
+    synthesize_clip = synthesizer(default_checkpoint_path(), robot)
+    rows: list[Row] = []
+    figures: list[str] = []
+    for path in datasets:
+        dataset = Dataset.open(path, robot)
+        by_source: dict[str, list[Clip]] = {}
+        for info in dataset.clips:
+            by_source.setdefault(source_of(info.clip_id), []).append(dataset.load(info.clip_id))
+        for name, clips in by_source.items():
+            progress(f"{name}: {len(clips)} clips")
+            rows += evaluate_source(name, clips, robot, synthesize_clip, enroll_s, progress)
+            figures += figure_rows(name, clips, robot, synthesize_clip)
+    return "\n\n".join(
+        [
+            table(rows),
+            "Each source's figures (all its clips) next to the default model's on the same "
+            "speech (the presets of config/styles hold these figures):",
+            "\n".join([FIGURES_HEADER, *figures]),
+            presets_table(robot),
+        ]
+    )
+
+
+def presets_table(robot: RobotDescription) -> str:
+    """The shipped presets and the filter's style parameters they mean for the packaged model."""
+    from audio2pose_ros.style.figures import load_style, preset_names
+    from audio2pose_ros.style.personal import style_overrides, style_settings
+
+    lines = ["| preset | parts | style parameters against the packaged model |", "|---|---|---|"]
+    for name in preset_names():
+        style = load_style(name)
+        settings = style_settings(default_checkpoint_path(), style, robot)
+        values = ", ".join(o.replace(":=", " ") for o in style_overrides(settings))
+        lines.append(f"| `{name}` | {', '.join(style.parts)} | {values} |")
+    return "\n".join(lines)

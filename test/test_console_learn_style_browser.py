@@ -1,0 +1,155 @@
+"""'Learn my style' in a real browser: Chromium with a fake camera and microphone that play a real
+recording of a person talking (the bundled GRID clip, data/video/SOURCES.md), the console and the
+node graph as processes, the real learning worker (MediaPipe and the style fit).
+
+The page asks for consent, records, uploads; the console learns and sets the motion filter's
+style parameters, read back here over ROS; then the page goes back to the default style. Skipped
+where Chromium, Playwright or the built page is missing (as test_console_browser.py).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import yaml
+from test_console_browser import CHROMIUM, Recorder, _answers, _free_port, _missing, _wait
+
+from audio2pose_ros.motion.style import STYLE_FIELDS
+from audio2pose_ros.resources import share_path
+
+TOKEN = "learn-style-browser-token-0123456789"
+CLIP = share_path("data", "video", "grid_bbaf2n.mpg")
+RECORD_S = 8.0  # longer than a part must be observed to be learned (the clip loops)
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+if _missing():
+    pytestmark.append(pytest.mark.skip(reason=_missing()))
+
+
+def _fake_media(folder: Path) -> tuple[Path, Path]:
+    """The clip as Chromium's fake camera (Motion JPEG) and microphone (WAV)."""
+    import imageio_ffmpeg
+
+    ffmpeg = imageio_ffmpeg.get_ffmpeg_exe()
+    video, audio = folder / "camera.mjpeg", folder / "microphone.wav"
+    common = [ffmpeg, "-y", "-loglevel", "error", "-i", str(CLIP)]
+    subprocess.run([*common, "-an", "-vf", "scale=640:480", "-q:v", "3", str(video)], check=True)
+    subprocess.run([*common, "-vn", "-ac", "1", "-ar", "16000", str(audio)], check=True)
+    return video, audio
+
+
+def _filter_style(recorder: Recorder) -> dict[str, float]:
+    """The motion filter's style parameters, read over its parameter service."""
+    from rcl_interfaces.srv import GetParameters
+
+    client = recorder.node.create_client(GetParameters, "/motion_filter_node/get_parameters")
+    try:
+        assert client.wait_for_service(timeout_sec=10.0)
+        future = client.call_async(GetParameters.Request(names=list(STYLE_FIELDS)))
+        _wait(future.done, 10.0, "the filter's parameters")
+        values = [v.double_value for v in future.result().values]
+    finally:
+        recorder.node.destroy_client(client)
+    return dict(zip(STYLE_FIELDS, values, strict=True))
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory) -> Iterator[tuple[str, Recorder, Path, Path, Path]]:
+    from audio2pose_ros.ros.console_runner import CONSOLE_NODE, console_command
+    from audio2pose_ros.ros.graph import node_graph
+
+    tmp = tmp_path_factory.mktemp("learn")
+    ros_home = tmp / "ros_home"  # the console keeps styles under $ROS_HOME/audio2pose_ros
+    params = yaml.safe_load(share_path("config", "pepper.yaml").read_text(encoding="utf-8"))
+    params["motion_filter_node"]["ros__parameters"]["state_file"] = str(tmp / "filter.json")
+    params_file = tmp / "params.yaml"
+    params_file.write_text(yaml.safe_dump(params), encoding="utf-8")
+    video, audio = _fake_media(tmp)
+    port = _free_port()
+    command = console_command(params_file, {"port": port, "token": TOKEN}, tmp)
+    url = f"http://127.0.0.1:{port}/"
+    saved = os.environ.get("ROS_HOME")
+    os.environ["ROS_HOME"] = str(ros_home)
+    try:
+        with node_graph(params_file, log_dir=tmp / "logs", more_nodes={CONSOLE_NODE: command}):
+            recorder = Recorder()
+            try:
+                _wait(lambda: _answers(url), 60.0, "the console's page")
+                yield url, recorder, ros_home, video, audio
+            finally:
+                recorder.close()
+    finally:
+        if saved is None:
+            os.environ.pop("ROS_HOME", None)
+        else:
+            os.environ["ROS_HOME"] = saved
+
+
+def test_when_an_operator_learns_their_style_expect_the_robot_to_take_it_and_give_it_back(
+    setup,
+):
+    from playwright.sync_api import sync_playwright
+
+    url, recorder, ros_home, video, audio = setup
+    before = _filter_style(recorder)
+    with tempfile.TemporaryDirectory() as profile, sync_playwright() as p:
+        context = p.chromium.launch_persistent_context(
+            profile,
+            executable_path=str(CHROMIUM),
+            headless=True,
+            bypass_csp=True,
+            args=[
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--disable-quic",
+                "--no-first-run",
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+                "--use-fake-ui-for-media-stream",
+                "--use-fake-device-for-media-stream",
+                f"--use-file-for-fake-video-capture={video}",
+                f"--use-file-for-fake-audio-capture={audio}",
+            ],
+        )
+        try:
+            page = context.new_page()
+            page.goto(f"{url}#token={TOKEN}")
+            page.wait_for_function("window.a2p.connected", timeout=20000)
+            page.click("#learn")
+            assert page.is_visible("#consent")  # nothing is recorded before consent
+            assert not page.evaluate("window.a2p.enroll.recording")
+            page.click("#consent-yes")
+            page.wait_for_function("window.a2p.enroll.recording", timeout=10000)
+            time.sleep(RECORD_S)  # the operator talks
+            page.click("#learn-stop")
+            page.wait_for_function("window.a2p.enroll.uploads === 1", timeout=30000)
+            page.wait_for_function(
+                "['ready', 'failed'].includes(window.a2p.enroll.status?.state)", timeout=240000
+            )
+            job = page.evaluate("window.a2p.enroll.status")
+            assert job["state"] == "ready", job
+            page.wait_for_function("window.a2p.enroll.style === 'personal'", timeout=10000)
+            learned = _filter_style(recorder)
+            styles = list((ros_home / "audio2pose_ros" / "console").glob("style-*/style"))
+            assert len(styles) == 1
+            style_file = yaml.safe_load((styles[0] / "style.yaml").read_text(encoding="utf-8"))
+            assert "head" in style_file["parts"]  # a head-and-shoulders camera teaches the head
+            assert learned["head_gain"] != before["head_gain"]
+            assert learned["arms_gain"] == before["arms_gain"]  # no arms seen: kept
+            assert not list(styles[0].parent.glob("recording*"))  # not kept: deleted
+            page.click("#style-default")
+            page.wait_for_function("window.a2p.enroll.style === 'default'", timeout=10000)
+            _wait(lambda: _filter_style(recorder) == before, 10.0, "the graph's own style back")
+            shots = os.environ.get("AUDIO2POSE_CONSOLE_SHOTS")
+            if shots:  # for a person to look at
+                page.screenshot(path=str(Path(shots) / "learn_my_style.png"))
+        finally:
+            context.close()

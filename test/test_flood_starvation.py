@@ -1,0 +1,253 @@
+"""No flood of any input starves the timers a node's safety depends on.
+
+Each case runs the real node process on its usual executor, floods one of its inputs from a
+separate process publishing as fast as it can, and reads the outcome from what the node sends,
+by the stamps the node put on it (so a probe that is itself slow to read does not matter):
+
+- its heartbeat is never silent for a second;
+- the simulated Pepper's joint_states keep their rate (>= 40 per 1 s window at 50 Hz; under a
+  storm of parameter requests, whose every one costs the node rclpy's own work, >= 20 on a
+  loaded machine);
+- the node served the flood (its counters grew) and counted what it dropped.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from audio_common_msgs.msg import AudioData, AudioInfo
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
+from audio2pose_ros.ros.diagnosed_node import DiagnosedNode, PacedTimer
+from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.nodes.audio_features_node import AudioFeaturesNode
+from audio2pose_ros.ros.player import spin_until
+from audio2pose_ros.topics import DIAGNOSTICS, JOINT_STATES, absolute
+
+pytestmark = pytest.mark.ros
+
+FLOOD_S = 5.0
+FLOODER = Path(__file__).with_name("flood_publisher.py")
+MAX_SILENCE_S = 1.0  # a heartbeat every 0.5 s; today's flooded nodes went 1-10 s without one
+MIN_STATES_PER_S = 40  # joint_states at 50 Hz; flooded, today's simulated Pepper sent 0-2 a second
+WINDOW_S = 1.0
+MIN_STATES_UNDER_REQUESTS = 20  # a set_parameters storm: today 0 a second, see the test
+
+
+def _stamp_s(msg: DiagnosticArray | JointState) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+@dataclass
+class Heard:
+    """What the flooded node sent, by the stamps it put on it."""
+
+    beats: list[tuple[float, DiagnosticStatus]] = field(default_factory=list)
+    states: list[float] = field(default_factory=list)
+    sent: int = 0
+    first_s: float = 0.0  # wall clock, the flood's first and last message
+    last_s: float = 0.0
+
+    def during(self) -> tuple[list[float], list[DiagnosticStatus]]:
+        inside = [(t, s) for t, s in self.beats if self.first_s <= t <= self.last_s]
+        return [t for t, _ in inside], [s for _, s in inside]
+
+    def longest_silence_s(self) -> float:
+        times, _ = self.during()
+        return float(max(np.diff([self.first_s, *times, self.last_s])))
+
+    def fewest_states_per_window(self) -> int:
+        stamps = np.array(sorted(self.states))
+        starts = np.arange(self.first_s, self.last_s - WINDOW_S, 0.1)
+        counts = np.searchsorted(stamps, starts + WINDOW_S) - np.searchsorted(stamps, starts)
+        return int(counts.min())
+
+    def value(self, key: str, status: DiagnosticStatus | None = None) -> int:
+        status = status if status is not None else self.beats[-1][1]
+        return int(float({kv.key: kv.value for kv in status.values}[key]))
+
+
+def flood(tmp_path: Path, executable: str, kind: str, *ros_args: str) -> Heard:
+    """Start ``executable``, flood it with ``kind`` (flood_publisher.py) for FLOOD_S, listen."""
+    heard = Heard()
+    log = (tmp_path / f"{executable}.log").open("w")
+    command = [*executable_command(executable), *(["--ros-args", *ros_args] if ros_args else [])]
+    node_process = subprocess.Popen(command, stdout=log, stderr=log)
+
+    def on_diagnostics(array: DiagnosticArray) -> None:
+        stamp = _stamp_s(array)
+        heard.beats.extend((stamp, s) for s in array.status if s.name.endswith(executable))
+
+    with rclpy.init():
+        probe = Node("flood_probe")
+        probe.create_subscription(DiagnosticArray, DIAGNOSTICS, on_diagnostics, 1000)
+        probe.create_subscription(
+            JointState, absolute(JOINT_STATES), lambda m: heard.states.append(_stamp_s(m)), 1000
+        )
+        flooder = None
+        try:
+            assert spin_until(probe, time.monotonic() + 60.0, lambda: bool(heard.beats)), "silent"
+            flooder = subprocess.Popen(
+                [sys.executable, str(FLOODER), kind, str(FLOOD_S)],
+                stdout=subprocess.PIPE,
+                stderr=log,
+                text=True,
+            )
+            assert flooder.stdout is not None
+            assert flooder.stdout.readline().strip() == "ready"
+            while flooder.poll() is None:
+                rclpy.spin_once(probe, timeout_sec=0.01)
+            words = flooder.stdout.read().split()
+            assert len(words) == 4, f"the flooder failed (see {log.name}): {words}"
+            heard.sent, heard.first_s, heard.last_s = int(words[1]), *map(float, words[2:4])
+            spin_until(probe, time.monotonic() + 2.0)
+        finally:
+            if flooder is not None and flooder.poll() is None:
+                flooder.kill()
+            node_process.terminate()
+            node_process.wait(20)
+            probe.destroy_node()
+    print(
+        f"{executable} flooded with {kind}: {heard.sent} messages in "
+        f"{heard.last_s - heard.first_s:.1f} s; longest heartbeat silence "
+        f"{heard.longest_silence_s():.2f} s"
+        + (
+            f"; fewest joint_states per 1 s window {heard.fewest_states_per_window()}"
+            if heard.states
+            else ""
+        )
+        + f"; last report {dict((kv.key, kv.value) for kv in heard.beats[-1][1].values)}"
+    )
+    return heard
+
+
+def test_when_joint_angles_flood_the_simulated_pepper_expect_its_states_and_heartbeat(tmp_path):
+    heard = flood(tmp_path, "pepper_sim_node", "joint_angles")
+    assert heard.value("commands") > 0  # the flood was served
+    assert heard.longest_silence_s() < MAX_SILENCE_S
+    assert heard.fewest_states_per_window() >= MIN_STATES_PER_S
+
+
+def test_when_one_byte_audio_chunks_flood_the_features_node_expect_its_heartbeat(tmp_path):
+    heard = flood(tmp_path, "audio_features_node", "audio_bytes")
+    chunks, decodes = heard.value("chunks_received"), heard.value("audio_decodes")
+    assert chunks > 0  # the flood was served
+    assert heard.longest_silence_s() < MAX_SILENCE_S
+    # accumulated: one decode per 10 ms of audio (320 one-byte chunks), not one per chunk
+    assert decodes * 10 <= chunks
+
+
+def test_when_features_flood_the_inference_node_expect_its_heartbeat_and_counted_drops(
+    tmp_path,
+):
+    heard = flood(tmp_path, "inference_node", "features")
+    assert heard.value("frames_in") > 0  # the flood was served
+    assert heard.longest_silence_s() < MAX_SILENCE_S
+    # a second of frames a message, a hundred queued: those that waited over 0.5 s are dropped
+    # unserved and counted, not computed seconds late
+    assert heard.value("frames_behind_real_time") > 0
+
+
+def test_when_set_parameters_requests_flood_the_simulated_pepper_expect_its_states(tmp_path):
+    heard = flood(tmp_path, "pepper_sim_node", "set_parameters:pepper_sim_node")
+    assert heard.longest_silence_s() < MAX_SILENCE_S
+    # Each request costs the node rclpy's take and answer (the timers run between requests):
+    # on 2 busy cores it kept 34-45 a second against 0 before, so the bound here is below
+    # MIN_STATES_PER_S (see the module docstring).
+    assert heard.fewest_states_per_window() >= MIN_STATES_UNDER_REQUESTS
+
+
+def test_when_a_paced_timer_waits_behind_messages_expect_it_run_between_them_at_its_rate():
+    clock = [0.0]
+    runs: list[float] = []
+    timer = PacedTimer(0.02, lambda: runs.append(clock[0]), clock=lambda: clock[0])
+
+    # idle: the executor's timer event runs it, on time
+    clock[0] = 0.02
+    timer.on_timer()
+    assert runs == [0.02]
+    timer.run_if_overdue(0.021)  # between events, not overdue: nothing
+    assert runs == [0.02]
+
+    # flooded: the executor's event waits behind messages; between them the timer runs when
+    # overdue, once per period, in phase, never in a burst
+    for step in range(1, 187):  # a message every millisecond until 0.206 s
+        clock[0] = 0.02 + step * 0.001
+        timer.run_if_overdue(clock[0])
+    assert len(runs) == 1 + 9  # one run per 20 ms
+    assert max(np.diff(runs)) <= 0.02 * (1 + PacedTimer.OVERDUE_GRACE) + 0.001
+    assert timer.runs_between_events == 9
+    timer.on_timer()  # the late executor event finds this period served
+    assert len(runs) == 10
+
+    # a callback that overran several periods: one run, then the rate again (no catch-up)
+    clock[0] += 0.1
+    timer.run_if_overdue(clock[0])
+    timer.run_if_overdue(clock[0])
+    assert len(runs) == 11
+
+
+def test_when_commands_flood_a_coalescing_subscription_expect_the_newest_and_a_count():
+    with rclpy.init():
+        node = DiagnosedNode("coalescing_check")
+        try:
+            served: list[JointAnglesWithSpeed] = []
+            latest = node.create_latest_subscription(
+                JointAnglesWithSpeed, "/coalescing_check", served.append, 10, 1024
+            )
+            publisher = node.create_publisher(JointAnglesWithSpeed, "/coalescing_check", 10)
+            big = JointAnglesWithSpeed(joint_names=["HeadYaw"] * 100, joint_angles=[0.0] * 100)
+            publisher.publish(big)  # oversized: dropped before decoding
+            angles = [0.1 * k for k in range(1, 8)]
+            for angle in angles:
+                publisher.publish(
+                    JointAnglesWithSpeed(joint_names=["HeadYaw"], joint_angles=[angle], speed=0.5)
+                )
+            deadline = time.monotonic() + 30.0
+            while not (served and served[-1].joint_angles[0] == pytest.approx(angles[-1])):
+                assert time.monotonic() < deadline, "the newest command never came"
+                latest.serve()  # as the simulation step does
+                time.sleep(0.01)
+            # each command was followed or counted as replaced: none lost silently, the newest
+            # always followed, never an older one after a newer
+            assert len(served) + node.messages_superseded == len(angles)
+            followed = [m.joint_angles[0] for m in served]
+            assert followed == sorted(followed)
+            assert node.oversized_messages == 1
+            assert not list(node.subscriptions)  # the executor never serves it
+        finally:
+            node.destroy_node()
+
+
+def test_when_audio_comes_in_one_byte_chunks_expect_the_features_of_whole_chunks(speech):
+    pcm = encode_pcm(speech[:16000], S16LE_MONO_16K)  # 1 s of speech
+    outputs = []
+    for chunk_bytes in (len(pcm), 1):
+        with rclpy.init():
+            node = AudioFeaturesNode()
+            try:
+                frames: list[np.ndarray] = []
+                node.features_sink = frames.append
+                node.on_audio_info(AudioInfo(**S16LE_MONO_16K.audio_info_fields()))
+                for start in range(0, len(pcm), chunk_bytes):
+                    node.on_audio_data(AudioData(data=pcm[start : start + chunk_bytes]))
+                node.flush_audio()
+                outputs.append(np.concatenate(frames))
+                assert node.input.chunks == -(-len(pcm) // chunk_bytes)  # every chunk counted
+                # one decode per 10 ms of audio (320 bytes), not one per chunk
+                assert node.audio_batches <= len(pcm) // 320 + 1
+            finally:
+                node.destroy_node()
+    whole, bytewise = outputs
+    np.testing.assert_array_equal(bytewise, whole)
