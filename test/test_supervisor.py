@@ -177,7 +177,7 @@ def test_when_command_line_and_params_file_disagree_expect_command_line_to_win(t
     assert f"from {default_checkpoint_path()}" in output
 
 
-def test_when_a_node_crashes_once_expect_restart_at_once_then_back_off(tmp_path: Path, capsys):
+def test_when_a_node_crashes_once_expect_restart_at_once_then_back_off(tmp_path: Path, capfd):
     supervisor = NodeSupervisor(
         {"crash": _python("import time, sys; time.sleep(0.3); sys.exit(1)")},
         tmp_path,
@@ -190,7 +190,7 @@ def test_when_a_node_crashes_once_expect_restart_at_once_then_back_off(tmp_path:
         assert third - second >= 0.3 + 1.0  # the second restart waited the back-off
     finally:
         supervisor.stop()
-    said = [line for line in capsys.readouterr().err.splitlines() if "restarting it in" in line]
+    said = [line for line in capfd.readouterr().err.splitlines() if "restarting it in" in line]
     assert said[0].endswith("restarting it in 0.0 s")  # at once
     assert said[1].endswith("restarting it in 1.0 s")  # then the back-off
     assert said[2].endswith("restarting it in 2.0 s")
