@@ -1,5 +1,5 @@
 # audio2pose_ros on a machine without a ROS distro: everything runs from .venv (see README.md).
-.PHONY: setup demo test test-fast lint bench docs default-model style-presets evaluate-style clean
+.PHONY: setup demo test test-long test-fast lint bench docs default-model style-presets evaluate-style clean
 
 # DDS stays on loopback and each run gets its own domain unless the caller chose one.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
@@ -15,13 +15,19 @@ setup:
 demo: setup
 	$(VENV_BIN)/audio2pose demo
 
-# The whole test suite (unit, DDS integration between processes, CLI, lint).
+# The test suite (unit, DDS integration between processes, CLI, lint): every behaviour, in
+# minutes. The soaks and campaigns marked long are left to test-long (pyproject's addopts).
 test: setup
 	$(VENV_BIN)/python -m pytest
 
-# Everything except the tests marked slow (real-time playback through the node graph).
+# The long tests only: the memory soak and the fault campaign, minutes of audio through the
+# live graph. CI (.ci/run) runs them after `make test`.
+test-long: setup
+	$(VENV_BIN)/python -m pytest -m long
+
+# Everything except the tests marked slow (real-time playback through the node graph) or long.
 test-fast: setup
-	$(VENV_BIN)/python -m pytest -m "not slow"
+	$(VENV_BIN)/python -m pytest -m "not slow and not long"
 
 lint: setup
 	$(VENV_BIN)/ruff check . && $(VENV_BIN)/ruff format --check . && $(VENV_BIN)/mypy

@@ -51,14 +51,14 @@ def s16(n: int, value: int = 1000) -> bytes:
 def test_when_audio_info_claims_a_bomb_rate_expect_refused_at_once_with_little_memory(rate):
     source = audio_input()
     tracemalloc.start()
-    start = time.perf_counter()
+    start = time.process_time()
     with pytest.raises(UnsupportedAudioFormat, match=rf"AudioInfo rejected: .*sample_rate {rate}"):
         source.set_audio_info(1, rate, "S16LE", "wave")
     with pytest.raises(AudioDropped, match=rf"AudioInfo rejected: .*sample_rate {rate}"):
         source.decode_audio_data(s16(1 << 19))  # the 1 MiB message that used to allocate 62 GiB
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
-    assert time.perf_counter() - start < 0.5
+    assert time.process_time() - start < 0.5  # CPU time: a loaded machine does not add to it
     assert peak < 16 << 20
     assert source.info_rejected
     assert source.format is None
@@ -161,9 +161,9 @@ def test_when_f32_holds_denormals_and_huge_values_expect_bounded_output_without_
     source.set_audio_info(**dict(S16_INFO, sample_format="F32LE", sample_rate=rate))
     tiny = np.full(rate, np.float32(1e-45))  # float32 denormals
     tiny[rate // 2] = 3e38  # one wild finite value
-    start = time.perf_counter()
+    start = time.process_time()
     out = source.decode_audio_data(tiny.astype("<f4").tobytes())
-    assert time.perf_counter() - start < 0.5
+    assert time.process_time() - start < 0.5
     assert np.all(np.isfinite(out))
     assert np.all(np.abs(out) <= 1.0)
     # clipped to full scale before filtering: the spike rings as a full-scale click would
@@ -183,13 +183,13 @@ def test_when_odd_byte_counts_arrive_expect_partial_frame_kept_for_the_next_mess
 def test_when_format_flips_every_message_expect_each_decoded_in_bounded_time():
     source = audio_input(max_audio_s_per_s=100.0)
     infos = [dict(S16_INFO, sample_rate=r) for r in (44100, 48000, 11025, 22050)]
-    start = time.perf_counter()
+    start = time.process_time()
     restarts = 0
     for i in range(200):
         restarts += source.set_audio_info(**infos[i % len(infos)])
         source.decode_audio_data(s16(441))
     assert restarts == 200
-    assert time.perf_counter() - start < 3.0  # filter designs are cached, not redone
+    assert time.process_time() - start < 3.0  # filter designs are cached, not redone
 
 
 def test_when_a_maximal_message_is_decoded_expect_memory_of_a_few_times_its_size():

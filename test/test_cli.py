@@ -153,7 +153,7 @@ def test_when_synth_missing_file_expect_error_naming_it(tmp_path: Path):
 
 def test_when_bench_runs_expect_every_stage_timed():
     result = subprocess.run(
-        [*AUDIO2POSE, "bench", "--frames", "300"], capture_output=True, text=True, timeout=300
+        [*AUDIO2POSE, "bench", "--frames", "30"], capture_output=True, text=True, timeout=300
     )
     assert result.returncode == 0, result.stderr
     for stage in (
@@ -211,7 +211,7 @@ def test_when_distill_prosody_expect_loadable_checkpoint_and_honest_card(
             "-o",
             str(out),
             "--max-epochs",
-            "30",
+            "2",  # the command and its outputs, not the fit: training is test_training.py's
         ],
         capture_output=True,
         text=True,

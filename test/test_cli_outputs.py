@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 from test_cli_errors import audio2pose
 
+QUICK = ("--no-progress", "--fps", "5")  # what is replaced is tested, not the picture
+
 
 @pytest.fixture
 def wav(tmp_path: Path, speech_files: list[Path]) -> Path:
@@ -64,22 +66,20 @@ def test_when_render_run_again_with_force_expect_its_bag_replaced_but_no_other_f
     capsys, wav, tmp_path
 ):
     out = tmp_path / "out.mp4"
-    status, err = audio2pose(capsys, "render", wav, "-o", out, "--no-progress")
+    status, err = audio2pose(capsys, "render", wav, "-o", out, *QUICK)
     assert status == 0, err
     bag = tmp_path / "out_mcap"
     assert (bag / "metadata.yaml").is_file()
-    status, err = audio2pose(capsys, "render", wav, "-o", out, "--no-progress")
+    status, err = audio2pose(capsys, "render", wav, "-o", out, *QUICK)
     assert status == 2
     assert "give --force" in err
-    status, err = audio2pose(capsys, "render", wav, "-o", out, "--no-progress", "--force")
+    status, err = audio2pose(capsys, "render", wav, "-o", out, *QUICK, "--force")
     assert status == 0, err
     assert (bag / "metadata.yaml").is_file()
     keep = tmp_path / "keep"
     keep.mkdir()
     (keep / "notes.txt").write_text("mine\n")
-    status, err = audio2pose(
-        capsys, "render", wav, "-o", out, "--mcap", keep, "--no-progress", "--force"
-    )
+    status, err = audio2pose(capsys, "render", wav, "-o", out, "--mcap", keep, *QUICK, "--force")
     assert status == 2
     assert "is not a rosbag2 bag" in err
     assert (keep / "notes.txt").read_text() == "mine\n"

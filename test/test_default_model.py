@@ -108,3 +108,50 @@ def test_when_loading_the_packaged_default_expect_sampling_chosen_on_clips_it_is
     assert lecture  # the arms' settings: a lecture stretch ...
     assert not [s for s in lecture if TEST_SPAN_S[0] <= s < TEST_SPAN_S[1]]  # ... not the test one
     assert any(c.startswith(("grid_", "obama_")) for c in chosen_on)  # the head's: talking heads
+
+
+@pytest.fixture(scope="module")
+def shipped_calm(robot):
+    """The packaged model's commanded arms on bundled speech, and the people's figures.
+
+    The people's figures are those the build chose the arms' sampling settings within: the
+    lecturer's talking stretches (board stretches masked) through the same motion filter,
+    kept in the checkpoint (``models/default/MODEL_CARD.md``, "Calm arms").
+    """
+    from audio2pose_ros.audio.wav import read_wav
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+    from audio2pose_ros.learning.arm_calm import model_calm, people_row
+    from audio2pose_ros.resources import bundled_speech_paths, default_checkpoint_path
+
+    checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
+    people = people_row(checkpoint)
+    assert people is not None, "the default model keeps the people's calm figures"
+    speech = {p.stem: read_wav(p)[0] for p in bundled_speech_paths()[:CALM_CLIPS]}
+    return people, model_calm(checkpoint, speech, range(CALM_SEEDS), "shipped")
+
+
+CALM_CLIPS, CALM_SEEDS = 5, 4  # all bundled speech (25 s, other speakers), seeds 0..3
+# the shipped arms are calm at seeds 0 and 1, but seeds 2 and 3 make rare long raised-arm
+# excursions (the arm noise's bursts at correlation 0.99): the build's calm budget judged one
+# sample per clip, which missed them (MODEL_CARD.md, "Calm arms": LibriVox, seeds 0..7)
+CALM_GAP = "the rebuilt default still exceeds the people's figures at seeds 2 and 3"
+
+
+@pytest.mark.xfail(strict=True, reason=CALM_GAP)
+def test_when_the_default_speaks_expect_its_arms_at_the_acceleration_limit_no_more_than_people(
+    shipped_calm,
+):
+    """Not bang-bang: the filter brakes and launches the arms at the limit as rarely as people's."""
+    people, model = shipped_calm
+    assert 0.0 < people.at_limit_pct < 20.0  # people's fastest moves reach the limit too
+    assert model.at_limit_pct <= people.at_limit_pct
+
+
+@pytest.mark.xfail(strict=True, reason=CALM_GAP)
+def test_when_the_default_speaks_expect_wrists_above_the_shoulders_no_more_often_than_people(
+    shipped_calm,
+):
+    """People talking, not writing on a board, raise a hand above the shoulder now and then."""
+    people, model = shipped_calm
+    assert model.above_pct <= people.above_pct
+    assert model.high_pct <= people.high_pct

@@ -36,6 +36,7 @@ def test_table_marks_failures():
     assert "| b | stay | moved | FAIL | 0.500 |" in text
 
 
+@pytest.mark.long  # about 3 min of real-time cases: make test-long
 @pytest.mark.slow
 @pytest.mark.ros
 def test_every_fault_case_passes_against_the_live_graph(tmp_path):

@@ -132,3 +132,30 @@ def test_when_the_arms_disappear_expect_clips_cut_there_and_no_zero_filled_frame
         assert clip.mask[:, ~head].mean() > 0.95
         known = clip.angles_rad[clip.mask[:, pitch], pitch]
         assert np.all(np.abs(known - CLEAR["ShoulderPitch"]) < 0.15)  # no zeros, no neutral
+
+
+def test_when_the_lecturer_holds_a_hand_up_at_the_board_expect_that_stretch_cut_out(robot):
+    """A hand above the shoulder for seconds is writing, not gesturing: no clip holds it."""
+    fps, seconds = 15.0, 40.0
+    n = int(seconds * fps)
+    times = np.arange(n) / fps
+    board = (times > 20) & (times < 23)  # 3 s at the board
+    brief = (times > 8) & (times < 8.4)  # a 0.4 s gesture above the shoulder: talking
+    up = {"ShoulderPitch": -1.0, "ShoulderRoll": 0.3, "ElbowYaw": -0.8, "ElbowRoll": -0.2}
+    frames = []
+    for raised in board | brief:
+        left = up if raised else CLEAR
+        angles = {"L" + k: v for k, v in left.items()}
+        angles |= {"R" + k: v for k, v in mirrored(CLEAR).items()}
+        frames.append(skeleton(angles, 0.0))
+    audio = np.zeros(int(seconds * 16000), np.float32)
+    clips = lecture_clips(tracks_of(frames, [True] * n), audio, robot, "synthetic.webm")
+    spans = [
+        (float(c.info.clip_id.split("_")[1].removesuffix("s")), c.n_frames / 100.0) for c in clips
+    ]
+    assert len(clips) == 2
+    assert (
+        spans[0][0] + spans[0][1] < 20.0
+    )  # the first ends before the board, the brief gesture in it
+    assert spans[0][0] < 8.0
+    assert spans[1][0] > 23.0  # the second starts after it

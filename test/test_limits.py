@@ -67,12 +67,14 @@ finite_or_not = st.one_of(
 )
 
 
-@settings(max_examples=2000, deadline=None, derandomize=True)  # reproducible in CI
-@given(
+SEQUENCES = (
     st.lists(st.lists(finite_or_not, min_size=11, max_size=11), min_size=1, max_size=60),
     st.lists(st.floats(min_value=-0.02, max_value=0.05), min_size=60, max_size=60),
 )
-def test_when_any_input_sequence_expect_all_limits_hold(robot, sequence, dts):
+
+
+def limits_hold(robot, sequence, dts) -> None:
+    """Every command of ``sequence`` (steps of ``dts``) is finite and within all limits."""
     limiter = JointLimiter(robot)
     pos, vel = robot.neutral_rad.copy(), np.zeros(11)
     for desired, dt in zip(sequence, dts, strict=False):
@@ -84,3 +86,16 @@ def test_when_any_input_sequence_expect_all_limits_hold(robot, sequence, dts):
             assert np.all(np.abs(new_vel) <= limiter.max_velocity_rad_s + 1e-9)
             assert np.all(np.abs(new_vel - vel) / dt <= limiter.max_acceleration_rad_s2 + 1e-6)
         pos, vel = new_pos, new_vel
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)  # reproducible in CI
+@given(*SEQUENCES)
+def test_when_any_input_sequence_expect_all_limits_hold(robot, sequence, dts):
+    limits_hold(robot, sequence, dts)
+
+
+@pytest.mark.long  # the same property over 2,000 sequences: make test-long
+@settings(max_examples=2000, deadline=None, derandomize=True)
+@given(*SEQUENCES)
+def test_when_any_of_2000_input_sequences_expect_all_limits_hold(robot, sequence, dts):
+    limits_hold(robot, sequence, dts)

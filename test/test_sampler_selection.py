@@ -36,7 +36,7 @@ from audio2pose_ros.offline.synthesis import synthesize_samples
 
 torch.set_num_threads(1)
 
-# The shipped grid, and the cut of it these tests choose on: 12 of its 42 settings (each a
+# The shipped grid, and the cut of it these tests choose on: 12 of its 63 settings (each a
 # sampling of every validation clip). The tests check how a choice is made, which does not
 # depend on the grid's size; the loso test's worker processes import the shipped grid.
 SHIPPED_GRID = {"TEMPERATURES": TEMPERATURES, "BURSTS": BURSTS, "CORRELATIONS": CORRELATIONS}
@@ -416,9 +416,12 @@ def test_when_a_holdout_task_chooses_expect_its_unlabelled_training_speech_in_th
 
     references: list = []
 
-    def spy(folds, robot, n_seeds=2, body_audio=(), reference=()):
+    styles: list = []
+
+    def spy(folds, robot, n_seeds=2, body_audio=(), reference=(), style_of=None):
         given.extend(body_audio)
         references.append(reference)
+        styles.append(style_of)
         return choose_sampling(folds, robot, 1)
 
     monkeypatch.setattr(source_holdout, "choose_sampling", spy)
@@ -449,36 +452,91 @@ def test_when_a_holdout_task_chooses_expect_its_unlabelled_training_speech_in_th
     assert len(given) == len(heads)
     for audio, clip in zip(given, heads, strict=True):
         assert audio is clip.audio
-    # the head's percentile targets: real motion of the training and validation clips
+    # the head's percentile targets and the arms' calm budget: real motion of the training and
+    # validation clips, each recording source a style of its own
     (reference,) = references
     assert {c.info.clip_id for c in reference} == {
         c.info.clip_id for c in task.training + task.validation
     }
+    assert styles == [source_holdout.clip_style]
 
 
-def test_when_validation_holds_grid_and_addressed_speech_expect_the_head_chosen_on_the_latter(
+def test_when_validation_holds_a_reader_and_an_addresser_expect_the_head_sized_between_them(
     clips, robot
 ):
-    """GRID's readers barely move their heads: the head aims at people who speak to people."""
-    from audio2pose_ros.learning.source_holdout import selection_clips
-
-    head = robot.group_mask("head")
-    validation = [c for c in clips if c.info.split == "validation"]
+    """No model can guess a new speaker's style: the size term is least between the sources."""
+    from audio2pose_ros.learning.sampler_selection import between_styles
+    from audio2pose_ros.learning.source_holdout import clip_style
 
     def as_speaker(clip, speaker):
         return replace(clip, info=replace(clip.info, speaker=speaker))
 
-    grid, obama = as_speaker(validation[0], "grid_s3"), as_speaker(validation[1], "obama")
-    chosen_on = selection_clips([grid, obama], robot)
-    assert [c.info.clip_id for c in chosen_on] == [grid.info.clip_id, obama.info.clip_id]
-    assert not chosen_on[0].mask[:, head].any()  # GRID's head: not the target ...
-    np.testing.assert_array_equal(chosen_on[0].mask[:, ~head], grid.mask[:, ~head])  # arms kept
-    assert chosen_on[1] is obama
-    assert selection_clips([grid], robot) == (grid,)  # ... unless it is the only head source
-    unknown = as_speaker(validation[1], "someone")  # a user's own speakers count as addressed
-    assert not selection_clips([grid, unknown], robot)[0].mask[:, head].any()
-    lecture_only = replace(obama, mask=obama.mask & ~head)  # no other clip labels the head
-    assert selection_clips([grid, lecture_only], robot)[0] is grid
+    clip = clips[0]
+    assert clip_style(as_speaker(clip, "grid_s3")) == "GRID"
+    assert clip_style(as_speaker(clip, "obama")) == "Obama"
+    assert clip_style(as_speaker(clip, "someone")) == "someone"  # a user's speaker: its own
+    reader = {"H speed": 0.2, "H accel": 0.4, "std ratio": 4.0}  # the model moves 4x the reader
+    addresser = {"H speed": 0.4, "H accel": 0.2, "std ratio": 0.25}  # ... and 1/4 the addresser
+    both = between_styles([reader, addresser])
+    assert both["H speed"] == pytest.approx(0.3)
+    assert both["H accel"] == pytest.approx(0.3)
+    assert both["std ratio"] == pytest.approx(1.0)  # the geometric mean of the two sizes
+    assert score(both) < score(reader)
+    assert score(both) < score(addresser)
+    assert between_styles([reader]) == reader
+
+
+def test_when_styles_are_given_expect_the_head_percentile_targets_between_them(clips, robot):
+    head = robot.group_mask("head")
+    still, lively = clips[0], clips[1]
+    neutral = robot.neutral_rad[head]
+    still = replace(still, angles_rad=still.angles_rad.copy())
+    still.angles_rad[:, head] = neutral + 0.25 * (still.angles_rad[:, head] - neutral)
+    one = reference_percentiles([still], robot)["head"]
+    other = reference_percentiles([lively], robot)["head"]
+    between = reference_percentiles([still, lively], robot, lambda c: c.info.clip_id)["head"]
+    for k in range(2):
+        np.testing.assert_allclose(between[k], np.sqrt(one[k] * other[k]), rtol=1e-9)
+
+
+@pytest.mark.slow  # every arm setting is commanded through the filter, twice
+def test_when_arm_settings_are_livelier_than_people_commanded_expect_the_best_within_the_calm(
+    checkpoint, selected, robot, monkeypatch
+):
+    """Arms at the acceleration limit or above the shoulders more often than people lose."""
+    from audio2pose_ros.learning.arm_calm import CALM_KEYS
+
+    validation, _, _ = selected
+    # every arm setting is also commanded through the filter: a smaller grid
+    use_grid(
+        monkeypatch, {"TEMPERATURES": (0.5, 1.5, 3.0), "BURSTS": (0.0,), "CORRELATIONS": (0.95,)}
+    )
+    free = choose_sampling([(checkpoint, validation)], robot, 2, reference=validation)
+    assert set(free.calm) == set(CALM_KEYS)  # the people's figures, commanded
+    assert "calm budget" in free.summary()
+    assert "at limit %" in free.table()
+    per_setting = {
+        (t.correlation, t.burst, t.value): t.measures["at limit %"]
+        for t in free.trials
+        if t.setting == "second_temperature" and t.group == "arms"
+    }
+    assert len(set(per_setting.values())) > 1, "every arm setting is as calm"
+    limit = float(np.median(list(per_setting.values())))
+    budget = {"at limit %": limit, "wrist up %": 100.0, "wrist high %": 100.0}
+    monkeypatch.setattr(sampler_selection, "calm_reference", lambda *args: budget)
+    monkeypatch.setattr(sampler_selection, "BODY_BUDGET_PCT", 100.0)
+    monkeypatch.setattr(sampler_selection, "GATE_BUDGET_PCT", 100.0)
+    bound = choose_sampling([(checkpoint, validation)], robot, 2, reference=validation)
+    settings = bound.settings
+    chosen = (
+        settings["second_correlation"],
+        settings["second_burst"],
+        settings["second_temperature"],
+    )
+    scores = part_scores(bound.trials, "second_temperature", robot)
+    within = {k: v for k, v in scores.items() if per_setting.get(k, limit) <= limit}
+    assert chosen == min(within, key=within.get)
+    assert per_setting[chosen] <= limit
 
 
 def _head_motion(seconds: float, nods: bool, seed: int) -> tuple[np.ndarray, np.ndarray]:

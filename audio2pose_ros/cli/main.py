@@ -247,6 +247,23 @@ def command_check_head(args: argparse.Namespace) -> int:
     return 0
 
 
+def command_check_arms(args: argparse.Namespace) -> int:
+    """How calm the model's commanded arms are on the speech, beside the people's figures."""
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+    from audio2pose_ros.learning.arm_calm import arm_calm_table, model_calm, people_row
+    from audio2pose_ros.resources import default_checkpoint_path
+    from audio2pose_ros.robot.description import load_robot
+
+    checkpoint = load_checkpoint(args.model or default_checkpoint_path(), robot=load_robot())
+    speech = {str(path): _read_speech(path) for path in map(_speech_input, args.inputs)}
+    label = f"model, {len(speech)} input(s), seeds 0..{args.seeds - 1}, commanded"
+    people = people_row(checkpoint)
+    rows = [people] if people is not None else []
+    rows.append(model_calm(checkpoint, speech, range(args.seeds), label))
+    print(arm_calm_table(rows))
+    return 0
+
+
 BENCH_SCHEMA_VERSION = 3  # 1: before versioning; 2: graph figures a list of modes; 3: floor
 
 
@@ -611,6 +628,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="a data set (audio2pose dataset ...): its real head motion, per speaker, beside it",
     )
     head.set_defaults(func=command_check_head)
+
+    arms = verbs.add_parser(
+        "check-arms",
+        help="how often the commanded arms hit the acceleration limit or rise above the shoulders",
+    )
+    arms.add_argument("inputs", nargs="+", metavar="FILE.wav|BAG", help="speech to synthesize")
+    arms.add_argument("--model", help="checkpoint (default: packaged model)")
+    arms.add_argument(
+        "--seeds",
+        type=bounded_int(1, 100),
+        default=4,
+        help="sample at seeds 0..N-1 (default 4)",
+    )
+    arms.set_defaults(func=command_check_arms)
 
     bench = verbs.add_parser("bench", help="per-frame cost of the streaming path")
     bench.add_argument("--model", help="checkpoint (default: packaged model)")

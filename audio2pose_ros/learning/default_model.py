@@ -27,6 +27,7 @@ people, its arms and hip imitate the procedural rule, and the model card says so
 
 from __future__ import annotations
 
+import json
 import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -40,6 +41,7 @@ from audio2pose_ros.audio.features import FeatureSpec, extract_features
 from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
 from audio2pose_ros.data.importers.extras import save_extras
 from audio2pose_ros.data.importers.video import VideoImportSettings, import_video
+from audio2pose_ros.learning.arm_calm import PEOPLE_INFO_KEY
 from audio2pose_ros.models.live_groups import LiveGroups
 from audio2pose_ros.motion.prosody import prosody_trajectory
 from audio2pose_ros.robot.description import RobotDescription
@@ -47,6 +49,7 @@ from audio2pose_ros.robot.description import RobotDescription
 if TYPE_CHECKING:
     from audio2pose_ros.checkpoints.torch_io import Checkpoint
     from audio2pose_ros.learning.evaluation import Predictions
+    from audio2pose_ros.learning.source_holdout import HoldoutResult
     from audio2pose_ros.learning.training import TrainSettings
 
 GRID_LICENCE = (
@@ -252,6 +255,39 @@ def _validation_ids(clips: list[Clip]) -> set[str]:
     return ids
 
 
+def calm_table(
+    checkpoint: Checkpoint, shipped: HoldoutResult, test: Sequence[Clip], seeds: range
+) -> str:
+    """The card's calm-arms table (:mod:`~audio2pose_ros.learning.arm_calm`), with its heading.
+
+    Rows: the people's figures the arm part's settings were chosen within (the lecturer's
+    training and validation stretches, commanded: the choice's calm budget, also kept in the
+    checkpoint's info); the lecture's held-out stretch, real and the shipped model's samples,
+    commanded; the shipped model on the bundled LibriVox speech over ``seeds``, commanded.
+    """
+    from audio2pose_ros.learning.arm_calm import arm_calm, arm_calm_table, model_calm, people_row
+    from audio2pose_ros.learning.command_path import commanded
+    from audio2pose_ros.robot.body import BodyModel
+
+    robot = checkpoint.robot
+    body = BodyModel.load(robot)
+    people = people_row(checkpoint)
+    rows = [people] if people is not None else []
+    real = commanded(robot, [c.angles_rad for c in test])
+    known = [(m, c.mask) for m, c in zip(real, test, strict=True)]
+    rows.append(arm_calm("people: lecturer, held-out stretch", robot, body, known))
+    model = [m for c in test for m in commanded(robot, shipped.raw[c.info.clip_id])]
+    rows.append(arm_calm("shipped, held-out lecture stretch", robot, body, model))
+    label = f"shipped, LibriVox, seeds {seeds.start}..{seeds.stop - 1}"
+    rows.append(model_calm(checkpoint, bundled_speech(), seeds, label))
+    return (
+        "calm arms, commanded (shipped motion filter): arm joint-frames at the acceleration "
+        "limit, frames with a wrist above its shoulder and more than 10 cm above it, "
+        "shoulder-pitch and elbow-yaw speed (rad/s) / acceleration (rad/s^2) percentiles\n"
+        + arm_calm_table(rows)
+    )
+
+
 def prosody_predictions(
     clips: Sequence[Clip], robot: RobotDescription
 ) -> tuple[Predictions, Predictions]:
@@ -401,7 +437,12 @@ def build_learned_default_model(
         progress("  " + result.timing())
     progress("  chosen (shipped): " + shipped.choice.summary())
     checkpoint = replace(
-        shipped.checkpoint, info={**shipped.checkpoint.info, **describe_learned_data()}
+        shipped.checkpoint,
+        info={
+            **shipped.checkpoint.info,
+            **describe_learned_data(),
+            PEOPLE_INFO_KEY: json.dumps(dict(shipped.choice.calm)),
+        },
     )
     checkpoint_path = out_dir / "default.safetensors"
     save_checkpoint(checkpoint_path, checkpoint)
@@ -493,6 +534,8 @@ def build_learned_default_model(
         + "\n\nthe same without body-aware sampling (body_band_m = 0: the arm noise ignores "
         "the body)\n" + speech_body_table(unaware_rows, margin)
     )
+    progress("measuring how calm the commanded arms are, against the lecturer's")
+    calm = calm_table(checkpoint, shipped, test, seeds)
     progress("measuring the head on other speakers' speech")
     style_rows = head_style_rows(
         checkpoint,
@@ -507,12 +550,23 @@ def build_learned_default_model(
     )
     table = "\n\n".join(report.heading() + "\n" + report.quality.table() for report in reports)
     table += "\n\n" + command + "\n\n" + body
+    table += "\n\n" + calm
     table += "\n\nthe head on other speakers' speech\n" + style
     selection = "\n\n".join(
         f"sampling settings of the {r.name} model\n" + r.choice.table() for r in results
     )
     (out_dir / "metrics.txt").write_text(table + "\n\n" + selection + "\n", encoding="utf-8")
     card = write_learned_model_card(
-        out_dir, checkpoint, shipped.report, heads, lecture, reports, results, body, style, command
+        out_dir,
+        checkpoint,
+        shipped.report,
+        heads,
+        lecture,
+        reports,
+        results,
+        body,
+        style,
+        command,
+        calm,
     )
     return DefaultModelResult(checkpoint_path, card, table)

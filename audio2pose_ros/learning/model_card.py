@@ -452,15 +452,18 @@ its training sources only: the model that holds GRID out chooses on an Obama cli
 lecture stretch, the one that holds Obama out on a GRID clip and a lecture stretch, so the
 head's settings are never chosen on the source they are scored on. (The arms have one source,
 the lecture: their settings are chosen on a training stretch of it, and scored on its held-out
-stretch.) The head aims at people who speak to people: where a model's validation clips hold
-such a source (Obama's addresses), its head settings are chosen on that source only, not on
-GRID's readers, who hold their heads four to five times stiller (the shipped model chooses on
-the Obama clip; the model that holds Obama out has only GRID to choose on). Every combination
+stretch.) The head aims between GRID's readers and Obama addressing his audience, who moves
+his head four to five times more: no model can guess a new speaker's style from the voice.
+Its measures are taken against each source's validation clips apart and combined, the std
+ratio as the geometric mean of the per-source ratios, so the size term is least at the
+geometric mean of the sources' sizes (the shipped model chooses on a GRID and an Obama clip;
+a model that holds one source out aims at the other). Every combination
 of a correlation of {correlations}, a burstiness of {bursts} and a temperature of
 {temperatures} is sampled ({N_SEEDS} samples per clip) and scored per joint group by
 mean(H speed, H accel) + |ln(std ratio)|, plus, for the head, the mean |ln| of the ratios of
-its speed and acceleration percentiles (p50, p90, p99) to those of the chosen source's real
-motion pooled over all its training and validation clips (the "tail" column: a clip of a few
+its speed and acceleration percentiles (p50, p90, p99) to the geometric mean over the sources
+of their real motion's, each pooled over all its training and validation clips (the "tail"
+column: a clip of a few
 seconds holds too few quick nods to judge them, and the Hellinger distance on 0.1 rad/s bins
 does not see them). The head's burstiness is then also tried per joint (HeadPitch, HeadYaw:
 each pair of two different values of the list), at the best correlation and at the best
@@ -475,7 +478,11 @@ input gate refuses none of its raw steps. Each part keeps its best correlation,
 burstiness and temperature (the head and the arms each have their own noise correlation),
 among those whose raw steps the motion filter's input gate would refuse, as faster than the
 robot can move, in at most {GATE_BUDGET_PCT:g} % of frames, and, for the arms, within the
-body budget. Then
+body budget and the calm budget: the first sample on every arm clip and on the speech without
+arms, through the motion filter as shipped, has its arm accelerations at the limiter, and a
+wrist above the shoulder and more than 10 cm above it, no more often than the lecturer's
+training and validation stretches through the same filter (the overrun in percentage points
+counts like the body budget's). Then
 the highest rest level of {rests} whose speech/pause speed ratio is at least {PAUSE_MARGIN:g}
 times the target (head 2, arms and hip 1.5). Fixed, not chosen per build: the noise's order
 (2), the gate's margin (1), width (0.2) and time constants, the burst envelope's time constant
@@ -520,18 +527,21 @@ def write_learned_model_card(
     body: str,
     style: str,
     command: str,
+    calm: str = "",
 ) -> Path:
     """Write ``out_dir/MODEL_CARD.md`` of the learned default model (``live_groups``).
 
     ``body`` is the table of :func:`~audio2pose_ros.learning.body_realism.body_table`,
     ``style`` that of :func:`~audio2pose_ros.learning.speech_style.head_style_table`,
     ``command`` the evaluation of the commanded motion
-    (:mod:`~audio2pose_ros.learning.command_path`).
+    (:mod:`~audio2pose_ros.learning.command_path`), ``calm`` the table of
+    :func:`~audio2pose_ros.learning.arm_calm.arm_calm_table`.
 
     Also writes its figures: ``summary.png`` (:func:`plot_summary`), ``head_percentiles.png``
     (:func:`plot_percentiles`); the histograms come from the evaluation.
     """
-    from audio2pose_ros.data.importers.lecture import LECTURE_LICENCE, TEST_SPAN_S
+    from audio2pose_ros.data.importers.lecture import BOARD_S, LECTURE_LICENCE, TEST_SPAN_S
+    from audio2pose_ros.learning.arm_calm import AT_LIMIT_FRACTION, HIGH_ABOVE_M
 
     n_params = sum(p.numel() for p in checkpoint.model.parameters())
     model = cast(LiveGroups, checkpoint.model)  # the learned default is live_groups
@@ -587,7 +597,10 @@ validation clips {", ".join(validation)}). Rebuild it with `make default-model`.
 - **Arms (shoulder and elbow joints) and HipRoll**: upper-body pose of a lecturer measured
   with MediaPipe Pose (world landmarks) where both his arms are visible, retargeted to Pepper
   by inverting its kinematic chain (`audio2pose_ros/data/importers/upper_body.py`); frames
-  without visible arms are masked out of training, not filled. The head is not labelled in the
+  without visible arms are masked out of training, not filled, and so are his stretches at
+  the board (a wrist held above the shoulder for {BOARD_S:g} s or more: writing or pointing,
+  not gesturing while talking; `board_frames` in
+  `audio2pose_ros/data/importers/lecture.py`). The head is not labelled in the
   lecture, the arms not in the talking heads: each part of the model learns only from the
   clips that label its joints.
 - The hand-written prosody rule is **not** used; it remains available as the explicitly named
@@ -603,8 +616,9 @@ validation clips {", ".join(validation)}). Rebuild it with `make default-model`.
 - {LECTURE_LICENCE}.
 
 Talking-head clips: {len(heads.clips)} ({len(heads.speakers)} speakers). Lecture: the stretches
-with both arms visible; the stretch from {TEST_SPAN_S[0]:.0f} s to {TEST_SPAN_S[1]:.0f} s (at
-the blackboard) is held out of every training.
+with both arms visible, not at the board; the stretch from {TEST_SPAN_S[0]:.0f} s to
+{TEST_SPAN_S[1]:.0f} s (at the blackboard, gesturing between writing) is held out of every
+training.
 
 ## How it was evaluated: whole recording sources held out
 A score on speakers of the recordings a model trained on does not predict how it does on new
@@ -703,6 +717,27 @@ no commanded motion can be expected closer to the real than that row.
 {command}
 ```
 
+## Calm arms: what a person talking does, through the same filter
+
+A default model meets people it has never seen: its arms should move like someone in an
+ordinary conversation, not like a lecturer at a board. Two figures say how far from that the
+commanded arms are (`audio2pose_ros/learning/arm_calm.py`), for the model and for the real
+people's motion through the same filter (the shipped `motion_filter_node` core; the robot's
+limits cost both alike): the share of arm joint-frames whose commanded acceleration is at the
+limiter (within {AT_LIMIT_FRACTION * 100:g} % of the joint's acceleration limit: braked and
+launched at the limit, bang-bang), and the share of frames with a wrist above its shoulder's
+height, and more than {HIGH_ABOVE_M * 100:g} cm above it. Beside them, the speed and
+acceleration percentiles of the shoulder-pitch and elbow-yaw joints, left and right pooled.
+The people's figures ("people") are the lecturer's talking stretches, those the arm part
+trains and chooses its settings on (the board stretches masked): the arm part's sampling
+settings are chosen within them (the calm budget of
+`audio2pose_ros/learning/sampler_selection.py`). Print it for any model and speech:
+`audio2pose check-arms [--model M] FILE.wav ...`.
+
+```
+{calm}
+```
+
 ## The arms and the body
 
 Retargeted arms were moved clear of Pepper's body before training (the importers' last step,
@@ -731,8 +766,9 @@ one sample can stray; and the same again with the arm noise blind to the body.
   camera, Obama's weekly addresses): front-facing, English. GRID's readers hold their heads
   far stiller than Obama, so a model trained on one source and scored on the other shows how
   much the sources differ as much as how the model does. The shipped head's sampling settings
-  aim at Obama's motion (speech addressed to people), chosen on one validation clip of his;
-  the motion filter's `head_gain` (0 to 1) scales the head's motion down for a stiller robot.
+  aim between them (the geometric mean of their sizes and of their speed and acceleration
+  percentiles), chosen on one validation clip of each; the motion filter's `head_gain` (0 to
+  1) scales the head's motion down for a stiller robot.
 - The arms learned from one lecturer (his style, often holding a ball or handling
   apparatus, 240p video at 15 fps: fast hand motion is blurred); they are scored on a held-out
   stretch of the same lecture, not on a new speaker.

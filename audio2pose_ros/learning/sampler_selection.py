@@ -78,7 +78,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import cast
 
@@ -88,6 +88,7 @@ from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Clip
 from audio2pose_ros.data.importers.body_clearance import TRAINING_CLEARANCE_M
 from audio2pose_ros.learning import metrics, realism
+from audio2pose_ros.learning.arm_calm import CALM_KEYS, arm_calm, figures
 from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 from audio2pose_ros.models.live_groups import LiveGroups
@@ -100,7 +101,7 @@ from audio2pose_ros.timebase import FRAME_RATE_HZ, SAMPLE_RATE_HZ
 
 TEMPERATURES = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0)
 BURSTS = (0.0, 0.6, 1.2)  # log-std of the noise's burst envelope (0 = steady noise)
-CORRELATIONS = (0.95, 0.975)  # AR(1) coefficient of the noise (second order)
+CORRELATIONS = (0.95, 0.975, 0.99)  # AR(1) coefficient of the noise (second order)
 SILENCE_TEMPERATURES = (0.3, 0.2, 0.1, 0.05, 0.02)  # most noise left in silence first
 PAUSE_TARGETS = {"head": 2.0, "arms": 1.5, "hip": 1.5}  # targets: speech / silence speed
 PAUSE_MARGIN = 1.25
@@ -189,6 +190,8 @@ class SamplingChoice:
         seconds: their length.
         n_models: how many trained models predicted them.
         body_seconds: length of the further speech the arms' body budget was checked on.
+        calm: the arms' calm budget (:data:`CALM_KEYS` of :func:`calm_reference`: the real
+            people's figures through the motion filter); empty without one.
 
     """
 
@@ -198,6 +201,7 @@ class SamplingChoice:
     seconds: float = 0.0
     n_models: int = 0
     body_seconds: float = 0.0
+    calm: Mapping[str, float] = field(default_factory=dict)
 
     def summary(self) -> str:
         """One line: the chosen values and what they were chosen on."""
@@ -209,6 +213,9 @@ class SamplingChoice:
             if self.body_seconds
             else ""
         )
+        if self.calm:
+            budget = ", ".join(f"{k} <= {v:.1f}" for k, v in self.calm.items())
+            more += f"; the arms' calm budget (the people's, commanded): {budget}"
         return (
             f"{chosen} (on {len(self.validation)} validation clips, {self.seconds:.0f} s, "
             f"predicted by {self.n_models} model(s), {N_SEEDS} samples each{more})"
@@ -229,7 +236,7 @@ class SamplingChoice:
             self.summary(),
             f"{'setting':<21}{'corr':>6}{'burst':>8}{'value':>8}  {'group':<6}{'H speed':>8}"
             f"{'H accel':>8}{'std/real':>9}{'tail':>6}{'score':>7}{'speech/pause':>13}"
-            f"{'near body %':>12}{'gate refused %':>15}",
+            f"{'near body %':>12}{'gate refused %':>15}" + "".join(f"{k:>14}" for k in CALM_KEYS),
         ]
         for t in self.trials:
             m = t.measures
@@ -249,6 +256,7 @@ class SamplingChoice:
                 + (f"{'':>13}" if "near body %" in m or "gate refused %" in m else "")
                 + (f"{m['near body %']:>12.1f}" if "near body %" in m else f"{'':>12}")
                 + (f"{m['gate refused %']:>15.2f}" if "gate refused %" in m else "")
+                + "".join(f"{m[k]:>14.1f}" for k in CALM_KEYS if k in m)
             )
         return "\n".join(lines)
 
@@ -346,6 +354,8 @@ class _Evidence:
         speech: speech activity per frame (energy VAD).
         known: per observed group, its (frames, joints) mask.
         real: per observed group, the real motion's segment statistics (not for paused audio).
+        style: the recording source whose style the clip shows (:func:`choose_sampling`'s
+            ``style_of``); "" without one.
 
     """
 
@@ -354,6 +364,7 @@ class _Evidence:
     speech: np.ndarray
     known: dict[str, np.ndarray]
     real: dict[str, metrics.MotionSegments]
+    style: str = ""
 
 
 def _evidence(
@@ -361,11 +372,13 @@ def _evidence(
     robot: RobotDescription,
     paused: bool,
     body_audio: Sequence[np.ndarray] = (),
+    style_of: Callable[[Clip], str] | None = None,
 ) -> list[_Evidence]:
     """Every fold's clips, features and real motion computed once for all settings.
 
     ``body_audio`` (16 kHz utterances) adds items without motion to compare: their samples
-    count for the body budget only, sampled by the first fold's model.
+    count for the body budget only, sampled by the first fold's model. ``style_of`` names
+    each clip's style (:attr:`_Evidence.style`).
     """
     from audio2pose_ros.learning.evaluation import with_pause
     from audio2pose_ros.offline.synthesis import normalized_features
@@ -393,7 +406,8 @@ def _evidence(
                 if not paused:
                     true = np.nan_to_num(clip.angles_rad[:n, joints])
                     real[g] = metrics.segment_statistics(true, mask, speech, FRAME_RATE_HZ)
-            out.append(_Evidence(checkpoint, frames, speech, known, real))
+            style = style_of(clip) if style_of is not None else ""
+            out.append(_Evidence(checkpoint, frames, speech, known, real, style))
     return out
 
 
@@ -405,14 +419,18 @@ def _measures(
     paused: bool,
     body: BodyModel | None = None,
     tails: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
+    calm: Mapping[str, float] | None = None,
 ) -> dict[str, dict[str, float]]:
     """Group -> measures of the samples (``n_seeds`` per clip) with ``settings``, pooled.
 
     With ``body``, the arms' measures also hold ``near body %``: the share of sampled frames
     (every :data:`BODY_CHECK_EVERY`-th, on every clip's audio) closer to the body than
     :data:`BODY_MARGIN_M`. A group of ``tails`` (group -> reference speed and acceleration
-    percentiles) also has ``tail``: :func:`tail_distance` of its samples.
+    percentiles) also has ``tail``: :func:`tail_distance` of its samples. With ``body`` and a
+    ``calm`` reference (:func:`calm_reference`), the arms' measures also hold its keys
+    (:data:`CALM_KEYS`) for the first sample of every item as the motion filter commands it.
     """
+    from audio2pose_ros.learning.command_path import commanded
     from audio2pose_ros.offline.synthesis import sample_normalized, to_angles
 
     tails = tails or {}  # paused audio is never given tails: it has no real motion
@@ -420,10 +438,12 @@ def _measures(
     near = [0, 0]  # frames closer than the margin, frames checked
     jumps: dict[str, list[int]] = {}  # group -> [raw steps the filter's gate refuses, steps]
     gate_bound = None
-    real: dict[str, list[metrics.MotionSegments]] = {}
-    generated: dict[str, list[metrics.MotionSegments]] = {}
+    # (group, style) -> segments; only the groups of TAIL_GROUPS are told apart by style
+    real: dict[tuple[str, str], list[metrics.MotionSegments]] = {}
+    generated: dict[tuple[str, str], list[metrics.MotionSegments]] = {}
     motions: dict[str, list[realism.Motion]] = {}  # groups of ``tails``: the sampled motion
     candidates: dict[int, Checkpoint] = {}
+    commands: list[np.ndarray] = []  # the first sample of every item, commanded (calm)
     for item in evidence:
         checkpoint = item.checkpoint
         if id(checkpoint) not in candidates:
@@ -436,6 +456,8 @@ def _measures(
         if gate_bound is None:
             gate_bound = _gate_bound(candidate)
         steps = np.abs(np.diff(candidate.robot.denormalize(raw[:, :n]), axis=1)) > gate_bound
+        if body is not None and calm is not None:
+            commands += commanded(robot, [to_angles(candidate, raw[0, :n], smooth=False)])
         if body is not None:
             checked = np.concatenate([m[::BODY_CHECK_EVERY] for m in samples])
             near[0] += int(np.count_nonzero(body.clearance(checked) < BODY_MARGIN_M))
@@ -448,7 +470,8 @@ def _measures(
             count[1] += steps.shape[0] * steps.shape[1]
         for g, known in item.known.items():
             joints = robot.group_mask(g)
-            generated.setdefault(g, []).append(
+            key = (g, item.style if g in TAIL_GROUPS and not paused else "")
+            generated.setdefault(key, []).append(
                 metrics.sum_segments(
                     [
                         metrics.segment_statistics(m[:, joints], known, item.speech, FRAME_RATE_HZ)
@@ -457,24 +480,47 @@ def _measures(
                 )
             )
             if not paused:
-                real.setdefault(g, []).append(item.real[g])
+                real.setdefault(key, []).append(item.real[g])
             if g in tails:
                 motions.setdefault(g, []).extend((m[:, joints], known) for m in samples)
-    out = {}
-    for g, parts in generated.items():
+    out: dict[str, dict[str, float]] = {}
+    styles: dict[str, list[dict[str, float]]] = {}  # group -> its measures per style
+    for (g, style), parts in generated.items():
         gen = metrics.concat_segments(parts)
         if paused:
             ratio = metrics.distribution_measures(gen, gen)["speech/silence speed"]
             out[g] = {"speech/pause speed": ratio}
         else:
-            out[g] = metrics.distribution_measures(metrics.concat_segments(real[g]), gen)
+            measured = metrics.distribution_measures(metrics.concat_segments(real[(g, style)]), gen)
+            styles.setdefault(g, []).append(measured)
+    for g, per_style in styles.items():
+        out[g] = between_styles(per_style)
     for g, motion in motions.items():
         out[g]["tail"] = tail_distance(motion, tails[g])
     if body is not None and "arms" in out and near[1]:
         out["arms"]["near body %"] = 100.0 * near[0] / near[1]
+    if body is not None and calm is not None and "arms" in out and commands:
+        out["arms"] |= calm_measures(robot, body, commands)
     for g, (refused, total) in jumps.items():
         if g in out and total and not paused:
             out[g]["gate refused %"] = 100.0 * refused / total
+    return out
+
+
+def between_styles(per_style: Sequence[Mapping[str, float]]) -> dict[str, float]:
+    """One group's measures against several styles of real motion, as one set.
+
+    The distances are averaged and the std ratio is the geometric mean of the per-style
+    ratios, so the size term ``|ln(std ratio)|`` of :func:`score` is least for motion sized
+    at the geometric mean of the styles' sizes: between a calm reader and an animated
+    addresser, not at either. A single style's measures are returned as they are.
+    """
+    if len(per_style) == 1:
+        return dict(per_style[0])
+    out = {k: float(np.mean([m[k] for m in per_style])) for k in per_style[0]}
+    ratios = np.array([m["std ratio"] for m in per_style])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out["std ratio"] = float(np.exp(np.mean(np.log(ratios))))
     return out
 
 
@@ -490,15 +536,58 @@ def _gate_bound(checkpoint: Checkpoint) -> np.ndarray:
 
 
 def reference_percentiles(
-    clips: Sequence[Clip], robot: RobotDescription
+    clips: Sequence[Clip],
+    robot: RobotDescription,
+    style_of: Callable[[Clip], str] | None = None,
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Per group of :data:`TAIL_GROUPS` that ``clips`` observe: its real motion's percentiles."""
+    """Per group of :data:`TAIL_GROUPS` that ``clips`` observe: its real motion's percentiles.
+
+    With ``style_of``, the percentiles of each style's clips, and their geometric mean over
+    the styles (between them, as :func:`between_styles`).
+    """
     out = {}
     for g in TAIL_GROUPS:
-        observed = realism.clip_motions(clips, robot.group_mask(g))
-        if observed:
-            out[g] = realism.speed_percentiles(observed, FRAME_RATE_HZ)
+        groups: dict[str, list[Clip]] = {}
+        for clip in clips:
+            groups.setdefault(style_of(clip) if style_of is not None else "", []).append(clip)
+        each = []
+        for members in groups.values():
+            observed = realism.clip_motions(members, robot.group_mask(g))
+            if observed:
+                each.append(realism.speed_percentiles(observed, FRAME_RATE_HZ))
+        if each:
+            speed = np.exp(np.mean([np.log(np.maximum(e[0], 1e-4)) for e in each], axis=0))
+            accel = np.exp(np.mean([np.log(np.maximum(e[1], 1e-4)) for e in each], axis=0))
+            out[g] = (speed, accel)
     return out
+
+
+def calm_measures(
+    robot: RobotDescription, body: BodyModel, commands: Sequence[realism.Motion | np.ndarray]
+) -> dict[str, float]:
+    """The calm figures (:data:`~audio2pose_ros.learning.arm_calm.CALM_KEYS`) of arm motion.
+
+    The share of arm joint-frames at the acceleration limit, and of frames with a wrist above
+    its shoulder and well above it (%), of motion already commanded.
+    """
+    return figures(arm_calm("", robot, body, commands))
+
+
+def calm_reference(
+    clips: Sequence[Clip], robot: RobotDescription, body: BodyModel
+) -> dict[str, float]:
+    """:func:`calm_measures` of the real arm motion of ``clips`` through the motion filter.
+
+    Empty when no clip observes the arms. Only the frames where the arms are observed count.
+    """
+    from audio2pose_ros.learning.command_path import commanded
+
+    arms = robot.group_mask("arms")
+    seen = [c for c in clips if c.mask[:, arms].any()]
+    if not seen:
+        return {}
+    moved = commanded(robot, [c.angles_rad for c in seen])
+    return calm_measures(robot, body, [(m, c.mask) for m, c in zip(moved, seen, strict=True)])
 
 
 def _rank(scored: tuple[float, float, float, Burst, Setting]) -> tuple[float, float]:
@@ -549,6 +638,7 @@ def choose_sampling(
     n_seeds: int = N_SEEDS,
     body_audio: Sequence[np.ndarray] = (),
     reference: Sequence[Clip] = (),
+    style_of: Callable[[Clip], str] | None = None,
 ) -> SamplingChoice:
     """Choose the sampling settings on the folds' clips (see the module docstring).
 
@@ -562,10 +652,15 @@ def choose_sampling(
         reference: real motion whose speed and acceleration percentiles the groups of
             :data:`TAIL_GROUPS` should have (the ``tail`` term of :func:`score`), pooled over
             these clips where they observe the group; never the clips the model is scored on.
+            Its arm motion through the motion filter also sets the arms' calm budget
+            (:func:`calm_reference`).
+        style_of: the style (recording source) of a clip: the groups of :data:`TAIL_GROUPS`
+            are then measured against each style apart and aim between them
+            (:func:`between_styles`, :func:`reference_percentiles`); None = one style.
 
     """
     folds = [(c, v) for c, v in folds if isinstance(c.model, LiveGroups) and v]
-    tails = reference_percentiles(reference, robot)
+    tails = reference_percentiles(reference, robot, style_of)
     clips = [clip for _, v in folds for clip in v]
     names = tuple(c.info.clip_id for c in clips)
     seconds = sum(c.n_frames for c in clips) / FRAME_RATE_HZ
@@ -580,7 +675,8 @@ def choose_sampling(
     }
     weights = {s: [int(robot.group_mask(g).sum()) for g in part] for s, part in parts.items()}
     body = BodyModel.load(robot) if any("arms" in part for part in parts.values()) else None
-    evidence = _evidence(folds, robot, False, body_audio if body is not None else ())
+    calm = calm_reference(reference, robot, body) if body is not None else {}
+    evidence = _evidence(folds, robot, False, body_audio if body is not None else (), style_of)
     trials: list[Trial] = []
     # per part: (% over the body budget, score, correlation, burst, temperature) of every
     # combination tried; the lowest wins, so a setting within the budget beats any other
@@ -597,7 +693,9 @@ def choose_sampling(
         for s, (correlation, burst, value) in noise.items():
             settings |= {s: value, _PART_BURSTS[s]: burst, _PART_CORRELATIONS[s]: correlation}
         arms = any("arms" in parts[s] for s in noise)
-        measured = _measures(items, settings, robot, n_seeds, False, body if arms else None, tails)
+        measured = _measures(
+            items, settings, robot, n_seeds, False, body if arms else None, tails, calm or None
+        )
         for s, (correlation, burst, value) in noise.items():
             part = parts[s]
             trials.extend(Trial(s, value, g, measured[g], correlation, burst) for g in part)
@@ -605,6 +703,8 @@ def choose_sampling(
             near = measured["arms"].get("near body %", 0.0) if "arms" in part else 0.0
             refused = sum(measured[g].get("gate refused %", 0.0) for g in part)
             over = max(0.0, near - BODY_BUDGET_PCT) + max(0.0, refused - GATE_BUDGET_PCT)
+            if "arms" in part:
+                over += sum(max(0.0, measured["arms"].get(k, 0.0) - calm[k]) for k in calm)
             scored[s].append((over, total, correlation, burst, value))
 
     for correlation in CORRELATIONS:
@@ -646,7 +746,7 @@ def choose_sampling(
         if all(ratios[g]["speech/pause speed"] >= PAUSE_MARGIN * PAUSE_TARGETS[g] for g in groups):
             break
     body_seconds = sum(len(a) for a in body_audio) / SAMPLE_RATE_HZ if body is not None else 0.0
-    return SamplingChoice(chosen, tuple(trials), names, seconds, len(folds), body_seconds)
+    return SamplingChoice(chosen, tuple(trials), names, seconds, len(folds), body_seconds, calm)
 
 
 def apply_sampling(checkpoint: Checkpoint, choice: SamplingChoice) -> Checkpoint:

@@ -14,17 +14,18 @@ trained on it, and whose arm settings were chosen on another stretch of the same
 
 **Whose head motion the sampling settings aim at.** GRID's speakers read short prompted command
 sentences to a camera and hold their heads four to five times stiller than Obama addressing his
-audience (standard deviation 0.3 to 1.6 degrees per clip against 1.3 to 5.5), and than the
-speakers of other recordings we were scored on. A telepresence robot speaks to people, so when a
-task's validation clips include a source of speech addressed to people, the head's sampling
-settings are chosen on that source only (:func:`selection_clips`): GRID still teaches the head
-when to move, through training, but not how far. A task whose only head source is GRID (the
-fold that holds Obama out) chooses on GRID. The choice also asks the head's speed and
-acceleration percentiles (p50, p90, p99) to be those of that source's real motion, pooled over
-all its training and validation clips (the ``tail`` term of
+audience (standard deviation 0.3 to 1.6 degrees per clip against 1.3 to 5.5). Neither is the
+style of a person the robot has never seen: no model can guess a new speaker's style from the
+voice, so the default aims between them. The head's measures are taken against each source's
+validation clips apart (:func:`clip_style`) and combined
+(:func:`~audio2pose_ros.learning.sampler_selection.between_styles`): the size term is least for
+a head sized at the geometric mean of the sources' sizes. The choice also asks the head's speed
+and acceleration percentiles (p50, p90, p99) to be the geometric mean over the sources of their
+real motion's, each pooled over all its training and validation clips (the ``tail`` term of
 :func:`~audio2pose_ros.learning.sampler_selection.score`): a validation clip of a few seconds
 holds too few quick nods to judge them, and the Hellinger distance on 0.1 rad/s bins does not
-see them.
+see them. A task whose only head source is one of them (a fold that holds the other out) aims
+at that one.
 
 Every fold (and the shipped model) is one :class:`HoldoutTask`: train, choose, sample, in one
 picklable call, so the folds run side by side (:func:`~audio2pose_ros.learning.parallel.run_tasks`).
@@ -34,7 +35,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -54,7 +55,6 @@ from audio2pose_ros.robot.description import RobotDescription
 
 GRID, OBAMA, LECTURE = "GRID", "Obama", "lecture"
 HEAD_SOURCES = (GRID, OBAMA)
-STILL_SOURCES = frozenset({GRID})  # read, not addressed to anyone: not the head's target
 SHIPPED = "shipped"
 MODEL_NAME = "live_groups"
 
@@ -85,23 +85,9 @@ def recording_source(info: ClipInfo) -> str:
     return source
 
 
-def selection_clips(validation: Sequence[Clip], robot: RobotDescription) -> tuple[Clip, ...]:
-    """The validation clips the sampling settings are chosen on (see the module text).
-
-    Clips of :data:`STILL_SOURCES` lose their head labels (the mask only) when another clip
-    labels the head; clips of speakers of no known source count as addressed speech.
-    """
-
-    def still(clip: Clip) -> bool:
-        try:
-            return recording_source(clip.info) in STILL_SOURCES
-        except ValueError:
-            return False
-
-    head = robot.group_mask("head")
-    if not any(c.mask[:, head].any() and not still(c) for c in validation):
-        return tuple(validation)
-    return tuple(replace(c, mask=c.mask & ~head) if still(c) else c for c in validation)
+def clip_style(clip: Clip) -> str:
+    """The style a clip shows: its recording source, or its speaker for a speaker of none."""
+    return speaker_source(clip.info.speaker) or clip.info.speaker
 
 
 @dataclass(frozen=True)
@@ -146,11 +132,11 @@ class HoldoutTask:
     Attributes:
         name: :data:`SHIPPED` or the held-out source.
         training: the clips it trains on.
-        validation: early stopping and the sampling choice (never scored clips;
-            :func:`selection_clips` of them for the choice); the audio of the training clips
-            that do not label the arms also counts for the arms' body budget, and the real head
-            motion of :func:`selection_clips` of the training and validation clips together
-            sets the head's percentile targets (the ``tail`` term of the choice's score).
+        validation: early stopping and the sampling choice (never scored clips; each
+            :func:`clip_style` apart for the head); the audio of the training clips that do not
+            label the arms also counts for the arms' body budget, and the real motion of the
+            training and validation clips together sets the head's percentile targets (the
+            ``tail`` term of the choice's score, between the styles) and the arms' calm budget.
         scored: clips to sample (the held-out source's, or the lecture's test stretch).
         robot: joint order and limits.
         settings: training settings.
@@ -187,10 +173,11 @@ class HoldoutTask:
         arms = self.robot.group_mask("arms")
         unlabelled = [c.audio for c in self.training if not c.mask[:, arms].any()]
         choice = choose_sampling(
-            [(checkpoint, selection_clips(self.validation, self.robot))],
+            [(checkpoint, self.validation)],
             self.robot,
             body_audio=unlabelled,
-            reference=selection_clips(self.training + self.validation, self.robot),
+            reference=self.training + self.validation,
+            style_of=clip_style,
         )
         checkpoint = apply_sampling(checkpoint, choice)
         seconds["choose"] = time.perf_counter() - start

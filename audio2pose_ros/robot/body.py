@@ -432,6 +432,30 @@ class BodyModel:
                 out[i, k] = torso.actInv(data.oMf[frame]).translation
         return out
 
+    def shoulder_positions(self, poses_rad: np.ndarray) -> np.ndarray:
+        """(N, 2, 3) positions (m) of the left and right shoulder joints in the torso's frame.
+
+        The shoulders are fixed to the torso, so these are the same in every pose; a wrist above
+        its shoulder is :meth:`wrist_positions` higher than this.
+        """
+        poses = np.atleast_2d(self._pose_array(poses_rad))
+        pin, model, data = self._pin, self._model, self._data
+        frames = [model.getFrameId(name) for name in ("torso", "LShoulder", "RShoulder")]
+        out = np.empty((len(poses), 2, 3))
+        for i, pose in enumerate(poses):
+            self._placements(pose)
+            pin.updateFramePlacements(model, data)
+            torso = data.oMf[frames[0]]
+            for k, frame in enumerate(frames[1:]):
+                out[i, k] = torso.actInv(data.oMf[frame]).translation
+        return out
+
+    def wrist_heights(self, poses_rad: np.ndarray) -> np.ndarray:
+        """(N, 2) height (m) of the left and right wrist above its own shoulder joint."""
+        poses = np.atleast_2d(self._pose_array(poses_rad))
+        shoulders = self.shoulder_positions(poses[:1])[0, :, 2]
+        return np.asarray(self.wrist_positions(poses)[..., 2] - shoulders)
+
     def pair_distances(self, pose_rad: np.ndarray) -> np.ndarray:
         """Signed distance (m) of every pair of :attr:`link_pairs` in one pose.
 

@@ -17,6 +17,9 @@ section 4.2.3) and cuts the recording into clips at the stretches where the arms
   :data:`EDGE_S` at both ends of every
   observed stretch is masked as well, because the 4 Hz smoothing there mixes in unobserved
   frames: frames without visible arms are masked out of training, never filled with zeros;
+- stretches at the board (:func:`board_frames`: a wrist held above the shoulder for a second or
+  more, writing or pointing) are masked too: the default model learns how a person gestures
+  while talking, not how a lecturer writes on a board;
 - every stretch of at least :data:`MIN_STRETCH_S` with visible arms becomes one clip, with its
   audio; the stretch at :data:`TEST_SPAN_S` (the speaker gesturing at the blackboard) is the test
   split, held out of training, the others train.
@@ -36,6 +39,7 @@ from audio2pose_ros.data.importers.common import HEAD_JOINTS, assemble_clip
 from audio2pose_ros.data.importers.media import read_audio
 from audio2pose_ros.data.importers.video import VideoTracks, body_angles, track_video
 from audio2pose_ros.data.runs import true_runs
+from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.timebase import SAMPLES_PER_FRAME, WINDOW_SAMPLES, complete_frames
 
@@ -49,6 +53,8 @@ LECTURE_SPEAKER = "lewin"
 TEST_SPAN_S = (111.0, 137.0)  # front shot at the blackboard, gesturing (SOURCES.md)
 MIN_STRETCH_S = 2.0
 EDGE_S = 0.15
+BOARD_S = 1.0  # a wrist above its shoulder this long: at the board, not gesturing while talking
+BOARD_PAD_S = 0.25  # frames this close to such a stretch go with it (reaching up, coming down)
 
 
 def _erode(mask: np.ndarray, frames: int) -> np.ndarray:
@@ -58,6 +64,28 @@ def _erode(mask: np.ndarray, frames: int) -> np.ndarray:
         out[shift:] &= mask[:-shift]
         out[:-shift] &= mask[shift:]
     return out
+
+
+def board_frames(body: BodyModel, angles: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """(T,) frames at the board: a wrist above its shoulder for :data:`BOARD_S` or longer.
+
+    Speakers who talk raise a hand above the shoulder now and then, for a moment; a lecturer
+    writing or pointing on the board keeps it there. Each run of frames (arms known) with a
+    wrist above its shoulder (:meth:`~audio2pose_ros.robot.body.BodyModel.wrist_heights`) of at
+    least :data:`BOARD_S` counts, widened by :data:`BOARD_PAD_S` on both sides.
+    """
+    arms = body.robot.group_mask("arms")
+    seen = known[:, arms].all(axis=1)
+    up = np.zeros(len(angles), bool)
+    rows = np.flatnonzero(seen)
+    if rows.size:
+        up[rows] = body.wrist_heights(np.nan_to_num(angles[rows])).max(axis=1) > 0.0
+    board = np.zeros(len(angles), bool)
+    pad = round(BOARD_PAD_S * 100)
+    for start, stop in true_runs(up):
+        if stop - start >= BOARD_S * 100:
+            board[max(0, start - pad) : stop + pad] = True
+    return board
 
 
 def lecture_clips(
@@ -83,6 +111,7 @@ def lecture_clips(
         tracks.times_s, angles, observed, np.zeros(tracks.times_s.size), audio, info, robot
     )
     mask = _erode(whole.mask, round(EDGE_S * 100))
+    mask &= ~board_frames(BodyModel.load(robot), whole.angles_rad, mask)[:, None]
     shoulders = [robot.names.index(f"{side}ShoulderPitch") for side in "LR"]
     both = np.asarray(mask[:, shoulders].all(axis=1))
     mask &= both[:, None]  # one arm alone is mostly a close-up's guess (SOURCES.md)
