@@ -398,7 +398,7 @@ def build_learned_default_model(
         recording_source,
     )
     from audio2pose_ros.learning.speech_style import head_style_rows, head_style_table
-    from audio2pose_ros.motion.filter import MotionFilterSettings
+    from audio2pose_ros.motion.filter_settings import MotionFilterSettings
     from audio2pose_ros.robot.body import BodyModel
 
     settings = settings or LearnedBuildSettings()

@@ -94,7 +94,7 @@ from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 from audio2pose_ros.models.live_groups import LiveGroups
 from audio2pose_ros.models.sampling_noise import Burst, format_per_joint
 from audio2pose_ros.models.speech_gate import PART_BURST_KEYS, PART_CORRELATION_KEYS
-from audio2pose_ros.motion.filter import MotionFilterSettings
+from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.timebase import FRAME_RATE_HZ, SAMPLE_RATE_HZ
