@@ -142,7 +142,8 @@ def test_when_extreme_style_expect_finite_output(robot):
 
 
 def test_when_deprecated_filter_gain_given_expect_warning_and_the_style_size_set(robot):
-    from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+    from audio2pose_ros.motion.filter import MotionFilter
+    from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 
     with pytest.warns(DeprecationWarning, match="use StyleSettings"):
         settings = MotionFilterSettings(arms_gain=0.0)

@@ -90,7 +90,8 @@ from trajectory_msgs.msg import JointTrajectory
 from audio2pose_ros import topics
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.body_guard import GuardStatus
-from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+from audio2pose_ros.motion.filter import MotionFilter
+from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.motion.measured import SOURCE_WINDOW_S, MeasuredPoseCheck
 from audio2pose_ros.motion.sources import SingleSource
