@@ -414,23 +414,27 @@ class BodyModel:
             raise ValueError("poses must be finite")
         return poses
 
+    def _frame_positions(self, poses_rad: np.ndarray, frames: tuple[str, str]) -> np.ndarray:
+        """(N, 2, 3) positions (m) of two URDF frames in the torso's frame, for N poses."""
+        poses = np.atleast_2d(self._pose_array(poses_rad))
+        pin, model, data = self._pin, self._model, self._data
+        ids = [model.getFrameId(name) for name in ("torso", *frames)]
+        out = np.empty((len(poses), 2, 3))
+        for i, pose in enumerate(poses):
+            self._placements(pose)
+            pin.updateFramePlacements(model, data)
+            torso = data.oMf[ids[0]]
+            for k, frame in enumerate(ids[1:]):
+                out[i, k] = torso.actInv(data.oMf[frame]).translation
+        return out
+
     def wrist_positions(self, poses_rad: np.ndarray) -> np.ndarray:
         """(N, 2, 3) positions (m) of the left and right wrist in the torso's frame.
 
         The torso frame (x forward, y left, z up) moves with the hip, so the positions describe
         where the hands are relative to the chest, whatever the hip does.
         """
-        poses = np.atleast_2d(self._pose_array(poses_rad))
-        pin, model, data = self._pin, self._model, self._data
-        frames = [model.getFrameId(name) for name in ("torso", "l_wrist", "r_wrist")]
-        out = np.empty((len(poses), 2, 3))
-        for i, pose in enumerate(poses):
-            self._placements(pose)
-            pin.updateFramePlacements(model, data)
-            torso = data.oMf[frames[0]]
-            for k, frame in enumerate(frames[1:]):
-                out[i, k] = torso.actInv(data.oMf[frame]).translation
-        return out
+        return self._frame_positions(poses_rad, ("l_wrist", "r_wrist"))
 
     def shoulder_positions(self, poses_rad: np.ndarray) -> np.ndarray:
         """(N, 2, 3) positions (m) of the left and right shoulder joints in the torso's frame.
@@ -438,17 +442,7 @@ class BodyModel:
         The shoulders are fixed to the torso, so these are the same in every pose; a wrist above
         its shoulder is :meth:`wrist_positions` higher than this.
         """
-        poses = np.atleast_2d(self._pose_array(poses_rad))
-        pin, model, data = self._pin, self._model, self._data
-        frames = [model.getFrameId(name) for name in ("torso", "LShoulder", "RShoulder")]
-        out = np.empty((len(poses), 2, 3))
-        for i, pose in enumerate(poses):
-            self._placements(pose)
-            pin.updateFramePlacements(model, data)
-            torso = data.oMf[frames[0]]
-            for k, frame in enumerate(frames[1:]):
-                out[i, k] = torso.actInv(data.oMf[frame]).translation
-        return out
+        return self._frame_positions(poses_rad, ("LShoulder", "RShoulder"))
 
     def wrist_heights(self, poses_rad: np.ndarray) -> np.ndarray:
         """(N, 2) height (m) of the left and right wrist above its own shoulder joint."""
