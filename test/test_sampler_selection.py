@@ -539,6 +539,39 @@ def test_when_arm_settings_are_livelier_than_people_commanded_expect_the_best_wi
     assert per_setting[chosen] <= limit
 
 
+def test_when_a_later_sample_raises_the_arms_expect_the_calm_figures_to_count_it(
+    checkpoint, selected, robot, monkeypatch
+):
+    """The robot runs with any seed: a raised arm in any sample drawn counts, not the first's."""
+    from audio2pose_ros.offline import synthesis
+    from audio2pose_ros.robot.body import BodyModel
+
+    validation, _, _ = selected
+    use_grid(monkeypatch, {"TEMPERATURES": (0.5,), "BURSTS": (0.0,), "CORRELATIONS": (0.95,)})
+    arms = robot.group_mask("arms")
+    raised = robot.neutral_rad.copy()
+    for side in "LR":
+        raised[robot.names.index(f"{side}ShoulderPitch")] = -1.2  # forward and up
+    heights = BodyModel.load(robot).wrist_heights(np.stack([robot.neutral_rad, raised]))
+    assert (heights[0] < 0.0).all()  # arms down
+    assert (heights[1] > 0.1).all()  # well above the shoulders
+    sample = synthesis.sample_normalized
+
+    def last_one_raised(checkpoint, frames, n_samples=1, seed=0, temperature=1.0):
+        poses = sample(checkpoint, frames, n_samples, seed, temperature)
+        poses[0][:, arms] = robot.normalize(robot.neutral_rad)[arms]  # the first: arms down
+        poses[-1][:, arms] = robot.normalize(raised)[arms]  # the last holds them up
+        return poses
+
+    monkeypatch.setattr(synthesis, "sample_normalized", last_one_raised)
+    choice = choose_sampling([(checkpoint, validation)], robot, 2, reference=validation)
+    calm = [t.measures for t in choice.trials if t.group == "arms" and "wrist up %" in t.measures]
+    assert calm
+    for measures in calm:  # the worst sample's figures: the raised one, in every frame
+        assert measures["wrist up %"] == pytest.approx(100.0)
+        assert measures["wrist high %"] == pytest.approx(100.0)
+
+
 def _head_motion(seconds: float, nods: bool, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """(frames, 2) head angles: slow drift, with or without quick nods (0.15 s, 0.1 rad)."""
     rng = np.random.default_rng(seed)
