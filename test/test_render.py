@@ -120,6 +120,38 @@ def test_when_reading_the_bag_with_the_mcap_library_expect_description_joint_sta
     assert qos[0]["durability"] == 1  # transient local, as robot_state_publisher offers it
 
 
+def bag_angles(bag_dir, names):
+    """(T, J) positions of ``names`` in a rendered bag's joint states, in message order."""
+    (mcap_file,) = bag_dir.glob("*.mcap")
+    rows = []
+    with mcap_file.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _, channel, _, message in reader.iter_decoded_messages():
+            if channel.topic == absolute(JOINT_STATES):
+                position = dict(zip(message.name, message.position, strict=True))
+                rows.append([position[n] for n in names])
+    return np.array(rows)
+
+
+def test_when_rendering_with_a_seed_expect_that_seeds_motion(short_render, tmp_path):
+    """The robot runs with any seed; the video shows the motion of the one asked for."""
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+    from audio2pose_ros.offline.synthesis import synthesize
+    from audio2pose_ros.resources import default_checkpoint_path
+
+    wav = short_render / "speech.wav"
+    assert render(wav, "-o", tmp_path / "seed3.mp4", "--seed", "3", *SMALL) == 0
+    robot = load_robot()
+    rate, samples = wavfile.read(wav)
+    audio = samples.astype(np.float32) / 32768
+    checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
+    seeded = bag_angles(tmp_path / "seed3_mcap", robot.names)
+    first = bag_angles(short_render / "clip_mcap", robot.names)  # the default seed, 0
+    np.testing.assert_allclose(seeded, synthesize(checkpoint, audio, seed=3)[1], atol=1e-6)
+    np.testing.assert_allclose(first, synthesize(checkpoint, audio, seed=0)[1], atol=1e-6)
+    assert np.abs(seeded - first).max() > 0.01
+
+
 def test_when_comparing_a_model_with_a_clip_truth_expect_two_robots_side_by_side(tmp_path):
     robot = load_robot()
     rate, samples = wavfile.read(bundled_speech_path())

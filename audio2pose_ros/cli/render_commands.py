@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from audio2pose_ros.cli.options import (
+    MAX_SEED,
     NamedPath,
     Verbs,
     add_force,
@@ -124,10 +125,10 @@ def command_render(args: argparse.Namespace) -> int:
     model, style = model_and_style_settings(args, robot)
     if args.data is not None:
         truth, audio = clip_trajectory(args.data, args.clip, robot)
-        trajectories = [synthesized_trajectory(model, audio, robot, style), truth]
+        trajectories = [synthesized_trajectory(model, audio, robot, style, seed=args.seed), truth]
         if args.beside_default:
             default = synthesized_trajectory(
-                default_checkpoint_path(), audio, robot, label="default model"
+                default_checkpoint_path(), audio, robot, label="default model", seed=args.seed
             )
             trajectories = [truth, default, replace(trajectories[0], label="styled model")]
     else:
@@ -136,9 +137,9 @@ def command_render(args: argparse.Namespace) -> int:
             trajectories = [bag_trajectory(args.bag, robot)]
         else:
             trajectories = (
-                [synthesized_trajectory(c, audio, robot) for c in args.compare]
+                [synthesized_trajectory(c, audio, robot, seed=args.seed) for c in args.compare]
                 if args.compare
-                else [synthesized_trajectory(model, audio, robot, style)]
+                else [synthesized_trajectory(model, audio, robot, style, seed=args.seed)]
             )
             if args.compare:  # the two checkpoints may share a file name
                 trajectories = [
@@ -198,6 +199,12 @@ def register(verbs: Verbs) -> None:
     )
     source.add_argument("--data", metavar="DIR", help="data set: --model next to a clip's truth")
     render.add_argument("--clip", metavar="ID", help="clip id in the --data set")
+    render.add_argument(
+        "--seed",
+        type=bounded_int(0, MAX_SEED),
+        default=0,
+        help="noise seed of a sampling model (default 0)",
+    )
     render.add_argument("--side", action="store_true", help="add a side view")
     render.add_argument(
         "--executed",

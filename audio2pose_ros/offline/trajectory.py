@@ -77,17 +77,18 @@ def synthesized_trajectory(
     robot: RobotDescription,
     style: StyleSettings | None = None,
     label: str = "",
+    seed: int = 0,
 ) -> Trajectory:
     """Offline synthesis (seed 003 section 4.4.1) of a 16 kHz utterance with a checkpoint.
 
     ``style`` is applied as the live filter applies it; ``label`` names the trajectory
-    (default: the checkpoint's file stem).
+    (default: the checkpoint's file stem); ``seed`` is a sampling model's noise seed.
     """
     from audio2pose_ros.checkpoints.torch_io import load_checkpoint
     from audio2pose_ros.offline.synthesis import synthesize
 
     checkpoint = load_checkpoint(checkpoint_path, robot=robot)
-    times_s, angles_rad = synthesize(checkpoint, signal_16k, style=style)
+    times_s, angles_rad = synthesize(checkpoint, signal_16k, seed=seed, style=style)
     return Trajectory(label or Path(checkpoint_path).stem, times_s, angles_rad, robot.names)
 
 
