@@ -734,7 +734,8 @@ acceleration percentiles of the shoulder-pitch and elbow-yaw joints, left and ri
 The people's figures ("people") are the lecturer's talking stretches, those the arm part
 trains and chooses its settings on (the board stretches masked): the arm part's sampling
 settings are chosen within them (the calm budget of
-`audio2pose_ros/learning/sampler_selection.py`). Print it for any model and speech:
+`audio2pose_ros/learning/sampler_selection.py`, on every sample drawn, the worst counting: a
+robot runs with any seed). Print it for any model and speech:
 `audio2pose check-arms [--model M] FILE.wav ...`.
 
 ```

@@ -39,7 +39,10 @@ stretch of the lecture.
    (:func:`calm_reference`) set how often the commanded arms may sit at the acceleration limit
    and hold a wrist above the shoulder (:data:`CALM_KEYS`); every sample drawn, commanded on
    the same speech as the body budget's, is measured, and the worst sample's figures count
-   (:func:`worst_calm`), their overrun like the body budget's. Every setting samples the
+   (:func:`worst_calm`), their overrun like the body budget's. The :data:`N_SEEDS` samples
+   of an utterance are the motions of seeds 0, 2, 4 and 6
+   (:meth:`~audio2pose_ros.models.live_groups.LiveGroups.sample`: sample s draws as seed 2 s),
+   the same on every utterance, as a robot running with one seed. Every setting samples the
    arms with the body in mind
    (:mod:`audio2pose_ros.models.body_noise`: the arm noise fades within :data:`BODY_BAND_M` of
    the guard's margin), and the choice keeps that on. The guard stays on the robot; this keeps
