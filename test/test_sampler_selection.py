@@ -505,21 +505,25 @@ def test_when_arm_settings_are_livelier_than_people_commanded_expect_the_best_wi
 ):
     """Arms at the acceleration limit or above the shoulders more often than people lose."""
     from audio2pose_ros.learning.arm_calm import CALM_KEYS
+    from audio2pose_ros.robot.body import BodyModel
 
     validation, _, _ = selected
     # every arm setting is also commanded through the filter: a smaller grid
     use_grid(
         monkeypatch, {"TEMPERATURES": (0.5, 1.5, 3.0), "BURSTS": (0.0,), "CORRELATIONS": (0.95,)}
     )
-    free = choose_sampling([(checkpoint, validation)], robot, 2, reference=validation)
-    assert set(free.calm) == set(CALM_KEYS)  # the people's figures, commanded
+    people = sampler_selection.calm_reference(validation, robot, BodyModel.load(robot))
+    assert set(people) == set(CALM_KEYS)  # the people's figures, commanded
+    # a budget no setting meets: every arm setting's figures are measured
+    unmet = dict.fromkeys(CALM_KEYS, -1.0)
+    with monkeypatch.context() as patch:
+        patch.setattr(sampler_selection, "calm_reference", lambda *args: unmet)
+        free = choose_sampling([(checkpoint, validation)], robot, 2, reference=validation)
     assert "calm budget" in free.summary()
     assert "at limit %" in free.table()
-    per_setting = {
-        (t.correlation, t.burst, t.value): t.measures["at limit %"]
-        for t in free.trials
-        if t.setting == "second_temperature" and t.group == "arms"
-    }
+    arm_trials = [t for t in free.trials if t.setting == "second_temperature" and t.group == "arms"]
+    assert all("at limit %" in t.measures for t in arm_trials)
+    per_setting = {(t.correlation, t.burst, t.value): t.measures["at limit %"] for t in arm_trials}
     assert len(set(per_setting.values())) > 1, "every arm setting is as calm"
     limit = float(np.median(list(per_setting.values())))
     budget = {"at limit %": limit, "wrist up %": 100.0, "wrist high %": 100.0}
@@ -570,6 +574,31 @@ def test_when_a_later_sample_raises_the_arms_expect_the_calm_figures_to_count_it
     for measures in calm:  # the worst sample's figures: the raised one, in every frame
         assert measures["wrist up %"] == pytest.approx(100.0)
         assert measures["wrist high %"] == pytest.approx(100.0)
+
+
+def test_when_ranking_settings_expect_calm_figures_measured_only_where_they_can_decide(robot):
+    """Commanding is slow: a setting that loses whatever its calm figures is not commanded."""
+    from audio2pose_ros.learning.sampler_selection import _best, _Calm, _Scored
+
+    measured = []
+
+    class Counted(_Calm):
+        def overrun(self, budget):
+            measured.append(self.arms["at limit %"])
+            return super().overrun(budget)
+
+    def tried(over, total, at_limit):
+        calm = Counted(robot, None, [], {"at limit %": at_limit})  # figures already known
+        return _Scored(over, total, 0.95, 0.0, 1.0, calm)
+
+    trials = [tried(0.0, 0.3, 9.0), tried(0.0, 0.5, 4.0), tried(0.0, 0.4, 6.0)]
+    trials += [tried(0.0, 0.9, 1.0), tried(2.0, 0.1, 0.0), tried(0.0, 0.5, 4.0)]
+    budget = {"at limit %": 5.0}
+    # measuring all: over the budgets 4, 0, 1, 0, 2, 0 points; the lowest score among the
+    # zeros is 0.5, first tried wins the tie
+    assert _best(trials, budget) is trials[1]
+    assert measured == [9.0, 6.0, 4.0]  # by score, until no later one can win
+    assert _best(trials[:1], budget) is trials[0]  # none within: the least over wins
 
 
 def _head_motion(seconds: float, nods: bool, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -42,7 +42,10 @@ stretch of the lecture.
    (:func:`worst_calm`), their overrun like the body budget's. The :data:`N_SEEDS` samples
    of an utterance are the motions of seeds 0, 2, 4 and 6
    (:meth:`~audio2pose_ros.models.live_groups.LiveGroups.sample`: sample s draws as seed 2 s),
-   the same on every utterance, as a robot running with one seed. Every setting samples the
+   the same on every utterance, as a robot running with one seed. Commanding them through the
+   filter costs more than sampling, so a setting's calm figures are measured only where they
+   can change the choice (:func:`_best`; the same choice as measuring all, and the trial
+   table leaves the others blank). Every setting samples the
    arms with the body in mind
    (:mod:`audio2pose_ros.models.body_noise`: the arm noise fades within :data:`BODY_BAND_M` of
    the guard's margin), and the choice keeps that on. The guard stays on the robot; this keeps
@@ -428,18 +431,17 @@ def _measures(
     body: BodyModel | None = None,
     tails: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
     calm: Mapping[str, float] | None = None,
-) -> dict[str, dict[str, float]]:
+) -> tuple[dict[str, dict[str, float]], _Calm | None]:
     """Group -> measures of the samples (``n_seeds`` per clip) with ``settings``, pooled.
 
     With ``body``, the arms' measures also hold ``near body %``: the share of sampled frames
     (every :data:`BODY_CHECK_EVERY`-th, on every clip's audio) closer to the body than
     :data:`BODY_MARGIN_M`. A group of ``tails`` (group -> reference speed and acceleration
     percentiles) also has ``tail``: :func:`tail_distance` of its samples. With ``body`` and a
-    ``calm`` reference (:func:`calm_reference`), the arms' measures also hold its keys
-    (:data:`CALM_KEYS`): every sample of every item as the motion filter commands it, each
-    sample measured over all the items, the worst sample's figure (:func:`worst_calm`).
+    ``calm`` reference (:func:`calm_reference`), the arms' calm figures are returned beside,
+    not yet measured (:class:`_Calm`: every sample of every item as the motion filter commands
+    it, the worst sample's figures, put into the arms' measures once measured); else None.
     """
-    from audio2pose_ros.learning.command_path import commanded
     from audio2pose_ros.offline.synthesis import sample_normalized, to_angles
 
     tails = tails or {}  # paused audio is never given tails: it has no real motion
@@ -452,8 +454,8 @@ def _measures(
     generated: dict[tuple[str, str], list[metrics.MotionSegments]] = {}
     motions: dict[str, list[realism.Motion]] = {}  # groups of ``tails``: the sampled motion
     candidates: dict[int, Checkpoint] = {}
-    # per sample drawn (calm): every item's sample as the motion filter commands it
-    commands: list[list[np.ndarray]] = [[] for _ in range(n_seeds)]
+    # per sample drawn (calm): every item's sample as the inference node sends it
+    sent: list[list[np.ndarray]] = [[] for _ in range(n_seeds)]
     for item in evidence:
         checkpoint = item.checkpoint
         if id(checkpoint) not in candidates:
@@ -467,9 +469,8 @@ def _measures(
             gate_bound = _gate_bound(candidate)
         steps = np.abs(np.diff(candidate.robot.denormalize(raw[:, :n]), axis=1)) > gate_bound
         if body is not None and calm is not None:
-            sent = [to_angles(candidate, poses[:n], smooth=False) for poses in raw]
-            for drawn, moved in zip(commands, commanded(robot, sent), strict=True):
-                drawn.append(moved)
+            for drawn, poses in zip(sent, raw, strict=True):
+                drawn.append(to_angles(candidate, poses[:n], smooth=False))
         if body is not None:
             checked = np.concatenate([m[::BODY_CHECK_EVERY] for m in samples])
             near[0] += int(np.count_nonzero(body.clearance(checked) < BODY_MARGIN_M))
@@ -511,12 +512,91 @@ def _measures(
         out[g]["tail"] = tail_distance(motion, tails[g])
     if body is not None and "arms" in out and near[1]:
         out["arms"]["near body %"] = 100.0 * near[0] / near[1]
-    if body is not None and calm is not None and "arms" in out and commands[0]:
-        out["arms"] |= worst_calm(robot, body, commands)
+    pending = None
+    if body is not None and calm is not None and "arms" in out and sent[0]:
+        pending = _Calm(robot, body, sent, out["arms"])
     for g, (refused, total) in jumps.items():
         if g in out and total and not paused:
             out[g]["gate refused %"] = 100.0 * refused / total
-    return out
+    return out, pending
+
+
+@dataclass
+class _Calm:
+    """One arm trial's calm figures, measured only when the choice needs them.
+
+    Commanding every sample through the motion filter costs more than sampling it, and most
+    settings lose on their score or the other budgets whatever their calm figures
+    (:func:`_best`).
+
+    Attributes:
+        robot: joint order and limits.
+        body: the robot's collision shapes.
+        sent: per sample drawn, its unsmoothed poses on every item (dropped once measured).
+        arms: the trial's arm measures, which receive the figures (:data:`CALM_KEYS`).
+
+    """
+
+    robot: RobotDescription
+    body: BodyModel
+    sent: list[list[np.ndarray]]
+    arms: dict[str, float]
+
+    def overrun(self, budget: Mapping[str, float]) -> float:
+        """Percentage points over ``budget``, summed over its keys (measured on first use)."""
+        from audio2pose_ros.learning.command_path import commanded
+
+        if self.sent:
+            drawn = [commanded(self.robot, motions) for motions in self.sent]
+            self.arms |= worst_calm(self.robot, self.body, drawn)
+            self.sent = []
+        return sum(max(0.0, self.arms.get(k, 0.0) - v) for k, v in budget.items())
+
+
+@dataclass(frozen=True)
+class _Scored:
+    """One part's trial as the choice ranks it.
+
+    Attributes:
+        over: percentage points over the body and gate budgets.
+        total: the part's score (:func:`score`, weighted over its groups).
+        correlation: the noise correlation tried.
+        burst: the burstiness tried.
+        value: the temperature tried.
+        calm: the arms' calm figures, measured on demand; None for a part without arms.
+
+    """
+
+    over: float
+    total: float
+    correlation: float
+    burst: Burst
+    value: Setting
+    calm: _Calm | None = None
+
+
+def _best(tried: Sequence[_Scored], budget: Mapping[str, float]) -> _Scored:
+    """The trial least over its budgets, then of the lowest score, then the first tried.
+
+    The calm budget's overrun (:meth:`_Calm.overrun`) only adds to a trial's ``over``, so the
+    trials are visited by (``over``, score, order), and the visit stops at the first whose
+    key without the calm overrun is not below the best full key found: every later trial's
+    full key is at least as high. The choice is the one measuring every trial would make;
+    the trials never visited keep no calm figures.
+    """
+    order = sorted(range(len(tried)), key=lambda i: (tried[i].over, tried[i].total, i))
+    best: tuple[float, float, int] | None = None
+    for i in order:
+        t = tried[i]
+        if best is not None and (t.over, t.total, i) >= best:
+            break
+        extra = t.calm.overrun(budget) if t.calm is not None else 0.0
+        key = (t.over + extra, t.total, i)
+        if best is None or key < best:
+            best = key
+    if best is None:
+        raise ValueError("no trial to choose from")
+    return tried[best[2]]
 
 
 def between_styles(per_style: Sequence[Mapping[str, float]]) -> dict[str, float]:
@@ -618,11 +698,6 @@ def calm_reference(
     return calm_measures(robot, body, [(m, c.mask) for m, c in zip(moved, seen, strict=True)])
 
 
-def _rank(scored: tuple[float, float, float, Burst, Setting]) -> tuple[float, float]:
-    """Budget overrun, then score: the lower the better; ties keep the first tried."""
-    return scored[0], scored[1]
-
-
 def _with_group(value: Setting, in_group: np.ndarray, temperature: float) -> Setting:
     """A part's temperature with the joints ``in_group`` at ``temperature``, one per joint.
 
@@ -706,9 +781,9 @@ def choose_sampling(
     calm = calm_reference(reference, robot, body) if body is not None else {}
     evidence = _evidence(folds, robot, False, body_audio if body is not None else (), style_of)
     trials: list[Trial] = []
-    # per part: (% over the body budget, score, correlation, burst, temperature) of every
-    # combination tried; the lowest wins, so a setting within the budget beats any other
-    scored: dict[str, list[tuple[float, float, float, Burst, Setting]]] = {s: [] for s in parts}
+    # per part: every combination tried, with its overrun of the budgets and its score; the
+    # lowest wins (_best), so a setting within the budgets beats any other
+    scored: dict[str, list[_Scored]] = {s: [] for s in parts}
     fixed: dict[str, Setting] = {"velocity_limit": VELOCITY_LIMIT}
     if body is not None:
         fixed |= {"body_margin_m": BODY_MARGIN_M, "body_band_m": BODY_BAND_M}
@@ -721,7 +796,7 @@ def choose_sampling(
         for s, (correlation, burst, value) in noise.items():
             settings |= {s: value, _PART_BURSTS[s]: burst, _PART_CORRELATIONS[s]: correlation}
         arms = any("arms" in parts[s] for s in noise)
-        measured = _measures(
+        measured, pending = _measures(
             items, settings, robot, n_seeds, False, body if arms else None, tails, calm or None
         )
         for s, (correlation, burst, value) in noise.items():
@@ -731,16 +806,16 @@ def choose_sampling(
             near = measured["arms"].get("near body %", 0.0) if "arms" in part else 0.0
             refused = sum(measured[g].get("gate refused %", 0.0) for g in part)
             over = max(0.0, near - BODY_BUDGET_PCT) + max(0.0, refused - GATE_BUDGET_PCT)
-            if "arms" in part:
-                over += sum(max(0.0, measured["arms"].get(k, 0.0) - calm[k]) for k in calm)
-            scored[s].append((over, total, correlation, burst, value))
+            checked = pending if "arms" in part else None
+            scored[s].append(_Scored(over, total, correlation, burst, value, checked))
 
     for correlation in CORRELATIONS:
         for shared in BURSTS:
             for value in TEMPERATURES:
                 trial(dict.fromkeys(parts, (correlation, shared, value)), evidence)
     for s, n_joints in _per_joint_parts(first, parts).items():
-        _, _, correlation, _, on_grid = min(scored[s], key=_rank)
+        grid_best = _best(scored[s], calm)
+        correlation, on_grid = grid_best.correlation, grid_best.value
         at = TEMPERATURES.index(cast(float, on_grid))  # only the grid was tried so far
         head_items = _part_evidence(evidence, parts[s])
         for per_joint in itertools.product(BURSTS, repeat=n_joints):
@@ -754,21 +829,22 @@ def choose_sampling(
         smaller = sorted(part_groups, key=lambda g: -int(robot.group_mask(g).sum()))[1:]
         part_items = _part_evidence(evidence, part_groups) if smaller else []
         for g in smaller:
-            _, _, correlation, burst, best = min(scored[s], key=_rank)
+            so_far = _best(scored[s], calm)
+            correlation, burst, best = so_far.correlation, so_far.burst, so_far.value
             for t in TEMPERATURES:
                 varied = _with_group(best, robot.group_mask(g)[part_joints], t)
                 if isinstance(varied, tuple) and varied != best:  # one value: tried on the grid
                     trial({s: (correlation, burst, varied)}, part_items)
     chosen: dict[str, Setting] = dict(fixed)
     for s in parts:
-        _, _, correlation, burst, temperature = min(scored[s], key=_rank)
-        chosen[s] = temperature
-        chosen[_PART_BURSTS[s]] = burst
-        chosen[_PART_CORRELATIONS[s]] = correlation
+        won = _best(scored[s], calm)
+        chosen[s] = won.value
+        chosen[_PART_BURSTS[s]] = won.burst
+        chosen[_PART_CORRELATIONS[s]] = won.correlation
     paused = _evidence(folds, robot, paused=True)
     for rest in SILENCE_TEMPERATURES:
         settings = {**chosen, "silence_temperature": rest}
-        ratios = _measures(paused, settings, robot, n_seeds, True)
+        ratios, _ = _measures(paused, settings, robot, n_seeds, True)
         trials += [Trial("silence_temperature", rest, g, ratios[g]) for g in groups]
         chosen["silence_temperature"] = rest
         if all(ratios[g]["speech/pause speed"] >= PAUSE_MARGIN * PAUSE_TARGETS[g] for g in groups):
