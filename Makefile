@@ -17,8 +17,11 @@ demo: setup
 
 # The test suite (unit, DDS integration between processes, CLI, lint): every behaviour, in
 # minutes. The soaks and campaigns marked long are left to test-long (pyproject's addopts).
+# TEST_WORKERS pytest-xdist processes share the tests: the DDS tests (marked ros) in two of
+# them, each file's one after another, while the others run the rest (test/conftest.py).
+TEST_WORKERS ?= 3
 test: setup
-	$(VENV_BIN)/python -m pytest
+	$(VENV_BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadgroup
 
 # The long tests only: the memory soak and the fault campaign, minutes of audio through the
 # live graph. CI (.ci/run) runs them after `make test`.
