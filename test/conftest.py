@@ -32,38 +32,44 @@ atexit.register(shutil.rmtree, os.environ["ROS_HOME"], ignore_errors=True)  # no
 SPEECH_DIR = share_path("data", "speech")
 
 
-DDS_LANES = 2  # under `make test`: workers that run the DDS tests, each file's in one of them
+DDS_LANES = 2  # under `make test`: the workers that run the DDS tests, one test at a time each
+
+
+def _shares_a_fixture(item: pytest.Item) -> bool:
+    """Whether the test uses a module- or class-scoped fixture (made once for its file)."""
+    return any(
+        definitions[-1].scope in ("module", "class")
+        for definitions in item._fixtureinfo.name2fixturedefs.values()
+    )
 
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Under ``pytest -n N --dist loadgroup`` (``make test``), group the tests for the workers.
 
-    The DDS tests (marked ``ros``) run in :data:`DDS_LANES` lanes: every file's in one lane,
-    each lane in one worker, one test after another, on that worker's own domain. They spend
-    most of their time waiting for real-time playback, so the other workers meanwhile run the
-    tests that start no DDS, one by one; those whose file shares a module- or class-scoped
-    fixture stay together (the fixture is made once).
+    The DDS tests (marked ``ros``) run in :data:`DDS_LANES` lanes, each lane in one worker, one
+    test after another, on that worker's own domain: in collection order, each test joins the
+    lane with the fewest so far (a file whose tests share a fixture joins as a whole). They
+    spend most of their time waiting for real-time playback, so the other workers meanwhile run
+    the tests that start no DDS, one by one; those that share a module- or class-scoped fixture
+    run together, in one worker (the fixture is made once).
     """
     if config.getoption("dist", "no") != "loadgroup":
         return
-    dds: dict[str, int] = {}  # file -> its DDS tests
-    for item in items:
-        if item.get_closest_marker("ros") is not None:
-            dds[item.nodeid.split("::")[0]] = dds.get(item.nodeid.split("::")[0], 0) + 1
-    lanes = [0] * DDS_LANES
-    lane_of = {}
-    for path, count in sorted(dds.items(), key=lambda entry: -entry[1]):  # largest first
-        lane_of[path] = lanes.index(min(lanes))
-        lanes[lane_of[path]] += count
+    lanes = [0] * DDS_LANES  # tests in each lane so far
+    lane_of: dict[str, int] = {}  # files whose DDS tests share a fixture -> their lane
     for item in items:
         path = item.nodeid.split("::")[0]
         if item.get_closest_marker("ros") is not None:
-            item.add_marker(pytest.mark.xdist_group(f"dds{lane_of[path]}"))
-        elif any(
-            definitions[-1].scope in ("module", "class")
-            for definitions in item._fixtureinfo.name2fixturedefs.values()
-        ):
+            if not _shares_a_fixture(item):
+                lane = lanes.index(min(lanes))
+            elif path not in lane_of:
+                lane = lane_of[path] = lanes.index(min(lanes))
+            else:
+                lane = lane_of[path]
+            lanes[lane] += 1
+            item.add_marker(pytest.mark.xdist_group(f"dds{lane}"))
+        elif _shares_a_fixture(item):
             item.add_marker(pytest.mark.xdist_group(path))
 
 
