@@ -99,3 +99,36 @@ def test_when_any_input_sequence_expect_all_limits_hold(robot, sequence, dts):
 @given(*SEQUENCES)
 def test_when_any_of_2000_input_sequences_expect_all_limits_hold(robot, sequence, dts):
     limits_hold(robot, sequence, dts)
+
+
+@pytest.mark.parametrize("fraction", [0.5, 0.1, 0.02])
+def test_when_acceleration_is_lowered_while_a_joint_races_to_its_limit_expect_no_dead_stop(
+    robot, fraction
+):
+    """A live-lowered acceleration_fraction (MotionFilter.update_settings): a joint moving at
+    full speed towards its position limit could not stop at the new, lower deceleration. It
+    must brake as the previous limit allowed, never harder, until it can stop at the new one;
+    before, the limiter stopped it at its position limit in one command (3.31 rad/s to 0 in
+    10 ms)."""
+    from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+
+    fast = LimitSettings(velocity_fraction=1.0, acceleration_fraction=1.0)
+    start = robot.neutral_rad.copy()
+    filt = MotionFilter(robot, MotionFilterSettings(smoothing="none"), fast, start_pose_rad=start)
+    old_accel = filt.limiter.max_acceleration_rad_s2.copy()
+    pos, vel = start.copy(), np.zeros(robot.n_joints)
+    goal = robot.upper_rad + 1.0  # beyond every limit: each joint races to its upper limit
+    lowered = False
+    for step in range(600):
+        if not lowered and (np.abs(vel) >= 0.9 * filt.limiter.max_velocity_rad_s).any():
+            filt.update_settings(
+                filt.settings, LimitSettings(velocity_fraction=1.0, acceleration_fraction=fraction)
+            )
+            lowered = True
+        new_pos, new_vel = filt.limiter.enforce(goal, pos, vel, DT)
+        assert np.all(np.abs(new_vel - vel) <= old_accel * DT + 1e-9), step
+        assert np.all(new_pos <= robot.upper_rad + 1e-12)
+        pos, vel = new_pos, new_vel
+    assert lowered
+    np.testing.assert_allclose(vel, 0.0, atol=1e-9)  # at rest at the limits
+    np.testing.assert_allclose(filt.limiter.braking_rad_s2, filt.limiter.max_acceleration_rad_s2)
