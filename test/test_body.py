@@ -161,7 +161,8 @@ def test_when_urdf_lacks_a_joint_expect_a_configuration_error_naming_it(body, tm
 
 
 def test_when_joints_turn_expect_clearance_to_change_no_more_than_the_lever_bound(body):
-    """certainly_clear skips queries: the bound it relies on must hold for any pair of poses."""
+    """The body-noise model bounds how near the arms can have come with lever_m: the bound must
+    hold for any pair of poses."""
     rng = np.random.default_rng(4)
     poses = random_poses(body.robot, 200, seed=5)
     moved = np.clip(
@@ -171,3 +172,75 @@ def test_when_joints_turn_expect_clearance_to_change_no_more_than_the_lever_boun
     bound = np.abs(moved - poses) @ body.lever_m
     assert np.all(change <= bound + 1e-6)
     assert np.max(change / bound) > 0.1  # a bound, but not a vacuous one
+
+
+def test_when_joints_turn_expect_each_pair_to_move_no_more_than_its_own_lever_bound(body):
+    """The guard's sweep skips queries with pair_lever_m (only the joints that move one shape of
+    a pair and not the other count): that bound must hold for every pair and any two poses."""
+    rng = np.random.default_rng(6)
+    poses = random_poses(body.robot, 60, seed=7)
+    moved = np.clip(
+        poses + rng.normal(scale=0.3, size=poses.shape), body.robot.lower_rad, body.robot.upper_rad
+    )
+    ratios = []
+    for pose, other in zip(poses, moved, strict=True):
+        change = np.abs(body.pair_distances(other) - body.pair_distances(pose))
+        bound = body.pair_lever_m @ np.abs(other - pose)
+        assert np.all(change <= bound + 1e-6)
+        ratios.append(np.max(change / np.maximum(bound, 1e-9)))
+    assert max(ratios) > 0.1  # a bound, but not a vacuous one
+    hip = body.robot.names.index("HipRoll")
+    arm_torso = [k for k, pair in enumerate(body.link_pairs) if pair[1] == "torso"]
+    assert np.all(body.pair_lever_m[arm_torso, hip] == 0.0)  # the hip turns arm and torso alike
+
+
+def test_when_a_path_crosses_a_thin_part_between_two_clear_poses_expect_the_sweep_to_find_it(
+    body,
+):
+    """Two clear poses whose straight way passes the body: the ends alone look clear, the
+    sweep of the densely sampled way finds the crossing; a clear way passes, with a lower
+    bound of its clearance no higher than any of its points."""
+    robot = body.robot
+    a = np.array([0.28, 0.51, 0.31, 2.0, -1.46, 1.04, -0.82, 0.96, 0.49, 1.83, -0.3])
+    b = np.array([-0.51, -0.73, 0.39, -0.31, -0.44, -1.87, -0.35, 1.58, 0.13, 1.01, 0.11])
+    way = a + np.linspace(0.0, 1.0, 400)[:, None] * (b - a)
+    assert min(body.clearance(a), body.clearance(b)) > 0.02
+    crossing = body.sweep(way, 0.02)
+    assert not crossing.clear
+    assert body.clearance(way[crossing.index]) < 0.02
+    assert body.clearance(way[: crossing.index]).min() >= 0.02
+    clear = robot.neutral_rad + np.linspace(0.0, 0.1, 50)[:, None] * np.ones(robot.n_joints)
+    found = body.sweep(clear, 0.02)
+    assert found.clear
+    assert found.lowest_m <= body.clearance(clear).min()
+    assert found.queries < len(clear)  # most of a way far from the body needs no query
+
+
+def test_when_a_path_is_given_as_sampled_pieces_expect_the_sweep_of_its_samples(body):
+    """The guard gives the sweep its path's corners and each piece's sample count (it makes only
+    the samples it queries): that must find what the sweep of every sample finds, at the same
+    sample, and bound a clear path's clearance no higher than any of its samples."""
+    a = np.array([0.28, 0.51, 0.31, 2.0, -1.46, 1.04, -0.82, 0.96, 0.49, 1.83, -0.3])
+    b = np.array([-0.51, -0.73, 0.39, -0.31, -0.44, -1.87, -0.35, 1.58, 0.13, 1.01, 0.11])
+    c = body.robot.neutral_rad
+    for corners, counts, floor in (
+        (np.array([a, b]), np.array([399]), 0.02),
+        (np.array([a, 0.5 * (a + b), b]), np.array([150, 250]), 0.02),
+        (np.array([c, a, c, a]), np.array([80, 3, 120]), 0.0),
+    ):
+        samples = [corners[:1]]
+        for start, end, count in zip(corners[:-1], corners[1:], counts, strict=True):
+            samples.append(start + (np.arange(1, count + 1) / count)[:, None] * (end - start))
+        dense = np.vstack(samples)
+        body.reset()
+        pieces = body.sweep(corners, floor, counts)
+        body.reset()
+        every = body.sweep(dense, floor)
+        assert (pieces.clear, pieces.index, pieces.pair) == (every.clear, every.index, every.pair)
+        assert pieces.queries == every.queries  # at the same samples: each first one in reach
+        if pieces.clear:
+            assert pieces.lowest_m <= body.clearance(dense).min()
+            assert pieces.queries < len(dense)
+        else:
+            assert body.clearance(dense[pieces.index]) < floor
+            assert body.clearance(dense[: pieces.index]).min() >= floor

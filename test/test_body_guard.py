@@ -14,7 +14,8 @@ from audio2pose_ros.motion.body_guard import (
     BodyGuard,
     guard_trajectory,
 )
-from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+from audio2pose_ros.motion.filter import MotionFilter
+from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.robot.body import BodyModel
 

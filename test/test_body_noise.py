@@ -127,7 +127,9 @@ def test_when_a_checkpoint_holds_the_model_expect_it_bound_to_the_checkpoint_rob
 
 
 def test_when_the_default_model_speaks_new_voices_expect_its_arms_rarely_near_the_body(robot, body):
-    """Without the body in mind, the noise of a sample drifts onto the torso and stays."""
+    """Without the body in mind, the noise of a sample can drift onto the torso and stay; with
+    it, the model's arms come within the margin in under 1 % of frames, and never more often
+    than without (the calm default's arms may not come near the body at all)."""
     checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
     assert checkpoint.model.config.body_band_m > 0
     off = replace(checkpoint, model=checkpoint.model.with_sampling(body_band_m=0.0))
@@ -139,7 +141,7 @@ def test_when_the_default_model_speaks_new_voices_expect_its_arms_rarely_near_th
                 near[name].append(body.clearance(angles) < 0.02)
     share = {k: 100 * np.concatenate(v).mean() for k, v in near.items()}
     assert share["on"] < 1.0, share
-    assert share["on"] < share["off"], share
+    assert share["on"] <= share["off"], share
 
 
 def noise_free_clearance(robot, track):

@@ -13,7 +13,8 @@ from audio2pose_ros.learning.command_path import (
     commanded,
     smoother_name,
 )
-from audio2pose_ros.motion.filter import MotionFilterSettings, delay_s
+from audio2pose_ros.motion.filter import delay_s
+from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
 from audio2pose_ros.offline.synthesis import synthesize_samples

@@ -33,6 +33,19 @@ from audio2pose_ros.ros.diagnosed_node import status_name
 CHROMIUM = Path(os.environ.get("AUDIO2POSE_CHROMIUM", "/usr/bin/chromium"))
 SLOWDOWN = float(os.environ.get("AUDIO2POSE_BROWSER_SLOWDOWN", "1"))
 TOKEN = "browser-test-token-0123456789"
+# Headless, offline (this machine's network is closed), fake media devices granted without asking.
+CHROMIUM_ARGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--use-fake-ui-for-media-stream",
+    "--use-fake-device-for-media-stream",
+)
 MOVING_RAD = 0.05  # a joint that sweeps this much in a second is moving
 STILL_RAD = 0.01  # ... and one that sweeps less than this is still
 
@@ -185,19 +198,7 @@ def browser() -> Iterator[object]:
             headless=True,
             viewport={"width": 1100, "height": 700},
             bypass_csp=True,  # Playwright evaluates its wait conditions as strings
-            args=[
-                "--headless",
-                "--no-sandbox",
-                "--disable-gpu",
-                "--disable-quic",
-                "--no-first-run",
-                "--disable-background-networking",
-                "--disable-component-update",
-                "--disable-sync",
-                "--use-fake-ui-for-media-stream",
-                "--use-fake-device-for-media-stream",
-                f"--use-file-for-fake-audio-capture={wav}",
-            ],
+            args=[*CHROMIUM_ARGS, f"--use-file-for-fake-audio-capture={wav}"],
         )
         try:
             yield context

@@ -18,7 +18,15 @@ from pathlib import Path
 
 import pytest
 import yaml
-from test_console_browser import CHROMIUM, Recorder, _answers, _free_port, _missing, _wait
+from test_console_browser import (
+    CHROMIUM,
+    CHROMIUM_ARGS,
+    Recorder,
+    _answers,
+    _free_port,
+    _missing,
+    _wait,
+)
 
 from audio2pose_ros.motion.style import STYLE_FIELDS
 from audio2pose_ros.resources import share_path
@@ -105,16 +113,7 @@ def test_when_an_operator_learns_their_style_expect_the_robot_to_take_it_and_giv
             headless=True,
             bypass_csp=True,
             args=[
-                "--headless",
-                "--no-sandbox",
-                "--disable-gpu",
-                "--disable-quic",
-                "--no-first-run",
-                "--disable-background-networking",
-                "--disable-component-update",
-                "--disable-sync",
-                "--use-fake-ui-for-media-stream",
-                "--use-fake-device-for-media-stream",
+                *CHROMIUM_ARGS,
                 f"--use-file-for-fake-video-capture={video}",
                 f"--use-file-for-fake-audio-capture={audio}",
             ],

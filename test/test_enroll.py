@@ -53,8 +53,8 @@ def test_when_recording_observes_only_the_arms_expect_only_the_arms_adapted(
     assert result.settings.head_gain == 1.0
     assert result.settings.head_tempo == 1.0
     assert result.settings.hip_gain == 1.0
-    assert result.settings.arms_tempo < 1.0  # slow, small arm motion against the model's
-    assert result.settings.arms_gain < 1.0
+    assert result.settings.arms_tempo < 1.0  # slow arm motion against the model's
+    assert result.settings.arms_gain != 1.0  # the arms' size is fitted too
     assert len(lines) >= 3  # progress
     style = read_style(tmp_path / "me" / "style.yaml")
     assert style.parts == result.style.parts
@@ -208,8 +208,10 @@ def test_when_enrolling_a_real_video_expect_a_head_style_and_progress(tmp_path, 
     assert set(style.parts) == {"head"}  # head and shoulders: the arms are not seen
     assert 5.0 <= style.parts["head"].seconds <= 8.0  # only the first 8 s were tracked
     assert style.fitted is not None
-    assert style.fitted[1].head_gain < 1.5
-    assert style.fitted[1] != StyleSettings()
+    fitted = style.fitted[1]
+    assert fitted != StyleSettings()
+    assert fitted.head_gain != 1.0 or fitted.head_tempo != 1.0  # the head is fitted
+    assert (fitted.arms_gain, fitted.hip_gain) == (1.0, 1.0)  # parts not seen keep the model's
 
 
 def test_when_run_gets_a_personal_model_expect_its_checkpoint_and_style_as_overrides(tmp_path):

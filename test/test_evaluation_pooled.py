@@ -6,7 +6,8 @@ import numpy as np
 
 from audio2pose_ros.data.dataset import Clip, ClipInfo
 from audio2pose_ros.learning import metrics
-from audio2pose_ros.learning.evaluation import (
+from audio2pose_ros.learning.model_card import SourceReport, source_checks
+from audio2pose_ros.learning.quality import (
     PROSODY_RULE,
     REAL_FLOOR,
     STATIC,
@@ -14,7 +15,6 @@ from audio2pose_ros.learning.evaluation import (
     QualityEvaluation,
     quality_evaluation,
 )
-from audio2pose_ros.learning.model_card import SourceReport, source_checks
 from audio2pose_ros.learning.sampler_selection import SamplingChoice
 
 

@@ -30,6 +30,7 @@ S16 = S16LE_MONO_16K
 S16_INFO = AudioInfo(**S16.audio_info_fields())
 SOAK_RESTART_AFTER_S = 30.0  # the soak's silence limit: a hung node, not a starved one
 FILTER = "motion_filter_node"
+INFERENCE = "inference_node"
 SOAK_AHEAD_FRAMES = 50  # the soak sends at most 0.5 s of audio ahead of the poses back
 
 
@@ -48,6 +49,11 @@ def assert_commands_within_limits(probe: Probe, robot) -> None:
 def dropped(probe: Probe) -> int:
     """The motion filter's latest count of dropped poses (0 before its first report)."""
     return int(diagnostics_of(probe, FILTER).get("poses_dropped", 0))
+
+
+def behind(probe: Probe) -> int:
+    """Frames inference_node dropped for waiting too long (0 before its first report)."""
+    return int(diagnostics_of(probe, INFERENCE).get("frames_behind_real_time", 0))
 
 
 def at_rest(probe: Probe, pose: np.ndarray) -> bool:
@@ -92,8 +98,9 @@ def test_when_audio_format_changes_mid_stream_expect_decoding_follows_new_audio_
 def test_when_audio_stops_then_arrives_in_a_burst_expect_bounded_buffer_and_recovery(
     tmp_path: Path, probe: Probe, robot, speech
 ):
-    """A gap glides the robot to neutral; a burst is computed in full but the filter keeps only
-    max_buffer_s of it (dropped poses are counted), so latency stays bounded."""
+    """A gap glides the robot to neutral; of a burst, the inference node drops the frames that
+    waited too long for it and the filter keeps only max_buffer_s of the poses (both counted),
+    so latency stays bounded."""
     payload = encode_pcm(speech[: 4 * 16000], S16)
     with node_graph(log_dir=tmp_path):
         start(probe)
@@ -105,13 +112,15 @@ def test_when_audio_stops_then_arrives_in_a_burst_expect_bounded_buffer_and_reco
         for offset in range(32000, len(payload), 4000):  # 3 s of audio at once
             probe.audio.publish(AudioData(data=payload[offset : offset + 4000]))
         probe.wait_until(lambda: frames_published(probe) >= len(speech[: 4 * 16000]) // 160)
-        probe.wait_until(lambda: dropped(probe) > 100)  # /diagnostics comes once a second
+        # /diagnostics comes once a second
+        probe.wait_until(lambda: dropped(probe) + behind(probe) > 100)
     np.testing.assert_allclose(resting, robot.neutral_rad, atol=0.02)
     assert frames_published(probe) == len(speech[: 4 * 16000]) // 160  # every frame computed
     # ~300 burst poses, at most 30 queued: here about 270 are dropped, but the filter commands
     # poses while the burst flows through the graph (on a busy CI machine for 0.8 s: 189
-    # dropped). A filter that queued the whole burst would drop none and lag 3 s.
-    assert dropped(probe) > 100
+    # dropped), and frames that waited over 0.5 s for inference_node are dropped there. A graph
+    # that queued the whole burst would drop none and lag 3 s.
+    assert dropped(probe) + behind(probe) > 100
     assert_commands_within_limits(probe, robot)
 
 

@@ -17,7 +17,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from audio2pose_ros.errors import InputError
-from audio2pose_ros.motion.filter import GAP_PERIODS, MotionFilter, MotionFilterSettings
+from audio2pose_ros.motion.filter import GAP_PERIODS, MotionFilter
+from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.motion.style import STYLE_FIELDS
 from audio2pose_ros.motion.timing import StampCheck
 

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from audio2pose_ros.errors import ConfigurationError, InputError
-from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings, online_filter
+from audio2pose_ros.motion.filter import MotionFilter, online_filter
+from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.motion.style import StyleSettings
 

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from audio2pose_ros.errors import ConfigurationError, InputError
-from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+from audio2pose_ros.motion.filter import MotionFilter
+from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.motion.style import StyleSettings
 
 PERIOD = 0.01

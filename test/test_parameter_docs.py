@@ -6,7 +6,7 @@ import pytest
 import yaml
 
 from audio2pose_ros.errors import ConfigurationError
-from audio2pose_ros.motion.filter import MotionFilterSettings
+from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.parameters import specs_of, validate_values
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.ros.parameter_docs import GENERATED, node_parameters, parameters_yaml

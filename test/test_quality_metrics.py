@@ -5,7 +5,7 @@ import pytest
 
 from audio2pose_ros.data.dataset import Clip, ClipInfo
 from audio2pose_ros.learning import metrics
-from audio2pose_ros.learning.evaluation import MISMATCHED, STATIC, quality_evaluation
+from audio2pose_ros.learning.quality import MISMATCHED, STATIC, quality_evaluation
 
 RATE = 100.0
 
@@ -127,7 +127,7 @@ def test_when_evaluating_groups_expect_baselines_rows_only_for_observed_groups_a
 
 
 def test_when_pairing_mismatched_clips_expect_a_permutation_across_speakers():
-    from audio2pose_ros.learning.evaluation import mismatched_order
+    from audio2pose_ros.learning.quality import mismatched_order
 
     speakers = ["obama"] * 5 + [f"grid{k}" for k in range(8)]
     order = mismatched_order(speakers)
@@ -136,7 +136,7 @@ def test_when_pairing_mismatched_clips_expect_a_permutation_across_speakers():
 
 
 def test_when_a_pause_is_inserted_expect_a_silence_of_a_second_or_more_in_the_middle():
-    from audio2pose_ros.learning.evaluation import PAUSE_S, with_pause
+    from audio2pose_ros.learning.quality import PAUSE_S, with_pause
 
     audio = speech_audio([(2.0, True)])
     paused = with_pause(audio)

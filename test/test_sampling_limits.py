@@ -10,7 +10,7 @@ from audio2pose_ros.checkpoints.numpy_runtime import numpy_kernel_for
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.learning.model_card import _part_temperature
 from audio2pose_ros.models.registry import build_model
-from audio2pose_ros.motion.filter import MotionFilterSettings
+from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.timebase import FRAME_PERIOD_S
 
 SMALL = {"n_features": 4, "n_joints": 11}

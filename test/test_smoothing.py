@@ -121,7 +121,7 @@ def test_when_the_motion_filter_smooths_as_shipped_expect_no_frequency_raised(ro
 @pytest.mark.parametrize("order", [0, 9, 2.5, True])
 def test_when_the_low_pass_order_is_impossible_expect_a_configuration_error(order):
     from audio2pose_ros.errors import ConfigurationError
-    from audio2pose_ros.motion.filter import MotionFilterSettings
+    from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 
     with pytest.raises(ConfigurationError, match="lowpass_order"):
         MotionFilterSettings(lowpass_order=order)
@@ -131,7 +131,8 @@ def test_when_the_low_pass_order_is_impossible_expect_a_configuration_error(orde
 def test_when_the_low_pass_is_configured_expect_the_filter_to_smooth_with_it(
     robot, cutoff_hz, order
 ):
-    from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings, online_filter
+    from audio2pose_ros.motion.filter import MotionFilter, online_filter
+    from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 
     t = np.arange(int(3 * RATE)) / RATE
     raw = np.tile(robot.neutral_rad, (len(t), 1))

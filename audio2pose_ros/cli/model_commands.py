@@ -128,8 +128,8 @@ def command_evaluate(args: argparse.Namespace) -> int:
         checkpoint_predictions,
         evaluate,
         loso_predictions,
-        quality_evaluation,
     )
+    from audio2pose_ros.learning.quality import quality_evaluation
     from audio2pose_ros.robot.description import load_robot
 
     if not args.checkpoints and not args.loso:

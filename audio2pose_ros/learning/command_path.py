@@ -25,8 +25,9 @@ import numpy as np
 
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Clip
-from audio2pose_ros.learning.evaluation import Predictions, quality_evaluation
-from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings, delay_s, online_filter
+from audio2pose_ros.learning.quality import Predictions, quality_evaluation
+from audio2pose_ros.motion.filter import MotionFilter, delay_s, online_filter
+from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.motion.smoothing import SEED_CUTOFF_HZ, SEED_ORDER
 from audio2pose_ros.robot.description import RobotDescription
 

@@ -9,7 +9,7 @@ validation clips (:mod:`audio2pose_ros.learning.sampler_selection`), and evaluat
 trained (:mod:`audio2pose_ros.learning.source_holdout`): the head on each talking-head source
 held out whole (GRID, Obama; each by a model that never saw that source and chose its settings
 without it), the arms and hip on the held-out lecture stretch against the static pose, other
-real motion and the prosody rule (:func:`audio2pose_ros.learning.evaluation.quality_evaluation`).
+real motion and the prosody rule (:func:`audio2pose_ros.learning.quality.quality_evaluation`).
 
 With ``arms="prosody"`` or ``"neutral"`` (explicitly named options,
 :func:`build_default_model`): import the 13 clips (:mod:`audio2pose_ros.data.importers.video`: real
@@ -48,7 +48,7 @@ from audio2pose_ros.robot.description import RobotDescription
 
 if TYPE_CHECKING:
     from audio2pose_ros.checkpoints.torch_io import Checkpoint
-    from audio2pose_ros.learning.evaluation import Predictions
+    from audio2pose_ros.learning.quality import Predictions
     from audio2pose_ros.learning.source_holdout import HoldoutResult
     from audio2pose_ros.learning.training import TrainSettings
 
@@ -292,7 +292,7 @@ def prosody_predictions(
     clips: Sequence[Clip], robot: RobotDescription
 ) -> tuple[Predictions, Predictions]:
     """The prosody rule's motion on the clips and on their audio with a pause (a baseline)."""
-    from audio2pose_ros.learning.evaluation import PROSODY_RULE, with_pause
+    from audio2pose_ros.learning.quality import PROSODY_RULE, with_pause
 
     spec = FeatureSpec()  # LogFB-26: what the rule reads
 
@@ -387,9 +387,9 @@ def build_learned_default_model(
         speech_body_table,
     )
     from audio2pose_ros.learning.command_path import command_path_table
-    from audio2pose_ros.learning.evaluation import STATIC, quality_evaluation, real_motion_of
     from audio2pose_ros.learning.model_card import SourceReport, write_learned_model_card
     from audio2pose_ros.learning.parallel import run_tasks
+    from audio2pose_ros.learning.quality import STATIC, quality_evaluation, real_motion_of
     from audio2pose_ros.learning.source_holdout import (
         HEAD_SOURCES,
         LECTURE,
@@ -398,7 +398,7 @@ def build_learned_default_model(
         recording_source,
     )
     from audio2pose_ros.learning.speech_style import head_style_rows, head_style_table
-    from audio2pose_ros.motion.filter import MotionFilterSettings
+    from audio2pose_ros.motion.filter_settings import MotionFilterSettings
     from audio2pose_ros.robot.body import BodyModel
 
     settings = settings or LearnedBuildSettings()

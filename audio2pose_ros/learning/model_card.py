@@ -13,7 +13,8 @@ import numpy as np
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Clip, Dataset
 from audio2pose_ros.learning import realism
-from audio2pose_ros.learning.evaluation import Evaluation, GroupRow, QualityEvaluation, save_figure
+from audio2pose_ros.learning.evaluation import Evaluation
+from audio2pose_ros.learning.quality import GroupRow, QualityEvaluation, save_figure
 from audio2pose_ros.learning.sampler_selection import (
     BURSTS,
     CORRELATIONS,
@@ -173,7 +174,7 @@ class SourceReport:
         source: the source (GRID, Obama, lecture).
         groups: what it scores ("head", "arms and hip").
         clips: its held-out clips.
-        quality: the measures (:func:`~audio2pose_ros.learning.evaluation.quality_evaluation`).
+        quality: the measures (:func:`~audio2pose_ros.learning.quality.quality_evaluation`).
         choice: the sampling settings of the model scored (chosen without these clips).
 
     """
@@ -261,7 +262,7 @@ def _within(low: float, high: float) -> Callable[[float], bool]:
 
 def source_checks(report: SourceReport) -> list[Check]:
     """The goals for one held-out source, met or not, with the measured values."""
-    from audio2pose_ros.learning.evaluation import PROSODY_RULE, REAL_FLOOR, STATIC
+    from audio2pose_ros.learning.quality import PROSODY_RULE, REAL_FLOOR, STATIC
 
     quality, model = report.quality, report.model()
     checks: list[Check] = []
@@ -354,7 +355,7 @@ def plot_percentiles(path: Path, reports: Sequence[SourceReport]) -> Path:
     matplotlib.use("Agg")
     from matplotlib import pyplot as plt
 
-    from audio2pose_ros.learning.evaluation import REAL_FLOOR
+    from audio2pose_ros.learning.quality import REAL_FLOOR
 
     heads = [r for r in reports if r.groups == "head"]
     fig, axes = plt.subplots(len(heads), 2, figsize=(10, 3.2 * len(heads)), squeeze=False)

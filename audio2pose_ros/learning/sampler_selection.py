@@ -62,7 +62,7 @@ stretch of the lecture.
 2. Rest level in silence. With those settings, every rest level of
    :data:`SILENCE_TEMPERATURES`, from the most noise left in silence to the least, samples the
    same clips' audio with a pause inserted
-   (:func:`~audio2pose_ros.learning.evaluation.with_pause`); the first whose speech / pause
+   (:func:`~audio2pose_ros.learning.quality.with_pause`); the first whose speech / pause
    speed ratio reaches :data:`PAUSE_MARGIN` times the speech / pause target
    (:data:`PAUSE_TARGETS`) in
    every scored group is kept (the lowest one if none does): as lively in silence as the "come
@@ -94,7 +94,7 @@ from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 from audio2pose_ros.models.live_groups import LiveGroups
 from audio2pose_ros.models.sampling_noise import Burst, format_per_joint
 from audio2pose_ros.models.speech_gate import PART_BURST_KEYS, PART_CORRELATION_KEYS
-from audio2pose_ros.motion.filter import MotionFilterSettings
+from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.timebase import FRAME_RATE_HZ, SAMPLE_RATE_HZ
@@ -380,7 +380,7 @@ def _evidence(
     count for the body budget only, sampled by the first fold's model. ``style_of`` names
     each clip's style (:attr:`_Evidence.style`).
     """
-    from audio2pose_ros.learning.evaluation import with_pause
+    from audio2pose_ros.learning.quality import with_pause
     from audio2pose_ros.offline.synthesis import normalized_features
 
     out = []

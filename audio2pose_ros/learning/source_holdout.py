@@ -42,7 +42,7 @@ import numpy as np
 
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.data.dataset import Clip, ClipInfo
-from audio2pose_ros.learning.evaluation import Predictions, with_pause
+from audio2pose_ros.learning.quality import Predictions, with_pause
 from audio2pose_ros.learning.sampler_selection import (
     SamplingChoice,
     apply_sampling,

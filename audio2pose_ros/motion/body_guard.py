@@ -5,10 +5,14 @@ and of offline synthesis (:func:`guard_trajectory`). Each step it receives the c
 allow and the previous command, and returns a command whose clearance
 (:meth:`~audio2pose_ros.robot.body.BodyModel.clearance`) is at least ``margin_m``:
 
-1. **Admissible commands pass unchanged.** A command is admissible when it is clear of the body
-   by the margin *and* so is the pose where every joint would come to rest if it braked at its
-   acceleration limit from the commanded velocity (and the pose halfway there). So a moving arm
-   can always stop before the margin.
+1. **Admissible commands pass unchanged.** A command is admissible when its whole path is clear
+   of the body by the guard's floor (below): the step from the previous command to it, and the
+   braking path on which every moving joint would come to rest if it braked at its
+   acceleration limit from the commanded velocity. The path is checked continuously
+   (:meth:`~audio2pose_ros.robot.body.BodyModel.sweep`: conservative advancement, with samples
+   no further apart than ``SAMPLE_TRAVEL_M`` of travel of any checked pair, so that no shape,
+   however thin, is passed between two samples), so a moving arm can always stop before the
+   floor, and no step between two commands crosses the body.
 2. **Otherwise only the joints that must stop, brake.** The joints on the kinematic chains of
    the offending pairs (one arm; the other arm for arm-against-arm; the hip or head when the
    pair involves them) decelerate at their acceleration limit, while every other joint keeps
@@ -20,19 +24,32 @@ allow and the previous command, and returns a command whose clearance
    (the wanted direction without its part along the clearance gradient), slowly
    (``LEAD_OUT_SPEED_RAD_S``, or slower where the limiter's velocity limit is lower), within
    the acceleration limits, counted as ``detour_steps``.
-   An arm already within ``TOLERANCE_M`` inside the margin (where braking may leave it) needs
-   only not go deeper: there the floor is its present clearance, not the margin, so every
-   command that does not bring it closer passes, and the arm leaves the band by any way that
-   does not approach the body (else it would be held where braking left it, short of its goal).
-4. **Led out gently.** A robot that starts inside the margin (moved by hand, or a measured pose
-   inside) is moved up the clearance gradient, in the offending joints only, with a speed that
-   ramps up from zero to ``LEAD_OUT_SPEED_RAD_S`` (scaled down to the limiter's velocity limit,
-   direction kept, when that is lower); the other joints follow their command, or
-   brake if that would bring the body closer. No velocity changes faster than the joint limits
-   allow, so nothing about it jumps.
+   An arm already within ``TOLERANCE_M`` inside the floor (where braking may leave it) needs
+   only not go deeper: there the floor is its present clearance, so every command that does not
+   bring it closer passes, and the arm leaves the band by any way that does not approach the
+   body (else it would be held where braking left it, short of its goal).
+4. **Led out gently.** A robot inside the margin (it started there, or the margin was raised)
+   has the joints of its closest pair moved up the clearance gradient, with a speed that ramps
+   up from zero to ``LEAD_OUT_SPEED_RAD_S`` (scaled down to the limiter's velocity limit,
+   direction kept, when that is lower); the other joints follow their command, or brake if
+   that would bring the body closer. The result is then checked as any command (1-3): every
+   moving joint, not only the led ones, must be able to stop clear of the floor.
 5. **Last resort.** If braking cannot keep a command admissible (another joint moved into a
-   resting arm in one step), the offending joints hold their previous positions, and if even that
-   is not clear the whole previous command is repeated (counted as ``holds``).
+   resting arm in one step, or a caller's previous velocity that cannot stop in time), the
+   offending joints hold their previous positions, and if even that is not clear the whole
+   previous command is repeated (counted as ``holds``; it stops joints faster than their
+   acceleration limit, so it must not happen in ordinary motion).
+
+**The floor under live parameter changes.** The floor is the clearance the guard guarantees.
+It is the margin, except after the margin was raised: a moving arm was promised only the old
+margin, and may need its braking path to stop. Then the floor is the old margin, and rises
+towards the new one only as far as every command's whole path is known clear of it
+(``PathClearance.lowest_m``), while the arms inside the new margin are led out; it never falls,
+so no command, and no step between two, comes within the old margin. A lowered margin takes
+effect at once. After a lowered ``acceleration_fraction`` the arms may be moving faster than the
+new limit can stop before the body: the guard brakes at the previous limit until every moving
+joint's braking path at the new limit is clear. A changed ``velocity_fraction`` needs nothing:
+every command's braking path is checked from its own velocity.
 
 Every command it returns is inside the position range and no faster than the command it was
 given or the previous one, so the limits of ``motion/limits.py`` keep holding.
@@ -46,17 +63,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
-from audio2pose_ros.robot.body import BodyModel
+from audio2pose_ros.robot.body import BodyModel, PathClearance, blocked_product
 
 LEAD_OUT_SPEED_RAD_S = 0.3  # joint-space speed of leading a robot out of the margin (rad/s)
 LEAD_OUT_ACCEL_RAD_S2 = 1.0  # ... reached with this acceleration from rest (rad/s^2)
 DETOUR_LIFT = 0.2  # a detour's part away from the body, per unit of its part along the margin
 DETOUR_REST_RAD_S = 0.05  # held joints slower than this are at rest: a detour may start
 DETOUR_MIN_RAD = 1e-3  # held joints closer than this to their command need no detour
-BRAKING_POINTS = (1.0,)  # fractions of the braking distance checked for clearance
-MAX_WIDENINGS = 3  # times the set of braked joints may grow within one step
-TOLERANCE_M = 1e-3  # braking may end this far inside the margin (m): the braking path between the
+MAX_WIDENINGS = 4  # times the set of braked joints may grow within one step
+TOLERANCE_M = 1e-3  # braking may end this far inside the floor (m): the braking path between the
 # checked points can curve closer than they are; a robot further inside is led out
+SAMPLE_TRAVEL_M = 1e-3  # largest travel of any checked pair between two samples of a path (m):
+# the path between them comes at most half of it closer than the samples
+MAX_SAMPLES = 2000  # samples of one straight piece of a path at most
+MAX_BRAKING_TICKS = 50  # ticks of a braking path at most (at full acceleration it needs 19)
+PATH_SLACK_M = 0.5 * TOLERANCE_M  # the samples between two commands and of the braking path may
+# come this much closer than the margin (the path between samples another half a sample travel)
+RECENT_PATHS = 8  # paths whose sweep is kept: a guard step checks the same command again
 
 
 @dataclass
@@ -65,10 +88,12 @@ class GuardStatus:
 
     interventions: int = 0  # commands it changed (braking, sliding, leading out, holding)
     lead_out_steps: int = 0  # commands of leading a robot out of the margin
-    holds: int = 0  # last-resort holds of the previous pose
+    holds: int = 0  # last-resort holds of the previous pose (faster than the acceleration limit)
     detour_steps: int = 0  # commands that moved a stopped arm round the body along the margin
     active: bool = False  # the last command was changed
     clearance_m: float = float("inf")  # clearance of the last command (m)
+    floor_m: float = float("inf")  # clearance the guard guarantees now (m): the margin, or less
+    # while it rises to a raised margin
     links: tuple[str, str] = ("", "")  # closest pair of the last command
     last_cost_ns: int = 0  # time the last call of BodyGuard.enforce took (for the bench)
 
@@ -87,67 +112,123 @@ class BodyGuard:
         self.body = body
         self.margin_m = float(margin_m)
         self.status = GuardStatus()
+        self._guaranteed_m: float | None = None  # the floor, None until the first command
         self._floor_m = self.margin_m  # the clearance commands need this step (see the module)
         self._lead_out_s = 0.0
         self._bounds = (body.robot.lower_rad, body.robot.upper_rad)
         self._max_speed = body.robot.max_velocity_rad_s  # the limiter's, from each step on
+        self._brake_accel: np.ndarray | None = None  # deceleration the last command relies on
+        self._previous = np.zeros(body.robot.n_joints)  # the previous command, this step
+        self._dt_s = 0.0  # the time of this step, and of each tick of a braking path (s)
+        self._paths: dict[bytes, PathClearance] = {}
+        self._travel = body.pair_lever_m  # (n_pairs, n_joints): a pair's travel per rad (m/rad)
 
     def reset(self) -> None:
-        """Start again from rest: forget the lead-out ramp and the body model's earlier queries."""
+        """Start again from rest: forget the lead-out ramp, the floor and earlier queries."""
         self._lead_out_s = 0.0
+        self._guaranteed_m = None
+        self._brake_accel = None
+        self._paths.clear()
         self.body.reset()
 
     def _clear(self, pose: np.ndarray) -> bool:
         return bool(self.body.clearance(pose) >= self._floor_m)
 
-    def _stop_pose(
-        self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray, fraction: float
-    ) -> np.ndarray:
-        lower, upper = self._bounds
-        return np.clip(pose + fraction * velocity * np.abs(velocity) / (2.0 * accel), lower, upper)
+    def _path(
+        self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray, dt_s: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The step from the previous command to ``pose`` and its braking path, as sweep pieces.
 
-    def _candidates(
-        self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray
-    ) -> list[np.ndarray]:
-        """The pose and the points of its braking path that must all be clear."""
-        if not np.any(velocity != 0.0):
-            return [pose]
-        return [pose, *(self._stop_pose(pose, velocity, accel, f) for f in BRAKING_POINTS)]
+        The braking path is the one the guard commands when it brakes (:meth:`_restrain`):
+        each tick of ``dt_s`` every joint's speed falls by ``accel * dt_s`` until it rests, so
+        the path a braked command checks is the rest of the one its predecessor checked
+        (at most ``MAX_BRAKING_TICKS`` ticks: a low acceleration limit takes longer ones).
+        Between ticks the joints move in a straight line; each straight piece is sampled so
+        that no checked pair travels more than ``SAMPLE_TRAVEL_M`` between two samples.
+
+        Returns:
+            ``(points, counts)`` for :meth:`~audio2pose_ros.robot.body.BodyModel.sweep`: the
+            previous command, ``pose`` and the braking path's ticks, and each piece's samples.
+        """
+        speed = np.abs(velocity)
+        ticks = float((speed / (accel * dt_s)).max()) if dt_s > 0.0 else 0.0
+        tick_s = dt_s * max(1.0, ticks / MAX_BRAKING_TICKS)
+        steps = np.arange(1, int(np.ceil(min(ticks, MAX_BRAKING_TICKS))) + 1)[:, None]
+        speeds = np.maximum(speed - steps * accel * tick_s, 0.0)
+        lower, upper = self._bounds
+        braking = np.clip(
+            pose + np.sign(velocity) * np.cumsum(speeds, axis=0) * tick_s, lower, upper
+        )
+        nodes = np.vstack([self._previous, pose, braking])
+        pieces = np.diff(nodes, axis=0)
+        travel = blocked_product(np.abs(pieces), self._travel.T).max(axis=1)
+        return nodes, np.clip(np.ceil(travel / SAMPLE_TRAVEL_M), 1, MAX_SAMPLES)
+
+    def _sweep(
+        self,
+        pose: np.ndarray,
+        velocity: np.ndarray,
+        accel: np.ndarray,
+        floor_m: float,
+        path_floor_m: float,
+    ) -> PathClearance:
+        """Whether the command ``pose`` keeps ``floor_m`` and its path ``path_floor_m``.
+
+        The path is :meth:`_path`'s; recent answers are kept.
+        """
+        floors = np.array([self._dt_s, floor_m, path_floor_m])
+        key = (
+            b"".join(
+                (self._previous.tobytes(), floors.tobytes(), pose.tobytes(), velocity.tobytes())
+            )
+            + accel.tobytes()
+        )
+        found = self._paths.get(key)
+        if found is None:
+            distance, pair = self.body.query(pose)
+            if distance < floor_m:
+                found = PathClearance(False, -1, pair, distance, 0.0, 1)
+            else:
+                points, counts = self._path(pose, velocity, accel, self._dt_s)
+                found = self.body.sweep(points, path_floor_m, counts)
+            if len(self._paths) >= RECENT_PATHS:
+                self._paths.pop(next(iter(self._paths)))
+            self._paths[key] = found
+        return found
+
+    def _check(self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray) -> PathClearance:
+        """The admissibility check: the command keeps the floor, and so does its path.
+
+        The path may come ``PATH_SLACK_M`` inside the margin, but no closer than the present
+        clearance once inside it (so that braking along it cannot creep deeper step by step).
+        """
+        inside = self._floor_m < self.margin_m  # the floor is the present clearance
+        path_floor = self._floor_m if inside else self._floor_m - PATH_SLACK_M
+        return self._sweep(pose, velocity, accel, self._floor_m, path_floor)
 
     def _admissible(self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray) -> bool:
-        candidates = self._candidates(pose, velocity, accel)
-        if not self._clear(candidates[0]):
-            return False
-        return all(  # points of the braking path no joint can bring closer need no query
-            self.body.certainly_clear(pose, candidate, self._floor_m) or self._clear(candidate)
-            for candidate in candidates[1:]
-        )
+        return self._check(pose, velocity, accel).clear
 
-    def _braking_close_enough(
+    def _braking_short_of(
         self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray
-    ) -> bool:
-        """Braked commands may end up to ``TOLERANCE_M`` inside the margin (see its comment)."""
-        limit = self.margin_m - TOLERANCE_M
-        return all(
-            self.body.clearance(candidate) >= limit
-            for candidate in self._candidates(pose, velocity, accel)
-        )
+    ) -> np.ndarray | None:
+        """None if a braked command keeps the guaranteed floor within ``TOLERANCE_M``.
+
+        Else the joints of the first pair too close (of the command or of its path). Braking
+        follows the previous command's checked path, but that was checked with the previous
+        tick's length and acceleration.
+        """
+        assert self._guaranteed_m is not None
+        limit = self._guaranteed_m - TOLERANCE_M
+        found = self._sweep(pose, velocity, accel, limit, limit)
+        return None if found.clear else self.body.pair_joints(found.pair)
 
     def _offending(
         self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray
     ) -> np.ndarray | None:
-        """None if (pose, velocity) is admissible, else the joints of the pairs too close."""
-        joints = np.zeros(self.body.robot.n_joints, dtype=bool)
-        clear = True
-        candidates = self._candidates(pose, velocity, accel)
-        for i, candidate in enumerate(candidates):
-            if i and self.body.certainly_clear(pose, candidate, self._floor_m):
-                continue
-            clearance, more = self.body.violations(candidate, self._floor_m)
-            if clearance < self._floor_m:
-                clear = False
-                joints |= more
-        return None if clear else joints
+        """None if (pose, velocity) is admissible, else the joints of the first pair too close."""
+        found = self._check(pose, velocity, accel)
+        return None if found.clear else self.body.pair_joints(found.pair)
 
     def enforce(
         self,
@@ -168,7 +249,8 @@ class BodyGuard:
             dt_s: time between the two commands (s); without time passing, the previous
                 command is kept if the new one is not clear.
             limiter: the joint limits the command already obeys: its position range bounds
-                every pose the guard makes, its acceleration limit is the braking deceleration.
+                every pose the guard makes, its acceleration limit is the braking deceleration
+                (or the previous one, higher, until the arms can stop at it: module text).
 
         Returns:
             ``(positions_rad, velocities_rad_s)``.
@@ -179,26 +261,67 @@ class BodyGuard:
         want_velocity = np.asarray(velocities_rad_s, dtype=np.float64)
         previous = np.asarray(previous_rad, dtype=np.float64)
         previous_velocity = np.asarray(previous_velocity_rad_s, dtype=np.float64)
+        self._previous = previous
+        self._dt_s = dt_s if np.isfinite(dt_s) and dt_s > 0.0 else 0.0
         accel = limiter.max_acceleration_rad_s2
+        brake = accel if self._brake_accel is None else np.maximum(accel, self._brake_accel)
         self._bounds = limiter.allowed_range(previous)
         self._max_speed = limiter.max_velocity_rad_s
         previous_clearance = float(self.body.clearance(previous))
+        if self._guaranteed_m is None:  # from rest: what the start pose has, at most the margin
+            self._guaranteed_m = min(self.margin_m, previous_clearance)
+        self._guaranteed_m = min(self._guaranteed_m, self.margin_m)  # a lowered margin: at once
+        # never closer than now while inside the margin; braked commands may end up to
+        # TOLERANCE_M inside the guaranteed floor
         self._floor_m = min(self.margin_m, previous_clearance)
         result: tuple[np.ndarray, np.ndarray]
         if not (np.isfinite(dt_s) and dt_s > 0.0):
             result = (want, want_velocity) if self._clear(want) else (previous, previous_velocity)
-        elif previous_clearance < self.margin_m - TOLERANCE_M:
-            result = self._lead_out(want, want_velocity, previous, previous_velocity, dt_s, accel)
         else:
-            self._lead_out_s = 0.0
-            result = self._restrain(want, want_velocity, previous, previous_velocity, dt_s, accel)
+            if previous_clearance < self.margin_m - TOLERANCE_M:
+                want, want_velocity = self._lead_out(
+                    want, want_velocity, previous, previous_velocity, dt_s, accel, brake
+                )
+            else:
+                self._lead_out_s = 0.0
+            result = self._restrain(
+                want, want_velocity, previous, previous_velocity, dt_s, accel, brake
+            )
         positions, velocities = result
-        status.active = not np.array_equal(positions, want)
+        if self._guaranteed_m < self.margin_m or np.any(brake > accel):
+            self._settle(positions, velocities, accel, brake)
+        else:
+            self._brake_accel = accel
+        status.active = not np.array_equal(positions, np.asarray(positions_rad, dtype=np.float64))
         status.interventions += int(status.active)
         distance, link_a, link_b = self.body.closest_pair(positions)
         status.clearance_m, status.links = distance, (link_a, link_b)
+        status.floor_m = self._guaranteed_m
         status.last_cost_ns = time.perf_counter_ns() - start_ns
         return positions.copy(), velocities.copy()
+
+    def _settle(
+        self, positions: np.ndarray, velocities: np.ndarray, accel: np.ndarray, brake: np.ndarray
+    ) -> None:
+        """Raise the floor to what the returned command's path keeps, and pick its braking.
+
+        The command relies on the limiter's deceleration if its braking path is clear at it,
+        else on the higher one it was braked with (after a lowered acceleration limit).
+        """
+        assert self._guaranteed_m is not None
+        self._previous = positions  # the returned command's own braking path, from itself
+        floor = self._guaranteed_m - TOLERANCE_M
+        found = self._sweep(positions, velocities, accel, floor, floor)
+        self._brake_accel = accel
+        if not found.clear and np.any(brake > accel):
+            found = self._sweep(positions, velocities, brake, floor, floor)
+            self._brake_accel = brake
+        if found.clear and found.lowest_m > self._guaranteed_m:
+            self._guaranteed_m = (
+                self.margin_m
+                if found.lowest_m >= self.margin_m - TOLERANCE_M
+                else float(found.lowest_m)
+            )
 
     def _restrain(
         self,
@@ -208,6 +331,7 @@ class BodyGuard:
         previous_velocity: np.ndarray,
         dt_s: float,
         accel: np.ndarray,
+        brake: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
         offending = self._offending(want, want_velocity, accel)
         if offending is None:
@@ -215,12 +339,16 @@ class BodyGuard:
         lower, upper = self._bounds
         held = offending
         for _ in range(MAX_WIDENINGS):
-            braked_speed = np.maximum(np.abs(previous_velocity) - accel * dt_s, 0.0)
+            braked_speed = np.maximum(np.abs(previous_velocity) - brake * dt_s, 0.0)
             velocity = np.where(held, np.copysign(braked_speed, previous_velocity), want_velocity)
             pose = np.where(held, np.clip(previous + velocity * dt_s, lower, upper), want)
             velocity = np.where(held, (pose - previous) / dt_s, velocity)
             more = self._offending(pose, velocity, accel)
-            if more is None or self._braking_close_enough(pose, velocity, accel):
+            if more is not None and not np.any(more & ~held):
+                # braking every offending joint is not enough: within the tolerance it is,
+                # unless another pair is the one too close
+                more = self._braking_short_of(pose, velocity, brake)
+            if more is None:
                 pose, velocity = self._slide(pose, velocity, want, want_velocity, held, accel)
                 return self._detour(
                     pose, velocity, want, previous, previous_velocity, held, dt_s, accel
@@ -319,14 +447,16 @@ class BodyGuard:
         previous_velocity: np.ndarray,
         dt_s: float,
         accel: np.ndarray,
+        brake: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Move the offending joints up the clearance gradient, slowly; brake what goes deeper.
+        """The command with the offending joints moved up the clearance gradient, slowly.
 
         The offending joints' velocity approaches the lead-out velocity (along the gradient,
         ramped from zero at ``LEAD_OUT_ACCEL_RAD_S2`` up to ``LEAD_OUT_SPEED_RAD_S``) no faster
         than their acceleration limit allows, so a moving arm brakes into it rather than
         jumping. The other joints follow their command unless that brings the body closer than
-        the led-out pose alone; then they brake at their acceleration limit.
+        the led-out pose alone; then they brake (at ``brake``). The result is the command the
+        guard then checks like any other (:meth:`_restrain`): every joint's braking path.
         """
         self.status.lead_out_steps += 1
         body = self.body
@@ -344,7 +474,7 @@ class BodyGuard:
         led = np.where(joints, np.clip(previous + led_velocity * dt_s, lower, upper), previous)
         pose = np.where(joints, led, want)
         if body.clearance(pose) < body.clearance(led):
-            braked_speed = np.maximum(np.abs(previous_velocity) - accel * dt_s, 0.0)
+            braked_speed = np.maximum(np.abs(previous_velocity) - brake * dt_s, 0.0)
             braked = np.clip(
                 previous + np.copysign(braked_speed, previous_velocity) * dt_s, lower, upper
             )

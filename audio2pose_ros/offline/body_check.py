@@ -94,7 +94,8 @@ def check_glides(
     margin ``margin_m``) then glides it to neutral for ``seconds``. What the self-collision guard
     cannot go round shows as poses that do not reach neutral.
     """
-    from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+    from audio2pose_ros.motion.filter import MotionFilter
+    from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 
     robot = body.robot
     rng = np.random.default_rng(seed)

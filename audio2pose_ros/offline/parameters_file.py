@@ -14,7 +14,8 @@ from typing import Any
 
 from audio2pose_ros.errors import Audio2PoseError, InputError
 from audio2pose_ros.files import read_yaml_file
-from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+from audio2pose_ros.motion.filter import MotionFilter
+from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.parameters import settings_from
 from audio2pose_ros.resources import share_path

@@ -24,7 +24,7 @@ from audio2pose_ros.audio.features import extract_features
 from audio2pose_ros.checkpoints.torch_io import Checkpoint
 from audio2pose_ros.models.warm_start import WARM_START_FRAMES, with_warm_start
 from audio2pose_ros.motion.body_guard import BodyGuard, guard_trajectory
-from audio2pose_ros.motion.filter import MotionFilterSettings
+from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.motion.smoothing import butterworth_zero_phase
 from audio2pose_ros.motion.style import StyleSettings, style_trajectory
 from audio2pose_ros.robot.body import BodyModel

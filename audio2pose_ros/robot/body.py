@@ -20,6 +20,7 @@ overlap by that much).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +38,31 @@ SHOULDER_LINKS = {"left": "LShoulder", "right": "RShoulder"}
 PUSH_OUT_STEP_RAD = 0.02  # joint-space step of push_out's climb along the clearance gradient
 PUSH_OUT_MAX_STEPS = 400  # push_out gives up after this many steps (8 rad of travel)
 GRADIENT_STEP_RAD = 1e-3  # finite-difference step of the clearance gradient
+BLAS_BLOCK_ELEMENTS = 1 << 16  # products of rows x inner x columns up to this stay on one thread
 RECENT_QUERIES = 16  # poses whose clearance is kept: a guard step asks about the same few poses
+
+
+@dataclass(frozen=True)
+class PathClearance:
+    """What :meth:`BodyModel.sweep` found along a path of poses.
+
+    Attributes:
+        clear: every point of the path is at least the asked clearance away (within ``slack_m``
+            between its samples).
+        index: the first sample closer than the asked clearance (-1 when clear).
+        pair: index in :attr:`BodyModel.link_pairs` of that sample's closest pair (-1 when clear).
+        lowest_m: a lower bound of the clearance along the whole path when clear (m); the
+            offending sample's clearance otherwise.
+        slack_m: how far the path between two samples may come closer than the samples' bounds.
+        queries: distance queries the sweep made (the rest of the path needed none).
+    """
+
+    clear: bool
+    index: int
+    pair: int
+    lowest_m: float
+    slack_m: float
+    queries: int
 
 
 _LOADED: dict[tuple[RobotDescription, Path], BodyModel] = {}
@@ -64,6 +89,19 @@ def _bounding_radius(shape: Any) -> float:
 def _link_of(geometry_name: str) -> str:
     """``LForeArm_0`` -> ``LForeArm`` (Pinocchio numbers the shapes of a link)."""
     return geometry_name.rsplit("_", 1)[0]
+
+
+def blocked_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` in blocks of rows small enough for one thread of OpenBLAS.
+
+    OpenBLAS splits a larger product over its threads, which it starts at import, one per core:
+    pinned to one core (as the bench and a real-time node are), the product then waits for
+    them to take turns, up to tens of milliseconds for a (500, 11) x (11, 145) one.
+    """
+    rows = max(1, BLAS_BLOCK_ELEMENTS // max(1, a.shape[1] * b.shape[1]))
+    if len(a) <= rows:
+        return a @ b
+    return np.vstack([a[i : i + rows] @ b for i in range(0, len(a), rows)])
 
 
 class _PairGroup:
@@ -152,7 +190,16 @@ class BodyModel:
                     masks.append(self._driven_joints(chain[a], chain[b]))
         if not pairs:
             raise BodyModelError(f"{urdf_path}: no arm link to check against the body")
-        self.lever_m = self._levers(geometry)
+        shape_levers, moved = self._levers(geometry)
+        self.lever_m = shape_levers.max(axis=0)
+        # a joint on both shapes' chains moves them together: it cannot change their distance
+        self.pair_lever_m = np.array(
+            [
+                np.where(moved[a] & ~moved[b], shape_levers[a], 0.0)
+                + np.where(moved[b] & ~moved[a], shape_levers[b], 0.0)
+                for a, b in pairs
+            ]
+        )
         self._pairs = _PairGroup(pinocchio, model, urdf_path, pairs)
         self._pair_joints = np.array(masks, dtype=bool)  # (n_pairs, n_joints)
         self.link_pairs: tuple[tuple[str, str], ...] = tuple((names[a], names[b]) for a, b in pairs)
@@ -188,18 +235,24 @@ class BodyModel:
             return True  # the body, or the other arm's shoulder
         return False
 
-    def _levers(self, geometry: Any) -> np.ndarray:
-        """Per robot joint, the farthest any collision shape it moves can be from its axis (m).
+    def _levers(self, geometry: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Per collision shape and robot joint, how far the shape can be from the joint's axis.
 
         Bounded along the kinematic chain: the offsets of the joints below it, the shape's
-        placement and its bounding radius. Turning joint j by d moves no point further than
-        ``lever_m[j] * |d|``, so a clearance larger than that sum cannot be lost
-        (:meth:`certainly_clear`).
+        placement and its bounding radius (m; 0 for a joint that does not move the shape).
+        Turning joint j by d moves no point of shape s further than ``levers[s, j] * |d|``, so
+        a clearance larger than the sum cannot be lost (:meth:`sweep`).
+
+        Returns:
+            ``(levers, moved)``: (n_shapes, n_joints) lever lengths (m) and whether each joint
+            moves each shape.
         """
         model = self._model
-        levers = np.zeros(self.robot.n_joints)
+        objects = geometry.geometryObjects
+        levers = np.zeros((len(objects), self.robot.n_joints))
+        moved = np.zeros((len(objects), self.robot.n_joints), dtype=bool)
         joint_ids = [model.getJointId(name) for name in self.robot.names]
-        for obj in geometry.geometryObjects:
+        for s, obj in enumerate(objects):
             radius = _bounding_radius(obj.geometry) + float(
                 np.linalg.norm(obj.placement.translation)
             )
@@ -207,16 +260,11 @@ class BodyModel:
             for i, joint in enumerate(joint_ids):
                 if joint in chain:
                     below = chain[chain.index(joint) + 1 :]
-                    reach = radius + sum(
+                    levers[s, i] = radius + sum(
                         float(np.linalg.norm(model.jointPlacements[j].translation)) for j in below
                     )
-                    levers[i] = max(levers[i], reach)
-        return levers
-
-    def certainly_clear(self, pose_rad: np.ndarray, moved_rad: np.ndarray, margin_m: float) -> bool:
-        """Whether ``moved_rad`` is clear by ``margin_m`` without a query, from ``pose_rad``'s."""
-        travel = float(np.dot(self.lever_m, np.abs(moved_rad - pose_rad)))
-        return float(self._query(pose_rad)[0]) - travel >= margin_m
+                    moved[s, i] = True
+        return levers, moved
 
     def _driven_joints(self, joint_a: int, joint_b: int) -> np.ndarray:
         """Mask of the robot's joints on the kinematic chains of two URDF joints."""
@@ -236,8 +284,11 @@ class BodyModel:
         self._pin.updateGeometryPlacements(self._model, self._data, group.geometry, group.data)
         return group
 
-    def _query(self, pose_rad: np.ndarray) -> tuple[float, int]:
-        """The closest pair's distance (m) and index in :attr:`link_pairs` (recent ones cached)."""
+    def query(self, pose_rad: np.ndarray) -> tuple[float, int]:
+        """The closest pair's distance (m) and its index in :attr:`link_pairs`, for one pose.
+
+        The pose is a finite (n_joints,) array; the last ``RECENT_QUERIES`` answers are kept.
+        """
         key = pose_rad.tobytes()
         cached = self._recent.get(key)
         if cached is not None:
@@ -250,6 +301,108 @@ class BodyModel:
         self._recent[key] = (distance, k)
         return distance, k
 
+    def _some_pairs(self, pose_rad: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+        """Signed distances (m) of the pairs ``pairs`` (indices) alone in one pose."""
+        group = self._place_pairs(pose_rad)
+        distance = self._pin.computeDistance
+        return np.array([distance(group.geometry, group.data, int(k)).min_distance for k in pairs])
+
+    def sweep(
+        self, points_rad: np.ndarray, floor_m: float, counts: np.ndarray | None = None
+    ) -> PathClearance:
+        """Whether the path through ``points_rad`` keeps ``floor_m`` (conservative advancement).
+
+        The path is the polyline through the (m, n_joints) points; with ``counts`` (m - 1
+        positive integers) its piece p is sampled at ``counts[p]`` evenly spaced samples
+        (fractions 1/c, 2/c, ..., 1 of it; the first point is sample 0), else at its ends only.
+        Pair k's distance cannot fall by more than ``pair_lever_m[k] @ |q - q_known|`` from a
+        pose where it is known (only the joints that move one of its shapes and not the other
+        count), and ``|q - q_known|`` is at most each joint's travel along the path between
+        the two (equal where the joint moves one way). From the first sample's clearance, the
+        pairs that this bound keeps at ``floor_m`` or more along the whole path are done; the
+        others (the few near the moving arm) are queried alone, pair by pair, at the first
+        sample their bound does not keep clear, and so on. Between two samples the path can
+        come closer than their bounds by at most half its travel there (``slack_m``), so
+        samples dense for the fastest joint and the thinnest shape make the check continuous to
+        that slack. A path far from the body costs one (usually cached) query; the rest is
+        arithmetic on the pieces, not on the samples (only the queried samples are made).
+
+        Args:
+            points_rad: (m, n_joints) finite points of the path, in order.
+            floor_m: clearance every sample must keep (m).
+            counts: (m - 1,) samples of each piece (default: one, its end).
+
+        Returns:
+            The :class:`PathClearance`; its ``index`` counts the samples from 0.
+        """
+        points = np.asarray(points_rad, dtype=np.float64)
+        levers = self.pair_lever_m.T  # (n_joints, n_pairs)
+        distance, k = self.query(points[0])
+        if distance < floor_m:
+            return PathClearance(False, 0, k, distance, 0.0, 1)
+        if len(points) == 1:
+            return PathClearance(True, -1, -1, distance, 0.0, 1)
+        pieces = np.diff(points, axis=0)
+        per = np.ones(len(pieces)) if counts is None else np.asarray(counts, dtype=np.float64)
+        spans = np.abs(pieces)  # (pieces, n_joints): each joint's travel along each piece
+        walked = np.zeros_like(points)  # each joint's travel from the first point to each
+        np.cumsum(spans, axis=0, out=walked[1:])
+        reach = walked[-1] @ levers  # (n_pairs,): how far each pair can move along the path
+        slack = 0.5 * float(blocked_product(spans / per[:, None], levers).max())
+        near = np.flatnonzero(distance - reach < floor_m)
+        far = np.delete(reach, near)
+        lowest = distance - (float(far.max()) if far.size else 0.0)
+        queries = 1
+        if not near.size:
+            return PathClearance(True, -1, -1, lowest - slack, slack, queries)
+        # how far each near pair can have moved from the first point, at each point (never
+        # falls), and along each piece; sample j of piece p has moved[p] + j / per[p] * along[p]
+        moved = blocked_product(walked, levers[:, near])  # (points, near)
+        along = np.diff(moved, axis=0)  # (pieces, near)
+        ends = np.cumsum(per).astype(np.int64)  # the sample at the end of each piece
+        now, last = 0, int(ends[-1])  # the present sample, the last one
+        at = moved[0]
+        known = np.full(near.size, distance)  # at the first sample: no pair is nearer than that
+        while True:
+            lowest = min(lowest, float(known.min()))
+            # a later sample is kept clear of pair j while it has moved no further than this
+            allowed = at + known - floor_m
+            keep = moved[-1] > allowed  # pairs that need another query further on
+            done = ~keep
+            if done.any():
+                lowest = min(lowest, float((known - moved[-1] + at)[done].min()))
+            if not keep.any() or now == last:
+                break
+            near, moved, along = near[keep], moved[:, keep], along[:, keep]
+            at, known, allowed = at[keep], known[keep], allowed[keep]
+            # each pair's first piece that ends beyond, and its first sample there
+            first = np.argmax(moved[1:] > allowed, axis=0)
+            share = (allowed - moved[first, np.arange(near.size)]) / np.maximum(
+                along[first, np.arange(near.size)], 1e-300
+            )
+            steps = np.clip(np.floor(share * per[first]) + 1.0, 1.0, per[first])
+            samples = ends[first] - per[first].astype(np.int64) + steps.astype(np.int64)
+            target = min(max(int(samples.min()), now + 1), last)
+            piece = int(np.searchsorted(ends, target))
+            step = target - int(ends[piece] - per[piece])
+            before = moved[piece] + (step - 1) / per[piece] * along[piece]
+            if target - 1 > now:  # the samples passed: bounded by the one before the target
+                lowest = min(lowest, float((known - before + at).min()))
+            fraction = step / per[piece]
+            pose = points[piece] + fraction * pieces[piece]
+            at = moved[piece] + fraction * along[piece]
+            known = self._some_pairs(pose, near)
+            queries, now = queries + 1, target
+            if known.min() < floor_m:
+                worst = int(np.argmin(known))
+                pair, nearest = int(near[worst]), float(known[worst])
+                return PathClearance(False, target, pair, nearest, slack, queries)
+        return PathClearance(True, -1, -1, lowest - slack, slack, queries)
+
+    def pair_joints(self, pair: int) -> np.ndarray:
+        """Mask of the joints that move pair ``pair`` of :attr:`link_pairs` (a whole arm)."""
+        return self._pair_joints[pair].copy()
+
     def _pose_array(self, poses_rad: np.ndarray) -> np.ndarray:
         poses = np.asarray(poses_rad, dtype=np.float64)
         if poses.shape[-1:] != (self.robot.n_joints,) or poses.ndim > 2:
@@ -261,23 +414,27 @@ class BodyModel:
             raise ValueError("poses must be finite")
         return poses
 
+    def _frame_positions(self, poses_rad: np.ndarray, frames: tuple[str, str]) -> np.ndarray:
+        """(N, 2, 3) positions (m) of two URDF frames in the torso's frame, for N poses."""
+        poses = np.atleast_2d(self._pose_array(poses_rad))
+        pin, model, data = self._pin, self._model, self._data
+        ids = [model.getFrameId(name) for name in ("torso", *frames)]
+        out = np.empty((len(poses), 2, 3))
+        for i, pose in enumerate(poses):
+            self._placements(pose)
+            pin.updateFramePlacements(model, data)
+            torso = data.oMf[ids[0]]
+            for k, frame in enumerate(ids[1:]):
+                out[i, k] = torso.actInv(data.oMf[frame]).translation
+        return out
+
     def wrist_positions(self, poses_rad: np.ndarray) -> np.ndarray:
         """(N, 2, 3) positions (m) of the left and right wrist in the torso's frame.
 
         The torso frame (x forward, y left, z up) moves with the hip, so the positions describe
         where the hands are relative to the chest, whatever the hip does.
         """
-        poses = np.atleast_2d(self._pose_array(poses_rad))
-        pin, model, data = self._pin, self._model, self._data
-        frames = [model.getFrameId(name) for name in ("torso", "l_wrist", "r_wrist")]
-        out = np.empty((len(poses), 2, 3))
-        for i, pose in enumerate(poses):
-            self._placements(pose)
-            pin.updateFramePlacements(model, data)
-            torso = data.oMf[frames[0]]
-            for k, frame in enumerate(frames[1:]):
-                out[i, k] = torso.actInv(data.oMf[frame]).translation
-        return out
+        return self._frame_positions(poses_rad, ("l_wrist", "r_wrist"))
 
     def shoulder_positions(self, poses_rad: np.ndarray) -> np.ndarray:
         """(N, 2, 3) positions (m) of the left and right shoulder joints in the torso's frame.
@@ -285,17 +442,7 @@ class BodyModel:
         The shoulders are fixed to the torso, so these are the same in every pose; a wrist above
         its shoulder is :meth:`wrist_positions` higher than this.
         """
-        poses = np.atleast_2d(self._pose_array(poses_rad))
-        pin, model, data = self._pin, self._model, self._data
-        frames = [model.getFrameId(name) for name in ("torso", "LShoulder", "RShoulder")]
-        out = np.empty((len(poses), 2, 3))
-        for i, pose in enumerate(poses):
-            self._placements(pose)
-            pin.updateFramePlacements(model, data)
-            torso = data.oMf[frames[0]]
-            for k, frame in enumerate(frames[1:]):
-                out[i, k] = torso.actInv(data.oMf[frame]).translation
-        return out
+        return self._frame_positions(poses_rad, ("LShoulder", "RShoulder"))
 
     def wrist_heights(self, poses_rad: np.ndarray) -> np.ndarray:
         """(N, 2) height (m) of the left and right wrist above its own shoulder joint."""
@@ -306,7 +453,7 @@ class BodyModel:
     def pair_distances(self, pose_rad: np.ndarray) -> np.ndarray:
         """Signed distance (m) of every pair of :attr:`link_pairs` in one pose.
 
-        Always computed afresh: the cache of :meth:`_query` keeps the smallest distance only.
+        Always computed afresh: the cache of :meth:`query` keeps the smallest distance only.
         """
         group = self._place_pairs(self._pose_array(pose_rad).reshape(-1))
         self._pin.computeDistances(group.geometry, group.data)
@@ -316,12 +463,12 @@ class BodyModel:
         """Smallest signed distance (m) of the checked pairs: shape () for one pose, (N,) for N."""
         poses = self._pose_array(poses_rad)
         if poses.ndim == 1:
-            return np.asarray(self._query(poses)[0])
-        return np.array([self._query(pose)[0] for pose in poses])
+            return np.asarray(self.query(poses)[0])
+        return np.array([self.query(pose)[0] for pose in poses])
 
     def closest_pair(self, pose_rad: np.ndarray) -> tuple[float, str, str]:
         """``(distance_m, arm_link, other_link)`` of the closest checked pair in one pose."""
-        distance, k = self._query(self._pose_array(pose_rad).reshape(-1))
+        distance, k = self.query(self._pose_array(pose_rad).reshape(-1))
         return distance, *self.link_pairs[k]
 
     def violations(self, pose_rad: np.ndarray, margin_m: float) -> tuple[float, np.ndarray]:
@@ -337,7 +484,7 @@ class BodyModel:
             ``margin_m`` (all False when the pose is clear). Other pairs closer than the margin
             show once the closest one is resolved (the guard widens its set of braked joints).
         """
-        clearance, k = self._query(pose_rad)
+        clearance, k = self.query(pose_rad)
         if clearance >= margin_m:
             return clearance, np.zeros(self.robot.n_joints, dtype=bool)
         return clearance, self._pair_joints[k].copy()
@@ -362,7 +509,7 @@ class BodyModel:
         """
         gradient = np.zeros(self.robot.n_joints)
         pose = np.array(pose_rad, dtype=np.float64)
-        k = self._query(pose)[1]
+        k = self.query(pose)[1]
         for i in np.flatnonzero(joints):
             saved = pose[i]
             pose[i] = saved + GRADIENT_STEP_RAD

@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from audio_common_msgs.msg import AudioData, AudioInfo
@@ -251,15 +252,9 @@ class ConsoleNode(DiagnosedNode):
                     f"{self.settings.filter_node}'s parameter service is not available"
                 )
             return
-        request = SetParameters.Request()
-        request.parameters = [
-            Parameter(
-                name=f"{group}_gain",
-                value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value),
-            )
-            for group, value in gains.items()
-        ]
-        self.set_client.call_async(request).add_done_callback(self._gains_set)
+        self._set_filter_doubles(
+            {f"{group}_gain": value for group, value in gains.items()}, "gains", self._gains_problem
+        )
 
     def set_style(self, settings: dict[str, float] | None) -> None:
         """Apply learned style settings to the filter's live style parameters; None: restore.
@@ -302,6 +297,23 @@ class ConsoleNode(DiagnosedNode):
         self.get_client.call_async(request).add_done_callback(keep_then_set)
 
     def _set_style_parameters(self, values: dict[str, float]) -> None:
+        self._set_filter_doubles(values, "style", self._style_problem)
+
+    def _gains_problem(self, text: str) -> None:
+        with self._lock:
+            self.gains_problem = text
+
+    def _style_problem(self, text: str) -> None:
+        with self._lock:
+            self.style_problem = text
+
+    def _set_filter_doubles(
+        self, values: dict[str, float], what: str, record: Callable[[str], None]
+    ) -> None:
+        """Set double parameters of the filter; ``record`` gets its refusals ('' when none).
+
+        The values in force are read back after the answer (:meth:`refresh_gains`).
+        """
         request = SetParameters.Request()
         request.parameters = [
             Parameter(
@@ -314,22 +326,12 @@ class ConsoleNode(DiagnosedNode):
         def done(future: Future[Any]) -> None:
             results = getattr(future.result(), "results", [])
             refused = [r.reason for r in results if not r.successful]
-            with self._lock:
-                self.style_problem = "; ".join(refused)
+            record("; ".join(refused))
             if refused:
-                self.get_logger().warning(f"style refused by the filter: {'; '.join(refused)}")
+                self.get_logger().warning(f"{what} refused by the filter: {'; '.join(refused)}")
             self.refresh_gains()
 
         self.set_client.call_async(request).add_done_callback(done)
-
-    def _gains_set(self, future: Future[Any]) -> None:
-        response = future.result()
-        refused = [r.reason for r in getattr(response, "results", []) if not r.successful]
-        with self._lock:
-            self.gains_problem = "; ".join(refused)
-        if refused:
-            self.get_logger().warning(f"gains refused by the filter: {'; '.join(refused)}")
-        self.refresh_gains()
 
     def refresh_gains(self) -> None:
         """Read the filter's gains back (the page shows what is in force)."""

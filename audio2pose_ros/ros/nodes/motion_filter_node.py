@@ -90,7 +90,8 @@ from trajectory_msgs.msg import JointTrajectory
 from audio2pose_ros import topics
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.body_guard import GuardStatus
-from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+from audio2pose_ros.motion.filter import MotionFilter
+from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.motion.measured import SOURCE_WINDOW_S, MeasuredPoseCheck
 from audio2pose_ros.motion.sources import SingleSource
@@ -332,6 +333,7 @@ class MotionFilterNode(DiagnosedNode):
         self.poses_at_last_report = 0
         self.last_report_s = time.monotonic()
         self.faults_seen = 0
+        self.ticks = 0  # filter ticks since start (each may serve one service request)
         self.lead_outs_seen = 0
         self.started_from = ""
         self.created_s = time.monotonic()
@@ -981,6 +983,7 @@ class MotionFilterNode(DiagnosedNode):
         """Advance the filter by one period and publish the outputs due at this tick."""
         self._take_pending_settings()
         self.request_budget.renew()
+        self.ticks += 1
         self.last_tick_s = time.monotonic()
         self.tick_stamp = self.get_clock().now()
         status = self.filter.status
@@ -1009,7 +1012,8 @@ class MotionFilterNode(DiagnosedNode):
             "body_guard",
             DiagnosticStatus.WARN,
             f"self-collision guard acting: {link_a} {action} the {margin_cm:.1f} cm margin of "
-            f"{link_b} ({guard.clearance_m * 100.0:.1f} cm); the arm is slowed or held there",
+            f"{link_b} ({guard.clearance_m * 100.0:.1f} cm); the arm is slowed or held there "
+            f"(last-resort holds so far: {guard.holds})",
         )
 
     def _stamp(self) -> object:
@@ -1100,6 +1104,7 @@ class MotionFilterNode(DiagnosedNode):
             "acceleration_limit_hits": counts.acceleration,
             "gaps": status.gaps,
             "filter_faults": status.faults,
+            "ticks": self.ticks,
             "service_requests_served": self.request_budget.served_total,
             "most_service_requests_in_a_tick": self.request_budget.most_in_a_tick,
             "body_guard_interventions": self.filter.body_guard.status.interventions,

@@ -38,7 +38,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros import topics
 from audio2pose_ros.motion.body_guard import TOLERANCE_M as BODY_TOLERANCE_M
-from audio2pose_ros.motion.filter import MotionFilterSettings
+from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, status_name
 from audio2pose_ros.ros.graph import executable_command
