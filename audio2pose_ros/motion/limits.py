@@ -228,15 +228,19 @@ class JointLimiter:
         limited = np.minimum(np.maximum(np.copysign(speed, error), -to_lower), to_upper)
         self.counts.velocity += int(np.count_nonzero(np.abs(limited) < wanted_speed))
 
-        # 3. Acceleration: speeding up at the acceleration limit, slowing down (towards zero,
-        # without reversing) at the braking deceleration.
-        slowing = (np.abs(limited) < np.abs(previous_velocity)) & (
-            limited * previous_velocity >= 0.0
+        # 3. Acceleration: speeding up at the acceleration limit, slowing down towards zero at
+        # the braking deceleration (also when the joint is to reverse: it first has to stop),
+        # and on past zero at the acceleration limit again.
+        speed_up = self.max_acceleration_rad_s2 * dt_s
+        slow_down = self.braking_rad_s2 * dt_s
+        v = previous_velocity
+        lowest = np.where(
+            v > 0.0, np.maximum(v - slow_down, np.minimum(0.0, v - speed_up)), v - speed_up
         )
-        max_change = np.where(slowing, self.braking_rad_s2, self.max_acceleration_rad_s2) * dt_s
-        accelerated = np.minimum(
-            np.maximum(limited, previous_velocity - max_change), previous_velocity + max_change
+        highest = np.where(
+            v < 0.0, np.minimum(v + slow_down, np.maximum(0.0, v + speed_up)), v + speed_up
         )
+        accelerated = np.minimum(np.maximum(limited, lowest), highest)
         self.counts.acceleration += int(np.count_nonzero(accelerated != limited))
 
         # Final guard against rounding: positions never leave the range (nor, for a joint that
