@@ -148,7 +148,7 @@ def test_when_a_racing_joint_is_sent_back_after_a_lowered_acceleration_expect_it
     old_accel = filt.limiter.max_acceleration_rad_s2.copy()
     pos, vel = start.copy(), np.zeros(robot.n_joints)
     goal = robot.upper_rad + 1.0
-    for step in range(400):
+    for _ in range(400):
         if (np.abs(vel) >= 0.9 * filt.limiter.max_velocity_rad_s).any():
             break
         pos, vel = filt.limiter.enforce(goal, pos, vel, DT)
