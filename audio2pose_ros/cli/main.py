@@ -267,25 +267,8 @@ def command_check_arms(args: argparse.Namespace) -> int:
 BENCH_SCHEMA_VERSION = 3  # 1: before versioning; 2: graph figures a list of modes; 3: floor
 
 
-def command_bench(args: argparse.Namespace) -> int:
-    """Per-frame cost of each streaming stage on one core; with --graph, the live graph too."""
-    import json
-
-    import torch
-
-    from audio2pose_ros.audio.wav import read_wav
-    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
-    from audio2pose_ros.motion.filter import MotionFilter
-    from audio2pose_ros.offline.benchmark import (
-        model_costs,
-        reference_feature_cost,
-        streaming_costs,
-    )
-    from audio2pose_ros.resources import bundled_speech_path, default_checkpoint_path
-    from audio2pose_ros.robot.description import load_robot
-
-    # --json: one object; its layout is versioned, and a change of it is in CHANGELOG.md
-    results: dict[str, object] = {"schema_version": BENCH_SCHEMA_VERSION}
+def _bench_live(args: argparse.Namespace, results: dict[str, object]) -> None:
+    """The live parts of ``bench``: --console, --graph and --sim, into ``results``."""
     if args.console:  # the operator's voice through the web console to /joint_angles
         from audio2pose_ros.ros.tools.console_bench import console_report, measure_console
         from audio2pose_ros.ros.tools.graph_bench import bundled_speech
@@ -310,6 +293,32 @@ def command_bench(args: argparse.Namespace) -> int:
 
         tracking = measure_sim_tracking(bundled_speech(), duration_s=min(args.duration, 60.0))
         results["sim_tracking"] = dataclasses.asdict(tracking)
+
+
+def command_bench(args: argparse.Namespace) -> int:
+    """Per-frame cost of each streaming stage on one core; with --graph, the live graph too."""
+    import json
+
+    import torch
+
+    from audio2pose_ros.audio.wav import read_wav
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+    from audio2pose_ros.motion.filter import MotionFilter
+    from audio2pose_ros.offline.benchmark import (
+        model_costs,
+        reference_feature_cost,
+        streaming_costs,
+    )
+    from audio2pose_ros.resources import bundled_speech_path, default_checkpoint_path
+    from audio2pose_ros.robot.description import load_robot
+    from audio2pose_ros.ros.tools.process_stats import busy_loops
+
+    # --json: one object; its layout is versioned, and a change of it is in CHANGELOG.md
+    results: dict[str, object] = {"schema_version": BENCH_SCHEMA_VERSION}
+    with busy_loops(args.busy_loops) as busy:  # other work beside the live graph
+        if busy:
+            results["busy_loops"] = len(busy)
+        _bench_live(args, results)
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     torch.set_num_threads(1)
@@ -385,6 +394,8 @@ def _print_bench(results: dict[str, Any], frames: int, clip_s: float) -> None:
         )
     if "console" in results:
         _print_console(results["console"])
+    if "busy_loops" in results:
+        print(f"\n(--graph, --console, --sim measured beside {results['busy_loops']} busy loops)")
 
 
 def _print_console(console: dict[str, Any]) -> None:
@@ -680,6 +691,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="also stream speech through the operator console: browser to /joint_angles "
         "latency, console node CPU and memory (--duration seconds)",
+    )
+    bench.add_argument(
+        "--busy-loops",
+        type=bounded_int(0, 16),
+        default=0,
+        help="run N busy-loop processes beside --graph, --console and --sim (other work on the "
+        "machine), 0 to 16 (default 0)",
     )
     bench.add_argument("--json", action="store_true", help="print the figures as JSON")
     bench.set_defaults(func=command_bench)
