@@ -89,12 +89,11 @@ from audio2pose_ros.motion.measured import SOURCE_WINDOW_S, MeasuredPoseCheck
 from audio2pose_ros.motion.sources import SingleSource
 from audio2pose_ros.motion.start_pose import HOLD, WAIT, StartPose, repaired_start_pose
 from audio2pose_ros.motion.state_file import (
+    MIN_SAVE_SPACING_S,
     FilterMemory,
     StateFileInUseError,
-    StateLock,
+    StateStore,
     default_state_path,
-    load_memory,
-    save_memory,
 )
 from audio2pose_ros.motion.style import StyleSettings
 from audio2pose_ros.motion.timing import StampCheck
@@ -112,8 +111,6 @@ MIN_TICK_SPACING = 0.5  # of a period: an arriving pose is commanded at once if 
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
 STARTUP_CHECK_NS = 100_000_000  # while the start waits, it is decided again this often (0.1 s)
 REQUESTS_PER_TICK = 1  # service requests (set_parameters, ...) served per tick at most
-MIN_SAVE_SPACING_S = 0.1  # the state file is written at most this often (flash wear)
-SAVED_POSE_RESOLUTION_RAD = 1e-4  # a pose that moved less than this is not saved again
 
 
 SETTINGS_CLASSES = (MotionFilterSettings, StyleSettings, LimitSettings, MotionFilterNodeSettings)
@@ -211,20 +208,15 @@ class MotionFilterNode(DiagnosedNode):
             if self.settings.state_file
             else default_state_path(self.get_fully_qualified_name())
         )
-        self.state_lock: StateLock | None = None
         try:
-            self.state_lock = StateLock(self.state_path)
+            self.state = StateStore(self.state_path, self.robot)
         except StateFileInUseError as exc:
             raise ConfigurationError(f"parameter state_file: {exc}") from None
-        except OSError as exc:
-            self._unsaved(f"cannot lock it: {exc}")
-        self.memory = self._load_memory()
+        self._report_state_file()
+        self.memory = self.state.memory
         self.start_pose = StartPose(
             time.monotonic(), self.memory is not None and self.memory.measured
         )
-        self.saved: tuple[object, ...] | None = None
-        self.save_due = False
-        self.last_write_s = -math.inf
         # wall-clock times the stop and the disable in force came into force (None: not in force)
         self.stop_since_s: float | None = None
         self.disable_since_s: float | None = None
@@ -364,13 +356,14 @@ class MotionFilterNode(DiagnosedNode):
         """Whether the filter knows where the robot is (and commands are published)."""
         return bool(self.started_from)
 
-    def _load_memory(self) -> FilterMemory | None:
-        try:
-            memory = load_memory(self.state_path, self.robot)
-        except InputError as exc:
-            self.report_problem("state_file", DiagnosticStatus.WARN, f"state file ignored: {exc}")
-            return None
-        if memory is not None and not memory.pose_in_range(self.robot):
+    def _report_state_file(self) -> None:
+        """WARN about a state file that cannot be used; ERROR when it cannot be locked."""
+        if self.state.lock_problem:
+            self._unsaved(self.state.lock_problem)
+        if self.state.read_problem:
+            ignored = f"state file ignored: {self.state.read_problem}"
+            self.report_problem("state_file", DiagnosticStatus.WARN, ignored)
+        if self.state.pose_refused:
             self.report_problem(
                 "saved_pose_refused",
                 DiagnosticStatus.WARN,
@@ -378,14 +371,10 @@ class MotionFilterNode(DiagnosedNode):
                 "(its stop and enable are kept)",
                 hold_s=10.0,
             )
-        return memory
 
     def _saved_pose(self) -> np.ndarray | None:
         """The saved pose, when there is one inside the joint ranges."""
-        memory = self.memory
-        if memory is None or not memory.pose_in_range(self.robot):
-            return None
-        return np.array(memory.position_rad)
+        return self.state.saved_pose()
 
     def _unsaved(self, reason: str) -> None:
         """The state cannot be saved: an ERROR until a save succeeds (the stop stays in memory)."""
@@ -581,37 +570,26 @@ class MotionFilterNode(DiagnosedNode):
         if not self.started:
             return
         status = self.filter.status
-        pose = tuple(float(v) for v in self.filter.position_rad)
-        resolution = SAVED_POSE_RESOLUTION_RAD
-        key = tuple(round(v / resolution) for v in pose)  # a pose at rest is saved once
-        measured = self.measured_rad is not None
-        since = (self.stop_since_s, self.disable_since_s)
-        state = (key, status.stopped, status.enabled, *since, measured)
-        self.save_due = False
-        if state == self.saved:
-            return
         memory = FilterMemory(
             tuple(self.robot.names),
-            pose,
+            tuple(float(v) for v in self.filter.position_rad),
             status.stopped,
             time.time(),
             status.enabled,
             self.stop_since_s,
             self.disable_since_s,
-            measured,
+            self.measured_rad is not None,
         )
-        self.last_write_s = time.monotonic()
         try:
-            save_memory(self.state_path, memory)
+            written = self.state.save(memory, time.monotonic())
         except OSError as exc:
             self._unsaved(f"cannot be written: {exc}")
             return
-        self.saved = state
-        if self.state_lock is not None:
+        if written and self.state.lock is not None:
             self.clear_problem("state_file_unsaved")
 
     def _save_if_due(self) -> None:
-        if self.save_due:
+        if self.state.due:
             self.save_state()
 
     # --- inputs -------------------------------------------------------------------------------
@@ -748,8 +726,7 @@ class MotionFilterNode(DiagnosedNode):
 
     def _save_now(self) -> None:
         """Save a changed stop or enable now, or within ``MIN_SAVE_SPACING_S`` (bounded rate)."""
-        self.save_due = True
-        if time.monotonic() - self.last_write_s >= MIN_SAVE_SPACING_S:
+        if self.state.save_soon(time.monotonic()):
             self.save_state()
 
     def on_enable(self, msg: Bool, info: MessageInfo) -> None:
