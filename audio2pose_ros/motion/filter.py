@@ -257,7 +257,8 @@ class MotionFilter:
         self.settings = settings
         if limits != self.limiter.settings:
             counts = self.limiter.counts
-            self.limiter = JointLimiter(self.robot, limits)
+            # a lowered acceleration limit: joints brake at the old one until they can stop
+            self.limiter = JointLimiter(self.robot, limits, self.limiter.braking_rad_s2)
             self.limiter.counts = counts
         if style is not None or settings.legacy_gains():
             self.style.update(_with_legacy_gains(settings, style or self.style.settings))

@@ -195,6 +195,7 @@ class MotionFilterNode(DiagnosedNode):
         self.poses_at_last_report = 0
         self.last_report_s = time.monotonic()
         self.faults_seen = 0
+        self.ticks = 0  # filter ticks since start (each may serve one service request)
         self.lead_outs_seen = 0
         self.started_from = ""
         self.measured_rad: np.ndarray | None = None
@@ -810,6 +811,7 @@ class MotionFilterNode(DiagnosedNode):
         """Advance the filter by one period and publish the outputs due at this tick."""
         self._take_pending_settings()
         self.request_budget.renew()
+        self.ticks += 1
         self.last_tick_s = time.monotonic()
         self.tick_stamp = self.get_clock().now()
         status = self.filter.status
@@ -930,6 +932,7 @@ class MotionFilterNode(DiagnosedNode):
             "acceleration_limit_hits": counts.acceleration,
             "gaps": status.gaps,
             "filter_faults": status.faults,
+            "ticks": self.ticks,
             "service_requests_served": self.request_budget.served_total,
             "most_service_requests_in_a_tick": self.request_budget.most_in_a_tick,
             "body_guard_interventions": self.filter.body_guard.status.interventions,
