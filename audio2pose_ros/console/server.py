@@ -2,7 +2,9 @@
 
 It serves the page (the built front end, ``web/dist``), the robot's URDF and one WebSocket,
 ``/ws``, and talks to the robot only through a :class:`GraphBridge` (``console_node`` is one;
-tests use their own). What a connection goes through:
+tests use their own). The "learn my style" upload (``POST /enroll/{ticket}``) and the page's
+``enroll`` and ``style`` messages are :mod:`~audio2pose_ros.console.learn_style`'s. What a
+connection goes through:
 
 1. **The TCP connection**, counted by its client address from its acceptance, before any TLS
    handshake, by the console's front door (:mod:`~audio2pose_ros.console.door`): one address
@@ -76,14 +78,9 @@ from audio2pose_ros.console.door import (
     Gate,
     Site,
 )
-from audio2pose_ros.console.enrollment import (
-    MAX_RECORDING_BYTES,
-    EnrollmentError,
-    Enrollments,
-    Ticket,
-    default_work_dir,
-)
+from audio2pose_ros.console.enrollment import Enrollments, default_work_dir
 from audio2pose_ros.console.floor import Floor
+from audio2pose_ros.console.learn_style import LearnMyStyle
 from audio2pose_ros.console.protocol import (
     AUDIO_HEADER,
     MAX_TEXT_BYTES,
@@ -241,7 +238,6 @@ class ConsoleServer:
     ) -> None:
         self.settings = settings
         self.enrollments = enrollments or Enrollments(default_work_dir())
-        self.style_in_use = "default"  # or "personal": the learned style is applied
         self.access = access
         self.bridge = bridge
         self.web_dir = web_dir
@@ -273,6 +269,14 @@ class ConsoleServer:
             if path.is_file() and path.suffix in CONTENT_TYPES
         }
         self.built = "index.html" in self.files
+        self.learn_style = LearnMyStyle(
+            self.enrollments,
+            access,
+            bridge,
+            log,
+            refused=lambda why: self._tally(self._refusals, why),
+            may_apply=lambda id_: id_ in self.sessions and self.floor.free_for(id_),
+        )
 
     # --- lifecycle ------------------------------------------------------------------------------
 
@@ -302,7 +306,7 @@ class ConsoleServer:
         app.router.add_get("/urdf/pepper.urdf", self._urdf)
         app.router.add_get("/favicon.ico", self._no_icon)
         app.router.add_get("/{name}", self._file)
-        app.router.add_post("/enroll/{ticket}", self._enroll_upload)
+        app.router.add_post("/enroll/{ticket}", self.learn_style.upload)
         # A connection's clock starts when it is made: a request not complete by then, or an
         # idle keep-alive connection, is closed (the page's few files load within milliseconds).
         self._runner = web.AppRunner(
@@ -335,6 +339,7 @@ class ConsoleServer:
         """Release the floor, close every connection, stop serving."""
         for task in self._tasks:
             task.cancel()
+        self.learn_style.stop()
         for session in list(self.sessions.values()):
             await session.ws.close(code=1001, message=b"console stopping")
         if self._runner is not None:
@@ -421,67 +426,6 @@ class ConsoleServer:
 
     async def _urdf(self, _request: web.Request) -> web.Response:
         return web.Response(text=self.urdf, content_type="application/xml")
-
-    # --- learn my style -------------------------------------------------------------------------
-
-    async def _enroll_upload(self, request: web.Request) -> web.Response:
-        """One recording, streamed under a ticket a page asked for; learned in the background."""
-        key = client_key(request.remote or "?")
-        problem = request_problem(
-            self.access, request.headers.get("Host"), request.headers.get("Origin")
-        )
-        if problem:
-            self._tally(self._refusals, f"{key} (upload: {problem})")
-            raise web.HTTPForbidden(text=problem)
-        length = request.content_length
-        if length is not None and length > MAX_RECORDING_BYTES:
-            self._tally(self._refusals, f"{key} (upload too large)")
-            raise web.HTTPRequestEntityTooLarge(
-                max_size=MAX_RECORDING_BYTES, actual_size=length, text="recording too large"
-            )
-        try:
-            ticket, recording = await self.enrollments.receive(
-                request.match_info["ticket"],
-                request.headers.get("Content-Type", ""),
-                request.content.iter_chunked(1 << 16),
-            )
-        except EnrollmentError as exc:  # tallied: a stream of guesses is one line per summary
-            self._tally(self._refusals, f"{key} (upload refused)")
-            raise web.HTTPBadRequest(text=str(exc)) from None
-        self.log("info", f"console: learning {ticket.owner!r}'s style from their recording")
-        self._tasks.append(asyncio.create_task(self._learn(ticket, recording)))
-        return web.json_response({"learning": True}, status=202)
-
-    async def _learn(self, ticket: Ticket, recording: Path) -> None:
-        """Learn; then apply the style if its operator may still act on the robot's settings."""
-        try:
-            result = await self.enrollments.run(ticket, recording)
-        except Exception as exc:  # the boundary: the console carries on with the old style
-            self.log("warning", f"console: learning {ticket.owner!r}'s style failed: {exc}")
-            return
-        kept = f", recording kept in {result.kept_recording}" if result.kept_recording else ""
-        self.log("info", f"console: learned {ticket.owner!r}'s style: {result.folder}{kept}")
-        if ticket.session in self.sessions and self.floor.free_for(ticket.session):
-            self.bridge.set_style(result.settings)
-            self.style_in_use = "personal"
-
-    async def _on_style(self, session: _Session, control: Control) -> None:
-        """``enroll`` (a ticket for an upload) and ``style`` (which style the graph uses)."""
-        if control.type == "enroll":
-            try:
-                key = self.enrollments.ticket(session.id, session.name, control.fields["keep"])
-            except EnrollmentError as exc:
-                raise ProtocolError(str(exc)) from None
-            self._send(session, encode("enroll_ticket", ticket=key), droppable=False)
-        elif control.fields["use"] == "personal":
-            result = self.enrollments.result
-            if result is None:
-                raise ProtocolError("no style has been learned yet: press Learn my style")
-            self.bridge.set_style(result.settings)
-            self.style_in_use = "personal"
-        else:
-            self.bridge.set_style(None)
-            self.style_in_use = "default"
 
     # --- WebSocket ------------------------------------------------------------------------------
 
@@ -766,7 +710,9 @@ class ConsoleServer:
             if control.type == "enable":
                 self.bridge.set_enable(bool(on))
             elif control.type in ("enroll", "style"):
-                await self._on_style(session, control)
+                reply = self.learn_style.on_control(session.id, session.name, control)
+                if reply is not None:
+                    self._send(session, reply, droppable=False)
             else:
                 self.bridge.set_gains({k: float(v) for k, v in control.fields.items()})
 
@@ -881,8 +827,7 @@ class ConsoleServer:
             status = self.bridge.status()
             status["operators"] = len(self.sessions)
             status["floor"] = self.floor.holder_name or None
-            status["enrollment"] = self.enrollments.status()
-            status["style"] = self.style_in_use
+            status.update(self.learn_style.status())
             text = self._snapshot("status", status)
             for session in list(self.sessions.values()):
                 self._send(session, text)
