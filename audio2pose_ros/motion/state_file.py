@@ -17,7 +17,8 @@ SIGKILL), and a second node that finds it held refuses to start, naming the file
 owner's pid.
 
 The times a stop and a disable came into force (``stopped_at_s``, ``disabled_at_s``, wall clock)
-are kept too: a release must be published after them to count (see ``motion_filter_node``).
+are kept too: a release must be published after them to count
+(:mod:`~audio2pose_ros.motion.holds`).
 :class:`StateStore` is the node's use of its file: the lock, what it held at start, and writes
 only of what changed, at a bounded rate.
 """

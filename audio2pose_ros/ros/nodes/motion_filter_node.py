@@ -37,15 +37,13 @@ request is validated at once and its settings reach the filter at the next tick,
 however many came, so a storm of set_parameters requests delays answers, never commands.
 
 Stop and disable: a stop stays in force across restarts until a ``stop: false`` *published
-after the stop* arrives, as does ``enable: false`` until a later ``enable: true``. "After" is
-judged by the message's source timestamp (the publisher's wall clock, which DDS carries with
-every sample; std_msgs/Bool has no stamp) against the time the stop came into force (saved in
-the state file), so a ``stop: false`` an older panel latched before the stop never releases it,
-whatever the restart timing and delivery order. The machines' clocks must agree (NTP), as ROS 2
-needs for tf anyway. A stop, a disable and the pose are saved when they change, at most every
-``MIN_SAVE_SPACING_S``; a state that cannot be saved is an ERROR on /diagnostics (the stop stays
-in force in memory), reported again at every start. The state file is this node's alone: a
-second live node with the same file refuses to start (exit 78, naming the file).
+after the stop* arrives, as does ``enable: false`` until a later ``enable: true``, by the
+messages' source timestamps (:mod:`audio2pose_ros.motion.holds`: an older panel's latched
+``stop: false`` never releases a stop). A stop, a disable and the pose are saved when they
+change, at most every ``MIN_SAVE_SPACING_S``; a state that cannot be saved is an ERROR on
+/diagnostics (the stop stays in force in memory), reported again at every start. The state file
+is this node's alone: a second live node with the same file refuses to start (exit 78, naming
+the file).
 
 One master: raw poses are taken from one ``raw_trajectory`` publisher at a time (its gid); a
 second one is refused and reported as ERROR until it stops, and the first is given up only
@@ -84,6 +82,7 @@ from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.body_guard import GuardStatus
 from audio2pose_ros.motion.filter import MotionFilter
 from audio2pose_ros.motion.filter_settings import MotionFilterNodeSettings, MotionFilterSettings
+from audio2pose_ros.motion.holds import Hold
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.motion.measured import SOURCE_WINDOW_S, MeasuredPoseCheck
 from audio2pose_ros.motion.sources import SingleSource
@@ -218,19 +217,25 @@ class MotionFilterNode(DiagnosedNode):
         self.start_pose = StartPose(
             time.monotonic(), self.memory is not None and self.memory.measured
         )
-        # wall-clock times the stop and the disable in force came into force (None: not in force)
-        self.stop_since_s: float | None = None
-        self.disable_since_s: float | None = None
         memory = self.memory
-        if memory is not None and memory.stopped:
-            self.stop_since_s = memory.stopped_at_s or memory.saved_at_s
+        # the stop and the disable in force, each since a wall-clock time (motion.holds)
+        self.stop_hold = (
+            Hold()
+            if memory is None
+            else Hold.restored(memory.stopped, memory.stopped_at_s, memory.saved_at_s)
+        )
+        self.disable_hold = (
+            Hold()
+            if memory is None
+            else Hold.restored(not memory.enabled, memory.disabled_at_s, memory.saved_at_s)
+        )
+        if self.stop_hold.in_force:
             self.filter.set_stop(True)
             self.get_logger().warning(
                 f"STOP in force from before the restart ({self.state_path}); publish "
                 "stop: false to release it"
             )
-        if memory is not None and not memory.enabled:
-            self.disable_since_s = memory.disabled_at_s or memory.saved_at_s
+        if self.disable_hold.in_force:
             self.filter.set_enabled(False)
             self.get_logger().warning(
                 f"disabled from before the restart ({self.state_path}): generated motion is "
@@ -577,8 +582,8 @@ class MotionFilterNode(DiagnosedNode):
             status.stopped,
             time.time(),
             status.enabled,
-            self.stop_since_s,
-            self.disable_since_s,
+            self.stop_hold.since_s,
+            self.disable_hold.since_s,
             self.measured_rad is not None,
         )
         try:
@@ -705,25 +710,19 @@ class MotionFilterNode(DiagnosedNode):
         """Voice activity (from voice_activity, or directly in single-process mode)."""
         self.filter.set_voice_active(active, time.monotonic())
 
-    def _release_is_older(
-        self, info: MessageInfo, since_s: float | None, key: str, release: str, held: str
-    ) -> bool:
-        """True, and reported, when a release was published before the hold it would end.
-
-        ``since_s`` is when the stop (or disable) in force came into force; a ``release``
-        published no later than that (an older panel's latched value, delivered again after a
-        restart or after a newer stop) is ignored with a WARN.
-        """
-        published_s = _published_s(info)
-        if since_s is None or published_s > since_s:
-            return False
+    def _released(self, hold: Hold, info: MessageInfo, key: str, release: str, held: str) -> bool:
+        """Whether a ``release`` ends ``hold`` (:meth:`Hold.release`); if not, a WARN."""
+        since_s, published_s = hold.since_s, _published_s(info)
+        if hold.release(published_s):
+            return True
+        assert since_s is not None
         self.report_problem(
             key,
             DiagnosticStatus.WARN,
             f"{release} published {since_s - published_s:.1f} s before the {held} in force: "
             f"ignored; publish {release} again to release it",
         )
-        return True
+        return False
 
     def _save_now(self) -> None:
         """Save a changed stop or enable now, or within ``MIN_SAVE_SPACING_S`` (bounded rate)."""
@@ -732,38 +731,30 @@ class MotionFilterNode(DiagnosedNode):
 
     def on_enable(self, msg: Bool, info: MessageInfo) -> None:
         """Enable or disable generated motion (only a later enable ends a disable)."""
-        if msg.data and self._release_is_older(
-            info, self.disable_since_s, "enable_ignored", "enable: true", "disable"
+        if not msg.data:
+            self.disable_hold.engage(_published_s(info), time.time())
+        elif not self._released(
+            self.disable_hold, info, "enable_ignored", "enable: true", "disable"
         ):
             return
-        published_s = min(_published_s(info), time.time())
-        if not msg.data:
-            since = self.disable_since_s
-            self.disable_since_s = published_s if since is None else max(since, published_s)
-        else:
-            self.disable_since_s = None
         changed = self.filter.status.enabled != msg.data
         self.filter.set_enabled(msg.data)
-        if changed or not msg.data:  # a later disable moves disable_since_s
+        if changed or not msg.data:  # a later disable moves the disable's time
             self._save_now()
         if changed:
             self.get_logger().info("enabled" if msg.data else "disabled: gliding to neutral")
 
     def on_stop(self, msg: Bool, info: MessageInfo) -> None:
         """Emergency stop on / off (only a release published after the stop ends it)."""
-        if not msg.data and self._release_is_older(
-            info, self.stop_since_s, "stop_release_ignored", "stop: false", "stop"
+        if msg.data:
+            self.stop_hold.engage(_published_s(info), time.time())
+        elif not self._released(
+            self.stop_hold, info, "stop_release_ignored", "stop: false", "stop"
         ):
             return
-        published_s = min(_published_s(info), time.time())  # a clock ahead cannot pin a stop
-        if msg.data:
-            since = self.stop_since_s
-            self.stop_since_s = published_s if since is None else max(since, published_s)
-        else:
-            self.stop_since_s = None
         changed = self.filter.status.stopped != msg.data
         self.filter.set_stop(msg.data)
-        if changed or msg.data:  # a later stop moves stop_since_s
+        if changed or msg.data:  # a later stop moves the stop's time
             self._save_now()
         if changed and msg.data:
             self.get_logger().warning(f"STOP ({self.filter.settings.stop_behaviour})")
