@@ -100,7 +100,14 @@ from audio2pose_ros.motion.tracking import TrackingWatch
 from audio2pose_ros.parameters import ParameterValue, settings_from, settings_with, specs_of
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, DiagnosedNode
-from audio2pose_ros.ros.messages import trajectory_msg, trajectory_positions
+from audio2pose_ros.ros.messages import (
+    published_s,
+    publisher_of,
+    stamp_s,
+    trajectory_bytes_cap,
+    trajectory_msg,
+    trajectory_positions,
+)
 from audio2pose_ros.ros.node_parameters import NodeParameters
 from audio2pose_ros.ros.request_budget import RequestBudget
 from audio2pose_ros.ros.spin import run_node
@@ -117,35 +124,8 @@ SETTINGS_CLASSES = (MotionFilterSettings, StyleSettings, LimitSettings, MotionFi
 MAX_JOINT_STATE_BYTES = 65536
 
 
-def trajectory_bytes_cap(max_points: int, n_joints: int) -> int:
-    """Largest raw_trajectory decoded: ``max_points`` points carrying all four arrays (bytes).
-
-    A point of CDR holds four float64 arrays (positions, velocities, accelerations, efforts;
-    4-byte length each) and a Duration; beyond the cap the message is dropped before decoding,
-    so the work of one message stays bounded (decoding costs about 9 us per point in rclpy).
-    """
-    per_point = 4 * (4 + 8 * n_joints) + 8
-    return 1024 + 64 * n_joints + max_points * per_point
-
-
 PARAMETERS = tuple(spec for cls in SETTINGS_CLASSES for spec in specs_of(cls))
 OUTPUT_RATES = ("joint_angles_rate_hz", "joint_trajectory_rate_hz", "joint_states_rate_hz")
-
-
-def _stamp_s(stamp: object) -> float:
-    return stamp.sec + stamp.nanosec * 1e-9  # type: ignore[attr-defined]
-
-
-def _published_s(info: MessageInfo) -> float:
-    """When a message was published (publisher's wall clock); its arrival when not carried."""
-    source_ns = info.get("source_timestamp") or info.get("received_timestamp") or 0
-    return source_ns * 1e-9 if source_ns else time.time()
-
-
-def _publisher_of(info: MessageInfo) -> bytes | str:
-    """The identity of a message's publisher (its DDS gid)."""
-    gid = info.get("publisher_gid") or {}
-    return bytes(gid.get("data", b"")) if isinstance(gid, dict) else repr(gid)
 
 
 class MotionFilterNode(DiagnosedNode):
@@ -434,12 +414,12 @@ class MotionFilterNode(DiagnosedNode):
         source: bytes | str = b""  # called directly (tests): no publisher to tell apart
         published_ns = 0
         if info is not None:
-            source, published_ns = _publisher_of(info), info.get("source_timestamp") or 0
+            source, published_ns = publisher_of(info), info.get("source_timestamp") or 0
         try:
             reading = self.measured_check.read(
                 msg.name,
                 msg.position,
-                _stamp_s(msg.header.stamp),
+                stamp_s(msg.header.stamp),
                 published_ns * 1e-9 if published_ns else None,
                 self.now_s(),
                 source,
@@ -638,7 +618,7 @@ class MotionFilterNode(DiagnosedNode):
     def on_raw(self, msg: JointTrajectory, info: MessageInfo) -> None:
         """Check and queue the poses of one raw trajectory message (of the one source in use)."""
         now = time.monotonic()
-        if not self.sources.admit(_publisher_of(info), now):
+        if not self.sources.admit(publisher_of(info), now):
             self.dropped_messages += 1
             self.report_problem(
                 "raw_second_source",
@@ -648,7 +628,7 @@ class MotionFilterNode(DiagnosedNode):
                 hold_s=1.0,
             )
             return
-        take = self._admit(_stamp_s(msg.header.stamp), len(msg.points))
+        take = self._admit(stamp_s(msg.header.stamp), len(msg.points))
         if take is None:
             return
         msg.points = msg.points[:take]
@@ -712,14 +692,14 @@ class MotionFilterNode(DiagnosedNode):
 
     def _released(self, hold: Hold, info: MessageInfo, key: str, release: str, held: str) -> bool:
         """Whether a ``release`` ends ``hold`` (:meth:`Hold.release`); if not, a WARN."""
-        since_s, published_s = hold.since_s, _published_s(info)
-        if hold.release(published_s):
+        since_s, at_s = hold.since_s, published_s(info)
+        if hold.release(at_s):
             return True
         assert since_s is not None
         self.report_problem(
             key,
             DiagnosticStatus.WARN,
-            f"{release} published {since_s - published_s:.1f} s before the {held} in force: "
+            f"{release} published {since_s - at_s:.1f} s before the {held} in force: "
             f"ignored; publish {release} again to release it",
         )
         return False
@@ -732,7 +712,7 @@ class MotionFilterNode(DiagnosedNode):
     def on_enable(self, msg: Bool, info: MessageInfo) -> None:
         """Enable or disable generated motion (only a later enable ends a disable)."""
         if not msg.data:
-            self.disable_hold.engage(_published_s(info), time.time())
+            self.disable_hold.engage(published_s(info), time.time())
         elif not self._released(
             self.disable_hold, info, "enable_ignored", "enable: true", "disable"
         ):
@@ -747,7 +727,7 @@ class MotionFilterNode(DiagnosedNode):
     def on_stop(self, msg: Bool, info: MessageInfo) -> None:
         """Emergency stop on / off (only a release published after the stop ends it)."""
         if msg.data:
-            self.stop_hold.engage(_published_s(info), time.time())
+            self.stop_hold.engage(published_s(info), time.time())
         elif not self._released(
             self.stop_hold, info, "stop_release_ignored", "stop: false", "stop"
         ):
