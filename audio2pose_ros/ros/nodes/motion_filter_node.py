@@ -81,6 +81,7 @@ from audio2pose_ros import topics
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.body_guard import GuardStatus
 from audio2pose_ros.motion.filter import MotionFilter
+from audio2pose_ros.motion.filter_report import FilterReport, measured_values, stamp_values
 from audio2pose_ros.motion.filter_settings import MotionFilterNodeSettings, MotionFilterSettings
 from audio2pose_ros.motion.holds import Hold
 from audio2pose_ros.motion.limits import LimitSettings
@@ -171,8 +172,7 @@ class MotionFilterNode(DiagnosedNode):
         self.stamps = StampCheck(self.settings.max_stamp_future_s, self.settings.max_stamp_age_s)
         self.input_messages = 0
         self.dropped_messages = 0
-        self.poses_at_last_report = 0
-        self.last_report_s = time.monotonic()
+        self.report = FilterReport(self.filter, time.monotonic())
         self.faults_seen = 0
         self.ticks = 0  # filter ticks since start (each may serve one service request)
         self.lead_outs_seen = 0
@@ -864,70 +864,25 @@ class MotionFilterNode(DiagnosedNode):
         return DiagnosticStatus.OK, f"{status.mode} (started from the {self.started_from})"
 
     def diagnostic_values(self) -> dict[str, object]:
-        """Input and filter counters, latency, mode, limiter activity, health."""
-        status, counts, stamps = self.filter.status, self.filter.limiter.counts, self.stamps
+        """The node's input counters, ticks and requests beside the filter's figures."""
         now = time.monotonic()
-        input_rate_hz = (status.received - self.poses_at_last_report) / max(
-            now - self.last_report_s, 1e-3
-        )
-        self.poses_at_last_report, self.last_report_s = status.received, now
         values: dict[str, object] = {
             "started_from": self.started_from or "waiting",
             "input_messages": self.input_messages,
             "dropped_messages": self.dropped_messages,
-            "stale_messages_dropped": stamps.counts.out_of_order,
-            "future_stamps_rejected": stamps.counts.future,
-            "old_stamps_rejected": stamps.counts.too_old,
-            "clock_steps_back": stamps.counts.clock_steps_back,
-            "poses_received": status.received,
-            "poses_rejected": status.rejected,
-            "poses_out_of_range": status.out_of_range,
-            "poses_unreachable": status.implausible,
-            "poses_truncated": status.truncated,
-            "poses_dropped": status.dropped,
             "raw_messages_of_a_second_source": self.sources.refused,
-            "approaches": self.filter.approach.count,
-            "head_inputs_rejected": status.external_rejected,
-            "buffer_underruns": status.underruns,
-            "poses_skipped_backlog": status.skipped,
-            "buffered_poses": status.buffered,
-            "input_latency_ms": f"{stamps.latency_s * 1e3:.2f}",
-            "mode": status.mode,
-            "enabled": status.enabled,
-            "stopped": status.stopped,
-            "voice_active": status.voice_active,
-            "head_target_active": status.head_target_active,
-            "input_rate_hz": f"{input_rate_hz:.1f}",
-            "position_limit_hits": counts.position,
-            "velocity_limit_hits": counts.velocity,
-            "acceleration_limit_hits": counts.acceleration,
-            "gaps": status.gaps,
-            "filter_faults": status.faults,
+            **stamp_values(self.stamps),
+            **self.report.values(now),
             "ticks": self.ticks,
             "service_requests_served": self.request_budget.served_total,
             "most_service_requests_in_a_tick": self.request_budget.most_in_a_tick,
-            "body_guard_interventions": self.filter.body_guard.status.interventions,
-            "body_guard_lead_out_steps": self.filter.body_guard.status.lead_out_steps,
-            "body_guard_holds": self.filter.body_guard.status.holds,
-            "body_clearance_cm": f"{self.filter.body_guard.status.clearance_m * 100.0:.1f}",
-            "body_closest_links": " / ".join(self.filter.body_guard.status.links),
-            "command_finite_and_in_limits": bool(
-                np.isfinite(self.filter.position_rad).all()
-                and np.all(self.filter.position_rad >= self.robot.lower_rad)
-                and np.all(self.filter.position_rad <= self.robot.upper_rad)
-            ),
             "last_command_age_ms": (
                 f"{(now - self.last_tick_s) * 1e3:.0f}" if self.started else "none"
             ),
+            "measured_partial_messages": self.measured_partial,
+            **measured_values(self.measured_check, now),
+            "measured_ignored_sources_disagree": self.measured_conflicts,
         }
-        values["measured_partial_messages"] = self.measured_partial
-        check = self.measured_check
-        values["measured_refused_duplicate_names"] = check.counts.duplicate
-        values["measured_refused_old_stamps"] = check.counts.old
-        values["measured_refused_future_stamps"] = check.counts.future
-        values["measured_unstamped"] = check.counts.unstamped
-        values["measured_sources"] = check.live_sources(now)
-        values["measured_ignored_sources_disagree"] = self.measured_conflicts
         if self.measured_rad is not None:
             deviation = np.abs(self.measured_rad - self.filter.position_rad).max()
             values["measured_deviation_rad"] = f"{deviation:.3f}"
