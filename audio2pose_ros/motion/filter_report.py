@@ -3,7 +3,8 @@
 ``motion_filter_node`` publishes these as the key/values of its DiagnosticStatus, beside what
 only the node knows (messages taken and dropped at its subscriptions, ticks, service requests,
 where it started). The keys are the names users and tests read: changing one is a change of the
-node's interface. Counters count since start.
+node's interface. Counters count since start. The measured joint states' figures are
+:meth:`~audio2pose_ros.motion.measured_states.MeasuredStates.values`.
 """
 
 from __future__ import annotations
@@ -11,7 +12,6 @@ from __future__ import annotations
 import numpy as np
 
 from audio2pose_ros.motion.filter import MotionFilter
-from audio2pose_ros.motion.measured import MeasuredPoseCheck
 from audio2pose_ros.motion.timing import StampCheck
 
 
@@ -77,15 +77,4 @@ def stamp_values(stamps: StampCheck) -> dict[str, object]:
         "old_stamps_rejected": stamps.counts.too_old,
         "clock_steps_back": stamps.counts.clock_steps_back,
         "input_latency_ms": f"{stamps.latency_s * 1e3:.2f}",
-    }
-
-
-def measured_values(check: MeasuredPoseCheck, now_s: float) -> dict[str, object]:
-    """Measured joint states refused, by reason, and the sources heard (at monotonic ``now_s``)."""
-    return {
-        "measured_refused_duplicate_names": check.counts.duplicate,
-        "measured_refused_old_stamps": check.counts.old,
-        "measured_refused_future_stamps": check.counts.future,
-        "measured_unstamped": check.counts.unstamped,
-        "measured_sources": check.live_sources(now_s),
     }

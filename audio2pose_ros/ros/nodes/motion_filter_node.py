@@ -29,7 +29,9 @@ pose, every valid joint of it; else, once none can still come, the pose it last 
 in ``state_file``, or neutral) is :mod:`audio2pose_ros.motion.start_pose`'s decision; whether a
 measured pose can be believed, :mod:`audio2pose_ros.motion.measured`'s (a joint listed twice, a
 stamp too old or ahead: refused, WARN; two publishers that disagree: ERROR, neither used, and
-the start holds, commanding nothing, until the conflict has been over for ``SOURCE_WINDOW_S``).
+the start holds, commanding nothing, until the conflict has been over for ``SOURCE_WINDOW_S``);
+what each measured message means (problems, the start, the commands' check) is
+:mod:`audio2pose_ros.motion.measured_states`'s.
 
 Parameter requests: the node's services (rclpy's parameter services) are served at most
 ``REQUESTS_PER_TICK`` per tick (:class:`~audio2pose_ros.ros.request_budget.RequestBudget`); a
@@ -81,13 +83,13 @@ from audio2pose_ros import topics
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.body_guard import GuardStatus
 from audio2pose_ros.motion.filter import MotionFilter
-from audio2pose_ros.motion.filter_report import FilterReport, measured_values, stamp_values
+from audio2pose_ros.motion.filter_report import FilterReport, stamp_values
 from audio2pose_ros.motion.filter_settings import MotionFilterNodeSettings, MotionFilterSettings
 from audio2pose_ros.motion.holds import Hold
 from audio2pose_ros.motion.limits import LimitSettings
-from audio2pose_ros.motion.measured import SOURCE_WINDOW_S, MeasuredPoseCheck
+from audio2pose_ros.motion.measured_states import MeasuredStates, Problem, start_held
 from audio2pose_ros.motion.sources import SingleSource
-from audio2pose_ros.motion.start_pose import HOLD, WAIT, StartPose, repaired_start_pose
+from audio2pose_ros.motion.start_pose import HOLD, WAIT
 from audio2pose_ros.motion.state_file import (
     MIN_SAVE_SPACING_S,
     FilterMemory,
@@ -97,7 +99,6 @@ from audio2pose_ros.motion.state_file import (
 )
 from audio2pose_ros.motion.style import StyleSettings
 from audio2pose_ros.motion.timing import StampCheck
-from audio2pose_ros.motion.tracking import TrackingWatch
 from audio2pose_ros.parameters import ParameterValue, settings_from, settings_with, specs_of
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, DiagnosedNode
@@ -177,11 +178,6 @@ class MotionFilterNode(DiagnosedNode):
         self.ticks = 0  # filter ticks since start (each may serve one service request)
         self.lead_outs_seen = 0
         self.started_from = ""
-        self.measured_rad: np.ndarray | None = None
-        self.measured_partial = 0  # joint states without every joint of the robot: not used
-        self.measured_check = MeasuredPoseCheck(self.robot.names, self.robot.max_velocity_rad_s)
-        self.measured_conflicts = 0  # poses ignored because two sources disagreed
-        self.tracking = TrackingWatch()
 
         self.state_path = (
             Path(self.settings.state_file).expanduser()
@@ -194,8 +190,8 @@ class MotionFilterNode(DiagnosedNode):
             raise ConfigurationError(f"parameter state_file: {exc}") from None
         self._report_state_file()
         self.memory = self.state.memory
-        self.start_pose = StartPose(
-            time.monotonic(), self.memory is not None and self.memory.measured
+        self.measured = MeasuredStates(
+            self.robot, time.monotonic(), self.memory is not None and self.memory.measured
         )
         memory = self.memory
         # the stop and the disable in force, each since a wall-clock time (motion.holds)
@@ -380,119 +376,46 @@ class MotionFilterNode(DiagnosedNode):
         self.startup_timer.cancel()
         self.save_state()
 
-    def _measured_start_pose(self, pose: np.ndarray) -> np.ndarray:
-        """Every valid joint of a measured pose (:func:`repaired_start_pose`), repairs as WARNs."""
-        saved = self._saved_pose()
-        start, repairs = repaired_start_pose(
-            pose,
-            self.robot.names,
-            self.robot.lower_rad,
-            self.robot.upper_rad,
-            self.robot.neutral_rad if saved is None else saved,
-            "neutral pose" if saved is None else "saved pose",
-        )
-        for repair in repairs:
-            self.report_problem(
-                "measured_invalid",
-                DiagnosticStatus.WARN,
-                f"measured joint states of {', '.join(repair.joints)} {repair.how}",
-                hold_s=10.0,
-            )
-        return start
-
     def on_measured(self, msg: JointState, info: MessageInfo | None = None) -> None:
         """The robot's measured joint states: the start pose, then checked against the commands.
 
-        Only a believable reading counts (:mod:`audio2pose_ros.motion.measured`): a joint listed
-        twice, or a stamp too old or ahead, is refused and reported (WARN); two publishers whose
-        poses disagree are an ERROR, and no pose of either is used while they do. With more
-        than one publisher on the topic, the start waits until the pose's publisher has been
-        heard for a while (:meth:`StartPose.listening`), so a second source shows first. Every
-        message that arrived is told to the start (:meth:`StartPose.heard`).
+        What a message means is :class:`MeasuredStates`'s to say (:meth:`MeasuredStates.take`);
+        this reports its problems and starts the filter from the pose it gives.
         """
         arrival_s = time.monotonic()
         source: bytes | str = b""  # called directly (tests): no publisher to tell apart
         published_ns = 0
         if info is not None:
             source, published_ns = publisher_of(info), info.get("source_timestamp") or 0
-        try:
-            reading = self.measured_check.read(
-                msg.name,
-                msg.position,
-                stamp_s(msg.header.stamp),
-                published_ns * 1e-9 if published_ns else None,
-                self.now_s(),
-                source,
-                arrival_s,
-            )
-        except InputError:
-            self.start_pose.heard(source, "broken", arrival_s)
-            raise
-        pose = reading.pose_rad
-        usable = pose is not None and bool(np.isfinite(pose).any())
-        kind = reading.kind if pose is None or usable else "non-finite"
-        self.start_pose.heard(source, kind, arrival_s)
-        if reading.kind == "partial":
-            self.measured_partial += 1  # another robot's, or a partial message: not a pose
-            return
-        if pose is None:
-            self.report_problem("measured_refused", DiagnosticStatus.WARN, reading.reason)
-            if not self.started:
-                self._hold_start(f"cannot tell where the robot is: {reading.reason}")
-            return
-        if not usable:
-            self.report_problem(
-                "measured_invalid", DiagnosticStatus.WARN, "measured joint states all non-finite"
-            )
-            return
         topic = self.settings.measured_joint_states_topic
-        if self.measured_check.conflict(arrival_s):
-            self.measured_conflicts += 1
-            held = (
-                "measured poses ignored until one stops"
-                if self.started
-                else "cannot tell which is the robot: commanding nothing until one stops"
-            )
-            self.report_problem(
-                "measured_sources",
-                DiagnosticStatus.ERROR,
-                f"{self.measured_check.live_sources(arrival_s)} publishers send the robot's "
-                f"pose on {topic} and disagree by "
-                f"{self.measured_check.disagreement_rad(arrival_s):.2f} rad (another robot's "
-                f"driver, a replay, a simulator?): {held}",
-                hold_s=SOURCE_WINDOW_S,
-            )
-            return
-        if not self.started:
-            listening = self.start_pose.listening(
-                self.count_publishers(topic),
-                self.measured_check.heard_for_s(source, arrival_s),
-                topic,
-            )
-            if listening:
-                self.report_problem(
-                    "start_pose", DiagnosticStatus.WARN, listening, hold_s=SOURCE_WINDOW_S
-                )
-                return
-        assert pose is not None
-        self.measured_rad = pose
-        if not self.started:
-            self.clear_problem("start_pose")
-            self._start(self._measured_start_pose(pose), "measured pose")
-            self.get_logger().info("starting from the robot's measured pose")
-            return
-        lagging = self.tracking.measure(pose, time.monotonic())
-        if lagging is None:
-            self.clear_problem("not_following")
-            return
-        self.report_problem(
-            "not_following",
-            DiagnosticStatus.WARN,
-            f"the robot does not follow its commands: {self.robot.names[lagging.joint]} is "
-            f"{lagging.off_rad:.2f} rad from what it was commanded over the last "
-            f"{self.tracking.lag_s:g} s, for {lagging.for_s:.1f} s (motors off or resting, a "
-            "joint blocked, or another controller moving it)",
+        use = self.measured.take(
+            msg.name,
+            msg.position,
+            stamp_s(msg.header.stamp),
+            published_ns * 1e-9 if published_ns else None,
+            self.now_s(),
+            source,
+            arrival_s,
+            self.started,
+            topic,
+            lambda: self.count_publishers(topic),
+            self._saved_pose,
         )
+        for key in use.cleared:
+            self.clear_problem(key)
+        for problem in use.problems:
+            self._report(problem)
+        if use.start_rad is not None:
+            self._start(use.start_rad, "measured pose")
+            self.get_logger().info("starting from the robot's measured pose")
+
+    def _report(self, problem: Problem) -> None:
+        """Report a problem of the core on /diagnostics."""
+        level = DiagnosticStatus.ERROR if problem.error else DiagnosticStatus.WARN
+        if problem.hold_s is None:
+            self.report_problem(problem.key, level, problem.text)
+        else:
+            self.report_problem(problem.key, level, problem.text, hold_s=problem.hold_s)
 
     def on_startup_timeout(self) -> None:
         """No measured pose started the filter in time: decide (:class:`StartPose`) what now.
@@ -507,14 +430,14 @@ class MotionFilterNode(DiagnosedNode):
             return
         topic = self.settings.measured_joint_states_topic
         now = time.monotonic()
-        self.start_pose.discovered(self.count_publishers(topic), now)
+        self.measured.start.discovered(self.count_publishers(topic), now)
         saved = self._saved_pose()
-        step = self.start_pose.decide(
-            now, self._measured_doubt(now), topic, "" if saved is None else str(self.state_path)
+        step = self.measured.start.decide(
+            now, self.measured.doubt(now), topic, "" if saved is None else str(self.state_path)
         )
         if step.action in (WAIT, HOLD):
             if step.action == HOLD:
-                self._hold_start(step.reason)
+                self._report(start_held(step.reason, topic))
             else:
                 self.report_problem("start_pose", DiagnosticStatus.WARN, step.reason)
             if self.startup_timer.timer_period_ns != STARTUP_CHECK_NS:
@@ -523,30 +446,6 @@ class MotionFilterNode(DiagnosedNode):
         self.startup_timer.cancel()
         self._start(self.robot.neutral_rad if saved is None else saved, step.action)
         self.report_problem("start_pose", DiagnosticStatus.WARN, step.reason, hold_s=10.0)
-
-    def _hold_start(self, doubt: str) -> None:
-        """ERROR: the start waits, commanding nothing, because of ``doubt``."""
-        self.report_problem(
-            "start_pose",
-            DiagnosticStatus.ERROR,
-            f"{doubt}; commanding nothing until a believable pose arrives on "
-            f"{self.settings.measured_joint_states_topic}",
-            hold_s=SOURCE_WINDOW_S,
-        )
-
-    def _measured_doubt(self, now_s: float) -> str:
-        """Why the measured joint states cannot be believed now ('' when nothing says so).
-
-        Measured messages refused within ``SOURCE_WINDOW_S`` (a joint listed twice, an old or a
-        future stamp), or live sources that disagree: the robot's pose is being published but
-        cannot be known, so neither the saved pose nor neutral may stand in for it.
-        """
-        check = self.measured_check
-        if check.conflict(now_s):
-            return f"{check.live_sources(now_s)} publishers send poses that disagree"
-        if check.refusing(now_s):
-            return check.last_reason
-        return ""
 
     def save_state(self) -> None:
         """Rewrite the state file when the pose, the stop or enable changed (atomically).
@@ -564,7 +463,7 @@ class MotionFilterNode(DiagnosedNode):
             status.enabled,
             self.stop_hold.since_s,
             self.disable_hold.since_s,
-            self.measured_rad is not None,
+            self.measured.pose_rad is not None,
         )
         try:
             written = self.state.save(memory, time.monotonic())
@@ -787,7 +686,7 @@ class MotionFilterNode(DiagnosedNode):
         self.tick_stamp = self.get_clock().now()
         status = self.filter.status
         self.filter.tick(self.last_tick_s)
-        self.tracking.command(self.filter.position_rad, self.last_tick_s)
+        self.measured.tracking.command(self.filter.position_rad, self.last_tick_s)
         if status.faults > self.faults_seen:
             self.faults_seen = status.faults
             self.report_problem("filter_fault", DiagnosticStatus.ERROR, status.last_fault)
@@ -866,7 +765,7 @@ class MotionFilterNode(DiagnosedNode):
     def diagnostic_values(self) -> dict[str, object]:
         """The node's input counters, ticks and requests beside the filter's figures."""
         now = time.monotonic()
-        values: dict[str, object] = {
+        return {
             "started_from": self.started_from or "waiting",
             "input_messages": self.input_messages,
             "dropped_messages": self.dropped_messages,
@@ -879,15 +778,8 @@ class MotionFilterNode(DiagnosedNode):
             "last_command_age_ms": (
                 f"{(now - self.last_tick_s) * 1e3:.0f}" if self.started else "none"
             ),
-            "measured_partial_messages": self.measured_partial,
-            **measured_values(self.measured_check, now),
-            "measured_ignored_sources_disagree": self.measured_conflicts,
+            **self.measured.values(now, self.filter.position_rad),
         }
-        if self.measured_rad is not None:
-            deviation = np.abs(self.measured_rad - self.filter.position_rad).max()
-            values["measured_deviation_rad"] = f"{deviation:.3f}"
-            values["measured_off_recent_commands_rad"] = f"{self.tracking.off_rad:.3f}"
-        return values
 
 
 def main(args: list[str] | None = None) -> None:
