@@ -145,10 +145,6 @@ class MotionFilterNode(DiagnosedNode):
             ConfigurationError: a parameter or the robot description is refused.
         """
         super().__init__("motion_filter_node")
-        # settings validated at a set_parameters request, for the filter's next tick
-        self.pending_settings: tuple[MotionFilterSettings, LimitSettings, StyleSettings] | None = (
-            None
-        )
         self.parameters = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
         values = self.parameters.values
         self.settings: MotionFilterNodeSettings = settings_from(MotionFilterNodeSettings, values)
@@ -304,32 +300,10 @@ class MotionFilterNode(DiagnosedNode):
             ConfigurationError: the new combination is refused (nothing changes then).
         """
         node_settings = settings_with(self.settings, changes)
-        filter_settings, limit_settings, style_settings = self.pending_settings or (
-            self.filter.settings,
-            self.filter.limiter.settings,
-            self.filter.style.settings,
-        )
-        filter_settings = settings_with(filter_settings, changes)
-        limit_settings = settings_with(limit_settings, changes)
-        style_settings = settings_with(style_settings, changes)
-        self.filter.check_settings(filter_settings, limit_settings)
-        if (filter_settings, limit_settings, style_settings) != (
-            self.filter.settings,
-            self.filter.limiter.settings,
-            self.filter.style.settings,
-        ):
-            self.pending_settings = (filter_settings, limit_settings, style_settings)
-        else:
-            self.pending_settings = None
+        self.filter.request_settings(changes)
         self.settings = node_settings
         self.stamps.max_future_s = node_settings.max_stamp_future_s
         self.stamps.max_age_s = node_settings.max_stamp_age_s
-
-    def _take_pending_settings(self) -> None:
-        """Hand the filter the settings requested since the last tick (once per tick)."""
-        if self.pending_settings is not None:
-            pending, self.pending_settings = self.pending_settings, None
-            self.filter.update_settings(*pending)
 
     # --- start-up -----------------------------------------------------------------------------
 
@@ -675,11 +649,11 @@ class MotionFilterNode(DiagnosedNode):
         if self.started:
             self.on_tick()
         else:
-            self._take_pending_settings()
+            self.filter.take_requested_settings()
 
     def on_tick(self) -> None:
         """Advance the filter by one period and publish the outputs due at this tick."""
-        self._take_pending_settings()
+        self.filter.take_requested_settings()
         self.request_budget.renew()
         self.ticks += 1
         self.last_tick_s = time.monotonic()
