@@ -52,13 +52,13 @@ second one is refused and reported as ERROR until it stops, and the first is giv
 after it has been silent for ``watchdog_timeout_s`` (then the filter approaches the new track
 gently).
 
-Timing: the filter ticks at ``rate_hz``, at the latest one period after the
-previous tick and early when a pose arrives into an empty buffer (at most ``MIN_TICK_SPACING``
-periods after the previous tick), so a steady stream is commanded on arrival. Each output is
-published at the tick nearest to its own period, never less than its period minus half a filter
-period after the previous one (its documented minimum spacing: 15 ms for 50 Hz at a 100 Hz
-filter clock). Header stamps are the time the command was computed for (the tick), not the
-publish time. An output nobody subscribes to is not built nor sent.
+Timing (:mod:`audio2pose_ros.motion.pacing`): the filter ticks at ``rate_hz``, at the latest
+one period after the previous tick and early when a pose arrives into an empty buffer (at most
+``MIN_TICK_SPACING`` periods after the previous tick), so a steady stream is commanded on
+arrival. Each output is published at the tick nearest to its own period, never less than its
+period minus half a filter period after the previous one (its documented minimum spacing: 15 ms
+for 50 Hz at a 100 Hz filter clock). Header stamps are the time the command was computed for
+(the tick), not the publish time. An output nobody subscribes to is not built nor sent.
 """
 
 from __future__ import annotations
@@ -67,7 +67,6 @@ import math
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -88,6 +87,7 @@ from audio2pose_ros.motion.filter_settings import MotionFilterNodeSettings, Moti
 from audio2pose_ros.motion.holds import Hold
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.motion.measured_states import MeasuredStates, Problem, start_held
+from audio2pose_ros.motion.pacing import OutputPacing, arrival_wait_s, next_timer_s
 from audio2pose_ros.motion.sources import SingleSource
 from audio2pose_ros.motion.start_pose import HOLD, WAIT
 from audio2pose_ros.motion.state_file import (
@@ -114,8 +114,6 @@ from audio2pose_ros.ros.node_parameters import NodeParameters
 from audio2pose_ros.ros.request_budget import RequestBudget
 from audio2pose_ros.ros.spin import run_node
 
-MIN_TICK_SPACING = 0.5  # of a period: an arriving pose is commanded at once if the last tick
-# is at least this long ago (so ticks are never closer than half a period: no bursts)
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
 STARTUP_CHECK_NS = 100_000_000  # while the start waits, it is decided again this often (0.1 s)
 REQUESTS_PER_TICK = 1  # service requests (set_parameters, ...) served per tick at most
@@ -127,7 +125,12 @@ MAX_JOINT_STATE_BYTES = 65536
 
 
 PARAMETERS = tuple(spec for cls in SETTINGS_CLASSES for spec in specs_of(cls))
-OUTPUT_RATES = ("joint_angles_rate_hz", "joint_trajectory_rate_hz", "joint_states_rate_hz")
+# output -> (message type, topic); each published at its own ``<output>_rate_hz``
+OUTPUTS = {
+    "joint_angles": (JointAnglesWithSpeed, topics.JOINT_ANGLES),
+    "joint_trajectory": (JointTrajectory, topics.JOINT_TRAJECTORY),
+    "joint_states": (JointState, topics.COMMANDED_JOINT_STATES),
+}
 
 
 class MotionFilterNode(DiagnosedNode):
@@ -149,13 +152,8 @@ class MotionFilterNode(DiagnosedNode):
         values = self.parameters.values
         self.settings: MotionFilterNodeSettings = settings_from(MotionFilterNodeSettings, values)
         settings: MotionFilterSettings = settings_from(MotionFilterSettings, values)
-        for name in OUTPUT_RATES:
-            rate = getattr(self.settings, name)
-            if rate > settings.rate_hz:
-                raise ConfigurationError(
-                    f"parameter {name}: value {rate!r} is out of range; allowed: 0 (off) to "
-                    f"rate_hz = {settings.rate_hz:g}"
-                )
+        rates = {key: getattr(self.settings, f"{key}_rate_hz") for key in OUTPUTS}
+        self.pacing = OutputPacing(rates, settings.rate_hz)
         try:
             self.robot = load_robot(self.settings.robot_description or None)
         except (OSError, ValueError) as exc:
@@ -260,26 +258,16 @@ class MotionFilterNode(DiagnosedNode):
         self.create_timer(MIN_SAVE_SPACING_S, guarded(self._save_if_due))
         self.last_tick_s = -math.inf
         self.tick_stamp = self.get_clock().now()
-        outputs = {
-            "joint_angles": (JointAnglesWithSpeed, topics.JOINT_ANGLES, self.publish_joint_angles),
-            "joint_trajectory": (
-                JointTrajectory,
-                topics.JOINT_TRAJECTORY,
-                self.publish_joint_trajectory,
-            ),
-            "joint_states": (JointState, topics.COMMANDED_JOINT_STATES, self.publish_joint_states),
+        self.publish_output = {
+            "joint_angles": self.publish_joint_angles,
+            "joint_trajectory": self.publish_joint_trajectory,
+            "joint_states": self.publish_joint_states,
         }
-        self.publishers_by_output = {}
-        # (minimum spacing in s, time of the last publication, publish callback, publisher);
-        # an output is built and sent only while something subscribes to it
-        self.outputs: list[list[Any]] = []
-        for key, (msg_type, topic, callback) in outputs.items():
-            rate_hz = getattr(self.settings, f"{key}_rate_hz")
-            if rate_hz > 0:
-                publisher = self.create_publisher(msg_type, topic, 10)
-                self.publishers_by_output[key] = publisher
-                spacing = max(1.0 / rate_hz - 0.5 * self.filter.period_s, 0.0)
-                self.outputs.append([spacing, -math.inf, callback, publisher])
+        self.publishers_by_output = {
+            key: self.create_publisher(msg_type, topic, 10)
+            for key, (msg_type, topic) in OUTPUTS.items()
+            if key in self.pacing.spacing_s
+        }
         self.get_logger().info(
             f"{self.robot.n_joints} joints at {settings.rate_hz:g} Hz, {settings.smoothing} "
             f"smoothing, outputs: {', '.join(self.publishers_by_output) or 'none'}; waiting up "
@@ -539,20 +527,14 @@ class MotionFilterNode(DiagnosedNode):
                 f"raw poses rejected before the filter: {status.rejected} non-finite, "
                 f"{status.out_of_range} out of range, {status.implausible} unreachable (total)",
             )
-        # The clock follows the input: a pose that finds the buffer empty is commanded at once,
-        # or MIN_TICK_SPACING periods after the last tick if that is later, and the timer then
-        # waits 1.5 periods, or one if poses remain queued. A steady stream is served on arrival;
-        # the timer ticks when input is late or comes several poses at a time; no two ticks are
-        # closer than MIN_TICK_SPACING periods.
         if not (was_waiting and self.filter.buffered):
             return
-        wait_s = self.last_tick_s + MIN_TICK_SPACING * self.filter.period_s - arrival_s
+        # the clock follows the input (motion.pacing): at once, or when the spacing allows
+        wait_s = arrival_wait_s(self.last_tick_s, arrival_s, self.filter.period_s)
         if wait_s <= 0:
             self.on_tick()
-            queued = self.filter.buffered > 0
-            self.tick_timer.timer_period_ns = self.period_ns if queued else self.period_ns * 3 // 2
-        else:  # too soon after the last tick: tick as soon as the spacing allows
-            self.tick_timer.timer_period_ns = max(round(wait_s * 1e9), 1)
+            wait_s = next_timer_s(self.filter.period_s, self.filter.buffered > 0)
+        self.tick_timer.timer_period_ns = max(round(wait_s * 1e9), 1)
         self.tick_timer.reset()
 
     def on_voice(self, msg: Bool) -> None:
@@ -667,12 +649,9 @@ class MotionFilterNode(DiagnosedNode):
         guard = self.filter.body_guard.status
         if guard.active:
             self.report_body_guard(guard)
-        for output in self.outputs:
-            spacing, last_s, publish, publisher = output
-            if self.last_tick_s - last_s >= spacing:
-                output[1] = self.last_tick_s
-                if publisher.get_subscription_count():  # no message for nobody
-                    publish()
+        for key in self.pacing.due(self.last_tick_s):
+            if self.publishers_by_output[key].get_subscription_count():  # no message for nobody
+                self.publish_output[key]()
 
     def report_body_guard(self, guard: GuardStatus) -> None:
         """WARN naming the links while the self-collision guard changes commands."""
