@@ -1,6 +1,7 @@
 """A stop or a disable in force ends only by a release published after it (motion.holds)."""
 
 from audio2pose_ros.motion.holds import Hold
+from audio2pose_ros.motion.state_file import FilterMemory
 
 NOW = 1.7e9  # a wall-clock time (s since the epoch)
 
@@ -63,3 +64,14 @@ def test_when_restored_stop_meets_release_latched_before_the_saving_expect_ignor
     hold = Hold.restored(True, None, NOW - 1.0)
     assert not hold.release(NOW - 2.0)
     assert hold.release(NOW)
+
+
+def test_when_a_state_file_kept_a_stop_and_a_disable_expect_both_in_force_from_their_times(robot):
+    pose = tuple(float(v) for v in robot.neutral_rad)
+    memory = FilterMemory(tuple(robot.names), pose, True, NOW, False, NOW - 5.0, NOW - 7.0)
+    stop, disable = Hold.kept(memory)
+    assert (stop.since_s, disable.since_s) == (NOW - 5.0, NOW - 7.0)
+    stop, disable = Hold.kept(FilterMemory(tuple(robot.names), pose, False, NOW))
+    assert not stop.in_force
+    assert not disable.in_force
+    assert not any(hold.in_force for hold in Hold.kept(None))

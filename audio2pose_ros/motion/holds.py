@@ -14,6 +14,8 @@ disable); the node translates the messages and reports an ignored release.
 
 from __future__ import annotations
 
+from audio2pose_ros.motion.state_file import FilterMemory
+
 
 class Hold:
     """A stop (or a disable): in force since a wall-clock time, or not in force.
@@ -35,6 +37,16 @@ class Hold:
         their saving, the latest time it is known to have been in force.
         """
         return cls((since_s or saved_at_s) if in_force else None)
+
+    @classmethod
+    def kept(cls, memory: FilterMemory | None) -> tuple[Hold, Hold]:
+        """The stop and the disable a state file's ``memory`` kept (none without a file)."""
+        if memory is None:
+            return cls(), cls()
+        return (
+            cls.restored(memory.stopped, memory.stopped_at_s, memory.saved_at_s),
+            cls.restored(not memory.enabled, memory.disabled_at_s, memory.saved_at_s),
+        )
 
     @property
     def in_force(self) -> bool:

@@ -27,28 +27,12 @@ import numpy as np
 
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.motion.measured import SOURCE_WINDOW_S, MeasuredPoseCheck
+from audio2pose_ros.motion.problems import Problem
 from audio2pose_ros.motion.start_pose import StartPose, repaired_start_pose
 from audio2pose_ros.motion.tracking import TrackingWatch
 from audio2pose_ros.robot.description import RobotDescription
 
 REPAIR_HOLD_S = 10.0  # a repaired start pose is reported this long (it happens once)
-
-
-@dataclass(frozen=True)
-class Problem:
-    """A problem for /diagnostics.
-
-    Attributes:
-        key: a stable identifier (the node reports and clears problems by it).
-        error: ERROR when True, else WARN.
-        text: one line saying what happened and what was done about it.
-        hold_s: reported until this long after its last report (None: the node's default).
-    """
-
-    key: str
-    error: bool
-    text: str
-    hold_s: float | None = None
 
 
 @dataclass

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from audio2pose_ros.errors import InputError
+from audio2pose_ros.motion.problems import Problem
 from audio2pose_ros.robot.description import RobotDescription
 
 FORMAT_VERSION = 1
@@ -275,6 +276,28 @@ class StateStore:
     def pose_refused(self) -> bool:
         """The file holds a pose outside the joint ranges (refused; its stop and enable kept)."""
         return self.memory is not None and not self.memory.pose_in_range(self.robot)
+
+    def problems(self) -> list[Problem]:
+        """What is wrong with the file at start: unlocked (ERROR), unreadable, pose refused."""
+        found = [self.unsaved(self.lock_problem, False)] if self.lock_problem else []
+        if self.read_problem:
+            found.append(Problem("state_file", False, f"state file ignored: {self.read_problem}"))
+        if self.pose_refused:
+            text = (
+                f"the pose saved in {self.path} lies outside the joint ranges: refused (its stop "
+                "and enable are kept)"
+            )
+            found.append(Problem("saved_pose_refused", False, text, 10.0))
+        return found
+
+    def unsaved(self, reason: str, stopped: bool) -> Problem:
+        """The state cannot be saved: an ERROR until a save succeeds (a stop stays in memory)."""
+        held = " The STOP in force" if stopped else " A stop"
+        text = (
+            f"state file {self.path}: {reason}.{held} stays in force in this process but will "
+            "NOT survive a restart"
+        )
+        return Problem("state_file_unsaved", True, text, math.inf)
 
     def saved_pose(self) -> np.ndarray | None:
         """The saved pose, when there is one inside the joint ranges."""

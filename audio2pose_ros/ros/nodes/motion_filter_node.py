@@ -86,8 +86,9 @@ from audio2pose_ros.motion.filter_report import FilterReport, stamp_values
 from audio2pose_ros.motion.filter_settings import MotionFilterNodeSettings, MotionFilterSettings
 from audio2pose_ros.motion.holds import Hold
 from audio2pose_ros.motion.limits import LimitSettings
-from audio2pose_ros.motion.measured_states import MeasuredStates, Problem, start_held
+from audio2pose_ros.motion.measured_states import MeasuredStates, start_held
 from audio2pose_ros.motion.pacing import OutputPacing, arrival_wait_s, next_timer_s
+from audio2pose_ros.motion.problems import Problem
 from audio2pose_ros.motion.sources import SingleSource
 from audio2pose_ros.motion.start_pose import HOLD, WAIT
 from audio2pose_ros.motion.state_file import (
@@ -182,23 +183,14 @@ class MotionFilterNode(DiagnosedNode):
             self.state = StateStore(self.state_path, self.robot)
         except StateFileInUseError as exc:
             raise ConfigurationError(f"parameter state_file: {exc}") from None
-        self._report_state_file()
+        for problem in self.state.problems():  # the file cannot be locked, read or used
+            self._report(problem)
         self.memory = self.state.memory
         self.measured = MeasuredStates(
             self.robot, time.monotonic(), self.memory is not None and self.memory.measured
         )
-        memory = self.memory
         # the stop and the disable in force, each since a wall-clock time (motion.holds)
-        self.stop_hold = (
-            Hold()
-            if memory is None
-            else Hold.restored(memory.stopped, memory.stopped_at_s, memory.saved_at_s)
-        )
-        self.disable_hold = (
-            Hold()
-            if memory is None
-            else Hold.restored(not memory.enabled, memory.disabled_at_s, memory.saved_at_s)
-        )
+        self.stop_hold, self.disable_hold = Hold.kept(self.memory)
         if self.stop_hold.in_force:
             self.filter.set_stop(True)
             self.get_logger().warning(
@@ -300,36 +292,13 @@ class MotionFilterNode(DiagnosedNode):
         """Whether the filter knows where the robot is (and commands are published)."""
         return bool(self.started_from)
 
-    def _report_state_file(self) -> None:
-        """WARN about a state file that cannot be used; ERROR when it cannot be locked."""
-        if self.state.lock_problem:
-            self._unsaved(self.state.lock_problem)
-        if self.state.read_problem:
-            ignored = f"state file ignored: {self.state.read_problem}"
-            self.report_problem("state_file", DiagnosticStatus.WARN, ignored)
-        if self.state.pose_refused:
-            self.report_problem(
-                "saved_pose_refused",
-                DiagnosticStatus.WARN,
-                f"the pose saved in {self.state_path} lies outside the joint ranges: refused "
-                "(its stop and enable are kept)",
-                hold_s=10.0,
-            )
-
     def _saved_pose(self) -> np.ndarray | None:
         """The saved pose, when there is one inside the joint ranges."""
         return self.state.saved_pose()
 
     def _unsaved(self, reason: str) -> None:
         """The state cannot be saved: an ERROR until a save succeeds (the stop stays in memory)."""
-        stopped = " The STOP in force" if self.filter.status.stopped else " A stop"
-        self.report_problem(
-            "state_file_unsaved",
-            DiagnosticStatus.ERROR,
-            f"state file {self.state_path}: {reason}.{stopped} stays in force in this process "
-            "but will NOT survive a restart",
-            hold_s=math.inf,
-        )
+        self._report(self.state.unsaved(reason, self.filter.status.stopped))
 
     def _start(self, pose_rad: np.ndarray, source: str) -> None:
         self.filter.start_from(pose_rad)
