@@ -3,7 +3,8 @@
 ``motion_filter_node`` publishes these as the key/values of its DiagnosticStatus, beside what
 only the node knows (messages taken and dropped at its subscriptions, ticks, service requests,
 where it started). The keys are the names users and tests read: changing one is a change of the
-node's interface. Counters count since start. The measured joint states' figures are
+node's interface. Counters count since start. The raw messages' figures are
+:meth:`~audio2pose_ros.motion.raw_intake.RawIntake.values`, the measured joint states'
 :meth:`~audio2pose_ros.motion.measured_states.MeasuredStates.values`.
 """
 
@@ -12,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 
 from audio2pose_ros.motion.filter import MotionFilter
-from audio2pose_ros.motion.timing import StampCheck
 
 
 class FilterReport:
@@ -67,14 +67,3 @@ class FilterReport:
                 and np.all(position <= robot.upper_rad)
             ),
         }
-
-
-def stamp_values(stamps: StampCheck) -> dict[str, object]:
-    """Raw trajectory stamps refused, by reason, clock steps back and the input latency."""
-    return {
-        "stale_messages_dropped": stamps.counts.out_of_order,
-        "future_stamps_rejected": stamps.counts.future,
-        "old_stamps_rejected": stamps.counts.too_old,
-        "clock_steps_back": stamps.counts.clock_steps_back,
-        "input_latency_ms": f"{stamps.latency_s * 1e3:.2f}",
-    }

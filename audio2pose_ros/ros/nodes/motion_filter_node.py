@@ -82,14 +82,14 @@ from audio2pose_ros import topics
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.body_guard import GuardStatus
 from audio2pose_ros.motion.filter import MotionFilter
-from audio2pose_ros.motion.filter_report import FilterReport, stamp_values
+from audio2pose_ros.motion.filter_report import FilterReport
 from audio2pose_ros.motion.filter_settings import MotionFilterNodeSettings, MotionFilterSettings
 from audio2pose_ros.motion.holds import Hold
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.motion.measured_states import MeasuredStates, start_held
 from audio2pose_ros.motion.pacing import OutputPacing, arrival_wait_s, next_timer_s
 from audio2pose_ros.motion.problems import Problem
-from audio2pose_ros.motion.sources import SingleSource
+from audio2pose_ros.motion.raw_intake import RawIntake
 from audio2pose_ros.motion.start_pose import HOLD, WAIT
 from audio2pose_ros.motion.state_file import (
     MIN_SAVE_SPACING_S,
@@ -99,7 +99,6 @@ from audio2pose_ros.motion.state_file import (
     default_state_path,
 )
 from audio2pose_ros.motion.style import StyleSettings
-from audio2pose_ros.motion.timing import StampCheck
 from audio2pose_ros.parameters import ParameterValue, settings_from, settings_with, specs_of
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, DiagnosedNode
@@ -165,9 +164,12 @@ class MotionFilterNode(DiagnosedNode):
             settings_from(LimitSettings, values),
             style=settings_from(StyleSettings, values),
         )
-        self.stamps = StampCheck(self.settings.max_stamp_future_s, self.settings.max_stamp_age_s)
-        self.input_messages = 0
-        self.dropped_messages = 0
+        self.intake = RawIntake(
+            self.filter,
+            settings.watchdog_timeout_s,
+            self.settings.max_stamp_future_s,
+            self.settings.max_stamp_age_s,
+        )
         self.report = FilterReport(self.filter, time.monotonic())
         self.faults_seen = 0
         self.ticks = 0  # filter ticks since start (each may serve one service request)
@@ -203,7 +205,6 @@ class MotionFilterNode(DiagnosedNode):
                 f"disabled from before the restart ({self.state_path}): generated motion is "
                 "ignored; publish enable: true to enable it"
             )
-        self.sources = SingleSource(settings.watchdog_timeout_s)
 
         guarded, bounded = self.guarded, self.create_bounded_subscription
         if subscribe_graph:
@@ -282,8 +283,8 @@ class MotionFilterNode(DiagnosedNode):
         node_settings = settings_with(self.settings, changes)
         self.filter.request_settings(changes)
         self.settings = node_settings
-        self.stamps.max_future_s = node_settings.max_stamp_future_s
-        self.stamps.max_age_s = node_settings.max_stamp_age_s
+        self.intake.stamps.max_future_s = node_settings.max_stamp_future_s
+        self.intake.stamps.max_age_s = node_settings.max_stamp_age_s
 
     # --- start-up -----------------------------------------------------------------------------
 
@@ -410,53 +411,16 @@ class MotionFilterNode(DiagnosedNode):
 
     # --- inputs -------------------------------------------------------------------------------
 
-    def _admit(self, stamp_s: float, n_points: int) -> int | None:
-        """How many of a raw message's ``n_points`` poses to use (None: drop the message).
-
-        None before the start and for a rejected stamp (counted and reported); else at most
-        ``max_points_per_message`` (the rest is counted and reported as truncated).
-        """
-        self.input_messages += 1
-        if not self.started:
-            return None  # the start pose is not known yet: generated motion waits
-        steps_back = self.stamps.counts.clock_steps_back
-        problem = self.stamps.check(stamp_s, self.now_s())
-        if self.stamps.counts.clock_steps_back > steps_back:
-            self.report_problem(
-                "clock_step",
-                DiagnosticStatus.WARN,
-                "the clock stepped back behind the newest raw trajectory stamp: ordering "
-                "restarted from the next message",
-                hold_s=10.0,
-            )
-        if problem:
-            self.dropped_messages += 1
-            self.report_problem(
-                "raw_stamp", DiagnosticStatus.WARN, f"raw trajectory dropped: {problem}"
-            )
-            return None
-        take = self.filter.points_to_take(n_points)
-        if take < n_points:
-            self.report_problem(
-                "raw_truncated",
-                DiagnosticStatus.WARN,
-                f"raw trajectory longer than max_points_per_message "
-                f"({self.filter.settings.max_points_per_message}): the rest dropped",
-            )
-        return take
+    @property
+    def input_messages(self) -> int:
+        """Raw messages (or single-process hand-overs) that came since start."""
+        return self.intake.messages
 
     def on_raw(self, msg: JointTrajectory, info: MessageInfo) -> None:
         """Check and queue the poses of one raw trajectory message (of the one source in use)."""
-        now = time.monotonic()
-        if not self.sources.admit(publisher_of(info), now):
-            self.dropped_messages += 1
-            self.report_problem(
-                "raw_second_source",
-                DiagnosticStatus.ERROR,
-                "a second publisher sends raw_trajectory: its poses are refused; only the first "
-                "drives the robot (stop the other one)",
-                hold_s=1.0,
-            )
+        refused = self.intake.from_source(publisher_of(info), time.monotonic())
+        if refused is not None:
+            self._report(refused)
             return
         take = self._admit(stamp_s(msg.header.stamp), len(msg.points))
         if take is None:
@@ -465,10 +429,7 @@ class MotionFilterNode(DiagnosedNode):
         try:
             poses = trajectory_positions(msg, self.robot.names)
         except ValueError as exc:
-            self.dropped_messages += 1
-            self.report_problem(
-                "raw_malformed", DiagnosticStatus.WARN, f"raw trajectory dropped: {exc}"
-            )
+            self._report(self.intake.malformed(str(exc)))
             return
         self._queue(poses)
 
@@ -482,20 +443,20 @@ class MotionFilterNode(DiagnosedNode):
         if take is not None:
             self._queue(poses_rad[:take])
 
+    def _admit(self, stamp_s: float, n_points: int) -> int | None:
+        """How many of a message's poses to use (None: none): :meth:`RawIntake.admit`."""
+        take, problems = self.intake.admit(stamp_s, n_points, self.now_s(), self.started)
+        for problem in problems:
+            self._report(problem)
+        return take
+
     def _queue(self, poses: np.ndarray) -> None:
         """Push admitted raw poses into the filter; command at once when the stream is steady."""
-        status = self.filter.status
-        before = (status.rejected, status.out_of_range, status.implausible)
         was_waiting = self.filter.buffered == 0
         arrival_s = time.monotonic()
-        self.filter.push(poses, arrival_s)
-        if (status.rejected, status.out_of_range, status.implausible) != before:
-            self.report_problem(
-                "raw_rejected",
-                DiagnosticStatus.WARN,
-                f"raw poses rejected before the filter: {status.rejected} non-finite, "
-                f"{status.out_of_range} out of range, {status.implausible} unreachable (total)",
-            )
+        rejected = self.intake.push(poses, arrival_s)
+        if rejected is not None:
+            self._report(rejected)
         if not (was_waiting and self.filter.buffered):
             return
         # the clock follows the input (motion.pacing): at once, or when the spacing allows
@@ -689,10 +650,7 @@ class MotionFilterNode(DiagnosedNode):
         now = time.monotonic()
         return {
             "started_from": self.started_from or "waiting",
-            "input_messages": self.input_messages,
-            "dropped_messages": self.dropped_messages,
-            "raw_messages_of_a_second_source": self.sources.refused,
-            **stamp_values(self.stamps),
+            **self.intake.values(),
             **self.report.values(now),
             "ticks": self.ticks,
             "service_requests_served": self.request_budget.served_total,
