@@ -37,10 +37,11 @@ connection goes through:
    its rates or stamped off the console's clock is only dropped and counted
    (:class:`~audio2pose_ros.console.protocol.AudioDroppedError`): the page may be catching up
    after a stall or a clock step.
-5. **The floor and the stop**: only the holder's audio is published; ``enable`` and ``gains``
-   only while the floor is free or one's own. A ``stop`` is accepted from anyone, and released
-   only by whoever pressed it, or, once they have left, by another operator who names them
-   (:mod:`~audio2pose_ros.console.stop`); every page is told who holds the stop.
+5. **The floor and the stop**: only the holder's audio is published; ``enable`` and the
+   style (``style``, ``style_set``, ``enroll``) only while the floor is free or one's own. A
+   ``stop`` is accepted from anyone, and released only by whoever pressed it, or, once they
+   have left, by another operator who names them (:mod:`~audio2pose_ros.console.stop`); every
+   page is told who holds the stop.
 6. **The end**: a closed or dropped connection (WebSocket pings every :data:`HEARTBEAT_S`)
    releases its floor: audio stops, and the filter's watchdog brings the robot to rest. Its
    presses of STOP stay, held by someone who has left. A page
@@ -48,10 +49,11 @@ connection goes through:
    connection's handler is logged in one line and closes that connection (1011), never
    escaping to aiohttp.
 
-Every page is sent the pose at ``pose_rate_hz`` and the status (stop, enable, gains, health,
-latency, floor, operators) every :data:`STATUS_PERIOD_S`; a page that reads slower than that
-skips frames rather than making the server queue them. A value in them that JSON cannot carry
-(a NaN statistic) is sent as ``null`` and logged once, the rest of the message as usual.
+Every page is sent the pose at ``pose_rate_hz`` and the status (stop, enable, the style
+parameters in force, health, latency, floor, operators) every :data:`STATUS_PERIOD_S`; a page
+that reads slower than that skips frames rather than making the server queue them. A value in
+them that JSON cannot carry (a NaN statistic) is sent as ``null`` and logged once, the rest of
+the message as usual.
 """
 
 from __future__ import annotations
@@ -176,17 +178,14 @@ class GraphBridge(Protocol):
     def set_enable(self, on: bool) -> None:
         """Publish enable."""
 
-    def set_gains(self, gains: dict[str, float]) -> None:
-        """Set the filter's gains (``head``, ``arms``, ``hip``: the ``*_gain`` parameters)."""
-
     def set_style(self, settings: dict[str, float] | None) -> None:
-        """Apply learned style settings to the filter, or (None) restore the graph's own."""
+        """Set any of the filter's live style parameters; None restores the graph's own style."""
 
     def pose(self) -> dict[str, Any]:
         """The latest commanded and measured pose: name -> angle (rad), or None each."""
 
     def status(self) -> dict[str, Any]:
-        """Stop, enable, gains, health and latency, JSON-ready."""
+        """Stop, enable, the style parameters in force, health and latency, JSON-ready."""
 
 
 @dataclass
@@ -709,12 +708,10 @@ class ConsoleServer:
                 )
             if control.type == "enable":
                 self.bridge.set_enable(bool(on))
-            elif control.type in ("enroll", "style"):
+            else:  # enroll, style, style_set
                 reply = self.learn_style.on_control(session.id, session.name, control)
                 if reply is not None:
                     self._send(session, reply, droppable=False)
-            else:
-                self.bridge.set_gains({k: float(v) for k, v in control.fields.items()})
 
     async def _talk(self, session: _Session, on: bool) -> None:
         if on:
