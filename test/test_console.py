@@ -55,8 +55,8 @@ from audio2pose_ros.console.server import (
     PENDING_PER_ADDRESS,
     SUMMARY_PERIOD_S,
     ConsoleServer,
-    ServerThread,
 )
+from audio2pose_ros.console.server_thread import ServerThread
 from audio2pose_ros.console.settings import ConsoleSettings
 from audio2pose_ros.console.stop import MAX_PRESSES, OUTSIDE, StopHolders, unique_name
 from audio2pose_ros.errors import ConfigurationError

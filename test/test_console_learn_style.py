@@ -25,7 +25,8 @@ from audio2pose_ros.console import enrollment
 from audio2pose_ros.console.access import resolve_access
 from audio2pose_ros.console.enrollment import EnrollmentError, Enrollments
 from audio2pose_ros.console.protocol import ProtocolError, parse_control
-from audio2pose_ros.console.server import ConsoleServer, ServerThread
+from audio2pose_ros.console.server import ConsoleServer
+from audio2pose_ros.console.server_thread import ServerThread
 from audio2pose_ros.console.settings import ConsoleSettings
 from audio2pose_ros.resources import share_path
 

@@ -59,7 +59,8 @@ from audio2pose_ros.audio.pcm import S16LE_MONO_16K
 from audio2pose_ros.console.access import resolve_access
 from audio2pose_ros.console.latency import VoiceLatency
 from audio2pose_ros.console.protocol import AudioFrame
-from audio2pose_ros.console.server import ConsoleServer, ServerThread
+from audio2pose_ros.console.server import ConsoleServer
+from audio2pose_ros.console.server_thread import ServerThread
 from audio2pose_ros.console.settings import ConsoleSettings
 from audio2pose_ros.motion.style import STYLE_FIELDS
 from audio2pose_ros.parameters import settings_from, specs_of
