@@ -5,7 +5,10 @@ upload, learning in a child process); this module is its web side, which
 :class:`~audio2pose_ros.console.server.ConsoleServer` wires in:
 
 - the page's ``enroll`` message asks for a ticket (:meth:`LearnMyStyle.on_control`, answered
-  ``enroll_ticket``), and its ``style`` message chooses the learned style or the default one;
+  ``enroll_ticket``); its ``style`` message chooses the learned style, a named preset (its
+  settings for the packaged model, as the preset file keeps them:
+  :func:`~audio2pose_ros.style.personal.packaged_preset`) or the graph's own style, and its
+  ``style_set`` message sets single style parameters (the page's sliders);
 - ``POST /enroll/{ticket}`` (:meth:`LearnMyStyle.upload`) streams the recording under that
   ticket, after the same Host and Origin checks as the WebSocket (403); a request announcing
   more than :data:`~audio2pose_ros.console.enrollment.MAX_RECORDING_BYTES` is refused (413)
@@ -18,6 +21,7 @@ upload, learning in a child process); this module is its web side, which
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
@@ -32,6 +36,10 @@ from audio2pose_ros.console.enrollment import (
     Ticket,
 )
 from audio2pose_ros.console.protocol import Control, ProtocolError, encode
+from audio2pose_ros.motion.style import StyleSettings
+from audio2pose_ros.parameters import specs_of
+from audio2pose_ros.style.figures import StyleError, preset_names
+from audio2pose_ros.style.personal import packaged_preset
 
 __all__ = ["LearnMyStyle", "StyleBridge"]
 
@@ -71,12 +79,22 @@ class LearnMyStyle:
         self.log = log
         self.refused = refused
         self.may_apply = may_apply
-        self.style_in_use = "default"  # or "personal": the learned style is applied
+        # "default" (the graph's own), "personal" (the learned one), a preset's name, or
+        # "adjusted" (single parameters set from the page since)
+        self.style_in_use = "default"
+        self.presets = preset_names()
+        # each live style parameter's range, from its declaration: the page's sliders
+        self.ranges = {spec.name: [spec.minimum, spec.maximum] for spec in specs_of(StyleSettings)}
         self._learning: list[asyncio.Task[None]] = []
 
     def status(self) -> dict[str, Any]:
-        """The enrollment's progress and the style in use, for every page's status."""
-        return {"enrollment": self.enrollments.status(), "style": self.style_in_use}
+        """Progress, style in use, presets, style parameters' ranges: every page's status."""
+        return {
+            "enrollment": self.enrollments.status(),
+            "style": self.style_in_use,
+            "presets": self.presets,
+            "style_ranges": self.ranges,
+        }
 
     def stop(self) -> None:
         """Cancel learning still running (the console stops)."""
@@ -126,13 +144,14 @@ class LearnMyStyle:
             self.style_in_use = "personal"
 
     def on_control(self, session_id: int, name: str, control: Control) -> str | None:
-        """``enroll`` (a ticket for an upload) and ``style`` (which style the graph uses).
+        """``enroll`` (a ticket), ``style`` (which style) and ``style_set`` (single parameters).
 
         Returns:
             The message to send back to the page (``enroll_ticket``), or None.
 
         Raises:
-            ProtocolError: no ticket now (another enrollment runs), or no learned style yet.
+            ProtocolError: no ticket now (another enrollment runs), no learned style yet, or
+                no usable preset of that name.
         """
         if control.type == "enroll":
             try:
@@ -140,13 +159,23 @@ class LearnMyStyle:
             except EnrollmentError as exc:
                 raise ProtocolError(str(exc)) from None
             return encode("enroll_ticket", ticket=key)
-        if control.fields["use"] == "personal":
+        if control.type == "style_set":
+            self.bridge.set_style({k: float(v) for k, v in control.fields.items()})
+            self.style_in_use = "adjusted"
+            return None
+        use = control.fields["use"]
+        if use == "personal":
             result = self.enrollments.result
             if result is None:
                 raise ProtocolError("no style has been learned yet: press Learn my style")
             self.bridge.set_style(result.settings)
-            self.style_in_use = "personal"
-        else:
+        elif use == "default":
             self.bridge.set_style(None)
-            self.style_in_use = "default"
+        else:
+            try:  # every parameter: what the preset does not set goes back to the identity
+                settings = dataclasses.asdict(packaged_preset(use))
+            except StyleError as exc:
+                raise ProtocolError(str(exc)) from None
+            self.bridge.set_style(settings)
+        self.style_in_use = use
         return None
