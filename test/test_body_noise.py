@@ -54,7 +54,7 @@ def test_when_a_pose_nears_the_body_expect_its_noise_to_fade_to_nothing_at_the_m
     exact = body.clearance(track)
     assert exact[0] > 0.06
     assert exact[-1] < 0.0
-    clearance = noise.body.clearance(track)  # the capsules': at most 2.1 cm below, near the body
+    clearance = noise.body.clearance(track)  # the capsules': at most 2.3 cm below, near the body
     assert np.all(clearance <= np.maximum(exact, 0.0) + 1e-6)
     factors = np.array([noise.factors(robot.normalize(p))[0] for p in track])
     _assert_faded(factors, clearance, 0.02, 0.03)

@@ -22,9 +22,10 @@ model's own motion off the body, so the guard rarely has to act.
 
 The clearance here is the capsule model's (:class:`~audio2pose_ros.robot.capsules.CapsuleModel`):
 capsules that contain the URDF's collision shapes, so it is never larger than the exact
-clearance and at most about 2 cm smaller near the body (``test/test_capsules.py``); the noise
-fades a little early, never late. It is plain numpy, so the sampling process holds neither
-Pinocchio nor coal (about 55 MB), and the model pickles with the sampler.
+clearance and at most about 2.3 cm smaller near the body (median 1.6 mm;
+``test/test_capsules.py``); the noise fades a little early, never late. It is plain numpy, so
+the sampling process holds neither Pinocchio nor coal (about 55 MB), and the model pickles with
+the sampler.
 
 The first frame (no previous pose) samples with its whole noise. A query of every pair costs
 more than the rest of the frame's work for the body, so each sequence keeps the last pose it
