@@ -24,19 +24,12 @@ Parameters: the fields of MotionFilterSettings, StyleSettings (the style: per pa
     (``ros2 param describe`` shows each one's description and range).
 
 Safety: every command passes the input gate first and the joint limiter last; the node
-publishes nothing until it knows where the robot is: its measured pose (every valid joint of it:
-an out-of-range reading is clamped and reported, a NaN joint is taken from the saved pose or
-neutral), or, when no measured pose arrives within ``startup_timeout_s`` and nothing publishes
-one (while a publisher exists it waits up to ``MEASURED_WAIT_S``), the pose it last commanded,
-saved in ``state_file`` (refused when outside the joint ranges), or else neutral.
-
-A measured pose is believed only when it can be (:mod:`audio2pose_ros.motion.measured`): a
-message listing a joint twice, or stamped too old or ahead, is refused (WARN); two publishers
-whose poses disagree are an ERROR and neither is used. While that lasts, the start waits with an
-ERROR, commanding nothing (neither the saved pose nor neutral stands in for a pose that is
-published but cannot be believed), and it starts from the robot's pose once the conflict has
-been over for ``SOURCE_WINDOW_S``. With several publishers on the topic, the start first
-listens ``MEASURED_LISTEN_S`` to the pose's publisher, so a second source shows in time.
+publishes nothing until it knows where the robot is. Which pose it starts from (the measured
+pose, every valid joint of it; else, once none can still come, the pose it last commanded, saved
+in ``state_file``, or neutral) is :mod:`audio2pose_ros.motion.start_pose`'s decision; whether a
+measured pose can be believed, :mod:`audio2pose_ros.motion.measured`'s (a joint listed twice, a
+stamp too old or ahead: refused, WARN; two publishers that disagree: ERROR, neither used, and
+the start holds, commanding nothing, until the conflict has been over for ``SOURCE_WINDOW_S``).
 
 Parameter requests: the node's services (rclpy's parameter services) are served at most
 ``REQUESTS_PER_TICK`` per tick (:class:`~audio2pose_ros.ros.request_budget.RequestBudget`); a
@@ -73,7 +66,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -91,29 +83,22 @@ from audio2pose_ros import topics
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.body_guard import GuardStatus
 from audio2pose_ros.motion.filter import MotionFilter
-from audio2pose_ros.motion.filter_settings import MotionFilterSettings
+from audio2pose_ros.motion.filter_settings import MotionFilterNodeSettings, MotionFilterSettings
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.motion.measured import SOURCE_WINDOW_S, MeasuredPoseCheck
 from audio2pose_ros.motion.sources import SingleSource
+from audio2pose_ros.motion.start_pose import HOLD, WAIT, StartPose, repaired_start_pose
 from audio2pose_ros.motion.state_file import (
+    MIN_SAVE_SPACING_S,
     FilterMemory,
     StateFileInUseError,
-    StateLock,
+    StateStore,
     default_state_path,
-    load_memory,
-    save_memory,
 )
 from audio2pose_ros.motion.style import StyleSettings
 from audio2pose_ros.motion.timing import StampCheck
 from audio2pose_ros.motion.tracking import TrackingWatch
-from audio2pose_ros.parameters import (
-    ParameterValue,
-    param,
-    settings_from,
-    settings_with,
-    specs_of,
-    validate_settings,
-)
+from audio2pose_ros.parameters import ParameterValue, settings_from, settings_with, specs_of
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, DiagnosedNode
 from audio2pose_ros.ros.messages import trajectory_msg, trajectory_positions
@@ -124,131 +109,8 @@ from audio2pose_ros.ros.spin import run_node
 MIN_TICK_SPACING = 0.5  # of a period: an arriving pose is commanded at once if the last tick
 # is at least this long ago (so ticks are never closer than half a period: no bursts)
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
-MEASURED_WAIT_S = 3.0  # while the measured topic has a publisher, wait this long for its pose
-MEASURED_LISTEN_S = 1.0  # with several publishers on it, hear a pose's source this long first
+STARTUP_CHECK_NS = 100_000_000  # while the start waits, it is decided again this often (0.1 s)
 REQUESTS_PER_TICK = 1  # service requests (set_parameters, ...) served per tick at most
-MIN_SAVE_SPACING_S = 0.1  # the state file is written at most this often (flash wear)
-SAVED_POSE_RESOLUTION_RAD = 1e-4  # a pose that moved less than this is not saved again
-
-
-@dataclass(frozen=True)
-class MotionFilterNodeSettings:
-    """Parameters of the node itself (the filter's are in MotionFilterSettings, LimitSettings).
-
-    Attributes:
-        robot_description: robot description YAML ('' = config/pepper_robot.yaml).
-        joint_angles_speed: JointAnglesWithSpeed.speed, a fraction of the maximum speed in
-            [0.01, 1] (naoqi's setAngles refuses 0); negative = velocity_fraction.
-        joint_angles_rate_hz: rate of /joint_angles (0 = off); 50 Hz = one command per
-            ALMotion 20 ms cycle.
-        joint_trajectory_rate_hz: rate of joint_trajectory (0 = off); Pepper's ros2_control
-            controller runs at 50 Hz.
-        joint_states_rate_hz: rate of commanded_joint_states (0 = off).
-        measured_joint_states_topic: the robot's measured joint states.
-        startup_timeout_s: how long to wait for a measured pose before using the saved one.
-        state_file: where the last commanded pose and a stop are kept ('' = the default).
-        state_save_period_s: how often the state file is rewritten while the pose changes.
-        max_stamp_future_s: raw trajectories stamped further ahead of the clock are rejected.
-        max_stamp_age_s: raw trajectories stamped further behind the clock are rejected.
-    """
-
-    robot_description: str = field(
-        default="",
-        metadata=param("robot description YAML ('' = config/pepper_robot.yaml)", read_only=True),
-    )
-    joint_angles_speed: float = field(
-        default=-1.0,
-        metadata=param(
-            "JointAnglesWithSpeed.speed (fraction of max velocity); negative = velocity_fraction",
-            minimum=-1.0,
-            maximum=1.0,
-            excluded=(0.0, 0.01),  # the robot refuses 0 and would crawl below velocity_fraction's
-        ),
-    )
-    joint_angles_rate_hz: float = field(
-        default=50.0,
-        metadata=param(
-            "rate of joint_angles, at most rate_hz (0 = off; 50 = one per ALMotion 20 ms cycle)",
-            minimum=0.0,
-            maximum=1000.0,
-            read_only=True,
-            unit="Hz",
-        ),
-    )
-    joint_trajectory_rate_hz: float = field(
-        default=50.0,
-        metadata=param(
-            "rate of joint_trajectory_controller/joint_trajectory, at most rate_hz (0 = off)",
-            minimum=0.0,
-            maximum=1000.0,
-            read_only=True,
-            unit="Hz",
-        ),
-    )
-    joint_states_rate_hz: float = field(
-        default=50.0,
-        metadata=param(
-            "rate of commanded_joint_states, at most rate_hz (0 = off)",
-            minimum=0.0,
-            maximum=1000.0,
-            read_only=True,
-            unit="Hz",
-        ),
-    )
-    measured_joint_states_topic: str = field(
-        default=topics.JOINT_STATES,
-        metadata=param("the robot's measured joint states (naoqi_driver)", read_only=True),
-    )
-    startup_timeout_s: float = field(
-        default=1.0,
-        metadata=param(
-            "wait this long for a measured pose, then start from the saved one (or neutral)",
-            minimum=0.0,
-            maximum=60.0,
-            read_only=True,
-            unit="s",
-        ),
-    )
-    state_file: str = field(
-        default="",
-        metadata=param(
-            "file keeping the last commanded pose and a stop across restarts "
-            "('' = $ROS_HOME/audio2pose_ros/<node>.json)",
-            read_only=True,
-        ),
-    )
-    state_save_period_s: float = field(
-        default=0.5,
-        metadata=param(
-            "the state file is rewritten this often while the pose changes",
-            minimum=0.05,
-            maximum=60.0,
-            read_only=True,
-            unit="s",
-        ),
-    )
-    max_stamp_future_s: float = field(
-        default=0.5,
-        metadata=param(
-            "raw_trajectory stamped further ahead of the node clock is rejected",
-            minimum=0.0,
-            maximum=3600.0,
-            unit="s",
-        ),
-    )
-    max_stamp_age_s: float = field(
-        default=5.0,
-        metadata=param(
-            "raw_trajectory stamped further behind the node clock is rejected",
-            minimum=0.01,
-            maximum=3600.0,
-            unit="s",
-        ),
-    )
-
-    def __post_init__(self) -> None:
-        """Validate every field against its declaration."""
-        validate_settings(self)
 
 
 SETTINGS_CLASSES = (MotionFilterSettings, StyleSettings, LimitSettings, MotionFilterNodeSettings)
@@ -336,7 +198,6 @@ class MotionFilterNode(DiagnosedNode):
         self.ticks = 0  # filter ticks since start (each may serve one service request)
         self.lead_outs_seen = 0
         self.started_from = ""
-        self.created_s = time.monotonic()
         self.measured_rad: np.ndarray | None = None
         self.measured_partial = 0  # joint states without every joint of the robot: not used
         self.measured_check = MeasuredPoseCheck(self.robot.names, self.robot.max_velocity_rad_s)
@@ -348,17 +209,15 @@ class MotionFilterNode(DiagnosedNode):
             if self.settings.state_file
             else default_state_path(self.get_fully_qualified_name())
         )
-        self.state_lock: StateLock | None = None
         try:
-            self.state_lock = StateLock(self.state_path)
+            self.state = StateStore(self.state_path, self.robot)
         except StateFileInUseError as exc:
             raise ConfigurationError(f"parameter state_file: {exc}") from None
-        except OSError as exc:
-            self._unsaved(f"cannot lock it: {exc}")
-        self.memory = self._load_memory()
-        self.saved: tuple[object, ...] | None = None
-        self.save_due = False
-        self.last_write_s = -math.inf
+        self._report_state_file()
+        self.memory = self.state.memory
+        self.start_pose = StartPose(
+            time.monotonic(), self.memory is not None and self.memory.measured
+        )
         # wall-clock times the stop and the disable in force came into force (None: not in force)
         self.stop_since_s: float | None = None
         self.disable_since_s: float | None = None
@@ -498,13 +357,14 @@ class MotionFilterNode(DiagnosedNode):
         """Whether the filter knows where the robot is (and commands are published)."""
         return bool(self.started_from)
 
-    def _load_memory(self) -> FilterMemory | None:
-        try:
-            memory = load_memory(self.state_path, self.robot)
-        except InputError as exc:
-            self.report_problem("state_file", DiagnosticStatus.WARN, f"state file ignored: {exc}")
-            return None
-        if memory is not None and not memory.pose_in_range(self.robot):
+    def _report_state_file(self) -> None:
+        """WARN about a state file that cannot be used; ERROR when it cannot be locked."""
+        if self.state.lock_problem:
+            self._unsaved(self.state.lock_problem)
+        if self.state.read_problem:
+            ignored = f"state file ignored: {self.state.read_problem}"
+            self.report_problem("state_file", DiagnosticStatus.WARN, ignored)
+        if self.state.pose_refused:
             self.report_problem(
                 "saved_pose_refused",
                 DiagnosticStatus.WARN,
@@ -512,14 +372,10 @@ class MotionFilterNode(DiagnosedNode):
                 "(its stop and enable are kept)",
                 hold_s=10.0,
             )
-        return memory
 
     def _saved_pose(self) -> np.ndarray | None:
         """The saved pose, when there is one inside the joint ranges."""
-        memory = self.memory
-        if memory is None or not memory.pose_in_range(self.robot):
-            return None
-        return np.array(memory.position_rad)
+        return self.state.saved_pose()
 
     def _unsaved(self, reason: str) -> None:
         """The state cannot be saved: an ERROR until a save succeeds (the stop stays in memory)."""
@@ -540,27 +396,24 @@ class MotionFilterNode(DiagnosedNode):
         self.save_state()
 
     def _measured_start_pose(self, pose: np.ndarray) -> np.ndarray:
-        """Every valid joint of a measured pose: out of range clamped, NaN from saved or neutral.
-
-        Each repair is reported (WARN) naming the joints.
-        """
-        finite = np.isfinite(pose)
-        lower, upper = self.robot.lower_rad, self.robot.upper_rad
-        outside = finite & ((pose < lower) | (pose > upper))
-        fallback = self._saved_pose()
-        fill_from = "saved pose" if fallback is not None else "neutral pose"
-        filled = np.where(finite, pose, self.robot.neutral_rad if fallback is None else fallback)
-        for mask, what in ((outside, "out of range, clamped into it"), (~finite, "not finite")):
-            if mask.any():
-                names = ", ".join(n for n, bad in zip(self.robot.names, mask, strict=True) if bad)
-                fix = "" if what.startswith("out") else f", taken from the {fill_from}"
-                self.report_problem(
-                    "measured_invalid",
-                    DiagnosticStatus.WARN,
-                    f"measured joint states of {names} {what}{fix}",
-                    hold_s=10.0,
-                )
-        return np.clip(filled, lower, upper)
+        """Every valid joint of a measured pose (:func:`repaired_start_pose`), repairs as WARNs."""
+        saved = self._saved_pose()
+        start, repairs = repaired_start_pose(
+            pose,
+            self.robot.names,
+            self.robot.lower_rad,
+            self.robot.upper_rad,
+            self.robot.neutral_rad if saved is None else saved,
+            "neutral pose" if saved is None else "saved pose",
+        )
+        for repair in repairs:
+            self.report_problem(
+                "measured_invalid",
+                DiagnosticStatus.WARN,
+                f"measured joint states of {', '.join(repair.joints)} {repair.how}",
+                hold_s=10.0,
+            )
+        return start
 
     def on_measured(self, msg: JointState, info: MessageInfo | None = None) -> None:
         """The robot's measured joint states: the start pose, then checked against the commands.
@@ -569,32 +422,40 @@ class MotionFilterNode(DiagnosedNode):
         twice, or a stamp too old or ahead, is refused and reported (WARN); two publishers whose
         poses disagree are an ERROR, and no pose of either is used while they do. With more
         than one publisher on the topic, the start waits until the pose's publisher has been
-        heard for ``MEASURED_LISTEN_S``, so a second source shows before the filter starts.
+        heard for a while (:meth:`StartPose.listening`), so a second source shows first. Every
+        message that arrived is told to the start (:meth:`StartPose.heard`).
         """
         arrival_s = time.monotonic()
         source: bytes | str = b""  # called directly (tests): no publisher to tell apart
         published_ns = 0
         if info is not None:
             source, published_ns = _publisher_of(info), info.get("source_timestamp") or 0
-        reading = self.measured_check.read(
-            msg.name,
-            msg.position,
-            _stamp_s(msg.header.stamp),
-            published_ns * 1e-9 if published_ns else None,
-            self.now_s(),
-            source,
-            arrival_s,
-        )
+        try:
+            reading = self.measured_check.read(
+                msg.name,
+                msg.position,
+                _stamp_s(msg.header.stamp),
+                published_ns * 1e-9 if published_ns else None,
+                self.now_s(),
+                source,
+                arrival_s,
+            )
+        except InputError:
+            self.start_pose.heard(source, "broken", arrival_s)
+            raise
+        pose = reading.pose_rad
+        usable = pose is not None and bool(np.isfinite(pose).any())
+        kind = reading.kind if pose is None or usable else "non-finite"
+        self.start_pose.heard(source, kind, arrival_s)
         if reading.kind == "partial":
             self.measured_partial += 1  # another robot's, or a partial message: not a pose
             return
-        if reading.pose_rad is None:
+        if pose is None:
             self.report_problem("measured_refused", DiagnosticStatus.WARN, reading.reason)
             if not self.started:
-                self._hold_start(reading.reason)
+                self._hold_start(f"cannot tell where the robot is: {reading.reason}")
             return
-        pose = reading.pose_rad
-        if not np.isfinite(pose).any():
+        if not usable:
             self.report_problem(
                 "measured_invalid", DiagnosticStatus.WARN, "measured joint states all non-finite"
             )
@@ -618,17 +479,17 @@ class MotionFilterNode(DiagnosedNode):
             )
             return
         if not self.started:
-            publishers = self.count_publishers(topic)
-            heard_s = self.measured_check.heard_for_s(source, arrival_s)
-            if publishers > 1 and heard_s < MEASURED_LISTEN_S:
+            listening = self.start_pose.listening(
+                self.count_publishers(topic),
+                self.measured_check.heard_for_s(source, arrival_s),
+                topic,
+            )
+            if listening:
                 self.report_problem(
-                    "start_pose",
-                    DiagnosticStatus.WARN,
-                    f"{publishers} publishers on {topic}: listening {MEASURED_LISTEN_S:g} s for "
-                    "a second source of the robot's pose before starting, commanding nothing",
-                    hold_s=SOURCE_WINDOW_S,
+                    "start_pose", DiagnosticStatus.WARN, listening, hold_s=SOURCE_WINDOW_S
                 )
                 return
+        assert pose is not None
         self.measured_rad = pose
         if not self.started:
             self.clear_problem("start_pose")
@@ -649,63 +510,42 @@ class MotionFilterNode(DiagnosedNode):
         )
 
     def on_startup_timeout(self) -> None:
-        """No measured pose in time: start from the saved pose, or else from neutral.
+        """No measured pose started the filter in time: decide (:class:`StartPose`) what now.
 
-        While a measured pose is to be expected, the node waits for it instead, up to
-        ``MEASURED_WAIT_S`` after start-up: while something publishes the measured joint states
-        (its first pose is on the way), and when the robot reported its pose before the restart
-        (the state file says so; discovery of its publisher may take a while under load).
+        Called when ``startup_timeout_s`` has passed, then every 0.1 s while the start waits:
+        it waits (WARN) while a usable measured pose may still come, holds (ERROR) while the
+        published pose cannot be believed, and otherwise starts from the saved pose or neutral
+        (WARN, saying why no measured pose was used).
         """
         if self.started:
             self.startup_timer.cancel()
             return
         topic = self.settings.measured_joint_states_topic
         now = time.monotonic()
-        doubt = self._measured_doubt(now)
-        if doubt:  # something says where the robot is, but it cannot be believed: no guess
-            self._hold_start(doubt)
-            self.startup_timer.timer_period_ns = max(self.startup_timer.timer_period_ns, 10**8)
-            return
-        waited_s = now - self.created_s
-        reported_before = self.memory is not None and self.memory.measured
-        if (self.count_publishers(topic) or reported_before) and waited_s < MEASURED_WAIT_S:
-            self.report_problem(
-                "start_pose",
-                DiagnosticStatus.WARN,
-                f"no measured pose on {topic} yet, but one is expected (it has a publisher, or "
-                f"the robot reported its pose before the restart): waiting for it (up to "
-                f"{MEASURED_WAIT_S:g} s), commanding nothing",
-            )
-            self.startup_timer.timer_period_ns = max(self.startup_timer.timer_period_ns, 10**8)
+        self.start_pose.discovered(self.count_publishers(topic), now)
+        saved = self._saved_pose()
+        step = self.start_pose.decide(
+            now, self._measured_doubt(now), topic, "" if saved is None else str(self.state_path)
+        )
+        if step.action in (WAIT, HOLD):
+            if step.action == HOLD:
+                self._hold_start(step.reason)
+            else:
+                self.report_problem("start_pose", DiagnosticStatus.WARN, step.reason)
+            if self.startup_timer.timer_period_ns != STARTUP_CHECK_NS:
+                self.startup_timer.timer_period_ns = STARTUP_CHECK_NS  # discovery is polled
             return
         self.startup_timer.cancel()
-        saved = self._saved_pose()
-        if saved is not None:
-            self._start(saved, "saved pose")
-            self.report_problem(
-                "start_pose",
-                DiagnosticStatus.WARN,
-                f"no measured pose on {topic}: started from the last commanded pose saved in "
-                f"{self.state_path}",
-                hold_s=10.0,
-            )
-        else:
-            self._start(self.robot.neutral_rad, "neutral pose")
-            self.report_problem(
-                "start_pose",
-                DiagnosticStatus.WARN,
-                f"no measured pose on {topic} and no saved pose: started from the neutral pose; "
-                "the first commands move the robot there at the velocity limit",
-                hold_s=10.0,
-            )
+        self._start(self.robot.neutral_rad if saved is None else saved, step.action)
+        self.report_problem("start_pose", DiagnosticStatus.WARN, step.reason, hold_s=10.0)
 
     def _hold_start(self, doubt: str) -> None:
         """ERROR: the start waits, commanding nothing, because of ``doubt``."""
         self.report_problem(
             "start_pose",
             DiagnosticStatus.ERROR,
-            f"cannot tell where the robot is: {doubt}; commanding nothing until a believable "
-            f"pose arrives on {self.settings.measured_joint_states_topic}",
+            f"{doubt}; commanding nothing until a believable pose arrives on "
+            f"{self.settings.measured_joint_states_topic}",
             hold_s=SOURCE_WINDOW_S,
         )
 
@@ -731,37 +571,26 @@ class MotionFilterNode(DiagnosedNode):
         if not self.started:
             return
         status = self.filter.status
-        pose = tuple(float(v) for v in self.filter.position_rad)
-        resolution = SAVED_POSE_RESOLUTION_RAD
-        key = tuple(round(v / resolution) for v in pose)  # a pose at rest is saved once
-        measured = self.measured_rad is not None
-        since = (self.stop_since_s, self.disable_since_s)
-        state = (key, status.stopped, status.enabled, *since, measured)
-        self.save_due = False
-        if state == self.saved:
-            return
         memory = FilterMemory(
             tuple(self.robot.names),
-            pose,
+            tuple(float(v) for v in self.filter.position_rad),
             status.stopped,
             time.time(),
             status.enabled,
             self.stop_since_s,
             self.disable_since_s,
-            measured,
+            self.measured_rad is not None,
         )
-        self.last_write_s = time.monotonic()
         try:
-            save_memory(self.state_path, memory)
+            written = self.state.save(memory, time.monotonic())
         except OSError as exc:
             self._unsaved(f"cannot be written: {exc}")
             return
-        self.saved = state
-        if self.state_lock is not None:
+        if written and self.state.lock is not None:
             self.clear_problem("state_file_unsaved")
 
     def _save_if_due(self) -> None:
-        if self.save_due:
+        if self.state.due:
             self.save_state()
 
     # --- inputs -------------------------------------------------------------------------------
@@ -898,8 +727,7 @@ class MotionFilterNode(DiagnosedNode):
 
     def _save_now(self) -> None:
         """Save a changed stop or enable now, or within ``MIN_SAVE_SPACING_S`` (bounded rate)."""
-        self.save_due = True
-        if time.monotonic() - self.last_write_s >= MIN_SAVE_SPACING_S:
+        if self.state.save_soon(time.monotonic()):
             self.save_state()
 
     def on_enable(self, msg: Bool, info: MessageInfo) -> None:
