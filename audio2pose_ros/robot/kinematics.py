@@ -1,27 +1,29 @@
 """Pepper's URDF and forward kinematics (ROS-free).
 
-The URDF (``urdf/pepper.urdf``) is parsed with ``yourdfpy``; forward kinematics chains each
-joint's origin and its rotation about its axis from the root link outwards. Angles are radians,
-lengths metres, poses 4x4 homogeneous matrices in the root link's frame (``base_link``).
+The URDF (``urdf/pepper.urdf``) is read with the standard library's XML parser: its links, its
+joints (origin, axis, limits) and its links' primitive collision shapes, nothing else (no meshes
+are loaded, so reading costs no more memory than the file); ``test/test_kinematics.py`` checks
+the joints against ``yourdfpy``'s reading and the forward kinematics against Pinocchio's.
+Forward kinematics chains each joint's origin and its rotation about its axis from the root link
+outwards. Angles are radians, lengths metres, poses 4x4 homogeneous matrices in the root link's
+frame (``base_link``).
 """
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ElementTree
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.resources import share_path
 
-if TYPE_CHECKING:
-    import yourdfpy
-
 DEFAULT_URDF_FILE = "pepper.urdf"
 MOVABLE_TYPES = ("revolute", "continuous", "prismatic")
+JOINT_TYPES = (*MOVABLE_TYPES, "fixed", "floating", "planar")
 
 
 class KinematicsError(ConfigurationError):
@@ -62,10 +64,30 @@ class UrdfJoint:
         return transform
 
 
+@dataclass(frozen=True)
+class UrdfCollision:
+    """One ``<collision>`` shape of a link, as the URDF states it (metres).
+
+    ``kind`` is the geometry's tag: ``box`` (``size`` = its three side lengths), ``cylinder``
+    (radius, length; its axis is the shape frame's z), ``sphere`` (radius), or another tag
+    (``mesh``) with no size: the file names it, but nothing here loads it.
+    """
+
+    link: str
+    kind: str
+    origin: np.ndarray  # (4, 4) link frame -> shape frame
+    size: tuple[float, ...]
+
+
+def skew_matrix(axis: np.ndarray) -> np.ndarray:
+    """(3, 3) K with K v = axis x v."""
+    x, y, z = axis
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
 def axis_angle_matrix(axis: np.ndarray, angle_rad: float) -> np.ndarray:
     """(3, 3) rotation by ``angle_rad`` about the unit vector ``axis`` (Rodrigues' formula)."""
-    x, y, z = axis
-    skew = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    skew = skew_matrix(axis)
     return np.eye(3) + np.sin(angle_rad) * skew + (1.0 - np.cos(angle_rad)) * (skew @ skew)
 
 
@@ -84,18 +106,23 @@ class RobotKinematics:
         if not self.urdf_path.is_file():
             raise FileNotFoundError(f"URDF {self.urdf_path} not found")
         self.urdf_xml = self.urdf_path.read_text(encoding="utf-8")
-        import yourdfpy  # local import: it pulls in trimesh (~0.7 s)
-
         try:
-            model = yourdfpy.URDF.load(
-                str(self.urdf_path), build_scene_graph=False, load_meshes=False
-            )
-        except Exception as exc:  # yourdfpy raises lxml and its own errors alike
+            root = ElementTree.fromstring(self.urdf_xml)
+        except ElementTree.ParseError as exc:
             raise KinematicsError(f"{self.urdf_path}: cannot parse URDF ({exc})") from None
-        self.name = model.robot.name
-        self.link_names = tuple(link.name for link in model.robot.links)
+        if root.tag != "robot":
+            raise KinematicsError(f"{self.urdf_path}: the root element is not <robot>")
+        reader = _Reader(self.urdf_path)
+        self.name = reader.attribute(root, "name")
+        links = root.findall("link")
+        self.link_names = tuple(reader.attribute(link, "name") for link in links)
         self.joints = _tree_order(
-            [_joint_from_urdf(j) for j in model.robot.joints], self.link_names, self.urdf_path
+            [reader.joint(j) for j in root.findall("joint")], self.link_names, self.urdf_path
+        )
+        self.collisions = tuple(
+            reader.collision(name, element)
+            for name, link in zip(self.link_names, links, strict=True)
+            for element in link.findall("collision")
         )
         self.root_link = self.joints[0].parent
         self._by_name = {j.name: j for j in self.joints}
@@ -156,23 +183,104 @@ class RobotKinematics:
         return poses
 
 
-def _joint_from_urdf(joint: yourdfpy.Joint) -> UrdfJoint:
-    limit = joint.limit
-    axis = np.asarray(joint.axis if joint.axis is not None else (1.0, 0.0, 0.0), dtype=float)
-    origin = np.asarray(joint.origin if joint.origin is not None else np.eye(4), dtype=float)
-    return UrdfJoint(
-        name=joint.name,
-        joint_type=joint.type,
-        parent=joint.parent,
-        child=joint.child,
-        origin=origin,
-        axis=axis / np.linalg.norm(axis),
-        lower_rad=float(limit.lower) if limit is not None and limit.lower is not None else 0.0,
-        upper_rad=float(limit.upper) if limit is not None and limit.upper is not None else 0.0,
-        max_velocity_rad_s=(
-            float(limit.velocity) if limit is not None and limit.velocity is not None else 0.0
-        ),
-    )
+class _Reader:
+    """Reads the elements of one URDF file; every malformed value is a :class:`KinematicsError`."""
+
+    def __init__(self, source: Path) -> None:
+        self.source = source
+
+    def error(self, what: str) -> KinematicsError:
+        return KinematicsError(f"{self.source}: cannot parse URDF ({what})")
+
+    def attribute(self, element: ElementTree.Element, name: str) -> str:
+        value = element.get(name)
+        if value is None:
+            raise self.error(f"<{element.tag}> lacks its {name!r} attribute")
+        return value
+
+    def numbers(
+        self, element: ElementTree.Element, name: str, count: int, default: str
+    ) -> np.ndarray:
+        text = element.get(name, default)
+        try:
+            values = np.array([float(v) for v in text.split()])
+        except ValueError:
+            raise self.error(f"<{element.tag} {name}={text!r}> is not numbers") from None
+        if values.shape != (count,) or not np.isfinite(values).all():
+            raise self.error(f"<{element.tag} {name}={text!r}> needs {count} finite numbers")
+        return values
+
+    def origin(self, parent: ElementTree.Element) -> np.ndarray:
+        """(4, 4) of the ``<origin xyz rpy>`` in ``parent`` (identity when there is none).
+
+        URDF's roll, pitch, yaw turn about the fixed x, y, z axes in that order:
+        R = Rz(yaw) Ry(pitch) Rx(roll).
+        """
+        transform = np.eye(4)
+        element = parent.find("origin")
+        if element is None:
+            return transform
+        transform[:3, 3] = self.numbers(element, "xyz", 3, "0 0 0")
+        roll, pitch, yaw = self.numbers(element, "rpy", 3, "0 0 0")
+        axes = np.eye(3)
+        transform[:3, :3] = (
+            axis_angle_matrix(axes[2], yaw)
+            @ axis_angle_matrix(axes[1], pitch)
+            @ axis_angle_matrix(axes[0], roll)
+        )
+        return transform
+
+    def joint(self, element: ElementTree.Element) -> UrdfJoint:
+        name, joint_type = self.attribute(element, "name"), self.attribute(element, "type")
+        if joint_type not in JOINT_TYPES:
+            raise self.error(f"joint {name!r} has type {joint_type!r}")
+        ends = []
+        for tag in ("parent", "child"):
+            end = element.find(tag)
+            if end is None:
+                raise self.error(f"joint {name!r} lacks its <{tag}>")
+            ends.append(self.attribute(end, "link"))
+        axis_element = element.find("axis")
+        axis = (
+            np.array([1.0, 0.0, 0.0])
+            if axis_element is None
+            else self.numbers(axis_element, "xyz", 3, "1 0 0")
+        )
+        norm = float(np.linalg.norm(axis))
+        if norm == 0.0:
+            raise self.error(f"joint {name!r} has a zero axis")
+        limit = element.find("limit")
+        bounds = [0.0, 0.0, 0.0]
+        if limit is not None:
+            for k, key in enumerate(("lower", "upper", "velocity")):
+                bounds[k] = float(self.numbers(limit, key, 1, "0")[0])
+        return UrdfJoint(
+            name=name,
+            joint_type=joint_type,
+            parent=ends[0],
+            child=ends[1],
+            origin=self.origin(element),
+            axis=axis / norm,
+            lower_rad=bounds[0],
+            upper_rad=bounds[1],
+            max_velocity_rad_s=bounds[2],
+        )
+
+    def collision(self, link: str, element: ElementTree.Element) -> UrdfCollision:
+        geometry = element.find("geometry")
+        shape = None if geometry is None else next(iter(geometry), None)
+        if shape is None:
+            raise self.error(f"a <collision> of link {link!r} has no geometry")
+        sizes = {"box": ("size", 3), "cylinder": ("radius", 1), "sphere": ("radius", 1)}
+        size: tuple[float, ...] = ()
+        if shape.tag in sizes:
+            key, count = sizes[shape.tag]
+            size = tuple(float(v) for v in self.numbers(shape, key, count, ""))
+            if shape.tag == "cylinder":
+                size = (*size, float(self.numbers(shape, "length", 1, "")[0]))
+            if min(size) <= 0.0:
+                raise self.error(f"a {shape.tag} of link {link!r} has size {size}")
+        return UrdfCollision(link=link, kind=shape.tag, origin=self.origin(element), size=size)
 
 
 def _tree_order(
