@@ -51,6 +51,7 @@ LECTURE_VIDEO ?= ../shared/data/lecture_video/physicsworks.webm
 # evaluate (head leave-one-speaker-out, arms on a held-out lecture stretch), model card.
 default-model: setup
 	nice -n 10 $(VENV_BIN)/audio2pose dataset build-default $(TALKING_HEADS) --lecture $(LECTURE_VIDEO) -o models/default --work-dir out/default-model-work
+	nice -n 10 $(VENV_BIN)/python -m audio2pose_ros.style.presets --resolve
 
 # The named style presets (config/styles/*.yaml), measured from the same shared sources with the
 # training importers (imported into out/style-sources once).
