@@ -17,8 +17,8 @@ demo: setup
 
 # The test suite (unit, DDS integration between processes, CLI, lint): every behaviour, in
 # minutes. The soaks and campaigns marked long are left to test-long (pyproject's addopts).
-# TEST_WORKERS pytest-xdist processes share the tests: the DDS tests (marked ros) in two of
-# them, one at a time in each, while the others run the rest (test/conftest.py).
+# TEST_WORKERS pytest-xdist processes share the tests: the DDS tests (marked ros) in one of
+# them, one at a time as in a serial run, while the others run the rest (test/conftest.py).
 TEST_WORKERS ?= 3
 test: setup
 	$(VENV_BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadgroup

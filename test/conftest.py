@@ -32,7 +32,7 @@ atexit.register(shutil.rmtree, os.environ["ROS_HOME"], ignore_errors=True)  # no
 SPEECH_DIR = share_path("data", "speech")
 
 
-DDS_LANES = 2  # under `make test`: the workers that run the DDS tests, one test at a time each
+DDS_LANES = 1  # under `make test`: the workers that run the DDS tests, one test at a time each
 
 
 def _shares_a_fixture(item: pytest.Item) -> bool:
