@@ -17,8 +17,11 @@ demo: setup
 
 # The test suite (unit, DDS integration between processes, CLI, lint): every behaviour, in
 # minutes. The soaks and campaigns marked long are left to test-long (pyproject's addopts).
+# TEST_WORKERS pytest-xdist processes share the tests: the DDS tests (marked ros) in one of
+# them, one at a time as in a serial run, while the others run the rest (test/conftest.py).
+TEST_WORKERS ?= 3
 test: setup
-	$(VENV_BIN)/python -m pytest
+	$(VENV_BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadgroup
 
 # The long tests only: the memory soak and the fault campaign, minutes of audio through the
 # live graph. CI (.ci/run) runs them after `make test`.
@@ -48,6 +51,7 @@ LECTURE_VIDEO ?= ../shared/data/lecture_video/physicsworks.webm
 # evaluate (head leave-one-speaker-out, arms on a held-out lecture stretch), model card.
 default-model: setup
 	nice -n 10 $(VENV_BIN)/audio2pose dataset build-default $(TALKING_HEADS) --lecture $(LECTURE_VIDEO) -o models/default --work-dir out/default-model-work
+	nice -n 10 $(VENV_BIN)/python -m audio2pose_ros.style.presets --resolve
 
 # The named style presets (config/styles/*.yaml), measured from the same shared sources with the
 # training importers (imported into out/style-sources once).

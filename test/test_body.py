@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from body_poses import pose_with
 
-from audio2pose_ros.robot.body import SHOULDER_LINKS, BodyModel, BodyModelError
+from audio2pose_ros.robot.body import BodyModel, BodyModelError
+from audio2pose_ros.robot.pairs import SHOULDER_LINKS
 
 MARGIN_M = 0.02
 

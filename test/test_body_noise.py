@@ -12,12 +12,12 @@ from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.checkpoints.numpy_runtime import numpy_kernel_for
 from audio2pose_ros.checkpoints.torch_io import Checkpoint, load_checkpoint
 from audio2pose_ros.errors import ConfigurationError
-from audio2pose_ros.models.body_noise import MAX_FACTOR_STEP, BodyNoise
+from audio2pose_ros.models.body_noise import BOUND_SLACK_M, MAX_FACTOR_STEP, BodyNoise
 from audio2pose_ros.models.registry import build_model
 from audio2pose_ros.offline.synthesis import synthesize_samples
 from audio2pose_ros.resources import bundled_speech_paths, default_checkpoint_path
 from audio2pose_ros.robot.body import BodyModel
-from audio2pose_ros.robot.kinematics import default_urdf_path
+from audio2pose_ros.robot.capsules import CapsuleModel
 
 
 @pytest.fixture(scope="module")
@@ -34,6 +34,14 @@ def _faded(clearance, margin_m, band_m):
     return np.array(out)
 
 
+def _assert_faded(factors, clearance, margin_m, band_m):
+    """The factors of a sampler that measures ``clearance`` (the capsules'): taken from a bound
+    at most BOUND_SLACK_M below it, so between the fades of the two."""
+    factors = np.asarray(factors)
+    assert np.all(factors <= _faded(clearance, margin_m, band_m) + 1e-9)
+    assert np.all(factors >= _faded(np.asarray(clearance) - BOUND_SLACK_M, margin_m, band_m) - 1e-9)
+
+
 def _track(robot, n, shape=lambda x: x):
     """n poses of the left arm from away from the body into the torso (right arm away)."""
     away, inside = (pose_with(robot, **pose, **RIGHT_AWAY) for pose in (AWAY, INSIDE))
@@ -43,12 +51,13 @@ def _track(robot, n, shape=lambda x: x):
 def test_when_a_pose_nears_the_body_expect_its_noise_to_fade_to_nothing_at_the_margin(robot, body):
     noise = BodyNoise(robot, margin_m=0.02, band_m=0.03)
     track = _track(robot, 120)
-    clearance = body.clearance(track)
-    assert clearance[0] > 0.06
-    assert clearance[-1] < 0.0
+    exact = body.clearance(track)
+    assert exact[0] > 0.06
+    assert exact[-1] < 0.0
+    clearance = noise.body.clearance(track)  # the capsules': at most 2.3 cm below, near the body
+    assert np.all(clearance <= np.maximum(exact, 0.0) + 1e-6)
     factors = np.array([noise.factors(robot.normalize(p))[0] for p in track])
-    # coal answers within 1e-6 m, starting from its previous answer: 1e-4 of a 3 cm band
-    np.testing.assert_allclose(factors, _faded(clearance, 0.02, 0.03), atol=1e-4)
+    _assert_faded(factors, clearance, 0.02, 0.03)
     assert factors[0] == 1.0
     assert factors[-1] == 0.0
     assert np.abs(np.diff(factors)).max() <= MAX_FACTOR_STEP + 1e-12  # a fade, never a jump
@@ -59,14 +68,27 @@ def test_when_a_pose_nears_the_body_expect_its_noise_to_fade_to_nothing_at_the_m
     assert restored.factors(robot.normalize(track[-1]))[0] == 1 - MAX_FACTOR_STEP  # fades anew
 
 
-def test_when_sequences_run_side_by_side_expect_each_its_own_fade(robot, body):
+def test_when_sequences_run_side_by_side_expect_each_its_own_fade(robot):
     """Row i of every call continues sequence i, as the batch sampler calls it."""
     track = _track(robot, 60)
     both = BodyNoise(robot, 0.02, 0.03)
     rows = [both.factors(robot.normalize(np.stack([p, track[0]]))) for p in track]
-    clearance = body.clearance(track)
-    np.testing.assert_allclose([r[0] for r in rows], _faded(clearance, 0.02, 0.03), atol=1e-4)
+    clearance = both.body.clearance(track)
+    _assert_faded([r[0] for r in rows], clearance, 0.02, 0.03)
     np.testing.assert_allclose([r[1] for r in rows], _faded(clearance[:1].repeat(60), 0.02, 0.03))
+
+
+def test_when_a_previous_pose_is_not_finite_expect_a_clear_error(robot):
+    """A NaN would pass the travel bound unseen (every comparison with it is false)."""
+    noise = BodyNoise(robot, 0.02, 0.03)
+    away = robot.normalize(pose_with(robot, **AWAY, **RIGHT_AWAY))
+    noise.factors(away)
+    for bad in (np.nan, np.inf):
+        pose = away.copy()
+        pose[robot.names.index("LElbowRoll")] = bad
+        with pytest.raises(ValueError, match="not finite"):
+            noise.factors(pose)
+    assert noise.factors(away)[0] == 1.0  # the sequence goes on
 
 
 @pytest.mark.parametrize(
@@ -144,26 +166,24 @@ def test_when_the_default_model_speaks_new_voices_expect_its_arms_rarely_near_th
     assert share["on"] <= share["off"], share
 
 
-def noise_free_clearance(robot, track):
-    return BodyModel(robot, default_urdf_path()).clearance(track)
-
-
 def test_when_an_arm_stays_far_from_the_body_expect_no_distance_query_yet_the_same_factors(
     robot, monkeypatch
 ):
-    """A query costs about 0.1 ms a frame: far from the body, a bound on the travel suffices."""
+    """A query costs more than the rest of a frame's body work: far from the body, a bound on
+    the travel suffices."""
     noise = BodyNoise(robot, margin_m=0.02, band_m=0.03)
     track = _track(robot, 200, lambda x: x**3)  # slow, then fast
-    expected = _faded(noise_free_clearance(robot, track), 0.02, 0.03)
+    clearance = noise.body.clearance(track)
     noise.factors(robot.normalize(track[0]))
-    body = noise._body
     queries = []
-    real_clearance = body.clearance
+    real_distances = noise.body.pair_distances
     monkeypatch.setattr(
-        body, "clearance", lambda poses: queries.append(len(poses)) or real_clearance(poses)
+        noise.body,
+        "pair_distances",
+        lambda poses: queries.append(len(poses)) or real_distances(poses),
     )
     got = [float(noise.factors(robot.normalize(p))[0]) for p in track[1:]]
-    np.testing.assert_allclose(got, expected[1:], atol=1e-4)
+    _assert_faded(got, clearance[1:], 0.02, 0.03)
     assert 0 < len(queries) < 0.8 * (len(track) - 1)  # queried only where the bound fell short
     assert min(got) == 0.0
 
@@ -171,7 +191,8 @@ def test_when_an_arm_stays_far_from_the_body_expect_no_distance_query_yet_the_sa
 def test_when_a_streaming_predictor_is_made_expect_its_body_model_loaded_before_the_first_frame(
     robot,
 ):
-    """The first frame of a node's first utterance must not wait for Pinocchio and the URDF."""
+    """The first frame of a node's first utterance must not wait for the URDF; the capsule
+    model is plain numpy, so a pickled sampler takes it along."""
     from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 
     kernel = load_streaming_model(default_checkpoint_path(), robot=robot).predictor(seed=0)
@@ -180,8 +201,9 @@ def test_when_a_streaming_predictor_is_made_expect_its_body_model_loaded_before_
         inner = getattr(predictor, "predictor", predictor)  # under its warm start, if any
         noise = inner._body_noise
         assert noise is not None
-        assert noise.loaded
-    revived = pickle.loads(pickle.dumps(BodyNoise(robot, margin_m=0.02, band_m=0.03)))
-    assert not revived.loaded  # Pinocchio's objects do not pickle: loaded again on first use
-    revived.factors(robot.normalize(pose_with(robot, **AWAY, **RIGHT_AWAY)))
-    assert revived.loaded
+        assert isinstance(noise.body, CapsuleModel)
+    near = robot.normalize(_track(robot, 10)[-3])
+    original = BodyNoise(robot, margin_m=0.02, band_m=0.03)
+    revived = pickle.loads(pickle.dumps(original))
+    assert isinstance(revived.body, CapsuleModel)
+    np.testing.assert_array_equal(revived.factors(near), original.factors(near))

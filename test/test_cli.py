@@ -230,7 +230,8 @@ def test_when_distill_prosody_expect_loadable_checkpoint_and_honest_card(
 def test_when_bench_prints_json_expect_one_object_with_its_schema_version(capsys):
     import json
 
-    from audio2pose_ros.cli.main import BENCH_SCHEMA_VERSION, main
+    from audio2pose_ros.cli.bench_commands import BENCH_SCHEMA_VERSION
+    from audio2pose_ros.cli.main import main
 
     assert main(["bench", "--frames", "20", "--skip-models", "--json"]) == 0
     figures = json.loads(capsys.readouterr().out)

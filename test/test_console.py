@@ -55,8 +55,8 @@ from audio2pose_ros.console.server import (
     PENDING_PER_ADDRESS,
     SUMMARY_PERIOD_S,
     ConsoleServer,
-    ServerThread,
 )
+from audio2pose_ros.console.server_thread import ServerThread
 from audio2pose_ros.console.settings import ConsoleSettings
 from audio2pose_ros.console.stop import MAX_PRESSES, OUTSIDE, StopHolders, unique_name
 from audio2pose_ros.errors import ConfigurationError
@@ -112,10 +112,11 @@ def test_when_a_chunk_is_stamped_off_the_consoles_clock_expect_it_dropped(stamp_
 
 def test_when_control_messages_are_valid_expect_their_fields():
     assert parse_control('{"type":"talk","on":true}').fields == {"on": True}
-    assert parse_control('{"type":"gains","arms":0,"head":0.5}').fields == {
-        "arms": 0.0,
-        "head": 0.5,
+    assert parse_control('{"type":"style_set","arms_gain":0,"head_tempo":0.5}').fields == {
+        "arms_gain": 0.0,
+        "head_tempo": 0.5,
     }
+    assert parse_control('{"type":"style","use":"calm_reader"}').fields == {"use": "calm_reader"}
     hello = parse_control(json.dumps({"type": "hello", "token": "t", "name": "Ann"}))
     assert hello.fields == {"token": "t", "name": "Ann"}
     assert parse_control('{"type":"ping","t":12}').fields == {"t": 12.0}
@@ -134,12 +135,17 @@ def test_when_control_messages_are_valid_expect_their_fields():
         ('{"type":"talk"}', "needs the field 'on'"),
         ('{"type":"talk","on":1}', "must be bool"),
         ('{"type":"talk","on":true,"extra":1}', "unknown fields"),
-        ('{"type":"gains"}', "at least one"),
-        ('{"type":"gains","arms":1.5}', r"in \[0, 1\]"),
-        ('{"type":"gains","arms":-0.1}', r"in \[0, 1\]"),
-        ('{"type":"gains","arms":true}', "must be a number"),
-        ('{"type":"gains","arms":"1"}', "must be a number"),
-        ('{"type":"gains","arms":1e999}', "finite"),
+        ('{"type":"style_set"}', "at least one"),
+        ('{"type":"style_set","arms_gain":2.5}', r"arms_gain: value 2.5 is out of range"),
+        ('{"type":"style_set","arms_gain":-0.1}', r"in \[0, 2\]"),
+        ('{"type":"style_set","head_tempo":0.1}', r"in \[0.2, 2\]"),
+        ('{"type":"style_set","arms_raise_limit_rad":9}', "out of range"),
+        ('{"type":"style_set","arms":1}', "unknown fields"),
+        ('{"type":"style_set","arms_gain":true}', "must be a number"),
+        ('{"type":"style_set","arms_gain":"1"}', "must be a number"),
+        ('{"type":"style_set","arms_gain":1e999}', "finite"),
+        ('{"type":"style","use":"../../etc/passwd"}', "or a preset"),
+        ('{"type":"style","use":""}', "or a preset"),
         ('{"type":"hello","token":5}', "must be str"),
         ('{"type":"hello","token":"t","name":"a\\u0000b"}', "printable"),
         ('{"type":"hello","token":"\\ud800"}', "hello.token must be valid UTF-8"),
@@ -159,7 +165,7 @@ def test_when_a_control_number_is_a_huge_integer_expect_a_protocol_error():
     'could not act on that message' and logged it as a failed message)."""
     for text in (
         '{"type":"ping","t":1' + "0" * 400 + "}",
-        '{"type":"gains","arms":-1' + "0" * 400 + "}",
+        '{"type":"style_set","arms_gain":-1' + "0" * 400 + "}",
         '{"type":"talk","on":true,"extra":1' + "0" * 400 + "}",  # in any field, known or not
     ):
         with pytest.raises(ProtocolError, match="out of range"):
@@ -346,8 +352,8 @@ class Bridge:
     def set_enable(self, on: bool) -> None:
         self.calls.append(("enable", on))
 
-    def set_gains(self, gains) -> None:
-        self.calls.append(("gains", gains))
+    def set_style(self, settings) -> None:
+        self.calls.append(("style", settings))
 
     def pose(self) -> dict[str, Any]:
         return {"commanded": {"HeadYaw": 0.1}, "measured": None}
@@ -565,13 +571,13 @@ def test_when_two_operators_talk_expect_one_floor_and_its_release_on_disconnect(
             await until(ann, "stop_holders", holders=holders, you=False)
             await ann.send_str('{"type":"stop","on":false}')  # the talker cannot release it
             assert "held by Bob" in (await until(ann, "error"))["message"]
-            await bob.send_str('{"type":"gains","arms":0.2}')
+            await bob.send_str('{"type":"style_set","arms_gain":0.2}')
             assert "only a stop" in (await until(bob, "error"))["message"]
             await ann.close()  # the talker leaves: the floor is free
             await until(bob, "floor", holder=None)
             await bob.send_str('{"type":"talk","on":true}')
             await until(bob, "floor", holder="Bob", you=True)
-            await bob.send_str('{"type":"gains","arms":0.2}')
+            await bob.send_str('{"type":"style_set","arms_gain":0.2}')
             await bob.send_str('{"type":"enable","on":false}')
             await bob.send_str('{"type":"stop","on":false}')  # his own stop: his to release
             await until(bob, "stop_holders", holders=[], you=False)
@@ -584,7 +590,7 @@ def test_when_two_operators_talk_expect_one_floor_and_its_release_on_disconnect(
         ("stop", True),
         ("end", None),
         ("start", None),
-        ("gains", {"arms": 0.2}),
+        ("style", {"arms_gain": 0.2}),
         ("enable", False),
         ("stop", False),
         ("end", None),
@@ -785,16 +791,20 @@ def test_when_a_page_stamps_its_chunks_off_the_consoles_clock_expect_them_droppe
 
 
 class NonFiniteStatusBridge(Bridge):
-    """A bridge whose statistics went wrong: an infinite latency, a NaN gain."""
+    """A bridge whose statistics went wrong: an infinite latency, a NaN style value."""
 
     def status(self) -> dict[str, Any]:
-        return {"stop": False, "latency": {"n": 2, "p50": math.inf}, "gains": {"head": math.nan}}
+        return {
+            "stop": False,
+            "latency": {"n": 2, "p50": math.inf},
+            "style_values": {"head_gain": math.nan},
+        }
 
 
 def test_when_a_status_value_is_not_finite_expect_it_sent_as_null_and_the_rest_kept(
     tmp_path: Path,
 ):
-    """One infinite statistic made encode('status') raise: no page got the stop, enable, gains,
+    """One infinite statistic made encode('status') raise: no page got the stop, enable, style,
     health or floor again, and the failure was logged every 0.5 s."""
 
     async def scenario(base: str) -> dict[str, Any]:
@@ -809,12 +819,12 @@ def test_when_a_status_value_is_not_finite_expect_it_sent_as_null_and_the_rest_k
         status = run(scenario(base))
     assert status["stop"] is False
     assert status["latency"] == {"n": 2, "p50": None}
-    assert status["gains"] == {"head": None}
+    assert status["style_values"] == {"head_gain": None}
     assert status["operators"] == 1
     warnings = [message for level, message in logged if level == "warning"]
     assert len(warnings) == 1, warnings
     assert "status.latency.p50" in warnings[0]
-    assert "status.gains.head" in warnings[0]
+    assert "status.style_values.head_gain" in warnings[0]
 
 
 def test_when_a_talker_sends_one_sample_chunks_expect_the_message_rate_bounded(tmp_path: Path):

@@ -29,6 +29,7 @@ import yaml
 from audio2pose_ros.resources import bundled_speech_path, share_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import status_name
+from audio2pose_ros.style.figures import load_style
 
 CHROMIUM = Path(os.environ.get("AUDIO2POSE_CHROMIUM", "/usr/bin/chromium"))
 SLOWDOWN = float(os.environ.get("AUDIO2POSE_BROWSER_SLOWDOWN", "1"))
@@ -431,16 +432,27 @@ def test_when_an_observer_stops_the_robot_expect_every_page_names_them_and_only_
     talker.close()
 
 
-def test_when_the_operator_sets_gains_and_disables_motion_expect_the_filter_to_follow(
+def test_when_the_operator_sets_the_style_and_disables_motion_expect_the_filter_to_follow(
     console: Console, browser
 ):
+    """The page's style controls reach the filter's live parameters over DDS and are read
+    back: a slider (arms size 0), a preset (its kept settings), and the graph's own style."""
     neutral = load_robot().neutral_rad
+    calm = load_style("calm_reader").fitted[1]
+    values = "window.a2p.status && window.a2p.status.style_values"
     page = _open(browser, console)
-    page.locator("#gain-arms").fill("0")  # the filter's arms_gain, through its parameter service
+    page.wait_for_selector("#style-arms_gain")  # made from the ranges the console sends
+    page.locator("#style-arms_gain").fill("0")  # arms_gain, through its parameter service
+    page.wait_for_function(f"{values} && {values}.arms_gain === 0", timeout=10000)
+    page.select_option("#style-preset", "calm_reader")  # the head of a calm reader
     page.wait_for_function(
-        "window.a2p.status && window.a2p.status.gains && window.a2p.status.gains.arms === 0",
+        f"{values} && Math.abs({values}.head_gain - {calm.head_gain}) < 1e-9 "
+        f"&& {values}.arms_gain === 1",  # a preset sets every parameter
         timeout=10000,
     )
+    assert "preset calm reader" in page.locator("#style-in-use").inner_text()
+    page.select_option("#style-preset", "default")  # the style the graph started with
+    page.wait_for_function(f"{values}.head_gain === 1 && {values}.arms_gain === 1", timeout=10000)
     _talk(page)
     page.locator("#enable").uncheck()  # enable: false, latched: glide to neutral, ignore speech
     try:
@@ -453,8 +465,6 @@ def test_when_the_operator_sets_gains_and_disables_motion_expect_the_filter_to_f
     finally:
         page.locator("#enable").check()
     page.wait_for_function("window.a2p.status.enable === true", timeout=5000)
-    page.locator("#gain-arms").fill("1")
-    page.wait_for_function("window.a2p.status.gains.arms === 1", timeout=10000)
     page.click("#talk")
     page.close()
 

@@ -9,6 +9,7 @@ importer and the style fit, runs in test_console_learn_style_browser.py.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import sys
 import textwrap
@@ -24,7 +25,8 @@ from audio2pose_ros.console import enrollment
 from audio2pose_ros.console.access import resolve_access
 from audio2pose_ros.console.enrollment import EnrollmentError, Enrollments
 from audio2pose_ros.console.protocol import ProtocolError, parse_control
-from audio2pose_ros.console.server import ConsoleServer, ServerThread
+from audio2pose_ros.console.server import ConsoleServer
+from audio2pose_ros.console.server_thread import ServerThread
 from audio2pose_ros.console.settings import ConsoleSettings
 from audio2pose_ros.resources import share_path
 
@@ -238,9 +240,6 @@ class Bridge:
     def set_enable(self, on: bool) -> None:
         pass
 
-    def set_gains(self, gains: Any) -> None:
-        pass
-
     def set_style(self, settings: dict[str, float] | None) -> None:
         self.styles.append(settings)
 
@@ -310,6 +309,39 @@ def test_when_an_operator_uploads_a_recording_expect_the_style_applied_then_undo
             await until(ws, "status", lambda s: s["style"] == "personal")
             assert bridge.styles == [SETTINGS, None, SETTINGS]
 
+    with serving(tmp_path, LEARNS) as (base, bridge):
+        run(scenario(base, bridge))
+
+
+def test_when_an_operator_picks_a_preset_or_moves_a_slider_expect_the_filter_style_set(tmp_path):
+    """A preset sets every style parameter (those it leaves out back to the identity) from the
+    settings its file keeps for the packaged model; a slider sets its parameter alone; going
+    back restores the graph's own style."""
+    from audio2pose_ros.motion.style import STYLE_FIELDS
+    from audio2pose_ros.style.figures import load_style
+
+    calm = dataclasses.asdict(load_style("calm_reader").fitted[1])
+
+    async def scenario(base: str, bridge: Bridge) -> None:
+        async with aiohttp.ClientSession() as http:
+            ws = await connect(http, base, "Ann")
+            status = await until(ws, "status")
+            assert {"calm_reader", "addressing_camera", "lecturer"} <= set(status["presets"])
+            assert set(status["style_ranges"]) == set(STYLE_FIELDS)
+            assert status["style_ranges"]["arms_gain"] == [0.0, 2.0]
+            await ws.send_str('{"type":"style","use":"calm_reader"}')
+            await until(ws, "status", lambda s: s["style"] == "calm_reader")
+            await ws.send_str('{"type":"style_set","arms_tempo":0.5}')
+            await until(ws, "status", lambda s: s["style"] == "adjusted")
+            await ws.send_str('{"type":"style","use":"nobody"}')
+            assert "no preset named 'nobody'" in (await until(ws, "error"))["message"]
+            await ws.send_str('{"type":"style","use":"default"}')
+            await until(ws, "status", lambda s: s["style"] == "default")
+            assert bridge.styles == [calm, {"arms_tempo": 0.5}, None]
+
+    assert set(calm) == set(STYLE_FIELDS)
+    assert calm["head_gain"] < 0.5
+    assert calm["arms_gain"] == 1.0  # the head only: the arms as generated
     with serving(tmp_path, LEARNS) as (base, bridge):
         run(scenario(base, bridge))
 

@@ -251,3 +251,13 @@ def test_when_audio_comes_in_one_byte_chunks_expect_the_features_of_whole_chunks
                 node.destroy_node()
     whole, bytewise = outputs
     np.testing.assert_array_equal(bytewise, whole)
+
+
+def test_when_commands_flood_the_console_expect_its_heartbeat_and_the_newest_kept(tmp_path):
+    """The console shows the commanded pose (and times each command for its latency figure): a
+    flood of joint_angles, once the flooder's writer has matched the console's reader, must not
+    silence its heartbeat, which runs between the messages when it is due."""
+    heard = flood(tmp_path, "console_node", "joint_angles", "-p", "port:=0")
+    assert heard.sent > 1000  # a flood, to a matched reader
+    assert heard.longest_silence_s() < MAX_SILENCE_S
+    assert heard.value("callback_errors") == 0

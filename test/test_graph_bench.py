@@ -114,7 +114,7 @@ def _console_figures(lost: int) -> dict:
 
 @pytest.mark.parametrize("lost", [0, 7])
 def test_when_console_chunks_were_paired_expect_no_claim_that_none_matched(capsys, lost):
-    from audio2pose_ros.cli.main import _print_console
+    from audio2pose_ros.cli.bench_commands import _print_console
 
     _print_console(_console_figures(lost))
     out = capsys.readouterr().out

@@ -96,3 +96,88 @@ def test_when_a_joint_is_left_out_expect_its_default_inside_its_limits(kinematic
 def test_when_naming_an_unknown_joint_expect_an_error_naming_it(kinematics):
     with pytest.raises(KinematicsError, match="Elbow2"):
         kinematics.link_poses({"Elbow2": 0.1})
+
+
+def test_when_the_urdf_is_read_expect_the_joints_yourdfpy_reads(kinematics):
+    """The standard library's XML parser reads what an independent URDF library reads."""
+    yourdfpy = pytest.importorskip("yourdfpy")
+    reference = yourdfpy.URDF.load(
+        str(kinematics.urdf_path), build_scene_graph=False, load_meshes=False
+    )
+    theirs = {joint.name: joint for joint in reference.robot.joints}
+    assert sorted(theirs) == sorted(j.name for j in kinematics.joints)
+    for joint in kinematics.joints:
+        other = theirs[joint.name]
+        assert (joint.joint_type, joint.parent, joint.child) == (
+            other.type,
+            other.parent,
+            other.child,
+        )
+        np.testing.assert_allclose(joint.origin, other.origin, atol=1e-12)
+        if other.limit is not None:
+            assert joint.lower_rad == (other.limit.lower or 0.0)
+            assert joint.upper_rad == (other.limit.upper or 0.0)
+    collisions = [(link.name, c) for link in reference.robot.links for c in link.collisions]
+    assert len(kinematics.collisions) == len(collisions)
+    for ours, (link, theirs_shape) in zip(kinematics.collisions, collisions, strict=True):
+        geometry = theirs_shape.geometry
+        assert ours.link == link
+        if ours.kind == "box":
+            np.testing.assert_allclose(ours.size, geometry.box.size)
+        elif ours.kind == "cylinder":
+            assert ours.size == (geometry.cylinder.radius, geometry.cylinder.length)
+        else:
+            assert ours.size == (geometry.sphere.radius,)
+        np.testing.assert_allclose(ours.origin, theirs_shape.origin, atol=1e-12, err_msg=link)
+
+
+def test_when_links_are_placed_expect_pinocchios_placements(kinematics):
+    """Forward kinematics against an independent one (Pinocchio's, on the same file)."""
+    pin = pytest.importorskip("pinocchio")
+    model = pin.buildModelFromUrdf(str(kinematics.urdf_path))
+    data = model.createData()
+    rng = np.random.default_rng(0)
+    names = kinematics.movable_joint_names
+    for _ in range(20):
+        positions = {
+            name: float(
+                rng.uniform(kinematics.joint(name).lower_rad, kinematics.joint(name).upper_rad)
+            )
+            for name in names
+        }
+        q = pin.neutral(model)
+        for name, value in positions.items():
+            q[model.joints[model.getJointId(name)].idx_q] = value
+        pin.forwardKinematics(model, data, q)
+        pin.updateFramePlacements(model, data)
+        ours = kinematics.link_poses(positions)
+        for link in kinematics.link_names:
+            np.testing.assert_allclose(
+                ours[link], data.oMf[model.getFrameId(link)].homogeneous, atol=1e-9, err_msg=link
+            )
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ('<robot name="pepper">', "<robot", "cannot parse"),
+        ('<origin xyz="-0.038 0 0.1699" rpy="0 0 0"/>', '<origin xyz="nan 0 0.1699"/>', "finite"),
+        (
+            '<origin xyz="-0.038 0 0.1699" rpy="0 0 0"/>',
+            '<origin xyz="0 0.1699"/>',
+            "vector length",
+        ),
+        ('<axis xyz="0 0 1"/>', '<axis xyz="0 0 0"/>', "zero axis"),
+        ('<joint name="HeadYaw" type="revolute">', '<joint name="HeadYaw" type="hinge">', "hinge"),
+        ('<sphere radius="0.105"/>', '<sphere radius="-0.105"/>', "size"),
+        ('<parent link="torso"/>', "", "parent"),
+    ],
+)
+def test_when_the_urdf_is_malformed_expect_a_kinematics_error_naming_it(
+    kinematics, tmp_path, old, new, message
+):
+    assert old in kinematics.urdf_xml
+    broken = tmp_path / "broken.urdf"
+    broken.write_text(kinematics.urdf_xml.replace(old, new))
+    with pytest.raises(KinematicsError, match=message):
+        RobotKinematics(broken)

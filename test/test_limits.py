@@ -99,3 +99,66 @@ def test_when_any_input_sequence_expect_all_limits_hold(robot, sequence, dts):
 @given(*SEQUENCES)
 def test_when_any_of_2000_input_sequences_expect_all_limits_hold(robot, sequence, dts):
     limits_hold(robot, sequence, dts)
+
+
+@pytest.mark.parametrize("fraction", [0.5, 0.1, 0.02])
+def test_when_acceleration_is_lowered_while_a_joint_races_to_its_limit_expect_no_dead_stop(
+    robot, fraction
+):
+    """A live-lowered acceleration_fraction (MotionFilter.update_settings): a joint moving at
+    full speed towards its position limit could not stop at the new, lower deceleration. It
+    must brake as the previous limit allowed, never harder, until it can stop at the new one;
+    before, the limiter stopped it at its position limit in one command (3.31 rad/s to 0 in
+    10 ms)."""
+    from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+
+    fast = LimitSettings(velocity_fraction=1.0, acceleration_fraction=1.0)
+    start = robot.neutral_rad.copy()
+    filt = MotionFilter(robot, MotionFilterSettings(smoothing="none"), fast, start_pose_rad=start)
+    old_accel = filt.limiter.max_acceleration_rad_s2.copy()
+    pos, vel = start.copy(), np.zeros(robot.n_joints)
+    goal = robot.upper_rad + 1.0  # beyond every limit: each joint races to its upper limit
+    lowered = False
+    for step in range(600):
+        if not lowered and (np.abs(vel) >= 0.9 * filt.limiter.max_velocity_rad_s).any():
+            filt.update_settings(
+                filt.settings, LimitSettings(velocity_fraction=1.0, acceleration_fraction=fraction)
+            )
+            lowered = True
+        new_pos, new_vel = filt.limiter.enforce(goal, pos, vel, DT)
+        assert np.all(np.abs(new_vel - vel) <= old_accel * DT + 1e-9), step
+        assert np.all(new_pos <= robot.upper_rad + 1e-12)
+        pos, vel = new_pos, new_vel
+    assert lowered
+    np.testing.assert_allclose(vel, 0.0, atol=1e-9)  # at rest at the limits
+    np.testing.assert_allclose(filt.limiter.braking_rad_s2, filt.limiter.max_acceleration_rad_s2)
+
+
+def test_when_a_racing_joint_is_sent_back_after_a_lowered_acceleration_expect_it_braked_in_time(
+    robot,
+):
+    """The same, with the target behind the joint (it has to reverse): it first has to stop,
+    and stopping is braking, at the previous limit while it needs it; before, a reversal was
+    slowed at the new, lower limit only and the joint was stopped at its position limit."""
+    from audio2pose_ros.motion.filter import MotionFilter, MotionFilterSettings
+
+    fast = LimitSettings(velocity_fraction=1.0, acceleration_fraction=1.0)
+    start = robot.neutral_rad.copy()
+    filt = MotionFilter(robot, MotionFilterSettings(smoothing="none"), fast, start_pose_rad=start)
+    old_accel = filt.limiter.max_acceleration_rad_s2.copy()
+    pos, vel = start.copy(), np.zeros(robot.n_joints)
+    goal = robot.upper_rad + 1.0
+    for _ in range(400):
+        if (np.abs(vel) >= 0.9 * filt.limiter.max_velocity_rad_s).any():
+            break
+        pos, vel = filt.limiter.enforce(goal, pos, vel, DT)
+    filt.update_settings(
+        filt.settings, LimitSettings(velocity_fraction=1.0, acceleration_fraction=0.05)
+    )
+    back = start.copy()  # where the joints came from: behind them
+    for step in range(3000):
+        new_pos, new_vel = filt.limiter.enforce(back, pos, vel, DT)
+        assert np.all(np.abs(new_vel - vel) <= old_accel * DT + 1e-9), step
+        assert np.all(new_pos <= robot.upper_rad + 1e-12)
+        pos, vel = new_pos, new_vel
+    np.testing.assert_allclose(pos, back, atol=1e-3)  # and it got back

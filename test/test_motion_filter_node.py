@@ -53,6 +53,7 @@ class Driver(Node):
         self.offset = self.create_publisher(JointState, absolute(HEAD_OFFSET), 10)
         self.measured = self.create_publisher(JointState, absolute(JOINT_STATES), 10)
         self.states: list[tuple[float, np.ndarray]] = []
+        self.stamped: list[tuple[float, np.ndarray]] = []  # (the tick's stamp, wall clock s)
         self.diagnostics: list[dict[str, str]] = []
         self.create_subscription(JointState, absolute(COMMANDED_JOINT_STATES), self.on_state, 1000)
         self.create_subscription(DiagnosticArray, DIAGNOSTICS, self.on_diagnostics, 100)
@@ -62,6 +63,8 @@ class Driver(Node):
 
     def on_state(self, msg: JointState) -> None:
         self.states.append((time.monotonic(), np.array(msg.position)))
+        stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        self.stamped.append((stamp_s, np.array(msg.position)))
 
     def on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -156,22 +159,26 @@ def send_poses(driver: Driver, robot, pose: np.ndarray):
 def test_when_input_stops_expect_neutral_within_configured_time_at_bounded_velocity(
     driver, filter_node, robot
 ):
+    """Judged on the commands' header stamps (the tick each was computed at, on the node's
+    clock), so a slow test process adds no time the node did not take."""
     filter_node(watchdog_timeout_s=0.3, neutral_glide_s=0.7, velocity_fraction=0.5)
     driver.wait_for_node()
-    driver.spin_for(1.5, every=send_poses(driver, robot, raised(robot)))
-    stopped_at = time.monotonic()
-    driver.spin_for(2.0)
+    driver.spin_for(2.5, every=send_poses(driver, robot, raised(robot)))
+    driver.spin_for(2.5)
 
-    times = np.array([t for t, _ in driver.states])
-    poses = np.array([p for _, p in driver.states])
-    speaking = poses[times < stopped_at][-1]
-    assert np.abs(speaking - raised(robot)).max() < 0.05
-    # Neutral within watchdog + glide (+ 0.2 s for DDS and timer jitter).
-    due = times > stopped_at + 0.3 + 0.7 + 0.2
+    stamps = np.array([t for t, _ in driver.stamped])
+    poses = np.array([p for _, p in driver.stamped])
+    at_raised = np.abs(poses - raised(robot)).max(axis=1) < 0.05
+    assert at_raised.any(), "the filter never reached the streamed pose"
+    # The last command at the streamed pose is the watchdog's moment (0.3 s after the last pose
+    # came, or later); from there the glide reaches neutral within its 0.7 s (+ 3 ticks).
+    last_raised = stamps[at_raised][-1]
+    due = stamps > last_raised + 0.7 + 0.03
+    assert due.sum() > 20
     np.testing.assert_allclose(poses[due], np.tile(robot.neutral_rad, (due.sum(), 1)), atol=2e-3)
-    # Bounded velocity between consecutive states (with slack for message timing jitter).
-    speed = np.abs(np.diff(poses, axis=0)) / np.maximum(np.diff(times)[:, None], PERIOD)
-    assert np.all(speed <= 0.5 * robot.max_velocity_rad_s * 1.5)
+    # Bounded velocity between consecutive commands, by the ticks' own stamps.
+    speed = np.abs(np.diff(poses, axis=0)) / np.maximum(np.diff(stamps)[:, None], PERIOD)
+    assert np.all(speed <= 0.5 * robot.max_velocity_rad_s * 1.05)
 
 
 def test_when_stop_requested_expect_motion_stops(driver, filter_node, robot):

@@ -197,11 +197,10 @@ def amplified(clip: Clip, joints: np.ndarray, gain: float) -> Clip:
 
 
 def test_when_the_validation_head_moves_more_expect_a_head_temperature_at_least_as_high(
-    checkpoint, clips, robot
+    checkpoint, selected, robot
 ):
     head = robot.group_mask("head")
-    validation = [c for c in clips if c.info.split == "validation"]
-    _, small = select_sampling(checkpoint, validation, robot, n_seeds=2)
+    validation, _, small = selected
     _, large = select_sampling(checkpoint, [amplified(c, head, 4.0) for c in validation], robot, 2)
     assert large.settings["first_temperature"] >= small.settings["first_temperature"]
     assert large.settings["first_temperature"] > TEMPERATURES[0]
@@ -287,9 +286,11 @@ def test_when_no_clip_observes_the_arm_part_expect_the_head_chosen_and_the_arm_p
 
 
 def test_when_a_fold_is_tuned_expect_a_choice_made_on_its_training_speakers_and_applied(
-    clips, checkpoint, robot
+    tmp_path, checkpoint, robot
 ):
-    train = [c for c in clips if c.info.split == "train"]
+    # the fold's training speakers: four clips of two speakers, shorter than the module's
+    # (the tuner samples each at every setting of the grid, N_SEEDS times)
+    train = synthetic_clips(tmp_path / "data", robot, {"train": 4}, seconds=1.0, seed=5)
     tune = FoldTuner(robot, TrainSettings(max_epochs=1, batch_size=4, show_progress=False))
     tuned = tune(checkpoint, train)
     note = tuned.info["sampling_choice"]
@@ -310,7 +311,7 @@ def test_when_loso_folds_train_in_two_processes_expect_the_serial_results(
     tmp_path, robot, monkeypatch
 ):
     use_grid(monkeypatch, SHIPPED_GRID)  # what the spawned workers import
-    dataset = write_dataset(tmp_path / "loso", robot, {"train": 4}, seconds=1.5, seed=4)
+    dataset = write_dataset(tmp_path / "loso", robot, {"train": 4}, seconds=1.0, seed=4)
     settings = TrainSettings(max_epochs=2, batch_size=4, show_progress=False)
     serial_choices, parallel_choices = {}, {}
     tune = FoldTuner(robot, settings)
@@ -384,7 +385,7 @@ def test_when_speech_without_arm_motion_is_given_expect_it_counted_for_the_body_
 ):
     """The arms learned from one lecturer: their body budget is checked on other speech too."""
     validation, _, free = selected
-    others = [c.audio for c in clips if c.info.split == "train"]
+    others = [c.audio for c in clips if c.info.split == "train"][:2]
     more = choose_sampling([(checkpoint, validation)], robot, 2, body_audio=others)
 
     def arms(choice, key):

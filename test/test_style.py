@@ -167,3 +167,32 @@ def test_when_a_style_is_set_on_the_identity_mid_stream_expect_no_jump(robot):
     assert steps[199] < 1.01 * steps[:199].max()  # the change itself adds no step
     # during and after the blend no faster than the style applied from the start
     assert steps[200:].max() <= 1.2 * np.abs(np.diff(styled, axis=0)).max()
+
+
+@pytest.mark.parametrize(
+    ("before", "after"),
+    [
+        (StyleSettings(), StyleSettings(arms_raise_limit_rad=0.5)),  # switched on
+        (StyleSettings(arms_raise_limit_rad=0.5), StyleSettings()),  # switched off
+        (StyleSettings(arms_gain=1.5), StyleSettings(arms_gain=0.5)),  # off on both sides
+    ],
+    ids=["on", "off", "neither"],
+)
+def test_when_the_raise_limit_switches_live_expect_it_faded_finite_and_without_a_jump(
+    robot, before, after
+):
+    """A height limit switched on or off blends like any other style value: no NaN, no snap."""
+    pitch = robot.names.index("LShoulderPitch")
+    motion = np.tile(robot.neutral_rad, (300, 1))
+    motion[:, pitch] = -0.5  # the arm raised, above the limit: the limit moves it by ~1 rad
+    transform = StyleTransform(robot, before, RATE)
+    out = [transform.step(p) for p in motion[:50]]
+    transform.update(after)
+    with np.errstate(invalid="raise"):  # a NaN made inside the blend is an error here
+        out += [transform.step(p) for p in motion[50:]]
+    out_arr = np.array(out)
+    assert np.isfinite(out_arr).all()
+    steps = np.abs(np.diff(out_arr[:, pitch]))
+    assert steps.max() < 0.05  # faded over the blend; a snap at its end would be ~1 rad
+    expected = StyleTransform(robot, after, RATE).static(motion[0])
+    np.testing.assert_allclose(out_arr[-1], expected, atol=1e-9)

@@ -1,12 +1,12 @@
 """``audio2pose``: the command line of audio2pose_ros.
 
 Verbs: ``run`` (start the node graph, optionally play a WAV and record a bag), ``demo`` (run on
-the bundled speech clip with the default model), ``synth`` (offline synthesis to CSV), ``bench``
-(per-frame cost of the streaming path and of the live graph), ``plot-filter`` (raw model output
-against the online filter), ``distill-prosody`` (an MLP imitating the prosody rule); the
-``*_commands`` modules add ``train``, ``evaluate``, ``dataset``, ``bag``, ``render`` and
-``faults``. Each verb is a function ``command_<verb>(args) -> int`` that parses and checks its
-options and calls the layer that does the work.
+the bundled speech clip with the default model), ``synth`` (offline synthesis to CSV), the body,
+head and arm checks, ``plot-filter`` (raw model output against the online filter),
+``distill-prosody`` (an MLP imitating the prosody rule); the ``*_commands`` modules add
+``train``, ``evaluate``, ``dataset``, ``bag``, ``render``, ``faults``, ``console``, ``enroll``,
+``evaluate-style`` and ``bench``. Each verb is a function ``command_<verb>(args) -> int`` that
+parses and checks its options and calls the layer that does the work.
 
 Errors and exit status: the package raises :class:`~audio2pose_ros.errors.Audio2PoseError` for
 what a user can fix, and only those are reported as ``audio2pose <verb>: error: ...``, one line
@@ -19,14 +19,12 @@ exit status 70 (``EX_SOFTWARE``); the traceback is printed only with the global 
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import os
 import sys
 import time
 import traceback
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     import numpy as np
@@ -49,7 +47,6 @@ from audio2pose_ros.cli.options import (
 )
 from audio2pose_ros.cli.style_commands import add_style_options, graph_overrides
 from audio2pose_ros.errors import Audio2PoseError, InputError, UsageError
-from audio2pose_ros.timebase import duration_s
 
 DEFAULT_OUT = Path("out")
 EXIT_DATA_ERROR = 1
@@ -264,224 +261,6 @@ def command_check_arms(args: argparse.Namespace) -> int:
     return 0
 
 
-BENCH_SCHEMA_VERSION = 3  # 1: before versioning; 2: graph figures a list of modes; 3: floor
-
-
-def command_bench(args: argparse.Namespace) -> int:
-    """Per-frame cost of each streaming stage on one core; with --graph, the live graph too."""
-    import json
-
-    import torch
-
-    from audio2pose_ros.audio.wav import read_wav
-    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
-    from audio2pose_ros.motion.filter import MotionFilter
-    from audio2pose_ros.offline.benchmark import (
-        model_costs,
-        reference_feature_cost,
-        streaming_costs,
-    )
-    from audio2pose_ros.resources import bundled_speech_path, default_checkpoint_path
-    from audio2pose_ros.robot.description import load_robot
-
-    # --json: one object; its layout is versioned, and a change of it is in CHANGELOG.md
-    results: dict[str, object] = {"schema_version": BENCH_SCHEMA_VERSION}
-    if args.console:  # the operator's voice through the web console to /joint_angles
-        from audio2pose_ros.ros.tools.console_bench import console_report, measure_console
-        from audio2pose_ros.ros.tools.graph_bench import bundled_speech
-
-        results["console"] = console_report(measure_console(bundled_speech(), args.duration))
-    if args.graph:  # before pinning this process to one core: the nodes need the machine
-        from audio2pose_ros.ros.tools.graph_bench import bundled_speech, measure_graph, report
-
-        speech = bundled_speech()
-        results["graph"] = [
-            report(
-                measure_graph(
-                    speech, duration_s=args.duration, single_process=single, with_floor=True
-                )
-            )
-            for single in {"three": [False], "single": [True], "both": [False, True]}[
-                args.graph_mode
-            ]
-        ]
-    if args.sim:  # the graph against the simulated Pepper: commanded vs executed
-        from audio2pose_ros.ros.tools.graph_bench import bundled_speech, measure_sim_tracking
-
-        tracking = measure_sim_tracking(bundled_speech(), duration_s=min(args.duration, 60.0))
-        results["sim_tracking"] = dataclasses.asdict(tracking)
-    if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    torch.set_num_threads(1)
-    robot = load_robot()
-    checkpoint = load_checkpoint(args.model or default_checkpoint_path(), robot=robot)
-    signal, _ = read_wav(bundled_speech_path())
-    timings = streaming_costs(checkpoint, MotionFilter(robot), signal, n_frames=args.frames)
-    reference = reference_feature_cost(signal, n_frames=min(args.frames, 1000))
-    results["stages_us"] = {
-        t.name: {"median": t.median_us, "p99": t.p99_us} for t in [*timings, reference]
-    }
-    results["features_speedup_vs_python_speech_features"] = (
-        reference.median_us / timings[0].median_us
-    )
-    if not args.skip_models:
-        results["models"] = {
-            cost.name: {
-                "step_median_us": cost.step.median_us if cost.step else None,
-                "step_p99_us": cost.step.p99_us if cost.step else None,
-                "numpy_kernel_step_median_us": (
-                    cost.kernel_step.median_us if cost.kernel_step else None
-                ),
-                "torch_step_median_us": cost.torch_step.median_us if cost.torch_step else None,
-                "offline_x_real_time": cost.offline_audio_s_per_s,
-            }
-            for cost in model_costs(signal, robot, n_frames=min(args.frames, 2000))
-        }
-    if args.json:
-        print(json.dumps(results, indent=1))
-        return 0
-    _print_bench(results, args.frames, duration_s(len(signal)))
-    return 0
-
-
-def _print_bench(results: dict[str, Any], frames: int, clip_s: float) -> None:
-    print(f"per-frame cost on one core, {frames} frames of real speech (10 ms each)")
-    print(f"{'stage':<52}{'median us':>12}{'p99 us':>12}")
-    for name, timing in results["stages_us"].items():
-        print(f"{name:<52}{timing['median']:>12.1f}{timing['p99']:>12.1f}")
-    ratio = results["features_speedup_vs_python_speech_features"]
-    print(f"streaming features vs python_speech_features per window: {ratio:.0f}x faster (median)")
-    total = results["stages_us"]["whole online frame"]["median"]
-    print(f"whole online frame: {total:.1f} us median = {total / 100:.2f} % of the 10 ms period")
-    if "models" in results:
-        print(
-            f"\nevery model family (untrained weights; cost does not depend on them), "
-            f"{clip_s:.1f} s clip"
-        )
-        print(
-            f"{'model':<14}{'step median us':>16}{'step p99 us':>14}{'no-torch kernel us':>20}"
-            f"{'torch call us':>15}{'offline x real time':>22}"
-        )
-        for name, cost in results["models"].items():
-            step = (
-                f"{cost['step_median_us']:>16.1f}{cost['step_p99_us']:>14.1f}"
-                if cost["step_median_us"] is not None
-                else f"{'offline only':>16}{'':>14}"
-            )
-            kernel, call = cost["numpy_kernel_step_median_us"], cost["torch_step_median_us"]
-            step += f"{kernel:>20.1f}" if kernel is not None else f"{'-':>20}"
-            step += f"{call:>15.1f}" if call is not None else f"{'-':>15}"
-            print(f"{name:<14}{step}{cost['offline_x_real_time']:>22.0f}")
-    if "graph" in results:
-        _print_graph(results["graph"])
-    if "sim_tracking" in results:
-        sim = results["sim_tracking"]
-        print(
-            f"\nagainst the simulated Pepper, {sim['audio_s']:.0f} s of speech: commanded vs "
-            f"executed error median {sim['error_median_deg']:.2f} deg, p95 "
-            f"{sim['error_p95_deg']:.2f} deg (largest joint per measured pose); self-collisions "
-            f"executed: {sim['executed_self_collision_steps']} steps "
-            f"({sim['measured_inside_body']} measured poses inside the body)"
-        )
-    if "console" in results:
-        _print_console(results["console"])
-
-
-def _print_console(console: dict[str, Any]) -> None:
-    """The console's figures: browser chunk to /joint_angles, and the console node's cost."""
-    latency = console["latency_browser_to_joint_angles"]
-    print(
-        f"\noperator console over WebSocket and DDS, {console['audio_s']:.0f} s of speech in "
-        "the page's 20 ms chunks"
-    )
-    if latency["n"]:
-        print(
-            f"  browser chunk -> /joint_angles p50 / p99: {latency['p50_ms']:.1f} / "
-            f"{latency['p99_ms']:.1f} ms ({latency['n']} of {console['chunks']} chunks, "
-            f"{console['ambiguous_pairs']} paired ambiguously; the chunk's own 20 ms and the "
-            "25 ms feature window come on top)"
-        )
-    else:
-        print("  browser chunk -> /joint_angles: no command matched a chunk's poses")
-    if console.get("chunks_lost"):
-        print(
-            f"  {console['chunks_lost']} of {console['chunks']} chunks never reached audio/audio "
-            "(best-effort audio QoS drops under load; the page's voice had gaps)"
-        )
-    lag = console["motion_lag_behind_sound"]
-    if lag["n"]:
-        print(
-            f"  /joint_angles behind the same chunk on audio/audio (what audio_play plays) "
-            f"p50 / p99: {lag['p50_ms']:.1f} / {lag['p99_ms']:.1f} ms (minus the player's output "
-            "buffering, not measured here)"
-        )
-    live = console["console_live_estimate_ms"]
-    if live:
-        print(f"  the page's live estimate: p50 {live.get('p50')} / p99 {live.get('p99')} ms")
-    print(
-        f"  console_node: {console['console_node_cpu_ms_per_audio_s']:.1f} ms CPU per second of "
-        f"audio ({console['console_node_cpu_percent']:.1f} % of a core), "
-        f"{console['console_node_rss_mb']:.0f} MB resident"
-    )
-
-
-def _print_graph(runs: list[dict[str, Any]]) -> None:
-    """The graph figures of each mode side by side, then the targets met or not."""
-    modes = [run["mode"] for run in runs]
-    print(f"\nlive graph over DDS, {runs[0]['audio_s']:.0f} s of speech in 10 ms chunks")
-    print(f"{'':<44}" + "".join(f"{mode:>20}" for mode in modes))
-
-    def row(label: str, values: list[str]) -> None:
-        print(f"{label:<44}" + "".join(f"{v:>20}" for v in values))
-
-    for key in ("latency_audio_to_raw_pose", "latency_audio_to_joint_angles"):
-        row(
-            f"{key.removeprefix('latency_')} p50/p99 ms",
-            [f"{run[key]['p50_ms']:.2f} / {run[key]['p99_ms']:.2f}" for run in runs],
-        )
-    row(
-        "first command / first response s",
-        [
-            f"{run['startup_first_command_s']:.2f} / {run['startup_first_response_to_audio_s']:.2f}"
-            for run in runs
-        ],
-    )
-    processes = sorted({name for run in runs for name in run["rss_mb"]})
-    for name in processes:
-        row(
-            f"{name}: CPU ms/frame (steady), MB",
-            [
-                f"{run['cpu_ms_per_frame'][name]:.3f} ({run['steady_cpu_ms_per_frame'][name]:.3f}),"
-                f" {run['rss_mb'][name]:.0f}"
-                if name in run["rss_mb"]
-                else "-"
-                for run in runs
-            ],
-        )
-    for run in runs:
-        floor = run.get("floor")
-        if floor:
-            for name, cpu in floor["steady_cpu_ms_per_frame"].items():
-                row(
-                    f"bare rclpy relay for {name}: CPU, MB",
-                    [f"({cpu:.3f}), {floor['rss_mb'][name]:.0f}"],
-                )
-            print(
-                f"{run['mode']}: the nodes' steady CPU is {floor['steady_cpu_ratio']:.2f}x the bare"
-                " rclpy relays' (the floor: the same topology, QoS and executors, no work), "
-                f"{sum(run['rss_mb'].values()):.0f} MB against their "
-                f"{sum(floor['rss_mb'].values()):.0f} MB"
-            )
-    print("footprint targets")
-    for run in runs:
-        for target in run["targets"]:
-            verdict = "met" if target["met"] else "NOT MET"
-            print(
-                f"  {run['mode']:<16}{target['figure']:<52}{target['value']:>9.2f} "
-                f"<= {target['target']:g} {target['unit']:<3} {verdict}"
-            )
-
-
 def command_plot_filter(args: argparse.Namespace) -> int:
     """Draw raw model output against the online motion filter for a speech file."""
     from audio2pose_ros.audio.wav import read_wav
@@ -643,47 +422,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     arms.set_defaults(func=command_check_arms)
 
-    bench = verbs.add_parser("bench", help="per-frame cost of the streaming path")
-    bench.add_argument("--model", help="checkpoint (default: packaged model)")
-    bench.add_argument(
-        "--frames",
-        type=bounded_int(10, 1_000_000),
-        default=3000,
-        help="frames to time, 10 to 1e6 (default 3000)",
-    )
-    bench.add_argument("--skip-models", action="store_true", help="skip the per-model table")
-    bench.add_argument(
-        "--graph",
-        action="store_true",
-        help="also run the live graph: latency, CPU, memory, start-up",
-    )
-    bench.add_argument(
-        "--duration",
-        type=bounded_float(1.0, 3600.0),
-        default=60.0,
-        help="seconds of speech for --graph and --console, 1 to 3600 (default 60)",
-    )
-    bench.add_argument(
-        "--graph-mode",
-        choices=("three", "single", "both"),
-        default="both",
-        help="--graph runs three node processes, one process, or both in turn (default both)",
-    )
-    bench.add_argument(
-        "--sim",
-        action="store_true",
-        help="also run the graph against the simulated Pepper: tracking error commanded vs "
-        "executed and self-collisions executed (--duration, at most 60 s)",
-    )
-    bench.add_argument(
-        "--console",
-        action="store_true",
-        help="also stream speech through the operator console: browser to /joint_angles "
-        "latency, console node CPU and memory (--duration seconds)",
-    )
-    bench.add_argument("--json", action="store_true", help="print the figures as JSON")
-    bench.set_defaults(func=command_bench)
-
     plot = verbs.add_parser("plot-filter", help="PNG of raw model output vs the motion filter")
     plot.add_argument("wav", metavar="FILE.wav")
     plot.add_argument("-o", "--output", required=True, metavar="OUT.png")
@@ -717,6 +455,7 @@ def _command_modules() -> list[Callable[[Verbs], None]]:
     """``register(verbs)`` functions of the verbs that live in their own modules."""
     from audio2pose_ros.cli import (
         bag_commands,
+        bench_commands,
         console_commands,
         dataset_commands,
         fault_commands,
@@ -733,6 +472,7 @@ def _command_modules() -> list[Callable[[Verbs], None]]:
         fault_commands.register,
         console_commands.register,
         style_commands.register,
+        bench_commands.register,
     ]
 
 

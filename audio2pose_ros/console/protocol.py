@@ -12,10 +12,12 @@ Two kinds of WebSocket frames come from the page:
   type and range (:func:`parse_control`): ``hello`` (token and display name, the first message),
   ``talk`` (take or release the floor), ``stop`` (emergency stop or release; the release of a
   holder who has left names them in ``confirm``: :mod:`~audio2pose_ros.console.stop`),
-  ``enable``, ``gains`` (``head``, ``arms``, ``hip`` in [0, 1]), ``ping`` (clock offset and
+  ``enable``, ``style_set`` (any of the filter's live style parameters,
+  :data:`~audio2pose_ros.motion.style.STYLE_FIELDS`: the size and tempo of each part, where the
+  hands rest and how high they go, each within its declared range), ``ping`` (clock offset and
   round trip), ``enroll`` (a ticket to upload a recording of one's style:
-  :mod:`~audio2pose_ros.console.enrollment`) and ``style`` (use the learned style, or go back to
-  the graph's own).
+  :mod:`~audio2pose_ros.console.enrollment`) and ``style`` (use the learned style, a named
+  preset, or go back to the graph's own).
   Every string is text that UTF-8 can encode (JSON can carry lone surrogates, which it
   cannot) and every integer within :data:`MAX_JSON_INT` of zero, so every number is a finite
   float.
@@ -35,13 +37,13 @@ import struct
 from dataclasses import dataclass
 from typing import Any
 
-from audio2pose_ros.errors import InputError, short_repr
+from audio2pose_ros.errors import ConfigurationError, InputError, short_repr
+from audio2pose_ros.motion.style import STYLE_FIELDS, StyleSettings
 
 __all__ = [
     "AUDIO_HEADER",
     "AUDIO_MAGIC",
     "CONTROL_FIELDS",
-    "GAIN_GROUPS",
     "MAX_JSON_INT",
     "MAX_NAME_CHARS",
     "MAX_STAMP_SKEW_S",
@@ -71,19 +73,19 @@ MAX_JSON_INT = 2**53
 # wait in its buffer for more than about a second. What is left is a clock stepped under a
 # running page (its offset follows within a few pings) or a client that stamps at random.
 MAX_STAMP_SKEW_S = 60.0
-GAIN_GROUPS = ("head", "arms", "hip")  # the filter's head_gain, arms_gain, hip_gain
 # Every control message type and its fields: (name, type, required).
 CONTROL_FIELDS: dict[str, tuple[tuple[str, type, bool], ...]] = {
     "hello": (("token", str, True), ("name", str, False)),
     "talk": (("on", bool, True),),
     "stop": (("on", bool, True), ("confirm", str, False)),
     "enable": (("on", bool, True),),
-    "gains": tuple((group, float, False) for group in GAIN_GROUPS),
+    "style_set": tuple((name, float, False) for name in STYLE_FIELDS),
     "ping": (("t", float, True),),
     "enroll": (("keep", bool, True),),  # ask for a ticket to upload a recording of one's style
-    "style": (("use", str, True),),  # STYLE_CHOICES: the learned style or the graph's own
+    # the learned style ("personal"), the graph's own ("default"), or a preset's name
+    "style": (("use", str, True),),
 }
-STYLE_CHOICES = ("personal", "default")
+STYLE_CHOICES = ("personal", "default")  # besides the presets' names
 
 
 class ProtocolError(InputError):
@@ -176,8 +178,6 @@ def _field(kind: str, name: str, expected: type, value: object) -> object:
         number = float(value)  # an int is within MAX_JSON_INT (_parse_int): no OverflowError
         if not math.isfinite(number):
             raise ProtocolError(f"{kind}.{name} must be finite")
-        if kind == "gains" and not 0.0 <= number <= 1.0:
-            raise ProtocolError(f"gains.{name} must be in [0, 1], got {number:g}")
         return number
     if not isinstance(value, expected):
         raise ProtocolError(
@@ -194,8 +194,8 @@ def _field(kind: str, name: str, expected: type, value: object) -> object:
             raise ProtocolError(f"{kind}.{name} must be valid UTF-8 text") from None
         if name in ("name", "confirm") and not value.isprintable():
             raise ProtocolError(f"{kind}.{name} must be printable text")
-        if kind == "style" and value not in STYLE_CHOICES:
-            raise ProtocolError(f"style.use must be one of {list(STYLE_CHOICES)}")
+        if kind == "style" and not (value in STYLE_CHOICES or value.isidentifier()):
+            raise ProtocolError(f"style.use must be one of {list(STYLE_CHOICES)} or a preset")
     return value
 
 
@@ -204,8 +204,9 @@ def parse_control(text: str | bytes) -> Control:
 
     Raises:
         ProtocolError: too long, not JSON, not an object, an unknown type, a missing or unknown
-            field, a field of the wrong type, a string that is not valid UTF-8 text, a gain
-            outside [0, 1], a non-finite number or an integer beyond :data:`MAX_JSON_INT`.
+            field, a field of the wrong type, a string that is not valid UTF-8 text, a style
+            value outside its parameter's range, a non-finite number or an integer beyond
+            :data:`MAX_JSON_INT`.
     """
     try:
         size = len(text.encode("utf-8") if isinstance(text, str) else text)
@@ -235,8 +236,13 @@ def parse_control(text: str | bytes) -> Control:
                 raise ProtocolError(f"{kind} needs the field {name!r}")
             continue
         fields[name] = _field(kind, name, expected, message[name])
-    if kind == "gains" and not fields:
-        raise ProtocolError(f"gains needs at least one of {list(GAIN_GROUPS)}")
+    if kind == "style_set":
+        if not fields:
+            raise ProtocolError(f"style_set needs at least one of {list(STYLE_FIELDS)}")
+        try:  # each value against its parameter's declaration (range), the rest as they are
+            StyleSettings(**fields)
+        except ConfigurationError as exc:
+            raise ProtocolError(f"style_set: {exc}") from None
     return Control(type=kind, fields=fields)
 
 

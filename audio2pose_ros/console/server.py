@@ -1,8 +1,12 @@
-"""The console's HTTP and WebSocket server (aiohttp), in its own thread and asyncio loop.
+"""The console's HTTP and WebSocket server (aiohttp), run by a ``ServerThread``.
 
 It serves the page (the built front end, ``web/dist``), the robot's URDF and one WebSocket,
-``/ws``, and talks to the robot only through a :class:`GraphBridge` (``console_node`` is one;
-tests use their own). What a connection goes through:
+``/ws`` (:class:`~audio2pose_ros.console.server_thread.ServerThread` runs it), and talks to
+the robot only through a :class:`GraphBridge` (``console_node`` is one; tests use their own).
+The "learn my style" upload (``POST /enroll/{ticket}``) and the page's ``enroll`` and
+``style`` messages are :mod:`~audio2pose_ros.console.learn_style`'s; what an identified
+operator may do to the robot (the floor, the stop and its owners, the settings) is
+:mod:`~audio2pose_ros.console.room`'s. What a connection goes through:
 
 1. **The TCP connection**, counted by its client address from its acceptance, before any TLS
    handshake, by the console's front door (:mod:`~audio2pose_ros.console.door`): one address
@@ -35,10 +39,10 @@ tests use their own). What a connection goes through:
    its rates or stamped off the console's clock is only dropped and counted
    (:class:`~audio2pose_ros.console.protocol.AudioDroppedError`): the page may be catching up
    after a stall or a clock step.
-5. **The floor and the stop**: only the holder's audio is published; ``enable`` and ``gains``
-   only while the floor is free or one's own. A ``stop`` is accepted from anyone, and released
-   only by whoever pressed it, or, once they have left, by another operator who names them
-   (:mod:`~audio2pose_ros.console.stop`); every page is told who holds the stop.
+5. **The floor and the stop** (:mod:`~audio2pose_ros.console.room`): only the holder's audio
+   is published; ``enable`` and the style only while the floor is free or one's own; a
+   ``stop`` from anyone, released only by whoever pressed it or, once they have left, by
+   another operator who names them.
 6. **The end**: a closed or dropped connection (WebSocket pings every :data:`HEARTBEAT_S`)
    releases its floor: audio stops, and the filter's watchdog brings the robot to rest. Its
    presses of STOP stay, held by someone who has left. A page
@@ -46,19 +50,18 @@ tests use their own). What a connection goes through:
    connection's handler is logged in one line and closes that connection (1011), never
    escaping to aiohttp.
 
-Every page is sent the pose at ``pose_rate_hz`` and the status (stop, enable, gains, health,
-latency, floor, operators) every :data:`STATUS_PERIOD_S`; a page that reads slower than that
-skips frames rather than making the server queue them. A value in them that JSON cannot carry
-(a NaN statistic) is sent as ``null`` and logged once, the rest of the message as usual.
+Every page is sent the pose at ``pose_rate_hz`` and the status (stop, enable, the style
+parameters in force, health, latency, floor, operators) every :data:`STATUS_PERIOD_S`; a page
+that reads slower than that skips frames rather than making the server queue them. A value in
+them that JSON cannot carry (a NaN statistic) is sent as ``null`` and logged once, the rest of
+the message as usual.
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import itertools
 import ssl
-import threading
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
@@ -76,14 +79,8 @@ from audio2pose_ros.console.door import (
     Gate,
     Site,
 )
-from audio2pose_ros.console.enrollment import (
-    MAX_RECORDING_BYTES,
-    EnrollmentError,
-    Enrollments,
-    Ticket,
-    default_work_dir,
-)
-from audio2pose_ros.console.floor import Floor
+from audio2pose_ros.console.enrollment import Enrollments, default_work_dir
+from audio2pose_ros.console.learn_style import LearnMyStyle
 from audio2pose_ros.console.protocol import (
     AUDIO_HEADER,
     MAX_TEXT_BYTES,
@@ -96,11 +93,12 @@ from audio2pose_ros.console.protocol import (
     parse_audio_frame,
     parse_control,
 )
+from audio2pose_ros.console.room import Operator, Room
 from audio2pose_ros.console.settings import ConsoleSettings
-from audio2pose_ros.console.stop import OUTSIDE, StopHolders, unique_name
+from audio2pose_ros.console.stop import unique_name
 from audio2pose_ros.errors import ConfigurationError
 
-__all__ = ["ConsoleServer", "GraphBridge", "ServerThread"]
+__all__ = ["ConsoleServer", "GraphBridge"]
 
 HEARTBEAT_S = 5.0  # WebSocket ping period; a peer that misses a pong is dropped
 STATUS_PERIOD_S = 0.5
@@ -179,17 +177,14 @@ class GraphBridge(Protocol):
     def set_enable(self, on: bool) -> None:
         """Publish enable."""
 
-    def set_gains(self, gains: dict[str, float]) -> None:
-        """Set the filter's gains (``head``, ``arms``, ``hip``: the ``*_gain`` parameters)."""
-
     def set_style(self, settings: dict[str, float] | None) -> None:
-        """Apply learned style settings to the filter, or (None) restore the graph's own."""
+        """Set any of the filter's live style parameters; None restores the graph's own style."""
 
     def pose(self) -> dict[str, Any]:
         """The latest commanded and measured pose: name -> angle (rad), or None each."""
 
     def status(self) -> dict[str, Any]:
-        """Stop, enable, gains, health and latency, JSON-ready."""
+        """Stop, enable, the style parameters in force, health and latency, JSON-ready."""
 
 
 @dataclass
@@ -214,7 +209,7 @@ class _Session:
 
 
 class ConsoleServer:
-    """The page, the URDF and the WebSocket; run it in a :class:`ServerThread`.
+    """The page, the URDF and the WebSocket; run it in a ``ServerThread``.
 
     Args:
         settings: the console's settings.
@@ -241,14 +236,11 @@ class ConsoleServer:
     ) -> None:
         self.settings = settings
         self.enrollments = enrollments or Enrollments(default_work_dir())
-        self.style_in_use = "default"  # or "personal": the learned style is applied
         self.access = access
         self.bridge = bridge
         self.web_dir = web_dir
         self.urdf = urdf_path.read_text(encoding="utf-8")
         self.log = log
-        self.floor = Floor()
-        self.stops = StopHolders()
         self.tokens = tokens if tokens is not None else TokenThrottle()
         self.summary_period_s = summary_period_s
         self.sessions: dict[int, _Session] = {}
@@ -273,6 +265,16 @@ class ConsoleServer:
             if path.is_file() and path.suffix in CONTENT_TYPES
         }
         self.built = "index.html" in self.files
+        self.learn_style = LearnMyStyle(
+            self.enrollments,
+            access,
+            bridge,
+            log,
+            refused=lambda why: self._tally(self._refusals, why),
+            may_apply=lambda id_: id_ in self.sessions and self.floor.free_for(id_),
+        )
+        self.room = Room(bridge, self.learn_style, self.sessions.values, self._send_to, log)
+        self.floor, self.stops = self.room.floor, self.room.stops
 
     # --- lifecycle ------------------------------------------------------------------------------
 
@@ -302,7 +304,7 @@ class ConsoleServer:
         app.router.add_get("/urdf/pepper.urdf", self._urdf)
         app.router.add_get("/favicon.ico", self._no_icon)
         app.router.add_get("/{name}", self._file)
-        app.router.add_post("/enroll/{ticket}", self._enroll_upload)
+        app.router.add_post("/enroll/{ticket}", self.learn_style.upload)
         # A connection's clock starts when it is made: a request not complete by then, or an
         # idle keep-alive connection, is closed (the page's few files load within milliseconds).
         self._runner = web.AppRunner(
@@ -335,6 +337,7 @@ class ConsoleServer:
         """Release the floor, close every connection, stop serving."""
         for task in self._tasks:
             task.cancel()
+        self.learn_style.stop()
         for session in list(self.sessions.values()):
             await session.ws.close(code=1001, message=b"console stopping")
         if self._runner is not None:
@@ -422,67 +425,6 @@ class ConsoleServer:
     async def _urdf(self, _request: web.Request) -> web.Response:
         return web.Response(text=self.urdf, content_type="application/xml")
 
-    # --- learn my style -------------------------------------------------------------------------
-
-    async def _enroll_upload(self, request: web.Request) -> web.Response:
-        """One recording, streamed under a ticket a page asked for; learned in the background."""
-        key = client_key(request.remote or "?")
-        problem = request_problem(
-            self.access, request.headers.get("Host"), request.headers.get("Origin")
-        )
-        if problem:
-            self._tally(self._refusals, f"{key} (upload: {problem})")
-            raise web.HTTPForbidden(text=problem)
-        length = request.content_length
-        if length is not None and length > MAX_RECORDING_BYTES:
-            self._tally(self._refusals, f"{key} (upload too large)")
-            raise web.HTTPRequestEntityTooLarge(
-                max_size=MAX_RECORDING_BYTES, actual_size=length, text="recording too large"
-            )
-        try:
-            ticket, recording = await self.enrollments.receive(
-                request.match_info["ticket"],
-                request.headers.get("Content-Type", ""),
-                request.content.iter_chunked(1 << 16),
-            )
-        except EnrollmentError as exc:  # tallied: a stream of guesses is one line per summary
-            self._tally(self._refusals, f"{key} (upload refused)")
-            raise web.HTTPBadRequest(text=str(exc)) from None
-        self.log("info", f"console: learning {ticket.owner!r}'s style from their recording")
-        self._tasks.append(asyncio.create_task(self._learn(ticket, recording)))
-        return web.json_response({"learning": True}, status=202)
-
-    async def _learn(self, ticket: Ticket, recording: Path) -> None:
-        """Learn; then apply the style if its operator may still act on the robot's settings."""
-        try:
-            result = await self.enrollments.run(ticket, recording)
-        except Exception as exc:  # the boundary: the console carries on with the old style
-            self.log("warning", f"console: learning {ticket.owner!r}'s style failed: {exc}")
-            return
-        kept = f", recording kept in {result.kept_recording}" if result.kept_recording else ""
-        self.log("info", f"console: learned {ticket.owner!r}'s style: {result.folder}{kept}")
-        if ticket.session in self.sessions and self.floor.free_for(ticket.session):
-            self.bridge.set_style(result.settings)
-            self.style_in_use = "personal"
-
-    async def _on_style(self, session: _Session, control: Control) -> None:
-        """``enroll`` (a ticket for an upload) and ``style`` (which style the graph uses)."""
-        if control.type == "enroll":
-            try:
-                key = self.enrollments.ticket(session.id, session.name, control.fields["keep"])
-            except EnrollmentError as exc:
-                raise ProtocolError(str(exc)) from None
-            self._send(session, encode("enroll_ticket", ticket=key), droppable=False)
-        elif control.fields["use"] == "personal":
-            result = self.enrollments.result
-            if result is None:
-                raise ProtocolError("no style has been learned yet: press Learn my style")
-            self.bridge.set_style(result.settings)
-            self.style_in_use = "personal"
-        else:
-            self.bridge.set_style(None)
-            self.style_in_use = "default"
-
     # --- WebSocket ------------------------------------------------------------------------------
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
@@ -550,10 +492,7 @@ class ConsoleServer:
             self.sessions.pop(session.id, None)
             self.enrollments.forget_session(session.id)
             try:
-                if self.floor.release(session.id):
-                    self.bridge.end_talk()
-                    await self._send_floor()
-                await self._stop_holder_left(session)
+                self.room.left(session)
             except Exception as exc:  # the boundary, for the end of the session too
                 self._failed(session, "releasing its floor failed", exc)
             if session.name:
@@ -659,8 +598,8 @@ class ConsoleServer:
                 urdf="urdf/pepper.urdf",
             ),
         )
-        await self._send_floor()
-        self._send(session, self._stop_holders(session), droppable=False)
+        self.room.send_floor()
+        self._send(session, self.room.stop_holders(session), droppable=False)
 
     async def _serve(self, session: _Session) -> None:
         """Act on each message until the connection ends.
@@ -747,128 +686,22 @@ class ConsoleServer:
         self.bridge.publish_audio(frame, received_s)
 
     async def _on_control(self, session: _Session, control: Control) -> None:
-        on = control.fields.get("on")
         if control.type == "ping":
             await self._send_now(
                 session, encode("pong", t=control.fields["t"], server=time.time() * 1e3)
             )
         elif control.type == "hello":
             raise ProtocolError("already identified")
-        elif control.type == "talk":
-            await self._talk(session, bool(on))
-        elif control.type == "stop":
-            await self._on_stop(session, bool(on), control.fields.get("confirm"))
-        else:
-            if not self.floor.free_for(session.id):
-                raise ProtocolError(
-                    f"{self.floor.holder_name} has the floor: only a stop is accepted meanwhile"
-                )
-            if control.type == "enable":
-                self.bridge.set_enable(bool(on))
-            elif control.type in ("enroll", "style"):
-                await self._on_style(session, control)
-            else:
-                self.bridge.set_gains({k: float(v) for k, v in control.fields.items()})
+        else:  # what operators may do to the robot
+            self.room.on_control(session, control)
 
-    async def _talk(self, session: _Session, on: bool) -> None:
-        if on:
-            if self.floor.holds(session.id):
-                return
-            if not self.floor.take(session.id, session.name):
-                raise ProtocolError(f"{self.floor.holder_name} has the floor: wait for them")
-            self.bridge.start_talk()
-        elif self.floor.release(session.id):
-            self.bridge.end_talk()
-        else:
-            return
-        await self._send_floor()
-
-    # --- the stop and who holds it -----------------------------------------------------------
-
-    async def _on_stop(self, session: _Session, on: bool, confirm: str | None) -> None:
-        """A press of STOP, the release of one's own, or a confirmed one for someone who left.
-
-        Raises:
-            ProtocolError: a release that is not the operator's to make (the reason names who
-                holds the stop).
-        """
-        if on:
-            if self.stops.press(session.id, session.name):
-                self.log("warning", f"console: STOP pressed by {session.name!r}")
-            self.bridge.set_stop(True)  # each press latches it again, whatever came meanwhile
-            await self._send_stop_holders()
-            return
-        if confirm is None:
-            if not self.stops.release(session.id):
-                if self.stops.held or self._stopped_outside():
-                    raise ProtocolError(self._stop_refusal())
-                return  # nothing held, nothing stopped: nothing to release
-            self.log("info", f"console: {session.name!r} released their stop")
-        elif confirm in self.stops.present_holders():
-            raise ProtocolError(
-                f"{confirm} is still connected: only {confirm} can release their stop"
-            )
-        elif self.stops.release_absent(confirm):
-            self.log(
-                "warning",
-                f"console: {session.name!r} released the stop of {confirm!r}, who has left "
-                "(confirmed by name)",
-            )
-        elif confirm == OUTSIDE and not self.stops.held and self._stopped_outside():
-            self.log("warning", f"console: {session.name!r} released a stop set {OUTSIDE}")
-        else:
-            raise ProtocolError(f"no stop of {confirm!r} to release; {self._stop_refusal()}")
-        if not self.stops.held:
-            self.bridge.set_stop(False)
-        await self._send_stop_holders()
-
-    def _stopped_outside(self) -> bool:
-        """Whether the robot is stopped with no press from this console holding it."""
-        return not self.stops.held and self.bridge.status().get("stop") is True
-
-    def _stop_refusal(self) -> str:
-        """Why a release is not the sender's to make, naming who may make it."""
-        present = self.stops.present_holders()
-        absent = [p.name for p in self.stops.presses if not p.present]
-        if present:
-            return f"the stop is held by {', '.join(present)}: only they can release it"
-        if absent:
-            return (
-                f"the stop is held by {', '.join(absent)}, who left: releasing it needs a "
-                "confirmation that names them"
-            )
-        if self._stopped_outside():
-            return f"the stop was set {OUTSIDE}: releasing it needs a confirmation naming that"
-        return "the robot is not stopped"
-
-    async def _stop_holder_left(self, session: _Session) -> None:
-        """``session`` has ended: its presses stay, held by someone absent."""
-        if self.stops.left(session.id):
-            self.log(
-                "warning",
-                f"console: {session.name!r} left holding the stop: the robot stays stopped "
-                f"until another operator releases it with a confirmation naming them",
-            )
-            await self._send_stop_holders()
-
-    def _stop_holders(self, session: _Session) -> str:
-        """The message that tells a page who holds the stop, and whether it does."""
-        return encode("stop_holders", holders=self.stops.view(), you=self.stops.holds(session.id))
-
-    async def _send_stop_holders(self) -> None:
-        for session in list(self.sessions.values()):
-            self._send(session, self._stop_holders(session), droppable=False)
+    def _send_to(self, operator: Operator, text: str) -> None:
+        """Send the room's message to ``operator``'s page (not dropped), while it is connected."""
+        session = self.sessions.get(operator.id)
+        if session is not None:
+            self._send(session, text, droppable=False)
 
     # --- broadcasts -----------------------------------------------------------------------------
-
-    async def _send_floor(self) -> None:
-        for session in list(self.sessions.values()):
-            text = encode(
-                "floor",
-                holder=self.floor.holder_name or None,
-                you=self.floor.holds(session.id),
-            )
-            self._send(session, text, droppable=False)
 
     async def _send_pose(self) -> None:
         if self.sessions:
@@ -881,8 +714,7 @@ class ConsoleServer:
             status = self.bridge.status()
             status["operators"] = len(self.sessions)
             status["floor"] = self.floor.holder_name or None
-            status["enrollment"] = self.enrollments.status()
-            status["style"] = self.style_in_use
+            status.update(self.learn_style.status())
             text = self._snapshot("status", status)
             for session in list(self.sessions.values()):
                 self._send(session, text)
@@ -938,53 +770,3 @@ async def _security_headers(
     if not isinstance(response, web.WebSocketResponse):
         response.headers.update(SECURITY_HEADERS)
     return response
-
-
-class ServerThread:
-    """Runs a :class:`ConsoleServer` in its own thread and asyncio loop, next to rclpy's executor.
-
-    Args:
-        server: the server to run.
-    """
-
-    def __init__(self, server: ConsoleServer) -> None:
-        self.server = server
-        self.loop = asyncio.new_event_loop()
-        self._ready = threading.Event()
-        self._error: BaseException | None = None
-        self._thread = threading.Thread(target=self._run, name="console-server", daemon=True)
-
-    def start(self, timeout_s: float = 10.0) -> int:
-        """Start serving; return the bound port.
-
-        Raises:
-            ConfigurationError: the server cannot start (certificate, address in use).
-        """
-        self._thread.start()
-        if not self._ready.wait(timeout_s):
-            raise ConfigurationError(f"the console server did not start within {timeout_s:g} s")
-        if self._error is not None:
-            if isinstance(self._error, ConfigurationError):
-                raise self._error
-            raise ConfigurationError(f"the console server cannot start: {self._error!r}")
-        return self.server.port
-
-    def _run(self) -> None:
-        asyncio.set_event_loop(self.loop)
-        try:
-            self.loop.run_until_complete(self.server.start())
-        except BaseException as exc:  # reported to start() in the node's thread
-            self._error = exc
-            self._ready.set()
-            return
-        self._ready.set()
-        self.loop.run_forever()
-        self.loop.run_until_complete(self.server.stop())
-        self.loop.close()
-
-    def stop(self, timeout_s: float = 5.0) -> None:
-        """Close the connections and stop serving."""
-        if self._thread.is_alive():
-            with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
-                self.loop.call_soon_threadsafe(self.loop.stop)
-            self._thread.join(timeout_s)

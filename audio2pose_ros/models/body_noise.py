@@ -10,42 +10,50 @@ torso, and the noise's correlation kept it there for a second or more. So, where
     f_t = clip((c_{t-1} - body_margin_m) / body_band_m, 0, 1),
 
 where c_{t-1} is the clearance of the previous sampled pose (the smallest signed distance between
-an arm link and the rest of the body, :meth:`~audio2pose_ros.robot.body.BodyModel.clearance`):
-far from the body the noise is whole; within ``body_band_m`` of the margin it fades, and at the
-margin the pose is the network's mean, which leads back to poses like its training data. The
-factor changes by at most :data:`MAX_FACTOR_STEP` a frame: the noise term is the pose's largest
-part, and a factor that jumped would make the pose jump with it (faster than the robot can
-follow, so the motion filter's input gate would drop it). The
-pose itself is never moved: the self-collision guard of the motion filter
-(:mod:`audio2pose_ros.motion.body_guard`) stays what enforces the margin on the robot; this keeps
-the model's own motion off the body, so the guard rarely has to act.
+an arm link and the rest of the body): far from the body the noise is whole; within
+``body_band_m`` of the margin it fades, and at the margin the pose is the network's mean, which
+leads back to poses like its training data. The factor changes by at most
+:data:`MAX_FACTOR_STEP` a frame: the noise term is the pose's largest part, and a factor that
+jumped would make the pose jump with it (faster than the robot can follow, so the motion
+filter's input gate would drop it). The pose itself is never moved: the self-collision guard of
+the motion filter (:mod:`audio2pose_ros.motion.body_guard`) stays what enforces the margin on the
+robot, with the exact body model (:class:`~audio2pose_ros.robot.body.BodyModel`); this keeps the
+model's own motion off the body, so the guard rarely has to act.
 
-The first frame (no previous pose) samples with its whole noise. A distance query costs about
-0.1 ms, so each sequence keeps the last pose it measured: while that pose's clearance, less the
-most the arms can have come nearer since (:attr:`~audio2pose_ros.robot.body.BodyModel.lever_m`
-times each joint's travel), is still beyond margin + band, the factor is 1 without a query (the
-query would give 1 too). Each :class:`BodyNoise` loads its own
-:class:`~audio2pose_ros.robot.body.BodyModel` (Pinocchio's workspaces are not shared between
-threads) when it is made, so that a streaming predictor's first frame does not wait for
-Pinocchio, coal and the URDF (0.3 s here, seconds on a cold, busy machine); it drops the model
-when pickled and loads it again on first use.
+The clearance here is the capsule model's (:class:`~audio2pose_ros.robot.capsules.CapsuleModel`):
+capsules that contain the URDF's collision shapes, so it is never larger than the exact
+clearance and at most about 2.3 cm smaller near the body (median 1.6 mm;
+``test/test_capsules.py``); the noise fades a little early, never late. It is plain numpy, so
+the sampling process holds neither Pinocchio nor coal (about 55 MB), and the model pickles with
+the sampler.
+
+The first frame (no previous pose) samples with its whole noise. A query of every pair costs
+more than the rest of the frame's work for the body, so each sequence keeps the last pose it
+measured and every checked pair's distance there; each pair can have come nearer since by at
+most its lever (:attr:`~audio2pose_ros.robot.capsules.CapsuleModel.pair_lever_m`) times each
+joint's travel. The smallest of the distances so reduced is a lower bound of the clearance, and
+the factor is taken from it; the pose is measured afresh only when that bound falls within
+margin + band and has lost more than :data:`BOUND_SLACK_M` since the last measurement. Far from
+the body no query is made at all (the factor is 1 either way); near it, an arm that moves
+slowly is measured every few frames, and the clearance the factor uses is at most
+``BOUND_SLACK_M`` below the capsules'. Poses must be finite: a NaN would slip past the bound,
+so it is refused first.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 
 from audio2pose_ros.errors import ConfigurationError
-from audio2pose_ros.robot.body import BodyModel
+from audio2pose_ros.robot.capsules import CapsuleModel
 from audio2pose_ros.robot.description import RobotDescription
-from audio2pose_ros.robot.kinematics import default_urdf_path
 
 MAX_BODY_BAND_M = 0.5  # wider than Pepper's arm: any larger band is a mistake
 MAX_FACTOR_STEP = 0.05  # per frame: the noise fades over 0.2 s, never in one jump
+BOUND_SLACK_M = 0.002  # the travel bound may fall this far below a measurement before the next
 
 
 def check_body_noise(margin_m: float, band_m: float) -> None:
@@ -61,53 +69,50 @@ class BodyNoise:
     """Noise factors f_t of the module text, for previous poses in [0, 1] units."""
 
     def __init__(self, robot: RobotDescription, margin_m: float, band_m: float) -> None:
-        """Check the margin and band (m) and load the body model."""
+        """Check the margin and band (m) and load the capsule model."""
         check_body_noise(margin_m, band_m)
         self.robot, self.margin_m, self.band_m = robot, float(margin_m), float(band_m)
-        self._body: BodyModel | None = BodyModel(robot, default_urdf_path())
+        self.body = CapsuleModel.load(robot)
         self._measured: np.ndarray | None = None  # per sequence: the last pose measured (rad)
-        self._clearance = np.empty(0)  # ... and its clearance (m)
+        self._distances = np.empty((0, 0))  # ... every checked pair's distance there (m)
+        self._clearance = np.empty(0)  # ... and the smallest of them
         self._factors = np.empty(0)  # ... and its last factor
 
-    @property
-    def loaded(self) -> bool:
-        """Whether the body model is loaded (False only after unpickling, until first use)."""
-        return self._body is not None
-
-    def __getstate__(self) -> dict[str, Any]:
-        """Pickle without the body model (Pinocchio's objects do not pickle)."""
-        return {**self.__dict__, "_body": None}
-
     def reset(self) -> None:
-        """Forget the sequences' poses and start the distance searches afresh.
-
-        The same poses then give the same factors, whatever was sampled before.
-        """
+        """Forget the sequences' poses: the same poses then give the same factors."""
         self._measured = None
-        if self._body is not None:
-            self._body.reset()
 
     def factors(self, previous_unit: np.ndarray) -> np.ndarray:
         """(N, J) previous poses in [0, 1] of N sequences -> (N,) noise factors in [0, 1].
 
         Row i continues sequence i of the previous call (until :meth:`reset`).
+
+        Raises:
+            ValueError: a pose is not finite.
         """
-        if self._body is None:
-            self._body = BodyModel(self.robot, default_urdf_path())
-        poses = self.robot.denormalize(np.atleast_2d(previous_unit))
+        previous = np.atleast_2d(previous_unit)
+        if not np.isfinite(previous).all():
+            raise ValueError("body-aware sampling: the previous pose is not finite")
+        poses = self.robot.denormalize(previous)
         if self._measured is None or self._measured.shape != poses.shape:
-            self._measured, self._clearance = poses.copy(), np.full(len(poses), -np.inf)
+            self._measured = poses.copy()
+            self._distances = np.full((len(poses), len(self.body.link_pairs)), -np.inf)
+            self._clearance = np.full(len(poses), np.inf)  # unmeasured: stale at once
             self._factors = np.ones(len(poses))
-        travel = np.abs(poses - self._measured) @ self._body.lever_m
-        lower = self._clearance - travel  # no nearer than this: the arms cannot have come closer
-        stale = lower < self.margin_m + self.band_m
-        if stale.any():
+        travel = np.abs(poses - self._measured) @ self.body.pair_lever_m.T
+        # no pair nearer than this: its shapes cannot have come closer
+        lower = (self._distances - travel).min(axis=1)
+        stale = (lower < self.margin_m + self.band_m) & (self._clearance - lower > BOUND_SLACK_M)
+        if stale.all():  # one sequence, as a streaming predictor runs: no masks to apply
+            self._measured, self._distances = poses, self.body.pair_distances(poses)
+            lower = self._clearance = self._distances.min(axis=1)
+        elif stale.any():
             self._measured[stale] = poses[stale]
-            self._clearance[stale] = self._body.clearance(poses[stale])
-            lower[stale] = self._clearance[stale]
-        wanted = np.clip((lower - self.margin_m) / self.band_m, 0.0, 1.0)
+            self._distances[stale] = self.body.pair_distances(poses[stale])
+            lower[stale] = self._clearance[stale] = self._distances[stale].min(axis=1)
+        wanted = np.minimum(np.maximum((lower - self.margin_m) / self.band_m, 0.0), 1.0)
         step = MAX_FACTOR_STEP
-        self._factors = np.clip(wanted, self._factors - step, self._factors + step)
+        self._factors = np.minimum(np.maximum(wanted, self._factors - step), self._factors + step)
         return self._factors.copy()
 
 

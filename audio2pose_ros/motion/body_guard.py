@@ -118,6 +118,7 @@ class BodyGuard:
         self._bounds = (body.robot.lower_rad, body.robot.upper_rad)
         self._max_speed = body.robot.max_velocity_rad_s  # the limiter's, from each step on
         self._brake_accel: np.ndarray | None = None  # deceleration the last command relies on
+        self._speed_up = np.zeros(body.robot.n_joints)  # the acceleration limit (rad/s^2)
         self._previous = np.zeros(body.robot.n_joints)  # the previous command, this step
         self._dt_s = 0.0  # the time of this step, and of each tick of a braking path (s)
         self._paths: dict[bytes, PathClearance] = {}
@@ -263,7 +264,12 @@ class BodyGuard:
         previous_velocity = np.asarray(previous_velocity_rad_s, dtype=np.float64)
         self._previous = previous
         self._dt_s = dt_s if np.isfinite(dt_s) and dt_s > 0.0 else 0.0
-        accel = limiter.max_acceleration_rad_s2
+        # One deceleration for the limiter and the guard: the braking paths assume the joint
+        # limiter's (its acceleration limit, or the previous, higher limit while a joint it let
+        # move fast still needs it to stop: a live-lowered acceleration_fraction); the guard's
+        # own moves speed up at the acceleration limit only.
+        self._speed_up = limiter.max_acceleration_rad_s2
+        accel = np.maximum(self._speed_up, limiter.braking_rad_s2)
         brake = accel if self._brake_accel is None else np.maximum(accel, self._brake_accel)
         self._bounds = limiter.allowed_range(previous)
         self._max_speed = limiter.max_velocity_rad_s
@@ -418,7 +424,7 @@ class BodyGuard:
         direction = tangent / length + DETOUR_LIFT * gradient / np.sqrt(squared)
         speed = min(LEAD_OUT_SPEED_RAD_S, length / dt_s)
         target = self._within_speed(direction / float(np.linalg.norm(direction)) * speed)
-        change = np.clip(target - previous_velocity, -accel * dt_s, accel * dt_s)
+        change = np.clip(target - previous_velocity, -self._speed_up * dt_s, self._speed_up * dt_s)
         lower, upper = self._bounds
         trial = np.where(
             held, np.clip(previous + (previous_velocity + change) * dt_s, lower, upper), pose
@@ -469,7 +475,7 @@ class BodyGuard:
         target = (
             np.zeros_like(previous) if norm < 1e-9 else self._within_speed(gradient / norm * speed)
         )
-        change = np.clip(target - previous_velocity, -accel * dt_s, accel * dt_s)
+        change = np.clip(target - previous_velocity, -self._speed_up * dt_s, self._speed_up * dt_s)
         led_velocity = np.where(joints, previous_velocity + change, 0.0)
         led = np.where(joints, np.clip(previous + led_velocity * dt_s, lower, upper), previous)
         pose = np.where(joints, led, want)

@@ -64,6 +64,7 @@ from audio2pose_ros.motion.gate import TrackGate
 from audio2pose_ros.motion.limits import JointLimiter, LimitSettings, check_limit_settings
 from audio2pose_ros.motion.smoothing import CausalLowPass, KalmanSmoother
 from audio2pose_ros.motion.style import StyleSettings, StyleTransform
+from audio2pose_ros.parameters import settings_with
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import RobotDescription
 
@@ -157,6 +158,8 @@ class MotionFilter:
             self.settings.outlier_tolerance_rad,
         )
         self.approach = Approach()
+        # settings validated by request_settings, for take_requested_settings
+        self._requested: tuple[MotionFilterSettings, LimitSettings, StyleSettings] | None = None
         self._apply_live_settings()
         self._queue: deque[np.ndarray] = deque(
             maxlen=max(1, round(self.settings.max_buffer_s * self.settings.rate_hz))
@@ -257,11 +260,40 @@ class MotionFilter:
         self.settings = settings
         if limits != self.limiter.settings:
             counts = self.limiter.counts
-            self.limiter = JointLimiter(self.robot, limits)
+            # a lowered acceleration limit: joints brake at the old one until they can stop
+            self.limiter = JointLimiter(self.robot, limits, self.limiter.braking_rad_s2)
             self.limiter.counts = counts
         if style is not None or settings.legacy_gains():
             self.style.update(_with_legacy_gains(settings, style or self.style.settings))
         self._apply_live_settings()
+
+    def request_settings(self, changes: Mapping[str, object]) -> None:
+        """Validate a run-time change now, as a whole; :meth:`take_requested_settings` applies it.
+
+        ``changes`` maps setting names to new values (names of other settings are ignored); it
+        adds to a request not taken yet (the newest value of each wins), and a request that
+        leaves every setting as it runs cancels the pending one. A request costs a validation
+        only (no limiter or body model is built), so a node applies requests once per tick,
+        however many came.
+
+        Raises:
+            ConfigurationError: the new combination is refused (nothing changes then).
+        """
+        running = (self.settings, self.limiter.settings, self.style.settings)
+        settings, limits, style = self._requested or running
+        wanted = (
+            settings_with(settings, changes),
+            settings_with(limits, changes),
+            settings_with(style, changes),
+        )
+        self.check_settings(wanted[0], wanted[1])
+        self._requested = wanted if wanted != running else None
+
+    def take_requested_settings(self) -> None:
+        """Apply the settings requested since the last call (:meth:`update_settings`), if any."""
+        if self._requested is not None:
+            requested, self._requested = self._requested, None
+            self.update_settings(*requested)
 
     @property
     def buffered(self) -> int:

@@ -4,8 +4,10 @@
 :class:`~audio2pose_ros.motion.filter.MotionFilter` (rate, jitter buffer, gate, smoothing, stop
 behaviour, neutral glide, head composition, body margin); :data:`READ_ONLY_SETTINGS` those of them
 and of the joint limits (:class:`~audio2pose_ros.motion.limits.LimitSettings`) that cannot change
-while the filter runs. ``motion_filter_node`` declares them as its parameters (with their
-descriptors), and the parameter documentation is generated from them.
+while the filter runs. :class:`MotionFilterNodeSettings` are those of ``motion_filter_node``
+itself (outputs and their rates, the measured topic, the start-up wait, the state file, the raw
+stamps' bounds). The node declares them all as its parameters (with their descriptors), and the
+parameter documentation is generated from them.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import dataclasses
 import warnings
 from dataclasses import dataclass, field
 
+from audio2pose_ros import topics
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.motion.style import StyleSettings
@@ -262,3 +265,125 @@ READ_ONLY_SETTINGS = tuple(
     for spec in (*specs_of(MotionFilterSettings), *specs_of(LimitSettings))
     if spec.read_only
 )
+
+
+@dataclass(frozen=True)
+class MotionFilterNodeSettings:
+    """Parameters of the node itself (the filter's are in MotionFilterSettings, LimitSettings).
+
+    Attributes:
+        robot_description: robot description YAML ('' = config/pepper_robot.yaml).
+        joint_angles_speed: JointAnglesWithSpeed.speed, a fraction of the maximum speed in
+            [0.01, 1] (naoqi's setAngles refuses 0); negative = velocity_fraction.
+        joint_angles_rate_hz: rate of /joint_angles (0 = off); 50 Hz = one command per
+            ALMotion 20 ms cycle.
+        joint_trajectory_rate_hz: rate of joint_trajectory (0 = off); Pepper's ros2_control
+            controller runs at 50 Hz.
+        joint_states_rate_hz: rate of commanded_joint_states (0 = off).
+        measured_joint_states_topic: the robot's measured joint states.
+        startup_timeout_s: how long at least to wait for a measured pose before using the saved
+            one (longer while one may still come: :mod:`audio2pose_ros.motion.start_pose`).
+        state_file: where the last commanded pose and a stop are kept ('' = the default).
+        state_save_period_s: how often the state file is rewritten while the pose changes.
+        max_stamp_future_s: raw trajectories stamped further ahead of the clock are rejected.
+        max_stamp_age_s: raw trajectories stamped further behind the clock are rejected.
+    """
+
+    robot_description: str = field(
+        default="",
+        metadata=param("robot description YAML ('' = config/pepper_robot.yaml)", read_only=True),
+    )
+    joint_angles_speed: float = field(
+        default=-1.0,
+        metadata=param(
+            "JointAnglesWithSpeed.speed (fraction of max velocity); negative = velocity_fraction",
+            minimum=-1.0,
+            maximum=1.0,
+            excluded=(0.0, 0.01),  # the robot refuses 0 and would crawl below velocity_fraction's
+        ),
+    )
+    joint_angles_rate_hz: float = field(
+        default=50.0,
+        metadata=param(
+            "rate of joint_angles, at most rate_hz (0 = off; 50 = one per ALMotion 20 ms cycle)",
+            minimum=0.0,
+            maximum=1000.0,
+            read_only=True,
+            unit="Hz",
+        ),
+    )
+    joint_trajectory_rate_hz: float = field(
+        default=50.0,
+        metadata=param(
+            "rate of joint_trajectory_controller/joint_trajectory, at most rate_hz (0 = off)",
+            minimum=0.0,
+            maximum=1000.0,
+            read_only=True,
+            unit="Hz",
+        ),
+    )
+    joint_states_rate_hz: float = field(
+        default=50.0,
+        metadata=param(
+            "rate of commanded_joint_states, at most rate_hz (0 = off)",
+            minimum=0.0,
+            maximum=1000.0,
+            read_only=True,
+            unit="Hz",
+        ),
+    )
+    measured_joint_states_topic: str = field(
+        default=topics.JOINT_STATES,
+        metadata=param("the robot's measured joint states (naoqi_driver)", read_only=True),
+    )
+    startup_timeout_s: float = field(
+        default=1.0,
+        metadata=param(
+            "wait at least this long for a measured pose, then start from the saved one "
+            "(or neutral)",
+            minimum=0.0,
+            maximum=60.0,
+            read_only=True,
+            unit="s",
+        ),
+    )
+    state_file: str = field(
+        default="",
+        metadata=param(
+            "file keeping the last commanded pose and a stop across restarts "
+            "('' = $ROS_HOME/audio2pose_ros/<node>.json)",
+            read_only=True,
+        ),
+    )
+    state_save_period_s: float = field(
+        default=0.5,
+        metadata=param(
+            "the state file is rewritten this often while the pose changes",
+            minimum=0.05,
+            maximum=60.0,
+            read_only=True,
+            unit="s",
+        ),
+    )
+    max_stamp_future_s: float = field(
+        default=0.5,
+        metadata=param(
+            "raw_trajectory stamped further ahead of the node clock is rejected",
+            minimum=0.0,
+            maximum=3600.0,
+            unit="s",
+        ),
+    )
+    max_stamp_age_s: float = field(
+        default=5.0,
+        metadata=param(
+            "raw_trajectory stamped further behind the node clock is rejected",
+            minimum=0.01,
+            maximum=3600.0,
+            unit="s",
+        ),
+    )
+
+    def __post_init__(self) -> None:
+        """Validate every field against its declaration."""
+        validate_settings(self)

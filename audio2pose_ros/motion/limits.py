@@ -98,8 +98,17 @@ class JointLimiter:
     position and velocity, so it can be tested without a node.
     """
 
-    def __init__(self, robot: RobotDescription, settings: LimitSettings | None = None) -> None:
+    def __init__(
+        self,
+        robot: RobotDescription,
+        settings: LimitSettings | None = None,
+        braking_rad_s2: np.ndarray | None = None,
+    ) -> None:
         """Derive the effective limits from ``robot`` and ``settings``.
+
+        ``braking_rad_s2`` is the previous limiter's braking deceleration per joint, when the
+        settings change at run time (:attr:`braking_rad_s2`): a lowered acceleration limit then
+        applies to slowing down only once each joint can stop at it.
 
         Raises:
             ConfigurationError: the margin leaves no range for some joint.
@@ -114,6 +123,15 @@ class JointLimiter:
         self.max_acceleration_rad_s2 = (
             robot.max_acceleration_rad_s2 * self.settings.acceleration_fraction
         )
+        # Deceleration allowed per joint: the acceleration limit, or more, up to the previous
+        # limit, while a joint moving at the speed the previous limit allowed could not stop at
+        # the new one before its position limit (a live-lowered acceleration_fraction): it
+        # brakes as it would have, never harder, instead of being stopped there in one command.
+        self.braking_rad_s2 = self.max_acceleration_rad_s2.copy()
+        if braking_rad_s2 is not None:
+            carried = np.asarray(braking_rad_s2, dtype=np.float64)
+            if carried.shape == self.braking_rad_s2.shape and np.isfinite(carried).all():
+                self.braking_rad_s2 = np.maximum(self.braking_rad_s2, carried)
         self.counts = LimitCounts()
 
     def clamp_position(self, positions_rad: np.ndarray) -> np.ndarray:
@@ -152,10 +170,11 @@ class JointLimiter:
         """Largest speed from which the joint can still stop within ``distance_rad``.
 
         Solves v*dt + v^2 / (2a) = d for v, a conservative bound for a discrete-time stop at
-        deceleration a (the distance covered while braking is at most v^2 / (2a)). Takes any
-        array whose last axis is the joints.
+        deceleration a (the distance covered while braking is at most v^2 / (2a)), a the
+        joint's braking deceleration (:attr:`braking_rad_s2`). Takes any array whose last axis
+        is the joints.
         """
-        accel = self.max_acceleration_rad_s2
+        accel = self.braking_rad_s2
         distance = np.maximum(distance_rad, 0.0)
         return accel * (np.sqrt(dt_s * dt_s + 2.0 * distance / accel) - dt_s)
 
@@ -209,11 +228,19 @@ class JointLimiter:
         limited = np.minimum(np.maximum(np.copysign(speed, error), -to_lower), to_upper)
         self.counts.velocity += int(np.count_nonzero(np.abs(limited) < wanted_speed))
 
-        # 3. Acceleration.
-        max_change = self.max_acceleration_rad_s2 * dt_s
-        accelerated = np.minimum(
-            np.maximum(limited, previous_velocity - max_change), previous_velocity + max_change
+        # 3. Acceleration: speeding up at the acceleration limit, slowing down towards zero at
+        # the braking deceleration (also when the joint is to reverse: it first has to stop),
+        # and on past zero at the acceleration limit again.
+        speed_up = self.max_acceleration_rad_s2 * dt_s
+        slow_down = self.braking_rad_s2 * dt_s
+        v = previous_velocity
+        lowest = np.where(
+            v > 0.0, np.maximum(v - slow_down, np.minimum(0.0, v - speed_up)), v - speed_up
         )
+        highest = np.where(
+            v < 0.0, np.minimum(v + slow_down, np.maximum(0.0, v + speed_up)), v + speed_up
+        )
+        accelerated = np.minimum(np.maximum(limited, lowest), highest)
         self.counts.acceleration += int(np.count_nonzero(accelerated != limited))
 
         # Final guard against rounding: positions never leave the range (nor, for a joint that
@@ -222,4 +249,20 @@ class JointLimiter:
         low, high = self.allowed_range(previous)
         positions = np.minimum(np.maximum(unclamped, low), high)
         velocities = np.where(positions == unclamped, accelerated, (positions - previous) / dt_s)
+        self._relax_braking(positions, velocities)
         return positions, velocities
+
+    def _relax_braking(self, positions: np.ndarray, velocities: np.ndarray) -> None:
+        """Braking beyond the acceleration limit is kept only while a joint still needs it.
+
+        A joint needs v^2 / (2d) to stop within the distance d to the position limit it moves
+        towards; once that is within the acceleration limit, it brakes at the limit again.
+        """
+        if not (self.braking_rad_s2 > self.max_acceleration_rad_s2).any():
+            return
+        room = np.where(velocities > 0.0, self.upper_rad - positions, positions - self.lower_rad)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            needed = np.where(
+                velocities != 0.0, velocities**2 / (2.0 * np.maximum(room, 1e-9)), 0.0
+            )
+        self.braking_rad_s2 = np.clip(needed, self.max_acceleration_rad_s2, self.braking_rad_s2)

@@ -17,7 +17,10 @@ SIGKILL), and a second node that finds it held refuses to start, naming the file
 owner's pid.
 
 The times a stop and a disable came into force (``stopped_at_s``, ``disabled_at_s``, wall clock)
-are kept too: a release must be published after them to count (see ``motion_filter_node``).
+are kept too: a release must be published after them to count
+(:mod:`~audio2pose_ros.motion.holds`).
+:class:`StateStore` is the node's use of its file: the lock, what it held at start, and writes
+only of what changed, at a bounded rate.
 """
 
 from __future__ import annotations
@@ -31,12 +34,17 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from audio2pose_ros.errors import InputError
+from audio2pose_ros.motion.problems import Problem
 from audio2pose_ros.robot.description import RobotDescription
 
 FORMAT_VERSION = 1
 MAX_FILE_BYTES = 65536  # a state file is a few hundred bytes; anything larger is not ours
 RANGE_SLACK_RAD = 1e-6  # rounding allowance of the range check of a saved pose
+MIN_SAVE_SPACING_S = 0.1  # a change kept at once is written at most this often (flash wear)
+SAVED_POSE_RESOLUTION_RAD = 1e-4  # a pose that moved less than this is not written again
 
 
 @dataclass(frozen=True)
@@ -221,3 +229,110 @@ def load_memory(path: Path, robot: RobotDescription) -> FilterMemory | None:
         None if since[1] is None else float(since[1]),
         measured,
     )
+
+
+class StateStore:
+    """One node's state file: its lock, what it held at start, and when it is written again.
+
+    A write happens only when something kept changed (the pose by at least
+    :data:`SAVED_POSE_RESOLUTION_RAD`, so a pose at rest is written once), and a change to be
+    kept at once (a stop, a disable) is written at most every :data:`MIN_SAVE_SPACING_S` (a
+    flood of them wears no flash): :meth:`save_soon` says when the next write may be now.
+
+    Attributes:
+        path: the state file.
+        lock: its lock (None when it could not be taken: ``lock_problem`` says why).
+        memory: what the file held at start (None: no file, or ``read_problem`` says why not).
+        due: a change waits for its write.
+    """
+
+    def __init__(self, path: Path, robot: RobotDescription) -> None:
+        """Lock the state file ``path`` and read what it holds for ``robot``.
+
+        Raises:
+            StateFileInUseError: another live node holds the file.
+        """
+        self.path = path
+        self.robot = robot
+        self.lock: StateLock | None = None
+        self.lock_problem = ""
+        try:
+            self.lock = StateLock(path)
+        except StateFileInUseError:
+            raise
+        except OSError as exc:
+            self.lock_problem = f"cannot lock it: {exc}"
+        self.memory: FilterMemory | None = None
+        self.read_problem = ""
+        try:
+            self.memory = load_memory(path, robot)
+        except InputError as exc:
+            self.read_problem = str(exc)
+        self.due = False
+        self.last_write_s = -math.inf  # monotonic time of the last write (or attempt)
+        self._written: tuple[object, ...] | None = None
+
+    @property
+    def pose_refused(self) -> bool:
+        """The file holds a pose outside the joint ranges (refused; its stop and enable kept)."""
+        return self.memory is not None and not self.memory.pose_in_range(self.robot)
+
+    def problems(self) -> list[Problem]:
+        """What is wrong with the file at start: unlocked (ERROR), unreadable, pose refused."""
+        found = [self.unsaved(self.lock_problem, False)] if self.lock_problem else []
+        if self.read_problem:
+            found.append(Problem("state_file", False, f"state file ignored: {self.read_problem}"))
+        if self.pose_refused:
+            text = (
+                f"the pose saved in {self.path} lies outside the joint ranges: refused (its stop "
+                "and enable are kept)"
+            )
+            found.append(Problem("saved_pose_refused", False, text, 10.0))
+        return found
+
+    def unsaved(self, reason: str, stopped: bool) -> Problem:
+        """The state cannot be saved: an ERROR until a save succeeds (a stop stays in memory)."""
+        held = " The STOP in force" if stopped else " A stop"
+        text = (
+            f"state file {self.path}: {reason}.{held} stays in force in this process but will "
+            "NOT survive a restart"
+        )
+        return Problem("state_file_unsaved", True, text, math.inf)
+
+    def saved_pose(self) -> np.ndarray | None:
+        """The saved pose, when there is one inside the joint ranges."""
+        if self.memory is None or self.pose_refused:
+            return None
+        return np.array(self.memory.position_rad)
+
+    def save(self, memory: FilterMemory, now_s: float) -> bool:
+        """Write ``memory`` atomically unless it is what was last written; True when written.
+
+        Args:
+            memory: what to keep.
+            now_s: monotonic time now.
+
+        Raises:
+            OSError: the file cannot be written (it is tried again at the next save).
+        """
+        resolution = SAVED_POSE_RESOLUTION_RAD
+        key = (
+            tuple(round(v / resolution) for v in memory.position_rad),
+            memory.stopped,
+            memory.enabled,
+            memory.stopped_at_s,
+            memory.disabled_at_s,
+            memory.measured,
+        )
+        self.due = False
+        if key == self._written:
+            return False
+        self.last_write_s = now_s
+        save_memory(self.path, memory)
+        self._written = key
+        return True
+
+    def save_soon(self, now_s: float) -> bool:
+        """A change is to be kept at once: True when it may be written now (else it is due)."""
+        self.due = True
+        return now_s - self.last_write_s >= MIN_SAVE_SPACING_S

@@ -151,22 +151,32 @@ def _pitch_mask(robot: RobotDescription) -> np.ndarray:
 
 @dataclass(frozen=True)
 class _Effective:
-    """Per-joint vectors of a style: gain, tempo, offset, raise limit (inf: none)."""
+    """Per-joint vectors of a style: gain, tempo, offset, raise limit and how far it is on.
+
+    ``limit`` is finite everywhere; ``on`` is 1 where the soft height limit acts, 0 where it does
+    not, and in between while a blend switches it on or off, so a blend never mixes an infinite
+    "no limit" with a finite one (which gives NaN) and the limit fades in instead of snapping.
+    """
 
     gain: np.ndarray
     tempo: np.ndarray
     offset: np.ndarray
     limit: np.ndarray
+    on: np.ndarray
 
     def blend(self, other: _Effective, fraction: float) -> _Effective:
         def mix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             return np.asarray(a + fraction * (b - a))
 
+        # where only one side limits, the limit is that side's; ``on`` fades it in or out
+        limit = np.where(self.on > 0.0, self.limit, other.limit)
+        other_limit = np.where(other.on > 0.0, other.limit, self.limit)
         return _Effective(
             mix(self.gain, other.gain),
             mix(self.tempo, other.tempo),
             mix(self.offset, other.offset),
-            mix(self.limit, other.limit),
+            mix(limit, other_limit),
+            mix(self.on, other.on),
         )
 
 
@@ -206,9 +216,9 @@ class StyleTransform:
             tempo[mask] = getattr(settings, f"{part}_tempo")
         offset = np.where(self._pitch, settings.arms_rest_pitch_rad, 0.0)
         offset = offset + self._bend * settings.arms_rest_bend_rad
-        limit = np.where(self._pitch, settings.arms_raise_limit_rad, -np.inf)
-        limit = np.where(limit <= self._lower, -np.inf, limit)  # at the joint's limit: off
-        return _Effective(gain, tempo, offset, limit)
+        limit = np.where(self._pitch, settings.arms_raise_limit_rad, self._lower)
+        on = (limit > self._lower).astype(np.float64)  # at the joint's limit: off
+        return _Effective(gain, tempo, offset, limit, on)
 
     @property
     def is_identity(self) -> bool:
@@ -242,11 +252,12 @@ class StyleTransform:
 
     def _shape(self, pose: np.ndarray, eff: _Effective) -> np.ndarray:
         shaped = self.neutral_rad + eff.gain * (pose - self.neutral_rad) + eff.offset
-        limited = np.isfinite(eff.limit)
+        limited = eff.on > 0.0
         if limited.any():
             width = RAISE_SOFTNESS_RAD
-            low = eff.limit[limited]
-            shaped[limited] = low + width * np.logaddexp(0.0, (shaped[limited] - low) / width)
+            low, free = eff.limit[limited], shaped[limited]
+            soft = low + width * np.logaddexp(0.0, (free - low) / width)
+            shaped[limited] = free + eff.on[limited] * (soft - free)
         return np.asarray(shaped)
 
     def step(self, pose_rad: np.ndarray) -> np.ndarray:

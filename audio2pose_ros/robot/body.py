@@ -5,13 +5,8 @@ pepper_description's kinematics, the chest tablet included), loaded with Pinocch
 kinematic model and a separate geometry model, as Pinocchio separates them; distances between
 shapes come from coal (the FCL successor Pinocchio uses). Nothing here is hand-written geometry.
 
-**Checked pairs.** Every link of an arm that the arm's joints move (bicep, elbow, forearm, wrist,
-hand) against every link of the rest of the body (torso with the tablet and the neck base, neck,
-head, hip, pelvis, legs and base) and against every link of the other arm (its shoulder
-included). Not checked, like an allowed-collision matrix: links of one arm against each other
-(adjacent, they overlap by construction), and the shoulder balls against the body: they turn about
-their own centre, fixed to the torso, so their clearance does not depend on any command (the head
-cannot reach them within its limits; ``test/test_body.py`` checks both by sampling).
+**Checked pairs.** Those of :func:`~audio2pose_ros.robot.pairs.checked_pair`: every link of an arm
+that the arm's joints move against the rest of the body and the other arm.
 
 Joints the speech model does not drive (HipPitch, KneePitch, the wrists and hands) stay at zero,
 where Pepper holds them while it talks; distances are signed, in metres (negative: the shapes
@@ -29,12 +24,8 @@ import numpy as np
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.robot.description import RobotDescription, load_robot
 from audio2pose_ros.robot.kinematics import default_urdf_path
+from audio2pose_ros.robot.pairs import ARM_LINK_PREFIXES, checked_pair
 
-ARM_LINK_PREFIXES = {
-    "left": ("LBicep", "LElbow", "LForeArm", "l_wrist", "l_gripper"),
-    "right": ("RBicep", "RElbow", "RForeArm", "r_wrist", "r_gripper"),
-}
-SHOULDER_LINKS = {"left": "LShoulder", "right": "RShoulder"}
 PUSH_OUT_STEP_RAD = 0.02  # joint-space step of push_out's climb along the clearance gradient
 PUSH_OUT_MAX_STEPS = 400  # push_out gives up after this many steps (8 rad of travel)
 GRADIENT_STEP_RAD = 1e-3  # finite-difference step of the clearance gradient
@@ -185,7 +176,7 @@ class BodyModel:
         masks: list[np.ndarray] = []
         for a in range(len(objects)):
             for b in range(len(objects)):
-                if a != b and self._checked(names[a], names[b]):
+                if a != b and checked_pair(names[a], names[b]):
                     pairs.append((a, b))
                     masks.append(self._driven_joints(chain[a], chain[b]))
         if not pairs:
@@ -220,20 +211,6 @@ class BodyModel:
         if model is None:
             model = _LOADED[key] = cls(*key)
         return model
-
-    @staticmethod
-    def _checked(link_a: str, link_b: str) -> bool:
-        """Whether the pair (``link_a``, ``link_b``) is checked, counting each pair once."""
-        for side, links in ARM_LINK_PREFIXES.items():
-            if link_a not in links:
-                continue
-            if link_b in (*links, SHOULDER_LINKS[side]):
-                return False  # the arm's own links
-            other = "right" if side == "left" else "left"
-            if link_b in ARM_LINK_PREFIXES[other]:
-                return side == "left"  # arm against arm: once, from the left
-            return True  # the body, or the other arm's shoulder
-        return False
 
     def _levers(self, geometry: Any) -> tuple[np.ndarray, np.ndarray]:
         """Per collision shape and robot joint, how far the shape can be from the joint's axis.

@@ -3,17 +3,20 @@
 A features message carries (n_frames, n_features) float32 values, its feature set named in
 dim[1].label and, optionally, the index of its first frame in dim[0].label ("frames from N"), so
 the receiver counts the frames lost between messages. A raw trajectory is a JointTrajectory of
-one point per 10 ms frame.
+one point per 10 ms frame. Also here: what the middleware tells about a message (its
+publisher, when it was published) and the largest raw trajectory worth decoding.
 """
 
 from __future__ import annotations
 
 import array
+import time
 from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
-from builtin_interfaces.msg import Duration
+from builtin_interfaces.msg import Duration, Time
+from rclpy.subscription import MessageInfo
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -79,6 +82,34 @@ def duration_msg(seconds: float) -> Duration:
     """A builtin_interfaces/Duration of ``seconds``."""
     nanoseconds = round(seconds * 1e9)
     return Duration(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
+
+
+def stamp_s(stamp: Time) -> float:
+    """A builtin_interfaces/Time (a header stamp) in seconds."""
+    return float(stamp.sec + stamp.nanosec * 1e-9)
+
+
+def published_s(info: MessageInfo) -> float:
+    """When a message was published (publisher's wall clock); its arrival when not carried."""
+    source_ns = info.get("source_timestamp") or info.get("received_timestamp") or 0
+    return source_ns * 1e-9 if source_ns else time.time()
+
+
+def publisher_of(info: MessageInfo) -> bytes | str:
+    """The identity of a message's publisher (its DDS gid)."""
+    gid = info.get("publisher_gid") or {}
+    return bytes(gid.get("data", b"")) if isinstance(gid, dict) else repr(gid)
+
+
+def trajectory_bytes_cap(max_points: int, n_joints: int) -> int:
+    """Largest raw_trajectory decoded: ``max_points`` points carrying all four arrays (bytes).
+
+    A point of CDR holds four float64 arrays (positions, velocities, accelerations, efforts;
+    4-byte length each) and a Duration; beyond the cap the message is dropped before decoding,
+    so the work of one message stays bounded (decoding costs about 9 us per point in rclpy).
+    """
+    per_point = 4 * (4 + 8 * n_joints) + 8
+    return 1024 + 64 * n_joints + max_points * per_point
 
 
 def trajectory_msg(

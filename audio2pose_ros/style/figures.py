@@ -149,8 +149,11 @@ class StyleFile:
         source: the recording(s) measured, with their licence or attribution.
         command: the command that re-measures the figures.
         parts: part -> figures; parts not present are not adapted.
-        fitted: (SHA-256 of a checkpoint, the settings fitted to it on the person's own speech),
-            or None; used instead of resolving the figures when that checkpoint runs.
+        fitted: (SHA-256 of a checkpoint, the settings for it), or None; used instead of
+            resolving the figures when that checkpoint runs. Enrolment fits them on the
+            person's own speech; a preset keeps them resolved against the packaged model
+            (``python -m audio2pose_ros.style.presets --resolve``), so a start needs no
+            synthesis.
     """
 
     name: str

@@ -46,6 +46,7 @@ from audio2pose_ros.style.figures import (
     StyleFile,
     load_style,
     measure,
+    preset_names,
     resolve,
 )
 from audio2pose_ros.timebase import FRAME_RATE_HZ
@@ -116,6 +117,27 @@ def model_reference(checkpoint_path: Path) -> list[Motion]:
 def checkpoint_digest(checkpoint_path: Path) -> str:
     """SHA-256 of a checkpoint file (which model a fitted style was fitted to)."""
     return hashlib.sha256(Path(checkpoint_path).read_bytes()).hexdigest()
+
+
+def packaged_preset(name: str) -> StyleSettings:
+    """The preset ``name``'s settings for the packaged model, as its file keeps them.
+
+    No synthesis (the operator console, which runs neither torch nor the model, offers the
+    presets this way); ``python -m audio2pose_ros.style.presets --resolve`` renews them.
+
+    Raises:
+        StyleError: no preset of that name, or its kept settings are for another model.
+    """
+    names = preset_names()
+    if name not in names:
+        raise StyleError(f"no preset named {name[:40]!r}; the presets: {', '.join(names)}")
+    style = load_style(name)
+    if style.fitted is None or style.fitted[0] != checkpoint_digest(default_checkpoint_path()):
+        raise StyleError(
+            f"preset {name} keeps no settings for the packaged model: run "
+            "`python -m audio2pose_ros.style.presets --resolve`"
+        )
+    return style.fitted[1]
 
 
 def style_settings(

@@ -10,20 +10,32 @@ importers make of the shared data (the same importers as ``make default-model``)
 to ``config/styles/<name>.yaml`` with its source, licence and this command. A preset adapts
 only the parts its source observes.
 
+Resolving a preset (:func:`~audio2pose_ros.style.figures.resolve`) needs the model's own motion
+on the bundled speech, 20 to 30 s of synthesis; so each preset also keeps the settings resolved
+against the packaged model (its ``fitted`` entry, with the checkpoint's SHA-256), and a start
+with the packaged model reads them instead. ``--resolve`` renews them after the model changes
+(``make default-model`` runs it).
+
 Usage: ``python -m audio2pose_ros.style.presets TALKING_HEADS_DIR LECTURE_VIDEO WORK_DIR
-[OUT_DIR]`` (the data sets are imported into WORK_DIR unless they are there already).
+[OUT_DIR]`` (the data sets are imported into WORK_DIR unless they are there already), or
+``python -m audio2pose_ros.style.presets --resolve [PRESETS_DIR]``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 
 from audio2pose_ros.data.dataset import Dataset
 from audio2pose_ros.robot.description import RobotDescription, load_robot
-from audio2pose_ros.style.figures import StyleFile, measure
+from audio2pose_ros.style.figures import StyleFile, measure, read_style, resolve
 
 COMMAND = "make style-presets"
+USAGE = (
+    "usage: python -m audio2pose_ros.style.presets TALKING_HEADS_DIR LECTURE_VIDEO WORK_DIR "
+    "[OUT_DIR]\n       python -m audio2pose_ros.style.presets --resolve [PRESETS_DIR]"
+)
 # name -> (data set in the work dir, clip id prefix, description)
 PRESETS = {
     "calm_reader": (
@@ -78,18 +90,46 @@ def build_presets(
     if not (work_dir / "lecture" / "index.json").is_file():
         import_lecture(lecture_video, work_dir / "lecture", robot)
     out_dir.mkdir(parents=True, exist_ok=True)
-    written = []
     for name, (dataset, prefix, description) in PRESETS.items():
         style = measure_preset(work_dir / dataset, prefix, name, description, robot)
-        written.append(style.write(out_dir / f"{name}.yaml"))
+        style.write(out_dir / f"{name}.yaml")
+    return resolve_presets(out_dir)
+
+
+def resolve_presets(presets: Path, checkpoint: Path | None = None) -> list[Path]:
+    """Keep in every preset of ``presets`` its settings resolved against ``checkpoint``.
+
+    ``checkpoint`` defaults to the packaged model. Each file's ``fitted`` entry is replaced by
+    (the checkpoint's SHA-256, the resolved settings); the figures are left as they are.
+    """
+    from audio2pose_ros.resources import default_checkpoint_path
+    from audio2pose_ros.style.personal import checkpoint_digest, model_reference
+
+    checkpoint = checkpoint or default_checkpoint_path()
+    robot = load_robot()
+    reference = model_reference(checkpoint)
+    digest = checkpoint_digest(checkpoint)
+    written = []
+    for path in sorted(presets.glob("*.yaml")):
+        style = read_style(path)
+        settings = resolve(style.parts, reference, robot)
+        written.append(dataclasses.replace(style, fitted=(digest, settings)).write(path))
     return written
 
 
 def main(argv: list[str] | None = None) -> int:
     """Command line: see the module docstring."""
     args = sys.argv[1:] if argv is None else argv
-    if len(args) not in (3, 4):
-        print(__doc__.strip().splitlines()[-2], file=sys.stderr)
+    if args[:1] == ["--resolve"]:
+        if len(args) > 2:
+            print(USAGE, file=sys.stderr)
+            return 2
+        presets = Path(args[1]) if len(args) == 2 else Path("config") / "styles"
+        for path in resolve_presets(presets):
+            print(f"resolved {path}")
+        return 0
+    if len(args) not in (3, 4) or any(arg.startswith("-") for arg in args):
+        print(USAGE, file=sys.stderr)
         return 2
     out = Path(args[3]) if len(args) == 4 else Path("config") / "styles"
     for path in build_presets(Path(args[0]), Path(args[1]), Path(args[2]), out):

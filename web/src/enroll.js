@@ -134,9 +134,12 @@ export function createEnroll({ $, send, state, showError }) {
       setState(text);
     }
     $('style-personal').disabled = !job.personal || status.style === 'personal';
-    $('style-default').disabled = status.style !== 'personal';
-    $('style-in-use').textContent = status.style === 'personal'
-      ? 'The robot moves in the learned style.' : 'The robot moves in its default style.';
+    $('style-default').disabled = status.style === 'default';
+    const inUse = {
+      personal: 'the learned style', default: 'the style it started with',
+      adjusted: 'the style set by hand',
+    }[status.style] || `the preset ${String(status.style).replaceAll('_', ' ')}`;
+    $('style-in-use').textContent = `The robot moves in ${inUse}.`;
     $('style-problem').textContent = status.style_problem || '';
   }
 

@@ -1,15 +1,23 @@
 // The operator console's page: microphone capture (AudioWorklet, 16 kHz mono S16LE in 20 ms
 // chunks), the WebSocket to console_node (in a Worker, link.js, so the chunks leave without
 // waiting for this thread), a 3D view of the robot from the package's URDF (commanded pose
-// solid, measured pose as a ghost), stop / enable / gesture amplitude, health and the
-// voice-to-command latency. Everything is served by the console itself.
+// solid, measured pose as a ghost), stop / enable / style (a preset, and the size and tempo of
+// each part, where the hands rest and how high they go), health and the voice-to-command
+// latency. Everything is served by the console itself.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
 import URDFLoader from 'urdf-loader';
 import { createEnroll } from './enroll.js';
 
 const CHUNK_SAMPLES = 320; // 20 ms at 16 kHz
-const GAIN_SEND_PERIOD_MS = 150;
+const STYLE_SEND_PERIOD_MS = 150;
+// The page's names for the filter's live style parameters (their ranges come from the console).
+const STYLE_LABELS = {
+  head_gain: 'head size', arms_gain: 'arms size', hip_gain: 'hip size',
+  head_tempo: 'head tempo', arms_tempo: 'arms tempo', hip_tempo: 'hip tempo',
+  arms_rest_pitch_rad: 'hands rest lower', arms_rest_bend_rad: 'elbows bent more',
+  arms_raise_limit_rad: 'arms rise at most',
+};
 
 const $ = (id) => document.getElementById(id);
 // State the browser test reads (window.a2p).
@@ -51,8 +59,11 @@ function send(message) {
 }
 
 function setControls(enabled) {
-  for (const id of ['talk', 'stop', 'release', 'enable', 'gain-head', 'gain-arms', 'gain-hip', 'learn']) {
+  for (const id of ['talk', 'stop', 'release', 'enable', 'style-preset', 'learn']) {
     $(id).disabled = !enabled;
+  }
+  for (const slider of document.querySelectorAll('#style-sliders input')) {
+    slider.disabled = !enabled;
   }
 }
 
@@ -217,21 +228,63 @@ async function toggleTalk() {
 
 // --- controls ------------------------------------------------------------------------------
 
-const pendingGains = {};
-let gainTimer = null;
+const pendingStyle = {};
+let styleTimer = null;
 let draggingSince = 0;
 let enableToggled = 0; // the operator's own change shows until the latched value comes back
 const SETTLE_MS = 1500;
 
-function queueGain(group, value) {
-  pendingGains[group] = value;
+function queueStyle(name, value) {
+  pendingStyle[name] = value;
   draggingSince = Date.now();
-  if (gainTimer) return;
-  gainTimer = setTimeout(() => {
-    gainTimer = null;
-    send({ type: 'gains', ...pendingGains });
-    for (const key of Object.keys(pendingGains)) delete pendingGains[key];
-  }, GAIN_SEND_PERIOD_MS);
+  if (styleTimer) return;
+  styleTimer = setTimeout(() => {
+    styleTimer = null;
+    send({ type: 'style_set', ...pendingStyle });
+    for (const key of Object.keys(pendingStyle)) delete pendingStyle[key];
+  }, STYLE_SEND_PERIOD_MS);
+}
+
+// One slider per style parameter, made once from the ranges the console sends.
+function makeStyleSliders(ranges) {
+  const box = $('style-sliders');
+  if (box.childElementCount || !ranges) return;
+  for (const [name, [min, max]] of Object.entries(ranges)) {
+    const label = document.createElement('label');
+    label.append(`${STYLE_LABELS[name] || name} `);
+    const input = document.createElement('input');
+    Object.assign(input, {
+      id: `style-${name}`, type: 'range', min: String(min), max: String(max),
+      step: String((max - min) / 100), disabled: !state.connected,
+    });
+    const output = document.createElement('output');
+    input.addEventListener('input', () => {
+      output.textContent = Number(input.value).toFixed(2);
+      queueStyle(name, Number(input.value));
+    });
+    label.append(input, output);
+    box.append(label);
+  }
+}
+
+function updateStyle(status) {
+  makeStyleSliders(status.style_ranges);
+  const select = $('style-preset');
+  if (status.presets && select.options.length === 1) {
+    for (const name of status.presets) {
+      select.add(new Option(name.replaceAll('_', ' '), name));
+    }
+  }
+  const chosen = [...select.options].some((o) => o.value === status.style);
+  if (chosen && select.value !== status.style) select.value = status.style;
+  if (status.style_values && Date.now() - draggingSince > SETTLE_MS) {
+    for (const [name, value] of Object.entries(status.style_values)) {
+      const input = $(`style-${name}`);
+      if (!input) continue;
+      setValue(input, String(value));
+      setText(input.nextElementSibling, value.toFixed(2));
+    }
+  }
 }
 
 function updateStatus(status) {
@@ -242,13 +295,7 @@ function updateStatus(status) {
   setText($('robot-state'), stopped
     ? 'STOPPED: the robot holds still until the stop is released.'
     : enabled ? 'Motion enabled.' : 'Motion disabled: the robot rests in its neutral pose.');
-  if (status.gains && Date.now() - draggingSince > SETTLE_MS) {
-    for (const [group, value] of Object.entries(status.gains)) {
-      setValue($(`gain-${group}`), String(value));
-      setText($(`gain-${group}`).nextElementSibling, value.toFixed(2));
-    }
-  }
-  setText($('gains-problem'), status.gains_problem || '');
+  updateStyle(status);
   styleLearning.update(status);
   const l = status.latency || {};
   setText($('latency'), l.n
@@ -577,13 +624,10 @@ function wire() {
     enableToggled = Date.now();
     send({ type: 'enable', on: event.target.checked });
   });
-  for (const group of ['head', 'arms', 'hip']) {
-    $(`gain-${group}`).addEventListener('input', (event) => {
-      const value = Number(event.target.value);
-      event.target.nextElementSibling.textContent = value.toFixed(2);
-      queueGain(group, value);
-    });
-  }
+  $('style-preset').addEventListener('change', (event) => {
+    draggingSince = Date.now(); // the sliders follow once the filter has the preset
+    send({ type: 'style', use: event.target.value });
+  });
   $('login').addEventListener('submit', (event) => {
     event.preventDefault();
     sessionStorage.setItem('a2p-token', $('token').value);

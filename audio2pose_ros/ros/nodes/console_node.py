@@ -24,8 +24,10 @@ Subscriptions:
     stop, enable: their latched state, shown in the page.
     /diagnostics: the health of every node, shown in the page.
 Services used:
-    <filter_node>/set_parameters, get_parameters (rcl_interfaces): the gesture amplitude
-        (``head_gain``, ``arms_gain``, ``hip_gain``) set from the page, and read back.
+    <filter_node>/set_parameters, get_parameters (rcl_interfaces): the filter's live style
+        parameters (:data:`~audio2pose_ros.motion.style.STYLE_FIELDS`: size and tempo per part,
+        the arms' rest and height) set from the page (sliders, a preset, the learned style),
+        and read back.
 
 Parameters: :class:`~audio2pose_ros.console.settings.ConsoleSettings` (all read-only). A network
 bind without certificate, key or a long enough token, a certificate that does not load or an
@@ -56,8 +58,9 @@ from audio2pose_ros import topics
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K
 from audio2pose_ros.console.access import resolve_access
 from audio2pose_ros.console.latency import VoiceLatency
-from audio2pose_ros.console.protocol import GAIN_GROUPS, AudioFrame
-from audio2pose_ros.console.server import ConsoleServer, ServerThread
+from audio2pose_ros.console.protocol import AudioFrame
+from audio2pose_ros.console.server import ConsoleServer
+from audio2pose_ros.console.server_thread import ServerThread
 from audio2pose_ros.console.settings import ConsoleSettings
 from audio2pose_ros.motion.style import STYLE_FIELDS
 from audio2pose_ros.parameters import settings_from, specs_of
@@ -69,7 +72,7 @@ from audio2pose_ros.ros.spin import run_node
 
 PARAMETERS = specs_of(ConsoleSettings)
 AUDIO_INFO_PERIOD_S = 5.0  # audio_capture republishes its AudioInfo this often
-GAINS_REFRESH_S = 2.0  # the filter's gains are read back this often
+STYLE_REFRESH_S = 2.0  # the filter's style parameters are read back this often
 MEASURED_TIMEOUT_S = 2.0  # measured joint states older than this: no ghost robot
 HEALTH_FORGET_S = 30.0  # a diagnostic status not heard for this long leaves the page
 MAX_HEALTH_STATUSES = 32
@@ -91,7 +94,7 @@ def _level(level: object) -> int:
 
 
 class ConsoleNode(DiagnosedNode):
-    """Serve the console and carry its audio, stop, enable and gains into the graph."""
+    """Serve the console and carry its audio, stop, enable and style into the graph."""
 
     def __init__(self) -> None:
         """Declare parameters, wire topics and services, start the server thread.
@@ -115,8 +118,7 @@ class ConsoleNode(DiagnosedNode):
         self.command_source = ""
         self.stop_state: bool | None = None
         self.enable_state: bool | None = None
-        self.gains: dict[str, float] | None = None
-        self.gains_problem = ""
+        self.style_values: dict[str, float] | None = None  # the filter's, as last read
         # the filter's style before the console applied a learned one (restored on request)
         self.own_style: dict[str, float] | None = None
         self.style_problem = ""
@@ -174,7 +176,7 @@ class ConsoleNode(DiagnosedNode):
         self.get_client: Client[Any, Any] = self.create_client(
             GetParameters, f"{filter_node}/get_parameters"
         )
-        self.create_timer(GAINS_REFRESH_S, guarded(self.refresh_gains))
+        self.create_timer(STYLE_REFRESH_S, guarded(self.refresh_style))
 
         self.server = ConsoleServer(
             self.settings,
@@ -244,24 +246,13 @@ class ConsoleNode(DiagnosedNode):
         """Publish enable (latched)."""
         self.enable_pub.publish(Bool(data=on))
 
-    def set_gains(self, gains: dict[str, float]) -> None:
-        """Set ``<group>_gain`` of the filter through its parameter service."""
-        if not self.set_client.service_is_ready():
-            with self._lock:
-                self.gains_problem = (
-                    f"{self.settings.filter_node}'s parameter service is not available"
-                )
-            return
-        self._set_filter_doubles(
-            {f"{group}_gain": value for group, value in gains.items()}, "gains", self._gains_problem
-        )
-
     def set_style(self, settings: dict[str, float] | None) -> None:
-        """Apply learned style settings to the filter's live style parameters; None: restore.
+        """Set the filter's live style parameters named in ``settings``; None: restore.
 
-        Before the first learned style is applied, the filter's own style parameters are read
-        and kept, so that going back restores the style the graph was started with (a preset
-        of the launch file, say), not the identity.
+        A learned style, a preset or the page's sliders (size and tempo per part, where the
+        hands rest and how high they go). Before the first change, the filter's own style
+        parameters are read and kept, so that going back restores the style the graph was
+        started with (a preset of the launch file, say), not the identity.
         """
         if not (self.set_client.service_is_ready() and self.get_client.service_is_ready()):
             with self._lock:
@@ -299,10 +290,6 @@ class ConsoleNode(DiagnosedNode):
     def _set_style_parameters(self, values: dict[str, float]) -> None:
         self._set_filter_doubles(values, "style", self._style_problem)
 
-    def _gains_problem(self, text: str) -> None:
-        with self._lock:
-            self.gains_problem = text
-
     def _style_problem(self, text: str) -> None:
         with self._lock:
             self.style_problem = text
@@ -312,7 +299,7 @@ class ConsoleNode(DiagnosedNode):
     ) -> None:
         """Set double parameters of the filter; ``record`` gets its refusals ('' when none).
 
-        The values in force are read back after the answer (:meth:`refresh_gains`).
+        The values in force are read back after the answer (:meth:`refresh_style`).
         """
         request = SetParameters.Request()
         request.parameters = [
@@ -329,23 +316,23 @@ class ConsoleNode(DiagnosedNode):
             record("; ".join(refused))
             if refused:
                 self.get_logger().warning(f"{what} refused by the filter: {'; '.join(refused)}")
-            self.refresh_gains()
+            self.refresh_style()
 
         self.set_client.call_async(request).add_done_callback(done)
 
-    def refresh_gains(self) -> None:
-        """Read the filter's gains back (the page shows what is in force)."""
+    def refresh_style(self) -> None:
+        """Read the filter's style parameters back (the page shows what is in force)."""
         if not self.get_client.service_is_ready():
             return
-        request = GetParameters.Request(names=[f"{group}_gain" for group in GAIN_GROUPS])
-        self.get_client.call_async(request).add_done_callback(self._gains_read)
+        request = GetParameters.Request(names=list(STYLE_FIELDS))
+        self.get_client.call_async(request).add_done_callback(self._style_read)
 
-    def _gains_read(self, future: Future[Any]) -> None:
+    def _style_read(self, future: Future[Any]) -> None:
         response = future.result()
         values = [v.double_value for v in getattr(response, "values", [])]
-        if len(values) == len(GAIN_GROUPS):
+        if len(values) == len(STYLE_FIELDS):
             with self._lock:
-                self.gains = dict(zip(GAIN_GROUPS, values, strict=True))
+                self.style_values = dict(zip(STYLE_FIELDS, values, strict=True))
 
     # --- from the graph ---------------------------------------------------------------------------
 
@@ -414,7 +401,7 @@ class ConsoleNode(DiagnosedNode):
             return {"commanded": self.commanded, "measured": self.measured if fresh else None}
 
     def status(self) -> dict[str, Any]:
-        """Stop, enable, gains, health and latency for the pages."""
+        """Stop, enable, the style parameters, health and latency for the pages."""
         now = time.monotonic()
         with self._lock:
             for name in [n for n, (_, _, t) in self.health.items() if now - t > HEALTH_FORGET_S]:
@@ -430,8 +417,7 @@ class ConsoleNode(DiagnosedNode):
             return {
                 "stop": self.stop_state,
                 "enable": self.enable_state,
-                "gains": self.gains,
-                "gains_problem": self.gains_problem,
+                "style_values": self.style_values,
                 "style_problem": self.style_problem,
                 "health": health,
                 "latency": self.latency.summary(),

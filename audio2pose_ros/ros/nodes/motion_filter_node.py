@@ -24,19 +24,14 @@ Parameters: the fields of MotionFilterSettings, StyleSettings (the style: per pa
     (``ros2 param describe`` shows each one's description and range).
 
 Safety: every command passes the input gate first and the joint limiter last; the node
-publishes nothing until it knows where the robot is: its measured pose (every valid joint of it:
-an out-of-range reading is clamped and reported, a NaN joint is taken from the saved pose or
-neutral), or, when no measured pose arrives within ``startup_timeout_s`` and nothing publishes
-one (while a publisher exists it waits up to ``MEASURED_WAIT_S``), the pose it last commanded,
-saved in ``state_file`` (refused when outside the joint ranges), or else neutral.
-
-A measured pose is believed only when it can be (:mod:`audio2pose_ros.motion.measured`): a
-message listing a joint twice, or stamped too old or ahead, is refused (WARN); two publishers
-whose poses disagree are an ERROR and neither is used. While that lasts, the start waits with an
-ERROR, commanding nothing (neither the saved pose nor neutral stands in for a pose that is
-published but cannot be believed), and it starts from the robot's pose once the conflict has
-been over for ``SOURCE_WINDOW_S``. With several publishers on the topic, the start first
-listens ``MEASURED_LISTEN_S`` to the pose's publisher, so a second source shows in time.
+publishes nothing until it knows where the robot is. Which pose it starts from (the measured
+pose, every valid joint of it; else, once none can still come, the pose it last commanded, saved
+in ``state_file``, or neutral) is :mod:`audio2pose_ros.motion.start_pose`'s decision; whether a
+measured pose can be believed, :mod:`audio2pose_ros.motion.measured`'s (a joint listed twice, a
+stamp too old or ahead: refused, WARN; two publishers that disagree: ERROR, neither used, and
+the start holds, commanding nothing, until the conflict has been over for ``SOURCE_WINDOW_S``);
+what each measured message means (problems, the start, the commands' check) is
+:mod:`audio2pose_ros.motion.measured_states`'s.
 
 Parameter requests: the node's services (rclpy's parameter services) are served at most
 ``REQUESTS_PER_TICK`` per tick (:class:`~audio2pose_ros.ros.request_budget.RequestBudget`); a
@@ -44,28 +39,26 @@ request is validated at once and its settings reach the filter at the next tick,
 however many came, so a storm of set_parameters requests delays answers, never commands.
 
 Stop and disable: a stop stays in force across restarts until a ``stop: false`` *published
-after the stop* arrives, as does ``enable: false`` until a later ``enable: true``. "After" is
-judged by the message's source timestamp (the publisher's wall clock, which DDS carries with
-every sample; std_msgs/Bool has no stamp) against the time the stop came into force (saved in
-the state file), so a ``stop: false`` an older panel latched before the stop never releases it,
-whatever the restart timing and delivery order. The machines' clocks must agree (NTP), as ROS 2
-needs for tf anyway. A stop, a disable and the pose are saved when they change, at most every
-``MIN_SAVE_SPACING_S``; a state that cannot be saved is an ERROR on /diagnostics (the stop stays
-in force in memory), reported again at every start. The state file is this node's alone: a
-second live node with the same file refuses to start (exit 78, naming the file).
+after the stop* arrives, as does ``enable: false`` until a later ``enable: true``, by the
+messages' source timestamps (:mod:`audio2pose_ros.motion.holds`: an older panel's latched
+``stop: false`` never releases a stop). A stop, a disable and the pose are saved when they
+change, at most every ``MIN_SAVE_SPACING_S``; a state that cannot be saved is an ERROR on
+/diagnostics (the stop stays in force in memory), reported again at every start. The state file
+is this node's alone: a second live node with the same file refuses to start (exit 78, naming
+the file).
 
 One master: raw poses are taken from one ``raw_trajectory`` publisher at a time (its gid); a
 second one is refused and reported as ERROR until it stops, and the first is given up only
 after it has been silent for ``watchdog_timeout_s`` (then the filter approaches the new track
 gently).
 
-Timing: the filter ticks at ``rate_hz``, at the latest one period after the
-previous tick and early when a pose arrives into an empty buffer (at most ``MIN_TICK_SPACING``
-periods after the previous tick), so a steady stream is commanded on arrival. Each output is
-published at the tick nearest to its own period, never less than its period minus half a filter
-period after the previous one (its documented minimum spacing: 15 ms for 50 Hz at a 100 Hz
-filter clock). Header stamps are the time the command was computed for (the tick), not the
-publish time. An output nobody subscribes to is not built nor sent.
+Timing (:mod:`audio2pose_ros.motion.pacing`): the filter ticks at ``rate_hz``, at the latest
+one period after the previous tick and early when a pose arrives into an empty buffer (at most
+``MIN_TICK_SPACING`` periods after the previous tick), so a steady stream is commanded on
+arrival. Each output is published at the tick nearest to its own period, never less than its
+period minus half a filter period after the previous one (its documented minimum spacing: 15 ms
+for 50 Hz at a 100 Hz filter clock). Header stamps are the time the command was computed for
+(the tick), not the publish time. An output nobody subscribes to is not built nor sent.
 """
 
 from __future__ import annotations
@@ -73,9 +66,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -91,164 +82,41 @@ from audio2pose_ros import topics
 from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.motion.body_guard import GuardStatus
 from audio2pose_ros.motion.filter import MotionFilter
-from audio2pose_ros.motion.filter_settings import MotionFilterSettings
+from audio2pose_ros.motion.filter_report import FilterReport
+from audio2pose_ros.motion.filter_settings import MotionFilterNodeSettings, MotionFilterSettings
+from audio2pose_ros.motion.holds import Hold
 from audio2pose_ros.motion.limits import LimitSettings
-from audio2pose_ros.motion.measured import SOURCE_WINDOW_S, MeasuredPoseCheck
-from audio2pose_ros.motion.sources import SingleSource
+from audio2pose_ros.motion.measured_states import MeasuredStates, start_held
+from audio2pose_ros.motion.pacing import OutputPacing, arrival_wait_s, next_timer_s
+from audio2pose_ros.motion.problems import Problem
+from audio2pose_ros.motion.raw_intake import RawIntake
+from audio2pose_ros.motion.start_pose import HOLD, WAIT
 from audio2pose_ros.motion.state_file import (
+    MIN_SAVE_SPACING_S,
     FilterMemory,
     StateFileInUseError,
-    StateLock,
+    StateStore,
     default_state_path,
-    load_memory,
-    save_memory,
 )
 from audio2pose_ros.motion.style import StyleSettings
-from audio2pose_ros.motion.timing import StampCheck
-from audio2pose_ros.motion.tracking import TrackingWatch
-from audio2pose_ros.parameters import (
-    ParameterValue,
-    param,
-    settings_from,
-    settings_with,
-    specs_of,
-    validate_settings,
-)
+from audio2pose_ros.parameters import ParameterValue, settings_from, settings_with, specs_of
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, DiagnosedNode
-from audio2pose_ros.ros.messages import trajectory_msg, trajectory_positions
+from audio2pose_ros.ros.messages import (
+    published_s,
+    publisher_of,
+    stamp_s,
+    trajectory_bytes_cap,
+    trajectory_msg,
+    trajectory_positions,
+)
 from audio2pose_ros.ros.node_parameters import NodeParameters
 from audio2pose_ros.ros.request_budget import RequestBudget
 from audio2pose_ros.ros.spin import run_node
 
-MIN_TICK_SPACING = 0.5  # of a period: an arriving pose is commanded at once if the last tick
-# is at least this long ago (so ticks are never closer than half a period: no bursts)
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
-MEASURED_WAIT_S = 3.0  # while the measured topic has a publisher, wait this long for its pose
-MEASURED_LISTEN_S = 1.0  # with several publishers on it, hear a pose's source this long first
+STARTUP_CHECK_NS = 100_000_000  # while the start waits, it is decided again this often (0.1 s)
 REQUESTS_PER_TICK = 1  # service requests (set_parameters, ...) served per tick at most
-MIN_SAVE_SPACING_S = 0.1  # the state file is written at most this often (flash wear)
-SAVED_POSE_RESOLUTION_RAD = 1e-4  # a pose that moved less than this is not saved again
-
-
-@dataclass(frozen=True)
-class MotionFilterNodeSettings:
-    """Parameters of the node itself (the filter's are in MotionFilterSettings, LimitSettings).
-
-    Attributes:
-        robot_description: robot description YAML ('' = config/pepper_robot.yaml).
-        joint_angles_speed: JointAnglesWithSpeed.speed, a fraction of the maximum speed in
-            [0.01, 1] (naoqi's setAngles refuses 0); negative = velocity_fraction.
-        joint_angles_rate_hz: rate of /joint_angles (0 = off); 50 Hz = one command per
-            ALMotion 20 ms cycle.
-        joint_trajectory_rate_hz: rate of joint_trajectory (0 = off); Pepper's ros2_control
-            controller runs at 50 Hz.
-        joint_states_rate_hz: rate of commanded_joint_states (0 = off).
-        measured_joint_states_topic: the robot's measured joint states.
-        startup_timeout_s: how long to wait for a measured pose before using the saved one.
-        state_file: where the last commanded pose and a stop are kept ('' = the default).
-        state_save_period_s: how often the state file is rewritten while the pose changes.
-        max_stamp_future_s: raw trajectories stamped further ahead of the clock are rejected.
-        max_stamp_age_s: raw trajectories stamped further behind the clock are rejected.
-    """
-
-    robot_description: str = field(
-        default="",
-        metadata=param("robot description YAML ('' = config/pepper_robot.yaml)", read_only=True),
-    )
-    joint_angles_speed: float = field(
-        default=-1.0,
-        metadata=param(
-            "JointAnglesWithSpeed.speed (fraction of max velocity); negative = velocity_fraction",
-            minimum=-1.0,
-            maximum=1.0,
-            excluded=(0.0, 0.01),  # the robot refuses 0 and would crawl below velocity_fraction's
-        ),
-    )
-    joint_angles_rate_hz: float = field(
-        default=50.0,
-        metadata=param(
-            "rate of joint_angles, at most rate_hz (0 = off; 50 = one per ALMotion 20 ms cycle)",
-            minimum=0.0,
-            maximum=1000.0,
-            read_only=True,
-            unit="Hz",
-        ),
-    )
-    joint_trajectory_rate_hz: float = field(
-        default=50.0,
-        metadata=param(
-            "rate of joint_trajectory_controller/joint_trajectory, at most rate_hz (0 = off)",
-            minimum=0.0,
-            maximum=1000.0,
-            read_only=True,
-            unit="Hz",
-        ),
-    )
-    joint_states_rate_hz: float = field(
-        default=50.0,
-        metadata=param(
-            "rate of commanded_joint_states, at most rate_hz (0 = off)",
-            minimum=0.0,
-            maximum=1000.0,
-            read_only=True,
-            unit="Hz",
-        ),
-    )
-    measured_joint_states_topic: str = field(
-        default=topics.JOINT_STATES,
-        metadata=param("the robot's measured joint states (naoqi_driver)", read_only=True),
-    )
-    startup_timeout_s: float = field(
-        default=1.0,
-        metadata=param(
-            "wait this long for a measured pose, then start from the saved one (or neutral)",
-            minimum=0.0,
-            maximum=60.0,
-            read_only=True,
-            unit="s",
-        ),
-    )
-    state_file: str = field(
-        default="",
-        metadata=param(
-            "file keeping the last commanded pose and a stop across restarts "
-            "('' = $ROS_HOME/audio2pose_ros/<node>.json)",
-            read_only=True,
-        ),
-    )
-    state_save_period_s: float = field(
-        default=0.5,
-        metadata=param(
-            "the state file is rewritten this often while the pose changes",
-            minimum=0.05,
-            maximum=60.0,
-            read_only=True,
-            unit="s",
-        ),
-    )
-    max_stamp_future_s: float = field(
-        default=0.5,
-        metadata=param(
-            "raw_trajectory stamped further ahead of the node clock is rejected",
-            minimum=0.0,
-            maximum=3600.0,
-            unit="s",
-        ),
-    )
-    max_stamp_age_s: float = field(
-        default=5.0,
-        metadata=param(
-            "raw_trajectory stamped further behind the node clock is rejected",
-            minimum=0.01,
-            maximum=3600.0,
-            unit="s",
-        ),
-    )
-
-    def __post_init__(self) -> None:
-        """Validate every field against its declaration."""
-        validate_settings(self)
 
 
 SETTINGS_CLASSES = (MotionFilterSettings, StyleSettings, LimitSettings, MotionFilterNodeSettings)
@@ -256,35 +124,13 @@ SETTINGS_CLASSES = (MotionFilterSettings, StyleSettings, LimitSettings, MotionFi
 MAX_JOINT_STATE_BYTES = 65536
 
 
-def trajectory_bytes_cap(max_points: int, n_joints: int) -> int:
-    """Largest raw_trajectory decoded: ``max_points`` points carrying all four arrays (bytes).
-
-    A point of CDR holds four float64 arrays (positions, velocities, accelerations, efforts;
-    4-byte length each) and a Duration; beyond the cap the message is dropped before decoding,
-    so the work of one message stays bounded (decoding costs about 9 us per point in rclpy).
-    """
-    per_point = 4 * (4 + 8 * n_joints) + 8
-    return 1024 + 64 * n_joints + max_points * per_point
-
-
 PARAMETERS = tuple(spec for cls in SETTINGS_CLASSES for spec in specs_of(cls))
-OUTPUT_RATES = ("joint_angles_rate_hz", "joint_trajectory_rate_hz", "joint_states_rate_hz")
-
-
-def _stamp_s(stamp: object) -> float:
-    return stamp.sec + stamp.nanosec * 1e-9  # type: ignore[attr-defined]
-
-
-def _published_s(info: MessageInfo) -> float:
-    """When a message was published (publisher's wall clock); its arrival when not carried."""
-    source_ns = info.get("source_timestamp") or info.get("received_timestamp") or 0
-    return source_ns * 1e-9 if source_ns else time.time()
-
-
-def _publisher_of(info: MessageInfo) -> bytes | str:
-    """The identity of a message's publisher (its DDS gid)."""
-    gid = info.get("publisher_gid") or {}
-    return bytes(gid.get("data", b"")) if isinstance(gid, dict) else repr(gid)
+# output -> (message type, topic); each published at its own ``<output>_rate_hz``
+OUTPUTS = {
+    "joint_angles": (JointAnglesWithSpeed, topics.JOINT_ANGLES),
+    "joint_trajectory": (JointTrajectory, topics.JOINT_TRAJECTORY),
+    "joint_states": (JointState, topics.COMMANDED_JOINT_STATES),
+}
 
 
 class MotionFilterNode(DiagnosedNode):
@@ -302,21 +148,12 @@ class MotionFilterNode(DiagnosedNode):
             ConfigurationError: a parameter or the robot description is refused.
         """
         super().__init__("motion_filter_node")
-        # settings validated at a set_parameters request, for the filter's next tick
-        self.pending_settings: tuple[MotionFilterSettings, LimitSettings, StyleSettings] | None = (
-            None
-        )
         self.parameters = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
         values = self.parameters.values
         self.settings: MotionFilterNodeSettings = settings_from(MotionFilterNodeSettings, values)
         settings: MotionFilterSettings = settings_from(MotionFilterSettings, values)
-        for name in OUTPUT_RATES:
-            rate = getattr(self.settings, name)
-            if rate > settings.rate_hz:
-                raise ConfigurationError(
-                    f"parameter {name}: value {rate!r} is out of range; allowed: 0 (off) to "
-                    f"rate_hz = {settings.rate_hz:g}"
-                )
+        rates = {key: getattr(self.settings, f"{key}_rate_hz") for key in OUTPUTS}
+        self.pacing = OutputPacing(rates, settings.rate_hz)
         try:
             self.robot = load_robot(self.settings.robot_description or None)
         except (OSError, ValueError) as exc:
@@ -327,56 +164,47 @@ class MotionFilterNode(DiagnosedNode):
             settings_from(LimitSettings, values),
             style=settings_from(StyleSettings, values),
         )
-        self.stamps = StampCheck(self.settings.max_stamp_future_s, self.settings.max_stamp_age_s)
-        self.input_messages = 0
-        self.dropped_messages = 0
-        self.poses_at_last_report = 0
-        self.last_report_s = time.monotonic()
+        self.intake = RawIntake(
+            self.filter,
+            settings.watchdog_timeout_s,
+            self.settings.max_stamp_future_s,
+            self.settings.max_stamp_age_s,
+        )
+        self.report = FilterReport(self.filter, time.monotonic())
         self.faults_seen = 0
+        self.ticks = 0  # filter ticks since start (each may serve one service request)
         self.lead_outs_seen = 0
         self.started_from = ""
-        self.created_s = time.monotonic()
-        self.measured_rad: np.ndarray | None = None
-        self.measured_partial = 0  # joint states without every joint of the robot: not used
-        self.measured_check = MeasuredPoseCheck(self.robot.names, self.robot.max_velocity_rad_s)
-        self.measured_conflicts = 0  # poses ignored because two sources disagreed
-        self.tracking = TrackingWatch()
 
         self.state_path = (
             Path(self.settings.state_file).expanduser()
             if self.settings.state_file
             else default_state_path(self.get_fully_qualified_name())
         )
-        self.state_lock: StateLock | None = None
         try:
-            self.state_lock = StateLock(self.state_path)
+            self.state = StateStore(self.state_path, self.robot)
         except StateFileInUseError as exc:
             raise ConfigurationError(f"parameter state_file: {exc}") from None
-        except OSError as exc:
-            self._unsaved(f"cannot lock it: {exc}")
-        self.memory = self._load_memory()
-        self.saved: tuple[object, ...] | None = None
-        self.save_due = False
-        self.last_write_s = -math.inf
-        # wall-clock times the stop and the disable in force came into force (None: not in force)
-        self.stop_since_s: float | None = None
-        self.disable_since_s: float | None = None
-        memory = self.memory
-        if memory is not None and memory.stopped:
-            self.stop_since_s = memory.stopped_at_s or memory.saved_at_s
+        for problem in self.state.problems():  # the file cannot be locked, read or used
+            self._report(problem)
+        self.memory = self.state.memory
+        self.measured = MeasuredStates(
+            self.robot, time.monotonic(), self.memory is not None and self.memory.measured
+        )
+        # the stop and the disable in force, each since a wall-clock time (motion.holds)
+        self.stop_hold, self.disable_hold = Hold.kept(self.memory)
+        if self.stop_hold.in_force:
             self.filter.set_stop(True)
             self.get_logger().warning(
                 f"STOP in force from before the restart ({self.state_path}); publish "
                 "stop: false to release it"
             )
-        if memory is not None and not memory.enabled:
-            self.disable_since_s = memory.disabled_at_s or memory.saved_at_s
+        if self.disable_hold.in_force:
             self.filter.set_enabled(False)
             self.get_logger().warning(
                 f"disabled from before the restart ({self.state_path}): generated motion is "
                 "ignored; publish enable: true to enable it"
             )
-        self.sources = SingleSource(settings.watchdog_timeout_s)
 
         guarded, bounded = self.guarded, self.create_bounded_subscription
         if subscribe_graph:
@@ -423,26 +251,16 @@ class MotionFilterNode(DiagnosedNode):
         self.create_timer(MIN_SAVE_SPACING_S, guarded(self._save_if_due))
         self.last_tick_s = -math.inf
         self.tick_stamp = self.get_clock().now()
-        outputs = {
-            "joint_angles": (JointAnglesWithSpeed, topics.JOINT_ANGLES, self.publish_joint_angles),
-            "joint_trajectory": (
-                JointTrajectory,
-                topics.JOINT_TRAJECTORY,
-                self.publish_joint_trajectory,
-            ),
-            "joint_states": (JointState, topics.COMMANDED_JOINT_STATES, self.publish_joint_states),
+        self.publish_output = {
+            "joint_angles": self.publish_joint_angles,
+            "joint_trajectory": self.publish_joint_trajectory,
+            "joint_states": self.publish_joint_states,
         }
-        self.publishers_by_output = {}
-        # (minimum spacing in s, time of the last publication, publish callback, publisher);
-        # an output is built and sent only while something subscribes to it
-        self.outputs: list[list[Any]] = []
-        for key, (msg_type, topic, callback) in outputs.items():
-            rate_hz = getattr(self.settings, f"{key}_rate_hz")
-            if rate_hz > 0:
-                publisher = self.create_publisher(msg_type, topic, 10)
-                self.publishers_by_output[key] = publisher
-                spacing = max(1.0 / rate_hz - 0.5 * self.filter.period_s, 0.0)
-                self.outputs.append([spacing, -math.inf, callback, publisher])
+        self.publishers_by_output = {
+            key: self.create_publisher(msg_type, topic, 10)
+            for key, (msg_type, topic) in OUTPUTS.items()
+            if key in self.pacing.spacing_s
+        }
         self.get_logger().info(
             f"{self.robot.n_joints} joints at {settings.rate_hz:g} Hz, {settings.smoothing} "
             f"smoothing, outputs: {', '.join(self.publishers_by_output) or 'none'}; waiting up "
@@ -463,32 +281,10 @@ class MotionFilterNode(DiagnosedNode):
             ConfigurationError: the new combination is refused (nothing changes then).
         """
         node_settings = settings_with(self.settings, changes)
-        filter_settings, limit_settings, style_settings = self.pending_settings or (
-            self.filter.settings,
-            self.filter.limiter.settings,
-            self.filter.style.settings,
-        )
-        filter_settings = settings_with(filter_settings, changes)
-        limit_settings = settings_with(limit_settings, changes)
-        style_settings = settings_with(style_settings, changes)
-        self.filter.check_settings(filter_settings, limit_settings)
-        if (filter_settings, limit_settings, style_settings) != (
-            self.filter.settings,
-            self.filter.limiter.settings,
-            self.filter.style.settings,
-        ):
-            self.pending_settings = (filter_settings, limit_settings, style_settings)
-        else:
-            self.pending_settings = None
+        self.filter.request_settings(changes)
         self.settings = node_settings
-        self.stamps.max_future_s = node_settings.max_stamp_future_s
-        self.stamps.max_age_s = node_settings.max_stamp_age_s
-
-    def _take_pending_settings(self) -> None:
-        """Hand the filter the settings requested since the last tick (once per tick)."""
-        if self.pending_settings is not None:
-            pending, self.pending_settings = self.pending_settings, None
-            self.filter.update_settings(*pending)
+        self.intake.stamps.max_future_s = node_settings.max_stamp_future_s
+        self.intake.stamps.max_age_s = node_settings.max_stamp_age_s
 
     # --- start-up -----------------------------------------------------------------------------
 
@@ -497,39 +293,13 @@ class MotionFilterNode(DiagnosedNode):
         """Whether the filter knows where the robot is (and commands are published)."""
         return bool(self.started_from)
 
-    def _load_memory(self) -> FilterMemory | None:
-        try:
-            memory = load_memory(self.state_path, self.robot)
-        except InputError as exc:
-            self.report_problem("state_file", DiagnosticStatus.WARN, f"state file ignored: {exc}")
-            return None
-        if memory is not None and not memory.pose_in_range(self.robot):
-            self.report_problem(
-                "saved_pose_refused",
-                DiagnosticStatus.WARN,
-                f"the pose saved in {self.state_path} lies outside the joint ranges: refused "
-                "(its stop and enable are kept)",
-                hold_s=10.0,
-            )
-        return memory
-
     def _saved_pose(self) -> np.ndarray | None:
         """The saved pose, when there is one inside the joint ranges."""
-        memory = self.memory
-        if memory is None or not memory.pose_in_range(self.robot):
-            return None
-        return np.array(memory.position_rad)
+        return self.state.saved_pose()
 
     def _unsaved(self, reason: str) -> None:
         """The state cannot be saved: an ERROR until a save succeeds (the stop stays in memory)."""
-        stopped = " The STOP in force" if self.filter.status.stopped else " A stop"
-        self.report_problem(
-            "state_file_unsaved",
-            DiagnosticStatus.ERROR,
-            f"state file {self.state_path}: {reason}.{stopped} stays in force in this process "
-            "but will NOT survive a restart",
-            hold_s=math.inf,
-        )
+        self._report(self.state.unsaved(reason, self.filter.status.stopped))
 
     def _start(self, pose_rad: np.ndarray, source: str) -> None:
         self.filter.start_from(pose_rad)
@@ -538,189 +308,76 @@ class MotionFilterNode(DiagnosedNode):
         self.startup_timer.cancel()
         self.save_state()
 
-    def _measured_start_pose(self, pose: np.ndarray) -> np.ndarray:
-        """Every valid joint of a measured pose: out of range clamped, NaN from saved or neutral.
-
-        Each repair is reported (WARN) naming the joints.
-        """
-        finite = np.isfinite(pose)
-        lower, upper = self.robot.lower_rad, self.robot.upper_rad
-        outside = finite & ((pose < lower) | (pose > upper))
-        fallback = self._saved_pose()
-        fill_from = "saved pose" if fallback is not None else "neutral pose"
-        filled = np.where(finite, pose, self.robot.neutral_rad if fallback is None else fallback)
-        for mask, what in ((outside, "out of range, clamped into it"), (~finite, "not finite")):
-            if mask.any():
-                names = ", ".join(n for n, bad in zip(self.robot.names, mask, strict=True) if bad)
-                fix = "" if what.startswith("out") else f", taken from the {fill_from}"
-                self.report_problem(
-                    "measured_invalid",
-                    DiagnosticStatus.WARN,
-                    f"measured joint states of {names} {what}{fix}",
-                    hold_s=10.0,
-                )
-        return np.clip(filled, lower, upper)
-
     def on_measured(self, msg: JointState, info: MessageInfo | None = None) -> None:
         """The robot's measured joint states: the start pose, then checked against the commands.
 
-        Only a believable reading counts (:mod:`audio2pose_ros.motion.measured`): a joint listed
-        twice, or a stamp too old or ahead, is refused and reported (WARN); two publishers whose
-        poses disagree are an ERROR, and no pose of either is used while they do. With more
-        than one publisher on the topic, the start waits until the pose's publisher has been
-        heard for ``MEASURED_LISTEN_S``, so a second source shows before the filter starts.
+        What a message means is :class:`MeasuredStates`'s to say (:meth:`MeasuredStates.take`);
+        this reports its problems and starts the filter from the pose it gives.
         """
         arrival_s = time.monotonic()
         source: bytes | str = b""  # called directly (tests): no publisher to tell apart
         published_ns = 0
         if info is not None:
-            source, published_ns = _publisher_of(info), info.get("source_timestamp") or 0
-        reading = self.measured_check.read(
+            source, published_ns = publisher_of(info), info.get("source_timestamp") or 0
+        topic = self.settings.measured_joint_states_topic
+        use = self.measured.take(
             msg.name,
             msg.position,
-            _stamp_s(msg.header.stamp),
+            stamp_s(msg.header.stamp),
             published_ns * 1e-9 if published_ns else None,
             self.now_s(),
             source,
             arrival_s,
+            self.started,
+            topic,
+            lambda: self.count_publishers(topic),
+            self._saved_pose,
         )
-        if reading.kind == "partial":
-            self.measured_partial += 1  # another robot's, or a partial message: not a pose
-            return
-        if reading.pose_rad is None:
-            self.report_problem("measured_refused", DiagnosticStatus.WARN, reading.reason)
-            if not self.started:
-                self._hold_start(reading.reason)
-            return
-        pose = reading.pose_rad
-        if not np.isfinite(pose).any():
-            self.report_problem(
-                "measured_invalid", DiagnosticStatus.WARN, "measured joint states all non-finite"
-            )
-            return
-        topic = self.settings.measured_joint_states_topic
-        if self.measured_check.conflict(arrival_s):
-            self.measured_conflicts += 1
-            held = (
-                "measured poses ignored until one stops"
-                if self.started
-                else "cannot tell which is the robot: commanding nothing until one stops"
-            )
-            self.report_problem(
-                "measured_sources",
-                DiagnosticStatus.ERROR,
-                f"{self.measured_check.live_sources(arrival_s)} publishers send the robot's "
-                f"pose on {topic} and disagree by "
-                f"{self.measured_check.disagreement_rad(arrival_s):.2f} rad (another robot's "
-                f"driver, a replay, a simulator?): {held}",
-                hold_s=SOURCE_WINDOW_S,
-            )
-            return
-        if not self.started:
-            publishers = self.count_publishers(topic)
-            heard_s = self.measured_check.heard_for_s(source, arrival_s)
-            if publishers > 1 and heard_s < MEASURED_LISTEN_S:
-                self.report_problem(
-                    "start_pose",
-                    DiagnosticStatus.WARN,
-                    f"{publishers} publishers on {topic}: listening {MEASURED_LISTEN_S:g} s for "
-                    "a second source of the robot's pose before starting, commanding nothing",
-                    hold_s=SOURCE_WINDOW_S,
-                )
-                return
-        self.measured_rad = pose
-        if not self.started:
-            self.clear_problem("start_pose")
-            self._start(self._measured_start_pose(pose), "measured pose")
+        for key in use.cleared:
+            self.clear_problem(key)
+        for problem in use.problems:
+            self._report(problem)
+        if use.start_rad is not None:
+            self._start(use.start_rad, "measured pose")
             self.get_logger().info("starting from the robot's measured pose")
-            return
-        lagging = self.tracking.measure(pose, time.monotonic())
-        if lagging is None:
-            self.clear_problem("not_following")
-            return
-        self.report_problem(
-            "not_following",
-            DiagnosticStatus.WARN,
-            f"the robot does not follow its commands: {self.robot.names[lagging.joint]} is "
-            f"{lagging.off_rad:.2f} rad from what it was commanded over the last "
-            f"{self.tracking.lag_s:g} s, for {lagging.for_s:.1f} s (motors off or resting, a "
-            "joint blocked, or another controller moving it)",
-        )
+
+    def _report(self, problem: Problem) -> None:
+        """Report a problem of the core on /diagnostics."""
+        level = DiagnosticStatus.ERROR if problem.error else DiagnosticStatus.WARN
+        if problem.hold_s is None:
+            self.report_problem(problem.key, level, problem.text)
+        else:
+            self.report_problem(problem.key, level, problem.text, hold_s=problem.hold_s)
 
     def on_startup_timeout(self) -> None:
-        """No measured pose in time: start from the saved pose, or else from neutral.
+        """No measured pose started the filter in time: decide (:class:`StartPose`) what now.
 
-        While a measured pose is to be expected, the node waits for it instead, up to
-        ``MEASURED_WAIT_S`` after start-up: while something publishes the measured joint states
-        (its first pose is on the way), and when the robot reported its pose before the restart
-        (the state file says so; discovery of its publisher may take a while under load).
+        Called when ``startup_timeout_s`` has passed, then every 0.1 s while the start waits:
+        it waits (WARN) while a usable measured pose may still come, holds (ERROR) while the
+        published pose cannot be believed, and otherwise starts from the saved pose or neutral
+        (WARN, saying why no measured pose was used).
         """
         if self.started:
             self.startup_timer.cancel()
             return
         topic = self.settings.measured_joint_states_topic
         now = time.monotonic()
-        doubt = self._measured_doubt(now)
-        if doubt:  # something says where the robot is, but it cannot be believed: no guess
-            self._hold_start(doubt)
-            self.startup_timer.timer_period_ns = max(self.startup_timer.timer_period_ns, 10**8)
-            return
-        waited_s = now - self.created_s
-        reported_before = self.memory is not None and self.memory.measured
-        if (self.count_publishers(topic) or reported_before) and waited_s < MEASURED_WAIT_S:
-            self.report_problem(
-                "start_pose",
-                DiagnosticStatus.WARN,
-                f"no measured pose on {topic} yet, but one is expected (it has a publisher, or "
-                f"the robot reported its pose before the restart): waiting for it (up to "
-                f"{MEASURED_WAIT_S:g} s), commanding nothing",
-            )
-            self.startup_timer.timer_period_ns = max(self.startup_timer.timer_period_ns, 10**8)
+        self.measured.start.discovered(self.count_publishers(topic), now)
+        saved = self._saved_pose()
+        step = self.measured.start.decide(
+            now, self.measured.doubt(now), topic, "" if saved is None else str(self.state_path)
+        )
+        if step.action in (WAIT, HOLD):
+            if step.action == HOLD:
+                self._report(start_held(step.reason, topic))
+            else:
+                self.report_problem("start_pose", DiagnosticStatus.WARN, step.reason)
+            if self.startup_timer.timer_period_ns != STARTUP_CHECK_NS:
+                self.startup_timer.timer_period_ns = STARTUP_CHECK_NS  # discovery is polled
             return
         self.startup_timer.cancel()
-        saved = self._saved_pose()
-        if saved is not None:
-            self._start(saved, "saved pose")
-            self.report_problem(
-                "start_pose",
-                DiagnosticStatus.WARN,
-                f"no measured pose on {topic}: started from the last commanded pose saved in "
-                f"{self.state_path}",
-                hold_s=10.0,
-            )
-        else:
-            self._start(self.robot.neutral_rad, "neutral pose")
-            self.report_problem(
-                "start_pose",
-                DiagnosticStatus.WARN,
-                f"no measured pose on {topic} and no saved pose: started from the neutral pose; "
-                "the first commands move the robot there at the velocity limit",
-                hold_s=10.0,
-            )
-
-    def _hold_start(self, doubt: str) -> None:
-        """ERROR: the start waits, commanding nothing, because of ``doubt``."""
-        self.report_problem(
-            "start_pose",
-            DiagnosticStatus.ERROR,
-            f"cannot tell where the robot is: {doubt}; commanding nothing until a believable "
-            f"pose arrives on {self.settings.measured_joint_states_topic}",
-            hold_s=SOURCE_WINDOW_S,
-        )
-
-    def _measured_doubt(self, now_s: float) -> str:
-        """Why the measured joint states cannot be believed now ('' when nothing says so).
-
-        Measured messages refused within ``SOURCE_WINDOW_S`` (a joint listed twice, an old or a
-        future stamp), or live sources that disagree: the robot's pose is being published but
-        cannot be known, so neither the saved pose nor neutral may stand in for it.
-        """
-        check = self.measured_check
-        if check.conflict(now_s):
-            return f"{check.live_sources(now_s)} publishers send poses that disagree"
-        if check.refusing(now_s):
-            return check.last_reason
-        return ""
+        self._start(self.robot.neutral_rad if saved is None else saved, step.action)
+        self.report_problem("start_pose", DiagnosticStatus.WARN, step.reason, hold_s=10.0)
 
     def save_state(self) -> None:
         """Rewrite the state file when the pose, the stop or enable changed (atomically).
@@ -730,100 +387,49 @@ class MotionFilterNode(DiagnosedNode):
         if not self.started:
             return
         status = self.filter.status
-        pose = tuple(float(v) for v in self.filter.position_rad)
-        resolution = SAVED_POSE_RESOLUTION_RAD
-        key = tuple(round(v / resolution) for v in pose)  # a pose at rest is saved once
-        measured = self.measured_rad is not None
-        since = (self.stop_since_s, self.disable_since_s)
-        state = (key, status.stopped, status.enabled, *since, measured)
-        self.save_due = False
-        if state == self.saved:
-            return
         memory = FilterMemory(
             tuple(self.robot.names),
-            pose,
+            tuple(float(v) for v in self.filter.position_rad),
             status.stopped,
             time.time(),
             status.enabled,
-            self.stop_since_s,
-            self.disable_since_s,
-            measured,
+            self.stop_hold.since_s,
+            self.disable_hold.since_s,
+            self.measured.pose_rad is not None,
         )
-        self.last_write_s = time.monotonic()
         try:
-            save_memory(self.state_path, memory)
+            written = self.state.save(memory, time.monotonic())
         except OSError as exc:
             self._unsaved(f"cannot be written: {exc}")
             return
-        self.saved = state
-        if self.state_lock is not None:
+        if written and self.state.lock is not None:
             self.clear_problem("state_file_unsaved")
 
     def _save_if_due(self) -> None:
-        if self.save_due:
+        if self.state.due:
             self.save_state()
 
     # --- inputs -------------------------------------------------------------------------------
 
-    def _admit(self, stamp_s: float, n_points: int) -> int | None:
-        """How many of a raw message's ``n_points`` poses to use (None: drop the message).
-
-        None before the start and for a rejected stamp (counted and reported); else at most
-        ``max_points_per_message`` (the rest is counted and reported as truncated).
-        """
-        self.input_messages += 1
-        if not self.started:
-            return None  # the start pose is not known yet: generated motion waits
-        steps_back = self.stamps.counts.clock_steps_back
-        problem = self.stamps.check(stamp_s, self.now_s())
-        if self.stamps.counts.clock_steps_back > steps_back:
-            self.report_problem(
-                "clock_step",
-                DiagnosticStatus.WARN,
-                "the clock stepped back behind the newest raw trajectory stamp: ordering "
-                "restarted from the next message",
-                hold_s=10.0,
-            )
-        if problem:
-            self.dropped_messages += 1
-            self.report_problem(
-                "raw_stamp", DiagnosticStatus.WARN, f"raw trajectory dropped: {problem}"
-            )
-            return None
-        take = self.filter.points_to_take(n_points)
-        if take < n_points:
-            self.report_problem(
-                "raw_truncated",
-                DiagnosticStatus.WARN,
-                f"raw trajectory longer than max_points_per_message "
-                f"({self.filter.settings.max_points_per_message}): the rest dropped",
-            )
-        return take
+    @property
+    def input_messages(self) -> int:
+        """Raw messages (or single-process hand-overs) that came since start."""
+        return self.intake.messages
 
     def on_raw(self, msg: JointTrajectory, info: MessageInfo) -> None:
         """Check and queue the poses of one raw trajectory message (of the one source in use)."""
-        now = time.monotonic()
-        if not self.sources.admit(_publisher_of(info), now):
-            self.dropped_messages += 1
-            self.report_problem(
-                "raw_second_source",
-                DiagnosticStatus.ERROR,
-                "a second publisher sends raw_trajectory: its poses are refused; only the first "
-                "drives the robot (stop the other one)",
-                hold_s=1.0,
-            )
+        refused = self.intake.from_source(publisher_of(info), time.monotonic())
+        if refused is not None:
+            self._report(refused)
             return
-        take = self._admit(_stamp_s(msg.header.stamp), len(msg.points))
+        take = self._admit(stamp_s(msg.header.stamp), len(msg.points))
         if take is None:
             return
         msg.points = msg.points[:take]
         try:
             poses = trajectory_positions(msg, self.robot.names)
         except ValueError as exc:
-            self.dropped_messages += 1
-            self.report_problem(
-                "raw_malformed", DiagnosticStatus.WARN, f"raw trajectory dropped: {exc}"
-            )
+            self._report(self.intake.malformed(str(exc)))
             return
         self._queue(poses)
 
@@ -837,34 +443,28 @@ class MotionFilterNode(DiagnosedNode):
         if take is not None:
             self._queue(poses_rad[:take])
 
+    def _admit(self, stamp_s: float, n_points: int) -> int | None:
+        """How many of a message's poses to use (None: none): :meth:`RawIntake.admit`."""
+        take, problems = self.intake.admit(stamp_s, n_points, self.now_s(), self.started)
+        for problem in problems:
+            self._report(problem)
+        return take
+
     def _queue(self, poses: np.ndarray) -> None:
         """Push admitted raw poses into the filter; command at once when the stream is steady."""
-        status = self.filter.status
-        before = (status.rejected, status.out_of_range, status.implausible)
         was_waiting = self.filter.buffered == 0
         arrival_s = time.monotonic()
-        self.filter.push(poses, arrival_s)
-        if (status.rejected, status.out_of_range, status.implausible) != before:
-            self.report_problem(
-                "raw_rejected",
-                DiagnosticStatus.WARN,
-                f"raw poses rejected before the filter: {status.rejected} non-finite, "
-                f"{status.out_of_range} out of range, {status.implausible} unreachable (total)",
-            )
-        # The clock follows the input: a pose that finds the buffer empty is commanded at once,
-        # or MIN_TICK_SPACING periods after the last tick if that is later, and the timer then
-        # waits 1.5 periods, or one if poses remain queued. A steady stream is served on arrival;
-        # the timer ticks when input is late or comes several poses at a time; no two ticks are
-        # closer than MIN_TICK_SPACING periods.
+        rejected = self.intake.push(poses, arrival_s)
+        if rejected is not None:
+            self._report(rejected)
         if not (was_waiting and self.filter.buffered):
             return
-        wait_s = self.last_tick_s + MIN_TICK_SPACING * self.filter.period_s - arrival_s
+        # the clock follows the input (motion.pacing): at once, or when the spacing allows
+        wait_s = arrival_wait_s(self.last_tick_s, arrival_s, self.filter.period_s)
         if wait_s <= 0:
             self.on_tick()
-            queued = self.filter.buffered > 0
-            self.tick_timer.timer_period_ns = self.period_ns if queued else self.period_ns * 3 // 2
-        else:  # too soon after the last tick: tick as soon as the spacing allows
-            self.tick_timer.timer_period_ns = max(round(wait_s * 1e9), 1)
+            wait_s = next_timer_s(self.filter.period_s, self.filter.buffered > 0)
+        self.tick_timer.timer_period_ns = max(round(wait_s * 1e9), 1)
         self.tick_timer.reset()
 
     def on_voice(self, msg: Bool) -> None:
@@ -875,66 +475,51 @@ class MotionFilterNode(DiagnosedNode):
         """Voice activity (from voice_activity, or directly in single-process mode)."""
         self.filter.set_voice_active(active, time.monotonic())
 
-    def _release_is_older(
-        self, info: MessageInfo, since_s: float | None, key: str, release: str, held: str
-    ) -> bool:
-        """True, and reported, when a release was published before the hold it would end.
-
-        ``since_s`` is when the stop (or disable) in force came into force; a ``release``
-        published no later than that (an older panel's latched value, delivered again after a
-        restart or after a newer stop) is ignored with a WARN.
-        """
-        published_s = _published_s(info)
-        if since_s is None or published_s > since_s:
-            return False
+    def _released(self, hold: Hold, info: MessageInfo, key: str, release: str, held: str) -> bool:
+        """Whether a ``release`` ends ``hold`` (:meth:`Hold.release`); if not, a WARN."""
+        since_s, at_s = hold.since_s, published_s(info)
+        if hold.release(at_s):
+            return True
+        assert since_s is not None
         self.report_problem(
             key,
             DiagnosticStatus.WARN,
-            f"{release} published {since_s - published_s:.1f} s before the {held} in force: "
+            f"{release} published {since_s - at_s:.1f} s before the {held} in force: "
             f"ignored; publish {release} again to release it",
         )
-        return True
+        return False
 
     def _save_now(self) -> None:
         """Save a changed stop or enable now, or within ``MIN_SAVE_SPACING_S`` (bounded rate)."""
-        self.save_due = True
-        if time.monotonic() - self.last_write_s >= MIN_SAVE_SPACING_S:
+        if self.state.save_soon(time.monotonic()):
             self.save_state()
 
     def on_enable(self, msg: Bool, info: MessageInfo) -> None:
         """Enable or disable generated motion (only a later enable ends a disable)."""
-        if msg.data and self._release_is_older(
-            info, self.disable_since_s, "enable_ignored", "enable: true", "disable"
+        if not msg.data:
+            self.disable_hold.engage(published_s(info), time.time())
+        elif not self._released(
+            self.disable_hold, info, "enable_ignored", "enable: true", "disable"
         ):
             return
-        published_s = min(_published_s(info), time.time())
-        if not msg.data:
-            since = self.disable_since_s
-            self.disable_since_s = published_s if since is None else max(since, published_s)
-        else:
-            self.disable_since_s = None
         changed = self.filter.status.enabled != msg.data
         self.filter.set_enabled(msg.data)
-        if changed or not msg.data:  # a later disable moves disable_since_s
+        if changed or not msg.data:  # a later disable moves the disable's time
             self._save_now()
         if changed:
             self.get_logger().info("enabled" if msg.data else "disabled: gliding to neutral")
 
     def on_stop(self, msg: Bool, info: MessageInfo) -> None:
         """Emergency stop on / off (only a release published after the stop ends it)."""
-        if not msg.data and self._release_is_older(
-            info, self.stop_since_s, "stop_release_ignored", "stop: false", "stop"
+        if msg.data:
+            self.stop_hold.engage(published_s(info), time.time())
+        elif not self._released(
+            self.stop_hold, info, "stop_release_ignored", "stop: false", "stop"
         ):
             return
-        published_s = min(_published_s(info), time.time())  # a clock ahead cannot pin a stop
-        if msg.data:
-            since = self.stop_since_s
-            self.stop_since_s = published_s if since is None else max(since, published_s)
-        else:
-            self.stop_since_s = None
         changed = self.filter.status.stopped != msg.data
         self.filter.set_stop(msg.data)
-        if changed or msg.data:  # a later stop moves stop_since_s
+        if changed or msg.data:  # a later stop moves the stop's time
             self._save_now()
         if changed and msg.data:
             self.get_logger().warning(f"STOP ({self.filter.settings.stop_behaviour})")
@@ -976,29 +561,27 @@ class MotionFilterNode(DiagnosedNode):
         if self.started:
             self.on_tick()
         else:
-            self._take_pending_settings()
+            self.filter.take_requested_settings()
 
     def on_tick(self) -> None:
         """Advance the filter by one period and publish the outputs due at this tick."""
-        self._take_pending_settings()
+        self.filter.take_requested_settings()
         self.request_budget.renew()
+        self.ticks += 1
         self.last_tick_s = time.monotonic()
         self.tick_stamp = self.get_clock().now()
         status = self.filter.status
         self.filter.tick(self.last_tick_s)
-        self.tracking.command(self.filter.position_rad, self.last_tick_s)
+        self.measured.tracking.command(self.filter.position_rad, self.last_tick_s)
         if status.faults > self.faults_seen:
             self.faults_seen = status.faults
             self.report_problem("filter_fault", DiagnosticStatus.ERROR, status.last_fault)
         guard = self.filter.body_guard.status
         if guard.active:
             self.report_body_guard(guard)
-        for output in self.outputs:
-            spacing, last_s, publish, publisher = output
-            if self.last_tick_s - last_s >= spacing:
-                output[1] = self.last_tick_s
-                if publisher.get_subscription_count():  # no message for nobody
-                    publish()
+        for key in self.pacing.due(self.last_tick_s):
+            if self.publishers_by_output[key].get_subscription_count():  # no message for nobody
+                self.publish_output[key]()
 
     def report_body_guard(self, guard: GuardStatus) -> None:
         """WARN naming the links while the self-collision guard changes commands."""
@@ -1063,74 +646,20 @@ class MotionFilterNode(DiagnosedNode):
         return DiagnosticStatus.OK, f"{status.mode} (started from the {self.started_from})"
 
     def diagnostic_values(self) -> dict[str, object]:
-        """Input and filter counters, latency, mode, limiter activity, health."""
-        status, counts, stamps = self.filter.status, self.filter.limiter.counts, self.stamps
+        """The node's input counters, ticks and requests beside the filter's figures."""
         now = time.monotonic()
-        input_rate_hz = (status.received - self.poses_at_last_report) / max(
-            now - self.last_report_s, 1e-3
-        )
-        self.poses_at_last_report, self.last_report_s = status.received, now
-        values: dict[str, object] = {
+        return {
             "started_from": self.started_from or "waiting",
-            "input_messages": self.input_messages,
-            "dropped_messages": self.dropped_messages,
-            "stale_messages_dropped": stamps.counts.out_of_order,
-            "future_stamps_rejected": stamps.counts.future,
-            "old_stamps_rejected": stamps.counts.too_old,
-            "clock_steps_back": stamps.counts.clock_steps_back,
-            "poses_received": status.received,
-            "poses_rejected": status.rejected,
-            "poses_out_of_range": status.out_of_range,
-            "poses_unreachable": status.implausible,
-            "poses_truncated": status.truncated,
-            "poses_dropped": status.dropped,
-            "raw_messages_of_a_second_source": self.sources.refused,
-            "approaches": self.filter.approach.count,
-            "head_inputs_rejected": status.external_rejected,
-            "buffer_underruns": status.underruns,
-            "poses_skipped_backlog": status.skipped,
-            "buffered_poses": status.buffered,
-            "input_latency_ms": f"{stamps.latency_s * 1e3:.2f}",
-            "mode": status.mode,
-            "enabled": status.enabled,
-            "stopped": status.stopped,
-            "voice_active": status.voice_active,
-            "head_target_active": status.head_target_active,
-            "input_rate_hz": f"{input_rate_hz:.1f}",
-            "position_limit_hits": counts.position,
-            "velocity_limit_hits": counts.velocity,
-            "acceleration_limit_hits": counts.acceleration,
-            "gaps": status.gaps,
-            "filter_faults": status.faults,
+            **self.intake.values(),
+            **self.report.values(now),
+            "ticks": self.ticks,
             "service_requests_served": self.request_budget.served_total,
             "most_service_requests_in_a_tick": self.request_budget.most_in_a_tick,
-            "body_guard_interventions": self.filter.body_guard.status.interventions,
-            "body_guard_lead_out_steps": self.filter.body_guard.status.lead_out_steps,
-            "body_guard_holds": self.filter.body_guard.status.holds,
-            "body_clearance_cm": f"{self.filter.body_guard.status.clearance_m * 100.0:.1f}",
-            "body_closest_links": " / ".join(self.filter.body_guard.status.links),
-            "command_finite_and_in_limits": bool(
-                np.isfinite(self.filter.position_rad).all()
-                and np.all(self.filter.position_rad >= self.robot.lower_rad)
-                and np.all(self.filter.position_rad <= self.robot.upper_rad)
-            ),
             "last_command_age_ms": (
                 f"{(now - self.last_tick_s) * 1e3:.0f}" if self.started else "none"
             ),
+            **self.measured.values(now, self.filter.position_rad),
         }
-        values["measured_partial_messages"] = self.measured_partial
-        check = self.measured_check
-        values["measured_refused_duplicate_names"] = check.counts.duplicate
-        values["measured_refused_old_stamps"] = check.counts.old
-        values["measured_refused_future_stamps"] = check.counts.future
-        values["measured_unstamped"] = check.counts.unstamped
-        values["measured_sources"] = check.live_sources(now)
-        values["measured_ignored_sources_disagree"] = self.measured_conflicts
-        if self.measured_rad is not None:
-            deviation = np.abs(self.measured_rad - self.filter.position_rad).max()
-            values["measured_deviation_rad"] = f"{deviation:.3f}"
-            values["measured_off_recent_commands_rad"] = f"{self.tracking.off_rad:.3f}"
-        return values
 
 
 def main(args: list[str] | None = None) -> None:

@@ -214,6 +214,7 @@ def _restart(
             c.probe.spin_for(0.5)
         old = c.pid("motion_filter_node")
         start = time.monotonic()
+        killed_s = c.probe.get_clock().now().nanoseconds * 1e-9
         os.kill(old, kill)
         if stop_first:  # the sender of the stop goes away too: its latched stop is gone
             c.probe.destroy_publisher(c.probe.stop)
@@ -222,11 +223,11 @@ def _restart(
         deadline = time.monotonic() + 30.0
         while time.monotonic() < deadline and c.pid("motion_filter_node") == old:
             c.probe.spin_for(0.05)
-        restarted_s = time.monotonic() - start
         c.probe.commands.clear()
-        window = c.probe.observe(6.0)
+        window = c.probe.observe_restart(killed_s, timeout_s=30.0, seconds=6.0)
         if not len(window.times_s):
             return Outcome("no commands after the restart", False)
+        restarted_s = time.monotonic() - start - 6.0  # to its first command
         worst = window.worst_deviation(pose)
         steps = c.max_step_ratio(window)
         ok = worst <= MAX_DEVIATION_RAD and steps <= STEP_TOLERANCE and c.inside_limits(window)

@@ -261,6 +261,7 @@ def _older_panels(c: Campaign) -> Outcome:
     c.probe.spin_for(0.3)
     try:
         old = c.pid(FILTER)
+        killed_s = c.probe.get_clock().now().nanoseconds * 1e-9
         os.kill(old, signal.SIGKILL)
         c.probe.destroy_publisher(c.probe.stop)  # the one-shot sender is gone
         c.probe.stop = c.probe.create_publisher(Bool, topics.STOP, LATCHED_QOS)
@@ -268,8 +269,7 @@ def _older_panels(c: Campaign) -> Outcome:
         deadline = time.monotonic() + 30.0
         while time.monotonic() < deadline and c.pid(FILTER) == old:
             c.probe.spin_for(0.05)
-        c.probe.commands.clear()
-        window = c.probe.observe(4.0)
+        window = c.probe.observe_restart(killed_s, timeout_s=30.0, seconds=4.0)
         worst = window.worst_deviation(c.pose_a)
         held = bool(len(window.times_s)) and worst <= 0.02
         c.probe.destroy_publisher(newer)

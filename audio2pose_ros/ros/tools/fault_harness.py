@@ -201,6 +201,24 @@ class CampaignProbe(Node):
             np.array([p for _, p in window]).reshape(-1, n),
         )
 
+    def observe_restart(self, killed_s: float, timeout_s: float, seconds: float) -> Commands:
+        """Commands stamped after ``killed_s``: from the first (awaited up to ``timeout_s``) on.
+
+        A restarted filter commands nothing until it knows where to start, which takes longer
+        when a publisher of joint_states is awaited; how long is not the verdict: what it
+        commands, for ``seconds`` from its first command, is.
+        """
+        start = len(self.commands)
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end and not any(t > killed_s for t, _ in self.commands[start:]):
+            self.spin_for(0.02)
+        self.spin_for(seconds)
+        window = [(t, p) for t, p in self.commands[start:] if t > killed_s]
+        return Commands(
+            np.array([t for t, _ in window]),
+            np.array([p for _, p in window]).reshape(-1, self.robot.n_joints),
+        )
+
     def settle(self, pose: np.ndarray, timeout_s: float = 15.0) -> bool:
         """Stream ``pose`` until the commands sit on it."""
         self.pose = pose.copy()

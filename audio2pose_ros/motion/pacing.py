@@ -1,0 +1,72 @@
+"""When the motion filter ticks and when each of its outputs is published (ROS-free).
+
+The filter ticks at ``rate_hz``: at the latest one period after the previous tick (a timer),
+and early when a pose arrives into an empty buffer, so a steady stream is commanded on arrival
+(:func:`arrival_wait_s`, :func:`next_timer_s`). No two ticks are closer than
+:data:`MIN_TICK_SPACING` periods: no bursts. Each output (``joint_angles``, ...) has its own
+rate, at most the filter's; it is published at the tick nearest to its own period, never less
+than its period minus half a filter period after the previous one (:class:`OutputPacing`: 15 ms
+for 50 Hz at a 100 Hz filter clock).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+from audio2pose_ros.errors import ConfigurationError
+
+MIN_TICK_SPACING = 0.5  # of a period: an arriving pose is commanded at once if the last tick
+# is at least this long ago (so ticks are never closer than half a period: no bursts)
+
+
+def arrival_wait_s(last_tick_s: float, arrival_s: float, period_s: float) -> float:
+    """How long after a pose arrives into an empty buffer to tick (0: at once).
+
+    At once, or :data:`MIN_TICK_SPACING` periods after the last tick if that is later.
+    """
+    return max(last_tick_s + MIN_TICK_SPACING * period_s - arrival_s, 0.0)
+
+
+def next_timer_s(period_s: float, queued: bool) -> float:
+    """The timer's wait after a tick at a pose's arrival: a period if poses remain queued.
+
+    Else 1.5 periods: the next pose of a steady stream arrives first and is commanded on
+    arrival; the timer ticks only when input is late.
+    """
+    return period_s if queued else 1.5 * period_s
+
+
+class OutputPacing:
+    """Which outputs are due at a tick; each keeps its own rate on the filter's clock."""
+
+    def __init__(self, rates_hz: Mapping[str, float], filter_rate_hz: float) -> None:
+        """Pace outputs at ``rates_hz`` (0: off) on a filter clock of ``filter_rate_hz``.
+
+        Raises:
+            ConfigurationError: an output's rate exceeds the filter's (the key names the
+                parameter ``<output>_rate_hz``).
+        """
+        period_s = 1.0 / filter_rate_hz
+        for name, rate in rates_hz.items():
+            if rate > filter_rate_hz:
+                raise ConfigurationError(
+                    f"parameter {name}_rate_hz: value {rate!r} is out of range; allowed: 0 "
+                    f"(off) to rate_hz = {filter_rate_hz:g}"
+                )
+        #: least time between two publications of each output that is on (s)
+        self.spacing_s = {
+            name: max(1.0 / rate - 0.5 * period_s, 0.0)
+            for name, rate in rates_hz.items()
+            if rate > 0
+        }
+        self._last_s = dict.fromkeys(self.spacing_s, -math.inf)
+
+    def due(self, tick_s: float) -> list[str]:
+        """The outputs due at a tick at ``tick_s`` (each counts as published then)."""
+        due = [
+            name for name, last_s in self._last_s.items() if tick_s - last_s >= self.spacing_s[name]
+        ]
+        for name in due:
+            self._last_s[name] = tick_s
+        return due
