@@ -142,7 +142,7 @@ def test_when_rendering_with_a_seed_expect_that_seeds_motion(short_render, tmp_p
     wav = short_render / "speech.wav"
     assert render(wav, "-o", tmp_path / "seed3.mp4", "--seed", "3", *SMALL) == 0
     robot = load_robot()
-    rate, samples = wavfile.read(wav)
+    _, samples = wavfile.read(wav)  # 16 kHz
     audio = samples.astype(np.float32) / 32768
     checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
     seeded = bag_angles(tmp_path / "seed3_mcap", robot.names)
