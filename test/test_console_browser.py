@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import shutil
-import socket
 import tempfile
 import threading
 import time
@@ -135,10 +135,21 @@ class Console:
     shots: Path
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
+def _console_url(log: Path, timeout_s: float = 60.0) -> str:
+    """The page's address, from the line console_node logs once it listens (it binds port 0).
+
+    A port chosen here and handed to the node could be taken meanwhile by another test's
+    server (the suite runs in parallel processes); the node's own bind cannot.
+    """
+    found: list[str] = []
+
+    def logged() -> bool:
+        text = log.read_text(encoding="utf-8", errors="replace") if log.is_file() else ""
+        found[:] = re.findall(r"operator console: open (http://127\.0\.0\.1:\d+/)", text)
+        return bool(found)
+
+    _wait(logged, timeout_s, f"the console's address in {log}")
+    return found[0]
 
 
 def _wait(condition, timeout_s: float, what: str) -> None:
@@ -169,12 +180,11 @@ def console(tmp_path_factory) -> Iterator[Console]:
     filter_params["state_file"] = str(tmp / "filter_state.json")  # a stop stays in this test
     params_file = tmp / "params.yaml"
     params_file.write_text(yaml.safe_dump(params), encoding="utf-8")
-    port = _free_port()
-    command = console_command(params_file, {"port": port, "token": TOKEN}, tmp)
-    url = f"http://127.0.0.1:{port}/"
+    command = console_command(params_file, {"port": 0, "token": TOKEN}, tmp)
     with node_graph(params_file, log_dir=tmp / "logs", more_nodes={CONSOLE_NODE: command}):
         recorder = Recorder()
         try:
+            url = _console_url(tmp / "logs" / f"{CONSOLE_NODE}.log")
             _wait(lambda: _answers(url), 60.0, "the console's page")
             _wait(lambda: bool(recorder.commands), 60.0, "the first /joint_angles command")
             yield Console(url=url, recorder=recorder, shots=tmp)

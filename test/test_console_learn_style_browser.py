@@ -23,7 +23,7 @@ from test_console_browser import (
     CHROMIUM_ARGS,
     Recorder,
     _answers,
-    _free_port,
+    _console_url,
     _missing,
     _wait,
 )
@@ -79,15 +79,14 @@ def setup(tmp_path_factory) -> Iterator[tuple[str, Recorder, Path, Path, Path]]:
     params_file = tmp / "params.yaml"
     params_file.write_text(yaml.safe_dump(params), encoding="utf-8")
     video, audio = _fake_media(tmp)
-    port = _free_port()
-    command = console_command(params_file, {"port": port, "token": TOKEN}, tmp)
-    url = f"http://127.0.0.1:{port}/"
+    command = console_command(params_file, {"port": 0, "token": TOKEN}, tmp)
     saved = os.environ.get("ROS_HOME")
     os.environ["ROS_HOME"] = str(ros_home)
     try:
         with node_graph(params_file, log_dir=tmp / "logs", more_nodes={CONSOLE_NODE: command}):
             recorder = Recorder()
             try:
+                url = _console_url(tmp / "logs" / f"{CONSOLE_NODE}.log")
                 _wait(lambda: _answers(url), 60.0, "the console's page")
                 yield url, recorder, ros_home, video, audio
             finally:

@@ -415,7 +415,10 @@ def test_when_disabled_then_restarted_expect_still_disabled_until_enabled(
     assert driver.diagnostics[-1]["enabled"] == "False"
     assert any("problem: enable_ignored" in d for d in driver.diagnostics)
     older.publish(Bool(data=True))
-    driver.spin_for(2.0, every=stream(driver, robot, raised(robot)))
+    moving = stream(driver, robot, raised(robot))
+    end = time.monotonic() + 60  # a bound only a hung node reaches: enabled, it moves there
+    while time.monotonic() < end and np.abs(driver.states[-1][1] - raised(robot)).max() >= 0.05:
+        driver.spin_for(0.2, every=moving)
     assert np.abs(driver.states[-1][1] - raised(robot)).max() < 0.05  # enabled: moves
 
 
