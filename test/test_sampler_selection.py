@@ -21,14 +21,13 @@ from audio2pose_ros.learning.sampler_selection import (
     PAUSE_TARGETS,
     SILENCE_TEMPERATURES,
     TEMPERATURES,
-    FoldTuner,
     choose_sampling,
     reference_percentiles,
     score,
     select_sampling,
-    speaker_folds,
     tail_distance,
 )
+from audio2pose_ros.learning.sampling_folds import FoldTuner, speaker_folds
 from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 from audio2pose_ros.models.live_groups import SAMPLING_SETTINGS
 from audio2pose_ros.models.registry import build_model

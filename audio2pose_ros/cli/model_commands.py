@@ -162,7 +162,7 @@ def command_evaluate(args: argparse.Namespace) -> int:
         clips, predictions, paused = [], {}, {}
     if args.loso:
         from audio2pose_ros.learning.default_model import LearnedBuildSettings
-        from audio2pose_ros.learning.sampler_selection import FoldTuner
+        from audio2pose_ros.learning.sampling_folds import FoldTuner
 
         # the default model's evaluation, fold for fold
         settings = LearnedBuildSettings().train_settings(args.max_epochs, seed=args.seed)

@@ -173,7 +173,7 @@ def build_default_model(
     """
     from audio2pose_ros.checkpoints.torch_io import save_checkpoint
     from audio2pose_ros.learning.evaluation import evaluate
-    from audio2pose_ros.learning.model_card import write_default_model_card
+    from audio2pose_ros.learning.talking_heads_card import write_default_model_card
     from audio2pose_ros.learning.train_state import state_path_for
     from audio2pose_ros.learning.training import TrainSettings, train_from_dataset
 

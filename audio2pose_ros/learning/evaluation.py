@@ -307,7 +307,7 @@ def loso_predictions(
     Every clip of the data set is held out exactly once (in its speaker's fold), whatever its
     split label; validation for early stopping holds out further speakers of the training side
     (:func:`~audio2pose_ros.learning.training.train_on_clips`). ``tune`` (e.g. the choice of a
-    sampler's settings, :class:`~audio2pose_ros.learning.sampler_selection.FoldTuner`) receives
+    sampler's settings, :class:`~audio2pose_ros.learning.sampling_folds.FoldTuner`) receives
     each fold's trained checkpoint and that fold's training clips, never the held-out
     speaker's, and returns the checkpoint that predicts the held-out speaker.
 

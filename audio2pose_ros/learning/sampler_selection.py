@@ -6,9 +6,10 @@ level of :class:`~audio2pose_ros.models.live_groups.LiveGroups` act only when sa
 training, on clips the deciding models were not trained on and that are never the reported
 test clips. The evidence is a list of :data:`Fold` s, each a trained checkpoint with clips it did
 not see; `make default-model` (:mod:`audio2pose_ros.learning.default_model`) uses, for the head,
-:func:`cross_validated` models over the training speakers (each speaker's clips predicted by a
-model trained without that speaker; the same again inside every leave-one-speaker-out fold, on
-that fold's training speakers only) and, for the arms, the shipped model on its validation
+:func:`~audio2pose_ros.learning.sampling_folds.cross_validated` models over the training
+speakers (each speaker's clips predicted by a model trained without that speaker; the same
+again inside every leave-one-speaker-out fold, on that fold's training speakers only) and, for
+the arms, the shipped model on its validation
 stretch of the lecture.
 
 1. Noise and temperatures. Both parts sample with every combination of a noise correlation of
@@ -90,7 +91,6 @@ import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from functools import partial
 from typing import cast
 
 import numpy as np
@@ -100,8 +100,6 @@ from audio2pose_ros.data.dataset import Clip
 from audio2pose_ros.data.importers.body_clearance import TRAINING_CLEARANCE_M
 from audio2pose_ros.learning import metrics, realism
 from audio2pose_ros.learning.arm_calm import CALM_KEYS, arm_calm, figures
-from audio2pose_ros.learning.train_state import TrainReport
-from audio2pose_ros.learning.training import TrainSettings, train_on_clips
 from audio2pose_ros.models.live_groups import LiveGroups
 from audio2pose_ros.models.sampling_noise import Burst, format_per_joint
 from audio2pose_ros.models.speech_gate import PART_BURST_KEYS, PART_CORRELATION_KEYS
@@ -117,7 +115,6 @@ SILENCE_TEMPERATURES = (0.3, 0.2, 0.1, 0.05, 0.02)  # most noise left in silence
 PAUSE_TARGETS = {"head": 2.0, "arms": 1.5, "hip": 1.5}  # targets: speech / silence speed
 PAUSE_MARGIN = 1.25
 N_SEEDS = 4
-INNER_FOLDS = 3
 BODY_MARGIN_M = MotionFilterSettings.body_margin_m  # the self-collision guard's default margin
 BODY_BUDGET_PCT = 1.0  # sampled arm frames allowed closer to the body than the margin
 # body-aware sampling: the arm noise is whole from the clearance the training targets keep
@@ -270,69 +267,6 @@ class SamplingChoice:
                 + "".join(f"{m[k]:>14.1f}" for k in CALM_KEYS if k in m)
             )
         return "\n".join(lines)
-
-
-def speaker_folds(
-    clips: Sequence[Clip], k: int = INNER_FOLDS
-) -> list[tuple[list[Clip], list[Clip]]]:
-    """Split clips by speaker into ``k`` (training, validation) pairs; each speaker validates once.
-
-    Speakers are sorted and dealt round-robin, so the split is the same on every rebuild.
-    Fewer speakers than ``k`` give one fold per speaker; a single speaker gives no fold.
-    """
-    speakers = sorted({c.info.speaker for c in clips})
-    if len(speakers) < 2:
-        return []
-    k = min(k, len(speakers))
-    folds = []
-    for i in range(k):
-        held = set(speakers[i::k])
-        folds.append(
-            (
-                [c for c in clips if c.info.speaker not in held],
-                [c for c in clips if c.info.speaker in held],
-            )
-        )
-    return folds
-
-
-def cross_validation_tasks(
-    model_name: str,
-    clips: Sequence[Clip],
-    robot: RobotDescription,
-    settings: TrainSettings,
-    k: int = INNER_FOLDS,
-    progress: Callable[[str], None] | None = None,
-) -> tuple[list[Callable[[], tuple[Checkpoint, TrainReport]]], list[list[Clip]]]:
-    """The trainings of :func:`cross_validated`, not yet run, and each one's validation clips.
-
-    Each model stops early on the speakers it is then scored on (its validation speakers), so
-    it uses all its other speakers for training. The trainings are picklable, for
-    :func:`~audio2pose_ros.learning.parallel.run_tasks`.
-    """
-    pairs = speaker_folds(clips, k)
-    if progress is not None:
-        for i, (_, validation) in enumerate(pairs):
-            speakers = sorted({c.info.speaker for c in validation})
-            progress(f"  validation model {i + 1}/{len(pairs)} (without {', '.join(speakers)})")
-    tasks: list[Callable[[], tuple[Checkpoint, TrainReport]]] = [
-        partial(train_on_clips, model_name, training, robot, settings, None, validation)
-        for training, validation in pairs
-    ]
-    return tasks, [validation for _, validation in pairs]
-
-
-def cross_validated(
-    model_name: str,
-    clips: Sequence[Clip],
-    robot: RobotDescription,
-    settings: TrainSettings,
-    k: int = INNER_FOLDS,
-    progress: Callable[[str], None] | None = None,
-) -> list[Fold]:
-    """Train one model per :func:`speaker_folds` pair, in order; each with its unseen speakers."""
-    tasks, held = cross_validation_tasks(model_name, clips, robot, settings, k, progress)
-    return [(task()[0], validation) for task, validation in zip(tasks, held, strict=True)]
 
 
 def _observed(robot: RobotDescription, clips: Sequence[Clip]) -> list[str]:
@@ -874,40 +808,3 @@ def select_sampling(
     """Choose on one checkpoint's validation clips and apply: (tuned checkpoint, choice)."""
     choice = choose_sampling([(checkpoint, validation)], robot, n_seeds)
     return apply_sampling(checkpoint, choice), choice
-
-
-@dataclass(frozen=True)
-class FoldTuner:
-    """The ``tune`` of a leave-one-speaker-out evaluation for ``live_groups`` (picklable).
-
-    Each fold's settings are chosen by :func:`cross_validated` over that fold's training
-    speakers only (the held-out speaker is never seen), so the reported numbers measure the
-    whole procedure; the choice's summary is noted in the tuned checkpoint's info as
-    ``sampling_choice``. Other models pass unchanged.
-
-    Attributes:
-        robot: joint order and groups.
-        settings: training settings of the cross-validation models.
-        verbose: print one line per step to standard error.
-
-    """
-
-    robot: RobotDescription
-    settings: TrainSettings
-    verbose: bool = False
-
-    def __call__(self, fold: Checkpoint, training: list[Clip]) -> Checkpoint:
-        """The fold's checkpoint with the settings chosen on its training speakers."""
-        if fold.model.name != "live_groups":
-            return fold
-        from audio2pose_ros.learning.parallel import report
-
-        progress = report if self.verbose else None
-        inner = cross_validated(
-            "live_groups", training, self.robot, self.settings, progress=progress
-        )
-        choice = choose_sampling(inner, self.robot)
-        if progress is not None:
-            progress("  chosen: " + choice.summary())
-        tuned = apply_sampling(fold, choice)
-        return replace(tuned, info={**tuned.info, "sampling_choice": choice.summary()})
