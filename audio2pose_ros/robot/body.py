@@ -24,7 +24,7 @@ import numpy as np
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.robot.description import RobotDescription, load_robot
 from audio2pose_ros.robot.kinematics import default_urdf_path
-from audio2pose_ros.robot.pairs import ARM_LINK_PREFIXES, checked_pair
+from audio2pose_ros.robot.pairs import ARM_LINK_PREFIXES, checked_pair, pose_array
 
 PUSH_OUT_STEP_RAD = 0.02  # joint-space step of push_out's climb along the clearance gradient
 PUSH_OUT_MAX_STEPS = 400  # push_out gives up after this many steps (8 rad of travel)
@@ -381,15 +381,7 @@ class BodyModel:
         return self._pair_joints[pair].copy()
 
     def _pose_array(self, poses_rad: np.ndarray) -> np.ndarray:
-        poses = np.asarray(poses_rad, dtype=np.float64)
-        if poses.shape[-1:] != (self.robot.n_joints,) or poses.ndim > 2:
-            raise ValueError(
-                f"poses must be (n_joints,) or (N, n_joints) with n_joints = "
-                f"{self.robot.n_joints}, got shape {poses.shape}"
-            )
-        if not np.isfinite(poses).all():
-            raise ValueError("poses must be finite")
-        return poses
+        return pose_array(poses_rad, self.robot.n_joints)
 
     def _frame_positions(self, poses_rad: np.ndarray, frames: tuple[str, str]) -> np.ndarray:
         """(N, 2, 3) positions (m) of two URDF frames in the torso's frame, for N poses."""

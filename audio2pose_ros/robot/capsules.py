@@ -45,7 +45,7 @@ from audio2pose_ros.robot.kinematics import (
     default_urdf_path,
     skew_matrix,
 )
-from audio2pose_ros.robot.pairs import checked_pair
+from audio2pose_ros.robot.pairs import checked_pair, pose_array
 
 SIDE_REACH_M = 0.001  # a capsule reaches this far beyond the side of the shape it bounds
 POSE_BLOCK = 64  # poses measured at once
@@ -232,15 +232,7 @@ class CapsuleModel:
         return levers
 
     def _pose_array(self, poses_rad: np.ndarray) -> np.ndarray:
-        poses = np.asarray(poses_rad, dtype=np.float64)
-        if poses.shape[-1:] != (self.robot.n_joints,) or poses.ndim > 2:
-            raise ValueError(
-                f"poses must be (n_joints,) or (N, n_joints) with n_joints = "
-                f"{self.robot.n_joints}, got shape {poses.shape}"
-            )
-        if not np.isfinite(poses).all():
-            raise ValueError("poses must be finite")
-        return poses
+        return pose_array(poses_rad, self.robot.n_joints)
 
     def capsule_ends(self, poses_rad: np.ndarray) -> np.ndarray:
         """(N, n_capsules, 2, 3) ends of every capsule (m, root link's frame) in N poses."""

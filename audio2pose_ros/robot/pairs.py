@@ -10,10 +10,13 @@ reach them within its limits; ``test/test_body.py`` checks both by sampling).
 
 Both body models use this one rule: the exact one of the self-collision guard
 (:mod:`audio2pose_ros.robot.body`) and the capsules of body-aware sampling
-(:mod:`audio2pose_ros.robot.capsules`).
+(:mod:`audio2pose_ros.robot.capsules`), and the one check of the poses they are asked about
+(:func:`pose_array`).
 """
 
 from __future__ import annotations
+
+import numpy as np
 
 ARM_LINK_PREFIXES = {
     "left": ("LBicep", "LElbow", "LForeArm", "l_wrist", "l_gripper"),
@@ -37,3 +40,20 @@ def checked_pair(link_a: str, link_b: str) -> bool:
             return side == "left"  # arm against arm: once, from the left
         return True  # the body, or the other arm's shoulder
     return False
+
+
+def pose_array(poses_rad: np.ndarray, n_joints: int) -> np.ndarray:
+    """``poses_rad`` as a float array of shape (n_joints,) or (N, n_joints), every angle finite.
+
+    Raises:
+        ValueError: another shape, or a NaN or infinite angle.
+    """
+    poses = np.asarray(poses_rad, dtype=np.float64)
+    if poses.shape[-1:] != (n_joints,) or poses.ndim > 2:
+        raise ValueError(
+            f"poses must be (n_joints,) or (N, n_joints) with n_joints = {n_joints}, "
+            f"got shape {poses.shape}"
+        )
+    if not np.isfinite(poses).all():
+        raise ValueError("poses must be finite")
+    return poses
