@@ -557,10 +557,10 @@ class MotionFilterNode(DiagnosedNode):
         """The fallback clock: tick, and return to the nominal period."""
         if self.tick_timer.timer_period_ns != self.period_ns:
             self.tick_timer.timer_period_ns = self.period_ns
-        self.request_budget.renew()
         if self.started:
-            self.on_tick()
+            self.on_tick()  # renews the request budget itself
         else:
+            self.request_budget.renew()
             self.filter.take_requested_settings()
 
     def on_tick(self) -> None:
