@@ -115,7 +115,7 @@ from audio2pose_ros.ros.request_budget import RequestBudget
 from audio2pose_ros.ros.spin import run_node
 
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
-STARTUP_CHECK_NS = 100_000_000  # while the start waits, it is decided again this often (0.1 s)
+STARTUP_CHECK_S = 0.1  # while the start waits, it is decided again this often
 REQUESTS_PER_TICK = 1  # service requests (set_parameters, ...) served per tick at most
 
 
@@ -239,16 +239,18 @@ class MotionFilterNode(DiagnosedNode):
                 f"parameter measured_joint_states_topic: value "
                 f"{self.settings.measured_joint_states_topic!r} is not a valid topic name"
             ) from None
-        # rclpy's parameter services (all the node's services): a few requests per tick at most
+        # rclpy's parameter services (all the node's services): served from the tick, a few
+        # requests per tick at most
         self.request_budget = RequestBudget(REQUESTS_PER_TICK)
         self.request_budget.adopt_services(self)
-        self.period_ns = round(self.filter.period_s * 1e9)
-        self.tick_timer = self.create_timer(self.filter.period_s, guarded(self.on_timer))
-        self.startup_timer = self.create_timer(
-            max(self.settings.startup_timeout_s, 1e-3), guarded(self.on_startup_timeout)
+        self.serve_requests = guarded(self.request_budget.serve)
+        # the command clock and the start's decision keep their rate behind any backlog
+        self.tick_timer = self.create_paced_timer(self.filter.period_s, self.on_timer)
+        self.startup_timer = self.create_paced_timer(
+            max(self.settings.startup_timeout_s, 1e-3), self.on_startup_timeout
         )
-        self.create_timer(self.settings.state_save_period_s, guarded(self.save_state))
-        self.create_timer(MIN_SAVE_SPACING_S, guarded(self._save_if_due))
+        # the state file is saved from the tick (no timer of its own wakes an idle node)
+        self.next_save_s = time.monotonic() + self.settings.state_save_period_s
         self.last_tick_s = -math.inf
         self.tick_stamp = self.get_clock().now()
         self.publish_output = {
@@ -372,8 +374,8 @@ class MotionFilterNode(DiagnosedNode):
                 self._report(start_held(step.reason, topic))
             else:
                 self.report_problem("start_pose", DiagnosticStatus.WARN, step.reason)
-            if self.startup_timer.timer_period_ns != STARTUP_CHECK_NS:
-                self.startup_timer.timer_period_ns = STARTUP_CHECK_NS  # discovery is polled
+            if self.startup_timer.period_s != STARTUP_CHECK_S:  # discovery is polled
+                self.startup_timer.schedule(STARTUP_CHECK_S, STARTUP_CHECK_S)
             return
         self.startup_timer.cancel()
         self._start(self.robot.neutral_rad if saved is None else saved, step.action)
@@ -405,8 +407,18 @@ class MotionFilterNode(DiagnosedNode):
         if written and self.state.lock is not None:
             self.clear_problem("state_file_unsaved")
 
-    def _save_if_due(self) -> None:
-        if self.state.due:
+    def _save_if_due(self, now_s: float) -> None:
+        """At a tick: save a change waiting for its spacing, or the pose every save period.
+
+        A stop or an enable that :meth:`_save_now` could not write at once is written at the
+        first tick :data:`MIN_SAVE_SPACING_S` after the last write; the pose every
+        ``state_save_period_s`` (written only when it changed). The tick runs at ``rate_hz``
+        whenever the filter has started, and nothing is saved before: no timer of its own.
+        """
+        if now_s >= self.next_save_s:
+            self.next_save_s = now_s + self.settings.state_save_period_s
+            self.save_state()
+        elif self.state.due and now_s - self.state.last_write_s >= MIN_SAVE_SPACING_S:
             self.save_state()
 
     # --- inputs -------------------------------------------------------------------------------
@@ -464,8 +476,7 @@ class MotionFilterNode(DiagnosedNode):
         if wait_s <= 0:
             self.on_tick()
             wait_s = next_timer_s(self.filter.period_s, self.filter.buffered > 0)
-        self.tick_timer.timer_period_ns = max(round(wait_s * 1e9), 1)
-        self.tick_timer.reset()
+        self.tick_timer.schedule(wait_s)
 
     def on_voice(self, msg: Bool) -> None:
         """Voice activity from the features node."""
@@ -554,19 +565,16 @@ class MotionFilterNode(DiagnosedNode):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def on_timer(self) -> None:
-        """The fallback clock: tick, and return to the nominal period."""
-        if self.tick_timer.timer_period_ns != self.period_ns:
-            self.tick_timer.timer_period_ns = self.period_ns
+        """The fallback clock (a paced timer at ``rate_hz``): tick, or serve requests till start."""
         if self.started:
-            self.on_tick()  # renews the request budget itself
+            self.on_tick()  # serves requests itself
         else:
-            self.request_budget.renew()
             self.filter.take_requested_settings()
+            self.serve_requests()
 
     def on_tick(self) -> None:
         """Advance the filter by one period and publish the outputs due at this tick."""
         self.filter.take_requested_settings()
-        self.request_budget.renew()
         self.ticks += 1
         self.last_tick_s = time.monotonic()
         self.tick_stamp = self.get_clock().now()
@@ -582,6 +590,8 @@ class MotionFilterNode(DiagnosedNode):
         for key in self.pacing.due(self.last_tick_s):
             if self.publishers_by_output[key].get_subscription_count():  # no message for nobody
                 self.publish_output[key]()
+        self._save_if_due(self.last_tick_s)
+        self.serve_requests()  # after the commands: a request's settings count from the next tick
 
     def report_body_guard(self, guard: GuardStatus) -> None:
         """WARN naming the links while the self-collision guard changes commands."""
@@ -664,7 +674,7 @@ class MotionFilterNode(DiagnosedNode):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until shutdown."""
-    run_node(MotionFilterNode, "motion_filter_node", args, events=False)  # see create_executor
+    run_node(MotionFilterNode, "motion_filter_node", args)
 
 
 if __name__ == "__main__":
