@@ -382,10 +382,10 @@ class DiagnosedNode(Node):
     ) -> Publisher[Any]:
         """A publisher without rclpy's default QoS event handlers.
 
-        The SingleThreadedExecutor (the motion filter's) polls every event handler in Python at
-        each wait; with the default two per publisher and subscription they were a tenth of the
-        filter's CPU. A publisher's incompatible-QoS warning repeats what the subscriber's node
-        logs, so it is left out.
+        The SingleThreadedExecutor (Humble's, or ``AUDIO2POSE_EXECUTOR=single_threaded``) polls
+        every event handler in Python at each wait; with the default two per publisher and
+        subscription they were a tenth of the motion filter's CPU. A publisher's incompatible-QoS
+        warning repeats what the subscriber's node logs, so it is left out.
         """
         kwargs.setdefault("event_callbacks", PublisherEventCallbacks(use_default_callbacks=False))
         return super().create_publisher(msg_type, topic, qos_profile, **kwargs)

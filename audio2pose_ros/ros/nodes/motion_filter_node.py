@@ -33,10 +33,11 @@ the start holds, commanding nothing, until the conflict has been over for ``SOUR
 what each measured message means (problems, the start, the commands' check) is
 :mod:`audio2pose_ros.motion.measured_states`'s.
 
-Parameter requests: the node's services (rclpy's parameter services) are served at most
-``REQUESTS_PER_TICK`` per tick (:class:`~audio2pose_ros.ros.request_budget.RequestBudget`); a
-request is validated at once and its settings reach the filter at the next tick, once per tick
-however many came, so a storm of set_parameters requests delays answers, never commands.
+Parameter requests: the node's services (rclpy's parameter services) are served by the node
+itself, at the end of each tick, at most ``REQUESTS_PER_TICK`` per tick
+(:class:`~audio2pose_ros.ros.request_budget.RequestBudget`); a request is validated at once and
+its settings reach the filter at the next tick, once per tick however many came, so a storm of
+set_parameters requests delays answers, never commands.
 
 Stop and disable: a stop stays in force across restarts until a ``stop: false`` *published
 after the stop* arrives, as does ``enable: false`` until a later ``enable: true``, by the
@@ -55,9 +56,11 @@ gently).
 Timing (:mod:`audio2pose_ros.motion.pacing`): the filter ticks at ``rate_hz``, at the latest
 one period after the previous tick and early when a pose arrives into an empty buffer (at most
 ``MIN_TICK_SPACING`` periods after the previous tick), so a steady stream is commanded on
-arrival. Each output is published at the tick nearest to its own period, never less than its
-period minus half a filter period after the previous one (its documented minimum spacing: 15 ms
-for 50 Hz at a 100 Hz filter clock). Header stamps are the time the command was computed for
+arrival. The tick is a :class:`~audio2pose_ros.ros.diagnosed_node.PacedTimer` (re-programmed
+at each such arrival), run between two messages when a backlog of input holds it back. Each
+output is published at the tick nearest to its own period, never less than its period minus
+half a filter period after the previous one (its documented minimum spacing: 15 ms for 50 Hz at
+a 100 Hz filter clock). Header stamps are the time the command was computed for
 (the tick), not the publish time. An output nobody subscribes to is not built nor sent.
 """
 
@@ -122,6 +125,7 @@ REQUESTS_PER_TICK = 1  # service requests (set_parameters, ...) served per tick 
 SETTINGS_CLASSES = (MotionFilterSettings, StyleSettings, LimitSettings, MotionFilterNodeSettings)
 # A JointState of a whole humanoid (names, positions, velocities, efforts) is a few KiB.
 MAX_JOINT_STATE_BYTES = 65536
+MAX_BOOL_BYTES = 64  # a serialized std_msgs/Bool is 5 bytes
 
 
 PARAMETERS = tuple(spec for cls in SETTINGS_CLASSES for spec in specs_of(cls))
@@ -221,8 +225,9 @@ class MotionFilterNode(DiagnosedNode):
             self.create_subscription(
                 Bool, topics.VOICE_ACTIVITY, guarded(self.on_voice), STREAM_QOS
             )
-        self.create_subscription(Bool, topics.ENABLE, guarded(self.on_enable), LATCHED_QOS)
-        self.create_subscription(Bool, topics.STOP, guarded(self.on_stop), LATCHED_QOS)
+        # with their MessageInfo (the publication time) under either executor
+        bounded(Bool, topics.ENABLE, self.on_enable, LATCHED_QOS, MAX_BOOL_BYTES, with_info=True)
+        bounded(Bool, topics.STOP, self.on_stop, LATCHED_QOS, MAX_BOOL_BYTES, with_info=True)
         bounded(JointState, topics.HEAD_TARGET, self.on_head_target, 10, MAX_JOINT_STATE_BYTES)
         bounded(JointState, topics.HEAD_OFFSET, self.on_head_offset, 10, MAX_JOINT_STATE_BYTES)
         try:
