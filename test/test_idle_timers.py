@@ -3,7 +3,7 @@
 Each node runs in the executor its process uses; every rclpy timer's callback is counted while
 the node is idle for a number of its own heartbeats or ticks (counts, not times). A timer that
 has something to do only now and then (saving the filter's state, flushing accumulated audio,
-logging parameter changes) is armed when there is something to do.
+logging parameter changes) is armed when there is something to do, and disarmed after.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import rclpy
 from audio_common_msgs.msg import AudioData, AudioInfo
+from rclpy.parameter import Parameter
 from std_msgs.msg import Bool
 
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
@@ -84,6 +85,17 @@ def test_when_the_started_filter_is_idle_expect_no_timer_but_its_tick_and_heartb
             spin_until(executor, node, lambda: not node.state.due)
             assert not load_memory(state, node.robot).stopped
             assert {t: n for t, n in calls.items() if t not in paced} == {}
+
+            # parameter changes: the first is logged at once, the next ones within a second
+            # gathered and logged by a timer armed for them, which then disarms
+            log = node.parameters._log
+            for gain in (0.5, 0.6, 0.7):
+                node.set_parameters([Parameter("head_gain", Parameter.Type.DOUBLE, gain)])
+            assert log.values == {"head_gain": 0.7}  # gathered
+            assert not log.timer.is_canceled()
+            spin_until(executor, node, lambda: not log.values)
+            assert calls[log.timer] == 1
+            assert log.timer.is_canceled()
         finally:
             executor.shutdown()
             node.destroy_node()
