@@ -29,7 +29,7 @@ SPIN_ONCE_TIMEOUT_S = 0.5  # an idle EventsExecutor checks for shutdown this oft
 EXECUTOR_ENV = "AUDIO2POSE_EXECUTOR"  # "events" (default where available) or "single_threaded"
 
 
-def create_executor(events: bool = True) -> Executor:
+def create_executor() -> Executor:
     """The executor the nodes spin in: rclpy's EventsExecutor where available, else single-threaded.
 
     The EventsExecutor (``rclpy.experimental``, Jazzy and later) is driven by middleware events
@@ -37,7 +37,7 @@ def create_executor(events: bool = True) -> Executor:
     item of the nodes' CPU (20-40 % of each node's samples under traffic); with it the
     three nodes used 2.9 instead of 4.2 ms CPU per 10 ms frame. Humble has none and gets the
     SingleThreadedExecutor; ``AUDIO2POSE_EXECUTOR=single_threaded`` forces it (for comparison,
-    or should a distro's EventsExecutor misbehave), as does ``events=False``. Spin it with
+    or should a distro's EventsExecutor misbehave). Spin it with
     :func:`spin_executor`.
 
     Every node runs correctly in either. The EventsExecutor serves events first come, first
@@ -50,7 +50,7 @@ def create_executor(events: bool = True) -> Executor:
     MessageInfo as one tuple with the message, which
     :meth:`~audio2pose_ros.ros.diagnosed_node.DiagnosedNode.create_bounded_subscription` unpacks.
     """
-    if events and os.environ.get(EXECUTOR_ENV, "events") != "single_threaded":
+    if os.environ.get(EXECUTOR_ENV, "events") != "single_threaded":
         try:
             from rclpy.experimental.events_executor import EventsExecutor
         except ImportError:  # Humble
