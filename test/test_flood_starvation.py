@@ -298,3 +298,24 @@ def test_when_commands_flood_the_console_expect_its_heartbeat_and_the_newest_kep
     assert heard.sent > 1000  # a flood, to a matched reader
     assert heard.longest_silence_s() < MAX_SILENCE_S
     assert heard.value("callback_errors") == 0
+
+
+def test_when_a_paced_timer_is_overdue_inside_its_own_run_expect_no_second_run_within_it():
+    """A callback that runs the overdue timers (a request served from a tick) does not re-run."""
+    now = [0.0]
+    depth: list[int] = []
+    running = [0]
+
+    def callback() -> None:
+        running[0] += 1
+        depth.append(running[0])
+        now[0] += 1.0  # a slow run: the timer is overdue again before it returns
+        timer.run_if_overdue(now[0])
+        running[0] -= 1
+
+    timer = PacedTimer(0.01, callback, clock=lambda: now[0])
+    now[0] = 0.05
+    timer.run_if_overdue(now[0])
+    timer.on_timer()
+    assert depth == [1, 1]  # two runs, one after the other, never one inside the other
+    assert timer.runs_between_events == 1

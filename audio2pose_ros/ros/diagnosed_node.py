@@ -146,6 +146,8 @@ class PacedTimer:
     The schedule may change while the node runs: :meth:`schedule` moves the next run (and the
     executor's timer, ``timer``, with it) and may give a new period, after which the runs
     follow that period again; :meth:`cancel` stops the runs until the next :meth:`schedule`.
+    A run never starts inside the callback's own run (where a request served from the motion
+    filter's tick runs the overdue timers, which would otherwise tick again within the tick).
     """
 
     OVERDUE_GRACE = 0.25  # of the period: a timer this late is run between events
@@ -165,6 +167,7 @@ class PacedTimer:
         self.cancelled = False
         self.timer: Timer | None = None  # the executor's timer (create_paced_timer), if any
         self._timer_ns = _period_ns(period_s)  # the executor's timer's period now
+        self._running = False  # within the callback
 
     def schedule(self, delay_s: float, period_s: float | None = None) -> None:
         """Run next ``delay_s`` from now, then every ``period_s`` (None: the period in force).
@@ -186,12 +189,13 @@ class PacedTimer:
     def on_timer(self) -> None:
         """The executor's timer event: run unless the last run already served this period."""
         now = self.clock()
-        if not self.cancelled and now >= self.next_due_s - 0.5 * self.period_s:
+        if not (self.cancelled or self._running) and now >= self.next_due_s - 0.5 * self.period_s:
             self._run(now)
 
     def run_if_overdue(self, now: float) -> None:
         """Run now if the executor's timer event is overdue (it waits behind messages)."""
-        if not self.cancelled and now >= self.next_due_s + self.OVERDUE_GRACE * self.period_s:
+        overdue = now >= self.next_due_s + self.OVERDUE_GRACE * self.period_s
+        if overdue and not (self.cancelled or self._running):
             self.runs_between_events += 1
             self._run(now)
 
@@ -201,7 +205,11 @@ class PacedTimer:
             self.next_due_s = now + self.period_s
         if self._timer_ns != _period_ns(self.period_s):  # programmed for a scheduled delay
             self._program(self.period_s)
-        self.callback()
+        self._running = True
+        try:
+            self.callback()
+        finally:
+            self._running = False
 
     def _program(self, delay_s: float) -> None:
         """The executor's timer fires ``delay_s`` from now, then every ``delay_s``."""

@@ -120,6 +120,7 @@ from audio2pose_ros.ros.spin import run_node
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
 STARTUP_CHECK_S = 0.1  # while the start waits, it is decided again this often
 REQUESTS_PER_TICK = 1  # service requests (set_parameters, ...) served per tick at most
+QUIET_REQUEST_TICKS = 5  # while no request comes, the services are asked every 5th tick (50 ms)
 
 
 SETTINGS_CLASSES = (MotionFilterSettings, StyleSettings, LimitSettings, MotionFilterNodeSettings)
@@ -246,7 +247,7 @@ class MotionFilterNode(DiagnosedNode):
             ) from None
         # rclpy's parameter services (all the node's services): served from the tick, a few
         # requests per tick at most
-        self.request_budget = RequestBudget(REQUESTS_PER_TICK)
+        self.request_budget = RequestBudget(REQUESTS_PER_TICK, QUIET_REQUEST_TICKS)
         self.request_budget.adopt_services(self)
         self.serve_requests = guarded(self.request_budget.serve)
         # the command clock and the start's decision keep their rate behind any backlog
