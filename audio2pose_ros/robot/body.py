@@ -178,6 +178,13 @@ class _PairGroup:
             self.requests.append(request)
         self.results = [coal.DistanceResult() for _ in pairs]
         self.pairs = pairs
+        # per pair: its shapes, functor, request and result, for one lookup a measurement
+        self.calls = [
+            (a, b, functor, request, result)
+            for (a, b), functor, request, result in zip(
+                pairs, self.functors, self.requests, self.results, strict=True
+            )
+        ]
         self._initial_guesses = [
             (request.cached_gjk_guess.copy(), request.cached_support_func_guess.copy())
             for request in self.requests
@@ -341,27 +348,27 @@ class BodyModel:
         self._moved = [True] * len(self._transforms)
         self._placed = key
 
-    def _measure(self, pose_rad: np.ndarray, pairs: Any) -> np.ndarray:
+    def _measure(self, pose_rad: np.ndarray, pairs: np.ndarray) -> np.ndarray:
         """Signed distances (m) of the pairs ``pairs`` (indices) in the placed pose ``pose_rad``.
 
         Each is kept, with the pose, as the pair's last known distance.
         """
-        group, transforms, moved = self._pairs, self._transforms, self._moved
-        out = np.empty(len(pairs))
-        for i, k in enumerate(pairs):
-            a, b = group.pairs[k]
+        calls, transforms, moved = self._pairs.calls, self._transforms, self._moved
+        out = []
+        for k in pairs.tolist():
+            a, b, distance, request, result = calls[k]
             for shape in (a, b):
                 if moved[shape]:  # coal's transform of the shape is not yet in this pose
                     transforms[shape].setRotation(self._rotations[shape])
                     transforms[shape].setTranslation(self._translations[shape])
                     moved[shape] = False
-            result = group.results[k]
             result.clear()
-            group.functors[k](transforms[a], transforms[b], group.requests[k], result)
-            out[i] = result.min_distance
-        self._known_m[pairs] = out
+            distance(transforms[a], transforms[b], request, result)
+            out.append(result.min_distance)
+        distances = np.array(out)
+        self._known_m[pairs] = distances
         self._known_at[pairs] = pose_rad
-        return out
+        return distances
 
     def query(self, pose_rad: np.ndarray) -> tuple[float, int]:
         """The closest pair's distance (m) and its index in :attr:`link_pairs`, for one pose.
