@@ -7,7 +7,7 @@ import pytest
 from body_poses import pose_with
 
 from audio2pose_ros.robot.body import BodyModel, BodyModelError
-from audio2pose_ros.robot.pairs import SHOULDER_LINKS
+from audio2pose_ros.robot.pairs import ARM_LINK_PREFIXES, SHOULDER_LINKS, checked_pair
 
 MARGIN_M = 0.02
 
@@ -245,3 +245,129 @@ def test_when_a_path_is_given_as_sampled_pieces_expect_the_sweep_of_its_samples(
         else:
             assert body.clearance(dense[pieces.index]) < floor
             assert body.clearance(dense[: pieces.index]).min() >= floor
+
+
+def _pinocchio_reference(body):
+    """Pinocchio's kinematic and collision models of the same URDF, with the checked pairs.
+
+    Pinocchio loaded the body model until numpy forward kinematics replaced it (it held about
+    21 MB of the motion filter's process): it is the reference the model must still match.
+    """
+    pin = pytest.importorskip("pinocchio")
+    model = pin.buildModelFromUrdf(str(body.urdf_path))
+    geometry = pin.buildGeomFromUrdf(model, str(body.urdf_path), pin.GeometryType.COLLISION)
+    links = [obj.name.rsplit("_", 1)[0] for obj in geometry.geometryObjects]
+    pairs = [
+        (a, b)
+        for a in range(len(links))
+        for b in range(len(links))
+        if a != b and checked_pair(links[a], links[b])
+    ]
+    for a, b in pairs:
+        geometry.addCollisionPair(pin.CollisionPair(a, b))
+    q_index = [model.joints[model.getJointId(name)].idx_q for name in body.robot.names]
+
+    def configuration(pose):
+        q = pin.neutral(model)
+        q[q_index] = pose
+        return q
+
+    return pin, model, geometry, links, pairs, configuration
+
+
+def _random_walk(robot, n, seed, step_rad=0.02):
+    """Poses a small step apart (as commands are), within the joint limits."""
+    rng = np.random.default_rng(seed)
+    poses = [rng.uniform(robot.lower_rad, robot.upper_rad)]
+    for _ in range(n - 1):
+        step = rng.normal(scale=step_rad, size=robot.n_joints)
+        poses.append(np.clip(poses[-1] + step, robot.lower_rad, robot.upper_rad))
+    return np.array(poses)
+
+
+def test_when_shapes_and_links_are_placed_expect_pinocchios_placements(body):
+    """The numpy forward kinematics puts every collision shape (in Pinocchio's order) and the
+    links the wrist measures use where Pinocchio does, in random poses within the limits."""
+    pin, model, geometry, links, _, configuration = _pinocchio_reference(body)
+    assert body.shape_links == tuple(links)
+    data, geometry_data = model.createData(), geometry.createData()
+    poses = random_poses(body.robot, 40, seed=11)
+    placed = body.placements(poses)
+    torso = model.getFrameId("torso")
+    for pose, ours in zip(poses, placed, strict=True):
+        pin.forwardKinematics(model, data, configuration(pose))
+        pin.updateGeometryPlacements(model, data, geometry, geometry_data)
+        pin.updateFramePlacements(model, data)
+        theirs = np.array([placement.homogeneous for placement in geometry_data.oMg])
+        np.testing.assert_allclose(ours, theirs, rtol=0.0, atol=1e-9)
+        for link, wrist in zip(("l_wrist", "r_wrist"), body.wrist_positions(pose)[0], strict=True):
+            at = data.oMf[torso].actInv(data.oMf[model.getFrameId(link)]).translation
+            np.testing.assert_allclose(wrist, at, rtol=0.0, atol=1e-9)
+
+
+def test_when_pairs_are_measured_along_a_path_expect_pinocchios_distances_and_levers(body):
+    """Every pair's distance along a path of small steps is the one Pinocchio's
+    computeDistances gives for the same poses in the same order (coal starts each search from
+    the pair's previous answer, so the order counts), to coal's tolerance; the checked pairs,
+    their joints and the lever bounds are the ones computed from Pinocchio's model."""
+    pin, model, geometry, links, pairs, configuration = _pinocchio_reference(body)
+    assert body.link_pairs == tuple((links[a], links[b]) for a, b in pairs)
+    data, geometry_data = model.createData(), geometry.createData()
+    body.reset()
+    for pose in _random_walk(body.robot, 120, seed=12):
+        pin.computeDistances(model, data, geometry, geometry_data, configuration(pose))
+        theirs = np.array([result.min_distance for result in geometry_data.distanceResults])
+        # coal answers within 1e-6 m: the shapes' placements differ from Pinocchio's in their
+        # last bits (1e-16 m), which can end a search one step sooner or later
+        np.testing.assert_allclose(body.pair_distances(pose), theirs, rtol=0.0, atol=1e-6)
+    body.reset()
+    # levers from Pinocchio's joint tree: bounding radius, shape offset, joint offsets below
+    ids = [model.getJointId(name) for name in body.robot.names]
+    levers = np.zeros((len(links), body.robot.n_joints))
+    for s, obj in enumerate(geometry.geometryObjects):
+        shape = obj.geometry
+        radius = {
+            "Sphere": lambda g: g.radius,
+            "Cylinder": lambda g: np.hypot(g.radius, g.halfLength),
+            "Box": lambda g: np.linalg.norm(g.halfSide),
+        }[type(shape).__name__](shape) + np.linalg.norm(obj.placement.translation)
+        chain = [int(j) for j in model.supports[obj.parentJoint]]
+        for i, joint in enumerate(ids):
+            if joint in chain:
+                below = chain[chain.index(joint) + 1 :]
+                offsets = [np.linalg.norm(model.jointPlacements[j].translation) for j in below]
+                levers[s, i] = radius + sum(offsets)
+    np.testing.assert_allclose(body.lever_m, levers.max(axis=0), rtol=0.0, atol=1e-12)
+    moved = levers > 0.0
+    for k, (a, b) in enumerate(pairs):
+        expected = np.where(moved[a] & ~moved[b], levers[a], 0.0) + np.where(
+            moved[b] & ~moved[a], levers[b], 0.0
+        )
+        np.testing.assert_allclose(body.pair_lever_m[k], expected, rtol=0.0, atol=1e-12)
+        hand = {link: arm[-1] for arm in ARM_LINK_PREFIXES.values() for link in arm}
+        supports = set()
+        for shape in (a, b):
+            link = hand.get(links[shape], links[shape])
+            joint = geometry.geometryObjects[links.index(link)].parentJoint
+            supports |= {model.names[int(j)] for j in model.supports[joint]}
+        np.testing.assert_array_equal(
+            body.pair_joints(k), [name in supports for name in body.robot.names]
+        )
+
+
+def test_when_only_the_pairs_that_can_be_closest_are_measured_expect_the_closest_of_all(body):
+    """A query measures only the pairs whose lever bound can undercut the closest one: along
+    paths of small steps and of jumps, its answer is the closest of every pair measured afresh
+    (coal's 1e-6 m), the same pair wherever no other is that close."""
+    compared = 0
+    for poses in (_random_walk(body.robot, 150, seed=13), random_poses(body.robot, 40, seed=14)):
+        body.reset()
+        answers = [body.query(pose) for pose in poses]
+        body.reset()
+        for pose, (distance, pair) in zip(poses, answers, strict=True):
+            every = body.pair_distances(pose)
+            assert distance == pytest.approx(every.min(), abs=2e-6)
+            if np.partition(every, 1)[1] - every.min() > 1e-5:
+                assert pair == int(np.argmin(every))
+                compared += 1
+    assert compared > 150

@@ -1,12 +1,27 @@
 """Pepper's body as collision geometry: how close the arms come to the body and to each other.
 
 The geometry is the URDF's ``<collision>`` shapes (``urdf/pepper.urdf``: primitive shapes on
-pepper_description's kinematics, the chest tablet included), loaded with Pinocchio (``pin``) into a
-kinematic model and a separate geometry model, as Pinocchio separates them; distances between
-shapes come from coal (the FCL successor Pinocchio uses). Nothing here is hand-written geometry.
+pepper_description's kinematics, the chest tablet included), read by
+:class:`~audio2pose_ros.robot.kinematics.RobotKinematics` and placed by its numpy forward
+kinematics (:class:`~audio2pose_ros.robot.kinematics.DrivenFrames`, shared with the capsules of
+body-aware sampling); distances between the shapes come from coal (the FCL successor, the
+library Pinocchio measures with; hpp-fcl, its name before version 3, where a ROS distro's
+Pinocchio brings that), with the settings Pinocchio gives it. Nothing here is
+hand-written geometry. (Pinocchio loaded this model until it was found to hold about 21 MB in
+the motion filter's process for forward kinematics alone; ``test/test_body.py`` checks the
+placements, distances and levers against it.)
 
 **Checked pairs.** Those of :func:`~audio2pose_ros.robot.pairs.checked_pair`: every link of an arm
-that the arm's joints move against the rest of the body and the other arm.
+that the arm's joints move against the rest of the body and the other arm. The shapes are
+numbered as urdfdom, hence Pinocchio, numbers them (depth first from the root link, a link's
+children in the order of their joints' names, a link's shapes in file order), so the pairs,
+and the first of equally close pairs, are the ones Pinocchio's model gave.
+
+**Only the pairs that can be closest are measured.** Each pair's last distance is kept with the
+pose it was measured at; turning joint j by d changes pair k's distance by at most
+``pair_lever_m[k, j] * |d|``, so a pair whose bound from its last distance stays above the
+closest distance measured in this pose (by more than ``CULL_SLACK_M``, coal's tolerance with
+room to spare) cannot be the closest, and is not measured again (:meth:`BodyModel.query`).
 
 Joints the speech model does not drive (HipPitch, KneePitch, the wrists and hands) stay at zero,
 where Pepper holds them while it talks; distances are signed, in metres (negative: the shapes
@@ -23,7 +38,13 @@ import numpy as np
 
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.robot.description import RobotDescription, load_robot
-from audio2pose_ros.robot.kinematics import default_urdf_path
+from audio2pose_ros.robot.kinematics import (
+    DrivenFrames,
+    KinematicsError,
+    RobotKinematics,
+    UrdfCollision,
+    default_urdf_path,
+)
 from audio2pose_ros.robot.pairs import ARM_LINK_PREFIXES, checked_pair, pose_array
 
 PUSH_OUT_STEP_RAD = 0.02  # joint-space step of push_out's climb along the clearance gradient
@@ -31,6 +52,8 @@ PUSH_OUT_MAX_STEPS = 400  # push_out gives up after this many steps (8 rad of tr
 GRADIENT_STEP_RAD = 1e-3  # finite-difference step of the clearance gradient
 BLAS_BLOCK_ELEMENTS = 1 << 16  # products of rows x inner x columns up to this stay on one thread
 RECENT_QUERIES = 16  # poses whose clearance is kept: a guard step asks about the same few poses
+CULL_SLACK_M = 1e-5  # a pair is skipped only if its bound exceeds the closest one by this (m);
+# coal answers within 1e-6 m
 
 
 @dataclass(frozen=True)
@@ -63,23 +86,65 @@ class BodyModelError(ConfigurationError):
     """The URDF lacks a joint of the robot description, or its collision shapes cannot load."""
 
 
-def _bounding_radius(shape: Any) -> float:
+def _bounding_radius(shape: UrdfCollision) -> float:
     """Radius of a sphere about the shape's centre that contains it (m)."""
-    kind = type(shape).__name__
-    if kind == "Sphere":
-        return float(shape.radius)
-    if kind in ("Cylinder", "Capsule"):
-        return float(np.hypot(shape.radius, shape.halfLength)) + (
-            float(shape.radius) if kind == "Capsule" else 0.0
-        )
-    if kind == "Box":
-        return float(np.linalg.norm(shape.halfSide))
-    raise BodyModelError(f"collision shape {kind} is not supported (use boxes, cylinders, spheres)")
+    if shape.kind == "sphere":
+        return shape.size[0]
+    if shape.kind == "cylinder":
+        return float(np.hypot(shape.size[0], 0.5 * shape.size[1]))
+    return float(np.linalg.norm(0.5 * np.asarray(shape.size)))
 
 
-def _link_of(geometry_name: str) -> str:
-    """``LForeArm_0`` -> ``LForeArm`` (Pinocchio numbers the shapes of a link)."""
-    return geometry_name.rsplit("_", 1)[0]
+def _collision_library() -> Any:
+    """coal, or hpp-fcl: its name before version 3, which Humble's Pinocchio 3 brings.
+
+    Raises:
+        BodyModelError: neither is installed.
+    """
+    try:
+        import coal
+    except ImportError:
+        pass
+    else:
+        return coal
+    try:
+        import hppfcl  # pragma: no cover - Humble's distro packages
+    except ImportError as error:
+        raise BodyModelError(
+            f"the body model needs coal (pip: coal; a ROS distro's pinocchio brings it): {error}"
+        ) from None
+    return hppfcl  # pragma: no cover
+
+
+def _coal_shape(coal: Any, shape: UrdfCollision) -> Any:
+    """The coal geometry of a URDF box, cylinder or sphere (as Pinocchio builds it)."""
+    if shape.kind == "box":
+        return coal.Box(*shape.size)
+    if shape.kind == "cylinder":
+        return coal.Cylinder(*shape.size)
+    if shape.kind == "sphere":
+        return coal.Sphere(shape.size[0])
+    raise BodyModelError(
+        f"collision shape {shape.kind} of link {shape.link} is not supported "
+        f"(use boxes, cylinders, spheres)"
+    )
+
+
+def _shapes_in_tree_order(kinematics: RobotKinematics) -> list[UrdfCollision]:
+    """The collision shapes depth first from the root link, children by their joints' names."""
+    children: dict[str, list[tuple[str, str]]] = {}
+    for joint in kinematics.joints:
+        children.setdefault(joint.parent, []).append((joint.name, joint.child))
+    by_link: dict[str, list[UrdfCollision]] = {}
+    for shape in kinematics.collisions:
+        by_link.setdefault(shape.link, []).append(shape)
+    ordered: list[UrdfCollision] = []
+    stack = [kinematics.root_link]
+    while stack:
+        link = stack.pop()
+        ordered.extend(by_link.get(link, ()))
+        stack.extend(child for _, child in sorted(children.get(link, ()), reverse=True))
+    return ordered
 
 
 def blocked_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -96,30 +161,43 @@ def blocked_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 class _PairGroup:
-    """The checked pairs in a geometry model of their own, with coal's per-pair workspace."""
+    """The checked pairs' coal distance functors, with coal's per-pair workspace.
 
-    def __init__(self, pin: Any, model: Any, urdf_path: Path, pairs: list[tuple[int, int]]) -> None:
-        self.geometry = pin.buildGeomFromUrdf(model, str(urdf_path), pin.GeometryType.COLLISION)
-        for a, b in pairs:
-            self.geometry.addCollisionPair(pin.CollisionPair(a, b))
-        self.data = self.geometry.createData()
+    Each pair has its own request, so each distance search starts from the support points of
+    that pair's previous answer (Pinocchio's setting: several times faster for the small steps
+    between commands).
+    """
+
+    def __init__(self, coal: Any, shapes: list[Any], pairs: list[tuple[int, int]]) -> None:
+        self.shapes = shapes  # the functors point to them: they must live as long
+        self.functors = [coal.ComputeDistance(shapes[a], shapes[b]) for a, b in pairs]
+        self.requests = []
+        for _ in pairs:
+            request = coal.DistanceRequest()
+            request.gjk_initial_guess = coal.GJKInitialGuess.CachedGuess
+            self.requests.append(request)
+        self.results = [coal.DistanceResult() for _ in pairs]
         self.pairs = pairs
+        # per pair: its shapes, functor, request and result, for one lookup a measurement
+        self.calls = [
+            (a, b, functor, request, result)
+            for (a, b), functor, request, result in zip(
+                pairs, self.functors, self.requests, self.results, strict=True
+            )
+        ]
         self._initial_guesses = [
             (request.cached_gjk_guess.copy(), request.cached_support_func_guess.copy())
-            for request in self.data.distanceRequests
+            for request in self.requests
         ]
 
     def reset_guesses(self) -> None:
         """Start every pair's distance search from its first guess again.
 
-        coal starts each search from the previous answer's support points (several times
-        faster for the small steps between commands), so an answer depends, within its 1e-6 m
-        tolerance, on the queries before it. Resetting at the start of a run makes the same
-        poses give the same answers in every run.
+        coal starts each search from the previous answer's support points, so an answer
+        depends, within its 1e-6 m tolerance, on the queries before it. Resetting at the start
+        of a run makes the same poses give the same answers in every run.
         """
-        for request, (gjk, support) in zip(
-            self.data.distanceRequests, self._initial_guesses, strict=True
-        ):
+        for request, (gjk, support) in zip(self.requests, self._initial_guesses, strict=True):
             request.cached_gjk_guess = gjk.copy()
             request.cached_support_func_guess = support.copy()
 
@@ -128,60 +206,61 @@ class BodyModel:
     """Clearance of Pepper's arms from its body, for poses in the robot description's joint order.
 
     Build it once with :meth:`load`; every query takes a pose and returns distances. One instance
-    holds Pinocchio's per-query workspaces (``Data``), so give each thread its own.
+    holds coal's per-query workspaces, so give each thread its own.
     """
 
     def __init__(self, robot: RobotDescription, urdf_path: Path) -> None:
-        """Load the kinematic and collision models of ``urdf_path`` for ``robot``'s joints.
+        """Load the kinematics and collision shapes of ``urdf_path`` for ``robot``'s joints.
 
         Raises:
-            BodyModelError: the URDF cannot be loaded or lacks one of the robot's joints.
+            BodyModelError: the URDF cannot be loaded, lacks one of the robot's joints or has a
+                shape other than a box, a cylinder or a sphere.
         """
-        try:
-            import pinocchio
-        except ImportError as error:  # pragma: no cover - a dependency of the package
-            raise BodyModelError(f"the body model needs pinocchio (pip: pin): {error}") from None
-        self._pin: Any = pinocchio
+        coal = _collision_library()
         self.robot = robot
         self.urdf_path = urdf_path
         try:
-            model = pinocchio.buildModelFromUrdf(str(urdf_path))
-            geometry = pinocchio.buildGeomFromUrdf(
-                model, str(urdf_path), pinocchio.GeometryType.COLLISION
-            )
-        except (RuntimeError, ValueError, OSError) as error:
+            kinematics = RobotKinematics(urdf_path)
+        except (KinematicsError, OSError) as error:
             raise BodyModelError(f"{urdf_path}: cannot load its collision model: {error}") from None
-        self._model = model
-        self._q_index = np.zeros(robot.n_joints, dtype=np.int64)
-        for i, name in enumerate(robot.names):
-            if not model.existJointName(name):
+        movable = kinematics.movable_joint_names
+        for name in robot.names:
+            if name not in movable:
                 raise BodyModelError(f"{urdf_path} has no joint {name!r} of the robot description")
-            self._q_index[i] = model.joints[model.getJointId(name)].idx_q
-        self._q = pinocchio.neutral(model)
-        self._data = model.createData()
-        objects = geometry.geometryObjects
-        names = [_link_of(obj.name) for obj in objects]
+        try:
+            self._frames = DrivenFrames(kinematics, robot.names)
+            # every movable joint a frame, as in Pinocchio's model: the levers' chains
+            tree = DrivenFrames(kinematics, movable)
+        except KinematicsError as error:
+            raise BodyModelError(f"{urdf_path}: {error}") from None
+        shapes = _shapes_in_tree_order(kinematics)
+        names = [shape.link for shape in shapes]
+        geometries = [_coal_shape(coal, shape) for shape in shapes]
+        self._shape_chains = self._frames.chains(
+            np.array([self._frames.frame_of[link] for link in names])
+        )
+        self._shape_in_frame = np.array(
+            [self._frames.link_in_frame[s.link] @ s.origin for s in shapes]
+        ).reshape(-1, 4, 4)
+        self.shape_links: tuple[str, ...] = tuple(names)
         # A link of an arm counts as moved by all of its arm's joints (those of the hand's chain):
         # the guard stops or slides a whole arm, so pairs group by arm, head and hip.
-        hand_joint = {
-            link: objects[names.index(links[-1])].parentJoint
-            for links in ARM_LINK_PREFIXES.values()
-            for link in links
-            if links[-1] in names
-        }
+        hand = {link: links[-1] for links in ARM_LINK_PREFIXES.values() for link in links}
         chain = [
-            hand_joint.get(name, obj.parentJoint) for name, obj in zip(names, objects, strict=True)
+            tree.frame_chains[tree.frame_of[hand[name] if hand.get(name) in names else name]]
+            for name in names
         ]
         pairs: list[tuple[int, int]] = []
         masks: list[np.ndarray] = []
-        for a in range(len(objects)):
-            for b in range(len(objects)):
+        for a in range(len(shapes)):
+            for b in range(len(shapes)):
                 if a != b and checked_pair(names[a], names[b]):
                     pairs.append((a, b))
-                    masks.append(self._driven_joints(chain[a], chain[b]))
+                    moving = {tree.joint_names[j] for j in (*chain[a], *chain[b])}
+                    masks.append(np.array([name in moving for name in robot.names]))
         if not pairs:
             raise BodyModelError(f"{urdf_path}: no arm link to check against the body")
-        shape_levers, moved = self._levers(geometry)
+        shape_levers, moved = self._levers(tree, shapes)
         self.lever_m = shape_levers.max(axis=0)
         # a joint on both shapes' chains moves them together: it cannot change their distance
         self.pair_lever_m = np.array(
@@ -191,10 +270,19 @@ class BodyModel:
                 for a, b in pairs
             ]
         )
-        self._pairs = _PairGroup(pinocchio, model, urdf_path, pairs)
+        self._pairs = _PairGroup(coal, geometries, pairs)
+        transform = getattr(coal, "Transform3s", None) or coal.Transform3f  # hpp-fcl: 3f
+        self._transforms = [transform() for _ in shapes]
+        self._placed = b""  # the pose the shapes are placed in
+        self._rotations = np.zeros((len(shapes), 3, 3))  # their placement in that pose
+        self._translations = np.zeros((len(shapes), 3))
+        self._moved = [True] * len(shapes)  # coal's transform of a shape is not yet there
         self._pair_joints = np.array(masks, dtype=bool)  # (n_pairs, n_joints)
         self.link_pairs: tuple[tuple[str, str], ...] = tuple((names[a], names[b]) for a, b in pairs)
         self._recent: dict[bytes, tuple[float, int]] = {}  # the last few queries
+        # each pair's last measured distance and the pose it was measured at (-inf: none)
+        self._known_m = np.full(len(pairs), -np.inf)
+        self._known_at = np.zeros((len(pairs), robot.n_joints))
 
     @classmethod
     def load(
@@ -212,77 +300,110 @@ class BodyModel:
             model = _LOADED[key] = cls(*key)
         return model
 
-    def _levers(self, geometry: Any) -> tuple[np.ndarray, np.ndarray]:
+    def _levers(
+        self, tree: DrivenFrames, shapes: list[UrdfCollision]
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Per collision shape and robot joint, how far the shape can be from the joint's axis.
 
-        Bounded along the kinematic chain: the offsets of the joints below it, the shape's
-        placement and its bounding radius (m; 0 for a joint that does not move the shape).
-        Turning joint j by d moves no point of shape s further than ``levers[s, j] * |d|``, so
-        a clearance larger than the sum cannot be lost (:meth:`sweep`).
+        Bounded along the kinematic chain of every movable joint (``tree``): the offsets of the
+        joints below it, the shape's placement and its bounding radius (m; 0 for a joint that
+        does not move the shape). Turning joint j by d moves no point of shape s further than
+        ``levers[s, j] * |d|``, so a clearance larger than the sum cannot be lost
+        (:meth:`sweep`).
 
         Returns:
             ``(levers, moved)``: (n_shapes, n_joints) lever lengths (m) and whether each joint
             moves each shape.
         """
-        model = self._model
-        objects = geometry.geometryObjects
-        levers = np.zeros((len(objects), self.robot.n_joints))
-        moved = np.zeros((len(objects), self.robot.n_joints), dtype=bool)
-        joint_ids = [model.getJointId(name) for name in self.robot.names]
-        for s, obj in enumerate(objects):
-            radius = _bounding_radius(obj.geometry) + float(
-                np.linalg.norm(obj.placement.translation)
-            )
-            chain = [int(j) for j in model.supports[obj.parentJoint]]
-            for i, joint in enumerate(joint_ids):
-                if joint in chain:
-                    below = chain[chain.index(joint) + 1 :]
-                    levers[s, i] = radius + sum(
-                        float(np.linalg.norm(model.jointPlacements[j].translation)) for j in below
-                    )
+        levers = np.zeros((len(shapes), self.robot.n_joints))
+        moved = np.zeros((len(shapes), self.robot.n_joints), dtype=bool)
+        offsets = [float(np.linalg.norm(placement[:3, 3])) for placement in tree.placements]
+        for s, shape in enumerate(shapes):
+            placement = tree.link_in_frame[shape.link] @ shape.origin
+            radius = _bounding_radius(shape) + float(np.linalg.norm(placement[:3, 3]))
+            chain = tree.frame_chains[tree.frame_of[shape.link]]
+            for position, joint in enumerate(chain):
+                name = tree.joint_names[joint]
+                if name in self.robot.names:
+                    i = self.robot.names.index(name)
+                    levers[s, i] = radius + sum(offsets[j] for j in chain[position + 1 :])
                     moved[s, i] = True
         return levers, moved
 
-    def _driven_joints(self, joint_a: int, joint_b: int) -> np.ndarray:
-        """Mask of the robot's joints on the kinematic chains of two URDF joints."""
-        model = self._model
-        supports = {int(j) for joint in (joint_a, joint_b) for j in model.supports[joint]}
-        names = {model.names[j] for j in supports}
-        return np.array([name in names for name in self.robot.names])
+    def placements(self, poses_rad: np.ndarray) -> np.ndarray:
+        """(N, n_shapes, 4, 4) placements of the collision shapes (:attr:`shape_links`) in N poses.
 
-    def _placements(self, pose_rad: np.ndarray) -> None:
-        self._q[self._q_index] = pose_rad
-        self._pin.forwardKinematics(self._model, self._data, self._q)
+        In the root link's frame, as Pinocchio's ``oMg``.
+        """
+        poses = np.atleast_2d(self._pose_array(poses_rad))
+        return self._frames.place(poses, self._shape_chains, self._shape_in_frame)
 
-    def _place_pairs(self, pose_rad: np.ndarray) -> _PairGroup:
-        """Place the checked pairs' shapes in one pose; returns the pair group to query."""
-        group = self._pairs
-        self._placements(pose_rad)
-        self._pin.updateGeometryPlacements(self._model, self._data, group.geometry, group.data)
-        return group
+    def _place(self, pose_rad: np.ndarray) -> None:
+        """Place the shapes in one (checked) pose; coal's transforms follow as pairs need them."""
+        key = pose_rad.tobytes()
+        if key == self._placed:
+            return
+        placed = self._frames.place(pose_rad[None], self._shape_chains, self._shape_in_frame)[0]
+        self._rotations, self._translations = placed[:, :3, :3], placed[:, :3, 3]
+        self._moved = [True] * len(self._transforms)
+        self._placed = key
+
+    def _measure(self, pose_rad: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+        """Signed distances (m) of the pairs ``pairs`` (indices) in the placed pose ``pose_rad``.
+
+        Each is kept, with the pose, as the pair's last known distance.
+        """
+        calls, transforms, moved = self._pairs.calls, self._transforms, self._moved
+        out = []
+        for k in pairs.tolist():
+            a, b, distance, request, result = calls[k]
+            for shape in (a, b):
+                if moved[shape]:  # coal's transform of the shape is not yet in this pose
+                    transforms[shape].setRotation(self._rotations[shape])
+                    transforms[shape].setTranslation(self._translations[shape])
+                    moved[shape] = False
+            result.clear()
+            distance(transforms[a], transforms[b], request, result)
+            out.append(result.min_distance)
+        distances = np.array(out)
+        self._known_m[pairs] = distances
+        self._known_at[pairs] = pose_rad
+        return distances
 
     def query(self, pose_rad: np.ndarray) -> tuple[float, int]:
         """The closest pair's distance (m) and its index in :attr:`link_pairs`, for one pose.
 
         The pose is a finite (n_joints,) array; the last ``RECENT_QUERIES`` answers are kept.
+        Measured are the pairs whose bound (see the module text) is no higher than the largest
+        distance the pair of the lowest bound can have now; among equally close pairs, the
+        first counts.
         """
         key = pose_rad.tobytes()
         cached = self._recent.get(key)
         if cached is not None:
             return cached
-        group = self._place_pairs(pose_rad)
-        k = int(self._pin.computeDistances(group.geometry, group.data))
-        distance = float(group.data.distanceResults[k].min_distance)
+        self._place(pose_rad)
+        # how far each pair's distance can have changed since it was measured
+        reach = np.einsum("pj,pj->p", self.pair_lever_m, np.abs(pose_rad - self._known_at))
+        bounds = self._known_m - reach
+        lowest = int(np.argmin(bounds))
+        if self._known_m[lowest] == -np.inf:  # a pair never measured (since reset): all
+            pairs = np.arange(len(bounds))
+        else:
+            ceiling = self._known_m[lowest] + reach[lowest]
+            pairs = np.flatnonzero(bounds <= ceiling + CULL_SLACK_M)
+        distances = self._measure(pose_rad, pairs)
+        closest = int(np.argmin(distances))  # the first of equally close pairs
+        answer = (float(distances[closest]), int(pairs[closest]))
         if len(self._recent) >= RECENT_QUERIES:
             self._recent.pop(next(iter(self._recent)))  # oldest first (dicts keep order)
-        self._recent[key] = (distance, k)
-        return distance, k
+        self._recent[key] = answer
+        return answer
 
     def _some_pairs(self, pose_rad: np.ndarray, pairs: np.ndarray) -> np.ndarray:
         """Signed distances (m) of the pairs ``pairs`` (indices) alone in one pose."""
-        group = self._place_pairs(pose_rad)
-        distance = self._pin.computeDistance
-        return np.array([distance(group.geometry, group.data, int(k)).min_distance for k in pairs])
+        self._place(pose_rad)
+        return self._measure(pose_rad, pairs)
 
     def sweep(
         self, points_rad: np.ndarray, floor_m: float, counts: np.ndarray | None = None
@@ -383,19 +504,16 @@ class BodyModel:
     def _pose_array(self, poses_rad: np.ndarray) -> np.ndarray:
         return pose_array(poses_rad, self.robot.n_joints)
 
-    def _frame_positions(self, poses_rad: np.ndarray, frames: tuple[str, str]) -> np.ndarray:
-        """(N, 2, 3) positions (m) of two URDF frames in the torso's frame, for N poses."""
+    def _frame_positions(self, poses_rad: np.ndarray, links: tuple[str, str]) -> np.ndarray:
+        """(N, 2, 3) positions (m) of two links' frames in the torso's frame, for N poses."""
         poses = np.atleast_2d(self._pose_array(poses_rad))
-        pin, model, data = self._pin, self._model, self._data
-        ids = [model.getFrameId(name) for name in ("torso", *frames)]
-        out = np.empty((len(poses), 2, 3))
-        for i, pose in enumerate(poses):
-            self._placements(pose)
-            pin.updateFramePlacements(model, data)
-            torso = data.oMf[ids[0]]
-            for k, frame in enumerate(ids[1:]):
-                out[i, k] = torso.actInv(data.oMf[frame]).translation
-        return out
+        frames = self._frames
+        names = ("torso", *links)
+        chains = frames.chains(np.array([frames.frame_of[name] for name in names]))
+        placed = frames.place(poses, chains, np.array([frames.link_in_frame[n] for n in names]))
+        torso, offsets = placed[:, :1], placed[:, 1:, :3, 3] - placed[:, :1, :3, 3]
+        # the torso's inverse applied to the points: R^T (p - t)
+        return np.asarray(np.einsum("npba,npb->npa", torso[:, :, :3, :3], offsets))
 
     def wrist_positions(self, poses_rad: np.ndarray) -> np.ndarray:
         """(N, 2, 3) positions (m) of the left and right wrist in the torso's frame.
@@ -424,9 +542,8 @@ class BodyModel:
 
         Always computed afresh: the cache of :meth:`query` keeps the smallest distance only.
         """
-        group = self._place_pairs(self._pose_array(pose_rad).reshape(-1))
-        self._pin.computeDistances(group.geometry, group.data)
-        return np.array([r.min_distance for r in group.data.distanceResults])
+        pose = self._pose_array(pose_rad).reshape(-1)
+        return self._some_pairs(pose, np.arange(len(self.link_pairs)))
 
     def clearance(self, poses_rad: np.ndarray) -> np.ndarray:
         """Smallest signed distance (m) of the checked pairs: shape () for one pose, (N,) for N."""
@@ -462,11 +579,11 @@ class BodyModel:
         """Forget earlier queries: the answers of a run then depend on its own poses alone."""
         self._recent.clear()
         self._pairs.reset_guesses()
+        self._known_m[:] = -np.inf
 
     def _pair_distance(self, pose_rad: np.ndarray, k: int) -> float:
         """Signed distance (m) of pair ``k`` of :attr:`link_pairs` alone in one pose."""
-        group = self._place_pairs(pose_rad)
-        return float(self._pin.computeDistance(group.geometry, group.data, k).min_distance)
+        return float(self._some_pairs(pose_rad, np.array([k]))[0])
 
     def gradient(self, pose_rad: np.ndarray, joints: np.ndarray) -> np.ndarray:
         """Central-difference gradient (m/rad) of the clearance in the ``joints`` (mask) only.

@@ -40,10 +40,10 @@ import numpy as np
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.robot.description import RobotDescription, load_robot
 from audio2pose_ros.robot.kinematics import (
+    DrivenFrames,
     RobotKinematics,
     UrdfCollision,
     default_urdf_path,
-    skew_matrix,
 )
 from audio2pose_ros.robot.pairs import checked_pair, pose_array
 
@@ -51,7 +51,6 @@ SIDE_REACH_M = 0.001  # a capsule reaches this far beyond the side of the shape 
 POSE_BLOCK = 64  # poses measured at once
 MAX_PIECES = 8  # a box is cut into at most this many pieces
 _TINY = 1e-12  # squared lengths below this are points
-_SIN_COS_PHASE = np.array([0.0, np.pi / 2])  # sin(q + pi / 2) = cos q
 
 
 class CapsuleModelError(ConfigurationError):
@@ -150,7 +149,7 @@ class CapsuleModel:
         missing = [name for name in robot.names if name not in movable]
         if missing:
             raise CapsuleModelError(f"{kinematics.urdf_path} has no movable joints {missing}")
-        self._frames = _DrivenFrames(kinematics, robot)
+        self._frames = DrivenFrames(kinematics, robot.names)
         capsules = [
             (shape.link, *capsule)
             for shape in kinematics.collisions
@@ -268,63 +267,3 @@ class CapsuleModel:
         poses = self._pose_array(poses_rad)
         smallest = self.pair_distances(poses).min(axis=1)
         return smallest[0] if poses.ndim == 1 else smallest
-
-
-class _DrivenFrames:
-    """Forward kinematics over the robot's driven joints alone, all poses at once.
-
-    Frame 0 is the root link's; frame k > 0 is the k-th driven joint's (in tree order). The
-    joints between two driven ones are held at zero, so each driven joint's transform from its
-    parent frame is a constant C times its own rotation, by Rodrigues' formula
-    C (I + sin q K + (1 - cos q) K^2) = (C + C K^2) + sin q (C K) - cos q (C K^2).
-    A point fixed in frame k is carried to the root by the transforms of the driven joints on
-    k's chain, the deepest first (chains are padded at their root end with the identity).
-    """
-
-    def __init__(self, kinematics: RobotKinematics, robot: RobotDescription) -> None:
-        links: dict[str, tuple[int, np.ndarray]] = {kinematics.root_link: (0, np.eye(4))}
-        chains: list[list[int]] = [[]]  # per frame: its driven joints, root first
-        terms: list[np.ndarray] = []  # per driven joint: (3, 4, 4) C + C K^2, C K, -C K^2
-        index: list[int] = []  # per driven joint: its index in the robot's joints
-        for joint in kinematics.joints:
-            frame, place = links[joint.parent]
-            constant = place @ joint.origin
-            if joint.movable and joint.name in robot.names:
-                cross = np.zeros((4, 4))
-                cross[:3, :3] = skew_matrix(joint.axis)
-                square = constant @ cross @ cross
-                terms.append(np.stack([constant + square, constant @ cross, -square]))
-                index.append(robot.names.index(joint.name))
-                chains.append([*chains[frame], len(terms) - 1])
-                links[joint.child] = (len(chains) - 1, np.eye(4))
-            else:
-                links[joint.child] = (frame, constant @ joint.motion(0.0))
-        self.frame_of = {link: frame for link, (frame, _) in links.items()}
-        self.link_in_frame = {link: place for link, (_, place) in links.items()}
-        identity = np.stack([np.eye(4), np.zeros((4, 4)), np.zeros((4, 4))])
-        self._constant = np.stack([term[0] for term in terms] + [np.eye(4)])  # (D + 1, 4, 4)
-        self._trig = np.stack([term[1:] for term in terms] + [identity[1:]])  # (D + 1, 2, 4, 4)
-        self._index = np.array([*index, 0])  # the padding's angle is any (its terms are 0)
-        depth = max(len(chain) for chain in chains)
-        pad = len(terms)  # the identity
-        self._chains = np.array([[pad] * (depth - len(chain)) + chain for chain in chains])
-
-    def carry(self, poses: np.ndarray, chains: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """(N, P, 4) root-frame positions of P homogeneous points (P, 4) fixed in frames.
-
-        ``chains`` is :meth:`chains` of the points' frames. Matrix-vector products only
-        (numpy's stacked products of so many small matrices cost several times more than the
-        arithmetic).
-        """
-        angle = poses[:, self._index, None] + _SIN_COS_PHASE  # (N, D + 1, 2): sin q, cos q
-        local = self._constant + np.einsum("ndk,dkab->ndab", np.sin(angle), self._trig)
-        steps = local[:, chains]  # (N, P, depth, 4, 4)
-        depth = chains.shape[1]
-        carried = np.einsum("npab,pb->npa", steps[:, :, depth - 1], points)
-        for level in range(depth - 2, -1, -1):
-            carried = np.einsum("npab,npb->npa", steps[:, :, level], carried)
-        return carried
-
-    def chains(self, frames: np.ndarray) -> np.ndarray:
-        """(P, depth) driven joints (padded) that carry points in ``frames`` to the root."""
-        return self._chains[frames]

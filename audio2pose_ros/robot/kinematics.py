@@ -6,13 +6,16 @@ shapes, each value checked here (finite, sizes positive, one tree); no mesh is l
 reading costs little memory (about 5 MB for the parser, against 112 MB for a parser that loads
 meshes). ``test/test_kinematics.py`` checks the forward kinematics against Pinocchio's.
 Forward kinematics chains each joint's origin and its rotation about its axis from the root link
-outwards. Angles are radians, lengths metres, poses 4x4 homogeneous matrices in the root link's
-frame (``base_link``).
+outwards: :meth:`RobotKinematics.link_poses` for one configuration of every joint, and
+:class:`DrivenFrames` for many poses of a few joints at once (the body models' kinematics: the
+capsules of body-aware sampling and the exact shapes of the self-collision guard). Angles are
+radians, lengths metres, poses 4x4 homogeneous matrices in the root link's frame
+(``base_link``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,6 +28,7 @@ from audio2pose_ros.resources import share_path
 DEFAULT_URDF_FILE = "pepper.urdf"
 MOVABLE_TYPES = ("revolute", "continuous", "prismatic")
 JOINT_TYPES = (*MOVABLE_TYPES, "fixed", "floating", "planar")
+_SIN_COS_PHASE = np.array([0.0, np.pi / 2])  # sin(q + pi / 2) = cos q
 
 
 class KinematicsError(ConfigurationError):
@@ -314,3 +318,103 @@ def _tree_order(
     if len(ordered) != len(joints):
         raise KinematicsError(f"{source}: some joints are not connected to {roots[0]}")
     return tuple(ordered)
+
+
+class DrivenFrames:
+    """Forward kinematics over a few revolute joints (the driven ones), all poses at once.
+
+    Frame 0 is the root link's; frame k > 0 is the k-th driven joint's (in tree order). The
+    other joints are held at zero, so each driven joint's transform from its parent frame is a
+    constant C (:attr:`placements`) times its own rotation, by Rodrigues' formula
+    C (I + sin q K + (1 - cos q) K^2) = (C + C K^2) + sin q (C K) - cos q (C K^2).
+    A frame's placement chains the transforms of the driven joints on its chain, the root's
+    first (chains are padded at their root end with the identity): :meth:`place` for frames
+    (the exact model's shapes), :meth:`carry` for points (the capsules' ends).
+
+    Attributes:
+        frame_of: each link's frame (the driven joint that last moves it, 0 for none).
+        link_in_frame: each link's (4, 4) placement in its frame.
+        joint_names: the driven joints in tree order (frame k is joint k - 1's).
+        placements: (D, 4, 4) each driven joint's placement in its parent frame at zero.
+        frame_chains: per frame, the driven joints (indices into ``joint_names``) that move
+            it, root first.
+    """
+
+    def __init__(self, kinematics: RobotKinematics, names: Sequence[str]) -> None:
+        """Frames for the revolute joints ``names`` of ``kinematics``; poses in that order.
+
+        Raises:
+            KinematicsError: a name is not a revolute joint of the URDF.
+        """
+        revolute = {j.name for j in kinematics.joints if j.joint_type in ("revolute", "continuous")}
+        unknown = [name for name in names if name not in revolute]
+        if unknown:
+            raise KinematicsError(f"not revolute joints of {kinematics.name}: {unknown}")
+        links: dict[str, tuple[int, np.ndarray]] = {kinematics.root_link: (0, np.eye(4))}
+        chains: list[list[int]] = [[]]  # per frame: its driven joints, root first
+        terms: list[np.ndarray] = []  # per driven joint: (3, 4, 4) C + C K^2, C K, -C K^2
+        index: list[int] = []  # per driven joint: its index in the poses
+        placements: list[np.ndarray] = []
+        driven: list[str] = []
+        for joint in kinematics.joints:
+            frame, place = links[joint.parent]
+            constant = place @ joint.origin
+            if joint.name in names:
+                cross = np.zeros((4, 4))
+                cross[:3, :3] = skew_matrix(joint.axis)
+                square = constant @ cross @ cross
+                terms.append(np.stack([constant + square, constant @ cross, -square]))
+                index.append(list(names).index(joint.name))
+                placements.append(constant)
+                driven.append(joint.name)
+                chains.append([*chains[frame], len(terms) - 1])
+                links[joint.child] = (len(chains) - 1, np.eye(4))
+            else:
+                links[joint.child] = (frame, constant @ joint.motion(0.0))
+        self.frame_of = {link: frame for link, (frame, _) in links.items()}
+        self.link_in_frame = {link: place for link, (_, place) in links.items()}
+        self.joint_names = tuple(driven)
+        self.placements = np.array(placements).reshape(-1, 4, 4)
+        self.frame_chains = tuple(tuple(chain) for chain in chains)
+        identity = np.stack([np.eye(4), np.zeros((4, 4)), np.zeros((4, 4))])
+        self._constant = np.stack([term[0] for term in terms] + [np.eye(4)])  # (D + 1, 4, 4)
+        self._trig = np.stack([term[1:] for term in terms] + [identity[1:]])  # (D + 1, 2, 4, 4)
+        self._index = np.array([*index, 0])  # the padding's angle is any (its terms are 0)
+        depth = max(len(chain) for chain in chains)
+        pad = len(terms)  # the identity
+        self._chains = np.array([[pad] * (depth - len(chain)) + chain for chain in chains])
+
+    def _local(self, poses: np.ndarray) -> np.ndarray:
+        """(N, D + 1, 4, 4) each driven joint's transform from its parent frame (and the pad)."""
+        angle = poses[:, self._index, None] + _SIN_COS_PHASE  # (N, D + 1, 2): sin q, cos q
+        return self._constant + np.einsum("ndk,dkab->ndab", np.sin(angle), self._trig)
+
+    def place(self, poses: np.ndarray, chains: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """(N, P, 4, 4) root-frame placements of P frames fixed in driven frames, in N poses.
+
+        ``chains`` is :meth:`chains` of the frames they are fixed in, ``offsets`` (P, 4, 4)
+        their placements there. One stacked product per level of the chains.
+        """
+        steps = self._local(poses)[:, chains]  # (N, P, depth, 4, 4)
+        placed = steps[:, :, 0]
+        for level in range(1, chains.shape[1]):
+            placed = placed @ steps[:, :, level]
+        return np.asarray(placed @ offsets)
+
+    def carry(self, poses: np.ndarray, chains: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """(N, P, 4) root-frame positions of P homogeneous points (P, 4) fixed in frames.
+
+        ``chains`` is :meth:`chains` of the points' frames. Matrix-vector products only
+        (numpy's stacked products of so many small matrices cost several times more than the
+        arithmetic).
+        """
+        steps = self._local(poses)[:, chains]  # (N, P, depth, 4, 4)
+        depth = chains.shape[1]
+        carried = np.einsum("npab,pb->npa", steps[:, :, depth - 1], points)
+        for level in range(depth - 2, -1, -1):
+            carried = np.einsum("npab,npb->npa", steps[:, :, level], carried)
+        return np.asarray(carried)
+
+    def chains(self, frames: np.ndarray) -> np.ndarray:
+        """(P, depth) driven joints (padded) that carry points in ``frames`` to the root."""
+        return np.asarray(self._chains[frames])

@@ -13,19 +13,25 @@ instant of the process:
   meanwhile (numpy's, the middleware's) inherit the block, so a signal never runs rclpy's
   handler on another thread while the main one is creating nodes in the context that handler
   shuts down (that race ended a node with a configuration error, and once with SIGABRT).
+
+Then it imports its node module, without the message code generator that every generated
+message module would load (:func:`defer_message_code_generator`).
 """
 
 from __future__ import annotations
 
 import ctypes
 import importlib
+import importlib.util
 import os
 import signal
 import sys
+from typing import Any
 
 __all__ = [
     "audio_features_node",
     "console_node",
+    "defer_message_code_generator",
     "inference_node",
     "motion_filter_node",
     "pepper_sim_node",
@@ -58,8 +64,51 @@ def prepare_node_process() -> None:
         raise SystemExit(128 + signal.SIGTERM)
 
 
+def defer_message_code_generator() -> None:
+    """Let message modules import ``rosidl_generator_py`` without its code generator.
+
+    Every generated message module (ROS 2 Jazzy and later; Humble's too) imports
+    ``import_type_support`` from the package ``rosidl_generator_py``, whose ``__init__`` also
+    imports ``generate_py``, the build-time generator of message code: the ``lark`` grammar
+    of rosidl_parser, ``empy`` and ``hashlib`` with OpenSSL. A node never generates code,
+    and those hold 3 to 6.5 MB of each node process (6.5 where nothing else loads OpenSSL, as
+    in ``motion_filter_node``). Here the package is entered with ``import_type_support``
+    alone; its ``__init__`` runs as usual the first time anything asks the package for another
+    name (a module ``__getattr__``, PEP 562). Does nothing if the package is already imported
+    or not installed.
+    """
+    name = "rosidl_generator_py"
+    if name in sys.modules:
+        return
+    try:
+        spec = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        return
+    if spec is None or spec.loader is None or spec.submodule_search_locations is None:
+        return
+    package = importlib.util.module_from_spec(spec)
+    sys.modules[name] = package
+    try:
+        impl = importlib.import_module(f"{name}.import_type_support_impl")
+    except ImportError:  # another layout: the package as it is
+        del sys.modules[name]
+        return
+    loader = spec.loader
+
+    def whole_package(attribute: str) -> Any:
+        """Run the package's own ``__init__`` (once) and return its ``attribute``."""
+        del names["__getattr__"]
+        loader.exec_module(package)
+        return getattr(package, attribute)
+
+    names = vars(package)
+    names["import_type_support"] = impl.import_type_support
+    names["__getattr__"] = whole_package
+
+
 def _run(module: str) -> None:
     prepare_node_process()
+    defer_message_code_generator()
     importlib.import_module(f"audio2pose_ros.ros.nodes.{module}").main()
 
 
