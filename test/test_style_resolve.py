@@ -12,7 +12,7 @@ RATE = 100.0
 
 
 def arm_motion(robot, bend_rad, n=800, seed=0):
-    """Smooth random arm motion about a pose whose elbows are bent ``bend_rad``, every frame known."""
+    """Smooth random motion about a pose with the elbows bent ``bend_rad``, every frame known."""
     rng = np.random.default_rng(seed)
     base = robot.neutral_rad.copy()
     for j, name in enumerate(robot.names):
@@ -26,7 +26,7 @@ def arm_motion(robot, bend_rad, n=800, seed=0):
 
 
 def scaled(figures, size, speed, **changes):
-    """The figures of motion ``size`` times as large and ``speed`` times as fast, with ``changes``."""
+    """The figures of motion ``size`` times as large and ``speed`` times as fast, and changes."""
     return dataclasses.replace(
         figures,
         std_rad=figures.std_rad * size,
