@@ -37,7 +37,7 @@ from __future__ import annotations
 import itertools
 import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -411,6 +411,15 @@ def _log_ratios(target: PartFigures, model: PartFigures) -> tuple[np.ndarray, fl
     return deciles, float(np.log(target.std_rad / model.std_rad))
 
 
+def _loss(deciles: np.ndarray, std: float, log_gain: float) -> float:
+    return 0.5 * float(np.mean(np.abs(deciles - log_gain))) + 0.5 * abs(std - log_gain)
+
+
+def style_loss(target: PartFigures, model: PartFigures) -> float:
+    """The loss of :func:`_fit_gain` of ``model``'s figures as they are (size 1) to ``target``."""
+    return _loss(*_log_ratios(target, model), 0.0)
+
+
 def _fit_gain(deciles: np.ndarray, std: float) -> tuple[float, float]:
     """The log gain that minimises the style loss for one tempo, and the loss.
 
@@ -419,9 +428,30 @@ def _fit_gain(deciles: np.ndarray, std: float) -> tuple[float, float]:
     alike: log gain shifts them all).
     """
     candidates = np.log(GAIN_GRID)
-    losses = [0.5 * float(np.mean(np.abs(deciles - c))) + 0.5 * abs(std - c) for c in candidates]
+    losses = [_loss(deciles, std, c) for c in candidates]
     best = int(np.argmin(losses))
     return float(np.exp(candidates[best])), losses[best]
+
+
+def _fit_pace(
+    target: PartFigures,
+    model_motions: Sequence[Motion],
+    robot: RobotDescription,
+    part: str,
+    rate_hz: float,
+) -> tuple[float, float]:
+    """The tempo and size of :func:`resolve` for one part (see there)."""
+    fits = {}
+    for tempo in TEMPO_GRID:
+        settings = StyleSettings(**{f"{part}_tempo": tempo})
+        motions = _styled(robot, settings, model_motions, rate_hz)
+        styled = measure_part(motions, robot, part, rate_hz)
+        if styled is not None:
+            fits[tempo] = _fit_gain(*_log_ratios(target, styled))
+    tempo = min(fits, key=lambda t: fits[t][1])
+    if fits[tempo][1] >= 0.98 * fits[1.0][1]:
+        tempo = 1.0
+    return tempo, min(max(fits[tempo][0], 0.0), MAX_GAIN)
 
 
 def resolve(
@@ -429,6 +459,7 @@ def resolve(
     model_motions: Sequence[Motion],
     robot: RobotDescription,
     rate_hz: float = FRAME_RATE_HZ,
+    paced: Collection[str] = (),
 ) -> StyleSettings:
     """The filter settings that bring the model's motion closest to the person's figures.
 
@@ -437,13 +468,16 @@ def resolve(
     the std as ratios to the person's); the tempo and size of the smallest loss win (a tempo
     within 2 % of the identity's loss keeps the identity). Then the arms' rest offsets move the
     styled model's rest (as measured, :func:`_arm_rest`) onto the person's, and the height limit
-    is the person's ``raise_p1_rad``.
+    is the person's ``raise_p1_rad``. A part in ``paced`` keeps tempo and size 1: the model's
+    motion already has the person's size and pace (a personal model's own sampling noise,
+    :func:`~audio2pose_ros.style.personal.fit_arms_noise`); only its rest and height are set.
 
     Args:
         person: the person's figures per part (parts left out keep the model's motion).
         model_motions: the model's motion on reference speech, every frame known.
         robot: joint order, groups and neutral pose.
         rate_hz: frame rate of ``model_motions``.
+        paced: parts whose tempo and size are left at 1.
 
     Returns:
         The style settings, each inside its parameter's range.
@@ -452,18 +486,9 @@ def resolve(
     for part, target in person.items():
         if measure_part(model_motions, robot, part, rate_hz) is None:
             continue
-        fits = {}
-        for tempo in TEMPO_GRID:
-            styled = _styled(
-                robot, StyleSettings(**{f"{part}_tempo": tempo}), model_motions, rate_hz
-            )
-            paced = measure_part(styled, robot, part, rate_hz)
-            if paced is not None:
-                fits[tempo] = _fit_gain(*_log_ratios(target, paced))
-        tempo = min(fits, key=lambda t: fits[t][1])
-        if fits[tempo][1] >= 0.98 * fits[1.0][1]:
-            tempo = 1.0
-        gain = min(max(fits[tempo][0], 0.0), MAX_GAIN)
+        tempo, gain = (
+            (1.0, 1.0) if part in paced else _fit_pace(target, model_motions, robot, part, rate_hz)
+        )
         values[f"{part}_tempo"] = tempo
         values[f"{part}_gain"] = round(gain, 4)
         if part == "arms" and target.rest_pitch_rad is not None:
