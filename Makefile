@@ -59,8 +59,11 @@ style-presets: setup
 	nice -n 10 $(VENV_BIN)/python -m audio2pose_ros.style.presets $(TALKING_HEADS) $(LECTURE_VIDEO) out/style-sources
 
 # Default vs enrolled (on each source's first 60 s at most) vs the real floor, into the model card.
+# GRID speaker s1 is not bundled: it joins when GRID_S1 holds its imported data set (doc/style.md
+# gives the commands that fetch and import it).
+GRID_S1 ?= out/style-sources/grid_s1
 evaluate-style: style-presets
-	nice -n 10 $(VENV_BIN)/audio2pose evaluate-style out/style-sources/talking_heads out/style-sources/lecture --card models/default/MODEL_CARD.md
+	nice -n 10 $(VENV_BIN)/audio2pose evaluate-style out/style-sources/talking_heads out/style-sources/lecture $(if $(wildcard $(GRID_S1)/index.json),grid_s1=$(GRID_S1)) --card models/default/MODEL_CARD.md
 
 clean:
 	rm -rf .venv out doc/generated build install log .pytest_cache .ruff_cache .mypy_cache .hypothesis web/dist web/node_modules

@@ -1,7 +1,8 @@
 """motion_filter_node under a storm of set_parameters requests: the commands keep their clock.
 
-In this process (an order verdict, not a rate): 100 requests wait at once; the node serves at
-most one per tick and hands its filter the newest settings at most once per tick. Over DDS: the
+In this process (an order verdict, not a rate), in either executor: 100 requests wait at once;
+the node serves at most one per tick and hands its filter the newest settings at most once per
+tick. Over DDS: the
 node runs as its own process; this process streams a pose on raw_trajectory, as inference_node
 does, while two processes of their own (parameter_storm.py) each keep 50 requests in flight. The
 verdict is the same order, counted by the node on /diagnostics (requests served, ticks made,
@@ -25,6 +26,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue, SetParametersResult
 from rcl_interfaces.srv import SetParameters
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
@@ -32,6 +34,7 @@ from trajectory_msgs.msg import JointTrajectory
 from audio2pose_ros.ros.graph import executable_command
 from audio2pose_ros.ros.messages import trajectory_msg
 from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
+from audio2pose_ros.ros.spin import EXECUTOR_ENV, create_executor, spin_once
 from audio2pose_ros.topics import COMMANDED_JOINT_STATES, DIAGNOSTICS, RAW_TRAJECTORY, absolute
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -227,15 +230,18 @@ def command_figures(operator: Operator, start_s: float, end_s: float) -> Figures
     return Figures(fewest, float(np.diff(stamps).max()), drift)
 
 
-@pytest.fixture
-def node_in_process(tmp_path, monkeypatch):
-    """The filter node and a client node in one executor of this process."""
+@pytest.fixture(params=["events", "single_threaded"])
+def node_in_process(request, tmp_path, monkeypatch):
+    """The filter node and a client node in one executor of this process (either kind)."""
     monkeypatch.setenv("ROS_HOME", str(tmp_path))
+    monkeypatch.setenv(EXECUTOR_ENV, request.param)
     args = ["--ros-args", "-p", f"state_file:={tmp_path / 'state.json'}"]
     with rclpy.init(args=args):
         node = MotionFilterNode(subscribe_graph=False)
         client_node = rclpy.create_node("storm_client")
-        executor = rclpy.executors.SingleThreadedExecutor()
+        executor = create_executor()
+        if request.param == "events" and isinstance(executor, SingleThreadedExecutor):
+            pytest.skip("this rclpy has no EventsExecutor")
         executor.add_node(node)
         executor.add_node(client_node)
         yield node, client_node, executor
@@ -278,11 +284,11 @@ def test_when_requests_wait_expect_at_most_one_served_and_one_filter_update_per_
     ]
     end = time.monotonic() + 60
     while time.monotonic() < end and not all(f.done() for f in futures):
-        executor.spin_once(timeout_sec=0.01)
+        spin_once(executor, [node], timeout_s=0.01)
     assert all(f.result().results[0].successful for f in futures)
-    executor.spin_once(timeout_sec=0.05)
+    spin_once(executor, [node], timeout_s=0.05)
     while "tick" not in events[-1:]:  # the last request's settings reach the filter at a tick
-        executor.spin_once(timeout_sec=0.05)
+        spin_once(executor, [node], timeout_s=0.05)
 
     between = "".join("r" if e == "request" else "u" if e == "update" else "|" for e in events)
     assert between.count("r") == len(values)

@@ -198,6 +198,43 @@ def test_when_a_paced_timer_waits_behind_messages_expect_it_run_between_them_at_
     assert len(runs) == 11
 
 
+def test_when_a_paced_timer_is_rescheduled_expect_its_new_phase_and_no_run_while_cancelled():
+    clock = [0.0]
+    runs: list[float] = []
+    timer = PacedTimer(0.01, lambda: runs.append(clock[0]), clock=lambda: clock[0])
+
+    # moved (the filter's tick after a pose's arrival): due 15 ms from now, not at its old time
+    clock[0] = 0.004
+    timer.schedule(0.015)
+    timer.run_if_overdue(0.0126)  # past the old due time and its grace: nothing
+    clock[0] = 0.0105
+    timer.on_timer()  # a stale executor event, well before the new due time: skipped
+    assert runs == []
+    timer.run_if_overdue(0.0214)
+    assert runs == []
+    clock[0] = 0.0215
+    timer.run_if_overdue(clock[0])  # the new due time (0.019) and its grace: runs
+    assert runs == [0.0215]
+    # then its period again, in phase with the new due time (next due 0.029)
+    timer.run_if_overdue(0.0314)
+    clock[0] = 0.0315
+    timer.run_if_overdue(clock[0])
+    assert runs == [0.0215, 0.0315]
+
+    # cancelled (the filter's start-up decision once started): never runs, until rescheduled
+    timer.cancel()
+    clock[0] = 1.0
+    timer.run_if_overdue(clock[0])
+    timer.on_timer()
+    assert len(runs) == 2
+    timer.schedule(0.1, period_s=0.1)  # a new period too
+    clock[0] = 1.1
+    timer.on_timer()
+    clock[0] = 1.2
+    timer.on_timer()
+    assert runs[2:] == [1.1, 1.2]
+
+
 def test_when_commands_flood_a_coalescing_subscription_expect_the_newest_and_a_count():
     with rclpy.init():
         node = DiagnosedNode("coalescing_check")

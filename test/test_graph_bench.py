@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from rclpy.executors import SingleThreadedExecutor
 
+from audio2pose_ros.cli.bench_commands import FLOOR_EXECUTOR_WORDS
+from audio2pose_ros.ros.player import rclpy_session
+from audio2pose_ros.ros.spin import create_executor
 from audio2pose_ros.ros.tools.graph_bench import (
     FloorFigures,
     GraphFigures,
@@ -13,6 +17,7 @@ from audio2pose_ros.ros.tools.graph_bench import (
     report,
     targets,
 )
+from audio2pose_ros.ros.tools.relay_floor import EXECUTORS, relay_executor
 
 
 def _figures(
@@ -94,6 +99,27 @@ def test_when_the_floor_is_measured_expect_three_relays_that_carry_audio_to_comm
     assert set(floor.rss_mb) == {"audio_features_node", "inference_node", "motion_filter_node"}
     assert all(0.0 < mb < 1000.0 for mb in floor.rss_mb.values())
     assert all(cpu > 0.0 for cpu in floor.steady_cpu_ms_per_frame.values())
+    assert floor.executor == "plain"
+    assert (
+        report(_figures("three-process", {"a": 1.0}, {"a": 70.0}, floor))["floor"]["executor"]
+        == "plain"
+    )
+
+
+@pytest.mark.ros
+def test_when_a_relay_spins_plain_expect_rclpy_spins_default_executor_else_the_nodes_own():
+    """The floor's plain relays spin as ``rclpy.spin`` does, not in the nodes' executor."""
+    with rclpy_session():
+        assert type(relay_executor("plain")) is SingleThreadedExecutor
+        assert type(relay_executor("node")) is type(create_executor())
+    with pytest.raises(ValueError, match="executor"):
+        relay_executor("events")
+    with pytest.raises(ValueError, match="executor"):
+        measure_floor(np.zeros(16_000), duration_s=1.0, executor="")
+
+
+def test_when_bench_offers_floor_executors_expect_exactly_the_relays_choices():
+    assert tuple(FLOOR_EXECUTOR_WORDS) == EXECUTORS
 
 
 def _console_figures(lost: int) -> dict:

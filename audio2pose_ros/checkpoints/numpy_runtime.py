@@ -250,19 +250,25 @@ class LiveKernel:
         self._first = False
         noise = self._noise
         x = np.concatenate([np.asarray(features, dtype=np.float64), self._previous])
-        xr, xz, xn = np.split(x @ self._w_ih + self._b_ih, 3)
-        hr, hz, hn = np.split(self._hidden @ self._w_hh + self._b_hh, 3)
-        r, z = sigmoid(xr + hr), sigmoid(xz + hz)
-        new = np.tanh(xn + r * hn)
+        # the gates r, z and the candidate n of torch's GRU, in its order (slices, not copies)
+        gates_x = x @ self._w_ih + self._b_ih
+        gates_h = self._hidden @ self._w_hh + self._b_hh
+        size = self._hidden.shape[0]
+        rz = sigmoid(gates_x[: 2 * size] + gates_h[: 2 * size])
+        r, z = rz[:size], rz[size:]
+        new = np.tanh(gates_x[2 * size :] + r * gates_h[2 * size :])
         self._hidden = (1.0 - z) * new + z * self._hidden
         raw = self._hidden @ self._w_out + self._b_out
         joints = raw.shape[0] // 2
         pose = sigmoid(raw[:joints])
         if np.any(self.temperature):
-            std = np.exp(np.clip(raw[joints:], _MIN_LOG_STD, _MAX_LOG_STD))
-            pose = np.clip(pose + self.temperature * std * noise, 0.0, 1.0)
+            log_std = np.minimum(np.maximum(raw[joints:], _MIN_LOG_STD), _MAX_LOG_STD)
+            pose = np.minimum(
+                np.maximum(pose + self.temperature * np.exp(log_std) * noise, 0.0), 1.0
+            )
         if self.max_step is not None:
-            pose = np.clip(pose, self._previous - self.max_step, self._previous + self.max_step)
+            low, high = self._previous - self.max_step, self._previous + self.max_step
+            pose = np.minimum(np.maximum(pose, low), high)
         self._previous = pose
         return pose
 

@@ -18,7 +18,7 @@ from audio2pose_ros.timebase import duration_s
 
 __all__ = ["BENCH_SCHEMA_VERSION", "command_bench", "register"]
 
-BENCH_SCHEMA_VERSION = 3  # 1: before versioning; 2: graph figures a list of modes; 3: floor
+BENCH_SCHEMA_VERSION = 4  # 1: unversioned; 2: graph modes; 3: floor; 4: floor executor
 
 
 def _bench_live(args: argparse.Namespace, results: dict[str, object]) -> None:
@@ -35,7 +35,11 @@ def _bench_live(args: argparse.Namespace, results: dict[str, object]) -> None:
         results["graph"] = [
             report(
                 measure_graph(
-                    speech, duration_s=args.duration, single_process=single, with_floor=True
+                    speech,
+                    duration_s=args.duration,
+                    single_process=single,
+                    with_floor=True,
+                    floor_executor=args.floor_executor,
                 )
             )
             for single in {"three": [False], "single": [True], "both": [False, True]}[
@@ -231,9 +235,10 @@ def _print_graph(runs: list[dict[str, Any]]) -> None:
                     f"bare rclpy relay for {name}: CPU, MB",
                     [f"({cpu:.3f}), {floor['rss_mb'][name]:.0f}"],
                 )
+            spun = FLOOR_EXECUTOR_WORDS[floor.get("executor", "plain")]
             print(
                 f"{run['mode']}: the nodes' steady CPU is {floor['steady_cpu_ratio']:.2f}x the bare"
-                " rclpy relays' (the floor: the same topology, QoS and executors, no work), "
+                f" rclpy relays' (the floor: the same topology and QoS, {spun}, no work), "
                 f"{sum(run['rss_mb'].values()):.0f} MB against their "
                 f"{sum(floor['rss_mb'].values()):.0f} MB"
             )
@@ -245,6 +250,12 @@ def _print_graph(runs: list[dict[str, Any]]) -> None:
                 f"  {run['mode']:<16}{target['figure']:<52}{target['value']:>9.2f} "
                 f"<= {target['target']:g} {target['unit']:<3} {verdict}"
             )
+
+
+FLOOR_EXECUTOR_WORDS = {
+    "plain": "spun by rclpy.spin's default executor",
+    "node": "spun by the nodes' own executors",
+}
 
 
 def register(verbs: Verbs) -> None:
@@ -293,6 +304,13 @@ def register(verbs: Verbs) -> None:
         default=0,
         help="run N busy-loop processes beside --graph, --console and --sim (other work on the "
         "machine), 0 to 16 (default 0)",
+    )
+    bench.add_argument(
+        "--floor-executor",
+        choices=tuple(FLOOR_EXECUTOR_WORDS),
+        default="plain",
+        help="executor of --graph's bare rclpy relays: rclpy.spin's default (plain, default) "
+        "or the one each node spins in (node)",
     )
     bench.add_argument("--json", action="store_true", help="print the figures as JSON")
     bench.set_defaults(func=command_bench)

@@ -133,17 +133,23 @@ def command_evaluate_style(args: argparse.Namespace) -> int:
     """Enroll on the start of each source, score on the rest: the SI-vs-SD table."""
     from audio2pose_ros.learning.style_card import write_card_section
     from audio2pose_ros.robot.description import load_robot
-    from audio2pose_ros.style.evaluation import evaluate_sources
+    from audio2pose_ros.style.evaluation import evaluate_sources, source_spec
+    from audio2pose_ros.style.personal import MAX_ENROLL_S
 
     table = evaluate_sources(
-        [Path(d) for d in args.data],
+        [source_spec(d) for d in args.data],
         load_robot(),
         enroll_s=args.enroll_seconds,
         progress=lambda line: print(f"evaluate-style: {line}", file=sys.stderr, flush=True),
     )
     print(table)
     if args.card:
-        write_card_section(Path(args.card), table, shlex.join(["audio2pose", *sys.argv[1:]]))
+        # the command as parsed (not the process's argv: main may be called with its own)
+        command = ["audio2pose", "evaluate-style", *args.data]
+        if args.enroll_seconds != MAX_ENROLL_S:
+            command += ["--enroll-seconds", f"{args.enroll_seconds:g}"]
+        command += ["--card", args.card]
+        write_card_section(Path(args.card), table, shlex.join(command))
         print(f"wrote the section into {args.card}")
     return 0
 
@@ -172,7 +178,12 @@ def register(verbs: Verbs) -> None:
         "evaluate-style",
         help="enroll on each source's start, score default vs enrolled on the rest",
     )
-    evaluate.add_argument("data", nargs="+", metavar="DATASET", help="imported data sets")
+    evaluate.add_argument(
+        "data",
+        nargs="+",
+        metavar="[NAME=]DATASET",
+        help="imported data sets: sources by clip id, or NAME=DATASET for one source of them all",
+    )
     evaluate.add_argument(
         "--enroll-seconds",
         type=bounded_float(5.0, 600.0),

@@ -127,7 +127,7 @@ class SpeechGate:
         """Temperature factor of one frame: rest + (1 - rest) * smoothed activity."""
         if self.rest >= 1.0:
             return 1.0
-        energy = float(np.mean(features))
+        energy = float(np.add.reduce(features) / features.shape[-1])  # np.mean, without its checks
         self.peak = max(energy, self.peak - self.decay)
         active = 1.0 / (1.0 + np.exp(-(energy - self.peak + self.margin) / self.width))
         self.level = self.smoothing * self.level + (1.0 - self.smoothing) * active

@@ -106,8 +106,17 @@ class RobotDescription:
             raise RobotDescriptionError(f"robot {self.name}: duplicated joints {duplicates}")
 
     def _vector(self, field: str) -> np.ndarray:
-        values = np.array([getattr(j, field) for j in self.joints], dtype=np.float64)
-        values.flags.writeable = False
+        """The joints' ``field`` as a read-only vector, built once per description.
+
+        The streaming path asks for the limits at every frame; the description is frozen, so
+        each vector is kept in the instance's own dictionary on first use.
+        """
+        cache: dict[str, np.ndarray] = self.__dict__.setdefault("_vectors", {})
+        values = cache.get(field)
+        if values is None:
+            values = np.array([getattr(j, field) for j in self.joints], dtype=np.float64)
+            values.flags.writeable = False
+            cache[field] = values
         return values
 
     @property

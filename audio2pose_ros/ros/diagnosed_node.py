@@ -13,7 +13,7 @@ import os
 import signal
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -25,7 +25,9 @@ from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
+from rclpy.service import Service
 from rclpy.subscription import MessageInfo, Subscription
+from rclpy.timer import Timer
 
 try:
     from rclpy.type_support import check_is_valid_msg_type
@@ -140,6 +142,10 @@ class PacedTimer:
     event comes later, it finds the run done and skips it (:meth:`on_timer`). Due times keep
     their phase: a timer served between events keeps its rate, never bursts to make up for a
     missed period, and an idle node runs it from the executor's timer as before.
+
+    The schedule may change while the node runs: :meth:`schedule` moves the next run (and the
+    executor's timer, ``timer``, with it) and may give a new period, after which the runs
+    follow that period again; :meth:`cancel` stops the runs until the next :meth:`schedule`.
     """
 
     OVERDUE_GRACE = 0.25  # of the period: a timer this late is run between events
@@ -156,16 +162,36 @@ class PacedTimer:
         self.clock = clock
         self.next_due_s = clock() + period_s
         self.runs_between_events = 0
+        self.cancelled = False
+        self.timer: Timer | None = None  # the executor's timer (create_paced_timer), if any
+        self._timer_ns = _period_ns(period_s)  # the executor's timer's period now
+
+    def schedule(self, delay_s: float, period_s: float | None = None) -> None:
+        """Run next ``delay_s`` from now, then every ``period_s`` (None: the period in force).
+
+        The executor's timer is re-programmed to fire then (a cancelled timer restarts).
+        """
+        if period_s is not None:
+            self.period_s = period_s
+        self.next_due_s = self.clock() + delay_s
+        self.cancelled = False
+        self._program(delay_s)
+
+    def cancel(self) -> None:
+        """No more runs until the next :meth:`schedule` (the executor's timer is cancelled)."""
+        self.cancelled = True
+        if self.timer is not None:
+            self.timer.cancel()
 
     def on_timer(self) -> None:
         """The executor's timer event: run unless the last run already served this period."""
         now = self.clock()
-        if now >= self.next_due_s - 0.5 * self.period_s:
+        if not self.cancelled and now >= self.next_due_s - 0.5 * self.period_s:
             self._run(now)
 
     def run_if_overdue(self, now: float) -> None:
         """Run now if the executor's timer event is overdue (it waits behind messages)."""
-        if now >= self.next_due_s + self.OVERDUE_GRACE * self.period_s:
+        if not self.cancelled and now >= self.next_due_s + self.OVERDUE_GRACE * self.period_s:
             self.runs_between_events += 1
             self._run(now)
 
@@ -173,7 +199,23 @@ class PacedTimer:
         self.next_due_s += self.period_s
         if self.next_due_s <= now:  # a whole period missed (a slow callback): no catch-up burst
             self.next_due_s = now + self.period_s
+        if self._timer_ns != _period_ns(self.period_s):  # programmed for a scheduled delay
+            self._program(self.period_s)
         self.callback()
+
+    def _program(self, delay_s: float) -> None:
+        """The executor's timer fires ``delay_s`` from now, then every ``delay_s``."""
+        if self.timer is None:
+            return
+        period_ns = _period_ns(delay_s)
+        if period_ns != self._timer_ns:
+            self.timer.timer_period_ns = self._timer_ns = period_ns
+        self.timer.reset()
+
+
+def _period_ns(period_s: float) -> int:
+    """A timer period in whole nanoseconds, at least 1 (rcl refuses 0 for a periodic timer)."""
+    return max(round(period_s * 1e9), 1)
 
 
 MAX_PUBLISHERS_TRACKED = 64  # per polled input: publishers whose sequence numbers are followed
@@ -315,19 +357,35 @@ class DiagnosedNode(Node):
         For the timers safety depends on: the heartbeat, a robot's joint_states, a command tick.
         """
         timer = PacedTimer(period_s, self.guarded(callback))
-        self.create_timer(period_s, timer.on_timer)
+        timer.timer = self.create_timer(period_s, timer.on_timer)
         self.paced_timers.append(timer)
         return timer
+
+    @property
+    def services(self) -> Iterator[Service[Any, Any]]:
+        """The services the executor serves: all but those withheld (:meth:`withhold_services`)."""
+        withheld = getattr(self, "_withheld_services", ())
+        return (service for service in super().services if service not in withheld)
+
+    def withhold_services(self, services: Sequence[Service[Any, Any]]) -> None:
+        """Keep ``services`` from the executor: the node takes their requests itself.
+
+        Either executor serves only the services a node lists (:attr:`services`); the requests
+        of a withheld one wait in the middleware's queue until the node takes them
+        (:class:`~audio2pose_ros.ros.request_budget.RequestBudget`). They are still destroyed
+        with the node.
+        """
+        self._withheld_services = frozenset(services)
 
     def create_publisher(
         self, msg_type: Any, topic: str, qos_profile: QoSProfile | int, **kwargs: Any
     ) -> Publisher[Any]:
         """A publisher without rclpy's default QoS event handlers.
 
-        The SingleThreadedExecutor (the motion filter's) polls every event handler in Python at
-        each wait; with the default two per publisher and subscription they were a tenth of the
-        filter's CPU. A publisher's incompatible-QoS warning repeats what the subscriber's node
-        logs, so it is left out.
+        The SingleThreadedExecutor (Humble's, or ``AUDIO2POSE_EXECUTOR=single_threaded``) polls
+        every event handler in Python at each wait; with the default two per publisher and
+        subscription they were a tenth of the motion filter's CPU. A publisher's incompatible-QoS
+        warning repeats what the subscriber's node logs, so it is left out.
         """
         kwargs.setdefault("event_callbacks", PublisherEventCallbacks(use_default_callbacks=False))
         return super().create_publisher(msg_type, topic, qos_profile, **kwargs)

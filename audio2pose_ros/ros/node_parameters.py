@@ -178,7 +178,9 @@ class _ChangeLog:
 
     The first change after a quiet period is logged at once; later ones within
     :data:`LOG_SPACING_S` are gathered (the newest value of each parameter, the number of
-    requests) and logged by :meth:`flush`, which the node's timer calls every period.
+    requests) and logged by :meth:`flush`, which the node's timer calls :data:`LOG_SPACING_S`
+    after the first of them. The timer is armed only while something is gathered: a node
+    whose parameters do not change is never woken for it.
     """
 
     def __init__(self, node: Node) -> None:
@@ -188,6 +190,8 @@ class _ChangeLog:
         self.refusals = 0
         self.last_refusal = ""
         self.logged_s = -math.inf
+        self.timer = node.create_timer(LOG_SPACING_S, self._flush_due)
+        self.timer.cancel()  # armed by the first change gathered
 
     def changed(self, changes: Mapping[str, ParameterValue]) -> None:
         """Record a request's changes (none: nothing to log)."""
@@ -205,6 +209,12 @@ class _ChangeLog:
     def _log_if_due(self) -> None:
         if time.monotonic() - self.logged_s >= LOG_SPACING_S:
             self.flush()
+        elif self.timer.is_canceled():
+            self.timer.reset()
+
+    def _flush_due(self) -> None:
+        self.timer.cancel()
+        self.flush()
 
     def flush(self) -> None:
         """Log what was gathered since the last line, if anything."""
@@ -273,7 +283,6 @@ class NodeParameters:
         for line in unknown_parameter_warnings(overrides, self.specs):
             node.get_logger().warning(line)
         self._log = _ChangeLog(node)
-        node.create_timer(LOG_SPACING_S, self._log.flush)
         node.add_on_set_parameters_callback(self._on_set)
 
     def __getitem__(self, name: str) -> ParameterValue:

@@ -1,64 +1,74 @@
-"""A node's services served at most a few requests per tick, so requests never starve the tick.
+"""A node's services served from its tick, a few requests per tick, so requests never starve it.
 
-rclpy's SingleThreadedExecutor serves, in each round, every ready timer, subscription and
-service once; a storm of set_parameters requests (a script in a loop, a slider, an attacker)
-keeps the parameter service ready in every round. On a loaded machine, where the node gets a
-fraction of a core, every round then pays for a request besides the tick, and the command timer
-slowed to a fraction of its rate: commands stopped for hundreds of milliseconds.
+A storm of set_parameters requests (a script in a loop, a slider, an attacker) keeps a
+parameter service busy. An executor serves every request it is handed: rclpy's
+SingleThreadedExecutor one per round beside each ready timer, so on a loaded machine, where the
+node gets a fraction of a core, every round paid for a request besides the tick and the command
+timer slowed to a fraction of its rate (commands stopped for hundreds of milliseconds); rclpy's
+EventsExecutor all of those waiting, back to back, whatever the node's callback groups say.
 
-:class:`RequestBudget` is a callback group (rclpy's extension point for "may this callback run
-now") for the node's services: it admits at most ``per_tick`` requests between two calls of
-:meth:`RequestBudget.renew`, which the node makes at each tick. Once the budget is spent, the
-executor leaves the services out of its wait set until the next tick; their requests wait in
-the middleware's queue (rclpy's parameter services keep the newest 1000), so a request costs at
-most a few per cent of a tick period and a storm delays answers, never commands.
+:class:`RequestBudget` therefore keeps the node's services from its executor
+(:meth:`~audio2pose_ros.ros.diagnosed_node.DiagnosedNode.withhold_services`) and serves them
+itself: :meth:`RequestBudget.serve`, which the node calls at each tick, takes and answers at
+most ``per_tick`` waiting requests, the services taking turns. The others wait in the
+middleware's queue (rclpy's parameter services keep the newest 1000), so a request costs at most
+a few per cent of a tick period and a storm delays answers, never commands, under either
+executor.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from rclpy.callback_groups import CallbackGroup
-from rclpy.node import Node
+from rclpy.service import Service
+
+from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
 
 __all__ = ["RequestBudget"]
 
 
-class RequestBudget(CallbackGroup):
-    """Admits at most ``per_tick`` service requests between two :meth:`renew` calls."""
+class RequestBudget:
+    """Serves a node's services itself, at most ``per_tick`` requests per :meth:`serve`."""
 
     def __init__(self, per_tick: int) -> None:
         """A budget of ``per_tick`` requests (at least 1) per tick."""
-        super().__init__()
         if per_tick < 1:
             raise ValueError(f"a request budget needs at least 1 request per tick, got {per_tick}")
         self.per_tick = per_tick
-        self.served = 0  # requests admitted since the last renew
+        self.services: list[Service[Any, Any]] = []
         self.served_total = 0
-        self.most_in_a_tick = 0  # the largest number admitted between two renews
+        self.most_in_a_tick = 0  # the largest number served by one serve()
+        self._turn = 0  # the service asked first at the next serve()
 
-    def adopt_services(self, node: Node) -> None:
-        """Put every service ``node`` has now (rclpy's parameter services) under this budget."""
-        for service in node.services:
-            service.callback_group = self
-            self.add_entity(service)
+    def adopt_services(self, node: DiagnosedNode) -> None:
+        """Serve every service ``node`` has now (rclpy's parameter services) from :meth:`serve`."""
+        self.services = list(node.services)
+        node.withhold_services(self.services)
 
-    def can_execute(self, entity: Any) -> bool:
-        """Whether a request may be served now (else its service waits for the next tick)."""
-        return self.served < self.per_tick
+    def serve(self) -> None:
+        """A tick: take and answer up to ``per_tick`` waiting requests, the services in turn."""
+        served = misses = 0
+        while served < self.per_tick and misses < len(self.services):
+            service = self.services[self._turn]
+            self._turn = (self._turn + 1) % len(self.services)
+            if _serve_one(service):
+                served, misses = served + 1, 0
+            else:
+                misses += 1
+        self.served_total += served
+        self.most_in_a_tick = max(self.most_in_a_tick, served)
 
-    def beginning_execution(self, entity: Any) -> bool:
-        """Admit one request if the budget allows it."""
-        if self.served >= self.per_tick:
-            return False
-        self.served += 1
-        self.served_total += 1
-        self.most_in_a_tick = max(self.most_in_a_tick, self.served)
-        return True
 
-    def ending_execution(self, entity: Any) -> None:
-        """Nothing to release: requests run one at a time in the node's executor."""
-
-    def renew(self) -> None:
-        """A tick: the next ``per_tick`` requests may be served."""
-        self.served = 0
+def _serve_one(service: Service[Any, Any]) -> bool:
+    """Take one waiting request of ``service`` and send its answer; False when none waits."""
+    with service.handle:
+        taken: tuple[Any, Any] | None = service.handle.service_take_request(
+            service.srv_type.Request
+        )
+    if taken is None:
+        return False
+    request, header = taken  # what rclpy's executors unpack, whatever the stub says
+    if request is None or header is None:
+        return False
+    service.send_response(service.callback(request, service.srv_type.Response()), header)
+    return True

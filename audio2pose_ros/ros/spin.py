@@ -29,7 +29,7 @@ SPIN_ONCE_TIMEOUT_S = 0.5  # an idle EventsExecutor checks for shutdown this oft
 EXECUTOR_ENV = "AUDIO2POSE_EXECUTOR"  # "events" (default where available) or "single_threaded"
 
 
-def create_executor(events: bool = True) -> Executor:
+def create_executor() -> Executor:
     """The executor the nodes spin in: rclpy's EventsExecutor where available, else single-threaded.
 
     The EventsExecutor (``rclpy.experimental``, Jazzy and later) is driven by middleware events
@@ -37,15 +37,20 @@ def create_executor(events: bool = True) -> Executor:
     item of the nodes' CPU (20-40 % of each node's samples under traffic); with it the
     three nodes used 2.9 instead of 4.2 ms CPU per 10 ms frame. Humble has none and gets the
     SingleThreadedExecutor; ``AUDIO2POSE_EXECUTOR=single_threaded`` forces it (for comparison,
-    or should a distro's EventsExecutor misbehave). Spin it with :func:`spin_executor`.
+    or should a distro's EventsExecutor misbehave). Spin it with
+    :func:`spin_executor`.
 
-    ``events=False`` asks for the SingleThreadedExecutor: the motion filter needs it, because the
-    EventsExecutor (rclpy 9) hands no MessageInfo to a callback (the filter reads the publisher
-    gid and the source timestamp of its inputs) and serves events first come, first served, so a
-    flood on one topic delays the command timer by the whole backlog; the SingleThreadedExecutor
-    serves every ready timer and subscription once per round, so the tick keeps its rate.
+    Every node runs correctly in either. The EventsExecutor serves events first come, first
+    served, so a flood on one topic would delay a timer by the whole backlog: the timers a
+    node's safety depends on (the heartbeat, the motion filter's command tick and start-up
+    decision) are :class:`~audio2pose_ros.ros.diagnosed_node.PacedTimer`, run between events
+    when overdue. It ignores callback groups and serves every waiting service request back to
+    back: the motion filter serves its parameter services itself, one request per tick
+    (:class:`~audio2pose_ros.ros.request_budget.RequestBudget`). It hands a subscription's
+    MessageInfo as one tuple with the message, which
+    :meth:`~audio2pose_ros.ros.diagnosed_node.DiagnosedNode.create_bounded_subscription` unpacks.
     """
-    if events and os.environ.get(EXECUTOR_ENV, "events") != "single_threaded":
+    if os.environ.get(EXECUTOR_ENV, "events") != "single_threaded":
         try:
             from rclpy.experimental.events_executor import EventsExecutor
         except ImportError:  # Humble
@@ -58,20 +63,33 @@ def create_executor(events: bool = True) -> Executor:
 def spin_executor(executor: Executor, nodes: Sequence[Node] = ()) -> None:
     """Spin until the context shuts down (Ctrl-C, SIGTERM, ``rclpy.shutdown``).
 
-    The EventsExecutor is spun one event at a time: its ``spin()`` (rclpy 9.1) never ran a
-    callback here, while ``spin_once`` serves timers and subscriptions as expected. Between two
-    events, the :class:`PacedTimer` of ``nodes`` that are overdue run, so no backlog of messages
-    holds them back by more than one message. The SingleThreadedExecutor needs no help: each
-    round of its wait set serves every ready timer.
+    The EventsExecutor is spun one event at a time (:func:`spin_once`): its ``spin()`` (rclpy
+    9.1) never ran a callback here, while ``spin_once`` serves timers and subscriptions as
+    expected. The SingleThreadedExecutor spins as rclpy spins it: each round of its wait set
+    serves every ready timer.
     """
     if isinstance(executor, SingleThreadedExecutor):
         executor.spin()
         return
     paced = [node for node in nodes if isinstance(node, DiagnosedNode) and node.paced_timers]
     while executor.context.ok():
-        executor.spin_once(timeout_sec=SPIN_ONCE_TIMEOUT_S)
-        now = time.monotonic()
-        for node in paced:
+        spin_once(executor, paced)
+
+
+def spin_once(
+    executor: Executor, nodes: Sequence[Node], timeout_s: float = SPIN_ONCE_TIMEOUT_S
+) -> None:
+    """Serve one event (or wait ``timeout_s`` for one), then run the overdue paced timers.
+
+    Between two events, the :class:`~audio2pose_ros.ros.diagnosed_node.PacedTimer` of
+    ``nodes`` that are overdue run, so no backlog of messages holds them back by more than one
+    message (a guarded callback runs them too, after each message of an event that brings
+    several).
+    """
+    executor.spin_once(timeout_sec=timeout_s)
+    now = time.monotonic()
+    for node in nodes:
+        if isinstance(node, DiagnosedNode):
             node.run_overdue_timers(now)
 
 
@@ -82,14 +100,9 @@ def _refused(line: str) -> NoReturn:
     raise SystemExit(EXIT_CONFIGURATION_ERROR) from None
 
 
-def run_node(
-    factory: Callable[[], Node],
-    node_name: str,
-    args: list[str] | None = None,
-    events: bool = True,
-) -> None:
+def run_node(factory: Callable[[], Node], node_name: str, args: list[str] | None = None) -> None:
     """The ros2/examples main for one node: see :func:`run_nodes`."""
-    run_nodes([factory], node_name, args, events=events)
+    run_nodes([factory], node_name, args)
 
 
 def run_nodes(
@@ -97,14 +110,12 @@ def run_nodes(
     process_name: str,
     args: list[str] | None = None,
     connect: Callable[[list[Node]], None] | None = None,
-    events: bool = True,
 ) -> None:
     """Init, build the nodes, spin them in one executor until Ctrl-C / SIGTERM, clean up.
 
     One factory is the usual one node per process; several put nodes in one process and one
     executor (``audio2pose run --single-process``), where ``connect`` (called with the built
-    nodes, in order, before spinning) wires them to each other; ``events`` goes to
-    :func:`create_executor`. A
+    nodes, in order, before spinning) wires them to each other. A
     :class:`~audio2pose_ros.errors.ConfigurationError` while a node is built (a refused
     parameter, a bad model or robot file), or arguments rcl cannot parse (a parameters file with
     a YAML syntax error, a missing file), end the process with one line on stderr (and on the
@@ -121,7 +132,7 @@ def run_nodes(
         faulthandler.register(STACK_DUMP_SIGNAL, all_threads=True)
         try:
             rclpy.init(args=args)  # not `with rclpy.init()`: Humble's init is no context manager
-            executor = create_executor(events)
+            executor = create_executor()
             nodes = [factory() for factory in factories]
             if connect is not None:
                 connect(nodes)

@@ -22,6 +22,11 @@ how many speed and acceleration percentiles (p50, p90, p99 per joint) lie within
 (:func:`~audio2pose_ros.learning.realism.percentile_agreement`) with the lowest and highest
 ratio, and the beat consistency (EMAGE's BC, :mod:`~audio2pose_ros.learning.realism`). Goals
 (per source): SD percentiles within 25 %, H <= 0.12, std 0.8 to 1.25 x, and SD better than SI.
+
+A data set's clips are grouped into sources by their ids (:func:`source_of`); a data set given
+as ``NAME=DATASET`` (:func:`source_spec`) is one source, whatever its clip ids: one person's
+import of many recordings, such as GRID speaker s1's sentences. Each clip's speech is
+synthesized once for the whole evaluation (:func:`_once`).
 """
 
 from __future__ import annotations
@@ -50,6 +55,27 @@ from audio2pose_ros.timebase import FRAME_RATE_HZ
 
 PARTS: tuple[str, ...] = ("head", "arms")
 SCORE_MIN_S = 1.0  # a scored part needs this much known motion
+SOURCE_NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
+
+
+@dataclass(frozen=True)
+class SourceSpec:
+    """A data set to evaluate; with a ``name``, all its clips are that one source."""
+
+    path: Path
+    name: str | None = None
+
+
+def source_spec(text: str) -> SourceSpec:
+    """``DATASET`` or ``NAME=DATASET`` (``NAME``: letters, digits, ``_`` and ``-``).
+
+    Text that names an existing path, or whose part before ``=`` is not such a name, is a data
+    set path as it stands.
+    """
+    name, sep, path = text.partition("=")
+    if sep and path and SOURCE_NAME.fullmatch(name) and not Path(text).exists():
+        return SourceSpec(Path(path), name)
+    return SourceSpec(Path(text))
 
 
 @dataclass(frozen=True)
@@ -149,6 +175,23 @@ def _split(clips: Sequence[Clip], enroll_s: float) -> tuple[list[Clip], list[Cli
         enrol.append(clip)
         used += clip.n_frames
     return enrol, list(clips[len(enrol) :])
+
+
+def _once(synthesize_clip: Callable[[Clip], np.ndarray]) -> Callable[[Clip], np.ndarray]:
+    """``synthesize_clip`` that runs once per clip id and length of speech (then remembered).
+
+    The enrolment fit, the scored rows and the figures synthesize the same clips; a clip cut in
+    two (:func:`_split`) gives pieces of other lengths, synthesized on their own.
+    """
+    done: dict[tuple[str, int], np.ndarray] = {}
+
+    def run(clip: Clip) -> np.ndarray:
+        key = (clip.info.clip_id, clip.audio.size)
+        if key not in done:
+            done[key] = synthesize_clip(clip)
+        return done[key]
+
+    return run
 
 
 def _synthesized(clip: Clip, synthesize_clip: Callable[[Clip], np.ndarray]) -> np.ndarray:
@@ -254,31 +297,64 @@ def table(rows: Sequence[Row]) -> str:
     return "\n".join(lines)
 
 
+def _cell(text: str) -> str:
+    """Text from a data set's index as one Markdown table cell."""
+    return " ".join(text.split()).replace("|", "\\|")
+
+
+def sources(spec: SourceSpec, robot: RobotDescription) -> dict[str, list[Clip]]:
+    """The clips of a data set by source: by :func:`source_of`, or all under ``spec.name``."""
+    dataset = Dataset.open(spec.path, robot)
+    by_source: dict[str, list[Clip]] = {}
+    for info in dataset.clips:
+        name = spec.name or source_of(info.clip_id)
+        by_source.setdefault(name, []).append(dataset.load(info.clip_id))
+    return by_source
+
+
+def provenance_row(name: str, path: Path, clips: Sequence[Clip]) -> str:
+    """A line of the sources table: data set, clips, minutes, where from, licence."""
+    origins = sorted({c.info.source for c in clips})
+    origin = origins[0] if len(origins) == 1 else f"{len(origins)} recordings ({origins[0]}, ...)"
+    licences = "; ".join(sorted({c.info.licence for c in clips}))
+    minutes = sum(c.n_frames for c in clips) / FRAME_RATE_HZ / 60.0
+    return (
+        f"| {name} | `{_cell(str(path))}` | {len(clips)} | {minutes:.1f} | {_cell(origin)} | "
+        f"{_cell(licences)} |"
+    )
+
+
+PROVENANCE_HEADER = (
+    "| source | data set | clips | min | from | licence |\n|---|---|---|---|---|---|"
+)
+
+
 def evaluate_sources(
-    datasets: Sequence[Path],
+    datasets: Sequence[SourceSpec],
     robot: RobotDescription,
     enroll_s: float,
     progress: Callable[[str], None] = print,
 ) -> str:
-    """The SI-vs-SD table of every source in ``datasets`` (clips grouped by :func:`source_of`)."""
-    synthesize_clip = synthesizer(default_checkpoint_path(), robot)
+    """The SI-vs-SD table of every source (:func:`sources`), their figures, origins, presets."""
+    synthesize_clip = _once(synthesizer(default_checkpoint_path(), robot))
     rows: list[Row] = []
     figures: list[str] = []
-    for path in datasets:
-        dataset = Dataset.open(path, robot)
-        by_source: dict[str, list[Clip]] = {}
-        for info in dataset.clips:
-            by_source.setdefault(source_of(info.clip_id), []).append(dataset.load(info.clip_id))
-        for name, clips in by_source.items():
+    provenance: list[str] = []
+    for spec in datasets:
+        for name, clips in sources(spec, robot).items():
             progress(f"{name}: {len(clips)} clips")
             rows += evaluate_source(name, clips, robot, synthesize_clip, enroll_s, progress)
             figures += figure_rows(name, clips, robot, synthesize_clip)
+            provenance.append(provenance_row(name, spec.path, clips))
     return "\n\n".join(
         [
             table(rows),
             "Each source's figures (all its clips) next to the default model's on the same "
             "speech (the presets of config/styles hold these figures):",
             "\n".join([FIGURES_HEADER, *figures]),
+            "The sources: imported data sets, none of them part of the package (doc/style.md, "
+            '"How well it does", gives the commands that fetch and import each):',
+            "\n".join([PROVENANCE_HEADER, *provenance]),
             presets_table(robot),
         ]
     )

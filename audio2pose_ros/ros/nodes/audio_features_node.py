@@ -24,7 +24,8 @@ its range); all but input_type and model_path can change live.
 
 AudioData chunks shorter than ``ACCUMULATE_S`` (10 ms) of audio are accumulated and decoded
 together (``audio_decodes`` counts the decodes), so a flood of tiny chunks costs a copy per
-chunk, not a decode; they wait at most ``FLUSH_PERIOD_S`` for more.
+chunk, not a decode; they wait at most ``FLUSH_PERIOD_S`` for more (a timer armed by the first
+chunk that waits, so no timer wakes the node while no audio waits).
 
 Audio that cannot be used (no or a rejected format, a message over a limit, NaN samples) is
 dropped, counted and reported on /diagnostics while it happens; a rejected AudioInfo is
@@ -137,7 +138,9 @@ class AudioFeaturesNode(DiagnosedNode):
             self.create_subscription(
                 AudioData, topics.AUDIO, self.guarded(self.on_audio_data), AUDIO_QOS
             )
-            self.create_timer(FLUSH_PERIOD_S, self.guarded(self.flush_audio))
+            # armed only while audio waits (on_audio_data): an idle node is never woken for it
+            self.flush_timer = self.create_timer(FLUSH_PERIOD_S, self.guarded(self._flush_due))
+            self.flush_timer.cancel()
         self.get_logger().info(
             f"computing {self.label} features ({self.spec.to_dict()}) from "
             f"{self.input.settings.input_type} audio, {self.input.settings.selection.describe()}"
@@ -179,6 +182,8 @@ class AudioFeaturesNode(DiagnosedNode):
         if len(msg.data) >= batch_bytes and not self.pending:
             self._decode([msg.data])
             return
+        if not self.pending:
+            self.flush_timer.reset()  # the first chunk waits at most FLUSH_PERIOD_S
         self.pending.append(msg.data)
         self.pending_bytes += len(msg.data)
         if self.pending_bytes >= batch_bytes:
@@ -189,6 +194,11 @@ class AudioFeaturesNode(DiagnosedNode):
         if self.pending:
             chunks, self.pending, self.pending_bytes = self.pending, [], 0
             self._decode(chunks)
+
+    def _flush_due(self) -> None:
+        """The flush timer: ``FLUSH_PERIOD_S`` after audio began to wait; it is then disarmed."""
+        self.flush_timer.cancel()
+        self.flush_audio()
 
     def _decode(self, chunks: list[bytes]) -> None:
         self.audio_batches += 1

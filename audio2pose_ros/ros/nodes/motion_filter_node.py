@@ -33,10 +33,11 @@ the start holds, commanding nothing, until the conflict has been over for ``SOUR
 what each measured message means (problems, the start, the commands' check) is
 :mod:`audio2pose_ros.motion.measured_states`'s.
 
-Parameter requests: the node's services (rclpy's parameter services) are served at most
-``REQUESTS_PER_TICK`` per tick (:class:`~audio2pose_ros.ros.request_budget.RequestBudget`); a
-request is validated at once and its settings reach the filter at the next tick, once per tick
-however many came, so a storm of set_parameters requests delays answers, never commands.
+Parameter requests: the node's services (rclpy's parameter services) are served by the node
+itself, at the end of each tick, at most ``REQUESTS_PER_TICK`` per tick
+(:class:`~audio2pose_ros.ros.request_budget.RequestBudget`); a request is validated at once and
+its settings reach the filter at the next tick, once per tick however many came, so a storm of
+set_parameters requests delays answers, never commands.
 
 Stop and disable: a stop stays in force across restarts until a ``stop: false`` *published
 after the stop* arrives, as does ``enable: false`` until a later ``enable: true``, by the
@@ -55,9 +56,11 @@ gently).
 Timing (:mod:`audio2pose_ros.motion.pacing`): the filter ticks at ``rate_hz``, at the latest
 one period after the previous tick and early when a pose arrives into an empty buffer (at most
 ``MIN_TICK_SPACING`` periods after the previous tick), so a steady stream is commanded on
-arrival. Each output is published at the tick nearest to its own period, never less than its
-period minus half a filter period after the previous one (its documented minimum spacing: 15 ms
-for 50 Hz at a 100 Hz filter clock). Header stamps are the time the command was computed for
+arrival. The tick is a :class:`~audio2pose_ros.ros.diagnosed_node.PacedTimer` (re-programmed
+at each such arrival), run between two messages when a backlog of input holds it back. Each
+output is published at the tick nearest to its own period, never less than its period minus
+half a filter period after the previous one (its documented minimum spacing: 15 ms for 50 Hz at
+a 100 Hz filter clock). Header stamps are the time the command was computed for
 (the tick), not the publish time. An output nobody subscribes to is not built nor sent.
 """
 
@@ -115,13 +118,14 @@ from audio2pose_ros.ros.request_budget import RequestBudget
 from audio2pose_ros.ros.spin import run_node
 
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
-STARTUP_CHECK_NS = 100_000_000  # while the start waits, it is decided again this often (0.1 s)
+STARTUP_CHECK_S = 0.1  # while the start waits, it is decided again this often
 REQUESTS_PER_TICK = 1  # service requests (set_parameters, ...) served per tick at most
 
 
 SETTINGS_CLASSES = (MotionFilterSettings, StyleSettings, LimitSettings, MotionFilterNodeSettings)
 # A JointState of a whole humanoid (names, positions, velocities, efforts) is a few KiB.
 MAX_JOINT_STATE_BYTES = 65536
+MAX_BOOL_BYTES = 64  # a serialized std_msgs/Bool is 5 bytes
 
 
 PARAMETERS = tuple(spec for cls in SETTINGS_CLASSES for spec in specs_of(cls))
@@ -221,8 +225,9 @@ class MotionFilterNode(DiagnosedNode):
             self.create_subscription(
                 Bool, topics.VOICE_ACTIVITY, guarded(self.on_voice), STREAM_QOS
             )
-        self.create_subscription(Bool, topics.ENABLE, guarded(self.on_enable), LATCHED_QOS)
-        self.create_subscription(Bool, topics.STOP, guarded(self.on_stop), LATCHED_QOS)
+        # with their MessageInfo (the publication time) under either executor
+        bounded(Bool, topics.ENABLE, self.on_enable, LATCHED_QOS, MAX_BOOL_BYTES, with_info=True)
+        bounded(Bool, topics.STOP, self.on_stop, LATCHED_QOS, MAX_BOOL_BYTES, with_info=True)
         bounded(JointState, topics.HEAD_TARGET, self.on_head_target, 10, MAX_JOINT_STATE_BYTES)
         bounded(JointState, topics.HEAD_OFFSET, self.on_head_offset, 10, MAX_JOINT_STATE_BYTES)
         try:
@@ -239,16 +244,18 @@ class MotionFilterNode(DiagnosedNode):
                 f"parameter measured_joint_states_topic: value "
                 f"{self.settings.measured_joint_states_topic!r} is not a valid topic name"
             ) from None
-        # rclpy's parameter services (all the node's services): a few requests per tick at most
+        # rclpy's parameter services (all the node's services): served from the tick, a few
+        # requests per tick at most
         self.request_budget = RequestBudget(REQUESTS_PER_TICK)
         self.request_budget.adopt_services(self)
-        self.period_ns = round(self.filter.period_s * 1e9)
-        self.tick_timer = self.create_timer(self.filter.period_s, guarded(self.on_timer))
-        self.startup_timer = self.create_timer(
-            max(self.settings.startup_timeout_s, 1e-3), guarded(self.on_startup_timeout)
+        self.serve_requests = guarded(self.request_budget.serve)
+        # the command clock and the start's decision keep their rate behind any backlog
+        self.tick_timer = self.create_paced_timer(self.filter.period_s, self.on_timer)
+        self.startup_timer = self.create_paced_timer(
+            max(self.settings.startup_timeout_s, 1e-3), self.on_startup_timeout
         )
-        self.create_timer(self.settings.state_save_period_s, guarded(self.save_state))
-        self.create_timer(MIN_SAVE_SPACING_S, guarded(self._save_if_due))
+        # the state file is saved from the tick (no timer of its own wakes an idle node)
+        self.next_save_s = time.monotonic() + self.settings.state_save_period_s
         self.last_tick_s = -math.inf
         self.tick_stamp = self.get_clock().now()
         self.publish_output = {
@@ -372,8 +379,8 @@ class MotionFilterNode(DiagnosedNode):
                 self._report(start_held(step.reason, topic))
             else:
                 self.report_problem("start_pose", DiagnosticStatus.WARN, step.reason)
-            if self.startup_timer.timer_period_ns != STARTUP_CHECK_NS:
-                self.startup_timer.timer_period_ns = STARTUP_CHECK_NS  # discovery is polled
+            if self.startup_timer.period_s != STARTUP_CHECK_S:  # discovery is polled
+                self.startup_timer.schedule(STARTUP_CHECK_S, STARTUP_CHECK_S)
             return
         self.startup_timer.cancel()
         self._start(self.robot.neutral_rad if saved is None else saved, step.action)
@@ -405,8 +412,18 @@ class MotionFilterNode(DiagnosedNode):
         if written and self.state.lock is not None:
             self.clear_problem("state_file_unsaved")
 
-    def _save_if_due(self) -> None:
-        if self.state.due:
+    def _save_if_due(self, now_s: float) -> None:
+        """At a tick: save a change waiting for its spacing, or the pose every save period.
+
+        A stop or an enable that :meth:`_save_now` could not write at once is written at the
+        first tick :data:`MIN_SAVE_SPACING_S` after the last write; the pose every
+        ``state_save_period_s`` (written only when it changed). The tick runs at ``rate_hz``
+        whenever the filter has started, and nothing is saved before: no timer of its own.
+        """
+        if now_s >= self.next_save_s:
+            self.next_save_s = now_s + self.settings.state_save_period_s
+            self.save_state()
+        elif self.state.due and now_s - self.state.last_write_s >= MIN_SAVE_SPACING_S:
             self.save_state()
 
     # --- inputs -------------------------------------------------------------------------------
@@ -464,8 +481,7 @@ class MotionFilterNode(DiagnosedNode):
         if wait_s <= 0:
             self.on_tick()
             wait_s = next_timer_s(self.filter.period_s, self.filter.buffered > 0)
-        self.tick_timer.timer_period_ns = max(round(wait_s * 1e9), 1)
-        self.tick_timer.reset()
+        self.tick_timer.schedule(wait_s)
 
     def on_voice(self, msg: Bool) -> None:
         """Voice activity from the features node."""
@@ -554,19 +570,16 @@ class MotionFilterNode(DiagnosedNode):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def on_timer(self) -> None:
-        """The fallback clock: tick, and return to the nominal period."""
-        if self.tick_timer.timer_period_ns != self.period_ns:
-            self.tick_timer.timer_period_ns = self.period_ns
+        """The fallback clock (a paced timer at ``rate_hz``): tick, or serve requests till start."""
         if self.started:
-            self.on_tick()  # renews the request budget itself
+            self.on_tick()  # serves requests itself
         else:
-            self.request_budget.renew()
             self.filter.take_requested_settings()
+            self.serve_requests()
 
     def on_tick(self) -> None:
         """Advance the filter by one period and publish the outputs due at this tick."""
         self.filter.take_requested_settings()
-        self.request_budget.renew()
         self.ticks += 1
         self.last_tick_s = time.monotonic()
         self.tick_stamp = self.get_clock().now()
@@ -582,6 +595,8 @@ class MotionFilterNode(DiagnosedNode):
         for key in self.pacing.due(self.last_tick_s):
             if self.publishers_by_output[key].get_subscription_count():  # no message for nobody
                 self.publish_output[key]()
+        self._save_if_due(self.last_tick_s)
+        self.serve_requests()  # after the commands: a request's settings count from the next tick
 
     def report_body_guard(self, guard: GuardStatus) -> None:
         """WARN naming the links while the self-collision guard changes commands."""
@@ -664,7 +679,7 @@ class MotionFilterNode(DiagnosedNode):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until shutdown."""
-    run_node(MotionFilterNode, "motion_filter_node", args, events=False)  # see create_executor
+    run_node(MotionFilterNode, "motion_filter_node", args)
 
 
 if __name__ == "__main__":

@@ -78,7 +78,6 @@ def main(args: list[str] | None = None) -> None:
         PROCESS_NAME,
         args,
         connect=connect,
-        events=False,  # the motion filter's callbacks take MessageInfo (create_executor)
     )
 
 

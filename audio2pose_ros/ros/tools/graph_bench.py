@@ -59,6 +59,7 @@ from audio2pose_ros.ros.player import (
     warm_up,
 )
 from audio2pose_ros.ros.tools.process_stats import cpu_s, rss_mb
+from audio2pose_ros.ros.tools.relay_floor import EXECUTORS as RELAY_EXECUTORS
 from audio2pose_ros.ros.tools.relay_floor import ROLES as RELAY_ROLES
 from audio2pose_ros.timebase import FRAME_PERIOD_S, SAMPLE_RATE_HZ, SAMPLES_PER_FRAME
 
@@ -82,6 +83,7 @@ class FloorFigures:
 
     steady_cpu_ms_per_frame: dict[str, float]
     rss_mb: dict[str, float]
+    executor: str = "plain"  # relay_floor.EXECUTORS: rclpy.spin's default, or the nodes' own
 
 
 @dataclass
@@ -196,12 +198,14 @@ def measure_graph(
     duration_s: float = 60.0,
     single_process: bool = False,
     with_floor: bool = False,
+    floor_executor: str = "plain",
 ) -> GraphFigures:
     """Run the graph on ``duration_s`` of ``speech_16k`` (repeated) and measure it.
 
     ``single_process`` runs the three nodes in one process instead of three. ``with_floor``
     (three processes only) then runs the bare rclpy relays on the same chunks
-    (:func:`measure_floor`), so that both figures come from one run on one machine state.
+    (:func:`measure_floor`, its relays in ``floor_executor``), so that both figures come from
+    one run on one machine state.
     """
     audio, chunks = _speech_chunks(speech_16k, duration_s)
     audio_topic = topics.absolute(topics.AUDIO)
@@ -262,7 +266,11 @@ def measure_graph(
         cpu_ms_per_frame={k: 1e3 * v / max(n, 1) for k, v in cpu.items()},
         steady_cpu_ms_per_frame={k: 1e3 * v / steady_frames for k, v in steady.items()},
         rss_mb=rss,
-        floor=measure_floor(speech_16k, duration_s) if with_floor and not single_process else None,
+        floor=(
+            measure_floor(speech_16k, duration_s, floor_executor)
+            if with_floor and not single_process
+            else None
+        ),
     )
 
 
@@ -297,12 +305,17 @@ def _play_measured(
     return sent, cpu, steady, steady_frames
 
 
-def measure_floor(speech_16k: np.ndarray, duration_s: float = 60.0) -> FloorFigures:
+def measure_floor(
+    speech_16k: np.ndarray, duration_s: float = 60.0, executor: str = "plain"
+) -> FloorFigures:
     """The bare rclpy floor (:mod:`audio2pose_ros.ros.tools.relay_floor`) on the graph's input.
 
-    Three relay processes with the graph's topology, QoS and executors play the same chunks as
+    Three relay processes with the graph's topology and QoS, spinning in ``executor``
+    (``plain``: rclpy.spin's default; ``node``: the nodes' own), play the same chunks as
     :func:`measure_graph`, measured the same way: steady CPU per frame and resident memory.
     """
+    if executor not in RELAY_EXECUTORS:
+        raise ValueError(f"executor must be one of {RELAY_EXECUTORS}, got {executor!r}")
     _, chunks = _speech_chunks(speech_16k, duration_s)
     audio_topic = topics.absolute(topics.AUDIO)
     n_features = feature_spec_of(default_checkpoint_path()).dim
@@ -315,6 +328,7 @@ def measure_floor(speech_16k: np.ndarray, duration_s: float = 60.0) -> FloorFigu
         for role in RELAY_ROLES:
             log = stack.enter_context(open(Path(tmp) / f"{role}.log", "wb"))
             command = [*module, role, "--features", str(n_features), "--joints", str(n_joints)]
+            command += ["--executor", executor]
             processes[role] = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
             stack.callback(_stop, processes[role])
         deadline = time.monotonic() + ANSWER_TIMEOUT_S
@@ -329,6 +343,7 @@ def measure_floor(speech_16k: np.ndarray, duration_s: float = 60.0) -> FloorFigu
     return FloorFigures(
         steady_cpu_ms_per_frame={k: 1e3 * v / steady_frames for k, v in steady.items()},
         rss_mb=rss,
+        executor=executor,
     )
 
 
@@ -376,6 +391,7 @@ def report(figures: GraphFigures) -> dict[str, object]:
         else {
             "steady_cpu_ms_per_frame": figures.floor.steady_cpu_ms_per_frame,
             "rss_mb": figures.floor.rss_mb,
+            "executor": figures.floor.executor,
             "steady_cpu_ratio": figures.floor_ratio,
         },
         "targets": targets(figures),

@@ -15,13 +15,20 @@ nodes add to rclpy's own cost:
   ``--output-hz`` each, as the filter does with its default output rates.
 
 Each relay also publishes a heartbeat on ``/diagnostics`` every
-:data:`~audio2pose_ros.ros.diagnosed_node.HEARTBEAT_PERIOD_S` and spins in the executor its node
-spins in (:func:`~audio2pose_ros.ros.spin.create_executor`: the filter in the
-single-threaded one), with the nodes' QoS. It loads what every node loads (rclpy, the message
-types, numpy) and nothing else: no features, no model, no body.
+:data:`~audio2pose_ros.ros.diagnosed_node.HEARTBEAT_PERIOD_S`, with the nodes' QoS (a relay must
+match its publishers). It loads what every node loads (rclpy, the message types, numpy) and
+nothing else: no features, no model, no body.
+
+Which executor a relay spins in (``--executor``):
+
+- ``plain`` (the default, the floor ``audio2pose bench --graph`` reports against): rclpy's
+  default, the SingleThreadedExecutor that ``rclpy.spin`` uses, as a plain rclpy program of
+  the ros2/examples would;
+- ``node``: the executor its node spins in (:func:`~audio2pose_ros.ros.spin.create_executor`),
+  which measures what the nodes' work adds over the same transport.
 
 Run one relay with
-``python -m audio2pose_ros.ros.tools.relay_floor ROLE [--features N] [--joints J]``.
+``python -m audio2pose_ros.ros.tools.relay_floor ROLE [--features N] [--joints J] [--executor E]``.
 """
 
 from __future__ import annotations
@@ -36,7 +43,7 @@ from audio_common_msgs.msg import AudioData, AudioInfo
 from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32MultiArray, Header, MultiArrayDimension
@@ -49,6 +56,7 @@ from audio2pose_ros.ros.nodes.process import STOP_SIGNALS, prepare_node_process
 from audio2pose_ros.ros.spin import create_executor, spin_executor
 
 ROLES = ("audio_features_node", "inference_node", "motion_filter_node")
+EXECUTORS = ("plain", "node")  # rclpy.spin's default executor, or the one the node spins in
 FILTER_RATE_HZ = 100.0  # the filter's tick (config/pepper.yaml rate_hz)
 OUTPUT_RATE_HZ = 50.0  # joint_angles, joint_trajectory and commanded_joint_states
 
@@ -123,6 +131,15 @@ class _Relay(Node):
         self.trajectory.publish(JointTrajectory(joint_names=self.names, points=[point]))
 
 
+def relay_executor(executor: str) -> Executor:
+    """The executor a relay spins in: ``plain`` (rclpy's default) or ``node`` (its node's)."""
+    if executor not in EXECUTORS:
+        raise ValueError(f"executor must be one of {EXECUTORS}, got {executor!r}")
+    if executor == "plain":
+        return SingleThreadedExecutor()
+    return create_executor()
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     """Run one relay until SIGTERM or Ctrl-C; it dies with the process that started it."""
     prepare_node_process()
@@ -130,11 +147,17 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("role", choices=ROLES)
     parser.add_argument("--features", type=int, default=26, help="floats per feature frame")
     parser.add_argument("--joints", type=int, default=11, help="joints per pose")
+    parser.add_argument(
+        "--executor",
+        choices=EXECUTORS,
+        default="plain",
+        help="rclpy.spin's SingleThreadedExecutor (plain, default) or the node's own (node)",
+    )
     args, ros_args = parser.parse_known_args(argv)
     rclpy.init(args=[sys.argv[0], *ros_args])
     signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
     try:
-        executor = create_executor(events=args.role != "motion_filter_node")
+        executor = relay_executor(args.executor)
         executor.add_node(_Relay(args.role, args.features, args.joints))
         spin_executor(executor)
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -1,0 +1,119 @@
+"""``evaluate-style``: a data set given as NAME=DATASET is one source (one person's import)."""
+
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from audio2pose_ros.audio.wav import read_wav
+from audio2pose_ros.cli.main import main
+from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
+from audio2pose_ros.style import evaluation
+from audio2pose_ros.style.evaluation import SourceSpec, source_spec
+from audio2pose_ros.timebase import SAMPLES_PER_FRAME
+
+ROOT = Path(__file__).resolve().parent.parent
+# GRID-style sentence ids: by clip id (up to the first digit) they would be four sources
+IDS = ("bbaf3s", "bbaf4p", "bgaa1a", "lwae8n", "pbio7a")
+# short clips first: the enrolment (7 s at most) takes the first two, 6.3 s
+SPEECH = ("0880", "0930", "0890", "0920", "0870")
+
+
+def one_reader(root, robot, speech_files):
+    """A data set of one reader's sentences: real speech, a small head motion, head observed."""
+    files = {f.stem.rsplit("_", 1)[1]: f for f in speech_files}
+    dataset = Dataset.create(root, robot)
+    rng = np.random.default_rng(1)
+    head = robot.group_mask("head")
+    for clip_id, number in zip(IDS, SPEECH, strict=True):
+        audio = read_wav(files[number])[0]
+        n = audio.size // SAMPLES_PER_FRAME
+        angles = np.tile(robot.neutral_rad, (n, 1))
+        walk = np.cumsum(rng.normal(0.0, 0.002, (n, int(head.sum()))), axis=0)
+        angles[:, head] += walk - walk.mean(axis=0)
+        mask = np.zeros(angles.shape, dtype=bool)
+        mask[:, head] = True
+        info = ClipInfo(clip_id, "reader", "test sentences", "CC BY 4.0 | test attribution")
+        dataset.add(Clip(info, audio, angles, mask), robot)
+    return root
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("out/data", SourceSpec(Path("out/data"))),
+        ("grid_s1=out/s1", SourceSpec(Path("out/s1"), "grid_s1")),
+        ("a/b=c", SourceSpec(Path("a/b=c"))),  # not a name before '=': a path
+        ("=c", SourceSpec(Path("=c"))),
+        ("s1=", SourceSpec(Path("s1="))),
+        ("x|y=c", SourceSpec(Path("x|y=c"))),  # would break the table: not a name
+    ],
+)
+def test_when_source_given_expect_name_only_for_name_equals_dataset(text, expected):
+    assert source_spec(text) == expected
+
+
+def test_when_an_existing_path_has_an_equals_sign_expect_it_taken_as_the_path(tmp_path):
+    (tmp_path / "s1=data").mkdir()
+    text = str(tmp_path / "s1=data")
+    assert source_spec(text) == SourceSpec(Path(text))
+
+
+def test_when_a_data_set_is_named_expect_one_source_and_one_synthesis_per_clip(
+    tmp_path, robot, speech_files, monkeypatch, capsys
+):
+    data = one_reader(tmp_path / "reader", robot, speech_files)
+    assert set(evaluation.sources(SourceSpec(data), robot)) == {"bbaf", "bgaa", "lwae", "pbio"}
+    calls = []
+    real_synthesizer = evaluation.synthesizer
+
+    def counting(checkpoint, robot):
+        run = real_synthesizer(checkpoint, robot)
+
+        def counted(clip):
+            calls.append(clip.info.clip_id)
+            return run(clip)
+
+        return counted
+
+    monkeypatch.setattr(evaluation, "synthesizer", counting)
+    card = tmp_path / "MODEL_CARD.md"
+    card.write_text("# card\n", encoding="utf-8")
+    code = main(["evaluate-style", f"reader={data}", "--enroll-seconds", "7", "--card", str(card)])
+    assert code == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith("| reader (") and " s / " in line]
+    methods = ["default (SI)", "enrolled (SD)", "real split half", "real enrolment part"]
+    assert [row.split(" | ")[2] for row in rows] == methods
+    assert all(row.startswith("| reader (6 s / 18 s) | head |") for row in rows)
+    assert "| reader (real) | head | 25 |" in out  # the figures of all of its clips
+    assert not any(line.startswith(("| bbaf", "| bgaa")) for line in out.splitlines())
+    assert sorted(calls) == sorted(IDS)  # enrolment, scores and figures share one synthesis
+    origin = f"| reader | `{data}` | 5 | 0.4 | test sentences | CC BY 4.0 \\| test attribution |"
+    assert origin in out
+    text = card.read_text(encoding="utf-8")
+    assert text.startswith("# card\n")
+    assert origin in text
+    assert rows[1] in text
+    rebuild = f"audio2pose evaluate-style reader={data} --enroll-seconds 7 --card {card}"
+    assert f"Rebuild: `{rebuild}`" in text
+
+
+def test_when_the_makefile_evaluates_style_expect_grid_s1_only_when_its_data_set_is_there(
+    tmp_path,
+):
+    def command(folder):
+        lines = subprocess.run(
+            ["make", "-n", "-C", str(ROOT), "evaluate-style", f"GRID_S1={folder}"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.splitlines()
+        return next(line for line in lines if "audio2pose evaluate-style" in line)
+
+    folder = tmp_path / "s1"
+    folder.mkdir()
+    assert "grid_s1=" not in command(folder)  # a clean clone: no s1 data set
+    (folder / "index.json").write_text("{}", encoding="utf-8")
+    assert f"grid_s1={folder}" in command(folder)
