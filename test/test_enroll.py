@@ -10,9 +10,9 @@ from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
 from audio2pose_ros.data.importers.media import ffmpeg_executable
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.motion.style import StyleSettings
-from audio2pose_ros.resources import share_path
+from audio2pose_ros.resources import default_checkpoint_path, share_path
 from audio2pose_ros.style.figures import StyleError, load_style, preset_names, read_style
-from audio2pose_ros.style.personal import enroll, model_and_style
+from audio2pose_ros.style.personal import checkpoint_digest, enroll, model_and_style
 from audio2pose_ros.timebase import SAMPLES_PER_FRAME
 
 # the shared clips, where the Makefile's TALKING_HEADS looks (../shared next to the checkout)
@@ -59,10 +59,14 @@ def test_when_recording_observes_only_the_arms_expect_only_the_arms_adapted(
     style = read_style(tmp_path / "me" / "style.yaml")
     assert style.parts == result.style.parts
     assert style.fitted is not None
-    assert style.fitted[1] == result.settings
     checkpoint, loaded = model_and_style(str(tmp_path / "me"))
     assert loaded == style
-    assert checkpoint.name == "default.safetensors"
+    own = tmp_path / "me" / "model.safetensors"  # when the arms' noise was fitted
+    assert own.is_file() == (result.arms_noise != 1.0)
+    assert checkpoint == (own if own.is_file() else default_checkpoint_path())
+    assert style.fitted[0] == checkpoint_digest(checkpoint)
+    if not own.is_file():  # else the style alone (result.settings) is not what the folder runs
+        assert style.fitted[1] == result.settings
 
 
 def test_when_synth_runs_a_personal_model_expect_the_style_applied_to_its_part_only(

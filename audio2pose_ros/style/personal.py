@@ -3,39 +3,52 @@
 A personal model is a folder::
 
     me/
-      style.yaml       the person's figures per observed part (audio2pose_ros.style.figures)
-      ENROLLMENT.md    what was measured, from what, and the settings against the default model
+      style.yaml         the person's figures per observed part (audio2pose_ros.style.figures)
+      model.safetensors  the packaged model with the person's arm noise, when it was fitted
+      ENROLLMENT.md      what was measured, from what, and the settings against the model
 
-It runs the packaged model (or ``model.safetensors`` in the folder, when present) with the
-person's style: every ``--model`` option takes such a folder (:func:`model_and_style`), and the
-style resolves into the motion filter's style parameters against the model's own figures
+It runs ``model.safetensors`` when present, else the packaged model, with the person's style:
+every ``--model`` option takes such a folder (:func:`model_and_style`), and the style resolves
+into the motion filter's style parameters against the model's own figures
 (:func:`style_settings`).
 
-Why a style fit and not a fine-tune (seed 003's subject-dependent models) or a CVAE latent
-(seed 002): the styles of our sources differ most in size and tempo (4 to 5 times in head size
-between readers and addressers), which speech does not predict, and 60 s of one person holds too
-little to retrain the model's speech-to-motion mapping; a fit of per-part size, tempo, arm rest
-and height takes seconds, cannot make the motion less safe (the limiter and body guard stay
-last) and leaves the model's timing on the speech as it is. The held-out evaluation
-(``audio2pose evaluate-style``, model card) measures how well it does.
+What is fitted (:func:`fit_personal`): the style (per-part size, tempo, arm rest and height);
+and, where the arms are seen, the arms' sampling temperature (:func:`fit_arms_noise`, seed
+003's subject-dependent model as a fine-tune of one number, without retraining). The default
+model's arms are calm on purpose (a person in conversation); a style's size scales that calm
+motion about the robot's neutral pose, which the model's arms rest 0.4 to 0.6 rad away from,
+so sizes above 2 pin joints at their limits (at 3, both shoulder rolls in every frame of the
+lecture) and stay too slow. The model's own noise makes its arms larger and livelier together,
+as a lively person's are: on the lecture (enrolled on its first 32 s, scored on the other 41 s)
+the arms' H speed / accel / size ratio went from 0.32 / 0.36 / 0.25 with the style alone to
+0.17 / 0.18 / 0.45 (the default: 0.38 / 0.35 / 0.14). A style's tempo fitted on top of the noise
+slowed it again to the person's still moments, and leaving the tempo out would miss a person
+who moves slowly; so the fit keeps, of the style alone, the noise with the arms' rest and
+height, and the noise with the whole style, the one closest to the person's own motion on the
+recording (:func:`motion_distance`). 60 s of one person hold too little to retrain the model's
+speech-to-motion mapping, and neither the noise nor the style can make the motion less safe:
+the sampler's step bounds, the limiter and the body guard stay as they are.
 
 :func:`enroll` is the library entry the console calls; ``audio2pose enroll`` its command line.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
+import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
 from audio2pose_ros.errors import InputError
-from audio2pose_ros.motion.style import StyleSettings
+from audio2pose_ros.motion.style import StyleSettings, style_trajectory
 from audio2pose_ros.resources import bundled_speech_paths, default_checkpoint_path
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.style.figures import (
@@ -44,14 +57,21 @@ from audio2pose_ros.style.figures import (
     PartFigures,
     StyleError,
     StyleFile,
+    _derivatives,
     load_style,
     measure,
+    measure_part,
     preset_names,
     resolve,
+    style_loss,
 )
 from audio2pose_ros.timebase import FRAME_RATE_HZ
 
+if TYPE_CHECKING:
+    from audio2pose_ros.checkpoints.torch_io import Checkpoint
+
 MAX_ENROLL_S = 60.0  # at most this much of a recording is used
+ARMS_NOISE_FACTORS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)  # arm temperature factors tried
 STYLE_FILE = "style.yaml"
 CHECKPOINT_FILE = "model.safetensors"
 LICENCE = "the enrolled person's own recording (not redistributed)"
@@ -83,14 +103,98 @@ Synthesizer = Callable[[Clip], np.ndarray]  # a clip's speech -> the model's (T,
 def synthesizer(checkpoint_path: Path, robot: RobotDescription) -> Synthesizer:
     """The model's offline synthesis (seed 0, before the body guard) of a clip's speech."""
     from audio2pose_ros.checkpoints.torch_io import load_checkpoint
-    from audio2pose_ros.offline.synthesis import synthesize
 
-    checkpoint = load_checkpoint(checkpoint_path, robot=robot)
+    return checkpoint_synthesizer(load_checkpoint(checkpoint_path, robot=robot))
+
+
+def checkpoint_synthesizer(checkpoint: Checkpoint) -> Synthesizer:
+    """A loaded model's offline synthesis (seed 0, before the body guard) of a clip's speech."""
+    from audio2pose_ros.offline.synthesis import synthesize
 
     def run(clip: Clip) -> np.ndarray:
         return synthesize(checkpoint, clip.audio, body_margin_m=None)[1]
 
     return run
+
+
+class Synthesizers:
+    """Each model's synthesis of each clip, computed once.
+
+    A personal fit synthesizes the same speech with the same models several times (the noise
+    factors, the style fits, the final choice).
+    """
+
+    def __init__(self) -> None:
+        self._done: dict[tuple[int, int], np.ndarray] = {}
+        self._kept: list[object] = []  # the keys' objects stay alive, so their ids stay unique
+
+    def of(self, checkpoint: Checkpoint) -> Synthesizer:
+        """The synthesis of ``checkpoint`` (:func:`checkpoint_synthesizer`), remembered."""
+        run = checkpoint_synthesizer(checkpoint)
+
+        def remembered(clip: Clip) -> np.ndarray:
+            key = (id(checkpoint), id(clip))
+            if key not in self._done:
+                self._kept += [checkpoint, clip]
+                self._done[key] = run(clip)
+            return self._done[key]
+
+        return remembered
+
+
+def with_arms_noise(checkpoint: Checkpoint, factor: float) -> Checkpoint | None:
+    """``checkpoint`` whose arms sample at ``factor`` times their temperature (no retraining).
+
+    Only a model that samples its joints in two parts with settable sampling settings
+    (``live_groups``, :meth:`~audio2pose_ros.models.live_groups.LiveGroups.with_sampling`) and
+    holds all arm joints in its second part; for others None. The hip in that part keeps its
+    temperature.
+    """
+    model = checkpoint.model
+    config = getattr(model, "config", None)
+    groups = getattr(model, "groups", None)
+    with_sampling = getattr(model, "with_sampling", None)
+    if not callable(with_sampling) or config is None or groups is None:
+        return None
+    arms = checkpoint.robot.group_mask("arms")
+    second = np.asarray(groups[1])
+    if len(groups) != 2 or not arms[second].any() or arms[np.asarray(groups[0])].any():
+        return None
+    base = np.broadcast_to(np.asarray(config.second_temperature, dtype=np.float64), second.shape)
+    temperatures = tuple(float(t) for t in base * np.where(arms[second], factor, 1.0))
+    return dataclasses.replace(checkpoint, model=with_sampling(second_temperature=temperatures))
+
+
+def fit_arms_noise(
+    clips: Sequence[Clip],
+    person: PartFigures,
+    checkpoint: Checkpoint,
+    synthesizers: Synthesizers | None = None,
+) -> tuple[float, Checkpoint]:
+    """The arms' sampling temperature factor whose motion on ``clips``' speech fits ``person``.
+
+    Of :data:`ARMS_NOISE_FACTORS`, the factor whose arm figures on the person's own speech have
+    the smallest :func:`~audio2pose_ros.style.figures.style_loss` to the person's (upper speed
+    and acceleration deciles and size); the default model's arms are calm on purpose, and the
+    model's own noise reaches a lively person's size and pace where a style's size, a scale of
+    the calm motion, cannot (module docstring). Returns (1, ``checkpoint``) for a model without
+    per-part sampling (:func:`with_arms_noise`).
+    """
+    synthesizers = synthesizers or Synthesizers()
+    best: tuple[float, float, Checkpoint] = (math.inf, 1.0, checkpoint)
+    for factor in ARMS_NOISE_FACTORS:
+        candidate = checkpoint if factor == 1.0 else with_arms_noise(checkpoint, factor)
+        if candidate is None:
+            break
+        run = synthesizers.of(candidate)
+        motions = [(angles, np.ones(angles.shape, dtype=bool)) for angles in map(run, clips)]
+        model = measure_part(motions, checkpoint.robot, "arms")
+        if model is None:
+            break
+        loss = style_loss(person, model)
+        if loss < best[0]:
+            best = (loss, factor, candidate)
+    return best[1], best[2]
 
 
 @lru_cache(maxsize=4)
@@ -157,19 +261,120 @@ def style_settings(
 
 
 def fit(
-    clips: Sequence[Clip], robot: RobotDescription, synthesize_clip: Synthesizer
+    clips: Sequence[Clip],
+    robot: RobotDescription,
+    synthesize_clip: Synthesizer,
+    paced: Collection[str] = (),
 ) -> tuple[dict[str, PartFigures], StyleSettings]:
     """A person's figures in ``clips`` and the style settings fitted on their own speech.
 
     The model's motion on the same speech (``synthesize_clip``) is the reference of
-    :func:`~audio2pose_ros.style.figures.resolve`: the model's figures on what the person said.
+    :func:`~audio2pose_ros.style.figures.resolve` (``paced``: parts whose tempo and size it
+    leaves at 1): the model's figures on what the person said.
     """
     parts = measure([(c.angles_rad, c.mask) for c in clips], robot)
     reference = []
     for clip in clips:
         angles = synthesize_clip(clip)
         reference.append((angles, np.ones(angles.shape, dtype=bool)))
-    return parts, resolve(parts, reference, robot)
+    return parts, resolve(parts, reference, robot, paced=paced)
+
+
+@dataclass(frozen=True)
+class PersonalFit:
+    """A personal model fitted to a recording (:func:`fit_personal`).
+
+    Attributes:
+        parts: the person's figures per observed part.
+        settings: the style settings against ``checkpoint``.
+        checkpoint: the model with the person's arm noise (the given one when ``arms_noise``
+            is 1).
+        arms_noise: the factor of the arms' sampling temperature.
+        style_alone: the style settings fitted to the given model itself (what a running graph
+            that keeps its model applies).
+    """
+
+    parts: dict[str, PartFigures]
+    settings: StyleSettings
+    checkpoint: Checkpoint
+    arms_noise: float
+    style_alone: StyleSettings
+
+
+def fit_personal(
+    clips: Sequence[Clip], robot: RobotDescription, checkpoint: Checkpoint
+) -> PersonalFit:
+    """A person's model: the arms' sampling noise (when the arms are seen) and the style.
+
+    Three candidates for the arms: the style alone on ``checkpoint``; the model with the
+    person's arm noise (:func:`fit_arms_noise`) with only the arms' rest and height styled
+    (``paced``); and that model with the whole style on top. The one closest to the person's
+    own motion on the same speech (:func:`motion_distance`) wins. A style's tempo fitted on top
+    of the noise slows the motion down to a person's still moments between gestures (the
+    lecture), and leaving it out misses a person who moves slowly: the recording decides.
+    """
+    person = measure([(c.angles_rad, c.mask) for c in clips], robot)
+    synthesizers = Synthesizers()
+    parts, alone = fit(clips, robot, synthesizers.of(checkpoint))
+    plain = PersonalFit(parts, alone, checkpoint, 1.0, alone)
+    if "arms" not in person:
+        return plain
+    factor, noisier = fit_arms_noise(clips, person["arms"], checkpoint, synthesizers)
+    if factor == 1.0:
+        return plain
+    run = synthesizers.of(noisier)
+    candidates = [
+        plain,
+        PersonalFit(*fit(clips, robot, run, ("arms",)), noisier, factor, alone),
+        PersonalFit(*fit(clips, robot, run), noisier, factor, alone),
+    ]
+    real = [(c.angles_rad, c.mask) for c in clips]
+
+    def distance(candidate: PersonalFit) -> float:
+        synthesize_clip = synthesizers.of(candidate.checkpoint)
+        motion = []
+        for clip in clips:
+            angles = _as_long(synthesize_clip(clip), clip.n_frames)
+            styled = style_trajectory(robot, candidate.settings, angles, FRAME_RATE_HZ)
+            motion.append((styled, clip.mask))
+        return motion_distance(real, motion, robot, "arms")
+
+    return min(candidates, key=distance)
+
+
+def _as_long(angles: np.ndarray, n_frames: int) -> np.ndarray:
+    """``angles`` cut or held at their last pose to ``n_frames`` (a clip's motion length)."""
+    n = min(len(angles), n_frames)
+    return np.vstack([angles[:n], np.repeat(angles[n - 1 :], n_frames - n, axis=0)])
+
+
+def motion_distance(
+    real: Sequence[Motion], model: Sequence[Motion], robot: RobotDescription, part: str
+) -> float:
+    """How far ``model``'s motion of ``part`` is from ``real``, as the held-out evaluation scores.
+
+    The Hellinger distances of joint speed and acceleration (the bins of
+    :mod:`~audio2pose_ros.learning.metrics`, joints pooled) plus |log| of the size ratio, over
+    the frames ``real`` knows (``model`` carries the same masks and lengths).
+    """
+    from audio2pose_ros.learning.metrics import (
+        ACCELERATION_BINS_RAD_S2,
+        SPEED_BINS_RAD_S,
+        hellinger,
+    )
+
+    joints = [int(j) for j in np.flatnonzero(robot.group_mask(part))]
+    total = 0.0
+    for order, bins in ((1, SPEED_BINS_RAD_S), (2, ACCELERATION_BINS_RAD_S2)):
+        counts = []
+        for motions in (real, model):
+            values = [_derivatives(motions, j, order, FRAME_RATE_HZ) for j in joints]
+            counts.append(np.histogram(np.concatenate(values), bins)[0])
+        total += hellinger(counts[0], counts[1])
+    sizes = [measure_part(m, robot, part, min_seconds=0.0) for m in (real, model)]
+    if sizes[0] is None or sizes[1] is None:
+        return math.inf
+    return total + abs(math.log(sizes[1].std_rad / sizes[0].std_rad))
 
 
 def style_overrides(settings: StyleSettings) -> list[str]:
@@ -191,9 +396,10 @@ class Enrollment:
 
     folder: Path
     style: StyleFile
-    settings: StyleSettings  # against the packaged model
+    settings: StyleSettings  # the style alone, against the packaged model (a running graph's)
     seconds: float  # of the recording used
     elapsed_s: float
+    arms_noise: float = 1.0  # the personal checkpoint's arm noise factor (1: none written)
 
 
 def _first_seconds(clips: Sequence[Clip], seconds: float) -> list[Clip]:
@@ -274,33 +480,47 @@ def enroll(
             f"the {seconds:.1f} s used: nothing to learn"
         )
     progress(f"measured {', '.join(parts)} over {seconds:.1f} s")
-    progress("fitting the style to the packaged model on the recording's speech")
+    progress("fitting the arms' noise and the style to the packaged model on the recorded speech")
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint, save_checkpoint
+
     checkpoint = default_checkpoint_path()
-    parts, settings = fit(clips, robot, synthesizer(checkpoint, robot))
+    personal = fit_personal(clips, robot, load_checkpoint(checkpoint, robot=robot))
+    folder.mkdir(parents=True, exist_ok=True)
+    own = folder / CHECKPOINT_FILE
+    own.unlink(missing_ok=True)  # a model of an earlier enrolment (--force)
+    if personal.arms_noise != 1.0:
+        checkpoint = save_checkpoint(own, personal.checkpoint)
     style = StyleFile(
         name=folder.name,
         description=f"personal style measured from {source.name}",
         source=f"{source.name} (first {seconds:.1f} s)",
         command=command or f"audio2pose enroll {source} -o {folder}",
-        parts=parts,
-        fitted=(checkpoint_digest(checkpoint), settings),
+        parts=personal.parts,
+        fitted=(checkpoint_digest(checkpoint), personal.settings),
     )
-    folder.mkdir(parents=True, exist_ok=True)
     style.write(folder / STYLE_FILE)
-    _write_summary(folder, style, settings, seconds)
+    _write_summary(folder, style, personal.settings, seconds, personal.arms_noise)
     elapsed = time.monotonic() - start
     progress(f"wrote {folder / STYLE_FILE} in {elapsed:.0f} s")
-    return Enrollment(folder, style, settings, seconds, elapsed)
+    return Enrollment(folder, style, personal.style_alone, seconds, elapsed, personal.arms_noise)
 
 
-def _write_summary(folder: Path, style: StyleFile, settings: StyleSettings, seconds: float) -> None:
+def _write_summary(
+    folder: Path, style: StyleFile, settings: StyleSettings, seconds: float, arms_noise: float
+) -> None:
+    model = (
+        f"The packaged model with the arms' sampling noise {arms_noise:g} times as large "
+        f"({CHECKPOINT_FILE}); against it these"
+        if arms_noise != 1.0
+        else "Against the packaged model these"
+    )
     lines = [
         f"# Personal style: {style.name}",
         "",
         f"Measured from {style.source} ({seconds:.1f} s); parts: {', '.join(style.parts)}.",
         "Parts not listed keep the model's own motion.",
         "",
-        "Against the packaged model these are the motion filter's style parameters:",
+        f"{model} are the motion filter's style parameters:",
         "",
         *[f"- `{item.replace(':=', ': ')}`" for item in style_overrides(settings)],
         "",
