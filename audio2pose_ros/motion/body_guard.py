@@ -63,7 +63,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
-from audio2pose_ros.robot.body import BodyModel, PathClearance, blocked_product
+from audio2pose_ros.robot.body import BodyModel, PathClearance
+from audio2pose_ros.robot.kinematics import blocked_product
 
 LEAD_OUT_SPEED_RAD_S = 0.3  # joint-space speed of leading a robot out of the margin (rad/s)
 LEAD_OUT_ACCEL_RAD_S2 = 1.0  # ... reached with this acceleration from rest (rad/s^2)

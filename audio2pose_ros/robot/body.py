@@ -43,6 +43,7 @@ from audio2pose_ros.robot.kinematics import (
     KinematicsError,
     RobotKinematics,
     UrdfCollision,
+    blocked_product,
     default_urdf_path,
 )
 from audio2pose_ros.robot.pairs import ARM_LINK_PREFIXES, checked_pair, pose_array
@@ -50,7 +51,6 @@ from audio2pose_ros.robot.pairs import ARM_LINK_PREFIXES, checked_pair, pose_arr
 PUSH_OUT_STEP_RAD = 0.02  # joint-space step of push_out's climb along the clearance gradient
 PUSH_OUT_MAX_STEPS = 400  # push_out gives up after this many steps (8 rad of travel)
 GRADIENT_STEP_RAD = 1e-3  # finite-difference step of the clearance gradient
-BLAS_BLOCK_ELEMENTS = 1 << 16  # products of rows x inner x columns up to this stay on one thread
 RECENT_QUERIES = 16  # poses whose clearance is kept: a guard step asks about the same few poses
 CULL_SLACK_M = 1e-5  # a pair is skipped only if its bound exceeds the closest one by this (m);
 # coal answers within 1e-6 m
@@ -147,19 +147,6 @@ def _shapes_in_tree_order(kinematics: RobotKinematics) -> list[UrdfCollision]:
     return ordered
 
 
-def blocked_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a @ b`` in blocks of rows small enough for one thread of OpenBLAS.
-
-    OpenBLAS splits a larger product over its threads, which it starts at import, one per core:
-    pinned to one core (as the bench and a real-time node are), the product then waits for
-    them to take turns, up to tens of milliseconds for a (500, 11) x (11, 145) one.
-    """
-    rows = max(1, BLAS_BLOCK_ELEMENTS // max(1, a.shape[1] * b.shape[1]))
-    if len(a) <= rows:
-        return a @ b
-    return np.vstack([a[i : i + rows] @ b for i in range(0, len(a), rows)])
-
-
 class _PairGroup:
     """The checked pairs' coal distance functors, with coal's per-pair workspace.
 
@@ -236,9 +223,7 @@ class BodyModel:
         shapes = _shapes_in_tree_order(kinematics)
         names = [shape.link for shape in shapes]
         geometries = [_coal_shape(coal, shape) for shape in shapes]
-        self._shape_chains = self._frames.chains(
-            np.array([self._frames.frame_of[link] for link in names])
-        )
+        self._shape_frames = np.array([self._frames.frame_of[link] for link in names])
         self._shape_in_frame = np.array(
             [self._frames.link_in_frame[s.link] @ s.origin for s in shapes]
         ).reshape(-1, 4, 4)
@@ -336,14 +321,14 @@ class BodyModel:
         In the root link's frame, as Pinocchio's ``oMg``.
         """
         poses = np.atleast_2d(self._pose_array(poses_rad))
-        return self._frames.place(poses, self._shape_chains, self._shape_in_frame)
+        return self._frames.place(poses, self._shape_frames, self._shape_in_frame)
 
     def _place(self, pose_rad: np.ndarray) -> None:
         """Place the shapes in one (checked) pose; coal's transforms follow as pairs need them."""
         key = pose_rad.tobytes()
         if key == self._placed:
             return
-        placed = self._frames.place(pose_rad[None], self._shape_chains, self._shape_in_frame)[0]
+        placed = self._frames.place(pose_rad[None], self._shape_frames, self._shape_in_frame)[0]
         self._rotations, self._translations = placed[:, :3, :3], placed[:, :3, 3]
         self._moved = [True] * len(self._transforms)
         self._placed = key
@@ -391,7 +376,7 @@ class BodyModel:
             pairs = np.arange(len(bounds))
         else:
             ceiling = self._known_m[lowest] + reach[lowest]
-            pairs = np.flatnonzero(bounds <= ceiling + CULL_SLACK_M)
+            pairs = (bounds <= ceiling + CULL_SLACK_M).nonzero()[0]
         distances = self._measure(pose_rad, pairs)
         closest = int(np.argmin(distances))  # the first of equally close pairs
         answer = (float(distances[closest]), int(pairs[closest]))
@@ -440,15 +425,16 @@ class BodyModel:
             return PathClearance(False, 0, k, distance, 0.0, 1)
         if len(points) == 1:
             return PathClearance(True, -1, -1, distance, 0.0, 1)
-        pieces = np.diff(points, axis=0)
+        pieces = points[1:] - points[:-1]
         per = np.ones(len(pieces)) if counts is None else np.asarray(counts, dtype=np.float64)
         spans = np.abs(pieces)  # (pieces, n_joints): each joint's travel along each piece
         walked = np.zeros_like(points)  # each joint's travel from the first point to each
         np.cumsum(spans, axis=0, out=walked[1:])
         reach = walked[-1] @ levers  # (n_pairs,): how far each pair can move along the path
         slack = 0.5 * float(blocked_product(spans / per[:, None], levers).max())
-        near = np.flatnonzero(distance - reach < floor_m)
-        far = np.delete(reach, near)
+        close = distance - reach < floor_m
+        near = close.nonzero()[0]
+        far = reach[~close]
         lowest = distance - (float(far.max()) if far.size else 0.0)
         queries = 1
         if not near.size:
@@ -509,8 +495,11 @@ class BodyModel:
         poses = np.atleast_2d(self._pose_array(poses_rad))
         frames = self._frames
         names = ("torso", *links)
-        chains = frames.chains(np.array([frames.frame_of[name] for name in names]))
-        placed = frames.place(poses, chains, np.array([frames.link_in_frame[n] for n in names]))
+        placed = frames.place(
+            poses,
+            np.array([frames.frame_of[name] for name in names]),
+            np.array([frames.link_in_frame[name] for name in names]),
+        )
         torso, offsets = placed[:, :1], placed[:, 1:, :3, 3] - placed[:, :1, :3, 3]
         # the torso's inverse applied to the points: R^T (p - t)
         return np.asarray(np.einsum("npba,npb->npa", torso[:, :, :3, :3], offsets))

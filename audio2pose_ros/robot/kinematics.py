@@ -29,6 +29,7 @@ DEFAULT_URDF_FILE = "pepper.urdf"
 MOVABLE_TYPES = ("revolute", "continuous", "prismatic")
 JOINT_TYPES = (*MOVABLE_TYPES, "fixed", "floating", "planar")
 _SIN_COS_PHASE = np.array([0.0, np.pi / 2])  # sin(q + pi / 2) = cos q
+BLAS_BLOCK_ELEMENTS = 1 << 16  # products of rows x inner x columns up to this stay on one thread
 
 
 class KinematicsError(ConfigurationError):
@@ -94,6 +95,19 @@ def axis_angle_matrix(axis: np.ndarray, angle_rad: float) -> np.ndarray:
     """(3, 3) rotation by ``angle_rad`` about the unit vector ``axis`` (Rodrigues' formula)."""
     skew = skew_matrix(axis)
     return np.eye(3) + np.sin(angle_rad) * skew + (1.0 - np.cos(angle_rad)) * (skew @ skew)
+
+
+def blocked_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` in blocks of rows small enough for one thread of OpenBLAS.
+
+    OpenBLAS splits a larger product over its threads, which it starts at import, one per core:
+    pinned to one core (as the bench and a real-time node are), the product then waits for
+    them to take turns, up to tens of milliseconds for a (500, 11) x (11, 145) one.
+    """
+    rows = max(1, BLAS_BLOCK_ELEMENTS // max(1, a.shape[1] * b.shape[1]))
+    if len(a) <= rows:
+        return a @ b
+    return np.vstack([a[i : i + rows] @ b for i in range(0, len(a), rows)])
 
 
 class RobotKinematics:
@@ -327,9 +341,11 @@ class DrivenFrames:
     other joints are held at zero, so each driven joint's transform from its parent frame is a
     constant C (:attr:`placements`) times its own rotation, by Rodrigues' formula
     C (I + sin q K + (1 - cos q) K^2) = (C + C K^2) + sin q (C K) - cos q (C K^2).
-    A frame's placement chains the transforms of the driven joints on its chain, the root's
-    first (chains are padded at their root end with the identity): :meth:`place` for frames
-    (the exact model's shapes), :meth:`carry` for points (the capsules' ends).
+    A frame's placement is its parent frame's times its own transform, so :meth:`frames` places
+    every frame with one stacked product per level below the root, and :meth:`place` frames
+    fixed in them (the exact model's shapes); :meth:`carry` carries points (the capsules' ends)
+    along their chains of transforms, root first, with matrix-vector products. All of them
+    multiply the same matrices in the same order, root first.
 
     Attributes:
         frame_of: each link's frame (the driven joint that last moves it, 0 for none).
@@ -376,30 +392,67 @@ class DrivenFrames:
         self.joint_names = tuple(driven)
         self.placements = np.array(placements).reshape(-1, 4, 4)
         self.frame_chains = tuple(tuple(chain) for chain in chains)
-        identity = np.stack([np.eye(4), np.zeros((4, 4)), np.zeros((4, 4))])
-        self._constant = np.stack([term[0] for term in terms] + [np.eye(4)])  # (D + 1, 4, 4)
-        self._trig = np.stack([term[1:] for term in terms] + [identity[1:]])  # (D + 1, 2, 4, 4)
-        self._index = np.array([*index, 0])  # the padding's angle is any (its terms are 0)
+        # Per frame, as frames are numbered (frame 0: the identity, its angle any, its terms 0):
+        # the flat (16,) constant term, and the (2 (D + 1), 16 (D + 1)) matrix that maps the
+        # frames' sines and cosines, interleaved, to their flat sine and cosine terms.
+        frames = len(terms) + 1
+        self._constant = np.concatenate([np.eye(4).ravel(), *(term[0].ravel() for term in terms)])
+        trig = np.zeros((frames, 2, frames, 16))
+        for frame, term in enumerate(terms, start=1):
+            trig[frame, :, frame] = term[1:].reshape(2, 16)
+        self._trig = trig.reshape(2 * frames, 16 * frames)
+        self._angle_index = np.repeat([0, *index], 2)  # each frame's angle, twice
+        self._phase = np.tile(_SIN_COS_PHASE, frames)
         depth = max(len(chain) for chain in chains)
-        pad = len(terms)  # the identity
-        self._chains = np.array([[pad] * (depth - len(chain)) + chain for chain in chains])
+        # per frame, the frames whose transforms carry it to the root, padded with frame 0's
+        self._chains = np.array(
+            [[0] * (depth - len(chain)) + [j + 1 for j in chain] for chain in chains], dtype=np.intp
+        ).reshape(len(chains), depth)
+        # the frames k levels below the root, from k = 2 on, and their parents (one level up)
+        levels = [
+            [
+                (frame, chains.index(chain[:-1]))
+                for frame, chain in enumerate(chains)
+                if len(chain) == level
+            ]
+            for level in range(2, depth + 1)
+        ]
+        self._levels = tuple(
+            (_as_index([parent for _, parent in level]), _as_index([frame for frame, _ in level]))
+            for level in levels
+        )
 
     def _local(self, poses: np.ndarray) -> np.ndarray:
-        """(N, D + 1, 4, 4) each driven joint's transform from its parent frame (and the pad)."""
-        angle = poses[:, self._index, None] + _SIN_COS_PHASE  # (N, D + 1, 2): sin q, cos q
-        return self._constant + np.einsum("ndk,dkab->ndab", np.sin(angle), self._trig)
+        """(N, D + 1, 4, 4) each frame's transform from its parent frame (frame 0's: identity).
 
-    def place(self, poses: np.ndarray, chains: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-        """(N, P, 4, 4) root-frame placements of P frames fixed in driven frames, in N poses.
-
-        ``chains`` is :meth:`chains` of the frames they are fixed in, ``offsets`` (P, 4, 4)
-        their placements there. One stacked product per level of the chains.
+        One product maps every frame's sine and cosine to its terms: for one pose the numpy
+        calls, not the arithmetic, are the cost, so there are few.
         """
-        steps = self._local(poses)[:, chains]  # (N, P, depth, 4, 4)
-        placed = steps[:, :, 0]
-        for level in range(1, chains.shape[1]):
-            placed = placed @ steps[:, :, level]
-        return np.asarray(placed @ offsets)
+        trig = poses.take(self._angle_index, axis=1)  # (N, 2 (D + 1)): q, q + pi / 2 per frame
+        trig += self._phase
+        np.sin(trig, out=trig)  # sin q, cos q
+        local = blocked_product(trig, self._trig)
+        local += self._constant
+        return local.reshape(len(poses), -1, 4, 4)
+
+    def frames(self, poses: np.ndarray) -> np.ndarray:
+        """(N, D + 1, 4, 4) root-frame placements of every frame in N poses.
+
+        A frame's placement is its parent's times its own transform, the root's children first:
+        one stacked product per level of the chains (the same products, in the same order, as
+        chaining each frame's transforms from the root).
+        """
+        placed = self._local(poses)
+        for parents, frames in self._levels:
+            placed[:, frames] = placed[:, parents] @ placed[:, frames]
+        return placed
+
+    def place(self, poses: np.ndarray, frames: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """(N, P, 4, 4) root-frame placements of P frames fixed in driven ``frames``, in N poses.
+
+        ``offsets`` (P, 4, 4) are their placements in those frames.
+        """
+        return np.asarray(self.frames(poses)[:, frames] @ offsets)
 
     def carry(self, poses: np.ndarray, chains: np.ndarray, points: np.ndarray) -> np.ndarray:
         """(N, P, 4) root-frame positions of P homogeneous points (P, 4) fixed in frames.
@@ -416,5 +469,12 @@ class DrivenFrames:
         return np.asarray(carried)
 
     def chains(self, frames: np.ndarray) -> np.ndarray:
-        """(P, depth) driven joints (padded) that carry points in ``frames`` to the root."""
+        """(P, depth) frames (padded with frame 0's identity) that carry points in ``frames``."""
         return np.asarray(self._chains[frames])
+
+
+def _as_index(indices: list[int]) -> slice | np.ndarray:
+    """``indices`` as a slice where they are consecutive (a view, not a copy), else an array."""
+    if indices == list(range(indices[0], indices[0] + len(indices))):
+        return slice(indices[0], indices[0] + len(indices))
+    return np.array(indices)
