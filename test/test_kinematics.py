@@ -4,7 +4,12 @@ import numpy as np
 import pytest
 
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.robot.kinematics import KinematicsError, RobotKinematics, axis_angle_matrix
+from audio2pose_ros.robot.kinematics import (
+    DrivenFrames,
+    KinematicsError,
+    RobotKinematics,
+    axis_angle_matrix,
+)
 
 
 @pytest.fixture(scope="module")
@@ -181,3 +186,35 @@ def test_when_the_urdf_is_malformed_expect_a_kinematics_error_naming_it(
     broken.write_text(kinematics.urdf_xml.replace(old, new))
     with pytest.raises(KinematicsError, match=message):
         RobotKinematics(broken)
+
+
+@pytest.mark.parametrize(
+    "names",
+    [
+        tuple(load_robot().names),  # the body model's
+        # HeadPitch's and RShoulderRoll's parents (HeadYaw's, RShoulderPitch's frames) are not
+        # consecutive frames: the one-pose placer gathers them
+        ("RShoulderRoll", "HeadYaw", "LShoulderPitch", "RShoulderPitch", "HeadPitch"),
+    ],
+)
+def test_when_frames_are_placed_one_pose_at_a_time_expect_the_batched_placements(kinematics, names):
+    """The one-pose placer gives what place gives (bitwise) and what link_poses gives."""
+    driven = DrivenFrames(kinematics, names)
+    links = [link for link in kinematics.link_names if link != kinematics.root_link]
+    frames = np.array([driven.frame_of[link] for link in links])
+    offsets = np.array([driven.link_in_frame[link] for link in links])
+    placer = driven.placer(frames, offsets)
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        pose = np.array(
+            [
+                rng.uniform(kinematics.joint(n).lower_rad, kinematics.joint(n).upper_rad)
+                for n in names
+            ]
+        )
+        placed = placer.place(pose)
+        assert np.array_equal(placed, driven.place(pose[None], frames, offsets)[0])
+        positions = dict.fromkeys(kinematics.movable_joint_names, 0.0)
+        positions.update(zip(names, pose.tolist(), strict=True))
+        poses = kinematics.link_poses(positions)
+        np.testing.assert_allclose(placed, [poses[link] for link in links], atol=1e-12)

@@ -259,8 +259,9 @@ class BodyModel:
         transform = getattr(coal, "Transform3s", None) or coal.Transform3f  # hpp-fcl: 3f
         self._transforms = [transform() for _ in shapes]
         self._placed = b""  # the pose the shapes are placed in
-        self._rotations = np.zeros((len(shapes), 3, 3))  # their placement in that pose
-        self._translations = np.zeros((len(shapes), 3))
+        self._placer = self._frames.placer(self._shape_frames, self._shape_in_frame)
+        placed = self._placer.placed  # their placement in that pose
+        self._rotations, self._translations = placed[:, :3, :3], placed[:, :3, 3]
         self._moved = [True] * len(shapes)  # coal's transform of a shape is not yet there
         self._pair_joints = np.array(masks, dtype=bool)  # (n_pairs, n_joints)
         self.link_pairs: tuple[tuple[str, str], ...] = tuple((names[a], names[b]) for a, b in pairs)
@@ -328,8 +329,7 @@ class BodyModel:
         key = pose_rad.tobytes()
         if key == self._placed:
             return
-        placed = self._frames.place(pose_rad[None], self._shape_frames, self._shape_in_frame)[0]
-        self._rotations, self._translations = placed[:, :3, :3], placed[:, :3, 3]
+        self._placer.place(pose_rad)
         self._moved = [True] * len(self._transforms)
         self._placed = key
 

@@ -408,18 +408,15 @@ class DrivenFrames:
         self._chains = np.array(
             [[0] * (depth - len(chain)) + [j + 1 for j in chain] for chain in chains], dtype=np.intp
         ).reshape(len(chains), depth)
-        # the frames k levels below the root, from k = 2 on, and their parents (one level up)
-        levels = [
-            [
-                (frame, chains.index(chain[:-1]))
-                for frame, chain in enumerate(chains)
-                if len(chain) == level
-            ]
+        # the frames k levels below the root, from k = 2 on, in runs of consecutive numbers (a
+        # slice of them), each with their parents (one level up)
+        self._levels: tuple[tuple[slice | np.ndarray, slice], ...] = tuple(
+            (
+                _as_index([chains.index(chains[frame][:-1]) for frame in run]),
+                slice(run[0], run[-1] + 1),
+            )
             for level in range(2, depth + 1)
-        ]
-        self._levels = tuple(
-            (_as_index([parent for _, parent in level]), _as_index([frame for frame, _ in level]))
-            for level in levels
+            for run in _runs([frame for frame, chain in enumerate(chains) if len(chain) == level])
         )
 
     def _local(self, poses: np.ndarray) -> np.ndarray:
@@ -454,6 +451,10 @@ class DrivenFrames:
         """
         return np.asarray(self.frames(poses)[:, frames] @ offsets)
 
+    def placer(self, frames: np.ndarray, offsets: np.ndarray) -> FramePlacer:
+        """A :class:`FramePlacer` of :meth:`place`'s frames, one pose at a time."""
+        return FramePlacer(self, frames, offsets)
+
     def carry(self, poses: np.ndarray, chains: np.ndarray, points: np.ndarray) -> np.ndarray:
         """(N, P, 4) root-frame positions of P homogeneous points (P, 4) fixed in frames.
 
@@ -471,6 +472,60 @@ class DrivenFrames:
     def chains(self, frames: np.ndarray) -> np.ndarray:
         """(P, depth) frames (padded with frame 0's identity) that carry points in ``frames``."""
         return np.asarray(self._chains[frames])
+
+
+class FramePlacer:
+    """:meth:`DrivenFrames.place` of fixed frames for one pose at a time, into reused arrays.
+
+    The same products in the same order, so the same placements to the last bit; for one pose
+    numpy's calls, not the arithmetic, are the cost, and this makes about a dozen (no array
+    is allocated, no view made but the parents' of each level). Each call overwrites
+    :attr:`placed`; an instance serves one thread.
+
+    Attributes:
+        placed: (P, 4, 4) the frames' root-frame placements in the last pose placed.
+    """
+
+    def __init__(self, driven: DrivenFrames, frames: np.ndarray, offsets: np.ndarray) -> None:
+        """Place the frames fixed at ``offsets`` (P, 4, 4) in driven ``frames`` (P,)."""
+        self._driven = driven
+        self._frames = np.asarray(frames, dtype=np.intp)
+        self._offsets = np.asarray(offsets, dtype=np.float64)
+        count = len(driven.frame_chains)
+        self._trig = np.empty(len(driven._angle_index))
+        self._local = np.empty((count, 4, 4))  # each frame's transform from its parent frame
+        self._flat = self._local.reshape(-1)
+        self._placed = np.empty((count, 4, 4))  # each frame's root-frame placement
+        self._levels = [
+            (parents, self._local[frames], self._placed[frames])
+            for parents, frames in driven._levels
+        ]
+        self.placed = np.zeros((len(self._frames), 4, 4))
+
+    def place(self, pose: np.ndarray) -> np.ndarray:
+        """:attr:`placed` in the (n_joints,) ``pose``."""
+        driven, trig, placed = self._driven, self._trig, self._placed
+        np.take(pose, driven._angle_index, out=trig, mode="clip")  # valid: no buffer
+        trig += driven._phase
+        np.sin(trig, out=trig)
+        np.matmul(trig, driven._trig, out=self._flat)
+        self._flat += driven._constant
+        np.copyto(placed, self._local)
+        for parents, local, out in self._levels:
+            np.matmul(placed[parents], local, out=out)
+        np.matmul(placed.take(self._frames, axis=0), self._offsets, out=self.placed)
+        return self.placed
+
+
+def _runs(indices: list[int]) -> list[list[int]]:
+    """Ascending ``indices`` cut into runs of consecutive numbers."""
+    runs: list[list[int]] = []
+    for index in indices:
+        if runs and runs[-1][-1] + 1 == index:
+            runs[-1].append(index)
+        else:
+            runs.append([index])
+    return runs
 
 
 def _as_index(indices: list[int]) -> slice | np.ndarray:
