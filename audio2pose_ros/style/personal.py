@@ -354,8 +354,8 @@ def motion_distance(
     """How far ``model``'s motion of ``part`` is from ``real``, as the held-out evaluation scores.
 
     The Hellinger distances of joint speed and acceleration (the bins of
-    :mod:`~audio2pose_ros.learning.metrics`, joints pooled) plus |log| of the size ratio, over
-    the frames ``real`` knows (``model`` carries the same masks and lengths).
+    :mod:`~audio2pose_ros.learning.metrics`, joints pooled) plus the absolute log of the size
+    ratio, over the frames ``real`` knows (``model`` carries the same masks and lengths).
     """
     from audio2pose_ros.learning.metrics import (
         ACCELERATION_BINS_RAD_S2,
