@@ -489,12 +489,18 @@ def test_when_the_talking_tab_is_closed_expect_the_floor_free_and_the_robot_at_r
     assert "Carol is talking" in console.recorder.console_status
     page.close()
     closed = time.monotonic()
-    # the filter's watchdog (0.5 s without poses) glides to neutral (1 s)
-    time.sleep(3.5)
-    rest = console.recorder.between(time.monotonic() - 0.5, time.monotonic())
-    assert len(rest) > 10
-    assert np.abs(rest - neutral).max() < 0.02, "the robot did not return to rest"
-    assert np.ptp(rest, axis=0).max() < 1e-3
+
+    def at_rest() -> bool:
+        """The last 11 commands are at neutral and still (the filter's watchdog, 0.5 s without
+        poses, glides to neutral in 1 s; on a busy machine the commands come later)."""
+        rest = console.recorder.between(closed, time.monotonic())[-11:]
+        return (
+            len(rest) == 11
+            and np.abs(rest - neutral).max() < 0.02
+            and np.ptp(rest, axis=0).max() < 1e-3
+        )
+
+    _wait(at_rest, 30.0, "the robot at rest")
     _wait(lambda: "nobody is talking" in console.recorder.console_status, 5.0, "the floor")
     after = console.recorder.between(closed, time.monotonic())
     assert np.all(np.isfinite(after))

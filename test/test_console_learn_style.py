@@ -163,6 +163,25 @@ def test_when_learning_succeeds_expect_the_settings_and_the_recording_deleted(tm
     }
 
 
+def test_when_enrolment_fits_the_arms_noise_expect_the_message_to_name_the_run_command(tmp_path):
+    """A personal checkpoint is not loaded live: the operator is told how to run it."""
+    writes_a_model = child(
+        f"""
+        folder.mkdir(parents=True)
+        (folder / "style.yaml").write_text("parts: {{}}")
+        (folder / "model.safetensors").write_bytes(b"model")
+        print("STYLE_SETTINGS " + json.dumps({SETTINGS!r}), flush=True)
+        """
+    )
+    jobs = Enrollments(tmp_path, writes_a_model)
+    _, result = _learn(jobs, keep=False)
+    assert result.settings == SETTINGS  # the style alone is still what the graph takes
+    assert jobs.status()["message"] == (
+        f"learned Ann's style; its arms' own noise needs a restart: "
+        f"audio2pose run --model {result.folder}"
+    )
+
+
 def test_when_the_operator_keeps_the_recording_expect_it_beside_the_style(tmp_path):
     jobs = Enrollments(tmp_path, LEARNS)
     recording, result = _learn(jobs, keep=True)

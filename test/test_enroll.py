@@ -239,3 +239,25 @@ def test_when_run_gets_a_personal_model_expect_its_checkpoint_and_style_as_overr
     overrides = graph_overrides(args)
     assert overrides[0] == f"model_path:={default_checkpoint_path().resolve()}"
     assert set(overrides[1:]) == {"head_gain:=0.5", "head_tempo:=0.8"}
+
+
+def test_when_the_folder_holds_a_personal_checkpoint_expect_run_to_load_it_with_its_style(
+    tmp_path,
+):
+    """``audio2pose run --model me/`` with the arms' noise fitted: the folder's own checkpoint."""
+    import argparse
+    import shutil
+
+    from audio2pose_ros.cli.style_commands import graph_overrides
+    from audio2pose_ros.style.figures import StyleFile
+
+    source = tmp_path / "style.yaml"
+    source.write_text(GOOD)
+    folder = tmp_path / "me"
+    folder.mkdir()
+    own = folder / "model.safetensors"
+    shutil.copyfile(default_checkpoint_path(), own)
+    fitted = (checkpoint_digest(own), StyleSettings(arms_rest_pitch_rad=0.25))
+    StyleFile("me", "", "", "", read_style(source).parts, fitted).write(folder / "style.yaml")
+    args = argparse.Namespace(model=str(folder), style=None, style_set=[])
+    assert graph_overrides(args) == [f"model_path:={own.resolve()}", "arms_rest_pitch_rad:=0.25"]

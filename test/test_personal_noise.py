@@ -5,16 +5,17 @@ import pytest
 
 from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+from audio2pose_ros.cli.main import main
 from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.style.figures import measure_part
 from audio2pose_ros.style.personal import (
     checkpoint_digest,
     checkpoint_synthesizer,
-    enroll,
     fit_arms_noise,
     model_and_style,
     motion_distance,
+    style_overrides,
     with_arms_noise,
 )
 from audio2pose_ros.timebase import SAMPLES_PER_FRAME
@@ -56,7 +57,7 @@ def test_when_arm_noise_is_scaled_expect_only_the_arm_joints_temperature_scaled(
 
 
 def test_when_a_lively_person_enrolls_expect_a_personal_checkpoint_with_their_arm_noise(
-    tmp_path, robot, speech, checkpoint
+    tmp_path, robot, speech, checkpoint, capsys
 ):
     n = speech.size // SAMPLES_PER_FRAME
     t = np.arange(n)[:, None] / 100.0
@@ -70,7 +71,8 @@ def test_when_a_lively_person_enrolls_expect_a_personal_checkpoint_with_their_ar
     dataset.add(
         Clip(ClipInfo("lively", "someone", "test", "test data"), speech, angles, mask), robot
     )
-    result = enroll(tmp_path / "data", tmp_path / "me", robot, progress=lambda line: None)
+    assert main(["enroll", str(tmp_path / "data"), "-o", str(tmp_path / "me")]) == 0
+    printed = capsys.readouterr().out
     own, style = model_and_style(str(tmp_path / "me"))
     assert own == tmp_path / "me" / "model.safetensors"
     assert style.fitted[0] == checkpoint_digest(own)
@@ -83,7 +85,15 @@ def test_when_a_lively_person_enrolls_expect_a_personal_checkpoint_with_their_ar
     assert np.all(factor[~in_second] == 1.0)  # the hip
     assert personal.model.config.first_temperature == checkpoint.model.config.first_temperature
     assert load_streaming_model(own, robot, allow_torch=False)  # the live numpy runtime
-    assert result.settings.head_gain == 1.0
+    assert style.fitted[1].head_gain == 1.0  # the head is not seen
+    # the command says what it fitted: the noise, and the style the folder runs with it
+    noise = next(line for line in printed.splitlines() if "the arms' sampling noise:" in line)
+    assert float(noise.split(": ")[1].split()[0]) == pytest.approx(factor[in_second][0])
+    assert str(own) in noise
+    folder = printed.split("style parameters of the folder (what --model applies):\n")[1]
+    fitted = [line.strip() for line in folder.splitlines()[: len(style_overrides(style.fitted[1]))]]
+    assert fitted == style_overrides(style.fitted[1])
+    assert "use it: audio2pose run --model" in printed
 
 
 def test_when_motion_is_the_person_own_expect_distance_zero_and_more_for_other_motion(

@@ -1,4 +1,5 @@
-"""``evaluate-style``: a data set given as NAME=DATASET is one source (one person's import)."""
+"""``evaluate-style``: a data set given as NAME=DATASET is one source (one person's import), and
+the enrolled row is the personal model ``enroll`` makes."""
 
 import subprocess
 from pathlib import Path
@@ -7,11 +8,16 @@ import numpy as np
 import pytest
 
 from audio2pose_ros.audio.wav import read_wav
+from audio2pose_ros.checkpoints.torch_io import load_checkpoint
 from audio2pose_ros.cli.main import main
 from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
-from audio2pose_ros.style import evaluation
+from audio2pose_ros.motion.style import style_trajectory
+from audio2pose_ros.resources import default_checkpoint_path
+from audio2pose_ros.style import evaluation, personal
 from audio2pose_ros.style.evaluation import SourceSpec, source_spec
-from audio2pose_ros.timebase import SAMPLES_PER_FRAME
+from audio2pose_ros.style.figures import measure_part
+from audio2pose_ros.style.personal import checkpoint_synthesizer, fit_personal
+from audio2pose_ros.timebase import FRAME_RATE_HZ, SAMPLES_PER_FRAME
 
 ROOT = Path(__file__).resolve().parent.parent
 # GRID-style sentence ids: by clip id (up to the first digit) they would be four sources
@@ -66,10 +72,10 @@ def test_when_a_data_set_is_named_expect_one_source_and_one_synthesis_per_clip(
     data = one_reader(tmp_path / "reader", robot, speech_files)
     assert set(evaluation.sources(SourceSpec(data), robot)) == {"bbaf", "bgaa", "lwae", "pbio"}
     calls = []
-    real_synthesizer = evaluation.synthesizer
+    real_synthesizer = personal.checkpoint_synthesizer
 
-    def counting(checkpoint, robot):
-        run = real_synthesizer(checkpoint, robot)
+    def counting(checkpoint):
+        run = real_synthesizer(checkpoint)
 
         def counted(clip):
             calls.append(clip.info.clip_id)
@@ -77,7 +83,7 @@ def test_when_a_data_set_is_named_expect_one_source_and_one_synthesis_per_clip(
 
         return counted
 
-    monkeypatch.setattr(evaluation, "synthesizer", counting)
+    monkeypatch.setattr(personal, "checkpoint_synthesizer", counting)
     card = tmp_path / "MODEL_CARD.md"
     card.write_text("# card\n", encoding="utf-8")
     code = main(["evaluate-style", f"reader={data}", "--enroll-seconds", "7", "--card", str(card)])
@@ -117,3 +123,59 @@ def test_when_the_makefile_evaluates_style_expect_grid_s1_only_when_its_data_set
     assert "grid_s1=" not in command(folder)  # a clean clone: no s1 data set
     (folder / "index.json").write_text("{}", encoding="utf-8")
     assert f"grid_s1={folder}" in command(folder)
+
+
+def lively_arms(root, robot, speech_files):
+    """One person's sentences with arms far livelier than the default model's (arms observed)."""
+    files = {f.stem.rsplit("_", 1)[1]: f for f in speech_files}
+    dataset = Dataset.create(root, robot)
+    arms = robot.group_mask("arms")
+    phases = np.arange(arms.sum())[None, :]
+    for clip_id, number in zip(IDS, SPEECH, strict=True):
+        audio = read_wav(files[number])[0]
+        n = audio.size // SAMPLES_PER_FRAME
+        t = np.arange(n)[:, None] / 100.0
+        angles = np.tile(robot.neutral_rad, (n, 1))
+        angles[:, arms] += 0.3 * np.sin(2 * np.pi * 1.3 * t + phases) * np.sin(np.pi * 0.4 * t)
+        mask = np.zeros(angles.shape, dtype=bool)
+        mask[:, arms] = True
+        dataset.add(
+            Clip(ClipInfo(clip_id, "lively", "test", "test data"), audio, angles, mask), robot
+        )
+    return root
+
+
+@pytest.mark.slow
+def test_when_enrolment_fits_the_arms_noise_expect_the_enrolled_row_to_run_the_personal_model(
+    tmp_path, robot, speech_files
+):
+    """The SD row is what ``enroll`` makes and ``--model`` runs, not the style on the default."""
+    data = lively_arms(tmp_path / "lively", robot, speech_files)
+    lines = []
+    out = evaluation.evaluate_sources([SourceSpec(data, "lively")], robot, 7.0, lines.append)
+    dataset = Dataset.open(data, robot)
+    clips = [dataset.load(info.clip_id) for info in dataset.clips]
+    enrol, held = clips[:2], clips[2:]  # 6.3 s enrolled (at most 7 s)
+    checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
+    fitted = fit_personal(enrol, robot, checkpoint)  # what enroll fits on the same clips
+    assert fitted.arms_noise > 1.0  # lively arms: a personal checkpoint
+
+    def size_ratio(model, settings):
+        run = checkpoint_synthesizer(model)
+        motion = []
+        for clip in held:
+            angles = run(clip)[: clip.n_frames]  # as long as the clip, its last pose held
+            angles = np.pad(angles, ((0, clip.n_frames - len(angles)), (0, 0)), mode="edge")
+            styled = style_trajectory(robot, settings, angles, FRAME_RATE_HZ)
+            motion.append((styled, clip.mask))
+        real = [(c.angles_rad, c.mask) for c in held]
+        sizes = [measure_part(m, robot, "arms", FRAME_RATE_HZ, 1.0) for m in (motion, real)]
+        return f"{sizes[0].std_rad / sizes[1].std_rad:.2f}"
+
+    personal_ratio = size_ratio(fitted.checkpoint, fitted.settings)
+    assert personal_ratio != size_ratio(checkpoint, fitted.style_alone)  # the test can tell
+    row = next(line for line in out.splitlines() if "| enrolled (SD) |" in line)
+    assert row.startswith("| lively (6 s / 18 s) | arms |")
+    assert row.split(" | ")[5] == personal_ratio
+    assert f"| lively | arms | {fitted.arms_noise:g}x |" in out  # the fits table
+    assert any(f"{fitted.arms_noise:g}x" in line for line in lines)  # and the progress

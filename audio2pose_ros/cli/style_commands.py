@@ -103,7 +103,7 @@ def graph_overrides(args: argparse.Namespace) -> list[str]:
 def command_enroll(args: argparse.Namespace) -> int:
     """Learn a person's style from a video or data set folder; write a personal model."""
     from audio2pose_ros.robot.description import load_robot
-    from audio2pose_ros.style.personal import enroll, style_overrides
+    from audio2pose_ros.style.personal import CHECKPOINT_FILE, enroll, style_overrides
 
     out = Path(args.output)
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
@@ -123,8 +123,21 @@ def command_enroll(args: argparse.Namespace) -> int:
         command=shlex.join(["audio2pose", "enroll", *sys.argv[2:]]) if sys.argv else "",
     )
     print(f"wrote {result.folder} ({', '.join(result.style.parts)}; {result.seconds:.1f} s used)")
-    for line in style_overrides(result.settings):
+    if result.arms_noise != 1.0:
+        print(
+            f"the arms' sampling noise: {result.arms_noise:g} times the packaged model's "
+            f"({result.folder / CHECKPOINT_FILE})"
+        )
+    else:
+        print("no arms' noise fitted: the folder runs the packaged model")
+    fitted = result.style.fitted[1] if result.style.fitted is not None else result.settings
+    print("style parameters of the folder (what --model applies):")
+    for line in style_overrides(fitted) or ["(none: the model as generated)"]:
         print(f"  {line}")
+    if fitted != result.settings:
+        print("the style alone on the packaged model (what the console's learn my style applies):")
+        for line in style_overrides(result.settings) or ["(none: the model as generated)"]:
+            print(f"  {line}")
     print(f"use it: audio2pose run --model {result.folder}")
     return 0
 

@@ -21,7 +21,9 @@ The operator's page asks for consent, records camera and microphone for up to
 4. **The result**: the personal model folder (``style.yaml``, ``ENROLLMENT.md``) and the filter's
    style settings it resolves to, which the console applies to the running graph (the filter's
    live style parameters): no restart. The operator can go back to the style the graph started
-   with at any time.
+   with at any time. The arms' own sampling noise, when enrolment fitted one, is a checkpoint the
+   inference node loads at start, not live: the result's message says to run the folder with
+   ``audio2pose run --model`` (:func:`personal_model_note`).
 5. **The recording** is deleted when learning ends, whatever the outcome, unless the operator
    asked to keep it: it is then moved into the personal model folder, beside the style learned
    from it.
@@ -56,6 +58,7 @@ __all__ = [
     "Result",
     "Ticket",
     "default_work_dir",
+    "personal_model_note",
 ]
 
 MAX_RECORDING_S = 60.0  # the page stops recording after this long
@@ -274,7 +277,8 @@ class Enrollments:
         (job / "learning.log").unlink(missing_ok=True)
         self.completed += 1
         self.result = Result(folder, settings, kept)
-        self._set("ready", f"learned {ticket.owner}'s style", ticket.owner)
+        note = personal_model_note(folder)
+        self._set("ready", f"learned {ticket.owner}'s style{note}", ticket.owner)
         return self.result
 
     async def _child(self, recording: Path, folder: Path) -> dict[str, float]:
@@ -315,6 +319,20 @@ class Enrollments:
         if process.returncode != 0 or not found:
             raise EnrollmentError(last[0] or f"the learning process exited {process.returncode}")
         return found[-1]
+
+
+def personal_model_note(folder: Path) -> str:
+    """What the running graph does not take of a personal model folder ('' when nothing).
+
+    The console sets the filter's style parameters only (the style alone, fitted to the
+    packaged model); the arms' own sampling noise, when enrolment fitted it, is in the folder's
+    checkpoint, which the inference node loads at start: ``audio2pose run --model FOLDER``.
+    """
+    from audio2pose_ros.style.personal import CHECKPOINT_FILE
+
+    if not (folder / CHECKPOINT_FILE).is_file():
+        return ""
+    return f"; its arms' own noise needs a restart: audio2pose run --model {folder}"
 
 
 def _private_dir(parent: Path, stem: str) -> str:

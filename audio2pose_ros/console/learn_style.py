@@ -34,6 +34,7 @@ from audio2pose_ros.console.enrollment import (
     EnrollmentError,
     Enrollments,
     Ticket,
+    personal_model_note,
 )
 from audio2pose_ros.console.protocol import Control, ProtocolError, encode
 from audio2pose_ros.motion.style import StyleSettings
@@ -138,7 +139,8 @@ class LearnMyStyle:
             self.log("warning", f"console: learning {ticket.owner!r}'s style failed: {exc}")
             return
         kept = f", recording kept in {result.kept_recording}" if result.kept_recording else ""
-        self.log("info", f"console: learned {ticket.owner!r}'s style: {result.folder}{kept}")
+        note = personal_model_note(result.folder)  # what the live graph does not take
+        self.log("info", f"console: learned {ticket.owner!r}'s style: {result.folder}{kept}{note}")
         if self.may_apply(ticket.session):
             self.bridge.set_style(result.settings)
             self.style_in_use = "personal"

@@ -41,11 +41,13 @@ def write_card_section(card: Path, body: str, command: str) -> None:
             CARD_BEGIN,
             "## Speaking style: default (subject-independent) vs enrolled (subject-dependent)",
             "",
-            "Enrolled (`audio2pose enroll`'s fit) on the start of each source (whole clips, at "
-            "most 60 s and at most half), scored on the rest against the real motion; the real "
-            "split half is the floor, the real enrolment part shows how well the stretch "
-            "enrolled on predicts the rest at all. Goals: enrolled within 25 % on the "
-            "percentiles, H <= 0.12, std ratio 0.8 to 1.25, and better than the default.",
+            "Enrolled on the start of each source (whole clips, at most 60 s and at most half) "
+            "as `audio2pose enroll` fits it, and run as `--model` runs the folder (the personal "
+            "checkpoint with the arms' own sampling noise when it was fitted, with the fitted "
+            "style), scored on the rest against the real motion; the real split half is the "
+            "floor, the real enrolment part shows how well the stretch enrolled on predicts the "
+            "rest at all. Goals: enrolled within 25 % on the percentiles, H <= 0.12, std ratio "
+            "0.8 to 1.25, and better than the default.",
             "",
             body,
             "",

@@ -7,9 +7,11 @@ enrolled on the first :data:`~audio2pose_ros.style.personal.MAX_ENROLL_S` (at mo
 source's clips and scored on the rest:
 
 - **SI**: the default model's offline synthesis (seed 0) of the held-out clips' speech;
-- **SD**: the same synthesis with the style enrolled on the first part
-  (:func:`~audio2pose_ros.style.personal.fit`, as ``audio2pose enroll`` does), applied as the
-  live filter applies it;
+- **SD**: what ``audio2pose enroll`` makes of the first part and ``--model`` runs: the personal
+  fit (:func:`~audio2pose_ros.style.personal.fit_personal`, the arms' sampling noise where the
+  arms are seen, and the style), the synthesis of the held-out speech by its model (the personal
+  checkpoint when the noise was fitted, else the default), with its style applied as the live
+  filter applies it;
 - **floor**: the real held-out motion's first half of clips against its second (realism's
   split half), what two stretches of the same person differ by;
 - **real enrolment part**: the person's own enrolment motion against the held-out motion: how
@@ -26,7 +28,8 @@ ratio, and the beat consistency (EMAGE's BC, :mod:`~audio2pose_ros.learning.real
 A data set's clips are grouped into sources by their ids (:func:`source_of`); a data set given
 as ``NAME=DATASET`` (:func:`source_spec`) is one source, whatever its clip ids: one person's
 import of many recordings, such as GRID speaker s1's sentences. Each clip's speech is
-synthesized once for the whole evaluation (:func:`_once`).
+synthesized once by each model for the whole evaluation
+(:class:`~audio2pose_ros.style.personal.Synthesizers`, shared with the personal fit).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -50,8 +54,11 @@ from audio2pose_ros.motion.style import style_trajectory
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.style.figures import Motion, _derivatives, measure_part
-from audio2pose_ros.style.personal import fit, synthesizer
+from audio2pose_ros.style.personal import PersonalFit, Synthesizers, fit_personal, style_overrides
 from audio2pose_ros.timebase import FRAME_RATE_HZ
+
+if TYPE_CHECKING:
+    from audio2pose_ros.checkpoints.torch_io import Checkpoint
 
 PARTS: tuple[str, ...] = ("head", "arms")
 SCORE_MIN_S = 1.0  # a scored part needs this much known motion
@@ -177,23 +184,6 @@ def _split(clips: Sequence[Clip], enroll_s: float) -> tuple[list[Clip], list[Cli
     return enrol, list(clips[len(enrol) :])
 
 
-def _once(synthesize_clip: Callable[[Clip], np.ndarray]) -> Callable[[Clip], np.ndarray]:
-    """``synthesize_clip`` that runs once per clip id and length of speech (then remembered).
-
-    The enrolment fit, the scored rows and the figures synthesize the same clips; a clip cut in
-    two (:func:`_split`) gives pieces of other lengths, synthesized on their own.
-    """
-    done: dict[tuple[str, int], np.ndarray] = {}
-
-    def run(clip: Clip) -> np.ndarray:
-        key = (clip.info.clip_id, clip.audio.size)
-        if key not in done:
-            done[key] = synthesize_clip(clip)
-        return done[key]
-
-    return run
-
-
 def _synthesized(clip: Clip, synthesize_clip: Callable[[Clip], np.ndarray]) -> np.ndarray:
     """The model's angles of a clip's speech, as many frames as the clip (last pose held)."""
     angles = synthesize_clip(clip)
@@ -242,21 +232,23 @@ def evaluate_source(
     name: str,
     clips: Sequence[Clip],
     robot: RobotDescription,
-    synthesize_clip: Callable[[Clip], np.ndarray],
+    checkpoint: Checkpoint,
+    synthesizers: Synthesizers,
     enroll_s: float,
     progress: Callable[[str], None] = print,
-) -> list[Row]:
-    """The rows of one source (see the module docstring)."""
+) -> tuple[list[Row], PersonalFit]:
+    """The rows of one source and its personal fit (see the module docstring)."""
     enrol, held = _split(clips, enroll_s)
-    person, settings = fit(enrol, robot, synthesize_clip)
-    progress(f"{name}: enrolled {settings}")
+    personal = fit_personal(enrol, robot, checkpoint, synthesizers)
+    progress(f"enrolled: {fit_row(name, personal)}")
     real = [(c.angles_rad, c.mask) for c in held]
     onsets = [audio_onsets(c.audio) for c in held]
+    default, enrolled = synthesizers.of(checkpoint), synthesizers.of(personal.checkpoint)
     si, sd = [], []
     for clip in held:
-        angles = _synthesized(clip, synthesize_clip)
-        si.append((angles, clip.mask))
-        sd.append((style_trajectory(robot, settings, angles, FRAME_RATE_HZ), clip.mask))
+        si.append((_synthesized(clip, default), clip.mask))
+        angles = _synthesized(clip, enrolled)
+        sd.append((style_trajectory(robot, personal.settings, angles, FRAME_RATE_HZ), clip.mask))
     first, second = real[0::2], real[1::2]
     if not second:  # one held-out clip: its halves
         angles, known = real[0]
@@ -264,7 +256,9 @@ def evaluate_source(
         first, second = [(angles[:middle], known[:middle])], [(angles[middle:], known[middle:])]
     rows = []
     for part in PARTS:
-        if part not in person or measure_part(real, robot, part, min_seconds=SCORE_MIN_S) is None:
+        if part not in personal.parts:
+            continue
+        if measure_part(real, robot, part, min_seconds=SCORE_MIN_S) is None:
             continue
         where = f"{name} ({sum(c.n_frames for c in enrol) / 100:.0f} s / "
         where += f"{sum(c.n_frames for c in held) / 100:.0f} s)"
@@ -274,7 +268,22 @@ def evaluate_source(
         rows.append(_row(where, part, "real split half", second, first, floor_onsets, robot))
         own = [(c.angles_rad, c.mask) for c in enrol]
         rows.append(_row(where, part, "real enrolment part", real, own, onsets[:0], robot))
-    return rows
+    return rows, personal
+
+
+def fit_row(name: str, personal: PersonalFit) -> str:
+    """A line of the fits table: a source's enrolled parts, arms' noise and style parameters."""
+    noise = f"{personal.arms_noise:g}x" if personal.arms_noise != 1.0 else "not fitted"
+    if "arms" not in personal.parts:
+        noise = "- (arms not seen)"
+    values = ", ".join(o.replace(":=", " ") for o in style_overrides(personal.settings))
+    return f"| {name} | {', '.join(personal.parts)} | {noise} | {values or '-'} |"
+
+
+FITS_HEADER = (
+    "| source | parts enrolled | arms' sampling noise (personal checkpoint) | "
+    "style parameters against the model it runs |\n|---|---|---|---|"
+)
 
 
 def _num(value: float, digits: int = 2) -> str:
@@ -335,20 +344,31 @@ def evaluate_sources(
     enroll_s: float,
     progress: Callable[[str], None] = print,
 ) -> str:
-    """The SI-vs-SD table of every source (:func:`sources`), their figures, origins, presets."""
-    synthesize_clip = _once(synthesizer(default_checkpoint_path(), robot))
+    """The SI-vs-SD table of every source (:func:`sources`), its fits, figures, origins, presets."""
+    from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+
+    checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
+    synthesizers = Synthesizers()
     rows: list[Row] = []
+    fits: list[str] = []
     figures: list[str] = []
     provenance: list[str] = []
     for spec in datasets:
         for name, clips in sources(spec, robot).items():
             progress(f"{name}: {len(clips)} clips")
-            rows += evaluate_source(name, clips, robot, synthesize_clip, enroll_s, progress)
-            figures += figure_rows(name, clips, robot, synthesize_clip)
+            found, personal = evaluate_source(
+                name, clips, robot, checkpoint, synthesizers, enroll_s, progress
+            )
+            rows += found
+            fits.append(fit_row(name, personal))
+            figures += figure_rows(name, clips, robot, synthesizers.of(checkpoint))
             provenance.append(provenance_row(name, spec.path, clips))
     return "\n\n".join(
         [
             table(rows),
+            "What enrolment fitted on each source (as `audio2pose enroll` writes it: the arms' "
+            "noise in the folder's `model.safetensors`, the style in its `style.yaml`):",
+            "\n".join([FITS_HEADER, *fits]),
             "Each source's figures (all its clips) next to the default model's on the same "
             "speech (the presets of config/styles hold these figures):",
             "\n".join([FIGURES_HEADER, *figures]),
@@ -363,7 +383,7 @@ def evaluate_sources(
 def presets_table(robot: RobotDescription) -> str:
     """The shipped presets and the filter's style parameters they mean for the packaged model."""
     from audio2pose_ros.style.figures import load_style, preset_names
-    from audio2pose_ros.style.personal import style_overrides, style_settings
+    from audio2pose_ros.style.personal import style_settings
 
     lines = ["| preset | parts | style parameters against the packaged model |", "|---|---|---|"]
     for name in preset_names():

@@ -302,7 +302,10 @@ class PersonalFit:
 
 
 def fit_personal(
-    clips: Sequence[Clip], robot: RobotDescription, checkpoint: Checkpoint
+    clips: Sequence[Clip],
+    robot: RobotDescription,
+    checkpoint: Checkpoint,
+    synthesizers: Synthesizers | None = None,
 ) -> PersonalFit:
     """A person's model: the arms' sampling noise (when the arms are seen) and the style.
 
@@ -312,9 +315,10 @@ def fit_personal(
     own motion on the same speech (:func:`motion_distance`) wins. A style's tempo fitted on top
     of the noise slows the motion down to a person's still moments between gestures (the
     lecture), and leaving it out misses a person who moves slowly: the recording decides.
+    ``synthesizers`` lets a caller that synthesizes the same clips share them (the evaluation).
     """
     person = measure([(c.angles_rad, c.mask) for c in clips], robot)
-    synthesizers = Synthesizers()
+    synthesizers = synthesizers or Synthesizers()
     parts, alone = fit(clips, robot, synthesizers.of(checkpoint))
     plain = PersonalFit(parts, alone, checkpoint, 1.0, alone)
     if "arms" not in person:
@@ -354,8 +358,8 @@ def motion_distance(
     """How far ``model``'s motion of ``part`` is from ``real``, as the held-out evaluation scores.
 
     The Hellinger distances of joint speed and acceleration (the bins of
-    :mod:`~audio2pose_ros.learning.metrics`, joints pooled) plus |log| of the size ratio, over
-    the frames ``real`` knows (``model`` carries the same masks and lengths).
+    :mod:`~audio2pose_ros.learning.metrics`, joints pooled) plus the absolute log of the size
+    ratio, over the frames ``real`` knows (``model`` carries the same masks and lengths).
     """
     from audio2pose_ros.learning.metrics import (
         ACCELERATION_BINS_RAD_S2,
