@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.motion.filter import GAP_PERIODS, MotionFilter
 from audio2pose_ros.motion.filter_settings import MotionFilterSettings
-from audio2pose_ros.motion.style import STYLE_FIELDS
+from audio2pose_ros.motion.style import MAX_TEMPO, MIN_TEMPO, STYLE_FIELDS
 from audio2pose_ros.motion.timing import StampCheck
 
 PERIOD = 0.01
@@ -79,7 +79,7 @@ def event_sequences(draw):
                     {
                         "arms_gain": draw(st.floats(min_value=0.0, max_value=2.0)),
                         "head_gain": draw(st.floats(min_value=0.0, max_value=2.0)),
-                        "arms_tempo": draw(st.floats(min_value=0.2, max_value=2.0)),
+                        "arms_tempo": draw(st.floats(min_value=MIN_TEMPO, max_value=MAX_TEMPO)),
                         "arms_rest_pitch_rad": draw(st.floats(min_value=-0.6, max_value=0.6)),
                         "arms_raise_limit_rad": draw(st.floats(min_value=-2.0857, max_value=1.5)),
                         "head_target_weight": draw(unit),

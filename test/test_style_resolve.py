@@ -77,3 +77,25 @@ def test_when_the_size_bends_the_elbows_past_the_figure_bound_expect_them_at_the
         if name.endswith("ElbowRoll")
     ]
     assert float(np.median(np.concatenate(bends))) == pytest.approx(1.3, abs=0.02)
+
+
+def test_when_a_still_person_moves_at_the_models_speed_expect_a_tempo_past_two_that_keeps_it(
+    robot,
+):
+    # GRID speaker s1: 0.4 of the model's head size at the model's speed. Size alone slows the
+    # motion with it; with the tempo capped at 2 his enrolled head moved at 0.6 to 0.8 of his
+    # speed (5 of 12 percentiles within 25 %), with up to 3 at 10 of 12.
+    model = arm_motion(robot, bend_rad=0.8)
+    person = scaled(measure_part(model, robot, "arms", RATE), size=0.4, speed=1.0)
+    settings = resolve({"arms": person}, model, robot, RATE)
+    assert settings.arms_tempo > 2.0
+
+    def speed_ratio(style) -> float:
+        styled = style_trajectory(robot, style, model[0][0], RATE)
+        figures = measure_part([(styled, model[0][1])], robot, "arms", RATE)
+        return float(
+            np.median(np.divide(figures.speed_deciles_rad_s[4:], person.speed_deciles_rad_s[4:]))
+        )
+
+    capped = dataclasses.replace(settings, arms_tempo=2.0)
+    assert speed_ratio(capped) < speed_ratio(settings) < 1.25

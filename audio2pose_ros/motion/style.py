@@ -43,7 +43,7 @@ from audio2pose_ros.parameters import param, validate_settings
 from audio2pose_ros.robot.description import JOINT_GROUPS, RobotDescription
 
 TEMPO_TAU_S = 0.1  # time constant scale of the tempo filters (s)
-MIN_TEMPO, MAX_TEMPO = 0.2, 2.0
+MIN_TEMPO, MAX_TEMPO = 0.2, 3.0
 MAX_GAIN = 2.0
 MAX_REST_OFFSET_RAD = 0.6
 RAISE_SOFTNESS_RAD = 0.08  # width w of the soft height limit
