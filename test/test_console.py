@@ -60,6 +60,7 @@ from audio2pose_ros.console.server_thread import ServerThread
 from audio2pose_ros.console.settings import ConsoleSettings
 from audio2pose_ros.console.stop import MAX_PRESSES, OUTSIDE, StopHolders, unique_name
 from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.motion.style import MAX_TEMPO, MIN_TEMPO
 from audio2pose_ros.resources import share_path
 
 CHUNK = b"\x01\x00" * 320  # 20 ms of 16 kHz S16LE
@@ -138,7 +139,7 @@ def test_when_control_messages_are_valid_expect_their_fields():
         ('{"type":"style_set"}', "at least one"),
         ('{"type":"style_set","arms_gain":2.5}', r"arms_gain: value 2.5 is out of range"),
         ('{"type":"style_set","arms_gain":-0.1}', r"in \[0, 2\]"),
-        ('{"type":"style_set","head_tempo":0.1}', r"in \[0.2, 2\]"),
+        ('{"type":"style_set","head_tempo":0.1}', rf"in \[{MIN_TEMPO:g}, {MAX_TEMPO:g}\]"),
         ('{"type":"style_set","arms_raise_limit_rad":9}', "out of range"),
         ('{"type":"style_set","arms":1}', "unknown fields"),
         ('{"type":"style_set","arms_gain":true}', "must be a number"),
