@@ -20,7 +20,6 @@ from std_msgs.msg import Bool
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.motion import state_file
 from audio2pose_ros.motion.state_file import load_memory
-from audio2pose_ros.ros.nodes import motion_filter_node
 from audio2pose_ros.ros.nodes.audio_features_node import AudioFeaturesNode
 from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
 from audio2pose_ros.ros.spin import EXECUTOR_ENV, create_executor, spin_once
@@ -85,7 +84,6 @@ def test_when_the_started_filter_is_idle_expect_no_timer_but_its_tick_and_heartb
             node.on_stop(Bool(data=True), {"source_timestamp": 0})
             assert load_memory(state, node.robot).stopped
             monkeypatch.setattr(state_file, "MIN_SAVE_SPACING_S", 2.0)
-            monkeypatch.setattr(motion_filter_node, "MIN_SAVE_SPACING_S", 2.0)
             node.on_stop(Bool(data=False), {"source_timestamp": 2**62})
             assert node.state.due  # within MIN_SAVE_SPACING_S of the last write: it waits
             spin_until(executor, node, lambda: not node.state.due)

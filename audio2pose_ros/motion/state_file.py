@@ -335,4 +335,8 @@ class StateStore:
     def save_soon(self, now_s: float) -> bool:
         """A change is to be kept at once: True when it may be written now (else it is due)."""
         self.due = True
+        return self.spaced(now_s)
+
+    def spaced(self, now_s: float) -> bool:
+        """Whether a write at ``now_s`` keeps :data:`MIN_SAVE_SPACING_S` from the last one."""
         return now_s - self.last_write_s >= MIN_SAVE_SPACING_S

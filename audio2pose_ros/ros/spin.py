@@ -37,8 +37,7 @@ def create_executor() -> Executor:
     item of the nodes' CPU (20-40 % of each node's samples under traffic); with it the
     three nodes used 2.9 instead of 4.2 ms CPU per 10 ms frame. Humble has none and gets the
     SingleThreadedExecutor; ``AUDIO2POSE_EXECUTOR=single_threaded`` forces it (for comparison,
-    or should a distro's EventsExecutor misbehave). Spin it with
-    :func:`spin_executor`.
+    or should a distro's EventsExecutor misbehave). Spin it with :func:`spin_executor`.
 
     Every node runs correctly in either. The EventsExecutor serves events first come, first
     served, so a flood on one topic would delay a timer by the whole backlog: the timers a

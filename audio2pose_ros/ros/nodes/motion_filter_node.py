@@ -95,7 +95,6 @@ from audio2pose_ros.motion.problems import Problem
 from audio2pose_ros.motion.raw_intake import RawIntake
 from audio2pose_ros.motion.start_pose import HOLD, WAIT
 from audio2pose_ros.motion.state_file import (
-    MIN_SAVE_SPACING_S,
     FilterMemory,
     StateFileInUseError,
     StateStore,
@@ -417,14 +416,15 @@ class MotionFilterNode(DiagnosedNode):
         """At a tick: save a change waiting for its spacing, or the pose every save period.
 
         A stop or an enable that :meth:`_save_now` could not write at once is written at the
-        first tick :data:`MIN_SAVE_SPACING_S` after the last write; the pose every
+        first tick the state file's spacing allows
+        (:meth:`~audio2pose_ros.motion.state_file.StateStore.spaced`); the pose every
         ``state_save_period_s`` (written only when it changed). The tick runs at ``rate_hz``
         whenever the filter has started, and nothing is saved before: no timer of its own.
         """
         if now_s >= self.next_save_s:
             self.next_save_s = now_s + self.settings.state_save_period_s
             self.save_state()
-        elif self.state.due and now_s - self.state.last_write_s >= MIN_SAVE_SPACING_S:
+        elif self.state.due and self.state.spaced(now_s):
             self.save_state()
 
     # --- inputs -------------------------------------------------------------------------------
