@@ -260,24 +260,24 @@ def style_settings(
     return resolve(style.parts, model_reference(checkpoint_path), robot)
 
 
-def fit(
+def fit_style(
+    parts: dict[str, PartFigures],
     clips: Sequence[Clip],
     robot: RobotDescription,
     synthesize_clip: Synthesizer,
     paced: Collection[str] = (),
-) -> tuple[dict[str, PartFigures], StyleSettings]:
-    """A person's figures in ``clips`` and the style settings fitted on their own speech.
+) -> StyleSettings:
+    """The style settings that bring a model's motion to the person's figures ``parts``.
 
-    The model's motion on the same speech (``synthesize_clip``) is the reference of
-    :func:`~audio2pose_ros.style.figures.resolve` (``paced``: parts whose tempo and size it
-    leaves at 1): the model's figures on what the person said.
+    The model's motion on the person's own speech in ``clips`` (``synthesize_clip``) is the
+    reference of :func:`~audio2pose_ros.style.figures.resolve` (``paced``: parts whose tempo
+    and size it leaves at 1): the model's figures on what the person said.
     """
-    parts = measure([(c.angles_rad, c.mask) for c in clips], robot)
     reference = []
     for clip in clips:
         angles = synthesize_clip(clip)
         reference.append((angles, np.ones(angles.shape, dtype=bool)))
-    return parts, resolve(parts, reference, robot, paced=paced)
+    return resolve(parts, reference, robot, paced=paced)
 
 
 @dataclass(frozen=True)
@@ -317,22 +317,22 @@ def fit_personal(
     lecture), and leaving it out misses a person who moves slowly: the recording decides.
     ``synthesizers`` lets a caller that synthesizes the same clips share them (the evaluation).
     """
-    person = measure([(c.angles_rad, c.mask) for c in clips], robot)
+    real = [(c.angles_rad, c.mask) for c in clips]
+    parts = measure(real, robot)  # the person's figures, the same for every candidate
     synthesizers = synthesizers or Synthesizers()
-    parts, alone = fit(clips, robot, synthesizers.of(checkpoint))
+    alone = fit_style(parts, clips, robot, synthesizers.of(checkpoint))
     plain = PersonalFit(parts, alone, checkpoint, 1.0, alone)
-    if "arms" not in person:
+    if "arms" not in parts:
         return plain
-    factor, noisier = fit_arms_noise(clips, person["arms"], checkpoint, synthesizers)
+    factor, noisier = fit_arms_noise(clips, parts["arms"], checkpoint, synthesizers)
     if factor == 1.0:
         return plain
     run = synthesizers.of(noisier)
     candidates = [
         plain,
-        PersonalFit(*fit(clips, robot, run, ("arms",)), noisier, factor, alone),
-        PersonalFit(*fit(clips, robot, run), noisier, factor, alone),
+        PersonalFit(parts, fit_style(parts, clips, robot, run, ("arms",)), noisier, factor, alone),
+        PersonalFit(parts, fit_style(parts, clips, robot, run), noisier, factor, alone),
     ]
-    real = [(c.angles_rad, c.mask) for c in clips]
 
     def distance(candidate: PersonalFit) -> float:
         synthesize_clip = synthesizers.of(candidate.checkpoint)
