@@ -54,7 +54,13 @@ from audio2pose_ros.motion.style import style_trajectory
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.style.figures import Motion, _derivatives, measure_part
-from audio2pose_ros.style.personal import PersonalFit, Synthesizers, fit_personal, style_overrides
+from audio2pose_ros.style.personal import (
+    PersonalFit,
+    Synthesizers,
+    fit_personal,
+    style_overrides,
+    synthesized_over_clip,
+)
 from audio2pose_ros.timebase import FRAME_RATE_HZ
 
 if TYPE_CHECKING:
@@ -184,13 +190,6 @@ def _split(clips: Sequence[Clip], enroll_s: float) -> tuple[list[Clip], list[Cli
     return enrol, list(clips[len(enrol) :])
 
 
-def _synthesized(clip: Clip, synthesize_clip: Callable[[Clip], np.ndarray]) -> np.ndarray:
-    """The model's angles of a clip's speech, as many frames as the clip (last pose held)."""
-    angles = synthesize_clip(clip)
-    n = min(len(angles), clip.n_frames)
-    return np.vstack([angles[:n], np.repeat(angles[n - 1 :], clip.n_frames - n, axis=0)])
-
-
 def figure_rows(
     name: str,
     clips: Sequence[Clip],
@@ -202,7 +201,7 @@ def figure_rows(
     The model's are of the same speech, over the source's known frames only.
     """
     real = [(c.angles_rad, c.mask) for c in clips]
-    model = [(_synthesized(c, synthesize_clip), c.mask) for c in clips]
+    model = [(synthesized_over_clip(c, synthesize_clip), c.mask) for c in clips]
     lines = []
     for part in (*PARTS, "hip"):
         for who, motions in ((f"{name} (real)", real), ("default model, same speech", model)):
@@ -246,8 +245,8 @@ def evaluate_source(
     default, enrolled = synthesizers.of(checkpoint), synthesizers.of(personal.checkpoint)
     si, sd = [], []
     for clip in held:
-        si.append((_synthesized(clip, default), clip.mask))
-        angles = _synthesized(clip, enrolled)
+        si.append((synthesized_over_clip(clip, default), clip.mask))
+        angles = synthesized_over_clip(clip, enrolled)
         sd.append((style_trajectory(robot, personal.settings, angles, FRAME_RATE_HZ), clip.mask))
     first, second = real[0::2], real[1::2]
     if not second:  # one held-out clip: its halves

@@ -338,7 +338,7 @@ def fit_personal(
         synthesize_clip = synthesizers.of(candidate.checkpoint)
         motion = []
         for clip in clips:
-            angles = _as_long(synthesize_clip(clip), clip.n_frames)
+            angles = synthesized_over_clip(clip, synthesize_clip)
             styled = style_trajectory(robot, candidate.settings, angles, FRAME_RATE_HZ)
             motion.append((styled, clip.mask))
         return motion_distance(real, motion, robot, "arms")
@@ -346,10 +346,11 @@ def fit_personal(
     return min(candidates, key=distance)
 
 
-def _as_long(angles: np.ndarray, n_frames: int) -> np.ndarray:
-    """``angles`` cut or held at their last pose to ``n_frames`` (a clip's motion length)."""
-    n = min(len(angles), n_frames)
-    return np.vstack([angles[:n], np.repeat(angles[n - 1 :], n_frames - n, axis=0)])
+def synthesized_over_clip(clip: Clip, synthesize_clip: Synthesizer) -> np.ndarray:
+    """The model's angles of a clip's speech, as many frames as the clip (last pose held)."""
+    angles = synthesize_clip(clip)
+    n = min(len(angles), clip.n_frames)
+    return np.vstack([angles[:n], np.repeat(angles[n - 1 :], clip.n_frames - n, axis=0)])
 
 
 def motion_distance(
