@@ -50,6 +50,8 @@ from audio2pose_ros.motion.style import (
     IDENTITY,
     MAX_GAIN,
     MAX_REST_OFFSET_RAD,
+    MAX_TEMPO,
+    MIN_TEMPO,
     STYLE_FIELDS,
     StyleSettings,
     StyleTransform,
@@ -61,7 +63,7 @@ from audio2pose_ros.timebase import FRAME_RATE_HZ
 Motion = tuple[np.ndarray, np.ndarray]  # (T, J) angles in radians, (T, J) known mask
 STYLE_FORMAT = 1
 MIN_PART_S = 5.0  # a part observed for less than this is not measured (not adapted)
-TEMPO_GRID = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.2, 1.4, 1.7, 2.0, 2.4, 3.0)
+TEMPO_GRID = (MIN_TEMPO, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.2, 1.4, 1.7, 2.0, 2.4, MAX_TEMPO)
 GAIN_GRID = np.geomspace(0.02, MAX_GAIN, 141)  # sizes tried per tempo (about 3.3 % apart)
 DECILES = tuple(range(10, 100, 10))
 FIT_DECILES = (50, 60, 70, 80, 90)  # the deciles resolve() matches (module docstring)
