@@ -8,6 +8,7 @@ import pytest
 import torch
 from body_poses import AWAY, INSIDE, RIGHT_AWAY, pose_with
 
+from audio2pose_ros.audio.features import extract_features
 from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.checkpoints.numpy_runtime import numpy_kernel_for
 from audio2pose_ros.checkpoints.torch_io import Checkpoint, load_checkpoint
@@ -16,6 +17,7 @@ from audio2pose_ros.models.body_noise import BOUND_SLACK_M, MAX_FACTOR_STEP, Bod
 from audio2pose_ros.models.registry import build_model
 from audio2pose_ros.offline.synthesis import synthesize_samples
 from audio2pose_ros.resources import bundled_speech_paths, default_checkpoint_path
+from audio2pose_ros.robot import capsules
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.capsules import CapsuleModel
 
@@ -166,6 +168,19 @@ def test_when_the_default_model_speaks_new_voices_expect_its_arms_rarely_near_th
     assert share["on"] <= share["off"], share
 
 
+def _count_pairs(monkeypatch):
+    """Record, per query of the capsule model, how many pairs it measured (either path)."""
+    queries = []
+    real = capsules._segment_gaps
+
+    def counted(vectors):
+        queries.append(vectors.shape[1] * vectors.shape[3])  # poses x pairs
+        return real(vectors)
+
+    monkeypatch.setattr(capsules, "_segment_gaps", counted)
+    return queries
+
+
 def test_when_an_arm_stays_far_from_the_body_expect_no_distance_query_yet_the_same_factors(
     robot, monkeypatch
 ):
@@ -175,17 +190,79 @@ def test_when_an_arm_stays_far_from_the_body_expect_no_distance_query_yet_the_sa
     track = _track(robot, 200, lambda x: x**3)  # slow, then fast
     clearance = noise.body.clearance(track)
     noise.factors(robot.normalize(track[0]))
-    queries = []
-    real_distances = noise.body.pair_distances
-    monkeypatch.setattr(
-        noise.body,
-        "pair_distances",
-        lambda poses: queries.append(len(poses)) or real_distances(poses),
-    )
+    queries = _count_pairs(monkeypatch)
     got = [float(noise.factors(robot.normalize(p))[0]) for p in track[1:]]
     _assert_faded(got, clearance[1:], 0.02, 0.03)
     assert 0 < len(queries) < 0.8 * (len(track) - 1)  # queried only where the bound fell short
     assert min(got) == 0.0
+
+
+def _every_pair(noise):
+    """Make ``noise`` take one sequence's factors as N rows do: every pair of a stale pose."""
+    noise.factor = lambda unit: float(noise._factors_of_rows(unit[None])[0])
+
+
+def _wander(robot, n, seed):
+    """n poses of both arms wandering about the body, slowly and by jumps, within the limits."""
+    rng = np.random.default_rng(seed)
+    steps = rng.normal(0.0, 0.01, (n, robot.n_joints)) * rng.choice([1, 10], (n, 1), p=[0.95, 0.05])
+    start = pose_with(robot, **INSIDE, **RIGHT_AWAY)
+    return np.clip(start + np.cumsum(steps, axis=0), robot.lower_rad, robot.upper_rad)
+
+
+def test_when_poses_wander_about_the_body_expect_the_factors_of_measuring_every_pair(
+    robot, monkeypatch
+):
+    """Each pair's own bound spares measuring most pairs, never changing a factor's last bit."""
+    poses = [robot.normalize(p) for p in _wander(robot, 1500, 4)]
+    queries = _count_pairs(monkeypatch)
+    reference = BodyNoise(robot, 0.02, 0.03)
+    _every_pair(reference)
+    expected = [reference.factor(p) for p in poses]
+    every = sum(queries)
+    queries.clear()
+    noise = BodyNoise(robot, 0.02, 0.03)
+    got = [noise.factor(p) for p in poses]
+    assert got == expected
+    assert {0.0, 1.0} <= set(got)  # near and far
+    assert sum(0.0 < f < 1.0 for f in got) > 100  # and in the band
+    assert sum(queries) < every / 5, (sum(queries), every)
+    noise.reset()
+    assert [noise.factors(p[None])[0] for p in poses[:50]] == expected[:50]
+
+
+@pytest.mark.parametrize("runtime", ["numpy", "torch"])
+def test_when_the_packaged_model_streams_real_speech_expect_the_poses_of_measuring_every_pair(
+    robot, monkeypatch, runtime
+):
+    """The streaming predictors (the node's numpy kernel, the model's own) on every bundled
+    clip: the same poses to the last bit as measuring every pair of a stale pose, from about
+    a tenth of the pairs (each pair's own bound; 221 pairs a frame when every pair of a stale
+    pose is measured)."""
+    from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
+
+    streaming = load_streaming_model(default_checkpoint_path(), robot=robot)
+    raw = np.concatenate(
+        [extract_features(read_wav(p)[0], streaming.features) for p in bundled_speech_paths()]
+    )
+    frames = np.clip(streaming.normalizer.apply(raw), -8.0, 8.0)
+    assert len(frames) >= 2000
+
+    def predictor():  # the model's own, without the node's warm start
+        if runtime == "numpy":
+            return streaming.predictor(seed=0).predictor
+        return load_checkpoint(default_checkpoint_path(), robot=robot).model.streaming_predictor()
+
+    queries = _count_pairs(monkeypatch)
+    reference = predictor()
+    _every_pair(reference._body_noise)
+    expected = np.array([reference.step(f) for f in frames])
+    every = sum(queries) / len(frames)
+    queries.clear()
+    new = predictor()
+    got = np.array([new.step(f) for f in frames])
+    assert np.array_equal(got, expected)
+    assert sum(queries) / len(frames) < 50 < every, (sum(queries) / len(frames), every)
 
 
 def test_when_a_streaming_predictor_is_made_expect_its_body_model_loaded_before_the_first_frame(

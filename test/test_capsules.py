@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pickle
 import subprocess
 import sys
 import textwrap
@@ -191,3 +192,18 @@ def test_when_the_packaged_model_streams_expect_neither_pinocchio_nor_coal_in_it
     )
     assert done.returncode == 0, done.stderr[-2000:]
     assert "loaded: []" in done.stdout, done.stdout
+
+
+def test_when_pairs_are_measured_one_pose_at_a_time_expect_the_batched_distances(
+    capsules, random_poses
+):
+    """Any choice of pairs in one pose: the distances of pair_distances, to the last bit."""
+    one = pickle.loads(pickle.dumps(capsules.one_pose()))  # a sampler pickles with it
+    every = np.arange(len(capsules.link_pairs))
+    rng = np.random.default_rng(1)
+    poses = random_poses[:300]
+    for pose, expected in zip(poses, capsules.pair_distances(poses), strict=True):
+        one.place(pose)
+        pairs = rng.choice(every, rng.integers(1, 60), replace=False)
+        assert np.array_equal(one.distances(pairs), expected[pairs])
+        assert np.array_equal(one.distances(every), expected)

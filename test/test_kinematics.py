@@ -1,5 +1,7 @@
 """Forward kinematics of urdf/pepper.urdf: where the head and hands are, and where they go."""
 
+import pickle
+
 import numpy as np
 import pytest
 
@@ -218,3 +220,24 @@ def test_when_frames_are_placed_one_pose_at_a_time_expect_the_batched_placements
         positions.update(zip(names, pose.tolist(), strict=True))
         poses = kinematics.link_poses(positions)
         np.testing.assert_allclose(placed, [poses[link] for link in links], atol=1e-12)
+
+
+def test_when_points_are_carried_one_pose_at_a_time_expect_the_batched_positions(kinematics):
+    """The one-pose carrier gives what carry gives, to the last bit, and pickles as its inputs
+    (its arrays are views of one another)."""
+    names = tuple(load_robot().names)
+    driven = DrivenFrames(kinematics, names)
+    links = [link for link in kinematics.link_names if link != kinematics.root_link]
+    chains = driven.chains(np.array([driven.frame_of[link] for link in links]))
+    rng = np.random.default_rng(2)
+    points = np.concatenate([rng.normal(0.0, 0.2, (len(links), 3)), np.ones((len(links), 1))], 1)
+    carrier = driven.carrier(chains, points)
+    revived = pickle.loads(pickle.dumps(carrier))
+    lower, upper = (
+        np.array([getattr(kinematics.joint(n), k) for n in names])
+        for k in ("lower_rad", "upper_rad")
+    )
+    for pose in rng.uniform(lower, upper, (200, len(names))):
+        expected = driven.carry(pose[None], chains, points)[0]
+        assert np.array_equal(carrier.carry(pose), expected)
+        assert np.array_equal(revived.carry(pose), expected)

@@ -237,44 +237,72 @@ class LiveKernel:
         if seed is not None:
             self.seed = seed
         self._rng = np.random.default_rng(self.seed)
-        self._hidden = np.zeros(self._w_hh.shape[0])
-        self._previous = self._start_pose.copy()
+        hidden, features = self._w_hh.shape[0], self._w_ih.shape[0] - len(self._start_pose)
+        # this frame's input (features, then the previous pose) and hidden state
+        self._input = np.concatenate([np.zeros(features), self._start_pose])
+        self._hidden = np.zeros(hidden)
+        self._rz = np.empty(2 * hidden)
+        self._draw = np.empty(self._draws)
         self._stream = NoiseStream(self._shape, int(self._start_pose.shape[0]))
         self._noise = self._stream.start(self._rng.standard_normal(self._draws))
         self._first = True
 
     def step(self, features: np.ndarray) -> np.ndarray:
-        """Sample the pose of one frame."""
+        """Sample the pose of one frame (a new array; the kernel keeps a copy of it)."""
         if not self._first:
-            self._noise = self._stream.next(self._rng.standard_normal(self._draws))
+            self._noise = self._stream.next(self._rng.standard_normal(out=self._draw))
         self._first = False
-        noise = self._noise
-        x = np.concatenate([np.asarray(features, dtype=np.float64), self._previous])
+        x, hidden, rz = self._input, self._hidden, self._rz
+        previous = x[len(x) - len(self._start_pose) :]
+        x[: len(x) - len(previous)] = features
         # the gates r, z and the candidate n of torch's GRU, in its order (slices, not copies)
-        gates_x = x @ self._w_ih + self._b_ih
-        gates_h = self._hidden @ self._w_hh + self._b_hh
-        size = self._hidden.shape[0]
-        rz = sigmoid(gates_x[: 2 * size] + gates_h[: 2 * size])
-        r, z = rz[:size], rz[size:]
-        new = np.tanh(gates_x[2 * size :] + r * gates_h[2 * size :])
-        self._hidden = (1.0 - z) * new + z * self._hidden
-        raw = self._hidden @ self._w_out + self._b_out
-        joints = raw.shape[0] // 2
-        pose = sigmoid(raw[:joints])
-        if np.any(self.temperature):
-            log_std = np.minimum(np.maximum(raw[joints:], _MIN_LOG_STD), _MAX_LOG_STD)
-            pose = np.minimum(
-                np.maximum(pose + self.temperature * np.exp(log_std) * noise, 0.0), 1.0
-            )
+        gates_x = x @ self._w_ih
+        gates_x += self._b_ih
+        gates_h = hidden @ self._w_hh
+        gates_h += self._b_hh
+        size = len(hidden)
+        np.add(gates_x[: 2 * size], gates_h[: 2 * size], out=rz)
+        _sigmoid_in_place(rz)
+        new = gates_h[2 * size :]
+        new *= rz[:size]
+        new += gates_x[2 * size :]
+        np.tanh(new, out=new)
+        z = rz[size:]
+        hidden *= z  # h = (1 - z) n + z h
+        rz[:size] = 1.0 - z
+        new *= rz[:size]
+        hidden += new
+        raw = hidden @ self._w_out
+        raw += self._b_out
+        joints = len(raw) // 2
+        pose = _sigmoid_in_place(raw[:joints])
+        temperature = self.temperature
+        if temperature.any() if isinstance(temperature, np.ndarray) else temperature:
+            log_std = raw[joints:]
+            np.maximum(log_std, _MIN_LOG_STD, out=log_std)
+            np.minimum(log_std, _MAX_LOG_STD, out=log_std)
+            spread = temperature * np.exp(log_std, out=log_std)
+            spread *= self._noise
+            pose += spread
+            np.maximum(pose, 0.0, out=pose)
+            np.minimum(pose, 1.0, out=pose)
         if self.max_step is not None:
-            low, high = self._previous - self.max_step, self._previous + self.max_step
-            pose = np.minimum(np.maximum(pose, low), high)
-        self._previous = pose
+            np.maximum(pose, previous - self.max_step, out=pose)
+            np.minimum(pose, previous + self.max_step, out=pose)
+        previous[:] = pose
         return pose
 
     def run(self, frames: np.ndarray) -> np.ndarray:
         """(N, n_features) frames in order -> (N, n_joints) sampled poses."""
         return np.array([self.step(frame) for frame in frames])
+
+
+def _sigmoid_in_place(x: np.ndarray) -> np.ndarray:
+    """:func:`sigmoid` of ``x`` into ``x`` (the same operations, no new array)."""
+    np.negative(x, out=x)
+    np.exp(x, out=x)
+    x += 1.0
+    return np.divide(1.0, x, out=x)
 
 
 class LiveGroupsKernel(GroupedSampler):

@@ -38,6 +38,18 @@ the body no query is made at all (the factor is 1 either way); near it, an arm t
 slowly is measured every few frames, and the clearance the factor uses is at most
 ``BOUND_SLACK_M`` below the capsules'. Poses must be finite: a NaN would slip past the bound,
 so it is refused first.
+
+One sequence (a streaming predictor, :meth:`BodyNoise.factor`) gives the same factors to the
+last bit while measuring about a tenth of the pairs (``test/test_body_noise.py``, on the
+packaged model and the bundled speech): each pair keeps its own lower bound, its distance
+where it was measured, else a bound carried from pose to pose (less its travel and
+:data:`BOUND_EPS_M`, far more than the rounding of the distances). A pose is measured where
+the bound above says so, but only in the pairs whose own bound is below what the nearest
+measured pair can have reached (plus :data:`PREFETCH_M`): no other pair can be the nearest,
+so the clearance is the same. Between measurements, the bound above is the smallest of the
+pairs' own bounds less their travel; where that smallest is not a measured pair's, the pairs
+below the measured ones are measured, in the pose measured last. Far from the body the pairs'
+own bounds settle everything. Numpy's calls, not the pairs, are most of the cost.
 """
 
 from __future__ import annotations
@@ -54,6 +66,8 @@ from audio2pose_ros.robot.description import RobotDescription
 MAX_BODY_BAND_M = 0.5  # wider than Pepper's arm: any larger band is a mistake
 MAX_FACTOR_STEP = 0.05  # per frame: the noise fades over 0.2 s, never in one jump
 BOUND_SLACK_M = 0.002  # the travel bound may fall this far below a measurement before the next
+BOUND_EPS_M = 1e-6  # a pair's own bound is kept this far below: rounding cannot break it
+PREFETCH_M = 0.04  # a measurement also measures the pairs this far beyond the nearest's reach
 
 
 def check_body_noise(margin_m: float, band_m: float) -> None:
@@ -73,6 +87,15 @@ class BodyNoise:
         check_body_noise(margin_m, band_m)
         self.robot, self.margin_m, self.band_m = robot, float(margin_m), float(band_m)
         self.body = CapsuleModel.load(robot)
+        self._limit = self.margin_m + self.band_m  # a bound below this can make a pose stale
+        self._lever_t = self.body.pair_lever_m.T
+        self._every_pair = np.arange(len(self.body.link_pairs))
+        self._pairs = self.body.one_pose()  # one sequence: its measured pose, pair by pair
+        self._at: np.ndarray | None = None  # ... the last pose measured, (1, J) rad
+        self._bounds = np.empty(0)  # ... each pair's distance there, or a lower bound of it
+        self._known = np.empty(0, dtype=bool)  # ... where the distance itself
+        self._nearest = np.inf  # ... the clearance there
+        self._factor = 1.0  # ... and its last factor
         self._measured: np.ndarray | None = None  # per sequence: the last pose measured (rad)
         self._distances = np.empty((0, 0))  # ... every checked pair's distance there (m)
         self._clearance = np.empty(0)  # ... and the smallest of them
@@ -80,17 +103,107 @@ class BodyNoise:
 
     def reset(self) -> None:
         """Forget the sequences' poses: the same poses then give the same factors."""
-        self._measured = None
+        self._measured = self._at = None
 
     def factors(self, previous_unit: np.ndarray) -> np.ndarray:
         """(N, J) previous poses in [0, 1] of N sequences -> (N,) noise factors in [0, 1].
 
-        Row i continues sequence i of the previous call (until :meth:`reset`).
+        Row i continues sequence i of the previous call (until :meth:`reset`, or a call with
+        another number of rows). One row is one sequence's :meth:`factor`.
 
         Raises:
             ValueError: a pose is not finite.
         """
         previous = np.atleast_2d(previous_unit)
+        if len(previous) == 1:
+            self._measured = None
+            return np.array([self.factor(previous[0])])
+        self._at = None
+        return self._factors_of_rows(previous)
+
+    def factor(self, previous_unit: np.ndarray) -> float:
+        """One sequence's noise factor in [0, 1] for its (J,) previous pose in [0, 1].
+
+        The same factor as :meth:`factors` of the pose as one row measuring every pair (the
+        module text), to the last bit, but each pair has its own lower bound: the pose is
+        measured where the module text measures it, but only the pairs whose bound can be
+        the nearest, and the bound of the module text is made exact only where it decides
+        something (``test/test_body_noise.py`` counts the pairs measured).
+
+        Raises:
+            ValueError: the pose is not finite.
+        """
+        if not np.isfinite(previous_unit).all():
+            raise ValueError("body-aware sampling: the previous pose is not finite")
+        pose = self.robot.denormalize(previous_unit[None])  # (1, J): the rows' products
+        if self._at is None:
+            self._factor = 1.0
+            wanted = self._wanted(self._measure(pose))
+        else:
+            travel = (np.abs(pose - self._at) @ self._lever_t)[0]
+            # per pair: at most its distance less its travel, the bound of the module text
+            # (equal to it where the distance is known)
+            near = self._bounds - travel
+            nearest = int(near.argmin())
+            lower = near[nearest]
+            if lower >= self._limit and (lower - self.margin_m) / self.band_m >= 1.0:
+                wanted = 1.0  # far from the body: not stale, and the factor is whole
+            else:
+                if not self._known[nearest]:  # the bound is a pair's own: make it exact
+                    lower = self._settle(near, travel)
+                if lower < self._limit and self._nearest - lower > BOUND_SLACK_M:
+                    lower = self._measure(pose, near, travel)
+                wanted = self._wanted(lower)
+        step = MAX_FACTOR_STEP
+        self._factor = min(max(wanted, self._factor - step), self._factor + step)
+        return float(self._factor)
+
+    def _wanted(self, lower: float) -> float:
+        """clip((lower - margin) / band, 0, 1), as numpy computes it (a band of 0 included)."""
+        return min(max((np.float64(lower) - self.margin_m) / self.band_m, 0.0), 1.0)
+
+    def _settle(self, near: np.ndarray, travel: np.ndarray) -> float:
+        """The smallest of the distances at the measured pose less their travel, exactly.
+
+        Pairs measured there give theirs; the others are measured there (the placed pose)
+        where their own bound falls below the smallest of those.
+        """
+        known = self._known
+        exact = near[known].min()  # a measured pose has a pair measured: the nearest
+        todo = (~known & (near < exact)).nonzero()[0]
+        if not len(todo):
+            return exact
+        distances = self._pairs.distances(todo)
+        self._bounds[todo], known[todo] = distances, True
+        return min(exact, (distances - travel[todo]).min())
+
+    def _measure(
+        self, pose: np.ndarray, near: np.ndarray | None = None, travel: np.ndarray | None = None
+    ) -> float:
+        """The clearance of ``pose`` (1, J), now the measured pose.
+
+        Each pair's distance there is at least its ``near`` (its bound less its travel) less
+        :data:`BOUND_EPS_M`; the nearest measured pair's is at most its distance plus its
+        travel (plus the same). Only the pairs whose bound is below that, plus
+        :data:`PREFETCH_M`, are measured: the others cannot be the nearest. Without ``near``
+        (the first pose) every pair is measured.
+        """
+        if near is None or travel is None:
+            todo, bounds = self._every_pair, np.empty(len(self._every_pair))
+        else:
+            bounds = near - BOUND_EPS_M
+            reach = (self._bounds + travel)[self._known].min()
+            todo = (bounds < reach + (BOUND_EPS_M + PREFETCH_M)).nonzero()[0]
+        self._pairs.place(pose[0])
+        distances = self._pairs.distances(todo)
+        bounds[todo] = distances
+        self._known = np.zeros(len(bounds), dtype=bool)
+        self._known[todo] = True
+        self._at, self._bounds, self._nearest = pose, bounds, distances.min()
+        return self._nearest
+
+    def _factors_of_rows(self, previous: np.ndarray) -> np.ndarray:
+        """:meth:`factors` of N rows, every pair of a stale row measured."""
         if not np.isfinite(previous).all():
             raise ValueError("body-aware sampling: the previous pose is not finite")
         poses = self.robot.denormalize(previous)
@@ -99,11 +212,11 @@ class BodyNoise:
             self._distances = np.full((len(poses), len(self.body.link_pairs)), -np.inf)
             self._clearance = np.full(len(poses), np.inf)  # unmeasured: stale at once
             self._factors = np.ones(len(poses))
-        travel = np.abs(poses - self._measured) @ self.body.pair_lever_m.T
+        travel = np.abs(poses - self._measured) @ self._lever_t
         # no pair nearer than this: its shapes cannot have come closer
         lower = (self._distances - travel).min(axis=1)
-        stale = (lower < self.margin_m + self.band_m) & (self._clearance - lower > BOUND_SLACK_M)
-        if stale.all():  # one sequence, as a streaming predictor runs: no masks to apply
+        stale = (lower < self._limit) & (self._clearance - lower > BOUND_SLACK_M)
+        if stale.all():
             self._measured, self._distances = poses, self.body.pair_distances(poses)
             lower = self._clearance = self._distances.min(axis=1)
         elif stale.any():

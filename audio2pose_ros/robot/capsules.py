@@ -258,6 +258,10 @@ class CapsuleModel:
         vectors = columns.take(self._pair_heads, axis=2) - columns.take(self._pair_tails, axis=2)
         return _segment_gaps(vectors) - self._pair_radii
 
+    def one_pose(self) -> PosePairs:
+        """A :class:`PosePairs` of this model (one pose at a time, chosen pairs)."""
+        return PosePairs(self)
+
     def clearance(self, poses_rad: np.ndarray) -> np.ndarray:
         """Smallest signed distance (m) of the checked pairs: shape () for one pose, (N,) for N.
 
@@ -267,3 +271,35 @@ class CapsuleModel:
         poses = self._pose_array(poses_rad)
         smallest = self.pair_distances(poses).min(axis=1)
         return smallest[0] if poses.ndim == 1 else smallest
+
+
+class PosePairs:
+    """:meth:`CapsuleModel.pair_distances` of one pose at a time, of the pairs asked for only.
+
+    :meth:`place` carries every capsule end into a pose (one
+    :class:`~audio2pose_ros.robot.kinematics.PointCarrier`, into reused arrays);
+    :meth:`distances` measures chosen pairs there, with the arithmetic of
+    :meth:`CapsuleModel.pair_distances`, so each pair's distance is the same to the last bit
+    (``test/test_capsules.py``). Body-aware sampling measures the few pairs that can be the
+    nearest, not all of them. An instance serves one thread; it pickles as its model.
+    """
+
+    def __init__(self, model: CapsuleModel) -> None:
+        """Measure ``model``'s pairs; no pose placed yet."""
+        self._model = model
+        self._carrier = model._frames.carrier(model._point_chains, model._points)
+        self._columns = self._carrier.carried[:, :3].T  # (3, 2 C), a view of the carried ends
+
+    def __reduce__(self) -> tuple[type[PosePairs], tuple[CapsuleModel]]:
+        return PosePairs, (self._model,)
+
+    def place(self, pose_rad: np.ndarray) -> None:
+        """Carry the capsules into the (n_joints,) pose (finite angles, the robot's order)."""
+        self._carrier.carry(pose_rad)
+
+    def distances(self, pairs: np.ndarray) -> np.ndarray:
+        """(M,) signed distances (m) in the placed pose of ``pairs`` (indices of link_pairs)."""
+        model, columns = self._model, self._columns
+        heads, tails = model._pair_heads[:, pairs], model._pair_tails[:, pairs]
+        vectors = columns.take(heads, axis=1) - columns.take(tails, axis=1)  # (3, 3, M)
+        return _segment_gaps(vectors[:, None])[0] - model._pair_radii[pairs]

@@ -473,6 +473,10 @@ class DrivenFrames:
         """(P, depth) frames (padded with frame 0's identity) that carry points in ``frames``."""
         return np.asarray(self._chains[frames])
 
+    def carrier(self, chains: np.ndarray, points: np.ndarray) -> PointCarrier:
+        """A :class:`PointCarrier` of :meth:`carry`'s points, one pose at a time."""
+        return PointCarrier(self, chains, points)
+
 
 class FramePlacer:
     """:meth:`DrivenFrames.place` of fixed frames for one pose at a time, into reused arrays.
@@ -515,6 +519,53 @@ class FramePlacer:
             np.matmul(placed[parents], local, out=out)
         np.matmul(placed.take(self._frames, axis=0), self._offsets, out=self.placed)
         return self.placed
+
+
+class PointCarrier:
+    """:meth:`DrivenFrames.carry` of fixed points for one pose at a time, into reused arrays.
+
+    The same sines, product and matrix-vector products (``einsum``) as :meth:`DrivenFrames.carry`
+    on one pose, so the same positions to the last bit (``test/test_kinematics.py``); for one
+    pose numpy's calls, not the arithmetic, are the cost, and this makes about a dozen. Each
+    call overwrites :attr:`carried`; an instance serves one thread. It pickles as its
+    arguments (its arrays are views of one another).
+
+    Attributes:
+        carried: (P, 4) the points' root-frame positions in the last pose carried.
+    """
+
+    def __init__(self, driven: DrivenFrames, chains: np.ndarray, points: np.ndarray) -> None:
+        """Carry the homogeneous ``points`` (P, 4) along their ``chains`` (:meth:`chains`)."""
+        self._driven = driven
+        self._chains = np.asarray(chains, dtype=np.intp)
+        self._points = np.asarray(points, dtype=np.float64)
+        frames = len(driven.frame_chains)
+        self._trig = np.empty((1, len(driven._angle_index)))
+        self._flat = np.empty((1, 16 * frames))  # each frame's transform from its parent frame
+        self._local = self._flat.reshape(frames, 4, 4)
+        self._order = np.ascontiguousarray(self._chains.T)  # (depth, P): level by level
+        self._steps = np.empty((*self._order.shape, 4, 4))  # (depth, P, 4, 4)
+        self._work = np.empty((2, len(self._points), 4))
+        self.carried = self._work[(len(self._order) - 1) % 2]
+
+    def __reduce__(self) -> tuple[type[PointCarrier], tuple[DrivenFrames, np.ndarray, np.ndarray]]:
+        return PointCarrier, (self._driven, self._chains, self._points)
+
+    def carry(self, pose: np.ndarray) -> np.ndarray:
+        """:attr:`carried` in the (n_joints,) ``pose`` (its angles finite)."""
+        driven, trig, steps, work = self._driven, self._trig, self._steps, self._work
+        np.take(pose, driven._angle_index, out=trig[0], mode="clip")  # valid: no buffer
+        np.add(trig, driven._phase, out=trig)
+        np.sin(trig, out=trig)
+        np.matmul(trig, driven._trig, out=self._flat)
+        np.add(self._flat, driven._constant, out=self._flat)
+        np.take(self._local, self._order, axis=0, out=steps, mode="clip")
+        depth = len(steps)
+        carried = np.einsum("pab,pb->pa", steps[depth - 1], self._points, out=work[0])
+        for level in range(depth - 2, -1, -1):
+            out = work[(depth - 1 - level) % 2]
+            carried = np.einsum("pab,pb->pa", steps[level], carried, out=out)
+        return self.carried
 
 
 def _runs(indices: list[int]) -> list[list[int]]:
