@@ -50,7 +50,8 @@ from audio2pose_ros.robot.pairs import checked_pair, pose_array
 SIDE_REACH_M = 0.001  # a capsule reaches this far beyond the side of the shape it bounds
 POSE_BLOCK = 64  # poses measured at once
 MAX_PIECES = 8  # a box is cut into at most this many pieces
-_TINY = 1e-12  # squared lengths below this are points
+_TINY = np.full((), 1e-12)  # squared lengths below this are points
+_ZERO, _ONE = np.zeros(()), np.ones(())  # (0-d arrays: quicker in ufuncs than Python floats)
 
 
 class CapsuleModelError(ConfigurationError):
@@ -112,19 +113,35 @@ def _segment_gaps(vectors: np.ndarray) -> np.ndarray:
     (spheres) and parallel ones need no case of their own: a zero length makes its parameter 0,
     and between parallel segments any first s leads to a closest pair.
     """
-    gram = (vectors[:, :, :2, None] * vectors[:, :, None]).sum(axis=0)  # (N, 2, 3, P)
+    products = vectors[:, :, :2, None] * vectors[:, :, None]  # (3, N, 2, 3, P)
+    gram = products[0] + products[1]  # (N, 2, 3, P): summed as sum(axis=0) sums, in place
+    gram += products[2]
     a, b, c = gram[:, 0, 0], gram[:, 0, 1], gram[:, 0, 2]
     e, f = gram[:, 1, 1], gram[:, 1, 2]
-    s = _unit((b * f - c * e) / np.maximum(a * e - b * b, _TINY))
-    t = _unit((b * s + f) / np.maximum(e, _TINY))
-    s = _unit((b * t - c) / np.maximum(a, _TINY))
-    gap = vectors[:, :, 2] + s * vectors[:, :, 0] - t * vectors[:, :, 1]  # (3, N, P)
-    return np.asarray(np.sqrt((gap * gap).sum(axis=0)))
+    s = b * f
+    s -= c * e
+    denominator = a * e
+    denominator -= b * b
+    s /= np.maximum(denominator, _TINY, out=denominator)
+    t = b * _unit(s)
+    t += f
+    t /= np.maximum(e, _TINY)
+    s = b * _unit(t)
+    s -= c
+    s /= np.maximum(a, _TINY)
+    gap = _unit(s) * vectors[:, :, 0]  # r + s d1 - t d2: (3, N, P)
+    gap += vectors[:, :, 2]
+    gap -= t * vectors[:, :, 1]
+    gap *= gap
+    distances = gap[0] + gap[1]
+    distances += gap[2]
+    return np.sqrt(distances, out=distances)
 
 
 def _unit(x: np.ndarray) -> np.ndarray:
-    """``x`` clamped to [0, 1] (two ufuncs: quicker than ``np.clip`` on small arrays)."""
-    return np.minimum(np.maximum(x, 0.0), 1.0)
+    """``x`` clamped to [0, 1], in place (two ufuncs: quicker than ``np.clip`` on small arrays)."""
+    np.maximum(x, _ZERO, out=x)
+    return np.minimum(x, _ONE, out=x)
 
 
 _LOADED: dict[tuple[RobotDescription, Path], CapsuleModel] = {}
