@@ -148,3 +148,22 @@ def test_when_a_frame_index_jumps_beyond_what_time_allows_expect_a_new_stream_no
     assert node.sequence.restarts == 1
     node.on_features(features_to_msg(frames, node.expected_label, 10**15 + 12))
     assert node.diagnostic_values()["frames_lost"] == 10  # a plausible gap still counts
+
+
+@pytest.mark.parametrize("bad", [np.nan, -np.inf, 8.5, -1e30])
+def test_when_features_are_within_the_limit_expect_them_unchanged_and_one_bad_value_caught(bad):
+    """Speech stays within the limit: nothing to replace or clamp, and the values as they came
+    (the quick path); one bad value anywhere takes the full path and is counted."""
+    from audio2pose_ros.ros.nodes.inference_node import sanitize_features
+
+    frames = np.random.default_rng(0).uniform(-8.0, 8.0, (20, 26))
+    frames[3, 4] = -8.0
+    safe, replaced, clamped = sanitize_features(frames, 8.0)
+    assert (replaced, clamped) == (0, 0)
+    assert np.array_equal(safe, frames)
+    frames[19, 25] = bad
+    safe, replaced, clamped = sanitize_features(frames, 8.0)
+    assert (replaced, clamped) == ((1, 0) if not np.isfinite(bad) else (0, 1))
+    assert np.array_equal(safe[:19], frames[:19])
+    assert safe[19, 25] == (0.0 if not np.isfinite(bad) else np.sign(bad) * 8.0)
+    assert sanitize_features(np.empty((0, 26)), 8.0)[0].shape == (0, 26)
