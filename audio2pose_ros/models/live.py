@@ -213,7 +213,7 @@ class _LiveCore:
         raw = hidden @ self.w_out + self.b_out
         joints = raw.shape[-1] // 2
         pose = sigmoid(raw[..., :joints])
-        if np.any(temperature):
+        if temperature.any() if isinstance(temperature, np.ndarray) else temperature:
             std = np.exp(np.minimum(np.maximum(raw[..., joints:], _MIN_LOG_STD), _MAX_LOG_STD))
             pose = np.minimum(np.maximum(pose + temperature * std * noise, 0.0), 1.0)
         if max_step is not None:

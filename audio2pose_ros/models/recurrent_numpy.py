@@ -52,13 +52,23 @@ def lstm_step(
 
 
 def gru_step(w: CellWeights, x: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """One GRU step; returns the new h; works on (n,) or (N, n)."""
-    xr, xz, xn = np.split(x @ w.w_ih + w.b_ih, 3, axis=-1)
-    hr, hz, hn = np.split(h @ w.w_hh + w.b_hh, 3, axis=-1)
-    r = sigmoid(xr + hr)
-    z = sigmoid(xz + hz)
-    n = np.tanh(xn + r * hn)
-    return (1.0 - z) * n + z * h
+    """One GRU step; returns the new h; works on (n,) or (N, n).
+
+    The gates r, z and the candidate n in torch's order, r and z by one sigmoid, slices not
+    copies (for one frame numpy's calls, not the arithmetic, are the cost).
+    """
+    gx = x @ w.w_ih
+    gx += w.b_ih
+    gh = h @ w.w_hh
+    gh += w.b_hh
+    size = h.shape[-1]
+    rz = sigmoid(gx[..., : 2 * size] + gh[..., : 2 * size])
+    n = gh[..., 2 * size :] * rz[..., :size]
+    n += gx[..., 2 * size :]
+    z = rz[..., size:]
+    new = (1.0 - z) * np.tanh(n, out=n)
+    new += z * h
+    return new
 
 
 def linear_weights(layer: nn.Linear) -> tuple[np.ndarray, np.ndarray]:
