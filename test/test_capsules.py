@@ -207,3 +207,5 @@ def test_when_pairs_are_measured_one_pose_at_a_time_expect_the_batched_distances
         pairs = rng.choice(every, rng.integers(1, 60), replace=False)
         assert np.array_equal(one.distances(pairs), expected[pairs])
         assert np.array_equal(one.distances(every), expected)
+    revived = pickle.loads(pickle.dumps(one))  # mid-sequence: the pose placed goes along
+    assert np.array_equal(revived.distances(every), one.distances(every))

@@ -298,7 +298,8 @@ class PosePairs:
     :meth:`distances` measures chosen pairs there, with the arithmetic of
     :meth:`CapsuleModel.pair_distances`, so each pair's distance is the same to the last bit
     (``test/test_capsules.py``). Body-aware sampling measures the few pairs that can be the
-    nearest, not all of them. An instance serves one thread; it pickles as its model.
+    nearest, not all of them. An instance serves one thread; it pickles as its model and the
+    pose placed.
     """
 
     def __init__(self, model: CapsuleModel) -> None:
@@ -306,13 +307,21 @@ class PosePairs:
         self._model = model
         self._carrier = model._frames.carrier(model._point_chains, model._points)
         self._columns = self._carrier.carried[:, :3].T  # (3, 2 C), a view of the carried ends
+        self._pose: np.ndarray | None = None
 
-    def __reduce__(self) -> tuple[type[PosePairs], tuple[CapsuleModel]]:
-        return PosePairs, (self._model,)
+    def __reduce__(
+        self,
+    ) -> tuple[type[PosePairs], tuple[CapsuleModel], np.ndarray | None]:
+        return PosePairs, (self._model,), self._pose
+
+    def __setstate__(self, pose: np.ndarray | None) -> None:
+        if pose is not None:
+            self.place(pose)
 
     def place(self, pose_rad: np.ndarray) -> None:
         """Carry the capsules into the (n_joints,) pose (finite angles, the robot's order)."""
-        self._carrier.carry(pose_rad)
+        self._pose = np.array(pose_rad, dtype=np.float64)
+        self._carrier.carry(self._pose)
 
     def distances(self, pairs: np.ndarray) -> np.ndarray:
         """(M,) signed distances (m) in the placed pose of ``pairs`` (indices of link_pairs)."""
