@@ -87,8 +87,10 @@ __all__ = [
 ]
 
 MAX_KERNEL_UNITS = 1024  # widths beyond this go to the torch loader (which refuses them)
-_MIN_LOG_STD = -7.0  # the live model's clamp of its log standard deviation
-_MAX_LOG_STD = 0.0
+_MIN_LOG_STD = np.full((), -7.0)  # the live model's clamp of its log standard deviation
+_MAX_LOG_STD = np.zeros(())
+# 0-d arrays: numpy's ufuncs take them quicker than Python floats (the same float64 values)
+_ZERO, _ONE = np.zeros(()), np.ones(())
 
 
 class FramePredictor(Protocol):
@@ -269,7 +271,7 @@ class LiveKernel:
         np.tanh(new, out=new)
         z = rz[size:]
         hidden *= z  # h = (1 - z) n + z h
-        rz[:size] = 1.0 - z
+        np.subtract(_ONE, z, out=rz[:size])
         new *= rz[:size]
         hidden += new
         raw = hidden @ self._w_out
@@ -284,8 +286,8 @@ class LiveKernel:
             spread = temperature * np.exp(log_std, out=log_std)
             spread *= self._noise
             pose += spread
-            np.maximum(pose, 0.0, out=pose)
-            np.minimum(pose, 1.0, out=pose)
+            np.maximum(pose, _ZERO, out=pose)
+            np.minimum(pose, _ONE, out=pose)
         if self.max_step is not None:
             np.maximum(pose, previous - self.max_step, out=pose)
             np.minimum(pose, previous + self.max_step, out=pose)
@@ -301,8 +303,8 @@ def _sigmoid_in_place(x: np.ndarray) -> np.ndarray:
     """:func:`sigmoid` of ``x`` into ``x`` (the same operations, no new array)."""
     np.negative(x, out=x)
     np.exp(x, out=x)
-    x += 1.0
-    return np.divide(1.0, x, out=x)
+    x += _ONE
+    return np.divide(_ONE, x, out=x)
 
 
 class LiveGroupsKernel(GroupedSampler):

@@ -172,6 +172,10 @@ class NoiseStream:
         """Noise of ``shape`` for ``n_joints`` joints; call :meth:`start` before :meth:`next`."""
         self.shape = shape
         self.n_joints = n_joints
+        # the weights as 0-d arrays: numpy's ufuncs take them quicker than Python floats
+        self._rho, self._innovation, self._gain = (
+            np.full((), value) for value in (shape.rho, shape.innovation, shape.second_gain)
+        )
         self._rho_z = BURST_CORRELATION
         self._innovation_z = math.sqrt(1.0 - BURST_CORRELATION * BURST_CORRELATION)
         self._noise = np.zeros(n_joints)
@@ -194,11 +198,11 @@ class NoiseStream:
 
     def next(self, draw: np.ndarray) -> np.ndarray:
         """The next frame's noise from its draws."""
-        shape = self.shape
+        rho, innovation = self._rho, self._innovation
         fresh = self._innovations(draw, first=False)
-        self._noise = shape.rho * self._noise + shape.innovation * fresh
-        self._smooth = shape.rho * self._smooth + shape.innovation * self._noise
+        self._noise = rho * self._noise + innovation * fresh
+        self._smooth = rho * self._smooth + innovation * self._noise
         return self._current()
 
     def _current(self) -> np.ndarray:
-        return self._noise if self.shape.order == 1 else self._smooth / self.shape.second_gain
+        return self._noise if self.shape.order == 1 else self._smooth / self._gain
