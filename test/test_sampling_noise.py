@@ -10,7 +10,13 @@ from audio2pose_ros.checkpoints.numpy_runtime import numpy_kernel_for
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.live import LiveConfig, LiveSampler
 from audio2pose_ros.models.registry import build_model
-from audio2pose_ros.models.sampling_noise import MAX_BURST, NoiseShape, NoiseStream
+from audio2pose_ros.models.sampling_noise import (
+    MAX_BURST,
+    NORMAL_BLOCK,
+    NoiseShape,
+    NoiseStream,
+    NormalBlocks,
+)
 
 
 @pytest.mark.parametrize(
@@ -155,3 +161,12 @@ def test_when_one_part_has_its_own_correlation_expect_only_that_part_to_move_oth
     torch.testing.assert_close(quick[..., 1:], shared[..., 1:])  # the second part: unchanged
     head_speed = [np.abs(np.diff(m[0, 0, :, 0].numpy())).mean() for m in (shared, quick)]
     assert head_speed[1] > 1.5 * head_speed[0]  # less correlated noise moves faster
+
+
+@pytest.mark.parametrize("draws", [1, 4, 9])
+def test_when_normals_are_drawn_in_blocks_expect_the_numbers_of_drawing_frame_by_frame(draws):
+    """A streaming sampler draws a block of frames at once: the same numbers, block after block."""
+    frame_by_frame = np.random.default_rng(5)
+    blocks = NormalBlocks(np.random.default_rng(5), draws)
+    for _ in range(3 * NORMAL_BLOCK + 7):
+        assert np.array_equal(blocks.next(), frame_by_frame.standard_normal(draws))

@@ -59,6 +59,7 @@ from audio2pose_ros.models.body_noise import body_noise_for, check_body_noise
 from audio2pose_ros.models.sampling_noise import (
     NoiseShape,
     NoiseStream,
+    NormalBlocks,
     check_burst,
     check_per_joint,
 )
@@ -238,21 +239,20 @@ class LiveKernel:
         """Forget the state; optionally change the seed of the sampling noise."""
         if seed is not None:
             self.seed = seed
-        self._rng = np.random.default_rng(self.seed)
         hidden, features = self._w_hh.shape[0], self._w_ih.shape[0] - len(self._start_pose)
         # this frame's input (features, then the previous pose) and hidden state
         self._input = np.concatenate([np.zeros(features), self._start_pose])
         self._hidden = np.zeros(hidden)
         self._rz = np.empty(2 * hidden)
-        self._draw = np.empty(self._draws)
+        self._normals = NormalBlocks(np.random.default_rng(self.seed), self._draws)
         self._stream = NoiseStream(self._shape, int(self._start_pose.shape[0]))
-        self._noise = self._stream.start(self._rng.standard_normal(self._draws))
+        self._noise = self._stream.start(self._normals.next())
         self._first = True
 
     def step(self, features: np.ndarray) -> np.ndarray:
         """Sample the pose of one frame (a new array; the kernel keeps a copy of it)."""
         if not self._first:
-            self._noise = self._stream.next(self._rng.standard_normal(out=self._draw))
+            self._noise = self._stream.next(self._normals.next())
         self._first = False
         x, hidden, rz = self._input, self._hidden, self._rz
         previous = x[len(x) - len(self._start_pose) :]

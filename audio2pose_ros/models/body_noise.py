@@ -68,6 +68,7 @@ MAX_FACTOR_STEP = 0.05  # per frame: the noise fades over 0.2 s, never in one ju
 BOUND_SLACK_M = 0.002  # the travel bound may fall this far below a measurement before the next
 BOUND_EPS_M = 1e-6  # a pair's own bound is kept this far below: rounding cannot break it
 PREFETCH_M = 0.04  # a measurement also measures the pairs this far beyond the nearest's reach
+_SUM, _MIN = np.add.reduce, np.minimum.reduce  # without the wrappers of sum() and min()
 
 
 def check_body_noise(margin_m: float, band_m: float) -> None:
@@ -133,7 +134,8 @@ class BodyNoise:
         Raises:
             ValueError: the pose is not finite.
         """
-        if not np.isfinite(previous_unit).all():
+        # finite terms have a finite sum, except where it overflows: then each one is checked
+        if not math.isfinite(_SUM(previous_unit)) and not np.isfinite(previous_unit).all():
             raise ValueError("body-aware sampling: the previous pose is not finite")
         pose = self.robot.denormalize(previous_unit[None])  # (1, J): the rows' products
         if self._at is None:
@@ -169,13 +171,13 @@ class BodyNoise:
         where their own bound falls below the smallest of those.
         """
         known = self._known
-        exact = near[known].min()  # a measured pose has a pair measured: the nearest
+        exact = _MIN(near[known])  # a measured pose has a pair measured: the nearest
         todo = (~known & (near < exact)).nonzero()[0]
         if not len(todo):
             return exact
         distances = self._pairs.distances(todo)
         self._bounds[todo], known[todo] = distances, True
-        return min(exact, (distances - travel[todo]).min())
+        return min(exact, _MIN(distances - travel[todo]))
 
     def _measure(
         self, pose: np.ndarray, near: np.ndarray | None = None, travel: np.ndarray | None = None
@@ -192,14 +194,14 @@ class BodyNoise:
             todo, bounds = self._every_pair, np.empty(len(self._every_pair))
         else:
             bounds = near - BOUND_EPS_M
-            reach = (self._bounds + travel)[self._known].min()
+            reach = _MIN((self._bounds + travel)[self._known])
             todo = (bounds < reach + (BOUND_EPS_M + PREFETCH_M)).nonzero()[0]
         self._pairs.place(pose[0])
         distances = self._pairs.distances(todo)
         bounds[todo] = distances
         self._known = np.zeros(len(bounds), dtype=bool)
         self._known[todo] = True
-        self._at, self._bounds, self._nearest = pose, bounds, distances.min()
+        self._at, self._bounds, self._nearest = pose, bounds, _MIN(distances)
         return self._nearest
 
     def _factors_of_rows(self, previous: np.ndarray) -> np.ndarray:

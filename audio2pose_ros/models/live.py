@@ -41,6 +41,7 @@ from audio2pose_ros.models.recurrent_numpy import CellWeights, gru_step, linear_
 from audio2pose_ros.models.sampling_noise import (
     NoiseShape,
     NoiseStream,
+    NormalBlocks,
     PerJoint,
     check_burst,
     is_bursty,
@@ -294,18 +295,18 @@ class LivePredictor(StreamingPredictor):
         """Forget the state; optionally change the seed of the sampling noise."""
         if seed is not None:
             self.seed = seed
-        self._rng = np.random.default_rng(self.seed)
         hidden, previous = self._core.start(1)
         self._state = (hidden[0], previous[0])
         self._stream = NoiseStream(self._core.noise, int(previous.shape[1]))
-        self._draws = self._core.noise.draws(int(previous.shape[1]))
-        self._noise = self._stream.start(self._rng.standard_normal(self._draws))
+        draws = self._core.noise.draws(int(previous.shape[1]))
+        self._normals = NormalBlocks(np.random.default_rng(self.seed), draws)
+        self._noise = self._stream.start(self._normals.next())
         self._first = True
 
     def step(self, features: np.ndarray) -> np.ndarray:
         """Sample the pose of one (n_features,) frame."""
         if not self._first:
-            self._noise = self._stream.next(self._rng.standard_normal(self._draws))
+            self._noise = self._stream.next(self._normals.next())
         self._first = False
         pose, self._state = self._core.step(
             np.asarray(features, dtype=np.float64),

@@ -43,6 +43,7 @@ Burst = PerJoint  # a burstiness: one for every joint, or one per joint
 
 BURST_CORRELATION = 0.98  # AR(1) coefficient of the burst envelope's log: ~0.5 s at 100 Hz
 MAX_BURST = 2.0  # exp(2 b^2) inflates rare peaks; beyond this the envelope is mostly spikes
+NORMAL_BLOCK = 64  # frames of a streaming sampler's standard normals drawn at once
 
 
 def check_per_joint(value: object, n_joints: int, name: str, high: float = math.inf) -> PerJoint:
@@ -163,6 +164,30 @@ def _ar1(draws: np.ndarray, rho: float, axis: int) -> np.ndarray:
     scaled = np.moveaxis(draws, axis, 0).copy()
     scaled[0] /= innovation  # so that x_0 = d_0, already unit variance
     return np.moveaxis(signal.lfilter([innovation], [1.0, -rho], scaled, axis=0), 0, axis)
+
+
+class NormalBlocks:
+    """A generator's standard normals, ``draws`` a frame, drawn :data:`NORMAL_BLOCK` frames at once.
+
+    The generator fills a block in order, so the numbers are those of drawing frame by frame
+    (``rng.standard_normal(draws)``); one call of the generator costs more than the few numbers
+    a frame takes. A frame's numbers are a view of the block, never written again.
+    """
+
+    def __init__(self, rng: np.random.Generator, draws: int) -> None:
+        """Draw from ``rng`` (which nothing else draws from), ``draws`` numbers a frame."""
+        self._rng = rng
+        self._block, self._row = np.empty((0, draws)), 0
+
+    def next(self) -> np.ndarray:
+        """The next frame's (draws,) standard normals."""
+        if self._row == len(self._block):
+            self._block, self._row = (
+                self._rng.standard_normal((NORMAL_BLOCK, self._block.shape[1])),
+                0,
+            )
+        self._row += 1
+        return self._block[self._row - 1]
 
 
 class NoiseStream:
