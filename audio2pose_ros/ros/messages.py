@@ -3,8 +3,9 @@
 A features message carries (n_frames, n_features) float32 values, its feature set named in
 dim[1].label and, optionally, the index of its first frame in dim[0].label ("frames from N"), so
 the receiver counts the frames lost between messages. A raw trajectory is a JointTrajectory of
-one point per 10 ms frame. Also here: what the middleware tells about a message (its
-publisher, when it was published) and the largest raw trajectory worth decoding.
+one point per 10 ms frame (the motion filter reads it with :mod:`audio2pose_ros.ros.cdr`). Also
+here: what the middleware tells about a message (its publisher, when it was published) and the
+largest raw trajectory worth decoding.
 """
 
 from __future__ import annotations
@@ -138,25 +139,3 @@ def trajectory_msg(
         point.time_from_start = duration_msg((i + 1) * period_s)
         msg.points.append(point)
     return msg
-
-
-def trajectory_positions(msg: JointTrajectory, joint_names: Sequence[str]) -> np.ndarray:
-    """(n_points, n_joints) positions reordered to ``joint_names``.
-
-    Raises:
-        ValueError: a joint is missing, or a point has the wrong number of positions.
-
-    """
-    index = {name: i for i, name in enumerate(msg.joint_names)}
-    missing = [n for n in joint_names if n not in index]
-    if missing:
-        raise ValueError(f"trajectory lacks joints {missing}")
-    order = [index[n] for n in joint_names]
-    rows = []
-    for k, point in enumerate(msg.points):
-        if len(point.positions) != len(msg.joint_names):
-            raise ValueError(
-                f"point {k} has {len(point.positions)} positions for {len(msg.joint_names)} joints"
-            )
-        rows.append(np.asarray(point.positions, dtype=np.float64)[order])
-    return np.array(rows).reshape(-1, len(joint_names))
