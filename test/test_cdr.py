@@ -43,7 +43,7 @@ def as_rclpy_reads_it(data: bytes) -> RawTrajectory:
     msg = deserialize_message(data, JointTrajectory)
     return RawTrajectory(
         msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9,
-        list(msg.joint_names),
+        tuple(msg.joint_names),
         [np.asarray(p.positions, dtype=np.float64) for p in msg.points],
     )
 

@@ -40,7 +40,7 @@ class RawTrajectory(NamedTuple):
     """What the motion filter reads of a JointTrajectory."""
 
     stamp_s: float  # header stamp (s)
-    joint_names: list[str]
+    joint_names: tuple[str, ...]
     positions: list[np.ndarray]  # per point, float64 (read-only views of the message's bytes)
 
     def poses(self, joint_names: Sequence[str], take: int) -> np.ndarray:
@@ -49,20 +49,42 @@ class RawTrajectory(NamedTuple):
         Raises:
             ValueError: a joint is missing, or a point has the wrong number of positions.
         """
-        index = {name: i for i, name in enumerate(self.joint_names)}
-        missing = [n for n in joint_names if n not in index]
-        if missing:
-            raise ValueError(f"trajectory lacks joints {missing}")
-        order = [index[n] for n in joint_names]
+        order = _order(self.joint_names, joint_names)
         points = self.positions[:take]
         for k, point in enumerate(points):
             if len(point) != len(self.joint_names):
                 raise ValueError(
                     f"point {k} has {len(point)} positions for {len(self.joint_names)} joints"
                 )
+        if len(points) == 1:  # the stream's usual message
+            return points[0][order][None, :]
         if not points:
             return np.empty((0, len(joint_names)))
         return np.vstack(points)[:, order]
+
+
+# The last names read and the last order made: every message of a stream repeats them.
+_last_names: tuple[int, int, bytes, tuple[str, ...]] = (-1, -1, b"", ())
+_last_order: tuple[tuple[str, ...], Sequence[str], np.ndarray] | None = None
+
+
+def _order(names: tuple[str, ...], wanted: Sequence[str]) -> np.ndarray:
+    """Index into ``names`` of each of ``wanted`` (kept for the same two objects).
+
+    Raises:
+        ValueError: a joint is missing.
+    """
+    global _last_order
+    last = _last_order
+    if last is not None and last[0] is names and last[1] is wanted:
+        return last[2]
+    index = {name: i for i, name in enumerate(names)}
+    missing = [n for n in wanted if n not in index]
+    if missing:
+        raise ValueError(f"trajectory lacks joints {missing}")
+    order = np.array([index[n] for n in wanted], dtype=np.intp)
+    _last_order = (names, wanted, order)
+    return order
 
 
 class _Reader:
@@ -124,10 +146,17 @@ def read_joint_trajectory(data: bytes) -> RawTrajectory:
         raise InputError(f"malformed CDR: {len(data)} bytes")
     if data[:2] != CDR_LE:  # big-endian or another encoding: rclpy reads it
         return _from_message(data)
+    global _last_names
     reader = _Reader(data)
     stamp_s = reader.stamp_s()
     reader.string()  # frame_id
-    names = [reader.string() for _ in range(reader.count(5))]
+    start = reader.pos + (-(reader.pos - 4) % 4)  # where the names' count is
+    at, size, block, names = _last_names
+    if at == start and data[start : start + size] == block:  # the names of the last message
+        reader.pos = start + size
+    else:
+        names = tuple(reader.string() for _ in range(reader.count(5)))
+        _last_names = (start, reader.pos - start, data[start : reader.pos], names)
     positions = []
     for _ in range(reader.count(24)):  # 4 counts and a Duration at least
         positions.append(reader.float64s())
@@ -146,6 +175,6 @@ def _from_message(data: bytes) -> RawTrajectory:
     stamp = msg.header.stamp
     return RawTrajectory(
         float(stamp.sec + stamp.nanosec * 1e-9),
-        list(msg.joint_names),
+        tuple(msg.joint_names),
         [np.asarray(point.positions, dtype=np.float64) for point in msg.points],
     )
