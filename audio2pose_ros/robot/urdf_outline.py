@@ -11,8 +11,8 @@ therefore call :func:`parse_apart` first thing (:mod:`audio2pose_ros.ros.nodes.p
 URDFs are then parsed by the same parser in a short-lived child process,
 ``python -m audio2pose_ros.robot.urdf_outline``, which reads the XML on stdin and prints the
 outline, or the parser's complaint, as one JSON line. The values and the errors are the same
-either way; the child costs about 0.2 s of start-up. Other processes (the command line, the
-tests, the offline tools) parse in their own process.
+either way; the child takes about 0.1 s longer than a parse in process. Other processes (the
+command line, the tests, the offline tools) parse in their own process.
 """
 
 from __future__ import annotations
