@@ -226,7 +226,18 @@ def test_when_parsed_in_a_child_process_expect_what_this_process_reads(kinematic
         np.testing.assert_array_equal(a.origin, b.origin)
 
 
-def test_when_the_parser_process_cannot_run_expect_a_kinematics_error(kinematics, monkeypatch):
+def test_when_no_interpreter_can_be_started_expect_the_urdf_parsed_here(
+    kinematics, monkeypatch, tmp_path
+):
+    monkeypatch.setattr(sys, "executable", str(tmp_path / "no-python"))
+    parse_apart(True)
+    try:
+        assert read_outline(kinematics.urdf_xml) == outline(kinematics.urdf_xml)
+    finally:
+        parse_apart(False)
+
+
+def test_when_the_parser_process_fails_expect_a_kinematics_error(kinematics, monkeypatch):
     monkeypatch.setattr(sys, "executable", "/bin/false")
     parse_apart(True)
     try:

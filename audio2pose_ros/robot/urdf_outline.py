@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 from typing import Any
 
 __all__ = ["UrdfParseError", "outline", "parse_apart", "read_outline"]
@@ -38,19 +39,29 @@ def parse_apart(enabled: bool = True) -> None:
 def read_outline(urdf_xml: str) -> dict[str, Any]:
     """The outline of ``urdf_xml``, parsed where :func:`parse_apart` said.
 
+    The child runs this interpreter on this module, this package first on its path. If it cannot
+    be started at all (no interpreter to run), the URDF is parsed here.
+
     Raises:
         UrdfParseError: the parser refused the text, or the child process failed.
     """
     if not _settings["apart"]:
         return outline(urdf_xml)
+    import os
     import subprocess  # here: the node processes import this module before anything else
 
-    done = subprocess.run(
-        [sys.executable, "-m", __name__],
-        input=urdf_xml.encode("utf-8"),
-        capture_output=True,
-        check=False,
-    )
+    package_root = str(Path(__file__).resolve().parents[2])
+    path = os.pathsep.join(p for p in (package_root, os.environ.get("PYTHONPATH")) if p)
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", __name__],
+            input=urdf_xml.encode("utf-8"),
+            capture_output=True,
+            check=False,
+            env={**os.environ, "PYTHONPATH": path},
+        )
+    except OSError:
+        return outline(urdf_xml)
     lines = done.stdout.decode("utf-8", "replace").strip().splitlines()
     try:
         answer = json.loads(lines[-1]) if done.returncode == 0 and lines else None
