@@ -25,6 +25,7 @@ WATCHED = (
     "safetensors",
     "decimal",
     "difflib",
+    "tempfile",
     "lxml",
     "urdf_parser_py",
     "audio2pose_ros.robot.kinematics",
@@ -73,6 +74,7 @@ def test_when_the_motion_filter_runs_expect_its_guard_on_coal_without_pinocchio(
     assert not loaded["pinocchio"]
     assert loaded["coal"] or loaded["hppfcl"]
     assert loaded["audio2pose_ros.robot.kinematics"]
+    assert not loaded["tempfile"], loaded  # its state file is written without it
     assert not loaded["lxml"], loaded  # parsed in a child process
     assert not loaded["urdf_parser_py"], loaded
 
