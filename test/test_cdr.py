@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Duration
 from rclpy.serialization import deserialize_message, serialize_message
+from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from audio2pose_ros.errors import InputError
-from audio2pose_ros.ros.cdr import RawTrajectory, read_joint_trajectory
+from audio2pose_ros.ros.cdr import RawTrajectory, read_features, read_joint_trajectory
+from audio2pose_ros.ros.messages import features_to_msg, msg_to_features
 
 
 def random_trajectory(rng: np.random.Generator) -> JointTrajectory:
@@ -119,3 +123,49 @@ def test_when_the_encapsulation_is_not_little_endian_cdr_expect_rclpy_to_read_it
         read_joint_trajectory(bytes(data))
     with pytest.raises(InputError, match="3 bytes"):
         read_joint_trajectory(b"\x00\x01\x00")
+
+
+def test_when_features_messages_are_read_expect_what_rclpy_reads_or_the_same_refusal():
+    """Numbered, unnumbered and inconsistent layouts: the same batch or the same error text."""
+    rng = np.random.default_rng(11)
+    for trial in range(300):
+        frames = rng.standard_normal((int(rng.integers(0, 4)), int(rng.integers(0, 30))))
+        first = None if trial % 3 else int(rng.integers(0, 10**6))
+        msg = features_to_msg(frames, "logfbank26", first)
+        if trial % 5 == 1:  # a layout that does not describe the data
+            msg.layout.dim = msg.layout.dim[: int(rng.integers(0, 2))]
+        if trial % 7 == 2:
+            msg.layout.dim.append(MultiArrayDimension(label="ü", size=3, stride=3))
+        if trial % 11 == 3 and msg.layout.dim:
+            msg.layout.dim[0].size += 1
+        data = serialize_message(msg)
+        refusal = ""
+        try:
+            theirs = msg_to_features(deserialize_message(data, Float32MultiArray))
+        except InputError as exc:
+            refusal = str(exc)
+        if refusal:
+            with pytest.raises(InputError, match=re.escape(refusal)):
+                read_features(data)
+            continue
+        ours = read_features(data)
+        assert (ours.label, ours.first_frame) == (theirs.label, theirs.first_frame)
+        assert ours.frames.dtype == theirs.frames.dtype
+        assert np.array_equal(ours.frames, theirs.frames)
+
+
+def test_when_features_bytes_are_corrupted_expect_input_errors_never_other_failures():
+    data = serialize_message(features_to_msg(np.ones((2, 26)), "logfbank26", 5))
+    rng = np.random.default_rng(5)
+    refused = 0
+    for _ in range(2000):
+        corrupted = bytearray(data)
+        for at in rng.integers(4, len(data), size=int(rng.integers(1, 4))):
+            corrupted[at] = int(rng.integers(0, 256))
+        try:
+            batch = read_features(bytes(corrupted))
+        except InputError:
+            refused += 1
+            continue
+        assert batch.frames.size <= len(data) // 4
+    assert refused > 0
