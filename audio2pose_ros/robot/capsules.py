@@ -307,6 +307,8 @@ class PosePairs:
         self._model = model
         self._carrier = model._frames.carrier(model._point_chains, model._points)
         self._columns = self._carrier.carried[:, :3].T  # (3, 2 C), a view of the carried ends
+        # per pair, the points that give d1, d2, r (the heads) and those they are taken from
+        self._ends = np.concatenate([model._pair_heads, model._pair_tails])  # (6, P)
         self._pose: np.ndarray | None = None
 
     def __reduce__(
@@ -325,7 +327,8 @@ class PosePairs:
 
     def distances(self, pairs: np.ndarray) -> np.ndarray:
         """(M,) signed distances (m) in the placed pose of ``pairs`` (indices of link_pairs)."""
-        model, columns = self._model, self._columns
-        heads, tails = model._pair_heads[:, pairs], model._pair_tails[:, pairs]
-        vectors = columns.take(heads, axis=1) - columns.take(tails, axis=1)  # (3, 3, M)
-        return _segment_gaps(vectors[:, None])[0] - model._pair_radii[pairs]
+        points = self._columns.take(self._ends.take(pairs, axis=1), axis=1)  # (3, 6, M)
+        vectors = points[:, :3] - points[:, 3:]  # d1, d2, r: (3, 3, M)
+        distances = _segment_gaps(vectors[:, None])[0]
+        distances -= self._model._pair_radii.take(pairs)
+        return distances
