@@ -71,6 +71,7 @@ from audio2pose_ros.models.speech_gate import (
     GroupedSampler,
     SpeechGate,
     check_velocity_limit,
+    nonzero,
     part_bursts,
     part_correlations,
     part_factor,
@@ -279,7 +280,7 @@ class LiveKernel:
         joints = len(raw) // 2
         pose = _sigmoid_in_place(raw[:joints])
         temperature = self.temperature
-        if temperature.any() if isinstance(temperature, np.ndarray) else temperature:
+        if nonzero(temperature):
             log_std = raw[joints:]
             np.maximum(log_std, _MIN_LOG_STD, out=log_std)
             np.minimum(log_std, _MAX_LOG_STD, out=log_std)

@@ -125,11 +125,9 @@ class BodyNoise:
     def factor(self, previous_unit: np.ndarray) -> float:
         """One sequence's noise factor in [0, 1] for its (J,) previous pose in [0, 1].
 
-        The same factor as :meth:`factors` of the pose as one row measuring every pair (the
-        module text), to the last bit, but each pair has its own lower bound: the pose is
-        measured where the module text measures it, but only the pairs whose bound can be
-        the nearest, and the bound of the module text is made exact only where it decides
-        something (``test/test_body_noise.py`` counts the pairs measured).
+        The factor of :meth:`factors` of the pose as one row, to the last bit, which measures
+        every pair of a stale pose; here each pair keeps its own lower bound, and only the
+        pairs that can be the nearest are measured (the module text).
 
         Raises:
             ValueError: the pose is not finite.

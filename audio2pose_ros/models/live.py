@@ -46,7 +46,7 @@ from audio2pose_ros.models.sampling_noise import (
     check_burst,
     is_bursty,
 )
-from audio2pose_ros.models.speech_gate import Factor
+from audio2pose_ros.models.speech_gate import Factor, nonzero
 
 WARM_UP_TRAINING_FRAMES = 50  # a settled hold before every training window (warm_start)
 _MIN_LOG_STD = -7.0  # sigma >= 1e-3 of the joint range: keeps the likelihood finite
@@ -214,7 +214,7 @@ class _LiveCore:
         raw = hidden @ self.w_out + self.b_out
         joints = raw.shape[-1] // 2
         pose = sigmoid(raw[..., :joints])
-        if temperature.any() if isinstance(temperature, np.ndarray) else temperature:
+        if nonzero(temperature):
             std = np.exp(np.minimum(np.maximum(raw[..., joints:], _MIN_LOG_STD), _MAX_LOG_STD))
             pose = np.minimum(np.maximum(pose + temperature * std * noise, 0.0), 1.0)
         if max_step is not None:

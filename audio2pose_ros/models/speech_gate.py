@@ -100,7 +100,7 @@ def part_step_limits(
     return tuple(unit[joints] for joints in groups)
 
 
-def _nonzero(factor: Factor) -> bool:
+def nonzero(factor: Factor) -> bool:
     """``np.any(factor)`` without its wrapper (a frame's work is mostly numpy's call overhead)."""
     return bool(factor.any()) if isinstance(factor, np.ndarray) else bool(factor)
 
@@ -205,7 +205,7 @@ class GroupedSampler:
         ):
             part.temperature = self.temperature * factor * scale
             body = self._body_noise if k == self._body_part else None
-            if body is not None and self._previous is not None and _nonzero(part.temperature):
+            if body is not None and self._previous is not None and nonzero(part.temperature):
                 part.temperature *= body.factor(self._previous)
             part.max_step = None if limits is None else limits[k]
             pose[joints] = part.step(features)
