@@ -270,3 +270,20 @@ def test_when_a_model_has_no_numpy_kernel_expect_torch_loader_or_refusal(
         load_streaming_model(path, robot=robot)
     with pytest.raises(CheckpointError, match="no numpy kernel"):
         load_streaming_model(path, robot=robot, allow_torch=False)
+
+
+def test_when_the_packaged_sampler_runs_slices_expect_the_poses_of_stepping_frame_by_frame(
+    robot: RobotDescription, speech_features: tuple[np.ndarray, FeatureNormalizer]
+) -> None:
+    """The node runs a message's frames a few at a time: the same poses as one by one, and a
+    caller that writes into the poses it got does not change the next frame's."""
+    loaded = load_streaming_model(default_checkpoint_path(), robot=robot)
+    frames = loaded.normalizer.apply(speech_features[0][:300])
+    stepper, runner = loaded.predictor(seed=0).predictor, loaded.predictor(seed=0).predictor
+    expected = np.array([stepper.step(f) for f in frames])
+    got = []
+    for begin in range(0, len(frames), 7):
+        poses = runner.run(frames[begin : begin + 7])
+        got.append(poses.copy())
+        poses[:] = 0.0  # the caller's to change
+    assert np.array_equal(np.concatenate(got), expected)

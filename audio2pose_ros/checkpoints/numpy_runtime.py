@@ -362,10 +362,6 @@ class LiveGroupsKernel(GroupedSampler):
         self.temperature = temperature
         self.reset()
 
-    def run(self, frames: np.ndarray) -> np.ndarray:
-        """(N, n_features) frames in order -> (N, n_joints) sampled poses."""
-        return np.array([self.step(frame) for frame in frames])
-
 
 # --- what each kernel accepts -----------------------------------------------------------------
 

@@ -197,9 +197,21 @@ class GroupedSampler:
 
     def step(self, features: np.ndarray) -> np.ndarray:
         """Sample the pose of one (n_features,) frame: (n_joints,) in [0, 1]."""
+        return self._sample(features, np.empty(self._n_joints))
+
+    def run(self, frames: np.ndarray) -> np.ndarray:
+        """(N, n_features) frames in order -> (N, n_joints) sampled poses (one new array)."""
+        poses = np.empty((len(frames), self._n_joints))
+        for t in range(len(frames)):  # (indexing: quicker than iterating over the arrays)
+            self._sample(frames[t], poses[t])
+        if len(poses):
+            self._previous = poses[-1].copy()  # the caller's to change
+        return poses
+
+    def _sample(self, features: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """:meth:`step` into ``pose``, which stays the previous pose until the next frame."""
         scale = self._gate.step(features) if self.temperature else 0.0
         limits = self._max_steps if self.temperature else None
-        pose = np.empty(self._n_joints)
         for k, (joints, part, factor) in enumerate(
             zip(self._groups, self._parts, self._factors, strict=True)
         ):
