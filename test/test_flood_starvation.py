@@ -21,7 +21,6 @@ flood.
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import time
@@ -33,6 +32,7 @@ import pytest
 import rclpy
 from audio_common_msgs.msg import AudioData, AudioInfo
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from executor_cpu import BEAT_LATE_CPU_S, ExecutorCpu
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -50,33 +50,16 @@ pytestmark = pytest.mark.ros
 
 FLOOD_S = 5.0
 FLOODER = Path(__file__).with_name("flood_publisher.py")
-# A paced timer's output falls due at the latest one and a half periods after the one before
-# (one period, or half a period more when a late executor event ran it early). From then, the
-# node's executor thread runs at most a quarter period and the callback running then before the
-# output: with room for callbacks several times slower than here, the bounds on the executor's
-# CPU time meanwhile are (figures from 2 busy cores, the flooder at the tests' priority)
-DUE_WITHIN_PERIODS = 1.5
-STATE_LATE_CPU_S = 0.04  # joint_states (20 ms): here at most 7 ms; starving: 16-400 ms
-BEAT_LATE_CPU_S = 0.25  # heartbeat (0.5 s): here at most 0.09 s; starving: 0.1-3.5 s
+# While an output is due, the executor runs at most a quarter period and the callback running
+# then (executor_cpu.py): with room for callbacks several times slower than here, the bounds on
+# its CPU time meanwhile are (figures from 2 busy cores, the flooder at the tests' priority)
+STATE_LATE_CPU_S = 0.04  # joint_states (20 ms): here at most 7 ms; starving: 16-540 ms
+# and BEAT_LATE_CPU_S (0.25 s) for the heartbeat (0.5 s)
 WINDOW_S = 1.0  # for the printed figure: the fewest joint_states in a 1 s window
 
 
 def _stamp_s(msg: DiagnosticArray | JointState) -> float:
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-
-
-def executor_cpu_s(pid: int) -> float:
-    """CPU time (s) process ``pid``'s main thread has used: where its executor runs callbacks.
-
-    The scheduler's own figure, in nanoseconds (schedstat); the user and system times of the
-    thread's stat, counted in clock ticks (10 ms), where the kernel has no schedstat.
-    """
-    task = Path(f"/proc/{pid}/task/{pid}")
-    try:
-        return int((task / "schedstat").read_text().split()[0]) * 1e-9
-    except FileNotFoundError:
-        fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 @dataclass
@@ -88,46 +71,24 @@ class Heard:
     sent: int = 0
     first_s: float = 0.0  # wall clock, the flood's first and last message
     last_s: float = 0.0
-    # the executor thread's CPU time (s) through the flood: (wall clock before the read, CPU
-    # time, wall clock after the read)
-    cpu: list[tuple[float, float, float]] = field(default_factory=list)
+    cpu: ExecutorCpu | None = None  # the node's executor thread through the flood
     process_cpu_s: float = 0.0  # the whole node process over the flood (for the record)
 
-    def read_cpu(self, pid: int) -> None:
-        before = time.time()
-        cpu_s = executor_cpu_s(pid)
-        self.cpu.append((before, cpu_s, time.time()))
-
-    def most_cpu_after_due(self, stamps: list[float], period_s: float) -> float:
-        """The most CPU time the executor thread surely used after an output fell due, before it.
-
-        An output falls due at the latest DUE_WITHIN_PERIODS periods after the one before.
-        Counted from the first CPU reading begun after that to the last one ended before the
-        output came (after the last output: to the end of the flood).
-        """
-        began, cpu_s, ended = (np.array(column) for column in zip(*self.cpu, strict=True))
-        times = sorted(stamps)
-        most = 0.0
-        for previous, output in zip(times, [*times[1:], np.inf], strict=True):
-            first = np.searchsorted(began, previous + DUE_WITHIN_PERIODS * period_s)
-            last = np.searchsorted(ended, output, side="right") - 1
-            if first < last:
-                most = max(most, float(cpu_s[last] - cpu_s[first]))
-        return most
-
-    def executor_cpu_s(self) -> float:
-        return self.cpu[-1][1] - self.cpu[0][1]
+    @property
+    def executor(self) -> ExecutorCpu:
+        assert self.cpu is not None, "the flood never started"
+        return self.cpu
 
     def beat_times(self) -> list[float]:
         return [t for t, _ in self.beats]
 
     def beats_inside(self) -> int:
         """Heartbeats stamped over the flood (from the first CPU reading to the last)."""
-        return sum(self.cpu[0][0] < t < self.cpu[-1][2] for t, _ in self.beats)
+        return sum(self.executor.start_s < t < self.executor.end_s for t, _ in self.beats)
 
     def states_inside(self) -> int:
         """joint_states stamped over the flood (from the first CPU reading to the last)."""
-        return sum(self.cpu[0][0] < t < self.cpu[-1][2] for t in self.states)
+        return sum(self.executor.start_s < t < self.executor.end_s for t in self.states)
 
     def longest_silence_s(self) -> float:
         """The longest time without a heartbeat during the flood (a figure, not a verdict)."""
@@ -143,19 +104,20 @@ class Heard:
 
     def figures(self) -> str:
         """What the node did with the CPU time it had, and its rates (for the record)."""
+        late_beat_s = self.executor.most_after_due(self.beat_times(), HEARTBEAT_PERIOD_S)
         states = (
             f"{self.states_inside()} joint_states (at most "
-            f"{self.most_cpu_after_due(self.states, STATE_PERIOD_S) * 1e3:.0f} ms of CPU after "
-            f"one was due; the fewest in a 1 s window: {self.fewest_states_per_window()}) and "
+            f"{self.executor.most_after_due(self.states, STATE_PERIOD_S) * 1e3:.0f} ms of CPU "
+            f"after one was due; the fewest in a 1 s window: {self.fewest_states_per_window()}) "
+            "and "
             if self.states
             else ""
         )
         return (
             f"{self.sent} messages in {self.last_s - self.first_s:.1f} s; the executor thread had "
-            f"{self.executor_cpu_s():.2f} s of CPU (the process {self.process_cpu_s:.2f} s) and "
-            f"sent {states}{self.beats_inside()} heartbeats (at most "
-            f"{self.most_cpu_after_due(self.beat_times(), HEARTBEAT_PERIOD_S):.2f} s of CPU after "
-            f"one was due; the longest silence: {self.longest_silence_s():.2f} s)"
+            f"{self.executor.total_s():.2f} s of CPU (the process {self.process_cpu_s:.2f} s) and "
+            f"sent {states}{self.beats_inside()} heartbeats (at most {late_beat_s:.2f} s of CPU "
+            f"after one was due; the longest silence: {self.longest_silence_s():.2f} s)"
         )
 
     def value(self, key: str, status: DiagnosticStatus | None = None) -> int:
@@ -169,14 +131,14 @@ def assert_heartbeat_kept(heard: Heard) -> None:
     And one at least: a node the flood blocked uses no CPU time, and sends nothing either.
     """
     assert heard.beats_inside() > 0, heard.figures()
-    late_cpu_s = heard.most_cpu_after_due(heard.beat_times(), HEARTBEAT_PERIOD_S)
+    late_cpu_s = heard.executor.most_after_due(heard.beat_times(), HEARTBEAT_PERIOD_S)
     assert late_cpu_s < BEAT_LATE_CPU_S, heard.figures()
 
 
 def assert_states_kept(heard: Heard) -> None:
     """Never STATE_LATE_CPU_S of the executor thread's CPU time after a joint_state fell due."""
     assert heard.states_inside() > 0, heard.figures()
-    late_cpu_s = heard.most_cpu_after_due(heard.states, STATE_PERIOD_S)
+    late_cpu_s = heard.executor.most_after_due(heard.states, STATE_PERIOD_S)
     assert late_cpu_s < STATE_LATE_CPU_S, heard.figures()
 
 
@@ -209,10 +171,11 @@ def flood(tmp_path: Path, executable: str, kind: str, *ros_args: str) -> Heard:
             assert flooder.stdout is not None
             assert flooder.stdout.readline().strip() == "ready"
             process_s = cpu_s(node_process.pid)
-            heard.read_cpu(node_process.pid)
+            heard.cpu = ExecutorCpu(node_process.pid)
+            heard.cpu.read()
             while flooder.poll() is None:
                 rclpy.spin_once(probe, timeout_sec=0.01)
-                heard.read_cpu(node_process.pid)
+                heard.cpu.read()
             heard.process_cpu_s = cpu_s(node_process.pid) - process_s
             words = flooder.stdout.read().split()
             assert len(words) == 4, f"the flooder failed (see {log.name}): {words}"
