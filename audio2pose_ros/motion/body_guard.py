@@ -96,14 +96,20 @@ class GuardStatus:
     floor_m: float = float("inf")  # clearance the guard guarantees now (m): the margin, or less
     # while it rises to a raised margin
     links: tuple[str, str] = ("", "")  # closest pair of the last command
+    clearance_exact: bool = True  # clearance_m and links were measured; False: the last command
+    # was cleared by the travel bound, clearance_m is a lower bound and links its pair
+    bound_checks: int = 0  # admissibility checks the travel bound answered without a query
     last_cost_ns: int = 0  # time the last call of BodyGuard.enforce took (for the bench)
 
 
 class BodyGuard:
     """Keeps commands at least ``margin_m`` away from the robot's body (see the module text)."""
 
-    def __init__(self, body: BodyModel, margin_m: float) -> None:
+    def __init__(self, body: BodyModel, margin_m: float, travel_bound: bool = True) -> None:
         """Guard commands for ``body`` with clearance ``margin_m`` (m, at least 0).
+
+        ``travel_bound=False`` makes every check query the body, as the guard did before the
+        travel bound: the commands are the same (the reference the bound is tested against).
 
         Raises:
             ValueError: the margin is negative or not finite.
@@ -116,14 +122,19 @@ class BodyGuard:
         self._guaranteed_m: float | None = None  # the floor, None until the first command
         self._floor_m = self.margin_m  # the clearance commands need this step (see the module)
         self._lead_out_s = 0.0
-        self._bounds = (body.robot.lower_rad, body.robot.upper_rad)
+        self._limiter: JointLimiter | None = None  # the limits of this step
+        self._range: tuple[np.ndarray, np.ndarray] | None = None  # its allowed range, once asked
         self._max_speed = body.robot.max_velocity_rad_s  # the limiter's, from each step on
         self._brake_accel: np.ndarray | None = None  # deceleration the last command relies on
         self._speed_up = np.zeros(body.robot.n_joints)  # the acceleration limit (rad/s^2)
         self._previous = np.zeros(body.robot.n_joints)  # the previous command, this step
+        self._step_previous = self._previous  # ... also while _settle checks from the result
         self._dt_s = 0.0  # the time of this step, and of each tick of a braking path (s)
         self._paths: dict[bytes, PathClearance] = {}
         self._travel = body.pair_lever_m  # (n_pairs, n_joints): a pair's travel per rad (m/rad)
+        self._travel_bound = travel_bound
+        self._pair_bounds_m: np.ndarray | None = None  # each pair's clearance bound, previous command
+        self._bounded = b""  # the last pose the travel bound cleared, this step
 
     def reset(self) -> None:
         """Start again from rest: forget the lead-out ramp, the floor and earlier queries."""
@@ -132,6 +143,46 @@ class BodyGuard:
         self._brake_accel = None
         self._paths.clear()
         self.body.reset()
+
+    def _pose_bound(self, travel: np.ndarray) -> tuple[float, int]:
+        """A lower bound of the clearance of every pose within ``travel`` (per joint) of the
+        previous command, from the pairs' bounds there (no query); -inf without them.
+
+        Returns:
+            ``(bound_m, pair)``: the bound and the pair (index in ``link_pairs``) it is of.
+        """
+        if self._pair_bounds_m is None:
+            return -np.inf, -1
+        bounds = self._pair_bounds_m - self._travel @ travel
+        pair = int(bounds.argmin())
+        return float(bounds[pair]), pair
+
+    def _path_bound(self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray) -> float:
+        """A lower bound of the clearance along :meth:`_path`'s whole path, without a query.
+
+        Each joint's travel from the previous command along the path is at most its step to
+        ``pose``, plus how far ``pose`` lies outside the position range (the braking path is
+        clipped into it; the margin-shrunk range, which the allowed range contains), plus its braking distance ``v^2 / (2 a)`` (the braking path's ticks
+        are a right Riemann sum of the speed falling linearly to rest, which never exceeds the
+        integral); each pair's bound at the previous command
+        (:meth:`~audio2pose_ros.robot.body.BodyModel.pair_bounds`) less its lever times that
+        travel bounds it along the path. NaN (never clear) for a joint that moves and cannot
+        brake.
+        """
+        assert self._limiter is not None  # the margin-shrunk range, inside the allowed range
+        lower, upper = self._limiter.lower_rad, self._limiter.upper_rad
+        outside = np.maximum(lower - pose, 0.0) + np.maximum(pose - upper, 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            braking = velocity * velocity / (2.0 * accel)
+        return self._pose_bound(np.abs(pose - self._previous) + outside + braking)[0]
+
+    def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The position range every pose the guard makes this step stays in (the limiter's
+        allowed range after the step's previous command); made when first asked."""
+        if self._range is None:
+            assert self._limiter is not None
+            self._range = self._limiter.allowed_range(self._step_previous)
+        return self._range
 
     def _clear(self, pose: np.ndarray) -> bool:
         return bool(self.body.clearance(pose) >= self._floor_m)
@@ -157,7 +208,7 @@ class BodyGuard:
         tick_s = dt_s * max(1.0, ticks / MAX_BRAKING_TICKS)
         steps = np.arange(1, int(np.ceil(min(ticks, MAX_BRAKING_TICKS))) + 1)[:, None]
         speeds = np.maximum(speed - steps * accel * tick_s, 0.0)
-        lower, upper = self._bounds
+        lower, upper = self._bounds()
         braking = np.clip(
             pose + np.sign(velocity) * np.cumsum(speeds, axis=0) * tick_s, lower, upper
         )
@@ -203,9 +254,17 @@ class BodyGuard:
 
         The path may come ``PATH_SLACK_M`` inside the margin, but no closer than the present
         clearance once inside it (so that braking along it cannot creep deeper step by step).
+        Outside the margin, a path whose travel bound (:meth:`_path_bound`) keeps the floor is
+        clear without a query: the exact check would find it clear too.
         """
         inside = self._floor_m < self.margin_m  # the floor is the present clearance
         path_floor = self._floor_m if inside else self._floor_m - PATH_SLACK_M
+        if self._travel_bound and not inside:
+            bound = self._path_bound(pose, velocity, accel)
+            if bound >= self._floor_m:  # the whole path, the command too, keeps the floor
+                self.status.bound_checks += 1
+                self._bounded = pose.tobytes()
+                return PathClearance(True, -1, -1, bound, 0.0, 0)
         return self._sweep(pose, velocity, accel, self._floor_m, path_floor)
 
     def _admissible(self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray) -> bool:
@@ -263,7 +322,7 @@ class BodyGuard:
         want_velocity = np.asarray(velocities_rad_s, dtype=np.float64)
         previous = np.asarray(previous_rad, dtype=np.float64)
         previous_velocity = np.asarray(previous_velocity_rad_s, dtype=np.float64)
-        self._previous = previous
+        self._previous = self._step_previous = previous
         self._dt_s = dt_s if np.isfinite(dt_s) and dt_s > 0.0 else 0.0
         # One deceleration for the limiter and the guard: the braking paths assume the joint
         # limiter's (its acceleration limit, or the previous, higher limit while a joint it let
@@ -272,9 +331,10 @@ class BodyGuard:
         self._speed_up = limiter.max_acceleration_rad_s2
         accel = np.maximum(self._speed_up, limiter.braking_rad_s2)
         brake = accel if self._brake_accel is None else np.maximum(accel, self._brake_accel)
-        self._bounds = limiter.allowed_range(previous)
+        self._limiter, self._range = limiter, None
         self._max_speed = limiter.max_velocity_rad_s
-        previous_clearance = float(self.body.clearance(previous))
+        self._bounded = b""
+        previous_clearance = self._previous_clearance(previous)
         if self._guaranteed_m is None:  # from rest: what the start pose has, at most the margin
             self._guaranteed_m = min(self.margin_m, previous_clearance)
         self._guaranteed_m = min(self._guaranteed_m, self.margin_m)  # a lowered margin: at once
@@ -301,11 +361,33 @@ class BodyGuard:
             self._brake_accel = accel
         status.active = not np.array_equal(positions, np.asarray(positions_rad, dtype=np.float64))
         status.interventions += int(status.active)
-        distance, link_a, link_b = self.body.closest_pair(positions)
+        if status.active or positions.tobytes() != self._bounded:
+            distance, link_a, link_b = self.body.closest_pair(positions)
+            status.clearance_exact = True
+        else:  # cleared by the travel bound: the command's own bound
+            distance, pair = self._pose_bound(np.abs(positions - previous))
+            link_a, link_b = self.body.link_pairs[pair]
+            status.clearance_exact = False
         status.clearance_m, status.links = distance, (link_a, link_b)
         status.floor_m = self._guaranteed_m
         status.last_cost_ns = time.perf_counter_ns() - start_ns
         return positions.copy(), velocities.copy()
+
+    def _previous_clearance(self, previous: np.ndarray) -> float:
+        """The previous command's clearance, or a lower bound of it that is at least the margin.
+
+        With the travel bound, each pair's bound at the previous command is kept for this step
+        (:meth:`_pose_bound`). While their lowest is at least the margin it stands for the
+        clearance: the floor is then the margin and no lead-out is due, as with the exact
+        clearance. Else, and from rest, the clearance is queried.
+        """
+        self._pair_bounds_m = None
+        if self._travel_bound and self._guaranteed_m is not None:
+            self._pair_bounds_m = self.body.pair_bounds(previous)
+            bound = float(self._pair_bounds_m.min())
+            if bound >= self.margin_m:
+                return bound
+        return float(self.body.clearance(previous))
 
     def _settle(
         self, positions: np.ndarray, velocities: np.ndarray, accel: np.ndarray, brake: np.ndarray
@@ -343,7 +425,7 @@ class BodyGuard:
         offending = self._offending(want, want_velocity, accel)
         if offending is None:
             return want, want_velocity
-        lower, upper = self._bounds
+        lower, upper = self._bounds()
         held = offending
         for _ in range(MAX_WIDENINGS):
             braked_speed = np.maximum(np.abs(previous_velocity) - brake * dt_s, 0.0)
@@ -426,7 +508,7 @@ class BodyGuard:
         speed = min(LEAD_OUT_SPEED_RAD_S, length / dt_s)
         target = self._within_speed(direction / float(np.linalg.norm(direction)) * speed)
         change = np.clip(target - previous_velocity, -self._speed_up * dt_s, self._speed_up * dt_s)
-        lower, upper = self._bounds
+        lower, upper = self._bounds()
         trial = np.where(
             held, np.clip(previous + (previous_velocity + change) * dt_s, lower, upper), pose
         )
@@ -467,7 +549,7 @@ class BodyGuard:
         """
         self.status.lead_out_steps += 1
         body = self.body
-        lower, upper = self._bounds
+        lower, upper = self._bounds()
         _, joints = body.violations(previous, self.margin_m)
         gradient = body.gradient(previous, joints)
         norm = float(np.linalg.norm(gradient))
