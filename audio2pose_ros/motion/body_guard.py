@@ -133,7 +133,7 @@ class BodyGuard:
         self._paths: dict[bytes, PathClearance] = {}
         self._travel = body.pair_lever_m  # (n_pairs, n_joints): a pair's travel per rad (m/rad)
         self._travel_bound = travel_bound
-        self._pair_bounds_m: np.ndarray | None = None  # each pair's clearance bound, previous command
+        self._pair_bounds_m: np.ndarray | None = None  # each pair's bound at the previous command
         self._bounded = b""  # the last pose the travel bound cleared, this step
 
     def reset(self) -> None:
@@ -145,8 +145,10 @@ class BodyGuard:
         self.body.reset()
 
     def _pose_bound(self, travel: np.ndarray) -> tuple[float, int]:
-        """A lower bound of the clearance of every pose within ``travel`` (per joint) of the
-        previous command, from the pairs' bounds there (no query); -inf without them.
+        """A lower bound of the clearance of every pose within ``travel`` of the previous command.
+
+        ``travel`` is per joint; the bound comes from each pair's bound at the previous command
+        (:meth:`_previous_clearance`), with no query; -inf without them.
 
         Returns:
             ``(bound_m, pair)``: the bound and the pair (index in ``link_pairs``) it is of.
@@ -161,13 +163,13 @@ class BodyGuard:
         """A lower bound of the clearance along :meth:`_path`'s whole path, without a query.
 
         Each joint's travel from the previous command along the path is at most its step to
-        ``pose``, plus how far ``pose`` lies outside the position range (the braking path is
-        clipped into it; the margin-shrunk range, which the allowed range contains), plus its braking distance ``v^2 / (2 a)`` (the braking path's ticks
-        are a right Riemann sum of the speed falling linearly to rest, which never exceeds the
-        integral); each pair's bound at the previous command
-        (:meth:`~audio2pose_ros.robot.body.BodyModel.pair_bounds`) less its lever times that
-        travel bounds it along the path. NaN (never clear) for a joint that moves and cannot
-        brake.
+        ``pose``, plus how far ``pose`` lies outside the margin-shrunk position range (the
+        braking path is clipped into the allowed range, which contains it), plus its braking
+        distance ``v^2 / (2 a)`` (the braking path's ticks are a right Riemann sum of the speed
+        falling linearly to rest, which never exceeds the integral). Each pair's bound at the
+        previous command (:meth:`~audio2pose_ros.robot.body.BodyModel.pair_bounds`) less its
+        levers times that travel bounds it along the path. NaN (never clear) for a joint that
+        moves and cannot brake.
         """
         assert self._limiter is not None  # the margin-shrunk range, inside the allowed range
         lower, upper = self._limiter.lower_rad, self._limiter.upper_rad
@@ -177,8 +179,10 @@ class BodyGuard:
         return self._pose_bound(np.abs(pose - self._previous) + outside + braking)[0]
 
     def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """The position range every pose the guard makes this step stays in (the limiter's
-        allowed range after the step's previous command); made when first asked."""
+        """The position range of every pose the guard makes this step, made when first asked.
+
+        The limiter's allowed range after the step's previous command.
+        """
         if self._range is None:
             assert self._limiter is not None
             self._range = self._limiter.allowed_range(self._step_previous)
