@@ -13,6 +13,19 @@ allow and the previous command, and returns a command whose clearance
    no further apart than ``SAMPLE_TRAVEL_M`` of travel of any checked pair, so that no shape,
    however thin, is passed between two samples), so a moving arm can always stop before the
    floor, and no step between two commands crosses the body.
+   **Most commands need no query.** Each checked pair's distance at the previous command is
+   bounded from the pair's last measured distance
+   (:meth:`~audio2pose_ros.robot.body.BodyModel.pair_bounds`: less its levers times each
+   joint's travel since), and along the whole path it falls by at most its levers times each
+   joint's travel along it (the step, plus the braking distance ``v^2 / (2 a)``). Where the
+   lowest bound keeps the floor, the exact check could only find the path clear, so the
+   command is admissible without a query (counted as ``bound_checks``); else it is queried as
+   above. The previous command's clearance is such a bound too while the bound is at least the
+   margin (the floor is then the margin, as with its exact value). Only outside the margin: a
+   robot inside it (3, 4) is always measured. The decisions are those of the exact check (only
+   coal's answers may differ, within its 1e-6 m tolerance: they depend on the queries before
+   them, of which there are fewer). The clearance the guard reports of a command the bound
+   passed is the bound (``GuardStatus.clearance_exact`` False); a changed command's is measured.
 2. **Otherwise only the joints that must stop, brake.** The joints on the kinematic chains of
    the offending pairs (one arm; the other arm for arm-against-arm; the hip or head when the
    pair involves them) decelerate at their acceleration limit, while every other joint keeps
@@ -92,7 +105,7 @@ class GuardStatus:
     holds: int = 0  # last-resort holds of the previous pose (faster than the acceleration limit)
     detour_steps: int = 0  # commands that moved a stopped arm round the body along the margin
     active: bool = False  # the last command was changed
-    clearance_m: float = float("inf")  # clearance of the last command (m)
+    clearance_m: float = float("inf")  # clearance of the last command (m), or a lower bound
     floor_m: float = float("inf")  # clearance the guard guarantees now (m): the margin, or less
     # while it rises to a raised margin
     links: tuple[str, str] = ("", "")  # closest pair of the last command
