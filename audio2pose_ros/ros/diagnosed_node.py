@@ -562,14 +562,13 @@ class DiagnosedNode(Node):
         and reception timestamps), under either executor: the SingleThreadedExecutor passes
         the message and its info as two arguments, rclpy 9's EventsExecutor as one tuple.
         """
-        handler = self.guarded(callback)
 
         def receive(data: bytes, *info: MessageInfo) -> None:
             cap = max_bytes() if callable(max_bytes) else max_bytes
             if len(data) > cap:
                 self.drop_oversized(topic, len(data), cap)
                 return
-            handler(deserialize_message(data, msg_type), *info)
+            callback(deserialize_message(data, msg_type), *info)  # within the boundary below
 
         def receive_with_info(
             data: bytes | tuple[bytes, MessageInfo], info: MessageInfo | None = None
