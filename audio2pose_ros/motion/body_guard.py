@@ -135,13 +135,11 @@ class BodyGuard:
         self._guaranteed_m: float | None = None  # the floor, None until the first command
         self._floor_m = self.margin_m  # the clearance commands need this step (see the module)
         self._lead_out_s = 0.0
-        self._limiter: JointLimiter | None = None  # the limits of this step
-        self._range: tuple[np.ndarray, np.ndarray] | None = None  # its allowed range, once asked
+        self._bounds = (body.robot.lower_rad, body.robot.upper_rad)
         self._max_speed = body.robot.max_velocity_rad_s  # the limiter's, from each step on
         self._brake_accel: np.ndarray | None = None  # deceleration the last command relies on
         self._speed_up = np.zeros(body.robot.n_joints)  # the acceleration limit (rad/s^2)
         self._previous = np.zeros(body.robot.n_joints)  # the previous command, this step
-        self._step_previous = self._previous  # ... also while _settle checks from the result
         self._dt_s = 0.0  # the time of this step, and of each tick of a braking path (s)
         self._paths: dict[bytes, PathClearance] = {}
         self._travel = body.pair_lever_m  # (n_pairs, n_joints): a pair's travel per rad (m/rad)
@@ -176,30 +174,19 @@ class BodyGuard:
         """A lower bound of the clearance along :meth:`_path`'s whole path, without a query.
 
         Each joint's travel from the previous command along the path is at most its step to
-        ``pose``, plus how far ``pose`` lies outside the margin-shrunk position range (the
-        braking path is clipped into the allowed range, which contains it), plus its braking
+        ``pose``, plus how far ``pose`` lies outside the position range (the braking path is
+        clipped into it), plus its braking
         distance ``v^2 / (2 a)`` (the braking path's ticks are a right Riemann sum of the speed
         falling linearly to rest, which never exceeds the integral). Each pair's bound at the
         previous command (:meth:`~audio2pose_ros.robot.body.BodyModel.pair_bounds`) less its
         levers times that travel bounds it along the path. NaN (never clear) for a joint that
         moves and cannot brake.
         """
-        assert self._limiter is not None  # the margin-shrunk range, inside the allowed range
-        lower, upper = self._limiter.lower_rad, self._limiter.upper_rad
+        lower, upper = self._bounds
         outside = np.maximum(lower - pose, 0.0) + np.maximum(pose - upper, 0.0)
         with np.errstate(divide="ignore", invalid="ignore"):
             braking = velocity * velocity / (2.0 * accel)
         return self._pose_bound(np.abs(pose - self._previous) + outside + braking)[0]
-
-    def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """The position range of every pose the guard makes this step, made when first asked.
-
-        The limiter's allowed range after the step's previous command.
-        """
-        if self._range is None:
-            assert self._limiter is not None
-            self._range = self._limiter.allowed_range(self._step_previous)
-        return self._range
 
     def _clear(self, pose: np.ndarray) -> bool:
         return bool(self.body.clearance(pose) >= self._floor_m)
@@ -225,7 +212,7 @@ class BodyGuard:
         tick_s = dt_s * max(1.0, ticks / MAX_BRAKING_TICKS)
         steps = np.arange(1, int(np.ceil(min(ticks, MAX_BRAKING_TICKS))) + 1)[:, None]
         speeds = np.maximum(speed - steps * accel * tick_s, 0.0)
-        lower, upper = self._bounds()
+        lower, upper = self._bounds
         braking = np.clip(
             pose + np.sign(velocity) * np.cumsum(speeds, axis=0) * tick_s, lower, upper
         )
@@ -339,7 +326,7 @@ class BodyGuard:
         want_velocity = np.asarray(velocities_rad_s, dtype=np.float64)
         previous = np.asarray(previous_rad, dtype=np.float64)
         previous_velocity = np.asarray(previous_velocity_rad_s, dtype=np.float64)
-        self._previous = self._step_previous = previous
+        self._previous = previous
         self._dt_s = dt_s if np.isfinite(dt_s) and dt_s > 0.0 else 0.0
         # One deceleration for the limiter and the guard: the braking paths assume the joint
         # limiter's (its acceleration limit, or the previous, higher limit while a joint it let
@@ -348,7 +335,7 @@ class BodyGuard:
         self._speed_up = limiter.max_acceleration_rad_s2
         accel = np.maximum(self._speed_up, limiter.braking_rad_s2)
         brake = accel if self._brake_accel is None else np.maximum(accel, self._brake_accel)
-        self._limiter, self._range = limiter, None
+        self._bounds = limiter.allowed_range(previous)
         self._max_speed = limiter.max_velocity_rad_s
         self._bounded = b""
         previous_clearance = self._previous_clearance(previous)
@@ -442,7 +429,7 @@ class BodyGuard:
         offending = self._offending(want, want_velocity, accel)
         if offending is None:
             return want, want_velocity
-        lower, upper = self._bounds()
+        lower, upper = self._bounds
         held = offending
         for _ in range(MAX_WIDENINGS):
             braked_speed = np.maximum(np.abs(previous_velocity) - brake * dt_s, 0.0)
@@ -525,7 +512,7 @@ class BodyGuard:
         speed = min(LEAD_OUT_SPEED_RAD_S, length / dt_s)
         target = self._within_speed(direction / float(np.linalg.norm(direction)) * speed)
         change = np.clip(target - previous_velocity, -self._speed_up * dt_s, self._speed_up * dt_s)
-        lower, upper = self._bounds()
+        lower, upper = self._bounds
         trial = np.where(
             held, np.clip(previous + (previous_velocity + change) * dt_s, lower, upper), pose
         )
@@ -566,7 +553,7 @@ class BodyGuard:
         """
         self.status.lead_out_steps += 1
         body = self.body
-        lower, upper = self._bounds()
+        lower, upper = self._bounds
         _, joints = body.violations(previous, self.margin_m)
         gradient = body.gradient(previous, joints)
         norm = float(np.linalg.norm(gradient))
