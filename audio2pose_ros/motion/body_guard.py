@@ -121,8 +121,8 @@ class BodyGuard:
     def __init__(self, body: BodyModel, margin_m: float, travel_bound: bool = True) -> None:
         """Guard commands for ``body`` with clearance ``margin_m`` (m, at least 0).
 
-        ``travel_bound=False`` makes every check query the body, as the guard did before the
-        travel bound: the commands are the same (the reference the bound is tested against).
+        ``travel_bound=False`` makes every check query the body (module text, 1): the decisions
+        are the same, so this is the reference the bound is tested against.
 
         Raises:
             ValueError: the margin is negative or not finite.
@@ -175,12 +175,12 @@ class BodyGuard:
 
         Each joint's travel from the previous command along the path is at most its step to
         ``pose``, plus how far ``pose`` lies outside the position range (the braking path is
-        clipped into it), plus its braking
-        distance ``v^2 / (2 a)`` (the braking path's ticks are a right Riemann sum of the speed
-        falling linearly to rest, which never exceeds the integral). Each pair's bound at the
-        previous command (:meth:`~audio2pose_ros.robot.body.BodyModel.pair_bounds`) less its
-        levers times that travel bounds it along the path. NaN (never clear) for a joint that
-        moves and cannot brake.
+        clipped into it), plus its braking distance ``v^2 / (2 a)`` (the braking path's ticks
+        are a right Riemann sum of the speed falling linearly to rest, which never exceeds the
+        integral). Each pair's bound at the previous command
+        (:meth:`~audio2pose_ros.robot.body.BodyModel.pair_bounds`) less its levers times that
+        travel bounds it along the path. NaN (never clear) for a joint that moves and cannot
+        brake.
         """
         lower, upper = self._bounds
         outside = np.maximum(lower - pose, 0.0) + np.maximum(pose - upper, 0.0)
