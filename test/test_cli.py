@@ -238,3 +238,21 @@ def test_when_bench_prints_json_expect_one_object_with_its_schema_version(capsys
     assert isinstance(figures, dict)
     assert figures["schema_version"] == BENCH_SCHEMA_VERSION
     assert "motion filter (push + tick)" in figures["stages_us"]
+
+
+def test_when_bench_is_paced_expect_one_call_per_frame_period_and_it_said(capsys):
+    """--paced times the stages one frame every 10 ms (a lower bound on the time it takes)."""
+    import json
+    import time
+
+    from audio2pose_ros.cli.main import main
+    from audio2pose_ros.offline.benchmark import _time_calls
+
+    calls: list[float] = []
+    start = time.monotonic()
+    durations = _time_calls([lambda: calls.append(time.monotonic())] * 5, period_s=0.02)
+    assert len(durations) == 5
+    # call k waits for period k (a lower bound: a loaded machine can only make it later)
+    assert all(at - start >= 0.02 * k - 1e-3 for k, at in enumerate(calls))
+    assert main(["bench", "--frames", "20", "--skip-models", "--json", "--paced"]) == 0
+    assert json.loads(capsys.readouterr().out)["stages_paced"] is True

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import decimal
 import json
 
 import numpy as np
@@ -9,7 +10,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from audio2pose_ros.audio.dsp import dct_matrix, delta, hz_to_mel, mel_filterbank, mel_to_hz
+from audio2pose_ros.audio.dsp import (
+    dct_matrix,
+    delta,
+    hz_to_mel,
+    mel_filterbank,
+    mel_to_hz,
+    round_half_up,
+)
 from audio2pose_ros.audio.features import FeatureSpec, extract_features
 from audio2pose_ros.audio.normalize import FeatureNormalizer
 from audio2pose_ros.audio.pcm import PcmDecoder, PcmFormat, encode_pcm
@@ -267,6 +275,25 @@ def test_when_preset_expect_seed_dimensions(preset, dim, lookahead):
 
 def test_when_window_is_half_a_sample_expect_round_half_up():
     assert FeatureSpec(window_s=0.02503125).frame_len == 401  # 400.5 samples; round() gives 400
+
+
+def test_when_rounding_any_float_expect_what_decimal_half_up_gives():
+    """round_half_up rounds the exact binary value, as decimal's ROUND_HALF_UP does."""
+    halves = np.arange(0, 4000) + 0.5
+    values = np.concatenate(
+        [
+            halves,
+            np.nextafter(halves, 0.0),
+            np.nextafter(halves, np.inf),
+            np.random.default_rng(0).uniform(0.0, 1e6, 2000),
+            [0.0, 0.49999999999999994, 0.025 * 16000, 0.01 * 16000, 2.0**52 + 1.0, 1e20],
+        ]
+    )
+    for value in [*values, *(-values)]:
+        exact = decimal.Decimal(float(value)).quantize(
+            decimal.Decimal(1), rounding=decimal.ROUND_HALF_UP
+        )
+        assert round_half_up(float(value)) == int(exact), value
 
 
 def test_when_spec_through_json_expect_equal_spec():

@@ -1,5 +1,7 @@
 """Forward kinematics of urdf/pepper.urdf: where the head and hands are, and where they go."""
 
+import sys
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,7 @@ from audio2pose_ros.robot.kinematics import (
     RobotKinematics,
     axis_angle_matrix,
 )
+from audio2pose_ros.robot.urdf_outline import outline, parse_apart, read_outline
 
 
 @pytest.fixture(scope="module")
@@ -178,14 +181,70 @@ def test_when_links_are_placed_expect_pinocchios_placements(kinematics):
         ('<parent link="torso"/>', "", "parent"),
     ],
 )
+@pytest.mark.parametrize("apart", [False, True], ids=["here", "child-process"])
 def test_when_the_urdf_is_malformed_expect_a_kinematics_error_naming_it(
-    kinematics, tmp_path, old, new, message
+    kinematics, tmp_path, old, new, message, apart
 ):
     assert old in kinematics.urdf_xml
     broken = tmp_path / "broken.urdf"
     broken.write_text(kinematics.urdf_xml.replace(old, new))
-    with pytest.raises(KinematicsError, match=message):
-        RobotKinematics(broken)
+    parse_apart(apart)
+    try:
+        with pytest.raises(KinematicsError, match=message):
+            RobotKinematics(broken)
+    finally:
+        parse_apart(False)
+
+
+def test_when_parsed_in_a_child_process_expect_what_this_process_reads(kinematics):
+    """A node process's URDF parse (in a child) gives the same outline and the same model."""
+    parse_apart(True)
+    try:
+        apart = RobotKinematics(kinematics.urdf_path)
+        outline_apart = read_outline(kinematics.urdf_xml)
+    finally:
+        parse_apart(False)
+    assert outline_apart == outline(kinematics.urdf_xml)
+    for a, b in zip(apart.joints, kinematics.joints, strict=True):
+        assert (a.name, a.joint_type, a.parent, a.child) == (
+            b.name,
+            b.joint_type,
+            b.parent,
+            b.child,
+        )
+        assert (a.lower_rad, a.upper_rad, a.max_velocity_rad_s) == (
+            b.lower_rad,
+            b.upper_rad,
+            b.max_velocity_rad_s,
+        )
+        np.testing.assert_array_equal(a.origin, b.origin)
+        np.testing.assert_array_equal(a.axis, b.axis)
+    assert [(c.link, c.kind, c.size) for c in apart.collisions] == [
+        (c.link, c.kind, c.size) for c in kinematics.collisions
+    ]
+    for a, b in zip(apart.collisions, kinematics.collisions, strict=True):
+        np.testing.assert_array_equal(a.origin, b.origin)
+
+
+def test_when_no_interpreter_can_be_started_expect_the_urdf_parsed_here(
+    kinematics, monkeypatch, tmp_path
+):
+    monkeypatch.setattr(sys, "executable", str(tmp_path / "no-python"))
+    parse_apart(True)
+    try:
+        assert read_outline(kinematics.urdf_xml) == outline(kinematics.urdf_xml)
+    finally:
+        parse_apart(False)
+
+
+def test_when_the_parser_process_fails_expect_a_kinematics_error(kinematics, monkeypatch):
+    monkeypatch.setattr(sys, "executable", "/bin/false")
+    parse_apart(True)
+    try:
+        with pytest.raises(KinematicsError, match="parser process failed"):
+            RobotKinematics(kinematics.urdf_path)
+    finally:
+        parse_apart(False)
 
 
 @pytest.mark.parametrize(

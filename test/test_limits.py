@@ -162,3 +162,19 @@ def test_when_a_racing_joint_is_sent_back_after_a_lowered_acceleration_expect_it
         assert np.all(new_pos <= robot.upper_rad + 1e-12)
         pos, vel = new_pos, new_vel
     np.testing.assert_allclose(pos, back, atol=1e-3)  # and it got back
+
+
+def test_when_the_range_is_asked_again_expect_the_kept_answer_only_for_the_same_pose(
+    limiter, robot
+):
+    """allowed_range keeps its last answer: right for a changed pose, never writable."""
+    outside = robot.upper_rad.copy()  # at the robot's limit, between it and the margin
+    upper = limiter.allowed_range(outside)[1]
+    assert np.array_equal(upper, robot.upper_rad)
+    with pytest.raises(ValueError, match="read-only"):
+        upper[0] = 0.0
+    inside = robot.neutral_rad.copy()
+    upper = limiter.allowed_range(inside)[1]
+    assert np.array_equal(upper, limiter.upper_rad)
+    inside[0] = robot.upper_rad[0]  # the same array changed in place: a new answer
+    assert limiter.allowed_range(inside)[1][0] == robot.upper_rad[0]

@@ -259,3 +259,14 @@ def test_when_format_written_as_audio_info_expect_from_audio_info_gives_it_back(
     assert PcmFormat.from_audio_info(**fields) == S16LE_MONO_16K
     stereo = PcmFormat("F32LE", 2, 48000)
     assert stereo.audio_info_fields()["bitrate"] == 48000 * 2 * 4 * 8
+
+
+def test_when_every_s16_value_decoded_mono_or_stereo_expect_the_same_float32_samples():
+    """Mono S16LE at 16 kHz takes a direct path; it gives what the averaging path gives."""
+    values = np.arange(-32768, 32768, dtype=np.int16)
+    mono = PcmDecoder(PcmFormat("S16LE", 1, 16000, "wave")).feed(values.tobytes())
+    stereo = PcmDecoder(PcmFormat("S16LE", 2, 16000, "wave")).feed(np.repeat(values, 2).tobytes())
+    assert mono.dtype == stereo.dtype == np.float32
+    assert np.array_equal(mono.view(np.int32), stereo.view(np.int32))
+    assert mono.min() == -1.0
+    assert mono.max() < 1.0

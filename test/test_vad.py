@@ -43,3 +43,18 @@ def test_when_nan_and_inf_samples_pushed_expect_finite_floor_and_speech_still_de
     vad.push(np.array([np.nan, np.inf, -np.inf] * 1000))
     assert np.isfinite(vad.noise_floor_dbfs)
     assert states(vad, speech).mean() > 0.5
+
+
+def test_when_pushed_hop_by_hop_expect_every_state_as_in_pieces(speech):
+    """The one-hop path (the node's real-time case) tracks exactly what the general one does."""
+    by_hop, in_pieces = EnergyVad(), EnergyVad()
+    hops = speech[: 300 * 160].reshape(300, 160)
+    for k, hop in enumerate(hops):
+        by_hop.push(hop)
+        in_pieces.push(hop[:70])
+        in_pieces.push(hop[70:])
+        assert (by_hop.active, by_hop.noise_floor_dbfs) == (
+            in_pieces.active,
+            in_pieces.noise_floor_dbfs,
+        ), f"hop {k}"
+    assert by_hop._hops_since_loud == in_pieces._hops_since_loud

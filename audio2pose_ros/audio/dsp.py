@@ -8,7 +8,6 @@ them into feature sets.
 
 from __future__ import annotations
 
-import decimal
 import math
 from collections.abc import Callable
 
@@ -22,7 +21,9 @@ LOG_FLOOR = float(np.finfo(np.float64).eps)  # replaces zero energies before the
 def round_half_up(value: float) -> int:
     """Round to the nearest integer, halves away from zero (python_speech_features' framing).
 
-    The exact binary value of ``value`` is rounded (``0.025 * 16000`` -> 400).
+    The exact binary value of ``value`` is rounded (``0.025 * 16000`` -> 400): a float minus
+    its floor is exact, so no decimal arithmetic is needed (``decimal`` would cost the node
+    processes its C library).
 
     Args:
         value: a non-negative number of samples.
@@ -30,9 +31,15 @@ def round_half_up(value: float) -> int:
     Returns:
         The rounded integer.
 
+    Raises:
+        OverflowError: ``value`` is infinite.
+        ValueError: ``value`` is NaN.
+
     """
-    exact = decimal.Decimal(value).quantize(decimal.Decimal(1), rounding=decimal.ROUND_HALF_UP)
-    return int(exact)
+    magnitude = abs(value)
+    whole = math.floor(magnitude)
+    rounded = whole + (magnitude - whole >= 0.5)
+    return rounded if value >= 0 else -rounded
 
 
 def hz_to_mel(hz: np.ndarray | float) -> np.ndarray:

@@ -60,6 +60,7 @@ _DTYPES: dict[str, np.dtype] = {
 
 # Largest float32 below 1.0: the decoder's output is clipped to [-1, _MAX_SAMPLE].
 _MAX_SAMPLE = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
+_S16_SCALE = np.float32(1.0 / 32768.0)  # S16LE full scale; every int16 / 2^15 lies in [-1, 1)
 
 
 @dataclass(frozen=True)
@@ -266,6 +267,10 @@ class PcmDecoder:
         self._channels: tuple[int, ...] | None = channels
         self._resampler = PolyphaseResampler(fmt.sample_rate_hz, self._target_rate_hz)
         self._pending = b""
+        # the real-time common case: nothing to average, resample or clip (in range by type)
+        self._direct = (
+            fmt.sample_format == "S16LE" and fmt.channels == 1 and self._resampler.passthrough
+        )
 
     @property
     def fmt(self) -> PcmFormat:
@@ -319,6 +324,8 @@ class PcmDecoder:
         if usable == 0:
             return np.empty(0, dtype=np.float32)
         raw = np.frombuffer(buf, dtype=self._fmt.dtype, count=usable // self._fmt.bytes_per_sample)
+        if self._direct:  # S16LE mono at the target rate: int16 / 2^15 is exact in float32
+            return raw.astype(np.float32) * _S16_SCALE
         if self._fmt.sample_format == "F32LE" and not np.isfinite(raw).all():
             bad = int(np.count_nonzero(~np.isfinite(raw)))
             raise InvalidAudio(

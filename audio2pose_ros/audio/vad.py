@@ -49,22 +49,34 @@ class EnergyVad:
 
         NaN counts as silence and other values are clipped to [-1, 1], so that no input can
         leave the noise floor non-finite (the decoder already refuses NaN; this is the VAD's
-        own guard for any other caller).
+        own guard for any other caller). One whole hop with nothing pending, the real-time
+        case, takes a short path with the same result.
         """
-        x = np.clip(np.nan_to_num(np.asarray(samples, dtype=np.float64), nan=0.0), -1.0, 1.0)
-        data = np.concatenate((self._pending, x))
+        x = np.asarray(samples, dtype=np.float64)
+        if x.size == SAMPLES_PER_FRAME and not self._pending.size and x.ndim == 1:
+            clipped = np.clip(x, -1.0, 1.0)
+            power = np.add.reduce(clipped * clipped) / SAMPLES_PER_FRAME  # np.mean's sum
+            if power == power:  # no NaN: the level of the one hop, as the general path
+                self._hop(float(10.0 * np.log10(power + _EPS)))
+                self.active = self._hops_since_loud <= self._hangover_hops
+                return self.active
+        x = np.clip(np.nan_to_num(x, nan=0.0), -1.0, 1.0)
+        data = np.concatenate((self._pending, x.reshape(-1)))
         n_hops = data.size // SAMPLES_PER_FRAME
         self._pending = data[n_hops * SAMPLES_PER_FRAME :]
         if n_hops == 0:
             return self.active
         hops = data[: n_hops * SAMPLES_PER_FRAME].reshape(n_hops, SAMPLES_PER_FRAME)
-        levels = 10.0 * np.log10(np.mean(hops * hops, axis=1) + _EPS)
-        for level in levels:
-            # The floor drops at once to a quieter hop and rises slowly otherwise.
-            self.noise_floor_dbfs = min(level, self.noise_floor_dbfs + self._rise_per_hop)
-            threshold = max(
-                self.settings.min_level_dbfs, self.noise_floor_dbfs + self.settings.margin_db
-            )
-            self._hops_since_loud = 0 if level > threshold else self._hops_since_loud + 1
+        for level in 10.0 * np.log10(np.mean(hops * hops, axis=1) + _EPS):
+            self._hop(float(level))
         self.active = self._hops_since_loud <= self._hangover_hops
         return self.active
+
+    def _hop(self, level: float) -> None:
+        """Track the noise floor and the hops since the last loud one, given a hop's level."""
+        # The floor drops at once to a quieter hop and rises slowly otherwise.
+        self.noise_floor_dbfs = min(level, self.noise_floor_dbfs + self._rise_per_hop)
+        threshold = max(
+            self.settings.min_level_dbfs, self.noise_floor_dbfs + self.settings.margin_db
+        )
+        self._hops_since_loud = 0 if level > threshold else self._hops_since_loud + 1

@@ -19,6 +19,8 @@ Files are untrusted input. Before anything is parsed:
 
 :func:`verify_digest` then streams the tensor bytes through SHA-256, so a header or tensor
 edited after saving is refused wherever a checkpoint is used, :func:`feature_spec_of` included.
+The tensor reader (``safetensors``, 0.8 MB resident) is only imported with the tensors
+(:func:`load_checked_tensors`): ``audio_features_node`` only needs the features a model expects.
 Every refusal is a :class:`CheckpointError` naming the file and the problem in one line.
 """
 
@@ -35,7 +37,6 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
-from safetensors import SafetensorError
 
 from audio2pose_ros.audio.features import FeatureSpec
 from audio2pose_ros.audio.normalize import FeatureNormalizer
@@ -236,6 +237,8 @@ def load_checked_tensors(
     Raises:
         CheckpointError: the tensors cannot be read, or one is not finite float32.
     """
+    from safetensors import SafetensorError  # the reader's own library, loaded with it
+
     try:
         tensors = load(str(file.path))
     except (SafetensorError, OSError) as exc:

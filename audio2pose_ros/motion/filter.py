@@ -105,13 +105,15 @@ class _External:
         self.values = np.zeros(n_joints)
         self.mask = np.zeros(n_joints, dtype=bool)
         self.stamp_s = -np.inf
+        self._none = np.zeros(n_joints, dtype=bool)
+        self._none.flags.writeable = False
 
     def set(self, values: np.ndarray, mask: np.ndarray, now_s: float) -> None:
         self.values, self.mask, self.stamp_s = values, mask, now_s
 
     def active(self, now_s: float, timeout_s: float) -> np.ndarray:
-        """Mask of joints with a fresh value (all False when stale)."""
-        return self.mask if now_s - self.stamp_s <= timeout_s else np.zeros_like(self.mask)
+        """Mask of joints with a fresh value (all False, read-only, when stale)."""
+        return self.mask if now_s - self.stamp_s <= timeout_s else self._none
 
 
 def _with_legacy_gains(
@@ -468,12 +470,15 @@ class MotionFilter:
     def _compose_head(self, desired: np.ndarray, now_s: float) -> np.ndarray:
         timeout = self.settings.external_timeout_s
         target_mask = self._head_target.active(now_s, timeout)
-        self.status.head_target_active = bool(target_mask.any())
-        weight = self.settings.head_target_weight
-        blended = np.where(
-            target_mask, (1.0 - weight) * desired + weight * self._head_target.values, desired
-        )
+        self.status.head_target_active = targeted = bool(target_mask.any())
+        blended = desired
+        if targeted:
+            weight = self.settings.head_target_weight
+            mixed = (1.0 - weight) * desired + weight * self._head_target.values
+            blended = np.where(target_mask, mixed, desired)
         offset_mask = self._head_offset.active(now_s, timeout)
+        if not offset_mask.any():  # no head offset in force (the usual case): nothing to add
+            return blended
         return np.where(offset_mask, blended + self._head_offset.values, blended)
 
     def _fault(self, message: str, now_s: float) -> None:
@@ -504,9 +509,9 @@ class MotionFilter:
         return bool(
             np.isfinite(positions).all()
             and np.isfinite(velocities).all()
-            and np.all(positions >= lower)
-            and np.all(positions <= upper)
-            and np.all(np.abs(positions - self.position_rad) <= speed * dt_s + STEP_SLACK_RAD)
+            and (positions >= lower).all()
+            and (positions <= upper).all()
+            and (np.abs(positions - self.position_rad) <= speed * dt_s + STEP_SLACK_RAD).all()
         )
 
     def tick(self, now_s: float) -> tuple[np.ndarray, np.ndarray]:

@@ -79,7 +79,7 @@ class TrackGate:
 
     def _reachable(self, pose: np.ndarray, reference: np.ndarray, elapsed_s: float) -> bool:
         bound = self.max_velocity_rad_s * max(elapsed_s, self.period_s) + self.tolerance_rad
-        return bool(np.all(np.abs(pose - reference) <= bound))
+        return bool((np.abs(pose - reference) <= bound).all())
 
     def admit(self, poses_rad: np.ndarray, now_s: float) -> np.ndarray:
         """The poses of one message that may enter the filter, clamped into the joint ranges.
@@ -100,13 +100,13 @@ class TrackGate:
             if not np.isfinite(pose).all():
                 self.counts.non_finite += 1
                 continue
-            if np.any(pose < self.lower_rad - tolerance) or np.any(
+            if (pose < self.lower_rad - tolerance).any() or (
                 pose > self.upper_rad + tolerance
-            ):
+            ).any():
                 self.counts.out_of_range += 1
                 continue
             clamped = np.minimum(np.maximum(pose, self.lower_rad), self.upper_rad)
-            if np.any(clamped != pose):
+            if (clamped != pose).any():
                 self.counts.clamped += 1
             if self._track is None or self._reachable(clamped, self._track, pose_s - self._track_s):
                 self._candidate, self._candidates = None, 0

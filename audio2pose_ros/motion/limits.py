@@ -9,6 +9,7 @@ acceleration limit, so all three limits hold together from any feasible start.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -133,14 +134,15 @@ class JointLimiter:
             if carried.shape == self.braking_rad_s2.shape and np.isfinite(carried).all():
                 self.braking_rad_s2 = np.maximum(self.braking_rad_s2, carried)
         self.counts = LimitCounts()
+        self._middle_rad = (self.lower_rad + self.upper_rad) / 2.0  # where non-finite goes
+        self._distances = np.empty((3, len(self.lower_rad)))  # enforce's braking distances
+        self._range_of: tuple[bytes, tuple[np.ndarray, np.ndarray]] | None = None
 
     def clamp_position(self, positions_rad: np.ndarray) -> np.ndarray:
         """Clamp positions into the margin-shrunk range (non-finite values become the midpoint)."""
         positions = np.asarray(positions_rad, dtype=np.float64)
-        middle = (self.lower_rad + self.upper_rad) / 2.0
-        return np.clip(
-            np.where(np.isfinite(positions), positions, middle), self.lower_rad, self.upper_rad
-        )
+        finite = np.where(np.isfinite(positions), positions, self._middle_rad)
+        return np.minimum(np.maximum(finite, self.lower_rad), self.upper_rad)
 
     def clamp_to_robot(self, positions_rad: np.ndarray) -> np.ndarray:
         """Clamp positions into the robot's own range, without the margin (non-finite: midpoint).
@@ -149,12 +151,8 @@ class JointLimiter:
         starts there and moves inward at the limits (:meth:`allowed_range`) instead of jumping.
         """
         positions = np.asarray(positions_rad, dtype=np.float64)
-        middle = (self.lower_rad + self.upper_rad) / 2.0
-        return np.clip(
-            np.where(np.isfinite(positions), positions, middle),
-            self.robot_lower_rad,
-            self.robot_upper_rad,
-        )
+        finite = np.where(np.isfinite(positions), positions, self._middle_rad)
+        return np.minimum(np.maximum(finite, self.robot_lower_rad), self.robot_upper_rad)
 
     def allowed_range(self, previous_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(lower, upper) a command may take after ``previous_rad``.
@@ -162,9 +160,18 @@ class JointLimiter:
         The margin-shrunk range, widened to a previous position that lies between it and the
         robot's limit: such a joint may stay or move inward, never further out, so it reaches
         the margin-shrunk range at the velocity and acceleration limits.
+
+        A filter step asks this for the same previous command three times (the limits, the
+        guard, the final check): the last answer is kept, read-only.
         """
+        key = np.asarray(previous_rad, dtype=np.float64).tobytes()
+        if self._range_of is not None and self._range_of[0] == key:
+            return self._range_of[1]
         previous = self.clamp_to_robot(previous_rad)
-        return np.minimum(self.lower_rad, previous), np.maximum(self.upper_rad, previous)
+        lower, upper = np.minimum(self.lower_rad, previous), np.maximum(self.upper_rad, previous)
+        lower.flags.writeable = upper.flags.writeable = False
+        self._range_of = (key, (lower, upper))
+        return lower, upper
 
     def _braking_velocity(self, distance_rad: np.ndarray, dt_s: float) -> np.ndarray:
         """Largest speed from which the joint can still stop within ``distance_rad``.
@@ -201,7 +208,7 @@ class JointLimiter:
         """
         previous = np.asarray(previous_rad, dtype=np.float64)
         previous_velocity = np.asarray(previous_velocity_rad_s, dtype=np.float64)
-        if not (np.isfinite(dt_s) and dt_s >= MIN_DT_S):
+        if not (math.isfinite(dt_s) and dt_s >= MIN_DT_S):
             return previous.copy(), previous_velocity.copy()
         desired = np.asarray(desired_rad, dtype=np.float64)
         finite = np.isfinite(desired)
@@ -218,10 +225,11 @@ class JointLimiter:
         # still stop at the acceleration limit: before the target (no overshoot and no limit
         # cycle around it) and before each position limit. One call for all three distances.
         error = clamped - previous
-        distance = np.abs(error)
-        to_target, to_upper, to_lower = self._braking_velocity(
-            np.stack((distance, upper - previous, previous - lower)), dt_s
-        )
+        distances = self._distances
+        distance = np.abs(error, out=distances[0])
+        np.subtract(upper, previous, out=distances[1])
+        np.subtract(previous, lower, out=distances[2])
+        to_target, to_upper, to_lower = self._braking_velocity(distances, dt_s)
         with np.errstate(over="ignore"):  # a vanishing dt_s gives inf, bounded just below
             wanted_speed = distance / dt_s
         speed = np.minimum(np.minimum(wanted_speed, self.max_velocity_rad_s), to_target)

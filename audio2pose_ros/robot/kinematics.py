@@ -3,8 +3,10 @@
 The URDF (``urdf/pepper.urdf``) is read with ``urdf_parser_py`` (PyPI ``urdfdom-py``, ROS's own
 URDF parser): its links, its joints (origin, axis, limits) and its links' primitive collision
 shapes, each value checked here (finite, sizes positive, one tree); no mesh is loaded, so
-reading costs little memory (about 5 MB for the parser, against 112 MB for a parser that loads
-meshes). ``test/test_kinematics.py`` checks the forward kinematics against Pinocchio's.
+reading costs little memory (about 4 MB for the parser, against 112 MB for a parser that loads
+meshes; none in a node process, where a child process parses: see
+:mod:`~audio2pose_ros.robot.urdf_outline`). ``test/test_kinematics.py`` checks the forward
+kinematics against Pinocchio's.
 Forward kinematics chains each joint's origin and its rotation about its axis from the root link
 outwards: :meth:`RobotKinematics.link_poses` for one configuration of every joint, and
 :class:`DrivenFrames` for many poses of a few joints at once (the body models' kinematics: the
@@ -24,6 +26,7 @@ import numpy as np
 
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.resources import share_path
+from audio2pose_ros.robot.urdf_outline import UrdfParseError, read_outline
 
 DEFAULT_URDF_FILE = "pepper.urdf"
 MOVABLE_TYPES = ("revolute", "continuous", "prismatic")
@@ -127,16 +130,16 @@ class RobotKinematics:
         self.urdf_xml = self.urdf_path.read_text(encoding="utf-8")
         robot = _parse(self.urdf_xml, self.urdf_path)
         reader = _Reader(self.urdf_path)
-        self.name = str(robot.name)
-        links = list(robot.links)
-        self.link_names = tuple(str(link.name) for link in links)
+        self.name = str(robot["name"])
+        links = robot["links"]
+        self.link_names = tuple(str(link["name"]) for link in links)
         self.joints = _tree_order(
-            [reader.joint(j) for j in robot.joints], self.link_names, self.urdf_path
+            [reader.joint(j) for j in robot["joints"]], self.link_names, self.urdf_path
         )
         self.collisions = tuple(
-            reader.collision(link.name, collision)
+            reader.collision(link["name"], collision)
             for link in links
-            for collision in link.collisions
+            for collision in link["collisions"]
         )
         self.root_link = self.joints[0].parent
         self._by_name = {j.name: j for j in self.joints}
@@ -197,26 +200,16 @@ class RobotKinematics:
         return poses
 
 
-def _parse(urdf_xml: str, source: Path) -> Any:
-    """The parser's robot for ``urdf_xml``; its complaints collected, not printed.
-
-    Tags the parser does not know (``<ros2_control>``, ``<gazebo>``) are skipped, as ROS does.
+def _parse(urdf_xml: str, source: Path) -> dict[str, Any]:
+    """The parser's outline of ``urdf_xml`` (:mod:`~audio2pose_ros.robot.urdf_outline`).
 
     Raises:
         KinematicsError: the text is not a URDF the parser can read.
     """
-    from urdf_parser_py import xml_reflection
-    from urdf_parser_py.urdf import URDF
-
-    complaints: list[str] = []
-    previous = xml_reflection.core.on_error
-    xml_reflection.core.on_error = complaints.append
     try:
-        return URDF.from_xml_string(urdf_xml.encode("utf-8"))
-    except Exception as exc:  # lxml's syntax errors, the parser's own (KeyError, AssertionError)
-        raise KinematicsError(f"{source}: cannot parse URDF ({exc!r})") from None
-    finally:
-        xml_reflection.core.on_error = previous
+        return read_outline(urdf_xml)
+    except UrdfParseError as exc:
+        raise KinematicsError(f"{source}: cannot parse URDF ({exc})") from None
 
 
 class _Reader:
@@ -237,7 +230,7 @@ class _Reader:
             raise self.error(f"{what} {values!r} needs {count} finite numbers")
         return array
 
-    def origin(self, pose: Any, what: str) -> np.ndarray:
+    def origin(self, pose: Mapping[str, Any] | None, what: str) -> np.ndarray:
         """(4, 4) of an ``<origin xyz rpy>`` (identity when there is none).
 
         URDF's roll, pitch, yaw turn about the fixed x, y, z axes in that order:
@@ -246,8 +239,8 @@ class _Reader:
         transform = np.eye(4)
         if pose is None:
             return transform
-        transform[:3, 3] = self.numbers(pose.xyz or [0, 0, 0], f"{what} origin xyz", 3)
-        roll, pitch, yaw = self.numbers(pose.rpy or [0, 0, 0], f"{what} origin rpy", 3)
+        transform[:3, 3] = self.numbers(pose["xyz"] or [0, 0, 0], f"{what} origin xyz", 3)
+        roll, pitch, yaw = self.numbers(pose["rpy"] or [0, 0, 0], f"{what} origin rpy", 3)
         axes = np.eye(3)
         transform[:3, :3] = (
             axis_angle_matrix(axes[2], yaw)
@@ -256,24 +249,24 @@ class _Reader:
         )
         return transform
 
-    def joint(self, joint: Any) -> UrdfJoint:
-        name, joint_type = joint.name, joint.type
+    def joint(self, joint: Mapping[str, Any]) -> UrdfJoint:
+        name, joint_type = joint["name"], joint["type"]
         if joint_type not in JOINT_TYPES:
             raise self.error(f"joint {name!r} has type {joint_type!r}")
-        if not (joint.parent and joint.child):
+        if not (joint["parent"] and joint["child"]):
             raise self.error(f"joint {name!r} lacks its <parent> or <child>")
         axis = self.numbers(
-            [1.0, 0.0, 0.0] if joint.axis is None else joint.axis, f"joint {name!r} axis", 3
+            [1.0, 0.0, 0.0] if joint["axis"] is None else joint["axis"], f"joint {name!r} axis", 3
         )
         norm = float(np.linalg.norm(axis))
         if norm == 0.0:
             raise self.error(f"joint {name!r} has a zero axis")
-        limit = joint.limit
+        limit = joint["limit"]
         bounds = (
             [0.0, 0.0, 0.0]
             if limit is None
             else self.numbers(
-                [limit.lower or 0.0, limit.upper or 0.0, limit.velocity or 0.0],
+                [limit["lower"] or 0.0, limit["upper"] or 0.0, limit["velocity"] or 0.0],
                 f"joint {name!r} limit",
                 3,
             )
@@ -281,35 +274,35 @@ class _Reader:
         return UrdfJoint(
             name=name,
             joint_type=joint_type,
-            parent=joint.parent,
-            child=joint.child,
-            origin=self.origin(joint.origin, f"joint {name!r}"),
+            parent=joint["parent"],
+            child=joint["child"],
+            origin=self.origin(joint["origin"], f"joint {name!r}"),
             axis=axis / norm,
             lower_rad=float(bounds[0]),
             upper_rad=float(bounds[1]),
             max_velocity_rad_s=float(bounds[2]),
         )
 
-    def collision(self, link: str, collision: Any) -> UrdfCollision:
-        geometry = collision.geometry
+    def collision(self, link: str, collision: Mapping[str, Any]) -> UrdfCollision:
+        geometry = collision["geometry"]
         if geometry is None:
             raise self.error(f"a <collision> of link {link!r} has no geometry")
-        kind = type(geometry).__name__.lower()
+        kind = geometry["kind"]
         what = f"a {kind} of link {link!r}"
         size: tuple[float, ...] = ()
         if kind == "box":
-            size = tuple(float(v) for v in self.numbers(geometry.size, f"{what} size", 3))
+            size = tuple(float(v) for v in self.numbers(geometry["size"], f"{what} size", 3))
         elif kind == "sphere":
-            size = (float(self.numbers([geometry.radius], f"{what} radius", 1)[0]),)
+            size = (float(self.numbers([geometry["radius"]], f"{what} radius", 1)[0]),)
         elif kind == "cylinder":
             size = tuple(
                 float(v)
-                for v in self.numbers([geometry.radius, geometry.length], f"{what} size", 2)
+                for v in self.numbers([geometry["radius"], geometry["length"]], f"{what} size", 2)
             )
         if size and min(size) <= 0.0:
             raise self.error(f"{what} has size {size}")
         return UrdfCollision(
-            link=link, kind=kind, origin=self.origin(collision.origin, what), size=size
+            link=link, kind=kind, origin=self.origin(collision["origin"], what), size=size
         )
 
 

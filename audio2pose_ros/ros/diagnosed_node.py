@@ -550,6 +550,7 @@ class DiagnosedNode(Node):
         qos: QoSProfile | int,
         max_bytes: int | Callable[[], int],
         with_info: bool = False,
+        decode: Callable[[bytes], Any] | None = None,
     ) -> Subscription[Any]:
         """A guarded subscription that drops a message larger than ``max_bytes`` before decoding.
 
@@ -561,15 +562,17 @@ class DiagnosedNode(Node):
         With ``with_info`` the callback also gets rclpy's MessageInfo (publisher gid, source
         and reception timestamps), under either executor: the SingleThreadedExecutor passes
         the message and its info as two arguments, rclpy 9's EventsExecutor as one tuple.
+        ``decode`` reads the bytes instead of rclpy's deserializer (e.g.
+        :func:`~audio2pose_ros.ros.cdr.read_joint_trajectory`); the callback gets what it returns.
         """
-        handler = self.guarded(callback)
+        read = decode or (lambda data: deserialize_message(data, msg_type))
 
         def receive(data: bytes, *info: MessageInfo) -> None:
             cap = max_bytes() if callable(max_bytes) else max_bytes
             if len(data) > cap:
                 self.drop_oversized(topic, len(data), cap)
                 return
-            handler(deserialize_message(data, msg_type), *info)
+            callback(read(data), *info)  # within the boundary below
 
         def receive_with_info(
             data: bytes | tuple[bytes, MessageInfo], info: MessageInfo | None = None

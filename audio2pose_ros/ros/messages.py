@@ -3,8 +3,9 @@
 A features message carries (n_frames, n_features) float32 values, its feature set named in
 dim[1].label and, optionally, the index of its first frame in dim[0].label ("frames from N"), so
 the receiver counts the frames lost between messages. A raw trajectory is a JointTrajectory of
-one point per 10 ms frame. Also here: what the middleware tells about a message (its
-publisher, when it was published) and the largest raw trajectory worth decoding.
+one point per 10 ms frame (the motion filter reads it with :mod:`audio2pose_ros.ros.cdr`). Also
+here: what the middleware tells about a message (its publisher, when it was published) and the
+largest raw trajectory worth decoding.
 """
 
 from __future__ import annotations
@@ -58,24 +59,32 @@ def msg_to_features(msg: Float32MultiArray) -> FeatureBatch:
     """Unpack a features message; a dim[0].label other than ``"frames from <n>"`` numbers nothing.
 
     Raises:
+        InputError: the layout does not describe the data (see :func:`feature_batch`).
+    """
+    data = np.frombuffer(msg.data, dtype=np.float32) if msg.data else np.zeros(0, np.float32)
+    return feature_batch([(d.label, d.size) for d in msg.layout.dim], data)
+
+
+def feature_batch(dims: Sequence[tuple[str, int]], data: np.ndarray) -> FeatureBatch:
+    """A features message's (label, size) dims and float32 values as a :class:`FeatureBatch`.
+
+    Raises:
         InputError: the layout does not describe the data (2 dims, frames x features, at least
             one feature per frame: a count of frames without data would be a claim, not data).
     """
-    dims = msg.layout.dim
     if len(dims) != 2:
         raise InputError(f"features message needs 2 layout dims, got {len(dims)}")
-    n_frames, n_features = dims[0].size, dims[1].size
+    (frames_label, n_frames), (label, n_features) = dims
     if n_features == 0:
         raise InputError(f"features message of {n_frames} frames of 0 features")
-    data = np.frombuffer(msg.data, dtype=np.float32) if msg.data else np.zeros(0, np.float32)
     if data.size != n_frames * n_features:
         raise InputError(
             f"features message holds {data.size} values, layout says {n_frames}x{n_features}"
         )
-    number = dims[0].label.removeprefix(f"{FRAMES_LABEL} from ")
-    numbered = number != dims[0].label and number.isascii() and number.isdigit()
+    number = frames_label.removeprefix(f"{FRAMES_LABEL} from ")
+    numbered = number != frames_label and number.isascii() and number.isdigit()
     first = int(number) if numbered and len(number) <= 18 else None  # within int64
-    return FeatureBatch(data.reshape(n_frames, n_features), dims[1].label, first)
+    return FeatureBatch(data.reshape(n_frames, n_features), label, first)
 
 
 def duration_msg(seconds: float) -> Duration:
@@ -138,25 +147,3 @@ def trajectory_msg(
         point.time_from_start = duration_msg((i + 1) * period_s)
         msg.points.append(point)
     return msg
-
-
-def trajectory_positions(msg: JointTrajectory, joint_names: Sequence[str]) -> np.ndarray:
-    """(n_points, n_joints) positions reordered to ``joint_names``.
-
-    Raises:
-        ValueError: a joint is missing, or a point has the wrong number of positions.
-
-    """
-    index = {name: i for i, name in enumerate(msg.joint_names)}
-    missing = [n for n in joint_names if n not in index]
-    if missing:
-        raise ValueError(f"trajectory lacks joints {missing}")
-    order = [index[n] for n in joint_names]
-    rows = []
-    for k, point in enumerate(msg.points):
-        if len(point.positions) != len(msg.joint_names):
-            raise ValueError(
-                f"point {k} has {len(point.positions)} positions for {len(msg.joint_names)} joints"
-            )
-        rows.append(np.asarray(point.positions, dtype=np.float64)[order])
-    return np.array(rows).reshape(-1, len(joint_names))

@@ -16,7 +16,6 @@ parameter, the value and the allowed range in one line:
 
 from __future__ import annotations
 
-import difflib
 import math
 import re
 import sys
@@ -160,6 +159,8 @@ def unknown_parameter_warnings(
     for name in strangers:
         if name in NODE_PARAMETER_NAMES:
             continue
+        import difflib  # here: a node whose parameters are all known never needs it
+
         close = difflib.get_close_matches(name, list(specs), n=1) or difflib.get_close_matches(
             name, sorted(NODE_PARAMETER_NAMES), n=1
         )

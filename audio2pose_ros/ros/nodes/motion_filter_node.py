@@ -103,6 +103,7 @@ from audio2pose_ros.motion.state_file import (
 from audio2pose_ros.motion.style import StyleSettings
 from audio2pose_ros.parameters import ParameterValue, settings_from, settings_with, specs_of
 from audio2pose_ros.robot.description import load_robot
+from audio2pose_ros.ros.cdr import RawTrajectory, read_joint_trajectory
 from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, DiagnosedNode
 from audio2pose_ros.ros.messages import (
     published_s,
@@ -110,7 +111,6 @@ from audio2pose_ros.ros.messages import (
     stamp_s,
     trajectory_bytes_cap,
     trajectory_msg,
-    trajectory_positions,
 )
 from audio2pose_ros.ros.node_parameters import NodeParameters
 from audio2pose_ros.ros.request_budget import RequestBudget
@@ -221,6 +221,7 @@ class MotionFilterNode(DiagnosedNode):
                     int(self.parameters["max_points_per_message"]), self.robot.n_joints
                 ),
                 with_info=True,
+                decode=read_joint_trajectory,
             )
             self.create_subscription(
                 Bool, topics.VOICE_ACTIVITY, guarded(self.on_voice), STREAM_QOS
@@ -434,18 +435,17 @@ class MotionFilterNode(DiagnosedNode):
         """Raw messages (or single-process hand-overs) that came since start."""
         return self.intake.messages
 
-    def on_raw(self, msg: JointTrajectory, info: MessageInfo) -> None:
+    def on_raw(self, msg: RawTrajectory, info: MessageInfo) -> None:
         """Check and queue the poses of one raw trajectory message (of the one source in use)."""
         refused = self.intake.from_source(publisher_of(info), time.monotonic())
         if refused is not None:
             self._report(refused)
             return
-        take = self._admit(stamp_s(msg.header.stamp), len(msg.points))
+        take = self._admit(msg.stamp_s, len(msg.positions))
         if take is None:
             return
-        msg.points = msg.points[:take]
         try:
-            poses = trajectory_positions(msg, self.robot.names)
+            poses = msg.poses(self.robot.names, take)
         except ValueError as exc:
             self._report(self.intake.malformed(str(exc)))
             return

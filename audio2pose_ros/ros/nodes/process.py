@@ -14,8 +14,14 @@ instant of the process:
   handler on another thread while the main one is creating nodes in the context that handler
   shuts down (that race ended a node with a configuration error, and once with SIGABRT).
 
-Then it imports its node module, without the message code generator that every generated
-message module would load (:func:`defer_message_code_generator`).
+Then (:func:`lighten_node_imports`) it imports its node module
+
+- without the message code generator that every generated message module would load
+  (:func:`defer_message_code_generator`);
+- with its URDF parsed in a child process (:func:`~audio2pose_ros.robot.urdf_outline.parse_apart`:
+  the parser's XML library would stay mapped for the life of the node, 4.2 MB, to read one file
+  at start);
+- with ``hashlib`` on CPython's own hash functions, not OpenSSL's (:func:`use_builtin_hashes`).
 """
 
 from __future__ import annotations
@@ -28,14 +34,18 @@ import signal
 import sys
 from typing import Any
 
+from audio2pose_ros.robot import urdf_outline
+
 __all__ = [
     "audio_features_node",
     "console_node",
     "defer_message_code_generator",
     "inference_node",
+    "lighten_node_imports",
     "motion_filter_node",
     "pepper_sim_node",
     "prepare_node_process",
+    "use_builtin_hashes",
 ]
 
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
@@ -106,9 +116,32 @@ def defer_message_code_generator() -> None:
     names["__getattr__"] = whole_package
 
 
+def use_builtin_hashes() -> None:
+    """Make ``hashlib`` use CPython's own hash functions: OpenSSL's libcrypto stays unloaded.
+
+    ``hashlib`` imports ``_hashlib``, OpenSSL's hashes, whenever it is imported: 3.6 MB of
+    resident memory in a node that verifies one checkpoint digest at start and imports
+    ``numpy.random``, whose ``secrets`` imports ``hmac`` and so ``hashlib``. Without
+    ``_hashlib``, ``hashlib`` falls back on CPython's own MD5, SHA-1, SHA-2, SHA-3 and BLAKE2
+    (its documented behaviour on a build without OpenSSL): the same digests, at a speed that is
+    no concern for a 60 KB checkpoint. Nothing in a node uses what only OpenSSL has
+    (``pbkdf2_hmac``, ``scrypt``, other algorithms by name). Does nothing if ``hashlib`` is
+    already imported.
+    """
+    if "hashlib" not in sys.modules:
+        sys.modules.setdefault("_hashlib", None)  # type: ignore[arg-type]  # import blocked
+
+
+def lighten_node_imports() -> None:
+    """What a node process does before importing its node (see the module's description)."""
+    defer_message_code_generator()
+    urdf_outline.parse_apart()
+    use_builtin_hashes()
+
+
 def _run(module: str) -> None:
     prepare_node_process()
-    defer_message_code_generator()
+    lighten_node_imports()
     importlib.import_module(f"audio2pose_ros.ros.nodes.{module}").main()
 
 

@@ -82,7 +82,8 @@ def main(args: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    from audio2pose_ros.ros.nodes.process import prepare_node_process
+    from audio2pose_ros.ros.nodes.process import lighten_node_imports, prepare_node_process
 
     prepare_node_process()  # before the imports in main(): die with the parent, quit on SIGTERM
+    lighten_node_imports()
     main()
