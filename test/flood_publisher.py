@@ -1,10 +1,13 @@
 """A separate process that publishes one node input as fast as it can (the flood tests).
 
-Run as ``python flood_publisher.py <kind> <seconds>``, at the lowest CPU priority: it waits
-until the input's node subscribes, writes ``ready`` on stdout, publishes for ``seconds`` and
-then writes
+Run as ``python flood_publisher.py <kind> <seconds>``: it waits until the input's node
+subscribes, writes ``ready`` on stdout, publishes for ``seconds`` and then writes
 ``sent <n> <first wall-clock s> <last wall-clock s>`` (what the tests line the probe's windows
-up with). Kinds:
+up with). It runs at the tests' own CPU priority and competes with the node for the CPU, as a
+user's other work would: the tests judge what the node did with the CPU time it had, so the
+share it gets is no verdict, and a flooder as fast as the node builds the backlog that starves a
+node whose timers wait behind its messages (at the lowest priority, the set_parameters storm did
+not). Kinds:
 
 - ``joint_angles``: naoqi_driver's JointAnglesWithSpeed, one joint, alternating targets;
 - ``audio_bytes``: 1-byte audio_common AudioData chunks after a 16 kHz mono S16LE AudioInfo;
@@ -15,7 +18,6 @@ up with). Kinds:
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 from collections.abc import Callable
@@ -105,9 +107,6 @@ KINDS: dict[str, Callable[..., Flood]] = {
 
 
 def main(kind: str, seconds: float) -> None:
-    # Lowest priority: on a machine shared with other work the tests measure what the node does
-    # with the CPU it gets, not how a saturated core is split between the flooder and the node.
-    os.nice(19)
     with rclpy.init():
         node = Node("flood_publisher")
         name, *target = kind.split(":")

@@ -50,6 +50,7 @@ class Peer(Node):
         self.frames: list[np.ndarray] = []
         self.first_frames: list[int | None] = []
         self.statuses: list[tuple[float, DiagnosticStatus]] = []
+        self.stamps: list[float] = []  # each status's header stamp: when the node sent it
         self.create_subscription(Float32MultiArray, "features", self._on_features, 1000)
         self.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, 100)
 
@@ -62,6 +63,7 @@ class Peer(Node):
         for status in msg.status:
             if status.name.endswith(NODE):
                 self.statuses.append((time.monotonic(), status))
+                self.stamps.append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
 
     def spin_for(self, seconds: float) -> None:
         end = time.monotonic() + seconds
@@ -171,9 +173,11 @@ def test_when_a_message_is_over_a_limit_expect_warn_while_it_happens_then_ok(tmp
         assert "AudioData message of 5000 bytes (max_chunk_bytes 4096)" in peer.latest().message
         peer.audio.publish(AudioData(data=bytes(4000)))  # 0.125 s of audio
         peer.wait_until(lambda: "max_chunk_s 0.1" in peer.latest().message)
-        warned_until = time.monotonic()
-        peer.wait_until(lambda: peer.latest().level == DiagnosticStatus.OK, timeout_s=10.0)
-        assert time.monotonic() - warned_until < 7.0  # held a few seconds, not forever
+        warned_s = peer.stamps[-1]
+        peer.wait_until(lambda: peer.latest().level == DiagnosticStatus.OK, timeout_s=30.0)
+        # held its few seconds, not forever: by the node's own stamps (a loaded machine may
+        # deliver them late, the node stamps them when it sends them)
+        assert peer.stamps[-1] - warned_s < 7.0
         assert "dropped" not in peer.latest().message
         assert process.poll() is None
 

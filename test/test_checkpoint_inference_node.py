@@ -150,6 +150,28 @@ def test_when_a_frame_index_jumps_beyond_what_time_allows_expect_a_new_stream_no
     assert node.diagnostic_values()["frames_lost"] == 10  # a plausible gap still counts
 
 
+@pytest.mark.ros
+def test_when_features_come_as_their_bytes_expect_the_poses_of_the_message_and_its_refusals(
+    node,
+):
+    """What the subscription hands (the CDR bytes) runs exactly as the message object does."""
+    from rclpy.serialization import serialize_message
+
+    frames = node.model.normalizer.mean + np.random.default_rng(2).standard_normal(
+        (5, node.model.features.dim)
+    )
+    node.on_features(features(node, frames))
+    node.predictor = node.model.predictor()
+    node.on_features(serialize_message(features(node, frames)))
+    by_message, by_bytes = ([p.positions for p in m.points] for m in node.published)
+    assert np.array_equal(by_message, by_bytes)
+    broken = features(node, frames)
+    broken.layout.dim[0].size = 6  # claims a frame it does not hold
+    node.on_features(serialize_message(broken))
+    assert node.malformed_messages == 1
+    assert len(node.published) == 2
+
+
 @pytest.mark.parametrize("bad", [np.nan, -np.inf, 8.5, -1e30])
 def test_when_features_are_within_the_limit_expect_them_unchanged_and_one_bad_value_caught(bad):
     """Speech stays within the limit: nothing to replace or clamp, and the values as they came

@@ -35,3 +35,20 @@ def test_when_the_command_leaves_a_joint_range_expect_it_reported_as_not_in_limi
     assert report.values(1.0)["command_finite_and_in_limits"] is True
     filt.position_rad[0] = robot.upper_rad[0] + 0.1  # as a broken filter would command
     assert report.values(2.0)["command_finite_and_in_limits"] is False
+
+
+def test_when_commands_pass_on_the_travel_bound_expect_the_clearance_reported_as_a_bound(robot):
+    """Far from the body the guard's clearance is its travel bound, and the report says so."""
+    filt = MotionFilter(robot)
+    report = FilterReport(filt, 0.0)
+    t = 0.0
+    for _ in range(20):
+        t += filt.period_s
+        filt.push(robot.neutral_rad[None, :], t)
+        filt.tick(t)
+    values = report.values(t)
+    assert values["body_clearance_exact"] is False
+    assert values["body_guard_bound_checks"] > 10
+    exact = float(filt.body_guard.body.clearance(filt.position_rad))
+    assert float(values["body_clearance_cm"]) <= round(exact * 100.0, 1)
+    assert " / " in values["body_closest_links"]

@@ -2,13 +2,21 @@
 
 Each case runs the real node process on its usual executor, floods one of its inputs from a
 separate process publishing as fast as it can, and reads the outcome from what the node sends,
-by the stamps the node put on it (so a probe that is itself slow to read does not matter):
+by the stamps the node put on it (so a probe that is itself slow to read does not matter),
+against the CPU time the node's executor thread used meanwhile (read from /proc as the probe
+listens). Once a paced timer's output falls due, the executor thread runs at most a quarter
+period and the one callback running then before it; a starving node spends its CPU time on the
+flood instead, up to seconds of it. A machine that is slow or busy gives the node less CPU
+time, not more of it while an output is due, so the verdicts hold there too:
 
-- its heartbeat is never silent for a second;
-- the simulated Pepper's joint_states keep their rate (>= 40 per 1 s window at 50 Hz; under a
-  storm of parameter requests, whose every one costs the node rclpy's own work, >= 20 on a
-  loaded machine);
+- never BEAT_LATE_CPU_S (0.25 s) of the executor's CPU time while a heartbeat is due;
+- never STATE_LATE_CPU_S (40 ms) of it while one of the simulated Pepper's joint_states is due,
+  under a flood of commands or a storm of parameter requests;
 - the node served the flood (its counters grew) and counted what it dropped.
+
+The rates on the wall clock (the fewest joint_states in a 1 s window, the longest heartbeat
+silence) are printed for the record, not judged: a loaded machine lowers them with or without a
+flood.
 """
 
 from __future__ import annotations
@@ -24,25 +32,30 @@ import pytest
 import rclpy
 from audio_common_msgs.msg import AudioData, AudioInfo
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from executor_cpu import BEAT_LATE_CPU_S, ExecutorCpu
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
-from audio2pose_ros.ros.diagnosed_node import DiagnosedNode, PacedTimer
+from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_PERIOD_S, DiagnosedNode, PacedTimer
 from audio2pose_ros.ros.graph import executable_command
 from audio2pose_ros.ros.nodes.audio_features_node import AudioFeaturesNode
+from audio2pose_ros.ros.nodes.pepper_sim_node import STATE_PERIOD_S
 from audio2pose_ros.ros.player import spin_until
+from audio2pose_ros.ros.tools.process_stats import cpu_s
 from audio2pose_ros.topics import DIAGNOSTICS, JOINT_STATES, absolute
 
 pytestmark = pytest.mark.ros
 
 FLOOD_S = 5.0
 FLOODER = Path(__file__).with_name("flood_publisher.py")
-MAX_SILENCE_S = 1.0  # a heartbeat every 0.5 s; today's flooded nodes went 1-10 s without one
-MIN_STATES_PER_S = 40  # joint_states at 50 Hz; flooded, today's simulated Pepper sent 0-2 a second
-WINDOW_S = 1.0
-MIN_STATES_UNDER_REQUESTS = 20  # a set_parameters storm: today 0 a second, see the test
+# While an output is due, the executor runs at most a quarter period and the callback running
+# then (executor_cpu.py): with room for callbacks several times slower than here, the bounds on
+# its CPU time meanwhile are (figures from 2 busy cores, the flooder at the tests' priority)
+STATE_LATE_CPU_S = 0.04  # joint_states (20 ms): here at most 7 ms; starving: 16-540 ms
+# and BEAT_LATE_CPU_S (0.25 s) for the heartbeat (0.5 s)
+WINDOW_S = 1.0  # for the printed figure: the fewest joint_states in a 1 s window
 
 
 def _stamp_s(msg: DiagnosticArray | JointState) -> float:
@@ -51,31 +64,82 @@ def _stamp_s(msg: DiagnosticArray | JointState) -> float:
 
 @dataclass
 class Heard:
-    """What the flooded node sent, by the stamps it put on it."""
+    """What the flooded node sent, by the stamps it put on it, and the CPU time it had."""
 
     beats: list[tuple[float, DiagnosticStatus]] = field(default_factory=list)
     states: list[float] = field(default_factory=list)
     sent: int = 0
     first_s: float = 0.0  # wall clock, the flood's first and last message
     last_s: float = 0.0
+    cpu: ExecutorCpu | None = None  # the node's executor thread through the flood
+    process_cpu_s: float = 0.0  # the whole node process over the flood (for the record)
 
-    def during(self) -> tuple[list[float], list[DiagnosticStatus]]:
-        inside = [(t, s) for t, s in self.beats if self.first_s <= t <= self.last_s]
-        return [t for t, _ in inside], [s for _, s in inside]
+    @property
+    def executor(self) -> ExecutorCpu:
+        assert self.cpu is not None, "the flood never started"
+        return self.cpu
+
+    def beat_times(self) -> list[float]:
+        return [t for t, _ in self.beats]
+
+    def beats_inside(self) -> int:
+        """Heartbeats stamped over the flood (from the first CPU reading to the last)."""
+        return sum(self.executor.start_s < t < self.executor.end_s for t, _ in self.beats)
+
+    def states_inside(self) -> int:
+        """joint_states stamped over the flood (from the first CPU reading to the last)."""
+        return sum(self.executor.start_s < t < self.executor.end_s for t in self.states)
 
     def longest_silence_s(self) -> float:
-        times, _ = self.during()
+        """The longest time without a heartbeat during the flood (a figure, not a verdict)."""
+        times = [t for t, _ in self.beats if self.first_s <= t <= self.last_s]
         return float(max(np.diff([self.first_s, *times, self.last_s])))
 
     def fewest_states_per_window(self) -> int:
+        """The fewest joint_states in a 1 s window of the flood (a figure, not a verdict)."""
         stamps = np.array(sorted(self.states))
         starts = np.arange(self.first_s, self.last_s - WINDOW_S, 0.1)
         counts = np.searchsorted(stamps, starts + WINDOW_S) - np.searchsorted(stamps, starts)
         return int(counts.min())
 
+    def figures(self) -> str:
+        """What the node did with the CPU time it had, and its rates (for the record)."""
+        late_beat_s = self.executor.most_after_due(self.beat_times(), HEARTBEAT_PERIOD_S)
+        states = (
+            f"{self.states_inside()} joint_states (at most "
+            f"{self.executor.most_after_due(self.states, STATE_PERIOD_S) * 1e3:.0f} ms of CPU "
+            f"after one was due; the fewest in a 1 s window: {self.fewest_states_per_window()}) "
+            "and "
+            if self.states
+            else ""
+        )
+        return (
+            f"{self.sent} messages in {self.last_s - self.first_s:.1f} s; the executor thread had "
+            f"{self.executor.total_s():.2f} s of CPU (the process {self.process_cpu_s:.2f} s) and "
+            f"sent {states}{self.beats_inside()} heartbeats (at most {late_beat_s:.2f} s of CPU "
+            f"after one was due; the longest silence: {self.longest_silence_s():.2f} s)"
+        )
+
     def value(self, key: str, status: DiagnosticStatus | None = None) -> int:
         status = status if status is not None else self.beats[-1][1]
         return int(float({kv.key: kv.value for kv in status.values}[key]))
+
+
+def assert_heartbeat_kept(heard: Heard) -> None:
+    """Never BEAT_LATE_CPU_S of the executor thread's CPU time after a heartbeat fell due.
+
+    And one at least: a node the flood blocked uses no CPU time, and sends nothing either.
+    """
+    assert heard.beats_inside() > 0, heard.figures()
+    late_cpu_s = heard.executor.most_after_due(heard.beat_times(), HEARTBEAT_PERIOD_S)
+    assert late_cpu_s < BEAT_LATE_CPU_S, heard.figures()
+
+
+def assert_states_kept(heard: Heard) -> None:
+    """Never STATE_LATE_CPU_S of the executor thread's CPU time after a joint_state fell due."""
+    assert heard.states_inside() > 0, heard.figures()
+    late_cpu_s = heard.executor.most_after_due(heard.states, STATE_PERIOD_S)
+    assert late_cpu_s < STATE_LATE_CPU_S, heard.figures()
 
 
 def flood(tmp_path: Path, executable: str, kind: str, *ros_args: str) -> Heard:
@@ -106,8 +170,13 @@ def flood(tmp_path: Path, executable: str, kind: str, *ros_args: str) -> Heard:
             )
             assert flooder.stdout is not None
             assert flooder.stdout.readline().strip() == "ready"
+            process_s = cpu_s(node_process.pid)
+            heard.cpu = ExecutorCpu(node_process.pid)
+            heard.cpu.read()
             while flooder.poll() is None:
                 rclpy.spin_once(probe, timeout_sec=0.01)
+                heard.cpu.read()
+            heard.process_cpu_s = cpu_s(node_process.pid) - process_s
             words = flooder.stdout.read().split()
             assert len(words) == 4, f"the flooder failed (see {log.name}): {words}"
             heard.sent, heard.first_s, heard.last_s = int(words[1]), *map(float, words[2:4])
@@ -118,32 +187,23 @@ def flood(tmp_path: Path, executable: str, kind: str, *ros_args: str) -> Heard:
             node_process.terminate()
             node_process.wait(20)
             probe.destroy_node()
-    print(
-        f"{executable} flooded with {kind}: {heard.sent} messages in "
-        f"{heard.last_s - heard.first_s:.1f} s; longest heartbeat silence "
-        f"{heard.longest_silence_s():.2f} s"
-        + (
-            f"; fewest joint_states per 1 s window {heard.fewest_states_per_window()}"
-            if heard.states
-            else ""
-        )
-        + f"; last report {dict((kv.key, kv.value) for kv in heard.beats[-1][1].values)}"
-    )
+    report = {kv.key: kv.value for kv in heard.beats[-1][1].values}
+    print(f"{executable} flooded with {kind}: {heard.figures()}; last report {report}")
     return heard
 
 
 def test_when_joint_angles_flood_the_simulated_pepper_expect_its_states_and_heartbeat(tmp_path):
     heard = flood(tmp_path, "pepper_sim_node", "joint_angles")
     assert heard.value("commands") > 0  # the flood was served
-    assert heard.longest_silence_s() < MAX_SILENCE_S
-    assert heard.fewest_states_per_window() >= MIN_STATES_PER_S
+    assert_heartbeat_kept(heard)
+    assert_states_kept(heard)
 
 
 def test_when_one_byte_audio_chunks_flood_the_features_node_expect_its_heartbeat(tmp_path):
     heard = flood(tmp_path, "audio_features_node", "audio_bytes")
     chunks, decodes = heard.value("chunks_received"), heard.value("audio_decodes")
     assert chunks > 0  # the flood was served
-    assert heard.longest_silence_s() < MAX_SILENCE_S
+    assert_heartbeat_kept(heard)
     # accumulated: one decode per 10 ms of audio (320 one-byte chunks), not one per chunk
     assert decodes * 10 <= chunks
 
@@ -153,7 +213,7 @@ def test_when_features_flood_the_inference_node_expect_its_heartbeat_and_counted
 ):
     heard = flood(tmp_path, "inference_node", "features")
     assert heard.value("frames_in") > 0  # the flood was served
-    assert heard.longest_silence_s() < MAX_SILENCE_S
+    assert_heartbeat_kept(heard)
     # a second of frames a message, a hundred queued: those that waited over 0.5 s are dropped
     # unserved and counted, not computed seconds late
     assert heard.value("frames_behind_real_time") > 0
@@ -161,11 +221,9 @@ def test_when_features_flood_the_inference_node_expect_its_heartbeat_and_counted
 
 def test_when_set_parameters_requests_flood_the_simulated_pepper_expect_its_states(tmp_path):
     heard = flood(tmp_path, "pepper_sim_node", "set_parameters:pepper_sim_node")
-    assert heard.longest_silence_s() < MAX_SILENCE_S
-    # Each request costs the node rclpy's take and answer (the timers run between requests):
-    # on 2 busy cores it kept 34-45 a second against 0 before, so the bound here is below
-    # MIN_STATES_PER_S (see the module docstring).
-    assert heard.fewest_states_per_window() >= MIN_STATES_UNDER_REQUESTS
+    # Each request costs the node rclpy's take and answer; the timers run between requests.
+    assert_heartbeat_kept(heard)
+    assert_states_kept(heard)
 
 
 def test_when_a_paced_timer_waits_behind_messages_expect_it_run_between_them_at_its_rate():
@@ -296,7 +354,7 @@ def test_when_commands_flood_the_console_expect_its_heartbeat_and_the_newest_kep
     silence its heartbeat, which runs between the messages when it is due."""
     heard = flood(tmp_path, "console_node", "joint_angles", "-p", "port:=0")
     assert heard.sent > 1000  # a flood, to a matched reader
-    assert heard.longest_silence_s() < MAX_SILENCE_S
+    assert_heartbeat_kept(heard)
     assert heard.value("callback_errors") == 0
 
 

@@ -10,6 +10,7 @@ from audio2pose_ros.cli.bench_commands import FLOOR_EXECUTOR_WORDS
 from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.spin import create_executor
 from audio2pose_ros.ros.tools.graph_bench import (
+    SINGLE_FLOOR,
     FloorFigures,
     GraphFigures,
     measure_floor,
@@ -100,6 +101,10 @@ def test_when_the_floor_is_measured_expect_three_relays_that_carry_audio_to_comm
     assert all(0.0 < mb < 1000.0 for mb in floor.rss_mb.values())
     assert all(cpu > 0.0 for cpu in floor.steady_cpu_ms_per_frame.values())
     assert floor.executor == "plain"
+    # the floor of the graph in one process: the three relays in one process, one executor
+    single = measure_floor(speech, duration_s=2.0, single_process=True)
+    assert set(single.rss_mb) == {SINGLE_FLOOR}
+    assert single.steady_cpu_ms_per_frame[SINGLE_FLOOR] > 0.0
     assert (
         report(_figures("three-process", {"a": 1.0}, {"a": 70.0}, floor))["floor"]["executor"]
         == "plain"

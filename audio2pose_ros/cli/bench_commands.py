@@ -236,9 +236,10 @@ def _print_graph(runs: list[dict[str, Any]]) -> None:
         floor = run.get("floor")
         if floor:
             for name, cpu in floor["steady_cpu_ms_per_frame"].items():
+                relays = name if name.startswith("relays") else f"relay for {name}"
                 row(
-                    f"bare rclpy relay for {name}: CPU, MB",
-                    [f"({cpu:.3f}), {floor['rss_mb'][name]:.0f}"],
+                    f"bare rclpy {relays}: CPU, MB",
+                    [f"({cpu:.3f}), {floor['rss_mb'][name]:.0f}" if r is run else "" for r in runs],
                 )
             spun = FLOOR_EXECUTOR_WORDS[floor.get("executor", "plain")]
             print(

@@ -13,6 +13,19 @@ allow and the previous command, and returns a command whose clearance
    no further apart than ``SAMPLE_TRAVEL_M`` of travel of any checked pair, so that no shape,
    however thin, is passed between two samples), so a moving arm can always stop before the
    floor, and no step between two commands crosses the body.
+   **Most commands need no query.** Each checked pair's distance at the previous command is
+   bounded from the pair's last measured distance
+   (:meth:`~audio2pose_ros.robot.body.BodyModel.pair_bounds`: less its levers times each
+   joint's travel since), and along the whole path it falls by at most its levers times each
+   joint's travel along it (the step, plus the braking distance ``v^2 / (2 a)``). Where the
+   lowest bound keeps the floor, the exact check could only find the path clear, so the
+   command is admissible without a query (counted as ``bound_checks``); else it is queried as
+   above. The previous command's clearance is such a bound too while the bound is at least the
+   margin (the floor is then the margin, as with its exact value). Only outside the margin: a
+   robot inside it (3, 4) is always measured. The decisions are those of the exact check (only
+   coal's answers may differ, within its 1e-6 m tolerance: they depend on the queries before
+   them, of which there are fewer). The clearance the guard reports of a command the bound
+   passed is the bound (``GuardStatus.clearance_exact`` False); a changed command's is measured.
 2. **Otherwise only the joints that must stop, brake.** The joints on the kinematic chains of
    the offending pairs (one arm; the other arm for arm-against-arm; the hip or head when the
    pair involves them) decelerate at their acceleration limit, while every other joint keeps
@@ -92,18 +105,24 @@ class GuardStatus:
     holds: int = 0  # last-resort holds of the previous pose (faster than the acceleration limit)
     detour_steps: int = 0  # commands that moved a stopped arm round the body along the margin
     active: bool = False  # the last command was changed
-    clearance_m: float = float("inf")  # clearance of the last command (m)
+    clearance_m: float = float("inf")  # clearance of the last command (m), or a lower bound
     floor_m: float = float("inf")  # clearance the guard guarantees now (m): the margin, or less
     # while it rises to a raised margin
     links: tuple[str, str] = ("", "")  # closest pair of the last command
+    clearance_exact: bool = True  # clearance_m and links were measured; False: the last command
+    # was cleared by the travel bound, clearance_m is a lower bound and links its pair
+    bound_checks: int = 0  # admissibility checks the travel bound answered without a query
     last_cost_ns: int = 0  # time the last call of BodyGuard.enforce took (for the bench)
 
 
 class BodyGuard:
     """Keeps commands at least ``margin_m`` away from the robot's body (see the module text)."""
 
-    def __init__(self, body: BodyModel, margin_m: float) -> None:
+    def __init__(self, body: BodyModel, margin_m: float, travel_bound: bool = True) -> None:
         """Guard commands for ``body`` with clearance ``margin_m`` (m, at least 0).
+
+        ``travel_bound=False`` makes every check query the body (module text, 1): the decisions
+        are the same, so this is the reference the bound is tested against.
 
         Raises:
             ValueError: the margin is negative or not finite.
@@ -124,6 +143,9 @@ class BodyGuard:
         self._dt_s = 0.0  # the time of this step, and of each tick of a braking path (s)
         self._paths: dict[bytes, PathClearance] = {}
         self._travel = body.pair_lever_m  # (n_pairs, n_joints): a pair's travel per rad (m/rad)
+        self._travel_bound = travel_bound
+        self._pair_bounds_m: np.ndarray | None = None  # each pair's bound at the previous command
+        self._bounded = b""  # the last pose the travel bound cleared, this step
 
     def reset(self) -> None:
         """Start again from rest: forget the lead-out ramp, the floor and earlier queries."""
@@ -132,6 +154,39 @@ class BodyGuard:
         self._brake_accel = None
         self._paths.clear()
         self.body.reset()
+
+    def _pose_bound(self, travel: np.ndarray) -> tuple[float, int]:
+        """A lower bound of the clearance of every pose within ``travel`` of the previous command.
+
+        ``travel`` is per joint; the bound comes from each pair's bound at the previous command
+        (:meth:`_previous_clearance`), with no query; -inf without them.
+
+        Returns:
+            ``(bound_m, pair)``: the bound and the pair (index in ``link_pairs``) it is of.
+        """
+        if self._pair_bounds_m is None:
+            return -np.inf, -1
+        bounds = self._pair_bounds_m - self._travel @ travel
+        pair = int(bounds.argmin())
+        return float(bounds[pair]), pair
+
+    def _path_bound(self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray) -> float:
+        """A lower bound of the clearance along :meth:`_path`'s whole path, without a query.
+
+        Each joint's travel from the previous command along the path is at most its step to
+        ``pose``, plus how far ``pose`` lies outside the position range (the braking path is
+        clipped into it), plus its braking distance ``v^2 / (2 a)`` (the braking path's ticks
+        are a right Riemann sum of the speed falling linearly to rest, which never exceeds the
+        integral). Each pair's bound at the previous command
+        (:meth:`~audio2pose_ros.robot.body.BodyModel.pair_bounds`) less its levers times that
+        travel bounds it along the path. NaN (never clear) for a joint that moves and cannot
+        brake.
+        """
+        lower, upper = self._bounds
+        outside = np.maximum(lower - pose, 0.0) + np.maximum(pose - upper, 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            braking = velocity * velocity / (2.0 * accel)
+        return self._pose_bound(np.abs(pose - self._previous) + outside + braking)[0]
 
     def _clear(self, pose: np.ndarray) -> bool:
         return bool(self.body.clearance(pose) >= self._floor_m)
@@ -203,9 +258,17 @@ class BodyGuard:
 
         The path may come ``PATH_SLACK_M`` inside the margin, but no closer than the present
         clearance once inside it (so that braking along it cannot creep deeper step by step).
+        Outside the margin, a path whose travel bound (:meth:`_path_bound`) keeps the floor is
+        clear without a query: the exact check would find it clear too.
         """
         inside = self._floor_m < self.margin_m  # the floor is the present clearance
         path_floor = self._floor_m if inside else self._floor_m - PATH_SLACK_M
+        if self._travel_bound and not inside:
+            bound = self._path_bound(pose, velocity, accel)
+            if bound >= self._floor_m:  # the whole path, the command too, keeps the floor
+                self.status.bound_checks += 1
+                self._bounded = pose.tobytes()
+                return PathClearance(True, -1, -1, bound, 0.0, 0)
         return self._sweep(pose, velocity, accel, self._floor_m, path_floor)
 
     def _admissible(self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray) -> bool:
@@ -274,7 +337,8 @@ class BodyGuard:
         brake = accel if self._brake_accel is None else np.maximum(accel, self._brake_accel)
         self._bounds = limiter.allowed_range(previous)
         self._max_speed = limiter.max_velocity_rad_s
-        previous_clearance = float(self.body.clearance(previous))
+        self._bounded = b""
+        previous_clearance = self._previous_clearance(previous)
         if self._guaranteed_m is None:  # from rest: what the start pose has, at most the margin
             self._guaranteed_m = min(self.margin_m, previous_clearance)
         self._guaranteed_m = min(self._guaranteed_m, self.margin_m)  # a lowered margin: at once
@@ -301,11 +365,33 @@ class BodyGuard:
             self._brake_accel = accel
         status.active = not np.array_equal(positions, np.asarray(positions_rad, dtype=np.float64))
         status.interventions += int(status.active)
-        distance, link_a, link_b = self.body.closest_pair(positions)
+        if status.active or positions.tobytes() != self._bounded:
+            distance, link_a, link_b = self.body.closest_pair(positions)
+            status.clearance_exact = True
+        else:  # cleared by the travel bound: the command's own bound
+            distance, pair = self._pose_bound(np.abs(positions - previous))
+            link_a, link_b = self.body.link_pairs[pair]
+            status.clearance_exact = False
         status.clearance_m, status.links = distance, (link_a, link_b)
         status.floor_m = self._guaranteed_m
         status.last_cost_ns = time.perf_counter_ns() - start_ns
         return positions.copy(), velocities.copy()
+
+    def _previous_clearance(self, previous: np.ndarray) -> float:
+        """The previous command's clearance, or a lower bound of it that is at least the margin.
+
+        With the travel bound, each pair's bound at the previous command is kept for this step
+        (:meth:`_pose_bound`). While their lowest is at least the margin it stands for the
+        clearance: the floor is then the margin and no lead-out is due, as with the exact
+        clearance. Else, and from rest, the clearance is queried.
+        """
+        self._pair_bounds_m = None
+        if self._travel_bound and self._guaranteed_m is not None:
+            self._pair_bounds_m = self.body.pair_bounds(previous)
+            bound = float(self._pair_bounds_m.min())
+            if bound >= self.margin_m:
+                return bound
+        return float(self.body.clearance(previous))
 
     def _settle(
         self, positions: np.ndarray, velocities: np.ndarray, accel: np.ndarray, brake: np.ndarray

@@ -61,6 +61,10 @@ class FilterReport:
             "body_guard_holds": guard.holds,
             "body_clearance_cm": f"{guard.clearance_m * 100.0:.1f}",
             "body_closest_links": " / ".join(guard.links),
+            # false: the command passed on the guard's travel bound without a query, and the
+            # clearance is that bound (at least the margin; the true one may be larger)
+            "body_clearance_exact": guard.clearance_exact,
+            "body_guard_bound_checks": guard.bound_checks,
             "command_finite_and_in_limits": bool(
                 np.isfinite(position).all()
                 and np.all(position >= robot.lower_rad)

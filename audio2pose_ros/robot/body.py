@@ -385,6 +385,20 @@ class BodyModel:
         self._recent[key] = answer
         return answer
 
+    def pair_bounds(self, pose_rad: np.ndarray) -> np.ndarray:
+        """Lower bounds (m) of every pair's distance in one pose, from the last measurements alone.
+
+        No query: pair k's distance at ``pose_rad`` is at least its last measured distance less
+        ``pair_lever_m[k] @ |pose_rad - q_known|`` (see the module text), less ``CULL_SLACK_M``
+        for coal's tolerance; -inf for a pair never measured (since :meth:`reset`). A pose q
+        near ``pose_rad`` keeps at least ``bounds - pair_lever_m @ |q - pose_rad|``.
+
+        Returns:
+            (n_pairs,) bounds, in the order of :attr:`link_pairs`.
+        """
+        reach = np.einsum("pj,pj->p", self.pair_lever_m, np.abs(pose_rad - self._known_at))
+        return np.asarray(self._known_m - reach - CULL_SLACK_M)
+
     def _some_pairs(self, pose_rad: np.ndarray, pairs: np.ndarray) -> np.ndarray:
         """Signed distances (m) of the pairs ``pairs`` (indices) alone in one pose."""
         self._place(pose_rad)

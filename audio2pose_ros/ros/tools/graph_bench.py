@@ -66,6 +66,7 @@ from audio2pose_ros.timebase import FRAME_PERIOD_S, SAMPLE_RATE_HZ, SAMPLES_PER_
 CHUNK_SAMPLES = SAMPLES_PER_FRAME  # one 10 ms frame step per chunk (seed 003 section 4.2.2)
 MATCH_TOLERANCE_RAD = 1e-5  # float32 /joint_angles against float64 raw poses
 STEADY_SKIP_S = 2.0  # steady-state CPU is read from this long after the stream starts
+SINGLE_FLOOR = "relays in one process"  # the floor's name for the graph in one process
 ANSWER_TIMEOUT_S = 60.0  # the graph must command and answer audio this soon after the start
 # Footprint targets: (figure, three-process target, single-process target, unit); at most.
 TARGETS = (
@@ -203,7 +204,7 @@ def measure_graph(
     """Run the graph on ``duration_s`` of ``speech_16k`` (repeated) and measure it.
 
     ``single_process`` runs the three nodes in one process instead of three. ``with_floor``
-    (three processes only) then runs the bare rclpy relays on the same chunks
+    then runs the bare rclpy relays on the same chunks, as as many processes as the nodes
     (:func:`measure_floor`, its relays in ``floor_executor``), so that both figures come from
     one run on one machine state.
     """
@@ -267,8 +268,8 @@ def measure_graph(
         steady_cpu_ms_per_frame={k: 1e3 * v / steady_frames for k, v in steady.items()},
         rss_mb=rss,
         floor=(
-            measure_floor(speech_16k, duration_s, floor_executor)
-            if with_floor and not single_process
+            measure_floor(speech_16k, duration_s, floor_executor, single_process)
+            if with_floor
             else None
         ),
     )
@@ -306,13 +307,18 @@ def _play_measured(
 
 
 def measure_floor(
-    speech_16k: np.ndarray, duration_s: float = 60.0, executor: str = "plain"
+    speech_16k: np.ndarray,
+    duration_s: float = 60.0,
+    executor: str = "plain",
+    single_process: bool = False,
 ) -> FloorFigures:
     """The bare rclpy floor (:mod:`audio2pose_ros.ros.tools.relay_floor`) on the graph's input.
 
-    Three relay processes with the graph's topology and QoS, spinning in ``executor``
-    (``plain``: rclpy.spin's default; ``node``: the nodes' own), play the same chunks as
+    Three relays with the graph's topology and QoS, spinning in ``executor`` (``plain``:
+    rclpy.spin's default; ``node``: the nodes' own), play the same chunks as
     :func:`measure_graph`, measured the same way: steady CPU per frame and resident memory.
+    They run as three processes, or with ``single_process`` in one process and one executor
+    (:data:`SINGLE_FLOOR`), as the graph does.
     """
     if executor not in RELAY_EXECUTORS:
         raise ValueError(f"executor must be one of {RELAY_EXECUTORS}, got {executor!r}")
@@ -325,12 +331,13 @@ def measure_floor(
         player = _Player()
         stack.callback(player.destroy_node)
         processes: dict[str, subprocess.Popen[bytes]] = {}
-        for role in RELAY_ROLES:
-            log = stack.enter_context(open(Path(tmp) / f"{role}.log", "wb"))
-            command = [*module, role, "--features", str(n_features), "--joints", str(n_joints)]
+        groups = {SINGLE_FLOOR: RELAY_ROLES} if single_process else {r: (r,) for r in RELAY_ROLES}
+        for name, roles in groups.items():
+            log = stack.enter_context(open(Path(tmp) / f"{name}.log", "wb"))
+            command = [*module, *roles, "--features", str(n_features), "--joints", str(n_joints)]
             command += ["--executor", executor]
-            processes[role] = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
-            stack.callback(_stop, processes[role])
+            processes[name] = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+            stack.callback(_stop, processes[name])
         deadline = time.monotonic() + ANSWER_TIMEOUT_S
         if not spin_until(player, deadline, lambda: bool(player.commands)):
             raise _timed_out("no /joint_angles command from the relay floor")

@@ -28,7 +28,9 @@ Which executor a relay spins in (``--executor``):
   which measures what the nodes' work adds over the same transport.
 
 Run one relay with
-``python -m audio2pose_ros.ros.tools.relay_floor ROLE [--features N] [--joints J] [--executor E]``.
+``python -m audio2pose_ros.ros.tools.relay_floor ROLE [--features N] [--joints J] [--executor E]``;
+with several roles, one process runs their relays in one executor (the floor of the graph in
+one process, ``audio2pose run --single-process``: a plain rclpy program composing three nodes).
 """
 
 from __future__ import annotations
@@ -144,7 +146,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     """Run one relay until SIGTERM or Ctrl-C; it dies with the process that started it."""
     prepare_node_process()
     parser = argparse.ArgumentParser(prog="python -m audio2pose_ros.ros.tools.relay_floor")
-    parser.add_argument("role", choices=ROLES)
+    parser.add_argument("roles", nargs="+", choices=ROLES, metavar="ROLE")
     parser.add_argument("--features", type=int, default=26, help="floats per feature frame")
     parser.add_argument("--joints", type=int, default=11, help="joints per pose")
     parser.add_argument(
@@ -158,7 +160,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
     try:
         executor = relay_executor(args.executor)
-        executor.add_node(_Relay(args.role, args.features, args.joints))
+        for role in dict.fromkeys(args.roles):
+            executor.add_node(_Relay(role, args.features, args.joints))
         spin_executor(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
