@@ -169,3 +169,41 @@ def test_when_features_bytes_are_corrupted_expect_input_errors_never_other_failu
             continue
         assert batch.frames.size <= len(data) // 4
     assert refused > 0
+
+
+def test_when_the_nodes_write_their_messages_as_bytes_expect_rclpy_to_read_the_same_messages():
+    """Trajectories (with and without velocities), features and joint angles, any sizes."""
+    from builtin_interfaces.msg import Time
+    from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+
+    from audio2pose_ros.ros.cdr import features_cdr, joint_angles_cdr, joint_trajectory_cdr
+    from audio2pose_ros.ros.messages import trajectory_msg
+
+    rng = np.random.default_rng(13)
+    stamp_ns = 1_795_000_000 * 10**9 + 123_456_789
+    stamp = Time(sec=1_795_000_000, nanosec=123_456_789)
+    for n_joints in (0, 1, 2, 3, 11, 17):
+        names = ["HeadYaw", "ü", "", "LShoulderPitch"] * 5
+        names = [f"{name}{k}" * (k % 3) for k, name in enumerate(names[:n_joints])]
+        for n_points in (0, 1, 3):
+            positions = rng.standard_normal((n_points, n_joints))
+            for velocities in (None, rng.standard_normal((n_points, n_joints))):
+                data = joint_trajectory_cdr(stamp_ns, names, positions, 0.01, velocities)
+                expected = trajectory_msg(names, positions, 0.01, velocities)
+                expected.header.stamp = stamp
+                assert deserialize_message(data, JointTrajectory) == expected
+                assert read_joint_trajectory(data).joint_names == tuple(names)
+        angles = rng.standard_normal(n_joints)
+        sent = deserialize_message(
+            joint_angles_cdr(stamp_ns, names, angles, 0.25), JointAnglesWithSpeed
+        )
+        assert sent.header.stamp == stamp
+        assert (list(sent.joint_names), sent.speed, sent.relative) == (names, 0.25, 0)
+        assert np.array_equal(np.asarray(sent.joint_angles), angles.astype(np.float32))
+    for n_frames in (0, 1, 2):
+        for n_features in (0, 1, 3, 26):
+            frames = rng.standard_normal((n_frames, n_features)).astype(np.float32)
+            for first, label in ((None, "logfbank26"), (0, ""), (10**12, "ü")):
+                data = features_cdr(frames, label, first)
+                expected = features_to_msg(frames, label, first)
+                assert deserialize_message(data, Float32MultiArray) == expected

@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from node_processes import configuration_error_line
+from rclpy.serialization import deserialize_message
+from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.ros.messages import features_to_msg
 
@@ -26,8 +28,12 @@ def node(monkeypatch):
 
     with rclpy.init():
         inference = InferenceNode()
-        published = []
-        monkeypatch.setattr(inference.trajectory_pub, "publish", published.append)
+        published = []  # what it sends (CDR bytes) as messages
+
+        def publish(data: bytes) -> None:
+            published.append(deserialize_message(data, JointTrajectory))
+
+        monkeypatch.setattr(inference.trajectory_pub, "publish", publish)
         # raw_trajectory is built only for a subscriber: play one
         monkeypatch.setattr(inference.trajectory_pub, "get_subscription_count", lambda: 1)
         inference.published = published

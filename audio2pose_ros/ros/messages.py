@@ -1,11 +1,13 @@
-"""Message <-> numpy conversions the nodes share: features (Float32MultiArray) and trajectories.
+"""The graph's stream messages as rclpy objects and numpy arrays: features and trajectories.
 
 A features message carries (n_frames, n_features) float32 values, its feature set named in
 dim[1].label and, optionally, the index of its first frame in dim[0].label ("frames from N"), so
 the receiver counts the frames lost between messages. A raw trajectory is a JointTrajectory of
-one point per 10 ms frame (the motion filter reads it with :mod:`audio2pose_ros.ros.cdr`). Also
-here: what the middleware tells about a message (its publisher, when it was published) and the
-largest raw trajectory worth decoding.
+one point per 10 ms frame. The nodes send and read these messages as their CDR bytes
+(:mod:`audio2pose_ros.ros.cdr`, tested against the objects made here); tools, tests and
+anything that publishes into the graph use the objects. Also here: what the middleware tells
+about a message (its publisher, when it was published) and the largest raw trajectory worth
+decoding.
 """
 
 from __future__ import annotations

@@ -68,9 +68,9 @@ from audio2pose_ros.parameters import (
 )
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.cdr import read_features
+from audio2pose_ros.ros.cdr import joint_trajectory_cdr, read_features
 from audio2pose_ros.ros.diagnosed_node import STREAM_QOS, DiagnosedNode
-from audio2pose_ros.ros.messages import msg_to_features, trajectory_msg
+from audio2pose_ros.ros.messages import msg_to_features
 from audio2pose_ros.ros.node_parameters import NodeParameters
 from audio2pose_ros.ros.spin import run_node
 from audio2pose_ros.timebase import FrameSequence
@@ -311,9 +311,9 @@ class InferenceNode(DiagnosedNode):
         self.frames_in += len(frames)
         stamp = self.get_clock().now()
         if self.trajectory_pub.get_subscription_count():  # no message for nobody
-            out = trajectory_msg(self.joint_names, angles, self.period_s)
-            out.header.stamp = stamp.to_msg()
-            self.trajectory_pub.publish(out)
+            self.trajectory_pub.publish(  # its CDR bytes: no message objects to build
+                joint_trajectory_cdr(stamp.nanoseconds, self.joint_names, angles, self.period_s)
+            )
         if self.pose_sink is not None:
             self.pose_sink(angles, stamp.nanoseconds * 1e-9)
 

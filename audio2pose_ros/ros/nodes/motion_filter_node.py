@@ -103,15 +103,14 @@ from audio2pose_ros.motion.state_file import (
 from audio2pose_ros.motion.style import StyleSettings
 from audio2pose_ros.parameters import ParameterValue, settings_from, settings_with, specs_of
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.cdr import RawTrajectory, read_joint_trajectory
-from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, DiagnosedNode
-from audio2pose_ros.ros.messages import (
-    published_s,
-    publisher_of,
-    stamp_s,
-    trajectory_bytes_cap,
-    trajectory_msg,
+from audio2pose_ros.ros.cdr import (
+    RawTrajectory,
+    joint_angles_cdr,
+    joint_trajectory_cdr,
+    read_joint_trajectory,
 )
+from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, DiagnosedNode
+from audio2pose_ros.ros.messages import published_s, publisher_of, stamp_s, trajectory_bytes_cap
 from audio2pose_ros.ros.node_parameters import NodeParameters
 from audio2pose_ros.ros.request_budget import RequestBudget
 from audio2pose_ros.ros.spin import run_node
@@ -617,26 +616,30 @@ class MotionFilterNode(DiagnosedNode):
         return self.tick_stamp.to_msg()
 
     def publish_joint_angles(self) -> None:
-        """naoqi_driver command: absolute angles at ``speed`` fraction of max velocity."""
-        msg = JointAnglesWithSpeed()
-        msg.header.stamp = self._stamp()
-        msg.joint_names = list(self.robot.names)
-        msg.joint_angles = [float(v) for v in self.filter.position_rad]
+        """naoqi_driver command: absolute angles at ``speed`` fraction of max velocity.
+
+        Sent as its CDR bytes (:func:`~audio2pose_ros.ros.cdr.joint_angles_cdr`), as is the
+        controller's trajectory: no message objects to build at every tick.
+        """
         speed = self.settings.joint_angles_speed
-        msg.speed = float(speed if speed >= 0 else self.filter.limiter.settings.velocity_fraction)
-        msg.relative = 0
-        self.publishers_by_output["joint_angles"].publish(msg)
+        speed = speed if speed >= 0 else self.filter.limiter.settings.velocity_fraction
+        self.publishers_by_output["joint_angles"].publish(
+            joint_angles_cdr(
+                self.tick_stamp.nanoseconds, self.robot.names, self.filter.position_rad, speed
+            )
+        )
 
     def publish_joint_trajectory(self) -> None:
         """ros2_control command: one point, one filter period after the tick it was computed at."""
-        msg = trajectory_msg(
-            self.robot.names,
-            self.filter.position_rad[None, :],
-            self.filter.period_s,
-            self.filter.velocity_rad_s[None, :],
+        self.publishers_by_output["joint_trajectory"].publish(
+            joint_trajectory_cdr(
+                self.tick_stamp.nanoseconds,
+                self.robot.names,
+                self.filter.position_rad[None, :],
+                self.filter.period_s,
+                self.filter.velocity_rad_s[None, :],
+            )
         )
-        msg.header.stamp = self._stamp()
-        self.publishers_by_output["joint_trajectory"].publish(msg)
 
     def publish_joint_states(self) -> None:
         """The commanded pose as a JointState (for robot_state_publisher and viewers)."""
