@@ -23,8 +23,8 @@ TEST_WORKERS ?= 3
 test: setup
 	$(VENV_BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadgroup
 
-# The long tests only: the memory soak and the fault campaign, minutes of audio through the
-# live graph. CI (.ci/run) runs them after `make test`.
+# The long tests only: the memory soak, the fault campaign (minutes of audio through the live
+# graph) and the floods of node processes. CI (.ci/run) runs them after `make test`.
 test-long: setup
 	$(VENV_BIN)/python -m pytest -m long
 

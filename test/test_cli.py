@@ -152,8 +152,12 @@ def test_when_synth_missing_file_expect_error_naming_it(tmp_path: Path):
 
 
 def test_when_bench_runs_expect_every_stage_timed():
+    """The stage table (the model table, minutes of offline synthesis, is tested on its own)."""
     result = subprocess.run(
-        [*AUDIO2POSE, "bench", "--frames", "30"], capture_output=True, text=True, timeout=300
+        [*AUDIO2POSE, "bench", "--frames", "30", "--skip-models"],
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert result.returncode == 0, result.stderr
     for stage in (
@@ -256,3 +260,22 @@ def test_when_bench_is_paced_expect_one_call_per_frame_period_and_it_said(capsys
     assert all(at - start >= 0.02 * k - 1e-3 for k, at in enumerate(calls))
     assert main(["bench", "--frames", "20", "--skip-models", "--json", "--paced"]) == 0
     assert json.loads(capsys.readouterr().out)["stages_paced"] is True
+
+
+def test_when_every_model_family_is_timed_expect_a_row_each_with_its_costs():
+    from audio2pose_ros.audio.wav import read_wav
+    from audio2pose_ros.models.registry import MODEL_REGISTRY
+    from audio2pose_ros.offline.benchmark import model_costs
+    from audio2pose_ros.resources import bundled_speech_path
+    from audio2pose_ros.robot.description import load_robot
+
+    signal, _ = read_wav(bundled_speech_path())
+    costs = model_costs(signal[:16000], load_robot(), n_frames=10, repeats=1)
+    assert [cost.name for cost in costs] == list(MODEL_REGISTRY)
+    for cost in costs:
+        assert cost.offline_audio_s_per_s > 0.0
+        if cost.step is not None:  # streaming: its step, numpy kernel and torch call timed
+            assert cost.step.calls == 10
+            assert cost.kernel_step is not None
+            assert cost.torch_step is not None
+    assert any(cost.step is None for cost in costs)  # the offline-only families have no step

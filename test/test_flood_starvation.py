@@ -16,7 +16,9 @@ time, not more of it while an output is due, so the verdicts hold there too:
 
 The rates on the wall clock (the fewest joint_states in a 1 s window, the longest heartbeat
 silence) are printed for the record, not judged: a loaded machine lowers them with or without a
-flood.
+flood. The floods of node processes are marked long (``make test-long``): a flooder at full speed
+beside the node takes a core, which would starve the suite's other real-time tests running
+beside them; the paced timers' own tests run in ``make test``.
 """
 
 from __future__ import annotations
@@ -192,6 +194,7 @@ def flood(tmp_path: Path, executable: str, kind: str, *ros_args: str) -> Heard:
     return heard
 
 
+@pytest.mark.long  # a real-time campaign: a flooder at full speed beside the node
 def test_when_joint_angles_flood_the_simulated_pepper_expect_its_states_and_heartbeat(tmp_path):
     heard = flood(tmp_path, "pepper_sim_node", "joint_angles")
     assert heard.value("commands") > 0  # the flood was served
@@ -199,6 +202,7 @@ def test_when_joint_angles_flood_the_simulated_pepper_expect_its_states_and_hear
     assert_states_kept(heard)
 
 
+@pytest.mark.long  # a real-time campaign: a flooder at full speed beside the node
 def test_when_one_byte_audio_chunks_flood_the_features_node_expect_its_heartbeat(tmp_path):
     heard = flood(tmp_path, "audio_features_node", "audio_bytes")
     chunks, decodes = heard.value("chunks_received"), heard.value("audio_decodes")
@@ -208,6 +212,7 @@ def test_when_one_byte_audio_chunks_flood_the_features_node_expect_its_heartbeat
     assert decodes * 10 <= chunks
 
 
+@pytest.mark.long  # a real-time campaign: a flooder at full speed beside the node
 def test_when_features_flood_the_inference_node_expect_its_heartbeat_and_counted_drops(
     tmp_path,
 ):
@@ -219,6 +224,7 @@ def test_when_features_flood_the_inference_node_expect_its_heartbeat_and_counted
     assert heard.value("frames_behind_real_time") > 0
 
 
+@pytest.mark.long  # a real-time campaign: a flooder at full speed beside the node
 def test_when_set_parameters_requests_flood_the_simulated_pepper_expect_its_states(tmp_path):
     heard = flood(tmp_path, "pepper_sim_node", "set_parameters:pepper_sim_node")
     # Each request costs the node rclpy's take and answer; the timers run between requests.
@@ -348,6 +354,7 @@ def test_when_audio_comes_in_one_byte_chunks_expect_the_features_of_whole_chunks
     np.testing.assert_array_equal(bytewise, whole)
 
 
+@pytest.mark.long  # a real-time campaign: a flooder at full speed beside the node
 def test_when_commands_flood_the_console_expect_its_heartbeat_and_the_newest_kept(tmp_path):
     """The console shows the commanded pose (and times each command for its latency figure): a
     flood of joint_angles, once the flooder's writer has matched the console's reader, must not

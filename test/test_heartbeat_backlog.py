@@ -127,6 +127,7 @@ def _audio_flood(probe: Node) -> Callable[[], int]:
     return send
 
 
+@pytest.mark.long  # a real-time campaign: a flooder at full speed beside the node
 @pytest.mark.parametrize(
     ("executable", "flood", "served_key", "falls_behind"),
     [
