@@ -233,6 +233,9 @@ def _close_pages() -> Iterator[None]:
 
 def _open(browser, console: Console, token: str = TOKEN, name: str = "", ready: bool = True):
     page = browser.new_page()
+    # a page rendering in software on two loaded cores may answer a click after tens of
+    # seconds: a wait ends with the event it waits for, or after a bound only a hung page hits
+    page.set_default_timeout(120_000)
     OPEN_PAGES.append(page)
     if SLOWDOWN > 1:  # kept open with the page: the emulation ends with its session
         session = page.context.new_cdp_session(page)
@@ -345,11 +348,15 @@ def test_while_the_view_follows_speech_expect_the_page_keeps_time_for_the_operat
     share = (task1 - task0) / (t1 - t0)
     pacing = page.evaluate("window.a2p.view")
     print(f"page main thread busy {share:.0%} while following speech; view {pacing}")
-    received, drawn = page.evaluate("[window.a2p.posesReceived, window.a2p.view.draws]")
-    assert received > received_before + 100, "the poses stopped coming"
-    # At its slowest the view waits 1 s between drawings, and a drawing itself takes up to
-    # 0.7 s on a slow machine: at least 3 in 5 s. A view that stopped draws none.
-    assert drawn >= drawn_before + 3, "the view stopped"
+    # The poses keep coming and the view keeps drawing: judged by counts, however long a
+    # loaded machine makes them take (5 s here give 250 poses and, at the view's slowest, 3
+    # drawings; a page that stopped gives none).
+    page.wait_for_function(
+        f"window.a2p.posesReceived > {received_before + 100}", timeout=120_000
+    )  # the poses stopped coming otherwise
+    page.wait_for_function(
+        f"window.a2p.view.draws >= {drawn_before + 3}", timeout=120_000
+    )  # the view stopped otherwise
     # The share itself is a figure (printed above): a loaded machine fills any page's main
     # thread. The verdicts are that the view keeps drawing and the pacing the page chose.
     # Fewer drawings than 2.5 a second (the pixel budget aims at 5) only at the lowest
