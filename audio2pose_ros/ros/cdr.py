@@ -29,7 +29,7 @@ from __future__ import annotations
 import functools
 import struct
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from rclpy.serialization import deserialize_message
@@ -37,7 +37,7 @@ from std_msgs.msg import Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.errors import InputError
-from audio2pose_ros.ros.messages import FRAMES_LABEL, FeatureBatch, feature_batch, msg_to_features
+from audio2pose_ros.ros.messages import FeatureBatch, feature_batch, frames_label, msg_to_features
 
 CDR_LE = b"\x00\x01"  # the encapsulation of little-endian plain CDR
 _U32 = struct.Struct("<I")
@@ -133,11 +133,13 @@ class _Reader:
             raise InputError(f"malformed CDR: a sequence of {n} elements in fewer bytes")
         return n
 
-    def float64s(self) -> np.ndarray:
-        n = self.count(8)
+    def numbers(self, dtype: str) -> np.ndarray:
+        """A sequence of float64 (``"<f8"``) or float32 (``"<f4"``) values, as a read-only view."""
+        size = np.dtype(dtype).itemsize
+        n = self.count(size)
         if n == 0:
-            return np.empty(0)
-        return np.frombuffer(self.data, dtype="<f8", count=n, offset=self._take(8 * n, 8))
+            return np.empty(0, dtype=dtype)
+        return np.frombuffer(self.data, dtype=dtype, count=n, offset=self._take(size * n, size))
 
 
 def read_features(data: bytes) -> FeatureBatch:
@@ -147,14 +149,8 @@ def read_features(data: bytes) -> FeatureBatch:
         InputError: the bytes are not a Float32MultiArray, or its layout does not describe its
             data (:func:`~audio2pose_ros.ros.messages.feature_batch`).
     """
-    if len(data) < 4:
-        raise InputError(f"malformed CDR: {len(data)} bytes")
-    if data[:2] != CDR_LE:  # big-endian or another encoding: rclpy reads it
-        try:
-            msg = deserialize_message(data, Float32MultiArray)
-        except Exception as exc:  # rclpy raises its own error types for bytes it cannot read
-            raise InputError(f"malformed CDR: {exc}") from None
-        return msg_to_features(msg)
+    if not _little_endian(data):
+        return msg_to_features(_rclpy_read(data, Float32MultiArray))
     reader = _Reader(data)
     dims = []
     for _ in range(reader.count(13)):  # a label's length and NUL, size and stride at least
@@ -162,9 +158,7 @@ def read_features(data: bytes) -> FeatureBatch:
         dims.append((label, reader.u32()))
         reader.u32()  # stride
     reader.u32()  # data_offset
-    n = reader.count(4)
-    values = np.frombuffer(data, dtype="<f4", count=n, offset=reader._take(4 * n, 4))
-    return feature_batch(dims, values)
+    return feature_batch(dims, reader.numbers("<f4"))
 
 
 def read_joint_trajectory(data: bytes) -> RawTrajectory:
@@ -177,10 +171,14 @@ def read_joint_trajectory(data: bytes) -> RawTrajectory:
         InputError: the bytes are not a JointTrajectory (a length beyond the message, a string
             without its NUL or not UTF-8).
     """
-    if len(data) < 4:
-        raise InputError(f"malformed CDR: {len(data)} bytes")
-    if data[:2] != CDR_LE:  # big-endian or another encoding: rclpy reads it
-        return _from_message(data)
+    if not _little_endian(data):
+        msg = _rclpy_read(data, JointTrajectory)
+        stamp = msg.header.stamp
+        return RawTrajectory(
+            float(stamp.sec + stamp.nanosec * 1e-9),
+            tuple(msg.joint_names),
+            [np.asarray(point.positions, dtype=np.float64) for point in msg.points],
+        )
     global _last_names
     reader = _Reader(data)
     stamp_s = reader.stamp_s()
@@ -194,41 +192,52 @@ def read_joint_trajectory(data: bytes) -> RawTrajectory:
         _last_names = (start, reader.pos - start, data[start : reader.pos], names)
     positions = []
     for _ in range(reader.count(24)):  # 4 counts and a Duration at least
-        positions.append(reader.float64s())
+        positions.append(reader.numbers("<f8"))
         for _ in range(3):  # velocities, accelerations, effort
-            reader.float64s()
+            reader.numbers("<f8")
         reader.stamp_s()  # time_from_start
     return RawTrajectory(stamp_s, names, positions)
 
 
-def _from_message(data: bytes) -> RawTrajectory:
-    """:func:`read_joint_trajectory` through rclpy's deserializer (any other encapsulation)."""
+def _little_endian(data: bytes) -> bool:
+    """Whether ``data`` is little-endian plain CDR (read here; anything else goes to rclpy).
+
+    Raises:
+        InputError: fewer bytes than the encapsulation header.
+    """
+    if len(data) < 4:
+        raise InputError(f"malformed CDR: {len(data)} bytes")
+    return data[:2] == CDR_LE
+
+
+def _rclpy_read(data: bytes, msg_type: type[Any]) -> Any:
+    """``data`` through rclpy's deserializer (big-endian or another encoding)."""
     try:
-        msg = deserialize_message(data, JointTrajectory)
+        return deserialize_message(data, msg_type)
     except Exception as exc:  # rclpy raises its own error types for bytes it cannot read
         raise InputError(f"malformed CDR: {exc}") from None
-    stamp = msg.header.stamp
-    return RawTrajectory(
-        float(stamp.sec + stamp.nanosec * 1e-9),
-        tuple(msg.joint_names),
-        [np.asarray(point.positions, dtype=np.float64) for point in msg.points],
-    )
 
 
 # --- writing ----------------------------------------------------------------------------------
 
 
+def _string(text: str, size: int) -> tuple[list[bytes], int]:
+    """A string written after ``size`` bytes: its pieces, and the size after it."""
+    data = text.encode("utf-8") + b"\x00"
+    pad = -size % 4  # the length is a uint32
+    return [bytes(pad), _U32.pack(len(data)), data], size + pad + 4 + len(data)
+
+
 @functools.lru_cache(maxsize=16)
 def _names_block(joint_names: tuple[str, ...]) -> bytes:
     """An empty frame_id and ``joint_names`` as they follow a header stamp, padded to 4 bytes."""
-    parts, size = [_U32.pack(1), b"\x00\x00\x00\x00"], 16  # after the stamp: frame_id, padded
-    parts.append(_U32.pack(len(joint_names)))
-    size += 4
+    parts, size = _string("", 8)  # frame_id, after the stamp
+    pad = -size % 4  # the names' count is a uint32
+    parts += [bytes(pad), _U32.pack(len(joint_names))]
+    size += pad + 4
     for name in joint_names:
-        data = name.encode("utf-8") + b"\x00"
-        pad = -size % 4
-        parts += [bytes(pad), _U32.pack(len(data)), data]
-        size += pad + 4 + len(data)
+        written, size = _string(name, size)
+        parts += written
     parts.append(bytes(-size % 4))
     return b"".join(parts)
 
@@ -279,17 +288,14 @@ _EMPTY_PAIR = _U32.pack(0) * 2  # a point's accelerations and effort: empty
 def features_cdr(frames: np.ndarray, label: str, first_frame: int | None = None) -> bytes:
     """The CDR bytes of :func:`~audio2pose_ros.ros.messages.features_to_msg`'s message."""
     n_frames, n_features = frames.shape
-    frames_label = FRAMES_LABEL if first_frame is None else f"{FRAMES_LABEL} from {first_frame}"
     parts = [CDR_LE + b"\x00\x00", _U32.pack(2)]
     size = 4
     for text, dim, stride in (
-        (frames_label, n_frames, n_frames * n_features),
+        (frames_label(first_frame), n_frames, n_frames * n_features),
         (label, n_features, n_features),
     ):
-        data = text.encode("utf-8") + b"\x00"
-        pad = -size % 4
-        parts += [bytes(pad), _U32.pack(len(data)), data]
-        size += pad + 4 + len(data)
+        written, size = _string(text, size)
+        parts += written
         pad = -size % 4
         parts += [bytes(pad), _U32.pack(dim), _U32.pack(stride)]
         size += pad + 8

@@ -47,14 +47,20 @@ def features_to_msg(
     """
     n_frames, n_features = frames.shape
     msg = Float32MultiArray()
-    frames_label = FRAMES_LABEL if first_frame is None else f"{FRAMES_LABEL} from {first_frame}"
     msg.layout.dim = [
-        MultiArrayDimension(label=frames_label, size=n_frames, stride=n_frames * n_features),
+        MultiArrayDimension(
+            label=frames_label(first_frame), size=n_frames, stride=n_frames * n_features
+        ),
         MultiArrayDimension(label=label, size=n_features, stride=n_features),
     ]
     # An array.array of the right type code is stored as is; a list is checked value by value.
     msg.data = array.array("f", np.ascontiguousarray(frames, dtype=np.float32).tobytes())
     return msg
+
+
+def frames_label(first_frame: int | None) -> str:
+    """dim[0].label of a features message: ``"frames"``, or ``"frames from <first_frame>"``."""
+    return FRAMES_LABEL if first_frame is None else f"{FRAMES_LABEL} from {first_frame}"
 
 
 def msg_to_features(msg: Float32MultiArray) -> FeatureBatch:
