@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -41,6 +42,15 @@ def random_trajectory(rng: np.random.Generator) -> JointTrajectory:
             )
         )
     return msg
+
+
+def corruptions(data: bytes, rng: np.random.Generator, n: int = 2000) -> Iterator[bytes]:
+    """``n`` copies of ``data`` with one to three bytes after the encapsulation header changed."""
+    for _ in range(n):
+        corrupted = bytearray(data)
+        for at in rng.integers(4, len(data), size=int(rng.integers(1, 4))):
+            corrupted[at] = int(rng.integers(0, 256))
+        yield bytes(corrupted)
 
 
 def as_rclpy_reads_it(data: bytes) -> RawTrajectory:
@@ -94,12 +104,9 @@ def test_when_bytes_are_cut_or_corrupted_expect_input_errors_never_other_failure
     # the cuts that read are those into the bytes after the message (a middleware may pad it)
     assert len(read) < len(data) // 4
     assert all(r.positions[1].tolist() == whole.positions[1].tolist() for r in read)
-    for _ in range(2000):
-        corrupted = bytearray(data)
-        for at in rng.integers(4, len(data), size=int(rng.integers(1, 4))):
-            corrupted[at] = int(rng.integers(0, 256))
+    for corrupted in corruptions(data, rng):
         try:
-            raw = read_joint_trajectory(bytes(corrupted))
+            raw = read_joint_trajectory(corrupted)
         except InputError:
             continue
         assert all(len(p) <= len(data) // 8 for p in raw.positions)
@@ -158,12 +165,9 @@ def test_when_features_bytes_are_corrupted_expect_input_errors_never_other_failu
     data = serialize_message(features_to_msg(np.ones((2, 26)), "logfbank26", 5))
     rng = np.random.default_rng(5)
     refused = 0
-    for _ in range(2000):
-        corrupted = bytearray(data)
-        for at in rng.integers(4, len(data), size=int(rng.integers(1, 4))):
-            corrupted[at] = int(rng.integers(0, 256))
+    for corrupted in corruptions(data, rng):
         try:
-            batch = read_features(bytes(corrupted))
+            batch = read_features(corrupted)
         except InputError:
             refused += 1
             continue
