@@ -231,11 +231,13 @@ def _close_pages() -> Iterator[None]:
     SLOWDOWN_SESSIONS.clear()
 
 
+PAGE_WAIT_MS = 120_000  # every wait of a page for an event: a page rendering in software on two
+# loaded cores may take tens of seconds; only a hung page reaches this
+
+
 def _open(browser, console: Console, token: str = TOKEN, name: str = "", ready: bool = True):
     page = browser.new_page()
-    # a page rendering in software on two loaded cores may answer a click after tens of
-    # seconds: a wait ends with the event it waits for, or after a bound only a hung page hits
-    page.set_default_timeout(120_000)
+    page.set_default_timeout(PAGE_WAIT_MS)  # waits end with their event (PAGE_WAIT_MS at most)
     OPEN_PAGES.append(page)
     if SLOWDOWN > 1:  # kept open with the page: the emulation ends with its session
         session = page.context.new_cdp_session(page)
@@ -245,15 +247,14 @@ def _open(browser, console: Console, token: str = TOKEN, name: str = "", ready: 
     page.goto(f"{console.url}#token={token}")
     if ready:
         page.wait_for_function(
-            "window.a2p.connected && window.a2p.viewReady && window.a2p.posesReceived > 0",
-            timeout=20000,
+            "window.a2p.connected && window.a2p.viewReady && window.a2p.posesReceived > 0"
         )
     return page
 
 
 def _talk(page) -> float:
     page.click("#talk")
-    page.wait_for_function("window.a2p.you === true", timeout=10000)
+    page.wait_for_function("window.a2p.you === true")
     return time.monotonic()
 
 
@@ -299,7 +300,7 @@ def test_when_the_operator_talks_expect_the_robot_moves_and_the_view_follows(
     other = _open(browser, console, name="Bob")
     other.wait_for_function("document.getElementById('floor').textContent.includes('Alice')")
     other.click("#talk")
-    other.wait_for_function("window.a2p.lastError.includes('Alice has the floor')", timeout=10000)
+    other.wait_for_function("window.a2p.lastError.includes('Alice has the floor')")
     assert other.evaluate("window.a2p.you") is False
     other.close()
 
@@ -308,7 +309,7 @@ def test_when_the_operator_talks_expect_the_robot_moves_and_the_view_follows(
     assert latency["p50"] > 0, latency
     print(f"voice to /joint_angles in the browser test: {latency}")
     page.click("#talk")
-    page.wait_for_function("window.a2p.you === false", timeout=10000)
+    page.wait_for_function("window.a2p.you === false")
     page.close()
 
 
@@ -352,10 +353,10 @@ def test_while_the_view_follows_speech_expect_the_page_keeps_time_for_the_operat
     # loaded machine makes them take (5 s here give 250 poses and, at the view's slowest, 3
     # drawings; a page that stopped gives none).
     page.wait_for_function(
-        f"window.a2p.posesReceived > {received_before + 100}", timeout=120_000
+        f"window.a2p.posesReceived > {received_before + 100}"
     )  # the poses stopped coming otherwise
     page.wait_for_function(
-        f"window.a2p.view.draws >= {drawn_before + 3}", timeout=120_000
+        f"window.a2p.view.draws >= {drawn_before + 3}"
     )  # the view stopped otherwise
     # The share itself is a figure (printed above): a loaded machine fills any page's main
     # thread. The verdicts are that the view keeps drawing and the pacing the page chose.
@@ -375,12 +376,11 @@ def test_while_the_view_follows_speech_expect_the_page_keeps_time_for_the_operat
             && Math.abs(c.height / c.clientHeight - scale) < 0.01;
         })()""",
         polling=50,
-        timeout=5000,
     )
     # for a person to look at: the picture at the chosen resolution, scaled up by the browser
     page.locator("#robot").screenshot(path=str(console.shots / f"console_view_{screen[0]}.png"))
     page.click("#talk")
-    page.wait_for_function("window.a2p.you === false", timeout=10000)
+    page.wait_for_function("window.a2p.you === false")
     page.close()
 
 
@@ -390,7 +390,7 @@ def test_when_stop_is_pressed_expect_the_robot_holds_until_released(console: Con
     page.wait_for_timeout(2000)
     page.click("#stop")
     try:
-        page.wait_for_function("document.body.classList.contains('stopped')", timeout=5000)
+        page.wait_for_function("document.body.classList.contains('stopped')")
         stopped = time.monotonic()  # the page shows the latched stop: the filter has it too
         page.wait_for_timeout(2500)
         held = console.recorder.between(stopped + 0.5, time.monotonic())
@@ -400,7 +400,7 @@ def test_when_stop_is_pressed_expect_the_robot_holds_until_released(console: Con
     finally:
         page.click("#release")  # the next tests need a robot that moves
     released = time.monotonic()
-    page.wait_for_function("!document.body.classList.contains('stopped')", timeout=5000)
+    page.wait_for_function("!document.body.classList.contains('stopped')")
     page.wait_for_timeout(3000)
     resumed = console.recorder.between(released, time.monotonic())
     assert np.ptp(resumed, axis=0).max() > MOVING_RAD, "motion did not resume after the release"
@@ -420,24 +420,22 @@ def test_when_an_observer_stops_the_robot_expect_every_page_names_them_and_only_
     observer.click("#stop")
     holder = "document.getElementById('stop-holder').textContent"
     try:
-        talker.wait_for_function(f"{holder} === 'Stop held by Observer.'", timeout=10000)
-        observer.wait_for_function(f"{holder} === 'Stop held by you.'", timeout=10000)
-        talker.wait_for_function("document.body.classList.contains('stopped')", timeout=10000)
+        talker.wait_for_function(f"{holder} === 'Stop held by Observer.'")
+        observer.wait_for_function(f"{holder} === 'Stop held by you.'")
+        talker.wait_for_function("document.body.classList.contains('stopped')")
         talker.click("#release")  # not the talker's stop: refused, the robot stays stopped
-        talker.wait_for_function("window.a2p.lastError.includes('held by Observer')", timeout=10000)
+        talker.wait_for_function("window.a2p.lastError.includes('held by Observer')")
         assert talker.is_hidden("#release-confirm")  # no confirmation while Observer is here
         observer.close()  # the observer leaves: the stop stays, and says so
-        talker.wait_for_function(f"{holder} === 'Stop held by Observer (has left).'", timeout=10000)
+        talker.wait_for_function(f"{holder} === 'Stop held by Observer (has left).'")
         assert talker.evaluate("document.body.classList.contains('stopped')")
         talker.click("#release")
-        talker.wait_for_function(
-            "!document.getElementById('release-confirm').hidden", timeout=10000
-        )
+        talker.wait_for_function("!document.getElementById('release-confirm').hidden")
         assert "Observer" in talker.text_content("#release-confirm-yes")
         talker.screenshot(path=str(console.shots / "console_page_confirm_release.png"))
         talker.click("#release-confirm-yes")
-        talker.wait_for_function(f"{holder} === ''", timeout=10000)
-        talker.wait_for_function("!document.body.classList.contains('stopped')", timeout=10000)
+        talker.wait_for_function(f"{holder} === ''")
+        talker.wait_for_function("!document.body.classList.contains('stopped')")
     finally:  # the next tests need a robot that moves
         if not observer.is_closed():
             observer.click("#release")
@@ -460,20 +458,19 @@ def test_when_the_operator_sets_the_style_and_disables_motion_expect_the_filter_
     page = _open(browser, console)
     page.wait_for_selector("#style-arms_gain")  # made from the ranges the console sends
     page.locator("#style-arms_gain").fill("0")  # arms_gain, through its parameter service
-    page.wait_for_function(f"{values} && {values}.arms_gain === 0", timeout=10000)
+    page.wait_for_function(f"{values} && {values}.arms_gain === 0")
     page.select_option("#style-preset", "calm_reader")  # the head of a calm reader
     page.wait_for_function(
         f"{values} && Math.abs({values}.head_gain - {calm.head_gain}) < 1e-9 "
-        f"&& {values}.arms_gain === 1",  # a preset sets every parameter
-        timeout=10000,
+        f"&& {values}.arms_gain === 1"  # a preset sets every parameter
     )
     assert "preset calm reader" in page.locator("#style-in-use").inner_text()
     page.select_option("#style-preset", "default")  # the style the graph started with
-    page.wait_for_function(f"{values}.head_gain === 1 && {values}.arms_gain === 1", timeout=10000)
+    page.wait_for_function(f"{values}.head_gain === 1 && {values}.arms_gain === 1")
     _talk(page)
     page.locator("#enable").uncheck()  # enable: false, latched: glide to neutral, ignore speech
     try:
-        page.wait_for_function("window.a2p.status.enable === false", timeout=5000)
+        page.wait_for_function("window.a2p.status.enable === false")
         disabled = time.monotonic()
         page.wait_for_timeout(2500)
         resting = console.recorder.between(disabled + 1.5, time.monotonic())
@@ -481,7 +478,7 @@ def test_when_the_operator_sets_the_style_and_disables_motion_expect_the_filter_
         assert np.abs(resting - neutral).max() < 0.02, "disabled, the robot did not rest"
     finally:
         page.locator("#enable").check()
-    page.wait_for_function("window.a2p.status.enable === true", timeout=5000)
+    page.wait_for_function("window.a2p.status.enable === true")
     page.click("#talk")
     page.close()
 
@@ -537,9 +534,9 @@ def test_when_a_robot_reports_its_pose_expect_it_drawn_as_a_ghost(console: Conso
     reporter = threading.Thread(target=report, daemon=True)
     reporter.start()
     try:
-        page.wait_for_function("window.a2p.lastPose.measured !== null", timeout=10000)
+        page.wait_for_function("window.a2p.lastPose.measured !== null")
         drawn = page.evaluate("window.a2p.view.draws")  # the next drawing has the ghost
-        page.wait_for_function(f"window.a2p.view.draws > {drawn}", timeout=10000)
+        page.wait_for_function(f"window.a2p.view.draws > {drawn}")
         shown = page.evaluate("window.a2p.lastPose.measured")
         ghost = page.locator("#robot").screenshot(path=str(console.shots / "console_ghost.png"))
     finally:
@@ -549,15 +546,13 @@ def test_when_a_robot_reports_its_pose_expect_it_drawn_as_a_ghost(console: Conso
     changed = _changed_fraction(alone, ghost)
     assert changed > 0.005, f"no ghost drawn ({changed:.4f} of the pixels changed)"
     # a robot that stops reporting leaves no ghost behind (MEASURED_TIMEOUT_S, 2 s)
-    page.wait_for_function("window.a2p.lastPose.measured === null", timeout=5000)
+    page.wait_for_function("window.a2p.lastPose.measured === null")
     page.close()
 
 
 def test_when_the_token_is_wrong_expect_access_refused(console: Console, browser):
     page = _open(browser, console, token="not-the-token-0123456789", ready=False)
-    page.wait_for_function(
-        "document.getElementById('connection').textContent === 'token refused'", timeout=10000
-    )
+    page.wait_for_function("document.getElementById('connection').textContent === 'token refused'")
     assert page.evaluate("window.a2p.connected") is False
     assert page.is_disabled("#talk")
     assert page.is_disabled("#release")
