@@ -37,8 +37,8 @@ from std_msgs.msg import Float32MultiArray
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K
 from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 from audio2pose_ros.resources import default_checkpoint_path
-from audio2pose_ros.ros.diagnosed_node import AUDIO_QOS, LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.ros.messages import features_to_msg
+from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.topics import AUDIO, AUDIO_INFO, FEATURES, JOINT_ANGLES, absolute
 
 FRAMES_PER_MESSAGE = 100

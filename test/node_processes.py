@@ -9,7 +9,7 @@ from pathlib import Path
 
 import audio2pose_ros
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR
-from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.supervisor import executable_command
 
 PACKAGE_ROOT = Path(audio2pose_ros.__file__).resolve().parent.parent
 

@@ -25,8 +25,8 @@ from audio2pose_ros.audio.features import FeatureSpec
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmDecoder, PcmFormat, encode_pcm
 from audio2pose_ros.audio.streaming import StreamingFeatureExtractor
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR
-from audio2pose_ros.ros.diagnosed_node import AUDIO_QOS, LATCHED_QOS
 from audio2pose_ros.ros.messages import msg_to_features
+from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS
 from audio2pose_ros.ros.tools.process_stats import rss_mb
 from audio2pose_ros.topics import DIAGNOSTICS
 

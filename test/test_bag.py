@@ -57,7 +57,7 @@ def test_when_path_is_not_a_bag_expect_error_naming_it(tmp_path: Path):
 
 def _replay_command(bag: Path) -> list[str]:
     """`audio2pose bag replay` of the bag's audio at 4x, waiting up to 30 s for a subscriber."""
-    from audio2pose_ros.ros.graph import executable_command
+    from audio2pose_ros.ros.supervisor import executable_command
 
     return [
         *executable_command("audio2pose"),

@@ -198,7 +198,7 @@ def test_when_a_bag_to_play_has_another_type_on_the_audio_topic_expect_it_refuse
     tmp_path, speech, builder
 ):
     """audio2pose run --play publishes the bag's bytes as AudioData: only AudioData may go."""
-    from audio2pose_ros.ros.graph import audio_source
+    from audio2pose_ros.ros.recorder import audio_source
 
     bag = builder(tmp_path / "bag", speech)
     with pytest.raises(

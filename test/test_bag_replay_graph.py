@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from audio2pose_ros.data.bag import AUDIO_TOPIC, read_messages, write_audio_bag
-from audio2pose_ros.ros.graph import executable_command, node_graph
+from audio2pose_ros.ros.supervisor import executable_command, node_graph
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

@@ -15,7 +15,7 @@ from audio2pose_ros.data.bag import (
     select_for_replay,
     typestore,
 )
-from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.supervisor import executable_command
 
 JOINT_ANGLES = "naoqi_bridge_msgs/msg/JointAnglesWithSpeed"
 START_NS = 1_700_000_000_000_000_000

@@ -17,8 +17,8 @@ from rosbags.highlevel import AnyReader
 
 from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.resources import share_path
-from audio2pose_ros.ros.graph import executable_command
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
+from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.topics import AUDIO, AUDIO_INFO, COMMANDED_JOINT_STATES, JOINT_ANGLES, absolute
 
 AUDIO2POSE = executable_command("audio2pose")

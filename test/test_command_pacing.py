@@ -18,9 +18,9 @@ from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.ros.graph import executable_command
 from audio2pose_ros.ros.messages import trajectory_msg
 from audio2pose_ros.ros.nodes.motion_filter_node import PARAMETERS
+from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.topics import JOINT_ANGLES, RAW_TRAJECTORY, absolute
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]

@@ -172,7 +172,7 @@ def _answers(url: str) -> bool:
 @pytest.fixture(scope="module")
 def console(tmp_path_factory) -> Iterator[Console]:
     from audio2pose_ros.ros.console_runner import CONSOLE_NODE, console_command
-    from audio2pose_ros.ros.graph import node_graph
+    from audio2pose_ros.ros.supervisor import node_graph
 
     tmp = tmp_path_factory.mktemp("console")
     params = yaml.safe_load(share_path("config", "pepper.yaml").read_text(encoding="utf-8"))

@@ -71,7 +71,7 @@ def _filter_style(recorder: Recorder) -> dict[str, float]:
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory) -> Iterator[tuple[str, Recorder, Path, Path, Path]]:
     from audio2pose_ros.ros.console_runner import CONSOLE_NODE, console_command
-    from audio2pose_ros.ros.graph import node_graph
+    from audio2pose_ros.ros.supervisor import node_graph
 
     tmp = tmp_path_factory.mktemp("learn")
     ros_home = tmp / "ros_home"  # the console keeps styles under $ROS_HOME/audio2pose_ros

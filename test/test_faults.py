@@ -17,9 +17,9 @@ from audio_common_msgs.msg import AudioData, AudioInfo
 from graph_probe import Probe, diagnostics_of
 
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmFormat, encode_pcm
-from audio2pose_ros.ros.graph import node_graph
 from audio2pose_ros.ros.messages import trajectory_msg
 from audio2pose_ros.ros.player import spin_until
+from audio2pose_ros.ros.supervisor import node_graph
 from audio2pose_ros.ros.tools.process_stats import rss_mb
 from audio2pose_ros.timebase import SAMPLES_PER_FRAME
 from audio2pose_ros.topics import RAW_TRAJECTORY, absolute

@@ -1,9 +1,10 @@
-"""motion_filter_node in rclpy's EventsExecutor: chosen by default, and its tick behind a backlog.
+"""The nodes' executor: rclpy's stock SingleThreadedExecutor by default, the EventsExecutor opt-in.
 
-The EventsExecutor serves events first come, first served, and the messages one subscription
-event brings back to back: a plain timer waits behind all of them. The filter's tick is a paced
-timer, run between messages when overdue. The verdicts are counts of the node's own ticks at
-positions in the backlog, not rates or times.
+The EventsExecutor (``AUDIO2POSE_EXECUTOR=events``) serves events first come, first served, and
+the messages one subscription event brings back to back: a plain timer waits behind all of them.
+The filter's tick is a paced timer, run between messages when overdue, so the node keeps its
+tick there too. The verdicts are counts of the node's own ticks at positions in the backlog, not
+rates or times.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import pytest
 import rclpy
 from trajectory_msgs.msg import JointTrajectory
 
+from audio2pose_ros.ros import executor as executors
 from audio2pose_ros.ros import spin
 from audio2pose_ros.ros.messages import trajectory_msg
 from audio2pose_ros.ros.nodes import motion_filter_node, single_process
@@ -43,10 +45,10 @@ def events_available():
     ],
     ids=["motion_filter_node", "single_process"],
 )
-def test_when_started_with_default_settings_expect_the_filter_spun_by_the_events_executor(
-    events_available, tmp_path, monkeypatch, main, node_names
+def test_when_started_with_default_settings_expect_the_stock_single_threaded_executor(
+    tmp_path, monkeypatch, main, node_names
 ):
-    monkeypatch.delenv(spin.EXECUTOR_ENV, raising=False)
+    monkeypatch.delenv(executors.EXECUTOR_ENV, raising=False)
     monkeypatch.setenv("ROS_HOME", str(tmp_path))
     spun: list[tuple[object, list[str]]] = []
 
@@ -58,20 +60,20 @@ def test_when_started_with_default_settings_expect_the_filter_spun_by_the_events
     assert len(spun) == 1
     executor, names = spun[0]
     assert names == node_names
-    assert type(executor).__name__ == events_available.__name__
+    assert type(executor) is rclpy.executors.SingleThreadedExecutor
 
 
-def test_when_single_threaded_is_asked_for_expect_the_single_threaded_executor(monkeypatch):
-    monkeypatch.setenv(spin.EXECUTOR_ENV, "single_threaded")
+def test_when_events_is_asked_for_expect_the_events_executor(events_available, monkeypatch):
+    monkeypatch.setenv(executors.EXECUTOR_ENV, executors.EVENTS)
     with rclpy.init():
-        assert isinstance(spin.create_executor(), rclpy.executors.SingleThreadedExecutor)
+        assert isinstance(executors.create_executor(), events_available)
 
 
 @pytest.fixture
 def started_filter(tmp_path, monkeypatch):
     """A started filter node and a publisher node, not yet added to an executor."""
     monkeypatch.setenv("ROS_HOME", str(tmp_path))
-    monkeypatch.delenv(spin.EXECUTOR_ENV, raising=False)
+    monkeypatch.setenv(executors.EXECUTOR_ENV, executors.EVENTS)
     with rclpy.init(args=["--ros-args", "-p", f"state_file:={tmp_path / 'state.json'}"]):
         node = MotionFilterNode()
         publisher_node = rclpy.create_node("backlog_publisher")
@@ -102,7 +104,7 @@ def test_when_a_backlog_of_raw_trajectories_waits_expect_ticks_between_its_messa
         publisher.publish(msg)
     time.sleep(0.5)  # all delivered before the executor looks: one event brings them all
 
-    executor = spin.create_executor()
+    executor = executors.create_executor()
     assert type(executor).__name__ == events_available.__name__
     executor.add_node(node)
     deadline = time.monotonic() + 60

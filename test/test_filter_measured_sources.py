@@ -20,7 +20,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.topics import COMMANDED_JOINT_STATES, DIAGNOSTICS, JOINT_STATES, absolute
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]

@@ -40,11 +40,12 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
-from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_PERIOD_S, DiagnosedNode, PacedTimer
-from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_PERIOD_S, DiagnosedNode
 from audio2pose_ros.ros.nodes.audio_features_node import AudioFeaturesNode
 from audio2pose_ros.ros.nodes.pepper_sim_node import STATE_PERIOD_S
+from audio2pose_ros.ros.paced_timer import PacedTimer
 from audio2pose_ros.ros.player import spin_until
+from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.ros.tools.process_stats import cpu_s
 from audio2pose_ros.topics import DIAGNOSTICS, JOINT_STATES, absolute
 

@@ -7,8 +7,8 @@ import pytest
 from rclpy.executors import SingleThreadedExecutor
 
 from audio2pose_ros.cli.bench_commands import FLOOR_EXECUTOR_WORDS
+from audio2pose_ros.ros.executor import create_executor
 from audio2pose_ros.ros.player import rclpy_session
-from audio2pose_ros.ros.spin import create_executor
 from audio2pose_ros.ros.tools.graph_bench import (
     SINGLE_FLOOR,
     FloorFigures,

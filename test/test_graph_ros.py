@@ -17,8 +17,8 @@ from node_processes import configuration_error_line
 
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.audio.wav import read_wav
-from audio2pose_ros.ros.graph import node_graph
 from audio2pose_ros.ros.nodes.motion_filter_node import PARAMETERS as FILTER_PARAMETERS
+from audio2pose_ros.ros.supervisor import node_graph
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

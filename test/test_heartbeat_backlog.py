@@ -27,17 +27,11 @@ from std_msgs.msg import Float32MultiArray
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 from audio2pose_ros.resources import default_checkpoint_path
-from audio2pose_ros.ros.diagnosed_node import (
-    AUDIO_QOS,
-    HEARTBEAT_OVERDUE_S,
-    HEARTBEAT_PERIOD_S,
-    LATCHED_QOS,
-    STREAM_QOS,
-    DiagnosedNode,
-)
-from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_OVERDUE_S, HEARTBEAT_PERIOD_S, DiagnosedNode
 from audio2pose_ros.ros.messages import features_to_msg
 from audio2pose_ros.ros.player import spin_until
+from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS, STREAM_QOS
+from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.topics import AUDIO, AUDIO_INFO, DIAGNOSTICS, FEATURES, absolute
 
 pytestmark = pytest.mark.ros

@@ -20,9 +20,10 @@ from std_msgs.msg import Bool
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.motion import state_file
 from audio2pose_ros.motion.state_file import load_memory
+from audio2pose_ros.ros.executor import EXECUTOR_ENV, create_executor
 from audio2pose_ros.ros.nodes.audio_features_node import AudioFeaturesNode
 from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
-from audio2pose_ros.ros.spin import EXECUTOR_ENV, create_executor, spin_once
+from audio2pose_ros.ros.spin import spin_once
 
 pytestmark = pytest.mark.ros
 MAX_SPINS = 20000  # a bound against a hung node only

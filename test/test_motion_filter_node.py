@@ -25,9 +25,9 @@ from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR
-from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
-from audio2pose_ros.ros.graph import executable_command
 from audio2pose_ros.ros.messages import trajectory_msg
+from audio2pose_ros.ros.qos import LATCHED_QOS
+from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.topics import (
     COMMANDED_JOINT_STATES,
     DIAGNOSTICS,

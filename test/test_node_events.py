@@ -11,7 +11,8 @@ import rclpy
 from rclpy.qos import qos_profile_sensor_data
 from std_msgs.msg import Bool
 
-from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, DiagnosedNode
+from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
+from audio2pose_ros.ros.qos import LATCHED_QOS, STREAM_QOS
 
 pytestmark = pytest.mark.ros
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.supervisor import executable_command
 
 pytestmark = pytest.mark.ros
 NODE = "motion_filter_node"

@@ -16,8 +16,8 @@ import yaml
 
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.console_runner import CONSOLE_NODE
-from audio2pose_ros.ros.graph import NODE_EXECUTABLES, SIM_NODE
 from audio2pose_ros.ros.launch_support import ARGUMENTS, CONTROLLER_NAME, CONTROLLER_TOPIC
+from audio2pose_ros.ros.supervisor import NODE_EXECUTABLES, SIM_NODE
 
 ROOT = Path(__file__).resolve().parent.parent
 LAUNCH_FILE = ROOT / "launch" / "pepper.launch.py"

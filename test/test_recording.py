@@ -9,7 +9,8 @@ import time
 from pathlib import Path
 
 from audio2pose_ros.data.bag import BagWriter, read_messages, repair_bag
-from audio2pose_ros.ros.graph import RECORD_FLUSH_PERIOD_S, executable_command
+from audio2pose_ros.ros.recorder import RECORD_FLUSH_PERIOD_S
+from audio2pose_ros.ros.supervisor import executable_command
 
 AUDIO = "audio_common_msgs/msg/AudioData"
 

@@ -19,7 +19,7 @@ from stateless_model import stateless_checkpoint
 from audio2pose_ros.checkpoints.torch_io import load_checkpoint
 from audio2pose_ros.data.bag import read_bag_audio, write_audio_bag
 from audio2pose_ros.offline.synthesis import predict_normalized
-from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.topics import RAW_TRAJECTORY, absolute
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]

@@ -20,7 +20,7 @@ from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.motion.tracking import TRACKING_TOLERANCE_RAD
 from audio2pose_ros.robot.body import BodyModel
-from audio2pose_ros.ros.graph import node_graph
+from audio2pose_ros.ros.supervisor import node_graph
 from audio2pose_ros.topics import JOINT_STATES, absolute
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]

@@ -22,7 +22,8 @@ from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.data.bag import Chunking, audio_messages, read_messages
 from audio2pose_ros.robot.description import RobotDescription, load_robot
-from audio2pose_ros.ros.graph import SINGLE_PROCESS, node_graph, play_and_record
+from audio2pose_ros.ros.recorder import play_and_record
+from audio2pose_ros.ros.supervisor import SINGLE_PROCESS, node_graph
 from audio2pose_ros.topics import JOINT_ANGLES, RAW_TRAJECTORY, absolute
 
 SPEECH_S = 3.0

@@ -13,13 +13,15 @@ import pytest
 import yaml
 
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, UsageError
-from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_PERIOD_S, STACK_DUMP_SIGNAL, STALE_AFTER_S
-from audio2pose_ros.ros.graph import (
+from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_PERIOD_S, STALE_AFTER_S
+from audio2pose_ros.ros.launch_support import RespawnBudget
+from audio2pose_ros.ros.supervisor import (
     RESTART_AFTER_S,
     NodeSupervisor,
     executable_command,
     overrides_file,
 )
+from audio2pose_ros.ros.supervisor_pipe import STACK_DUMP_SIGNAL
 
 
 def _python(code: str) -> list[str]:
@@ -42,7 +44,7 @@ def test_when_node_exits_with_configuration_error_expect_no_restart(tmp_path: Pa
     supervisor = NodeSupervisor(
         {"bad": _python(f"import sys; sys.exit({EXIT_CONFIGURATION_ERROR})")},
         tmp_path,
-        respawn_delay_s=0.05,
+        budget=RespawnBudget(first_delay_s=0.05),
     )
     supervisor.start()
     try:
@@ -58,9 +60,7 @@ def test_when_node_keeps_crashing_expect_backoff_then_give_up(tmp_path: Path):
     supervisor = NodeSupervisor(
         {"crash": _python("import sys; sys.exit(1)")},
         tmp_path,
-        respawn_delay_s=0.3,
-        max_restarts=3,
-        restart_window_s=60.0,
+        budget=RespawnBudget(max_restarts=3, first_delay_s=0.3),
     )
     supervisor.start()
     try:
@@ -86,7 +86,7 @@ def test_when_node_goes_silent_expect_its_stacks_logged_then_killed_and_restarte
     supervisor = NodeSupervisor(
         {"quiet": _python(STUCK_CHILD)},
         tmp_path,
-        respawn_delay_s=0.05,
+        budget=RespawnBudget(first_delay_s=0.05),
         startup_grace_s=30.0,
     )
     supervisor.start()
@@ -107,7 +107,9 @@ def test_when_node_goes_silent_expect_its_stacks_logged_then_killed_and_restarte
 def test_when_node_is_starved_for_a_moment_expect_it_kept_running(tmp_path: Path):
     """A gap of a few heartbeats (a busy machine; CI saw 1.3 s) is STALE, not a reason to kill."""
     supervisor = NodeSupervisor(
-        {"busy": _python("import time; time.sleep(60)")}, tmp_path, respawn_delay_s=0.05
+        {"busy": _python("import time; time.sleep(60)")},
+        tmp_path,
+        budget=RespawnBudget(first_delay_s=0.05),
     )
     supervisor.start()
     try:
@@ -181,7 +183,7 @@ def test_when_a_node_crashes_once_expect_restart_at_once_then_back_off(tmp_path:
     supervisor = NodeSupervisor(
         {"crash": _python("import time, sys; time.sleep(0.3); sys.exit(1)")},
         tmp_path,
-        respawn_delay_s=1.0,
+        budget=RespawnBudget(first_delay_s=1.0),
     )
     supervisor.start()
     try:
@@ -217,7 +219,7 @@ def test_when_a_stopped_node_is_impersonated_on_diagnostics_expect_stale_and_rep
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-    from audio2pose_ros.ros.graph import HeartbeatMonitor
+    from audio2pose_ros.ros.supervisor import HeartbeatMonitor
 
     supervisor = NodeSupervisor(
         {"motion_filter_node": _python(BEATING_CHILD)}, tmp_path, startup_grace_s=1.0
@@ -273,8 +275,7 @@ def test_when_a_restart_cannot_be_started_expect_a_failure_like_a_crash_and_the_
     supervisor = NodeSupervisor(
         {"vanishing": [str(vanishing)], "crashing": _python("import sys; sys.exit(1)")},
         tmp_path / "logs",
-        respawn_delay_s=0.1,
-        max_restarts=3,
+        budget=RespawnBudget(max_restarts=3, first_delay_s=0.1),
     )
     supervisor.start()
     try:

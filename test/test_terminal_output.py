@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.supervisor import executable_command
 
 AUDIO2POSE = executable_command("audio2pose")
 TOKEN = "terminal-test-token-0123456789"

@@ -46,7 +46,7 @@ def test_the_run_and_demo_verbs_and_the_graph_runner_import_no_torch_nor_scipy()
         "parser = build_parser()\n"
         "parser.parse_args(['run', '--single-process'])\n"
         "parser.parse_args(['demo'])\n"
-        "import audio2pose_ros.ros.graph\n"
+        "import audio2pose_ros.ros.run_command\n"
     )
     assert _loaded_after(code) == {"torch": False, "scipy": False}
 

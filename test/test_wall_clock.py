@@ -17,8 +17,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_PERIOD_S, USE_SIM_TIME, DiagnosedNode
-from audio2pose_ros.ros.graph import executable_command
 from audio2pose_ros.ros.player import spin_until
+from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.topics import DIAGNOSTICS
 
 pytestmark = pytest.mark.ros

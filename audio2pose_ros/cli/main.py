@@ -57,7 +57,7 @@ MAX_PLAYBACK_RATE = 100.0  # --rate: playback at most 100x real time
 
 def command_run(args: argparse.Namespace) -> int:
     """Start the graph as processes; with --play, play a WAV in real time and record commands."""
-    from audio2pose_ros.ros.graph import run_graph, summarize
+    from audio2pose_ros.ros.run_command import run_graph, summarize
 
     if args.record and args.play is None:
         raise UsageError("--record needs --play (recording stops when the file ends)")
@@ -90,7 +90,7 @@ def command_demo(args: argparse.Namespace) -> int:
     the filter plot and the offline trajectory of the same clip, and says where they are.
     """
     from audio2pose_ros.resources import bundled_speech_path
-    from audio2pose_ros.ros.graph import run_graph, summarize
+    from audio2pose_ros.ros.run_command import run_graph, summarize
 
     wav = bundled_speech_path()
     if Path(args.out).exists() and not Path(args.out).is_dir():

@@ -20,7 +20,9 @@ The times a stop and a disable came into force (``stopped_at_s``, ``disabled_at_
 are kept too: a release must be published after them to count
 (:mod:`~audio2pose_ros.motion.holds`).
 :class:`StateStore` is the node's use of its file: the lock, what it held at start, and writes
-only of what changed, at a bounded rate.
+only of what changed, at a bounded rate. :class:`StateWriter` writes it from a thread of its
+own, so the filter's tick never waits on the disk (an fsync takes milliseconds), while a stop or
+a disable is written before the node acknowledges it (:meth:`StateWriter.write_now`).
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import json
 import math
 import os
 import socket
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -342,3 +345,90 @@ class StateStore:
     def spaced(self, now_s: float) -> bool:
         """Whether a write at ``now_s`` keeps :data:`MIN_SAVE_SPACING_S` from the last one."""
         return now_s - self.last_write_s >= MIN_SAVE_SPACING_S
+
+
+class StateWriter:
+    """Writes a :class:`StateStore` off the caller's thread; never an older memory over a newer.
+
+    :meth:`submit` (the tick) hands a memory to the writer thread and returns at once: the
+    thread writes the newest memory submitted, those submitted meanwhile are replaced unwritten.
+    :meth:`write_now` (a stop, a disable) writes in the caller's thread and returns when the
+    file holds it. Every memory has its place in the order of submission: one submitted earlier
+    is never written after a later one (the thread skips it), so a pose handed over before a
+    stop never overwrites the stop. The thread's last outcome is read by the tick
+    (:meth:`take_outcome`): whether it wrote, or the error that kept it from writing.
+    """
+
+    def __init__(self, store: StateStore) -> None:
+        """The writer of ``store``; its thread starts at the first :meth:`submit`."""
+        self.store = store
+        self._ordered = threading.Lock()  # one write at a time, in the order of submission
+        self._wake = threading.Condition()
+        self._submitted = 0  # the place of the newest memory handed over
+        self._written = 0  # the place of the newest memory written (or tried)
+        self._pending: tuple[int, FilterMemory, float] | None = None
+        self._outcome: tuple[bool, OSError | None] | None = None
+        self._closed = False
+        self._thread: threading.Thread | None = None
+        self.writes_off_thread = 0
+
+    def submit(self, memory: FilterMemory, now_s: float) -> None:
+        """Have ``memory`` written by the writer thread (replacing one not written yet)."""
+        with self._wake:
+            self._submitted += 1
+            self._pending = (self._submitted, memory, now_s)
+            if self._thread is None:
+                self._thread = threading.Thread(
+                    target=self._run, name="state file writer", daemon=True
+                )
+                self._thread.start()
+            self._wake.notify()
+
+    def write_now(self, memory: FilterMemory, now_s: float) -> bool:
+        """Write ``memory`` now, in this thread (replacing one not written yet); True: written.
+
+        Raises:
+            OSError: the file cannot be written.
+        """
+        with self._wake:
+            self._submitted += 1
+            place = self._submitted
+            self._pending = None
+        return self._write(place, memory, now_s)
+
+    def take_outcome(self) -> tuple[bool, OSError | None] | None:
+        """The writer thread's outcome since the last call: (written, error); None: none."""
+        outcome, self._outcome = self._outcome, None
+        return outcome
+
+    def close(self) -> None:
+        """Write what is still pending, then end the thread (the node is destroyed)."""
+        with self._wake:
+            self._closed = True
+            self._wake.notify()
+        if self._thread is not None:
+            self._thread.join()
+
+    def _write(self, place: int, memory: FilterMemory, now_s: float) -> bool:
+        with self._ordered:
+            if place < self._written:  # a newer memory is in the file already
+                return False
+            self._written = place
+            return self.store.save(memory, now_s)
+
+    def _run(self) -> None:
+        while True:
+            with self._wake:
+                while self._pending is None and not self._closed:
+                    self._wake.wait()
+                if self._pending is None:
+                    return
+                place, memory, now_s = self._pending
+                self._pending = None
+            try:
+                written = self._write(place, memory, now_s)
+            except OSError as exc:
+                self._outcome = (False, exc)
+            else:
+                self.writes_off_thread += written
+                self._outcome = (written, None)

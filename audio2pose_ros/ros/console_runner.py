@@ -1,7 +1,7 @@
 """``audio2pose console``: the operator's console next to the node graph, without a ROS distro.
 
 What ``ros2 launch audio2pose_ros pepper.launch.py console:=true`` does, for machines without a
-distro: the three nodes (:func:`~audio2pose_ros.ros.graph.node_graph`) and ``console_node``,
+distro: the three nodes (:func:`~audio2pose_ros.ros.supervisor.node_graph`) and ``console_node``,
 each a supervised process reading the same parameters file; the console's own settings given
 on the command line are written to a parameters file of their own that names the node, so
 they win over the file's ``console_node`` section (as :func:`graph.overrides_file` does for the
@@ -24,13 +24,13 @@ from audio2pose_ros.errors import ConfigurationError, InputError
 from audio2pose_ros.offline.parameters_file import node_parameters
 from audio2pose_ros.parameters import settings_from
 from audio2pose_ros.resources import share_path
-from audio2pose_ros.ros.graph import (
+from audio2pose_ros.ros.launch_support import CONSOLE_EXECUTABLE
+from audio2pose_ros.ros.supervisor import (
     HeartbeatMonitor,
     NodeSupervisor,
     executable_command,
     node_graph,
 )
-from audio2pose_ros.ros.launch_support import CONSOLE_EXECUTABLE
 
 __all__ = ["CONSOLE_NODE", "check_console_settings", "console_command", "run_console"]
 

@@ -3,27 +3,27 @@
 A features message carries (n_frames, n_features) float32 values, its feature set named in
 dim[1].label and, optionally, the index of its first frame in dim[0].label ("frames from N"), so
 the receiver counts the frames lost between messages. A raw trajectory is a JointTrajectory of
-one point per 10 ms frame. The nodes send and read these messages as their CDR bytes
-(:mod:`audio2pose_ros.ros.cdr`, tested against the objects made here); tools, tests and
-anything that publishes into the graph use the objects. Also here: what the middleware tells
-about a message (its publisher, when it was published) and the largest raw trajectory worth
-decoding.
+one point per 10 ms frame, read by the motion filter as a :class:`RawTrajectory`. The nodes,
+tools and tests send and read them as rclpy's message objects, whose serialization is rclpy's
+own (``rclpy.serialization``). Also here: what the middleware tells about a message (its
+publisher, when it was published; :mod:`audio2pose_ros.ros.subscriptions`) and the largest raw
+trajectory worth decoding.
 """
 
 from __future__ import annotations
 
 import array
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import NamedTuple
 
 import numpy as np
 from builtin_interfaces.msg import Duration, Time
-from rclpy.subscription import MessageInfo
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from audio2pose_ros.errors import InputError
+from audio2pose_ros.ros.subscriptions import MessageInfo
 
 FRAMES_LABEL = "frames"  # dim[0] of a features message; "frames from N" numbers its first frame
 
@@ -106,16 +106,64 @@ def stamp_s(stamp: Time) -> float:
     return float(stamp.sec + stamp.nanosec * 1e-9)
 
 
-def published_s(info: MessageInfo) -> float:
-    """When a message was published (publisher's wall clock); its arrival when not carried."""
+def published_s(info: MessageInfo | None) -> float | None:
+    """When a message was published (publisher's wall clock), else its reception; None: unknown.
+
+    Unknown where rclpy passes no info (Humble, the EventsExecutor).
+    """
+    if info is None:
+        return None
     source_ns = info.get("source_timestamp") or info.get("received_timestamp") or 0
     return source_ns * 1e-9 if source_ns else time.time()
 
 
-def publisher_of(info: MessageInfo) -> bytes | str:
-    """The identity of a message's publisher (its DDS gid)."""
-    gid = info.get("publisher_gid") or {}
-    return bytes(gid.get("data", b"")) if isinstance(gid, dict) else repr(gid)
+def publisher_of(info: MessageInfo | None) -> bytes | None:
+    """The identity of a message's publisher (its DDS gid); None where rclpy does not say.
+
+    Kilted's info carries the gid; Jazzy's and Humble's do not (nor the EventsExecutor's).
+    """
+    gid = None if info is None else info.get("publisher_gid")
+    if not isinstance(gid, Mapping):
+        return None
+    return bytes(gid.get("data", b""))
+
+
+class RawTrajectory(NamedTuple):
+    """What the motion filter reads of a JointTrajectory: stamp, names, positions per point."""
+
+    stamp_s: float  # header stamp (s)
+    joint_names: tuple[str, ...]
+    positions: list[np.ndarray]  # per point, float64
+
+    @classmethod
+    def of(cls, msg: JointTrajectory) -> RawTrajectory:
+        """The stamp, the names and each point's positions (no copy of rclpy's arrays)."""
+        return cls(
+            stamp_s(msg.header.stamp),
+            tuple(msg.joint_names),
+            [np.frombuffer(point.positions, dtype=np.float64) for point in msg.points],
+        )
+
+    def poses(self, joint_names: Sequence[str], take: int) -> np.ndarray:
+        """(n, len(joint_names)) positions of the first ``take`` points, in that joint order.
+
+        Raises:
+            ValueError: a joint is missing, or a point has the wrong number of positions.
+        """
+        index = {name: i for i, name in enumerate(self.joint_names)}
+        missing = [n for n in joint_names if n not in index]
+        if missing:
+            raise ValueError(f"trajectory lacks joints {missing}")
+        order = np.array([index[n] for n in joint_names], dtype=np.intp)
+        points = self.positions[:take]
+        for k, point in enumerate(points):
+            if len(point) != len(self.joint_names):
+                raise ValueError(
+                    f"point {k} has {len(point)} positions for {len(self.joint_names)} joints"
+                )
+        if not points:
+            return np.empty((0, len(joint_names)))
+        return np.vstack(points)[:, order]
 
 
 def trajectory_bytes_cap(max_points: int, n_joints: int) -> int:

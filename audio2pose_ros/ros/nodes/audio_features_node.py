@@ -62,9 +62,10 @@ from audio2pose_ros.parameters import (
     validate_settings,
 )
 from audio2pose_ros.resources import default_checkpoint_path
-from audio2pose_ros.ros.cdr import features_cdr
-from audio2pose_ros.ros.diagnosed_node import AUDIO_QOS, LATCHED_QOS, STREAM_QOS, DiagnosedNode
+from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
+from audio2pose_ros.ros.messages import features_to_msg
 from audio2pose_ros.ros.node_parameters import NodeParameters
+from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.ros.spin import run_node
 
 
@@ -261,7 +262,7 @@ class AudioFeaturesNode(DiagnosedNode):
             self.frames_out += len(frames)
             batch = np.asarray(frames, dtype=np.float32)  # what the topic carries, either way
             if self.features_pub.get_subscription_count():
-                self.features_pub.publish(features_cdr(batch, self.label, first))  # CDR bytes
+                self.features_pub.publish(features_to_msg(batch, self.label, first))
             if self.features_sink is not None:
                 self.features_sink(batch)
 

@@ -66,9 +66,11 @@ from audio2pose_ros.motion.style import STYLE_FIELDS
 from audio2pose_ros.parameters import settings_from, specs_of
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STALE_AFTER_S, DiagnosedNode, to_terminal
+from audio2pose_ros.ros.diagnosed_node import STALE_AFTER_S, DiagnosedNode
 from audio2pose_ros.ros.node_parameters import NodeParameters
+from audio2pose_ros.ros.qos import LATCHED_QOS
 from audio2pose_ros.ros.spin import run_node
+from audio2pose_ros.ros.supervisor_pipe import to_terminal
 
 PARAMETERS = specs_of(ConsoleSettings)
 AUDIO_INFO_PERIOD_S = 5.0  # audio_capture republishes its AudioInfo this often

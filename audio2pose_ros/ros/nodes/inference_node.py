@@ -51,7 +51,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
-from rclpy.subscription import MessageInfo
 from std_msgs.msg import Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
@@ -68,11 +67,12 @@ from audio2pose_ros.parameters import (
 )
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.cdr import joint_trajectory_cdr, read_features
-from audio2pose_ros.ros.diagnosed_node import STREAM_QOS, DiagnosedNode
-from audio2pose_ros.ros.messages import msg_to_features
+from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
+from audio2pose_ros.ros.messages import msg_to_features, trajectory_msg
 from audio2pose_ros.ros.node_parameters import NodeParameters
+from audio2pose_ros.ros.qos import STREAM_QOS
 from audio2pose_ros.ros.spin import run_node
+from audio2pose_ros.ros.subscriptions import MessageInfo
 from audio2pose_ros.timebase import FrameSequence
 
 # 10 s of 10 ms frames (about 20 ms of work for the packaged model); audio_features_node sends
@@ -202,7 +202,7 @@ class InferenceNode(DiagnosedNode):
         if subscribe:
             self.create_bounded_subscription(
                 Float32MultiArray, topics.FEATURES, self.on_features, STREAM_QOS,
-                MAX_FEATURES_BYTES, with_info=True, decode=_still_serialized,
+                MAX_FEATURES_BYTES, with_info=True,
             )  # fmt: skip
         self.get_logger().info(
             f"streaming model {self.model.name} ({self.model.runtime} runtime) from "
@@ -213,11 +213,8 @@ class InferenceNode(DiagnosedNode):
         """Adopt a validated run-time change (only feature_limit_sd may change)."""
         self.settings = settings_with(self.settings, changes)
 
-    def on_features(self, msg: Float32MultiArray | bytes, info: MessageInfo | None = None) -> None:
+    def on_features(self, msg: Float32MultiArray, info: MessageInfo | None = None) -> None:
         """Unpack a features message and run it (:meth:`on_frames`), unless it is too late.
-
-        The subscription hands the message's CDR bytes, read by
-        :func:`~audio2pose_ros.ros.cdr.read_features`; a message object is read as such.
 
         A message that waited more than :data:`MAX_FEATURES_WAIT_S` since the middleware
         received it (``info``) came while the node was busy with the ones before: the node is
@@ -227,8 +224,8 @@ class InferenceNode(DiagnosedNode):
         the node catches up with the stream instead of falling further behind.
         """
         try:
-            batch = read_features(msg) if isinstance(msg, bytes) else msg_to_features(msg)
-        except InputError as exc:  # a layout that does not fit the data, or malformed bytes
+            batch = msg_to_features(msg)
+        except InputError as exc:  # a layout that does not fit the data
             self.malformed_messages += 1
             self.report_problem(
                 "malformed", DiagnosticStatus.WARN, f"malformed features message dropped: {exc}"
@@ -311,9 +308,9 @@ class InferenceNode(DiagnosedNode):
         self.frames_in += len(frames)
         stamp = self.get_clock().now()
         if self.trajectory_pub.get_subscription_count():  # no message for nobody
-            self.trajectory_pub.publish(  # its CDR bytes: no message objects to build
-                joint_trajectory_cdr(stamp.nanoseconds, self.joint_names, angles, self.period_s)
-            )
+            msg = trajectory_msg(self.joint_names, angles, self.period_s)
+            msg.header.stamp = stamp.to_msg()
+            self.trajectory_pub.publish(msg)
         if self.pose_sink is not None:
             self.pose_sink(angles, stamp.nanoseconds * 1e-9)
 
@@ -334,11 +331,6 @@ class InferenceNode(DiagnosedNode):
             "feature_limit_sd": self.settings.feature_limit_sd,
             "mean_compute_us_per_frame": f"{mean_us:.1f}",
         }
-
-
-def _still_serialized(data: bytes) -> bytes:
-    """The features subscription's decoding: none, :meth:`InferenceNode.on_features` reads it."""
-    return data
 
 
 def _waited_s(info: MessageInfo | None) -> float:

@@ -33,16 +33,18 @@ the start holds, commanding nothing, until the conflict has been over for ``SOUR
 what each measured message means (problems, the start, the commands' check) is
 :mod:`audio2pose_ros.motion.measured_states`'s.
 
-Parameter requests: the node's services (rclpy's parameter services) are served by the node
-itself, at the end of each tick, at most ``REQUESTS_PER_TICK`` per tick
-(:class:`~audio2pose_ros.ros.request_budget.RequestBudget`); a request is validated at once and
-its settings reach the filter at the next tick, once per tick however many came, so a storm of
-set_parameters requests delays answers, never commands.
+Parameter requests: rclpy's parameter services are served by the executor like any other
+callback; a request is validated at once and its settings reach the filter at the next tick,
+once per tick however many came, and the tick is a paced timer, run after every request when
+overdue, so a storm of set_parameters requests delays answers, never commands.
 
 Stop and disable: a stop stays in force across restarts until a ``stop: false`` *published
 after the stop* arrives, as does ``enable: false`` until a later ``enable: true``, by the
 messages' source timestamps (:mod:`audio2pose_ros.motion.holds`: an older panel's latched
-``stop: false`` never releases a stop). A stop, a disable and the pose are saved when they
+``stop: false`` never releases a stop). Where rclpy passes no source timestamp (Humble, the
+EventsExecutor) a release is timed by its arrival, and the first message of its topic cannot
+release a stop or a disable kept from before the restart (it may be such a latched value): the
+release is asked for again. A stop, a disable and the pose are saved when they
 change, at most every ``MIN_SAVE_SPACING_S``; a state that cannot be saved is an ERROR on
 /diagnostics (the stop stays in force in memory), reported again at every start. The state file
 is this node's alone: a second live node with the same file refuses to start (exit 78, naming
@@ -51,7 +53,9 @@ the file).
 One master: raw poses are taken from one ``raw_trajectory`` publisher at a time (its gid); a
 second one is refused and reported as ERROR until it stops, and the first is given up only
 after it has been silent for ``watchdog_timeout_s`` (then the filter approaches the new track
-gently).
+gently). Where rclpy does not say which publisher sent a message (Jazzy, Humble, the
+EventsExecutor), the graph does how many publish: while there are two or more, every raw pose
+is refused, with the same ERROR.
 
 Timing (:mod:`audio2pose_ros.motion.pacing`): the filter ticks at ``rate_hz``, at the latest
 one period after the previous tick and early when a pose arrives into an empty buffer (at most
@@ -66,6 +70,7 @@ a 100 Hz filter clock). Header stamps are the time the command was computed for
 
 from __future__ import annotations
 
+import array
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -76,7 +81,6 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.exceptions import InvalidTopicNameException
 from rclpy.qos import qos_profile_sensor_data
-from rclpy.subscription import MessageInfo
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
@@ -98,27 +102,29 @@ from audio2pose_ros.motion.state_file import (
     FilterMemory,
     StateFileInUseError,
     StateStore,
+    StateWriter,
     default_state_path,
 )
 from audio2pose_ros.motion.style import StyleSettings
 from audio2pose_ros.parameters import ParameterValue, settings_from, settings_with, specs_of
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.cdr import (
+from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
+from audio2pose_ros.ros.messages import (
     RawTrajectory,
-    joint_angles_cdr,
-    joint_trajectory_cdr,
-    read_joint_trajectory,
+    published_s,
+    publisher_of,
+    stamp_s,
+    trajectory_bytes_cap,
+    trajectory_msg,
 )
-from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, DiagnosedNode
-from audio2pose_ros.ros.messages import published_s, publisher_of, stamp_s, trajectory_bytes_cap
 from audio2pose_ros.ros.node_parameters import NodeParameters
-from audio2pose_ros.ros.request_budget import RequestBudget
+from audio2pose_ros.ros.qos import LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.ros.spin import run_node
+from audio2pose_ros.ros.subscriptions import MessageInfo
 
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
 STARTUP_CHECK_S = 0.1  # while the start waits, it is decided again this often
-REQUESTS_PER_TICK = 1  # service requests (set_parameters, ...) served per tick at most
-QUIET_REQUEST_TICKS = 5  # while no request comes, the services are asked every 5th tick (50 ms)
+SECOND_SOURCE_HOLD_S = 1.0  # a refusal of raw poses from several publishers is shown this long
 
 
 SETTINGS_CLASSES = (MotionFilterSettings, StyleSettings, LimitSettings, MotionFilterNodeSettings)
@@ -175,7 +181,7 @@ class MotionFilterNode(DiagnosedNode):
         )
         self.report = FilterReport(self.filter, time.monotonic())
         self.faults_seen = 0
-        self.ticks = 0  # filter ticks since start (each may serve one service request)
+        self.ticks = 0  # filter ticks since start
         self.lead_outs_seen = 0
         self.started_from = ""
 
@@ -188,6 +194,7 @@ class MotionFilterNode(DiagnosedNode):
             self.state = StateStore(self.state_path, self.robot)
         except StateFileInUseError as exc:
             raise ConfigurationError(f"parameter state_file: {exc}") from None
+        self.state_writer = StateWriter(self.state)  # writes off the tick (a thread)
         for problem in self.state.problems():  # the file cannot be locked, read or used
             self._report(problem)
         self.memory = self.state.memory
@@ -220,7 +227,6 @@ class MotionFilterNode(DiagnosedNode):
                     int(self.parameters["max_points_per_message"]), self.robot.n_joints
                 ),
                 with_info=True,
-                decode=read_joint_trajectory,
             )
             self.create_subscription(
                 Bool, topics.VOICE_ACTIVITY, guarded(self.on_voice), STREAM_QOS
@@ -244,11 +250,8 @@ class MotionFilterNode(DiagnosedNode):
                 f"parameter measured_joint_states_topic: value "
                 f"{self.settings.measured_joint_states_topic!r} is not a valid topic name"
             ) from None
-        # rclpy's parameter services (all the node's services): served from the tick, a few
-        # requests per tick at most
-        self.request_budget = RequestBudget(REQUESTS_PER_TICK, QUIET_REQUEST_TICKS)
-        self.request_budget.adopt_services(self)
-        self.serve_requests = guarded(self.request_budget.serve)
+        # the first message of each hold's topic (release_unsure): none yet
+        self.held_topics_heard: set[str] = set()
         # the command clock and the start's decision keep their rate behind any backlog
         self.tick_timer = self.create_paced_timer(self.filter.period_s, self.on_timer)
         self.startup_timer = self.create_paced_timer(
@@ -274,6 +277,11 @@ class MotionFilterNode(DiagnosedNode):
             f"to {self.settings.startup_timeout_s:g} s for the measured pose on "
             f"{self.settings.measured_joint_states_topic}"
         )
+
+    def destroy_node(self) -> None:
+        """Write the state still pending (the writer thread ends), then destroy the node."""
+        self.state_writer.close()
+        super().destroy_node()
 
     # --- parameters ---------------------------------------------------------------------------
 
@@ -322,10 +330,9 @@ class MotionFilterNode(DiagnosedNode):
         this reports its problems and starts the filter from the pose it gives.
         """
         arrival_s = time.monotonic()
-        source: bytes | str = b""  # called directly (tests): no publisher to tell apart
-        published_ns = 0
-        if info is not None:
-            source, published_ns = publisher_of(info), info.get("source_timestamp") or 0
+        # no gid (called directly, or an rclpy that does not say): publishers not told apart
+        source: bytes = publisher_of(info) or b""
+        published_ns = 0 if info is None else info.get("source_timestamp") or 0
         topic = self.settings.measured_joint_states_topic
         use = self.measured.take(
             msg.name,
@@ -386,10 +393,13 @@ class MotionFilterNode(DiagnosedNode):
         self._start(self.robot.neutral_rad if saved is None else saved, step.action)
         self.report_problem("start_pose", DiagnosticStatus.WARN, step.reason, hold_s=10.0)
 
-    def save_state(self) -> None:
+    def save_state(self, now: bool = False) -> None:
         """Rewrite the state file when the pose, the stop or enable changed (atomically).
 
-        Nothing is written when nothing changed; a failure is an ERROR until a save succeeds.
+        By the writer thread (:class:`~audio2pose_ros.motion.state_file.StateWriter`): the
+        caller (the tick) never waits on the disk; with ``now`` in this thread, before the
+        caller goes on (a stop, a disable: written before the node acknowledges it). Nothing is
+        written when nothing changed; a failure is an ERROR until a save succeeds.
         """
         if not self.started:
             return
@@ -404,12 +414,21 @@ class MotionFilterNode(DiagnosedNode):
             self.disable_hold.since_s,
             self.measured.pose_rad is not None,
         )
-        try:
-            written = self.state.save(memory, time.monotonic())
-        except OSError as exc:
-            self._unsaved(f"cannot be written: {exc}")
+        if not now:
+            self.state_writer.submit(memory, time.monotonic())
             return
-        if written and self.state.lock is not None:
+        try:
+            written = self.state_writer.write_now(memory, time.monotonic())
+        except OSError as exc:
+            self._saved(False, exc)
+            return
+        self._saved(written, None)
+
+    def _saved(self, written: bool, error: OSError | None) -> None:
+        """Report the outcome of a write: an ERROR for a failure, cleared by a success."""
+        if error is not None:
+            self._unsaved(f"cannot be written: {error}")
+        elif written and self.state.lock is not None:
             self.clear_problem("state_file_unsaved")
 
     def _save_if_due(self, now_s: float) -> None:
@@ -420,7 +439,11 @@ class MotionFilterNode(DiagnosedNode):
         (:meth:`~audio2pose_ros.motion.state_file.StateStore.spaced`); the pose every
         ``state_save_period_s`` (written only when it changed). The tick runs at ``rate_hz``
         whenever the filter has started, and nothing is saved before: no timer of its own.
+        The writes are the writer thread's; here the outcome of its last one is reported.
         """
+        outcome = self.state_writer.take_outcome()
+        if outcome is not None:
+            self._saved(*outcome)
         if now_s >= self.next_save_s:
             self.next_save_s = now_s + self.settings.state_save_period_s
             self.save_state()
@@ -434,12 +457,13 @@ class MotionFilterNode(DiagnosedNode):
         """Raw messages (or single-process hand-overs) that came since start."""
         return self.intake.messages
 
-    def on_raw(self, msg: RawTrajectory, info: MessageInfo) -> None:
+    def on_raw(self, message: JointTrajectory, info: MessageInfo | None) -> None:
         """Check and queue the poses of one raw trajectory message (of the one source in use)."""
-        refused = self.intake.from_source(publisher_of(info), time.monotonic())
+        refused = self._refused_source(info)
         if refused is not None:
             self._report(refused)
             return
+        msg = RawTrajectory.of(message)
         take = self._admit(msg.stamp_s, len(msg.positions))
         if take is None:
             return
@@ -449,6 +473,27 @@ class MotionFilterNode(DiagnosedNode):
             self._report(self.intake.malformed(str(exc)))
             return
         self._queue(poses)
+
+    def _refused_source(self, info: MessageInfo | None) -> Problem | None:
+        """Why a raw message is refused for its publisher (None: it may be used).
+
+        By the publisher's gid where rclpy gives it (:meth:`RawIntake.from_source`); else by
+        the graph: a message is refused while two or more publishers send raw_trajectory.
+        """
+        gid = publisher_of(info)
+        if gid is not None:
+            return self.intake.from_source(gid, time.monotonic())
+        publishers = self.count_publishers(topics.RAW_TRAJECTORY)
+        if publishers <= 1:
+            return None
+        self.intake.dropped += 1
+        return Problem(
+            "raw_second_source",
+            True,
+            f"{publishers} publishers send raw_trajectory and this rclpy does not say which "
+            "message is whose: every raw pose is refused until one is left (stop the others)",
+            SECOND_SOURCE_HOLD_S,
+        )
 
     def on_poses(self, poses_rad: np.ndarray, stamp_s: float) -> None:
         """Raw poses (n, n_joints) in this robot's joint order, stamped ``stamp_s`` (node clock).
@@ -491,9 +536,29 @@ class MotionFilterNode(DiagnosedNode):
         """Voice activity (from voice_activity, or directly in single-process mode)."""
         self.filter.set_voice_active(active, time.monotonic())
 
-    def _released(self, hold: Hold, info: MessageInfo, key: str, release: str, held: str) -> bool:
-        """Whether a ``release`` ends ``hold`` (:meth:`Hold.release`); if not, a WARN."""
+    def _released(
+        self, hold: Hold, info: MessageInfo | None, topic: str, key: str, release: str, held: str
+    ) -> bool:
+        """Whether a ``release`` ends ``hold`` (:meth:`Hold.release`); if not, a WARN.
+
+        Without the release's publication time (no message info), it is timed by its arrival,
+        except the first message of ``topic``: it may be an older panel's latched value, so it
+        cannot end a hold kept from before the restart.
+        """
         since_s, at_s = hold.since_s, published_s(info)
+        first = topic not in self.held_topics_heard
+        self.held_topics_heard.add(topic)
+        if at_s is None:
+            if first and since_s is not None:
+                self.report_problem(
+                    key,
+                    DiagnosticStatus.WARN,
+                    f"{release} ignored: the first message on {topic}, whose publication time "
+                    f"this rclpy does not give, may be older than the {held} in force; publish "
+                    f"{release} again to release it",
+                )
+                return False
+            at_s = time.time()
         if hold.release(at_s):
             return True
         assert since_s is not None
@@ -505,17 +570,23 @@ class MotionFilterNode(DiagnosedNode):
         )
         return False
 
+    def _held_at_s(self, info: MessageInfo | None, topic: str) -> float:
+        """When a hold was published: its info's time, else its arrival (wall clock)."""
+        self.held_topics_heard.add(topic)
+        at_s = published_s(info)
+        return time.time() if at_s is None else at_s
+
     def _save_now(self) -> None:
         """Save a changed stop or enable now, or within ``MIN_SAVE_SPACING_S`` (bounded rate)."""
         if self.state.save_soon(time.monotonic()):
-            self.save_state()
+            self.save_state(now=True)
 
-    def on_enable(self, msg: Bool, info: MessageInfo) -> None:
+    def on_enable(self, msg: Bool, info: MessageInfo | None) -> None:
         """Enable or disable generated motion (only a later enable ends a disable)."""
         if not msg.data:
-            self.disable_hold.engage(published_s(info), time.time())
+            self.disable_hold.engage(self._held_at_s(info, topics.ENABLE), time.time())
         elif not self._released(
-            self.disable_hold, info, "enable_ignored", "enable: true", "disable"
+            self.disable_hold, info, topics.ENABLE, "enable_ignored", "enable: true", "disable"
         ):
             return
         changed = self.filter.status.enabled != msg.data
@@ -525,12 +596,12 @@ class MotionFilterNode(DiagnosedNode):
         if changed:
             self.get_logger().info("enabled" if msg.data else "disabled: gliding to neutral")
 
-    def on_stop(self, msg: Bool, info: MessageInfo) -> None:
+    def on_stop(self, msg: Bool, info: MessageInfo | None) -> None:
         """Emergency stop on / off (only a release published after the stop ends it)."""
         if msg.data:
-            self.stop_hold.engage(published_s(info), time.time())
+            self.stop_hold.engage(self._held_at_s(info, topics.STOP), time.time())
         elif not self._released(
-            self.stop_hold, info, "stop_release_ignored", "stop: false", "stop"
+            self.stop_hold, info, topics.STOP, "stop_release_ignored", "stop: false", "stop"
         ):
             return
         changed = self.filter.status.stopped != msg.data
@@ -570,12 +641,11 @@ class MotionFilterNode(DiagnosedNode):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def on_timer(self) -> None:
-        """The fallback clock (a paced timer at ``rate_hz``): tick, or serve requests till start."""
+        """The fallback clock (a paced timer at ``rate_hz``): tick, or take settings till start."""
         if self.started:
-            self.on_tick()  # serves requests itself
+            self.on_tick()
         else:
             self.filter.take_requested_settings()
-            self.serve_requests()
 
     def on_tick(self) -> None:
         """Advance the filter by one period and publish the outputs due at this tick."""
@@ -596,7 +666,6 @@ class MotionFilterNode(DiagnosedNode):
             if self.publishers_by_output[key].get_subscription_count():  # no message for nobody
                 self.publish_output[key]()
         self._save_if_due(self.last_tick_s)
-        self.serve_requests()  # after the commands: a request's settings count from the next tick
 
     def report_body_guard(self, guard: GuardStatus) -> None:
         """WARN naming the links while the self-collision guard changes commands."""
@@ -616,30 +685,28 @@ class MotionFilterNode(DiagnosedNode):
         return self.tick_stamp.to_msg()
 
     def publish_joint_angles(self) -> None:
-        """naoqi_driver command: absolute angles at ``speed`` fraction of max velocity.
-
-        Sent as its CDR bytes (:func:`~audio2pose_ros.ros.cdr.joint_angles_cdr`), as is the
-        controller's trajectory: no message objects to build at every tick.
-        """
+        """naoqi_driver command: absolute angles at ``speed`` fraction of max velocity."""
         speed = self.settings.joint_angles_speed
         speed = speed if speed >= 0 else self.filter.limiter.settings.velocity_fraction
-        self.publishers_by_output["joint_angles"].publish(
-            joint_angles_cdr(
-                self.tick_stamp.nanoseconds, self.robot.names, self.filter.position_rad, speed
-            )
-        )
+        msg = JointAnglesWithSpeed()
+        msg.header.stamp = self._stamp()
+        msg.joint_names = list(self.robot.names)
+        # an array.array of the field's type is stored as is, a list checked value by value
+        angles = np.ascontiguousarray(self.filter.position_rad, dtype=np.float32)
+        msg.joint_angles = array.array("f", angles.tobytes())
+        msg.speed = float(speed)
+        self.publishers_by_output["joint_angles"].publish(msg)
 
     def publish_joint_trajectory(self) -> None:
         """ros2_control command: one point, one filter period after the tick it was computed at."""
-        self.publishers_by_output["joint_trajectory"].publish(
-            joint_trajectory_cdr(
-                self.tick_stamp.nanoseconds,
-                self.robot.names,
-                self.filter.position_rad[None, :],
-                self.filter.period_s,
-                self.filter.velocity_rad_s[None, :],
-            )
+        msg = trajectory_msg(
+            self.robot.names,
+            self.filter.position_rad[None, :],
+            self.filter.period_s,
+            self.filter.velocity_rad_s[None, :],
         )
+        msg.header.stamp = self._stamp()
+        self.publishers_by_output["joint_trajectory"].publish(msg)
 
     def publish_joint_states(self) -> None:
         """The commanded pose as a JointState (for robot_state_publisher and viewers)."""
@@ -672,8 +739,6 @@ class MotionFilterNode(DiagnosedNode):
             **self.intake.values(),
             **self.report.values(now),
             "ticks": self.ticks,
-            "service_requests_served": self.request_budget.served_total,
-            "most_service_requests_in_a_tick": self.request_budget.most_in_a_tick,
             "last_command_age_ms": (
                 f"{(now - self.last_tick_s) * 1e3:.0f}" if self.started else "none"
             ),

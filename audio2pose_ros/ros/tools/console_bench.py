@@ -45,8 +45,8 @@ from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.console.protocol import audio_frame
 from audio2pose_ros.ros.console_runner import CONSOLE_NODE, console_command
 from audio2pose_ros.ros.diagnosed_node import status_name
-from audio2pose_ros.ros.graph import GraphTimeoutError, node_graph
 from audio2pose_ros.ros.player import rclpy_session, spin_until
+from audio2pose_ros.ros.supervisor import GraphTimeoutError, node_graph
 from audio2pose_ros.ros.tools.graph_bench import (
     MATCH_TOLERANCE_RAD,
     STEADY_SKIP_S,

@@ -1,6 +1,6 @@
 """``audio2pose faults``: attack the live node graph and print what the robot would have done.
 
-The campaign starts the three nodes as supervised processes (:func:`~audio2pose_ros.ros.graph.
+The campaign starts the three nodes as supervised processes (:func:`~audio2pose_ros.ros.supervisor.
 node_graph`, as ``audio2pose run`` does), plays the part of the rest of the world with one probe
 participant (:mod:`~audio2pose_ros.ros.tools.fault_harness`), and runs each case in turn over real
 DDS:
@@ -39,8 +39,8 @@ from std_msgs.msg import Bool
 from audio2pose_ros import topics
 from audio2pose_ros.files import packaged_mapping
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS
-from audio2pose_ros.ros.graph import node_graph
+from audio2pose_ros.ros.qos import LATCHED_QOS
+from audio2pose_ros.ros.supervisor import node_graph
 from audio2pose_ros.ros.tools.fault_cases_runtime import impersonated_sigstop_case, runtime_cases
 from audio2pose_ros.ros.tools.fault_harness import (
     MAX_COMMAND_GAP_S,
@@ -138,7 +138,7 @@ def _head(kind: str, value: float) -> Callable[[Campaign], Outcome]:
     def run(c: Campaign) -> Outcome:
         pose = c.pose_a
         publisher = c.probe.head_target if kind == "target" else c.probe.head_offset
-        publisher.publish(c.probe._joint_state(np.array([value]), names=("HeadYaw",)))
+        publisher.publish(c.probe.joint_state_msg(np.array([value]), names=("HeadYaw",)))
         window = c.probe.observe(OBSERVE_S)
         worst = window.worst_deviation(pose)
         return Outcome(f"head moved {worst:.3f} rad", worst <= MAX_DEVIATION_RAD, worst)
@@ -166,7 +166,7 @@ def _stop_hold(c: Campaign) -> Outcome:
     c.probe.stop.publish(Bool(data=True))
     c.probe.spin_for(0.3)
     c.probe.pose = c.pose_b  # generated motion elsewhere, and a head target
-    c.probe.head_target.publish(c.probe._joint_state(np.array([0.5]), names=("HeadYaw",)))
+    c.probe.head_target.publish(c.probe.joint_state_msg(np.array([0.5]), names=("HeadYaw",)))
     window = c.probe.observe(OBSERVE_S)
     worst = window.worst_deviation(pose)
     c.probe.stop.publish(Bool(data=False))
@@ -182,7 +182,7 @@ def _stop_neutral_head_target(c: Campaign) -> Outcome:
     c.probe.stop.publish(Bool(data=True))
     c.probe.spin_for(2.5)  # the glide to neutral ends
     neutral = c.robot.neutral_rad
-    c.probe.head_target.publish(c.probe._joint_state(np.array([0.6]), names=("HeadYaw",)))
+    c.probe.head_target.publish(c.probe.joint_state_msg(np.array([0.6]), names=("HeadYaw",)))
     window = c.probe.observe(1.0)
     head = np.array([n.startswith("Head") for n in c.robot.names])
     worst = window.worst_deviation(neutral, head)

@@ -40,8 +40,9 @@ from audio2pose_ros import topics
 from audio2pose_ros.motion.body_guard import TOLERANCE_M as BODY_TOLERANCE_M
 from audio2pose_ros.motion.filter_settings import MotionFilterSettings
 from audio2pose_ros.robot.body import BodyModel
-from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS, status_name
-from audio2pose_ros.ros.graph import executable_command
+from audio2pose_ros.ros.diagnosed_node import status_name
+from audio2pose_ros.ros.qos import LATCHED_QOS, STREAM_QOS
+from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.ros.tools.fault_harness import (
     MAX_DEVIATION_RAD,
     STREAM_PERIOD_S,
@@ -184,11 +185,11 @@ def _restart_partial_measurement(c: Campaign) -> Outcome:
     deadline = time.monotonic() + 30.0
     try:
         while time.monotonic() < deadline and c.pid(FILTER) == old:
-            c.probe.measured.publish(c.probe._joint_state(reading))
+            c.probe.measured.publish(c.probe.joint_state_msg(reading))
             c.probe.spin_for(0.02)
         start = len(c.probe.commands)
         while time.monotonic() < deadline and len(c.probe.commands) - start < 10:
-            c.probe.measured.publish(c.probe._joint_state(reading))
+            c.probe.measured.publish(c.probe.joint_state_msg(reading))
             c.probe.spin_for(0.02)
     finally:
         c.probe.robot_reports = True
@@ -396,12 +397,12 @@ def _send_release(c: Campaign) -> None:
 
 
 def _send_offset(c: Campaign) -> None:
-    c.probe.head_offset.publish(c.probe._joint_state(np.array([0.0]), names=("HeadYaw",)))
+    c.probe.head_offset.publish(c.probe.joint_state_msg(np.array([0.0]), names=("HeadYaw",)))
 
 
 def _send_target(c: Campaign) -> None:
     head_yaw = c.pose_a[c.robot.names.index("HeadYaw")]  # where the head is: no motion
-    c.probe.head_target.publish(c.probe._joint_state(np.array([head_yaw]), names=("HeadYaw",)))
+    c.probe.head_target.publish(c.probe.joint_state_msg(np.array([head_yaw]), names=("HeadYaw",)))
 
 
 def _send_enable(c: Campaign) -> None:
@@ -409,7 +410,7 @@ def _send_enable(c: Campaign) -> None:
 
 
 def _send_measured(c: Campaign) -> None:
-    c.probe.measured.publish(c.probe._joint_state(c.probe.robot_pose))
+    c.probe.measured.publish(c.probe.joint_state_msg(c.probe.robot_pose))
 
 
 def _send_raw(c: Campaign) -> None:

@@ -30,8 +30,8 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from audio2pose_ros import topics
 from audio2pose_ros.robot.description import RobotDescription
-from audio2pose_ros.ros.diagnosed_node import LATCHED_QOS, STREAM_QOS
-from audio2pose_ros.ros.graph import NodeSupervisor
+from audio2pose_ros.ros.qos import LATCHED_QOS, STREAM_QOS
+from audio2pose_ros.ros.supervisor import NodeSupervisor
 
 MAX_DEVIATION_RAD = 0.1  # one bad input moves no joint more than about this
 
@@ -157,7 +157,10 @@ class CampaignProbe(Node):
             if level == STALE_LEVEL:
                 self.stale_reports[name] = self.stale_reports.get(name, 0) + 1
 
-    def _joint_state(self, values: np.ndarray, names: tuple[str, ...] | None = None) -> JointState:
+    def joint_state_msg(
+        self, values: np.ndarray, names: tuple[str, ...] | None = None
+    ) -> JointState:
+        """A JointState stamped now: ``values`` for ``names`` (default: every joint)."""
         msg = JointState()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.name = list(names or self.robot.names)
@@ -187,7 +190,7 @@ class CampaignProbe(Node):
                 self.voice.publish(Bool(data=True))
             if self.robot_reports and now >= self._next_measured_s:
                 self._next_measured_s = now + MEASURED_PERIOD_S
-                self.measured.publish(self._joint_state(self.robot_pose))
+                self.measured.publish(self.joint_state_msg(self.robot_pose))
             rclpy.spin_once(self, timeout_sec=0.002)
 
     def observe(self, seconds: float) -> Commands:

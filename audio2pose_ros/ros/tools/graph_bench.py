@@ -50,7 +50,6 @@ from audio2pose_ros.files import packaged_mapping
 from audio2pose_ros.resources import bundled_speech_paths, default_checkpoint_path
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.graph import SIM_NODE, GraphTimeoutError, node_graph
 from audio2pose_ros.ros.player import (
     MessagePlayer,
     rclpy_session,
@@ -58,6 +57,7 @@ from audio2pose_ros.ros.player import (
     spin_until,
     warm_up,
 )
+from audio2pose_ros.ros.supervisor import SIM_NODE, GraphTimeoutError, node_graph
 from audio2pose_ros.ros.tools.process_stats import cpu_s, rss_mb
 from audio2pose_ros.ros.tools.relay_floor import EXECUTORS as RELAY_EXECUTORS
 from audio2pose_ros.ros.tools.relay_floor import ROLES as RELAY_ROLES

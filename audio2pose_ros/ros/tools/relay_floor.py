@@ -24,7 +24,7 @@ Which executor a relay spins in (``--executor``):
 - ``plain`` (the default, the floor ``audio2pose bench --graph`` reports against): rclpy's
   default, the SingleThreadedExecutor that ``rclpy.spin`` uses, as a plain rclpy program of
   the ros2/examples would;
-- ``node``: the executor its node spins in (:func:`~audio2pose_ros.ros.spin.create_executor`),
+- ``node``: the executor its node spins in (:func:`~audio2pose_ros.ros.executor.create_executor`),
   which measures what the nodes' work adds over the same transport.
 
 Run one relay with
@@ -52,10 +52,12 @@ from std_msgs.msg import Float32MultiArray, Header, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from audio2pose_ros import topics
-from audio2pose_ros.ros.diagnosed_node import AUDIO_QOS, HEARTBEAT_PERIOD_S, LATCHED_QOS, STREAM_QOS
+from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_PERIOD_S
+from audio2pose_ros.ros.executor import create_executor
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.ros.nodes.process import STOP_SIGNALS, prepare_node_process
-from audio2pose_ros.ros.spin import create_executor, spin_executor
+from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS, STREAM_QOS
+from audio2pose_ros.ros.spin import spin_executor
 
 ROLES = ("audio_features_node", "inference_node", "motion_filter_node")
 EXECUTORS = ("plain", "node")  # rclpy.spin's default executor, or the one the node spins in

@@ -1,12 +1,12 @@
-"""``audio2pose run``: start the node graph as processes, play a WAV into it, record its output.
+"""The supervisor of ``audio2pose run``: the node processes, restarted as ``ros2 launch`` does.
 
 This is what ``ros2 launch audio2pose_ros pepper.launch.py`` does, for machines without a ROS
-distro: the same three executables, each its own process, with the same parameter file; or,
-with ``single_process``, the same three nodes in one process and one executor
-(:mod:`audio2pose_ros.ros.nodes.single_process`). The player
-(:mod:`audio2pose_ros.ros.player`) publishes audio_common_msgs AudioInfo (latched) and AudioData
-chunks in real time; the recorder writes every command the robot would receive to a rosbag2
-(MCAP).
+distro: the same three executables, each its own process, with the same parameter file and the
+same restart policy (:class:`~audio2pose_ros.ros.launch_support.RespawnBudget`); or, with
+``single_process``, the same three nodes in one process and one executor
+(:mod:`audio2pose_ros.ros.nodes.single_process`). :func:`node_graph` runs them for the duration
+of a context; :class:`NodeSupervisor` restarts a crashed or silent one; :class:`HeartbeatMonitor`
+reports silent ones on /diagnostics.
 """
 
 from __future__ import annotations
@@ -19,63 +19,31 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import ExitStack, contextmanager, suppress
-from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import rclpy
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
-from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros import topics
-from audio2pose_ros.audio.wav import read_wav
-from audio2pose_ros.data.bag import (
-    AUDIO_DATA_TYPE,
-    AUDIO_INFO_TOPIC,
-    AUDIO_INFO_TYPE,
-    AUDIO_TOPIC,
-    AUDIO_TOPIC_TYPES,
-    BagError,
-    BagMessage,
-    BagWriter,
-    Chunking,
-    audio_messages,
-    read_checked_messages,
-)
-from audio2pose_ros.errors import (
-    EXIT_CONFIGURATION_ERROR,
-    Audio2PoseError,
-    ConfigurationError,
-    UsageError,
-)
+from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, Audio2PoseError, UsageError
 from audio2pose_ros.files import load_yaml_text
 from audio2pose_ros.resources import share_path
-from audio2pose_ros.ros.diagnosed_node import (
-    HEARTBEAT_FD_ENV,
-    HEARTBEAT_PERIOD_S,
-    STACK_DUMP_SIGNAL,
-    STALE_AFTER_S,
-    TERMINAL_FD_ENV,
-    status_name,
-)
-from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
-from audio2pose_ros.ros.player import MessagePlayer, rclpy_session, spin_until, warm_up
+from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_PERIOD_S, STALE_AFTER_S, status_name
+from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC, RespawnBudget
+from audio2pose_ros.ros.supervisor_pipe import HEARTBEAT_FD_ENV, STACK_DUMP_SIGNAL, TERMINAL_FD_ENV
 
 NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
-RECORD_FLUSH_PERIOD_S = 0.5  # a killed recording loses at most about this much (BagWriter.flush)
 SIM_NODE = "pepper_sim_node"  # the simulated robot (audio2pose run --sim)
 SINGLE_PROCESS = "audio2pose_nodes"  # the process that runs all three nodes (single-process mode)
 # As the launch file does: trajectories go to Pepper's ros2_control controller.
 NODE_REMAPS = {"motion_filter_node": ("-r", f"{topics.JOINT_TRAJECTORY}:={CONTROLLER_TOPIC}")}
 STARTUP_GRACE_S = 30.0  # a node may take this long to publish its first heartbeat (imports)
-MAX_BACKOFF_S = 16.0  # longest wait before a restart
 # A node silent this long is killed and restarted. Ten heartbeats: a process that a busy machine
 # starved for a moment (CI on 2 cores saw a 1.3 s gap from a healthy node) is reported STALE after
 # STALE_AFTER_S but not killed, since a restart takes the node away for seconds; a stopped or
@@ -83,18 +51,6 @@ MAX_BACKOFF_S = 16.0  # longest wait before a restart
 RESTART_AFTER_S = 10 * HEARTBEAT_PERIOD_S
 WATCH_PERIOD_S = 0.1
 STACK_DUMP_WAIT_S = 0.2  # time a silent process gets to write its stacks before SIGKILL
-RECORDED_TOPICS = {
-    topics.absolute(topics.JOINT_ANGLES): (
-        JointAnglesWithSpeed,
-        "naoqi_bridge_msgs/msg/JointAnglesWithSpeed",
-    ),
-    CONTROLLER_TOPIC: (JointTrajectory, "trajectory_msgs/msg/JointTrajectory"),
-    topics.absolute(topics.COMMANDED_JOINT_STATES): (JointState, "sensor_msgs/msg/JointState"),
-    topics.absolute(topics.RAW_TRAJECTORY): (
-        JointTrajectory,
-        "trajectory_msgs/msg/JointTrajectory",
-    ),
-}
 
 
 class GraphTimeoutError(Audio2PoseError):
@@ -115,10 +71,10 @@ def executable_command(name: str) -> list[str]:
 class NodeSupervisor:
     """Runs the node processes like a launch file would, and restarts them with a bounded budget.
 
-    - **Crash.** A node that exits is restarted at once the first time (within
-      ``restart_window_s``), then after a back-off that doubles from ``respawn_delay_s`` up to
-      ``MAX_BACKOFF_S``; one that dies more than ``max_restarts`` times within
-      ``restart_window_s`` is given up on, loudly, rather than restarted forever.
+    - **Crash.** A node that exits is restarted as ``ros2 launch`` restarts it: by the one
+      restart policy, :class:`~audio2pose_ros.ros.launch_support.RespawnBudget` (at once the
+      first time in a row, then after a back-off that doubles up to its cap; one that keeps
+      dying is given up on, loudly, rather than restarted forever).
     - **Configuration error.** A node that exits with
       :data:`~audio2pose_ros.ros.diagnosed_node.EXIT_CONFIGURATION_ERROR` (a refused parameter, a
       bad model or robot file, a parameters file rcl cannot parse) is never restarted: the same
@@ -142,9 +98,7 @@ class NodeSupervisor:
         self,
         commands: dict[str, list[str]],
         log_dir: Path | None,
-        respawn_delay_s: float = 1.0,
-        max_restarts: int = 5,
-        restart_window_s: float = 60.0,
+        budget: RespawnBudget | None = None,
         startup_grace_s: float = STARTUP_GRACE_S,
         members: dict[str, str] | None = None,
         restart_after_s: float = RESTART_AFTER_S,
@@ -158,9 +112,7 @@ class NodeSupervisor:
         self.commands = commands
         self.members = members or {name: name for name in commands}
         self.log_dir = log_dir
-        self.respawn_delay_s = respawn_delay_s
-        self.max_restarts = max_restarts
-        self.restart_window_s = restart_window_s
+        self.budget = budget if budget is not None else RespawnBudget()
         self.startup_grace_s = startup_grace_s
         self.restart_after_s = restart_after_s
         self.processes: dict[str, subprocess.Popen[bytes]] = {}
@@ -253,23 +205,17 @@ class NodeSupervisor:
             heard = self._last_heard_s.get(name)
         return 0.0 if heard is None else time.monotonic() - heard
 
-    def _failed(self, name: str, why: str, now: float) -> None:
-        """``name`` is down: schedule its restart, or give up on it."""
-        recent = [t for t in self.restarts[name] if now - t < self.restart_window_s]
-        if len(recent) >= self.max_restarts:
+    def _failed(self, name: str, why: str, now: float, returncode: int) -> None:
+        """``name`` is down (``returncode``): schedule its restart, or give up on it."""
+        ran_s = now - self._started_s.get(name, now)
+        decision = self.budget.on_exit(name, returncode, ran_s)
+        if not decision.restart:
             self.given_up.add(name)
-            self._say(
-                f"{name} {why}; it failed {len(recent) + 1} times within "
-                f"{self.restart_window_s:.0f} s: giving up on it (see its log)"
-            )
+            self._say(f"{name} {why}; {decision.message} (see its log)")
             return
-        # the first crash restarts at once; back off from the second on
-        delay = (
-            0.0 if not recent else min(self.respawn_delay_s * 2 ** (len(recent) - 1), MAX_BACKOFF_S)
-        )
-        self.restarts[name] = [*recent, now]
-        self._due_s[name] = now + delay
-        self._say(f"{name} {why}; restarting it in {delay:.1f} s")
+        self.restarts[name].append(now)
+        self._due_s[name] = now + decision.delay_s
+        self._say(f"{name} {why}; restarting it in {decision.delay_s:.1f} s")
 
     def _read_pipe(self, name: str, process: subprocess.Popen[bytes]) -> None:
         """Heartbeat bytes the running process of ``name`` wrote to its pipe: it is alive."""
@@ -294,7 +240,8 @@ class NodeSupervisor:
                 try:
                     self._spawn(name, "a")
                 except OSError as exc:  # a start that fails is a failure like a crash
-                    self._failed(name, f"could not be started again ({exc})", now)
+                    self._started_s[name] = now  # it did not run: a crash at once
+                    self._failed(name, f"could not be started again ({exc})", now, 1)
             return
         code = process.poll()
         if code == EXIT_CONFIGURATION_ERROR:
@@ -304,7 +251,7 @@ class NodeSupervisor:
                 "fix the parameter or file named in its log"
             )
         elif code is not None:
-            self._failed(name, f"exited with status {code}", now)
+            self._failed(name, f"exited with status {code}", now, code)
         else:
             with self._lock:
                 heard = self._heard_s.get(name)
@@ -320,6 +267,7 @@ class NodeSupervisor:
                     name,
                     f"was silent for {silent:.1f} s (no heartbeat; its log has its stacks)",
                     now,
+                    -signal.SIGKILL,
                 )
 
     def _watch(self) -> None:
@@ -503,184 +451,3 @@ def node_graph(
         if monitor:
             stack.callback(HeartbeatMonitor(supervisor).close)
         yield supervisor
-
-
-@dataclass
-class PlaybackResult:
-    """What a run recorded."""
-
-    audio_s: float
-    chunks_sent: int
-    recorded_s: float
-    counts: dict[str, int] = field(default_factory=dict)
-    bag: Path | None = None
-
-
-class PlayerRecorder(Node):
-    """Publishes a WAV as audio_common_msgs in real time and records the graph's commands."""
-
-    def __init__(self, bag: BagWriter | None) -> None:
-        """Create the audio publishers and one recording subscription per command topic."""
-        super().__init__("audio2pose_player")
-        self.bag = bag
-        self.recording = False
-        self.counts = dict.fromkeys(RECORDED_TOPICS, 0)
-        self.poses_seen = 0
-        self.heard: set[str] = set()  # recorded topics that ever delivered a message
-        self.player = MessagePlayer(
-            self, [(AUDIO_TOPIC, AUDIO_DATA_TYPE), (AUDIO_INFO_TOPIC, AUDIO_INFO_TYPE)]
-        )
-        self.create_subscription(
-            JointTrajectory, topics.absolute(topics.RAW_TRAJECTORY), self._on_pose, 100
-        )
-        for topic, (msg_type, type_name) in RECORDED_TOPICS.items():
-            self.create_subscription(
-                msg_type, topic, self._recorder(topic, type_name), 100, raw=True
-            )
-
-    def _on_pose(self, msg: JointTrajectory) -> None:
-        self.poses_seen += len(msg.points)
-
-    def _recorder(self, topic: str, type_name: str) -> Callable[[bytes], None]:
-        def record(data: bytes) -> None:
-            self.heard.add(topic)
-            if not self.recording:
-                return
-            self.counts[topic] += 1
-            if self.bag is not None:
-                self.bag.write(topic, type_name, self.get_clock().now().nanoseconds, data)
-
-        return record
-
-    def record_sent(self, message: BagMessage) -> None:
-        """Record a message the player just published, while recording."""
-        if self.recording and self.bag is not None:
-            self.bag.write(
-                message.topic, message.msgtype, self.get_clock().now().nanoseconds, message.data
-            )
-
-    def warm_up(self, timeout_s: float) -> None:
-        """Send silence until poses and every recorded command come back: each link has matched.
-
-        Raises:
-            GraphTimeoutError: the graph did not answer within ``timeout_s``.
-        """
-        if not warm_up(
-            self.player,
-            AUDIO_TOPIC,
-            lambda: self.poses_seen > 0 and self.heard >= set(RECORDED_TOPICS),
-            timeout_s,
-        ):
-            raise GraphTimeoutError(
-                f"the node graph did not answer within {timeout_s} s (see the node logs)"
-            )
-        spin_until(self, time.monotonic() + 0.3)
-
-
-def audio_source(path: Path, chunking: Chunking | None = None) -> list[BagMessage]:
-    """The audio messages to play: a WAV cut like a live capture, or a bag's audio topics."""
-    if path.suffix.lower() == ".wav":
-        samples, _ = read_wav(path)
-        return audio_messages(samples, chunking)
-    messages = read_checked_messages(path, AUDIO_TOPIC_TYPES, AUDIO_TOPIC_TYPES)
-    if not any(m.topic == AUDIO_TOPIC for m in messages):
-        raise BagError(f"{path}: no {AUDIO_TOPIC} messages to play")
-    start = messages[0].timestamp_ns
-    return [replace(m, timestamp_ns=m.timestamp_ns - start) for m in messages]
-
-
-def play_and_record(
-    messages: Sequence[BagMessage],
-    bag_path: Path | None,
-    rate: float = 1.0,
-    tail_s: float = 2.0,
-    startup_timeout_s: float = 60.0,
-) -> PlaybackResult:
-    """Publish audio messages with their timing (``rate`` x faster); record what the graph sends.
-
-    Must run while :func:`node_graph` is up, inside an initialised rclpy context. Recording
-    starts with the first message and ends ``tail_s`` after the last one, so the bag also shows
-    the glide back to the neutral pose.
-
-    Raises:
-        GraphTimeoutError: the graph did not come up within ``startup_timeout_s``.
-    """
-    first_info = next((m for m in messages if m.topic == AUDIO_INFO_TOPIC), None)
-    with ExitStack() as stack:
-        bag = (
-            stack.enter_context(BagWriter(bag_path, flush_period_s=RECORD_FLUSH_PERIOD_S))
-            if bag_path
-            else None
-        )
-        node = PlayerRecorder(bag)
-        stack.callback(node.destroy_node)
-        if first_info is not None:
-            node.player.publish(first_info)
-        node.warm_up(startup_timeout_s)
-        node.recording = True
-        start = node.player.play(messages, rate, on_publish=node.record_sent)
-        spin_until(node, time.monotonic() + tail_s)
-        return PlaybackResult(
-            audio_s=messages[-1].timestamp_ns * 1e-9 if messages else 0.0,
-            chunks_sent=sum(m.topic == AUDIO_TOPIC for m in messages),
-            recorded_s=time.monotonic() - start,
-            counts=dict(node.counts),
-            bag=bag_path,
-        )
-
-
-def run_graph(
-    play: Path | None,
-    record: Path | None,
-    params_file: Path | None,
-    overrides: Sequence[str],
-    log_dir: Path | None,
-    rate: float = 1.0,
-    single_process: bool = False,
-    sim: bool = False,
-) -> PlaybackResult | None:
-    """Start the graph; with ``play`` (a WAV or a bag) play it and return what was recorded.
-
-    Without ``play`` the graph runs until Ctrl-C. ``single_process`` runs the three nodes in one
-    process, ``sim`` adds the simulated Pepper (:func:`node_graph`).
-
-    Raises:
-        ConfigurationError: the supervisor gave up on a node (it refused its configuration, or
-            failed again and again): the graph cannot command the robot, so it is stopped and
-            the command fails instead of running on without that node.
-    """
-    messages = audio_source(play) if play is not None else None
-    with node_graph(
-        params_file, overrides, log_dir, single_process=single_process, sim=sim
-    ) as supervisor:
-        if messages is None:
-            try:
-                while not supervisor.given_up:
-                    time.sleep(0.2)
-            except KeyboardInterrupt:
-                return None
-            raise _stopped(supervisor)
-        with rclpy_session():
-            result = play_and_record(messages, record, rate=rate)
-        if supervisor.given_up:
-            raise _stopped(supervisor)
-        return result
-
-
-def _stopped(supervisor: NodeSupervisor) -> ConfigurationError:
-    """The error of a graph whose supervisor gave up on some nodes (named, sorted)."""
-    names = ", ".join(sorted(supervisor.given_up))
-    return ConfigurationError(f"the graph stopped: gave up on {names}: see the lines above")
-
-
-def summarize(result: PlaybackResult) -> str:
-    """Human-readable summary of a playback."""
-    lines = [
-        f"played {result.audio_s:.2f} s of audio in {result.chunks_sent} messages; recorded "
-        f"{result.recorded_s:.2f} s (speech and {result.recorded_s - result.audio_s:.1f} s after)"
-    ]
-    for topic, count in result.counts.items():
-        lines.append(f"  {topic}: {count} messages ({count / result.recorded_s:.0f} Hz)")
-    if result.bag is not None:
-        lines.append(f"recorded to {result.bag}")
-    return "\n".join(lines)
