@@ -12,6 +12,8 @@ not). Kinds:
 - ``joint_angles``: naoqi_driver's JointAnglesWithSpeed, one joint, alternating targets;
 - ``audio_bytes``: 1-byte audio_common AudioData chunks after a 16 kHz mono S16LE AudioInfo;
 - ``features``: 1 s messages (100 frames) of plausible features, numbered;
+- ``joint_states``: a robot's JointState of every joint at its neutral pose (sensor-data QoS);
+- ``stop_false``: ``stop: false`` on the latched stop topic;
 - ``set_parameters:<node>``: requests to set ``<node>``'s read-only ``command_input``, sent
   without waiting for the answers (taken when there).
 """
@@ -29,20 +31,29 @@ from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.publisher import Publisher
-from std_msgs.msg import Float32MultiArray
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, Float32MultiArray
 
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K
 from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 from audio2pose_ros.resources import default_checkpoint_path
+from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.messages import features_to_msg
 from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS, STREAM_QOS
-from audio2pose_ros.topics import AUDIO, AUDIO_INFO, FEATURES, JOINT_ANGLES, absolute
+from audio2pose_ros.topics import (
+    AUDIO,
+    AUDIO_INFO,
+    FEATURES,
+    JOINT_ANGLES,
+    JOINT_STATES,
+    STOP,
+    absolute,
+)
 
 FRAMES_PER_MESSAGE = 100
-RCLError = rclpy_implementation.RCLError
 Flood = tuple[Callable[[], bool], Callable[[int], None]]  # (ready to flood?, send message i)
 
 
@@ -83,6 +94,24 @@ def features(node: Node) -> Flood:
     return _subscribed(publisher), send
 
 
+def joint_states(node: Node) -> Flood:
+    robot = load_robot()
+    publisher = node.create_publisher(JointState, absolute(JOINT_STATES), qos_profile_sensor_data)
+    msg = JointState(name=list(robot.names), position=[float(v) for v in robot.neutral_rad])
+
+    def send(i: int) -> None:
+        msg.header.stamp = node.get_clock().now().to_msg()
+        publisher.publish(msg)
+
+    return _subscribed(publisher), send
+
+
+def stop_false(node: Node) -> Flood:
+    publisher = node.create_publisher(Bool, absolute(STOP), LATCHED_QOS)
+    msg = Bool(data=False)
+    return _subscribed(publisher), lambda i: publisher.publish(msg)
+
+
 def set_parameters(node: Node, target: str) -> Flood:
     """Requests to set a read-only parameter of ``target``, never waiting for an answer."""
     client = node.create_client(SetParameters, f"/{target}/set_parameters")
@@ -102,6 +131,8 @@ KINDS: dict[str, Callable[..., Flood]] = {
     "joint_angles": joint_angles,
     "audio_bytes": audio_bytes,
     "features": features,
+    "joint_states": joint_states,
+    "stop_false": stop_false,
     "set_parameters": set_parameters,
 }
 
@@ -122,7 +153,7 @@ def main(kind: str, seconds: float) -> None:
             for _ in range(100):
                 try:
                     send(sent)
-                except RCLError:  # a reliable writer whose reader is full times out: go on
+                except RuntimeError:  # a reliable writer whose reader is full times out: go on
                     continue
                 sent += 1
         print(f"sent {sent} {first:.6f} {time.time():.6f}", flush=True)

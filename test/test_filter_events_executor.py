@@ -66,7 +66,7 @@ def test_when_started_with_default_settings_expect_the_stock_single_threaded_exe
 def test_when_events_is_asked_for_expect_the_events_executor(events_available, monkeypatch):
     monkeypatch.setenv(executors.EXECUTOR_ENV, executors.EVENTS)
     with rclpy.init():
-        assert isinstance(executors.create_executor(), events_available)
+        assert type(executors.create_executor()).__name__ == events_available.__name__
 
 
 @pytest.fixture

@@ -265,23 +265,28 @@ def test_when_requests_wait_expect_all_served_and_at_most_one_filter_update_per_
     client = client_node.create_client(SetParameters, "/motion_filter_node/set_parameters")
     assert client.wait_for_service(timeout_sec=10)
     values = [0.5, 0.49] * 50
-    futures = [
-        client.call_async(
-            SetParameters.Request(
-                parameters=[
-                    Parameter(
-                        name="velocity_fraction",
-                        value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=v),
-                    )
-                ]
+    # in waves of the client's queue (10 answers): the EventsExecutor answers every waiting
+    # request back to back, faster than this client takes the answers
+    for wave in range(0, len(values), 10):
+        futures = [
+            client.call_async(
+                SetParameters.Request(
+                    parameters=[
+                        Parameter(
+                            name="velocity_fraction",
+                            value=ParameterValue(
+                                type=ParameterType.PARAMETER_DOUBLE, double_value=v
+                            ),
+                        )
+                    ]
+                )
             )
-        )
-        for v in values
-    ]
-    end = time.monotonic() + 60
-    while time.monotonic() < end and not all(f.done() for f in futures):
-        spin_once(executor, [node], timeout_s=0.01)
-    assert all(f.result().results[0].successful for f in futures)
+            for v in values[wave : wave + 10]
+        ]
+        end = time.monotonic() + 60
+        while time.monotonic() < end and not all(f.done() for f in futures):
+            spin_once(executor, [node], timeout_s=0.01)
+        assert all(f.done() and f.result().results[0].successful for f in futures)
     spin_once(executor, [node], timeout_s=0.05)
     while "tick" not in events[-1:]:  # the last request's settings reach the filter at a tick
         spin_once(executor, [node], timeout_s=0.05)

@@ -124,7 +124,8 @@ def test_when_a_stop_comes_expect_it_written_before_the_node_acknowledges_it(fil
     assert after[0][1] == threading.get_ident()  # written by the stop's own callback
     assert after[0][2] is True
     memory = load_memory(node.state_path, node.robot)
-    assert memory is not None and memory.stopped
+    assert memory is not None
+    assert memory.stopped
 
 
 def memory(robot, stopped: bool, offset: float) -> FilterMemory:
@@ -160,5 +161,6 @@ def test_when_a_stop_is_written_while_an_older_pose_waits_expect_the_stop_kept(
     stop_written.join(WAIT_S)
     writer.close()
     kept = load_memory(store.path, robot)
-    assert kept is not None and kept.stopped
+    assert kept is not None
+    assert kept.stopped
     assert kept.position_rad[0] == pytest.approx(robot.neutral_rad[0] + 0.03)

@@ -87,8 +87,8 @@ def test_when_the_started_filter_is_idle_expect_no_timer_but_its_tick_and_heartb
             monkeypatch.setattr(state_file, "MIN_SAVE_SPACING_S", 2.0)
             node.on_stop(Bool(data=False), {"source_timestamp": 2**62})
             assert node.state.due  # within MIN_SAVE_SPACING_S of the last write: it waits
-            spin_until(executor, node, lambda: not node.state.due)
-            assert not load_memory(state, node.robot).stopped
+            # then handed to the writer thread by the tick
+            spin_until(executor, node, lambda: not load_memory(state, node.robot).stopped)
             assert {t: n for t, n in calls.items() if t not in paced} == {}
 
             # parameter changes: the first is logged at once, the next ones within a second

@@ -195,7 +195,9 @@ def test_when_rclpy_event_handler_is_missing_expect_the_qos_event_classes(monkey
     assert callbacks.use_default_callbacks is False
     with rclpy.init():
         node = rclpy.create_node("humble_events")
-        node.create_subscription(Bool, "humble_events", lambda m: None, 1, event_callbacks=callbacks)
+        node.create_subscription(
+            Bool, "humble_events", lambda m: None, 1, event_callbacks=callbacks
+        )
         node.destroy_node()
 
 

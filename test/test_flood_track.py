@@ -1,0 +1,173 @@
+"""A flood on one input of the motion filter does not displace its raw poses: commands keep track.
+
+The filter node runs as its own process. This process streams a periodic track of raw poses on
+raw_trajectory, one pose per 10 ms as inference_node does, and records the commanded poses by
+their header stamps. For two periods the track plays alone; then a separate process floods one
+other input of the filter (the robot's /joint_states, or ``stop: false``) as fast as it can
+while the track plays on. Each input has its own bounded queue in the middleware and the
+executor serves each ready one in turn, so raw poses keep flowing: every command of the flood is
+compared with the commands of the quiet periods at the same phase of the track, and stays within
+``MAX_DRIFT_RAD`` of them. The verdict is positions against positions; the rates are printed for
+the record. Marked long, as the other floods of node processes (a flooder takes a core).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+
+from audio2pose_ros.ros.messages import trajectory_msg
+from audio2pose_ros.ros.qos import STREAM_QOS
+from audio2pose_ros.ros.supervisor import executable_command
+from audio2pose_ros.topics import COMMANDED_JOINT_STATES, JOINT_STATES, RAW_TRAJECTORY, absolute
+
+pytestmark = [pytest.mark.ros, pytest.mark.long]
+FLOODER = Path(__file__).with_name("flood_publisher.py")
+PERIOD_S = 0.01  # one raw pose per 10 ms
+TRACK_PERIOD_S = 2.0  # the track repeats: a command is compared at its phase
+QUIET_PERIODS = 2
+FLOOD_S = 4.0
+MAX_DRIFT_RAD = 0.1
+JOINTS = ("LShoulderPitch", "RShoulderPitch", "HeadYaw")  # moved by the track, clear of the body
+
+
+class Operator(Node):
+    """The robot's first joint_states (so the filter starts), the track, and the commands."""
+
+    def __init__(self, robot) -> None:
+        super().__init__("flood_track_operator")
+        self.robot = robot
+        self.raw = self.create_publisher(JointTrajectory, absolute(RAW_TRAJECTORY), STREAM_QOS)
+        self.states = self.create_publisher(
+            JointState, absolute(JOINT_STATES), qos_profile_sensor_data
+        )
+        self.commands: list[tuple[float, np.ndarray]] = []  # (header stamp s, positions)
+        self.create_subscription(
+            JointState, absolute(COMMANDED_JOINT_STATES), self.on_command, 1000
+        )
+        self.start_s = 0.0
+
+    def on_command(self, msg: JointState) -> None:
+        stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        self.commands.append((stamp_s, np.array(msg.position)))
+
+    def pose(self, at_s: float) -> np.ndarray:
+        pose = self.robot.neutral_rad.copy()
+        phase = 2 * np.pi * (at_s - self.start_s) / TRACK_PERIOD_S
+        for k, name in enumerate(JOINTS):
+            pose[self.robot.names.index(name)] += 0.3 * np.sin(phase + k)
+        return pose
+
+    def send_pose(self) -> None:
+        now = self.get_clock().now()
+        msg = trajectory_msg(self.robot.names, self.pose(now.nanoseconds * 1e-9)[None, :], PERIOD_S)
+        msg.header.stamp = now.to_msg()
+        self.raw.publish(msg)
+
+    def play(self, seconds: float, states: bool = False) -> None:
+        end, next_pose = time.monotonic() + seconds, time.monotonic()
+        while time.monotonic() < end:
+            if time.monotonic() >= next_pose:
+                if states:
+                    self.states.publish(
+                        JointState(
+                            name=list(self.robot.names),
+                            position=[float(v) for v in self.robot.neutral_rad],
+                        )
+                    )
+                else:
+                    self.send_pose()
+                next_pose += PERIOD_S
+            rclpy.spin_once(self, timeout_sec=0.002)
+
+
+@pytest.fixture
+def filter_process(tmp_path):
+    command = [
+        *executable_command("motion_filter_node"),
+        "--ros-args",
+        "-p",
+        f"state_file:={tmp_path / 'filter_state.json'}",
+        "-p",
+        "joint_states_rate_hz:=50.0",
+    ]
+    with (tmp_path / "motion_filter_node.log").open("w") as log:
+        process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+    yield process
+    process.terminate()
+    process.wait(timeout=10)
+
+
+def phase_of(operator: Operator, stamp_s: float) -> float:
+    return (stamp_s - operator.start_s) % TRACK_PERIOD_S
+
+
+@pytest.mark.parametrize("kind", ["joint_states", "stop_false"])
+def test_when_another_input_floods_expect_commands_within_a_tenth_of_a_radian_of_their_track(
+    filter_process, robot, kind
+):
+    with rclpy.init():
+        operator = Operator(robot)
+        try:
+            deadline = time.monotonic() + 60
+            while not operator.commands:  # the robot publishes its pose: the filter starts
+                assert time.monotonic() < deadline, "motion_filter_node did not come up"
+                operator.play(0.1, states=True)
+            operator.start_s = time.time()
+            operator.play(TRACK_PERIOD_S)  # settle on the track
+            quiet_start = time.time()
+            operator.play(QUIET_PERIODS * TRACK_PERIOD_S)
+            quiet_end = time.time()
+            flooder = subprocess.Popen(
+                [sys.executable, str(FLOODER), kind, str(FLOOD_S)],
+                stdout=subprocess.PIPE,
+                text=True,
+            )
+            try:
+                while True:  # the track plays on while the flooder finds the filter
+                    operator.play(0.05)
+                    line = flooder.stdout.readline() if flooder.poll() is None else "ready"
+                    if line.strip() == "ready":
+                        break
+                flood_start = time.time()
+                operator.play(FLOOD_S)
+                flood_end = time.time()
+                sent = flooder.stdout.readline().split()
+            finally:
+                flooder.wait(timeout=60)
+            operator.play(0.2)
+        finally:
+            operator.destroy_node()
+
+    quiet = sorted(
+        (phase_of(operator, s), p) for s, p in operator.commands if quiet_start <= s <= quiet_end
+    )
+    flood = [
+        (phase_of(operator, s), p) for s, p in operator.commands if flood_start <= s <= flood_end
+    ]
+    assert quiet, "no commands recorded without the flood"
+    assert flood, "no commands recorded during the flood"
+    phases = np.array([ph for ph, _ in quiet])
+    positions = np.array([p for _, p in quiet])
+    moved = [robot.names.index(name) for name in JOINTS]
+    drift = 0.0
+    for phase, position in flood:
+        expected = [np.interp(phase, phases, positions[:, j], period=TRACK_PERIOD_S) for j in moved]
+        drift = max(drift, float(np.abs(position[moved] - expected).max()))
+    stamps = np.array(sorted(s for s, _ in operator.commands if flood_start <= s <= flood_end))
+    print(
+        f"{kind}: flood of {sent[1] if len(sent) > 1 else '?'} messages; {len(flood)} commands in "
+        f"{flood_end - flood_start:.1f} s (largest gap {np.diff(stamps).max() * 1e3:.0f} ms), "
+        f"{len(quiet)} without; largest distance from the quiet track {drift:.3f} rad"
+    )
+    assert drift < MAX_DRIFT_RAD
