@@ -222,3 +222,14 @@ def test_when_info_is_delivered_expect_the_callback_to_take_two_parameters(monke
     assert len(inspect.signature(without).parameters) == 1
     without("message")
     assert got == [("message", None)]
+
+
+def test_when_rclpy_has_no_try_shutdown_expect_shutdown_once_and_no_error_after(monkeypatch):
+    """Humble has only rclpy.shutdown, which raises on a context already down."""
+    from audio2pose_ros.ros.executor import shutdown
+
+    monkeypatch.delattr(rclpy, "try_shutdown")
+    rclpy.init()
+    shutdown()
+    assert not rclpy.ok()
+    shutdown()  # down already (Ctrl-C came first): nothing to do, no error

@@ -9,13 +9,16 @@ the order in which either executor serves callbacks. The timers safety depends o
 callback in either. Under the EventsExecutor the subscriptions are message-only: Kilted's
 (rclpy 9.1) fails inside its ``spin_once`` on a callback that takes a message and its info, so
 the nodes use there what they use on Humble, whose executors pass no info
-(:mod:`audio2pose_ros.ros.subscriptions`).
+(:mod:`audio2pose_ros.ros.subscriptions`). Also here: :func:`shutdown`, the end of an rclpy
+context on every distro.
 """
 
 from __future__ import annotations
 
 import os
 
+import rclpy
+from rclpy.context import Context
 from rclpy.executors import Executor, SingleThreadedExecutor
 
 EXECUTOR_ENV = "AUDIO2POSE_EXECUTOR"  # "events" for the EventsExecutor; anything else: stock
@@ -37,3 +40,18 @@ def create_executor() -> Executor:
         else:
             return EventsExecutor()
     return SingleThreadedExecutor()
+
+
+def shutdown(context: Context | None = None) -> None:
+    """Shut rclpy's ``context`` (default: the global one) down, unless it is down already.
+
+    ``rclpy.try_shutdown`` where rclpy has it (Jazzy, Kilted); Humble has only
+    ``rclpy.shutdown``, which raises on a context already shut down (by Ctrl-C, say).
+    """
+    try_shutdown = getattr(rclpy, "try_shutdown", None)
+    if try_shutdown is not None:
+        try_shutdown(context=context)
+        return
+    ok = context.ok() if context is not None else rclpy.ok()
+    if ok:
+        rclpy.shutdown(context=context)

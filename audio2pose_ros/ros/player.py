@@ -33,6 +33,7 @@ from audio2pose_ros.data.bag import (
     BagMessage,
     check_known_type,
 )
+from audio2pose_ros.ros.executor import shutdown
 from audio2pose_ros.timebase import SAMPLES_PER_FRAME
 
 STREAM_DEPTH = 100  # queue depth of replayed streams: absorbs bursts like the graph's own streams
@@ -76,7 +77,7 @@ def rclpy_session() -> Iterator[None]:
     try:
         yield
     finally:
-        rclpy.try_shutdown()
+        shutdown()
 
 
 def spin_until(node: Node, deadline_s: float, done: Callable[[], bool] | None = None) -> bool:

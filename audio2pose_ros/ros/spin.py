@@ -22,7 +22,7 @@ from rclpy.node import Node
 
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, ConfigurationError
 from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
-from audio2pose_ros.ros.executor import create_executor
+from audio2pose_ros.ros.executor import create_executor, shutdown
 from audio2pose_ros.ros.nodes.process import STOP_SIGNALS
 from audio2pose_ros.ros.supervisor_pipe import STACK_DUMP_SIGNAL, to_terminal
 
@@ -120,7 +120,7 @@ def run_nodes(
             spin_executor(executor, nodes)
         finally:
             signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
-            rclpy.try_shutdown()
+            shutdown()
     except ConfigurationError as exc:
         _refused(f"[{process_name}] configuration error: {exc}")
     except (KeyboardInterrupt, ExternalShutdownException):

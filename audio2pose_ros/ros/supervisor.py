@@ -35,6 +35,7 @@ from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, Audio2PoseError, Usa
 from audio2pose_ros.files import load_yaml_text
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_PERIOD_S, STALE_AFTER_S, status_name
+from audio2pose_ros.ros.executor import shutdown
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC, RespawnBudget
 from audio2pose_ros.ros.supervisor_pipe import HEARTBEAT_FD_ENV, STACK_DUMP_SIGNAL, TERMINAL_FD_ENV
 
@@ -360,7 +361,7 @@ class HeartbeatMonitor:
         """Stop spinning and leave the context."""
         self.executor.shutdown(timeout_sec=1.0)
         self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
+        shutdown(context=self.context)
         self._thread.join(timeout=2.0)
 
 

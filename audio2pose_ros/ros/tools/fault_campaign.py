@@ -39,6 +39,7 @@ from std_msgs.msg import Bool
 from audio2pose_ros import topics
 from audio2pose_ros.files import packaged_mapping
 from audio2pose_ros.robot.description import load_robot
+from audio2pose_ros.ros.executor import shutdown
 from audio2pose_ros.ros.qos import LATCHED_QOS
 from audio2pose_ros.ros.supervisor import node_graph
 from audio2pose_ros.ros.tools.fault_cases_runtime import impersonated_sigstop_case, runtime_cases
@@ -385,7 +386,7 @@ def run_campaign(
                 return campaign.rows
             finally:
                 probe.destroy_node()
-                rclpy.try_shutdown()
+                shutdown()
 
 
 def table(rows: list[tuple[Case, Outcome]]) -> str:

@@ -53,7 +53,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from audio2pose_ros import topics
 from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_PERIOD_S
-from audio2pose_ros.ros.executor import create_executor
+from audio2pose_ros.ros.executor import create_executor, shutdown
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.ros.nodes.process import STOP_SIGNALS, prepare_node_process
 from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS, STREAM_QOS
@@ -168,7 +168,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        rclpy.try_shutdown()
+        shutdown()
 
 
 if __name__ == "__main__":
