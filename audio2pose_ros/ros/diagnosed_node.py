@@ -29,7 +29,7 @@ from rclpy.subscription import Subscription
 from audio2pose_ros import topics
 from audio2pose_ros.errors import ConfigurationError, InputError, short_text
 from audio2pose_ros.ros.paced_timer import PacedTimer
-from audio2pose_ros.ros.qos import is_best_effort_volatile
+from audio2pose_ros.ros.qos import incompatible_publishers, is_best_effort_volatile
 from audio2pose_ros.ros.subscriptions import (
     LatestMessage,
     MessageInfo,
@@ -51,6 +51,7 @@ MAX_LOGGED_TRACEBACKS = 5  # callback exceptions beyond this are counted, not pr
 # A problem's message, and a diagnostic value, at most this long: they may quote input (a label,
 # a joint name) that a message can make hundreds of kilobytes long, on every heartbeat.
 MAX_STATUS_TEXT = 400
+QOS_CHECK_HEARTBEATS = 4  # the readers' QoS is checked against the graph every 2 s
 
 
 def status_name(fully_qualified_name: str) -> str:
@@ -135,6 +136,8 @@ class DiagnosedNode(Node):
 
     def __init__(self, node_name: str) -> None:
         """Create the /diagnostics publisher and the heartbeat timer."""
+        # set before rclpy's Node subscribes to anything (its /clock, with use_sim_time)
+        self.checked_readers: list[tuple[str, QoSProfile]] = []  # check_publishers_qos
         super().__init__(node_name)
         self._problems: dict[str, _Problem] = {}
         self.callback_errors = 0
@@ -190,15 +193,33 @@ class DiagnosedNode(Node):
         qos_profile: QoSProfile | int,
         **kwargs: Any,
     ) -> Subscription[Any]:
-        """A subscription; a best-effort one without rclpy's default QoS event handlers.
+        """A subscription without rclpy's default QoS event handlers (polled at every wait).
 
-        Every publisher is compatible with a best-effort, volatile reader, so its
-        incompatible-QoS warning can never come; a reliable or latched reader keeps it (a
-        best-effort ``stop`` publisher is refused with that warning).
+        A reliable or latched reader is checked against its topic's publishers from the graph
+        instead, every ``QOS_CHECK_HEARTBEATS`` heartbeats (:meth:`check_publishers_qos`): a
+        publisher it cannot match (a best-effort ``stop``) is a WARN on /diagnostics. Every
+        publisher is compatible with a best-effort, volatile reader: it is not checked.
         """
-        if is_best_effort_volatile(qos_profile):
-            kwargs.setdefault("event_callbacks", quiet_event_callbacks("Subscription"))
-        return super().create_subscription(msg_type, topic, callback, qos_profile, **kwargs)
+        kwargs.setdefault("event_callbacks", quiet_event_callbacks("Subscription"))
+        subscription = super().create_subscription(msg_type, topic, callback, qos_profile, **kwargs)
+        qos = qos_profile if isinstance(qos_profile, QoSProfile) else QoSProfile(depth=qos_profile)
+        if not is_best_effort_volatile(qos):
+            self.checked_readers.append((subscription.topic_name, qos))
+        return subscription
+
+    def check_publishers_qos(self) -> None:
+        """WARN about each publisher a reader of this node cannot match (from the graph)."""
+        for topic, qos in self.checked_readers:
+            publishers = incompatible_publishers(self, topic, qos)
+            if publishers:
+                self.report_problem(
+                    f"incompatible QoS on {topic}",
+                    DiagnosticStatus.WARN,
+                    f"{', '.join(publishers)} publishes {topic} with a QoS this node's reader "
+                    "cannot match: none of its messages arrive (publish reliable, and "
+                    "transient local where the topic is latched)",
+                    hold_s=QOS_CHECK_HEARTBEATS * HEARTBEAT_PERIOD_S + PROBLEM_HOLD_S,
+                )
 
     def _keep_wall_clock(self, parameters: list[Parameter[Any]]) -> SetParametersResult:
         for parameter in parameters:
@@ -427,6 +448,8 @@ class DiagnosedNode(Node):
         """Publish the heartbeat: the worst of the summary and the current problems."""
         self.last_heartbeat_s = time.monotonic()
         self.heartbeats += 1
+        if self.heartbeats % QOS_CHECK_HEARTBEATS == 1:
+            self.check_publishers_qos()
         level, message = self.diagnostic_summary()
         problems = self.current_problems()
         values = dict(self.diagnostic_values())

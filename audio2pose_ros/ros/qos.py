@@ -1,8 +1,22 @@
-"""The QoS profiles the graph's topics use, defined once for the nodes, tools and tests."""
+"""The QoS profiles the graph's topics use, defined once, and the check of a topic's publishers.
+
+The nodes create no QoS event handlers (rclpy's default ones are polled in Python at every wait
+of the SingleThreadedExecutor: half the cost of an idle round of the motion filter). A publisher
+whose QoS a node's reader cannot match (a best-effort ``stop``) is found from the graph instead
+(:func:`incompatible_publishers`, with rclpy's own ``qos_check_compatible``), on every distro.
+"""
 
 from __future__ import annotations
 
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.node import Node
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSCompatibility,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_check_compatible,
+)
 
 # Audio: best effort matches both reliable and best-effort publishers (audio_capture is reliable);
 # a deep queue absorbs bursts from GStreamer without dropping chunks.
@@ -22,10 +36,23 @@ STREAM_QOS = QoSProfile(
 )
 
 
-def is_best_effort_volatile(qos: QoSProfile | int) -> bool:
+def is_best_effort_volatile(qos: QoSProfile) -> bool:
     """Whether ``qos`` is a best-effort, volatile profile (every publisher is compatible)."""
     return (
-        isinstance(qos, QoSProfile)
-        and qos.reliability == ReliabilityPolicy.BEST_EFFORT
+        qos.reliability == ReliabilityPolicy.BEST_EFFORT
         and qos.durability != DurabilityPolicy.TRANSIENT_LOCAL
     )
+
+
+def incompatible_publishers(node: Node, topic: str, reader: QoSProfile) -> list[str]:
+    """The publishers of ``topic`` (fully qualified) whose QoS ``reader`` cannot match.
+
+    Each as ``"<node> (<reason>)"``: their messages never reach the reader.
+    """
+    found = []
+    for info in node.get_publishers_info_by_topic(topic):
+        compatibility, reason = qos_check_compatible(info.qos_profile, reader)
+        if compatibility == QoSCompatibility.ERROR:
+            name = f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+            found.append(f"{name} ({reason.strip()})")
+    return found
