@@ -284,3 +284,15 @@ def test_when_a_restart_cannot_be_started_expect_a_failure_like_a_crash_and_the_
         assert len(supervisor.restarts["crashing"]) == 3
     finally:
         supervisor.stop()
+
+
+def test_when_run_and_launch_restart_a_node_expect_one_policy():
+    """`audio2pose run` restarts as the launch file does: the same RespawnBudget decides."""
+    supervisor = NodeSupervisor({"node": _python("pass")}, None)
+    launch = RespawnBudget()  # what launch/pepper.launch.py builds
+    assert supervisor.budget == launch
+    decisions = [supervisor.budget.on_exit("node", 1, ran_s=0.5) for _ in range(6)]
+    expected = [launch.on_exit("node", 1, ran_s=0.5) for _ in range(6)]
+    assert decisions == expected
+    assert [d.delay_s for d in decisions if d.restart] == [0.0, 2.0, 4.0, 8.0, 8.0]
+    assert not decisions[-1].restart  # the sixth crash in a row gives up
