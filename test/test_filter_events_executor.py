@@ -21,6 +21,7 @@ from audio2pose_ros.ros import spin
 from audio2pose_ros.ros.messages import trajectory_msg
 from audio2pose_ros.ros.nodes import motion_filter_node, single_process
 from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
+from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.topics import RAW_TRAJECTORY, absolute
 
 pytestmark = pytest.mark.ros
@@ -65,7 +66,7 @@ def test_when_started_with_default_settings_expect_the_stock_single_threaded_exe
 
 def test_when_events_is_asked_for_expect_the_events_executor(events_available, monkeypatch):
     monkeypatch.setenv(executors.EXECUTOR_ENV, executors.EVENTS)
-    with rclpy.init():
+    with rclpy_session():
         assert type(executors.create_executor()).__name__ == events_available.__name__
 
 
@@ -74,7 +75,7 @@ def started_filter(tmp_path, monkeypatch):
     """A started filter node and a publisher node, not yet added to an executor."""
     monkeypatch.setenv("ROS_HOME", str(tmp_path))
     monkeypatch.setenv(executors.EXECUTOR_ENV, executors.EVENTS)
-    with rclpy.init(args=["--ros-args", "-p", f"state_file:={tmp_path / 'state.json'}"]):
+    with rclpy_session(["--ros-args", "-p", f"state_file:={tmp_path / 'state.json'}"]):
         node = MotionFilterNode()
         publisher_node = rclpy.create_node("backlog_publisher")
         node.on_startup_timeout()  # started (from neutral): the filter ticks

@@ -11,12 +11,12 @@ import threading
 import time
 
 import pytest
-import rclpy
 from std_msgs.msg import Bool
 
 from audio2pose_ros.motion import state_file
 from audio2pose_ros.motion.state_file import FilterMemory, StateStore, StateWriter, load_memory
 from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
+from audio2pose_ros.ros.player import rclpy_session
 
 WAIT_S = 30  # bounds a hung thread only: no verdict on time
 
@@ -77,7 +77,7 @@ def filter_node(tmp_path, monkeypatch, events):
         "-p",
         "state_save_period_s:=0.05",
     ]
-    with rclpy.init(args=args):
+    with rclpy_session(args):
         node = MotionFilterNode(subscribe_graph=False)
         logger = Logger(node.get_logger(), events)
         monkeypatch.setattr(node, "get_logger", lambda: logger)

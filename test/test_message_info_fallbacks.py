@@ -27,6 +27,7 @@ from audio2pose_ros.motion.state_file import FilterMemory, save_memory
 from audio2pose_ros.ros import subscriptions
 from audio2pose_ros.ros.messages import published_s, publisher_of, trajectory_msg
 from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
+from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.qos import LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.ros.spin import spin_once
 from audio2pose_ros.ros.subscriptions import LatestMessage, SequenceGaps, quiet_event_callbacks
@@ -193,7 +194,7 @@ def test_when_rclpy_event_handler_is_missing_expect_the_qos_event_classes(monkey
     callbacks = quiet_event_callbacks("Subscription")
     assert asked == ["rclpy.event_handler", "rclpy.qos_event"]
     assert callbacks.use_default_callbacks is False
-    with rclpy.init():
+    with rclpy_session():
         node = rclpy.create_node("humble_events")
         node.create_subscription(
             Bool, "humble_events", lambda m: None, 1, event_callbacks=callbacks

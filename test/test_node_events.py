@@ -17,6 +17,7 @@ from rclpy.qos import qos_profile_sensor_data
 from std_msgs.msg import Bool
 
 from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
+from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.qos import LATCHED_QOS, STREAM_QOS
 
 pytestmark = pytest.mark.ros
@@ -24,7 +25,7 @@ pytestmark = pytest.mark.ros
 
 @pytest.fixture
 def node():
-    with rclpy.init():
+    with rclpy_session():
         node = DiagnosedNode("event_handler_check")
         yield node
         node.destroy_node()

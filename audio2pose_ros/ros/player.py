@@ -67,13 +67,13 @@ def replay_qos(msgtype: str) -> QoSProfile:
 
 
 @contextmanager
-def rclpy_session() -> Iterator[None]:
-    """Rclpy initialised for the ``with`` block and shut down after it.
+def rclpy_session(args: list[str] | None = None) -> Iterator[None]:
+    """Rclpy initialised (with ``args``) for the ``with`` block and shut down after it.
 
-    For the processes that play into a graph (the runner, the bench, bag replay): ``with
-    rclpy.init()`` is not available on Humble, whose ``init`` returns nothing.
+    For the processes that play into a graph (the runner, the bench, bag replay) and the tests:
+    ``with rclpy.init()`` is not available on Humble nor Jazzy, whose ``init`` returns nothing.
     """
-    rclpy.init()
+    rclpy.init(args=args)
     try:
         yield
     finally:
