@@ -6,20 +6,18 @@ address (:func:`~audio2pose_ros.console.access.client_key`) at once, before any 
 them together :data:`CONNECTIONS_PER_CLIENT` times ``max_clients`` more than that. Beyond a
 limit the connection is closed at once: answered 503 on plain HTTP, and over TLS before its
 handshake, so a refused client costs the console no handshake. An admitted connection is
-handed to aiohttp (after its TLS handshake, within ``auth_timeout_s``). :class:`Site` is
-aiohttp's TCP site with this protocol. The server that owns the door
-(:class:`~audio2pose_ros.console.server.ConsoleServer`) is seen through :class:`Door`.
+handed to aiohttp (after its TLS handshake, within ``auth_timeout_s``): to the protocol that
+aiohttp's public low-level server (``web.AppRunner.server``, a ``web.Server``) makes for it.
+The listening socket is asyncio's own (``loop.create_server`` with the gate as protocol). The
+server that owns the door (:class:`~audio2pose_ros.console.server.ConsoleServer`) is seen
+through :class:`Door`.
 """
 
 from __future__ import annotations
 
 import asyncio
-import socket
 import ssl
-from collections.abc import Callable
 from typing import Protocol
-
-from aiohttp import web
 
 from audio2pose_ros.console.access import client_key
 
@@ -30,7 +28,6 @@ __all__ = [
     "Connections",
     "Door",
     "Gate",
-    "Site",
 ]
 
 # Open TCP connections at most, per max_clients: a browser loads the page over up to 6, and
@@ -117,6 +114,12 @@ class Connections:
                 if gate.handed is transport:
                     gate.operator = True
 
+    def close_all(self) -> None:
+        """Close every connection still counted (the console stops)."""
+        for gates in list(self.by_address.values()):
+            for gate in list(gates):
+                gate.evict()
+
     def lost(self, key: str, gate: Gate) -> None:
         """``gate``, a connection of ``key``, has ended (or been closed for a newcomer)."""
         gates = self.by_address.get(key, [])
@@ -140,7 +143,7 @@ class Gate(asyncio.Protocol):
     """
 
     def __init__(self, server: Door) -> None:
-        self._server = server
+        self._door = server
         self._inner: asyncio.Protocol | None = None
         self._key: str | None = None  # counted under this address until it ends
         self._transport: asyncio.BaseTransport | None = None
@@ -154,9 +157,9 @@ class Gate(asyncio.Protocol):
         """Admit or refuse; start TLS or hand it over."""
         peer = transport.get_extra_info("peername")
         key = client_key(str(peer[0]) if isinstance(peer, tuple) and peer else "?")
-        tls = self._server.tls
+        tls = self._door.tls
         self._transport = transport
-        if not self._server.admit(key, self):
+        if not self._door.admit(key, self):
             if tls is None and isinstance(transport, asyncio.WriteTransport):
                 transport.write(BUSY_RESPONSE)
             transport.close()
@@ -182,7 +185,7 @@ class Gate(asyncio.Protocol):
                 self,
                 context,
                 server_side=True,
-                ssl_handshake_timeout=self._server.handshake_timeout_s,
+                ssl_handshake_timeout=self._door.handshake_timeout_s,
             )
         except (OSError, ssl.SSLError, asyncio.TimeoutError, ConnectionError, RuntimeError):
             transport.close()  # a failed or late handshake ends this connection only
@@ -195,7 +198,7 @@ class Gate(asyncio.Protocol):
     def _forget(self) -> None:
         """Stop counting this connection (once)."""
         if self._key is not None:
-            self._server.lost(self._key, self)
+            self._door.lost(self._key, self)
             self._key = None
 
     def evict(self) -> None:
@@ -206,7 +209,7 @@ class Gate(asyncio.Protocol):
 
     def _hand_over(self, transport: asyncio.BaseTransport) -> None:
         self.handed = transport
-        inner = self._inner = self._server.http_protocol()
+        inner = self._inner = self._door.http_protocol()
         inner.connection_made(transport)
         for data in self._early:
             inner.data_received(data)
@@ -245,47 +248,3 @@ class Gate(asyncio.Protocol):
         """To aiohttp."""
         if self._inner is not None:
             self._inner.resume_writing()
-
-
-class Site(web.BaseSite):
-    """aiohttp's TCP site with its own protocol factory; TLS is started by each :class:`Gate`.
-
-    Args:
-        runner: the application's runner (set up).
-        host: address to bind.
-        port: TCP port (0: any free one).
-        ssl_context: TLS, or None for plain HTTP (for the site's name only).
-        accept: makes the protocol of each new connection.
-    """
-
-    def __init__(
-        self,
-        runner: web.AppRunner,
-        host: str,
-        port: int,
-        ssl_context: ssl.SSLContext | None,
-        accept: Callable[[], asyncio.BaseProtocol],
-    ) -> None:
-        super().__init__(runner, ssl_context=ssl_context)
-        self._host = host
-        self._port = port
-        self._accept = accept
-        self.sockets: list[socket.socket] = []
-
-    @property
-    def name(self) -> str:
-        """The site's address."""
-        return f"{'https' if self._ssl_context else 'http'}://{self._host}:{self._port}"
-
-    async def start(self) -> None:
-        """Bind and serve.
-
-        Raises:
-            OSError: the address cannot be bound.
-        """
-        await super().start()
-        server = await asyncio.get_running_loop().create_server(
-            self._accept, self._host, self._port, backlog=self._backlog
-        )
-        self._server = server
-        self.sockets = list(server.sockets)

@@ -77,7 +77,6 @@ from audio2pose_ros.console.door import (
     CONNECTIONS_PER_CLIENT,
     Connections,
     Gate,
-    Site,
 )
 from audio2pose_ros.console.enrollment import Enrollments, default_work_dir
 from audio2pose_ros.console.learn_style import LearnMyStyle
@@ -114,6 +113,7 @@ MAX_AUDIO_FRAMES_PER_S = 100.0
 # stall, meets the seconds budget first; only chunks shorter than 15 ms meet this one, which
 # bounds the messages a talker causes downstream (one ROS message each), not only their seconds.
 AUDIO_FRAMES_BURST = 100.0
+LISTEN_BACKLOG = 128  # connections the kernel queues before the console accepts them
 PENDING_PER_ADDRESS = 2  # WebSockets of one address waiting for their token, at most
 SUMMARY_PERIOD_S = 10.0  # refused connections and wrong tokens are logged this often at most
 MAX_TALLIED_ADDRESSES = 1024  # addresses named in one summary's counts, at most
@@ -249,6 +249,7 @@ class ConsoleServer:
         self.port = 0
         self._ids = itertools.count(1)
         self._runner: web.AppRunner | None = None
+        self._listener: asyncio.Server | None = None
         self._tasks: list[asyncio.Task[None]] = []
         self._tcp = Connections(
             CONNECTIONS_PER_CLIENT * settings.max_clients + CONNECTIONS_PER_ADDRESS,
@@ -315,16 +316,17 @@ class ConsoleServer:
         )
         await self._runner.setup()
         self.tls = self._ssl_context()
-        site = Site(self._runner, self.access.host, self.access.port, self.tls, self._accept)
-        try:
-            await site.start()
+        try:  # every connection starts at its gate (the door), which hands it to aiohttp
+            self._listener = await asyncio.get_running_loop().create_server(
+                self._accept, self.access.host, self.access.port, backlog=LISTEN_BACKLOG
+            )
         except OSError as exc:
             await self._runner.cleanup()
             raise ConfigurationError(
                 f"parameters host and port: cannot listen on {self.access.host}:"
                 f"{self.access.port}: {exc.strerror or exc}"
             ) from None
-        sockets = site.sockets  # the bound socket tells the port chosen for port 0
+        sockets = self._listener.sockets  # the bound socket tells the port chosen for port 0
         self.port = int(sockets[0].getsockname()[1]) if sockets else self.access.port
         self._tasks = [
             asyncio.create_task(self._every(1.0 / self.settings.pose_rate_hz, self._send_pose)),
@@ -338,10 +340,13 @@ class ConsoleServer:
         for task in self._tasks:
             task.cancel()
         self.learn_style.stop()
+        if self._listener is not None:
+            self._listener.close()  # no new connections
         for session in list(self.sessions.values()):
             await session.ws.close(code=1001, message=b"console stopping")
         if self._runner is not None:
-            await self._runner.cleanup()
+            await self._runner.cleanup()  # aiohttp closes the connections it was handed
+        self._tcp.close_all()  # and the door those it still holds (a TLS handshake, say)
 
     async def _every(self, period_s: float, send: Callable[[], Awaitable[None]]) -> None:
         failed = ""  # the last failure, logged once until it changes or sending works again
