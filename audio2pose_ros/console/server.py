@@ -10,10 +10,13 @@ operator may do to the robot (the floor, the stop and its owners, the settings) 
 
 1. **The TCP connection**, counted by its client address from its acceptance, before any TLS
    handshake, by the console's front door (:mod:`~audio2pose_ros.console.door`): one address
-   may hold a limited share, all addresses together enough for ``max_clients`` operators more,
-   and a newcomer may take the place of the oldest connection of the address holding the most
-   (never an identified operator's). A connection beyond a limit is closed at once (answered
-   503 on plain HTTP; over TLS before its handshake). A connection must complete its TLS
+   may hold a limited share, all addresses together enough for ``max_clients`` operators more.
+   A newcomer beyond a limit takes the place of a connection that has made no request yet
+   (silent first, of the address holding the most, the oldest): connections that wait for
+   nothing cannot keep new operators out, however fast they come back, and a connection that
+   has made a request (a page, a WebSocket, an operator) is never closed for anyone. Only when
+   no connection waits is the newcomer closed at once (answered 503 on plain HTTP; over TLS
+   before its handshake). A connection must complete its TLS
    handshake, and then its request, within ``auth_timeout_s`` each, and an idle connection is
    closed after as long (aiohttp's own default is an hour: idle or half-sent requests would
    hold sockets that long).
@@ -98,6 +101,8 @@ from audio2pose_ros.console.stop import unique_name
 from audio2pose_ros.errors import ConfigurationError
 
 __all__ = ["ConsoleServer", "GraphBridge"]
+
+Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]  # what a middleware wraps
 
 HEARTBEAT_S = 5.0  # WebSocket ping period; a peer that misses a pong is dropped
 STATUS_PERIOD_S = 0.5
@@ -254,6 +259,9 @@ class ConsoleServer:
         self._tcp = Connections(
             CONNECTIONS_PER_CLIENT * settings.max_clients + CONNECTIONS_PER_ADDRESS,
             CONNECTIONS_PER_ADDRESS,
+            on_evict=lambda key: self._tally(
+                self._refusals, f"{key} (waiting connections closed for newcomers)"
+            ),
         )
         self.tls: ssl.SSLContext | None = None
         self.handshake_timeout_s = settings.auth_timeout_s
@@ -299,7 +307,16 @@ class ConsoleServer:
         Raises:
             ConfigurationError: the certificate does not load, or the address cannot be bound.
         """
-        app = web.Application(middlewares=[_security_headers], client_max_size=MAX_TEXT_BYTES)
+
+        @web.middleware
+        async def requested(request: web.Request, handler: Handler) -> web.StreamResponse:
+            """The connection makes a request: it is no longer closed for a newcomer."""
+            self._tcp.requested(request.transport)
+            return await handler(request)
+
+        app = web.Application(
+            middlewares=[requested, _security_headers], client_max_size=MAX_TEXT_BYTES
+        )
         app.router.add_get("/", self._index)
         app.router.add_get("/ws", self._websocket)
         app.router.add_get("/urdf/pepper.urdf", self._urdf)
@@ -401,7 +418,7 @@ class ConsoleServer:
             worst = sorted(refusals.items(), key=lambda item: -item[1])[:3]
             self.log(
                 "warning",
-                f"console: {sum(refusals.values())} connection(s) refused in the last "
+                f"console: {sum(refusals.values())} connection(s) refused or closed in the last "
                 f"{self.summary_period_s:g} s: "
                 + ", ".join(f"{count} from {why}" for why, count in worst)
                 + (" and more" if len(refusals) > len(worst) else ""),
@@ -481,7 +498,6 @@ class ConsoleServer:
             identified = await self._authenticate(session)
             pending = self._unpend(key)
             if identified and await self._room_for(session):
-                self._tcp.keep(request.transport)
                 self.sessions[session.id] = session
                 self.log("info", f"console: operator {session.name!r} connected from {peer}")
                 await self._welcome(session)
@@ -767,9 +783,7 @@ def _close_reason(text: str) -> bytes:
 
 
 @web.middleware
-async def _security_headers(
-    request: web.Request, handler: Callable[[web.Request], Awaitable[web.StreamResponse]]
-) -> web.StreamResponse:
+async def _security_headers(request: web.Request, handler: Handler) -> web.StreamResponse:
     """Every answer carries the console's security headers (a WebSocket's upgrade excepted)."""
     response = await handler(request)
     if not isinstance(response, web.WebSocketResponse):
