@@ -67,13 +67,13 @@ class Connections:
     it has sent nothing (a browser's speculative preconnect, or a hog), or only part of a
     request. Only a waiting connection is ever closed for a newcomer, and only when the newcomer
     finds no place: its address holding ``per_address`` (then one of that address's waiting
-    connections goes) or all ``limit`` open (then one of any address). The one that goes is
-    silent before one that has sent part of a request, of the address holding the most waiting
-    ones, the oldest. A newcomer is refused only when every connection that could make room is
-    making a request, a WebSocket or an operator's. So connections that wait for nothing, even
-    reopened the moment they are closed, cannot keep a way in shut; a page that makes its
-    requests is never closed for anyone, nor an operator's WebSocket; and no connection is closed
-    while there is room.
+    connections goes) or all ``limit`` open (then one of any address). The one that goes is the
+    oldest waiting connection of the address holding the most waiting ones (the newcomer, the
+    newest, is about to send its request). A newcomer is refused only when every connection
+    that could make room serves a request, a WebSocket or an operator. So connections that wait
+    for nothing, even reopened the moment they are closed, cannot keep a way in shut; a page
+    that makes its requests is never closed for anyone, nor an operator's WebSocket; and no
+    connection is closed while there is room.
 
     Args:
         limit: connections open at once, at most.
@@ -116,10 +116,10 @@ class Connections:
         victims = []
         for key, gates in among.items():
             waiting = [gate for gate in gates if gate.waiting]  # in order of acceptance
-            victims += [(g.heard, -len(waiting), age, key, g) for age, g in enumerate(waiting)]
+            victims += [(-len(waiting), age, key, g) for age, g in enumerate(waiting)]
         if not victims:
             return False
-        *_, key, victim = min(victims, key=lambda v: v[:3])
+        *_, key, victim = min(victims, key=lambda v: v[:2])
         self.evicted += 1
         self.on_evict(key)
         victim.evict()
@@ -155,9 +155,11 @@ class Gate(asyncio.Protocol):
     The connection counts towards its address's limit (:class:`Connections`) as soon as it is
     accepted; when it finds no place and none can be made, it is closed at once: answered 503
     on plain HTTP, and over TLS before its handshake, so a refused client costs the console no
-    handshake. An admitted TLS connection is handed to aiohttp after its handshake
-    (``auth_timeout_s`` at most). Until aiohttp handles a request on it, it *waits* and may be
-    closed for a newcomer (:meth:`evict`).
+    handshake. An admitted connection is handed to aiohttp at its first byte (a TLS one at its
+    first byte after its handshake, which takes ``auth_timeout_s`` at most): aiohttp's clock
+    for the request starts there, and a connection that has sent nothing stays at the door,
+    however long (a browser's speculative connection). Until aiohttp handles a request on it,
+    it *waits* and may be closed for a newcomer (:meth:`evict`).
 
     Args:
         server: the console.
@@ -168,9 +170,9 @@ class Gate(asyncio.Protocol):
         self._inner: asyncio.Protocol | None = None
         self._key: str | None = None  # counted under this address until it ends
         self._transport: asyncio.BaseTransport | None = None
+        self._ready: asyncio.BaseTransport | None = None  # for aiohttp, at the first byte
         self.handed: asyncio.BaseTransport | None = None  # the transport aiohttp has
         self.waiting = True  # no request handled on it yet: it may be closed for a newcomer
-        self.heard = False  # it has sent something
         self._early: list[bytes] = []  # application data before aiohttp has the connection
         self._eof = False
         self._handshake: asyncio.Task[None] | None = None
@@ -188,7 +190,7 @@ class Gate(asyncio.Protocol):
             return
         self._key = key
         if tls is None:
-            self._hand_over(transport)
+            self._ready = transport  # handed over at its first byte
             return
         assert isinstance(transport, asyncio.Transport)
         transport.pause_reading()  # its first bytes are the handshake's, not ours to read
@@ -215,8 +217,9 @@ class Gate(asyncio.Protocol):
             if secure is None or secure.is_closing():
                 self._forget()
         if secure is not None and not secure.is_closing():
-            self.heard = True  # its handshake
-            self._hand_over(secure)
+            self._ready = secure  # handed over at its first byte (now if it has come)
+            if self._early or self._eof:
+                self._hand_over(secure)
 
     def _forget(self) -> None:
         """Stop counting this connection (once)."""
@@ -249,19 +252,22 @@ class Gate(asyncio.Protocol):
             self._inner.connection_lost(exc)
 
     def data_received(self, data: bytes) -> None:
-        """To aiohttp (kept until aiohttp has the connection)."""
-        self.heard = True
+        """To aiohttp: the first byte hands the connection over (kept until then)."""
         if self._inner is not None:
             self._inner.data_received(data)
-        else:
-            self._early.append(data)
+            return
+        self._early.append(data)
+        if self._ready is not None:
+            self._hand_over(self._ready)
 
     def eof_received(self) -> bool | None:
-        """To aiohttp (kept until aiohttp has the connection)."""
+        """To aiohttp; a connection that ends without a byte is closed here."""
         if self._inner is not None:
             return self._inner.eof_received()
+        if self._ready is not None:
+            return False  # it said nothing: nothing to hand over
         self._eof = True
-        return True  # keep the transport open until it is handed over
+        return True  # its handshake's end is still being read: kept until it is handed over
 
     def pause_writing(self) -> None:
         """To aiohttp."""

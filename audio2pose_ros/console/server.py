@@ -12,14 +12,16 @@ operator may do to the robot (the floor, the stop and its owners, the settings) 
    handshake, by the console's front door (:mod:`~audio2pose_ros.console.door`): one address
    may hold a limited share, all addresses together enough for ``max_clients`` operators more.
    A newcomer beyond a limit takes the place of a connection that has made no request yet
-   (silent first, of the address holding the most, the oldest): connections that wait for
+   (the oldest of the address holding the most): connections that wait for
    nothing cannot keep new operators out, however fast they come back, and a connection that
    has made a request (a page, a WebSocket, an operator) is never closed for anyone. Only when
    no connection waits is the newcomer closed at once (answered 503 on plain HTTP; over TLS
-   before its handshake). A connection must complete its TLS
-   handshake, and then its request, within ``auth_timeout_s`` each, and an idle connection is
-   closed after as long (aiohttp's own default is an hour: idle or half-sent requests would
-   hold sockets that long).
+   before its handshake). A connection must complete its TLS handshake within
+   ``auth_timeout_s``, and a request within as long of its first byte; an idle keep-alive
+   connection is closed after as long (aiohttp's own default is an hour: half-sent requests
+   would hold sockets that long). A connection that has sent nothing yet (a browser opens one
+   before it knows its request, and may send it seconds later on a loaded machine) is closed
+   only to make room.
 2. **Before the upgrade**: the Host and Origin checks of
    :func:`~audio2pose_ros.console.access.request_problem` (403), ``max_clients`` identified
    operators, and :data:`PENDING_PER_ADDRESS` WebSockets of one address still waiting for their
@@ -323,8 +325,9 @@ class ConsoleServer:
         app.router.add_get("/favicon.ico", self._no_icon)
         app.router.add_get("/{name}", self._file)
         app.router.add_post("/enroll/{ticket}", self.learn_style.upload)
-        # A connection's clock starts when it is made: a request not complete by then, or an
-        # idle keep-alive connection, is closed (the page's few files load within milliseconds).
+        # A request's clock starts at its first byte (the door hands a connection over then): a
+        # request not complete by then, or an idle keep-alive connection, is closed (the page's
+        # few files load within milliseconds).
         self._runner = web.AppRunner(
             app,
             access_log=None,
