@@ -282,7 +282,11 @@ class ConsoleServer:
             bridge,
             log,
             refused=lambda why: self._tally(self._refusals, why),
-            may_apply=lambda id_: id_ in self.sessions and self.floor.free_for(id_),
+            may_apply=lambda id_: (
+                id_ in self.sessions
+                and self.floor.free_for(id_)
+                and self.room.style_may_change(id_)
+            ),
         )
         self.room = Room(bridge, self.learn_style, self.sessions.values, self._send_to, log)
         self.floor, self.stops = self.room.floor, self.room.stops
