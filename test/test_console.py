@@ -580,10 +580,14 @@ def test_when_two_operators_talk_expect_one_floor_and_its_release_on_disconnect(
             await until(bob, "floor", holder=None)
             await bob.send_str('{"type":"talk","on":true}')
             await until(bob, "floor", holder="Bob", you=True)
-            await bob.send_str('{"type":"style_set","arms_gain":0.2}')
+            await bob.send_str('{"type":"style_set","arms_gain":0.2}')  # waits for the release
+            assert "held by Bob" in (await until(bob, "error"))["message"]
             await bob.send_str('{"type":"enable","on":false}')
             await bob.send_str('{"type":"stop","on":false}')  # his own stop: his to release
             await until(bob, "stop_holders", holders=[], you=False)
+            await bob.send_str('{"type":"style_set","arms_gain":0.2}')
+            await bob.send_str('{"type":"ping","t":1}')
+            await until(bob, "pong")  # the style was acted on before
 
     with serving(tmp_path) as (base, bridge):
         run(scenario(base, bridge))
@@ -593,9 +597,9 @@ def test_when_two_operators_talk_expect_one_floor_and_its_release_on_disconnect(
         ("stop", True),
         ("end", None),
         ("start", None),
-        ("style", {"arms_gain": 0.2}),
         ("enable", False),
         ("stop", False),
+        ("style", {"arms_gain": 0.2}),
         ("end", None),
     ]
 
