@@ -447,6 +447,36 @@ def test_when_an_observer_stops_the_robot_expect_every_page_names_them_and_only_
     talker.close()
 
 
+def test_when_a_stop_is_latched_expect_every_pages_style_controls_to_wait(
+    console: Console, browser
+):
+    """While one operator's STOP held the robot, another's style changes were taken, and at the
+    release the robot moved in a style its presser never saw. While the stop is latched every
+    page's style controls are off and say why (the console refuses such a change); the
+    release brings them back."""
+    observer = _open(browser, console, name="Observer")
+    stylist = _open(browser, console, name="Stylist")
+    stylist.wait_for_selector("#style-arms_gain")
+    observer.click("#stop")
+    try:
+        for page in (observer, stylist):
+            page.wait_for_function("window.a2p.styleHeld === true")
+            assert page.is_disabled("#style-preset")
+            assert page.is_disabled("#style-arms_gain")
+            assert page.is_disabled("#style-personal")
+            wait = page.text_content("#style-wait")
+            assert wait == "Style changes wait until the stop is released.", wait
+        stylist.screenshot(path=str(console.shots / "console_page_style_waits.png"))
+    finally:  # the next tests need a robot that moves
+        observer.click("#release")
+    stylist.wait_for_function("window.a2p.styleHeld === false")
+    assert stylist.is_enabled("#style-preset")
+    assert stylist.is_enabled("#style-arms_gain")
+    assert stylist.text_content("#style-wait") == ""
+    observer.close()
+    stylist.close()
+
+
 def test_when_the_operator_sets_the_style_and_disables_motion_expect_the_filter_to_follow(
     console: Console, browser
 ):
