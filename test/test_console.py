@@ -12,14 +12,12 @@ import math
 import os
 import re
 import select
-import selectors
 import shutil
 import socket
 import ssl
 import struct
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -28,6 +26,7 @@ from typing import Any
 
 import aiohttp
 import pytest
+from console_hogs import Hogs
 
 from audio2pose_ros.console.access import (
     MIN_TOKEN_CHARS,
@@ -1034,48 +1033,6 @@ def test_when_one_address_holds_tls_connections_expect_the_oldest_closed_before_
     assert ends[0].startswith(REFUSED), ends
     assert set(ends[1:]) == {b"(open)"}, ends
     assert bridge.calls == [("stop", True)]
-
-
-class Hogs:
-    """``count`` TCP connections to ``port`` that send nothing, from ``sources`` in turn, each
-    opened again the moment the console closes it, by a thread, until :meth:`stop`."""
-
-    def __init__(self, port: int, sources: list[str], count: int) -> None:
-        self.port = port
-        self.selector = selectors.DefaultSelector()
-        self.reopened = 0
-        self.stopping = threading.Event()
-        for i in range(count):
-            self._open(sources[i % len(sources)])
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _open(self, source: str) -> None:
-        sock = idle_socket(self.port, source)
-        sock.setblocking(False)
-        self.selector.register(sock, selectors.EVENT_READ, source)
-
-    def _run(self) -> None:
-        while not self.stopping.is_set():
-            for key, _ in self.selector.select(0.05):
-                sock = key.fileobj
-                assert isinstance(sock, socket.socket)
-                try:
-                    if sock.recv(4096):
-                        continue  # a 503 before the end: read on to it
-                except OSError:
-                    pass
-                self.selector.unregister(sock)
-                sock.close()
-                if not self.stopping.is_set():
-                    self._open(key.data)
-                    self.reopened += 1
-
-    def stop(self) -> None:
-        self.stopping.set()
-        self.thread.join()
-        for key in list(self.selector.get_map().values()):
-            key.fileobj.close()  # type: ignore[union-attr]
 
 
 async def newcomer(base: str, source: str) -> bool:

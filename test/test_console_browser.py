@@ -17,6 +17,7 @@ import shutil
 import tempfile
 import threading
 import time
+import urllib.parse
 import urllib.request
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -445,6 +446,34 @@ def test_when_an_observer_stops_the_robot_expect_every_page_names_them_and_only_
                 talker.click("#release-confirm-yes", timeout=5000)
     talker.click("#talk")
     talker.close()
+
+
+def test_when_idle_connections_hold_the_browsers_address_expect_the_page_in_and_stop_taken(
+    console: Console, browser
+):
+    """Connections from the browser's own address that send nothing, each reopened the moment
+    the console closed it, held all of that address's connections: a new page was answered
+    503. Each connection the page makes takes the place of one of them: the page loads, its
+    operator is welcomed, and its STOP is taken and released."""
+    from console_hogs import Hogs
+
+    from audio2pose_ros.console.door import CONNECTIONS_PER_ADDRESS
+
+    port = urllib.parse.urlsplit(console.url).port
+    assert port is not None
+    hogs = Hogs(port, ["127.0.0.1"], CONNECTIONS_PER_ADDRESS)
+    try:
+        page = _open(browser, console, name="Crowded")
+        page.click("#stop")
+        try:
+            page.wait_for_function("window.a2p.stopYou === true")
+        finally:  # the next tests need a robot that moves
+            page.click("#release")
+        page.wait_for_function("window.a2p.stopHolders.length === 0")
+    finally:
+        hogs.stop()
+    assert hogs.reopened > 0  # the page's connections took the hogs' places
+    page.close()
 
 
 def test_when_a_stop_is_latched_expect_every_pages_style_controls_to_wait(
