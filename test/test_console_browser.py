@@ -448,20 +448,23 @@ def test_when_an_observer_stops_the_robot_expect_every_page_names_them_and_only_
     talker.close()
 
 
-def test_when_idle_connections_hold_the_browsers_address_expect_the_page_in_and_stop_taken(
+def test_when_idle_connections_fill_the_door_expect_a_page_in_and_its_stop_taken(
     console: Console, browser
 ):
-    """Connections from the browser's own address that send nothing, each reopened the moment
-    the console closed it, held all of that address's connections: a new page was answered
-    503. Each connection the page makes takes the place of one of them: the page loads, its
+    """Idle connections from other addresses fill every connection of the console, each
+    reopened the moment it is closed. The page's connections (its speculative ones included:
+    its address never holds the most waiting ones) are never the ones closed: it loads, its
     operator is welcomed, and its STOP is taken and released."""
     from console_hogs import Hogs
 
-    from audio2pose_ros.console.door import CONNECTIONS_PER_ADDRESS
+    from audio2pose_ros.console.door import CONNECTIONS_PER_ADDRESS, CONNECTIONS_PER_CLIENT
+    from audio2pose_ros.console.settings import ConsoleSettings
 
     port = urllib.parse.urlsplit(console.url).port
     assert port is not None
-    hogs = Hogs(port, ["127.0.0.1"], CONNECTIONS_PER_ADDRESS)
+    limit = CONNECTIONS_PER_CLIENT * ConsoleSettings().max_clients + CONNECTIONS_PER_ADDRESS
+    sources = [f"127.0.3.{i}" for i in range(1, limit // CONNECTIONS_PER_ADDRESS + 1)]
+    hogs = Hogs(port, sources, limit)
     try:
         page = _open(browser, console, name="Crowded")
         page.click("#stop")
