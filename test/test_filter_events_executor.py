@@ -72,7 +72,8 @@ def started_filter(tmp_path, monkeypatch):
     """A started filter node and a publisher node, not yet added to an executor."""
     monkeypatch.setenv("ROS_HOME", str(tmp_path))
     monkeypatch.delenv(spin.EXECUTOR_ENV, raising=False)
-    with rclpy.init(args=["--ros-args", "-p", f"state_file:={tmp_path / 'state.json'}"]):
+    args = ["--ros-args", "-p", f"state_file:={tmp_path / 'state.json'}"]
+    with rclpy.init(args=[*args, "-p", "start_without_measured_pose:=true"]):  # no robot here
         node = MotionFilterNode()
         publisher_node = rclpy.create_node("backlog_publisher")
         node.on_startup_timeout()  # started (from neutral): the filter ticks

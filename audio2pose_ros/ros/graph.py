@@ -71,6 +71,8 @@ from audio2pose_ros.ros.player import MessagePlayer, rclpy_session, spin_until, 
 NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
 RECORD_FLUSH_PERIOD_S = 0.5  # a killed recording loses at most about this much (BagWriter.flush)
 SIM_NODE = "pepper_sim_node"  # the simulated robot (audio2pose run --sim)
+# a graph that drives no robot: the motion filter starts without a measured pose
+NO_ROBOT = "start_without_measured_pose:=true"
 SINGLE_PROCESS = "audio2pose_nodes"  # the process that runs all three nodes (single-process mode)
 # As the launch file does: trajectories go to Pepper's ros2_control controller.
 NODE_REMAPS = {"motion_filter_node": ("-r", f"{topics.JOINT_TRAJECTORY}:={CONTROLLER_TOPIC}")}
@@ -451,6 +453,7 @@ def node_graph(
     sim: bool = False,
     more_nodes: Mapping[str, list[str]] | None = None,
     restart_after_s: float = RESTART_AFTER_S,
+    no_robot: bool = False,
 ) -> Iterator[NodeSupervisor]:
     """Run the three nodes as supervised processes for the duration of the context.
 
@@ -468,8 +471,13 @@ def node_graph(
             each (``audio2pose console`` adds ``console_node``).
         restart_after_s: how long a node may be silent before it is restarted (see
             :class:`NodeSupervisor`).
+        no_robot: no robot publishes ``joint_states`` (nothing but the recorder or a viewer
+            takes the commands): the motion filter starts from its saved pose or neutral
+            (``start_without_measured_pose``) instead of waiting for a measured pose.
     """
     params = params_file or share_path("config", "pepper.yaml")
+    if no_robot:
+        overrides = [NO_ROBOT, *overrides]
     with ExitStack() as stack:
         extra: list[str] = []
         if overrides:
@@ -638,11 +646,13 @@ def run_graph(
     rate: float = 1.0,
     single_process: bool = False,
     sim: bool = False,
+    no_robot: bool = False,
 ) -> PlaybackResult | None:
     """Start the graph; with ``play`` (a WAV or a bag) play it and return what was recorded.
 
     Without ``play`` the graph runs until Ctrl-C. ``single_process`` runs the three nodes in one
-    process, ``sim`` adds the simulated Pepper (:func:`node_graph`).
+    process, ``sim`` adds the simulated Pepper, ``no_robot`` says no robot publishes
+    ``joint_states`` (:func:`node_graph`).
 
     Raises:
         ConfigurationError: the supervisor gave up on a node (it refused its configuration, or
@@ -651,7 +661,12 @@ def run_graph(
     """
     messages = audio_source(play) if play is not None else None
     with node_graph(
-        params_file, overrides, log_dir, single_process=single_process, sim=sim
+        params_file,
+        overrides,
+        log_dir,
+        single_process=single_process,
+        sim=sim,
+        no_robot=no_robot,
     ) as supervisor:
         if messages is None:
             try:
