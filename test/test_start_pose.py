@@ -173,7 +173,7 @@ def test_when_the_driver_is_discovered_after_3_s_expect_the_start_from_its_pose(
     clock.now, graph.publishers = 3.5, [1]
     node.on_startup_timeout()  # discovered now: its first message is on the way
     assert not node.started
-    assert "sent nothing yet" in node.current_problems()["start_pose"][1]
+    assert "1 publisher(s) on joint_states sent nothing yet" in node.current_problems()["start_pose"][1]
     clock.now = 3.6
     node.on_measured(*measured(robot, moved_arm(robot)))
     assert node.started_from == "measured pose"

@@ -174,8 +174,8 @@ class StartPose:
         if not self.without_measured:
             return StartStep(
                 WAIT,
-                f"{self._what_came(topic)}: waiting for the robot's measured pose, commanding "
-                "nothing (a robot that publishes no joint states needs "
+                f"{self._what_came(topic, ' yet')}: waiting for the robot's measured pose, "
+                "commanding nothing (a robot that publishes no joint states needs "
                 "start_without_measured_pose: true)",
             )
         silent = self.silent(now_s)
@@ -195,8 +195,8 @@ class StartPose:
             )
         return StartStep(SAVED if saved else NEUTRAL, self._why_without(topic, saved))
 
-    def _what_came(self, topic: str) -> str:
-        """What the measured topic gave so far, none of it a usable pose (one clause)."""
+    def _what_came(self, topic: str, so_far: str = "") -> str:
+        """What the measured topic gave ``so_far``, none of it a usable pose (one clause)."""
         if self.unusable:
             came = ", ".join(f"{n} {kind}" for kind, n in sorted(self.unusable.items()))
             return (
@@ -204,7 +204,7 @@ class StartPose:
                 f"robot ({came})"
             )
         if self.publishers:
-            return f"{self.publishers} publisher(s) on {topic} sent nothing"
+            return f"{self.publishers} publisher(s) on {topic} sent nothing{so_far}"
         return f"no measured pose on {topic} (no publisher)"
 
     def _why_without(self, topic: str, saved: str) -> str:
