@@ -316,7 +316,8 @@ def test_when_a_raw_trajectory_lists_a_joint_twice_expect_it_refused_counted_and
     driver.states.clear()
     driver.spin_for(1.5, every=send_twice)
     heads = driver.positions()[:, head]
-    assert np.abs(heads - raised(robot)[head]).max() < 0.02  # never toward the second value
+    # never toward the second value (with every message refused, the watchdog glides to neutral)
+    assert heads.max() < raised(robot)[head] + 0.02
     reports = [d for d in driver.diagnostics if int(d["raw_refused_duplicate_names"]) > 0]
     assert reports, "the refusals were not counted on /diagnostics"
     assert int(reports[-1]["raw_refused_duplicate_names"]) > 50  # 150 sent at 100 Hz
