@@ -5,8 +5,9 @@ robot's real pose ``R`` on ``joint_states``) and a second participant on the sam
 driver listing a joint twice, a publisher of old or future stamps, a second robot's driver. Its
 pose ``W`` is 1.37 rad from ``R`` on one shoulder. Before the fix, the first command came from
 ``W`` in each case. A driver discovered only after the filter said it was waiting (no state
-file) must not find the robot commanded toward neutral. The verdicts are positions (every command near ``R``, none near ``W``),
-counts and levels on /diagnostics, and what came in which order.
+file) must not find the robot commanded toward neutral. The verdicts are positions (every
+command near ``R``, none near ``W``), counts and levels on /diagnostics, and what came in which
+order.
 """
 
 from __future__ import annotations
