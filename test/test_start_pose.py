@@ -21,6 +21,7 @@ from audio2pose_ros.motion.start_pose import (
     MEASURED_WAIT_S,
     NEUTRAL,
     SAVED,
+    UNKNOWN,
     WAIT,
     StartPose,
     identity,
@@ -126,6 +127,18 @@ def test_when_a_publisher_is_heard_before_the_graph_shows_it_expect_it_counted_a
     assert start.listening(3.6, 0.5 + MEASURED_WAIT_S, TOPIC) == ""  # the robot never sent
 
 
+def test_when_messages_carry_no_gid_expect_them_one_of_the_discovered_publishers():
+    start = StartPose(created_s=0.0, reported_before=False, without_measured=False)
+    start.discovered([b"driver"], 0.5)
+    start.heard(UNKNOWN, "pose", 0.6)
+    assert start.publishers == 1
+    assert start.silent(0.6) == 0
+    assert start.listening(0.0, 0.6, TOPIC) == ""  # the lone driver starts the filter at once
+    start.discovered([b"driver", b"second"], 0.7)
+    assert start.publishers == 2
+    assert start.silent(0.7) == 1  # one of the two has not sent yet
+
+
 def test_when_the_graph_and_a_message_give_one_gid_in_two_lengths_expect_one_publisher():
     start = StartPose(created_s=0.0, reported_before=False, without_measured=False)
     gid = bytes(range(1, 17))
@@ -173,7 +186,8 @@ def test_when_the_driver_is_discovered_after_3_s_expect_the_start_from_its_pose(
     clock.now, graph.publishers = 3.5, [1]
     node.on_startup_timeout()  # discovered now: its first message is on the way
     assert not node.started
-    assert "1 publisher(s) on joint_states sent nothing yet" in node.current_problems()["start_pose"][1]
+    said = node.current_problems()["start_pose"][1]
+    assert "1 publisher(s) on joint_states sent nothing yet" in said
     clock.now = 3.6
     node.on_measured(*measured(robot, moved_arm(robot)))
     assert node.started_from == "measured pose"

@@ -60,6 +60,9 @@ SAVED = "saved pose"  # start from the pose saved in the state file
 NEUTRAL = "neutral pose"  # start from the neutral pose
 
 
+UNKNOWN = b""  # the identity of a message whose publisher cannot be told (no gid given)
+
+
 def identity(gid: bytes | str | Sequence[int]) -> Hashable:
     """A publisher's identity as the graph and a message's info both give it (its DDS gid).
 
@@ -89,8 +92,9 @@ class StartPose:
     Times are one monotonic clock (s). The node tells it of every measured message that arrived
     (:meth:`heard`) and of the publishers it sees on the topic (:meth:`discovered`), and asks
     :meth:`decide` once the start-up timeout has passed, until the filter has started.
-    Publishers are told apart by their identities (DDS gids); a message whose publisher cannot
-    be told (an empty identity) counts as one publisher's.
+    Publishers are told apart by their identities (DDS gids); messages whose publisher cannot
+    be told (:data:`UNKNOWN`: an rmw that gives no gid) count as one publisher's, as a count of
+    the graph's publishers would.
     """
 
     def __init__(self, created_s: float, reported_before: bool, without_measured: bool) -> None:
@@ -132,21 +136,28 @@ class StartPose:
 
     @property
     def publishers(self) -> int:
-        """Publishers known on the topic: discovered, or heard before the graph showed them."""
-        return len(self.graph.keys() | self.sources.keys())
+        """Publishers known on the topic: discovered, or heard before the graph showed them.
+
+        Messages whose publisher cannot be told (:data:`UNKNOWN`) count as one publisher, which
+        may be any of the discovered ones.
+        """
+        told = len(self.graph.keys() | (self.sources.keys() - {UNKNOWN}))
+        return max(told, int(UNKNOWN in self.sources))
 
     def silent(self, now_s: float) -> int:
         """Discovered publishers that have sent nothing yet and are still awaited.
 
         Each is awaited :data:`MEASURED_WAIT_S` from its discovery, at most until
-        :data:`DISCOVERY_WAIT_S` + :data:`MEASURED_WAIT_S` after start.
+        :data:`DISCOVERY_WAIT_S` + :data:`MEASURED_WAIT_S` after start. Messages whose publisher
+        cannot be told may have come from any of them: one fewer is counted then.
         """
         latest_s = self.created_s + DISCOVERY_WAIT_S + MEASURED_WAIT_S
-        return sum(
+        awaited = sum(
             1
             for key, found_s in self.graph.items()
             if key not in self.sources and now_s < min(found_s + MEASURED_WAIT_S, latest_s)
         )
+        return max(awaited - int(UNKNOWN in self.sources), 0)
 
     @property
     def awaits_driver(self) -> bool:
