@@ -25,7 +25,7 @@ def test_when_a_speech_bag_is_replayed_into_the_graph_expect_features_and_poses_
     bag = tmp_path / "bag"
     write_audio_bag(speech[:32000], bag)  # 2 s of speech
     chunks = sum(m.topic == AUDIO_TOPIC for m in read_messages(bag))
-    with node_graph(log_dir=tmp_path) as graph:
+    with node_graph(log_dir=tmp_path, no_robot=True) as graph:
         probe.wait_until(probe.graph_ready)
         replay = subprocess.Popen(
             [*executable_command("audio2pose"), "bag", "replay", str(bag), "--wait-s", "5"],

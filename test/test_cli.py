@@ -37,7 +37,12 @@ def test_when_run_plays_and_records_expect_mcap_both_readers_open(
     wav = speech_files[1]
     bag = tmp_path / "bag"
     result = subprocess.run(
-        [*AUDIO2POSE, "run", "--play", str(wav), "--record", str(bag), "--log-dir", str(tmp_path)],
+        [
+            *AUDIO2POSE,
+            "run",
+            "--no-robot",  # what a robot would receive, recorded
+            *("--play", str(wav), "--record", str(bag), "--log-dir", str(tmp_path)),
+        ],
         capture_output=True,
         text=True,
         timeout=180,

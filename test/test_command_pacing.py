@@ -51,6 +51,8 @@ def test_when_poses_arrive_in_bursts_expect_evenly_spaced_commands_stamped_for_t
         "-p",
         "startup_timeout_s:=0.2",
         "-p",
+        "start_without_measured_pose:=true",  # no robot here
+        "-p",
         f"state_file:={tmp_path / 'state.json'}",
     ]
     with (tmp_path / "filter.log").open("w") as log:

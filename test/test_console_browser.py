@@ -182,7 +182,9 @@ def console(tmp_path_factory) -> Iterator[Console]:
     params_file = tmp / "params.yaml"
     params_file.write_text(yaml.safe_dump(params), encoding="utf-8")
     command = console_command(params_file, {"port": 0, "token": TOKEN}, tmp)
-    with node_graph(params_file, log_dir=tmp / "logs", more_nodes={CONSOLE_NODE: command}):
+    with node_graph(
+        params_file, log_dir=tmp / "logs", more_nodes={CONSOLE_NODE: command}, no_robot=True
+    ):
         recorder = Recorder()
         try:
             url = _console_url(tmp / "logs" / f"{CONSOLE_NODE}.log")

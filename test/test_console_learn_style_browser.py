@@ -84,7 +84,9 @@ def setup(tmp_path_factory) -> Iterator[tuple[str, Recorder, Path, Path, Path]]:
     saved = os.environ.get("ROS_HOME")
     os.environ["ROS_HOME"] = str(ros_home)
     try:
-        with node_graph(params_file, log_dir=tmp / "logs", more_nodes={CONSOLE_NODE: command}):
+        with node_graph(
+            params_file, log_dir=tmp / "logs", more_nodes={CONSOLE_NODE: command}, no_robot=True
+        ):
             recorder = Recorder()
             try:
                 url = _console_url(tmp / "logs" / f"{CONSOLE_NODE}.log")

@@ -75,7 +75,7 @@ def test_when_audio_format_changes_mid_stream_expect_decoding_follows_new_audio_
     first = speech[:16000]
     stereo_48k = np.repeat(speech[16000:32000], 3)[:, None].repeat(2, axis=1)  # 1 s, 48 kHz
     f32 = PcmFormat(sample_format="F32LE", channels=2, sample_rate_hz=48000, coding_format="wave")
-    with node_graph(log_dir=tmp_path) as graph:
+    with node_graph(log_dir=tmp_path, no_robot=True) as graph:
         start(probe)
         probe.play(encode_pcm(first, S16), [1000], bytes_per_s=32000)
         probe.wait_until(lambda: frames_published(probe) >= len(first) // 160)
@@ -102,7 +102,7 @@ def test_when_audio_stops_then_arrives_in_a_burst_expect_bounded_buffer_and_reco
     waited too long for it and the filter keeps only max_buffer_s of the poses (both counted),
     so latency stays bounded."""
     payload = encode_pcm(speech[: 4 * 16000], S16)
-    with node_graph(log_dir=tmp_path):
+    with node_graph(log_dir=tmp_path, no_robot=True):
         start(probe)
         probe.play(payload[:32000], [2000], bytes_per_s=32000)  # 1 s in real time
         probe.spin_for(2.5)  # gap: watchdog (0.5 s) + glide (1 s) back to neutral
@@ -136,7 +136,7 @@ def test_when_audio_messages_are_duplicated_or_reordered_expect_processed_as_sen
         if i % 5 == 0:
             sent.append(chunk)  # duplicate
     sent[3], sent[4] = sent[4], sent[3]  # reorder
-    with node_graph(log_dir=tmp_path) as graph:
+    with node_graph(log_dir=tmp_path, no_robot=True) as graph:
         start(probe)
         for chunk in sent:
             probe.audio.publish(AudioData(data=chunk))
@@ -152,7 +152,7 @@ def test_when_raw_trajectory_duplicated_or_late_expect_filter_drops_it(
     tmp_path: Path, probe: Probe, robot
 ):
     """Raw trajectories carry stamps: the filter drops repeats and late ones and counts them."""
-    with node_graph(log_dir=tmp_path):
+    with node_graph(log_dir=tmp_path, no_robot=True):
         start(probe)
         publisher = probe.create_publisher(
             type(trajectory_msg(robot.names, robot.neutral_rad, 0.01)), absolute(RAW_TRAJECTORY), 10
@@ -179,7 +179,8 @@ def test_when_oversized_audio_messages_arrive_expect_them_dropped_with_warning(
     """A 10 MB AudioData may not even survive best-effort DDS delivery (a fragmented sample is
     lost whole); one that arrives above max_chunk_bytes is dropped with a warning and counted.
     Either way the node keeps running and the audio after it is processed normally."""
-    with node_graph(log_dir=tmp_path, overrides=["max_chunk_bytes:=100000"]) as graph:
+    overrides = ["max_chunk_bytes:=100000"]
+    with node_graph(log_dir=tmp_path, no_robot=True, overrides=overrides) as graph:
         start(probe)
         probe.audio.publish(AudioData(data=bytes(10 * 1024 * 1024)))
         probe.spin_for(1.0)
@@ -203,7 +204,7 @@ def test_when_a_node_is_killed_expect_it_restarted_and_the_graph_recovers(
     """The supervisor respawns a crashed node; meanwhile the filter glides to neutral, then
     tracks the restarted node's poses again."""
     payload = encode_pcm(np.tile(speech, 3), S16)
-    with node_graph(log_dir=tmp_path) as graph:
+    with node_graph(log_dir=tmp_path, no_robot=True) as graph:
         start(probe)
         victim = graph.processes["inference_node"]
         probe.play(payload[:32000], [1600], bytes_per_s=32000)
@@ -257,7 +258,7 @@ def test_when_10_minutes_of_audio_stream_through_expect_flat_memory(
     total_s, speed = 10 * 60, 10.0
     chunk = encode_pcm(speech, S16)
     raw = probe.received["raw"]
-    with node_graph(log_dir=tmp_path, restart_after_s=SOAK_RESTART_AFTER_S) as graph:
+    with node_graph(log_dir=tmp_path, no_robot=True, restart_after_s=SOAK_RESTART_AFTER_S) as graph:
         start(probe)
         sent_bytes, samples = 0, {}
         poses, counted = 0, 0  # raw poses back so far; messages of ``raw`` counted in ``poses``

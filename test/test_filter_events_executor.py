@@ -75,7 +75,8 @@ def started_filter(tmp_path, monkeypatch):
     """A started filter node and a publisher node, not yet added to an executor."""
     monkeypatch.setenv("ROS_HOME", str(tmp_path))
     monkeypatch.setenv(executors.EXECUTOR_ENV, executors.EVENTS)
-    with rclpy_session(["--ros-args", "-p", f"state_file:={tmp_path / 'state.json'}"]):
+    args = ["--ros-args", "-p", f"state_file:={tmp_path / 'state.json'}"]
+    with rclpy_session([*args, "-p", "start_without_measured_pose:=true"]):  # no robot here
         node = MotionFilterNode()
         publisher_node = rclpy.create_node("backlog_publisher")
         node.on_startup_timeout()  # started (from neutral): the filter ticks

@@ -4,8 +4,10 @@ The node runs as its own process; this process plays the robot's driver (it publ
 robot's real pose ``R`` on ``joint_states``) and a second participant on the same topic: a
 driver listing a joint twice, a publisher of old or future stamps, a second robot's driver. Its
 pose ``W`` is 1.37 rad from ``R`` on one shoulder. Before the fix, the first command came from
-``W`` in each case. The verdicts are positions (every command near ``R``, none near ``W``),
-counts and levels on /diagnostics, and what came in which order.
+``W`` in each case. A driver discovered only after the filter said it was waiting (no state
+file) must not find the robot commanded toward neutral. The verdicts are positions (every
+command near ``R``, none near ``W``), counts and levels on /diagnostics, and what came in which
+order.
 """
 
 from __future__ import annotations
@@ -206,3 +208,58 @@ def test_when_a_second_robots_driver_publishes_expect_an_error_a_hold_and_recove
     started = latest_after_first_command(observer, executor, lambda: driver.send(real))
     assert started["started_from"] == "measured pose"
     assert_started_from(observer, robot, real)
+
+
+def test_when_the_driver_is_discovered_after_the_startup_timeout_expect_no_command_till_its_pose(
+    tmp_path, robot
+):
+    """No state file; the robot's driver appears only after the filter said it was waiting (a
+    robot over Wi-Fi, discovered late). Before: the filter started from neutral at
+    ``startup_timeout_s`` and commanded the robot there, 1.37 rad from where it stood."""
+    real, _ = real_and_wrong(robot)  # the left arm forward, 1.37 rad from neutral
+    with rclpy.init():
+        observer = Observer()
+        executor = rclpy.executors.SingleThreadedExecutor()
+        executor.add_node(observer)
+        command = [
+            *executable_command("motion_filter_node"),
+            "--ros-args",
+            "-p",
+            "joint_states_rate_hz:=100.0",
+            "-p",
+            f"state_file:={tmp_path / 'filter_state.json'}",  # none yet
+        ]
+        with (tmp_path / "motion_filter_node.log").open("w") as log:
+            process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+        driver = None
+        try:
+            end = time.monotonic() + 60
+            said = []  # the start's report, once startup_timeout_s has passed
+            while time.monotonic() < end and not said:
+                executor.spin_once(timeout_sec=0.05)
+                said = [
+                    d
+                    for d in observer.diagnostics()
+                    if "problem: start_pose" in d or d["started_from"] != "waiting"
+                ]
+            assert said, "motion_filter_node did not come up"
+            run(executor, 1.0)  # discovery still slower than that
+            driver = Driver("late_robot_driver", list(robot.names))
+            executor.add_node(driver)
+            end = time.monotonic() + 60
+            while time.monotonic() < end and not observer.commands().size:
+                run(executor, 0.1, lambda: driver.send(real))
+            run(executor, 1.0, lambda: driver.send(real))
+        finally:
+            process.terminate()
+            process.wait(timeout=10)
+            for node in (observer, driver):
+                if node is not None:
+                    node.destroy_node()
+    assert_started_from(observer, robot, real)  # every command at rest where the robot is
+    first = next(i for i, (kind, _) in enumerate(observer.events) if kind == "command")
+    before = [d for kind, d in observer.events[:first] if kind == "diagnostics"]
+    assert {d["started_from"] for d in before} == {"waiting"}
+    assert "no measured pose on joint_states (no publisher)" in said[0]["message"]
+    assert "commanding nothing" in said[0]["message"]
+    assert observer.diagnostics()[-1]["started_from"] == "measured pose"

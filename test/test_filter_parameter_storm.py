@@ -112,6 +112,8 @@ def filter_process(tmp_path):
         "-p",
         "startup_timeout_s:=0.3",
         "-p",
+        "start_without_measured_pose:=true",  # no robot here
+        "-p",
         f"state_file:={tmp_path / 'filter_state.json'}",
     ]
     with (tmp_path / "motion_filter_node.log").open("w") as log:
@@ -232,6 +234,7 @@ def node_in_process(request, tmp_path, monkeypatch):
     monkeypatch.setenv("ROS_HOME", str(tmp_path))
     monkeypatch.setenv(EXECUTOR_ENV, request.param)
     args = ["--ros-args", "-p", f"state_file:={tmp_path / 'state.json'}"]
+    args += ["-p", "start_without_measured_pose:=true"]  # no robot here
     with rclpy.init(args=args):
         node = MotionFilterNode(subscribe_graph=False)
         client_node = rclpy.create_node("storm_client")

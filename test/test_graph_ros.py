@@ -33,7 +33,7 @@ def test_when_speech_streamed_in_odd_chunks_expect_commands_for_11_joints_within
     payload = encode_pcm(samples, S16)
     rng = np.random.default_rng(7)
     chunk_sizes = [int(s) | 1 for s in rng.integers(1, 4000, size=64)]  # odd sizes: split samples
-    with node_graph(log_dir=tmp_path) as graph:
+    with node_graph(log_dir=tmp_path, no_robot=True) as graph:
         probe.info.publish(AudioInfo(**S16.audio_info_fields()))
         probe.wait_until(probe.graph_ready)
         probe.warm_up()
@@ -77,7 +77,7 @@ def test_when_audio_is_malformed_expect_logged_skipped_and_node_keeps_running(
     tmp_path: Path, probe: Probe, speech
 ):
     good = encode_pcm(speech[:16000], S16)
-    with node_graph(log_dir=tmp_path) as graph:
+    with node_graph(log_dir=tmp_path, no_robot=True) as graph:
         probe.wait_until(probe.graph_ready)
 
         # 1. No AudioInfo yet: audio is dropped and counted in /diagnostics, nothing published.

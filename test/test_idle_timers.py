@@ -64,7 +64,8 @@ def test_when_the_started_filter_is_idle_expect_no_timer_but_its_tick_and_heartb
 ):
     monkeypatch.setenv("ROS_HOME", str(tmp_path))
     state = tmp_path / "state.json"
-    with rclpy.init(args=["--ros-args", "-p", f"state_file:={state}"]):
+    no_robot = ["-p", "start_without_measured_pose:=true"]
+    with rclpy.init(args=["--ros-args", "-p", f"state_file:={state}", *no_robot]):
         node = MotionFilterNode(subscribe_graph=False)
         executor = create_executor()
         try:

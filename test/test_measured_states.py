@@ -16,7 +16,7 @@ TOPIC = "joint_states"
 
 @pytest.fixture
 def states(robot):
-    return MeasuredStates(robot, now_s=0.0, measured_before=False)
+    return MeasuredStates(robot, now_s=0.0, measured_before=False, without_measured=False)
 
 
 def take(
@@ -26,7 +26,7 @@ def take(
     started=False,
     arrival_s=0.1,
     source=b"a",
-    publishers=1,
+    publishers=(b"a",),  # the graph's publishers of the topic
     saved=None,
     names=None,
     stamp_s=NOW,
@@ -97,7 +97,7 @@ def test_when_two_sources_disagree_expect_an_error_and_neither_used(states, robo
 
 
 def test_when_several_publishers_expect_the_start_to_listen_first(states, robot):
-    use = take(states, robot, robot.neutral_rad, publishers=2)
+    use = take(states, robot, robot.neutral_rad, publishers=(b"a", b"b"))
     assert use.start_rad is None
     assert keys(use) == [("start_pose", False)]
 

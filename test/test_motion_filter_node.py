@@ -125,6 +125,7 @@ def filter_node(tmp_path):
         defaults = {
             "joint_states_rate_hz": 100.0,
             "startup_timeout_s": 0.3,
+            "start_without_measured_pose": "true",  # most tests here play no robot
             "state_file": str(tmp_path / "filter_state.json"),
         }
         for key, value in {**defaults, **params}.items():
@@ -293,6 +294,35 @@ def test_when_outlier_points_and_head_values_arrive_expect_no_joint_moves_a_tent
     assert int(diagnostics["head_inputs_rejected"]) == 2
     assert diagnostics["filter_faults"] == "0"
     assert diagnostics["level"] == "1"  # WARN: inputs were rejected a moment ago
+
+
+def test_when_a_raw_trajectory_lists_a_joint_twice_expect_it_refused_counted_and_reported(
+    driver, filter_node, robot
+):
+    """The second HeadYaw says 0.25 rad more: before, the last value was taken, every time."""
+    filter_node()
+    driver.wait_for_node()
+    driver.spin_for(1.5, every=stream(driver, robot, raised(robot)))  # settled on the pose
+    head = robot.names.index("HeadYaw")
+    names = [*robot.names, "HeadYaw"]
+    twice = np.append(raised(robot), raised(robot)[head] + 0.25)
+
+    def send_twice() -> None:
+        msg = stamped(driver, robot, raised(robot))
+        msg.joint_names = names
+        msg.points[0].positions = [float(v) for v in twice]
+        driver.raw.publish(msg)
+
+    driver.states.clear()
+    driver.spin_for(1.5, every=send_twice)
+    heads = driver.positions()[:, head]
+    # never toward the second value (with every message refused, the watchdog glides to neutral)
+    assert heads.max() < raised(robot)[head] + 0.02
+    reports = [d for d in driver.diagnostics if int(d["raw_refused_duplicate_names"]) > 0]
+    assert reports, "the refusals were not counted on /diagnostics"
+    assert int(reports[-1]["raw_refused_duplicate_names"]) > 50  # 150 sent at 100 Hz
+    assert "lists HeadYaw more than once" in reports[-1]["message"]
+    assert "problem: raw_names" in reports[-1]  # a WARN of its own
 
 
 def test_when_one_message_is_stamped_far_in_the_future_expect_later_messages_still_used(

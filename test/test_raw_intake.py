@@ -70,3 +70,27 @@ def test_when_the_gate_rejects_poses_expect_a_warn_with_the_totals(intake, robot
     assert "1 non-finite" in problem.text
     assert intake.malformed("point 0 has 3 positions").key == "raw_malformed"
     assert intake.dropped == 1
+
+
+def test_when_a_trajectory_lists_a_joint_twice_expect_it_refused_and_counted(intake, robot):
+    """The last HeadYaw of the message said 0.25 rad more: it was taken in 150 of 150."""
+    names = [*robot.names, "HeadYaw"]
+    refused = intake.joint_names(names)
+    assert (refused.key, refused.error) == ("raw_names", False)
+    assert "lists HeadYaw more than once" in refused.text
+    assert intake.joint_names(list(robot.names)) is None
+    assert intake.joint_names(names) is not None  # not taken because the last names were
+    values = intake.values()
+    assert values["raw_refused_duplicate_names"] == 2
+    assert values["raw_refused_unknown_names"] == 0
+    assert values["dropped_messages"] == 2
+
+
+def test_when_a_trajectory_names_a_joint_the_robot_lacks_expect_it_refused_and_counted(
+    intake, robot
+):
+    refused = intake.joint_names([*robot.names, "LWristYaw", "x" * 1000])
+    assert "names 2 joint(s) this robot does not have (LWristYaw, xxx" in refused.text
+    assert len(refused.text) < 200  # a name of any length is quoted short
+    assert intake.values()["raw_refused_unknown_names"] == 1
+    assert intake.dropped == 1

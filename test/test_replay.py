@@ -50,6 +50,7 @@ def test_when_speech_bag_replayed_through_graph_expect_offline_trajectory(
         [
             *executable_command("audio2pose"),
             "run",
+            "--no-robot",
             "--play",
             str(bag),
             "--record",

@@ -43,6 +43,7 @@ def _run(
             log_dir=tmp_path / f"{mode}_logs",
             single_process=single_process,
             overrides=[f"model_path:={model}"],
+            no_robot=True,
         ) as graph,
         rclpy.init(),
     ):

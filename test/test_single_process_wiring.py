@@ -36,7 +36,7 @@ def test_when_connected_expect_every_frame_reaches_the_filter_without_messages(
     tmp_path, speech, monkeypatch
 ):
     monkeypatch.setenv("ROS_HOME", str(tmp_path))
-    with rclpy.init():
+    with rclpy.init(args=["--ros-args", "-p", "start_without_measured_pose:=true"]):
         features, inference, motion = nodes = _nodes()
         connect(nodes)
         motion.on_startup_timeout()  # start from neutral now: no robot here

@@ -33,6 +33,7 @@ def command_console(args: argparse.Namespace) -> int:
             Path(args.log_dir) if args.log_dir else None,
             graph=not args.no_graph,
             single_process=args.single_process,
+            no_robot=args.no_robot,
         )
     return 0
 
@@ -66,5 +67,11 @@ def register(verbs: Verbs) -> None:
     console.add_argument("--log-dir", help="write each node's output to <dir>/<node>.log")
     console.add_argument(
         "--single-process", action="store_true", help="run the three graph nodes in one process"
+    )
+    console.add_argument(
+        "--no-robot",
+        action="store_true",
+        help="no robot publishes joint_states (the 3D view only): start from the saved pose or "
+        "neutral instead of waiting for the robot's measured pose",
     )
     console.set_defaults(func=command_console)

@@ -61,6 +61,8 @@ def command_run(args: argparse.Namespace) -> int:
 
     if args.record and args.play is None:
         raise UsageError("--record needs --play (recording stops when the file ends)")
+    if args.sim and args.no_robot:
+        raise UsageError("--sim and --no-robot: the simulated Pepper publishes joint_states")
     play = _speech_input(args.play) if args.play else None
     record = new_dir(args.record, "--record") if args.record else None
     params = input_file(args.params_file, "parameters file") if args.params_file else None
@@ -77,6 +79,7 @@ def command_run(args: argparse.Namespace) -> int:
         rate=args.rate,
         single_process=args.single_process,
         sim=args.sim,
+        no_robot=args.no_robot,
     )
     if result is not None:
         print(summarize(result))
@@ -102,7 +105,7 @@ def command_demo(args: argparse.Namespace) -> int:
         "node graph in real time ...",
         flush=True,
     )
-    result = run_graph(wav, bag, None, [], out_dir / "logs")
+    result = run_graph(wav, bag, None, [], out_dir / "logs", no_robot=True)  # recorded only
     if result is None:
         raise RuntimeError("the graph ran without playing the clip")
     print(summarize(result))
@@ -346,6 +349,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="also run a simulated Pepper (pybullet) that follows joint_angles and publishes "
         "the measured joint_states",
+    )
+    run.add_argument(
+        "--no-robot",
+        action="store_true",
+        help="no robot publishes joint_states (only --record takes the commands): start from "
+        "the saved pose or neutral instead of waiting for the robot's measured pose",
     )
     run.set_defaults(func=command_run)
 

@@ -281,8 +281,12 @@ class MotionFilterNodeSettings:
             controller runs at 50 Hz.
         joint_states_rate_hz: rate of commanded_joint_states (0 = off).
         measured_joint_states_topic: the robot's measured joint states.
-        startup_timeout_s: how long at least to wait for a measured pose before using the saved
-            one (longer while one may still come: :mod:`audio2pose_ros.motion.start_pose`).
+        startup_timeout_s: how long to wait quietly for a measured pose before saying why none
+            started the filter (and, with ``start_without_measured_pose``, at least this long
+            before starting without one: :mod:`audio2pose_ros.motion.start_pose`).
+        start_without_measured_pose: start from the saved pose or neutral once no measured
+            pose can still come (a robot that publishes no joint states, or no robot); False:
+            wait for the measured pose, however long, commanding nothing.
         state_file: where the last commanded pose and a stop are kept ('' = the default).
         state_save_period_s: how often the state file is rewritten while the pose changes.
         max_stamp_future_s: raw trajectories stamped further ahead of the clock are rejected.
@@ -339,12 +343,21 @@ class MotionFilterNodeSettings:
     startup_timeout_s: float = field(
         default=1.0,
         metadata=param(
-            "wait at least this long for a measured pose, then start from the saved one "
-            "(or neutral)",
+            "wait this long for a measured pose before saying why none came (with "
+            "start_without_measured_pose, before starting from the saved pose or neutral)",
             minimum=0.0,
             maximum=60.0,
             read_only=True,
             unit="s",
+        ),
+    )
+    start_without_measured_pose: bool = field(
+        default=False,
+        metadata=param(
+            "for a robot that publishes no joint states (or no robot): start from the saved "
+            "pose or neutral once no measured pose can still come; false: wait for the measured "
+            "pose, however long, commanding nothing",
+            read_only=True,
         ),
     )
     state_file: str = field(

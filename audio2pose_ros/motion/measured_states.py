@@ -7,8 +7,9 @@ Only a believable reading counts (:class:`~audio2pose_ros.motion.measured.Measur
 a joint listed twice, or a stamp too old or ahead, is refused and reported (WARN); two
 publishers whose poses disagree are an ERROR, and no pose of either is used while they do.
 Before the start, a refused reading holds the start (ERROR: the robot's pose is published but
-cannot be known); with more than one publisher on the topic the start waits until the pose's
-publisher has been heard for a while, so a second source shows first
+cannot be known); with more than one publisher on the topic (those the graph shows and those
+heard) the start waits until the pose's publisher has been heard for a while and the others
+have spoken, so a second source shows first
 (:meth:`~audio2pose_ros.motion.start_pose.StartPose.listening`); every message that arrived is
 told to the start (:meth:`~audio2pose_ros.motion.start_pose.StartPose.heard`). The first pose
 used is the start pose, every valid joint of it
@@ -20,7 +21,7 @@ a WARN.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Hashable, Sequence
+from collections.abc import Callable, Collection, Hashable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -66,14 +67,21 @@ class MeasuredStates:
         conflicts: poses ignored because two sources disagreed.
     """
 
-    def __init__(self, robot: RobotDescription, now_s: float, measured_before: bool) -> None:
+    def __init__(
+        self,
+        robot: RobotDescription,
+        now_s: float,
+        measured_before: bool,
+        without_measured: bool,
+    ) -> None:
         """Watch ``robot``'s joints from ``now_s`` (monotonic; the start's clock starts there).
 
         ``measured_before``: the process before a restart heard the robot's measured pose.
+        ``without_measured``: ``start_without_measured_pose`` (:class:`StartPose`).
         """
         self.robot = robot
         self.check = MeasuredPoseCheck(robot.names, robot.max_velocity_rad_s)
-        self.start = StartPose(now_s, measured_before)
+        self.start = StartPose(now_s, measured_before, without_measured)
         self.tracking = TrackingWatch()
         self.pose_rad: np.ndarray | None = None
         self.partial = 0
@@ -90,7 +98,7 @@ class MeasuredStates:
         arrival_s: float,
         started: bool,
         topic: str,
-        publishers: Callable[[], int],
+        publishers: Callable[[], Collection[Hashable]],
         saved_rad: Callable[[], np.ndarray | None],
     ) -> MeasuredUse:
         """One measured message: what it means (see the module's description).
@@ -105,7 +113,8 @@ class MeasuredStates:
             arrival_s: when it arrived (monotonic).
             started: whether the filter has started.
             topic: the measured states' topic (for the messages).
-            publishers: how many publishers the topic has now (asked only before the start).
+            publishers: the identities of the topic's publishers now, as the graph shows them
+                (asked only before the start).
             saved_rad: the saved pose, if any (asked only at the start: it fills joints the
                 measured pose lacks, else neutral does).
 
@@ -154,9 +163,8 @@ class MeasuredStates:
             use.problems.append(Problem("measured_sources", True, text, SOURCE_WINDOW_S))
             return use
         if not started:
-            listening = self.start.listening(
-                publishers(), check.heard_for_s(source, arrival_s), topic
-            )
+            self.start.discovered(publishers(), arrival_s)
+            listening = self.start.listening(check.heard_for_s(source, arrival_s), arrival_s, topic)
             if listening:
                 use.problems.append(Problem("start_pose", False, listening, SOURCE_WINDOW_S))
                 return use

@@ -1,9 +1,13 @@
-"""Which raw poses reach the motion filter: one source, believable stamps, bounded messages.
+"""Which raw poses reach the motion filter: one source, believable names and stamps, bounded.
 
 A raw trajectory (from ``raw_trajectory``, or handed over directly in single-process mode) is
-taken only from the one source in use (:class:`~audio2pose_ros.motion.sources.SingleSource`), only
-once the filter has started (its start pose is known), only with a stamp that is neither wild
-nor out of order (:class:`~audio2pose_ros.motion.timing.StampCheck`), and only its first
+taken only from the one source in use (:class:`~audio2pose_ros.motion.sources.SingleSource`),
+only when its joint names say one thing about each of the robot's joints (no joint listed
+twice, which would leave the value to whichever the reader takes, and no joint the robot does
+not have: the stream is another robot's or another model's; :meth:`RawIntake.joint_names`, as
+the start pose refuses a joint listed twice on ``joint_states``), only once the filter has
+started (its start pose is known), only with a stamp that is neither wild nor out of order
+(:class:`~audio2pose_ros.motion.timing.StampCheck`), and only its first
 ``max_points_per_message`` poses; the filter's gate then checks each pose. What is dropped is
 counted, and each reason is a :class:`~audio2pose_ros.motion.problems.Problem` for the node to
 report.
@@ -11,7 +15,8 @@ report.
 
 from __future__ import annotations
 
-from collections.abc import Hashable
+from collections import Counter
+from collections.abc import Hashable, Sequence
 
 import numpy as np
 
@@ -31,7 +36,9 @@ class RawIntake:
         sources: the one source in use, and the others refused.
         stamps: the stamps' check (its limits follow the node's parameters).
         messages: raw messages (or hand-overs) that came since start.
-        dropped: messages dropped whole (a second source, a refused stamp, malformed).
+        dropped: messages dropped whole (a second source, refused names or stamp, malformed).
+        duplicate_names: messages refused because they list a joint more than once.
+        unknown_names: messages refused because they name a joint the robot does not have.
     """
 
     def __init__(
@@ -43,6 +50,9 @@ class RawIntake:
         self.stamps = StampCheck(max_future_s, max_age_s)
         self.messages = 0
         self.dropped = 0
+        self.duplicate_names = 0
+        self.unknown_names = 0
+        self._names_taken: tuple[str, ...] = ()  # the last names taken (a stream repeats them)
 
     def from_source(self, source: Hashable, now_s: float) -> Problem | None:
         """None when a message of ``source`` (arriving at monotonic ``now_s``) may be used."""
@@ -56,6 +66,32 @@ class RawIntake:
             "drives the robot (stop the other one)",
             SECOND_SOURCE_HOLD_S,
         )
+
+    def joint_names(self, names: Sequence[str]) -> Problem | None:
+        """None when a raw trajectory's joint ``names`` may be read; else refused (counted).
+
+        A joint listed more than once, or a name the robot does not have, refuses the whole
+        message (a WARN naming the joints): which of two values is meant cannot be told, and a
+        stream naming joints this robot lacks is not meant for it. A joint of the robot that
+        the message lacks is the reader's to refuse (a malformed message).
+        """
+        names = tuple(names)
+        if names == self._names_taken:
+            return None
+        repeated = sorted(name for name, count in Counter(names).items() if count > 1)
+        robot = set(self.filter.robot.names)
+        unknown = sorted({name for name in names if name not in robot})
+        if not repeated and not unknown:
+            self._names_taken = names
+            return None
+        self.dropped += 1
+        if repeated:
+            self.duplicate_names += 1
+            why = f"lists {_quoted(repeated)} more than once (which value is meant?)"
+        else:
+            self.unknown_names += 1
+            why = f"names {len(unknown)} joint(s) this robot does not have ({_quoted(unknown)})"
+        return Problem("raw_names", False, f"raw trajectory dropped: it {why}")
 
     def admit(
         self, stamp_s: float, n_points: int, now_s: float, started: bool
@@ -117,9 +153,16 @@ class RawIntake:
             "input_messages": self.messages,
             "dropped_messages": self.dropped,
             "raw_messages_of_a_second_source": self.sources.refused,
+            "raw_refused_duplicate_names": self.duplicate_names,
+            "raw_refused_unknown_names": self.unknown_names,
             "stale_messages_dropped": counts.out_of_order,
             "future_stamps_rejected": counts.future,
             "old_stamps_rejected": counts.too_old,
             "clock_steps_back": counts.clock_steps_back,
             "input_latency_ms": f"{self.stamps.latency_s * 1e3:.2f}",
         }
+
+
+def _quoted(names: Sequence[str]) -> str:
+    """The first few of ``names``, each cut short (a message may carry names of any length)."""
+    return ", ".join(name[:40] for name in names[:5]) + (", ..." if len(names) > 5 else "")

@@ -1,31 +1,41 @@
-"""Which pose the motion filter starts from: the robot's measured pose, the saved one, or neutral.
+"""Which pose the motion filter starts from: the robot's measured pose, or nothing.
 
-After a start or restart nothing is commanded until the filter knows where the robot is. The
-robot's measured pose (``joint_states``, checked by :mod:`audio2pose_ros.motion.measured`) is
-the right start; the pose the filter last commanded (the state file,
-:mod:`audio2pose_ros.motion.state_file`) or neutral stand in for it only when no measured pose
-can still come. :class:`StartPose` tells the cases apart by what has happened, not by how long
-start-up took, so a slow discovery on a loaded machine never makes the filter guess:
+After a start or restart nothing is commanded until the filter knows where the robot is: the
+robot's measured pose (``joint_states``, checked by :mod:`audio2pose_ros.motion.measured`). Not
+knowing where the robot is never moves it: however long the discovery of its driver takes (a
+robot over Wi-Fi can take seconds), the start waits, commanding nothing, and says why.
+Starting from the pose the filter last commanded (the state file,
+:mod:`audio2pose_ros.motion.state_file`) or from neutral without a measured pose is a choice
+made in configuration (``start_without_measured_pose``, for a robot that publishes no joint
+states, or no robot at all); no timeout makes it. :class:`StartPose` tells the cases apart by
+what has happened, not by how long start-up took:
 
-- **A publisher that has sent nothing yet** (it appeared on the topic, but no message of it has
-  arrived) is waited for: its first message is on the way. A publisher counts from when this
-  node discovered it: it is given :data:`MEASURED_WAIT_S` from then (a driver publishes at
-  50 Hz; its first message comes in milliseconds once both ends have matched), however late the
-  discovery came, at most until :data:`DISCOVERY_WAIT_S` + :data:`MEASURED_WAIT_S` after start.
-- **No publisher yet, but the robot reported its pose before the restart** (the state file says
-  so): its driver's discovery is waited for, up to :data:`DISCOVERY_WAIT_S` after start.
+- **Nothing usable has come** (no publisher yet, a publisher that has not sent yet, publishers
+  of other joints only, of no finite joint, of broken messages): the start waits (WARN), naming
+  what came. Only with ``start_without_measured_pose`` does it start from the saved pose or
+  neutral, once no measured pose can still come:
+
+  - a publisher that has sent nothing yet (it appeared on the topic, but no message of it has
+    arrived) is waited for :data:`MEASURED_WAIT_S` from when this node discovered it, at most
+    until :data:`DISCOVERY_WAIT_S` + :data:`MEASURED_WAIT_S` after start;
+  - with no publisher yet, but a robot that reported its pose before the restart (the state
+    file says so), its driver is waited for up to :data:`DISCOVERY_WAIT_S` after start;
+  - publishers that sent only messages that are no pose of the robot are not waited for.
+
 - **A usable pose has just arrived** (within :data:`POSE_FRESH_S`) but has not started the
   filter yet (it is listening for a second source): the start is the measured pose's.
-- **Every publisher has sent messages, none a usable pose** (another robot's joints only, every
-  joint not finite, a broken message): it is a source of nothing usable; the filter starts
-  without it (after ``startup_timeout_s``) and says so (WARN), naming what came.
-- **Nothing publishes, and nothing was reported before**: the saved pose, or neutral.
 - **A pose is published but cannot be believed** (refused messages, disagreeing sources: the
   ``doubt`` of the measured check): the start holds, commanding nothing (ERROR); neither the
-  saved pose nor neutral stands in for it.
+  saved pose nor neutral stands in for it, whatever the configuration.
 
-With several publishers on the topic the start first listens :data:`MEASURED_LISTEN_S` to the
-pose's publisher, so a second source shows before the first command (:meth:`StartPose.listening`).
+The start goes ahead only on one believable source. The publishers of the topic are those the
+graph shows (:meth:`StartPose.discovered`, by their identities) together with those heard
+(:meth:`StartPose.heard`): a publisher whose first message arrives before the graph shows it
+counts from that message. With more than one, the pose's publisher is heard for
+:data:`MEASURED_LISTEN_S` first, and every other discovered publisher that has not sent yet is
+awaited (up to :data:`MEASURED_WAIT_S` from its discovery), so that a second source of the
+robot's pose shows before the first command (:meth:`StartPose.listening`); two that disagree
+hold the start (ERROR) until one stops.
 
 :func:`repaired_start_pose` makes a measured start pose commandable: an out-of-range joint is
 clamped, a NaN one taken from the saved pose or neutral, each repair named.
@@ -34,7 +44,7 @@ clamped, a NaN one taken from the saved pose or neutral, each repair named.
 from __future__ import annotations
 
 import math
-from collections.abc import Hashable, Sequence
+from collections.abc import Collection, Hashable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,6 +58,19 @@ WAIT = "wait"  # command nothing yet: a usable measured pose may still come (WAR
 HOLD = "hold"  # command nothing: a pose is published but cannot be believed (ERROR)
 SAVED = "saved pose"  # start from the pose saved in the state file
 NEUTRAL = "neutral pose"  # start from the neutral pose
+
+
+UNKNOWN = b""  # the identity of a message whose publisher cannot be told (no gid given)
+
+
+def identity(gid: bytes | str | Sequence[int]) -> Hashable:
+    """A publisher's identity as the graph and a message's info both give it (its DDS gid).
+
+    The graph's endpoint gid and a message's publisher gid can differ in length (the rmw pads
+    the GUID to its gid storage size with zeros), so trailing zeros are dropped; a gid that is
+    not bytes (an rmw's own form) is kept as it is.
+    """
+    return gid if isinstance(gid, str) else bytes(gid).rstrip(b"\0")
 
 
 @dataclass(frozen=True)
@@ -69,22 +92,32 @@ class StartPose:
     Times are one monotonic clock (s). The node tells it of every measured message that arrived
     (:meth:`heard`) and of the publishers it sees on the topic (:meth:`discovered`), and asks
     :meth:`decide` once the start-up timeout has passed, until the filter has started.
+    Publishers are told apart by their identities (DDS gids); messages whose publisher cannot
+    be told (:data:`UNKNOWN`: an rmw that gives no gid) count as one publisher's, as a count of
+    the graph's publishers would.
     """
 
-    def __init__(self, created_s: float, reported_before: bool) -> None:
-        """Start-up began at ``created_s``; ``reported_before``: the state file's ``measured``."""
+    def __init__(self, created_s: float, reported_before: bool, without_measured: bool) -> None:
+        """Start-up began at ``created_s``.
+
+        Args:
+            created_s: when start-up began (monotonic, s).
+            reported_before: the state file's ``measured`` (the robot reported its pose before
+                the restart).
+            without_measured: ``start_without_measured_pose``: the saved pose or neutral may
+                stand in once no measured pose can still come; otherwise the start waits for
+                one, however long.
+        """
         self.created_s = created_s
         self.reported_before = reported_before
-        self.publishers = 0  # publishers on the topic when last told
-        self.discovered_s = -math.inf  # when the count of publishers last rose
+        self.without_measured = without_measured
+        self.graph: dict[Hashable, float] = {}  # discovered publisher -> when first discovered
         self.sources: dict[Hashable, float] = {}  # publisher -> when its last usable pose came
         self.unusable: dict[str, int] = {}  # messages that came but were no pose, by kind
 
-    def discovered(self, publishers: int, now_s: float) -> None:
-        """``publishers`` publish on the measured topic now (the graph's count)."""
-        if publishers > self.publishers:
-            self.discovered_s = now_s
-        self.publishers = publishers
+    def discovered(self, publishers: Collection[Hashable], now_s: float) -> None:
+        """``publishers`` (their identities) publish on the measured topic now (the graph's)."""
+        self.graph = {key: self.graph.get(key, now_s) for key in publishers}
 
     def heard(self, source: Hashable, kind: str, now_s: float) -> None:
         """A measured message of ``source`` arrived at ``now_s``: ``kind`` ``"pose"`` is usable.
@@ -102,14 +135,34 @@ class StartPose:
             self.unusable[kind] = self.unusable.get(kind, 0) + 1
 
     @property
-    def silent(self) -> int:
-        """Publishers on the topic that have not sent a single message yet."""
-        return max(self.publishers - len(self.sources), 0)
+    def publishers(self) -> int:
+        """Publishers known on the topic: discovered, or heard before the graph showed them.
+
+        Messages whose publisher cannot be told (:data:`UNKNOWN`) count as one publisher, which
+        may be any of the discovered ones.
+        """
+        told = len(self.graph.keys() | (self.sources.keys() - {UNKNOWN}))
+        return max(told, int(UNKNOWN in self.sources))
+
+    def silent(self, now_s: float) -> int:
+        """Discovered publishers that have sent nothing yet and are still awaited.
+
+        Each is awaited :data:`MEASURED_WAIT_S` from its discovery, at most until
+        :data:`DISCOVERY_WAIT_S` + :data:`MEASURED_WAIT_S` after start. Messages whose publisher
+        cannot be told may have come from any of them: one fewer is counted then.
+        """
+        latest_s = self.created_s + DISCOVERY_WAIT_S + MEASURED_WAIT_S
+        awaited = sum(
+            1
+            for key, found_s in self.graph.items()
+            if key not in self.sources and now_s < min(found_s + MEASURED_WAIT_S, latest_s)
+        )
+        return max(awaited - int(UNKNOWN in self.sources), 0)
 
     @property
     def awaits_driver(self) -> bool:
         """Nothing publishes or was heard, but the robot reported its pose before the restart."""
-        return not self.publishers and not self.sources and self.reported_before
+        return not self.publishers and self.reported_before
 
     def decide(self, now_s: float, doubt: str, topic: str, saved: str) -> StartStep:
         """What to do, the start-up timeout having passed and no usable pose having started it.
@@ -123,25 +176,28 @@ class StartPose:
         """
         if doubt:
             return StartStep(HOLD, f"cannot tell where the robot is: {doubt}")
-        waited_s = now_s - self.created_s
         if any(now_s - last_s <= POSE_FRESH_S for last_s in self.sources.values()):
             return StartStep(
                 WAIT,
                 f"the robot's pose is arriving on {topic}: starting from it once it can be "
                 "believed, commanding nothing",
             )
-        if self.silent:
-            until_s = min(
-                self.discovered_s + MEASURED_WAIT_S,
-                self.created_s + DISCOVERY_WAIT_S + MEASURED_WAIT_S,
+        if not self.without_measured:
+            return StartStep(
+                WAIT,
+                f"{self._what_came(topic, ' yet')}: waiting for the robot's measured pose, "
+                "commanding nothing (a robot that publishes no joint states needs "
+                "start_without_measured_pose: true)",
             )
-            if now_s < until_s:
-                return StartStep(
-                    WAIT,
-                    f"{self.silent} publisher(s) on {topic} have sent nothing yet: waiting for "
-                    f"the robot's pose (up to {until_s - now_s:.1f} s more), commanding nothing",
-                )
-        elif self.awaits_driver and waited_s < DISCOVERY_WAIT_S:
+        silent = self.silent(now_s)
+        if silent:
+            return StartStep(
+                WAIT,
+                f"{silent} publisher(s) on {topic} have sent nothing yet: waiting for the "
+                "robot's pose, commanding nothing",
+            )
+        waited_s = now_s - self.created_s
+        if self.awaits_driver and waited_s < DISCOVERY_WAIT_S:
             return StartStep(
                 WAIT,
                 f"no publisher on {topic} yet, but the robot reported its pose before the "
@@ -150,34 +206,48 @@ class StartPose:
             )
         return StartStep(SAVED if saved else NEUTRAL, self._why_without(topic, saved))
 
-    def _why_without(self, topic: str, saved: str) -> str:
+    def _what_came(self, topic: str, so_far: str = "") -> str:
+        """What the measured topic gave ``so_far``, none of it a usable pose (one clause)."""
         if self.unusable:
             came = ", ".join(f"{n} {kind}" for kind, n in sorted(self.unusable.items()))
-            what = (
+            return (
                 f"{len(self.sources)} publisher(s) on {topic} sent no usable pose of the "
                 f"robot ({came})"
             )
-        elif self.publishers:
-            what = f"{self.publishers} publisher(s) on {topic} sent nothing"
-        else:
-            what = f"no measured pose on {topic}"
+        if self.publishers:
+            return f"{self.publishers} publisher(s) on {topic} sent nothing{so_far}"
+        return f"no measured pose on {topic} (no publisher)"
+
+    def _why_without(self, topic: str, saved: str) -> str:
+        what = f"{self._what_came(topic)}; start_without_measured_pose is true"
         if saved:
             return f"{what}: started from the last commanded pose saved in {saved}"
         return (
-            f"{what} and no saved pose: started from the neutral pose; the first commands move "
-            "the robot there at the velocity limit"
+            f"{what} and there is no saved pose: started from the neutral pose; the first "
+            "commands move the robot there at the velocity limit"
         )
 
-    def listening(self, publishers: int, heard_for_s: float, topic: str) -> str:
-        """Why a usable pose does not start the filter yet ('' when it does).
+    def listening(self, heard_for_s: float, now_s: float, topic: str) -> str:
+        """Why a pose heard for ``heard_for_s`` does not start the filter yet ('' when it does).
 
-        With more than one publisher on the topic, the pose's publisher is heard for
-        :data:`MEASURED_LISTEN_S` first, so that a second source shows before the start.
+        With more than one publisher known on the topic (:attr:`publishers`), the pose's
+        publisher is heard for :data:`MEASURED_LISTEN_S` first, and the other discovered
+        publishers that have not sent yet are awaited (:meth:`silent`), so that a second
+        source of the robot's pose shows before the start.
         """
-        if publishers > 1 and heard_for_s < MEASURED_LISTEN_S:
+        publishers = self.publishers
+        if publishers < 2:
+            return ""
+        if heard_for_s < MEASURED_LISTEN_S:
             return (
                 f"{publishers} publishers on {topic}: listening {MEASURED_LISTEN_S:g} s for a "
                 "second source of the robot's pose before starting, commanding nothing"
+            )
+        silent = self.silent(now_s)
+        if silent:
+            return (
+                f"{publishers} publishers on {topic}, {silent} of them silent so far: waiting "
+                "for what they send before starting, commanding nothing"
             )
         return ""
 

@@ -87,8 +87,12 @@ def run_console(
     log_dir: Path | None = None,
     graph: bool = True,
     single_process: bool = False,
+    no_robot: bool = False,
 ) -> None:
-    """Run the console (and the graph) until Ctrl-C or until every process has given up."""
+    """Run the console (and the graph) until Ctrl-C or until every process has given up.
+
+    ``no_robot``: no robot publishes ``joint_states`` (:func:`node_graph`).
+    """
     command = console_command(params_file, values, directory)
     with ExitStack() as stack:
         if graph:
@@ -99,6 +103,7 @@ def run_console(
                     log_dir,
                     single_process=single_process,
                     more_nodes={CONSOLE_NODE: command},
+                    no_robot=no_robot,
                 )
             )
         else:

@@ -62,6 +62,7 @@ NODE_PARAMETER_NAMES = frozenset(
         "seed",
         "silence_timeout_s",
         "smoothing",
+        "start_without_measured_pose",
         "startup_timeout_s",
         "state_file",
         "state_save_period_s",

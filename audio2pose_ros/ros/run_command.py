@@ -25,11 +25,13 @@ def run_graph(
     rate: float = 1.0,
     single_process: bool = False,
     sim: bool = False,
+    no_robot: bool = False,
 ) -> PlaybackResult | None:
     """Start the graph; with ``play`` (a WAV or a bag) play it and return what was recorded.
 
     Without ``play`` the graph runs until Ctrl-C. ``single_process`` runs the three nodes in one
-    process, ``sim`` adds the simulated Pepper (:func:`node_graph`).
+    process, ``sim`` adds the simulated Pepper, ``no_robot`` says no robot publishes
+    ``joint_states`` (:func:`node_graph`).
 
     Raises:
         ConfigurationError: the supervisor gave up on a node (it refused its configuration, or
@@ -38,7 +40,12 @@ def run_graph(
     """
     messages = audio_source(play) if play is not None else None
     with node_graph(
-        params_file, overrides, log_dir, single_process=single_process, sim=sim
+        params_file,
+        overrides,
+        log_dir,
+        single_process=single_process,
+        sim=sim,
+        no_robot=no_robot,
     ) as supervisor:
         if messages is None:
             try:

@@ -41,6 +41,8 @@ from audio2pose_ros.ros.supervisor_pipe import HEARTBEAT_FD_ENV, STACK_DUMP_SIGN
 
 NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
 SIM_NODE = "pepper_sim_node"  # the simulated robot (audio2pose run --sim)
+# a graph that drives no robot: the motion filter starts without a measured pose
+NO_ROBOT = "start_without_measured_pose:=true"
 SINGLE_PROCESS = "audio2pose_nodes"  # the process that runs all three nodes (single-process mode)
 # As the launch file does: trajectories go to Pepper's ros2_control controller.
 NODE_REMAPS = {"motion_filter_node": ("-r", f"{topics.JOINT_TRAJECTORY}:={CONTROLLER_TOPIC}")}
@@ -400,6 +402,7 @@ def node_graph(
     sim: bool = False,
     more_nodes: Mapping[str, list[str]] | None = None,
     restart_after_s: float = RESTART_AFTER_S,
+    no_robot: bool = False,
 ) -> Iterator[NodeSupervisor]:
     """Run the three nodes as supervised processes for the duration of the context.
 
@@ -417,8 +420,13 @@ def node_graph(
             each (``audio2pose console`` adds ``console_node``).
         restart_after_s: how long a node may be silent before it is restarted (see
             :class:`NodeSupervisor`).
+        no_robot: no robot publishes ``joint_states`` (nothing but the recorder or a viewer
+            takes the commands): the motion filter starts from its saved pose or neutral
+            (``start_without_measured_pose``) instead of waiting for a measured pose.
     """
     params = params_file or share_path("config", "pepper.yaml")
+    if no_robot:
+        overrides = [NO_ROBOT, *overrides]
     with ExitStack() as stack:
         extra: list[str] = []
         if overrides:

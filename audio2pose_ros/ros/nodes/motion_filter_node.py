@@ -25,8 +25,9 @@ Parameters: the fields of MotionFilterSettings, StyleSettings (the style: per pa
 
 Safety: every command passes the input gate first and the joint limiter last; the node
 publishes nothing until it knows where the robot is. Which pose it starts from (the measured
-pose, every valid joint of it; else, once none can still come, the pose it last commanded, saved
-in ``state_file``, or neutral) is :mod:`audio2pose_ros.motion.start_pose`'s decision; whether a
+pose, every valid joint of it; only with ``start_without_measured_pose``, once none can still
+come, the pose it last commanded, saved in ``state_file``, or neutral) is
+:mod:`audio2pose_ros.motion.start_pose`'s decision; whether a
 measured pose can be believed, :mod:`audio2pose_ros.motion.measured`'s (a joint listed twice, a
 stamp too old or ahead: refused, WARN; two publishers that disagree: ERROR, neither used, and
 the start holds, commanding nothing, until the conflict has been over for ``SOURCE_WINDOW_S``);
@@ -73,7 +74,7 @@ from __future__ import annotations
 import array
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Hashable, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -97,7 +98,7 @@ from audio2pose_ros.motion.measured_states import MeasuredStates, start_held
 from audio2pose_ros.motion.pacing import OutputPacing, arrival_wait_s, next_timer_s
 from audio2pose_ros.motion.problems import Problem
 from audio2pose_ros.motion.raw_intake import RawIntake
-from audio2pose_ros.motion.start_pose import HOLD, WAIT
+from audio2pose_ros.motion.start_pose import HOLD, UNKNOWN, WAIT, identity
 from audio2pose_ros.motion.state_file import (
     FilterMemory,
     StateFileInUseError,
@@ -199,7 +200,10 @@ class MotionFilterNode(DiagnosedNode):
             self._report(problem)
         self.memory = self.state.memory
         self.measured = MeasuredStates(
-            self.robot, time.monotonic(), self.memory is not None and self.memory.measured
+            self.robot,
+            time.monotonic(),
+            self.memory is not None and self.memory.measured,
+            self.settings.start_without_measured_pose,
         )
         # the stop and the disable in force, each since a wall-clock time (motion.holds)
         self.stop_hold, self.disable_hold = Hold.kept(self.memory)
@@ -273,9 +277,14 @@ class MotionFilterNode(DiagnosedNode):
         }
         self.get_logger().info(
             f"{self.robot.n_joints} joints at {settings.rate_hz:g} Hz, {settings.smoothing} "
-            f"smoothing, outputs: {', '.join(self.publishers_by_output) or 'none'}; waiting up "
-            f"to {self.settings.startup_timeout_s:g} s for the measured pose on "
-            f"{self.settings.measured_joint_states_topic}"
+            f"smoothing, outputs: {', '.join(self.publishers_by_output) or 'none'}; waiting for "
+            f"the measured pose on {self.settings.measured_joint_states_topic}"
+            + (
+                f" (without it, starting from the saved pose or neutral after at least "
+                f"{self.settings.startup_timeout_s:g} s: start_without_measured_pose)"
+                if self.settings.start_without_measured_pose
+                else ", commanding nothing until it comes"
+            )
         )
 
     def destroy_node(self) -> None:
@@ -330,9 +339,12 @@ class MotionFilterNode(DiagnosedNode):
         this reports its problems and starts the filter from the pose it gives.
         """
         arrival_s = time.monotonic()
-        # no gid (called directly, or an rclpy that does not say): publishers not told apart
-        source: bytes = publisher_of(info) or b""
-        published_ns = 0 if info is None else info.get("source_timestamp") or 0
+        source: Hashable = UNKNOWN  # called directly, or an rclpy that gives no gid
+        published_ns = 0
+        if info is not None:
+            gid = publisher_of(info)
+            source = UNKNOWN if gid is None else identity(gid)
+            published_ns = info.get("source_timestamp") or 0
         topic = self.settings.measured_joint_states_topic
         use = self.measured.take(
             msg.name,
@@ -344,7 +356,7 @@ class MotionFilterNode(DiagnosedNode):
             arrival_s,
             self.started,
             topic,
-            lambda: self.count_publishers(topic),
+            lambda: self.publisher_ids(topic),
             self._saved_pose,
         )
         for key in use.cleared:
@@ -354,6 +366,10 @@ class MotionFilterNode(DiagnosedNode):
         if use.start_rad is not None:
             self._start(use.start_rad, "measured pose")
             self.get_logger().info("starting from the robot's measured pose")
+
+    def publisher_ids(self, topic: str) -> list[Hashable]:
+        """The identities of ``topic``'s publishers, as the graph shows them now."""
+        return [identity(info.endpoint_gid) for info in self.get_publishers_info_by_topic(topic)]
 
     def _report(self, problem: Problem) -> None:
         """Report a problem of the core on /diagnostics."""
@@ -367,16 +383,17 @@ class MotionFilterNode(DiagnosedNode):
         """No measured pose started the filter in time: decide (:class:`StartPose`) what now.
 
         Called when ``startup_timeout_s`` has passed, then every 0.1 s while the start waits:
-        it waits (WARN) while a usable measured pose may still come, holds (ERROR) while the
-        published pose cannot be believed, and otherwise starts from the saved pose or neutral
-        (WARN, saying why no measured pose was used).
+        it waits (WARN, saying why) for a usable measured pose, holds (ERROR) while the
+        published pose cannot be believed, and, only with ``start_without_measured_pose``,
+        starts from the saved pose or neutral once no measured pose can still come (WARN,
+        saying why no measured pose was used).
         """
         if self.started:
             self.startup_timer.cancel()
             return
         topic = self.settings.measured_joint_states_topic
         now = time.monotonic()
-        self.measured.start.discovered(self.count_publishers(topic), now)
+        self.measured.start.discovered(self.publisher_ids(topic), now)
         saved = self._saved_pose()
         step = self.measured.start.decide(
             now, self.measured.doubt(now), topic, "" if saved is None else str(self.state_path)
@@ -458,8 +475,14 @@ class MotionFilterNode(DiagnosedNode):
         return self.intake.messages
 
     def on_raw(self, message: JointTrajectory, info: MessageInfo | None) -> None:
-        """Check and queue the poses of one raw trajectory message (of the one source in use)."""
+        """Check and queue the poses of one raw trajectory message (of the one source in use).
+
+        A message listing a joint twice or naming one the robot lacks is refused whole
+        (:meth:`RawIntake.joint_names`).
+        """
         refused = self._refused_source(info)
+        if refused is None:
+            refused = self.intake.joint_names(message.joint_names)
         if refused is not None:
             self._report(refused)
             return

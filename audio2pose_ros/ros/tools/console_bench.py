@@ -276,7 +276,10 @@ def measure_console(speech_16k: np.ndarray, duration_s: float = 60.0) -> Console
         command = console_command(params, {"port": port}, directory)
         listener = _Listener()
         with node_graph(
-            params, log_dir=directory / "logs", more_nodes={CONSOLE_NODE: command}
+            params,
+            log_dir=directory / "logs",
+            more_nodes={CONSOLE_NODE: command},
+            no_robot=True,  # the bench takes the commands: no robot reports its pose
         ) as graph:
             deadline = time.monotonic() + READY_TIMEOUT_S
             if not spin_until(listener, deadline, lambda: bool(listener.commands)):

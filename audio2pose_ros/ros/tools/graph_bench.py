@@ -214,7 +214,10 @@ def measure_graph(
         player = _Player()
         launched = time.monotonic()
         with node_graph(
-            _bench_params(Path(tmp)), log_dir=Path(tmp) / "logs", single_process=single_process
+            _bench_params(Path(tmp)),
+            log_dir=Path(tmp) / "logs",
+            single_process=single_process,
+            no_robot=True,  # the bench takes the commands: no robot reports its pose
         ) as graph:
             player.player.publishers[topics.absolute(topics.AUDIO_INFO)].publish(
                 AudioInfo(**S16LE_MONO_16K.audio_info_fields())
