@@ -1,15 +1,21 @@
 # audio2pose_ros on a machine without a ROS distro: everything runs from .venv (see README.md).
-.PHONY: setup demo test test-long test-fast lint bench docs default-model style-presets evaluate-style clean
+.PHONY: setup demo test test-long test-fast test-ros test-jazzy lint bench docs default-model style-presets evaluate-style clean
 
 # DDS stays on loopback and each run gets its own domain unless the caller chose one.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_DOMAIN_ID ?= $(shell shuf -i 1-100 -n 1)
 
-VENV_BIN := .venv/bin
+# The ROS 2 wheels the targets run on: Kilted's in .venv (the default), or Jazzy's in .venv-jazzy
+# with `make <target> ROS_DISTRO=jazzy` on the command line. A ROS_DISTRO in the environment (a
+# sourced ROS distro sets one) does not choose: these venvs never use a distro's own Python.
+VENV_DISTRO := $(if $(filter command line,$(origin ROS_DISTRO)),$(ROS_DISTRO),kilted)
+VENV := $(if $(filter kilted,$(VENV_DISTRO)),.venv,.venv-$(VENV_DISTRO))
+VENV_BIN := $(VENV)/bin
 
-# Create/update .venv (ROS 2 wheels, torch, message packages, editable install). Fast when up to date.
+# Create/update the venv (ROS 2 wheels, torch, message packages, editable install). Fast when up
+# to date.
 setup:
-	bash support/setup_venv.sh
+	bash support/setup_venv.sh $(VENV_DISTRO)
 
 # Bundled speech -> live node graph -> recorded MCAP bag + offline CSV, with the default model.
 demo: setup
@@ -31,6 +37,19 @@ test-long: setup
 # Everything except the tests marked slow (real-time playback through the node graph) or long.
 test-fast: setup
 	$(VENV_BIN)/python -m pytest -m "not slow and not long"
+
+# The ROS-facing tests again, on the lane ROS_DISTRO chooses (`make test-ros ROS_DISTRO=jazzy` is
+# `make test-jazzy`, which CI runs after `make test`), one at a time: every DDS test but the long
+# ones (nodes over DDS between processes, the console's DDS side, the start pose, bag replay), then
+# the bag tests without DDS (rosbag2 files of the distro's messages) and the floods of node
+# processes (long). Both runs go to the end; the status is the first failure's.
+ROS_LANE_FILES := test/test_bag*.py test/test_recording.py test/test_flood_starvation.py test/test_heartbeat_backlog.py
+test-ros: setup
+	$(VENV_BIN)/python -m pytest -p no:xdist -m "ros and not long"; status=$$?; \
+	$(VENV_BIN)/python -m pytest -p no:xdist -m "long or not ros" $(ROS_LANE_FILES) && exit $$status
+
+test-jazzy:
+	$(MAKE) test-ros ROS_DISTRO=jazzy
 
 lint: setup
 	$(VENV_BIN)/ruff check . && $(VENV_BIN)/ruff format --check . && $(VENV_BIN)/mypy
@@ -66,4 +85,4 @@ evaluate-style: style-presets
 	nice -n 10 $(VENV_BIN)/audio2pose evaluate-style out/style-sources/talking_heads out/style-sources/lecture $(if $(wildcard $(GRID_S1)/index.json),grid_s1=$(GRID_S1)) --card models/default/MODEL_CARD.md
 
 clean:
-	rm -rf .venv out doc/generated build install log .pytest_cache .ruff_cache .mypy_cache .hypothesis web/dist web/node_modules
+	rm -rf .venv .venv-jazzy out doc/generated build install log .pytest_cache .ruff_cache .mypy_cache .hypothesis web/dist web/node_modules

@@ -312,7 +312,7 @@ def scenario_configuration_errors(probe: GraphProbe) -> None:
         ("missing params_file", [f"params_file:={LOG_DIR / 'missing.yaml'}"]),
         ("wrong parameter type", [f"params_file:={wrong_type}"]),
     ):
-        launch = Launch(label.split(":")[1].strip().replace(" ", "_"), *arguments)
+        launch = Launch(label.replace(" ", "_"), *arguments)
         status = launch.wait(90.0)
         text = launch.output()
         starts = text.count("process started")

@@ -1,8 +1,11 @@
 #!/usr/bin/env bash
-# Create or update the project's virtual environment (.venv in the repository root), as run by
-# `make setup`:
-#   1. python3 -m venv .venv (only if missing)
-#   2. pip install -r support/requirements.txt (ROS 2 Kilted wheels, rosidl toolchain, torch, ...)
+# Create or update one of the project's virtual environments, as run by `make setup`:
+#   support/setup_venv.sh [kilted|jazzy]      (default kilted)
+# kilted -> .venv with ROS 2 Kilted's wheels (support/requirements.txt); jazzy -> .venv-jazzy with
+# the same requirements, except that its ROS wheels (every `ros-` line of requirements.txt) are
+# Jazzy's, pinned in support/requirements-jazzy.txt. The steps, for either:
+#   1. python3 -m venv <venv> (only if missing)
+#   2. pip install the requirements (ROS 2 wheels, rosidl toolchain, torch, ...)
 #   3. pip install --no-deps --no-build-isolation -e .  (this package, editable)
 #   4. rewrite the ROS wheels' exported CMake files that hard-code the wheel builder's Python and
 #      numpy include paths (/opt/python/cpXY-cpXY/...) to this venv's own paths
@@ -13,25 +16,34 @@
 #      only as root with apt-get; otherwise the script says what to install (those tests skip)
 #   7. verify that rclpy, both message packages, torch, python_speech_features and the rendering
 #      stack (pybullet, yourdfpy, imageio-ffmpeg) import
-# Before all that, and also when .venv is up to date: the operator console's front end
+# Before all that, and also when the venv is up to date: the operator console's front end
 # (web/: npm ci && npm run build -> web/dist, served by console_node) when its sources changed,
 # if node and npm are installed; without them the console serves a page saying it is not built.
-# A stamp file in .venv records a hash of the inputs; when nothing changed the script only says so.
+# A stamp file in the venv records a hash of the inputs; when nothing changed the script only says so.
 # Environment: PYTHON (interpreter used to create the venv, default python3),
 #              AUDIO2POSE_SETUP_FORCE=1 (ignore the stamp and redo every step).
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-VENV="$ROOT/.venv"
 SUPPORT="$ROOT/support"
+DISTRO="${1:-kilted}"
 MSG_SRC="$SUPPORT/ros_msgs"
 MSG_PKGS=(audio_common_msgs naoqi_bridge_msgs)
-STAMP="$VENV/.audio2pose_setup.stamp"
-STATE="$VENV/.audio2pose_setup"
 BOOT_PYTHON="${PYTHON:-python3}"
 
 log() { printf '[setup] %s\n' "$*"; }
 die() { printf '[setup] ERROR: %s\n' "$*" >&2; exit 1; }
+
+# The ROS 2 distro whose wheels the venv gets: its folder, and the file that pins its ROS wheels
+# in place of requirements.txt's `ros-` lines (Kilted's) for a distro other than Kilted.
+case "$DISTRO" in
+  kilted) VENV="$ROOT/.venv" DISTRO_REQS=() ;;
+  jazzy) VENV="$ROOT/.venv-jazzy" DISTRO_REQS=("$SUPPORT/requirements-jazzy.txt") ;;
+  *) die "unknown ROS 2 distro '$DISTRO' (kilted or jazzy)" ;;
+esac
+VENV_NAME="${VENV#"$ROOT"/}"
+STAMP="$VENV/.audio2pose_setup.stamp"
+STATE="$VENV/.audio2pose_setup"
 
 # Another venv's ROS bootstrap state must not leak in: the wheels' .pth re-execs the interpreter
 # with LD_LIBRARY_PATH pointing at *its* venv unless this guard is already set.
@@ -79,7 +91,7 @@ build_console_web
 mapfile -t ALL_MSG_FILES < <(find "$MSG_SRC" -type f | LC_ALL=C sort)
 INPUT_HASH="$(
   {
-    hash_files "$SUPPORT/requirements.txt" "$ROOT/setup.cfg" "$ROOT/setup.py" \
+    hash_files "$SUPPORT/requirements.txt" "${DISTRO_REQS[@]}" "$ROOT/setup.cfg" "$ROOT/setup.py" \
       "$ROOT/pyproject.toml" "$SUPPORT/setup_venv.sh" "${ALL_MSG_FILES[@]}"
     "$BOOT_PYTHON" -c 'import sys; print(sys.version)'
   } | sha256sum | cut -d' ' -f1
@@ -87,7 +99,7 @@ INPUT_HASH="$(
 
 if [[ "${AUDIO2POSE_SETUP_FORCE:-0}" != 1 && -x "$VENV/bin/python" && -f "$STAMP" \
       && "$(cat "$STAMP")" == "$INPUT_HASH" ]]; then
-  log ".venv is up to date (inputs unchanged; AUDIO2POSE_SETUP_FORCE=1 to redo)"
+  log "$VENV_NAME is up to date (inputs unchanged; AUDIO2POSE_SETUP_FORCE=1 to redo)"
   exit 0
 fi
 
@@ -108,11 +120,17 @@ export VIRTUAL_ENV="$VENV"
 export PATH="$VENV/bin:$PATH"
 
 # ---------------------------------------------------------------------------------------------
-log "[2/7] pip install -r support/requirements.txt (first run: a few minutes)"
+REQS=(-r "$SUPPORT/requirements.txt")
+if (( ${#DISTRO_REQS[@]} )); then
+  # requirements.txt without its ROS wheels (the `ros-` lines), then the distro's own
+  grep -v '^ros-' "$SUPPORT/requirements.txt" >"$STATE/requirements-without-ros.txt"
+  REQS=(-r "$STATE/requirements-without-ros.txt" -r "${DISTRO_REQS[0]}")
+fi
+log "[2/7] pip install ${REQS[*]#"$ROOT"/} (first run: a few minutes)"
 # (pipefail: the pipeline fails iff pip fails; the filter only hides noise)
-"$PY" -m pip install --progress-bar off -r "$SUPPORT/requirements.txt" 2>&1 \
+"$PY" -m pip install --progress-bar off "${REQS[@]}" 2>&1 \
   | { grep -v -E '^(Requirement already satisfied|  Using cached|  Downloading|  Obtaining|WARNING: Location .* is ignored)' || true; } \
-  || die "pip install -r support/requirements.txt failed"
+  || die "pip install ${REQS[*]#"$ROOT"/} failed"
 
 # ---------------------------------------------------------------------------------------------
 log "[3/7] pip install --no-deps --no-build-isolation -e . (audio2pose_ros, editable)"
@@ -138,7 +156,7 @@ if not (pathlib.Path(py_inc) / "Python.h").is_file():
              f"{sys.version_info[1]}-dev)")
 builder = r"/opt/python/cp3\d+-cp3\d+t?"
 patterns = [
-    (re.compile(builder + r"/lib/python3\.\d+t?/site-packages/numpy/_core/include"), np_inc),
+    (re.compile(builder + r"/lib/python3\.\d+t?/site-packages/numpy/_?core/include"), np_inc),
     (re.compile(builder + r"/include/python3\.\d+t?"), py_inc),
 ]
 changed = 0
@@ -174,7 +192,7 @@ for pkg in "${MSG_PKGS[@]}"; do
       log "      $pkg: importable (provided elsewhere, e.g. a ROS distro): not building"
       continue
     elif [[ "$(cat "$pkg_stamp")" == "$pkg_hash" ]]; then
-      log "      $pkg: already built into .venv from current sources"
+      log "      $pkg: already built into $VENV_NAME from current sources"
       continue
     fi
     log "      $pkg: sources changed since the last build: rebuilding"
@@ -183,7 +201,7 @@ for pkg in "${MSG_PKGS[@]}"; do
   command -v c++ >/dev/null || die "C++ compiler not found (Debian: apt-get install g++)"
   [[ -n "$BUILD_ROOT" ]] || BUILD_ROOT="$(mktemp -d "${TMPDIR:-/tmp}/audio2pose_msgs.XXXXXX")"
   build_log="$STATE/$pkg.build.log"
-  log "      $pkg: cmake configure + build + install into .venv (~10 s; log: ${build_log#"$ROOT"/})"
+  log "      $pkg: cmake configure + build + install into $VENV_NAME (~10 s; log: ${build_log#"$ROOT"/})"
   t0=$SECONDS
   if ! {
     cmake -S "$MSG_SRC/$pkg" -B "$BUILD_ROOT/$pkg" \
@@ -226,7 +244,7 @@ done
 "$PY" -c "import pybullet, yourdfpy, imageio_ffmpeg; imageio_ffmpeg.get_ffmpeg_exe()" \
   || die "import check of the rendering stack (pybullet, yourdfpy, imageio-ffmpeg) failed"
 "$PY" -c "import importlib.util, sys; sys.exit(importlib.util.find_spec('audio2pose_ros') is None)" \
-  || die "audio2pose_ros is not importable from .venv (editable install)"
+  || die "audio2pose_ros is not importable from $VENV_NAME (editable install)"
 
 printf '%s\n' "$INPUT_HASH" >"$STAMP"
-log "done in $((SECONDS - START)) s: .venv is ready"
+log "done in $((SECONDS - START)) s: $VENV_NAME (ROS 2 $DISTRO) is ready"

@@ -3,11 +3,12 @@
 Each fenced ``bash`` block is read command by command (``&&``, ``||``, ``;``, ``|`` and line
 continuations split and joined as bash does, comments dropped):
 
-- ``audio2pose ...`` (also ``.venv/bin/audio2pose`` and ``ros2 run audio2pose_ros audio2pose``)
+- ``audio2pose ...`` (also ``.venv/bin/audio2pose``, ``.venv-jazzy/bin/audio2pose`` and
+  ``ros2 run audio2pose_ros audio2pose``)
   is parsed by the real argument parser: verb, options and their values; nothing heavy runs.
   An ``audio2pose console`` of an ordinary block also has its bind, certificate and token checked
   as the command checks them before it starts anything.
-- ``make <target>`` must be a target of the Makefile;
+- ``make <target> [NAME=value]`` must name a target of the Makefile;
   ``ros2 launch audio2pose_ros pepper.launch.py name:=value`` must name declared launch
   arguments, with a value among their choices; ``python -m <module>`` must be importable.
 - ``openssl`` runs for real, in a temporary directory.
@@ -46,6 +47,7 @@ REDIRECTIONS = {">", ">>", "<", ">&", "<&", "2>", "&>"}
 AUDIO2POSE_PREFIXES = (
     ["audio2pose"],
     [".venv/bin/audio2pose"],
+    [".venv-jazzy/bin/audio2pose"],
     ["ros2", "run", "audio2pose_ros", "audio2pose"],
 )
 
@@ -273,7 +275,7 @@ def check_command(words: list[str], block: Block, tmp: Path) -> None:
         if namespace.verb == "console" and not block.needs:
             check_console(namespace, tmp)
     elif words[0] == "make":
-        unknown = set(words[1:]) - make_targets()
+        unknown = {word for word in words[1:] if "=" not in word} - make_targets()
         assert not unknown, f"make: no target {sorted(unknown)}"
     elif words[:3] == ["ros2", "launch", "audio2pose_ros"]:
         check_launch(words)
