@@ -321,6 +321,23 @@ def test_when_a_data_set_holds_more_than_the_bound_expect_only_its_first_clips_r
     assert lines == [f"reading the first 60 s of data set {tmp_path / 'data'}"]
 
 
+def test_when_a_clip_is_read_in_part_expect_its_first_frames_and_their_audio_only(
+    tmp_path, robot, speech
+):
+    dataset = Dataset.create(tmp_path / "data", robot)
+    frames = complete_frames(speech.size)
+    angles = np.tile(robot.neutral_rad, (frames, 1)) + np.linspace(0.0, 0.1, frames)[:, None]
+    mask = np.broadcast_to(np.arange(frames)[:, None] % 3 != 0, angles.shape).copy()
+    dataset.add(Clip(ClipInfo("talk", "someone", "test", "test"), speech, angles, mask), robot)
+    whole, part = dataset.load("talk"), dataset.load("talk", max_frames=250)
+    assert part.n_frames == 250
+    assert part.audio.size == SAMPLES_PER_FRAME * 249 + WINDOW_SAMPLES
+    np.testing.assert_array_equal(part.audio, whole.audio[: part.audio.size])
+    np.testing.assert_array_equal(part.angles_rad, whole.angles_rad[:250])
+    np.testing.assert_array_equal(part.mask, whole.mask[:250])
+    assert dataset.load("talk", max_frames=10 * frames).n_frames == frames  # no more than it has
+
+
 # --- the console ------------------------------------------------------------------------------
 
 

@@ -432,9 +432,10 @@ def recording_clips(
 ) -> list[Clip]:
     """A recording's first ``max_seconds``: of a data set folder (any importer's) or a video.
 
-    Only that much is read: a data set's clips are loaded in order until it is reached; of a
-    video, the audio and frames after it are not decoded (:func:`~.importers.video.import_video`
-    with ``max_seconds``), and frames are scaled down to what MediaPipe needs.
+    Only that much is read: a data set's clips are loaded in order until it is reached, each
+    no further than that (:meth:`~audio2pose_ros.data.dataset.Dataset.load`); of a video, the
+    audio and frames after it are not decoded (:func:`~.importers.video.import_video` with
+    ``max_seconds``), and frames are scaled down to what MediaPipe needs.
 
     Raises:
         InputError: missing source, a data set that cannot be read, or a video the importer
@@ -445,7 +446,9 @@ def recording_clips(
             raise InputError(f"{source}: a folder must be a data set (it has no index.json)")
         dataset = Dataset.open(source, robot)
         progress(f"reading the first {max_seconds:g} s of data set {source}")
-        return _first_seconds((dataset.load(info.clip_id) for info in dataset.clips), max_seconds)
+        frames = round(max_seconds * FRAME_RATE_HZ)  # of each clip, at most this much is read
+        clips = (dataset.load(info.clip_id, max_frames=frames) for info in dataset.clips)
+        return _first_seconds(clips, max_seconds)
     if not source.is_file():
         raise InputError(f"{source}: no such file or data set folder")
     from audio2pose_ros.data.importers.video import VideoImportSettings, import_video
