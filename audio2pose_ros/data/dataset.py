@@ -233,7 +233,7 @@ def read_arrays(
                 for name, info in members.items():
                     with archive.open(info) as member:
                         if rows is not None and name in rows:
-                            arrays[name] = _read_rows(member, rows[name])
+                            arrays[name] = _read_rows(member, info.filename, rows[name])
                         else:
                             arrays[name] = np.lib.format.read_array(member, allow_pickle=False)
         except _NPZ_ERRORS as exc:
@@ -241,28 +241,38 @@ def read_arrays(
     return arrays
 
 
-def _read_rows(member: IO[bytes], rows: int) -> np.ndarray:
-    """The first ``rows`` entries (along the first axis) of a C-ordered ``.npy`` stream.
+def _npy_stream_header(stream: IO[bytes], name: str) -> tuple[tuple[int, ...], bool, np.dtype]:
+    """Shape, Fortran order and dtype of the ``.npy`` stream ``name``; its data comes next.
+
+    Raises:
+        ValueError: another ``.npy`` version than 1.0 or 2.0.
+    """
+    version = np.lib.format.read_magic(stream)
+    if version == (1, 0):
+        shape, fortran_order, dtype = np.lib.format.read_array_header_1_0(stream)
+    elif version == (2, 0):
+        shape, fortran_order, dtype = np.lib.format.read_array_header_2_0(stream)
+    else:
+        raise ValueError(f"{name}: .npy format {version} is not supported")
+    return tuple(shape), bool(fortran_order), dtype
+
+
+def _read_rows(member: IO[bytes], name: str, rows: int) -> np.ndarray:
+    """The first ``rows`` entries (along the first axis) of the C-ordered ``.npy`` stream ``name``.
 
     Raises:
         ValueError: another ``.npy`` version, a Fortran-ordered or object array, or a stream
             that ends early.
     """
-    version = np.lib.format.read_magic(member)
-    if version == (1, 0):
-        shape, fortran_order, dtype = np.lib.format.read_array_header_1_0(member)
-    elif version == (2, 0):
-        shape, fortran_order, dtype = np.lib.format.read_array_header_2_0(member)
-    else:
-        raise ValueError(f".npy format {version} is not supported")
+    shape, fortran_order, dtype = _npy_stream_header(member, name)
     if fortran_order or dtype.hasobject or not shape:
-        raise ValueError("only C-ordered arrays of plain values are read in part")
+        raise ValueError(f"{name}: only C-ordered arrays of plain values are read in part")
     out = np.empty((min(rows, shape[0]), *shape[1:]), dtype=dtype)
     view, filled = out.data.cast("B"), 0
     while filled < view.nbytes:
         chunk = member.read(min(view.nbytes - filled, 1 << 20))
         if not chunk:
-            raise ValueError(f"the data ends after {filled} of {view.nbytes} bytes")
+            raise ValueError(f"{name}: the data ends after {filled} of {view.nbytes} bytes")
         view[filled : filled + len(chunk)] = chunk
         filled += len(chunk)
     view.release()
@@ -272,14 +282,8 @@ def _read_rows(member: IO[bytes], rows: int) -> np.ndarray:
 def _npy_header(archive: zipfile.ZipFile, info: zipfile.ZipInfo) -> ArrayHeader:
     """Shape and dtype declared by one ``.npy`` member (its data is not read)."""
     with archive.open(info) as stream:
-        version = np.lib.format.read_magic(stream)
-        if version == (1, 0):
-            shape, _, dtype = np.lib.format.read_array_header_1_0(stream)
-        elif version == (2, 0):
-            shape, _, dtype = np.lib.format.read_array_header_2_0(stream)
-        else:
-            raise ValueError(f"{info.filename}: .npy format {version} is not supported")
-    return tuple(shape), dtype
+        shape, _, dtype = _npy_stream_header(stream, info.filename)
+    return shape, dtype
 
 
 def _check_clip_headers(clip_id: str, n_joints: int) -> Callable[[Mapping[str, ArrayHeader]], None]:
