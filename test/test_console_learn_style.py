@@ -2,16 +2,20 @@
 real aiohttp server driven by a real WebSocket and HTTP client.
 
 The learning child here is a short Python program that behaves as the real worker does at its
-edge (progress lines, then the settings line, or an exit status); the real worker, with the
-importer and the style fit, runs in test_console_learn_style_browser.py.
+edge (progress lines, then the settings line, or a failure line and an exit status); the real
+worker, with the importer and the style fit, runs in test_console_learn_style_browser.py. An
+upload is checked before it is accepted: the uploads here are a real one-second recording.
 """
 
 from __future__ import annotations
 
 import asyncio
 import dataclasses
+import functools
 import json
+import subprocess
 import sys
+import tempfile
 import textwrap
 from collections.abc import AsyncIterator, Iterator
 from contextlib import contextmanager
@@ -28,6 +32,7 @@ from audio2pose_ros.console.protocol import ProtocolError, parse_control
 from audio2pose_ros.console.server import ConsoleServer
 from audio2pose_ros.console.server_thread import ServerThread
 from audio2pose_ros.console.settings import ConsoleSettings
+from audio2pose_ros.data.importers.media import ffmpeg_executable
 from audio2pose_ros.resources import share_path
 
 TOKEN = "learn-style-token-0123456789"
@@ -49,6 +54,20 @@ LEARNS = child(
     print("STYLE_SETTINGS " + json.dumps({SETTINGS!r}), flush=True)
     """
 )
+
+
+@functools.cache
+def real_recording() -> bytes:
+    """A real recording: one second of a small grey picture and a tone (Matroska, a few KB)."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "recording.mkv"
+        subprocess.run(
+            [ffmpeg_executable(), "-v", "error", "-f", "lavfi", "-i",
+             "color=c=gray:s=64x48:r=10:d=1", "-f", "lavfi", "-i", "sine=duration=1",
+             "-c:v", "mjpeg", "-c:a", "flac", str(path)],
+            check=True,
+        )  # fmt: skip
+        return path.read_bytes()
 
 
 class Clock:
@@ -74,8 +93,8 @@ def run(coroutine: Any) -> Any:
 def test_when_a_ticket_is_used_expect_it_gone_and_a_second_upload_refused(tmp_path):
     jobs = Enrollments(tmp_path, LEARNS)
     key = jobs.ticket(1, "Ann", keep=False)
-    ticket, path = run(jobs.receive(key, "video/webm", chunks(b"x" * 10)))
-    assert (ticket.session, ticket.owner, path.read_bytes()) == (1, "Ann", b"x" * 10)
+    ticket, path = run(jobs.receive(key, "video/webm", chunks(real_recording())))
+    assert (ticket.session, ticket.owner, path.read_bytes()) == (1, "Ann", real_recording())
     with pytest.raises(EnrollmentError, match="unknown, used or expired"):
         run(jobs.receive(key, "video/webm", chunks(b"y")))
 
@@ -143,7 +162,7 @@ def test_when_an_upload_trickles_expect_it_dropped_and_the_slot_free(tmp_path, m
 
 def _learn(jobs: Enrollments, keep: bool) -> tuple[Path, Any]:
     key = jobs.ticket(1, "Ann", keep=keep)
-    ticket, path = run(jobs.receive(key, "video/webm", chunks(b"recording")))
+    ticket, path = run(jobs.receive(key, "video/webm", chunks(real_recording())))
     return path, run(jobs.run(ticket, path))
 
 
@@ -187,23 +206,35 @@ def test_when_the_operator_keeps_the_recording_expect_it_beside_the_style(tmp_pa
     recording, result = _learn(jobs, keep=True)
     assert not recording.exists()
     assert result.kept_recording == result.folder / "recording.webm"
-    assert result.kept_recording.read_bytes() == b"recording"
+    assert result.kept_recording.read_bytes() == real_recording()
 
 
 @pytest.mark.parametrize(
     ("body", "match"),
     [
-        ('print("the video has no audio track", flush=True); sys.exit(1)', "no audio track"),
+        (
+            'print("ENROLL_FAILED the video has no audio track", flush=True); sys.exit(1)',
+            "^the video has no audio track$",
+        ),
+        (  # a progress line is not a reason
+            'print("tracking face and body", flush=True); sys.exit(1)',
+            r"^the learning process ended \(exit code 1\) without a result$",
+        ),
+        (
+            'import os, signal; print("tracking face and body", flush=True); '
+            "os.kill(os.getpid(), signal.SIGKILL)",
+            r"stopped by signal 9 \(a crash, or its memory bound of 1\.5 GiB reached\)",
+        ),
         ('print("STYLE_SETTINGS " + json.dumps({"head_gain": float("nan")}))', "not finite"),
         ('print("STYLE_SETTINGS [1, 2]")', "not finite"),
         ('print("STYLE_SETTINGS {")', "unreadable"),
-        ('print("done, but no settings")', "no settings"),
+        ('print("done, but no settings")', "without a result"),
     ],
 )
 def test_when_learning_fails_expect_the_reason_and_nothing_left(tmp_path, body, match):
     jobs = Enrollments(tmp_path, child(body))
     key = jobs.ticket(1, "Ann", keep=True)
-    ticket, recording = run(jobs.receive(key, "video/webm", chunks(b"recording")))
+    ticket, recording = run(jobs.receive(key, "video/webm", chunks(real_recording())))
     with pytest.raises(EnrollmentError, match=match):
         run(jobs.run(ticket, recording))
     assert not recording.parent.exists()  # the recording too, although it was to be kept
@@ -216,7 +247,7 @@ def test_when_learning_hangs_expect_the_child_killed_after_the_timeout(tmp_path,
     monkeypatch.setattr(enrollment, "ENROLL_TIMEOUT_S", 1.0)
     jobs = Enrollments(tmp_path, child('print("started", flush=True); time.sleep(600)'))
     key = jobs.ticket(1, "Ann", keep=False)
-    ticket, recording = run(jobs.receive(key, "video/webm", chunks(b"recording")))
+    ticket, recording = run(jobs.receive(key, "video/webm", chunks(real_recording())))
     with pytest.raises(EnrollmentError, match="took over 1 s"):
         run(jobs.run(ticket, recording))
     assert not recording.parent.exists()
@@ -315,7 +346,8 @@ def test_when_an_operator_uploads_a_recording_expect_the_style_applied_then_undo
             await ws.send_str('{"type":"enroll","keep":false}')
             ticket = (await until(ws, "enroll_ticket"))["ticket"]
             headers = {"Content-Type": "video/webm", "Origin": base}
-            async with http.post(f"{base}/enroll/{ticket}", data=b"webm", headers=headers) as r:
+            upload = real_recording()
+            async with http.post(f"{base}/enroll/{ticket}", data=upload, headers=headers) as r:
                 assert r.status == 202
             status = await until(ws, "status", lambda s: s["enrollment"]["state"] == "ready")
             assert status["style"] == "personal"

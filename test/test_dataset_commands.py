@@ -99,6 +99,6 @@ def test_when_importing_videos_with_one_bad_expect_speed_reported_and_the_good_o
                "--licence", "CC BY 4.0", "--no-body")  # fmt: skip
     captured = capsys.readouterr()
     assert code == 1
-    assert "junk.mp4: cannot read the audio" in captured.err
+    assert "junk.mp4: not a readable media file" in captured.err
     assert "frames/s; face found in 100.0 %" in captured.out
     assert [c.clip_id for c in Dataset.open(out).clips] == ["grid_bbaf2n"]

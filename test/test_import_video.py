@@ -78,7 +78,7 @@ def test_when_the_video_shows_no_face_expect_an_error_naming_the_file(tmp_path, 
 def test_when_the_file_is_not_media_expect_an_error_naming_the_file(tmp_path, robot):
     junk = tmp_path / "junk.mp4"
     junk.write_bytes(b"not a video at all")
-    with pytest.raises(ImporterError, match=r"junk\.mp4: cannot read the audio"):
+    with pytest.raises(ImporterError, match=r"junk\.mp4: not a readable media file"):
         import_video(junk, ClipInfo("j", "s", "x", "x"), robot, HEAD_ONLY)
 
 

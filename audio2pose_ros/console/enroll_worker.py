@@ -2,11 +2,16 @@
 
 Run by :class:`~audio2pose_ros.console.enrollment.Enrollments` in a child process, so that the
 console never loads MediaPipe, torch or the model: it lowers its own priority (the node graph
-keeps the cores), learns the style of the recording ``REC`` as ``audio2pose enroll`` does
+keeps the cores) and bounds its own data (heap and anonymous mappings, ``RLIMIT_DATA``) to
+:data:`~audio2pose_ros.console.enrollment.ENROLL_MEMORY_BYTES`, a bound its ffmpeg children
+inherit. It learns the style of the recording ``REC`` as ``audio2pose enroll`` does
 (:func:`~audio2pose_ros.style.personal.enroll`) into ``FOLDER``, prints one progress line per
 step and, last, the filter's style settings it resolves to, as one JSON line after
-:data:`~audio2pose_ros.console.enrollment.SETTINGS_PREFIX`. A refused recording exits 1 with
-the reason as its last line.
+:data:`~audio2pose_ros.console.enrollment.SETTINGS_PREFIX`. A recording it cannot learn from
+exits 1 with the reason as its last line, after
+:data:`~audio2pose_ros.console.enrollment.FAILED_PREFIX`: the importer's refusal, the memory
+bound reached, or any other error (its traceback goes to the standard error, the console's
+learning log).
 """
 
 from __future__ import annotations
@@ -15,34 +20,59 @@ import contextlib
 import dataclasses
 import json
 import os
+import resource
 import sys
+import traceback
 from collections.abc import Sequence
 from pathlib import Path
 
-from audio2pose_ros.console.enrollment import SETTINGS_PREFIX
+from audio2pose_ros.console import enrollment
 from audio2pose_ros.errors import Audio2PoseError
 
 
+def bound_memory(limit_bytes: int) -> None:
+    """Bound this process's data, and its future children's, to ``limit_bytes`` (RLIMIT_DATA).
+
+    A hard limit set lower already stays. Past the bound an allocation fails: Python raises
+    MemoryError, ffmpeg stops with an error.
+    """
+    _, hard = resource.getrlimit(resource.RLIMIT_DATA)
+    soft = limit_bytes if hard == resource.RLIM_INFINITY else min(limit_bytes, hard)
+    resource.setrlimit(resource.RLIMIT_DATA, (soft, hard))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Learn one recording's style; 0 on success, 1 with the reason when it is refused."""
+    """Learn one recording's style; 0 on success, 1 with the reason when it fails."""
     args = list(sys.argv[1:] if argv is None else argv)
     if len(args) != 2:
         print("usage: python -m audio2pose_ros.console.enroll_worker RECORDING FOLDER")
         return 2
     with contextlib.suppress(OSError):
         os.nice(10)
-    from audio2pose_ros.robot.description import load_robot
-    from audio2pose_ros.style.personal import enroll
+    limit = enrollment.ENROLL_MEMORY_BYTES
+    bound_memory(limit)
 
-    def progress(line: str) -> None:
-        print(line, flush=True)
+    def failed(reason: str) -> int:
+        print(enrollment.FAILED_PREFIX + " ".join(reason.split()), flush=True)
+        return 1
 
     try:
+        from audio2pose_ros.robot.description import load_robot
+        from audio2pose_ros.style.personal import enroll
+
+        def progress(line: str) -> None:
+            print(line, flush=True)
+
         result = enroll(Path(args[0]), Path(args[1]), load_robot(), progress=progress)
     except Audio2PoseError as exc:
-        print(f"{exc}", flush=True)
-        return 1
-    print(SETTINGS_PREFIX + json.dumps(dataclasses.asdict(result.settings)), flush=True)
+        return failed(str(exc))
+    except MemoryError:
+        traceback.print_exc()
+        return failed(f"learning needs more memory than its bound of {limit / 2**30:g} GiB")
+    except Exception as exc:  # the process's boundary: the console shows why, not a progress line
+        traceback.print_exc()
+        return failed(f"learning failed: {type(exc).__name__}: {exc}")
+    print(enrollment.SETTINGS_PREFIX + json.dumps(dataclasses.asdict(result.settings)), flush=True)
     return 0
 
 

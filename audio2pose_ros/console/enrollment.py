@@ -12,12 +12,15 @@ The operator's page asks for consent, records camera and microphone for up to
 2. **The upload** (:meth:`Enrollments.receive`): the recording is streamed into a private folder
    (mode 0700) under the console's work folder, at most :data:`MAX_RECORDING_BYTES` within
    :data:`UPLOAD_TIMEOUT_S`; a larger, slower or empty upload, or one with an unknown, used or
-   expired ticket, is refused and nothing of it is kept.
+   expired ticket, is refused and nothing of it is kept. So is, before it is accepted, a
+   recording that learning would refuse or could not read bounded (:func:`check_recording`):
+   longer than :data:`MAX_UPLOAD_S`, without audio or video, or with frames too large.
 3. **Learning** (:meth:`Enrollments.run`): the recording goes through the same importer and
    style fit as ``audio2pose enroll`` (:func:`audio2pose_ros.style.personal.enroll`), in a child
    process (:mod:`audio2pose_ros.console.enroll_worker`; the console itself never loads the
-   model, MediaPipe or torch) at low priority, at most :data:`ENROLL_TIMEOUT_S`. Its progress
-   lines are the status every page sees.
+   model, MediaPipe or torch) at low priority, with its data bounded to
+   :data:`ENROLL_MEMORY_BYTES`, at most :data:`ENROLL_TIMEOUT_S`. Its progress lines are the
+   status every page sees; when it fails, its reason (or how it ended) is.
 4. **The result**: the personal model folder (``style.yaml``, ``ENROLLMENT.md``) and the filter's
    style settings it resolves to, which the console applies to the running graph (the filter's
    live style parameters): no restart. The operator can go back to the style the graph started
@@ -48,25 +51,33 @@ from typing import Any
 from audio2pose_ros.errors import InputError
 
 __all__ = [
+    "ENROLL_MEMORY_BYTES",
     "ENROLL_TIMEOUT_S",
     "MAX_RECORDING_BYTES",
     "MAX_RECORDING_S",
+    "MAX_UPLOAD_S",
     "TICKET_TTL_S",
     "UPLOAD_TIMEOUT_S",
     "EnrollmentError",
     "Enrollments",
     "Result",
     "Ticket",
+    "check_recording",
     "default_work_dir",
     "personal_model_note",
 ]
 
 MAX_RECORDING_S = 60.0  # the page stops recording after this long
 MAX_RECORDING_BYTES = 64 * 1024 * 1024  # 60 s of camera and microphone at about 8 Mbit/s
+MAX_UPLOAD_S = MAX_RECORDING_S + 5.0  # a longer recording did not come from the page: refused
 TICKET_TTL_S = 120.0  # an upload must start this soon after its ticket (recording included)
 UPLOAD_TIMEOUT_S = 120.0  # an upload that takes longer is dropped (a trickle holds no slot)
 ENROLL_TIMEOUT_S = 300.0  # the child process is killed after this long
+# the child's data (heap and anonymous mappings, RLIMIT_DATA): a 60 s enrolment takes about
+# 0.8 GiB of it (0.6 GiB resident) with torch and MediaPipe loaded
+ENROLL_MEMORY_BYTES = 3 * 2**29  # 1.5 GiB
 SETTINGS_PREFIX = "STYLE_SETTINGS "  # the worker's last line: the resolved settings as JSON
+FAILED_PREFIX = "ENROLL_FAILED "  # the worker's last line when it fails: the reason
 MAX_PROGRESS_CHARS = 200  # a progress line shown to the pages is cut to this length
 RECORDING_NAME = "recording.webm"
 CONTENT_TYPES = ("video/webm", "video/mp4", "video/x-matroska")
@@ -206,8 +217,8 @@ class Enrollments:
         """Store one upload under its ticket; returns the ticket and the recording's path.
 
         Raises:
-            EnrollmentError: bad ticket or type, empty or larger than :data:`MAX_RECORDING_BYTES`
-                (nothing is kept then).
+            EnrollmentError: bad ticket or type, empty or larger than :data:`MAX_RECORDING_BYTES`,
+                or refused by :func:`check_recording` (nothing is kept then).
         """
         ticket = self._take(key)
         kind = content_type.split(";", 1)[0].strip().lower()
@@ -244,6 +255,7 @@ class Enrollments:
                 ) from None
             if size == 0:
                 raise EnrollmentError("the recording is empty")
+            await asyncio.to_thread(check_recording, path)
         except BaseException:
             shutil.rmtree(job, ignore_errors=True)
             self._set("idle", "the recording was refused or did not arrive whole")
@@ -294,7 +306,7 @@ class Enrollments:
                 stderr=log,
             )
         found: list[dict[str, float]] = []
-        last = [""]
+        failed: list[str] = []
 
         async def read() -> None:
             assert process.stdout is not None
@@ -302,8 +314,9 @@ class Enrollments:
                 line = raw.decode("utf-8", "replace").strip()
                 if line.startswith(SETTINGS_PREFIX):
                     found.append(_settings(line.removeprefix(SETTINGS_PREFIX)))
+                elif line.startswith(FAILED_PREFIX):
+                    failed.append(line.removeprefix(FAILED_PREFIX))
                 elif line:
-                    last[0] = line
                     self._set("learning", line)
             await process.wait()
 
@@ -316,9 +329,46 @@ class Enrollments:
                 with contextlib.suppress(ProcessLookupError):
                     process.kill()
                 await process.wait()
+        if failed:
+            raise EnrollmentError(failed[-1])
+        if process.returncode is not None and process.returncode < 0:
+            raise EnrollmentError(
+                f"the learning process was stopped by signal {-process.returncode} (a crash, "
+                f"or its memory bound of {ENROLL_MEMORY_BYTES / 2**30:g} GiB reached)"
+            )
         if process.returncode != 0 or not found:
-            raise EnrollmentError(last[0] or f"the learning process exited {process.returncode}")
+            raise EnrollmentError(
+                f"the learning process ended (exit code {process.returncode}) without a result"
+            )
         return found[-1]
+
+
+def check_recording(path: Path) -> float:
+    """The length of an uploaded recording (s), after checking that learning can read it bounded.
+
+    Its audio is decoded up to :data:`MAX_UPLOAD_S` and a second more (a container's duration
+    is a claim, and a browser's recording declares none), and its video stream's header is
+    read (:func:`~audio2pose_ros.data.importers.media.check_video`); nothing is kept.
+
+    Raises:
+        EnrollmentError: longer than :data:`MAX_UPLOAD_S`, no audio or video, frames too large,
+            or not readable as media; the message does not name the server's path.
+    """
+    from audio2pose_ros.data.importers.media import check_video, probe_media, read_audio
+    from audio2pose_ros.timebase import SAMPLE_RATE_HZ
+
+    try:
+        check_video(path, probe_media(path))
+        seconds = read_audio(path, MAX_UPLOAD_S + 1.0).size / SAMPLE_RATE_HZ
+    except InputError as exc:
+        reason = str(exc).removeprefix(f"{path}: ")
+        raise EnrollmentError(f"the recording cannot be learned from: {reason}") from None
+    if seconds > MAX_UPLOAD_S:
+        raise EnrollmentError(
+            f"the recording is longer than {MAX_UPLOAD_S:g} s; learning a style takes a "
+            f"recording of at most {MAX_RECORDING_S:g} s"
+        )
+    return seconds
 
 
 def personal_model_note(folder: Path) -> str:

@@ -33,6 +33,7 @@ import zlib
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
@@ -40,7 +41,13 @@ from audio2pose_ros.checkpoints.format import json_depth
 from audio2pose_ros.errors import InputError, short_repr
 from audio2pose_ros.files import open_bounded
 from audio2pose_ros.robot.description import RobotDescription
-from audio2pose_ros.timebase import FRAME_RATE_HZ, SAMPLE_RATE_HZ, complete_frames
+from audio2pose_ros.timebase import (
+    FRAME_RATE_HZ,
+    SAMPLE_RATE_HZ,
+    SAMPLES_PER_FRAME,
+    WINDOW_SAMPLES,
+    complete_frames,
+)
 
 FORMAT_VERSION = 1
 SPLITS = ("train", "validation", "test")
@@ -195,13 +202,15 @@ def read_arrays(
     what: str,
     max_bytes: int,
     check: Callable[[Mapping[str, ArrayHeader]], None],
+    rows: Mapping[str, int] | None = None,
 ) -> dict[str, np.ndarray]:
     """The arrays of a ``.npz`` file, after ``check`` has accepted their declared shapes.
 
     The file must be regular and at most ``max_bytes`` long (:func:`open_bounded`). Each
     member's ``.npy`` header is read without its data; ``check`` sees every array's shape and
     dtype before any array is allocated, so a header that claims more than the file holds, or
-    than ``check`` allows, costs nothing.
+    than ``check`` allows, costs nothing. An array named in ``rows`` is read only as far as its
+    first that many entries along its first axis (:func:`_read_rows`).
 
     Raises:
         DatasetError: the file is not a regular file, too large or not a ``.npz`` of plain
@@ -223,23 +232,58 @@ def read_arrays(
                 arrays = {}
                 for name, info in members.items():
                     with archive.open(info) as member:
-                        arrays[name] = np.lib.format.read_array(member, allow_pickle=False)
+                        if rows is not None and name in rows:
+                            arrays[name] = _read_rows(member, info.filename, rows[name])
+                        else:
+                            arrays[name] = np.lib.format.read_array(member, allow_pickle=False)
         except _NPZ_ERRORS as exc:
             raise DatasetError(f"{path}: unreadable {what} ({exc})") from None
     return arrays
 
 
+def _npy_stream_header(stream: IO[bytes], name: str) -> tuple[tuple[int, ...], bool, np.dtype]:
+    """Shape, Fortran order and dtype of the ``.npy`` stream ``name``; its data comes next.
+
+    Raises:
+        ValueError: another ``.npy`` version than 1.0 or 2.0.
+    """
+    version = np.lib.format.read_magic(stream)
+    if version == (1, 0):
+        shape, fortran_order, dtype = np.lib.format.read_array_header_1_0(stream)
+    elif version == (2, 0):
+        shape, fortran_order, dtype = np.lib.format.read_array_header_2_0(stream)
+    else:
+        raise ValueError(f"{name}: .npy format {version} is not supported")
+    return tuple(shape), bool(fortran_order), dtype
+
+
+def _read_rows(member: IO[bytes], name: str, rows: int) -> np.ndarray:
+    """The first ``rows`` entries (along the first axis) of the C-ordered ``.npy`` stream ``name``.
+
+    Raises:
+        ValueError: another ``.npy`` version, a Fortran-ordered or object array, or a stream
+            that ends early.
+    """
+    shape, fortran_order, dtype = _npy_stream_header(member, name)
+    if fortran_order or dtype.hasobject or not shape:
+        raise ValueError(f"{name}: only C-ordered arrays of plain values are read in part")
+    out = np.empty((min(rows, shape[0]), *shape[1:]), dtype=dtype)
+    view, filled = out.data.cast("B"), 0
+    while filled < view.nbytes:
+        chunk = member.read(min(view.nbytes - filled, 1 << 20))
+        if not chunk:
+            raise ValueError(f"{name}: the data ends after {filled} of {view.nbytes} bytes")
+        view[filled : filled + len(chunk)] = chunk
+        filled += len(chunk)
+    view.release()
+    return out
+
+
 def _npy_header(archive: zipfile.ZipFile, info: zipfile.ZipInfo) -> ArrayHeader:
     """Shape and dtype declared by one ``.npy`` member (its data is not read)."""
     with archive.open(info) as stream:
-        version = np.lib.format.read_magic(stream)
-        if version == (1, 0):
-            shape, _, dtype = np.lib.format.read_array_header_1_0(stream)
-        elif version == (2, 0):
-            shape, _, dtype = np.lib.format.read_array_header_2_0(stream)
-        else:
-            raise ValueError(f"{info.filename}: .npy format {version} is not supported")
-    return tuple(shape), dtype
+        shape, _, dtype = _npy_stream_header(stream, info.filename)
+    return shape, dtype
 
 
 def _check_clip_headers(clip_id: str, n_joints: int) -> Callable[[Mapping[str, ArrayHeader]], None]:
@@ -401,8 +445,11 @@ class Dataset:
         self.clips = [c for c in self.clips if c.clip_id != cid] + [clip.info]
         self._write_index()
 
-    def load(self, clip_id: str) -> Clip:
+    def load(self, clip_id: str, max_frames: int | None = None) -> Clip:
         """Read one clip from disk, checked as :meth:`add` checks it (see the module docstring).
+
+        With ``max_frames``, only the clip's first that many motion frames and their audio
+        (frame ``i``'s window ends at sample ``160 i + 400``) are read from the file.
 
         Raises:
             DatasetError: no such clip, or its file is not a regular file, too large,
@@ -413,8 +460,12 @@ class Dataset:
             raise DatasetError(f"{self.root}: no clip {clip_id!r}")
         path = self.root / "clips" / f"{clip_id}.npz"
         n_joints = len(self.joint_names)
+        rows = None
+        if max_frames is not None:
+            samples = SAMPLES_PER_FRAME * (max(max_frames, 1) - 1) + WINDOW_SAMPLES
+            rows = {"audio": samples, "angles_rad": max_frames, "mask": max_frames}
         arrays = read_arrays(
-            path, "clip", _clip_file_bytes(n_joints), _check_clip_headers(clip_id, n_joints)
+            path, "clip", _clip_file_bytes(n_joints), _check_clip_headers(clip_id, n_joints), rows
         )
         clip = Clip(info, arrays["audio"], arrays["angles_rad"].astype(np.float64), arrays["mask"])
         try:

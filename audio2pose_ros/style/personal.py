@@ -38,7 +38,7 @@ import dataclasses
 import hashlib
 import math
 import time
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -65,7 +65,7 @@ from audio2pose_ros.style.figures import (
     resolve,
     style_loss,
 )
-from audio2pose_ros.timebase import FRAME_RATE_HZ
+from audio2pose_ros.timebase import FRAME_RATE_HZ, SAMPLES_PER_FRAME, WINDOW_SAMPLES
 
 if TYPE_CHECKING:
     from audio2pose_ros.checkpoints.torch_io import Checkpoint
@@ -407,14 +407,19 @@ class Enrollment:
     arms_noise: float = 1.0  # the personal checkpoint's arm noise factor (1: none written)
 
 
-def _first_seconds(clips: Sequence[Clip], seconds: float) -> list[Clip]:
-    """The clips' first ``seconds`` of motion in order (the last one cut short)."""
-    out, left = [], round(seconds * FRAME_RATE_HZ)
-    for clip in clips:
-        if left <= 0:
-            break
+def _first_seconds(clips: Iterable[Clip], seconds: float) -> list[Clip]:
+    """The clips' first ``seconds`` of motion in order (the last one cut short), as copies.
+
+    A clip is taken from ``clips`` only while seconds are missing (a generator that loads them
+    loads no more). A cut clip keeps the audio of its frames only (frame ``i``'s window ends at
+    sample ``160 i + 400``), and what is kept is copied, so the rest of a long clip is freed.
+    """
+    out, left, source = [], round(seconds * FRAME_RATE_HZ), iter(clips)
+    while left > 0 and (clip := next(source, None)) is not None:
         n = min(clip.n_frames, left)
-        out.append(Clip(clip.info, clip.audio, clip.angles_rad[:n], clip.mask[:n]))
+        samples = SAMPLES_PER_FRAME * (n - 1) + WINDOW_SAMPLES
+        audio, angles, mask = clip.audio[:samples], clip.angles_rad[:n], clip.mask[:n]
+        out.append(Clip(clip.info, audio.copy(), angles.copy(), mask.copy()))
         left -= n
     return out
 
@@ -423,31 +428,36 @@ def recording_clips(
     source: Path,
     robot: RobotDescription,
     progress: Callable[[str], None],
-    max_seconds: float | None = None,
+    max_seconds: float = MAX_ENROLL_S,
 ) -> list[Clip]:
-    """A recording's clips: a data set folder (any importer's) or one video with speech.
+    """A recording's first ``max_seconds``: of a data set folder (any importer's) or a video.
 
-    Of a video only the first ``max_seconds`` are decoded and tracked.
+    Only that much is read: a data set's clips are loaded in order until it is reached, each
+    no further than that (:meth:`~audio2pose_ros.data.dataset.Dataset.load`); of a video, the
+    audio and frames after it are not decoded (:func:`~.importers.video.import_video` with
+    ``max_seconds``), and frames are scaled down to what MediaPipe needs.
 
     Raises:
         InputError: missing source, a data set that cannot be read, or a video the importer
-            refuses (no audio, unreadable, no face).
+            refuses (no audio, no video, frames too large, unreadable, no face).
     """
     if source.is_dir():
         if not (source / "index.json").is_file():
             raise InputError(f"{source}: a folder must be a data set (it has no index.json)")
         dataset = Dataset.open(source, robot)
-        progress(f"reading {len(dataset.clips)} clips of data set {source}")
-        return [dataset.load(info.clip_id) for info in dataset.clips]
+        progress(f"reading the first {max_seconds:g} s of data set {source}")
+        frames = round(max_seconds * FRAME_RATE_HZ)  # of each clip, at most this much is read
+        clips = (dataset.load(info.clip_id, max_frames=frames) for info in dataset.clips)
+        return _first_seconds(clips, max_seconds)
     if not source.is_file():
         raise InputError(f"{source}: no such file or data set folder")
     from audio2pose_ros.data.importers.video import VideoImportSettings, import_video
 
-    progress(f"tracking face and body in {source.name} (MediaPipe)")
+    progress(f"tracking face and body in the first {max_seconds:g} s of {source.name} (MediaPipe)")
     info = ClipInfo(source.stem[:64] or "recording", "enrolled", source.name, LICENCE, "train")
     settings = VideoImportSettings(body=True, max_seconds=max_seconds)
     clip, _ = import_video(source, info, robot, settings)
-    return [clip]
+    return _first_seconds([clip], max_seconds)
 
 
 def enroll(
@@ -476,7 +486,7 @@ def enroll(
         InputError: unreadable source, or no part observed long enough.
     """
     start = time.monotonic()
-    clips = _first_seconds(recording_clips(source, robot, progress, max_seconds), max_seconds)
+    clips = recording_clips(source, robot, progress, max_seconds)
     seconds = sum(c.n_frames for c in clips) / FRAME_RATE_HZ
     parts = measure([(c.angles_rad, c.mask) for c in clips], robot)
     if not parts:

@@ -25,9 +25,8 @@ from audio2pose_ros.data.importers.common import (
     assemble_clip,
     head_neutral,
 )
-from audio2pose_ros.data.importers.media import read_audio, video_frames
+from audio2pose_ros.data.importers.media import check_video, probe_media, read_audio, video_frames
 from audio2pose_ros.robot.description import RobotDescription
-from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 MIN_FACE_FRACTION = 0.5  # fewer frames with a face than this: the file is refused
 MIN_VISIBILITY = 0.5  # MediaPipe Pose visibility below which a keypoint counts as unseen
@@ -84,10 +83,12 @@ def track_video(
 ) -> VideoTracks:
     """Run FaceMesh (unless ``face`` is False) and Pose (if ``body``) on every frame of a video.
 
-    With ``max_seconds``, frames after that time are not decoded.
+    With ``max_seconds``, frames after that time are not decoded. Frames come one at a time,
+    scaled down to what MediaPipe needs (:func:`~.media.video_frames`).
 
     Raises:
-        ImporterError: the file is not a readable video.
+        ImporterError: the file is not a readable video, or what
+            :func:`~.media.check_video` refuses.
 
     """
     import mediapipe as mp
@@ -102,9 +103,7 @@ def track_video(
     )
     pose = mp.solutions.pose.Pose(static_image_mode=False, model_complexity=1) if body else None
     try:
-        for time_s, rgb in video_frames(path):
-            if max_seconds is not None and time_s > max_seconds:
-                break
+        for time_s, rgb in video_frames(path, max_seconds):
             times.append(time_s)
             faces = face_mesh.process(rgb).multi_face_landmarks if face_mesh is not None else None
             if faces:
@@ -218,14 +217,14 @@ def import_video(
         on_tracks: called with the per-frame tracks (e.g. to report speed and face rate).
 
     Raises:
-        ImporterError: no audio track, unreadable video, or a face in too few frames; the
-            message names the file.
+        ImporterError: no audio track, unreadable video, frames too large to read
+            (:func:`~.media.check_video`, before anything is decoded), or a face in too few
+            frames; the message names the file.
 
     """
     settings = settings or VideoImportSettings()
-    audio = read_audio(path)
-    if settings.max_seconds is not None:
-        audio = audio[: round(settings.max_seconds * SAMPLE_RATE_HZ)]
+    check_video(path, probe_media(path))
+    audio = read_audio(path, settings.max_seconds)
     tracks = track_video(path, body=settings.body, max_seconds=settings.max_seconds)
     if on_tracks is not None:
         on_tracks(tracks)
