@@ -288,8 +288,14 @@ class MotionFilterNode(DiagnosedNode):
         )
 
     def destroy_node(self) -> None:
-        """Write the state still pending (the writer thread ends), then destroy the node."""
-        self.state_writer.close()
+        """Write the state still pending (the writer thread ends), then destroy the node.
+
+        rclpy also destroys a node whose construction failed (a refused parameter), at shutdown:
+        it may have no writer yet.
+        """
+        writer: StateWriter | None = getattr(self, "state_writer", None)
+        if writer is not None:
+            writer.close()
         super().destroy_node()
 
     # --- parameters ---------------------------------------------------------------------------
