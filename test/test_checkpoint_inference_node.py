@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from node_processes import configuration_error_line
-from rclpy.serialization import deserialize_message
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.ros.messages import features_to_msg
@@ -28,12 +27,8 @@ def node(monkeypatch):
 
     with rclpy.init():
         inference = InferenceNode()
-        published = []  # what it sends (CDR bytes) as messages
-
-        def publish(data: bytes) -> None:
-            published.append(deserialize_message(data, JointTrajectory))
-
-        monkeypatch.setattr(inference.trajectory_pub, "publish", publish)
+        published: list[JointTrajectory] = []  # what it sends
+        monkeypatch.setattr(inference.trajectory_pub, "publish", published.append)
         # raw_trajectory is built only for a subscriber: play one
         monkeypatch.setattr(inference.trajectory_pub, "get_subscription_count", lambda: 1)
         inference.published = published
@@ -154,28 +149,6 @@ def test_when_a_frame_index_jumps_beyond_what_time_allows_expect_a_new_stream_no
     assert node.sequence.restarts == 1
     node.on_features(features_to_msg(frames, node.expected_label, 10**15 + 12))
     assert node.diagnostic_values()["frames_lost"] == 10  # a plausible gap still counts
-
-
-@pytest.mark.ros
-def test_when_features_come_as_their_bytes_expect_the_poses_of_the_message_and_its_refusals(
-    node,
-):
-    """What the subscription hands (the CDR bytes) runs exactly as the message object does."""
-    from rclpy.serialization import serialize_message
-
-    frames = node.model.normalizer.mean + np.random.default_rng(2).standard_normal(
-        (5, node.model.features.dim)
-    )
-    node.on_features(features(node, frames))
-    node.predictor = node.model.predictor()
-    node.on_features(serialize_message(features(node, frames)))
-    by_message, by_bytes = ([p.positions for p in m.points] for m in node.published)
-    assert np.array_equal(by_message, by_bytes)
-    broken = features(node, frames)
-    broken.layout.dim[0].size = 6  # claims a frame it does not hold
-    node.on_features(serialize_message(broken))
-    assert node.malformed_messages == 1
-    assert len(node.published) == 2
 
 
 @pytest.mark.parametrize("bad", [np.nan, -np.inf, 8.5, -1e30])
