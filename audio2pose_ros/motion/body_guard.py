@@ -75,7 +75,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
+from audio2pose_ros.motion.limits import JointLimiter, LimitSettings, brake_together, stop_rate
 from audio2pose_ros.robot.body import BodyModel, PathClearance
 from audio2pose_ros.robot.kinematics import blocked_product
 
@@ -90,7 +90,8 @@ TOLERANCE_M = 1e-3  # braking may end this far inside the floor (m): the braking
 SAMPLE_TRAVEL_M = 1e-3  # largest travel of any checked pair between two samples of a path (m):
 # the path between them comes at most half of it closer than the samples
 MAX_SAMPLES = 2000  # samples of one straight piece of a path at most
-MAX_BRAKING_TICKS = 50  # ticks of a braking path at most (at full acceleration it needs 19)
+PLAN_RTOL = 1e-9  # a previous velocity within this (relative) of the guard's own, scaled down,
+# is still on the braking path the guard checked for it
 PATH_SLACK_M = 0.5 * TOLERANCE_M  # the samples between two commands and of the braking path may
 # come this much closer than the margin (the path between samples another half a sample travel)
 RECENT_PATHS = 8  # paths whose sweep is kept: a guard step checks the same command again
@@ -140,11 +141,12 @@ class BodyGuard:
         self._brake_accel: np.ndarray | None = None  # deceleration the last command relies on
         self._speed_up = np.zeros(body.robot.n_joints)  # the acceleration limit (rad/s^2)
         self._previous = np.zeros(body.robot.n_joints)  # the previous command, this step
-        self._dt_s = 0.0  # the time of this step, and of each tick of a braking path (s)
         self._paths: dict[bytes, PathClearance] = {}
         self._travel = body.pair_lever_m  # (n_pairs, n_joints): a pair's travel per rad (m/rad)
         self._travel_bound = travel_bound
         self._pair_bounds_m: np.ndarray | None = None  # each pair's bound at the previous command
+        self._last: tuple[bytes, np.ndarray] | None = None  # the last command returned and its
+        # velocity: its braking path is known clear (checked, or part of a checked one)
         self._bounded = b""  # the last pose the travel bound cleared, this step
 
     def reset(self) -> None:
@@ -152,6 +154,7 @@ class BodyGuard:
         self._lead_out_s = 0.0
         self._guaranteed_m = None
         self._brake_accel = None
+        self._last = None
         self._paths.clear()
         self.body.reset()
 
@@ -175,48 +178,52 @@ class BodyGuard:
 
         Each joint's travel from the previous command along the path is at most its step to
         ``pose``, plus how far ``pose`` lies outside the position range (the braking path is
-        clipped into it), plus its braking distance ``v^2 / (2 a)`` (the braking path's ticks
-        are a right Riemann sum of the speed falling linearly to rest, which never exceeds the
-        integral). Each pair's bound at the previous command
-        (:meth:`~audio2pose_ros.robot.body.BodyModel.pair_bounds`) less its levers times that
-        travel bounds it along the path. NaN (never clear) for a joint that moves and cannot
-        brake.
+        clipped into it), plus its braking distance ``|v| / (2 r)`` (braking together at the
+        rate r of :func:`~audio2pose_ros.motion.limits.stop_rate`). Each pair's bound at the
+        previous command (:meth:`~audio2pose_ros.robot.body.BodyModel.pair_bounds`) less its
+        levers times that travel bounds it along the path. NaN (never clear) for a joint that
+        moves and cannot brake.
         """
         lower, upper = self._bounds
         outside = np.maximum(lower - pose, 0.0) + np.maximum(pose - upper, 0.0)
         with np.errstate(divide="ignore", invalid="ignore"):
-            braking = velocity * velocity / (2.0 * accel)
+            braking = np.abs(velocity) / (2.0 * stop_rate(velocity, accel))
         return self._pose_bound(np.abs(pose - self._previous) + outside + braking)[0]
 
     def _clear(self, pose: np.ndarray) -> bool:
         return bool(self.body.clearance(pose) >= self._floor_m)
 
     def _path(
-        self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray, dt_s: float
+        self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """The step from the previous command to ``pose`` and its braking path, as sweep pieces.
 
-        The braking path is the one the guard commands when it brakes (:meth:`_restrain`):
-        each tick of ``dt_s`` every joint's speed falls by ``accel * dt_s`` until it rests, so
-        the path a braked command checks is the rest of the one its predecessor checked
-        (at most ``MAX_BRAKING_TICKS`` ticks: a low acceleration limit takes longer ones).
-        Between ticks the joints move in a straight line; each straight piece is sampled so
+        The braking path is the one the guard commands when it brakes (:meth:`_braked`): every
+        joint together (:func:`~audio2pose_ros.motion.limits.brake_together`), so the joints
+        move on along the straight line of ``velocity`` and stop on it, within
+        ``velocity / (2 r)`` of ``pose`` (r the rate of
+        :func:`~audio2pose_ros.motion.limits.stop_rate`), whatever the length of the ticks
+        that brake them, clipped into the position range (a corner where a joint reaches its
+        limit). Braking from any command on this path follows the rest of it, so a command the
+        guard braked has its braking path checked already. Each straight piece is sampled so
         that no checked pair travels more than ``SAMPLE_TRAVEL_M`` between two samples.
 
         Returns:
             ``(points, counts)`` for :meth:`~audio2pose_ros.robot.body.BodyModel.sweep`: the
-            previous command, ``pose`` and the braking path's ticks, and each piece's samples.
+            previous command, ``pose``, the corners and the rest, and each piece's samples.
         """
-        speed = np.abs(velocity)
-        ticks = float((speed / (accel * dt_s)).max()) if dt_s > 0.0 else 0.0
-        tick_s = dt_s * max(1.0, ticks / MAX_BRAKING_TICKS)
-        steps = np.arange(1, int(np.ceil(min(ticks, MAX_BRAKING_TICKS))) + 1)[:, None]
-        speeds = np.maximum(speed - steps * accel * tick_s, 0.0)
+        rate = stop_rate(velocity, accel)
         lower, upper = self._bounds
-        braking = np.clip(
-            pose + np.sign(velocity) * np.cumsum(speeds, axis=0) * tick_s, lower, upper
-        )
-        nodes = np.vstack([self._previous, pose, braking])
+        if np.isfinite(rate):
+            reach = velocity / (2.0 * rate)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                corners = np.where(reach > 0.0, upper - pose, lower - pose) / reach
+            corners = np.unique(corners[(corners > 0.0) & (corners < 1.0)])
+            fractions = np.append(corners, 1.0)[:, None]
+            braking = np.clip(pose + fractions * reach, lower, upper)
+            nodes = np.vstack([self._previous, pose, braking])
+        else:
+            nodes = np.vstack([self._previous, pose])
         pieces = np.diff(nodes, axis=0)
         travel = blocked_product(np.abs(pieces), self._travel.T).max(axis=1)
         return nodes, np.clip(np.ceil(travel / SAMPLE_TRAVEL_M), 1, MAX_SAMPLES)
@@ -233,7 +240,7 @@ class BodyGuard:
 
         The path is :meth:`_path`'s; recent answers are kept.
         """
-        floors = np.array([self._dt_s, floor_m, path_floor_m])
+        floors = np.array([floor_m, path_floor_m])
         key = (
             b"".join(
                 (self._previous.tobytes(), floors.tobytes(), pose.tobytes(), velocity.tobytes())
@@ -246,7 +253,7 @@ class BodyGuard:
             if distance < floor_m:
                 found = PathClearance(False, -1, pair, distance, 0.0, 1)
             else:
-                points, counts = self._path(pose, velocity, accel, self._dt_s)
+                points, counts = self._path(pose, velocity, accel)
                 found = self.body.sweep(points, path_floor_m, counts)
             if len(self._paths) >= RECENT_PATHS:
                 self._paths.pop(next(iter(self._paths)))
@@ -327,7 +334,6 @@ class BodyGuard:
         previous = np.asarray(previous_rad, dtype=np.float64)
         previous_velocity = np.asarray(previous_velocity_rad_s, dtype=np.float64)
         self._previous = previous
-        self._dt_s = dt_s if np.isfinite(dt_s) and dt_s > 0.0 else 0.0
         # One deceleration for the limiter and the guard: the braking paths assume the joint
         # limiter's (its acceleration limit, or the previous, higher limit while a joint it let
         # move fast still needs it to stop: a live-lowered acceleration_fraction); the guard's
@@ -374,6 +380,7 @@ class BodyGuard:
             status.clearance_exact = False
         status.clearance_m, status.links = distance, (link_a, link_b)
         status.floor_m = self._guaranteed_m
+        self._last = (positions.tobytes(), velocities.copy())
         status.last_cost_ns = time.perf_counter_ns() - start_ns
         return positions.copy(), velocities.copy()
 
@@ -429,13 +436,11 @@ class BodyGuard:
         offending = self._offending(want, want_velocity, accel)
         if offending is None:
             return want, want_velocity
-        lower, upper = self._bounds
+        braked, braked_velocity = self._braked(previous, previous_velocity, dt_s, brake)
         held = offending
-        for _ in range(MAX_WIDENINGS):
-            braked_speed = np.maximum(np.abs(previous_velocity) - brake * dt_s, 0.0)
-            velocity = np.where(held, np.copysign(braked_speed, previous_velocity), want_velocity)
-            pose = np.where(held, np.clip(previous + velocity * dt_s, lower, upper), want)
-            velocity = np.where(held, (pose - previous) / dt_s, velocity)
+        for widening in range(MAX_WIDENINGS + 1):
+            pose = np.where(held, braked, want)
+            velocity = np.where(held, braked_velocity, want_velocity)
             more = self._offending(pose, velocity, accel)
             if more is not None and not np.any(more & ~held):
                 # braking every offending joint is not enough: within the tolerance it is,
@@ -446,16 +451,51 @@ class BodyGuard:
                 return self._detour(
                     pose, velocity, want, previous, previous_velocity, held, dt_s, accel
                 )
-            if not np.any(more & ~held):
+            if held.all():
                 break
-            held = held | more
-        # Last resort: the offending joints stay where they are; failing that, everything does.
+            # widen to the joints of the pair too close; when that adds none, or widening is
+            # done, every joint brakes: the rest of the previous command's braking path
+            widened = held | more
+            last = np.array_equal(widened, held) or widening == MAX_WIDENINGS - 1
+            held = np.ones_like(held) if last else widened
+        # Last resort (counted): within the tolerance, braking every joint did not keep the
+        # floor. The previous command's own braking path was checked: follow it, within the
+        # acceleration limits. A previous command that is not the guard's (a caller's state)
+        # has none: its offending joints hold, failing that every joint does.
         self.status.holds += 1
-        pose = np.where(held, previous, want)
-        velocity = np.where(held, 0.0, want_velocity)
+        if self._own(previous, previous_velocity):
+            return braked, braked_velocity
+        pose = np.where(offending, previous, want)
+        velocity = np.where(offending, 0.0, want_velocity)
         if self._clear(pose):
             return pose, velocity
         return previous.copy(), np.zeros_like(previous)
+
+    def _braked(
+        self, previous: np.ndarray, previous_velocity: np.ndarray, dt_s: float, brake: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The previous command braked for ``dt_s``, every joint together (along its path)."""
+        lower, upper = self._bounds
+        velocity = brake_together(previous_velocity, brake, dt_s)
+        pose = np.clip(previous + velocity * dt_s, lower, upper)
+        return pose, (pose - previous) / dt_s
+
+    def _own(self, previous: np.ndarray, previous_velocity: np.ndarray) -> bool:
+        """Whether the previous command is the guard's last one, its velocity at most scaled down.
+
+        Its braking path is then known clear, also with the velocity braked together (a filter
+        that missed ticks does so).
+        """
+        if self._last is None or previous.tobytes() != self._last[0]:
+            return False
+        velocity = self._last[1]
+        squared = float(velocity @ velocity)
+        scale = float(previous_velocity @ velocity) / squared if squared > 0.0 else 0.0
+        tolerance = PLAN_RTOL * (1.0 + np.abs(velocity))
+        return bool(
+            -PLAN_RTOL <= scale <= 1.0 + PLAN_RTOL
+            and np.all(np.abs(previous_velocity - scale * velocity) <= tolerance)
+        )
 
     def _slide(
         self,
@@ -567,10 +607,7 @@ class BodyGuard:
         led = np.where(joints, np.clip(previous + led_velocity * dt_s, lower, upper), previous)
         pose = np.where(joints, led, want)
         if body.clearance(pose) < body.clearance(led):
-            braked_speed = np.maximum(np.abs(previous_velocity) - brake * dt_s, 0.0)
-            braked = np.clip(
-                previous + np.copysign(braked_speed, previous_velocity) * dt_s, lower, upper
-            )
+            braked, _ = self._braked(previous, previous_velocity, dt_s, brake)
             pose = np.where(joints, led, braked)
         return pose, (pose - previous) / dt_s
 
