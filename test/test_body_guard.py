@@ -144,7 +144,8 @@ def test_when_arm_rests_just_inside_the_margin_expect_it_still_goes_to_neutral(b
     clearance = body.clearance(out)
     assert clearance[0] < margin  # the start was in the band
     inside = clearance[:-1] < margin
-    assert np.all(np.diff(clearance)[inside] >= -1e-9)  # never closer while inside
+    # never closer while inside (the guard compares coal's answers, within its 1e-6 m)
+    assert np.all(np.diff(clearance)[inside] >= -1e-6)
     assert filt.status.faults == 0
 
 
