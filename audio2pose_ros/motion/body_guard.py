@@ -436,9 +436,9 @@ class BodyGuard:
         offending = self._offending(want, want_velocity, accel)
         if offending is None:
             return want, want_velocity
-        braked, braked_velocity = self._braked(previous, previous_velocity, dt_s, brake)
         held = offending
         for widening in range(MAX_WIDENINGS + 1):
+            braked, braked_velocity = self._braked(previous, previous_velocity, held, dt_s, brake)
             pose = np.where(held, braked, want)
             velocity = np.where(held, braked_velocity, want_velocity)
             more = self._offending(pose, velocity, accel)
@@ -464,7 +464,7 @@ class BodyGuard:
         # has none: its offending joints hold, failing that every joint does.
         self.status.holds += 1
         if self._own(previous, previous_velocity):
-            return braked, braked_velocity
+            return self._braked(previous, previous_velocity, held, dt_s, brake)
         pose = np.where(offending, previous, want)
         velocity = np.where(offending, 0.0, want_velocity)
         if self._clear(pose):
@@ -472,11 +472,20 @@ class BodyGuard:
         return previous.copy(), np.zeros_like(previous)
 
     def _braked(
-        self, previous: np.ndarray, previous_velocity: np.ndarray, dt_s: float, brake: np.ndarray
+        self,
+        previous: np.ndarray,
+        previous_velocity: np.ndarray,
+        held: np.ndarray,
+        dt_s: float,
+        brake: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """The previous command braked for ``dt_s``, every joint together (along its path)."""
+        """The previous command with the ``held`` joints braked together for ``dt_s``.
+
+        They keep their direction, so they move on along the previous command's checked path
+        (seen on their own joints); every joint held: on the path itself.
+        """
         lower, upper = self._bounds
-        velocity = brake_together(previous_velocity, brake, dt_s)
+        velocity = brake_together(np.where(held, previous_velocity, 0.0), brake, dt_s)
         pose = np.clip(previous + velocity * dt_s, lower, upper)
         return pose, (pose - previous) / dt_s
 
@@ -607,7 +616,7 @@ class BodyGuard:
         led = np.where(joints, np.clip(previous + led_velocity * dt_s, lower, upper), previous)
         pose = np.where(joints, led, want)
         if body.clearance(pose) < body.clearance(led):
-            braked, _ = self._braked(previous, previous_velocity, dt_s, brake)
+            braked, _ = self._braked(previous, previous_velocity, ~joints, dt_s, brake)
             pose = np.where(joints, led, braked)
         return pose, (pose - previous) / dt_s
 
