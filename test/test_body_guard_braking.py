@@ -78,22 +78,13 @@ def drive(body, filt, raws, ticks, raise_at=-1, raised_m=MARGIN_M):
 
 
 def sweeps(robot):
-    """(name, start, goal): clear starts, goals inside the body, one or all arm joints moved."""
-    left_torso = (pose_with(robot, **AWAY), pose_with(robot, **INSIDE))
-    hip = hand_in_hip(robot)
-    shoulder_pitch, shoulder_roll = hip.copy(), hip.copy()
-    shoulder_pitch[robot.names.index("LShoulderPitch")] = 1.98  # 3.2 cm clear of the hip
-    shoulder_roll[robot.names.index("LShoulderRoll")] = 0.63  # 3.8 cm clear of the hip
-    left = [
-        ("left arm into the torso", *left_torso),
-        ("left shoulder pitch into the hip", shoulder_pitch, hip),
-        ("left shoulder roll into the hip", shoulder_roll, hip),
+    """(name, start, goal): a clear start and a goal inside the body (the forearm in the
+    belly), every joint of the arm moving."""
+    left = (pose_with(robot, **AWAY), pose_with(robot, **INSIDE))
+    return [
+        ("left arm into the torso", *left),
+        ("right arm into the torso", mirrored(robot, left[0]), mirrored(robot, left[1])),
     ]
-    right = [
-        (name.replace("left", "right"), mirrored(robot, a), mirrored(robot, b))
-        for name, a, b in left
-    ]
-    return left + right
 
 
 SWEEPS = [name for name, _, _ in sweeps(BodyModel.load().robot)]
@@ -121,18 +112,14 @@ def test_when_an_arm_sweeps_into_the_body_at_full_speed_on_uneven_ticks_expect_n
 
 
 def alternations(robot):
-    """(name, a, b, ticks): two clear poses whose straight way passes the body, each way in
-    ``ticks`` ticks: past the pelvis (the hand and wrist past the hip) and past thin parts."""
-    hip = hand_in_hip(robot)
-    away = pose_with(robot, **AWAY)
-    cases = [
-        ("left hand past the pelvis", away, hip, 12),
-        ("right hand past the pelvis", mirrored(robot, away), mirrored(robot, hip), 12),
+    """(name, a, b, ticks): two clear poses whose straight way passes a thin part of the body
+    (the right hand past the pelvis, the right wrist past the head), ``ticks`` ticks each
+    way."""
+    return [
+        (f"thin pass {i}", np.array(a), np.array(b), n)
+        for i, (a, b, n) in enumerate(THIN_PASSES)
+        if i >= 3
     ]
-    thin = [
-        (f"thin pass {i}", np.array(a), np.array(b), n) for i, (a, b, n) in enumerate(THIN_PASSES)
-    ]
-    return cases + thin
 
 
 ALTERNATIONS = [name for name, *_ in alternations(BodyModel.load().robot)]
