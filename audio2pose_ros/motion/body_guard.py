@@ -539,11 +539,15 @@ class BodyGuard:
         """Move a stopped arm round the body towards its command, along the margin.
 
         Braking and sliding leave an arm at rest at the margin when the straight way to its
-        command passes the body. Then the held joints move along the margin: the wanted
-        direction without its part towards the body (the clearance gradient), lifted a little
-        away from it, at most ``LEAD_OUT_SPEED_RAD_S`` and within the acceleration limits; the
-        arm follows its command again once the straight way is clear. Kept only if admissible.
+        command passes the body. Then the held joints of the closest pair move along the
+        margin: the wanted direction without its part towards the body (the clearance
+        gradient), lifted a little away from it, at most ``LEAD_OUT_SPEED_RAD_S`` and within
+        the acceleration limits; the arm follows its command again once the straight way is
+        clear. Kept only if admissible.
         """
+        # one arm at a time: the closest pair's (with both arms at the margin, moving both
+        # along the gradient of the closest pair alone would take the other one in)
+        held = held & self.body.pair_joints(self.body.query(previous)[1])
         resting = np.all(np.abs(velocity[held]) < DETOUR_REST_RAD_S)
         wanted = np.where(held, want - pose, 0.0)
         if not resting or float(np.abs(wanted).max()) < DETOUR_MIN_RAD:
