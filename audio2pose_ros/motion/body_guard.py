@@ -7,8 +7,13 @@ allow and the previous command, and returns a command whose clearance
 
 1. **Admissible commands pass unchanged.** A command is admissible when its whole path is clear
    of the body by the guard's floor (below): the step from the previous command to it, and the
-   braking path on which every moving joint would come to rest if it braked at its
-   acceleration limit from the commanded velocity. The path is checked continuously
+   braking path on which every moving joint would come to rest if they braked together from
+   the commanded velocity (:func:`~audio2pose_ros.motion.limits.brake_together`: velocities
+   scaled down by one factor, as fast as the joint slowest to stop allows at its acceleration
+   limit). That path is the straight line the joints move along, the same whatever the
+   length of the ticks that brake them (the filter's timer is uneven on a loaded computer),
+   so braking from any command follows the path checked for the one before: braking every
+   joint is always admissible, within the tolerance below. The path is checked continuously
    (:meth:`~audio2pose_ros.robot.body.BodyModel.sweep`: conservative advancement, with samples
    no further apart than ``SAMPLE_TRAVEL_M`` of travel of any checked pair, so that no shape,
    however thin, is passed between two samples), so a moving arm can always stop before the
@@ -17,7 +22,8 @@ allow and the previous command, and returns a command whose clearance
    bounded from the pair's last measured distance
    (:meth:`~audio2pose_ros.robot.body.BodyModel.pair_bounds`: less its levers times each
    joint's travel since), and along the whole path it falls by at most its levers times each
-   joint's travel along it (the step, plus the braking distance ``v^2 / (2 a)``). Where the
+   joint's travel along it (the step, plus the braking distance ``|v| / (2 r)``, r the rate of
+   :func:`~audio2pose_ros.motion.limits.stop_rate`). Where the
    lowest bound keeps the floor, the exact check could only find the path clear, so the
    command is admissible without a query (counted as ``bound_checks``); else it is queried as
    above. The previous command's clearance is such a bound too while the bound is at least the
@@ -28,15 +34,18 @@ allow and the previous command, and returns a command whose clearance
    passed is the bound (``GuardStatus.clearance_exact`` False); a changed command's is measured.
 2. **Otherwise only the joints that must stop, brake.** The joints on the kinematic chains of
    the offending pairs (one arm; the other arm for arm-against-arm; the hip or head when the
-   pair involves them) decelerate at their acceleration limit, while every other joint keeps
-   the command of the limits: the head and the other arm keep following.
+   pair involves them) brake together, each within its acceleration limit, while every other
+   joint keeps the command of the limits: the head and the other arm keep following. When
+   that is not enough, the braked joints widen to those of the pair still too close, and at
+   last to every joint: the rest of the previous command's checked braking path.
 3. **Sliding.** Each braked joint then takes its wanted value again if the result stays
    admissible, so an arm slides along the body instead of sticking to it, and follows again as
    soon as the wanted poses are clear. An arm that has come to rest at the margin while its
    straight way passes the body goes round: its joints move along the margin towards the command
    (the wanted direction without its part along the clearance gradient), slowly
    (``LEAD_OUT_SPEED_RAD_S``, or slower where the limiter's velocity limit is lower), within
-   the acceleration limits, counted as ``detour_steps``.
+   the acceleration limits, counted as ``detour_steps``; with both arms at the margin, the
+   closest pair's arm goes round first.
    An arm already within ``TOLERANCE_M`` inside the floor (where braking may leave it) needs
    only not go deeper: there the floor is its present clearance, so every command that does not
    bring it closer passes, and the arm leaves the band by any way that does not approach the
@@ -47,11 +56,13 @@ allow and the previous command, and returns a command whose clearance
    direction kept, when that is lower); the other joints follow their command, or brake if
    that would bring the body closer. The result is then checked as any command (1-3): every
    moving joint, not only the led ones, must be able to stop clear of the floor.
-5. **Last resort.** If braking cannot keep a command admissible (another joint moved into a
-   resting arm in one step, or a caller's previous velocity that cannot stop in time), the
-   offending joints hold their previous positions, and if even that is not clear the whole
-   previous command is repeated (counted as ``holds``; it stops joints faster than their
-   acceleration limit, so it must not happen in ordinary motion).
+5. **Last resort** (counted as ``holds``; no sequence of commands the limiter allows needs
+   it, on any ticks). If even braking every joint falls short of the floor beyond the
+   tolerance, the guard still brakes every joint along the previous command's checked path,
+   within the acceleration limits. Only a previous command that is not the guard's own (a
+   caller's state, moving too fast to stop in time) has no checked path: then the offending
+   joints hold their previous positions, and if even that is not clear the whole previous
+   command is repeated, faster than the acceleration limit.
 
 **The floor under live parameter changes.** The floor is the clearance the guard guarantees.
 It is the margin, except after the margin was raised: a moving arm was promised only the old
