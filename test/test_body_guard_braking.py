@@ -96,7 +96,7 @@ def test_when_an_arm_sweeps_into_the_body_at_full_speed_on_uneven_ticks_expect_n
 ):
     """An arm swept from a clear pose into the body at the full velocity limit, back and forth,
     on ticks of 3 to 20 ms: every tick within the acceleration limit (the last resort stopped it
-    in one tick, up to 19 times the limit), never in the margin, no last resort."""
+    in one tick, 9 times the limit here), never in the margin, no last resort."""
     robot = body.robot
     start, goal = next((a, b) for n, a, b in sweeps(robot) if n == name)
     assert body.clearance(start) > MARGIN_M
