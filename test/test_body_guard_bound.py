@@ -194,11 +194,11 @@ def test_when_random_poses_and_paths_expect_the_bounds_never_above_the_exact_cle
         velocity = rng.normal(0.0, 1.0, robot.n_joints) * robot.max_velocity_rad_s / 3.0
         accel = limiter.max_acceleration_rad_s2
         # the guard's state in a step from ``previous``, as enforce sets it
-        guard._previous, guard._dt_s = previous, 1.0 / RATE_HZ
+        guard._previous = previous
         guard._bounds = limiter.allowed_range(previous)
         guard._pair_bounds_m = body.pair_bounds(previous)
         path_bound = guard._path_bound(pose, velocity, accel)
-        points, counts = guard._path(pose, velocity, accel, 1.0 / RATE_HZ)
+        points, counts = guard._path(pose, velocity, accel)
         samples = [points[0]]
         for start, end, count in zip(points[:-1], points[1:], counts, strict=True):
             samples.extend(start + (end - start) * np.arange(1, count + 1)[:, None] / count)

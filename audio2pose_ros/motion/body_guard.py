@@ -7,8 +7,13 @@ allow and the previous command, and returns a command whose clearance
 
 1. **Admissible commands pass unchanged.** A command is admissible when its whole path is clear
    of the body by the guard's floor (below): the step from the previous command to it, and the
-   braking path on which every moving joint would come to rest if it braked at its
-   acceleration limit from the commanded velocity. The path is checked continuously
+   braking path on which every moving joint would come to rest if they braked together from
+   the commanded velocity (:func:`~audio2pose_ros.motion.limits.brake_together`: velocities
+   scaled down by one factor, as fast as the joint slowest to stop allows at its acceleration
+   limit). That path is the straight line the joints move along, the same whatever the
+   length of the ticks that brake them (the filter's timer is uneven on a loaded computer),
+   so braking from any command follows the path checked for the one before: braking every
+   joint is always admissible, within the tolerance below. The path is checked continuously
    (:meth:`~audio2pose_ros.robot.body.BodyModel.sweep`: conservative advancement, with samples
    no further apart than ``SAMPLE_TRAVEL_M`` of travel of any checked pair, so that no shape,
    however thin, is passed between two samples), so a moving arm can always stop before the
@@ -17,7 +22,8 @@ allow and the previous command, and returns a command whose clearance
    bounded from the pair's last measured distance
    (:meth:`~audio2pose_ros.robot.body.BodyModel.pair_bounds`: less its levers times each
    joint's travel since), and along the whole path it falls by at most its levers times each
-   joint's travel along it (the step, plus the braking distance ``v^2 / (2 a)``). Where the
+   joint's travel along it (the step, plus the braking distance ``|v| / (2 r)``, r the rate of
+   :func:`~audio2pose_ros.motion.limits.stop_rate`). Where the
    lowest bound keeps the floor, the exact check could only find the path clear, so the
    command is admissible without a query (counted as ``bound_checks``); else it is queried as
    above. The previous command's clearance is such a bound too while the bound is at least the
@@ -28,15 +34,18 @@ allow and the previous command, and returns a command whose clearance
    passed is the bound (``GuardStatus.clearance_exact`` False); a changed command's is measured.
 2. **Otherwise only the joints that must stop, brake.** The joints on the kinematic chains of
    the offending pairs (one arm; the other arm for arm-against-arm; the hip or head when the
-   pair involves them) decelerate at their acceleration limit, while every other joint keeps
-   the command of the limits: the head and the other arm keep following.
+   pair involves them) brake together, each within its acceleration limit, while every other
+   joint keeps the command of the limits: the head and the other arm keep following. When
+   that is not enough, the braked joints widen to those of the pair still too close, and at
+   last to every joint: the rest of the previous command's checked braking path.
 3. **Sliding.** Each braked joint then takes its wanted value again if the result stays
    admissible, so an arm slides along the body instead of sticking to it, and follows again as
    soon as the wanted poses are clear. An arm that has come to rest at the margin while its
    straight way passes the body goes round: its joints move along the margin towards the command
    (the wanted direction without its part along the clearance gradient), slowly
    (``LEAD_OUT_SPEED_RAD_S``, or slower where the limiter's velocity limit is lower), within
-   the acceleration limits, counted as ``detour_steps``.
+   the acceleration limits, counted as ``detour_steps``; with both arms at the margin, the
+   closest pair's arm goes round first.
    An arm already within ``TOLERANCE_M`` inside the floor (where braking may leave it) needs
    only not go deeper: there the floor is its present clearance, so every command that does not
    bring it closer passes, and the arm leaves the band by any way that does not approach the
@@ -47,11 +56,13 @@ allow and the previous command, and returns a command whose clearance
    direction kept, when that is lower); the other joints follow their command, or brake if
    that would bring the body closer. The result is then checked as any command (1-3): every
    moving joint, not only the led ones, must be able to stop clear of the floor.
-5. **Last resort.** If braking cannot keep a command admissible (another joint moved into a
-   resting arm in one step, or a caller's previous velocity that cannot stop in time), the
-   offending joints hold their previous positions, and if even that is not clear the whole
-   previous command is repeated (counted as ``holds``; it stops joints faster than their
-   acceleration limit, so it must not happen in ordinary motion).
+5. **Last resort** (counted as ``holds``; no sequence of commands the limiter allows needs
+   it, on any ticks). If even braking every joint falls short of the floor beyond the
+   tolerance, the guard still brakes every joint along the previous command's checked path,
+   within the acceleration limits. Only a previous command that is not the guard's own (a
+   caller's state, moving too fast to stop in time) has no checked path: then the offending
+   joints hold their previous positions, and if even that is not clear the whole previous
+   command is repeated, faster than the acceleration limit.
 
 **The floor under live parameter changes.** The floor is the clearance the guard guarantees.
 It is the margin, except after the margin was raised: a moving arm was promised only the old
@@ -75,7 +86,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from audio2pose_ros.motion.limits import JointLimiter, LimitSettings
+from audio2pose_ros.motion.limits import JointLimiter, LimitSettings, brake_together, stop_rate
 from audio2pose_ros.robot.body import BodyModel, PathClearance
 from audio2pose_ros.robot.kinematics import blocked_product
 
@@ -90,7 +101,8 @@ TOLERANCE_M = 1e-3  # braking may end this far inside the floor (m): the braking
 SAMPLE_TRAVEL_M = 1e-3  # largest travel of any checked pair between two samples of a path (m):
 # the path between them comes at most half of it closer than the samples
 MAX_SAMPLES = 2000  # samples of one straight piece of a path at most
-MAX_BRAKING_TICKS = 50  # ticks of a braking path at most (at full acceleration it needs 19)
+PLAN_RTOL = 1e-9  # a previous velocity within this (relative) of the guard's own, scaled down,
+# is still on the braking path the guard checked for it
 PATH_SLACK_M = 0.5 * TOLERANCE_M  # the samples between two commands and of the braking path may
 # come this much closer than the margin (the path between samples another half a sample travel)
 RECENT_PATHS = 8  # paths whose sweep is kept: a guard step checks the same command again
@@ -140,11 +152,12 @@ class BodyGuard:
         self._brake_accel: np.ndarray | None = None  # deceleration the last command relies on
         self._speed_up = np.zeros(body.robot.n_joints)  # the acceleration limit (rad/s^2)
         self._previous = np.zeros(body.robot.n_joints)  # the previous command, this step
-        self._dt_s = 0.0  # the time of this step, and of each tick of a braking path (s)
         self._paths: dict[bytes, PathClearance] = {}
         self._travel = body.pair_lever_m  # (n_pairs, n_joints): a pair's travel per rad (m/rad)
         self._travel_bound = travel_bound
         self._pair_bounds_m: np.ndarray | None = None  # each pair's bound at the previous command
+        self._last: tuple[bytes, np.ndarray] | None = None  # the last command returned and its
+        # velocity: its braking path is known clear (checked, or part of a checked one)
         self._bounded = b""  # the last pose the travel bound cleared, this step
 
     def reset(self) -> None:
@@ -152,6 +165,7 @@ class BodyGuard:
         self._lead_out_s = 0.0
         self._guaranteed_m = None
         self._brake_accel = None
+        self._last = None
         self._paths.clear()
         self.body.reset()
 
@@ -175,48 +189,52 @@ class BodyGuard:
 
         Each joint's travel from the previous command along the path is at most its step to
         ``pose``, plus how far ``pose`` lies outside the position range (the braking path is
-        clipped into it), plus its braking distance ``v^2 / (2 a)`` (the braking path's ticks
-        are a right Riemann sum of the speed falling linearly to rest, which never exceeds the
-        integral). Each pair's bound at the previous command
-        (:meth:`~audio2pose_ros.robot.body.BodyModel.pair_bounds`) less its levers times that
-        travel bounds it along the path. NaN (never clear) for a joint that moves and cannot
-        brake.
+        clipped into it), plus its braking distance ``|v| / (2 r)`` (braking together at the
+        rate r of :func:`~audio2pose_ros.motion.limits.stop_rate`). Each pair's bound at the
+        previous command (:meth:`~audio2pose_ros.robot.body.BodyModel.pair_bounds`) less its
+        levers times that travel bounds it along the path. NaN (never clear) for a joint that
+        moves and cannot brake.
         """
         lower, upper = self._bounds
         outside = np.maximum(lower - pose, 0.0) + np.maximum(pose - upper, 0.0)
         with np.errstate(divide="ignore", invalid="ignore"):
-            braking = velocity * velocity / (2.0 * accel)
+            braking = np.abs(velocity) / (2.0 * stop_rate(velocity, accel))
         return self._pose_bound(np.abs(pose - self._previous) + outside + braking)[0]
 
     def _clear(self, pose: np.ndarray) -> bool:
         return bool(self.body.clearance(pose) >= self._floor_m)
 
     def _path(
-        self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray, dt_s: float
+        self, pose: np.ndarray, velocity: np.ndarray, accel: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """The step from the previous command to ``pose`` and its braking path, as sweep pieces.
 
-        The braking path is the one the guard commands when it brakes (:meth:`_restrain`):
-        each tick of ``dt_s`` every joint's speed falls by ``accel * dt_s`` until it rests, so
-        the path a braked command checks is the rest of the one its predecessor checked
-        (at most ``MAX_BRAKING_TICKS`` ticks: a low acceleration limit takes longer ones).
-        Between ticks the joints move in a straight line; each straight piece is sampled so
+        The braking path is the one the guard commands when it brakes (:meth:`_braked`): every
+        joint together (:func:`~audio2pose_ros.motion.limits.brake_together`), so the joints
+        move on along the straight line of ``velocity`` and stop on it, within
+        ``velocity / (2 r)`` of ``pose`` (r the rate of
+        :func:`~audio2pose_ros.motion.limits.stop_rate`), whatever the length of the ticks
+        that brake them, clipped into the position range (a corner where a joint reaches its
+        limit). Braking from any command on this path follows the rest of it, so a command the
+        guard braked has its braking path checked already. Each straight piece is sampled so
         that no checked pair travels more than ``SAMPLE_TRAVEL_M`` between two samples.
 
         Returns:
             ``(points, counts)`` for :meth:`~audio2pose_ros.robot.body.BodyModel.sweep`: the
-            previous command, ``pose`` and the braking path's ticks, and each piece's samples.
+            previous command, ``pose``, the corners and the rest, and each piece's samples.
         """
-        speed = np.abs(velocity)
-        ticks = float((speed / (accel * dt_s)).max()) if dt_s > 0.0 else 0.0
-        tick_s = dt_s * max(1.0, ticks / MAX_BRAKING_TICKS)
-        steps = np.arange(1, int(np.ceil(min(ticks, MAX_BRAKING_TICKS))) + 1)[:, None]
-        speeds = np.maximum(speed - steps * accel * tick_s, 0.0)
+        rate = stop_rate(velocity, accel)
         lower, upper = self._bounds
-        braking = np.clip(
-            pose + np.sign(velocity) * np.cumsum(speeds, axis=0) * tick_s, lower, upper
-        )
-        nodes = np.vstack([self._previous, pose, braking])
+        if np.isfinite(rate):
+            reach = velocity / (2.0 * rate)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                corners = np.where(reach > 0.0, upper - pose, lower - pose) / reach
+            corners = np.unique(corners[(corners > 0.0) & (corners < 1.0)])
+            fractions = np.append(corners, 1.0)[:, None]
+            braking = np.clip(pose + fractions * reach, lower, upper)
+            nodes = np.vstack([self._previous, pose, braking])
+        else:
+            nodes = np.vstack([self._previous, pose])
         pieces = np.diff(nodes, axis=0)
         travel = blocked_product(np.abs(pieces), self._travel.T).max(axis=1)
         return nodes, np.clip(np.ceil(travel / SAMPLE_TRAVEL_M), 1, MAX_SAMPLES)
@@ -233,7 +251,7 @@ class BodyGuard:
 
         The path is :meth:`_path`'s; recent answers are kept.
         """
-        floors = np.array([self._dt_s, floor_m, path_floor_m])
+        floors = np.array([floor_m, path_floor_m])
         key = (
             b"".join(
                 (self._previous.tobytes(), floors.tobytes(), pose.tobytes(), velocity.tobytes())
@@ -246,7 +264,7 @@ class BodyGuard:
             if distance < floor_m:
                 found = PathClearance(False, -1, pair, distance, 0.0, 1)
             else:
-                points, counts = self._path(pose, velocity, accel, self._dt_s)
+                points, counts = self._path(pose, velocity, accel)
                 found = self.body.sweep(points, path_floor_m, counts)
             if len(self._paths) >= RECENT_PATHS:
                 self._paths.pop(next(iter(self._paths)))
@@ -327,7 +345,6 @@ class BodyGuard:
         previous = np.asarray(previous_rad, dtype=np.float64)
         previous_velocity = np.asarray(previous_velocity_rad_s, dtype=np.float64)
         self._previous = previous
-        self._dt_s = dt_s if np.isfinite(dt_s) and dt_s > 0.0 else 0.0
         # One deceleration for the limiter and the guard: the braking paths assume the joint
         # limiter's (its acceleration limit, or the previous, higher limit while a joint it let
         # move fast still needs it to stop: a live-lowered acceleration_fraction); the guard's
@@ -374,6 +391,7 @@ class BodyGuard:
             status.clearance_exact = False
         status.clearance_m, status.links = distance, (link_a, link_b)
         status.floor_m = self._guaranteed_m
+        self._last = (positions.tobytes(), velocities.copy())
         status.last_cost_ns = time.perf_counter_ns() - start_ns
         return positions.copy(), velocities.copy()
 
@@ -429,13 +447,11 @@ class BodyGuard:
         offending = self._offending(want, want_velocity, accel)
         if offending is None:
             return want, want_velocity
-        lower, upper = self._bounds
         held = offending
-        for _ in range(MAX_WIDENINGS):
-            braked_speed = np.maximum(np.abs(previous_velocity) - brake * dt_s, 0.0)
-            velocity = np.where(held, np.copysign(braked_speed, previous_velocity), want_velocity)
-            pose = np.where(held, np.clip(previous + velocity * dt_s, lower, upper), want)
-            velocity = np.where(held, (pose - previous) / dt_s, velocity)
+        for widening in range(MAX_WIDENINGS + 1):
+            braked, braked_velocity = self._braked(previous, previous_velocity, held, dt_s, brake)
+            pose = np.where(held, braked, want)
+            velocity = np.where(held, braked_velocity, want_velocity)
             more = self._offending(pose, velocity, accel)
             if more is not None and not np.any(more & ~held):
                 # braking every offending joint is not enough: within the tolerance it is,
@@ -446,16 +462,60 @@ class BodyGuard:
                 return self._detour(
                     pose, velocity, want, previous, previous_velocity, held, dt_s, accel
                 )
-            if not np.any(more & ~held):
+            if held.all():
                 break
-            held = held | more
-        # Last resort: the offending joints stay where they are; failing that, everything does.
+            # widen to the joints of the pair too close; when that adds none, or widening is
+            # done, every joint brakes: the rest of the previous command's braking path
+            widened = held | more
+            last = np.array_equal(widened, held) or widening == MAX_WIDENINGS - 1
+            held = np.ones_like(held) if last else widened
+        # Last resort (counted): within the tolerance, braking every joint did not keep the
+        # floor. The previous command's own braking path was checked: follow it, within the
+        # acceleration limits. A previous command that is not the guard's (a caller's state)
+        # has none: its offending joints hold, failing that every joint does.
         self.status.holds += 1
-        pose = np.where(held, previous, want)
-        velocity = np.where(held, 0.0, want_velocity)
+        if self._own(previous, previous_velocity):
+            return self._braked(previous, previous_velocity, held, dt_s, brake)
+        pose = np.where(offending, previous, want)
+        velocity = np.where(offending, 0.0, want_velocity)
         if self._clear(pose):
             return pose, velocity
         return previous.copy(), np.zeros_like(previous)
+
+    def _braked(
+        self,
+        previous: np.ndarray,
+        previous_velocity: np.ndarray,
+        held: np.ndarray,
+        dt_s: float,
+        brake: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The previous command with the ``held`` joints braked together for ``dt_s``.
+
+        They keep their direction, so they move on along the previous command's checked path
+        (seen on their own joints); every joint held: on the path itself.
+        """
+        lower, upper = self._bounds
+        velocity = brake_together(np.where(held, previous_velocity, 0.0), brake, dt_s)
+        pose = np.clip(previous + velocity * dt_s, lower, upper)
+        return pose, (pose - previous) / dt_s
+
+    def _own(self, previous: np.ndarray, previous_velocity: np.ndarray) -> bool:
+        """Whether the previous command is the guard's last one, its velocity at most scaled down.
+
+        Its braking path is then known clear, also with the velocity braked together (a filter
+        that missed ticks does so).
+        """
+        if self._last is None or previous.tobytes() != self._last[0]:
+            return False
+        velocity = self._last[1]
+        squared = float(velocity @ velocity)
+        scale = float(previous_velocity @ velocity) / squared if squared > 0.0 else 0.0
+        tolerance = PLAN_RTOL * (1.0 + np.abs(velocity))
+        return bool(
+            -PLAN_RTOL <= scale <= 1.0 + PLAN_RTOL
+            and np.all(np.abs(previous_velocity - scale * velocity) <= tolerance)
+        )
 
     def _slide(
         self,
@@ -490,11 +550,15 @@ class BodyGuard:
         """Move a stopped arm round the body towards its command, along the margin.
 
         Braking and sliding leave an arm at rest at the margin when the straight way to its
-        command passes the body. Then the held joints move along the margin: the wanted
-        direction without its part towards the body (the clearance gradient), lifted a little
-        away from it, at most ``LEAD_OUT_SPEED_RAD_S`` and within the acceleration limits; the
-        arm follows its command again once the straight way is clear. Kept only if admissible.
+        command passes the body. Then the held joints of the closest pair move along the
+        margin: the wanted direction without its part towards the body (the clearance
+        gradient), lifted a little away from it, at most ``LEAD_OUT_SPEED_RAD_S`` and within
+        the acceleration limits; the arm follows its command again once the straight way is
+        clear. Kept only if admissible.
         """
+        # one arm at a time: the closest pair's (with both arms at the margin, moving both
+        # along the gradient of the closest pair alone would take the other one in)
+        held = held & self.body.pair_joints(self.body.query(previous)[1])
         resting = np.all(np.abs(velocity[held]) < DETOUR_REST_RAD_S)
         wanted = np.where(held, want - pose, 0.0)
         if not resting or float(np.abs(wanted).max()) < DETOUR_MIN_RAD:
@@ -567,10 +631,7 @@ class BodyGuard:
         led = np.where(joints, np.clip(previous + led_velocity * dt_s, lower, upper), previous)
         pose = np.where(joints, led, want)
         if body.clearance(pose) < body.clearance(led):
-            braked_speed = np.maximum(np.abs(previous_velocity) - brake * dt_s, 0.0)
-            braked = np.clip(
-                previous + np.copysign(braked_speed, previous_velocity) * dt_s, lower, upper
-            )
+            braked, _ = self._braked(previous, previous_velocity, ~joints, dt_s, brake)
             pose = np.where(joints, led, braked)
         return pose, (pose - previous) / dt_s
 

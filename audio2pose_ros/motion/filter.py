@@ -61,7 +61,12 @@ from audio2pose_ros.motion.filter_settings import (
     MotionFilterSettings,
 )
 from audio2pose_ros.motion.gate import TrackGate
-from audio2pose_ros.motion.limits import JointLimiter, LimitSettings, check_limit_settings
+from audio2pose_ros.motion.limits import (
+    JointLimiter,
+    LimitSettings,
+    brake_together,
+    check_limit_settings,
+)
 from audio2pose_ros.motion.smoothing import CausalLowPass, KalmanSmoother
 from audio2pose_ros.motion.style import StyleSettings, StyleTransform
 from audio2pose_ros.parameters import settings_with
@@ -493,10 +498,11 @@ class MotionFilter:
     def _resume_after_gap(self, elapsed_s: float) -> None:
         """No tick for ``elapsed_s``: brake the velocity over that time, restart the smoother."""
         self.status.gaps += 1
-        braked = np.maximum(
-            np.abs(self.velocity_rad_s) - self.limiter.max_acceleration_rad_s2 * elapsed_s, 0.0
+        # every joint together, direction kept: the self-collision guard's checked braking path
+        # (a straight line) still holds the joints' way to rest
+        self.velocity_rad_s = brake_together(
+            self.velocity_rad_s, self.limiter.max_acceleration_rad_s2, elapsed_s
         )
-        self.velocity_rad_s = np.copysign(braked, self.velocity_rad_s)
         if self._smoother is not None:
             self._smoother.reset(self.position_rad)
 

@@ -21,6 +21,32 @@ from audio2pose_ros.robot.description import RobotDescription
 MIN_DT_S = 1e-6  # shorter steps are timer noise: velocities over them would only amplify rounding
 
 
+def stop_rate(velocity_rad_s: np.ndarray, decel_rad_s2: np.ndarray) -> float:
+    """How fast every joint can brake together (1/s): the lowest ``decel / |v|`` of a moving joint.
+
+    Braking together scales every joint's velocity by one factor that falls at this rate, so
+    the joints stop at the same moment and each decelerates at most at its ``decel_rad_s2``.
+    inf when no joint moves.
+    """
+    speed = np.abs(velocity_rad_s)
+    moving = speed > 0.0
+    if not moving.any():
+        return math.inf
+    return float((decel_rad_s2[moving] / speed[moving]).min())
+
+
+def brake_together(velocity_rad_s: np.ndarray, decel_rad_s2: np.ndarray, dt_s: float) -> np.ndarray:
+    """The velocity after braking every joint together for ``dt_s`` (:func:`stop_rate`).
+
+    The direction is kept: the joints move on along the straight line they move on now, and
+    whatever the ticks, they stop on it within ``velocity / (2 * stop_rate)`` of where they
+    are (each tick moves at the tick's final speed, less than the continuous braking).
+    """
+    rate = stop_rate(velocity_rad_s, decel_rad_s2)
+    scale = max(0.0, 1.0 - rate * dt_s) if math.isfinite(rate) else 0.0
+    return np.asarray(velocity_rad_s * scale, dtype=np.float64)
+
+
 @dataclass(frozen=True)
 class LimitSettings:
     """How much of the robot's published limits the limiter allows (node parameters).
