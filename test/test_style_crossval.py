@@ -91,42 +91,36 @@ def test_when_no_fit_beats_the_default_out_of_sample_expect_the_default_and_the_
 
 
 @pytest.mark.slow
-def test_when_the_person_already_moves_like_the_default_expect_enrolment_no_further_on_new_speech(
+def test_when_the_person_moves_exactly_as_the_default_expect_the_default_kept_and_said(
     robot, speech_files
 ):
-    """A person whose arms the default already has: a fit on few seconds must not shrink them.
+    """A person whose arms the default already has: a fit on a few seconds must not change them.
 
-    The person is the default model itself at another seed (its size and pace, other motion);
-    enrolled on three sentences, scored on two it never heard, against the default.
+    The person's arms are the default model's own motion on their speech (seed 0, what the
+    default runs), three sentences. Chosen on the seconds it was fitted to, the fit moved the
+    arms anyway (a size of 0.98 or 1.02: the size grid has no 1; a height limit at the arms'
+    own highest 1 %); cross-validated, nothing comes closer than the default.
     """
     checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
-    other_seed = checkpoint_synthesizer(checkpoint)  # the synthesizer of seed 0 is the default's
-    from audio2pose_ros.offline.synthesis import synthesize
-
+    default = checkpoint_synthesizer(checkpoint)
     arms = robot.group_mask("arms")
     clips = []
-    for path in speech_files[:5]:
+    for path in speech_files[:3]:
         audio = read_wav(path)[0]
+        info = ClipInfo(path.stem, "person", "test", "test data")
         n = audio.size // SAMPLES_PER_FRAME
-        angles = synthesize(checkpoint, audio, seed=7, body_margin_m=None)[1][:n]
+        empty = np.zeros((n, robot.n_joints))
+        angles = synthesized_over_clip(Clip(info, audio, empty, empty.astype(bool)), default)
         mask = np.zeros(angles.shape, dtype=bool)
         mask[:, arms] = True
-        info = ClipInfo(path.stem, "person", "test", "test data")
         clips.append(Clip(info, audio, angles, mask))
-    enrol, held = clips[:3], clips[3:]
-    personal = fit_personal(enrol, robot, checkpoint)
-    real = [(c.angles_rad, c.mask) for c in held]
-    default, enrolled = [], []
-    run = checkpoint_synthesizer(personal.checkpoint)
-    for clip in held:
-        default.append((synthesized_over_clip(clip, other_seed), clip.mask))
-        angles = synthesized_over_clip(clip, run)
-        enrolled.append(
-            (style_trajectory(robot, personal.settings, angles, FRAME_RATE_HZ), clip.mask)
-        )
-    assert (
-        motion_distance(real, enrolled, robot, "arms")
-        <= motion_distance(real, default, robot, "arms") + 0.01
-    )
-    assert set(personal.verdicts) == {"arms"}
-    assert personal.report()  # says what it expects, or why it kept the default
+    personal = fit_personal(clips, robot, checkpoint)
+    assert personal.settings == IDENTITY
+    assert personal.arms_noise == 1.0
+    assert personal.checkpoint is checkpoint
+    verdict = personal.verdicts["arms"]
+    assert verdict.kept_default
+    assert personal.report() == [f"arms: kept the default ({verdict.reason})"]
+    real = [(c.angles_rad, c.mask) for c in clips]
+    styled = [(style_trajectory(robot, personal.settings, a, FRAME_RATE_HZ), k) for a, k in real]
+    assert motion_distance(real, styled, robot, "arms") == pytest.approx(0.0, abs=1e-12)

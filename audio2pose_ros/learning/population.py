@@ -159,11 +159,19 @@ class NestedResult:
         chosen: held-out speaker -> the temperature chosen without them.
         measures: pooled over speakers, each at the temperature chosen without them.
         per_speaker: each speaker's own measures at that temperature.
+        motion: each speaker's generated motion at that temperature.
     """
 
     chosen: dict[str, float]
     measures: Measures
     per_speaker: dict[str, Measures]
+    motion: dict[str, list[Motion]]
+
+    def size_ratio(self, real: Mapping[str, list[Motion]], robot: RobotDescription) -> float:
+        """The pooled size ratio, generated / real, over every held-out speaker."""
+        return signed_ratio(
+            [m for s in real for m in real[s]], [m for s in real for m in self.motion[s]], robot
+        )
 
     def spread(self) -> tuple[float, float]:
         """The standard error over speakers of H speed and H accel (the test's margin)."""
@@ -185,11 +193,10 @@ def nested(
     }
     motion = {s: generated[s][t] for s, t in chosen.items()}
     per_speaker = {s: pooled(real, motion, robot, [s]) for s in real}
-    return NestedResult(chosen, pooled(real, motion, robot), per_speaker)
+    return NestedResult(chosen, pooled(real, motion, robot), per_speaker, motion)
 
 
-def _row(label: str, m: Measures) -> str:
-    ratio = math.exp(m.log_size) if math.isfinite(m.log_size) else math.nan
+def _row(label: str, m: Measures, ratio: float) -> str:
     return f"| {label} | {m.h_speed:.3f} | {m.h_accel:.3f} | {ratio:.2f} | {score(m):.3f} |"
 
 
@@ -237,10 +244,17 @@ def population_table(
         "Each speaker at the temperature chosen on the other held-out speakers only "
         f"({chosen}); the spread is the standard error over the {len(real)} speakers:",
         "",
-        "| held out | H speed | H accel | size distance (\\|ln ratio\\|) as ratio | score |",
+        "| held out | H speed | H accel | size ratio | score |",
         "|---|---|---|---|---|",
-        *[_row(s, m) for s, m in result.per_speaker.items()],
-        _row(f"**all, pooled** (± {speed:.3f} / {accel:.3f})", result.measures),
+        *[
+            _row(s, m, signed_ratio(real[s], result.motion[s], robot))
+            for s, m in result.per_speaker.items()
+        ],
+        _row(
+            f"**all, pooled** (± {speed:.3f} / {accel:.3f})",
+            result.measures,
+            result.size_ratio(real, robot),
+        ),
     ]
     return "\n".join(lines)
 
@@ -309,7 +323,7 @@ def population_figures(
         "held_out_speakers": {
             "h_speed": result.measures.h_speed,
             "h_accel": result.measures.h_accel,
-            "size_ratio": math.exp(result.measures.log_size),
+            "size_ratio": result.size_ratio(real, robot),
             "chosen": result.chosen,
         },
     }
@@ -339,12 +353,16 @@ def run(
     robot: RobotDescription,
     progress: Callable[[str], None] = print,
     max_epochs: int = 200,
+    retrain: bool = True,
 ) -> str:
     """Hold out every head speaker, choose the shipped head's temperature, keep the figures.
 
     The talking heads are imported into ``work_dir`` unless they are there; each fold's model
-    is kept there (``loso_<speaker>.safetensors``) and reused. The shipped checkpoint of
-    ``model_dir`` gets the chosen head temperature; ``population.json`` is written beside it.
+    is kept there (``loso_<speaker>.safetensors``) and reused. Without ``retrain`` every fold
+    samples with the shipped weights (which learned from every speaker: only the temperature's
+    choice then holds the speaker out; quick, for a machine without the hours of training).
+    The shipped checkpoint of ``model_dir`` gets the chosen head temperature;
+    ``population.json`` is written beside it.
 
     Returns:
         The card's table.
@@ -363,9 +381,12 @@ def run(
     settings = LearnedBuildSettings().train_settings(max_epochs)
     real: dict[str, list[Motion]] = {}
     generated: Generated = {}
+    shipped_path = model_dir / "default.safetensors"
     for speaker, training, validation in head_folds(by_speaker):
         path = work_dir / f"loso_{speaker}.safetensors"
-        if path.is_file():
+        if not retrain:
+            model = load_checkpoint(shipped_path, robot=robot)
+        elif path.is_file():
             model = load_checkpoint(path, robot=robot)
         else:
             progress(f"training without {speaker} on {len(training)} clips")
@@ -377,7 +398,6 @@ def run(
     result = nested(real, generated, robot)
     temperature = best_temperature(real, generated, robot, list(real))
     progress(f"the head temperature over everyone: {temperature:g}")
-    shipped_path = model_dir / "default.safetensors"
     shipped = load_checkpoint(shipped_path, robot=robot)
     shipped = with_head_temperature(shipped, temperature)
     chosen_on = f"every head speaker held out in turn: {', '.join(real)} ({FIGURES_FILE})"
@@ -390,17 +410,19 @@ def run(
         return speaker_source(speaker) or speaker
 
     table = population_table(real, generated, robot, source_of, result)
-    write_card(model_dir / "MODEL_CARD.md", table, figures, temperature)
+    write_card(model_dir / "MODEL_CARD.md", table, figures, temperature, retrain)
     return table
 
 
 COMMAND = (
-    "python -m audio2pose_ros.learning.population ../shared/data/talking_heads "
-    "out/style-sources models/default"
+    "python -m audio2pose_ros.learning.population [--shipped-weights] "
+    "../shared/data/talking_heads out/style-sources models/default"
 )
 
 
-def write_card(card: Path, table: str, figures: Mapping[str, object], temperature: float) -> None:
+def write_card(
+    card: Path, table: str, figures: Mapping[str, object], temperature: float, retrain: bool
+) -> None:
     """The card's population section: the table, the shipped choice and the test's figures."""
     from audio2pose_ros.learning.style_card import POPULATION_BEGIN, POPULATION_END, put_section
 
@@ -408,6 +430,7 @@ def write_card(card: Path, table: str, figures: Mapping[str, object], temperatur
     bundled = figures["bundled_speech"]
     assert isinstance(held, dict)
     assert isinstance(bundled, dict)
+    command = COMMAND.replace("[--shipped-weights] ", "" if retrain else "--shipped-weights ")
     put_section(
         card,
         POPULATION_BEGIN,
@@ -418,8 +441,15 @@ def write_card(card: Path, table: str, figures: Mapping[str, object], temperatur
             "No model can guess a new speaker's style from the voice, so the head's sampling "
             "temperature is one style for everybody, chosen here on speakers the model never "
             "saw (`audio2pose_ros/learning/population.py`): for each head speaker (each GRID "
-            "speaker, Obama), `live_groups` trained on the other speakers' clips samples the "
-            "held-out speaker's speech at head temperatures "
+            "speaker, Obama), "
+            + (
+                "`live_groups` trained on the other speakers' clips "
+                if retrain
+                else "the shipped `live_groups` (its weights learned from every speaker: here "
+                "only the temperature's choice holds the speaker out; a training per speaker "
+                "did not fit this machine's budget) "
+            )
+            + "samples the held-out speaker's speech at head temperatures "
             f"{', '.join(map(str, HEAD_TEMPERATURES))} "
             f"(seeds {', '.join(map(str, SEEDS))}); its head against the speaker's real head, "
             "all speakers pooled (each by its seconds), as `make evaluate-style` scores a part: "
@@ -444,22 +474,24 @@ def write_card(card: Path, table: str, figures: Mapping[str, object], temperatur
             f"{bundled['margin']:.3f}, the standard error over the held-out speakers of their "
             "H.",
             "",
-            f"Rebuild: `{COMMAND}` (run by `make default-model`).",
+            f"Rebuild: `{command}` (run by `make default-model`).",
         ],
     )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m audio2pose_ros.learning.population TALKING_HEADS WORK_DIR MODEL_DIR``."""
+    """``python -m audio2pose_ros.learning.population [--shipped-weights] HEADS WORK MODEL_DIR``."""
     import sys
 
     from audio2pose_ros.robot.description import load_robot
 
     args = list(sys.argv[1:] if argv is None else argv)
+    retrain = "--shipped-weights" not in args
+    args = [a for a in args if a != "--shipped-weights"]
     if len(args) != 3:
         print(main.__doc__, file=sys.stderr)
         return 2
-    table = run(Path(args[0]), Path(args[1]), Path(args[2]), load_robot())
+    table = run(Path(args[0]), Path(args[1]), Path(args[2]), load_robot(), retrain=retrain)
     print(table)
     return 0
 

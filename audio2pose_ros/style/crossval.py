@@ -125,15 +125,23 @@ def part_fields(part: str) -> tuple[str, ...]:
     return tuple(f.name for f in fields(StyleSettings) if f.name.split("_")[0] == part)
 
 
-def toward(learned: StyleSettings, strength: float, part: str) -> StyleSettings:
+def toward(
+    learned: StyleSettings, strength: float, part: str, raise_from: float | None = None
+) -> StyleSettings:
     """The default style with ``part``'s parameters moved ``strength`` of the way to ``learned``.
 
-    Sizes and tempos move geometrically (a size of 0.5 at strength 0.5 is 0.71), offsets and
-    the height limit linearly. The other parts keep the default.
+    Sizes and tempos move geometrically (a size of 0.5 at strength 0.5 is 0.71), offsets
+    linearly. The arms' height limit moves linearly from ``raise_from`` (where the model's own
+    arms rise to, at which a limit starts to act; the joint's limit, off, when None) and is off
+    at strength 0. The other parts keep the default.
     """
+    if strength <= 0.0:
+        return IDENTITY
     values = {}
     for name in part_fields(part):
         start, end = float(getattr(IDENTITY, name)), float(getattr(learned, name))
+        if name == "arms_raise_limit_rad" and raise_from is not None:
+            start = min(max(raise_from, start), end)
         if name.endswith(("_gain", "_tempo")):
             value = math.exp(strength * math.log(max(end, 1e-3) / start)) * start
         else:

@@ -252,9 +252,12 @@ def first_seconds(clips: Sequence[Clip], seconds: float) -> list[Clip]:
         if left <= 0:
             break
         n = min(clip.n_frames, left)
-        per_frame = clip.audio.size // max(clip.n_frames, 1)
-        audio = clip.audio if n == clip.n_frames else clip.audio[: n * per_frame]
-        out.append(Clip(clip.info, audio, clip.angles_rad[:n], clip.mask[:n]))
+        if n == clip.n_frames:  # the clip itself: its synthesis is shared
+            out.append(clip)
+        else:
+            per_frame = clip.audio.size // max(clip.n_frames, 1)
+            audio = clip.audio[: n * per_frame]
+            out.append(Clip(clip.info, audio, clip.angles_rad[:n], clip.mask[:n]))
         left -= n
     return out
 

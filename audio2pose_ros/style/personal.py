@@ -377,10 +377,18 @@ def _ways(part: str, fits: _Fits) -> list[str]:
     return [w for w in fits if part == "arms" or w == "style"]
 
 
-def _at(fits: _Fits, way: str, strength: float, part: str) -> tuple[float, StyleSettings]:
-    """The arms' noise and the style of ``part``'s fit ``way`` at ``strength`` (0: default)."""
+def _at(
+    fits: _Fits, way: str, strength: float, part: str, raises: Mapping[float, float | None]
+) -> tuple[float, StyleSettings]:
+    """The arms' noise and the style of ``part``'s fit ``way`` at ``strength`` (0: default).
+
+    ``raises``: per arm noise factor, how high the model's own arms rise (the 1st percentile of
+    the shoulder pitch), where :func:`~audio2pose_ros.style.crossval.toward` starts the height
+    limit.
+    """
     factor, settings = fits[way]
-    return noise_at(factor, strength, ARMS_NOISE_FACTORS), toward(settings, strength, part)
+    noise = noise_at(factor, strength, ARMS_NOISE_FACTORS)
+    return noise, toward(settings, strength, part, raises.get(noise))
 
 
 def _held_out(
@@ -429,6 +437,10 @@ def fit_personal(
         for factor, model in models.items()
     }
     references = {f: [_all_known(a) for a in angles] for f, angles in synthesized.items()}
+    raises = {}
+    for factor, motion in references.items():
+        arms = measure_part(motion, robot, "arms", min_seconds=0.0)
+        raises[factor] = arms.raise_p1_rad if arms is not None else None
     default_scores: dict[str, list[Measures]] = {part: [] for part in parts}
     trials: dict[str, dict[tuple[str, float], list[Measures]]] = {part: {} for part in parts}
     for training, held in folds([c.n_frames for c in clips]):
@@ -444,7 +456,7 @@ def fit_personal(
             default_scores[part].append(part_measures(held_real, default, robot, part))
             for way in _ways(part, fits):
                 for strength in STRENGTHS:
-                    factor, settings = _at(fits, way, strength, part)
+                    factor, settings = _at(fits, way, strength, part, raises)
                     motion = _held_out(synthesized, real, held, factor, settings, robot)
                     scores = trials[part].setdefault((way, strength), [])
                     scores.append(part_measures(held_real, motion, robot, part))
@@ -462,7 +474,7 @@ def fit_personal(
             if verdict.kept_default:
                 continue
             way = verdict.fit if verdict.fit in fits else "style"
-            noise, styles[part] = _at(fits, way, verdict.strength, part)
+            noise, styles[part] = _at(fits, way, verdict.strength, part, raises)
             factor = noise if part == "arms" else factor
         return factor, merged(styles)
 
