@@ -124,3 +124,21 @@ def test_when_the_person_moves_exactly_as_the_default_expect_the_default_kept_an
     real = [(c.angles_rad, c.mask) for c in clips]
     styled = [(style_trajectory(robot, personal.settings, a, FRAME_RATE_HZ), k) for a, k in real]
     assert motion_distance(real, styled, robot, "arms") == pytest.approx(0.0, abs=1e-12)
+
+
+def test_when_a_fold_holds_a_few_seconds_expect_the_style_fitted_on_them(robot):
+    """A fold of a short enrolment trains on 3 s: under the 5 s a style file needs, still fitted."""
+    from audio2pose_ros.style.figures import measure_part, resolve
+
+    n = 300
+    t = np.arange(n)[:, None] / FRAME_RATE_HZ
+    head = robot.group_mask("head")
+    model = np.tile(robot.neutral_rad, (n, 1))
+    model[:, head] += 0.05 * np.sin(2 * np.pi * 0.7 * t + np.arange(head.sum()))
+    person = model.copy()
+    person[:, head] = robot.neutral_rad[head] + 0.2 * (model[:, head] - robot.neutral_rad[head])
+    known = np.ones(model.shape, dtype=bool)
+    figures = {"head": measure_part([(person, known)], robot, "head", min_seconds=2.5)}
+    assert resolve(figures, [(model, known)], robot) == IDENTITY  # a style file's 5 s
+    fitted = resolve(figures, [(model, known)], robot, min_seconds=2.5)
+    assert fitted.head_gain == pytest.approx(0.2, rel=0.1)

@@ -163,32 +163,38 @@ def _row(
     )
 
 
+def _cut(clip: Clip, frame: int) -> tuple[Clip, Clip]:
+    """``clip`` cut in two at ``frame`` (its audio with it)."""
+    audio = frame * (clip.audio.size // max(clip.n_frames, 1))
+
+    def piece(start: int, stop: int | None, a0: int, a1: int | None) -> Clip:
+        return Clip(
+            clip.info, clip.audio[a0:a1], clip.angles_rad[start:stop], clip.mask[start:stop]
+        )
+
+    return piece(0, frame, 0, audio), piece(frame, None, audio, None)
+
+
 def _split(clips: Sequence[Clip], enroll_s: float) -> tuple[list[Clip], list[Clip]]:
     """Enrol on whole clips from the start, at most ``enroll_s`` and half the frames.
 
-    A single clip is cut in two.
+    When the whole clips that fit hold less than half of that (a single clip, or a long clip
+    second), the next clip is cut in two at it.
     """
-    if len(clips) == 1:
-        clip = clips[0]
-        cut = min(round(enroll_s * FRAME_RATE_HZ), clip.n_frames // 2)
-        audio_cut = cut * (clip.audio.size // max(clip.n_frames, 1))
-
-        def piece(start: int, stop: int | None, a0: int, a1: int | None) -> Clip:
-            return Clip(
-                clip.info, clip.audio[a0:a1], clip.angles_rad[start:stop], clip.mask[start:stop]
-            )
-
-        return [piece(0, cut, 0, audio_cut)], [piece(cut, None, audio_cut, None)]
     total = sum(c.n_frames for c in clips)
-    budget = min(enroll_s * FRAME_RATE_HZ, total / 2)
+    budget = round(min(enroll_s * FRAME_RATE_HZ, total / 2))
     enrol: list[Clip] = []
     used = 0
     for clip in clips:
-        if enrol and used + clip.n_frames > budget:
+        if used + clip.n_frames > budget:
             break
         enrol.append(clip)
         used += clip.n_frames
-    return enrol, list(clips[len(enrol) :])
+    rest = list(clips[len(enrol) :])
+    if used >= budget / 2 or not rest:
+        return enrol, rest
+    first, second = _cut(rest[0], budget - used)
+    return [*enrol, first], [second, *rest[1:]]
 
 
 def figure_rows(

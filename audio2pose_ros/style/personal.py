@@ -360,16 +360,17 @@ def _fits(
     moments between gestures (the lecture), and leaving it out misses a person who moves
     slowly: cross-validation decides.
     """
-    out = {"style": (1.0, resolve(person, references[1.0], robot))}
+    out = {"style": (1.0, resolve(person, references[1.0], robot, min_seconds=FOLD_MIN_S))}
     if "arms" in person and len(references) > 1:
         factor = closest_noise(person["arms"], references, robot)
         if factor != 1.0:
             arms = {"arms": person["arms"]}
             out["noise + rest"] = (
                 factor,
-                resolve(arms, references[factor], robot, paced=("arms",)),
+                resolve(arms, references[factor], robot, paced=("arms",), min_seconds=FOLD_MIN_S),
             )
-            out["noise + style"] = (factor, resolve(arms, references[factor], robot))
+            whole = resolve(arms, references[factor], robot, min_seconds=FOLD_MIN_S)
+            out["noise + style"] = (factor, whole)
     return out
 
 
