@@ -53,7 +53,7 @@ LECTURE_VIDEO ?= ../shared/data/lecture_video/physicsworks.webm
 # card's section; without --shipped-weights each held-out speaker gets a model of its own).
 default-model: setup
 	nice -n 10 $(VENV_BIN)/audio2pose dataset build-default $(TALKING_HEADS) --lecture $(LECTURE_VIDEO) -o models/default --work-dir out/default-model-work
-	nice -n 10 $(VENV_BIN)/python -m audio2pose_ros.learning.population --shipped-weights $(TALKING_HEADS) out/style-sources models/default
+	nice -n 10 $(VENV_BIN)/python -m audio2pose_ros.style.population --shipped-weights $(TALKING_HEADS) out/style-sources models/default
 	nice -n 10 $(VENV_BIN)/python -m audio2pose_ros.style.presets --resolve
 
 # The named style presets (config/styles/*.yaml), measured from the same shared sources with the

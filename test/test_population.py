@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from audio2pose_ros.checkpoints.torch_io import load_checkpoint
-from audio2pose_ros.learning import population
 from audio2pose_ros.resources import default_checkpoint_path
+from audio2pose_ros.style import population
 from audio2pose_ros.timebase import FRAME_RATE_HZ
 
 

@@ -5,7 +5,7 @@ The speaking-style section lies between :data:`CARD_BEGIN` and :data:`CARD_END`.
 default model's card writer (:mod:`audio2pose_ros.learning.model_card`) carries an existing
 section over into the rebuilt card (:func:`with_style_section`), marked as measured on the model
 it was measured on until ``make evaluate-style`` runs again. The population section
-(:data:`POPULATION_BEGIN` to :data:`POPULATION_END`, :mod:`audio2pose_ros.learning.population`)
+(:data:`POPULATION_BEGIN` to :data:`POPULATION_END`, :mod:`audio2pose_ros.style.population`)
 is written and carried over the same way (:func:`put_section`, :func:`carried`).
 """
 

@@ -415,7 +415,7 @@ def run(
 
 
 COMMAND = (
-    "python -m audio2pose_ros.learning.population [--shipped-weights] "
+    "python -m audio2pose_ros.style.population [--shipped-weights] "
     "../shared/data/talking_heads out/style-sources models/default"
 )
 
@@ -440,7 +440,7 @@ def write_card(
             "",
             "No model can guess a new speaker's style from the voice, so the head's sampling "
             "temperature is one style for everybody, chosen here on speakers the model never "
-            "saw (`audio2pose_ros/learning/population.py`): for each head speaker (each GRID "
+            "saw (`audio2pose_ros/style/population.py`): for each head speaker (each GRID "
             "speaker, Obama), "
             + (
                 "`live_groups` trained on the other speakers' clips "
@@ -480,7 +480,7 @@ def write_card(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m audio2pose_ros.learning.population [--shipped-weights] HEADS WORK MODEL_DIR``."""
+    """``python -m audio2pose_ros.style.population [--shipped-weights] HEADS WORK MODEL_DIR``."""
     import sys
 
     from audio2pose_ros.robot.description import load_robot
