@@ -23,9 +23,11 @@ as a lively person's are: on the lecture (enrolled on its first 32 s, scored on 
 the arms' H speed / accel / size ratio went from 0.32 / 0.36 / 0.25 with the style alone to
 0.17 / 0.18 / 0.45 (the default: 0.38 / 0.35 / 0.14). A style's tempo fitted on top of the noise
 slowed it again to the person's still moments, and leaving the tempo out would miss a person
-who moves slowly; so the fit keeps, of the style alone, the noise with the arms' rest and
-height, and the noise with the whole style, the one closest to the person's own motion on the
-recording (:func:`motion_distance`). 60 s of one person hold too little to retrain the model's
+who moves slowly; so the fit tries the style alone, the noise with the arms' rest and height,
+and the noise with the whole style, and cross-validation inside the recording
+(:mod:`~audio2pose_ros.style.crossval`) chooses among them and how far from the default to go,
+part by part, keeping the default where none comes closer to the person on stretches it did not
+fit (:func:`fit_personal`). 60 s of one person hold too little to retrain the model's
 speech-to-motion mapping, and neither the noise nor the style can make the motion less safe:
 the sampler's step bounds, the limiter and the body guard stay as they are.
 
