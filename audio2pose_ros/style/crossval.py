@@ -43,7 +43,7 @@ Piece = tuple[int, int, int]  # (clip index, first frame, frame after the last)
 
 @dataclass(frozen=True)
 class Measures:
-    """How far a part's motion is from the person's: H speed, H accel, |log size ratio|."""
+    """How far a part's motion is from the person's: H speed, H accel, log size ratio (absolute)."""
 
     h_speed: float
     h_accel: float

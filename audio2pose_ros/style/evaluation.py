@@ -289,8 +289,8 @@ def verdict_note(personal: PersonalFit, part: str) -> str:
 def holds(si: Row, sd: Row, tolerance: float = 0.005) -> bool:
     """Whether the enrolled row is at least as close as the default on every measure.
 
-    H speed, H accel, the size ratio's distance from 1 (as |log|) and the percentiles within
-    25 %, each within ``tolerance`` (the table's rounding).
+    H speed, H accel, the size ratio's distance from 1 (as the absolute log) and the
+    percentiles within 25 %, each within ``tolerance`` (the table's rounding).
     """
     return (
         sd.h_speed <= si.h_speed + tolerance
