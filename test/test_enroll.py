@@ -194,7 +194,11 @@ def test_when_presets_shipped_expect_each_readable_with_figures_and_command():
 @pytest.mark.slow
 @pytest.mark.skipif(not OBAMA, reason="the shared talking-head clips are not here")
 def test_when_enrolling_a_real_video_expect_a_head_style_and_progress(tmp_path, capsys):
-    """Real talking-head video (the Obama clips joined, 15 s): its first 8 s enrol the head."""
+    """Real talking-head video (the Obama clips joined, 15 s): its first 8 s, the head only.
+
+    Whether the head learns depends on whether a fit comes closer than the default on the
+    stretches it did not fit; either way ``enroll`` says which, and the folder holds it.
+    """
     joined = tmp_path / "obama.mp4"
     inputs = [arg for clip in OBAMA for arg in ("-i", str(clip))]
     streams = "".join(f"[{k}:v][{k}:a]" for k in range(len(OBAMA)))
@@ -207,15 +211,23 @@ def test_when_enrolling_a_real_video_expect_a_head_style_and_progress(tmp_path, 
     assert main(["enroll", str(joined), "-o", str(tmp_path / "me"), "--max-seconds", "8"]) == 0
     captured = capsys.readouterr()
     assert "enroll: tracking face and body" in captured.err
-    assert "head_gain:=" in captured.out
+    # head and shoulders: the arms are not seen; the head's verdict is said, either way
+    verdicts = [line for line in captured.out.splitlines() if line.startswith("head: ")]
+    assert len(verdicts) == 1
+    assert not any(line.startswith(("arms: ", "hip: ")) for line in captured.out.splitlines())
     style = read_style(tmp_path / "me" / "style.yaml")
-    assert set(style.parts) == {"head"}  # head and shoulders: the arms are not seen
-    assert 5.0 <= style.parts["head"].seconds <= 8.0  # only the first 8 s were tracked
     assert style.fitted is not None
     fitted = style.fitted[1]
-    assert fitted != StyleSettings()
-    assert fitted.head_gain != 1.0 or fitted.head_tempo != 1.0  # the head is fitted
     assert (fitted.arms_gain, fitted.hip_gain) == (1.0, 1.0)  # parts not seen keep the model's
+    if verdicts[0].startswith("head: kept the default ("):
+        assert style.parts == {}
+        assert fitted == StyleSettings()
+        return
+    assert "expected to come" in verdicts[0]
+    assert "head_gain:=" in captured.out
+    assert set(style.parts) == {"head"}
+    assert 5.0 <= style.parts["head"].seconds <= 8.0  # only the first 8 s were tracked
+    assert fitted.head_gain != 1.0 or fitted.head_tempo != 1.0  # the head is fitted
 
 
 def test_when_run_gets_a_personal_model_expect_its_checkpoint_and_style_as_overrides(tmp_path):

@@ -89,10 +89,11 @@ def test_when_a_data_set_is_named_expect_one_source_and_one_synthesis_per_clip(
     code = main(["evaluate-style", f"reader={data}", "--enroll-seconds", "7", "--card", str(card)])
     assert code == 0
     out = capsys.readouterr().out
-    rows = [line for line in out.splitlines() if line.startswith("| reader (") and " s / " in line]
-    methods = ["default (SI)", "enrolled (SD)", "real split half", "real enrolment part"]
+    rows = [line for line in out.splitlines() if line.startswith("| reader (18 s) |")]
+    methods = ["default (SI)", "enrolled on 6 s (SD)", "real split half"]
+    methods.append("real enrolment part (6 s)")
     assert [row.split(" | ")[2] for row in rows] == methods
-    assert all(row.startswith("| reader (6 s / 18 s) | head |") for row in rows)
+    assert all(row.startswith("| reader (18 s) | head |") for row in rows)
     assert "| reader (real) | head | 25 |" in out  # the figures of all of its clips
     assert not any(line.startswith(("| bbaf", "| bgaa")) for line in out.splitlines())
     assert sorted(calls) == sorted(IDS)  # enrolment, scores and figures share one synthesis
@@ -174,8 +175,30 @@ def test_when_enrolment_fits_the_arms_noise_expect_the_enrolled_row_to_run_the_p
 
     personal_ratio = size_ratio(fitted.checkpoint, fitted.settings)
     assert personal_ratio != size_ratio(checkpoint, fitted.style_alone)  # the test can tell
-    row = next(line for line in out.splitlines() if "| enrolled (SD) |" in line)
-    assert row.startswith("| lively (6 s / 18 s) | arms |")
+    row = next(line for line in out.splitlines() if "| enrolled on 6 s (SD) |" in line)
+    assert row.startswith("| lively (18 s) | arms |")
     assert row.split(" | ")[5] == personal_ratio
-    assert f"| lively | arms | {fitted.arms_noise:g}x |" in out  # the fits table
+    assert f"| lively | 6 | arms | {fitted.arms_noise:g}x |" in out  # the fits table
     assert any(f"{fitted.arms_noise:g}x" in line for line in lines)  # and the progress
+
+
+def test_when_a_long_clip_follows_a_short_first_one_expect_enrolment_cut_from_it(robot):
+    """A lecture whose first stretch with arms is 4 s, then 30 s: enrolled on 27 s, not 4 s."""
+
+    def clip(clip_id, seconds):
+        n = seconds * 100
+        audio = np.zeros(n * SAMPLES_PER_FRAME, dtype=np.float32)
+        angles = np.tile(robot.neutral_rad, (n, 1))
+        info = ClipInfo(clip_id, "lewin", "test", "test data")
+        return Clip(info, audio, angles, np.ones(angles.shape, dtype=bool))
+
+    clips = [clip("lecture_000.00s", 4), clip("lecture_016.01s", 30), clip("x_2", 20)]
+    enrol, held = evaluation._split(clips, 60.0)
+    assert [c.n_frames for c in enrol] == [400, 2300]  # half of 54 s: 27 s
+    assert [c.n_frames for c in held] == [700, 2000]
+    assert enrol[1].audio.size == 2300 * SAMPLES_PER_FRAME
+    assert held[0].audio.size == 700 * SAMPLES_PER_FRAME
+    longer = [clip("a_1", 20), *clips[1:]]  # whole clips when they hold half the budget
+    whole, rest = evaluation._split(longer, 60.0)
+    assert whole == longer[:1]
+    assert rest == longer[1:]

@@ -122,7 +122,10 @@ def command_enroll(args: argparse.Namespace) -> int:
         max_seconds=args.max_seconds,
         command=shlex.join(["audio2pose", "enroll", *sys.argv[2:]]) if sys.argv else "",
     )
-    print(f"wrote {result.folder} ({', '.join(result.style.parts)}; {result.seconds:.1f} s used)")
+    learned = ", ".join(result.style.parts) or "no part learned"
+    print(f"wrote {result.folder} ({learned}; {result.seconds:.1f} s used)")
+    for line in result.report:  # per part: the expected gain, or why it kept the default
+        print(line)
     if result.arms_noise != 1.0:
         print(
             f"the arms' sampling noise: {result.arms_noise:g} times the packaged model's "

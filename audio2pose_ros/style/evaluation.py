@@ -4,12 +4,15 @@ Seed 003's Table 5.1 compares subject-independent models (trained on other peopl
 subject-dependent ones (trained on the same person) on held-out data. Here the subject-dependent
 model is the default model with the person's style (:mod:`audio2pose_ros.style.personal`),
 enrolled on the first :data:`~audio2pose_ros.style.personal.MAX_ENROLL_S` (at most half) of a
-source's clips and scored on the rest:
+source's clips (:func:`_split`) and scored on the rest; also on the first 10 s and 20 s of that
+part (:data:`ENROLL_LENGTHS_S`, what the console's Learn my style records), scored on the same
+held-out speech:
 
 - **SI**: the default model's offline synthesis (seed 0) of the held-out clips' speech;
 - **SD**: what ``audio2pose enroll`` makes of the first part and ``--model`` runs: the personal
-  fit (:func:`~audio2pose_ros.style.personal.fit_personal`, the arms' sampling noise where the
-  arms are seen, and the style), the synthesis of the held-out speech by its model (the personal
+  fit (:func:`~audio2pose_ros.style.personal.fit_personal`, cross-validated inside the
+  enrolment, part by part the default where no fit comes closer; the arms' sampling noise where
+  the arms are seen, and the style), the synthesis of the held-out speech by its model (the personal
   checkpoint when the noise was fitted, else the default), with its style applied as the live
   filter applies it;
 - **floor**: the real held-out motion's first half of clips against its second (realism's
@@ -17,13 +20,15 @@ source's clips and scored on the rest:
 - **real enrolment part**: the person's own enrolment motion against the held-out motion: how
   far the stretch enrolled on predicts the rest at all (no beat consistency: other speech).
 
-For each part the source observes (head, arms), against the real held-out motion (its known
+For each part the source observes (head, arms, hip), against the real held-out motion (its known
 frames only): the Hellinger distances of joint speed and acceleration (seed 003 section 5.3,
 the bins of :mod:`~audio2pose_ros.learning.metrics`), the size ratio (part std, model / real),
 how many speed and acceleration percentiles (p50, p90, p99 per joint) lie within 25 % of real
 (:func:`~audio2pose_ros.learning.realism.percentile_agreement`) with the lowest and highest
 ratio, and the beat consistency (EMAGE's BC, :mod:`~audio2pose_ros.learning.realism`). Goals
-(per source): SD percentiles within 25 %, H <= 0.12, std 0.8 to 1.25 x, and SD better than SI.
+(per source): SD at least as close as SI on every measure, or SI kept (:func:`holds`, with the
+enrolment's verdict, :func:`verdict_note`); SD percentiles within 25 %, H <= 0.12, std 0.8 to
+1.25 x.
 
 A data set's clips are grouped into sources by their ids (:func:`source_of`); a data set given
 as ``NAME=DATASET`` (:func:`source_spec`) is one source, whatever its clip ids: one person's
@@ -36,7 +41,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -66,7 +71,7 @@ from audio2pose_ros.timebase import FRAME_RATE_HZ
 if TYPE_CHECKING:
     from audio2pose_ros.checkpoints.torch_io import Checkpoint
 
-PARTS: tuple[str, ...] = ("head", "arms")
+PARTS: tuple[str, ...] = ("head", "arms", "hip")
 SCORE_MIN_S = 1.0  # a scored part needs this much known motion
 SOURCE_NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
 
@@ -106,6 +111,7 @@ class Row:
     lowest: float
     highest: float
     beat: float
+    note: str = "-"  # an enrolled row: at least as close as the default, and the verdict
 
 
 def source_of(clip_id: str) -> str:
@@ -162,32 +168,38 @@ def _row(
     )
 
 
+def _cut(clip: Clip, frame: int) -> tuple[Clip, Clip]:
+    """``clip`` cut in two at ``frame`` (its audio with it)."""
+    audio = frame * (clip.audio.size // max(clip.n_frames, 1))
+
+    def piece(start: int, stop: int | None, a0: int, a1: int | None) -> Clip:
+        return Clip(
+            clip.info, clip.audio[a0:a1], clip.angles_rad[start:stop], clip.mask[start:stop]
+        )
+
+    return piece(0, frame, 0, audio), piece(frame, None, audio, None)
+
+
 def _split(clips: Sequence[Clip], enroll_s: float) -> tuple[list[Clip], list[Clip]]:
     """Enrol on whole clips from the start, at most ``enroll_s`` and half the frames.
 
-    A single clip is cut in two.
+    When the whole clips that fit hold less than half of that (a single clip, or a long clip
+    second), the next clip is cut in two at it.
     """
-    if len(clips) == 1:
-        clip = clips[0]
-        cut = min(round(enroll_s * FRAME_RATE_HZ), clip.n_frames // 2)
-        audio_cut = cut * (clip.audio.size // max(clip.n_frames, 1))
-
-        def piece(start: int, stop: int | None, a0: int, a1: int | None) -> Clip:
-            return Clip(
-                clip.info, clip.audio[a0:a1], clip.angles_rad[start:stop], clip.mask[start:stop]
-            )
-
-        return [piece(0, cut, 0, audio_cut)], [piece(cut, None, audio_cut, None)]
     total = sum(c.n_frames for c in clips)
-    budget = min(enroll_s * FRAME_RATE_HZ, total / 2)
+    budget = round(min(enroll_s * FRAME_RATE_HZ, total / 2))
     enrol: list[Clip] = []
     used = 0
     for clip in clips:
-        if enrol and used + clip.n_frames > budget:
+        if used + clip.n_frames > budget:
             break
         enrol.append(clip)
         used += clip.n_frames
-    return enrol, list(clips[len(enrol) :])
+    rest = list(clips[len(enrol) :])
+    if used >= budget / 2 or not rest:
+        return enrol, rest
+    first, second = _cut(rest[0], budget - used)
+    return [*enrol, first], [second, *rest[1:]]
 
 
 def figure_rows(
@@ -203,7 +215,7 @@ def figure_rows(
     real = [(c.angles_rad, c.mask) for c in clips]
     model = [(synthesized_over_clip(c, synthesize_clip), c.mask) for c in clips]
     lines = []
-    for part in (*PARTS, "hip"):
+    for part in PARTS:
         for who, motions in ((f"{name} (real)", real), ("default model, same speech", model)):
             f = measure_part(motions, robot, part, FRAME_RATE_HZ, SCORE_MIN_S)
             if f is None:
@@ -227,6 +239,67 @@ FIGURES_HEADER = (
 )
 
 
+ENROLL_LENGTHS_S = (10.0, 20.0)  # shorter enrolments tried besides the longest (the console's)
+
+
+def enrolment_lengths(enroll_s: float, available_s: float) -> list[float]:
+    """The enrolment lengths tried: :data:`ENROLL_LENGTHS_S` below ``enroll_s``, and ``enroll_s``.
+
+    Each at most ``available_s`` (what the source holds for enrolment); lengths that come to
+    the same are tried once.
+    """
+    out: list[float] = []
+    for seconds in (*[s for s in ENROLL_LENGTHS_S if s < enroll_s], enroll_s):
+        used = min(seconds, available_s)
+        if not out or used > out[-1] + 0.5:
+            out.append(used)
+    return out
+
+
+def first_seconds(clips: Sequence[Clip], seconds: float) -> list[Clip]:
+    """The clips' first ``seconds`` in order, the last one cut short (its audio with it)."""
+    out, left = [], round(seconds * FRAME_RATE_HZ)
+    for clip in clips:
+        if left <= 0:
+            break
+        n = min(clip.n_frames, left)
+        if n == clip.n_frames:  # the clip itself: its synthesis is shared
+            out.append(clip)
+        else:
+            per_frame = clip.audio.size // max(clip.n_frames, 1)
+            audio = clip.audio[: n * per_frame]
+            out.append(Clip(clip.info, audio, clip.angles_rad[:n], clip.mask[:n]))
+        left -= n
+    return out
+
+
+def verdict_note(personal: PersonalFit, part: str) -> str:
+    """The enrolment's verdict on ``part`` for the table: kept the default, or how far and why."""
+    verdict = personal.verdicts.get(part)
+    if verdict is None:
+        return "-"
+    if verdict.kept_default:
+        return _cell(f"kept the default: {verdict.reason}")
+    return (
+        f"{verdict.fit}, {verdict.strength:.0%}; expected gain {verdict.gain:+.3f} ± "
+        f"{verdict.spread:.3f} ({verdict.n_folds} folds)"
+    )
+
+
+def holds(si: Row, sd: Row, tolerance: float = 0.005) -> bool:
+    """Whether the enrolled row is at least as close as the default on every measure.
+
+    H speed, H accel, the size ratio's distance from 1 (as the absolute log) and the
+    percentiles within 25 %, each within ``tolerance`` (the table's rounding).
+    """
+    return (
+        sd.h_speed <= si.h_speed + tolerance
+        and sd.h_accel <= si.h_accel + tolerance
+        and abs(np.log(sd.std_ratio)) <= abs(np.log(si.std_ratio)) + tolerance
+        and sd.inside >= si.inside
+    )
+
+
 def evaluate_source(
     name: str,
     clips: Sequence[Clip],
@@ -235,53 +308,69 @@ def evaluate_source(
     synthesizers: Synthesizers,
     enroll_s: float,
     progress: Callable[[str], None] = print,
-) -> tuple[list[Row], PersonalFit]:
-    """The rows of one source and its personal fit (see the module docstring)."""
-    enrol, held = _split(clips, enroll_s)
-    personal = fit_personal(enrol, robot, checkpoint, synthesizers)
-    progress(f"enrolled: {fit_row(name, personal)}")
+) -> tuple[list[Row], list[tuple[float, PersonalFit]]]:
+    """The rows of one source and its personal fits per enrolment length (module docstring).
+
+    The held-out speech is the same for every length: what follows the longest enrolment
+    (:func:`_split`); each shorter one is its first seconds (:func:`enrolment_lengths`).
+    """
+    enrol_all, held = _split(clips, enroll_s)
+    available = sum(c.n_frames for c in enrol_all) / FRAME_RATE_HZ
     real = [(c.angles_rad, c.mask) for c in held]
     onsets = [audio_onsets(c.audio) for c in held]
-    default, enrolled = synthesizers.of(checkpoint), synthesizers.of(personal.checkpoint)
-    si, sd = [], []
-    for clip in held:
-        si.append((synthesized_over_clip(clip, default), clip.mask))
-        angles = synthesized_over_clip(clip, enrolled)
-        sd.append((style_trajectory(robot, personal.settings, angles, FRAME_RATE_HZ), clip.mask))
+    default = synthesizers.of(checkpoint)
+    si = [(synthesized_over_clip(clip, default), clip.mask) for clip in held]
+    fits: list[tuple[float, PersonalFit]] = []
+    for seconds in enrolment_lengths(enroll_s, available):
+        enrol = first_seconds(enrol_all, seconds)
+        personal = fit_personal(enrol, robot, checkpoint, synthesizers)
+        progress(f"enrolled on {seconds:.0f} s: {fit_row(name, seconds, personal)}")
+        fits.append((seconds, personal))
     first, second = real[0::2], real[1::2]
     if not second:  # one held-out clip: its halves
         angles, known = real[0]
         middle = angles.shape[0] // 2
         first, second = [(angles[:middle], known[:middle])], [(angles[middle:], known[middle:])]
     rows = []
+    where = f"{name} ({sum(c.n_frames for c in held) / FRAME_RATE_HZ:.0f} s)"
     for part in PARTS:
-        if part not in personal.parts:
+        if part not in fits[-1][1].parts:
             continue
         if measure_part(real, robot, part, min_seconds=SCORE_MIN_S) is None:
             continue
-        where = f"{name} ({sum(c.n_frames for c in enrol) / 100:.0f} s / "
-        where += f"{sum(c.n_frames for c in held) / 100:.0f} s)"
-        rows.append(_row(where, part, "default (SI)", real, si, onsets, robot))
-        rows.append(_row(where, part, "enrolled (SD)", real, sd, onsets, robot))
+        baseline = _row(where, part, "default (SI)", real, si, onsets, robot)
+        rows.append(baseline)
+        for seconds, personal in fits:
+            enrolled = synthesizers.of(personal.checkpoint)
+            sd = []
+            for clip in held:
+                angles = synthesized_over_clip(clip, enrolled)
+                styled = style_trajectory(robot, personal.settings, angles, FRAME_RATE_HZ)
+                sd.append((styled, clip.mask))
+            row = _row(where, part, f"enrolled on {seconds:.0f} s (SD)", real, sd, onsets, robot)
+            check = "yes" if holds(baseline, row) else "**no**"
+            rows.append(replace(row, note=f"{check}; {verdict_note(personal, part)}"))
         floor_onsets = onsets[0::2] if len(real) > 1 else onsets[:1]
         rows.append(_row(where, part, "real split half", second, first, floor_onsets, robot))
-        own = [(c.angles_rad, c.mask) for c in enrol]
-        rows.append(_row(where, part, "real enrolment part", real, own, onsets[:0], robot))
-    return rows, personal
+        own = [(c.angles_rad, c.mask) for c in enrol_all]
+        label = f"real enrolment part ({available:.0f} s)"
+        rows.append(_row(where, part, label, real, own, onsets[:0], robot))
+    return rows, fits
 
 
-def fit_row(name: str, personal: PersonalFit) -> str:
-    """A line of the fits table: a source's enrolled parts, arms' noise and style parameters."""
+def fit_row(name: str, seconds: float, personal: PersonalFit) -> str:
+    """A line of the fits table: a source's enrolment, parts learned, arms' noise and style."""
     noise = f"{personal.arms_noise:g}x" if personal.arms_noise != 1.0 else "not fitted"
     if "arms" not in personal.parts:
         noise = "- (arms not seen)"
     values = ", ".join(o.replace(":=", " ") for o in style_overrides(personal.settings))
-    return f"| {name} | {', '.join(personal.parts)} | {noise} | {values or '-'} |"
+    learned = ", ".join(personal.learned) or "none (the default kept)"
+    return f"| {name} | {seconds:.0f} | {learned} | {noise} | {values or '-'} |"
 
 
 FITS_HEADER = (
-    "| source | parts enrolled | arms' sampling noise (personal checkpoint) | "
-    "style parameters against the model it runs |\n|---|---|---|---|"
+    "| source | enrolled on (s) | parts learned | arms' sampling noise (personal checkpoint) | "
+    "style parameters against the model it runs |\n|---|---|---|---|---|"
 )
 
 
@@ -292,15 +381,16 @@ def _num(value: float, digits: int = 2) -> str:
 def table(rows: Sequence[Row]) -> str:
     """The rows as a Markdown table."""
     lines = [
-        "| source (enrolled / scored) | part | motion | H speed | H accel | std ratio | "
-        "percentiles within 25 % | lowest / highest ratio | beat consistency |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| source (scored) | part | motion | H speed | H accel | std ratio | "
+        "percentiles within 25 % | lowest / highest ratio | beat consistency | "
+        "as close as the default on every measure; the enrolment's verdict |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
             f"| {r.source} | {r.part} | {r.method} | {_num(r.h_speed)} | {_num(r.h_accel)} | "
             f"{_num(r.std_ratio)} | {r.inside}/{r.total} | {_num(r.lowest)} / "
-            f"{_num(r.highest)} | {_num(r.beat)} |"
+            f"{_num(r.highest)} | {_num(r.beat)} | {r.note} |"
         )
     return "\n".join(lines)
 
@@ -359,7 +449,7 @@ def evaluate_sources(
                 name, clips, robot, checkpoint, synthesizers, enroll_s, progress
             )
             rows += found
-            fits.append(fit_row(name, personal))
+            fits += [fit_row(name, seconds, fit) for seconds, fit in personal]
             figures += figure_rows(name, clips, robot, synthesizers.of(checkpoint))
             provenance.append(provenance_row(name, spec.path, clips))
     return "\n\n".join(

@@ -441,13 +441,14 @@ def _fit_pace(
     robot: RobotDescription,
     part: str,
     rate_hz: float,
+    min_seconds: float = MIN_PART_S,
 ) -> tuple[float, float]:
     """The tempo and size of :func:`resolve` for one part (see there)."""
     fits = {}
     for tempo in TEMPO_GRID:
         settings = StyleSettings(**{f"{part}_tempo": tempo})
         motions = _styled(robot, settings, model_motions, rate_hz)
-        styled = measure_part(motions, robot, part, rate_hz)
+        styled = measure_part(motions, robot, part, rate_hz, min_seconds)
         if styled is not None:
             fits[tempo] = _fit_gain(*_log_ratios(target, styled))
     tempo = min(fits, key=lambda t: fits[t][1])
@@ -462,6 +463,7 @@ def resolve(
     robot: RobotDescription,
     rate_hz: float = FRAME_RATE_HZ,
     paced: Collection[str] = (),
+    min_seconds: float = MIN_PART_S,
 ) -> StyleSettings:
     """The filter settings that bring the model's motion closest to the person's figures.
 
@@ -480,16 +482,20 @@ def resolve(
         robot: joint order, groups and neutral pose.
         rate_hz: frame rate of ``model_motions``.
         paced: parts whose tempo and size are left at 1.
+        min_seconds: a part of ``model_motions`` shorter than this is left out (a fold of
+            enrolment's cross-validation fits on a few seconds).
 
     Returns:
         The style settings, each inside its parameter's range.
     """
     values: dict[str, float] = {}
     for part, target in person.items():
-        if measure_part(model_motions, robot, part, rate_hz) is None:
+        if measure_part(model_motions, robot, part, rate_hz, min_seconds) is None:
             continue
         tempo, gain = (
-            (1.0, 1.0) if part in paced else _fit_pace(target, model_motions, robot, part, rate_hz)
+            (1.0, 1.0)
+            if part in paced
+            else _fit_pace(target, model_motions, robot, part, rate_hz, min_seconds)
         )
         values[f"{part}_tempo"] = tempo
         values[f"{part}_gain"] = round(gain, 4)

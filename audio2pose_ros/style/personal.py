@@ -23,9 +23,11 @@ as a lively person's are: on the lecture (enrolled on its first 32 s, scored on 
 the arms' H speed / accel / size ratio went from 0.32 / 0.36 / 0.25 with the style alone to
 0.17 / 0.18 / 0.45 (the default: 0.38 / 0.35 / 0.14). A style's tempo fitted on top of the noise
 slowed it again to the person's still moments, and leaving the tempo out would miss a person
-who moves slowly; so the fit keeps, of the style alone, the noise with the arms' rest and
-height, and the noise with the whole style, the one closest to the person's own motion on the
-recording (:func:`motion_distance`). 60 s of one person hold too little to retrain the model's
+who moves slowly; so the fit tries the style alone, the noise with the arms' rest and height,
+and the noise with the whole style, and cross-validation inside the recording
+(:mod:`~audio2pose_ros.style.crossval`) chooses among them and how far from the default to go,
+part by part, keeping the default where none comes closer to the person on stretches it did not
+fit (:func:`fit_personal`). 60 s of one person hold too little to retrain the model's
 speech-to-motion mapping, and neither the noise nor the style can make the motion less safe:
 the sampler's step bounds, the limiter and the body guard stay as they are.
 
@@ -38,7 +40,7 @@ import dataclasses
 import hashlib
 import math
 import time
-from collections.abc import Callable, Collection, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -48,16 +50,29 @@ import numpy as np
 
 from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
 from audio2pose_ros.errors import InputError
-from audio2pose_ros.motion.style import StyleSettings, style_trajectory
+from audio2pose_ros.motion.style import IDENTITY, StyleSettings, style_trajectory
 from audio2pose_ros.resources import bundled_speech_paths, default_checkpoint_path
 from audio2pose_ros.robot.description import RobotDescription
+from audio2pose_ros.style.crossval import (
+    FOLD_MIN_S,
+    STRENGTHS,
+    Measures,
+    PartVerdict,
+    Piece,
+    choose,
+    cut,
+    folds,
+    merged,
+    noise_at,
+    part_measures,
+    toward,
+)
 from audio2pose_ros.style.figures import (
     MIN_PART_S,
     Motion,
     PartFigures,
     StyleError,
     StyleFile,
-    _derivatives,
     load_style,
     measure,
     measure_part,
@@ -181,20 +196,47 @@ def fit_arms_noise(
     per-part sampling (:func:`with_arms_noise`).
     """
     synthesizers = synthesizers or Synthesizers()
-    best: tuple[float, float, Checkpoint] = (math.inf, 1.0, checkpoint)
-    for factor in ARMS_NOISE_FACTORS:
-        candidate = checkpoint if factor == 1.0 else with_arms_noise(checkpoint, factor)
+    models = noise_models(checkpoint)
+    motions = {
+        factor: [_all_known(synthesized_over_clip(c, synthesizers.of(model))) for c in clips]
+        for factor, model in models.items()
+    }
+    factor = closest_noise(person, motions, checkpoint.robot)
+    return factor, models[factor]
+
+
+def noise_models(checkpoint: Checkpoint) -> dict[float, Checkpoint]:
+    """:data:`ARMS_NOISE_FACTORS` -> ``checkpoint`` with that arm noise (:func:`with_arms_noise`).
+
+    Only the factor 1 (``checkpoint`` itself) for a model without per-part sampling.
+    """
+    models = {1.0: checkpoint}
+    for factor in ARMS_NOISE_FACTORS[1:]:
+        candidate = with_arms_noise(checkpoint, factor)
         if candidate is None:
             break
-        run = synthesizers.of(candidate)
-        motions = [(angles, np.ones(angles.shape, dtype=bool)) for angles in map(run, clips)]
-        model = measure_part(motions, checkpoint.robot, "arms")
-        if model is None:
-            break
-        loss = style_loss(person, model)
-        if loss < best[0]:
-            best = (loss, factor, candidate)
-    return best[1], best[2]
+        models[factor] = candidate
+    return models
+
+
+def closest_noise(
+    person: PartFigures, motions: Mapping[float, Sequence[Motion]], robot: RobotDescription
+) -> float:
+    """The factor of ``motions`` (factor -> the model's motion) whose arms fit ``person`` best.
+
+    By :func:`~audio2pose_ros.style.figures.style_loss`; the first factor on a tie, 1 when no
+    motion shows the arms long enough.
+    """
+    best = (math.inf, 1.0)
+    for factor, motion in motions.items():
+        model = measure_part(motion, robot, "arms", min_seconds=FOLD_MIN_S)
+        if model is not None and (loss := style_loss(person, model)) < best[0]:
+            best = (loss, factor)
+    return best[1]
+
+
+def _all_known(angles: np.ndarray) -> Motion:
+    return angles, np.ones(angles.shape, dtype=bool)
 
 
 @lru_cache(maxsize=4)
@@ -260,24 +302,8 @@ def style_settings(
     return resolve(style.parts, model_reference(checkpoint_path), robot)
 
 
-def fit_style(
-    parts: dict[str, PartFigures],
-    clips: Sequence[Clip],
-    robot: RobotDescription,
-    synthesize_clip: Synthesizer,
-    paced: Collection[str] = (),
-) -> StyleSettings:
-    """The style settings that bring a model's motion to the person's figures ``parts``.
-
-    The model's motion on the person's own speech in ``clips`` (``synthesize_clip``) is the
-    reference of :func:`~audio2pose_ros.style.figures.resolve` (``paced``: parts whose tempo
-    and size it leaves at 1): the model's figures on what the person said.
-    """
-    reference = []
-    for clip in clips:
-        angles = synthesize_clip(clip)
-        reference.append((angles, np.ones(angles.shape, dtype=bool)))
-    return resolve(parts, reference, robot, paced=paced)
+ARMS_FITS = ("style", "noise + rest", "noise + style")  # the ways of fitting the arms
+CONTEXT_FRAMES = 100  # a held-out stretch is styled from this many frames before it
 
 
 @dataclass(frozen=True)
@@ -292,6 +318,9 @@ class PersonalFit:
         arms_noise: the factor of the arms' sampling temperature.
         style_alone: the style settings fitted to the given model itself (what a running graph
             that keeps its model applies).
+        verdicts: per observed part, what cross-validation decided for ``settings`` and
+            ``checkpoint`` (:class:`~audio2pose_ros.style.crossval.PartVerdict`).
+        alone_verdicts: the same for ``style_alone`` (the arms without their own noise).
     """
 
     parts: dict[str, PartFigures]
@@ -299,6 +328,91 @@ class PersonalFit:
     checkpoint: Checkpoint
     arms_noise: float
     style_alone: StyleSettings
+    verdicts: dict[str, PartVerdict] = dataclasses.field(default_factory=dict)
+    alone_verdicts: dict[str, PartVerdict] = dataclasses.field(default_factory=dict)
+
+    @property
+    def learned(self) -> list[str]:
+        """The parts whose learned style is used (the others keep the default)."""
+        return [part for part, v in self.verdicts.items() if not v.kept_default]
+
+    def report(self) -> list[str]:
+        """One line per part: the expected gain with its spread, or why it kept the default."""
+        lines = [v.line() for v in self.verdicts.values()]
+        for part, v in self.alone_verdicts.items():
+            if v != self.verdicts.get(part):
+                lines.append(f"without a model of its own (the console's live style): {v.line()}")
+        return lines
+
+
+_Fits = dict[str, tuple[float, StyleSettings]]  # way of fitting -> (arms noise, style settings)
+
+
+def _fits(
+    person: Mapping[str, PartFigures],
+    references: Mapping[float, Sequence[Motion]],
+    robot: RobotDescription,
+) -> _Fits:
+    """The full fits of ``person``'s figures against the model's motion of each arm noise.
+
+    "style": the style against the default's motion (:func:`~audio2pose_ros.style.figures.
+    resolve`); for the arms also the person's noise (:func:`closest_noise`) with only the
+    arms' rest and height styled ("noise + rest"), and with the whole arm style ("noise +
+    style"). The style's tempo on top of the noise slows the motion down to a person's still
+    moments between gestures (the lecture), and leaving it out misses a person who moves
+    slowly: cross-validation decides.
+    """
+    out = {"style": (1.0, resolve(person, references[1.0], robot, min_seconds=FOLD_MIN_S))}
+    if "arms" in person and len(references) > 1:
+        factor = closest_noise(person["arms"], references, robot)
+        if factor != 1.0:
+            arms = {"arms": person["arms"]}
+            out["noise + rest"] = (
+                factor,
+                resolve(arms, references[factor], robot, paced=("arms",), min_seconds=FOLD_MIN_S),
+            )
+            whole = resolve(arms, references[factor], robot, min_seconds=FOLD_MIN_S)
+            out["noise + style"] = (factor, whole)
+    return out
+
+
+def _ways(part: str, fits: _Fits) -> list[str]:
+    return [w for w in fits if part == "arms" or w == "style"]
+
+
+def _at(
+    fits: _Fits, way: str, strength: float, part: str, raises: Mapping[float, float | None]
+) -> tuple[float, StyleSettings]:
+    """The arms' noise and the style of ``part``'s fit ``way`` at ``strength`` (0: default).
+
+    ``raises``: per arm noise factor, how high the model's own arms rise (the 1st percentile of
+    the shoulder pitch), where :func:`~audio2pose_ros.style.crossval.toward` starts the height
+    limit.
+    """
+    factor, settings = fits[way]
+    noise = noise_at(factor, strength, ARMS_NOISE_FACTORS)
+    return noise, toward(settings, strength, part, raises.get(noise))
+
+
+def _held_out(
+    synthesized: Mapping[float, Sequence[np.ndarray]],
+    real: Sequence[Motion],
+    pieces: Sequence[Piece],
+    factor: float,
+    settings: StyleSettings,
+    robot: RobotDescription,
+) -> list[Motion]:
+    """The model's motion of the ``pieces`` with the arm noise ``factor``, styled as it runs.
+
+    Each piece is styled from :data:`CONTEXT_FRAMES` before it (the causal filters settle)
+    and carries the real motion's mask.
+    """
+    out = []
+    for c, a, b in pieces:
+        start = max(a - CONTEXT_FRAMES, 0)
+        styled = style_trajectory(robot, settings, synthesized[factor][c][start:b], FRAME_RATE_HZ)
+        out.append((styled[a - start :], real[c][1][a:b]))
+    return out
 
 
 def fit_personal(
@@ -307,43 +421,69 @@ def fit_personal(
     checkpoint: Checkpoint,
     synthesizers: Synthesizers | None = None,
 ) -> PersonalFit:
-    """A person's model: the arms' sampling noise (when the arms are seen) and the style.
+    """A person's model, part by part no further from the person than the default is.
 
-    Three candidates for the arms: the style alone on ``checkpoint``; the model with the
-    person's arm noise (:func:`fit_arms_noise`) with only the arms' rest and height styled
-    (``paced``); and that model with the whole style on top. The one closest to the person's
-    own motion on the same speech (:func:`motion_distance`) wins. A style's tempo fitted on top
-    of the noise slows the motion down to a person's still moments between gestures (the
-    lecture), and leaving it out misses a person who moves slowly: the recording decides.
+    Cross-validated inside the recording (:mod:`~audio2pose_ros.style.crossval`): for each fold
+    (:func:`~audio2pose_ros.style.crossval.folds`), every way of fitting (:func:`_fits`) is
+    fitted to the person's figures on the training stretches and scored, at each strength
+    between the default and the full fit, on the held-out stretch against the default. Per
+    part, :func:`~audio2pose_ros.style.crossval.choose` takes the way and strength or keeps the
+    default; the result is the full fit on the whole recording taken that far from the default.
     ``synthesizers`` lets a caller that synthesizes the same clips share them (the evaluation).
     """
     real = [(c.angles_rad, c.mask) for c in clips]
     parts = measure(real, robot)  # the person's figures, the same for every candidate
     synthesizers = synthesizers or Synthesizers()
-    alone = fit_style(parts, clips, robot, synthesizers.of(checkpoint))
-    plain = PersonalFit(parts, alone, checkpoint, 1.0, alone)
-    if "arms" not in parts:
-        return plain
-    factor, noisier = fit_arms_noise(clips, parts["arms"], checkpoint, synthesizers)
-    if factor == 1.0:
-        return plain
-    run = synthesizers.of(noisier)
-    candidates = [
-        plain,
-        PersonalFit(parts, fit_style(parts, clips, robot, run, ("arms",)), noisier, factor, alone),
-        PersonalFit(parts, fit_style(parts, clips, robot, run), noisier, factor, alone),
-    ]
+    models = noise_models(checkpoint) if "arms" in parts else {1.0: checkpoint}
+    synthesized = {
+        factor: [synthesized_over_clip(c, synthesizers.of(model)) for c in clips]
+        for factor, model in models.items()
+    }
+    references = {f: [_all_known(a) for a in angles] for f, angles in synthesized.items()}
+    raises = {}
+    for factor, motion in references.items():
+        arms = measure_part(motion, robot, "arms", min_seconds=0.0)
+        raises[factor] = arms.raise_p1_rad if arms is not None else None
+    default_scores: dict[str, list[Measures]] = {part: [] for part in parts}
+    trials: dict[str, dict[tuple[str, float], list[Measures]]] = {part: {} for part in parts}
+    for training, held in folds([c.n_frames for c in clips]):
+        train_real, held_real = cut(real, training), cut(real, held)
+        person = {}
+        for part in parts:
+            figures = measure_part(train_real, robot, part, min_seconds=FOLD_MIN_S)
+            if figures is not None and measure_part(held_real, robot, part, min_seconds=1.0):
+                person[part] = figures
+        fits = _fits(person, {f: cut(m, training) for f, m in references.items()}, robot)
+        default = _held_out(synthesized, real, held, 1.0, IDENTITY, robot)
+        for part in person:
+            default_scores[part].append(part_measures(held_real, default, robot, part))
+            for way in _ways(part, fits):
+                for strength in STRENGTHS:
+                    factor, settings = _at(fits, way, strength, part, raises)
+                    motion = _held_out(synthesized, real, held, factor, settings, robot)
+                    scores = trials[part].setdefault((way, strength), [])
+                    scores.append(part_measures(held_real, motion, robot, part))
+    verdicts, alone = {}, {}
+    for part, figures in parts.items():
+        complete = {k: v for k, v in trials[part].items() if len(v) == len(default_scores[part])}
+        verdicts[part] = choose(part, default_scores[part], complete, figures.seconds)
+        plain = {k: v for k, v in complete.items() if k[0] == "style"}
+        alone[part] = choose(part, default_scores[part], plain, figures.seconds)
+    fits = _fits(parts, references, robot)
 
-    def distance(candidate: PersonalFit) -> float:
-        synthesize_clip = synthesizers.of(candidate.checkpoint)
-        motion = []
-        for clip in clips:
-            angles = synthesized_over_clip(clip, synthesize_clip)
-            styled = style_trajectory(robot, candidate.settings, angles, FRAME_RATE_HZ)
-            motion.append((styled, clip.mask))
-        return motion_distance(real, motion, robot, "arms")
+    def settled(chosen: Mapping[str, PartVerdict]) -> tuple[float, StyleSettings]:
+        styles, factor = {}, 1.0
+        for part, verdict in chosen.items():
+            if verdict.kept_default:
+                continue
+            way = verdict.fit if verdict.fit in fits else "style"
+            noise, styles[part] = _at(fits, way, verdict.strength, part, raises)
+            factor = noise if part == "arms" else factor
+        return factor, merged(styles)
 
-    return min(candidates, key=distance)
+    factor, settings = settled(verdicts)
+    _, style_alone = settled(alone)
+    return PersonalFit(parts, settings, models[factor], factor, style_alone, verdicts, alone)
 
 
 def synthesized_over_clip(clip: Clip, synthesize_clip: Synthesizer) -> np.ndarray:
@@ -360,26 +500,10 @@ def motion_distance(
 
     The Hellinger distances of joint speed and acceleration (the bins of
     :mod:`~audio2pose_ros.learning.metrics`, joints pooled) plus the absolute log of the size
-    ratio, over the frames ``real`` knows (``model`` carries the same masks and lengths).
+    ratio, over the frames ``real`` knows (``model`` carries the same masks and lengths):
+    :func:`~audio2pose_ros.style.crossval.part_measures` in total.
     """
-    from audio2pose_ros.learning.metrics import (
-        ACCELERATION_BINS_RAD_S2,
-        SPEED_BINS_RAD_S,
-        hellinger,
-    )
-
-    joints = [int(j) for j in np.flatnonzero(robot.group_mask(part))]
-    total = 0.0
-    for order, bins in ((1, SPEED_BINS_RAD_S), (2, ACCELERATION_BINS_RAD_S2)):
-        counts = []
-        for motions in (real, model):
-            values = [_derivatives(motions, j, order, FRAME_RATE_HZ) for j in joints]
-            counts.append(np.histogram(np.concatenate(values), bins)[0])
-        total += hellinger(counts[0], counts[1])
-    sizes = [measure_part(m, robot, part, min_seconds=0.0) for m in (real, model)]
-    if sizes[0] is None or sizes[1] is None:
-        return math.inf
-    return total + abs(math.log(sizes[1].std_rad / sizes[0].std_rad))
+    return part_measures(real, model, robot, part).total
 
 
 def style_overrides(settings: StyleSettings) -> list[str]:
@@ -405,6 +529,7 @@ class Enrollment:
     seconds: float  # of the recording used
     elapsed_s: float
     arms_noise: float = 1.0  # the personal checkpoint's arm noise factor (1: none written)
+    report: tuple[str, ...] = ()  # per part: the expected gain, or why it kept the default
 
 
 def _first_seconds(clips: Iterable[Clip], seconds: float) -> list[Clip]:
@@ -500,6 +625,9 @@ def enroll(
 
     checkpoint = default_checkpoint_path()
     personal = fit_personal(clips, robot, load_checkpoint(checkpoint, robot=robot))
+    report = tuple(personal.report())
+    for line in report:
+        progress(line)
     folder.mkdir(parents=True, exist_ok=True)
     own = folder / CHECKPOINT_FILE
     own.unlink(missing_ok=True)  # a model of an earlier enrolment (--force)
@@ -510,18 +638,25 @@ def enroll(
         description=f"personal style measured from {source.name}",
         source=f"{source.name} (first {seconds:.1f} s)",
         command=command or f"audio2pose enroll {source} -o {folder}",
-        parts=personal.parts,
+        parts={part: personal.parts[part] for part in personal.learned},
         fitted=(checkpoint_digest(checkpoint), personal.settings),
     )
     style.write(folder / STYLE_FILE)
-    _write_summary(folder, style, personal.settings, seconds, personal.arms_noise)
+    _write_summary(folder, style, personal.settings, seconds, personal.arms_noise, report)
     elapsed = time.monotonic() - start
     progress(f"wrote {folder / STYLE_FILE} in {elapsed:.0f} s")
-    return Enrollment(folder, style, personal.style_alone, seconds, elapsed, personal.arms_noise)
+    return Enrollment(
+        folder, style, personal.style_alone, seconds, elapsed, personal.arms_noise, report
+    )
 
 
 def _write_summary(
-    folder: Path, style: StyleFile, settings: StyleSettings, seconds: float, arms_noise: float
+    folder: Path,
+    style: StyleFile,
+    settings: StyleSettings,
+    seconds: float,
+    arms_noise: float,
+    report: Sequence[str],
 ) -> None:
     model = (
         f"The packaged model with the arms' sampling noise {arms_noise:g} times as large "
@@ -532,8 +667,13 @@ def _write_summary(
     lines = [
         f"# Personal style: {style.name}",
         "",
-        f"Measured from {style.source} ({seconds:.1f} s); parts: {', '.join(style.parts)}.",
+        f"Measured from {style.source} ({seconds:.1f} s); parts learned: "
+        f"{', '.join(style.parts) or 'none'}.",
         "Parts not listed keep the model's own motion.",
+        "",
+        "Fitted on part of the recording and scored on the rest, over several folds:",
+        "",
+        *[f"- {line}" for line in report],
         "",
         f"{model} are the motion filter's style parameters:",
         "",

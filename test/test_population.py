@@ -1,0 +1,92 @@
+"""The default head over people: chosen on speakers held out, and kept as close as recorded."""
+
+import json
+
+import numpy as np
+import pytest
+
+from audio2pose_ros.checkpoints.torch_io import load_checkpoint
+from audio2pose_ros.resources import default_checkpoint_path
+from audio2pose_ros.style import population
+from audio2pose_ros.timebase import FRAME_RATE_HZ
+
+
+def head_motion(robot, size, rate_hz, seconds=6.0, phase=0.0):
+    """A head nodding at ``rate_hz`` with amplitude ``size`` (rad), every head frame known."""
+    n = int(seconds * FRAME_RATE_HZ)
+    t = np.arange(n)[:, None] / FRAME_RATE_HZ
+    angles = np.tile(robot.neutral_rad, (n, 1))
+    head = robot.group_mask("head")
+    angles[:, head] += size * np.sin(2 * np.pi * rate_hz * t + phase + np.arange(head.sum()))
+    mask = np.zeros(angles.shape, dtype=bool)
+    mask[:, head] = True
+    return angles, mask
+
+
+def test_when_speakers_differ_expect_each_scored_at_the_style_chosen_without_them(robot):
+    """Two calm speakers and a lively one: whoever is held out, the others choose for them."""
+    sizes = {"a": 0.02, "b": 0.025, "c": 0.08}
+    real = {s: [head_motion(robot, size, 0.5)] for s, size in sizes.items()}
+    # "temperature" t: a head of size 0.01 t at the same pace
+    generated = {
+        s: {t: [head_motion(robot, 0.01 * t, 0.5, phase=1.0)] for t in (1.0, 2.0, 3.0, 8.0)}
+        for s in sizes
+    }
+    result = population.nested(real, generated, robot)
+    # without the lively one, the two calm ones choose a calm head; with it, a livelier one
+    assert result.chosen["c"] == 2.0
+    assert result.chosen["a"] > 2.0
+    assert result.chosen["b"] > 2.0
+    assert result.per_speaker["c"].log_size == pytest.approx(np.log(4.0), rel=0.05)
+    assert set(result.per_speaker) == set(sizes)
+    speed, accel = result.spread()
+    assert speed >= 0.0
+    assert accel >= 0.0
+
+
+def test_when_a_speaker_is_held_out_expect_no_clip_of_theirs_in_training_or_early_stopping():
+    class Info:
+        def __init__(self, clip_id, speaker):
+            self.clip_id, self.speaker = clip_id, speaker
+
+    class Item:
+        def __init__(self, clip_id, speaker):
+            self.info = Info(clip_id, speaker)
+
+    by_speaker = {
+        "grid1": [Item("g1", "grid1")],
+        "grid2": [Item("g2", "grid2")],
+        "obama": [Item("o1", "obama"), Item("o2", "obama")],
+    }
+    folds = population.head_folds(by_speaker)
+    assert [speaker for speaker, _, _ in folds] == list(by_speaker)
+    for speaker, training, validation in folds:
+        seen = {c.info.speaker for c in training + validation}
+        assert speaker not in seen
+        assert not set(map(id, training)) & set(map(id, validation))
+
+
+@pytest.fixture(scope="module")
+def recorded():
+    path = default_checkpoint_path().parent / population.FIGURES_FILE
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+def test_when_the_default_speaks_expect_its_head_as_close_to_people_as_recorded(robot, recorded):
+    """The shipped head against the pooled motion of every head speaker, on speech of others.
+
+    ``population.json`` records, when the default's head was chosen over speakers held out, its
+    figures on the bundled speech (speakers no step of the build used) against the people's
+    pooled head motion, and a margin: the standard error over the held-out speakers of the
+    held-out figure. A change that moves the head away from people by more fails here.
+    """
+    checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
+    figures = recorded["bundled_speech"]
+    motions = population.bundled_motions(checkpoint, figures["seeds"])
+    h_speed, h_accel, ratio = population.against_reference(motions, recorded, robot)
+    margin = figures["margin"]
+    assert 0.0 < margin < 0.1  # a spread, not a blank cheque
+    assert h_speed <= figures["h_speed"] + margin
+    assert h_accel <= figures["h_accel"] + margin
+    assert abs(np.log(ratio / figures["size_ratio"])) <= margin
+    assert checkpoint.model.config.first_temperature == recorded["head_temperature"]
