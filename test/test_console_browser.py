@@ -17,6 +17,7 @@ import shutil
 import tempfile
 import threading
 import time
+import urllib.parse
 import urllib.request
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -445,6 +446,67 @@ def test_when_an_observer_stops_the_robot_expect_every_page_names_them_and_only_
                 talker.click("#release-confirm-yes", timeout=5000)
     talker.click("#talk")
     talker.close()
+
+
+def test_when_idle_connections_fill_the_door_expect_a_page_in_and_its_stop_taken(
+    console: Console, browser
+):
+    """Idle connections from other addresses fill every connection of the console, each
+    reopened the moment it is closed. The page's connections (its speculative ones included:
+    its address never holds the most waiting ones) are never the ones closed: it loads, its
+    operator is welcomed, and its STOP is taken and released."""
+    from console_hogs import Hogs
+
+    from audio2pose_ros.console.door import CONNECTIONS_PER_ADDRESS, CONNECTIONS_PER_CLIENT
+    from audio2pose_ros.console.settings import ConsoleSettings
+
+    port = urllib.parse.urlsplit(console.url).port
+    assert port is not None
+    limit = CONNECTIONS_PER_CLIENT * ConsoleSettings().max_clients + CONNECTIONS_PER_ADDRESS
+    sources = [f"127.0.3.{i}" for i in range(1, limit // CONNECTIONS_PER_ADDRESS + 1)]
+    hogs = Hogs(port, sources, limit)
+    try:
+        page = _open(browser, console, name="Crowded")
+        page.click("#stop")
+        try:
+            page.wait_for_function("window.a2p.stopYou === true")
+        finally:  # the next tests need a robot that moves
+            page.click("#release")
+        page.wait_for_function("window.a2p.stopHolders.length === 0")
+    finally:
+        hogs.stop()
+    assert hogs.reopened > 0  # the page's connections took the hogs' places
+    page.close()
+
+
+def test_when_a_stop_is_latched_expect_every_pages_style_controls_to_wait(
+    console: Console, browser
+):
+    """While one operator's STOP held the robot, another's style changes were taken, and at the
+    release the robot moved in a style its presser never saw. While the stop is latched every
+    page's style controls are off and say why (the console refuses such a change); the
+    release brings them back."""
+    observer = _open(browser, console, name="Observer")
+    stylist = _open(browser, console, name="Stylist")
+    stylist.wait_for_selector("#style-arms_gain")
+    observer.click("#stop")
+    try:
+        for page in (observer, stylist):
+            page.wait_for_function("window.a2p.styleHeld === true")
+            assert page.is_disabled("#style-preset")
+            assert page.is_disabled("#style-arms_gain")
+            assert page.is_disabled("#style-personal")
+            wait = page.text_content("#style-wait")
+            assert wait == "Style changes wait until the stop is released.", wait
+        stylist.screenshot(path=str(console.shots / "console_page_style_waits.png"))
+    finally:  # the next tests need a robot that moves
+        observer.click("#release")
+    stylist.wait_for_function("window.a2p.styleHeld === false")
+    assert stylist.is_enabled("#style-preset")
+    assert stylist.is_enabled("#style-arms_gain")
+    assert stylist.text_content("#style-wait") == ""
+    observer.close()
+    stylist.close()
 
 
 def test_when_the_operator_sets_the_style_and_disables_motion_expect_the_filter_to_follow(

@@ -403,3 +403,54 @@ def test_when_another_operator_has_the_floor_expect_no_style_change_from_a_bysta
 
     with serving(tmp_path, LEARNS) as (base, bridge):
         run(scenario(base, bridge))
+
+
+def test_when_the_stop_is_latched_expect_every_style_change_refused_until_its_release(tmp_path):
+    """While Bob's STOP held the robot, Ann's style changes were taken (16 of 16, up to head and
+    arms size 2 and arms tempo 3, and "Use my style"): at the release the robot moved in a
+    style Bob never saw. Every change waits for the release: refused with the reason naming
+    Bob, a style learned meanwhile is not applied (Ann is told), and after the release Ann's
+    changes are taken again."""
+    changes = [
+        '{"type":"style_set","head_gain":2.0,"arms_gain":2.0,"arms_tempo":3.0}',
+        '{"type":"style","use":"calm_reader"}',
+        '{"type":"style","use":"personal"}',
+        '{"type":"style","use":"default"}',
+    ]
+
+    async def learn(http: aiohttp.ClientSession, ws: Any, base: str) -> None:
+        await ws.send_str('{"type":"enroll","keep":false}')
+        ticket = (await until(ws, "enroll_ticket"))["ticket"]
+        headers = {"Content-Type": "video/webm", "Origin": base}
+        async with http.post(f"{base}/enroll/{ticket}", data=b"webm", headers=headers) as r:
+            assert r.status == 202
+
+    async def scenario(base: str, bridge: Bridge) -> list[str]:
+        async with aiohttp.ClientSession() as http:
+            ann = await connect(http, base, "Ann")
+            await learn(http, ann, base)
+            await until(ann, "status", lambda s: s["enrollment"]["state"] == "ready")
+            bob = await connect(http, base, "Bob")
+            await until(bob, "welcome")
+            await bob.send_str('{"type":"stop","on":true}')
+            await until(ann, "stop_holders", lambda m: m["holders"])
+            refusals = []
+            for change in changes:
+                await ann.send_str(change)
+                refusals.append((await until(ann, "error"))["message"])
+            await learn(http, ann, base)  # learned again while stopped: not applied
+            refusals.append((await until(ann, "error"))["message"])
+            held = list(bridge.styles)
+            await bob.send_str('{"type":"stop","on":false}')
+            await until(ann, "stop_holders", lambda m: not m["holders"])
+            await ann.send_str(changes[0])
+            await until(ann, "status", lambda s: s["style"] == "adjusted")
+            assert held == [SETTINGS]  # only the style learned before the stop
+            return refusals
+
+    with serving(tmp_path, LEARNS) as (base, bridge):
+        refusals = run(scenario(base, bridge))
+    assert len(refusals) == 5
+    assert all("the robot is stopped (STOP held by Bob)" in r for r in refusals), refusals
+    assert refusals[-1].startswith("your style is learned but not applied")
+    assert bridge.styles == [SETTINGS, {"head_gain": 2.0, "arms_gain": 2.0, "arms_tempo": 3.0}]

@@ -4,22 +4,23 @@
 address (:func:`~audio2pose_ros.console.access.client_key`) at once, before any TLS handshake
 (:class:`Connections`): one address may hold at most :data:`CONNECTIONS_PER_ADDRESS`, all of
 them together :data:`CONNECTIONS_PER_CLIENT` times ``max_clients`` more than that. Beyond a
-limit the connection is closed at once: answered 503 on plain HTTP, and over TLS before its
-handshake, so a refused client costs the console no handshake. An admitted connection is
-handed to aiohttp (after its TLS handshake, within ``auth_timeout_s``). :class:`Site` is
-aiohttp's TCP site with this protocol. The server that owns the door
-(:class:`~audio2pose_ros.console.server.ConsoleServer`) is seen through :class:`Door`.
+limit a connection that has made no request yet is closed to make room (a hog's, reopened or
+not, never a page's request, WebSocket or operator); only when none waits is the newcomer
+closed at once: answered 503 on plain HTTP, and over TLS before its handshake, so a refused
+client costs the console no handshake. An admitted connection is
+handed to aiohttp (after its TLS handshake, within ``auth_timeout_s``): to the protocol that
+aiohttp's public low-level server (``web.AppRunner.server``, a ``web.Server``) makes for it.
+The listening socket is asyncio's own (``loop.create_server`` with the gate as protocol). The
+server that owns the door (:class:`~audio2pose_ros.console.server.ConsoleServer`) is seen
+through :class:`Door`.
 """
 
 from __future__ import annotations
 
 import asyncio
-import socket
 import ssl
 from collections.abc import Callable
 from typing import Protocol
-
-from aiohttp import web
 
 from audio2pose_ros.console.access import client_key
 
@@ -30,11 +31,10 @@ __all__ = [
     "Connections",
     "Door",
     "Gate",
-    "Site",
 ]
 
 # Open TCP connections at most, per max_clients: a browser loads the page over up to 6, and
-# keeps its WebSocket beside them. Beyond it a connection is answered 503 and closed.
+# keeps its WebSocket beside them. Beyond it a waiting connection is closed for a newcomer.
 CONNECTIONS_PER_CLIENT = 8
 # Open TCP connections of one client address at most: two browsers' worth (two operators behind
 # one address). The total limit is this more than CONNECTIONS_PER_CLIENT * max_clients.
@@ -63,59 +63,81 @@ class Door(Protocol):
 class Connections:
     """The TCP connections open at once, by client address, from acceptance until they end.
 
-    When all ``limit`` are open, a new connection still gets in if some address holds more
-    connections than the newcomer's: the oldest of that address's connections that is not an
-    identified operator's WebSocket is closed for it. So many addresses together cannot hold
-    the door shut either, and an operator's WebSocket is never closed for anyone.
+    A connection is *waiting* until aiohttp starts to handle a request on it (:meth:`requested`):
+    it has sent nothing (a browser's speculative preconnect, or a hog), or only part of a
+    request. Only a waiting connection is ever closed for a newcomer, and only when the newcomer
+    finds no place: its address holding ``per_address`` (then one of that address's waiting
+    connections goes) or all ``limit`` open (then one of any address). The one that goes is the
+    oldest waiting connection of the address holding the most waiting ones (the newcomer, the
+    newest, is about to send its request). A newcomer is refused only when every connection
+    that could make room serves a request, a WebSocket or an operator. So connections that wait
+    for nothing, even reopened the moment they are closed, cannot keep a way in shut; a page
+    that makes its requests is never closed for anyone, nor an operator's WebSocket; and no
+    connection is closed while there is room.
 
     Args:
         limit: connections open at once, at most.
         per_address: connections of one client address open at once, at most.
+        on_evict: told the address of each connection closed for a newcomer.
     """
 
-    def __init__(self, limit: int, per_address: int) -> None:
+    def __init__(
+        self, limit: int, per_address: int, on_evict: Callable[[str], None] = lambda _: None
+    ) -> None:
         self.limit = limit
         self.per_address = per_address
+        self.on_evict = on_evict
         self.total = 0
         self.by_address: dict[str, list[Gate]] = {}  # in order of acceptance; only open ones
         self.evicted = 0
 
     def admit(self, key: str, gate: Gate) -> str:
-        """Count ``gate``, a new connection of ``key``, and return '', or return why not."""
+        """Count ``gate``, a new connection of ``key``, and return '', or return why not.
+
+        A waiting connection may be closed to make room for it (counted in ``evicted``, and
+        its address passed to ``on_evict``).
+        """
         mine = self.by_address.get(key, [])
         if len(mine) >= self.per_address:
-            return f"{len(mine)} connections open, the most one address may"
-        if self.total >= self.limit:
-            victim = self._victim(len(mine))
-            if victim is None:
-                return f"{self.total} connections open, the most allowed"
-            self.evicted += 1
-            victim.evict()
+            if not self._make_room({key: mine}):
+                return f"{len(mine)} connections open, the most one address may, all in use"
+        elif self.total >= self.limit and not self._make_room(self.by_address):
+            return f"{self.total} connections open, the most allowed, all in use"
         self.by_address.setdefault(key, []).append(gate)
         self.total += 1
         return ""
 
-    def _victim(self, newcomer_has: int) -> Gate | None:
-        """The connection to close for a newcomer whose address holds ``newcomer_has``.
+    def _make_room(self, among: dict[str, list[Gate]]) -> bool:
+        """Close the waiting connection that goes first ``among`` these addresses' connections.
 
-        It is the oldest connection that is not an operator's, of the address that holds the
-        most, if that is more than the newcomer's (None otherwise).
+        Returns:
+            False if none of them waits (nothing closed).
         """
-        most = max(
-            (gates for gates in self.by_address.values() if any(not g.operator for g in gates)),
-            key=len,
-            default=[],
-        )
-        if len(most) <= newcomer_has:
-            return None
-        return next(g for g in most if not g.operator)
+        victims = []
+        for key, gates in among.items():
+            waiting = [gate for gate in gates if gate.waiting]  # in order of acceptance
+            victims += [(-len(waiting), age, key, g) for age, g in enumerate(waiting)]
+        if not victims:
+            return False
+        *_, key, victim = min(victims, key=lambda v: v[:2])
+        self.evicted += 1
+        self.on_evict(key)
+        victim.evict()
+        return True
 
-    def keep(self, transport: object) -> None:
-        """The connection on ``transport`` is an identified operator's: never closed for others."""
+    def requested(self, transport: object) -> None:
+        """A request on ``transport`` is being handled: its connection no longer waits."""
         for gates in self.by_address.values():
             for gate in gates:
                 if gate.handed is transport:
-                    gate.operator = True
+                    gate.waiting = False
+                    return
+
+    def close_all(self) -> None:
+        """Close every connection still counted (the console stops)."""
+        for gates in list(self.by_address.values()):
+            for gate in list(gates):
+                gate.evict()
 
     def lost(self, key: str, gate: Gate) -> None:
         """``gate``, a connection of ``key``, has ended (or been closed for a newcomer)."""
@@ -131,21 +153,26 @@ class Gate(asyncio.Protocol):
     """One TCP connection from its acceptance: admitted by its address, then given to aiohttp.
 
     The connection counts towards its address's limit (:class:`Connections`) as soon as it is
-    accepted; beyond a limit it is closed at once: answered 503 on plain HTTP, and over TLS
-    before its handshake, so a refused client costs the console no handshake. An admitted
-    TLS connection is handed to aiohttp after its handshake (``auth_timeout_s`` at most).
+    accepted; when it finds no place and none can be made, it is closed at once: answered 503
+    on plain HTTP, and over TLS before its handshake, so a refused client costs the console no
+    handshake. An admitted connection is handed to aiohttp at its first byte (a TLS one at its
+    first byte after its handshake, which takes ``auth_timeout_s`` at most): aiohttp's clock
+    for the request starts there, and a connection that has sent nothing stays at the door,
+    however long (a browser's speculative connection). Until aiohttp handles a request on it,
+    it *waits* and may be closed for a newcomer (:meth:`evict`).
 
     Args:
         server: the console.
     """
 
     def __init__(self, server: Door) -> None:
-        self._server = server
+        self._door = server
         self._inner: asyncio.Protocol | None = None
         self._key: str | None = None  # counted under this address until it ends
         self._transport: asyncio.BaseTransport | None = None
+        self._ready: asyncio.BaseTransport | None = None  # for aiohttp, at the first byte
         self.handed: asyncio.BaseTransport | None = None  # the transport aiohttp has
-        self.operator = False  # an identified operator's WebSocket
+        self.waiting = True  # no request handled on it yet: it may be closed for a newcomer
         self._early: list[bytes] = []  # application data before aiohttp has the connection
         self._eof = False
         self._handshake: asyncio.Task[None] | None = None
@@ -154,16 +181,16 @@ class Gate(asyncio.Protocol):
         """Admit or refuse; start TLS or hand it over."""
         peer = transport.get_extra_info("peername")
         key = client_key(str(peer[0]) if isinstance(peer, tuple) and peer else "?")
-        tls = self._server.tls
+        tls = self._door.tls
         self._transport = transport
-        if not self._server.admit(key, self):
+        if not self._door.admit(key, self):
             if tls is None and isinstance(transport, asyncio.WriteTransport):
                 transport.write(BUSY_RESPONSE)
             transport.close()
             return
         self._key = key
         if tls is None:
-            self._hand_over(transport)
+            self._ready = transport  # handed over at its first byte
             return
         assert isinstance(transport, asyncio.Transport)
         transport.pause_reading()  # its first bytes are the handshake's, not ours to read
@@ -182,7 +209,7 @@ class Gate(asyncio.Protocol):
                 self,
                 context,
                 server_side=True,
-                ssl_handshake_timeout=self._server.handshake_timeout_s,
+                ssl_handshake_timeout=self._door.handshake_timeout_s,
             )
         except (OSError, ssl.SSLError, asyncio.TimeoutError, ConnectionError, RuntimeError):
             transport.close()  # a failed or late handshake ends this connection only
@@ -190,12 +217,14 @@ class Gate(asyncio.Protocol):
             if secure is None or secure.is_closing():
                 self._forget()
         if secure is not None and not secure.is_closing():
-            self._hand_over(secure)
+            self._ready = secure  # handed over at its first byte (now if it has come)
+            if self._early or self._eof:
+                self._hand_over(secure)
 
     def _forget(self) -> None:
         """Stop counting this connection (once)."""
         if self._key is not None:
-            self._server.lost(self._key, self)
+            self._door.lost(self._key, self)
             self._key = None
 
     def evict(self) -> None:
@@ -206,7 +235,7 @@ class Gate(asyncio.Protocol):
 
     def _hand_over(self, transport: asyncio.BaseTransport) -> None:
         self.handed = transport
-        inner = self._inner = self._server.http_protocol()
+        inner = self._inner = self._door.http_protocol()
         inner.connection_made(transport)
         for data in self._early:
             inner.data_received(data)
@@ -223,18 +252,22 @@ class Gate(asyncio.Protocol):
             self._inner.connection_lost(exc)
 
     def data_received(self, data: bytes) -> None:
-        """To aiohttp (kept until aiohttp has the connection)."""
+        """To aiohttp: the first byte hands the connection over (kept until then)."""
         if self._inner is not None:
             self._inner.data_received(data)
-        else:
-            self._early.append(data)
+            return
+        self._early.append(data)
+        if self._ready is not None:
+            self._hand_over(self._ready)
 
     def eof_received(self) -> bool | None:
-        """To aiohttp (kept until aiohttp has the connection)."""
+        """To aiohttp; a connection that ends without a byte is closed here."""
         if self._inner is not None:
             return self._inner.eof_received()
+        if self._ready is not None:
+            return False  # it said nothing: nothing to hand over
         self._eof = True
-        return True  # keep the transport open until it is handed over
+        return True  # its handshake's end is still being read: kept until it is handed over
 
     def pause_writing(self) -> None:
         """To aiohttp."""
@@ -245,47 +278,3 @@ class Gate(asyncio.Protocol):
         """To aiohttp."""
         if self._inner is not None:
             self._inner.resume_writing()
-
-
-class Site(web.BaseSite):
-    """aiohttp's TCP site with its own protocol factory; TLS is started by each :class:`Gate`.
-
-    Args:
-        runner: the application's runner (set up).
-        host: address to bind.
-        port: TCP port (0: any free one).
-        ssl_context: TLS, or None for plain HTTP (for the site's name only).
-        accept: makes the protocol of each new connection.
-    """
-
-    def __init__(
-        self,
-        runner: web.AppRunner,
-        host: str,
-        port: int,
-        ssl_context: ssl.SSLContext | None,
-        accept: Callable[[], asyncio.BaseProtocol],
-    ) -> None:
-        super().__init__(runner, ssl_context=ssl_context)
-        self._host = host
-        self._port = port
-        self._accept = accept
-        self.sockets: list[socket.socket] = []
-
-    @property
-    def name(self) -> str:
-        """The site's address."""
-        return f"{'https' if self._ssl_context else 'http'}://{self._host}:{self._port}"
-
-    async def start(self) -> None:
-        """Bind and serve.
-
-        Raises:
-            OSError: the address cannot be bound.
-        """
-        await super().start()
-        server = await asyncio.get_running_loop().create_server(
-            self._accept, self._host, self._port, backlog=self._backlog
-        )
-        self._server = server
-        self.sockets = list(server.sockets)

@@ -12,6 +12,11 @@ of the connection, the token and the message, :mod:`~audio2pose_ros.console.prot
 - **The robot's settings**: ``enable``, and the style (``enroll``, ``style``, ``style_set``:
   :class:`~audio2pose_ros.console.learn_style.LearnMyStyle`), while the floor is free or the
   sender's.
+- **The style waits for the stop's release**: while the stop is held (by anyone, or set outside
+  the console), a change of style (``style``: a preset, "Use my style", the default;
+  ``style_set``: the sliders) is refused with the reason, naming who holds the stop, and a style
+  learned meanwhile is not applied (its operator is told, :meth:`Room.style_may_change`). So
+  the robot resumes after a release in the style it had when its presser stopped it.
 
 A refused action raises :class:`~audio2pose_ros.console.protocol.ProtocolError` with the reason
 the page shows. The room sends through the server (``send``), which owns the connections.
@@ -107,6 +112,8 @@ class Room:
             if control.type == "enable":
                 self.bridge.set_enable(bool(on))
             else:  # enroll, style, style_set
+                if control.type != "enroll" and self.stopped():
+                    raise ProtocolError(self._style_waits("style not changed"))
                 reply = self.learn_style.on_control(operator.id, operator.name, control)
                 if reply is not None:
                     self.send(operator, reply)
@@ -175,6 +182,31 @@ class Room:
         if not self.stops.held:
             self.bridge.set_stop(False)
         self.send_stop_holders()
+
+    def stopped(self) -> bool:
+        """Whether the stop is latched: held by an operator's press, or set outside the console."""
+        return self.stops.held or self._stopped_outside()
+
+    def style_may_change(self, operator_id: int) -> bool:
+        """Whether a style learned for ``operator_id`` may be applied now (the stop is released).
+
+        While the stop is latched the operator is told that their style waits.
+        """
+        if not self.stopped():
+            return True
+        for operator in list(self.operators()):
+            if operator.id == operator_id:
+                text = self._style_waits("your style is learned but not applied")
+                self.send(operator, encode("error", message=f"{text}: then press Use my style"))
+        return False
+
+    def _style_waits(self, what: str) -> str:
+        """Why a style change waits: the stop and who holds it."""
+        present = self.stops.present_holders()
+        absent = [p.name for p in self.stops.presses if not p.present]
+        holders = ", ".join([*present, *(f"{name} (has left)" for name in absent)])
+        stop = f"STOP held by {holders}" if holders else f"STOP set {OUTSIDE}"
+        return f"{what}: the robot is stopped ({stop}); change it after the release"
 
     def _stopped_outside(self) -> bool:
         """Whether the robot is stopped with no press from this console holding it."""

@@ -10,13 +10,18 @@ operator may do to the robot (the floor, the stop and its owners, the settings) 
 
 1. **The TCP connection**, counted by its client address from its acceptance, before any TLS
    handshake, by the console's front door (:mod:`~audio2pose_ros.console.door`): one address
-   may hold a limited share, all addresses together enough for ``max_clients`` operators more,
-   and a newcomer may take the place of the oldest connection of the address holding the most
-   (never an identified operator's). A connection beyond a limit is closed at once (answered
-   503 on plain HTTP; over TLS before its handshake). A connection must complete its TLS
-   handshake, and then its request, within ``auth_timeout_s`` each, and an idle connection is
-   closed after as long (aiohttp's own default is an hour: idle or half-sent requests would
-   hold sockets that long).
+   may hold a limited share, all addresses together enough for ``max_clients`` operators more.
+   A newcomer beyond a limit takes the place of a connection that has made no request yet
+   (the oldest of the address holding the most): connections that wait for
+   nothing cannot keep new operators out, however fast they come back, and a connection that
+   has made a request (a page, a WebSocket, an operator) is never closed for anyone. Only when
+   no connection waits is the newcomer closed at once (answered 503 on plain HTTP; over TLS
+   before its handshake). A connection must complete its TLS handshake within
+   ``auth_timeout_s``, and a request within as long of its first byte; an idle keep-alive
+   connection is closed after as long (aiohttp's own default is an hour: half-sent requests
+   would hold sockets that long). A connection that has sent nothing yet (a browser opens one
+   before it knows its request, and may send it seconds later on a loaded machine) is closed
+   only to make room.
 2. **Before the upgrade**: the Host and Origin checks of
    :func:`~audio2pose_ros.console.access.request_problem` (403), ``max_clients`` identified
    operators, and :data:`PENDING_PER_ADDRESS` WebSockets of one address still waiting for their
@@ -77,7 +82,6 @@ from audio2pose_ros.console.door import (
     CONNECTIONS_PER_CLIENT,
     Connections,
     Gate,
-    Site,
 )
 from audio2pose_ros.console.enrollment import Enrollments, default_work_dir
 from audio2pose_ros.console.learn_style import LearnMyStyle
@@ -100,6 +104,8 @@ from audio2pose_ros.errors import ConfigurationError
 
 __all__ = ["ConsoleServer", "GraphBridge"]
 
+Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]  # what a middleware wraps
+
 HEARTBEAT_S = 5.0  # WebSocket ping period; a peer that misses a pong is dropped
 STATUS_PERIOD_S = 0.5
 ERRORS_PER_S = 2.0  # error messages sent back to one connection at most ...
@@ -114,6 +120,7 @@ MAX_AUDIO_FRAMES_PER_S = 100.0
 # stall, meets the seconds budget first; only chunks shorter than 15 ms meet this one, which
 # bounds the messages a talker causes downstream (one ROS message each), not only their seconds.
 AUDIO_FRAMES_BURST = 100.0
+LISTEN_BACKLOG = 128  # connections the kernel queues before the console accepts them
 PENDING_PER_ADDRESS = 2  # WebSockets of one address waiting for their token, at most
 SUMMARY_PERIOD_S = 10.0  # refused connections and wrong tokens are logged this often at most
 MAX_TALLIED_ADDRESSES = 1024  # addresses named in one summary's counts, at most
@@ -249,10 +256,14 @@ class ConsoleServer:
         self.port = 0
         self._ids = itertools.count(1)
         self._runner: web.AppRunner | None = None
+        self._listener: asyncio.Server | None = None
         self._tasks: list[asyncio.Task[None]] = []
         self._tcp = Connections(
             CONNECTIONS_PER_CLIENT * settings.max_clients + CONNECTIONS_PER_ADDRESS,
             CONNECTIONS_PER_ADDRESS,
+            on_evict=lambda key: self._tally(
+                self._refusals, f"{key} (waiting connections closed for newcomers)"
+            ),
         )
         self.tls: ssl.SSLContext | None = None
         self.handshake_timeout_s = settings.auth_timeout_s
@@ -271,7 +282,11 @@ class ConsoleServer:
             bridge,
             log,
             refused=lambda why: self._tally(self._refusals, why),
-            may_apply=lambda id_: id_ in self.sessions and self.floor.free_for(id_),
+            may_apply=lambda id_: (
+                id_ in self.sessions
+                and self.floor.free_for(id_)
+                and self.room.style_may_change(id_)
+            ),
         )
         self.room = Room(bridge, self.learn_style, self.sessions.values, self._send_to, log)
         self.floor, self.stops = self.room.floor, self.room.stops
@@ -298,15 +313,25 @@ class ConsoleServer:
         Raises:
             ConfigurationError: the certificate does not load, or the address cannot be bound.
         """
-        app = web.Application(middlewares=[_security_headers], client_max_size=MAX_TEXT_BYTES)
+
+        @web.middleware
+        async def requested(request: web.Request, handler: Handler) -> web.StreamResponse:
+            """The connection makes a request: it is no longer closed for a newcomer."""
+            self._tcp.requested(request.transport)
+            return await handler(request)
+
+        app = web.Application(
+            middlewares=[requested, _security_headers], client_max_size=MAX_TEXT_BYTES
+        )
         app.router.add_get("/", self._index)
         app.router.add_get("/ws", self._websocket)
         app.router.add_get("/urdf/pepper.urdf", self._urdf)
         app.router.add_get("/favicon.ico", self._no_icon)
         app.router.add_get("/{name}", self._file)
         app.router.add_post("/enroll/{ticket}", self.learn_style.upload)
-        # A connection's clock starts when it is made: a request not complete by then, or an
-        # idle keep-alive connection, is closed (the page's few files load within milliseconds).
+        # A request's clock starts at its first byte (the door hands a connection over then): a
+        # request not complete by then, or an idle keep-alive connection, is closed (the page's
+        # few files load within milliseconds).
         self._runner = web.AppRunner(
             app,
             access_log=None,
@@ -315,16 +340,17 @@ class ConsoleServer:
         )
         await self._runner.setup()
         self.tls = self._ssl_context()
-        site = Site(self._runner, self.access.host, self.access.port, self.tls, self._accept)
-        try:
-            await site.start()
+        try:  # every connection starts at its gate (the door), which hands it to aiohttp
+            self._listener = await asyncio.get_running_loop().create_server(
+                self._accept, self.access.host, self.access.port, backlog=LISTEN_BACKLOG
+            )
         except OSError as exc:
             await self._runner.cleanup()
             raise ConfigurationError(
                 f"parameters host and port: cannot listen on {self.access.host}:"
                 f"{self.access.port}: {exc.strerror or exc}"
             ) from None
-        sockets = site.sockets  # the bound socket tells the port chosen for port 0
+        sockets = self._listener.sockets  # the bound socket tells the port chosen for port 0
         self.port = int(sockets[0].getsockname()[1]) if sockets else self.access.port
         self._tasks = [
             asyncio.create_task(self._every(1.0 / self.settings.pose_rate_hz, self._send_pose)),
@@ -338,10 +364,13 @@ class ConsoleServer:
         for task in self._tasks:
             task.cancel()
         self.learn_style.stop()
+        if self._listener is not None:
+            self._listener.close()  # no new connections
         for session in list(self.sessions.values()):
             await session.ws.close(code=1001, message=b"console stopping")
         if self._runner is not None:
-            await self._runner.cleanup()
+            await self._runner.cleanup()  # aiohttp closes the connections it was handed
+        self._tcp.close_all()  # and the door those it still holds (a TLS handshake, say)
 
     async def _every(self, period_s: float, send: Callable[[], Awaitable[None]]) -> None:
         failed = ""  # the last failure, logged once until it changes or sending works again
@@ -396,7 +425,7 @@ class ConsoleServer:
             worst = sorted(refusals.items(), key=lambda item: -item[1])[:3]
             self.log(
                 "warning",
-                f"console: {sum(refusals.values())} connection(s) refused in the last "
+                f"console: {sum(refusals.values())} connection(s) refused or closed in the last "
                 f"{self.summary_period_s:g} s: "
                 + ", ".join(f"{count} from {why}" for why, count in worst)
                 + (" and more" if len(refusals) > len(worst) else ""),
@@ -476,7 +505,6 @@ class ConsoleServer:
             identified = await self._authenticate(session)
             pending = self._unpend(key)
             if identified and await self._room_for(session):
-                self._tcp.keep(request.transport)
                 self.sessions[session.id] = session
                 self.log("info", f"console: operator {session.name!r} connected from {peer}")
                 await self._welcome(session)
@@ -762,9 +790,7 @@ def _close_reason(text: str) -> bytes:
 
 
 @web.middleware
-async def _security_headers(
-    request: web.Request, handler: Callable[[web.Request], Awaitable[web.StreamResponse]]
-) -> web.StreamResponse:
+async def _security_headers(request: web.Request, handler: Handler) -> web.StreamResponse:
     """Every answer carries the console's security headers (a WebSocket's upgrade excepted)."""
     response = await handler(request)
     if not isinstance(response, web.WebSocketResponse):

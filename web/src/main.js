@@ -24,7 +24,7 @@ const $ = (id) => document.getElementById(id);
 const state = {
   connected: false, floor: null, you: false, talking: false, chunksSent: 0, chunksDropped: 0,
   posesReceived: 0, status: null, lastError: '', joints: [], viewReady: false,
-  name: '', stopHolders: [], stopYou: false,
+  name: '', stopHolders: [], stopYou: false, styleHeld: false,
 };
 window.a2p = state;
 
@@ -151,6 +151,7 @@ function onMessage(message) {
       state.stopHolders = message.holders;
       state.stopYou = message.you;
       showStopHolders();
+      holdStyle();
       break;
     case 'enroll_ticket':
       styleLearning.onTicket(message);
@@ -297,6 +298,7 @@ function updateStatus(status) {
     : enabled ? 'Motion enabled.' : 'Motion disabled: the robot rests in its neutral pose.');
   updateStyle(status);
   styleLearning.update(status);
+  holdStyle();
   const l = status.latency || {};
   setText($('latency'), l.n
     ? `p50 ${l.p50.toFixed(1)} ms, p99 ${l.p99.toFixed(1)} ms, last ${l.last.toFixed(1)} ms ` +
@@ -343,6 +345,21 @@ function stopHolderText() {
 
 function showStopHolders() {
   setText($('stop-holder'), stopHolderText());
+}
+
+// While the stop is latched, a style change waits for its release (the console refuses it, so
+// the robot resumes in the style it stopped in): the style controls are off, and say why.
+function holdStyle() {
+  const held = state.stopHolders.length > 0 || (state.status !== null && state.status.stop === true);
+  state.styleHeld = held;
+  setText($('style-wait'), held ? 'Style changes wait until the stop is released.' : '');
+  for (const input of [$('style-preset'), ...document.querySelectorAll('#style-sliders input')]) {
+    input.disabled = held || !state.connected;
+  }
+  if (held) { // their own state comes back with the next status after the release
+    $('style-personal').disabled = true;
+    $('style-default').disabled = true;
+  }
 }
 
 // The Release button: one's own stop at once; anyone else's needs the confirmation, which is
