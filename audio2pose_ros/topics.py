@@ -19,6 +19,9 @@ Name (type): publisher -> subscriber
 - joint_states (sensor_msgs JointState, measured): naoqi_driver -> filter
 - head_target, head_offset (sensor_msgs JointState): perception -> filter
 - enable, stop (std_msgs Bool, latched): operator -> filter
+- audio (naoqi_bridge_msgs AudioBuffer): the robot's microphones (naoqi_driver) -> console
+- camera/front/image_raw, camera/front/camera_info (sensor_msgs Image rgb8, CameraInfo): the
+  robot's head camera (naoqi_driver) -> console
 """
 
 from __future__ import annotations
@@ -39,6 +42,9 @@ STOP = "stop"
 DIAGNOSTICS = "/diagnostics"
 ROBOT_DESCRIPTION = "robot_description"
 TF = "tf"
+ROBOT_MICROPHONES = "audio"
+CAMERA_IMAGE = "camera/front/image_raw"
+CAMERA_INFO = "camera/front/camera_info"
 
 
 def absolute(name: str) -> str:

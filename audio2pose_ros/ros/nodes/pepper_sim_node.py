@@ -10,6 +10,9 @@ Publications:
         naoqi_driver's 50 Hz.
     /diagnostics (diagnostic_msgs/DiagnosticArray): heartbeat every 0.5 s with the commands
         taken and refused and the self-collisions executed (steps with an arm inside the body).
+    camera/front/image_raw, camera/front/camera_info (sensor_msgs/Image rgb8, CameraInfo): the
+        head camera's view of a small room, while someone subscribes
+        (:class:`~audio2pose_ros.ros.nodes.sim_camera.SimCamera`).
 
 The simulation itself is :class:`~audio2pose_ros.robot.simulated_pepper.SimulatedPepper`; this
 node advances it with the wall clock. Commands coalesce: the newest received before a
@@ -36,6 +39,7 @@ from audio2pose_ros.parameters import param, settings_from, specs_of, validate_s
 from audio2pose_ros.robot.simulated_pepper import SimulatedPepper
 from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
 from audio2pose_ros.ros.node_parameters import NodeParameters
+from audio2pose_ros.ros.nodes.sim_camera import SimCamera
 from audio2pose_ros.ros.spin import run_node
 
 COMMAND_INPUTS = ("joint_angles", "joint_trajectory")
@@ -56,6 +60,17 @@ class PepperSimSettings:
             "which command the robot follows: 'joint_angles' (naoqi_driver's JointAnglesWithSpeed)"
             " or 'joint_trajectory' (a ros2_control trajectory controller)",
             choices=COMMAND_INPUTS,
+            read_only=True,
+        ),
+    )
+    camera_fps: float = field(
+        default=10.0,
+        metadata=param(
+            "frames a second the head camera renders at most, while someone subscribes to it "
+            "(0: no camera)",
+            minimum=0.0,
+            maximum=30.0,
+            unit="Hz",
             read_only=True,
         ),
     )
@@ -94,6 +109,12 @@ class PepperSimNode(DiagnosedNode):
         # paced: no backlog of commands delays the simulation or its joint_states
         self.create_paced_timer(STEP_PERIOD_S, self.on_step)
         self.create_paced_timer(STATE_PERIOD_S, self.publish_state)
+        self.camera = SimCamera(self, self.settings.camera_fps, self.measured_pose)
+
+    def measured_pose(self) -> dict[str, float]:
+        """The measured joint angles by name (the camera's pose)."""
+        positions, _ = self.sim.measured()
+        return {n: float(a) for n, a in zip(self.sim.robot.names, positions, strict=True)}
 
     def refuse(self, kind: str, exc: InputError) -> None:
         """WARN about a refused command; the robot keeps its previous targets."""
@@ -163,10 +184,12 @@ class PepperSimNode(DiagnosedNode):
             "simulated_s": f"{self.sim.time_s:.2f}",
             "self_collision_steps": counts.self_collision_steps,
             "deepest_self_collision_cm": f"{counts.deepest_m * 100:.2f}",
+            **self.camera.diagnostic_values(),
         }
 
     def destroy_node(self) -> None:
         """Disconnect the simulation with the node."""
+        self.camera.close()
         self.sim.close()
         super().destroy_node()
 
