@@ -21,7 +21,8 @@ def camera() -> Iterator[HeadCamera]:
 
 def test_when_rendered_expect_rgb8_image_of_the_room(camera: HeadCamera) -> None:
     image = camera.render({"HeadYaw": 0.0, "HeadPitch": 0.0})
-    assert image.shape == (120, 160, 3) and image.dtype == np.uint8
+    assert image.shape == (120, 160, 3)
+    assert image.dtype == np.uint8
     # the person-like shape in front (green body) is in the middle of the picture
     middle = image[40:80, 70:90].reshape(-1, 3).astype(int)
     assert (middle[:, 1] > middle[:, 0] + 40).mean() > 0.5
@@ -40,9 +41,12 @@ def test_when_the_head_turns_left_expect_the_red_box_in_view(camera: HeadCamera)
         rgb = image.reshape(-1, 3).astype(int)
         return float(((rgb[:, 2] > 150) & (rgb[:, 0] < 80)).mean())
 
-    assert red(ahead) == 0.0 and blue(ahead) == 0.0
-    assert red(left) > 0.05 and blue(left) == 0.0
-    assert blue(right) > 0.05 and red(right) == 0.0
+    assert red(ahead) == 0.0
+    assert blue(ahead) == 0.0
+    assert red(left) > 0.05
+    assert blue(left) == 0.0
+    assert blue(right) > 0.05
+    assert red(right) == 0.0
 
 
 def test_when_the_head_pitches_expect_the_picture_to_change(camera: HeadCamera) -> None:
@@ -66,5 +70,6 @@ def test_when_the_size_is_out_of_range_expect_input_error() -> None:
 def test_when_camera_info_is_made_expect_the_field_of_view_in_k() -> None:
     model = CameraModel(320, 240)
     k = model.intrinsics()
-    assert k[2] == 160.0 and k[5] == 120.0
+    assert k[2] == 160.0
+    assert k[5] == 120.0
     assert math.degrees(2 * math.atan(160.0 / k[0])) == pytest.approx(55.2)

@@ -36,7 +36,8 @@ def test_when_an_rgb8_image_is_encoded_expect_a_jpeg_of_its_size() -> None:
     jpeg = jpeg_from_image(32, 24, "rgb8", 36 * 3, padded.tobytes())
     decoded = np.asarray(Image.open(io.BytesIO(jpeg)))
     assert decoded.shape == (24, 32, 3)
-    assert decoded[12, 4, 0] > 200 and decoded[12, 28, 0] < 50
+    assert decoded[12, 4, 0] > 200
+    assert decoded[12, 28, 0] < 50
     bgr = jpeg_from_image(32, 24, "bgr8", 32 * 3, rgb.tobytes())
     assert np.asarray(Image.open(io.BytesIO(bgr)))[12, 4, 2] > 200  # red read as blue
 
@@ -81,8 +82,10 @@ def test_when_a_page_reads_slowly_expect_fewer_newer_pictures_and_bounded_sound(
         sent.append(item)
     pictures = [i.sequence for i in sent if not i.sound]
     sounds = [i.sequence for i in sent if i.sound]
-    assert sounds == sorted(sounds) and pictures == sorted(pictures)
-    assert pictures[-1] == 99 and sounds[-1] == 99  # the newest of each arrives
+    assert sounds == sorted(sounds)
+    assert pictures == sorted(pictures)
+    assert pictures[-1] == 99
+    assert sounds[-1] == 99
     assert outbox.sent["picture"] + outbox.dropped["picture"] == 100
     assert outbox.sent["sound"] + outbox.dropped["sound"] == 100
     assert outbox.sent["picture"] == len(pictures) <= 11

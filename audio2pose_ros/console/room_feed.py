@@ -92,7 +92,7 @@ def jpeg_from_image(width: int, height: int, encoding: str, step: int, data: byt
     channels = ENCODINGS.get(encoding)
     if channels is None:
         raise InputError(f"image encoding {encoding[:32]!r}; supported: {list(ENCODINGS)}")
-    if not (0 < width and 0 < height and width * height <= MAX_IMAGE_PIXELS):
+    if not (width > 0 and height > 0 and width * height <= MAX_IMAGE_PIXELS):
         raise InputError(f"image of {width}x{height} pixels (at most {MAX_IMAGE_PIXELS})")
     if step < width * channels or len(data) < step * height:
         raise InputError(
@@ -175,7 +175,7 @@ class EchoCanceller:
         if float(np.sqrt(np.mean(np.square(window)))) < REFERENCE_RMS_MIN:
             return block.astype(np.float32)
         # correlation of the block with the window at each delay (0 .. lags samples)
-        size = 1 << int(math.ceil(math.log2(window.size + n)))
+        size = 1 << math.ceil(math.log2(window.size + n))
         spectrum = np.fft.rfft(window, size) * np.conj(np.fft.rfft(block, size))
         correlation = np.fft.irfft(spectrum, size)[: window.size - n + 1]
         energy = np.convolve(np.square(window), np.ones(n), mode="valid")

@@ -119,7 +119,9 @@ class HeadCamera:
             self.camera.vertical_fov_deg, aspect, NEAR_M, FAR_M, physicsClientId=c
         )
 
-    def _add(self, shape: int, position: tuple[float, ...], rgba: tuple[float, ...], **size: Any) -> None:
+    def _add(
+        self, shape: int, position: tuple[float, ...], rgba: tuple[float, ...], **size: Any
+    ) -> None:
         visual = self._p.createVisualShape(
             shape, rgbaColor=list(rgba), physicsClientId=self._client, **size
         )
