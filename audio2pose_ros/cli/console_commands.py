@@ -33,6 +33,7 @@ def command_console(args: argparse.Namespace) -> int:
             Path(args.log_dir) if args.log_dir else None,
             graph=not args.no_graph,
             single_process=args.single_process,
+            sim=args.sim,
         )
     return 0
 
@@ -66,5 +67,11 @@ def register(verbs: Verbs) -> None:
     console.add_argument("--log-dir", help="write each node's output to <dir>/<node>.log")
     console.add_argument(
         "--single-process", action="store_true", help="run the three graph nodes in one process"
+    )
+    console.add_argument(
+        "--sim",
+        action="store_true",
+        help="also run a simulated Pepper (pybullet): the page shows its moves, its head "
+        "camera's view of a small room and plays its microphones",
     )
     console.set_defaults(func=command_console)

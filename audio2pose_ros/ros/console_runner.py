@@ -87,8 +87,13 @@ def run_console(
     log_dir: Path | None = None,
     graph: bool = True,
     single_process: bool = False,
+    sim: bool = False,
 ) -> None:
-    """Run the console (and the graph) until Ctrl-C or until every process has given up."""
+    """Run the console (and the graph) until Ctrl-C or until every process has given up.
+
+    With ``sim`` the graph includes the simulated Pepper (``pepper_sim_node``): what the page
+    shows of the room is its camera and microphones.
+    """
     command = console_command(params_file, values, directory)
     with ExitStack() as stack:
         if graph:
@@ -98,6 +103,7 @@ def run_console(
                     overrides,
                     log_dir,
                     single_process=single_process,
+                    sim=sim,
                     more_nodes={CONSOLE_NODE: command},
                 )
             )

@@ -16,6 +16,7 @@ NODE_PARAMETER_NAMES = frozenset(
         "auth_timeout_s",
         "backlog_window_s",
         "body_margin_m",
+        "camera_fps",
         "certfile",
         "channels",
         "command_input",
