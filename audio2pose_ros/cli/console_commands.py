@@ -6,7 +6,7 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from audio2pose_ros.cli.options import Verbs, bounded_int, input_file
+from audio2pose_ros.cli.options import Verbs, add_voice_out_option, bounded_int, input_file
 from audio2pose_ros.cli.style_commands import add_style_options, graph_overrides
 
 
@@ -33,6 +33,8 @@ def command_console(args: argparse.Namespace) -> int:
             Path(args.log_dir) if args.log_dir else None,
             graph=not args.no_graph,
             single_process=args.single_process,
+            sim=args.sim,
+            voice_out=args.voice_out or "",
         )
     return 0
 
@@ -67,4 +69,11 @@ def register(verbs: Verbs) -> None:
     console.add_argument(
         "--single-process", action="store_true", help="run the three graph nodes in one process"
     )
+    console.add_argument(
+        "--sim",
+        action="store_true",
+        help="also run a simulated Pepper (pybullet) that follows joint_angles and publishes "
+        "the measured joint_states",
+    )
+    add_voice_out_option(console)
     console.set_defaults(func=command_console)

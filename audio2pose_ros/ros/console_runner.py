@@ -31,6 +31,7 @@ from audio2pose_ros.ros.graph import (
     node_graph,
 )
 from audio2pose_ros.ros.launch_support import CONSOLE_EXECUTABLE
+from audio2pose_ros.ros.voice_graph import voice_out_processes
 
 __all__ = ["CONSOLE_NODE", "check_console_settings", "console_command", "run_console"]
 
@@ -87,9 +88,18 @@ def run_console(
     log_dir: Path | None = None,
     graph: bool = True,
     single_process: bool = False,
+    sim: bool = False,
+    voice_out: str = "",
 ) -> None:
-    """Run the console (and the graph) until Ctrl-C or until every process has given up."""
+    """Run the console (and the graph) until Ctrl-C or until every process has given up.
+
+    ``sim`` adds the simulated Pepper and ``voice_out`` the voice node to the graph
+    (:func:`~audio2pose_ros.ros.voice_graph.voice_out_processes`).
+    """
     command = console_command(params_file, values, directory)
+    voice_nodes, sim_args = (
+        voice_out_processes(voice_out, sim, executable_command) if voice_out else ({}, [])
+    )
     with ExitStack() as stack:
         if graph:
             supervisor = stack.enter_context(
@@ -98,7 +108,9 @@ def run_console(
                     overrides,
                     log_dir,
                     single_process=single_process,
-                    more_nodes={CONSOLE_NODE: command},
+                    sim=sim,
+                    more_nodes={CONSOLE_NODE: command, **voice_nodes},
+                    sim_args=sim_args,
                 )
             )
         else:

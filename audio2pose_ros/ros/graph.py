@@ -67,6 +67,7 @@ from audio2pose_ros.ros.diagnosed_node import (
 )
 from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.ros.player import MessagePlayer, rclpy_session, spin_until, warm_up
+from audio2pose_ros.ros.voice_graph import voice_out_processes
 
 NODE_EXECUTABLES = ("audio_features_node", "inference_node", "motion_filter_node")
 RECORD_FLUSH_PERIOD_S = 0.5  # a killed recording loses at most about this much (BagWriter.flush)
@@ -451,6 +452,7 @@ def node_graph(
     sim: bool = False,
     more_nodes: Mapping[str, list[str]] | None = None,
     restart_after_s: float = RESTART_AFTER_S,
+    sim_args: Sequence[str] = (),
 ) -> Iterator[NodeSupervisor]:
     """Run the three nodes as supervised processes for the duration of the context.
 
@@ -468,6 +470,7 @@ def node_graph(
             each (``audio2pose console`` adds ``console_node``).
         restart_after_s: how long a node may be silent before it is restarted (see
             :class:`NodeSupervisor`).
+        sim_args: more ROS arguments of the simulated Pepper (``-p name:=value``).
     """
     params = params_file or share_path("config", "pepper.yaml")
     with ExitStack() as stack:
@@ -488,7 +491,7 @@ def node_graph(
             }
             members = None
         if sim:
-            commands[SIM_NODE] = [*executable_command(SIM_NODE), "--ros-args"]
+            commands[SIM_NODE] = [*executable_command(SIM_NODE), "--ros-args", *sim_args]
             if members is not None:
                 members[SIM_NODE] = SIM_NODE
         if more_nodes:
@@ -638,11 +641,13 @@ def run_graph(
     rate: float = 1.0,
     single_process: bool = False,
     sim: bool = False,
+    voice_out: str = "",
 ) -> PlaybackResult | None:
     """Start the graph; with ``play`` (a WAV or a bag) play it and return what was recorded.
 
     Without ``play`` the graph runs until Ctrl-C. ``single_process`` runs the three nodes in one
-    process, ``sim`` adds the simulated Pepper (:func:`node_graph`).
+    process, ``sim`` adds the simulated Pepper (:func:`node_graph`), ``voice_out`` the voice
+    node (:func:`~audio2pose_ros.ros.voice_graph.voice_out_processes`).
 
     Raises:
         ConfigurationError: the supervisor gave up on a node (it refused its configuration, or
@@ -650,9 +655,13 @@ def run_graph(
             the command fails instead of running on without that node.
     """
     messages = audio_source(play) if play is not None else None
+    voice_nodes, sim_args = (
+        voice_out_processes(voice_out, sim, executable_command) if voice_out else ({}, [])
+    )
     with node_graph(
-        params_file, overrides, log_dir, single_process=single_process, sim=sim
-    ) as supervisor:
+        params_file, overrides, log_dir, single_process=single_process, sim=sim,
+        more_nodes=voice_nodes, sim_args=sim_args,
+    ) as supervisor:  # fmt: skip
         if messages is None:
             try:
                 while not supervisor.given_up:
