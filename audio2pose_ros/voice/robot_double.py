@@ -83,6 +83,12 @@ class RobotLoudspeaker:
             while self._played and start - self._played[0][0] > MAX_PLAYED_S:
                 self._played.popleft()
 
+    def played_audio(self) -> np.ndarray:
+        """Every sample kept (the last ``MAX_PLAYED_S``), in the order played (mono)."""
+        with self._lock:
+            blocks = [mono for _, mono in self._played]
+        return np.concatenate(blocks) if blocks else np.zeros(0)
+
     def flush(self) -> None:
         """Drop what has not been heard yet (ALAudioDevice's flushAudioOutputs)."""
         with self._lock:
