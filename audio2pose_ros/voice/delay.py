@@ -5,7 +5,15 @@ chunks that are due (:meth:`DelayLine.due`). The delay may change at any time (c
 chunk is released at ``arrival + delay`` with the delay in force when it is taken, but never
 before a chunk that arrived earlier, so the voice keeps its order. The line holds at most
 ``max_s`` seconds of audio: beyond it the oldest chunks are dropped and counted
-(:attr:`DelayLine.dropped_s`), never silently. This module does not import rclpy.
+(:attr:`DelayLine.dropped_s`), never silently.
+
+:class:`SpeakerQueue` keeps the loudspeaker's own queue short: a loudspeaker plays what it is
+given back to back, so every burst (chunks that arrived together after a hiccup of the network
+or of a loaded machine, a shorter delay after calibration) leaves the rest of the voice later by
+the burst's length, for as long as the voice goes on without a pause. The queue models what the
+loudspeaker still has to play; while it holds more than ``max_backlog_s``, quiet chunks (a pause
+between words, below ``quiet_rms``) are skipped and counted, never speech. This module does not
+import rclpy.
 """
 
 from __future__ import annotations
@@ -15,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DelayLine", "DelayedChunk"]
+__all__ = ["DelayLine", "DelayedChunk", "SpeakerQueue"]
 
 
 @dataclass(frozen=True)
@@ -74,3 +82,36 @@ class DelayLine:
         self._chunks.clear()
         self._held = 0
         return dropped
+
+
+class SpeakerQueue:
+    """What the loudspeaker has queued, and the pauses skipped to keep it short.
+
+    Args:
+        rate_hz: sample rate of the voice (Hz).
+        max_backlog_s: queued audio beyond which quiet chunks are skipped (s).
+        quiet_rms: a chunk below this RMS (full scale 1) is a pause (-40 dBFS by default).
+    """
+
+    def __init__(self, rate_hz: int, max_backlog_s: float = 0.04, quiet_rms: float = 0.01) -> None:
+        self.rate_hz = int(rate_hz)
+        self.max_backlog_s = max_backlog_s
+        self.quiet_rms = quiet_rms
+        self.end_s = -np.inf  # when the loudspeaker will have played what it was given
+        self.skipped_samples = 0  # in pauses skipped
+
+    def backlog_s(self, now_s: float) -> float:
+        """Audio queued at the loudspeaker at ``now_s`` (s)."""
+        return max(0.0, self.end_s - now_s)
+
+    def offer(self, now_s: float, samples: np.ndarray) -> bool:
+        """Whether to send ``samples`` now; a pause is skipped while the queue is too long."""
+        if not len(samples):
+            return False
+        duration = len(samples) / self.rate_hz
+        quiet = float(np.sqrt(np.mean(np.square(samples, dtype=np.float64)))) < self.quiet_rms
+        if quiet and self.backlog_s(now_s) > self.max_backlog_s:
+            self.skipped_samples += len(samples)
+            return False
+        self.end_s = max(now_s, self.end_s) + duration
+        return True

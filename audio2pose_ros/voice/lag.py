@@ -30,6 +30,10 @@ __all__ = ["ChunkPairing", "Lag", "envelope", "motion_lag", "sound_lag"]
 
 MOTION_GRID_S = 0.005  # joint trajectories are compared on this grid (s)
 ENVELOPE_S = 0.005  # loudness envelope bin (s)
+# Both signals are smoothed over this many grid steps before they are lined up (30 ms of
+# loudness, 50 ms of joint velocity): the model's frame-to-frame jitter and a voice's pitch
+# periods are not what the lag is about; the same smoothing on both shifts neither.
+SMOOTH_BINS = 6
 MIN_MOTION_RAD = 1e-3  # total joint travel in a window below this: too little motion to tell
 MIN_SOUND_RMS = 1e-4  # envelope deviation below this: silence, nothing to line up
 
@@ -42,6 +46,14 @@ class Lag(NamedTuple):
 
 
 NO_LAG = Lag(math.nan, 0.0)
+
+
+def _smooth(x: np.ndarray, bins: int = SMOOTH_BINS) -> np.ndarray:
+    """A moving average over ``bins`` rows (the same on both signals: no lag between them)."""
+    if len(x) < bins:
+        return x
+    kernel = np.ones(bins) / bins
+    return np.stack([np.convolve(col, kernel, mode="same") for col in np.asarray(x).T], axis=1)
 
 
 def _best_lag(a: np.ndarray, b: np.ndarray, max_lag: int, step_s: float) -> Lag:
@@ -97,7 +109,7 @@ def motion_lag(
         return NO_LAG
     a = np.stack([np.interp(grid, times_a, col) for col in np.asarray(poses_a, float).T], axis=1)
     b = np.stack([np.interp(grid, times_b, col) for col in np.asarray(poses_b, float).T], axis=1)
-    va, vb = np.diff(a, axis=0), np.diff(b, axis=0)
+    va, vb = _smooth(np.diff(a, axis=0)), _smooth(np.diff(b, axis=0))
     if np.abs(va).sum() < MIN_MOTION_RAD or np.abs(vb).sum() < MIN_MOTION_RAD:
         return NO_LAG
     return _best_lag(va, vb, round(max_lag_s / MOTION_GRID_S), MOTION_GRID_S)
@@ -148,8 +160,8 @@ def sound_lag(
     end = max(
         t + len(s) / r for (t, s), r in ((sent[-1], sent_rate_hz), (heard[-1], heard_rate_hz))
     )
-    a = envelope(sent, sent_rate_hz, start, end)
-    b = envelope(heard, heard_rate_hz, start, end)
+    a = _smooth(envelope(sent, sent_rate_hz, start, end)[:, None])[:, 0]
+    b = _smooth(envelope(heard, heard_rate_hz, start, end)[:, None])[:, 0]
     a, b = a - a.mean(), b - b.mean()
     if a.std() < MIN_SOUND_RMS or b.std() < MIN_SOUND_RMS:
         return NO_LAG

@@ -34,7 +34,7 @@ from audio2pose_ros.voice.lag import ChunkPairing, motion_lag, sound_lag
 __all__ = ["VoiceMotionRecord", "percentiles_ms", "window_offsets"]
 
 MOTION_SCORE = 0.3  # raw model poses are rougher than commands: a lower bar than the node's
-SOUND_SCORE = 0.5
+SOUND_SCORE = 0.4
 MAX_MOTION_LAG_S = 1.0
 MAX_SOUND_LAG_S = 1.5
 
@@ -64,7 +64,7 @@ def _series(rows: list[tuple[float, np.ndarray]]) -> tuple[np.ndarray, np.ndarra
 
 
 def window_offsets(
-    record: VoiceMotionRecord, window_s: float = 4.0, step_s: float = 2.0
+    record: VoiceMotionRecord, window_s: float = 2.0, step_s: float = 1.0
 ) -> list[float]:
     """``motion - heard`` (s) in each window where both lags could be measured."""
     if not record.voice:

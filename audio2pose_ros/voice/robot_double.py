@@ -153,7 +153,7 @@ class FakeAudioDevice:
         self.refused = 0  # calls refused (bad rate, size or buffer)
         self.calls = 0
 
-    @qi.bind(qi.Void, [qi.String, qi.Int32])  # type: ignore[misc]
+    @qi.bind(qi.Void, [qi.String, qi.Int32])  # type: ignore[untyped-decorator]
     def setParameter(self, name: str, value: int) -> None:  # noqa: N802 (NAOqi's name)
         """``outputSampleRate`` is one of 16000, 22050, 44100, 48000; other names are ignored."""
         if name == "outputSampleRate":
@@ -162,7 +162,7 @@ class FakeAudioDevice:
                 raise ValueError(f"outputSampleRate {value}: not one of {OUTPUT_RATES_HZ}")
             self.rate_hz = value
 
-    @qi.bind(qi.Bool, [qi.Int32, qi.Buffer])  # type: ignore[misc]
+    @qi.bind(qi.Bool, [qi.Int32, qi.Buffer])  # type: ignore[untyped-decorator]
     def sendRemoteBufferToOutput(self, nframes: int, buffer: Any) -> bool:  # noqa: N802
         """Play ``nframes`` frames of 16-bit interleaved stereo at the output rate."""
         data = bytes(buffer)
@@ -177,7 +177,7 @@ class FakeAudioDevice:
         self.speaker.play(stereo.mean(axis=1) / 32768.0, self.rate_hz)
         return True
 
-    @qi.bind(qi.Void, [])  # type: ignore[misc]
+    @qi.bind(qi.Void, [])  # type: ignore[untyped-decorator]
     def flushAudioOutputs(self) -> None:  # noqa: N802 (NAOqi's name)
         """Drop what is queued and not heard yet."""
         self.speaker.flush()

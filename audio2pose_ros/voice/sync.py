@@ -58,7 +58,7 @@ MAX_DELAY_STEP_S = 0.02  # the delay changes by at most this much per update
 # robot's execution latency (naoqi_driver's setAngles to a measured joint state) and the
 # loudspeaker's (ALAudioDevice's remote buffer to sound).
 DEFAULTS_S = {"graph": 0.08, "execution": 0.1, "loudspeaker": 0.1}
-MOTION_SCORE = 0.5  # a motion lag below this score is no measurement
+MOTION_SCORE = 0.4  # a motion lag below this score is no measurement
 SOUND_SCORE = 0.5  # a sound lag below this score is no measurement
 MAX_MOTION_LAG_S = 0.6  # longest lag searched between two trajectories (s)
 MAX_SOUND_LAG_S = 1.0  # longest loudspeaker lag searched (s)

@@ -19,7 +19,9 @@ NAOqi's ALAudioDevice (:class:`~audio2pose_ros.voice.naoqi.NaoqiVoiceOut`, a thr
 with a bounded queue: a robot that does not answer never holds this node, and the motion graph
 does not depend on this node at all). A lost connection is reported as ERROR on /diagnostics and
 retried. Every chunk is held back by the delay of :class:`~audio2pose_ros.voice.sync.SyncEstimator`,
-measured while the operator talks. ``muted`` (the operator's choice, live) drops the voice;
+measured while the operator talks; pauses between words are skipped while the loudspeaker's
+queue is long (:class:`~audio2pose_ros.voice.delay.SpeakerQueue`), so bursts do not leave the
+voice late. ``muted`` (the operator's choice, live) drops the voice;
 the motion is not touched by it, nor by anything here.
 """
 
@@ -54,7 +56,7 @@ from audio2pose_ros.ros.messages import trajectory_bytes_cap
 from audio2pose_ros.ros.node_parameters import NodeParameters
 from audio2pose_ros.ros.spin import run_node
 from audio2pose_ros.timebase import FRAME_PERIOD_S
-from audio2pose_ros.voice.delay import DelayLine
+from audio2pose_ros.voice.delay import DelayLine, SpeakerQueue
 from audio2pose_ros.voice.framing import OUTPUT_RATES_HZ, check_output_rate
 from audio2pose_ros.voice.naoqi import NaoqiVoiceOut, parse_voice_out
 from audio2pose_ros.voice.sync import WINDOW_EARLY_S, WINDOW_LATE_S, SyncEstimator
@@ -149,6 +151,7 @@ class VoiceOutNode(DiagnosedNode):
         self.rate_hz = check_output_rate(self.settings.output_rate_hz)
         self.input = AudioInput(AudioInputSettings(), target_rate_hz=self.rate_hz)
         self.delay_line = DelayLine(self.rate_hz)
+        self.speaker_queue = SpeakerQueue(self.rate_hz)
         self.sync = SyncEstimator(self.rate_hz)
         self.joint_names: list[str] = []  # the commands' order, which the motion is compared in
         self.sent_log: deque[tuple[float, np.ndarray]] = deque(maxlen=1000)  # from the link
@@ -237,6 +240,8 @@ class VoiceOutNode(DiagnosedNode):
         """Send the chunks whose delay is over."""
         now = _now_s(self)
         for chunk in self.delay_line.due(now, self.sync.delay_s):
+            if not self.speaker_queue.offer(now, chunk.samples):
+                continue  # a pause skipped: the loudspeaker's queue is too long (counted)
             self.released_s += len(chunk.samples) / self.rate_hz
             if self.naoqi is not None:
                 self.naoqi.send(chunk.samples)
@@ -333,6 +338,7 @@ class VoiceOutNode(DiagnosedNode):
             "voice_released_s": f"{self.released_s:.2f}",
             "voice_muted_s": f"{self.muted_s:.2f}",
             "voice_dropped_in_delay_line_s": f"{self.delay_line.dropped_s:.2f}",
+            "pauses_skipped_frames": self.speaker_queue.skipped_samples,
             "format": self.input.format or self.input.format_problem,
         }
         if not math.isfinite(graph) or not graph_measured:
