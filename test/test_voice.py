@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from audio2pose_ros.errors import ConfigurationError
-from audio2pose_ros.voice.delay import DelayLine
+from audio2pose_ros.voice.delay import DelayLine, SpeakerQueue
 from audio2pose_ros.voice.framing import MAX_FRAMES_PER_CALL, stereo_blocks, stereo_pcm
 from audio2pose_ros.voice.lag import ChunkPairing, motion_lag, sound_lag
 from audio2pose_ros.voice.naoqi import NaoqiVoiceOut, parse_voice_out
@@ -83,6 +83,19 @@ def test_when_the_line_overflows_expect_the_oldest_dropped_and_counted():
     assert line.held_s <= 0.05
     assert line.dropped_s == pytest.approx(0.06)
     assert [c.arrival_s for c in line.due(100.0, 0.0)] == [3.0, 4.0]  # the newest 40 ms
+
+
+def test_when_the_loudspeaker_queue_grows_expect_pauses_skipped_first_then_any_chunk():
+    queue = SpeakerQueue(16000, max_backlog_s=0.04, max_speech_backlog_s=0.15)
+    loud, quiet = 0.3 * np.ones(320), np.zeros(320)
+    burst = [queue.offer(10.0, loud) for _ in range(5)]  # 100 ms arrive at once
+    assert burst == [True] * 5
+    assert queue.offer(10.0, quiet) is False  # a pause while 100 ms wait: skipped
+    assert queue.offer(10.0, loud) is True  # speech is still played
+    assert [queue.offer(10.0, loud) for _ in range(4)] == [True, True, False, False]  # 160 ms
+    assert queue.skipped_samples == 320
+    assert queue.speech_skipped_samples == 640
+    assert queue.offer(11.0, quiet) is True  # the queue has drained: nothing is skipped
 
 
 # --- lags -------------------------------------------------------------------------------------

@@ -12,8 +12,10 @@ given back to back, so every burst (chunks that arrived together after a hiccup 
 or of a loaded machine, a shorter delay after calibration) leaves the rest of the voice later by
 the burst's length, for as long as the voice goes on without a pause. The queue models what the
 loudspeaker still has to play; while it holds more than ``max_backlog_s``, quiet chunks (a pause
-between words, below ``quiet_rms``) are skipped and counted, never speech. This module does not
-import rclpy.
+between words, below ``quiet_rms``) are skipped, and while it holds more than
+``max_speech_backlog_s`` any chunk is, as the motion filter skips a standing backlog of poses
+(its ``backlog_window_s``, 0.2 s): the voice keeps pace with the motion. Both are counted. This
+module does not import rclpy.
 """
 
 from __future__ import annotations
@@ -91,27 +93,40 @@ class SpeakerQueue:
         rate_hz: sample rate of the voice (Hz).
         max_backlog_s: queued audio beyond which quiet chunks are skipped (s).
         quiet_rms: a chunk below this RMS (full scale 1) is a pause (-40 dBFS by default).
+        max_speech_backlog_s: queued audio beyond which any chunk is skipped (s).
     """
 
-    def __init__(self, rate_hz: int, max_backlog_s: float = 0.04, quiet_rms: float = 0.01) -> None:
+    def __init__(
+        self,
+        rate_hz: int,
+        max_backlog_s: float = 0.04,
+        quiet_rms: float = 0.01,
+        max_speech_backlog_s: float = 0.2,
+    ) -> None:
         self.rate_hz = int(rate_hz)
         self.max_backlog_s = max_backlog_s
         self.quiet_rms = quiet_rms
+        self.max_speech_backlog_s = max_speech_backlog_s
         self.end_s = -np.inf  # when the loudspeaker will have played what it was given
         self.skipped_samples = 0  # in pauses skipped
+        self.speech_skipped_samples = 0  # in louder chunks skipped beyond max_speech_backlog_s
 
     def backlog_s(self, now_s: float) -> float:
         """Audio queued at the loudspeaker at ``now_s`` (s)."""
         return max(0.0, self.end_s - now_s)
 
     def offer(self, now_s: float, samples: np.ndarray) -> bool:
-        """Whether to send ``samples`` now; a pause is skipped while the queue is too long."""
+        """Whether to send ``samples`` now, or skip them (see the class text)."""
         if not len(samples):
             return False
         duration = len(samples) / self.rate_hz
         quiet = float(np.sqrt(np.mean(np.square(samples, dtype=np.float64)))) < self.quiet_rms
-        if quiet and self.backlog_s(now_s) > self.max_backlog_s:
+        backlog = self.backlog_s(now_s)
+        if quiet and backlog > self.max_backlog_s:
             self.skipped_samples += len(samples)
+            return False
+        if backlog > self.max_speech_backlog_s:
+            self.speech_skipped_samples += len(samples)
             return False
         self.end_s = max(now_s, self.end_s) + duration
         return True

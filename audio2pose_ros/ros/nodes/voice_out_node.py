@@ -20,8 +20,9 @@ with a bounded queue: a robot that does not answer never holds this node, and th
 does not depend on this node at all). A lost connection is reported as ERROR on /diagnostics and
 retried. Every chunk is held back by the delay of :class:`~audio2pose_ros.voice.sync.SyncEstimator`,
 measured while the operator talks; pauses between words are skipped while the loudspeaker's
-queue is long (:class:`~audio2pose_ros.voice.delay.SpeakerQueue`), so bursts do not leave the
-voice late. ``muted`` (the operator's choice, live) drops the voice;
+queue is long, and any chunk while it is longer than the motion filter lets its own backlog be
+(:class:`~audio2pose_ros.voice.delay.SpeakerQueue`), so bursts do not leave the voice late; both
+are counted on /diagnostics. ``muted`` (the operator's choice, live) drops the voice;
 the motion is not touched by it, nor by anything here.
 """
 
@@ -339,6 +340,7 @@ class VoiceOutNode(DiagnosedNode):
             "voice_muted_s": f"{self.muted_s:.2f}",
             "voice_dropped_in_delay_line_s": f"{self.delay_line.dropped_s:.2f}",
             "pauses_skipped_frames": self.speaker_queue.skipped_samples,
+            "speech_skipped_frames": self.speaker_queue.speech_skipped_samples,
             "format": self.input.format or self.input.format_problem,
         }
         if not math.isfinite(graph) or not graph_measured:
