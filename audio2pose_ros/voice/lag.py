@@ -26,10 +26,19 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["ChunkPairing", "Lag", "envelope", "motion_lag", "sound_lag"]
+__all__ = [
+    "ENVELOPE_RATE_HZ",
+    "ChunkPairing",
+    "Lag",
+    "envelope",
+    "loudness",
+    "motion_lag",
+    "sound_lag",
+]
 
 MOTION_GRID_S = 0.005  # joint trajectories are compared on this grid (s)
 ENVELOPE_S = 0.005  # loudness envelope bin (s)
+ENVELOPE_RATE_HZ = 200  # = 1 / ENVELOPE_S: the rate of a piece made by loudness()
 # Both signals are smoothed over this many grid steps before they are lined up (30 ms of
 # loudness, 50 ms of joint velocity): the model's frame-to-frame jitter and a voice's pitch
 # periods are not what the lag is about; the same smoothing on both shifts neither.
@@ -57,27 +66,33 @@ def _smooth(x: np.ndarray, bins: int = SMOOTH_BINS) -> np.ndarray:
 
 
 def _best_lag(a: np.ndarray, b: np.ndarray, max_lag: int, step_s: float) -> Lag:
-    """Lag (in ``step_s``) of the columns of ``b`` behind ``a``, refined to a parabola's peak."""
+    """Lag (in ``step_s``) of the columns of ``b`` behind ``a``, refined to a parabola's peak.
+
+    The correlation at every lag ``k`` (``sum a[i] b[i + k]`` over the overlap, normalised by
+    both signals' energy over it) comes from one FFT product per column.
+    """
     n = len(a)
     max_lag = min(max_lag, n - 2)
     if max_lag < 0:
         return NO_LAG
-    scores = np.full(max_lag + 1, -np.inf)
-    for k in range(max_lag + 1):
-        x, y = a[: n - k], b[k:]
-        norm = math.sqrt(float(np.sum(x * x)) * float(np.sum(y * y)))
-        if norm > 0.0:
-            scores[k] = float(np.sum(x * y)) / norm
-    k = int(np.argmax(scores))
-    if not math.isfinite(scores[k]):
+    size = 1 << (2 * n - 1).bit_length()
+    products = np.fft.rfft(b, size, axis=0) * np.conj(np.fft.rfft(a, size, axis=0))
+    dots = np.fft.irfft(products.sum(axis=1), size)[: max_lag + 1]
+    energy_a = np.concatenate([[0.0], np.cumsum(np.sum(a * a, axis=1))])
+    energy_b = np.concatenate([[0.0], np.cumsum(np.sum(b * b, axis=1))])
+    k = np.arange(max_lag + 1)
+    norms = np.sqrt(energy_a[n - k] * (energy_b[n] - energy_b[k]))
+    scores = np.where(norms > 0.0, dots / np.where(norms > 0.0, norms, 1.0), -np.inf)
+    best = int(np.argmax(scores))
+    if not math.isfinite(scores[best]):
         return NO_LAG
     shift = 0.0
-    if 0 < k < max_lag:
-        left, mid, right = scores[k - 1], scores[k], scores[k + 1]
+    if 0 < best < max_lag:
+        left, mid, right = scores[best - 1], scores[best], scores[best + 1]
         curve = left - 2.0 * mid + right
         if curve < 0.0 and math.isfinite(left + right):
             shift = 0.5 * (left - right) / curve
-    return Lag((k + shift) * step_s, float(scores[k]))
+    return Lag((best + shift) * step_s, float(scores[best]))
 
 
 def motion_lag(
@@ -127,15 +142,29 @@ def envelope(
         end_s: end of the envelope (s).
     """
     n_bins = max(0, int((end_s - start_s) / ENVELOPE_S))
-    energy = np.zeros(n_bins)
-    counts = np.zeros(n_bins)
-    for first_s, samples in pieces:
-        index = np.floor((first_s + np.arange(len(samples)) / rate_hz - start_s) / ENVELOPE_S)
-        inside = (index >= 0) & (index < n_bins)
-        bins = index[inside].astype(np.int64)
-        np.add.at(energy, bins, np.asarray(samples, float)[inside] ** 2)
-        np.add.at(counts, bins, 1.0)
-    return np.sqrt(energy / np.maximum(counts, 1.0))
+    if not pieces or not n_bins:
+        return np.zeros(n_bins)
+    index = np.concatenate(
+        [np.floor((t + np.arange(len(x)) / rate_hz - start_s) / ENVELOPE_S) for t, x in pieces]
+    )
+    values = np.concatenate([np.asarray(x, float) for _, x in pieces])
+    inside = (index >= 0) & (index < n_bins)
+    bins = index[inside].astype(np.int64)
+    energy = np.bincount(bins, values[inside] ** 2, minlength=n_bins)
+    counts = np.bincount(bins, minlength=n_bins)
+    return np.sqrt(energy / np.maximum(counts, 1))
+
+
+def loudness(first_s: float, mono: np.ndarray, rate_hz: int) -> tuple[float, np.ndarray]:
+    """A piece of sound as its RMS per ``ENVELOPE_S`` (a piece at 1 / ENVELOPE_S Hz).
+
+    What :func:`sound_lag` needs of a long recording, kept at a few hundred values a second
+    instead of tens of thousands of samples.
+    """
+    per_bin = max(1, round(rate_hz * ENVELOPE_S))
+    n = len(mono) // per_bin * per_bin
+    square = np.square(np.asarray(mono[:n], dtype=np.float64)).reshape(-1, per_bin)
+    return first_s, np.sqrt(square.mean(axis=1))
 
 
 def sound_lag(

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from audio2pose_ros.voice.lag import ChunkPairing, motion_lag, sound_lag
+from audio2pose_ros.voice.lag import ENVELOPE_RATE_HZ, ChunkPairing, loudness, motion_lag, sound_lag
 
 __all__ = [
     "DEFAULTS_S",
@@ -44,7 +44,9 @@ __all__ = [
     "WINDOW_EARLY_S",
     "WINDOW_LATE_S",
     "PartEstimate",
+    "Snapshot",
     "SyncEstimator",
+    "measure",
     "voice_delay_s",
 ]
 
@@ -157,13 +159,17 @@ class SyncEstimator:
         self.measured.add(stamp_s, pose)
 
     def on_sent(self, first_sample_s: float, mono: np.ndarray) -> None:
-        """Voice samples handed to the loudspeaker, the first at ``first_sample_s``."""
-        self._keep(self.sent, first_sample_s, mono)
+        """Voice samples handed to the loudspeaker, the first at ``first_sample_s``.
+
+        Kept as their loudness (:func:`~audio2pose_ros.voice.lag.loudness`), as are the
+        microphones'.
+        """
+        self._keep(self.sent, *loudness(first_sample_s, mono, self.output_rate_hz))
 
     def on_heard(self, first_sample_s: float, mono: np.ndarray, rate_hz: int) -> None:
         """The robot's microphones (mean of channels), the first sample at ``first_sample_s``."""
-        self.heard_rate_hz = rate_hz
-        self._keep(self.heard, first_sample_s, mono)
+        self.heard_rate_hz = ENVELOPE_RATE_HZ
+        self._keep(self.heard, *loudness(first_sample_s, mono, rate_hz))
 
     @staticmethod
     def _keep(pieces: deque[tuple[float, np.ndarray]], t: float, mono: np.ndarray) -> None:
@@ -183,27 +189,28 @@ class SyncEstimator:
 
     def update(self) -> None:
         """Measure each part over the recent past; move the delay towards its new value."""
-        raw_t, raw = self.raw.arrays()
-        cmd_t, cmd = self.commanded.arrays()
-        meas_t, meas = self.measured.arrays()
-        if raw.shape[1:] == cmd.shape[1:]:
-            lag = motion_lag(raw_t, raw, cmd_t, cmd, MAX_MOTION_LAG_S)
-            if lag.score >= MOTION_SCORE:
-                self.filter_lag.measurements.append(lag.lag_s)
+        self.apply(measure(self.snapshot()))
+
+    def snapshot(self) -> Snapshot:
+        """Copies of what the measurements need (quick: the node takes it on its own thread)."""
+        return Snapshot(
+            raw=self.raw.arrays(),
+            commanded=self.commanded.arrays(),
+            measured=self.measured.arrays(),
+            sent=list(self.sent),
+            heard=list(self.heard) if self.heard_rate_hz else [],
+        )
+
+    def apply(self, lags: dict[str, float]) -> None:
+        """Keep the lags :func:`measure` found; move the delay by at most one step."""
+        if "filter" in lags:
+            self.filter_lag.measurements.append(lags["filter"])
         graph, graph_measured = self.graph_s()
         if graph_measured:
             self.parts["graph"].measurements.append(graph)
-        if cmd.shape[1:] == meas.shape[1:]:
-            lag = motion_lag(cmd_t, cmd, meas_t, meas, MAX_MOTION_LAG_S)
-            if lag.score >= MOTION_SCORE:
-                self.parts["execution"].measurements.append(lag.lag_s)
-        if self.heard_rate_hz:
-            lag = sound_lag(
-                list(self.sent), self.output_rate_hz, list(self.heard), self.heard_rate_hz,
-                MAX_SOUND_LAG_S,
-            )  # fmt: skip
-            if lag.score >= SOUND_SCORE:
-                self.parts["loudspeaker"].measurements.append(lag.lag_s)
+        for name in ("execution", "loudspeaker"):
+            if name in lags:
+                self.parts[name].measurements.append(lags[name])
         target = self.target_delay_s()
         step = min(max(target - self.delay_s, -MAX_DELAY_STEP_S), MAX_DELAY_STEP_S)
         self.delay_s += step
@@ -221,3 +228,45 @@ class SyncEstimator:
             - self.delay_s
             - parts["loudspeaker"].value_s
         )
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """What :func:`measure` works on: stamped joint series and loudness pieces."""
+
+    raw: tuple[np.ndarray, np.ndarray]
+    commanded: tuple[np.ndarray, np.ndarray]
+    measured: tuple[np.ndarray, np.ndarray]
+    sent: list[tuple[float, np.ndarray]]
+    heard: list[tuple[float, np.ndarray]]
+
+
+def measure(snapshot: Snapshot) -> dict[str, float]:
+    """The lags (s) that passed their score, by part.
+
+    ``filter``: raw poses to commands; ``execution``: commands to measured joints;
+    ``loudspeaker``: voice sent to the microphones.
+    The heavy part of :meth:`SyncEstimator.update`; it touches nothing shared, so a node may
+    run it on a thread of its own.
+    """
+    lags: dict[str, float] = {}
+    (raw_t, raw), (cmd_t, cmd), (meas_t, meas) = (
+        snapshot.raw,
+        snapshot.commanded,
+        snapshot.measured,
+    )
+    if raw.shape[1:] == cmd.shape[1:]:
+        lag = motion_lag(raw_t, raw, cmd_t, cmd, MAX_MOTION_LAG_S)
+        if lag.score >= MOTION_SCORE:
+            lags["filter"] = lag.lag_s
+    if cmd.shape[1:] == meas.shape[1:]:
+        lag = motion_lag(cmd_t, cmd, meas_t, meas, MAX_MOTION_LAG_S)
+        if lag.score >= MOTION_SCORE:
+            lags["execution"] = lag.lag_s
+    if snapshot.heard:
+        lag = sound_lag(
+            snapshot.sent, ENVELOPE_RATE_HZ, snapshot.heard, ENVELOPE_RATE_HZ, MAX_SOUND_LAG_S
+        )
+        if lag.score >= SOUND_SCORE:
+            lags["loudspeaker"] = lag.lag_s
+    return lags

@@ -32,6 +32,7 @@ import dataclasses
 import math
 from collections import deque
 from collections.abc import Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 from audio_common_msgs.msg import AudioData, AudioInfo
@@ -60,7 +61,7 @@ from audio2pose_ros.timebase import FRAME_PERIOD_S
 from audio2pose_ros.voice.delay import DelayLine, SpeakerQueue
 from audio2pose_ros.voice.framing import OUTPUT_RATES_HZ, check_output_rate
 from audio2pose_ros.voice.naoqi import NaoqiVoiceOut, parse_voice_out
-from audio2pose_ros.voice.sync import WINDOW_EARLY_S, WINDOW_LATE_S, SyncEstimator
+from audio2pose_ros.voice.sync import WINDOW_EARLY_S, WINDOW_LATE_S, SyncEstimator, measure
 
 RELEASE_PERIOD_S = 0.01  # the delay line is served this often (s)
 CALIBRATE_PERIOD_S = 1.0  # the latencies are measured this often (s)
@@ -159,6 +160,8 @@ class VoiceOutNode(DiagnosedNode):
         self.released_s = 0.0
         self.muted_s = 0.0
         self.naoqi: NaoqiVoiceOut | None = None
+        self.measurer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="voice-calibration")
+        self.measuring: Future[dict[str, float]] | None = None
         if self.destination.kind == "naoqi":
             self.naoqi = NaoqiVoiceOut(
                 self.destination.url,
@@ -296,11 +299,19 @@ class VoiceOutNode(DiagnosedNode):
         self.sync.on_heard(first_s, mono, int(msg.frequency))
 
     def calibrate(self) -> None:
-        """Measure the latencies over the recent past; move the delay towards them."""
+        """Measure the latencies over the recent past on a thread; move the delay towards them.
+
+        The measurement (cross-correlations over seconds of motion and sound) runs beside the
+        executor, so the delay line keeps being served on time; its results are applied by the
+        next call. One measurement at a time.
+        """
         while self.sent_log:
             self.sync.on_sent(*self.sent_log.popleft())
-        if self.settings.calibrate:
-            self.sync.update()
+        if self.measuring is not None and self.measuring.done():
+            self.sync.apply(self.measuring.result())  # a failure is raised here: guarded
+            self.measuring = None
+        if self.settings.calibrate and self.measuring is None:
+            self.measuring = self.measurer.submit(measure, self.sync.snapshot())
 
     # --- diagnostics ------------------------------------------------------------------------------
 
@@ -363,6 +374,7 @@ class VoiceOutNode(DiagnosedNode):
         """Stop the link to NAOqi with the node."""
         if self.naoqi is not None:
             self.naoqi.stop()
+        self.measurer.shutdown(wait=True, cancel_futures=True)
         super().destroy_node()
 
 
