@@ -88,14 +88,15 @@ def test_when_the_line_overflows_expect_the_oldest_dropped_and_counted():
 def test_when_the_loudspeaker_queue_grows_expect_pauses_skipped_first_then_any_chunk():
     queue = SpeakerQueue(16000, max_backlog_s=0.04, max_speech_backlog_s=0.15)
     loud, quiet = 0.3 * np.ones(320), np.zeros(320)
-    burst = [queue.offer(10.0, loud) for _ in range(5)]  # 100 ms arrive at once
-    assert burst == [True] * 5
-    assert queue.offer(10.0, quiet) is False  # a pause while 100 ms wait: skipped
-    assert queue.offer(10.0, loud) is True  # speech is still played
-    assert [queue.offer(10.0, loud) for _ in range(4)] == [True, True, False, False]  # 160 ms
+    starts = [queue.offer(10.0, loud) for _ in range(5)]  # 100 ms arrive at once
+    assert starts == pytest.approx([10.0, 10.02, 10.04, 10.06, 10.08])  # played back to back
+    assert queue.offer(10.0, quiet) is None  # a pause while 100 ms wait: skipped
+    assert queue.offer(10.0, loud) == pytest.approx(10.1)  # speech is still played
+    later = [queue.offer(10.0, loud) for _ in range(4)]  # beyond 150 ms: skipped too
+    assert [start is None for start in later] == [False, False, True, True]
     assert queue.skipped_samples == 320
     assert queue.speech_skipped_samples == 640
-    assert queue.offer(11.0, quiet) is True  # the queue has drained: nothing is skipped
+    assert queue.offer(11.0, quiet) == 11.0  # the queue has drained: nothing is skipped
 
 
 # --- lags -------------------------------------------------------------------------------------

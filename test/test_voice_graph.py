@@ -65,7 +65,10 @@ def test_when_the_operator_talks_expect_the_voice_whole_at_the_robot_and_in_step
     assert len(result.offsets_s) >= 8
     offsets_ms = np.asarray(result.offsets_s) * 1e3
     inside = (offsets_ms >= -WINDOW_EARLY_S * 1e3) & (offsets_ms <= WINDOW_LATE_S * 1e3)
-    assert -WINDOW_EARLY_S * 1e3 <= np.median(offsets_ms) <= WINDOW_LATE_S * 1e3, (offsets_ms, voice)
+    assert -WINDOW_EARLY_S * 1e3 <= np.median(offsets_ms) <= WINDOW_LATE_S * 1e3, (
+        offsets_ms,
+        voice,
+    )
     assert inside.mean() >= 0.8, (offsets_ms.round(), voice)
 
 

@@ -115,18 +115,19 @@ class SpeakerQueue:
         """Audio queued at the loudspeaker at ``now_s`` (s)."""
         return max(0.0, self.end_s - now_s)
 
-    def offer(self, now_s: float, samples: np.ndarray) -> bool:
-        """Whether to send ``samples`` now, or skip them (see the class text)."""
+    def offer(self, now_s: float, samples: np.ndarray) -> float | None:
+        """When the loudspeaker will start playing ``samples`` sent now, or None: skip them."""
         if not len(samples):
-            return False
+            return None
         duration = len(samples) / self.rate_hz
         quiet = float(np.sqrt(np.mean(np.square(samples, dtype=np.float64)))) < self.quiet_rms
         backlog = self.backlog_s(now_s)
         if quiet and backlog > self.max_backlog_s:
             self.skipped_samples += len(samples)
-            return False
+            return None
         if backlog > self.max_speech_backlog_s:
             self.speech_skipped_samples += len(samples)
-            return False
-        self.end_s = max(now_s, self.end_s) + duration
-        return True
+            return None
+        start_s = max(now_s, self.end_s)
+        self.end_s = start_s + duration
+        return start_s

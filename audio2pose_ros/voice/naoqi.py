@@ -12,15 +12,13 @@ never waits for the robot:
   voice would play out of step with the motion), and the thread connects again after a
   back-off that doubles from ``retry_s`` up to ``MAX_RETRY_S``.
 
-Each block sent is handed to ``on_sent(first_sample_time_s, mono)`` (from the thread), which
-the loudspeaker latency is measured from. This module does not import rclpy.
+This module does not import rclpy.
 """
 
 from __future__ import annotations
 
 import contextlib
 import threading
-import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -114,9 +112,7 @@ class NaoqiVoiceOut:
         rate_hz: output rate, one of ALAudioDevice's.
         max_queue_s: most audio waiting to be sent (s).
         retry_s: first wait before connecting again (s).
-        on_sent: called with (first sample's time (s), mono samples) for each block sent.
         connect: returns ``(session, device)`` (default: :func:`qi_device`).
-        clock: the time ``on_sent`` is given (default ``time.time``, the ROS clock).
     """
 
     def __init__(
@@ -125,17 +121,13 @@ class NaoqiVoiceOut:
         rate_hz: int,
         max_queue_s: float = 1.0,
         retry_s: float = 0.5,
-        on_sent: Callable[[float, np.ndarray], None] | None = None,
         connect: Callable[[str, int], tuple[Any, Any]] = qi_device,
-        clock: Callable[[], float] = time.time,
     ) -> None:
         self.url = url
         self.rate_hz = check_output_rate(rate_hz)
         self.max_queue = int(max_queue_s * rate_hz)
         self.retry_s = retry_s
-        self.on_sent = on_sent
         self._connect = connect
-        self._clock = clock
         self._queue: deque[np.ndarray] = deque()
         self._queued = 0
         self._cond = threading.Condition()
@@ -238,14 +230,11 @@ class NaoqiVoiceOut:
                 if session is not None and not session.isConnected():
                     raise ConnectionError(f"the session to {self.url} was disconnected")
                 continue
-            first_s = self._clock()
             for nframes, buffer in stereo_blocks(mono):
                 device.sendRemoteBufferToOutput(nframes, buffer)
                 with self._cond:
                     self._calls += 1
                     self._frames += nframes
-            if self.on_sent is not None:
-                self.on_sent(first_s, mono)
 
     def _lost(self, why: str) -> None:
         with self._cond:

@@ -6,8 +6,9 @@ at ``a + graph + execution``; its sound is heard from the loudspeakers at
 ``[-WINDOW_EARLY_S, WINDOW_LATE_S]`` = [-80 ms, +20 ms]: people notice sound ahead of the
 picture from about 45 ms and behind it from about 125 ms (ITU-R BT.1359), and a speaker's
 gesture starts with the stressed syllable or a little before it, seldom after. The voice is
-therefore delayed by ``graph + execution - loudspeaker + TARGET_LEAD_S`` (the motion 30 ms ahead
-of the sound, the middle of the window), never less than nothing.
+therefore delayed by ``graph + execution - loudspeaker + TARGET_LEAD_S`` (the motion 15 ms ahead
+of the sound, and up to 40 ms more while the loudspeaker has audio queued: about the middle of
+the window), never less than nothing.
 
 The three parts are measured while the operator talks (:class:`SyncEstimator`):
 
@@ -17,7 +18,8 @@ The three parts are measured while the operator talks (:class:`SyncEstimator`):
   ``commanded_joint_states``, :func:`~audio2pose_ros.voice.lag.motion_lag`);
 - **execution**: how long the measured ``joint_states`` follow the commands
   (:func:`~audio2pose_ros.voice.lag.motion_lag`);
-- **loudspeaker**: how long after the voice is sent the robot's microphones hear it
+- **loudspeaker**: how long after the voice should start playing (when it is sent, or when
+  what was sent before it has played) the robot's microphones hear it
   (:func:`~audio2pose_ros.voice.lag.sound_lag`).
 
 A part not measured (no robot microphones, no measured joint states, too little speech or
@@ -52,7 +54,9 @@ __all__ = [
 
 WINDOW_EARLY_S = 0.080  # the motion may reach the joints this long before the sound is heard
 WINDOW_LATE_S = 0.020  # ... and this long after it
-TARGET_LEAD_S = 0.030  # aimed at: the motion this long ahead of the sound (mid-window)
+# Aimed at: the motion this long ahead of the sound; the loudspeaker's queue, kept under 40 ms
+# (delay.SpeakerQueue), adds to it, so the offset stays about mid-window.
+TARGET_LEAD_S = 0.015
 MAX_DELAY_S = 1.0  # the voice is never held back longer
 MAX_DELAY_STEP_S = 0.02  # the delay changes by at most this much per update
 # Used while a part is not measured: the graph's own latency (chunk to command, with the motion

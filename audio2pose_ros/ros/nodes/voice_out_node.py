@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections import deque
 from collections.abc import Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 
@@ -156,7 +155,6 @@ class VoiceOutNode(DiagnosedNode):
         self.speaker_queue = SpeakerQueue(self.rate_hz)
         self.sync = SyncEstimator(self.rate_hz)
         self.joint_names: list[str] = []  # the commands' order, which the motion is compared in
-        self.sent_log: deque[tuple[float, np.ndarray]] = deque(maxlen=1000)  # from the link
         self.released_s = 0.0
         self.muted_s = 0.0
         self.naoqi: NaoqiVoiceOut | None = None
@@ -167,7 +165,6 @@ class VoiceOutNode(DiagnosedNode):
                 self.destination.url,
                 self.rate_hz,
                 max_queue_s=self.settings.max_queue_s,
-                on_sent=lambda t, mono: self.sent_log.append((t, mono)),
             )
             self.naoqi.start()
         if self.destination.kind == "topic":
@@ -244,14 +241,16 @@ class VoiceOutNode(DiagnosedNode):
         """Send the chunks whose delay is over."""
         now = _now_s(self)
         for chunk in self.delay_line.due(now, self.sync.delay_s):
-            if not self.speaker_queue.offer(now, chunk.samples):
-                continue  # a pause skipped: the loudspeaker's queue is too long (counted)
+            start_s = self.speaker_queue.offer(now, chunk.samples)
+            if start_s is None:
+                continue  # skipped: the loudspeaker's queue is too long (counted)
             self.released_s += len(chunk.samples) / self.rate_hz
             if self.naoqi is not None:
                 self.naoqi.send(chunk.samples)
             elif self.destination.kind == "topic":
                 self.out_pub.publish(AudioData(data=encode_pcm(chunk.samples, self.out_format)))
-                self.sync.on_sent(now, chunk.samples)
+            # the loudspeaker latency is measured from when the chunk should start playing
+            self.sync.on_sent(start_s, chunk.samples)
 
     # --- the motion and the microphones -----------------------------------------------------------
 
@@ -305,8 +304,6 @@ class VoiceOutNode(DiagnosedNode):
         executor, so the delay line keeps being served on time; its results are applied by the
         next call. One measurement at a time.
         """
-        while self.sent_log:
-            self.sync.on_sent(*self.sent_log.popleft())
         if self.measuring is not None and self.measuring.done():
             self.sync.apply(self.measuring.result())  # a failure is raised here: guarded
             self.measuring = None
