@@ -24,8 +24,10 @@ rclpy.
 from __future__ import annotations
 
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
+from multiprocessing.connection import Connection
 from typing import Any, Generic, TypeVar
 
 import numpy as np
@@ -41,6 +43,7 @@ __all__ = [
     "FakeAudioDevice",
     "RobotLoudspeaker",
     "RobotMicrophones",
+    "run_robot_audio",
     "serve_audio_device",
 ]
 
@@ -153,6 +156,15 @@ class FakeAudioDevice:
         self.refused = 0  # calls refused (bad rate, size or buffer)
         self.calls = 0
 
+    def counts(self) -> dict[str, int]:
+        """Calls taken and refused, the output rate and the frames played."""
+        return {
+            "audio_device_calls": self.calls,
+            "audio_device_refused": self.refused,
+            "audio_device_rate_hz": self.rate_hz,
+            "voice_frames_played": self.speaker.frames_played,
+        }
+
     @qi.bind(qi.Void, [qi.String, qi.Int32])  # type: ignore[untyped-decorator]
     def setParameter(self, name: str, value: int) -> None:  # noqa: N802 (NAOqi's name)
         """``outputSampleRate`` is one of 16000, 22050, 44100, 48000; other names are ignored."""
@@ -216,3 +228,35 @@ class DelayedCommands(Generic[T]):
         while self._waiting and self._waiting[0][0] <= now_s:
             out.append(self._waiting.popleft()[1])
         return out
+
+
+def run_robot_audio(url: str, loudspeaker_latency_s: float, conn: Connection) -> None:
+    """The robot's audio as a process of its own: ALAudioDevice, loudspeaker, microphones.
+
+    On a robot the audio device is a process of its own, woken at once by each buffer; in the
+    simulated Pepper's process it would wait behind the physics for the interpreter, so the
+    voice would be heard later than the device's latency says. Here it runs apart, and talks to
+    the simulated Pepper over ``conn``:
+
+    - first ``("url", address served)``;
+    - then ``("mic", stamp of the last sample (s), (8192, 4) int16 bytes)`` for every
+      microphone buffer, and ``("counts", {...})`` twice a second;
+    - it stops when ``conn`` says ``"stop"`` or is closed (its parent is gone).
+    """
+    speaker = RobotLoudspeaker(loudspeaker_latency_s, time.time)
+    device = FakeAudioDevice(speaker)
+    session, listening = serve_audio_device(url, device)
+    microphones = RobotMicrophones(speaker, time.time())
+    conn.send(("url", listening))
+    next_counts_s = 0.0
+    try:
+        while not conn.poll(0.01):
+            for stamp_s, pcm in microphones.due(time.time()):
+                conn.send(("mic", stamp_s, pcm.tobytes()))
+            if time.monotonic() >= next_counts_s:
+                next_counts_s = time.monotonic() + 0.5
+                conn.send(("counts", device.counts()))
+    except (EOFError, OSError):  # the parent is gone
+        pass
+    finally:
+        session.close()

@@ -4,7 +4,8 @@
 
 - with ``naoqi_url`` set (``tcp://127.0.0.1:0`` picks a free port; the address served is logged
   and shown on /diagnostics as ``naoqi_url_served``), a real ``qi.Session`` serves
-  :class:`~audio2pose_ros.voice.robot_double.FakeAudioDevice` as ``ALAudioDevice`` there;
+  :class:`~audio2pose_ros.voice.robot_double.FakeAudioDevice` as ``ALAudioDevice`` there, from
+  a process of its own;
 - what it receives is played after ``loudspeaker_latency_s`` and mixed with the room's sound into
   the robot's microphones, published on ``audio`` as naoqi_driver publishes them
   (naoqi_bridge_msgs/AudioBuffer, 48 kHz, 4 interleaved int16 channels, 8192 frames, about
@@ -16,9 +17,10 @@
 from __future__ import annotations
 
 import array
-import time
+import contextlib
+import multiprocessing
 from dataclasses import dataclass, field
-from typing import Any
+from multiprocessing.process import BaseProcess
 
 from naoqi_bridge_msgs.msg import AudioBuffer
 
@@ -26,16 +28,10 @@ from audio2pose_ros import topics
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.parameters import param, validate_settings
 from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
-from audio2pose_ros.voice.robot_double import (
-    MIC_CHANNELS,
-    MIC_RATE_HZ,
-    FakeAudioDevice,
-    RobotLoudspeaker,
-    RobotMicrophones,
-    serve_audio_device,
-)
+from audio2pose_ros.voice.robot_double import MIC_CHANNELS, MIC_RATE_HZ, run_robot_audio
 
 MIC_PERIOD_S = 0.02  # the microphones' buffers are checked this often (s)
+START_TIMEOUT_S = 30.0  # the audio process serves ALAudioDevice within this (imports)
 CHANNEL_MAP = [
     AudioBuffer.CHANNEL_FRONT_LEFT,
     AudioBuffer.CHANNEL_FRONT_RIGHT,
@@ -89,32 +85,55 @@ class SimVoiceSettings:
 
 
 class SimVoice:
-    """The voice side of the simulated robot, on ``node`` (see the module text)."""
+    """The voice side of the simulated robot, on ``node`` (see the module text).
+
+    The device, its loudspeaker and the microphones run in a process of their own
+    (:func:`~audio2pose_ros.voice.robot_double.run_robot_audio`), as on a robot, so the physics
+    of the simulation does not hold up the voice; this side publishes what it sends.
+    """
 
     def __init__(self, node: DiagnosedNode, settings: SimVoiceSettings) -> None:
         self.node = node
         self.settings = settings
-        self.speaker = RobotLoudspeaker(settings.loudspeaker_latency_s, time.time)
-        self.device = FakeAudioDevice(self.speaker)
-        self.session: Any = None
         self.url_served = ""
         self.buffers = 0
+        self.counts: dict[str, int] = {}
+        self.process: BaseProcess | None = None
+        if not settings.naoqi_url:
+            return
         self.mic_pub = node.create_publisher(AudioBuffer, topics.ROBOT_MICROPHONES, 10)
-        self.microphones = RobotMicrophones(self.speaker, time.time())
-        if settings.naoqi_url:
-            self.session, self.url_served = serve_audio_device(settings.naoqi_url, self.device)
-            node.get_logger().info(f"fake ALAudioDevice (NAOqi protocol) at {self.url_served}")
+        context = multiprocessing.get_context("spawn")
+        self.conn, child = context.Pipe()
+        self.process = context.Process(
+            target=run_robot_audio,
+            args=(settings.naoqi_url, settings.loudspeaker_latency_s, child),
+            name="robot-audio",
+            daemon=True,
+        )
+        self.process.start()
+        child.close()
+        if not self.conn.poll(START_TIMEOUT_S):
+            raise ConfigurationError(
+                f"the simulated Pepper's audio device did not start at {settings.naoqi_url}"
+            )
+        _, self.url_served = self.conn.recv()
+        node.get_logger().info(f"fake ALAudioDevice (NAOqi protocol) at {self.url_served}")
         node.create_paced_timer(MIC_PERIOD_S, self.publish_microphones)
 
     def publish_microphones(self) -> None:
-        """Publish every microphone buffer complete by now."""
-        for stamp_s, pcm in self.microphones.due(time.time()):
+        """Publish every microphone buffer the audio process made; keep its counts."""
+        while self.conn.poll():
+            message = self.conn.recv()
+            if message[0] == "counts":
+                self.counts = message[1]
+                continue
+            _, stamp_s, data = message
             msg = AudioBuffer()
             msg.header.stamp.sec = int(stamp_s)
             msg.header.stamp.nanosec = int((stamp_s - int(stamp_s)) * 1e9)
             msg.frequency = MIC_RATE_HZ
             msg.channel_map = CHANNEL_MAP[:MIC_CHANNELS]
-            msg.data = array.array("h", pcm.tobytes())
+            msg.data = array.array("h", data)
             self.mic_pub.publish(msg)
             self.buffers += 1
 
@@ -122,17 +141,19 @@ class SimVoice:
         """What the fake ALAudioDevice received and the microphones published."""
         return {
             "naoqi_url_served": self.url_served or "none",
-            "audio_device_calls": self.device.calls,
-            "audio_device_refused": self.device.refused,
-            "audio_device_rate_hz": self.device.rate_hz,
-            "voice_frames_played": self.speaker.frames_played,
+            **self.counts,
             "microphone_buffers": self.buffers,
             "execution_latency_s": self.settings.execution_latency_s,
             "loudspeaker_latency_s": self.settings.loudspeaker_latency_s,
         }
 
     def close(self) -> None:
-        """Stop serving ALAudioDevice."""
-        if self.session is not None:
-            self.session.close()
-            self.session = None
+        """Stop the audio process (it also stops when this process is gone)."""
+        if self.process is None:
+            return
+        with contextlib.suppress(OSError):
+            self.conn.send("stop")
+        self.process.join(timeout=2.0)
+        if self.process.is_alive():
+            self.process.kill()
+        self.process = None
