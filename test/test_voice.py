@@ -29,6 +29,7 @@ from audio2pose_ros.voice.robot_double import (
 from audio2pose_ros.voice.sync import (
     DEFAULTS_S,
     MAX_DELAY_STEP_S,
+    MAX_PAUSE_STEP_S,
     TARGET_LEAD_S,
     SyncEstimator,
     voice_delay_s,
@@ -185,6 +186,9 @@ def test_when_the_robot_lags_its_commands_expect_its_latency_measured_and_the_de
     assert sync.parts["execution"].measured
     assert sync.parts["execution"].value_s == pytest.approx(0.15, abs=0.01)
     assert sync.delay_s - before == pytest.approx(MAX_DELAY_STEP_S)  # one step, not a jump
+    assert sync.target_delay_s() - sync.delay_s < MAX_PAUSE_STEP_S
+    sync.apply({}, pause=True)  # in a pause the rest of the way, at once
+    assert sync.delay_s == pytest.approx(sync.target_delay_s())
     for _ in range(20):
         sync.update()
     assert sync.delay_s == pytest.approx(sync.target_delay_s())

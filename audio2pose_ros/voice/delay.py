@@ -110,6 +110,11 @@ class SpeakerQueue:
         self.end_s = -np.inf  # when the loudspeaker will have played what it was given
         self.skipped_samples = 0  # in pauses skipped
         self.speech_skipped_samples = 0  # in louder chunks skipped beyond max_speech_backlog_s
+        self.last_quiet = True  # the last chunk offered was a pause
+
+    def quiet(self, samples: np.ndarray) -> bool:
+        """Whether ``samples`` are a pause (RMS below ``quiet_rms``)."""
+        return float(np.sqrt(np.mean(np.square(samples, dtype=np.float64)))) < self.quiet_rms
 
     def backlog_s(self, now_s: float) -> float:
         """Audio queued at the loudspeaker at ``now_s`` (s)."""
@@ -120,7 +125,8 @@ class SpeakerQueue:
         if not len(samples):
             return None
         duration = len(samples) / self.rate_hz
-        quiet = float(np.sqrt(np.mean(np.square(samples, dtype=np.float64)))) < self.quiet_rms
+        quiet = self.quiet(samples)
+        self.last_quiet = quiet
         backlog = self.backlog_s(now_s)
         if quiet and backlog > self.max_backlog_s:
             self.skipped_samples += len(samples)

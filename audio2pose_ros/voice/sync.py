@@ -25,7 +25,8 @@ The three parts are measured while the operator talks (:class:`SyncEstimator`):
 A part not measured (no robot microphones, no measured joint states, too little speech or
 motion yet) uses its documented default (:data:`DEFAULTS_S`) and says so. Each estimate is the
 median of the recent measurements whose score passed its threshold. The delay follows the
-estimates by at most ``MAX_DELAY_STEP_S`` per update, so the voice never jumps. This module
+estimates by at most ``MAX_DELAY_STEP_S`` (20 ms) per update while the operator speaks, so
+the voice never jumps, and by up to ``MAX_PAUSE_STEP_S`` (100 ms) in a pause. This module
 does not import rclpy.
 """
 
@@ -58,7 +59,8 @@ WINDOW_LATE_S = 0.020  # ... and this long after it
 # (delay.SpeakerQueue), adds to it, so the offset stays about mid-window.
 TARGET_LEAD_S = 0.015
 MAX_DELAY_S = 1.0  # the voice is never held back longer
-MAX_DELAY_STEP_S = 0.02  # the delay changes by at most this much per update
+MAX_DELAY_STEP_S = 0.02  # the delay changes by at most this much per update during speech ...
+MAX_PAUSE_STEP_S = 0.1  # ... and by at most this much during a pause, where no one hears it
 # Used while a part is not measured: the graph's own latency (chunk to command, with the motion
 # filter's smoothing, as `audio2pose bench --voice` measures it on the simulated Pepper), the
 # robot's execution latency (naoqi_driver's setAngles to a measured joint state) and the
@@ -205,8 +207,11 @@ class SyncEstimator:
             heard=list(self.heard) if self.heard_rate_hz else [],
         )
 
-    def apply(self, lags: dict[str, float]) -> None:
-        """Keep the lags :func:`measure` found; move the delay by at most one step."""
+    def apply(self, lags: dict[str, float], pause: bool = False) -> None:
+        """Keep the lags :func:`measure` found; move the delay by at most one step.
+
+        During a ``pause`` in the voice the step may be longer (``MAX_PAUSE_STEP_S``).
+        """
         if "filter" in lags:
             self.filter_lag.measurements.append(lags["filter"])
         graph, graph_measured = self.graph_s()
@@ -216,8 +221,8 @@ class SyncEstimator:
             if name in lags:
                 self.parts[name].measurements.append(lags[name])
         target = self.target_delay_s()
-        step = min(max(target - self.delay_s, -MAX_DELAY_STEP_S), MAX_DELAY_STEP_S)
-        self.delay_s += step
+        most = MAX_PAUSE_STEP_S if pause else MAX_DELAY_STEP_S
+        self.delay_s += min(max(target - self.delay_s, -most), most)
 
     def target_delay_s(self) -> float:
         """The delay the current estimates call for."""

@@ -305,7 +305,8 @@ class VoiceOutNode(DiagnosedNode):
         next call. One measurement at a time.
         """
         if self.measuring is not None and self.measuring.done():
-            self.sync.apply(self.measuring.result())  # a failure is raised here: guarded
+            pause = self.speaker_queue.last_quiet and not self.speaker_queue.backlog_s(_now_s(self))
+            self.sync.apply(self.measuring.result(), pause)  # a failure is raised here: guarded
             self.measuring = None
         if self.settings.calibrate and self.measuring is None:
             self.measuring = self.measurer.submit(measure, self.sync.snapshot())
