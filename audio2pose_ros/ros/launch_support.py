@@ -381,7 +381,7 @@ def plan_launch(arguments: Mapping[str, str]) -> LaunchPlan:
         ),
         single_process=parse_bool("single_process", arguments["single_process"]),
         console=parse_bool("console", arguments["console"]),
-        voice_out=parse_voice_out(arguments.get("voice_out", "off")).describe(),
+        voice_out=parse_voice_out(arguments["voice_out"]).describe(),
     )
 
 
