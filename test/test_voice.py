@@ -13,14 +13,17 @@ import numpy as np
 import pytest
 
 from audio2pose_ros.errors import ConfigurationError
-from audio2pose_ros.voice.delay import DelayLine, SpeakerQueue
-from audio2pose_ros.voice.framing import MAX_FRAMES_PER_CALL, stereo_blocks, stereo_pcm
+from audio2pose_ros.voice.delay import DelayedCommands, DelayLine, SpeakerQueue
+from audio2pose_ros.voice.framing import (
+    MAX_FRAMES_PER_CALL,
+    MIC_CHANNELS,
+    MIC_FRAMES,
+    stereo_blocks,
+    stereo_pcm,
+)
 from audio2pose_ros.voice.lag import ChunkPairing, motion_lag, sound_lag
 from audio2pose_ros.voice.naoqi import NaoqiVoiceOut, parse_voice_out
 from audio2pose_ros.voice.robot_double import (
-    MIC_CHANNELS,
-    MIC_FRAMES,
-    DelayedCommands,
     FakeAudioDevice,
     RobotLoudspeaker,
     RobotMicrophones,

@@ -5,7 +5,8 @@ chunks that are due (:meth:`DelayLine.due`). The delay may change at any time (c
 chunk is released at ``arrival + delay`` with the delay in force when it is taken, but never
 before a chunk that arrived earlier, so the voice keeps its order. The line holds at most
 ``max_s`` seconds of audio: beyond it the oldest chunks are dropped and counted
-(:attr:`DelayLine.dropped_s`), never silently.
+(:attr:`DelayLine.dropped_s`), never silently. :class:`DelayedCommands` does the same for the
+simulated Pepper's joint commands (its emulated execution latency).
 
 :class:`SpeakerQueue` keeps the loudspeaker's own queue short: a loudspeaker plays what it is
 given back to back, so every burst (chunks that arrived together after a hiccup of the network
@@ -22,10 +23,13 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
+from typing import Generic, TypeVar
 
 import numpy as np
 
-__all__ = ["DelayLine", "DelayedChunk", "SpeakerQueue"]
+__all__ = ["DelayLine", "DelayedChunk", "DelayedCommands", "SpeakerQueue"]
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -137,3 +141,22 @@ class SpeakerQueue:
         start_s = max(now_s, self.end_s)
         self.end_s = start_s + duration
         return start_s
+
+
+class DelayedCommands(Generic[T]):
+    """Commands applied ``latency_s`` after they arrived, in order."""
+
+    def __init__(self, latency_s: float) -> None:
+        self.latency_s = latency_s
+        self._waiting: deque[tuple[float, T]] = deque()
+
+    def push(self, arrival_s: float, command: T) -> None:
+        """A command arrived."""
+        self._waiting.append((arrival_s + self.latency_s, command))
+
+    def due(self, now_s: float) -> list[T]:
+        """The commands due by ``now_s``, oldest first."""
+        out = []
+        while self._waiting and self._waiting[0][0] <= now_s:
+            out.append(self._waiting.popleft()[1])
+        return out

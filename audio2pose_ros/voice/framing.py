@@ -3,7 +3,8 @@
 ``ALAudioDevice.sendRemoteBufferToOutput(nframes, buffer)`` plays ``nframes`` frames of 16-bit
 interleaved stereo, at most :data:`MAX_FRAMES_PER_CALL` (16384) frames a call, at the output
 rate set with ``setParameter("outputSampleRate", rate)``, one of :data:`OUTPUT_RATES_HZ`. The
-mono voice is copied to both channels. This module does not import rclpy or qi.
+mono voice is copied to both channels. The robot's microphones' format (naoqi_driver's
+AudioBuffer) is here too. This module does not import rclpy or qi.
 """
 
 from __future__ import annotations
@@ -15,6 +16,9 @@ import numpy as np
 __all__ = [
     "BYTES_PER_FRAME",
     "MAX_FRAMES_PER_CALL",
+    "MIC_CHANNELS",
+    "MIC_FRAMES",
+    "MIC_RATE_HZ",
     "OUTPUT_RATES_HZ",
     "check_output_rate",
     "stereo_blocks",
@@ -25,6 +29,10 @@ MAX_FRAMES_PER_CALL = 16384  # ALAudioDevice.sendRemoteBufferToOutput: frames a 
 OUTPUT_RATES_HZ = (16000, 22050, 44100, 48000)  # ALAudioDevice's outputSampleRate values
 CHANNELS = 2  # interleaved stereo
 BYTES_PER_FRAME = CHANNELS * 2  # int16 per channel
+# The robot's microphones as naoqi_driver publishes them (naoqi_bridge_msgs/AudioBuffer):
+MIC_RATE_HZ = 48000  # 48 kHz ...
+MIC_CHANNELS = 4  # ... 4 interleaved int16 channels ...
+MIC_FRAMES = 8192  # ... about 170 ms a message
 
 
 def check_output_rate(rate_hz: int) -> int:

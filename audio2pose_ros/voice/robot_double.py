@@ -14,8 +14,8 @@ voice meets on the robot:
 - :class:`RobotMicrophones`: what Pepper's four microphones record, the room's sound with the
   loudspeaker's voice mixed in, cut into naoqi_driver's ``AudioBuffer`` shape (48 kHz, 4
   interleaved int16 channels, 8192 frames, about 170 ms a message);
-- :class:`DelayedCommands`: joint commands applied ``latency_s`` after they arrived (the
-  emulated motion execution latency).
+- :class:`~audio2pose_ros.voice.delay.DelayedCommands`: joint commands applied ``latency_s``
+  after they arrived (the emulated motion execution latency).
 
 Everything is on one clock (seconds, ``time.time`` in the node). This module does not import
 rclpy.
@@ -28,18 +28,21 @@ import time
 from collections import deque
 from collections.abc import Callable
 from multiprocessing.connection import Connection
-from typing import Any, Generic, TypeVar
+from typing import Any
 
 import numpy as np
 import qi
 
-from audio2pose_ros.voice.framing import BYTES_PER_FRAME, MAX_FRAMES_PER_CALL, OUTPUT_RATES_HZ
+from audio2pose_ros.voice.framing import (
+    BYTES_PER_FRAME,
+    MAX_FRAMES_PER_CALL,
+    MIC_CHANNELS,
+    MIC_FRAMES,
+    MIC_RATE_HZ,
+    OUTPUT_RATES_HZ,
+)
 
 __all__ = [
-    "MIC_CHANNELS",
-    "MIC_FRAMES",
-    "MIC_RATE_HZ",
-    "DelayedCommands",
     "FakeAudioDevice",
     "RobotLoudspeaker",
     "RobotMicrophones",
@@ -47,14 +50,9 @@ __all__ = [
     "serve_audio_device",
 ]
 
-MIC_RATE_HZ = 48000  # naoqi_driver's AudioBuffer: 48 kHz ...
-MIC_CHANNELS = 4  # ... 4 interleaved int16 channels ...
-MIC_FRAMES = 8192  # ... about 170 ms a message
 ROOM_RMS = 0.004  # the room's own sound at the microphones (full scale 1)
 VOICE_GAIN = 0.5  # the loudspeaker's voice at the microphones
 MAX_PLAYED_S = 30.0  # voice kept for the microphones (s); older is forgotten
-
-T = TypeVar("T")
 
 
 class RobotLoudspeaker:
@@ -209,25 +207,6 @@ def serve_audio_device(url: str, device: FakeAudioDevice) -> tuple[Any, str]:
     host = url.partition("://")[2].rpartition(":")[0]
     listening = next((e for e in endpoints if host in e), endpoints[0] if endpoints else url)
     return session, listening
-
-
-class DelayedCommands(Generic[T]):
-    """Commands applied ``latency_s`` after they arrived, in order."""
-
-    def __init__(self, latency_s: float) -> None:
-        self.latency_s = latency_s
-        self._waiting: deque[tuple[float, T]] = deque()
-
-    def push(self, arrival_s: float, command: T) -> None:
-        """A command arrived."""
-        self._waiting.append((arrival_s + self.latency_s, command))
-
-    def due(self, now_s: float) -> list[T]:
-        """The commands due by ``now_s``, oldest first."""
-        out = []
-        while self._waiting and self._waiting[0][0] <= now_s:
-            out.append(self._waiting.popleft()[1])
-        return out
 
 
 def run_robot_audio(url: str, loudspeaker_latency_s: float, conn: Connection) -> None:

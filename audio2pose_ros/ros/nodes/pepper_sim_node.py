@@ -45,7 +45,7 @@ from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
 from audio2pose_ros.ros.node_parameters import NodeParameters
 from audio2pose_ros.ros.nodes.sim_voice import SimVoice, SimVoiceSettings
 from audio2pose_ros.ros.spin import run_node
-from audio2pose_ros.voice.robot_double import DelayedCommands
+from audio2pose_ros.voice.delay import DelayedCommands
 
 COMMAND_INPUTS = ("joint_angles", "joint_trajectory")
 STEP_PERIOD_S = 0.01  # the simulation follows the wall clock in steps of about this (s)

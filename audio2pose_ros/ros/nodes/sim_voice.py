@@ -28,7 +28,7 @@ from audio2pose_ros import topics
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.parameters import param, validate_settings
 from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
-from audio2pose_ros.voice.robot_double import MIC_CHANNELS, MIC_RATE_HZ, run_robot_audio
+from audio2pose_ros.voice.framing import MIC_RATE_HZ
 
 MIC_PERIOD_S = 0.02  # the microphones' buffers are checked this often (s)
 START_TIMEOUT_S = 30.0  # the audio process serves ALAudioDevice within this (imports)
@@ -102,6 +102,8 @@ class SimVoice:
         if not settings.naoqi_url:
             return
         self.mic_pub = node.create_publisher(AudioBuffer, topics.ROBOT_MICROPHONES, 10)
+        from audio2pose_ros.voice.robot_double import run_robot_audio  # qi, only when serving
+
         context = multiprocessing.get_context("spawn")
         self.conn, child = context.Pipe()
         self.process = context.Process(
@@ -132,7 +134,7 @@ class SimVoice:
             msg.header.stamp.sec = int(stamp_s)
             msg.header.stamp.nanosec = int((stamp_s - int(stamp_s)) * 1e9)
             msg.frequency = MIC_RATE_HZ
-            msg.channel_map = CHANNEL_MAP[:MIC_CHANNELS]
+            msg.channel_map = CHANNEL_MAP
             msg.data = array.array("h", data)
             self.mic_pub.publish(msg)
             self.buffers += 1
