@@ -43,7 +43,7 @@ def test_when_the_operator_talks_expect_the_voice_whole_at_the_robot_and_in_step
     tmp_path: Path, execution_latency_s: float
 ):
     result = measure_voice(
-        bundled_speech(), execution_latency_s, duration_s=20.0, calibrate_s=20.0, log_dir=tmp_path
+        bundled_speech(), execution_latency_s, duration_s=30.0, calibrate_s=20.0, log_dir=tmp_path
     )
     robot, voice = result.robot, result.voice_node
     assert result.restarts == 0
