@@ -33,7 +33,9 @@ def test_when_the_simulated_head_turns_expect_its_camera_image_to_follow(
         CameraInfo, absolute(CAMERA_INFO), infos.append, qos_profile_sensor_data
     )
     command = probe.create_publisher(JointAnglesWithSpeed, absolute(JOINT_ANGLES), 10)
-    supervisor = NodeSupervisor({"pepper_sim_node": executable_command("pepper_sim_node")}, tmp_path)
+    supervisor = NodeSupervisor(
+        {"pepper_sim_node": executable_command("pepper_sim_node")}, tmp_path
+    )
     supervisor.start()
     try:
         probe.wait_until(lambda: len(images) >= 2)
@@ -49,8 +51,10 @@ def test_when_the_simulated_head_turns_expect_its_camera_image_to_follow(
     assert (first.encoding, first.width, first.height, first.step) == ("rgb8", 320, 240, 960)
     assert first.header.frame_id == "CameraTop_optical_frame"
     stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in images]
-    assert stamps == sorted(stamps) and len(set(stamps)) == len(stamps)
+    assert stamps == sorted(stamps)
+    assert len(set(stamps)) == len(stamps)
     info_stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in infos}
     image_stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in images}
     assert info_stamps & image_stamps  # each image has its camera info, stamped alike
-    assert infos[0].k[2] == 160.0 and infos[0].k[5] == 120.0
+    assert infos[0].k[2] == 160.0
+    assert infos[0].k[5] == 120.0

@@ -6,7 +6,7 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from audio2pose_ros.cli.options import Verbs, bounded_int, input_file
+from audio2pose_ros.cli.options import Verbs, add_voice_out_option, bounded_int, input_file
 from audio2pose_ros.cli.style_commands import add_style_options, graph_overrides
 
 
@@ -34,6 +34,7 @@ def command_console(args: argparse.Namespace) -> int:
             graph=not args.no_graph,
             single_process=args.single_process,
             sim=args.sim,
+            voice_out=args.voice_out or ("naoqi" if args.sim else ""),
         )
     return 0
 
@@ -74,4 +75,5 @@ def register(verbs: Verbs) -> None:
         help="also run a simulated Pepper (pybullet): the page shows its moves, its head "
         "camera's view of a small room and plays its microphones",
     )
+    add_voice_out_option(console)
     console.set_defaults(func=command_console)

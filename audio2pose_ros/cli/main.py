@@ -36,6 +36,7 @@ from audio2pose_ros.cli.options import (
     OneLineParser,
     Verbs,
     add_force,
+    add_voice_out_option,
     bounded_float,
     bounded_int,
     input_bag,
@@ -77,6 +78,7 @@ def command_run(args: argparse.Namespace) -> int:
         rate=args.rate,
         single_process=args.single_process,
         sim=args.sim,
+        voice_out=args.voice_out or "",
     )
     if result is not None:
         print(summarize(result))
@@ -347,6 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="also run a simulated Pepper (pybullet) that follows joint_angles and publishes "
         "the measured joint_states",
     )
+    add_voice_out_option(run)
     run.set_defaults(func=command_run)
 
     demo = verbs.add_parser("demo", help="bundled speech -> live graph -> recorded bag and CSV")

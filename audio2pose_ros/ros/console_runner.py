@@ -31,6 +31,7 @@ from audio2pose_ros.ros.supervisor import (
     executable_command,
     node_graph,
 )
+from audio2pose_ros.ros.voice_graph import voice_out_processes
 
 __all__ = ["CONSOLE_NODE", "check_console_settings", "console_command", "run_console"]
 
@@ -88,13 +89,18 @@ def run_console(
     graph: bool = True,
     single_process: bool = False,
     sim: bool = False,
+    voice_out: str = "",
 ) -> None:
     """Run the console (and the graph) until Ctrl-C or until every process has given up.
 
-    With ``sim`` the graph includes the simulated Pepper (``pepper_sim_node``): what the page
-    shows of the room is its camera and microphones.
+    ``sim`` adds the simulated Pepper (what the page shows of the room is then its camera and
+    microphones) and ``voice_out`` the voice node to the graph
+    (:func:`~audio2pose_ros.ros.voice_graph.voice_out_processes`).
     """
     command = console_command(params_file, values, directory)
+    voice_nodes, sim_args = (
+        voice_out_processes(voice_out, sim, executable_command) if voice_out else ({}, [])
+    )
     with ExitStack() as stack:
         if graph:
             supervisor = stack.enter_context(
@@ -104,7 +110,8 @@ def run_console(
                     log_dir,
                     single_process=single_process,
                     sim=sim,
-                    more_nodes={CONSOLE_NODE: command},
+                    more_nodes={CONSOLE_NODE: command, **voice_nodes},
+                    sim_args=sim_args,
                 )
             )
         else:

@@ -13,7 +13,8 @@ from pathlib import Path
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.recorder import PlaybackResult, audio_source, play_and_record
-from audio2pose_ros.ros.supervisor import NodeSupervisor, node_graph
+from audio2pose_ros.ros.supervisor import NodeSupervisor, executable_command, node_graph
+from audio2pose_ros.ros.voice_graph import voice_out_processes
 
 
 def run_graph(
@@ -25,11 +26,13 @@ def run_graph(
     rate: float = 1.0,
     single_process: bool = False,
     sim: bool = False,
+    voice_out: str = "",
 ) -> PlaybackResult | None:
     """Start the graph; with ``play`` (a WAV or a bag) play it and return what was recorded.
 
     Without ``play`` the graph runs until Ctrl-C. ``single_process`` runs the three nodes in one
-    process, ``sim`` adds the simulated Pepper (:func:`node_graph`).
+    process, ``sim`` adds the simulated Pepper (:func:`node_graph`), ``voice_out`` the voice
+    node (:func:`~audio2pose_ros.ros.voice_graph.voice_out_processes`).
 
     Raises:
         ConfigurationError: the supervisor gave up on a node (it refused its configuration, or
@@ -37,9 +40,13 @@ def run_graph(
             the command fails instead of running on without that node.
     """
     messages = audio_source(play) if play is not None else None
+    voice_nodes, sim_args = (
+        voice_out_processes(voice_out, sim, executable_command) if voice_out else ({}, [])
+    )
     with node_graph(
-        params_file, overrides, log_dir, single_process=single_process, sim=sim
-    ) as supervisor:
+        params_file, overrides, log_dir, single_process=single_process, sim=sim,
+        more_nodes=voice_nodes, sim_args=sim_args,
+    ) as supervisor:  # fmt: skip
         if messages is None:
             try:
                 while not supervisor.given_up:

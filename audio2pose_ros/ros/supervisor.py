@@ -400,6 +400,7 @@ def node_graph(
     sim: bool = False,
     more_nodes: Mapping[str, list[str]] | None = None,
     restart_after_s: float = RESTART_AFTER_S,
+    sim_args: Sequence[str] = (),
 ) -> Iterator[NodeSupervisor]:
     """Run the three nodes as supervised processes for the duration of the context.
 
@@ -417,6 +418,7 @@ def node_graph(
             each (``audio2pose console`` adds ``console_node``).
         restart_after_s: how long a node may be silent before it is restarted (see
             :class:`NodeSupervisor`).
+        sim_args: more ROS arguments of the simulated Pepper (``-p name:=value``).
     """
     params = params_file or share_path("config", "pepper.yaml")
     with ExitStack() as stack:
@@ -437,7 +439,7 @@ def node_graph(
             }
             members = None
         if sim:
-            commands[SIM_NODE] = [*executable_command(SIM_NODE), "--ros-args"]
+            commands[SIM_NODE] = [*executable_command(SIM_NODE), "--ros-args", *sim_args]
             if members is not None:
                 members[SIM_NODE] = SIM_NODE
         if more_nodes:
