@@ -34,6 +34,8 @@ def test_topic_names_in_the_root_namespace_are_the_documented_interface():
         "DIAGNOSTICS": "/diagnostics",
         "ROBOT_DESCRIPTION": "/robot_description",
         "TF": "/tf",
+        "CAMERA_IMAGE": "/camera/front/image_raw",
+        "CAMERA_INFO": "/camera/front/camera_info",
     }
 
 
