@@ -109,7 +109,7 @@ async def _offer(server: ConsoleServer, item: RoomItem) -> None:
 
 
 def picture(sequence: int) -> RoomItem:
-    return RoomItem(False, sequence, 0.0, 0.0, bytes(PICTURE_BYTES))
+    return RoomItem(False, sequence, 0.0, 0.0, 0.0, bytes(PICTURE_BYTES))
 
 
 def test_when_one_page_never_reads_expect_the_other_served_and_its_stop_taken(
@@ -127,7 +127,7 @@ def test_when_one_page_never_reads_expect_the_other_served_and_its_stop_taken(
                 for k in range(1, 121):  # 24 MB for the page that never reads
                     await asyncio.to_thread(offer, thread, server, picture(k))
                     await asyncio.to_thread(
-                        offer, thread, server, RoomItem(True, k, 0.0, -40.0, b"\0\0" * 2720)
+                        offer, thread, server, RoomItem(True, k, 0.0, -40.0, -30.0, b"\0\0" * 2720)
                     )
                     message = await fast.receive(timeout=10.0)
                     while message.type != aiohttp.WSMsgType.BINARY or message.data[:4] != b"A2PV":
@@ -158,7 +158,7 @@ def test_when_a_page_never_reads_expect_its_outbox_bounded_and_pictures_dropped(
                 for k in range(1, 121):
                     await asyncio.to_thread(offer, thread, server, picture(k))
                     await asyncio.to_thread(
-                        offer, thread, server, RoomItem(True, k, 0.0, -40.0, b"\0\0" * 2720)
+                        offer, thread, server, RoomItem(True, k, 0.0, -40.0, -30.0, b"\0\0" * 2720)
                     )
                 (outbox,) = [s.room for s in server.sessions.values()]
                 counts = (

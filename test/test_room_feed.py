@@ -60,11 +60,11 @@ def test_when_an_image_is_malformed_expect_input_error(
 
 
 def picture(sequence: int) -> RoomItem:
-    return RoomItem(False, sequence, 0.0, 0.0, b"jpeg")
+    return RoomItem(False, sequence, 0.0, 0.0, 0.0, b"jpeg")
 
 
 def sound(sequence: int) -> RoomItem:
-    return RoomItem(True, sequence, 0.0, -40.0, b"pcm")
+    return RoomItem(True, sequence, 0.0, -40.0, -30.0, b"pcm")
 
 
 def test_when_a_page_reads_slowly_expect_fewer_newer_pictures_and_bounded_sound() -> None:
@@ -102,10 +102,10 @@ def test_when_a_page_reads_every_item_expect_nothing_dropped() -> None:
 
 
 def test_when_a_room_message_is_encoded_expect_its_header_and_age() -> None:
-    item = RoomItem(True, 7, 100.0, -32.5, b"\x01\x02")
+    item = RoomItem(True, 7, 100.0, -32.5, -12.25, b"\x01\x02")
     data = encode_room_message(item, now_s=100.25)
-    magic, sequence, age_ms, level = ROOM_HEADER.unpack(data[: ROOM_HEADER.size])
-    assert (magic, sequence, age_ms, level) == (b"A2PS", 7, 250.0, -32.5)
+    fields = ROOM_HEADER.unpack(data[: ROOM_HEADER.size])
+    assert fields == (b"A2PS", 7, 250.0, -32.5, -12.25)
     assert data[ROOM_HEADER.size :] == b"\x01\x02"
 
 

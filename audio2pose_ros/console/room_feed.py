@@ -19,8 +19,9 @@ What the console sends every identified page of what the robot sees and hears, R
   so a page on a slow link gets fewer pictures, never a growing queue, and nothing waits on it.
 - **Wire**: :func:`encode_room_message`: the magic ``A2PV`` (picture) or ``A2PS`` (sound), a
   uint32 sequence number, a float64 age (ms since the picture was taken or the sound ended,
-  when the message is sent), a float32 level (dBFS of the sound, 0 for a picture), then the
-  JPEG or 16 kHz mono S16LE samples; little-endian.
+  when the message is sent), two float32 levels (dBFS of the sound sent, and of the sound as
+  heard before the operator's voice was removed; 0 for a picture), then the JPEG or 16 kHz mono
+  S16LE samples; little-endian.
 """
 
 from __future__ import annotations
@@ -52,7 +53,7 @@ __all__ = [
 
 PICTURE_MAGIC = b"A2PV"
 SOUND_MAGIC = b"A2PS"
-ROOM_HEADER = struct.Struct("<4sIdf")  # magic, sequence, age (ms), level (dBFS)
+ROOM_HEADER = struct.Struct("<4sIdff")  # magic, sequence, age (ms), levels (dBFS)
 JPEG_QUALITY = 70
 MAX_IMAGE_PIXELS = 1280 * 960  # larger pictures are refused (a page shows a small view)
 ENCODINGS = {"rgb8": 3, "bgr8": 3, "mono8": 1}
@@ -70,7 +71,8 @@ class RoomItem:
     sound: bool
     sequence: int
     taken_s: float  # wall-clock time the picture was taken or the sound's last sample (s)
-    level_dbfs: float
+    level_dbfs: float  # of the payload
+    heard_dbfs: float  # of the sound before the operator's voice was removed
     payload: bytes
 
 
@@ -233,5 +235,7 @@ def encode_room_message(item: RoomItem, now_s: float | None = None) -> bytes:
     """``item`` as one binary WebSocket message (see the module text), aged at ``now_s``."""
     age_ms = max(0.0, ((time.time() if now_s is None else now_s) - item.taken_s) * 1e3)
     magic = SOUND_MAGIC if item.sound else PICTURE_MAGIC
-    header = ROOM_HEADER.pack(magic, item.sequence & 0xFFFFFFFF, age_ms, item.level_dbfs)
+    header = ROOM_HEADER.pack(
+        magic, item.sequence & 0xFFFFFFFF, age_ms, item.level_dbfs, item.heard_dbfs
+    )
     return header + item.payload

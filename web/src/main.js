@@ -29,9 +29,10 @@ const state = {
   name: '', stopHolders: [], stopYou: false, styleHeld: false,
 };
 // What the page shows of the room (window.a2p.room): pictures drawn, the last one's age when
-// drawn (ms), the sound's level (dBFS), blocks of sound received and played, pages watching.
+// drawn (ms), the sound's level (dBFS) and as heard before the operator's own voice was removed,
+// blocks of sound received, whether it plays, pages watching.
 state.room = {
-  framesDrawn: 0, frameAgeMs: null, levelDb: null, soundBlocks: 0, playing: false,
+  framesDrawn: 0, frameAgeMs: null, levelDb: null, heardDb: null, soundBlocks: 0, playing: false,
   watchers: 0, sequence: 0,
 };
 window.a2p = state;
@@ -177,8 +178,9 @@ function onMessage(message) {
 // --- the room: what the robot sees and hears ---------------------------------------------
 
 // Header of a room message (little-endian): magic A2PV (picture) or A2PS (sound), uint32
-// sequence, float64 age when sent (ms), float32 level (dBFS), then JPEG or 16 kHz S16LE.
-const ROOM_HEADER_BYTES = 20;
+// sequence, float64 age when sent (ms), float32 levels (dBFS) of the sound sent and of the
+// sound as heard before the operator's own voice was removed, then JPEG or 16 kHz S16LE.
+const ROOM_HEADER_BYTES = 24;
 const room = { context: null, node: null, drawing: false, pictureAt: 0, ageAtDraw: 0 };
 
 function onRoom(buffer, received) {
@@ -189,7 +191,9 @@ function onRoom(buffer, received) {
   state.room.sequence = view.getUint32(4, true);
   const payload = buffer.slice(ROOM_HEADER_BYTES);
   if (magic === 'A2PV') drawPicture(payload, ageMs, received);
-  else if (magic === 'A2PS') playSound(payload, view.getFloat32(16, true));
+  else if (magic === 'A2PS') {
+    playSound(payload, view.getFloat32(16, true), view.getFloat32(20, true));
+  }
 }
 
 async function drawPicture(jpeg, ageMs, received) {
@@ -236,12 +240,15 @@ async function startRoomSound() {
   $('room-listen').hidden = state.room.playing;
 }
 
-function playSound(pcm, levelDb) {
+function playSound(pcm, levelDb, heardDb) {
   state.room.soundBlocks += 1;
   state.room.levelDb = levelDb;
+  state.room.heardDb = heardDb;
   $('room-level').firstElementChild.style.transform =
     `scaleX(${Math.max(0, Math.min(1, (levelDb + 60) / 60)).toFixed(3)})`;
-  setText($('room-sound'), `room ${levelDb.toFixed(0)} dBFS`);
+  setText($('room-sound'), heardDb - levelDb >= 1
+    ? `room ${levelDb.toFixed(0)} dBFS (your voice removed: ${(heardDb - levelDb).toFixed(0)} dB)`
+    : `room ${levelDb.toFixed(0)} dBFS`);
   if (!room.context) startRoomSound().catch(() => {}); // a page allowed to play starts now
   if (room.node) room.node.port.postMessage(pcm, [pcm]);
 }

@@ -431,13 +431,15 @@ class ConsoleNode(DiagnosedNode):
                         now,
                     )
 
-    def _to_pages(self, sound: bool, taken_s: float, level: float, payload: bytes) -> None:
+    def _to_pages(
+        self, sound: bool, taken_s: float, payload: bytes, levels: tuple[float, float] = (0.0, 0.0)
+    ) -> None:
         """Hand one picture or block of sound to the server's loop for every identified page."""
         if self.server_thread is None:
             return
         with self._lock:
             self.room_sequence += 1
-            item = RoomItem(sound, self.room_sequence, taken_s, level, payload)
+            item = RoomItem(sound, self.room_sequence, taken_s, *levels, payload)
         self.server_thread.loop.call_soon_threadsafe(self.server.offer_room, item)
 
     def on_camera(self, msg: Image) -> None:
@@ -449,7 +451,7 @@ class ConsoleNode(DiagnosedNode):
         jpeg = jpeg_from_image(
             int(msg.width), int(msg.height), str(msg.encoding), int(msg.step), bytes(msg.data)
         )
-        self._to_pages(False, _taken_s(msg.header.stamp), 0.0, jpeg)
+        self._to_pages(False, _taken_s(msg.header.stamp), jpeg)
 
     def on_microphones(self, msg: AudioBuffer) -> None:
         """The robot's microphones, 16 kHz mono, the operator's echo removed, to the pages."""
@@ -458,12 +460,11 @@ class ConsoleNode(DiagnosedNode):
         )
         with self._lock:
             room = self.echo.process(samples, time.monotonic())
-        level = level_dbfs(room)
+        level, heard = level_dbfs(room), level_dbfs(samples)
         self.room_level_dbfs = level
         if self.server.sessions and room.size:
-            self._to_pages(
-                True, _taken_s(msg.header.stamp), level, encode_pcm(room, S16LE_MONO_16K)
-            )
+            pcm = encode_pcm(room, S16LE_MONO_16K)
+            self._to_pages(True, _taken_s(msg.header.stamp), pcm, (level, heard))
 
     # --- snapshots for the pages (called from the server's thread) -------------------------------
 

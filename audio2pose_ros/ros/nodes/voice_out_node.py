@@ -52,9 +52,9 @@ from audio2pose_ros.parameters import (
     validate_settings,
 )
 from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
-from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS
 from audio2pose_ros.ros.messages import trajectory_bytes_cap
 from audio2pose_ros.ros.node_parameters import NodeParameters
+from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS
 from audio2pose_ros.ros.spin import run_node
 from audio2pose_ros.timebase import FRAME_PERIOD_S
 from audio2pose_ros.voice.delay import DelayLine, SpeakerQueue
