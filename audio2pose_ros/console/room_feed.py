@@ -10,9 +10,11 @@ What the console sends every identified page of what the robot sees and hears, R
   :class:`~audio2pose_ros.audio.source.AudioInput`, then :class:`EchoCanceller` removes the
   operator's own voice, which the robot's loudspeaker plays back into the room: the console
   knows that voice (it published it on ``audio/audio``), so each block of the room's sound is
-  searched for it within :data:`MAX_ECHO_DELAY_S`, and the best least-squares short filter of
-  the voice at that delay (:data:`ECHO_TAPS` taps: a delay between samples, the loudspeaker's
-  gain) is subtracted. The level of what is left is sent with it.
+  searched for it within :data:`MAX_ECHO_DELAY_S`, segment by segment (:data:`SEGMENT`: the
+  voice node releases the voice in chunks and may skip or hold one back), and the best
+  least-squares short filter of the voice at each segment's delay (:data:`ECHO_TAPS` taps: a
+  delay between samples, the loudspeaker's gain) is subtracted. The level of what is left
+  is sent with it, and the level heard before.
 - **Load**: each page has a :class:`RoomOutbox`: the newest picture only (a newer one replaces
   the one not yet sent) and at most :data:`SOUND_DEPTH` blocks of sound (the oldest dropped).
   The server sends one message at a time per page, waiting until the connection has taken it,
@@ -58,7 +60,9 @@ JPEG_QUALITY = 70
 MAX_IMAGE_PIXELS = 1280 * 960  # larger pictures are refused (a page shows a small view)
 ENCODINGS = {"rgb8": 3, "bgr8": 3, "mono8": 1}
 SOUND_DEPTH = 6  # blocks of sound kept per page (about 1 s of naoqi_driver's 170 ms buffers)
-MAX_ECHO_DELAY_S = 1.5  # voice hold-back + loudspeaker + microphone buffers + transport
+MAX_ECHO_DELAY_S = 3.0  # voice hold-back + loudspeaker + microphone buffers + transport
+SEGMENT = 320  # samples whose echo delay is searched on their own (the voice's 20 ms chunks)
+MIN_ECHO_CORRELATION = 0.3  # a segment less alike the voice at any delay has none of it
 ECHO_TAPS = 8  # the echo filter's length (samples at 16 kHz) around the delay found
 REFERENCE_RMS_MIN = 1e-4  # below this the operator is silent: nothing is subtracted
 SILENCE_DBFS = -120.0  # the level of digital silence (log of zero)
@@ -116,13 +120,16 @@ def jpeg_from_image(width: int, height: int, encoding: str, step: int, data: byt
 class EchoCanceller:
     """Remove the operator's voice, as the robot's loudspeaker plays it, from the room's sound.
 
-    The voice (``reference``) is kept on the console's clock: each chunk is placed where it was
-    published, silence filling the gaps. A block of the room's sound that arrives at ``t`` can
-    hold the voice of up to :data:`MAX_ECHO_DELAY_S` before. :meth:`process` finds the delay
-    where the voice best matches the block (cross-correlation by FFT), fits the
-    :data:`ECHO_TAPS`-tap filter of the voice around that delay to the block by least squares,
-    and returns the block with that filtered voice subtracted. While the operator is silent the
-    block passes unchanged.
+    The voice (``reference``) is kept as published, chunk after chunk, without the pauses
+    between: the voice node holds it back, releases it in chunks and may skip one, so what
+    matters is the voice itself, not when it was published. A block of the room's sound can
+    hold the last :data:`MAX_ECHO_DELAY_S` of it; while none was published for that long, the
+    block passes unchanged. :meth:`process` finds, for each
+    :data:`SEGMENT` of the block, the delay where the voice best matches it (normalised
+    cross-correlation by FFT), fits the :data:`ECHO_TAPS`-tap filter of the voice around that
+    delay to the segment by least squares, and subtracts that filtered voice. A segment that
+    matches the voice nowhere (:data:`MIN_ECHO_CORRELATION`) and every block while the operator
+    is silent pass unchanged.
 
     Args:
         rate_hz: the sample rate of both signals.
@@ -130,41 +137,19 @@ class EchoCanceller:
 
     def __init__(self, rate_hz: int = SAMPLE_RATE_HZ) -> None:
         self.rate_hz = rate_hz
-        self._history = int(MAX_ECHO_DELAY_S * rate_hz) + 4 * rate_hz  # reference kept
+        self._history = int(MAX_ECHO_DELAY_S * rate_hz) + rate_hz  # voice samples kept
         self._reference = np.zeros(self._history, dtype=np.float64)
-        self._end_s: float | None = None  # the time of the reference's last sample
+        self._end_s: float | None = None  # when the last chunk of the voice was published
         self.delay_s = math.nan  # the echo's delay found last
         self.blocks = 0
         self.cancelled_blocks = 0
 
     def reference(self, samples: np.ndarray, published_s: float) -> None:
-        """The operator's voice as published at ``published_s`` (monotonic s, its end)."""
-        voice = np.asarray(samples, dtype=np.float64)
-        if self._end_s is None:
-            self._end_s = published_s
-        gap = round((published_s - voice.size / self.rate_hz - self._end_s) * self.rate_hz)
-        gap = min(max(gap, 0), self._history)
-        self._append(np.concatenate([np.zeros(gap), voice]))
-
-    def _append(self, samples: np.ndarray) -> None:
-        n = min(samples.size, self._history)
-        self._reference = np.roll(self._reference, -n)
-        self._reference[-n:] = samples[-n:]
-        assert self._end_s is not None
-        self._end_s += samples.size / self.rate_hz
-
-    def _window(self, end_s: float, n: int) -> np.ndarray:
-        """The reference over ``n`` samples ending at ``end_s`` (silence where there is none)."""
-        assert self._end_s is not None
-        ahead = round((end_s - self._end_s) * self.rate_hz)
-        if ahead > 0:  # silence since the last chunk
-            self._append(np.zeros(min(ahead, self._history)))
-            ahead = 0
-        stop = self._history + ahead
-        start = stop - n
-        if start < 0:
-            return np.concatenate([np.zeros(-start), self._reference[: max(stop, 0)]])
-        return self._reference[start:stop]
+        """The operator's voice as published at ``published_s`` (monotonic s)."""
+        voice = np.asarray(samples, dtype=np.float64)[-self._history :]
+        self._reference = np.roll(self._reference, -voice.size)
+        self._reference[-voice.size :] = voice
+        self._end_s = published_s
 
     def process(self, room: np.ndarray, arrived_s: float) -> np.ndarray:
         """``room`` (float samples, its last one heard by ``arrived_s``) without the voice."""
@@ -173,23 +158,60 @@ class EchoCanceller:
         n = block.size
         if n == 0 or self._end_s is None:
             return block.astype(np.float32)
-        window = self._window(arrived_s, n + int(MAX_ECHO_DELAY_S * self.rate_hz) + ECHO_TAPS)
+        if arrived_s - self._end_s > MAX_ECHO_DELAY_S + n / self.rate_hz:
+            return block.astype(np.float32)  # the operator has been silent for long enough
+        window = self._reference[-(n + int(MAX_ECHO_DELAY_S * self.rate_hz) + ECHO_TAPS) :]
         if float(np.sqrt(np.mean(np.square(window)))) < REFERENCE_RMS_MIN:
             return block.astype(np.float32)
-        # correlation of the block with the window at each delay (0 .. lags samples)
-        size = 1 << math.ceil(math.log2(window.size + n))
-        spectrum = np.fft.rfft(window, size) * np.conj(np.fft.rfft(block, size))
-        correlation = np.fft.irfft(spectrum, size)[: window.size - n + 1]
-        energy = np.convolve(np.square(window), np.ones(n), mode="valid")
-        score = np.abs(correlation) / np.sqrt(np.maximum(energy, 1e-12))
-        offset = int(np.argmax(score))  # the block starts here in the window
+        out = block.copy()
+        size = 1 << math.ceil(math.log2(window.size + SEGMENT))
+        spectrum = np.fft.rfft(window, size)
+        energy = np.concatenate([[0.0], np.cumsum(np.square(window))])
+        cancelled = False
+        for start in range(0, n, SEGMENT):
+            stop = n if n - start < 2 * SEGMENT else start + SEGMENT  # no short tail alone
+            if start and stop - start < SEGMENT:
+                break
+            cancelled |= self._cancel(out, block, start, stop, window, spectrum, energy, size)
+        self.cancelled_blocks += int(cancelled)
+        return out.astype(np.float32)
+
+    def _cancel(
+        self,
+        out: np.ndarray,
+        block: np.ndarray,
+        start: int,
+        stop: int,
+        window: np.ndarray,
+        spectrum: np.ndarray,
+        energy: np.ndarray,
+        size: int,
+    ) -> bool:
+        """Subtract the voice from ``block[start:stop]`` into ``out``; True if it was there.
+
+        The segment's own delay is searched (the voice node releases the voice in chunks, and
+        may skip or hold one back: the delay can change between chunks).
+        """
+        part = block[start:stop]
+        m = part.size
+        correlation = np.fft.irfft(spectrum * np.conj(np.fft.rfft(part, size)), size)
+        # the segment may start at window offset k + start (k: the delay's offset for the block)
+        count = window.size - block.size + 1
+        offsets = np.arange(count) + start
+        scores = np.abs(correlation[offsets]) / np.sqrt(
+            np.maximum((energy[offsets + m] - energy[offsets]) * float(part @ part), 1e-18)
+        )
+        best = int(np.argmax(scores))
+        if scores[best] < MIN_ECHO_CORRELATION:  # no voice in this segment
+            return False
+        offset = int(offsets[best])
         half = ECHO_TAPS // 2
-        start = min(max(offset - half, 0), window.size - n - ECHO_TAPS + 1)
-        shifted = np.stack([window[start + k : start + k + n] for k in range(ECHO_TAPS)], axis=1)
-        taps, *_ = np.linalg.lstsq(shifted, block, rcond=None)
-        self.delay_s = (window.size - offset - n) / self.rate_hz
-        self.cancelled_blocks += 1
-        return (block - shifted @ taps).astype(np.float32)
+        first = min(max(offset - half, 0), window.size - m - ECHO_TAPS + 1)
+        shifted = np.stack([window[first + k : first + k + m] for k in range(ECHO_TAPS)], axis=1)
+        taps, *_ = np.linalg.lstsq(shifted, part, rcond=None)
+        out[start:stop] = part - shifted @ taps
+        self.delay_s = (window.size - (offset - start) - block.size) / self.rate_hz
+        return True
 
 
 class RoomOutbox:
