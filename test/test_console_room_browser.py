@@ -36,7 +36,7 @@ if _missing():
 
 
 class HeadTurner:
-    """Publishes a head_target (HeadYaw, a look-at) to the motion filter at 10 Hz, in its own context."""
+    """Publishes a head_target (HeadYaw, a look-at) to the motion filter at 10 Hz."""
 
     def __init__(self) -> None:
         import rclpy
@@ -165,7 +165,7 @@ def test_when_the_operator_talks_to_the_simulated_room_expect_its_picture_sound_
             page.wait_for_function("window.a2p.you === true")
             _levels(page, 12)  # the voice reaches the loudspeaker after the motion's delay
             talking = _levels(page, 30)
-            # a look-at to the left while the robot moves with the voice: the red box comes into view
+            # a look-at to the left while the robot moves with the voice: the red box in view
             turner.yaw = 1.0
             drawn = page.evaluate("window.a2p.room.framesDrawn")
             page.wait_for_function(f"window.a2p.room.framesDrawn > {drawn + 15}")
@@ -185,7 +185,8 @@ def test_when_the_operator_talks_to_the_simulated_room_expect_its_picture_sound_
     assert max(head_yaw) > 0.5, f"the head did not turn: HeadYaw up to {max(head_yaw):.2f} rad"
     assert changed > 0.05, f"the picture did not follow the head ({changed:.3f} changed)"
     assert red.mean() > 0.02, "the red box to Pepper's left is not in the turned picture"
-    assert age_ms is not None and age_ms >= 0.0
+    assert age_ms is not None
+    assert age_ms >= 0.0
     floor = _power(silent[:, 0])  # the room's own sound, as sent
     heard = _power(talking[:, 1]) - floor  # the voice as the microphones heard it
     left = max(_power(talking[:, 0]) - floor, 1e-12)  # what is left of it in what is sent
