@@ -191,3 +191,44 @@ def test_when_the_operator_is_silent_expect_the_room_unchanged() -> None:
     block = np.random.default_rng(3).normal(0.0, 0.01, 2731).astype(np.float32)
     assert np.array_equal(canceller.process(block, 3.0), block)
     assert canceller.cancelled_blocks == 0
+
+
+def test_when_the_voice_node_skips_and_holds_chunks_expect_the_echo_still_20_db_lower() -> None:
+    """The voice node releases the voice in 20 ms chunks and may skip or hold one back.
+
+    The echo's delay jumps by a chunk every 0.3 s (a skipped chunk, a held one); each block of
+    the room's sound spans such a jump now and then.
+    """
+    seconds = 4.0
+    voice = speech_like(seconds, seed=4)
+    played = []  # the voice as the loudspeaker plays it: chunks, some skipped, some repeated
+    for k in range(voice.size // CHUNK):
+        chunk = voice[k * CHUNK : (k + 1) * CHUNK]
+        if k % 15 == 7:
+            continue  # skipped: the voice goes on 20 ms earlier
+        played.append(chunk)
+        if k % 15 == 14:
+            played.append(np.zeros(CHUNK, dtype=np.float32))  # held back: 20 ms later
+    echo16 = np.concatenate([np.zeros(int(0.35 * RATE), dtype=np.float32), *played])
+    echo16 = 0.5 * echo16[: voice.size]
+    rng = np.random.default_rng(5)
+    room16 = rng.normal(0.0, 0.003, voice.size)
+    canceller = EchoCanceller(RATE)
+    block = 2731  # about naoqi_driver's 170 ms at 16 kHz
+    published = 0
+    outputs, echoes = [], []
+    for start in range(0, voice.size - block + 1, block):
+        arrived_s = (start + block) / RATE
+        while (published + 1) * CHUNK / RATE <= arrived_s:
+            chunk = voice[published * CHUNK : (published + 1) * CHUNK]
+            canceller.reference(chunk, (published + 1) * CHUNK / RATE)
+            published += 1
+        mixed = room16[start : start + block] + echo16[start : start + block]
+        outputs.append(canceller.process(mixed, arrived_s) - room16[start : start + block])
+        echoes.append(echo16[start : start + block])
+    settle = 3
+    residual = np.concatenate(outputs[settle:])
+    echo = np.concatenate(echoes[settle:])
+    suppression_db = level_dbfs(echo) - level_dbfs(residual)
+    print(f"chunks skipped and held: {suppression_db:.1f} dB lower")
+    assert suppression_db >= 20.0

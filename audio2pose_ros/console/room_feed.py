@@ -63,6 +63,8 @@ SOUND_DEPTH = 6  # blocks of sound kept per page (about 1 s of naoqi_driver's 17
 MAX_ECHO_DELAY_S = 3.0  # voice hold-back + loudspeaker + microphone buffers + transport
 SEGMENT = 320  # samples whose echo delay is searched on their own (the voice's 20 ms chunks)
 MIN_ECHO_CORRELATION = 0.3  # a segment less alike the voice at any delay has none of it
+SPLIT_RESIDUAL = 0.03  # a segment with more than this share left is split in two and retried
+MIN_SEGMENT = 40  # samples: segments are not split below this (2.5 ms)
 ECHO_TAPS = 8  # the echo filter's length (samples at 16 kHz) around the delay found
 REFERENCE_RMS_MIN = 1e-4  # below this the operator is silent: nothing is subtracted
 SILENCE_DBFS = -120.0  # the level of digital silence (log of zero)
@@ -127,7 +129,9 @@ class EchoCanceller:
     block passes unchanged. :meth:`process` finds, for each
     :data:`SEGMENT` of the block, the delay where the voice best matches it (normalised
     cross-correlation by FFT), fits the :data:`ECHO_TAPS`-tap filter of the voice around that
-    delay to the segment by least squares, and subtracts that filtered voice. A segment that
+    delay to the segment by least squares, and subtracts that filtered voice; where more than
+    :data:`SPLIT_RESIDUAL` of a segment is left (its delay changed inside it), its halves are
+    fitted on their own, down to :data:`MIN_SEGMENT`. A segment that
     matches the voice nowhere (:data:`MIN_ECHO_CORRELATION`) and every block while the operator
     is silent pass unchanged.
 
@@ -209,7 +213,17 @@ class EchoCanceller:
         first = min(max(offset - half, 0), window.size - m - ECHO_TAPS + 1)
         shifted = np.stack([window[first + k : first + k + m] for k in range(ECHO_TAPS)], axis=1)
         taps, *_ = np.linalg.lstsq(shifted, part, rcond=None)
-        out[start:stop] = part - shifted @ taps
+        left = part - shifted @ taps
+        if float(left @ left) > SPLIT_RESIDUAL * float(part @ part) and m >= 2 * MIN_SEGMENT:
+            # the delay changed inside the segment (a chunk skipped or held): each half alone
+            middle = start + m // 2
+            args = (window, spectrum, energy, size)
+            halves = self._cancel(out, block, start, middle, *args)
+            halves |= self._cancel(out, block, middle, stop, *args)
+            whole = float(left @ left)
+            if halves and float(np.sum(np.square(out[start:stop]))) <= whole:
+                return True
+        out[start:stop] = left
         self.delay_s = (window.size - (offset - start) - block.size) / self.rate_hz
         return True
 
