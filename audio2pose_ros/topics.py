@@ -19,6 +19,12 @@ Name (type): publisher -> subscriber
 - joint_states (sensor_msgs JointState, measured): naoqi_driver -> filter
 - head_target, head_offset (sensor_msgs JointState): perception -> filter
 - enable, stop (std_msgs Bool, latched): operator -> filter
+- audio_out, audio_out_info (audio_common_msgs AudioData, AudioInfo latched): voice_out_node
+  -> audio_common's audio_play (the operator's voice, held back to be heard with the motion)
+- audio (naoqi_bridge_msgs AudioBuffer): the robot's microphones (naoqi_driver) -> voice_out_node,
+  console
+- camera/front/image_raw, camera/front/camera_info (sensor_msgs Image rgb8, CameraInfo): the
+  robot's head camera (naoqi_driver) -> console
 """
 
 from __future__ import annotations
@@ -36,9 +42,15 @@ HEAD_TARGET = "head_target"
 HEAD_OFFSET = "head_offset"
 ENABLE = "enable"
 STOP = "stop"
+AUDIO_OUT = "audio_out"
+AUDIO_OUT_INFO = "audio_out_info"
+ROBOT_MICROPHONES = "audio"
 DIAGNOSTICS = "/diagnostics"
 ROBOT_DESCRIPTION = "robot_description"
 TF = "tf"
+ROBOT_MICROPHONES = "audio"
+CAMERA_IMAGE = "camera/front/image_raw"
+CAMERA_INFO = "camera/front/camera_info"
 
 
 def absolute(name: str) -> str:

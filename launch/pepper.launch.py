@@ -94,6 +94,7 @@ from audio2pose_ros.ros.launch_support import (
 
 PACKAGE = "audio2pose_ros"
 SINGLE_PROCESS = "audio2pose_nodes"  # the process of single_process:=true
+VOICE_EXECUTABLE = "voice_out_node"  # voice_out:=... (the operator's voice out of the robot)
 
 
 def declare_arguments() -> list[DeclareLaunchArgument]:
@@ -165,6 +166,14 @@ def declare_arguments() -> list[DeclareLaunchArgument]:
             description="Run the three nodes in one process and one executor, the smallest "
             "footprint; same topics and outputs (true/false/1/0)",
         ),
+        DeclareLaunchArgument(
+            "voice_out",
+            default_value="off",
+            description="The operator's voice out of the robot, held back to be heard with the "
+            "motion: 'naoqi:tcp://HOST:9559' (Pepper's loudspeakers through NAOqi; with "
+            "sim:=pybullet and 127.0.0.1 the simulated Pepper serves it), 'topic' (audio_out, "
+            "for audio_common's audio_play) or 'off'",
+        ),
     ]
 
 
@@ -199,8 +208,10 @@ class NodeSupervisor:
                 {name: ParameterValue(value, value_type=str)}
                 for name, value in self.plan.model_path.items()
             ]
-        if executable == "audio_features_node":
+        if executable in ("audio_features_node", VOICE_EXECUTABLE):
             remappings = list(self.plan.audio_topics.items())
+        if executable == VOICE_EXECUTABLE:
+            parameters.append({"voice_out": ParameterValue(self.plan.voice_out, value_type=str)})
         if executable == "motion_filter_node":
             remappings = [(topics.JOINT_TRAJECTORY, self.plan.controller_topic)]
             parameters += [dict(self.plan.style)] if self.plan.style else []
@@ -270,11 +281,14 @@ def visualisation_and_simulation(plan: LaunchPlan) -> list[Action]:
             )
         )
     if plan.sim == "pybullet":
+        served = plan.voice_out.removeprefix("naoqi:")
         actions += [
             Node(
                 package=PACKAGE,
                 executable="pepper_sim_node",
                 name="pepper_sim_node",
+                # the fake ALAudioDevice, when the voice goes to NAOqi on this machine
+                parameters=[{"naoqi_url": served}] if served.startswith("tcp://127.0.0.1:") else [],
                 output="screen",
             ),
             # The simulated robot's measured joint states, on /joint_states like a real robot's.
@@ -349,6 +363,8 @@ def launch_setup(context: LaunchContext) -> list[Action]:
     actions = visualisation_and_simulation(plan) + diagnostics(plan)
     if plan.console:
         actions += supervisor.start(CONSOLE_EXECUTABLE)
+    if plan.voice_out != "off":
+        actions += supervisor.start(VOICE_EXECUTABLE)
     if plan.single_process:
         return actions + supervisor.start(SINGLE_PROCESS)
     for executable in ("audio_features_node", "inference_node", "motion_filter_node"):

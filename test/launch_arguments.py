@@ -21,5 +21,6 @@ def arguments(**overrides: str) -> dict[str, str]:
         "diagnostic_aggregator": "false",
         "single_process": "false",
         "console": "false",
+        "voice_out": "off",
     }
     return {**values, **overrides}

@@ -28,6 +28,7 @@ LAYERS: dict[str, int] = {
     "resources": 0,
     "audio": 1,
     "robot": 1,
+    "voice": 1,  # the voice out of the robot: framing, delay, latencies, NAOqi client
     "motion": 2,
     "models": 3,
     "checkpoints": 4,

@@ -204,6 +204,14 @@ def test_when_sim_is_unknown_expect_a_refusal():
         plan_launch(arguments(sim="mujoco"))
 
 
+def test_when_voice_out_is_given_expect_it_checked_before_anything_runs():
+    assert plan_launch(arguments()).voice_out == "off"
+    plan = plan_launch(arguments(voice_out="naoqi:192.168.1.10"))
+    assert plan.voice_out == "naoqi:tcp://192.168.1.10:9559"
+    with pytest.raises(ConfigurationError, match="voice out 'speaker'"):
+        plan_launch(arguments(voice_out="speaker"))
+
+
 def test_when_planning_expect_exactly_the_arguments_the_launch_file_declares():
     assert set(arguments()) == set(ARGUMENTS)
     with pytest.raises(KeyError):

@@ -18,6 +18,7 @@ from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.console_runner import CONSOLE_NODE
 from audio2pose_ros.ros.launch_support import ARGUMENTS, CONTROLLER_NAME, CONTROLLER_TOPIC
 from audio2pose_ros.ros.supervisor import NODE_EXECUTABLES, SIM_NODE
+from audio2pose_ros.ros.voice_graph import VOICE_NODE
 
 ROOT = Path(__file__).resolve().parent.parent
 LAUNCH_FILE = ROOT / "launch" / "pepper.launch.py"
@@ -47,8 +48,8 @@ def constant_keywords(call: ast.Call) -> dict[str, object]:
 
 def test_when_reading_setup_cfg_expect_one_executable_per_node_plus_cli():
     scripts = console_scripts()
-    assert set(scripts) == {*NODE_EXECUTABLES, SIM_NODE, CONSOLE_NODE, "audio2pose"}
-    for name in (*NODE_EXECUTABLES, SIM_NODE, CONSOLE_NODE):
+    assert set(scripts) == {*NODE_EXECUTABLES, SIM_NODE, CONSOLE_NODE, VOICE_NODE, "audio2pose"}
+    for name in (*NODE_EXECUTABLES, SIM_NODE, CONSOLE_NODE, VOICE_NODE):
         # nodes/process.py makes the process safe to stop before the heavy imports
         assert scripts[name] == f"audio2pose_ros.ros.nodes.process:{name}"
 
@@ -159,7 +160,7 @@ def test_when_reading_parameter_file_expect_sections_for_the_launched_nodes_and_
     # the sections match the node names the launch file gives, and model_path is shared, so the
     # launch argument's override reaches both nodes that read it.
     params = yaml.safe_load((ROOT / "config" / "pepper.yaml").read_text())
-    assert set(params) == {"/**", *NODE_EXECUTABLES, CONSOLE_NODE}  # console:=true
+    assert set(params) == {"/**", *NODE_EXECUTABLES, CONSOLE_NODE, VOICE_NODE}  # console, voice
     assert "model_path" in params["/**"]["ros__parameters"]
 
 

@@ -28,9 +28,14 @@ def test_topic_names_in_the_root_namespace_are_the_documented_interface():
         "HEAD_OFFSET": "/head_offset",
         "ENABLE": "/enable",
         "STOP": "/stop",
+        "AUDIO_OUT": "/audio_out",
+        "AUDIO_OUT_INFO": "/audio_out_info",
+        "ROBOT_MICROPHONES": "/audio",
         "DIAGNOSTICS": "/diagnostics",
         "ROBOT_DESCRIPTION": "/robot_description",
         "TF": "/tf",
+        "CAMERA_IMAGE": "/camera/front/image_raw",
+        "CAMERA_INFO": "/camera/front/camera_info",
     }
 
 

@@ -18,7 +18,9 @@ from audio2pose_ros.timebase import FRAME_PERIOD_S, duration_s
 
 __all__ = ["BENCH_SCHEMA_VERSION", "command_bench", "register"]
 
-BENCH_SCHEMA_VERSION = 5  # 1: unversioned; 2: graph modes; 3: floor; 4: floor executor; 5: paced
+BENCH_SCHEMA_VERSION = (
+    6  # 1: unversioned; 2: graph modes; 3: floor; 4: floor executor; 5: paced; 6: voice
+)
 
 
 def _bench_live(args: argparse.Namespace, results: dict[str, object]) -> None:
@@ -51,6 +53,18 @@ def _bench_live(args: argparse.Namespace, results: dict[str, object]) -> None:
 
         tracking = measure_sim_tracking(bundled_speech(), duration_s=min(args.duration, 60.0))
         results["sim_tracking"] = dataclasses.asdict(tracking)
+    if args.voice:  # the voice against the motion at the simulated Pepper, at two latencies
+        from audio2pose_ros.ros.tools.graph_bench import bundled_speech
+        from audio2pose_ros.ros.tools.voice_bench import (
+            BENCH_EXECUTION_LATENCIES_S,
+            measure_voice,
+            voice_report,
+        )
+
+        results["voice"] = [
+            voice_report(measure_voice(bundled_speech(), latency, duration_s=args.voice_duration))
+            for latency in BENCH_EXECUTION_LATENCIES_S
+        ]
 
 
 def command_bench(args: argparse.Namespace) -> int:
@@ -157,8 +171,26 @@ def _print_bench(results: dict[str, Any], frames: int, clip_s: float) -> None:
         )
     if "console" in results:
         _print_console(results["console"])
+    if "voice" in results:
+        _print_voice(results["voice"])
     if "busy_loops" in results:
         print(f"\n(--graph, --console, --sim measured beside {results['busy_loops']} busy loops)")
+
+
+def _print_voice(runs: list[dict[str, Any]]) -> None:
+    """The voice against the motion at the simulated Pepper: motion - heard, per latency."""
+    print(
+        "\nvoice vs motion at the simulated Pepper (motion - heard; window -80 .. +20 ms), "
+        f"{runs[0]['audio_s']:.0f} s of speech after calibration"
+    )
+    print(f"{'execution latency':<20}{'windows':>8}{'p5 ms':>8}{'p50 ms':>8}{'p95 ms':>8}  delay")
+    for run in runs:
+        print(
+            f"{run['execution_latency_ms']:>17} ms{run['windows']:>8}{run['offset_p5_ms']:>8.0f}"
+            f"{run['offset_p50_ms']:>8.0f}{run['offset_p95_ms']:>8.0f}  "
+            f"{run['voice_delay_ms']} ms (graph {run['graph_latency']}, execution "
+            f"{run['execution_latency']}, loudspeaker {run['loudspeaker_latency']})"
+        )
 
 
 def _print_console(console: dict[str, Any]) -> None:
@@ -303,6 +335,19 @@ def register(verbs: Verbs) -> None:
         action="store_true",
         help="also run the graph against the simulated Pepper: tracking error commanded vs "
         "executed and self-collisions executed (--duration, at most 60 s)",
+    )
+    bench.add_argument(
+        "--voice",
+        action="store_true",
+        help="also play the voice at the simulated Pepper (fake ALAudioDevice over NAOqi's "
+        "protocol) at execution latencies of 0 and 150 ms: the voice-to-motion offset's p5, p50 "
+        "and p95 (--voice-duration seconds after calibration)",
+    )
+    bench.add_argument(
+        "--voice-duration",
+        type=bounded_float(10.0, 600.0),
+        default=60.0,
+        help="seconds of speech --voice measures at each latency (default 60)",
     )
     bench.add_argument(
         "--console",

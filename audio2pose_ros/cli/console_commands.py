@@ -6,8 +6,9 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from audio2pose_ros.cli.options import Verbs, bounded_int, input_file
+from audio2pose_ros.cli.options import Verbs, add_voice_out_option, bounded_int, input_file
 from audio2pose_ros.cli.style_commands import add_style_options, graph_overrides
+from audio2pose_ros.errors import UsageError
 
 
 def command_console(args: argparse.Namespace) -> int:
@@ -21,6 +22,8 @@ def command_console(args: argparse.Namespace) -> int:
     for name in ("certfile", "keyfile"):
         if getattr(args, name):
             values[name] = str(input_file(getattr(args, name), f"--{name}").resolve())
+    if args.sim and args.no_robot:
+        raise UsageError("--sim and --no-robot: the simulated Pepper publishes joint_states")
     params = input_file(args.params_file, "parameters file") if args.params_file else None
     overrides = graph_overrides(args)
     check_console_settings(params, values)  # a refused bind or token stops before anything runs
@@ -34,6 +37,8 @@ def command_console(args: argparse.Namespace) -> int:
             graph=not args.no_graph,
             single_process=args.single_process,
             no_robot=args.no_robot,
+            sim=args.sim,
+            voice_out=args.voice_out or ("naoqi" if args.sim else ""),
         )
     return 0
 
@@ -74,4 +79,11 @@ def register(verbs: Verbs) -> None:
         help="no robot publishes joint_states (the 3D view only): start from the saved pose or "
         "neutral instead of waiting for the robot's measured pose",
     )
+    console.add_argument(
+        "--sim",
+        action="store_true",
+        help="also run a simulated Pepper (pybullet): the page shows its moves, its head "
+        "camera's view of a small room and plays its microphones",
+    )
+    add_voice_out_option(console)
     console.set_defaults(func=command_console)

@@ -36,6 +36,7 @@ from audio2pose_ros.cli.options import (
     OneLineParser,
     Verbs,
     add_force,
+    add_voice_out_option,
     bounded_float,
     bounded_int,
     input_bag,
@@ -80,6 +81,7 @@ def command_run(args: argparse.Namespace) -> int:
         single_process=args.single_process,
         sim=args.sim,
         no_robot=args.no_robot,
+        voice_out=args.voice_out or "",
     )
     if result is not None:
         print(summarize(result))
@@ -356,6 +358,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="no robot publishes joint_states (only --record takes the commands): start from "
         "the saved pose or neutral instead of waiting for the robot's measured pose",
     )
+    add_voice_out_option(run)
     run.set_defaults(func=command_run)
 
     demo = verbs.add_parser("demo", help="bundled speech -> live graph -> recorded bag and CSV")

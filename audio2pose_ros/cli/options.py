@@ -34,6 +34,7 @@ __all__ = [
     "NamedPath",
     "OneLineParser",
     "add_force",
+    "add_voice_out_option",
     "bag_inputs",
     "bounded_float",
     "bounded_int",
@@ -337,3 +338,14 @@ def check_apart(
         else:
             continue
         raise UsageError(f"{option} {output}: {relation} {description}; give {instead}")
+
+
+def add_voice_out_option(parser: argparse.ArgumentParser) -> None:
+    """``--voice-out``: the operator's voice out of the robot, in step with the motion."""
+    parser.add_argument(
+        "--voice-out",
+        metavar="naoqi:tcp://HOST:PORT|naoqi|topic",
+        help="play the operator's voice at the robot, held back by the measured motion latency: "
+        "naoqi:tcp://HOST:9559 (Pepper's loudspeakers through NAOqi), naoqi (with --sim: the "
+        "simulated Pepper's), or topic (audio_out, for audio_common's audio_play)",
+    )

@@ -55,6 +55,13 @@ operator may do to the robot (the floor, the stop and its owners, the settings) 
    connection's handler is logged in one line and closes that connection (1011), never
    escaping to aiohttp.
 
+**The room**: every identified page, and no other, is sent what the robot sees and hears
+(:mod:`~audio2pose_ros.console.room_feed`: JPEG pictures of its camera, its microphones with the
+operator's echo removed) through its own :class:`~audio2pose_ros.console.room_feed.RoomOutbox`,
+one message at a time, each sent when the connection has taken the one before: a page on a slow
+link gets fewer pictures and never holds up another page, the pose, the status or a stop.
+The status tells every page how many pages watch the room.
+
 Every page is sent the pose at ``pose_rate_hz`` and the status (stop, enable, the style
 parameters in force, health, latency, floor, operators) every :data:`STATUS_PERIOD_S`; a page
 that reads slower than that skips frames rather than making the server queue them. A value in
@@ -98,6 +105,7 @@ from audio2pose_ros.console.protocol import (
     parse_control,
 )
 from audio2pose_ros.console.room import Operator, Room
+from audio2pose_ros.console.room_feed import RoomItem, RoomOutbox, encode_room_message
 from audio2pose_ros.console.settings import ConsoleSettings
 from audio2pose_ros.console.stop import unique_name
 from audio2pose_ros.errors import ConfigurationError
@@ -213,6 +221,8 @@ class _Session:
     name: str = ""
     sending: bool = False
     refused: int = 0
+    room: RoomOutbox = field(default_factory=RoomOutbox)
+    room_waiting: asyncio.Event = field(default_factory=asyncio.Event)
 
 
 class ConsoleServer:
@@ -508,7 +518,11 @@ class ConsoleServer:
                 self.sessions[session.id] = session
                 self.log("info", f"console: operator {session.name!r} connected from {peer}")
                 await self._welcome(session)
-                await self._serve(session)
+                sender = asyncio.get_running_loop().create_task(self._send_room(session))
+                try:
+                    await self._serve(session)
+                finally:
+                    sender.cancel()
         except (_PeerLeftError, ConnectionError):
             pass  # the page left while it was being answered: nothing failed here
         except Exception as exc:  # the boundary: one line, this connection closed, no traceback
@@ -731,6 +745,30 @@ class ConsoleServer:
 
     # --- broadcasts -----------------------------------------------------------------------------
 
+    @property
+    def watchers(self) -> int:
+        """Pages sent the room's picture and sound (every identified page)."""
+        return len(self.sessions)
+
+    def offer_room(self, item: RoomItem) -> None:
+        """Give every identified page ``item`` (run on the server's loop)."""
+        for session in self.sessions.values():
+            session.room.offer(item)
+            session.room_waiting.set()
+
+    async def _send_room(self, session: _Session) -> None:
+        """Send the page its room outbox, one message at a time, until the session ends."""
+        while not session.ws.closed:
+            await session.room_waiting.wait()
+            session.room_waiting.clear()
+            while (item := session.room.take()) is not None:
+                try:
+                    await asyncio.wait_for(
+                        session.ws.send_bytes(encode_room_message(item)), SEND_TIMEOUT_S
+                    )
+                except (ConnectionError, asyncio.TimeoutError, RuntimeError):
+                    return  # a closing connection: its handler cleans up
+
     async def _send_pose(self) -> None:
         if self.sessions:
             text = self._snapshot("pose", self.bridge.pose())
@@ -741,6 +779,7 @@ class ConsoleServer:
         if self.sessions:
             status = self.bridge.status()
             status["operators"] = len(self.sessions)
+            status["room_watchers"] = self.watchers
             status["floor"] = self.floor.holder_name or None
             status.update(self.learn_style.status())
             text = self._snapshot("status", status)

@@ -31,6 +31,7 @@ from audio2pose_ros.ros.supervisor import (
     executable_command,
     node_graph,
 )
+from audio2pose_ros.ros.voice_graph import voice_out_processes
 
 __all__ = ["CONSOLE_NODE", "check_console_settings", "console_command", "run_console"]
 
@@ -87,13 +88,21 @@ def run_console(
     log_dir: Path | None = None,
     graph: bool = True,
     single_process: bool = False,
+    sim: bool = False,
+    voice_out: str = "",
     no_robot: bool = False,
 ) -> None:
     """Run the console (and the graph) until Ctrl-C or until every process has given up.
 
-    ``no_robot``: no robot publishes ``joint_states`` (:func:`node_graph`).
+    ``sim`` adds the simulated Pepper (what the page shows of the room is then its camera and
+    microphones) and ``voice_out`` the voice node to the graph
+    (:func:`~audio2pose_ros.ros.voice_graph.voice_out_processes`); ``no_robot``: no robot publishes
+    ``joint_states`` (:func:`node_graph`).
     """
     command = console_command(params_file, values, directory)
+    voice_nodes, sim_args = (
+        voice_out_processes(voice_out, sim, executable_command) if voice_out else ({}, [])
+    )
     with ExitStack() as stack:
         if graph:
             supervisor = stack.enter_context(
@@ -102,7 +111,9 @@ def run_console(
                     overrides,
                     log_dir,
                     single_process=single_process,
-                    more_nodes={CONSOLE_NODE: command},
+                    sim=sim,
+                    more_nodes={CONSOLE_NODE: command, **voice_nodes},
+                    sim_args=sim_args,
                     no_robot=no_robot,
                 )
             )

@@ -36,6 +36,7 @@ import yaml
 from audio2pose_ros import topics
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR, Audio2PoseError, ConfigurationError
 from audio2pose_ros.files import MAX_YAML_BYTES, load_yaml_text
+from audio2pose_ros.voice.naoqi import parse_voice_out
 
 __all__ = [
     "ARGUMENTS",
@@ -76,6 +77,7 @@ ARGUMENTS = (
     "diagnostic_aggregator",
     "single_process",
     "console",
+    "voice_out",
 )
 # console:=true starts this executable (the operator's web console).
 CONSOLE_EXECUTABLE = "console_node"
@@ -311,6 +313,9 @@ class LaunchPlan:
             parameters file's ``console_node`` section).
         style: the motion filter's style parameters from the ``style`` argument (or a personal
             model's), passed after the parameters file; ``{}`` when none.
+        voice_out: where voice_out_node sends the operator's voice (``off``: no voice node;
+            ``topic``; ``naoqi:tcp://HOST:PORT``, checked by
+            :func:`~audio2pose_ros.voice.naoqi.parse_voice_out`).
 
     """
 
@@ -325,6 +330,7 @@ class LaunchPlan:
     single_process: bool = False
     console: bool = False
     style: dict[str, float] = field(default_factory=dict)
+    voice_out: str = "off"
 
     @property
     def audio_topics(self) -> dict[str, str]:
@@ -375,6 +381,7 @@ def plan_launch(arguments: Mapping[str, str]) -> LaunchPlan:
         ),
         single_process=parse_bool("single_process", arguments["single_process"]),
         console=parse_bool("console", arguments["console"]),
+        voice_out=parse_voice_out(arguments["voice_out"]).describe(),
     )
 
 

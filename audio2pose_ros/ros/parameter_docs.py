@@ -28,6 +28,7 @@ from audio2pose_ros.ros.nodes import (
     inference_node,
     motion_filter_node,
     pepper_sim_node,
+    voice_out_node,
 )
 
 PAGE_HEADER = """\
@@ -76,6 +77,7 @@ def node_parameters() -> dict[str, tuple[ParameterSpec, ...]]:
         "inference_node": inference_node.PARAMETERS,
         "motion_filter_node": motion_filter_node.PARAMETERS,
         "console_node": console_node.PARAMETERS,
+        "voice_out_node": voice_out_node.PARAMETERS,
     }
 
 

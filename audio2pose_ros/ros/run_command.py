@@ -13,7 +13,8 @@ from pathlib import Path
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.recorder import PlaybackResult, audio_source, play_and_record
-from audio2pose_ros.ros.supervisor import NodeSupervisor, node_graph
+from audio2pose_ros.ros.supervisor import NodeSupervisor, executable_command, node_graph
+from audio2pose_ros.ros.voice_graph import voice_out_processes
 
 
 def run_graph(
@@ -26,6 +27,7 @@ def run_graph(
     single_process: bool = False,
     sim: bool = False,
     no_robot: bool = False,
+    voice_out: str = "",
 ) -> PlaybackResult | None:
     """Start the graph; with ``play`` (a WAV or a bag) play it and return what was recorded.
 
@@ -39,6 +41,9 @@ def run_graph(
             the command fails instead of running on without that node.
     """
     messages = audio_source(play) if play is not None else None
+    voice_nodes, sim_args = (
+        voice_out_processes(voice_out, sim, executable_command) if voice_out else ({}, [])
+    )
     with node_graph(
         params_file,
         overrides,
@@ -46,6 +51,8 @@ def run_graph(
         single_process=single_process,
         sim=sim,
         no_robot=no_robot,
+        more_nodes=voice_nodes,
+        sim_args=sim_args,
     ) as supervisor:
         if messages is None:
             try:

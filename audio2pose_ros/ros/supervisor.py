@@ -403,6 +403,7 @@ def node_graph(
     more_nodes: Mapping[str, list[str]] | None = None,
     restart_after_s: float = RESTART_AFTER_S,
     no_robot: bool = False,
+    sim_args: Sequence[str] = (),
 ) -> Iterator[NodeSupervisor]:
     """Run the three nodes as supervised processes for the duration of the context.
 
@@ -423,6 +424,7 @@ def node_graph(
         no_robot: no robot publishes ``joint_states`` (nothing but the recorder or a viewer
             takes the commands): the motion filter starts from its saved pose or neutral
             (``start_without_measured_pose``) instead of waiting for a measured pose.
+        sim_args: more ROS arguments of the simulated Pepper (``-p name:=value``).
     """
     params = params_file or share_path("config", "pepper.yaml")
     if no_robot:
@@ -445,7 +447,7 @@ def node_graph(
             }
             members = None
         if sim:
-            commands[SIM_NODE] = [*executable_command(SIM_NODE), "--ros-args"]
+            commands[SIM_NODE] = [*executable_command(SIM_NODE), "--ros-args", *sim_args]
             if members is not None:
                 members[SIM_NODE] = SIM_NODE
         if more_nodes:

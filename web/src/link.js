@@ -75,6 +75,7 @@ function connect(url, hello) {
   ws.onopen = () => send(hello);
   ws.onmessage = (event) => {
     if (typeof event.data === 'string') onConsoleMessage(event.data);
+    else postMessage({ type: 'room', data: event.data, received: performance.now() }, [event.data]);
   };
   ws.onclose = (event) => {
     you = false;

@@ -3,7 +3,9 @@
 // waiting for this thread), a 3D view of the robot from the package's URDF (commanded pose
 // solid, measured pose as a ghost), stop / enable / style (a preset, and the size and tempo of
 // each part, where the hands rest and how high they go), health and the voice-to-command
-// latency. Everything is served by the console itself.
+// latency, and the room: the robot's camera (JPEG) and microphones (played through an
+// AudioWorklet) with the age of the picture, the sound's level and how many pages watch.
+// Everything is served by the console itself.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
 import URDFLoader from 'urdf-loader';
@@ -25,6 +27,13 @@ const state = {
   connected: false, floor: null, you: false, talking: false, chunksSent: 0, chunksDropped: 0,
   posesReceived: 0, status: null, lastError: '', joints: [], viewReady: false,
   name: '', stopHolders: [], stopYou: false, styleHeld: false,
+};
+// What the page shows of the room (window.a2p.room): pictures drawn, the last one's age when
+// drawn (ms), the sound's level (dBFS) and as heard before the operator's own voice was removed,
+// blocks of sound received, whether it plays, pages watching.
+state.room = {
+  framesDrawn: 0, frameAgeMs: null, levelDb: null, heardDb: null, soundBlocks: 0, playing: false,
+  watchers: 0, sequence: 0,
 };
 window.a2p = state;
 
@@ -101,6 +110,7 @@ link.onmessage = (event) => {
   if (data.type === 'message') onMessage(data.message);
   else if (data.type === 'pose') applyPose(data.message, data.received);
   else if (data.type === 'close') onClose(data.code);
+  else if (data.type === 'room') onRoom(data.data, data.received);
   else if (data.type === 'level') { // ten a second
     showLevel(state.talking ? Math.min(1, data.rms * 4) : 0);
     state.chunksSent = data.sent;
@@ -145,6 +155,7 @@ function onMessage(message) {
     case 'status':
       state.status = message;
       updateStatus(message);
+      showWatchers(message.room_watchers);
       showStopHolders();
       break;
     case 'stop_holders':
@@ -162,6 +173,95 @@ function onMessage(message) {
     default:
       break;
   }
+}
+
+// --- the room: what the robot sees and hears ---------------------------------------------
+
+// Header of a room message (little-endian): magic A2PV (picture) or A2PS (sound), uint32
+// sequence, float64 age when sent (ms), float32 levels (dBFS) of the sound sent and of the
+// sound as heard before the operator's own voice was removed, then JPEG or 16 kHz S16LE.
+const ROOM_HEADER_BYTES = 24;
+const room = { context: null, node: null, drawing: false, pictureAt: 0, ageAtDraw: 0 };
+
+function onRoom(buffer, received) {
+  if (buffer.byteLength < ROOM_HEADER_BYTES) return;
+  const view = new DataView(buffer);
+  const magic = String.fromCharCode(...new Uint8Array(buffer, 0, 4));
+  const ageMs = view.getFloat64(8, true);
+  state.room.sequence = view.getUint32(4, true);
+  const payload = buffer.slice(ROOM_HEADER_BYTES);
+  if (magic === 'A2PV') drawPicture(payload, ageMs, received);
+  else if (magic === 'A2PS') {
+    playSound(payload, view.getFloat32(16, true), view.getFloat32(20, true));
+  }
+}
+
+async function drawPicture(jpeg, ageMs, received) {
+  if (room.drawing) return; // one picture at a time: a newer one comes soon
+  room.drawing = true;
+  try {
+    const bitmap = await createImageBitmap(new Blob([jpeg], { type: 'image/jpeg' }));
+    const canvas = $('room-picture');
+    if (canvas.width !== bitmap.width) canvas.width = bitmap.width;
+    if (canvas.height !== bitmap.height) canvas.height = bitmap.height;
+    canvas.getContext('2d').drawImage(bitmap, 0, 0);
+    bitmap.close();
+    room.pictureAt = performance.now();
+    room.ageAtDraw = ageMs + (room.pictureAt - received);
+    state.room.framesDrawn += 1;
+    state.room.frameAgeMs = room.ageAtDraw;
+    showPictureAge();
+  } catch (error) {
+    showError(`A picture of the room could not be shown: ${error.message}`);
+  } finally {
+    room.drawing = false;
+  }
+}
+
+function showPictureAge() {
+  if (!state.room.framesDrawn) return;
+  const age = room.ageAtDraw + (performance.now() - room.pictureAt);
+  setText($('room-age'), `picture ${Math.round(age)} ms old (${state.room.framesDrawn} shown)`);
+}
+setInterval(showPictureAge, 500);
+
+async function startRoomSound() {
+  if (room.context) {
+    await room.context.resume();
+  } else {
+    const context = new AudioContext();
+    room.context = context;
+    await context.audioWorklet.addModule('worklet.js');
+    room.node = new AudioWorkletNode(context, 'a2p-playback', { outputChannelCount: [1] });
+    room.node.connect(context.destination);
+    await context.resume();
+  }
+  state.room.playing = room.context.state === 'running';
+  $('room-listen').hidden = state.room.playing;
+}
+
+function playSound(pcm, levelDb, heardDb) {
+  state.room.soundBlocks += 1;
+  state.room.levelDb = levelDb;
+  state.room.heardDb = heardDb;
+  $('room-level').firstElementChild.style.transform =
+    `scaleX(${Math.max(0, Math.min(1, (levelDb + 60) / 60)).toFixed(3)})`;
+  setText($('room-sound'), heardDb - levelDb >= 1
+    ? `room ${levelDb.toFixed(0)} dBFS (your voice removed: ${(heardDb - levelDb).toFixed(0)} dB)`
+    : `room ${levelDb.toFixed(0)} dBFS`);
+  if (!room.context) startRoomSound().catch(() => {}); // a page allowed to play starts now
+  if (room.node) room.node.port.postMessage(pcm, [pcm]);
+}
+
+$('room-listen').addEventListener('click', () => {
+  startRoomSound().catch((error) => showError(`The room cannot be played: ${error.message}`));
+});
+
+function showWatchers(watchers) {
+  state.room.watchers = watchers || 0;
+  const pill = $('room-watched');
+  pill.hidden = !state.room.watchers;
+  setText(pill, `room shared with ${state.room.watchers} page${state.room.watchers === 1 ? '' : 's'}`);
 }
 
 // --- talking -------------------------------------------------------------------------------

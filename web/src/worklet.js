@@ -1,8 +1,11 @@
-// AudioWorklet processor of the console: the microphone, mixed to mono, resampled to 16 kHz
+// AudioWorklet processors of the console. a2p-capture: the microphone, mixed to mono, resampled to 16 kHz
 // with a windowed-sinc low-pass (Blackman window, cut-off at 95 % of 8 kHz, so nothing above
 // the new Nyquist frequency folds back), converted to signed 16-bit and posted to the page in
 // chunks of `chunkSamples` (320 = 20 ms), each with its RMS level, to the MessagePort the page
 // hands over ({sink: port}: the WebSocket's worker), or to its own port until then.
+// a2p-playback: the robot's microphones (16 kHz mono S16LE blocks posted to its port), resampled
+// linearly to the context's rate and played; at most MAX_QUEUE_S waits (older sound is dropped,
+// so the room is never heard later and later), and it starts after START_S has arrived.
 
 const TARGET_RATE = 16000;
 const ZERO_CROSSINGS = 8; // of the sinc on each side of the kernel
@@ -85,3 +88,59 @@ class CaptureProcessor extends AudioWorkletProcessor {
 }
 
 registerProcessor('a2p-capture', CaptureProcessor);
+
+const MAX_QUEUE_S = 0.6;
+const START_S = 0.2;
+
+class PlaybackProcessor extends AudioWorkletProcessor {
+  constructor() {
+    super();
+    this.queue = new Float32Array(Math.ceil(2 * MAX_QUEUE_S * TARGET_RATE));
+    this.length = 0; // 16 kHz samples waiting
+    this.position = 0; // where the next output sample lies, in queued samples
+    this.started = false;
+    this.step = TARGET_RATE / sampleRate; // queued samples per output sample
+    this.dropped = 0;
+    this.port.onmessage = (event) => this.push(new Int16Array(event.data));
+  }
+
+  push(pcm) {
+    const keep = Math.ceil(MAX_QUEUE_S * TARGET_RATE);
+    if (this.length + pcm.length > keep) { // too far behind: the oldest sound goes
+      const drop = Math.min(this.length, this.length + pcm.length - keep);
+      this.queue.copyWithin(0, drop, this.length);
+      this.length -= drop;
+      this.position = Math.max(0, this.position - drop);
+      this.dropped += drop;
+    }
+    const samples = pcm.subarray(Math.max(0, pcm.length - keep));
+    for (let i = 0; i < samples.length; i++) this.queue[this.length + i] = samples[i] / 32768;
+    this.length += samples.length;
+    if (this.length >= START_S * TARGET_RATE) this.started = true;
+  }
+
+  process(_inputs, outputs) {
+    const out = outputs[0][0];
+    if (!this.started) return true;
+    for (let i = 0; i < out.length; i++) {
+      const k = Math.floor(this.position);
+      if (k + 1 >= this.length) { // ran dry: wait for START_S again
+        this.started = false;
+        break;
+      }
+      const frac = this.position - k;
+      out[i] = this.queue[k] * (1 - frac) + this.queue[k + 1] * frac;
+      this.position += this.step;
+    }
+    for (let c = 1; c < outputs[0].length; c++) outputs[0][c].set(out);
+    const used = Math.floor(this.position);
+    if (used > 0) {
+      this.queue.copyWithin(0, used, this.length);
+      this.length -= used;
+      this.position -= used;
+    }
+    return true;
+  }
+}
+
+registerProcessor('a2p-playback', PlaybackProcessor);

@@ -13,7 +13,7 @@ Publications:
     stop, enable (std_msgs/Bool, transient local): the page's stop button and enable switch, as
         motion_filter_node expects them.
     /diagnostics: heartbeat, operators, floor, audio published and refused, wrong tokens, who
-        holds the stop, latency.
+        holds the stop, latency, pages watching the room and what they were sent.
 Subscriptions:
     joint_angles (naoqi_bridge_msgs/JointAnglesWithSpeed) and commanded_joint_states
         (sensor_msgs/JointState): the commanded pose for the 3D view, and the commands that end
@@ -22,6 +22,11 @@ Subscriptions:
         a ghost when present.
     raw_trajectory (its arrival only): pairs audio chunks with the poses they caused.
     stop, enable: their latched state, shown in the page.
+    camera/front/image_raw (sensor_msgs/Image): the robot's camera, as JPEG to every identified
+        page, at most :data:`MAX_PICTURES_PER_S` a second.
+    audio (naoqi_bridge_msgs/AudioBuffer): the robot's microphones, 16 kHz mono to every
+        identified page, the operator's own voice removed
+        (:class:`~audio2pose_ros.console.room_feed.EchoCanceller`).
     /diagnostics: the health of every node, shown in the page.
 Services used:
     <filter_node>/set_parameters, get_parameters (rcl_interfaces): the filter's live style
@@ -42,23 +47,26 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from audio_common_msgs.msg import AudioData, AudioInfo
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
+from naoqi_bridge_msgs.msg import AudioBuffer, JointAnglesWithSpeed
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.client import Client
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.task import Future
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros import topics
-from audio2pose_ros.audio.pcm import S16LE_MONO_16K
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
+from audio2pose_ros.audio.source import AudioInput, AudioInputSettings
 from audio2pose_ros.console.access import resolve_access
 from audio2pose_ros.console.latency import VoiceLatency
 from audio2pose_ros.console.protocol import AudioFrame
+from audio2pose_ros.console.room_feed import EchoCanceller, RoomItem, jpeg_from_image, level_dbfs
 from audio2pose_ros.console.server import ConsoleServer
 from audio2pose_ros.console.server_thread import ServerThread
 from audio2pose_ros.console.settings import ConsoleSettings
@@ -85,9 +93,23 @@ MAX_JOINT_STATE_BYTES = 65536  # as motion_filter_node's
 LISTEN_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.BEST_EFFORT
 )
+# The camera: only the newest picture matters; older ones are dropped before they arrive.
+CAMERA_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT
+)
+MAX_PICTURES_PER_S = 15.0  # pictures encoded for the pages at most; the rest are skipped
+MAX_IMAGE_BYTES = 1280 * 960 * 3 + 4096  # the largest picture taken (room_feed's limit)
+MAX_MICROPHONE_BYTES = 1 << 20  # naoqi_driver's buffers are 64 KiB
 AUDIO_PUBLISH_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE
 )
+
+
+def _taken_s(stamp: Any) -> float:
+    """A header stamp as wall-clock seconds; now when it is unset or in the future."""
+    now = time.time()
+    taken = stamp.sec + stamp.nanosec * 1e-9
+    return taken if 0.0 < taken <= now else now
 
 
 def _level(level: object) -> int:
@@ -127,6 +149,11 @@ class ConsoleNode(DiagnosedNode):
         self.health: dict[str, tuple[int, str, float]] = {}
         self.chunks_published = 0
         self.talking = False
+        self.microphones = AudioInput(AudioInputSettings(input_type="naoqi"))
+        self.echo = EchoCanceller()
+        self.room_sequence = 0
+        self.picture_s = -1e9  # when the last picture was encoded (monotonic)
+        self.room_level_dbfs = float("nan")
 
         self.audio_pub = self.create_publisher(AudioData, topics.AUDIO, AUDIO_PUBLISH_QOS)
         self.info_pub = self.create_publisher(AudioInfo, topics.AUDIO_INFO, LATCHED_QOS)
@@ -167,6 +194,14 @@ class ConsoleNode(DiagnosedNode):
         # Only the arrival time matters: the message is never decoded.
         self.create_subscription(
             JointTrajectory, topics.RAW_TRAJECTORY, guarded(self.on_raw), LISTEN_QOS, raw=True
+        )
+        bounded(Image, topics.CAMERA_IMAGE, self.on_camera, CAMERA_QOS, MAX_IMAGE_BYTES)
+        bounded(
+            AudioBuffer,
+            topics.ROBOT_MICROPHONES,
+            self.on_microphones,
+            LISTEN_QOS,
+            MAX_MICROPHONE_BYTES,
         )
         self.create_subscription(Bool, topics.STOP, guarded(self.on_stop), LATCHED_QOS)
         self.create_subscription(Bool, topics.ENABLE, guarded(self.on_enable), LATCHED_QOS)
@@ -225,7 +260,9 @@ class ConsoleNode(DiagnosedNode):
         """Publish one chunk of the floor holder's voice."""
         self.audio_pub.publish(AudioData(data=frame.pcm))
         published_s = time.time()
+        voice = np.frombuffer(frame.pcm, dtype="<i2").astype(np.float32) / 32768.0
         with self._lock:
+            self.echo.reference(voice, time.monotonic())
             self.chunks_published += 1
             self.latency.chunk_published(frame.stamp_ms * 1e-3, received_s, published_s)
 
@@ -394,6 +431,41 @@ class ConsoleNode(DiagnosedNode):
                         now,
                     )
 
+    def _to_pages(
+        self, sound: bool, taken_s: float, payload: bytes, levels: tuple[float, float] = (0.0, 0.0)
+    ) -> None:
+        """Hand one picture or block of sound to the server's loop for every identified page."""
+        if self.server_thread is None:
+            return
+        with self._lock:
+            self.room_sequence += 1
+            item = RoomItem(sound, self.room_sequence, taken_s, *levels, payload)
+        self.server_thread.loop.call_soon_threadsafe(self.server.offer_room, item)
+
+    def on_camera(self, msg: Image) -> None:
+        """The robot's camera: JPEG for the pages, at most MAX_PICTURES_PER_S a second."""
+        now = time.monotonic()
+        if now - self.picture_s < 1.0 / MAX_PICTURES_PER_S or not self.server.sessions:
+            return
+        self.picture_s = now
+        jpeg = jpeg_from_image(
+            int(msg.width), int(msg.height), str(msg.encoding), int(msg.step), bytes(msg.data)
+        )
+        self._to_pages(False, _taken_s(msg.header.stamp), jpeg)
+
+    def on_microphones(self, msg: AudioBuffer) -> None:
+        """The robot's microphones, 16 kHz mono, the operator's echo removed, to the pages."""
+        samples, _ = self.microphones.decode_audio_buffer(
+            int(msg.frequency), list(msg.channel_map), msg.data
+        )
+        with self._lock:
+            room = self.echo.process(samples, time.monotonic())
+        level, heard = level_dbfs(room), level_dbfs(samples)
+        self.room_level_dbfs = level
+        if self.server.sessions and room.size:
+            pcm = encode_pcm(room, S16LE_MONO_16K)
+            self._to_pages(True, _taken_s(msg.header.stamp), pcm, (level, heard))
+
     # --- snapshots for the pages (called from the server's thread) -------------------------------
 
     def pose(self) -> dict[str, Any]:
@@ -446,9 +518,23 @@ class ConsoleNode(DiagnosedNode):
             "chunks_published": chunks,
             "refused_connections": self.server.refused_connections,
             "refused_frames": self.server.refused_frames,
+            "room_watchers": self.server.watchers,
+            "room_level_dbfs": f"{self.room_level_dbfs:.1f}",
+            "echo_delay_s": f"{self.echo.delay_s:.3f}",
+            **self._room_counts(),
             **self._front_door_values(),
             **{f"latency_{key}": value for key, value in latency.items()},
         }
+
+    def _room_counts(self) -> dict[str, object]:
+        """Pictures and blocks of sound sent to the pages and dropped for slow ones."""
+        counts: dict[str, object] = {}
+        for what in ("sent", "dropped"):
+            for kind in ("picture", "sound"):
+                counts[f"room_{kind}s_{what}"] = sum(
+                    getattr(session.room, what)[kind] for session in self.server.sessions.values()
+                )
+        return counts
 
     def _front_door_values(self) -> dict[str, object]:
         """Wrong tokens, and who holds the stop (an absent holder marked as such)."""

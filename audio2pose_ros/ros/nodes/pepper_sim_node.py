@@ -10,6 +10,16 @@ Publications:
         naoqi_driver's 50 Hz.
     /diagnostics (diagnostic_msgs/DiagnosticArray): heartbeat every 0.5 s with the commands
         taken and refused and the self-collisions executed (steps with an arm inside the body).
+    camera/front/image_raw, camera/front/camera_info (sensor_msgs/Image rgb8, CameraInfo): the
+        head camera's view of a small room, while someone subscribes
+        (:class:`~audio2pose_ros.ros.nodes.sim_camera.SimCamera`).
+    audio (naoqi_bridge_msgs/AudioBuffer): the robot's microphones, hearing the room and the
+        voice its loudspeakers play (:mod:`~audio2pose_ros.ros.nodes.sim_voice`).
+
+The robot's voice side (a fake ALAudioDevice over real libqi, loudspeakers, microphones) and the
+emulated execution and loudspeaker latencies are :class:`~audio2pose_ros.ros.nodes.sim_voice.
+SimVoice` and its parameters; a ``joint_angles`` command is taken ``execution_latency_s`` after
+it arrived.
 
 The simulation itself is :class:`~audio2pose_ros.robot.simulated_pepper.SimulatedPepper`; this
 node advances it with the wall clock. Commands coalesce: the newest received before a
@@ -36,7 +46,10 @@ from audio2pose_ros.parameters import param, settings_from, specs_of, validate_s
 from audio2pose_ros.robot.simulated_pepper import SimulatedPepper
 from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
 from audio2pose_ros.ros.node_parameters import NodeParameters
+from audio2pose_ros.ros.nodes.sim_camera import SimCamera
+from audio2pose_ros.ros.nodes.sim_voice import SimVoice, SimVoiceSettings
 from audio2pose_ros.ros.spin import run_node
+from audio2pose_ros.voice.delay import DelayedCommands
 
 COMMAND_INPUTS = ("joint_angles", "joint_trajectory")
 STEP_PERIOD_S = 0.01  # the simulation follows the wall clock in steps of about this (s)
@@ -59,13 +72,24 @@ class PepperSimSettings:
             read_only=True,
         ),
     )
+    camera_fps: float = field(
+        default=10.0,
+        metadata=param(
+            "frames a second the head camera renders at most, while someone subscribes to it "
+            "(0: no camera)",
+            minimum=0.0,
+            maximum=30.0,
+            unit="Hz",
+            read_only=True,
+        ),
+    )
 
     def __post_init__(self) -> None:
         """Validate every field against its declaration."""
         validate_settings(self)
 
 
-PARAMETERS = specs_of(PepperSimSettings)
+PARAMETERS = (*specs_of(PepperSimSettings), *specs_of(SimVoiceSettings))
 
 
 class PepperSimNode(DiagnosedNode):
@@ -76,7 +100,13 @@ class PepperSimNode(DiagnosedNode):
         super().__init__("pepper_sim_node")
         self.parameters = NodeParameters(self, PARAMETERS)
         self.settings = settings_from(PepperSimSettings, self.parameters.values)
+        voice_settings = settings_from(SimVoiceSettings, self.parameters.values)
         self.sim = SimulatedPepper()
+        # (names, angles, speed) of joint_angles commands, taken after the execution latency
+        self.delayed: DelayedCommands[tuple[list[str], list[float], float]] = DelayedCommands(
+            voice_settings.execution_latency_s
+        )
+        self.voice = SimVoice(self, voice_settings)
         # Commands coalesce: the newest one received before a step is followed, those it
         # replaced are counted (messages_superseded); a flood costs the node nothing per message.
         if self.settings.command_input == "joint_angles":
@@ -94,6 +124,12 @@ class PepperSimNode(DiagnosedNode):
         # paced: no backlog of commands delays the simulation or its joint_states
         self.create_paced_timer(STEP_PERIOD_S, self.on_step)
         self.create_paced_timer(STATE_PERIOD_S, self.publish_state)
+        self.camera = SimCamera(self, self.settings.camera_fps, self.measured_pose)
+
+    def measured_pose(self) -> dict[str, float]:
+        """The measured joint angles by name (the camera's pose)."""
+        positions, _ = self.sim.measured()
+        return {n: float(a) for n, a in zip(self.sim.robot.names, positions, strict=True)}
 
     def refuse(self, kind: str, exc: InputError) -> None:
         """WARN about a refused command; the robot keeps its previous targets."""
@@ -104,9 +140,21 @@ class PepperSimNode(DiagnosedNode):
         try:
             if msg.relative:
                 raise InputError("relative angles are not supported; send absolute ones")
-            self.sim.set_angles(list(msg.joint_names), list(msg.joint_angles), float(msg.speed))
+            command = (list(msg.joint_names), list(msg.joint_angles), float(msg.speed))
+            if self.delayed.latency_s > 0.0:
+                self.delayed.push(time.time(), command)
+            else:
+                self.sim.set_angles(*command)
         except InputError as exc:
             self.refuse("joint_angles", exc)
+
+    def take_delayed(self) -> None:
+        """Take the joint_angles commands whose execution latency is over."""
+        for command in self.delayed.due(time.time()):
+            try:
+                self.sim.set_angles(*command)
+            except InputError as exc:
+                self.refuse("joint_angles", exc)
 
     def on_trajectory(self, msg: JointTrajectory) -> None:
         """Follow a trajectory's points at their times from now."""
@@ -129,6 +177,7 @@ class PepperSimNode(DiagnosedNode):
         At most MAX_CATCH_UP_S is made up at once.
         """
         self.commands.serve()
+        self.take_delayed()
         now = time.monotonic()
         elapsed = min(now - self.last_step_s, MAX_CATCH_UP_S)
         self.last_step_s = now
@@ -163,10 +212,14 @@ class PepperSimNode(DiagnosedNode):
             "simulated_s": f"{self.sim.time_s:.2f}",
             "self_collision_steps": counts.self_collision_steps,
             "deepest_self_collision_cm": f"{counts.deepest_m * 100:.2f}",
+            **self.camera.diagnostic_values(),
+            **self.voice.diagnostic_values(),
         }
 
     def destroy_node(self) -> None:
-        """Disconnect the simulation with the node."""
+        """Disconnect the simulation, end the camera and stop serving ALAudioDevice."""
+        self.camera.close()
+        self.voice.close()
         self.sim.close()
         super().destroy_node()
 

@@ -46,6 +46,7 @@ __all__ = [
     "pepper_sim_node",
     "prepare_node_process",
     "use_builtin_hashes",
+    "voice_out_node",
 ]
 
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
@@ -168,3 +169,8 @@ def pepper_sim_node() -> None:
 def console_node() -> None:
     """Console script ``console_node``."""
     _run("console_node")
+
+
+def voice_out_node() -> None:
+    """Console script ``voice_out_node``."""
+    _run("voice_out_node")

@@ -1,0 +1,197 @@
+"""The room in a real browser: the simulated Pepper's camera and microphones in the console.
+
+Debian's Chromium, driven by Playwright, with a fake microphone playing bundled speech, against
+the node graph, the simulated Pepper (its camera, its fake ALAudioDevice, loudspeaker and
+microphones), voice_out_node and console_node over DDS. The page shows the camera's picture,
+which changes when the head turns (``head_target``, a look-at, to the motion filter while the
+operator talks); it plays the room and
+shows its level; and while the operator talks, their voice, played by the robot's loudspeaker
+into its microphones, comes back at least 20 dB lower. Skipped where Chromium or Playwright is
+missing (see test_console_browser.py).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import os
+import tempfile
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from test_console_browser import CHROMIUM, CHROMIUM_ARGS, _answers, _console_url, _missing, _wait
+
+from audio2pose_ros.resources import bundled_speech_path, share_path
+
+TOKEN = "room-browser-token-0123456789"
+PAGE_WAIT_MS = 120_000  # a page rendering in software on two loaded cores; only a hung page
+MIN_SUPPRESSION_DB = 20.0
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+if _missing():
+    pytestmark.append(pytest.mark.skip(reason=_missing()))
+
+
+class HeadTurner:
+    """Publishes a head_target (HeadYaw, a look-at) to the motion filter at 10 Hz."""
+
+    def __init__(self) -> None:
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        from sensor_msgs.msg import JointState
+
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = Node("room_test_head", context=self.context)
+        self.pub = self.node.create_publisher(JointState, "/head_target", 10)
+        self.message = JointState(name=["HeadYaw"], position=[0.0])
+        self.yaw = 0.0
+        self.node.create_timer(0.1, self._publish)
+        self.head_yaw: list[float] = []  # the simulated robot's measured HeadYaw
+        self.node.create_subscription(JointState, "/joint_states", self._measured, 10)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.stopping = threading.Event()
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _publish(self) -> None:
+        if self.yaw:
+            self.message.position = [self.yaw]
+            self.message.header.stamp = self.node.get_clock().now().to_msg()
+            self.pub.publish(self.message)
+
+    def _measured(self, msg) -> None:
+        if "HeadYaw" in msg.name:
+            self.head_yaw.append(msg.position[list(msg.name).index("HeadYaw")])
+
+    def _spin(self) -> None:
+        while not self.stopping.is_set():
+            self.executor.spin_once(timeout_sec=0.1)
+
+    def close(self) -> None:
+        import rclpy
+
+        self.stopping.set()
+        self.thread.join(timeout=2.0)
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def _picture(page) -> np.ndarray:
+    from PIL import Image
+
+    shot = page.locator("#room-picture").screenshot()
+    return np.asarray(Image.open(io.BytesIO(shot)).convert("RGB"), dtype=np.int16)
+
+
+def _levels(page, blocks: int) -> np.ndarray:
+    """(sent, heard) dBFS of the next ``blocks`` blocks of the room's sound the page receives."""
+    rows = []
+    for _ in range(blocks):
+        seen = page.evaluate("window.a2p.room.soundBlocks")
+        page.wait_for_function(f"window.a2p.room.soundBlocks > {seen}")
+        room = page.evaluate("window.a2p.room")
+        rows.append((room["levelDb"], room["heardDb"]))
+    return np.array(rows, dtype=np.float64)
+
+
+def _power(dbfs: np.ndarray) -> float:
+    return float(np.mean(10.0 ** (dbfs / 10.0)))
+
+
+def test_when_the_operator_talks_to_the_simulated_room_expect_its_picture_sound_and_no_echo(
+    tmp_path: Path,
+) -> None:
+    from playwright.sync_api import sync_playwright
+
+    from audio2pose_ros.ros.console_runner import CONSOLE_NODE, console_command
+    from audio2pose_ros.ros.supervisor import executable_command, node_graph
+    from audio2pose_ros.ros.voice_graph import voice_out_processes
+
+    params = yaml.safe_load(share_path("config", "pepper.yaml").read_text(encoding="utf-8"))
+    params["motion_filter_node"]["ros__parameters"]["state_file"] = str(tmp_path / "state.json")
+    params_file = tmp_path / "params.yaml"
+    params_file.write_text(yaml.safe_dump(params), encoding="utf-8")
+    command = console_command(params_file, {"port": 0, "token": TOKEN}, tmp_path)
+    voice_nodes, sim_args = voice_out_processes("naoqi", True, executable_command)
+    logs = tmp_path / "logs"
+    with (
+        node_graph(
+            params_file,
+            log_dir=logs,
+            sim=True,
+            sim_args=sim_args,
+            more_nodes={CONSOLE_NODE: command, **voice_nodes},
+        ),
+        tempfile.TemporaryDirectory(prefix="audio2pose_chromium_") as profile,
+        sync_playwright() as p,
+    ):
+        turner = HeadTurner()
+        try:
+            url = _console_url(logs / f"{CONSOLE_NODE}.log")
+            _wait(lambda: _answers(url), 60.0, "the console's page")
+            browser = p.chromium.launch_persistent_context(
+                profile,
+                executable_path=str(CHROMIUM),
+                headless=True,
+                viewport={"width": 1100, "height": 760},
+                bypass_csp=True,
+                args=[
+                    *CHROMIUM_ARGS,
+                    "--autoplay-policy=no-user-gesture-required",
+                    f"--use-file-for-fake-audio-capture={bundled_speech_path()}",
+                ],
+            )
+            page = browser.new_page()
+            page.set_default_timeout(PAGE_WAIT_MS)
+            page.goto(f"{url}#token={TOKEN}")
+            page.wait_for_function(
+                "window.a2p.connected && window.a2p.room.framesDrawn > 2"
+                " && window.a2p.room.soundBlocks > 3 && window.a2p.room.watchers >= 1"
+            )
+            assert page.evaluate("window.a2p.room.playing") is True
+            assert page.locator("#room-watched").is_visible()
+            ahead = _picture(page)
+            silent = _levels(page, 8)
+
+            page.click("#talk")
+            page.wait_for_function("window.a2p.you === true")
+            _levels(page, 12)  # the voice reaches the loudspeaker after the motion's delay
+            talking = _levels(page, 30)
+            # a look-at to the left while the robot moves with the voice: the red box in view
+            turner.yaw = 1.0
+            drawn = page.evaluate("window.a2p.room.framesDrawn")
+            page.wait_for_function(f"window.a2p.room.framesDrawn > {drawn + 15}")
+            turned = _picture(page)
+            head_yaw = list(turner.head_yaw)
+            changed = float((np.abs(turned - ahead).max(axis=2) > 40).mean())
+            red = (turned[..., 0] > 150) & (turned[..., 1] < 80) & (turned[..., 2] < 80)
+            age_ms = page.evaluate("window.a2p.room.frameAgeMs")
+
+            if os.environ.get("AUDIO2POSE_CONSOLE_SHOTS"):  # the page, for the documentation
+                shot = Path(os.environ["AUDIO2POSE_CONSOLE_SHOTS"]) / "console_room.png"
+                page.screenshot(path=str(shot))
+            browser.close()
+        finally:
+            turner.close()
+
+    assert max(head_yaw) > 0.5, f"the head did not turn: HeadYaw up to {max(head_yaw):.2f} rad"
+    assert changed > 0.05, f"the picture did not follow the head ({changed:.3f} changed)"
+    assert red.mean() > 0.02, "the red box to Pepper's left is not in the turned picture"
+    assert age_ms is not None
+    assert age_ms >= 0.0
+    floor = _power(silent[:, 0])  # the room's own sound, as sent
+    heard = _power(talking[:, 1]) - floor  # the voice as the microphones heard it
+    left = max(_power(talking[:, 0]) - floor, 1e-12)  # what is left of it in what is sent
+    assert heard > 10.0 * floor, "the operator's voice did not reach the robot's microphones"
+    suppression_db = 10.0 * math.log10(heard / left)
+    print(f"room {10 * math.log10(floor):.1f} dBFS; voice heard {10 * math.log10(heard):.1f} "
+          f"dBFS; sent {suppression_db:.1f} dB lower")  # fmt: skip
+    assert suppression_db >= MIN_SUPPRESSION_DB

@@ -1,0 +1,234 @@
+"""The room back to the operator: JPEG pictures, per-page outboxes, the echo of their voice."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from scipy.signal import resample_poly
+
+from audio2pose_ros.audio.source import AudioInput, AudioInputSettings
+from audio2pose_ros.console.room_feed import (
+    ROOM_HEADER,
+    SOUND_DEPTH,
+    EchoCanceller,
+    RoomItem,
+    RoomOutbox,
+    encode_room_message,
+    jpeg_from_image,
+    level_dbfs,
+)
+from audio2pose_ros.errors import InputError
+
+RATE = 16000
+MIC_RATE = 48000
+MIC_FRAMES = 8192  # naoqi_driver's AudioBuffer: 8192 frames of 4 channels at 48 kHz
+CHUNK = 320  # the page's 20 ms chunks of the operator's voice
+
+
+def test_when_an_rgb8_image_is_encoded_expect_a_jpeg_of_its_size() -> None:
+    from PIL import Image
+
+    rgb = np.zeros((24, 32, 3), dtype=np.uint8)
+    rgb[:, :16, 0] = 255  # left half red
+    padded = np.concatenate([rgb, np.zeros((24, 4, 3), dtype=np.uint8)], axis=1)  # step > 3w
+    jpeg = jpeg_from_image(32, 24, "rgb8", 36 * 3, padded.tobytes())
+    decoded = np.asarray(Image.open(io.BytesIO(jpeg)))
+    assert decoded.shape == (24, 32, 3)
+    assert decoded[12, 4, 0] > 200
+    assert decoded[12, 28, 0] < 50
+    bgr = jpeg_from_image(32, 24, "bgr8", 32 * 3, rgb.tobytes())
+    assert np.asarray(Image.open(io.BytesIO(bgr)))[12, 4, 2] > 200  # red read as blue
+
+
+@pytest.mark.parametrize(
+    ("width", "height", "encoding", "step", "size", "match"),
+    [
+        (32, 24, "yuv422", 64, 64 * 24, "encoding"),
+        (0, 24, "rgb8", 96, 96 * 24, "pixels"),
+        (5000, 5000, "rgb8", 15000, 10, "pixels"),
+        (32, 24, "rgb8", 96, 96 * 23, "do not hold"),
+        (32, 24, "rgb8", 90, 96 * 24, "do not hold"),
+    ],
+)
+def test_when_an_image_is_malformed_expect_input_error(
+    width: int, height: int, encoding: str, step: int, size: int, match: str
+) -> None:
+    with pytest.raises(InputError, match=match):
+        jpeg_from_image(width, height, encoding, step, bytes(size))
+
+
+def picture(sequence: int) -> RoomItem:
+    return RoomItem(False, sequence, 0.0, 0.0, 0.0, b"jpeg")
+
+
+def sound(sequence: int) -> RoomItem:
+    return RoomItem(True, sequence, 0.0, -40.0, -30.0, b"pcm")
+
+
+def test_when_a_page_reads_slowly_expect_fewer_newer_pictures_and_bounded_sound() -> None:
+    outbox = RoomOutbox()
+    sent: list[RoomItem] = []
+    for k in range(100):  # 100 pictures and blocks of sound; the page takes one in ten
+        outbox.offer(picture(k))
+        outbox.offer(sound(k))
+        assert len(outbox.sound) <= SOUND_DEPTH
+        if k % 10 == 9:
+            item = outbox.take()
+            assert item is not None
+            sent.append(item)
+    while (item := outbox.take()) is not None:
+        sent.append(item)
+    pictures = [i.sequence for i in sent if not i.sound]
+    sounds = [i.sequence for i in sent if i.sound]
+    assert sounds == sorted(sounds)
+    assert pictures == sorted(pictures)
+    assert pictures[-1] == 99
+    assert sounds[-1] == 99
+    assert outbox.sent["picture"] + outbox.dropped["picture"] == 100
+    assert outbox.sent["sound"] + outbox.dropped["sound"] == 100
+    assert outbox.sent["picture"] == len(pictures) <= 11
+
+
+def test_when_a_page_reads_every_item_expect_nothing_dropped() -> None:
+    outbox = RoomOutbox()
+    for k in range(20):
+        outbox.offer(sound(k))
+        outbox.offer(picture(k))
+        assert outbox.take() == sound(k)
+        assert outbox.take() == picture(k)
+    assert outbox.dropped == {"picture": 0, "sound": 0}
+
+
+def test_when_a_room_message_is_encoded_expect_its_header_and_age() -> None:
+    item = RoomItem(True, 7, 100.0, -32.5, -12.25, b"\x01\x02")
+    data = encode_room_message(item, now_s=100.25)
+    fields = ROOM_HEADER.unpack(data[: ROOM_HEADER.size])
+    assert fields == (b"A2PS", 7, 250.0, -32.5, -12.25)
+    assert data[ROOM_HEADER.size :] == b"\x01\x02"
+
+
+def speech_like(seconds: float, seed: int) -> np.ndarray:
+    """Band-limited noise in syllables (4 Hz on/off), peak about -12 dBFS."""
+    rng = np.random.default_rng(seed)
+    n = int(seconds * RATE)
+    noise = rng.normal(0.0, 1.0, n)
+    spectrum = np.fft.rfft(noise)
+    freqs = np.fft.rfftfreq(n, 1 / RATE)
+    spectrum[(freqs < 100) | (freqs > 6000)] = 0.0
+    voice = np.fft.irfft(spectrum / np.maximum(freqs, 100.0) ** 0.5, n)
+    envelope = (np.sin(2 * np.pi * 4.0 * np.arange(n) / RATE) > -0.3).astype(float)
+    voice *= envelope
+    return (0.25 * voice / np.max(np.abs(voice))).astype(np.float32)
+
+
+def to_microphones(mono48: np.ndarray) -> list[np.ndarray]:
+    """48 kHz mono as naoqi_driver's 4-channel int16 buffers of 8192 frames."""
+    blocks = []
+    for start in range(0, mono48.size - MIC_FRAMES + 1, MIC_FRAMES):
+        frame = mono48[start : start + MIC_FRAMES]
+        four = np.stack([frame, 0.98 * frame, 1.01 * frame, frame], axis=1)
+        blocks.append(np.clip(np.round(four * 32767), -32768, 32767).astype(np.int16).ravel())
+    return blocks
+
+
+@pytest.mark.parametrize("delay_s", [0.0733, 0.4121])
+def test_when_the_operator_talks_expect_their_echo_at_least_20_db_lower(delay_s: float) -> None:
+    """The voice through a loudspeaker at 48 kHz, delayed and scaled, plus the room's noise.
+
+    Suppression is the voice's energy in the room's sound over what is left of it after the
+    canceller (the output minus the room's own sound decoded the same way), while it talks.
+    """
+    seconds = 4.0
+    voice = speech_like(seconds, seed=1)
+    rng = np.random.default_rng(2)
+    room48 = rng.normal(0.0, 0.004, int(seconds * MIC_RATE))  # the room's own sound
+    played = 0.6 * resample_poly(voice, 3, 1)  # the loudspeaker at 48 kHz
+    shift = round(delay_s * MIC_RATE)  # not a whole number of 16 kHz samples
+    echo48 = np.zeros_like(room48)
+    echo48[shift:] = played[: room48.size - shift]
+
+    canceller = EchoCanceller(RATE)
+    with_voice = AudioInput(AudioInputSettings(input_type="naoqi"))
+    room_only = AudioInput(AudioInputSettings(input_type="naoqi"))
+    voice_only = AudioInput(AudioInputSettings(input_type="naoqi"))
+    channel_map = [0, 1, 2, 3]
+    published = 0  # chunks of the voice published so far
+    outputs, rooms, echoes = [], [], []
+    blocks = zip(
+        to_microphones(room48 + echo48),
+        to_microphones(room48),
+        to_microphones(echo48),
+        strict=True,
+    )
+    for k, (mixed, room, echo) in enumerate(blocks):
+        arrived_s = 10.0 + (k + 1) * MIC_FRAMES / MIC_RATE + 0.003 * (k % 3)  # jitter
+        while (published + 1) * CHUNK / RATE <= arrived_s - 10.0:  # voice published by then
+            chunk = voice[published * CHUNK : (published + 1) * CHUNK]
+            canceller.reference(chunk, 10.0 + (published + 1) * CHUNK / RATE)
+            published += 1
+        decoded, _ = with_voice.decode_audio_buffer(MIC_RATE, channel_map, mixed)
+        outputs.append(canceller.process(decoded, arrived_s))
+        rooms.append(room_only.decode_audio_buffer(MIC_RATE, channel_map, room)[0])
+        echoes.append(voice_only.decode_audio_buffer(MIC_RATE, channel_map, echo)[0])
+    settle = 4  # the first blocks: the voice has not reached the room yet, or just
+    out = np.concatenate(outputs[settle:])
+    residual = out - np.concatenate(rooms[settle:])
+    echo = np.concatenate(echoes[settle:])
+    suppression_db = level_dbfs(echo) - level_dbfs(residual)
+    print(f"echo {level_dbfs(echo):.1f} dBFS, left {level_dbfs(residual):.1f} dBFS: "
+          f"{suppression_db:.1f} dB lower (delay found {canceller.delay_s:.4f} s)")  # fmt: skip
+    assert canceller.cancelled_blocks >= len(outputs) - settle
+    assert suppression_db >= 20.0
+    # the room's own sound passes: what is left is within 1 dB of it
+    assert abs(level_dbfs(out) - level_dbfs(np.concatenate(rooms[settle:]))) < 1.0
+
+
+def test_when_the_operator_is_silent_expect_the_room_unchanged() -> None:
+    canceller = EchoCanceller(RATE)
+    canceller.reference(np.zeros(CHUNK, dtype=np.float32), 1.0)
+    block = np.random.default_rng(3).normal(0.0, 0.01, 2731).astype(np.float32)
+    assert np.array_equal(canceller.process(block, 3.0), block)
+    assert canceller.cancelled_blocks == 0
+
+
+def test_when_the_voice_node_skips_and_holds_chunks_expect_the_echo_still_20_db_lower() -> None:
+    """The voice node releases the voice in 20 ms chunks and may skip or hold one back.
+
+    The echo's delay jumps by a chunk every 0.3 s (a skipped chunk, a held one); each block of
+    the room's sound spans such a jump now and then.
+    """
+    seconds = 4.0
+    voice = speech_like(seconds, seed=4)
+    played = []  # the voice as the loudspeaker plays it: chunks, some skipped, some repeated
+    for k in range(voice.size // CHUNK):
+        chunk = voice[k * CHUNK : (k + 1) * CHUNK]
+        if k % 15 == 7:
+            continue  # skipped: the voice goes on 20 ms earlier
+        played.append(chunk)
+        if k % 15 == 14:
+            played.append(np.zeros(CHUNK, dtype=np.float32))  # held back: 20 ms later
+    echo16 = np.concatenate([np.zeros(int(0.35 * RATE), dtype=np.float32), *played])
+    echo16 = 0.5 * echo16[: voice.size]
+    rng = np.random.default_rng(5)
+    room16 = rng.normal(0.0, 0.003, voice.size)
+    canceller = EchoCanceller(RATE)
+    block = 2731  # about naoqi_driver's 170 ms at 16 kHz
+    published = 0
+    outputs, echoes = [], []
+    for start in range(0, voice.size - block + 1, block):
+        arrived_s = (start + block) / RATE
+        while (published + 1) * CHUNK / RATE <= arrived_s:
+            chunk = voice[published * CHUNK : (published + 1) * CHUNK]
+            canceller.reference(chunk, (published + 1) * CHUNK / RATE)
+            published += 1
+        mixed = room16[start : start + block] + echo16[start : start + block]
+        outputs.append(canceller.process(mixed, arrived_s) - room16[start : start + block])
+        echoes.append(echo16[start : start + block])
+    settle = 3
+    residual = np.concatenate(outputs[settle:])
+    echo = np.concatenate(echoes[settle:])
+    suppression_db = level_dbfs(echo) - level_dbfs(residual)
+    print(f"chunks skipped and held: {suppression_db:.1f} dB lower")
+    assert suppression_db >= 20.0

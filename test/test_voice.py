@@ -1,0 +1,313 @@
+"""The voice out of the robot, without ROS: framing, delay line, lags, the delay, the NAOqi link.
+
+The NAOqi link is tested against the robot double over NAOqi's real protocol (a ``qi.Session``
+serving the fake ALAudioDevice on 127.0.0.1, a second one connecting to it).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from audio2pose_ros.errors import ConfigurationError
+from audio2pose_ros.voice.delay import DelayedCommands, DelayLine, SpeakerQueue
+from audio2pose_ros.voice.framing import (
+    MAX_FRAMES_PER_CALL,
+    MIC_CHANNELS,
+    MIC_FRAMES,
+    stereo_blocks,
+    stereo_pcm,
+)
+from audio2pose_ros.voice.lag import ChunkPairing, motion_lag, sound_lag
+from audio2pose_ros.voice.naoqi import NaoqiVoiceOut, parse_voice_out
+from audio2pose_ros.voice.robot_double import (
+    FakeAudioDevice,
+    RobotLoudspeaker,
+    RobotMicrophones,
+    serve_audio_device,
+)
+from audio2pose_ros.voice.sync import (
+    DEFAULTS_S,
+    MAX_DELAY_STEP_S,
+    MAX_PAUSE_STEP_S,
+    TARGET_LEAD_S,
+    SyncEstimator,
+    voice_delay_s,
+)
+
+
+def wait_for(condition, timeout_s: float = 30.0) -> None:
+    """Poll ``condition`` until it holds; a timeout only ends a hung test."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise TimeoutError("condition not met")
+        time.sleep(0.01)
+
+
+# --- framing ----------------------------------------------------------------------------------
+
+
+def test_when_mono_is_framed_expect_interleaved_16_bit_stereo_with_both_channels_equal():
+    mono = np.array([0.0, 0.5, -0.5, 1.0, -1.0, 2.0, np.nan], dtype=np.float32)
+    pcm = np.frombuffer(stereo_pcm(mono), dtype="<i2").reshape(-1, 2)
+    assert pcm.shape == (7, 2)
+    assert (pcm[:, 0] == pcm[:, 1]).all()
+    assert pcm[:, 0].tolist() == [0, 16384, -16384, 32767, -32767, 32767, 0]
+
+
+def test_when_a_long_voice_is_framed_expect_calls_of_at_most_16384_frames_and_none_lost():
+    mono = np.linspace(-0.5, 0.5, 2 * MAX_FRAMES_PER_CALL + 123)
+    calls = list(stereo_blocks(mono))
+    assert [n for n, _ in calls] == [MAX_FRAMES_PER_CALL, MAX_FRAMES_PER_CALL, 123]
+    assert all(len(buffer) == 4 * n for n, buffer in calls)
+
+
+# --- delay line -------------------------------------------------------------------------------
+
+
+def test_when_chunks_wait_expect_each_released_delay_after_arrival_in_order():
+    line = DelayLine(16000)
+    line.push(np.ones(320), 10.0)
+    line.push(2 * np.ones(320), 10.02)
+    assert line.due(10.09, 0.1) == []
+    first = line.due(10.10, 0.1)
+    assert [c.arrival_s for c in first] == [10.0]
+    assert [c.arrival_s for c in line.due(10.2, 0.1)] == [10.02]
+    assert line.released_samples == 640
+
+
+def test_when_the_line_overflows_expect_the_oldest_dropped_and_counted():
+    line = DelayLine(16000, max_s=0.05)
+    for k in range(5):
+        line.push(np.zeros(320), float(k))  # 20 ms each, 100 ms in all
+    assert line.held_s <= 0.05
+    assert line.dropped_s == pytest.approx(0.06)
+    assert [c.arrival_s for c in line.due(100.0, 0.0)] == [3.0, 4.0]  # the newest 40 ms
+
+
+def test_when_the_loudspeaker_queue_grows_expect_pauses_skipped_first_then_any_chunk():
+    queue = SpeakerQueue(16000, max_backlog_s=0.04, max_speech_backlog_s=0.15)
+    loud, quiet = 0.3 * np.ones(320), np.zeros(320)
+    starts = [queue.offer(10.0, loud) for _ in range(5)]  # 100 ms arrive at once
+    assert starts == pytest.approx([10.0, 10.02, 10.04, 10.06, 10.08])  # played back to back
+    assert queue.offer(10.0, quiet) is None  # a pause while 100 ms wait: skipped
+    assert queue.offer(10.0, loud) == pytest.approx(10.1)  # speech is still played
+    later = [queue.offer(10.0, loud) for _ in range(4)]  # beyond 150 ms: skipped too
+    assert [start is None for start in later] == [False, False, True, True]
+    assert queue.skipped_samples == 320
+    assert queue.speech_skipped_samples == 640
+    assert queue.offer(11.0, quiet) == 11.0  # the queue has drained: nothing is skipped
+
+
+# --- lags -------------------------------------------------------------------------------------
+
+
+def _wiggle(times: np.ndarray, n_joints: int = 3) -> np.ndarray:
+    rng = np.random.default_rng(0)
+    freqs, phases = rng.uniform(0.5, 3.0, n_joints), rng.uniform(0, 6, n_joints)
+    return np.stack(
+        [0.3 * np.sin(2 * np.pi * f * times + p) for f, p in zip(freqs, phases, strict=True)], 1
+    )
+
+
+@pytest.mark.parametrize("lag_s", [0.0, 0.037, 0.15, 0.31])
+def test_when_a_trajectory_follows_another_expect_its_lag_measured(lag_s):
+    t_a = np.arange(0.0, 6.0, 0.01)
+    t_b = np.arange(0.003, 6.0, 0.02)  # another rate and phase, like joint_states at 50 Hz
+    lag = motion_lag(t_a, _wiggle(t_a), t_b, _wiggle(t_b - lag_s), 0.6)
+    assert lag.score > 0.9
+    assert lag.lag_s == pytest.approx(lag_s, abs=0.006)
+
+
+def test_when_the_trajectories_do_not_move_expect_no_measurement():
+    t = np.arange(0.0, 3.0, 0.01)
+    lag = motion_lag(t, np.zeros((len(t), 3)), t, np.zeros((len(t), 3)), 0.5)
+    assert math.isnan(lag.lag_s)
+    assert lag.score == 0.0
+
+
+def _speechlike(seconds: float, rate: int, seed: int = 1) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    n = int(seconds * rate)
+    syllables = np.repeat(rng.uniform(0, 1, int(seconds * 5) + 1) > 0.4, rate // 5)[:n]
+    return 0.3 * rng.normal(size=n) * syllables
+
+
+@pytest.mark.parametrize("lag_s", [0.0, 0.05, 0.2])
+def test_when_the_microphones_hear_the_voice_expect_the_loudspeaker_lag_measured(lag_s):
+    voice = _speechlike(4.0, 16000)
+    sent = [(100.0 + k * 0.02, voice[k * 320 : (k + 1) * 320]) for k in range(len(voice) // 320)]
+    t48 = 100.0 + lag_s + np.arange(int(4.0 * 48000)) / 48000
+    mic = np.interp(t48 - lag_s, 100.0 + np.arange(len(voice)) / 16000, voice) * 0.5
+    mic += np.random.default_rng(2).normal(0, 0.004, len(mic))
+    heard = [(float(t48[k]), mic[k : k + 8192]) for k in range(0, len(mic), 8192)]
+    lag = sound_lag(sent, 16000, heard, 48000, 1.0)
+    assert lag.score > 0.8
+    assert lag.lag_s == pytest.approx(lag_s, abs=0.004)
+
+
+def test_when_poses_answer_chunks_expect_each_paired_with_the_newest_chunk_before_it():
+    pairing = ChunkPairing()
+    for t in (1.000, 1.020, 1.040):
+        pairing.chunk(t)
+    pairing.poses(1.045)  # the chunk of 1.040; the two before it stay unanswered and go
+    pairing.chunk(1.060)
+    pairing.poses(1.063)
+    assert list(pairing.latencies_s) == pytest.approx([0.005, 0.003])
+
+
+# --- the delay --------------------------------------------------------------------------------
+
+
+def test_when_the_motion_path_is_slower_expect_the_voice_held_back_to_lead_by_the_target():
+    assert voice_delay_s(0.08, 0.15, 0.05) == pytest.approx(0.08 + 0.15 - 0.05 + TARGET_LEAD_S)
+    assert voice_delay_s(0.0, 0.0, 0.5) == 0.0  # never negative: the voice cannot be earlier
+
+
+def test_when_nothing_is_measured_expect_the_documented_defaults_said_so():
+    sync = SyncEstimator(16000)
+    sync.update()
+    assert not any(part.measured for part in sync.parts.values())
+    assert [p.value_s for p in sync.parts.values()] == list(DEFAULTS_S.values())
+    assert "default: not measured" in sync.parts["execution"].describe()
+
+
+def test_when_the_robot_lags_its_commands_expect_its_latency_measured_and_the_delay_in_steps():
+    sync = SyncEstimator(16000)
+    before = sync.delay_s
+    t_cmd = np.arange(0.0, 5.0, 0.01)
+    t_meas = np.arange(0.0, 5.0, 0.02)
+    for t, row in zip(t_cmd, _wiggle(t_cmd), strict=True):
+        sync.on_commanded(float(t), row)
+    for t, row in zip(t_meas, _wiggle(t_meas - 0.15), strict=True):
+        sync.on_measured(float(t), row)
+    sync.update()
+    assert sync.parts["execution"].measured
+    assert sync.parts["execution"].value_s == pytest.approx(0.15, abs=0.01)
+    assert sync.delay_s - before == pytest.approx(MAX_DELAY_STEP_S)  # one step, not a jump
+    assert sync.target_delay_s() - sync.delay_s < MAX_PAUSE_STEP_S
+    sync.apply({}, pause=True)  # in a pause the rest of the way, at once
+    assert sync.delay_s == pytest.approx(sync.target_delay_s())
+    for _ in range(20):
+        sync.update()
+    assert sync.delay_s == pytest.approx(sync.target_delay_s())
+
+
+# --- the robot double and the NAOqi link, over NAOqi's real protocol ---------------------------
+
+
+@pytest.fixture
+def robot_audio():
+    speaker = RobotLoudspeaker(0.0, time.time)
+    device = FakeAudioDevice(speaker)
+    session, url = serve_audio_device("tcp://127.0.0.1:0", device)
+    yield device, speaker, url
+    session.close()
+
+
+def test_when_the_voice_is_sent_expect_the_fake_audio_device_gets_every_frame_at_the_rate(
+    robot_audio,
+):
+    device, speaker, url = robot_audio
+    voice = np.clip(_speechlike(1.0, 16000), -1, 1)
+    link = NaoqiVoiceOut(url, 16000)
+    link.start()
+    try:
+        wait_for(lambda: link.status().connected)
+        chunks = np.array_split(voice, 50)
+        for chunk in chunks:
+            link.send(chunk)
+        wait_for(lambda: link.status().frames_sent == len(voice))
+    finally:
+        link.stop()
+    assert device.rate_hz == 16000
+    assert device.refused == 0
+    assert speaker.frames_played == len(voice)
+    played = speaker.played_audio()
+    assert np.abs(played - np.round(voice * 32767) / 32768).max() < 1e-6  # the same samples
+
+
+def test_when_the_device_is_asked_wrong_expect_it_refuses_as_alaudiodevice_does(robot_audio):
+    import qi
+
+    device, speaker, url = robot_audio
+    session = qi.Session()
+    session.connect(url)
+    remote = session.service("ALAudioDevice")
+    assert remote.sendRemoteBufferToOutput(2, b"\x00" * 8) is False  # no output rate yet
+    with pytest.raises(RuntimeError):
+        remote.setParameter("outputSampleRate", 12345)
+    remote.setParameter("outputSampleRate", 48000)
+    assert remote.sendRemoteBufferToOutput(3, b"\x00" * 8) is False  # not 3 stereo frames
+    assert remote.sendRemoteBufferToOutput(16385, b"\x00" * 16385 * 4) is False
+    assert remote.sendRemoteBufferToOutput(2, b"\x00" * 8) is True
+    session.close()
+    assert device.refused == 4
+    assert device.calls == 1
+    assert speaker.frames_played == 2
+
+
+def test_when_naoqi_is_lost_and_back_expect_reported_retried_and_the_caller_never_waits():
+    speaker = RobotLoudspeaker(0.0, time.time)
+    device = FakeAudioDevice(speaker)
+    session, url = serve_audio_device("tcp://127.0.0.1:0", device)
+    link = NaoqiVoiceOut(url, 16000, retry_s=0.05)
+    link.start()
+    try:
+        wait_for(lambda: link.status().connected)
+        session.close()  # the robot goes away
+        for _ in range(200):  # 4 s of voice into a 1 s queue while nothing answers: all return
+            link.send(np.zeros(320))
+        wait_for(lambda: not link.status().connected)
+        lost = link.status()
+        assert lost.failures >= 1
+        assert lost.last_error
+        assert lost.queued_s <= 1.0 + 1e-9  # bounded
+        session, _ = serve_audio_device(url, device)  # the robot is back at the same address
+        wait_for(lambda: link.status().connected and link.status().connections == 2)
+        link.send(np.zeros(320))
+        wait_for(lambda: link.status().frames_sent >= 320)
+    finally:
+        link.stop()
+        session.close()
+    final = link.status()
+    assert final.dropped_s > 0.0  # what could not be played in step was dropped, and counted
+
+
+def test_when_a_voice_out_is_named_expect_it_parsed_or_refused_clearly():
+    assert parse_voice_out("naoqi:tcp://10.0.0.5:9559").url == "tcp://10.0.0.5:9559"
+    assert parse_voice_out("naoqi:10.0.0.5").url == "tcp://10.0.0.5:9559"
+    assert parse_voice_out("topic").kind == "topic"
+    for bad in ("naoqi:", "naoqi:tcp://host:99999", "speaker", "naoqi:http://h:1"):
+        with pytest.raises(ConfigurationError, match="expected 'off', 'topic'"):
+            parse_voice_out(bad)
+
+
+# --- the rest of the robot double ------------------------------------------------------------
+
+
+def test_when_the_loudspeaker_plays_expect_the_microphones_hear_it_after_its_latency():
+    now = [100.0]
+    speaker = RobotLoudspeaker(0.15, lambda: now[0])
+    microphones = RobotMicrophones(speaker, start_s=100.0)
+    speaker.play(0.8 * np.ones(1600), 16000)  # 100 ms of a loud tone at t = 100 s
+    buffers = microphones.due(100.0 + 2 * MIC_FRAMES / 48000)
+    assert len(buffers) == 2
+    assert buffers[0][1].shape == (MIC_FRAMES, MIC_CHANNELS)
+    signal = np.concatenate([pcm.mean(axis=1) for _, pcm in buffers]) / 32768.0
+    loud = np.flatnonzero(np.abs(signal) > 0.2)
+    assert loud[0] / 48000 == pytest.approx(0.15, abs=1e-3)
+    assert (loud[-1] - loud[0] + 1) / 48000 == pytest.approx(0.1, abs=1e-3)
+
+
+def test_when_commands_arrive_expect_them_taken_after_the_execution_latency_in_order():
+    delayed: DelayedCommands[str] = DelayedCommands(0.15)
+    delayed.push(1.0, "a")
+    delayed.push(1.01, "b")
+    assert delayed.due(1.149) == []
+    assert delayed.due(1.15) == ["a"]
+    assert delayed.due(2.0) == ["b"]
