@@ -55,7 +55,8 @@ def clocked_nodes(tmp_path, monkeypatch, robot):
             )
         args = ["--ros-args", "-p", f"state_file:={state}"]
         args += ["-p", f"start_without_measured_pose:={str(without).lower()}"]
-        built.append(rclpy.init(args=args))
+        rclpy.init(args=args)  # returns nothing before Kilted: remember it was called
+        built.append("rclpy")
         node = module.MotionFilterNode(subscribe_graph=False)
         built.append(node)
         return node, clock, graph, saved_pose

@@ -15,6 +15,7 @@ import pytest
 from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.resources import bundled_speech_path, share_path
 from audio2pose_ros.robot.description import RobotDescription, load_robot
+from audio2pose_ros.ros.player import rclpy_session
 
 # DDS must never leave loopback here, and parallel runs must not see each other's nodes.
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -99,10 +100,9 @@ def speech_files() -> list[Path]:
 @pytest.fixture
 def probe():
     """A rclpy participant playing audio_capture and recording the graph (test/graph_probe.py)."""
-    import rclpy
     from graph_probe import Probe
 
-    with rclpy.init():
+    with rclpy_session():
         node = Probe()
         yield node
         node.destroy_node()

@@ -25,7 +25,6 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-import rclpy
 from audio_common_msgs.msg import AudioData, AudioInfo
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
@@ -42,6 +41,7 @@ from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.messages import features_to_msg
+from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.topics import (
     AUDIO,
@@ -138,7 +138,7 @@ KINDS: dict[str, Callable[..., Flood]] = {
 
 
 def main(kind: str, seconds: float) -> None:
-    with rclpy.init():
+    with rclpy_session():
         node = Node("flood_publisher")
         name, *target = kind.split(":")
         ready, send = KINDS[name](node, *target)

@@ -18,11 +18,13 @@ import rclpy.task
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 
+from audio2pose_ros.ros.player import rclpy_session
+
 IN_FLIGHT = 50
 
 
 def main(name: str, seconds: float, values: list[float]) -> None:
-    with rclpy.init():
+    with rclpy_session():
         node = rclpy.create_node("parameter_storm")
         client = node.create_client(SetParameters, "/motion_filter_node/set_parameters")
         if not client.wait_for_service(timeout_sec=30):

@@ -8,6 +8,7 @@ import rclpy
 from naoqi_bridge_msgs.msg import AudioBuffer
 
 from audio2pose_ros.audio.source import NAOQI_CHANNELS
+from audio2pose_ros.ros.player import rclpy_session
 
 # RIHS01 hash of msg/AudioBuffer.msg at ros-naoqi/naoqi_bridge_msgs2 commit 73ac611, computed
 # by rosidl_generator_type_description (Kilted wheels of this venv) from the upstream file.
@@ -34,7 +35,7 @@ def test_when_audio_buffer_constants_read_expect_the_channel_names_the_node_acce
 
 @pytest.mark.ros
 def test_when_audio_buffer_published_expect_the_upstream_type_hash():
-    with rclpy.init():
+    with rclpy_session():
         node = rclpy.create_node("audio_buffer_hash")
         try:
             node.create_publisher(AudioBuffer, "audio_buffer_hash_probe", 1)

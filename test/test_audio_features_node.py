@@ -26,6 +26,7 @@ from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmDecoder, PcmFormat, enco
 from audio2pose_ros.audio.streaming import StreamingFeatureExtractor
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR
 from audio2pose_ros.ros.messages import msg_to_features
+from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS
 from audio2pose_ros.ros.tools.process_stats import rss_mb
 from audio2pose_ros.topics import DIAGNOSTICS
@@ -116,7 +117,7 @@ def features_node(tmp_path: Path, *parameters: str) -> Iterator[subprocess.Popen
 @pytest.fixture
 def peer(request: pytest.FixtureRequest) -> Iterator[Peer]:
     """A Peer playing audio_capture, or naoqi_driver when parametrized with "naoqi"."""
-    with rclpy.init():
+    with rclpy_session():
         node = Peer(naoqi=getattr(request, "param", "") == "naoqi")
         yield node
         node.destroy_node()
@@ -243,7 +244,7 @@ def test_when_parameters_described_and_set_live_expect_descriptors_and_validated
 
     from audio2pose_ros.ros.nodes.audio_features_node import PARAMETERS, AudioFeaturesNode
 
-    with rclpy.init(args=["--ros-args", "-p", "max_chunk_s:=1"]):
+    with rclpy_session(["--ros-args", "-p", "max_chunk_s:=1"]):
         node = AudioFeaturesNode()
         try:
             assert node.get_parameter("max_chunk_s").value == 1.0

@@ -173,6 +173,7 @@ def test_when_the_packaged_model_streams_expect_neither_pinocchio_nor_coal_in_it
         from audio2pose_ros.resources import default_checkpoint_path
         from audio2pose_ros.robot.description import load_robot
         from audio2pose_ros.ros.nodes.inference_node import InferenceNode
+        from audio2pose_ros.ros.player import rclpy_session
 
         model = load_streaming_model(default_checkpoint_path(), robot=load_robot())
         predictor = model.predictor(seed=0)
@@ -180,7 +181,7 @@ def test_when_the_packaged_model_streams_expect_neither_pinocchio_nor_coal_in_it
         frames = model.normalizer.mean + rng.normal(size=(200, model.normalizer.mean.size))
         poses = [predictor.step(frame) for frame in frames]
         assert np.isfinite(poses).all()
-        with rclpy.init():
+        with rclpy_session():
             node = InferenceNode()
             node.destroy_node()
         loaded = sorted(m for m in ("pinocchio", "coal", "hppfcl", "eigenpy") if m in sys.modules)

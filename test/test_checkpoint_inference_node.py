@@ -16,16 +16,16 @@ from node_processes import configuration_error_line
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.ros.messages import features_to_msg
+from audio2pose_ros.ros.player import rclpy_session
 
 
 @pytest.fixture
 def node(monkeypatch):
     """An InferenceNode on the packaged model whose published trajectories are collected."""
-    import rclpy
 
     from audio2pose_ros.ros.nodes.inference_node import InferenceNode
 
-    with rclpy.init():
+    with rclpy_session():
         inference = InferenceNode()
         published: list[JointTrajectory] = []  # what it sends
         monkeypatch.setattr(inference.trajectory_pub, "publish", published.append)

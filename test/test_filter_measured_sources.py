@@ -22,6 +22,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
+from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.topics import COMMANDED_JOINT_STATES, DIAGNOSTICS, JOINT_STATES, absolute
 
@@ -77,7 +78,7 @@ class Observer(Node):
 @pytest.fixture
 def graph(tmp_path, robot):
     """(observer, driver, other, executor) with the filter process started; all torn down."""
-    with rclpy.init():
+    with rclpy_session():
         observer = Observer()
         driver = Driver("robot_driver", list(robot.names))
         other = Driver("second_publisher", list(robot.names))
@@ -217,7 +218,7 @@ def test_when_the_driver_is_discovered_after_the_startup_timeout_expect_no_comma
     robot over Wi-Fi, discovered late). Before: the filter started from neutral at
     ``startup_timeout_s`` and commanded the robot there, 1.37 rad from where it stood."""
     real, _ = real_and_wrong(robot)  # the left arm forward, 1.37 rad from neutral
-    with rclpy.init():
+    with rclpy_session():
         observer = Observer()
         executor = rclpy.executors.SingleThreadedExecutor()
         executor.add_node(observer)

@@ -33,6 +33,7 @@ from trajectory_msgs.msg import JointTrajectory
 from audio2pose_ros.ros.executor import EXECUTOR_ENV, create_executor
 from audio2pose_ros.ros.messages import trajectory_msg
 from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
+from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.spin import spin_once
 from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.topics import COMMANDED_JOINT_STATES, DIAGNOSTICS, RAW_TRAJECTORY, absolute
@@ -125,7 +126,7 @@ def filter_process(tmp_path):
 
 @pytest.fixture
 def operator(robot):
-    with rclpy.init():
+    with rclpy_session():
         node = Operator()
         node.robot_names = list(robot.names)
         yield node
@@ -235,7 +236,7 @@ def node_in_process(request, tmp_path, monkeypatch):
     monkeypatch.setenv(EXECUTOR_ENV, request.param)
     args = ["--ros-args", "-p", f"state_file:={tmp_path / 'state.json'}"]
     args += ["-p", "start_without_measured_pose:=true"]  # no robot here
-    with rclpy.init(args=args):
+    with rclpy_session(args):
         node = MotionFilterNode(subscribe_graph=False)
         client_node = rclpy.create_node("storm_client")
         executor = create_executor()

@@ -44,7 +44,7 @@ from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_PERIOD_S, DiagnosedNode
 from audio2pose_ros.ros.nodes.audio_features_node import AudioFeaturesNode
 from audio2pose_ros.ros.nodes.pepper_sim_node import STATE_PERIOD_S
 from audio2pose_ros.ros.paced_timer import PacedTimer
-from audio2pose_ros.ros.player import spin_until
+from audio2pose_ros.ros.player import rclpy_session, spin_until
 from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.ros.tools.process_stats import cpu_s
 from audio2pose_ros.topics import DIAGNOSTICS, JOINT_STATES, absolute
@@ -156,7 +156,7 @@ def flood(tmp_path: Path, executable: str, kind: str, *ros_args: str) -> Heard:
         stamp = _stamp_s(array)
         heard.beats.extend((stamp, s) for s in array.status if s.name.endswith(executable))
 
-    with rclpy.init():
+    with rclpy_session():
         probe = Node("flood_probe")
         probe.create_subscription(DiagnosticArray, DIAGNOSTICS, on_diagnostics, 1000)
         probe.create_subscription(
@@ -301,7 +301,7 @@ def test_when_a_paced_timer_is_rescheduled_expect_its_new_phase_and_no_run_while
 
 
 def test_when_commands_flood_a_coalescing_subscription_expect_the_newest_and_a_count():
-    with rclpy.init():
+    with rclpy_session():
         node = DiagnosedNode("coalescing_check")
         try:
             served: list[JointAnglesWithSpeed] = []
@@ -337,7 +337,7 @@ def test_when_audio_comes_in_one_byte_chunks_expect_the_features_of_whole_chunks
     pcm = encode_pcm(speech[:16000], S16LE_MONO_16K)  # 1 s of speech
     outputs = []
     for chunk_bytes in (len(pcm), 1):
-        with rclpy.init():
+        with rclpy_session():
             node = AudioFeaturesNode()
             try:
                 frames: list[np.ndarray] = []

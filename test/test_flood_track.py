@@ -27,6 +27,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.ros.messages import trajectory_msg
+from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.qos import STREAM_QOS
 from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.topics import COMMANDED_JOINT_STATES, JOINT_STATES, RAW_TRAJECTORY, absolute
@@ -118,7 +119,7 @@ def phase_of(operator: Operator, stamp_s: float) -> float:
 def test_when_another_input_floods_expect_commands_within_a_tenth_of_a_radian_of_their_track(
     filter_process, robot, kind
 ):
-    with rclpy.init():
+    with rclpy_session():
         operator = Operator(robot)
         try:
             deadline = time.monotonic() + 60

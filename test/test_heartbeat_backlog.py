@@ -29,7 +29,7 @@ from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_OVERDUE_S, HEARTBEAT_PERIOD_S, DiagnosedNode
 from audio2pose_ros.ros.messages import features_to_msg
-from audio2pose_ros.ros.player import spin_until
+from audio2pose_ros.ros.player import rclpy_session, spin_until
 from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.topics import AUDIO, AUDIO_INFO, DIAGNOSTICS, FEATURES, absolute
@@ -43,7 +43,7 @@ FLOOD_S = 8.0  # longer than a supervisor's RESTART_AFTER_S: the old node went s
 
 @pytest.fixture
 def node():
-    with rclpy.init():
+    with rclpy_session():
         node = DiagnosedNode("backlog_check")
         yield node
         node.destroy_node()
@@ -149,7 +149,7 @@ def test_when_a_node_is_flooded_expect_heartbeats_throughout(
         stamp_s = array.header.stamp.sec + array.header.stamp.nanosec * 1e-9
         beats.extend((stamp_s, s) for s in array.status if s.name.endswith(executable))
 
-    with rclpy.init():
+    with rclpy_session():
         probe = Node("flood_probe")
         probe.create_subscription(DiagnosticArray, DIAGNOSTICS, on_diagnostics, 100)
         send = flood(probe)

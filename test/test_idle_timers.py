@@ -12,7 +12,6 @@ from collections import Counter
 
 import numpy as np
 import pytest
-import rclpy
 from audio_common_msgs.msg import AudioData, AudioInfo
 from rclpy.parameter import Parameter
 from std_msgs.msg import Bool
@@ -23,6 +22,7 @@ from audio2pose_ros.motion.state_file import load_memory
 from audio2pose_ros.ros.executor import EXECUTOR_ENV, create_executor
 from audio2pose_ros.ros.nodes.audio_features_node import AudioFeaturesNode
 from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
+from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.spin import spin_once
 
 pytestmark = pytest.mark.ros
@@ -65,7 +65,7 @@ def test_when_the_started_filter_is_idle_expect_no_timer_but_its_tick_and_heartb
     monkeypatch.setenv("ROS_HOME", str(tmp_path))
     state = tmp_path / "state.json"
     no_robot = ["-p", "start_without_measured_pose:=true"]
-    with rclpy.init(args=["--ros-args", "-p", f"state_file:={state}", *no_robot]):
+    with rclpy_session(["--ros-args", "-p", f"state_file:={state}", *no_robot]):
         node = MotionFilterNode(subscribe_graph=False)
         executor = create_executor()
         try:
@@ -110,7 +110,7 @@ def test_when_the_started_filter_is_idle_expect_no_timer_but_its_tick_and_heartb
 def test_when_the_features_node_is_idle_expect_no_flush_timer_until_audio_waits(
     executor_kind, speech
 ):
-    with rclpy.init():
+    with rclpy_session():
         node = AudioFeaturesNode()
         executor = create_executor()
         try:

@@ -36,7 +36,8 @@ def make_node(tmp_path, monkeypatch):
         args = ["--ros-args", "-p", f"state_file:={tmp_path / 'state.json'}"]
         for parameter in parameters:
             args += ["-p", parameter]
-        context = rclpy.init(args=args)
+        rclpy.init(args=args)  # returns nothing before Kilted
+        context = True
         nodes.append(MotionFilterNode(subscribe_graph=False))
         return nodes[-1]
 

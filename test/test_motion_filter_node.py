@@ -26,6 +26,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR
 from audio2pose_ros.ros.messages import trajectory_msg
+from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.qos import LATCHED_QOS
 from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.topics import (
@@ -109,7 +110,7 @@ class Driver(Node):
 
 @pytest.fixture
 def driver():
-    with rclpy.init():
+    with rclpy_session():
         node = Driver()
         yield node
         node.destroy_node()

@@ -7,6 +7,7 @@ import pytest
 
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.robot.simulated_pepper import SimulatedPepper
+from audio2pose_ros.ros.player import rclpy_session
 
 
 @pytest.fixture
@@ -140,12 +141,11 @@ def test_when_the_arms_swing_between_their_limits_expect_every_measured_pose_wit
 @pytest.mark.ros
 def test_when_a_command_names_a_huge_joint_expect_a_short_refusal_on_the_heartbeat(monkeypatch):
     """The refusal quotes the name; the node's status must not carry 60 kB twice a second."""
-    import rclpy
     from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 
     from audio2pose_ros.ros.nodes.pepper_sim_node import PepperSimNode
 
-    with rclpy.init():
+    with rclpy_session():
         node = PepperSimNode()
         try:
             sent = []

@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.serialization import deserialize_message
 from stateless_model import stateless_checkpoint
@@ -22,6 +21,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.data.bag import Chunking, audio_messages, read_messages
 from audio2pose_ros.robot.description import RobotDescription, load_robot
+from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.recorder import play_and_record
 from audio2pose_ros.ros.supervisor import SINGLE_PROCESS, node_graph
 from audio2pose_ros.topics import JOINT_ANGLES, RAW_TRAJECTORY, absolute
@@ -45,7 +45,7 @@ def _run(
             overrides=[f"model_path:={model}"],
             no_robot=True,
         ) as graph,
-        rclpy.init(),
+        rclpy_session(),
     ):
         processes = dict(graph.processes)
         play_and_record(messages, bag, tail_s=0.5)

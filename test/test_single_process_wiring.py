@@ -11,7 +11,6 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import pytest
-import rclpy
 from audio_common_msgs.msg import AudioData, AudioInfo
 
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
@@ -20,6 +19,7 @@ from audio2pose_ros.ros.nodes.audio_features_node import AudioFeaturesNode
 from audio2pose_ros.ros.nodes.inference_node import InferenceNode
 from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
 from audio2pose_ros.ros.nodes.single_process import connect
+from audio2pose_ros.ros.player import rclpy_session
 
 pytestmark = pytest.mark.ros
 
@@ -36,7 +36,7 @@ def test_when_connected_expect_every_frame_reaches_the_filter_without_messages(
     tmp_path, speech, monkeypatch
 ):
     monkeypatch.setenv("ROS_HOME", str(tmp_path))
-    with rclpy.init(args=["--ros-args", "-p", "start_without_measured_pose:=true"]):
+    with rclpy_session(["--ros-args", "-p", "start_without_measured_pose:=true"]):
         features, inference, motion = nodes = _nodes()
         connect(nodes)
         motion.on_startup_timeout()  # start from neutral now: no robot here
@@ -60,7 +60,7 @@ def test_when_the_filter_commands_a_joint_the_model_lacks_expect_a_configuration
     tmp_path, monkeypatch
 ):
     monkeypatch.setenv("ROS_HOME", str(tmp_path))
-    with rclpy.init():
+    with rclpy_session():
         nodes = _nodes()
         fewer = SimpleNamespace(names=nodes[1].robot.names[:-1])  # a model for fewer joints
         monkeypatch.setattr(nodes[1], "robot", fewer)

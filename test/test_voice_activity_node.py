@@ -10,7 +10,6 @@ from __future__ import annotations
 import time
 
 import pytest
-import rclpy
 from audio_common_msgs.msg import AudioData, AudioInfo
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -19,6 +18,7 @@ from std_msgs.msg import Bool
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.audio.vad import EnergyVad
 from audio2pose_ros.ros.nodes.audio_features_node import VOICE_REFRESH_S, AudioFeaturesNode
+from audio2pose_ros.ros.player import rclpy_session
 
 pytestmark = pytest.mark.ros
 
@@ -37,7 +37,7 @@ def test_when_speech_plays_expect_voice_messages_on_changes_and_refreshes_only(s
     vad = EnergyVad()
     expected = [vad.push(chunk) for chunk in chunks]
     received: list[bool] = []
-    with rclpy.init():
+    with rclpy_session():
         node = AudioFeaturesNode()
         peer = Node("voice_peer")
         peer.create_subscription(Bool, "voice_activity", lambda m: received.append(m.data), 1000)

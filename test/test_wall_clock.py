@@ -11,13 +11,12 @@ import subprocess
 import time
 
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_PERIOD_S, USE_SIM_TIME, DiagnosedNode
-from audio2pose_ros.ros.player import spin_until
+from audio2pose_ros.ros.player import rclpy_session, spin_until
 from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.topics import DIAGNOSTICS
 
@@ -25,7 +24,7 @@ pytestmark = pytest.mark.ros
 
 
 def test_when_use_sim_time_is_set_expect_the_wall_clock_and_timers_running():
-    with rclpy.init(args=["--ros-args", "-p", f"{USE_SIM_TIME}:=true"]):
+    with rclpy_session(["--ros-args", "-p", f"{USE_SIM_TIME}:=true"]):
         node = DiagnosedNode("wall_clock_check")
         try:
             sent: list[DiagnosticArray] = []
@@ -64,7 +63,7 @@ def test_when_the_filter_process_is_started_on_sim_time_expect_its_heartbeat(tmp
         )
         heard: list[DiagnosticArray] = []
         try:
-            with rclpy.init():
+            with rclpy_session():
                 probe = Node("wall_clock_probe")
                 probe.create_subscription(
                     DiagnosticArray,
