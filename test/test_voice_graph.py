@@ -3,11 +3,12 @@
 The graph, the simulated Pepper (its fake ALAudioDevice served through real libqi on 127.0.0.1)
 and voice_out_node run as processes; an observer plays speech in as the console does and
 records what the robot reports (:mod:`audio2pose_ros.ros.tools.voice_bench`). Judged from
-counts, stamps and event order: the voice arrives whole, in ALAudioDevice's format and rate;
-after calibration the motion reaches the joints between 80 ms before and 20 ms after the voice
-is heard (the median, and two windows of 2 s in three), at emulated execution latencies of 0
-and 150 ms; a NAOqi that goes away and comes
-back changes nothing in the motion.
+counts, stamps and event order: the voice arrives whole, in ALAudioDevice's format and rate,
+held back by the three latencies measured where the simulated robot puts them; after
+calibration the motion reaches the joints between 80 ms before and 20 ms after the voice is
+heard (the median, and two windows of 2 s in three; a long test: a machine loaded far beyond
+its cores takes the two paths out of step), at emulated execution latencies of 0 and 150 ms;
+a NAOqi that goes away and comes back changes nothing in the motion.
 """
 
 from __future__ import annotations
@@ -33,17 +34,22 @@ from audio2pose_ros.ros.tools.voice_bench import (
 )
 from audio2pose_ros.ros.voice_graph import VOICE_NODE, free_local_url, voice_out_processes
 from audio2pose_ros.voice.robot_double import FakeAudioDevice, RobotLoudspeaker, serve_audio_device
-from audio2pose_ros.voice.sync import WINDOW_EARLY_S, WINDOW_LATE_S
+from audio2pose_ros.voice.sync import MAX_DELAY_STEP_S, TARGET_LEAD_S, WINDOW_EARLY_S, WINDOW_LATE_S
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
+def _ms(value: str) -> int:
+    """The milliseconds of a /diagnostics value such as ``132 ms (measured, 15)``."""
+    return int(value.split()[0])
+
+
 @pytest.mark.parametrize("execution_latency_s", [0.0, 0.15])
-def test_when_the_operator_talks_expect_the_voice_whole_at_the_robot_and_in_step_with_the_motion(
+def test_when_the_operator_talks_expect_the_voice_whole_and_held_back_by_the_measured_latencies(
     tmp_path: Path, execution_latency_s: float
 ):
     result = measure_voice(
-        bundled_speech(), execution_latency_s, duration_s=30.0, calibrate_s=20.0, log_dir=tmp_path
+        bundled_speech(), execution_latency_s, duration_s=10.0, calibrate_s=20.0, log_dir=tmp_path
     )
     robot, voice = result.robot, result.voice_node
     assert result.restarts == 0
@@ -55,21 +61,36 @@ def test_when_the_operator_talks_expect_the_voice_whole_at_the_robot_and_in_step
     skipped = int(voice["pauses_skipped_frames"]) + int(voice["speech_skipped_frames"])
     assert played + skipped == result.samples_published
     assert played > 0.5 * result.samples_published
-    assert voice["naoqi_dropped_s"] == "0.00"
-    # calibrated from measurements, not from the defaults
+    # the three parts measured, not the defaults, and each where the simulated robot puts it:
+    # the execution latency and its motors' tracking, the loudspeaker latency and its queue
     for part in ("graph_latency", "execution_latency", "loudspeaker_latency"):
         assert "measured" in voice[part], voice
+    execution, loudspeaker = _ms(voice["execution_latency"]), _ms(voice["loudspeaker_latency"])
+    assert execution_latency_s * 1e3 <= execution <= execution_latency_s * 1e3 + 100, voice
+    assert 50 <= loudspeaker <= 50 + 100, voice
+    # the voice held back by what they call for (two steps of the delay's slew at most)
+    target = _ms(voice["graph_latency"]) + execution - loudspeaker + TARGET_LEAD_S * 1e3
+    assert abs(int(voice["voice_delay_ms"]) - max(target, 0.0)) <= 2 * MAX_DELAY_STEP_S * 1e3 + 1
+
+
+@pytest.mark.long
+@pytest.mark.parametrize("execution_latency_s", [0.0, 0.15])
+def test_when_calibrated_expect_the_motion_within_80_ms_before_to_20_ms_after_the_voice(
+    tmp_path: Path, execution_latency_s: float
+):
+    result = measure_voice(
+        bundled_speech(), execution_latency_s, duration_s=30.0, calibrate_s=20.0, log_dir=tmp_path
+    )
+    assert result.restarts == 0
     # motion - heard, judged from the robot's microphones and joint states in 2 s windows: the
     # median inside the window, and two windows in three (a loaded machine delays a burst of
-    # chunks now and then, which both paths take out of step for a moment)
+    # chunks now and then, which both paths take out of step for a moment: under a load
+    # average of 25 on 2 cores this fails, see doc/performance.md)
     assert len(result.offsets_s) >= 5
     offsets_ms = np.asarray(result.offsets_s) * 1e3
     inside = (offsets_ms >= -WINDOW_EARLY_S * 1e3) & (offsets_ms <= WINDOW_LATE_S * 1e3)
-    assert -WINDOW_EARLY_S * 1e3 <= np.median(offsets_ms) <= WINDOW_LATE_S * 1e3, (
-        offsets_ms,
-        voice,
-    )
-    assert inside.mean() >= 2 / 3, (offsets_ms.round(), voice)
+    assert -WINDOW_EARLY_S * 1e3 <= np.median(offsets_ms) <= WINDOW_LATE_S * 1e3, offsets_ms
+    assert inside.mean() >= 2 / 3, offsets_ms.round()
 
 
 def test_when_naoqi_is_lost_and_restored_expect_the_motion_untouched_and_the_loss_reported(

@@ -15,8 +15,8 @@ voice node's own estimates:
   transport and the loudspeaker;
 - when the motion made from it *reaches the joints*: the lag from a chunk's publication to the
   pose message computed from it (event order, :class:`~audio2pose_ros.voice.lag.ChunkPairing`)
-  plus the lag from those poses to the measured joints (:func:`~audio2pose_ros.voice.lag.
-  motion_lag`: filter, transport and execution together);
+  plus the lag from those poses to the measured joints
+  (:func:`~audio2pose_ros.voice.lag.motion_lag`: filter, transport and execution together);
 
 and gives ``motion - heard`` (negative: the motion comes first). The window the voice is held to
 is [-80 ms, +20 ms] (:mod:`audio2pose_ros.voice.sync`). This module does not import rclpy.

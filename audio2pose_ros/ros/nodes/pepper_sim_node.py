@@ -17,17 +17,9 @@ Publications:
         voice its loudspeakers play (:mod:`~audio2pose_ros.ros.nodes.sim_voice`).
 
 The robot's voice side (a fake ALAudioDevice over real libqi, loudspeakers, microphones) and the
-emulated execution and loudspeaker latencies are :class:`~audio2pose_ros.ros.nodes.sim_voice.
-SimVoice` and its parameters; a ``joint_angles`` command is taken ``execution_latency_s`` after
-it arrived.
-
-The simulation itself is :class:`~audio2pose_ros.robot.simulated_pepper.SimulatedPepper`; this
-node advances it with the wall clock. Commands coalesce: the newest received before a
-simulation step (10 ms) is followed, and those it replaced unserved are counted
-(``messages_superseded``), so a flood of commands costs no work per message and delays neither
-the simulation nor its joint_states (paced timers, see DiagnosedNode). A malformed command
-(unknown joints, NaN, a speed outside (0, 1], relative angles) is refused with a WARN; nothing a
-command holds can stop the node.
+emulated execution and loudspeaker latencies are
+:class:`~audio2pose_ros.ros.nodes.sim_voice.SimVoice` and its parameters; a ``joint_angles``
+command is taken ``execution_latency_s`` after it arrived.
 """
 
 from __future__ import annotations
