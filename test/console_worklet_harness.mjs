@@ -1,11 +1,11 @@
-// Runs the console's AudioWorklet processor (web/src/worklet.js) outside a browser: one second
-// of a sine of FREQ Hz at RATE Hz, in the 128-frame blocks of Web Audio, two equal channels.
+// Runs the console's capture AudioWorklet processor (a2p-capture of web/src/worklet.js) outside a
+// browser: one second of a sine of FREQ Hz at RATE Hz, in the 128-frame blocks of Web Audio, two equal channels.
 // Prints the chunks it posted as JSON. Usage: node console_worklet_harness.mjs FILE RATE FREQ
 const [file, rate, freq] = process.argv.slice(2);
 globalThis.sampleRate = Number(rate);
 globalThis.AudioWorkletProcessor = class { constructor() { this.port = { postMessage: (m) => chunks.push(m) }; } };
 let Processor = null;
-globalThis.registerProcessor = (name, cls) => { Processor = cls; };
+globalThis.registerProcessor = (name, cls) => { if (name === 'a2p-capture') Processor = cls; };
 const chunks = [];
 await import(file);
 const p = new Processor({ processorOptions: { chunkSamples: 320 } });

@@ -532,7 +532,8 @@ class ConsoleNode(DiagnosedNode):
         for what in ("sent", "dropped"):
             for kind in ("picture", "sound"):
                 counts[f"room_{kind}s_{what}"] = sum(
-                    getattr(session.room, what)[kind] for session in self.server.sessions.values()
+                    getattr(session.room, what)[kind]
+                    for session in list(self.server.sessions.values())
                 )
         return counts
 
