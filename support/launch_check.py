@@ -287,10 +287,13 @@ def scenario_booleans_and_namespaces(probe: GraphProbe) -> None:
 
     launch = Launch("audio_ns", "audio_ns:=/mic/")
     up = graph_up(probe, launch)
+    audio = {"/mic/audio", "/mic/audio_info"}
+    if up:  # the node is in the graph a moment before its subscriptions are
+        probe.wait_for(lambda: audio <= probe.topics_of("audio_features_node", False), 10.0)
     subs = probe.topics_of("audio_features_node", publishers=False) if up else set()
     check(
         "audio_ns:=/mic/",
-        {"/mic/audio", "/mic/audio_info"} <= subs,
+        audio <= subs,
         f"audio_features_node subscribes {sorted(subs)}",
     )
     launch.stop()
