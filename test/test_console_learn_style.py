@@ -454,7 +454,8 @@ def test_when_the_stop_is_latched_expect_every_style_change_refused_until_its_re
         await ws.send_str('{"type":"enroll","keep":false}')
         ticket = (await until(ws, "enroll_ticket"))["ticket"]
         headers = {"Content-Type": "video/webm", "Origin": base}
-        async with http.post(f"{base}/enroll/{ticket}", data=b"webm", headers=headers) as r:
+        data = real_recording()
+        async with http.post(f"{base}/enroll/{ticket}", data=data, headers=headers) as r:
             assert r.status == 202
 
     async def scenario(base: str, bridge: Bridge) -> list[str]:

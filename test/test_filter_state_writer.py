@@ -76,6 +76,8 @@ def filter_node(tmp_path, monkeypatch, events):
         f"state_file:={tmp_path / 'state.json'}",
         "-p",
         "state_save_period_s:=0.05",
+        "-p",
+        "start_without_measured_pose:=true",  # no robot here: the filter starts and ticks
     ]
     with rclpy_session(args):
         node = MotionFilterNode(subscribe_graph=False)
