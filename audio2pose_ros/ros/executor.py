@@ -48,10 +48,16 @@ def shutdown(context: Context | None = None) -> None:
     ``rclpy.try_shutdown`` where rclpy has it (Jazzy, Kilted); Humble has only
     ``rclpy.shutdown``, which raises on a context already shut down (by Ctrl-C, say).
     """
+
+    def ok() -> bool:
+        return context.ok() if context is not None else rclpy.ok()
+
     try_shutdown = getattr(rclpy, "try_shutdown", None)
-    if try_shutdown is not None:
-        try_shutdown(context=context)
-        return
-    ok = context.ok() if context is not None else rclpy.ok()
-    if ok:
-        rclpy.shutdown(context=context)
+    try:
+        if try_shutdown is not None:
+            try_shutdown(context=context)
+        elif ok():
+            rclpy.shutdown(context=context)
+    except RuntimeError:
+        if ok():  # not shut down meanwhile by rclpy's signal handler (a race Jazzy's loses)
+            raise

@@ -352,22 +352,6 @@ class MotionFilterNode(DiagnosedNode):
             source = UNKNOWN if gid is None else identity(gid)
             published_ns = info.get("source_timestamp") or 0
         topic = self.settings.measured_joint_states_topic
-        if source == UNKNOWN and info is not None and not self.started:
-            # an rclpy without publisher gids (Humble, Jazzy): two publishers cannot be told
-            # apart message by message, so the graph's count holds the start
-            publishers = self.count_publishers(topic)
-            if publishers > 1:
-                self._report(
-                    Problem(
-                        "measured_sources",
-                        True,
-                        f"{publishers} publishers send {topic} and this rclpy does not say "
-                        "which message is whose: the robot's pose cannot be believed, "
-                        "commanding nothing until one is left",
-                        SECOND_SOURCE_HOLD_S,
-                    )
-                )
-                return
         use = self.measured.take(
             msg.name,
             msg.position,
