@@ -5,6 +5,7 @@ in support/launch_check.sh (the launch stack built from source); these tests cov
 decisions on every machine.
 """
 
+import copy
 import re
 import signal
 import subprocess
@@ -239,6 +240,18 @@ def test_when_a_node_ran_long_enough_before_crashing_expect_a_fresh_budget():
     decision = budget.on_exit("inference_node", 1, ran_s=budget.healthy_after_s)
     assert decision.restart
     assert decision.delay_s == 0.0  # a first crash in a row: restarted at once
+
+
+def test_when_the_budget_forgets_expect_every_row_to_start_afresh():
+    budget = RespawnBudget(max_restarts=2)
+    for _ in range(2):
+        budget.on_exit("motion_filter_node", -signal.SIGKILL, ran_s=1.0)
+    unforgiving = copy.deepcopy(budget)
+    assert not unforgiving.on_exit("motion_filter_node", -signal.SIGKILL, ran_s=1.0).restart
+    budget.forget()
+    decision = budget.on_exit("motion_filter_node", -signal.SIGKILL, ran_s=1.0)
+    assert decision.restart
+    assert decision.delay_s == 0.0
 
 
 def test_when_one_node_exhausts_its_budget_expect_the_others_unaffected():

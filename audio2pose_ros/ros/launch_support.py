@@ -477,6 +477,14 @@ class RespawnBudget:
     max_delay_s: float = 8.0
     _in_a_row: dict[str, int] = field(default_factory=dict, repr=False)
 
+    def forget(self) -> None:
+        """Start every node's row afresh, as if each had run ``healthy_after_s``.
+
+        For a caller that knows the exits so far were separate faults rather than a crash
+        loop: the fault campaign kills nodes on purpose, one case after another.
+        """
+        self._in_a_row.clear()
+
     def on_exit(self, node: str, returncode: int, ran_s: float) -> RespawnDecision:
         """Decide about ``node`` whose process exited with ``returncode`` after ``ran_s`` s.
 

@@ -383,6 +383,9 @@ def run_campaign(
                 if not probe.settle(campaign.pose_a, timeout_s=60.0):
                     raise TimeoutError(f"the graph did not follow the probe (logs: {logs})")
                 for case in chosen:
+                    # Each case is one fault: its kills must not add to the previous case's
+                    # restarts in a row, or the budget gives up on a node mid-campaign.
+                    supervisor.budget.forget()
                     probe.settle(campaign.pose_a)
                     try:
                         outcome = case.run(campaign)
