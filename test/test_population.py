@@ -90,3 +90,21 @@ def test_when_the_default_speaks_expect_its_head_as_close_to_people_as_recorded(
     assert h_accel <= figures["h_accel"] + margin
     assert abs(np.log(ratio / figures["size_ratio"])) <= margin
     assert checkpoint.model.config.first_temperature == recorded["head_temperature"]
+
+
+def test_when_the_card_ships_expect_its_description_to_be_the_shipped_checkpoints(robot):
+    """The card states the temperatures and configuration of the model it ships with.
+
+    The population step changes the shipped head's temperature after the build wrote the card;
+    the card's "What it is" section must follow, or it describes a model nobody gets.
+    """
+    from audio2pose_ros.learning.model_card import WHAT_BEGIN, WHAT_END, what_it_is
+    from audio2pose_ros.learning.style_card import section_of
+
+    checkpoint = load_checkpoint(default_checkpoint_path(), robot=robot)
+    card = (default_checkpoint_path().parent / "MODEL_CARD.md").read_text(encoding="utf-8")
+    section = section_of(card, WHAT_BEGIN, WHAT_END)
+    assert section, "the card has no generated 'What it is' section"
+    assert what_it_is(checkpoint) in section
+    config = checkpoint.model.config_dict()
+    assert f"samples at temperature\n{config['first_temperature']:g} " in section

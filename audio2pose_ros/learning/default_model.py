@@ -559,7 +559,6 @@ def build_learned_default_model(
     card = write_learned_model_card(
         out_dir,
         checkpoint,
-        shipped.report,
         heads,
         lecture,
         reports,

@@ -31,7 +31,6 @@ from audio2pose_ros.learning.sampler_selection import (
     SamplingChoice,
 )
 from audio2pose_ros.learning.style_card import with_style_section
-from audio2pose_ros.learning.train_state import TrainReport
 from audio2pose_ros.models.live_groups import LiveGroups
 from audio2pose_ros.models.sampling_noise import PerJoint, format_per_joint
 from audio2pose_ros.robot.description import RobotDescription
@@ -370,6 +369,58 @@ times the target (head 2, arms and hip 1.5). Fixed, not chosen per build: the no
 """
 
 
+WHAT_BEGIN = "<!-- begin: what it is (generated from the checkpoint; do not edit by hand) -->"
+WHAT_END = "<!-- end: what it is -->"
+
+
+def what_it_is(checkpoint: Checkpoint) -> str:
+    """The card's "What it is" section (its markers are :data:`WHAT_BEGIN`, :data:`WHAT_END`).
+
+    Everything it states (configuration, sampling temperatures, training epoch, validation
+    clips) is read from ``checkpoint``, so a later step that changes the shipped checkpoint
+    (:mod:`audio2pose_ros.style.population` sets the head's temperature) rewrites it and the
+    card cannot describe another model than the one it ships with.
+    """
+    n_params = sum(p.numel() for p in checkpoint.model.parameters())
+    model = cast(LiveGroups, checkpoint.model)  # the learned default is live_groups
+    config = model.config
+    correlations = model.part_correlations()
+    head_burst = format_per_joint(config.first_burst)
+    if isinstance(config.first_burst, tuple):
+        head_burst += f" ({'/'.join(checkpoint.robot.names[j] for j in model.groups[0])})"
+    validation = sorted(checkpoint.info.get("validation_clips", []))
+    head_chosen = (
+        'chosen over people, see "The head over people" below'
+        if "head_temperature_chosen_on" in checkpoint.info
+        else "chosen on validation clips, see below"
+    )
+    return f"""## What it is
+`live_groups` (this package's own, `audio2pose_ros/models/live_groups.py`): two causal,
+autoregressive GRU samplers side by side, one for HeadPitch and HeadYaw, one for the arms and
+HipRoll (config `{checkpoint.model.config_dict()}`, {n_params} parameters). At every 10 ms
+frame each reads the {checkpoint.features.label} audio features and its
+own previous pose and samples the next pose from a Gaussian, with smooth, time-correlated
+noise (correlation {correlations[0]:g} and burstiness {head_burst} for the head,
+{correlations[1]:g} and {format_per_joint(config.second_burst)} for the arms:
+`audio2pose_ros/models/sampling_noise.py`): it samples
+motion instead of regressing to the mean, so it moves like a person rather than like the average
+of people. Every utterance starts settled: the model first runs 1 s of the utterance's first
+audio frame, discarded, so the first pose does not jump from the network's zero state
+(`audio2pose_ros/models/warm_start.py`; offline and online alike). A causal speech gate
+(mean filter-bank energy against its recent peak) scales the sampling noise down to
+{config.silence_temperature:g} of itself in silence, so the robot comes to rest when nobody
+speaks; the head part samples at temperature
+{_part_temperature(config.first_temperature, model.groups[0], checkpoint.robot)} ({head_chosen}),
+the arm part at {_part_temperature(config.second_temperature, model.groups[1], checkpoint.robot)}
+(chosen on validation clips, see below){_velocity_limit(config.velocity_limit)}. It streams
+(two GRU cell steps per frame, about 0.1 ms), so `inference_node` runs it. Same seed, same
+motion; another seed, another motion on the same audio (`streaming_predictor(seed=N)` online,
+`audio2pose_ros.offline.synthesis.synthesize(..., seed=N)` offline; the default seed is 0).
+Training kept epoch {checkpoint.info.get("best_epoch", "?")} (validation loss
+{float(checkpoint.info.get("best_validation_loss", math.nan)):.5f}; validation clips
+{", ".join(validation)}). Rebuild it with `make default-model`."""
+
+
 def _part_temperature(value: PerJoint, joints: np.ndarray, robot: RobotDescription) -> str:
     """``3``, or one per joint group: ``4 (arms), 1.5 (hip)``."""
     if not isinstance(value, tuple):
@@ -396,7 +447,6 @@ def _velocity_limit(share: float) -> str:
 def write_learned_model_card(
     out_dir: Path,
     checkpoint: Checkpoint,
-    report: TrainReport,
     heads: Dataset,
     lecture: Dataset,
     reports: Sequence[SourceReport],
@@ -420,14 +470,7 @@ def write_learned_model_card(
     from audio2pose_ros.data.importers.lecture import BOARD_S, LECTURE_LICENCE, TEST_SPAN_S
     from audio2pose_ros.learning.arm_calm import AT_LIMIT_FRACTION, HIGH_ABOVE_M
 
-    n_params = sum(p.numel() for p in checkpoint.model.parameters())
-    model = cast(LiveGroups, checkpoint.model)  # the learned default is live_groups
-    config = model.config
-    correlations = model.part_correlations()
-    head_burst = format_per_joint(config.first_burst)
-    if isinstance(config.first_burst, tuple):
-        head_burst += f" ({'/'.join(checkpoint.robot.names[j] for j in model.groups[0])})"
-    validation = sorted(checkpoint.info.get("validation_clips", []))
+    config = cast(LiveGroups, checkpoint.model).config  # the learned default is live_groups
     clips = [heads.load(c.clip_id) for c in heads.clips] + [
         lecture.load(c.clip_id) for c in lecture.clips
     ]
@@ -440,30 +483,9 @@ def write_learned_model_card(
     )
     card = f"""# Model card: default model (`default.safetensors`)
 
-## What it is
-`live_groups` (this package's own, `audio2pose_ros/models/live_groups.py`): two causal,
-autoregressive GRU samplers side by side, one for HeadPitch and HeadYaw, one for the arms and
-HipRoll (config `{checkpoint.model.config_dict()}`, {n_params} parameters). At every 10 ms
-frame each reads the {checkpoint.features.label} audio features and its
-own previous pose and samples the next pose from a Gaussian, with smooth, time-correlated
-noise (correlation {correlations[0]:g} and burstiness {head_burst} for the head,
-{correlations[1]:g} and {format_per_joint(config.second_burst)} for the arms:
-`audio2pose_ros/models/sampling_noise.py`): it samples
-motion instead of regressing to the mean, so it moves like a person rather than like the average
-of people. Every utterance starts settled: the model first runs 1 s of the utterance's first
-audio frame, discarded, so the first pose does not jump from the network's zero state
-(`audio2pose_ros/models/warm_start.py`; offline and online alike). A causal speech gate
-(mean filter-bank energy against its recent peak) scales the sampling noise down to
-{config.silence_temperature:g} of itself in silence, so the robot comes to rest when nobody
-speaks; the head part samples at temperature
-{_part_temperature(config.first_temperature, model.groups[0], checkpoint.robot)}, the arm
-part at {_part_temperature(config.second_temperature, model.groups[1], checkpoint.robot)}
-(chosen on validation clips, see below){_velocity_limit(config.velocity_limit)}. It streams
-(two GRU cell steps per frame, about 0.1 ms), so `inference_node` runs it. Same seed, same
-motion; another seed, another motion on the same audio (`streaming_predictor(seed=N)` online,
-`audio2pose_ros.offline.synthesis.synthesize(..., seed=N)` offline; the default seed is 0).
-Training kept epoch {report.best_epoch} (validation loss {report.best_val_loss:.5f};
-validation clips {", ".join(validation)}). Rebuild it with `make default-model`.
+{WHAT_BEGIN}
+{what_it_is(checkpoint)}
+{WHAT_END}
 
 ## What it learned from people
 {_learned_from(checkpoint, clips)}

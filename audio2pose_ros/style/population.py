@@ -370,7 +370,9 @@ def run(
     from audio2pose_ros.checkpoints.torch_io import load_checkpoint, save_checkpoint
     from audio2pose_ros.data.dataset import Dataset
     from audio2pose_ros.learning.default_model import LearnedBuildSettings, import_talking_heads
+    from audio2pose_ros.learning.model_card import WHAT_BEGIN, WHAT_END, what_it_is
     from audio2pose_ros.learning.source_holdout import MODEL_NAME, speaker_source
+    from audio2pose_ros.learning.style_card import put_section
     from audio2pose_ros.learning.training import train_on_clips
 
     data = work_dir / "talking_heads"
@@ -411,6 +413,7 @@ def run(
 
     table = population_table(real, generated, robot, source_of, result)
     write_card(model_dir / "MODEL_CARD.md", table, figures, temperature, retrain)
+    put_section(model_dir / "MODEL_CARD.md", WHAT_BEGIN, WHAT_END, [what_it_is(shipped)])
     return table
 
 
