@@ -93,6 +93,15 @@ def test_when_record_without_play_expect_clear_error(tmp_path: Path):
     assert "--record needs --play" in result.stderr
 
 
+@pytest.mark.parametrize("command", ["run", "console"])
+def test_when_sim_and_no_robot_are_both_given_expect_a_usage_error_before_anything_runs(command):
+    result = subprocess.run(
+        [*AUDIO2POSE, command, "--sim", "--no-robot"], capture_output=True, text=True, timeout=60
+    )
+    assert result.returncode == 2  # a usage error
+    assert "--sim and --no-robot" in result.stderr
+
+
 @pytest.mark.ros
 @pytest.mark.parametrize(
     ("content", "gave_up"),

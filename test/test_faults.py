@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy.subscription
 from audio_common_msgs.msg import AudioData, AudioInfo
 from graph_probe import Probe, diagnostics_of
+from rclpy_features import PUBLISHER_GIDS
 
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmFormat, encode_pcm
 from audio2pose_ros.ros.messages import trajectory_msg
@@ -169,7 +169,7 @@ def test_when_raw_trajectory_duplicated_or_late_expect_filter_drops_it(
         for msg in (newest, newest, older):
             publisher.publish(msg)
             probe.spin_for(0.1)
-        if hasattr(rclpy.subscription, "MessageInfo"):  # publisher gids (Kilted and later)
+        if PUBLISHER_GIDS:
             probe.wait_until(
                 lambda: int(diagnostics_of(probe, FILTER).get("stale_messages_dropped", 0)) >= 2
             )

@@ -21,6 +21,7 @@ import rclpy
 import rclpy.subscription
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
+from rclpy_features import PUBLISHER_GIDS
 from sensor_msgs.msg import JointState
 
 from audio2pose_ros.ros.player import rclpy_session
@@ -174,7 +175,7 @@ def test_when_a_joint_is_listed_twice_expect_no_command_an_error_then_the_real_p
 
 
 @pytest.mark.skipif(
-    not hasattr(rclpy.subscription, "MessageInfo"),
+    not PUBLISHER_GIDS,
     reason="unfinished: without publisher gids (Jazzy, Humble) the stale publisher's refused "
     "messages and the driver's are one source to the start, which began 0.8 rad off here",
 )
@@ -197,7 +198,7 @@ def test_when_a_second_publisher_sends_old_or_future_stamps_expect_them_refused(
 
 
 @pytest.mark.skipif(
-    not hasattr(rclpy.subscription, "MessageInfo"),
+    not PUBLISHER_GIDS,
     reason="unfinished: without publisher gids (Jazzy, Humble) two drivers' messages are not "
     "told apart after the start listens, and their disagreement is not caught",
 )

@@ -6,9 +6,14 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from audio2pose_ros.cli.options import Verbs, add_voice_out_option, bounded_int, input_file
+from audio2pose_ros.cli.options import (
+    Verbs,
+    add_voice_out_option,
+    bounded_int,
+    check_robot_options,
+    input_file,
+)
 from audio2pose_ros.cli.style_commands import add_style_options, graph_overrides
-from audio2pose_ros.errors import UsageError
 
 
 def command_console(args: argparse.Namespace) -> int:
@@ -22,8 +27,7 @@ def command_console(args: argparse.Namespace) -> int:
     for name in ("certfile", "keyfile"):
         if getattr(args, name):
             values[name] = str(input_file(getattr(args, name), f"--{name}").resolve())
-    if args.sim and args.no_robot:
-        raise UsageError("--sim and --no-robot: the simulated Pepper publishes joint_states")
+    check_robot_options(args)
     params = input_file(args.params_file, "parameters file") if args.params_file else None
     overrides = graph_overrides(args)
     check_console_settings(params, values)  # a refused bind or token stops before anything runs

@@ -39,6 +39,7 @@ from audio2pose_ros.cli.options import (
     add_voice_out_option,
     bounded_float,
     bounded_int,
+    check_robot_options,
     input_bag,
     input_dir,
     input_file,
@@ -62,8 +63,7 @@ def command_run(args: argparse.Namespace) -> int:
 
     if args.record and args.play is None:
         raise UsageError("--record needs --play (recording stops when the file ends)")
-    if args.sim and args.no_robot:
-        raise UsageError("--sim and --no-robot: the simulated Pepper publishes joint_states")
+    check_robot_options(args)
     play = _speech_input(args.play) if args.play else None
     record = new_dir(args.record, "--record") if args.record else None
     params = input_file(args.params_file, "parameters file") if args.params_file else None

@@ -340,6 +340,16 @@ def check_apart(
         raise UsageError(f"{option} {output}: {relation} {description}; give {instead}")
 
 
+def check_robot_options(args: argparse.Namespace) -> None:
+    """``--sim`` and ``--no-robot`` (``run``, ``console``) cannot be given together.
+
+    Raises:
+        UsageError: both were given.
+    """
+    if args.sim and args.no_robot:
+        raise UsageError("--sim and --no-robot: the simulated Pepper publishes joint_states")
+
+
 def add_voice_out_option(parser: argparse.ArgumentParser) -> None:
     """``--voice-out``: the operator's voice out of the robot, in step with the motion."""
     parser.add_argument(
