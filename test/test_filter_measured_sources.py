@@ -21,7 +21,6 @@ import rclpy
 import rclpy.subscription
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
-from rclpy_features import PUBLISHER_GIDS
 from sensor_msgs.msg import JointState
 
 from audio2pose_ros.ros.player import rclpy_session
@@ -174,11 +173,6 @@ def test_when_a_joint_is_listed_twice_expect_no_command_an_error_then_the_real_p
     assert_started_from(observer, robot, real)
 
 
-@pytest.mark.skipif(
-    not PUBLISHER_GIDS,
-    reason="unfinished: without publisher gids (Jazzy, Humble) the stale publisher's refused "
-    "messages and the driver's are one source to the start, which began 0.8 rad off here",
-)
 @pytest.mark.parametrize("ahead_s", [-60.0, 3600.0])
 def test_when_a_second_publisher_sends_old_or_future_stamps_expect_them_refused(
     graph, robot, ahead_s
@@ -197,11 +191,6 @@ def test_when_a_second_publisher_sends_old_or_future_stamps_expect_them_refused(
     assert "refused" in latest["message"]
 
 
-@pytest.mark.skipif(
-    not PUBLISHER_GIDS,
-    reason="unfinished: without publisher gids (Jazzy, Humble) two drivers' messages are not "
-    "told apart after the start listens, and their disagreement is not caught",
-)
 def test_when_a_second_robots_driver_publishes_expect_an_error_a_hold_and_recovery(graph, robot):
     """The second robot's driver speaks first, then the robot's own: they disagree by 1.37 rad.
     Nothing is commanded while both speak; when the second stops, the start is from the robot."""

@@ -8,6 +8,7 @@ import pytest
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.motion.measured import (
     AGREE_TOLERANCE_RAD,
+    ANONYMOUS,
     MAX_AGE_S,
     MAX_FUTURE_S,
     MAX_SOURCES,
@@ -140,3 +141,67 @@ def test_when_a_second_source_stamps_its_poses_apart_expect_the_conflict_still_s
         read(check, robot, robot.neutral_rad, stamp=NOW + t, source="robot", arrival=t)
         read(check, robot, other, stamp=NOW + t - 0.3, source="replay", arrival=t)
     assert check.conflict(0.6)
+
+
+def test_when_publishers_cannot_be_told_apart_and_disagree_expect_a_conflict_until_one_stops(
+    check, robot
+):
+    """Without gids (Jazzy, Humble) two drivers' interleaved poses are two tracks."""
+    other = robot.neutral_rad.copy()
+    other[robot.names.index("LShoulderPitch")] -= 1.37
+    names = list(robot.names)
+
+    def anonymous(pose, t):
+        return check.read(names, list(pose), NOW + t, None, NOW + t, ANONYMOUS, t)
+
+    for k in range(10):
+        t = k * 0.02
+        anonymous(robot.neutral_rad, t)
+        anonymous(other, t + 0.005)
+    assert check.live_sources(0.2) == 2
+    assert check.conflict(0.2)
+    for k in range(10, 70):  # the second driver stops
+        assert anonymous(robot.neutral_rad, k * 0.02).kind == "pose"
+    assert check.live_sources(1.4) == 1
+    assert not check.conflict(1.4)
+    assert check.heard_for_s(ANONYMOUS, 1.4) == pytest.approx(1.4)  # its first pose at 0
+
+
+def test_when_an_anonymous_driver_moves_a_joint_at_its_velocity_limit_expect_one_track(
+    check, robot
+):
+    joint = robot.names.index("RElbowYaw")
+    speed = robot.max_velocity_rad_s[joint]
+    for k in range(50):
+        t = k * 0.02
+        pose = robot.neutral_rad.copy()
+        pose[joint] = -1.5 + speed * t
+        read(check, robot, pose, stamp=NOW + t, source=ANONYMOUS, arrival=t)
+    assert check.live_sources(1.0) == 1
+    assert not check.conflict(1.0)
+
+
+def test_when_an_anonymous_second_source_stamps_its_poses_apart_expect_the_conflict_still_seen(
+    check, robot
+):
+    """Stamps 0.3 s behind excuse nothing: the time between arrivals bounds the motion."""
+    other = robot.neutral_rad.copy()
+    other[robot.names.index("LShoulderPitch")] -= 1.37
+    for k in range(30):
+        t = k * 0.02
+        read(check, robot, robot.neutral_rad, stamp=NOW + t, source=ANONYMOUS, arrival=t)
+        read(check, robot, other, stamp=NOW + t - 0.3, source=ANONYMOUS, arrival=t + 0.001)
+    assert check.conflict(0.6)
+
+
+def test_when_anonymous_messages_come_from_a_driver_and_a_stale_replay_expect_two_publishers(
+    check, robot
+):
+    """The replay's poses are all refused (old stamps): it has no track, its refusals count."""
+    names = list(robot.names)
+    for k in range(10):
+        t = k * 0.02
+        check.read(names, list(robot.neutral_rad), NOW + t, None, NOW + t, ANONYMOUS, t)
+        check.read(names, list(robot.neutral_rad), NOW - 60, None, NOW + t, ANONYMOUS, t)
+    assert check.anonymous_publishers(0.2) == 2
+    assert check.anonymous_publishers(0.2 + SOURCE_WINDOW_S + 0.01) == 0  # both gone quiet

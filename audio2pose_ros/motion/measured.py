@@ -20,6 +20,14 @@ message could put the first command 1.37 rad away from the real robot:
   pose of either can be told to be the robot's. A publisher that sends other joints only (a
   gripper, another robot's partial state) is none. At most :data:`MAX_SOURCES` sources are
   compared; more at once count as a conflict.
+- **Publishers that cannot be told apart.** Where rclpy gives no publisher gid (Jazzy, Humble)
+  every message's publisher is :data:`ANONYMOUS`. Its readings are then sorted into tracks,
+  each a source of its own: a reading joins the nearest track whose newest reading it can
+  follow (it differs from it by at most the velocity limit times the time between them,
+  counted up to :data:`MOTION_ALLOWANCE_S` beyond their arrivals, plus
+  :data:`AGREE_TOLERANCE_RAD`), or starts a new one. Two drivers that disagree make two
+  tracks, and so a conflict, as two gids would; two that agree are one track, which is as
+  believable as either.
 
 :class:`MeasuredPoseCheck` keeps what it needs for that and says, for each message, what it is;
 the node decides what to do (``ros/nodes/motion_filter_node.py``: refuse, report, hold the start).
@@ -43,6 +51,14 @@ AGREE_TOLERANCE_RAD = 0.1  # two readings of one robot differ by no more (beyond
 MOTION_ALLOWANCE_S = 0.05  # ...and the velocity limit excuses at most this much stamp difference
 READINGS_KEPT = 64  # readings per source kept for the comparison (over a second at 50 Hz)
 MAX_SOURCES = 8  # live sources compared at most; more at once is a conflict by itself
+ANONYMOUS = b""  # the source of a message whose publisher cannot be told (no gid given)
+
+
+@dataclass(frozen=True)
+class Track:
+    """A source made of anonymous readings that follow each other (see the module)."""
+
+    number: int
 
 
 @dataclass(frozen=True)
@@ -69,6 +85,16 @@ class _Source:
     )  # (stamp s, pose)
     first_heard_s: float = math.inf
     last_heard_s: float = -math.inf
+
+    def follows(
+        self, stamp_s: float, pose: np.ndarray, arrival_s: float, limit: np.ndarray
+    ) -> float:
+        """By how much ``pose`` leaves what the newest reading allows (rad; <= 0: it follows)."""
+        last_stamp_s, last_pose = self.readings[-1]
+        gap_s = min(abs(stamp_s - last_stamp_s), arrival_s - self.last_heard_s + MOTION_ALLOWANCE_S)
+        off = np.abs(pose - last_pose) - limit * max(gap_s, 0.0)
+        finite = np.isfinite(off)
+        return float(off[finite].max()) if finite.any() else 0.0
 
 
 @dataclass
@@ -99,6 +125,9 @@ class MeasuredPoseCheck:
         self.last_reason = ""
         self._sources: dict[Hashable, _Source] = {}
         self.crowded_s = -math.inf  # arrival of the last pose of a source beyond MAX_SOURCES
+        self._tracks = 0  # anonymous tracks begun
+        self.last_track: Hashable = ANONYMOUS  # the track of the newest anonymous reading
+        self.anonymous_refused_s = -math.inf  # arrival of the last refused anonymous message
 
     def read(
         self,
@@ -137,6 +166,7 @@ class MeasuredPoseCheck:
                 f"measured joint states list {', '.join(repeated)} more than once: refused "
                 "(which of the values is the robot's?)",
                 arrival_s,
+                source,
             )
         index = {name: i for i, name in enumerate(names)}
         if any(name not in index for name in self.names):
@@ -152,6 +182,7 @@ class MeasuredPoseCheck:
                 f"measured joint states stamped {now_s - stamp_s:.1f} s ago (at most "
                 f"{MAX_AGE_S:g} s): refused, not where the robot is now",
                 arrival_s,
+                source,
             )
         if stamp_s > now_s + MAX_FUTURE_S:
             self.counts.future += 1
@@ -160,8 +191,11 @@ class MeasuredPoseCheck:
                 f"measured joint states stamped {stamp_s - now_s:.1f} s ahead of this node's "
                 f"clock (at most {MAX_FUTURE_S:g} s): refused",
                 arrival_s,
+                source,
             )
         pose = np.array([positions[index[name]] for name in self.names], dtype=np.float64)
+        if source == ANONYMOUS:
+            source = self._track_of(stamp_s, pose, arrival_s)
         if source not in self._sources and self.live_sources(arrival_s) >= MAX_SOURCES:
             self.crowded_s = arrival_s  # not compared (bounded work), but not believed either
             return Reading(pose, "pose")
@@ -172,8 +206,44 @@ class MeasuredPoseCheck:
         self.counts.poses += 1
         return Reading(pose, "pose")
 
-    def _refuse(self, kind: str, reason: str, arrival_s: float) -> Reading:
+    def _track_of(self, stamp_s: float, pose: np.ndarray, arrival_s: float) -> Hashable:
+        """The anonymous track that ``pose`` follows best, or a new one (see the module)."""
+        self.live_sources(arrival_s)
+        best: Hashable | None = None
+        nearest_rad = math.inf
+        for key, heard in self._sources.items():
+            if not isinstance(key, Track):
+                continue
+            if (
+                heard.follows(stamp_s, pose, arrival_s, self.max_velocity_rad_s)
+                > AGREE_TOLERANCE_RAD
+            ):
+                continue
+            apart = np.abs(pose - heard.readings[-1][1])
+            finite = np.isfinite(apart)
+            distance_rad = float(apart[finite].max()) if finite.any() else 0.0
+            if distance_rad < nearest_rad:  # the nearest of those it can follow
+                best, nearest_rad = key, distance_rad
+        if best is None:
+            best = Track(self._tracks)
+            self._tracks += 1
+        self.last_track = best
+        return best
+
+    def anonymous_publishers(self, arrival_s: float) -> int:
+        """Publishers that anonymous messages show now: live tracks, one more if any refused.
+
+        A publisher whose messages are all refused (a stale replay) has no track; its refusals
+        within :data:`SOURCE_WINDOW_S` count as one publisher.
+        """
+        self.live_sources(arrival_s)
+        tracks = sum(1 for key in self._sources if isinstance(key, Track))
+        return tracks + int(arrival_s - self.anonymous_refused_s <= SOURCE_WINDOW_S)
+
+    def _refuse(self, kind: str, reason: str, arrival_s: float, source: Hashable) -> Reading:
         self.last_refused_s = arrival_s
+        if source == ANONYMOUS:
+            self.anonymous_refused_s = arrival_s
         self.last_reason = reason
         return Reading(None, kind, reason)
 
@@ -190,8 +260,11 @@ class MeasuredPoseCheck:
         return len(self._sources)
 
     def heard_for_s(self, source: Hashable, arrival_s: float) -> float:
-        """How long ``source`` has been sending poses (0 when it is not live)."""
-        heard = self._sources.get(source)
+        """How long ``source`` has been sending poses (0 when it is not live).
+
+        For :data:`ANONYMOUS`, the track of the newest anonymous reading.
+        """
+        heard = self._sources.get(self.last_track if source == ANONYMOUS else source)
         return 0.0 if heard is None else max(arrival_s - heard.first_heard_s, 0.0)
 
     def disagreement_rad(self, arrival_s: float) -> float:

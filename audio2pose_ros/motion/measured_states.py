@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from audio2pose_ros.errors import InputError
-from audio2pose_ros.motion.measured import SOURCE_WINDOW_S, MeasuredPoseCheck
+from audio2pose_ros.motion.measured import ANONYMOUS, SOURCE_WINDOW_S, MeasuredPoseCheck
 from audio2pose_ros.motion.problems import Problem
 from audio2pose_ros.motion.start_pose import StartPose, repaired_start_pose
 from audio2pose_ros.motion.tracking import TrackingWatch
@@ -128,6 +128,8 @@ class MeasuredStates:
         except InputError:
             self.start.heard(source, "broken", arrival_s)
             raise
+        if source == ANONYMOUS:
+            self.start.anonymous = check.anonymous_publishers(arrival_s)
         pose = reading.pose_rad
         usable = pose is not None and bool(np.isfinite(pose).any())
         self.start.heard(

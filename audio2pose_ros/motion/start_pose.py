@@ -49,6 +49,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from audio2pose_ros.motion.measured import ANONYMOUS
+
 MEASURED_WAIT_S = 3.0  # a discovered publisher's first message is awaited this long from then
 DISCOVERY_WAIT_S = 10.0  # the robot reported its pose before: its driver is awaited this long
 MEASURED_LISTEN_S = 1.0  # with several publishers, hear the pose's source this long first
@@ -60,7 +62,7 @@ SAVED = "saved pose"  # start from the pose saved in the state file
 NEUTRAL = "neutral pose"  # start from the neutral pose
 
 
-UNKNOWN = b""  # the identity of a message whose publisher cannot be told (no gid given)
+UNKNOWN = ANONYMOUS  # the identity of a message whose publisher cannot be told (no gid given)
 
 
 def identity(gid: bytes | str | Sequence[int]) -> Hashable:
@@ -93,8 +95,8 @@ class StartPose:
     (:meth:`heard`) and of the publishers it sees on the topic (:meth:`discovered`), and asks
     :meth:`decide` once the start-up timeout has passed, until the filter has started.
     Publishers are told apart by their identities (DDS gids); messages whose publisher cannot
-    be told (:data:`UNKNOWN`: an rmw that gives no gid) count as one publisher's, as a count of
-    the graph's publishers would.
+    be told (:data:`UNKNOWN`: an rmw that gives no gid) count as the publishers their readings
+    show (:attr:`anonymous`: tracks of poses that follow each other, and refusals).
     """
 
     def __init__(self, created_s: float, reported_before: bool, without_measured: bool) -> None:
@@ -114,6 +116,7 @@ class StartPose:
         self.graph: dict[Hashable, float] = {}  # discovered publisher -> when first discovered
         self.sources: dict[Hashable, float] = {}  # publisher -> when its last usable pose came
         self.unusable: dict[str, int] = {}  # messages that came but were no pose, by kind
+        self.anonymous = 0  # publishers that messages of UNKNOWN publishers show, live now
 
     def discovered(self, publishers: Collection[Hashable], now_s: float) -> None:
         """``publishers`` (their identities) publish on the measured topic now (the graph's)."""
@@ -138,18 +141,24 @@ class StartPose:
     def publishers(self) -> int:
         """Publishers known on the topic: discovered, or heard before the graph showed them.
 
-        Messages whose publisher cannot be told (:data:`UNKNOWN`) count as one publisher, which
-        may be any of the discovered ones.
+        Messages whose publisher cannot be told (:data:`UNKNOWN`) count as the publishers they
+        show (:attr:`anonymous`, at least one once any came), which may be any of the
+        discovered ones.
         """
         told = len(self.graph.keys() | (self.sources.keys() - {UNKNOWN}))
-        return max(told, int(UNKNOWN in self.sources))
+        return max(told, self.anonymous_heard)
+
+    @property
+    def anonymous_heard(self) -> int:
+        """Publishers heard among those that cannot be told apart (0 when none came)."""
+        return max(self.anonymous, 1) if UNKNOWN in self.sources else 0
 
     def silent(self, now_s: float) -> int:
         """Discovered publishers that have sent nothing yet and are still awaited.
 
         Each is awaited :data:`MEASURED_WAIT_S` from its discovery, at most until
         :data:`DISCOVERY_WAIT_S` + :data:`MEASURED_WAIT_S` after start. Messages whose publisher
-        cannot be told may have come from any of them: one fewer is counted then.
+        cannot be told may have come from any of them: as many fewer as they show are counted.
         """
         latest_s = self.created_s + DISCOVERY_WAIT_S + MEASURED_WAIT_S
         awaited = sum(
@@ -157,7 +166,7 @@ class StartPose:
             for key, found_s in self.graph.items()
             if key not in self.sources and now_s < min(found_s + MEASURED_WAIT_S, latest_s)
         )
-        return max(awaited - int(UNKNOWN in self.sources), 0)
+        return max(awaited - self.anonymous_heard, 0)
 
     @property
     def awaits_driver(self) -> bool:
