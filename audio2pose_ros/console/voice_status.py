@@ -89,7 +89,11 @@ def _number(text: str | None) -> float | None:
 
 
 def voice_view(
-    values: Mapping[str, str] | None, muted: bool | None, seen: RobotSeen, problem: str
+    values: Mapping[str, str] | None,
+    muted: bool | None,
+    seen: RobotSeen,
+    problem: str,
+    age_s: float = 0.0,
 ) -> dict[str, object]:
     """The status's ``voice`` field.
 
@@ -98,11 +102,13 @@ def voice_view(
         muted: its ``muted`` parameter as last read back (None: not read).
         seen: what the console receives of the robot.
         problem: why the last mute could not be set ('' when none).
+        age_s: how long ago ``values`` were reported (s).
 
     Returns:
         ``available`` (a voice node reports), ``muted``, ``destination``, ``parts`` (graph,
         execution, loudspeaker: :func:`part_view`), ``delay_ms``, ``offset_ms`` and the window
-        ``[early_ms, late_ms]`` the offset should stay in, ``problem``.
+        ``[early_ms, late_ms]`` the offset should stay in, ``problem``, ``reported_s_ago``
+        (None without values).
     """
     values = values or {}
     if muted is None and "muted" in values:
@@ -116,4 +122,5 @@ def voice_view(
         "offset_ms": _number(values.get("offset_ms")),
         "window_ms": [-WINDOW_EARLY_S * 1e3, WINDOW_LATE_S * 1e3],
         "problem": problem,
+        "reported_s_ago": round(age_s, 1) if values else None,
     }

@@ -8,6 +8,7 @@
 // A click not confirmed by the console's status within this long (refused: another operator has
 // the floor, say; the console's reason shows as the page's error) no longer shows as pending.
 const ASK_WAIT_MS = 5000;
+const STALE_S = 2; // the voice node's figures older than this say how old they are
 const PART_LABELS = {
   graph: 'graph', execution: 'robot execution', loudspeaker: 'loudspeaker',
 };
@@ -18,7 +19,7 @@ export function createVoice({ $, send, state }) {
   // loudspeaker, each { ms, measured, why }; delayMs, offsetMs, windowMs: [early, late].
   const voice = {
     available: false, muted: null, asked: null, destination: '', parts: {},
-    delayMs: null, offsetMs: null, windowMs: null, problem: '',
+    delayMs: null, offsetMs: null, windowMs: null, problem: '', reportedSAgo: null,
   };
   state.voice = voice;
   let connected = false;
@@ -53,11 +54,13 @@ export function createVoice({ $, send, state }) {
 
   function offsetText() {
     if (voice.offsetMs === null) return '';
+    const old = voice.reportedSAgo !== null && voice.reportedSAgo > STALE_S
+      ? ` (reported ${Math.round(voice.reportedSAgo)} s ago)` : '';
     const [early, late] = voice.windowMs || [-80, 20];
     const inside = voice.offsetMs >= early && voice.offsetMs <= late;
     return `voice held back ${Math.round(voice.delayMs ?? 0)} ms: the motion reaches the joints `
       + `${voice.offsetMs >= 0 ? '+' : ''}${Math.round(voice.offsetMs)} ms from the voice `
-      + `(${inside ? 'within' : 'OUTSIDE'} ${early} .. +${late} ms)`;
+      + `(${inside ? 'within' : 'OUTSIDE'} ${early} .. +${late} ms)${old}`;
   }
 
   function show() {
@@ -91,6 +94,7 @@ export function createVoice({ $, send, state }) {
     voice.offsetMs = status.offset_ms ?? null;
     voice.windowMs = status.window_ms || null;
     voice.problem = status.problem || '';
+    voice.reportedSAgo = status.reported_s_ago ?? null;
     const late = Date.now() - askedAt > ASK_WAIT_MS;
     if (voice.asked !== null && (voice.asked === voice.muted || voice.problem || late)) {
       voice.asked = null;

@@ -592,17 +592,18 @@ class ConsoleNode(DiagnosedNode):
                 }
                 for name, (level, message, heard) in sorted(self.health.items())
             ]
-            fresh_voice = now - self.voice_heard_s <= STALE_AFTER_S
+            voice_age_s = now - self.voice_heard_s
             seen = RobotSeen(
                 joint_states=now - self.measured_s <= MEASURED_TIMEOUT_S,
                 microphones=now - self.microphones_s <= MICROPHONES_TIMEOUT_S,
                 talked=self.chunks_published > 0,
             )
             voice = voice_view(
-                self.voice_values if fresh_voice else None,
+                self.voice_values if voice_age_s <= HEALTH_FORGET_S else None,
                 self.voice_muted,
                 seen,
                 self.voice_problem,
+                voice_age_s,
             )
             return {
                 "stop": self.stop_state,
