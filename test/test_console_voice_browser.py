@@ -183,8 +183,8 @@ def test_when_the_operator_mutes_their_voice_expect_the_robot_silent_and_moving_
         finally:
             watch.close()
 
-    print(f"frames played while muted: {while_muted}; commands {commands_muted}, chunks")
-    print(f"published {published_muted}; offset {voice['offsetMs']} ms; {voice['parts']}")
+    print(f"muted: frames played {while_muted}, joint commands {commands_muted}")
+    print(f"chunks published {published_muted}; offset {voice['offsetMs']} ms; {voice['parts']}")
     assert "STOP stops the motion, not your voice" in stop_note
     assert playing > 0
     assert pressed == "true"
