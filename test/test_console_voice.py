@@ -92,3 +92,87 @@ def test_when_a_mute_message_comes_expect_it_checked():
         parse_control('{"type": "mute", "on": 1}')
     with pytest.raises(ProtocolError, match="mute needs the field 'on'"):
         parse_control('{"type": "mute"}')
+
+
+class ParameterReader:
+    """Reads a node's parameter through its get_parameters service, in its own rclpy context."""
+
+    def __init__(self, node_name: str) -> None:
+        import rclpy
+        from rcl_interfaces.srv import GetParameters
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = Node("voice_test_reader", context=self.context)
+        self.request = GetParameters.Request
+        self.client = self.node.create_client(GetParameters, f"/{node_name}/get_parameters")
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def read(self, name: str) -> bool | None:
+        """The boolean parameter ``name``, or None while the service does not answer."""
+        if not self.client.wait_for_service(timeout_sec=1.0):
+            return None
+        future = self.client.call_async(self.request(names=[name]))
+        self.executor.spin_until_future_complete(future, timeout_sec=5.0)
+        values = future.result().values if future.done() and future.result() else []
+        return bool(values[0].bool_value) if values else None
+
+    def close(self) -> None:
+        import rclpy
+
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_when_the_voice_node_restarts_after_a_mute_expect_the_console_to_mute_it_again(tmp_path):
+    import asyncio
+    import json
+    import os
+    import signal
+
+    import aiohttp
+    from test_console_browser import _console_url, _wait
+
+    from audio2pose_ros.ros.console_runner import CONSOLE_NODE, console_command
+    from audio2pose_ros.ros.supervisor import executable_command, node_graph
+    from audio2pose_ros.ros.voice_graph import VOICE_NODE, voice_out_processes
+
+    token = "voice-restart-token-0123456789"
+    command = console_command(None, {"port": 0, "token": token}, tmp_path)
+    voice_nodes, _ = voice_out_processes("topic", False, executable_command)
+    logs = tmp_path / "logs"
+    with node_graph(
+        log_dir=logs, more_nodes={CONSOLE_NODE: command, **voice_nodes}, no_robot=True
+    ) as graph:
+        reader = ParameterReader(VOICE_NODE)
+        try:
+            base = _console_url(logs / f"{CONSOLE_NODE}.log").rstrip("/")
+
+            async def mute() -> None:
+                async with aiohttp.ClientSession() as http:
+                    ws = await http.ws_connect(f"{base.replace('http', 'ws', 1)}/ws", origin=base)
+                    await ws.send_str(json.dumps({"type": "hello", "token": token}))
+                    await ws.send_str('{"type": "mute", "on": true}')
+                    await ws.close()
+
+            _wait(lambda: reader.read("muted") is False, 120.0, "the voice node")
+            asyncio.run(mute())
+            _wait(lambda: reader.read("muted") is True, 120.0, "the mute in force")
+            victim = graph.processes[VOICE_NODE]
+            os.kill(victim.pid, signal.SIGKILL)
+            _wait(lambda: graph.processes[VOICE_NODE] is not victim, 120.0, "the restart")
+            _wait(lambda: reader.read("muted") is not None, 120.0, "the restarted node")
+            _wait(lambda: reader.read("muted") is True, 120.0, "the mute set again")
+        finally:
+            reader.close()
+    console_log = (logs / f"{CONSOLE_NODE}.log").read_text(encoding="utf-8")
+    voice_log = (logs / f"{VOICE_NODE}.log").read_text(encoding="utf-8")
+    assert "the operator chose True: set again" in console_log
+    assert voice_log.count("parameters changed: muted=True") >= 2  # each process was muted
