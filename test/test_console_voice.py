@@ -56,7 +56,7 @@ def test_when_the_node_gives_a_note_for_a_default_part_expect_its_note():
     }
     part = part_view("graph", values, SEEN_ALL)
     assert part["measured"] is False
-    assert part["why"] == "needs raw_trajectory and commanded_joint_states"
+    assert part["why"] == "not measured: needs raw_trajectory and commanded_joint_states"
 
 
 def test_when_the_operator_has_not_talked_expect_the_parts_waiting_for_speech():

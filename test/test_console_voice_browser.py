@@ -12,6 +12,7 @@ Playwright is missing (see test_console_browser.py).
 
 from __future__ import annotations
 
+import os
 import tempfile
 import threading
 from pathlib import Path
@@ -179,6 +180,9 @@ def test_when_the_operator_mutes_their_voice_expect_the_robot_silent_and_moving_
             page.wait_for_function("window.a2p.voice.offsetMs !== null")
             voice = page.evaluate("window.a2p.voice")
             lines = page.locator("#voice-latency li").all_inner_texts()
+            if os.environ.get("AUDIO2POSE_CONSOLE_SHOTS"):  # the page, for the documentation
+                shot = Path(os.environ["AUDIO2POSE_CONSOLE_SHOTS"]) / "console_voice.png"
+                page.locator("#voice").screenshot(path=str(shot))
             browser.close()
         finally:
             watch.close()

@@ -6,8 +6,8 @@ back by (``graph_latency``, ``execution_latency``, ``loudspeaker_latency``, each
 (``voice_delay_ms``), the resulting ``motion - heard`` offset (``offset_ms``) and whether the
 voice is ``muted``. :func:`voice_view` turns those values into the ``voice`` field of the
 console's status, with why a part uses its default: the node's own note where it gives one
-(``graph_latency_note``), otherwise what the console sees of the robot (its measured joint
-states, its microphones). This module does not import rclpy.
+(``graph_latency_note``, as "not measured: <note>"), otherwise what the console sees of the
+robot (its measured joint states, its microphones). This module does not import rclpy.
 """
 
 from __future__ import annotations
@@ -79,7 +79,8 @@ def part_view(part: str, values: Mapping[str, str], seen: RobotSeen) -> dict[str
     measured = match.group(2) == "measured"
     why = ""
     if not measured:
-        why = values.get(f"{part}_latency_note", "") or _why_default(part, seen)
+        note = values.get(f"{part}_latency_note", "")
+        why = f"not measured: {note}" if note else _why_default(part, seen)
     return {"ms": float(match.group(1)), "measured": measured, "why": why, "text": text}
 
 
