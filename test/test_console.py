@@ -354,6 +354,9 @@ class Bridge:
     def set_enable(self, on: bool) -> None:
         self.calls.append(("enable", on))
 
+    def set_voice_muted(self, on: bool) -> None:
+        self.calls.append(("mute", on))
+
     def set_style(self, settings) -> None:
         self.calls.append(("style", settings))
 
@@ -599,6 +602,40 @@ def test_when_two_operators_talk_expect_one_floor_and_its_release_on_disconnect(
         ("enable", False),
         ("stop", False),
         ("style", {"arms_gain": 0.2}),
+        ("end", None),
+    ]
+
+
+def test_when_operators_mute_the_voice_expect_the_talkers_choice_kept_and_stop_apart(
+    tmp_path: Path,
+):
+    async def scenario(base: str) -> None:
+        async with aiohttp.ClientSession() as session:
+            stranger = await session.ws_connect(f"{base.replace('http', 'ws')}/ws", origin=base)
+            await stranger.send_str('{"type":"mute","on":true}')  # instead of the hello
+            assert await closed(stranger) == 4400  # never identified: the bridge is not told
+            ann = await connect(session, base, name="Ann")
+            bob = await connect(session, base, name="Bob")
+            await until(bob, "welcome")
+            await ann.send_str('{"type":"talk","on":true}')
+            await until(bob, "floor", holder="Ann")
+            await bob.send_str('{"type":"mute","on":true}')  # a bystander mutes Ann's voice
+            assert "only a stop" in (await until(bob, "error"))["message"]
+            await ann.send_str('{"type":"mute","on":true}')
+            await ann.send_str('{"type":"stop","on":true}')  # the stop does not touch the voice
+            await ann.send_str('{"type":"stop","on":false}')
+            await ann.send_str('{"type":"mute","on":false}')  # the mute not held by the stop
+            await ann.send_str('{"type":"ping","t":1}')
+            await until(ann, "pong")
+
+    with serving(tmp_path, token=TOKEN) as (base, bridge):
+        run(scenario(base))
+    assert [call for call in bridge.calls if call[0] != "audio"] == [
+        ("start", None),
+        ("mute", True),
+        ("stop", True),
+        ("stop", False),
+        ("mute", False),
         ("end", None),
     ]
 

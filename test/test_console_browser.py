@@ -614,6 +614,20 @@ def test_when_a_robot_reports_its_pose_expect_it_drawn_as_a_ghost(console: Conso
     page.close()
 
 
+def test_when_the_other_page_leaves_expect_the_room_shared_badge_gone(console: Console, browser):
+    ann = _open(browser, console, name="Ann")
+    bob = _open(browser, console, name="Bob")
+    ann.wait_for_function("window.a2p.room.watchers === 2")
+    shared = ann.locator("#room-watched").is_visible()
+    shared_text = ann.locator("#room-watched").inner_text()
+    bob.close()
+    ann.wait_for_function("window.a2p.room.watchers === 1")  # the console counts Ann alone
+    left_alone = ann.locator("#room-watched").is_visible()
+    assert not left_alone, "the badge still says the room is shared with nobody else watching"
+    assert shared
+    assert shared_text == "room shared with 1 other page"
+
+
 def test_when_the_token_is_wrong_expect_access_refused(console: Console, browser):
     page = _open(browser, console, token="not-the-token-0123456789", ready=False)
     page.wait_for_function("document.getElementById('connection').textContent === 'token refused'")

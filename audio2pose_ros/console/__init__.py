@@ -12,5 +12,7 @@ middleware; ``audio2pose_ros.ros.nodes.console_node`` only connects it to topics
   it is sent;
 - :mod:`~audio2pose_ros.console.floor`: one voice at a time;
 - :mod:`~audio2pose_ros.console.latency`: the operator's voice to the robot's command;
+- :mod:`~audio2pose_ros.console.voice_status`: the voice out of the robot as the page shows it
+  (mute, the three latencies and the offset);
 - :mod:`~audio2pose_ros.console.server`: the HTTP and WebSocket server (aiohttp) around them.
 """

@@ -12,7 +12,8 @@ Two kinds of WebSocket frames come from the page:
   type and range (:func:`parse_control`): ``hello`` (token and display name, the first message),
   ``talk`` (take or release the floor), ``stop`` (emergency stop or release; the release of a
   holder who has left names them in ``confirm``: :mod:`~audio2pose_ros.console.stop`),
-  ``enable``, ``style_set`` (any of the filter's live style parameters,
+  ``enable``, ``mute`` (the operator's voice out of the robot: muted or played; the motion
+  goes on either way), ``style_set`` (any of the filter's live style parameters,
   :data:`~audio2pose_ros.motion.style.STYLE_FIELDS`: the size and tempo of each part, where the
   hands rest and how high they go, each within its declared range), ``ping`` (clock offset and
   round trip), ``enroll`` (a ticket to upload a recording of one's style:
@@ -79,6 +80,7 @@ CONTROL_FIELDS: dict[str, tuple[tuple[str, type, bool], ...]] = {
     "talk": (("on", bool, True),),
     "stop": (("on", bool, True), ("confirm", str, False)),
     "enable": (("on", bool, True),),
+    "mute": (("on", bool, True),),  # the operator's voice out of the robot muted (True) or not
     "style_set": tuple((name, float, False) for name in STYLE_FIELDS),
     "ping": (("t", float, True),),
     "enroll": (("keep", bool, True),),  # ask for a ticket to upload a recording of one's style

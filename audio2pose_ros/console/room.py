@@ -9,9 +9,10 @@ of the connection, the token and the message, :mod:`~audio2pose_ros.console.prot
   only by whoever pressed it, or, once they have left, by another operator whose ``confirm``
   names them; a stop set outside the console is released with a confirmation naming that.
   Every page is told who holds the stop.
-- **The robot's settings**: ``enable``, and the style (``enroll``, ``style``, ``style_set``:
-  :class:`~audio2pose_ros.console.learn_style.LearnMyStyle`), while the floor is free or the
-  sender's.
+- **The robot's settings**: ``enable``, ``mute`` (the operator's voice out of the robot; the
+  stop does not mute it, nor does the mute stop the motion), and the style (``enroll``,
+  ``style``, ``style_set``: :class:`~audio2pose_ros.console.learn_style.LearnMyStyle`), while
+  the floor is free or the sender's.
 - **The style waits for the stop's release**: while the stop is held (by anyone, or set outside
   the console), a change of style (``style``: a preset, "Use my style", the default;
   ``style_set``: the sliders) is refused with the reason, naming who holds the stop, and a style
@@ -62,6 +63,9 @@ class RoomBridge(Protocol):
     def set_enable(self, on: bool) -> None:
         """Publish enable."""
 
+    def set_voice_muted(self, on: bool) -> None:
+        """Mute (True) or play (False) the operator's voice out of the robot."""
+
     def status(self) -> dict[str, object]:
         """The graph's status (the room reads ``stop``: whether the robot is stopped)."""
 
@@ -94,7 +98,7 @@ class Room:
         self.stops = StopHolders()
 
     def on_control(self, operator: Operator, control: Control) -> None:
-        """Act on ``talk``, ``stop``, ``enable``, ``enroll``, ``style`` or ``style_set``.
+        """Act on ``talk``, ``stop``, ``enable``, ``mute``, ``enroll``, ``style`` or ``style_set``.
 
         Raises:
             ProtocolError: not the operator's to do now (the reason says why).
@@ -111,6 +115,8 @@ class Room:
                 )
             if control.type == "enable":
                 self.bridge.set_enable(bool(on))
+            elif control.type == "mute":
+                self.bridge.set_voice_muted(bool(on))
             else:  # enroll, style, style_set
                 if control.type != "enroll" and self.stopped():
                     raise ProtocolError(self._style_waits("style not changed"))

@@ -45,7 +45,7 @@ operator may do to the robot (the floor, the stop and its owners, the settings) 
    (:class:`~audio2pose_ros.console.protocol.AudioDroppedError`): the page may be catching up
    after a stall or a clock step.
 5. **The floor and the stop** (:mod:`~audio2pose_ros.console.room`): only the holder's audio
-   is published; ``enable`` and the style only while the floor is free or one's own; a
+   is published; ``enable``, ``mute`` and the style only while the floor is free or one's own; a
    ``stop`` from anyone, released only by whoever pressed it or, once they have left, by
    another operator who names them.
 6. **The end**: a closed or dropped connection (WebSocket pings every :data:`HEARTBEAT_S`)
@@ -192,6 +192,9 @@ class GraphBridge(Protocol):
     def set_enable(self, on: bool) -> None:
         """Publish enable."""
 
+    def set_voice_muted(self, on: bool) -> None:
+        """Mute (True) or play (False) the operator's voice out of the robot."""
+
     def set_style(self, settings: dict[str, float] | None) -> None:
         """Set any of the filter's live style parameters; None restores the graph's own style."""
 
@@ -199,7 +202,7 @@ class GraphBridge(Protocol):
         """The latest commanded and measured pose: name -> angle (rad), or None each."""
 
     def status(self) -> dict[str, Any]:
-        """Stop, enable, the style parameters in force, health and latency, JSON-ready."""
+        """Stop, enable, the style in force, health, latency and the voice, JSON-ready."""
 
 
 @dataclass

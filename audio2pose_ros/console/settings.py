@@ -121,6 +121,14 @@ class ConsoleSettings:
             read_only=True,
         ),
     )
+    voice_node: str = field(
+        default="voice_out_node",
+        metadata=param(
+            "voice node whose 'muted' the page sets (its set_parameters service) and whose "
+            "latencies it shows (its /diagnostics status)",
+            read_only=True,
+        ),
+    )
     auth_timeout_s: float = field(
         default=5.0,
         metadata=param(

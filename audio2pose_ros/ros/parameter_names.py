@@ -77,6 +77,7 @@ NODE_PARAMETER_NAMES = frozenset(
         "stop_behaviour",
         "token",
         "velocity_fraction",
+        "voice_node",
         "voice_out",
         "watchdog_timeout_s",
     }

@@ -3,13 +3,15 @@
 // waiting for this thread), a 3D view of the robot from the package's URDF (commanded pose
 // solid, measured pose as a ghost), stop / enable / style (a preset, and the size and tempo of
 // each part, where the hands rest and how high they go), health and the voice-to-command
-// latency, and the room: the robot's camera (JPEG) and microphones (played through an
-// AudioWorklet) with the age of the picture, the sound's level and how many pages watch.
+// latency, the operator's voice out of the robot (voice.js: the mute and its latencies), and
+// the room: the robot's camera (JPEG) and microphones (played through an AudioWorklet) with the
+// age of the picture, the sound's level and how many other pages watch.
 // Everything is served by the console itself.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
 import URDFLoader from 'urdf-loader';
 import { createEnroll } from './enroll.js';
+import { createVoice } from './voice.js';
 
 const CHUNK_SAMPLES = 320; // 20 ms at 16 kHz
 const STYLE_SEND_PERIOD_MS = 150;
@@ -30,10 +32,11 @@ const state = {
 };
 // What the page shows of the room (window.a2p.room): pictures drawn, the last one's age when
 // drawn (ms), the sound's level (dBFS) and as heard before the operator's own voice was removed,
-// blocks of sound received, whether it plays, pages watching.
+// blocks of sound received, whether it plays, pages watching (this one included) and other
+// pages watching (the badge).
 state.room = {
   framesDrawn: 0, frameAgeMs: null, levelDb: null, heardDb: null, soundBlocks: 0, playing: false,
-  watchers: 0, sequence: 0,
+  watchers: 0, othersWatching: 0, sequence: 0,
 };
 window.a2p = state;
 
@@ -74,6 +77,7 @@ function setControls(enabled) {
   for (const slider of document.querySelectorAll('#style-sliders input')) {
     slider.disabled = !enabled;
   }
+  voiceOut.setConnected(enabled);
 }
 
 function connect() {
@@ -91,6 +95,7 @@ function connect() {
 function onClose(code) {
   state.connected = false;
   state.you = false;
+  showWatchers(0);
   setControls(false);
   stopAudio();
   if (code === 4401 || code === 4429) {
@@ -257,11 +262,15 @@ $('room-listen').addEventListener('click', () => {
   startRoomSound().catch((error) => showError(`The room cannot be played: ${error.message}`));
 });
 
+// The console counts every identified page, this one too: the badge says whether the room is
+// shared with anyone else, and goes when the last other page leaves (or this one disconnects).
 function showWatchers(watchers) {
   state.room.watchers = watchers || 0;
+  const others = state.connected ? Math.max(0, state.room.watchers - 1) : 0;
+  state.room.othersWatching = others;
   const pill = $('room-watched');
-  pill.hidden = !state.room.watchers;
-  setText(pill, `room shared with ${state.room.watchers} page${state.room.watchers === 1 ? '' : 's'}`);
+  pill.hidden = !others;
+  setText(pill, others ? `room shared with ${others} other page${others === 1 ? '' : 's'}` : '');
 }
 
 // --- talking -------------------------------------------------------------------------------
@@ -398,6 +407,7 @@ function updateStatus(status) {
     : enabled ? 'Motion enabled.' : 'Motion disabled: the robot rests in its neutral pose.');
   updateStyle(status);
   styleLearning.update(status);
+  voiceOut.update(status.voice);
   holdStyle();
   const l = status.latency || {};
   setText($('latency'), l.n
@@ -755,6 +765,7 @@ function wire() {
 wire();
 wireStopRelease();
 const styleLearning = createEnroll({ $, send, state, showError });
+const voiceOut = createVoice({ $, send, state });
 connect();
 initView().catch((error) => {
   $('view-problem').hidden = false;

@@ -27,12 +27,17 @@ Subscriptions:
     audio (naoqi_bridge_msgs/AudioBuffer): the robot's microphones, 16 kHz mono to every
         identified page, the operator's own voice removed
         (:class:`~audio2pose_ros.console.room_feed.EchoCanceller`).
-    /diagnostics: the health of every node, shown in the page.
+    /diagnostics: the health of every node, shown in the page; of the voice node
+        (``voice_node``), its three latencies, the delay and the offset
+        (:mod:`~audio2pose_ros.console.voice_status`).
 Services used:
     <filter_node>/set_parameters, get_parameters (rcl_interfaces): the filter's live style
         parameters (:data:`~audio2pose_ros.motion.style.STYLE_FIELDS`: size and tempo per part,
         the arms' rest and height) set from the page (sliders, a preset, the learned style),
         and read back.
+    <voice_node>/set_parameters, get_parameters: the voice node's ``muted``, the operator's
+        choice in the page, set and read back every :data:`STYLE_REFRESH_S`; the console keeps
+        the operator's last choice in force (a voice node restarted meanwhile is set again).
 
 Parameters: :class:`~audio2pose_ros.console.settings.ConsoleSettings` (all read-only). A network
 bind without certificate, key or a long enough token, a certificate that does not load or an
@@ -70,11 +75,12 @@ from audio2pose_ros.console.room_feed import EchoCanceller, RoomItem, jpeg_from_
 from audio2pose_ros.console.server import ConsoleServer
 from audio2pose_ros.console.server_thread import ServerThread
 from audio2pose_ros.console.settings import ConsoleSettings
+from audio2pose_ros.console.voice_status import VOICE_KEYS, RobotSeen, voice_view
 from audio2pose_ros.motion.style import STYLE_FIELDS
 from audio2pose_ros.parameters import settings_from, specs_of
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
-from audio2pose_ros.ros.diagnosed_node import STALE_AFTER_S, DiagnosedNode
+from audio2pose_ros.ros.diagnosed_node import STALE_AFTER_S, DiagnosedNode, status_name
 from audio2pose_ros.ros.node_parameters import NodeParameters
 from audio2pose_ros.ros.qos import LATCHED_QOS
 from audio2pose_ros.ros.spin import run_node
@@ -82,8 +88,9 @@ from audio2pose_ros.ros.supervisor_pipe import to_terminal
 
 PARAMETERS = specs_of(ConsoleSettings)
 AUDIO_INFO_PERIOD_S = 5.0  # audio_capture republishes its AudioInfo this often
-STYLE_REFRESH_S = 2.0  # the filter's style parameters are read back this often
+STYLE_REFRESH_S = 2.0  # the filter's style and the voice's mute are read back this often
 MEASURED_TIMEOUT_S = 2.0  # measured joint states older than this: no ghost robot
+MICROPHONES_TIMEOUT_S = 2.0  # the robot's microphones not heard for this long: none
 HEALTH_FORGET_S = 30.0  # a diagnostic status not heard for this long leaves the page
 MAX_HEALTH_STATUSES = 32
 MAX_HEALTH_MESSAGE_CHARS = 240
@@ -154,6 +161,17 @@ class ConsoleNode(DiagnosedNode):
         self.room_sequence = 0
         self.picture_s = -1e9  # when the last picture was encoded (monotonic)
         self.room_level_dbfs = float("nan")
+        self.microphones_s = -1e9  # when the robot's microphones last arrived (monotonic)
+        voice_node = self.settings.voice_node
+        if not voice_node.startswith("/"):
+            voice_node = f"{self.get_namespace().rstrip('/')}/{voice_node}"
+        self.voice_status_name = status_name(voice_node)
+        self.voice_values: dict[str, str] | None = None  # the voice node's last /diagnostics
+        self.voice_heard_s = -1e9
+        self.voice_muted: bool | None = None  # its `muted`, as last read back
+        self.voice_wanted: bool | None = None  # the operator's last choice (None: none made)
+        self.voice_problem = ""
+        self.voice_sets = 0  # sets of `muted` asked for: a read begun before one is not acted on
 
         self.audio_pub = self.create_publisher(AudioData, topics.AUDIO, AUDIO_PUBLISH_QOS)
         self.info_pub = self.create_publisher(AudioInfo, topics.AUDIO_INFO, LATCHED_QOS)
@@ -214,6 +232,13 @@ class ConsoleNode(DiagnosedNode):
             GetParameters, f"{filter_node}/get_parameters"
         )
         self.create_timer(STYLE_REFRESH_S, guarded(self.refresh_style))
+        self.voice_set_client: Client[Any, Any] = self.create_client(
+            SetParameters, f"{self.settings.voice_node}/set_parameters"
+        )
+        self.voice_get_client: Client[Any, Any] = self.create_client(
+            GetParameters, f"{self.settings.voice_node}/get_parameters"
+        )
+        self.create_timer(STYLE_REFRESH_S, guarded(self.refresh_voice))
 
         self.server = ConsoleServer(
             self.settings,
@@ -373,6 +398,74 @@ class ConsoleNode(DiagnosedNode):
             with self._lock:
                 self.style_values = dict(zip(STYLE_FIELDS, values, strict=True))
 
+    def set_voice_muted(self, on: bool) -> None:
+        """Set the voice node's ``muted`` to the operator's choice (kept and re-applied)."""
+        with self._lock:
+            self.voice_wanted = on
+        self._set_voice_muted(on)
+
+    def _set_voice_muted(self, on: bool) -> None:
+        if not self.voice_set_client.service_is_ready():
+            with self._lock:
+                self.voice_problem = (
+                    f"{self.settings.voice_node}'s parameter service is not available "
+                    "(no voice out: start the console with --voice-out)"
+                )
+            return
+        with self._lock:
+            self.voice_sets += 1
+        request = SetParameters.Request()
+        request.parameters = [
+            Parameter(
+                name="muted",
+                value=ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=on),
+            )
+        ]
+
+        def done(future: Future[Any]) -> None:
+            refused = [
+                r.reason for r in getattr(future.result(), "results", []) if not r.successful
+            ]
+            with self._lock:
+                self.voice_problem = "; ".join(refused)
+            if refused:
+                self.get_logger().warning(f"mute refused by the voice node: {'; '.join(refused)}")
+            self.refresh_voice()
+
+        self.voice_set_client.call_async(request).add_done_callback(done)
+
+    def refresh_voice(self) -> None:
+        """Read the voice node's ``muted`` back; set it again where it differs from the choice."""
+        if not self.voice_get_client.service_is_ready():
+            with self._lock:
+                self.voice_muted = None
+            return
+        with self._lock:
+            sets = self.voice_sets
+        request = GetParameters.Request(names=["muted"])
+        future = self.voice_get_client.call_async(request)
+        future.add_done_callback(lambda done: self._voice_read(done, sets))
+
+    def _voice_read(self, future: Future[Any], sets: int) -> None:
+        """Keep the value read, unless a set was asked for since the read began."""
+        values = getattr(future.result(), "values", [])
+        if len(values) != 1 or values[0].type != ParameterType.PARAMETER_BOOL:
+            return
+        muted = bool(values[0].bool_value)
+        with self._lock:
+            if sets != self.voice_sets:
+                return  # read before a set: the set's own read follows
+            self.voice_muted = muted
+            wanted = self.voice_wanted
+            if wanted is None or wanted == muted:
+                self.voice_problem = ""  # the choice is in force
+        if wanted is not None and wanted != muted:
+            self.get_logger().warning(
+                f"{self.settings.voice_node}'s muted is {muted}, the operator chose {wanted}: "
+                "set again"
+            )
+            self._set_voice_muted(wanted)
+
     # --- from the graph ---------------------------------------------------------------------------
 
     def on_raw(self, _data: bytes) -> None:
@@ -420,10 +513,20 @@ class ConsoleNode(DiagnosedNode):
             self.enable_state = bool(msg.data)
 
     def on_diagnostics(self, msg: DiagnosticArray) -> None:
-        """Keep each status's level and message for the page's health panel."""
+        """Keep each status's level and message for the page's health panel.
+
+        Of the voice node's status, the values the page shows of the voice are kept too.
+        """
         now = time.monotonic()
         with self._lock:
             for status in msg.status[:MAX_HEALTH_STATUSES]:
+                if status.name == self.voice_status_name:
+                    self.voice_values = {
+                        kv.key: kv.value[:MAX_HEALTH_MESSAGE_CHARS]
+                        for kv in status.values
+                        if kv.key in VOICE_KEYS
+                    }
+                    self.voice_heard_s = now
                 if status.name in self.health or len(self.health) < MAX_HEALTH_STATUSES:
                     self.health[status.name[:80]] = (
                         _level(status.level),
@@ -462,6 +565,7 @@ class ConsoleNode(DiagnosedNode):
             room = self.echo.process(samples, time.monotonic())
         level, heard = level_dbfs(room), level_dbfs(samples)
         self.room_level_dbfs = level
+        self.microphones_s = time.monotonic()
         if self.server.sessions and room.size:
             pcm = encode_pcm(room, S16LE_MONO_16K)
             self._to_pages(True, _taken_s(msg.header.stamp), pcm, (level, heard))
@@ -488,6 +592,19 @@ class ConsoleNode(DiagnosedNode):
                 }
                 for name, (level, message, heard) in sorted(self.health.items())
             ]
+            voice_age_s = now - self.voice_heard_s
+            seen = RobotSeen(
+                joint_states=now - self.measured_s <= MEASURED_TIMEOUT_S,
+                microphones=now - self.microphones_s <= MICROPHONES_TIMEOUT_S,
+                talked=self.chunks_published > 0,
+            )
+            voice = voice_view(
+                self.voice_values if voice_age_s <= HEALTH_FORGET_S else None,
+                self.voice_muted,
+                seen,
+                self.voice_problem,
+                voice_age_s,
+            )
             return {
                 "stop": self.stop_state,
                 "enable": self.enable_state,
@@ -495,6 +612,7 @@ class ConsoleNode(DiagnosedNode):
                 "style_problem": self.style_problem,
                 "health": health,
                 "latency": self.latency.summary(),
+                "voice": voice,
             }
 
     # --- own diagnostics ---------------------------------------------------------------------
