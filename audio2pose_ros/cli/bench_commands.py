@@ -183,6 +183,10 @@ def _print_voice(runs: list[dict[str, Any]]) -> None:
         "\nvoice vs motion at the simulated Pepper (motion - heard; window -80 .. +20 ms), "
         f"{runs[0]['audio_s']:.0f} s of speech after calibration"
     )
+    for run in runs:
+        after = run["calibrated_after_s"]
+        calibration = f"after {after:.0f} s of speech" if after is not None else "NOT calibrated"
+        print(f"  at {run['execution_latency_ms']} ms the voice node was calibrated: {calibration}")
     print(f"{'execution latency':<20}{'windows':>8}{'p5 ms':>8}{'p50 ms':>8}{'p95 ms':>8}  delay")
     for run in runs:
         print(
