@@ -293,6 +293,29 @@ def test_when_the_voice_pauses_expect_the_delay_to_move_faster_and_after_a_gap_a
     assert line.delay_s == 0.005
 
 
+def test_when_the_node_is_held_up_once_expect_the_voice_back_on_its_delay_while_speaking():
+    # the node's 1 ms release ticks stop for 25 ms once (a loaded machine): the chunks due then
+    # go out together and the loudspeaker, playing back to back, holds every later one 25 ms
+    # longer for as long as the operator talks; its wait is taken off the delay line's delay
+    rate = 16000
+    line, queue, sync = DelayLine(rate), SpeakerQueue(rate), SyncEstimator(rate)
+    held_back: list[float] = []  # from each chunk's arrival to when it starts playing
+    for tick in range(5000):
+        now = 0.001 * tick
+        if tick % 20 == 0 and tick < 4000:
+            line.push(0.3 * np.ones(320), now)
+        if 1000 <= tick < 1025:
+            continue
+        for chunk in line.due(now, sync.line_delay_s()):
+            start = queue.offer(now, chunk.samples)
+            assert start is not None
+            sync.on_sent(start, chunk.samples, start - now)
+            held_back.append(start - chunk.arrival_s)
+    assert held_back[40] == pytest.approx(sync.delay_s, abs=1e-6)
+    assert max(held_back) > sync.delay_s + 0.015  # the chunk due in the stall, and those after
+    assert held_back[-1] == pytest.approx(sync.delay_s, abs=0.002)  # 25 ms in 1.25 s of speech
+
+
 # --- the robot double and the NAOqi link, over NAOqi's real protocol ---------------------------
 
 

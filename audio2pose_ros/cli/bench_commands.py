@@ -174,7 +174,8 @@ def _print_bench(results: dict[str, Any], frames: int, clip_s: float) -> None:
     if "voice" in results:
         _print_voice(results["voice"])
     if "busy_loops" in results:
-        print(f"\n(--graph, --console, --sim measured beside {results['busy_loops']} busy loops)")
+        loops = results["busy_loops"]
+        print(f"\n(--graph, --console, --sim, --voice measured beside {loops} busy loops)")
 
 
 def _print_voice(runs: list[dict[str, Any]]) -> None:
@@ -363,8 +364,8 @@ def register(verbs: Verbs) -> None:
         "--busy-loops",
         type=bounded_int(0, 16),
         default=0,
-        help="run N busy-loop processes beside --graph, --console and --sim (other work on the "
-        "machine), 0 to 16 (default 0)",
+        help="run N busy-loop processes beside --graph, --console, --sim and --voice (other work "
+        "on the machine), 0 to 16 (default 0)",
     )
     bench.add_argument(
         "--floor-executor",

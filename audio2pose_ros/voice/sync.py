@@ -6,8 +6,10 @@ at ``a + graph + execution``; its sound is heard from the loudspeakers at
 ``[-WINDOW_EARLY_S, WINDOW_LATE_S]`` = [-80 ms, +20 ms]: people notice sound ahead of the
 picture from about 45 ms and behind it from about 125 ms (ITU-R BT.1359), and a speaker's
 gesture starts with the stressed syllable or a little before it, seldom after. The voice is
-therefore delayed by ``graph + execution - loudspeaker + TARGET_LEAD_S`` (the motion 30 ms ahead
-of the sound: the middle of the window), never less than nothing.
+therefore delayed by ``graph + execution - loudspeaker + TARGET_LEAD_S`` (the motion 45 ms ahead
+of the sound), never less than nothing. The motion path's own lag wanders with the gestures, by
+some 20 ms earlier and 50 ms later than its median (a large gesture trails the poses more; the
+filter's limits), so the aim leaves 35 ms to the early edge of the window and 65 ms to the late.
 
 The three parts are measured while the operator talks (:class:`SyncEstimator`):
 
@@ -17,11 +19,15 @@ The three parts are measured while the operator talks (:class:`SyncEstimator`):
   ``commanded_joint_states``, :func:`~audio2pose_ros.voice.lag.motion_lag`);
 - **execution**: how long the measured ``joint_states`` follow the commands
   (:func:`~audio2pose_ros.voice.lag.motion_lag`);
-- **loudspeaker**: how long after the voice is sent the robot's microphones hear it: how long
-  after it should start playing (when it is sent, or when what was sent before it has played)
-  they hear it (:func:`~audio2pose_ros.voice.lag.sound_lag`, a clean signal to line up), plus how
-  long it waited for what was sent before it (the loudspeaker's queue, averaged over the same
-  recent past), so that the voice's own queue is held back no further.
+- **loudspeaker**: how long after the voice should start playing (when it is sent, or when
+  what was sent before it has played) the robot's microphones hear it
+  (:func:`~audio2pose_ros.voice.lag.sound_lag`).
+
+The loudspeaker plays what it is given back to back, so a chunk sent late (a loaded machine)
+leaves every chunk after it waiting behind it, for as long as the voice goes on: that wait is
+part of the voice's delay. The delay line is therefore asked for the delay minus the last
+chunk's wait (:meth:`SyncEstimator.line_delay_s`), at once, not through the slow median of a
+measured part.
 
 A part not measured (no robot microphones, no measured joint states, too little speech or
 motion yet) uses its documented default (:data:`DEFAULTS_S`) and says so. Each estimate is the
@@ -60,9 +66,8 @@ __all__ = [
 
 WINDOW_EARLY_S = 0.080  # the motion may reach the joints this long before the sound is heard
 WINDOW_LATE_S = 0.020  # ... and this long after it
-# Aimed at: the motion this long ahead of the sound, the middle of the window, as far from
-# either edge as the motion path's own wander (its lag varies by some 20 ms with the gestures)
-TARGET_LEAD_S = (WINDOW_EARLY_S - WINDOW_LATE_S) / 2
+# Aimed at: the motion this long ahead of the sound (see the module text for why not the middle)
+TARGET_LEAD_S = 0.045
 MAX_DELAY_S = 1.0  # the voice is never held back longer
 MIN_MEASUREMENTS = 3  # a part is measured once it has this many measurements (their median)
 CALIBRATED_WITHIN_S = 0.005  # calibrated: every part measured, the delay in force this close
@@ -76,7 +81,10 @@ SOUND_SCORE = 0.5  # a sound lag below this score is no measurement
 MAX_MOTION_LAG_S = 0.6  # longest lag searched between two trajectories (s)
 MAX_SOUND_LAG_S = 1.0  # longest loudspeaker lag searched (s)
 HISTORY_S = 6.0  # each measurement looks at this much of the recent past (s)
-KEPT = 15  # measurements kept per part (their median is the estimate)
+# Measurements kept per part, one a second at most: their median is the estimate. A long memory
+# keeps the delay steady: a short one chases the motion's wander with the gestures, seconds late,
+# and so widens it; a lasting change (another robot, another network) is followed within ~20 s.
+KEPT = 40
 
 
 def voice_delay_s(graph_s: float, execution_s: float, loudspeaker_s: float) -> float:
@@ -146,7 +154,7 @@ class SyncEstimator:
         self.commanded = _Series()
         self.measured = _Series()
         self.sent: deque[tuple[float, np.ndarray]] = deque()
-        self.backlogs: deque[tuple[float, float, float]] = deque()  # (first sample, wait, length)
+        self.waited_s = 0.0  # how long the last chunk sent waits for the loudspeaker
         self.heard: deque[tuple[float, np.ndarray]] = deque()
         self.heard_rate_hz = 0
         self.delay_s = self.target_delay_s()
@@ -178,9 +186,7 @@ class SyncEstimator:
         (:func:`~audio2pose_ros.voice.lag.loudness`), as are the microphones'.
         """
         self._keep(self.sent, *loudness(first_sample_s, mono, self.output_rate_hz))
-        self.backlogs.append((first_sample_s, waited_s, len(mono) / self.output_rate_hz))
-        while self.backlogs and first_sample_s - self.backlogs[0][0] > HISTORY_S:
-            self.backlogs.popleft()
+        self.waited_s = waited_s
 
     def on_heard(self, first_sample_s: float, mono: np.ndarray, rate_hz: int) -> None:
         """The robot's microphones (mean of channels), the first sample at ``first_sample_s``."""
@@ -211,7 +217,6 @@ class SyncEstimator:
             commanded=self.commanded.arrays(),
             measured=self.measured.arrays(),
             sent=list(self.sent),
-            backlogs=list(self.backlogs),
             heard=list(self.heard) if self.heard_rate_hz else [],
         )
 
@@ -229,12 +234,19 @@ class SyncEstimator:
                 self.parts[name].measurements.append(lags[name])
         self.delay_s = self.target_delay_s()
 
+    def line_delay_s(self) -> float:
+        """What the delay line is asked for: the delay, less the loudspeaker's wait."""
+        return max(self.delay_s - self.waited_s, 0.0)
+
     def target_delay_s(self) -> float:
         """The delay the current estimates call for."""
         return voice_delay_s(*(p.value_s for p in self.parts.values()))
 
     def expected_offset_s(self, in_force_s: float) -> float:
-        """``motion - heard`` with the delay ``in_force_s`` (negative: the motion is ahead)."""
+        """``motion - heard`` with the voice held back ``in_force_s`` (negative: motion ahead).
+
+        ``in_force_s``: the delay line's delay and the loudspeaker's wait.
+        """
         parts = self.parts
         return (
             parts["graph"].value_s
@@ -244,7 +256,7 @@ class SyncEstimator:
         )
 
     def calibrated(self, in_force_s: float) -> bool:
-        """Every part measured and the delay ``in_force_s`` where they call for."""
+        """Every part measured and the voice held back ``in_force_s``, as they call for."""
         measured = all(part.measured for part in self.parts.values())
         return measured and abs(in_force_s - self.delay_s) <= CALIBRATED_WITHIN_S
 
@@ -257,7 +269,6 @@ class Snapshot:
     commanded: tuple[np.ndarray, np.ndarray]
     measured: tuple[np.ndarray, np.ndarray]
     sent: list[tuple[float, np.ndarray]]
-    backlogs: list[tuple[float, float, float]]  # (first sample (s), waited (s), length (s))
     heard: list[tuple[float, np.ndarray]]
 
 
@@ -265,8 +276,7 @@ def measure(snapshot: Snapshot) -> dict[str, float]:
     """The lags (s) that passed their score, by part.
 
     ``filter``: raw poses to commands; ``execution``: commands to measured joints;
-    ``loudspeaker``: voice sent to the microphones (from when it should start playing, plus what
-    it waited in the loudspeaker's queue, averaged by length over the recent past).
+    ``loudspeaker``: voice sent to the microphones (from when it should start playing).
     The heavy part of :meth:`SyncEstimator.update`; it touches nothing shared, so a node may
     run it on a thread of its own.
     """
@@ -289,11 +299,5 @@ def measure(snapshot: Snapshot) -> dict[str, float]:
             snapshot.sent, ENVELOPE_RATE_HZ, snapshot.heard, ENVELOPE_RATE_HZ, MAX_SOUND_LAG_S
         )
         if lag.score >= SOUND_SCORE:
-            lags["loudspeaker"] = lag.lag_s + _mean_wait_s(snapshot.backlogs)
+            lags["loudspeaker"] = lag.lag_s
     return lags
-
-
-def _mean_wait_s(backlogs: list[tuple[float, float, float]]) -> float:
-    """What the voice waited in the loudspeaker's queue, averaged by length (s)."""
-    total = sum(length for _, _, length in backlogs)
-    return sum(wait * length for _, wait, length in backlogs) / total if total else 0.0

@@ -239,7 +239,7 @@ class VoiceOutNode(DiagnosedNode):
     def release(self) -> None:
         """Send the chunks whose delay is over."""
         now = _now_s(self)
-        for chunk in self.delay_line.due(now, self.sync.delay_s):
+        for chunk in self.delay_line.due(now, self.sync.line_delay_s()):
             start_s = self.speaker_queue.offer(now, chunk.samples)
             if start_s is None:
                 continue  # skipped: the loudspeaker's queue is too long (counted)
@@ -248,7 +248,8 @@ class VoiceOutNode(DiagnosedNode):
                 self.naoqi.send(chunk.samples)
             elif self.destination.kind == "topic":
                 self.out_pub.publish(AudioData(data=encode_pcm(chunk.samples, self.out_format)))
-            # the loudspeaker latency: from when the chunk should start playing, and its wait
+            # the loudspeaker latency counts from when the chunk should start playing; its wait
+            # there is taken off the delay line's
             self.sync.on_sent(start_s, chunk.samples, start_s - now)
 
     # --- the motion and the microphones -----------------------------------------------------------
@@ -333,9 +334,12 @@ class VoiceOutNode(DiagnosedNode):
         return DiagnosticStatus.OK, f"voice to {where}{muted}, in step with the motion"
 
     def delay_in_force_s(self) -> float:
-        """The delay the voice is held back by now (the one called for before any voice)."""
+        """How long the voice is held back now: the delay line's delay and the loudspeaker's wait.
+
+        Before any voice, the delay called for.
+        """
         in_force = self.delay_line.delay_s
-        return self.sync.delay_s if in_force is None else in_force
+        return self.sync.delay_s if in_force is None else in_force + self.sync.waited_s
 
     def diagnostic_values(self) -> dict[str, object]:
         """The latencies, the delay, the offset and the link's counters."""

@@ -219,7 +219,7 @@ def measure_voice(
     execution_latency_s: float,
     loudspeaker_latency_s: float = 0.05,
     duration_s: float = 60.0,
-    calibrate_s: float = 15.0,
+    calibrate_s: float = 20.0,
     log_dir: Path | None = None,
     observe: Callable[[VoiceObserver], None] | None = None,
 ) -> VoiceBenchResult:
