@@ -186,8 +186,12 @@ def _print_voice(runs: list[dict[str, Any]]) -> None:
     )
     for run in runs:
         after = run["calibrated_after_s"]
-        calibration = f"after {after:.0f} s of speech" if after is not None else "NOT calibrated"
-        print(f"  at {run['execution_latency_ms']} ms the voice node was calibrated: {calibration}")
+        calibration = (
+            f"calibrated after {after:.0f} s of speech"
+            if after is not None
+            else "NOT calibrated after the longest calibration: measured anyway"
+        )
+        print(f"  at {run['execution_latency_ms']} ms the voice node was {calibration}")
     print(f"{'execution latency':<20}{'windows':>8}{'p5 ms':>8}{'p50 ms':>8}{'p95 ms':>8}  delay")
     for run in runs:
         print(
