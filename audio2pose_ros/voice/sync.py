@@ -7,9 +7,10 @@ at ``a + graph + execution``; its sound is heard from the loudspeakers at
 picture from about 45 ms and behind it from about 125 ms (ITU-R BT.1359), and a speaker's
 gesture starts with the stressed syllable or a little before it, seldom after. The voice is
 therefore delayed by ``graph + execution - loudspeaker + TARGET_LEAD_S`` (the motion 45 ms ahead
-of the sound), never less than nothing. The motion path's own lag wanders with the gestures, by
-some 20 ms earlier and 50 ms later than its median (a large gesture trails the poses more; the
-filter's limits), so the aim leaves 35 ms to the early edge of the window and 65 ms to the late.
+of the sound), never less than nothing. The motion path's own lag wanders from one stretch of
+speech to the next, by some 20 ms earlier and 50 ms later than its median (measured at the
+simulated Pepper, ``audio2pose bench --voice``), so the aim leaves 35 ms to the early edge of
+the window and 65 ms to the late.
 
 The three parts are measured while the operator talks (:class:`SyncEstimator`):
 
@@ -82,7 +83,7 @@ MAX_MOTION_LAG_S = 0.6  # longest lag searched between two trajectories (s)
 MAX_SOUND_LAG_S = 1.0  # longest loudspeaker lag searched (s)
 HISTORY_S = 6.0  # each measurement looks at this much of the recent past (s)
 # Measurements kept per part, one a second at most: their median is the estimate. A long memory
-# keeps the delay steady: a short one chases the motion's wander with the gestures, seconds late,
+# keeps the delay steady: a short one chases the motion lag's wander, seconds late,
 # and so widens it; a lasting change (another robot, another network) is followed within ~20 s.
 KEPT = 40
 
