@@ -271,7 +271,8 @@ def test_when_the_delay_asked_for_changes_while_speaking_expect_no_gap_or_burst_
     assert line.delay_s == pytest.approx(0.09, abs=1 / 16000)
     assert played[0] == pytest.approx(0.1, abs=0.0015)  # within the 1 ms serving period
     assert played[-1] - (199 * 0.02 + 319 / 16000) == pytest.approx(0.09, abs=0.0015)
-    assert line.released_samples == len(played) == 200 * 320 - round(0.01 * 16000)
+    assert line.released_samples == len(played) == 200 * 320 + line.stretched_samples
+    assert line.stretched_samples == -round(0.01 * 16000)
 
 
 def test_when_the_voice_pauses_expect_the_delay_to_move_faster_and_after_a_gap_at_once():

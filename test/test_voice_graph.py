@@ -56,12 +56,15 @@ def test_when_the_operator_talks_expect_the_voice_whole_and_held_back_by_the_mea
     robot, voice = result.robot, result.voice_node
     assert result.restarts == 0
     # ALAudioDevice's format and rate, none refused; every frame the observer published was
-    # played, or skipped to keep the loudspeaker's queue short after a burst (and counted)
+    # played, or skipped to keep the loudspeaker's queue short after a burst (and counted), with
+    # the frames the delay line added or removed moving the voice to a new delay (counted)
     assert robot["audio_device_rate_hz"] == "16000"
     assert robot["audio_device_refused"] == "0"
     played = int(robot["voice_frames_played"])
     skipped = int(voice["pauses_skipped_frames"]) + int(voice["speech_skipped_frames"])
-    assert played + skipped == result.samples_published
+    stretched = int(voice["voice_stretched_frames"])
+    assert played + skipped == result.samples_published + stretched
+    assert abs(stretched) < 0.01 * result.samples_published
     assert played > 0.5 * result.samples_published
     # the three parts measured, not the defaults, and each where the simulated robot puts it:
     # the execution latency and its motors' tracking, the loudspeaker latency and its queue

@@ -82,6 +82,7 @@ class DelayLine:
         self._held = 0
         self.dropped_s = 0.0
         self.released_samples = 0  # as released (stretched or shrunk)
+        self.stretched_samples = 0  # added by stretching, less those removed by shrinking
         self.delay_s: float | None = None  # the delay in force; None before the first chunk
         self._last_end_s = -np.inf  # when the last chunk taken ended, on the arrival clock
 
@@ -138,6 +139,7 @@ class DelayLine:
             return samples, in_force_s
         positions = np.linspace(0.0, n - 1.0, n + change)
         stretched = np.interp(positions, np.arange(n), samples).astype(samples.dtype)
+        self.stretched_samples += change
         return stretched, in_force_s + change / self.rate_hz
 
     def clear(self) -> float:

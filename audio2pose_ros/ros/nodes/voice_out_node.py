@@ -358,6 +358,7 @@ class VoiceOutNode(DiagnosedNode):
             "voice_released_s": f"{self.released_s:.2f}",
             "voice_muted_s": f"{self.muted_s:.2f}",
             "voice_dropped_in_delay_line_s": f"{self.delay_line.dropped_s:.2f}",
+            "voice_stretched_frames": self.delay_line.stretched_samples,
             "pauses_skipped_frames": self.speaker_queue.skipped_samples,
             "speech_skipped_frames": self.speaker_queue.speech_skipped_samples,
             "format": self.input.format or self.input.format_problem,
