@@ -4,11 +4,11 @@ The graph, the simulated Pepper (its fake ALAudioDevice served through real libq
 and voice_out_node run as processes; an observer plays speech in as the console does and
 records what the robot reports (:mod:`audio2pose_ros.ros.tools.voice_bench`). Judged from
 counts, stamps and event order: the voice arrives whole, in ALAudioDevice's format and rate,
-held back by the three latencies measured where the simulated robot puts them; after
-calibration the motion reaches the joints between 80 ms before and 20 ms after the voice is
-heard (the median, and two windows of 2 s in three; a long test: a machine loaded far beyond
-its cores takes the two paths out of step), at emulated execution latencies of 0 and 150 ms;
-a NAOqi that goes away and comes back changes nothing in the motion.
+held back by the three latencies measured where the simulated robot puts them; once the voice
+node says it is calibrated, the motion reaches the joints between 80 ms before and 20 ms after
+the voice is heard (p5 and p95 of 2 s windows, from the stamps of the microphones' buffers and
+joint states and the order of chunks and poses; a long test), at emulated execution latencies
+of 0 and 150 ms; a NAOqi that goes away and comes back changes nothing in the motion.
 """
 
 from __future__ import annotations
@@ -33,8 +33,10 @@ from audio2pose_ros.ros.tools.voice_bench import (
     speech_messages,
 )
 from audio2pose_ros.ros.voice_graph import VOICE_NODE, free_local_url, voice_out_processes
+from audio2pose_ros.voice.delay import SPEECH_STRETCH
+from audio2pose_ros.voice.offset import percentiles_ms
 from audio2pose_ros.voice.robot_double import FakeAudioDevice, RobotLoudspeaker, serve_audio_device
-from audio2pose_ros.voice.sync import MAX_DELAY_STEP_S, TARGET_LEAD_S, WINDOW_EARLY_S, WINDOW_LATE_S
+from audio2pose_ros.voice.sync import TARGET_LEAD_S, WINDOW_EARLY_S, WINDOW_LATE_S
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -54,12 +56,15 @@ def test_when_the_operator_talks_expect_the_voice_whole_and_held_back_by_the_mea
     robot, voice = result.robot, result.voice_node
     assert result.restarts == 0
     # ALAudioDevice's format and rate, none refused; every frame the observer published was
-    # played, or skipped to keep the loudspeaker's queue short after a burst (and counted)
+    # played, or skipped to keep the loudspeaker's queue short after a burst (and counted), with
+    # the frames the delay line added or removed moving the voice to a new delay (counted)
     assert robot["audio_device_rate_hz"] == "16000"
     assert robot["audio_device_refused"] == "0"
     played = int(robot["voice_frames_played"])
     skipped = int(voice["pauses_skipped_frames"]) + int(voice["speech_skipped_frames"])
-    assert played + skipped == result.samples_published
+    stretched = int(voice["voice_stretched_frames"])
+    assert played + skipped == result.samples_published + stretched
+    assert abs(stretched) < 0.01 * result.samples_published
     assert played > 0.5 * result.samples_published
     # the three parts measured, not the defaults, and each where the simulated robot puts it:
     # the execution latency and its motors' tracking, the loudspeaker latency and its queue
@@ -68,9 +73,13 @@ def test_when_the_operator_talks_expect_the_voice_whole_and_held_back_by_the_mea
     execution, loudspeaker = _ms(voice["execution_latency"]), _ms(voice["loudspeaker_latency"])
     assert execution_latency_s * 1e3 <= execution <= execution_latency_s * 1e3 + 100, voice
     assert 50 <= loudspeaker <= 50 + 100, voice
-    # the voice held back by what they call for (two steps of the delay's slew at most)
+    # the voice held back by what they call for (each figure rounded to 1 ms); the delay in
+    # force there, or on its way to a newer estimate at the speech stretch (one update's worth)
+    assert result.calibrated_after_s is not None
     target = _ms(voice["graph_latency"]) + execution - loudspeaker + TARGET_LEAD_S * 1e3
-    assert abs(int(voice["voice_delay_ms"]) - max(target, 0.0)) <= 2 * MAX_DELAY_STEP_S * 1e3 + 1
+    assert abs(int(voice["voice_delay_target_ms"]) - max(target, 0.0)) <= 2
+    in_force, asked = int(voice["voice_delay_ms"]), int(voice["voice_delay_target_ms"])
+    assert abs(in_force - asked) <= SPEECH_STRETCH * 1e3 + 1
 
 
 @pytest.mark.long
@@ -79,18 +88,17 @@ def test_when_calibrated_expect_the_motion_within_80_ms_before_to_20_ms_after_th
     tmp_path: Path, execution_latency_s: float
 ):
     result = measure_voice(
-        bundled_speech(), execution_latency_s, duration_s=30.0, calibrate_s=20.0, log_dir=tmp_path
+        bundled_speech(), execution_latency_s, duration_s=30.0, calibrate_s=15.0, log_dir=tmp_path
     )
     assert result.restarts == 0
-    # motion - heard, judged from the robot's microphones and joint states in 2 s windows: the
-    # median inside the window, and two windows in three (a loaded machine delays a burst of
-    # chunks now and then, which both paths take out of step for a moment: under a load
-    # average of 25 on 2 cores this fails, see doc/performance.md)
-    assert len(result.offsets_s) >= 5
-    offsets_ms = np.asarray(result.offsets_s) * 1e3
-    inside = (offsets_ms >= -WINDOW_EARLY_S * 1e3) & (offsets_ms <= WINDOW_LATE_S * 1e3)
-    assert -WINDOW_EARLY_S * 1e3 <= np.median(offsets_ms) <= WINDOW_LATE_S * 1e3, offsets_ms
-    assert inside.mean() >= 2 / 3, offsets_ms.round()
+    assert result.calibrated_after_s is not None  # measured from the voice node's calibration
+    # motion - heard in 2 s windows, from the microphones' and joint states' stamps and the
+    # order of chunks and poses (not the voice node's own estimates): p5 and p95 inside
+    assert len(result.offsets_s) >= 20
+    p5, _, p95 = percentiles_ms(result.offsets_s)
+    offsets_ms = (np.asarray(result.offsets_s) * 1e3).round()
+    assert p5 >= -WINDOW_EARLY_S * 1e3, offsets_ms
+    assert p95 <= WINDOW_LATE_S * 1e3, offsets_ms
 
 
 def test_when_naoqi_is_lost_and_restored_expect_the_motion_untouched_and_the_loss_reported(

@@ -174,7 +174,8 @@ def _print_bench(results: dict[str, Any], frames: int, clip_s: float) -> None:
     if "voice" in results:
         _print_voice(results["voice"])
     if "busy_loops" in results:
-        print(f"\n(--graph, --console, --sim measured beside {results['busy_loops']} busy loops)")
+        loops = results["busy_loops"]
+        print(f"\n(--graph, --console, --sim, --voice measured beside {loops} busy loops)")
 
 
 def _print_voice(runs: list[dict[str, Any]]) -> None:
@@ -183,6 +184,14 @@ def _print_voice(runs: list[dict[str, Any]]) -> None:
         "\nvoice vs motion at the simulated Pepper (motion - heard; window -80 .. +20 ms), "
         f"{runs[0]['audio_s']:.0f} s of speech after calibration"
     )
+    for run in runs:
+        after = run["calibrated_after_s"]
+        calibration = (
+            f"calibrated after {after:.0f} s of speech"
+            if after is not None
+            else "NOT calibrated after the longest calibration: measured anyway"
+        )
+        print(f"  at {run['execution_latency_ms']} ms the voice node was {calibration}")
     print(f"{'execution latency':<20}{'windows':>8}{'p5 ms':>8}{'p50 ms':>8}{'p95 ms':>8}  delay")
     for run in runs:
         print(
@@ -359,8 +368,8 @@ def register(verbs: Verbs) -> None:
         "--busy-loops",
         type=bounded_int(0, 16),
         default=0,
-        help="run N busy-loop processes beside --graph, --console and --sim (other work on the "
-        "machine), 0 to 16 (default 0)",
+        help="run N busy-loop processes beside --graph, --console, --sim and --voice (other work "
+        "on the machine), 0 to 16 (default 0)",
     )
     bench.add_argument(
         "--floor-executor",

@@ -1,16 +1,23 @@
-"""The voice's delay line: each chunk is released ``delay_s`` after it arrived, in order.
+"""The voice's delay line: each chunk is released the delay in force after it arrived, in order.
 
 The voice node pushes every decoded chunk with its arrival time and, on its clock, takes the
-chunks that are due (:meth:`DelayLine.due`). The delay may change at any time (calibration); a
-chunk is released at ``arrival + delay`` with the delay in force when it is taken, but never
-before a chunk that arrived earlier, so the voice keeps its order. The line holds at most
-``max_s`` seconds of audio: beyond it the oldest chunks are dropped and counted
-(:attr:`DelayLine.dropped_s`), never silently. :class:`DelayedCommands` does the same for the
-simulated Pepper's joint commands (its emulated execution latency).
+chunks that are due (:meth:`DelayLine.due`), with the delay the calibration asks for. A chunk is
+released at ``arrival + delay in force``, never before a chunk that arrived earlier, so the
+voice keeps its order. The delay in force (:attr:`DelayLine.delay_s`) never jumps while the
+voice plays: a loudspeaker plays what it is given back to back, so a longer delay taken at once
+would be a gap in the voice and a shorter one a burst queued behind it. It moves towards the
+delay asked for by stretching or shrinking each chunk it releases (linear resampling): by at
+most ``SPEECH_STRETCH`` (2 %: 20 ms per second of speech, a third of a semitone while it lasts)
+in speech and ``PAUSE_STRETCH`` (50 %) in a pause (a chunk below ``QUIET_RMS``), so that each
+chunk ends where the next one starts. After a gap in the voice (no chunk for ``GAP_S``, the
+operator stopped talking) it takes the delay asked for at once, shortening the silence by at
+most its length. The line holds at most ``max_s`` seconds of audio: beyond it the oldest chunks
+are dropped and counted (:attr:`DelayLine.dropped_s`), never silently. :class:`DelayedCommands`
+holds the simulated Pepper's joint commands back in order (its emulated execution latency).
 
 :class:`SpeakerQueue` keeps the loudspeaker's own queue short: a loudspeaker plays what it is
 given back to back, so every burst (chunks that arrived together after a hiccup of the network
-or of a loaded machine, a shorter delay after calibration) leaves the rest of the voice later by
+or of a loaded machine) leaves the rest of the voice later by
 the burst's length, for as long as the voice goes on without a pause. The queue models what the
 loudspeaker still has to play; while it holds more than ``max_backlog_s``, quiet chunks (a pause
 between words, below ``quiet_rms``) are skipped, and while it holds more than
@@ -27,9 +34,29 @@ from typing import Generic, TypeVar
 
 import numpy as np
 
-__all__ = ["DelayLine", "DelayedChunk", "DelayedCommands", "SpeakerQueue"]
+__all__ = [
+    "GAP_S",
+    "PAUSE_STRETCH",
+    "QUIET_RMS",
+    "SPEECH_STRETCH",
+    "DelayLine",
+    "DelayedChunk",
+    "DelayedCommands",
+    "SpeakerQueue",
+    "is_quiet",
+]
 
 T = TypeVar("T")
+
+QUIET_RMS = 0.01  # a chunk below this RMS (full scale 1, -40 dBFS) is a pause
+SPEECH_STRETCH = 0.02  # the delay in force moves by at most this fraction of a speech chunk ...
+PAUSE_STRETCH = 0.5  # ... and of a pause
+GAP_S = 0.1  # no voice for this long: the delay asked for is taken at once
+
+
+def is_quiet(samples: np.ndarray, quiet_rms: float = QUIET_RMS) -> bool:
+    """Whether ``samples`` are a pause (RMS below ``quiet_rms``)."""
+    return float(np.sqrt(np.mean(np.square(samples, dtype=np.float64)))) < quiet_rms
 
 
 @dataclass(frozen=True)
@@ -54,7 +81,10 @@ class DelayLine:
         self._chunks: deque[DelayedChunk] = deque()
         self._held = 0
         self.dropped_s = 0.0
-        self.released_samples = 0
+        self.released_samples = 0  # as released (stretched or shrunk)
+        self.stretched_samples = 0  # added by stretching, less those removed by shrinking
+        self.delay_s: float | None = None  # the delay in force; None before the first chunk
+        self._last_end_s = -np.inf  # when the last chunk taken ended, on the arrival clock
 
     @property
     def held_s(self) -> float:
@@ -73,14 +103,44 @@ class DelayLine:
             self.dropped_s += len(old.samples) / self.rate_hz
 
     def due(self, now_s: float, delay_s: float) -> list[DelayedChunk]:
-        """The chunks whose ``arrival + delay_s`` is not after ``now_s``, oldest first."""
+        """The chunks due by ``now_s``, oldest first, the delay in force moved towards ``delay_s``.
+
+        A chunk is due at ``arrival + delay in force``; it is released stretched or shrunk by the
+        step the delay in force then takes towards ``delay_s`` (see the module text).
+        """
         out: list[DelayedChunk] = []
-        while self._chunks and self._chunks[0].arrival_s + delay_s <= now_s:
-            chunk = self._chunks.popleft()
+        while self._chunks:
+            chunk = self._chunks[0]
+            gap = chunk.arrival_s - self._last_end_s
+            in_force = delay_s if self.delay_s is None else self.delay_s
+            if gap > GAP_S:  # a pause in the voice: the delay may change, shortening it at most
+                in_force = max(delay_s, in_force - gap)
+            self.delay_s = in_force
+            if chunk.arrival_s + in_force > now_s:
+                break
+            self._chunks.popleft()
             self._held -= len(chunk.samples)
-            self.released_samples += len(chunk.samples)
-            out.append(chunk)
+            self._last_end_s = max(
+                self._last_end_s, chunk.arrival_s + len(chunk.samples) / self.rate_hz
+            )
+            samples, self.delay_s = self._moved_towards(chunk.samples, in_force, delay_s)
+            self.released_samples += len(samples)
+            out.append(DelayedChunk(chunk.arrival_s, samples))
         return out
+
+    def _moved_towards(
+        self, samples: np.ndarray, in_force_s: float, delay_s: float
+    ) -> tuple[np.ndarray, float]:
+        """``samples`` resampled for one step of the delay towards ``delay_s``; the new delay."""
+        n = len(samples)
+        most = (PAUSE_STRETCH if is_quiet(samples) else SPEECH_STRETCH) * n
+        change = round(min(max((delay_s - in_force_s) * self.rate_hz, -most), most))
+        if change == 0 or n + change < 1:
+            return samples, in_force_s
+        positions = np.linspace(0.0, n - 1.0, n + change)
+        stretched = np.interp(positions, np.arange(n), samples).astype(samples.dtype)
+        self.stretched_samples += change
+        return stretched, in_force_s + change / self.rate_hz
 
     def clear(self) -> float:
         """Drop every waiting chunk (muted voice); the seconds dropped."""
@@ -104,7 +164,7 @@ class SpeakerQueue:
         self,
         rate_hz: int,
         max_backlog_s: float = 0.04,
-        quiet_rms: float = 0.01,
+        quiet_rms: float = QUIET_RMS,
         max_speech_backlog_s: float = 0.2,
     ) -> None:
         self.rate_hz = int(rate_hz)
@@ -114,11 +174,10 @@ class SpeakerQueue:
         self.end_s = -np.inf  # when the loudspeaker will have played what it was given
         self.skipped_samples = 0  # in pauses skipped
         self.speech_skipped_samples = 0  # in louder chunks skipped beyond max_speech_backlog_s
-        self.last_quiet = True  # the last chunk offered was a pause
 
     def quiet(self, samples: np.ndarray) -> bool:
         """Whether ``samples`` are a pause (RMS below ``quiet_rms``)."""
-        return float(np.sqrt(np.mean(np.square(samples, dtype=np.float64)))) < self.quiet_rms
+        return is_quiet(samples, self.quiet_rms)
 
     def backlog_s(self, now_s: float) -> float:
         """Audio queued at the loudspeaker at ``now_s`` (s)."""
@@ -130,7 +189,6 @@ class SpeakerQueue:
             return None
         duration = len(samples) / self.rate_hz
         quiet = self.quiet(samples)
-        self.last_quiet = quiet
         backlog = self.backlog_s(now_s)
         if quiet and backlog > self.max_backlog_s:
             self.skipped_samples += len(samples)

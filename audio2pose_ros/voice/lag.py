@@ -68,21 +68,29 @@ def _smooth(x: np.ndarray, bins: int = SMOOTH_BINS) -> np.ndarray:
 def _best_lag(a: np.ndarray, b: np.ndarray, max_lag: int, step_s: float) -> Lag:
     """Lag (in ``step_s``) of the columns of ``b`` behind ``a``, refined to a parabola's peak.
 
-    The correlation at every lag ``k`` (``sum a[i] b[i + k]`` over the overlap, normalised by
-    both signals' energy over it) comes from one FFT product per column.
+    ``a`` is the leading signal over a window of ``n`` rows; ``b`` is the following one over the
+    same start and ``max_lag`` rows more, so at every lag ``k`` in ``[0, max_lag]`` the whole of
+    ``a`` is compared with ``b[k : k + n]``: the same ``n`` rows, never a shrinking overlap (a
+    few rows at a long lag correlate by chance). The score at ``k`` is the correlation
+    coefficient of the two (each column centred on its mean over the rows compared, summed over
+    the columns), from one FFT product per column and running sums.
     """
     n = len(a)
-    max_lag = min(max_lag, n - 2)
-    if max_lag < 0:
+    max_lag = min(max_lag, len(b) - n)
+    if n < 4 or max_lag < 0:
         return NO_LAG
-    size = 1 << (2 * n - 1).bit_length()
+    a = a - a.mean(axis=0)
+    size = 1 << (n + len(b) - 1).bit_length()
     products = np.fft.rfft(b, size, axis=0) * np.conj(np.fft.rfft(a, size, axis=0))
-    dots = np.fft.irfft(products.sum(axis=1), size)[: max_lag + 1]
-    energy_a = np.concatenate([[0.0], np.cumsum(np.sum(a * a, axis=1))])
-    energy_b = np.concatenate([[0.0], np.cumsum(np.sum(b * b, axis=1))])
+    dots = np.fft.irfft(products.sum(axis=1), size)[: max_lag + 1]  # a is centred: b's mean adds 0
+    sums = np.concatenate([np.zeros((1, b.shape[1])), np.cumsum(b, axis=0)])
+    squares = np.concatenate([np.zeros((1, b.shape[1])), np.cumsum(b * b, axis=0)])
     k = np.arange(max_lag + 1)
-    norms = np.sqrt(energy_a[n - k] * (energy_b[n] - energy_b[k]))
-    scores = np.where(norms > 0.0, dots / np.where(norms > 0.0, norms, 1.0), -np.inf)
+    window_sum = sums[k + n] - sums[k]
+    energy_b = np.maximum((squares[k + n] - squares[k]) - window_sum**2 / n, 0.0).sum(axis=1)
+    norms = np.sqrt(float(np.sum(a * a)) * energy_b)
+    floor = 1e-12 * max(float(norms.max()), 1e-300)
+    scores = np.where(norms > floor, dots / np.where(norms > floor, norms, 1.0), -np.inf)
     best = int(np.argmax(scores))
     if not math.isfinite(scores[best]):
         return NO_LAG
@@ -113,21 +121,26 @@ def motion_lag(
 
     Returns:
         The lag in ``[0, max_lag_s]``, or a NaN lag with score 0 when the trajectories overlap
-        too little or hardly move.
+        too little or hardly move. ``a`` is compared where ``b`` also covers the ``max_lag_s``
+        after it (:func:`_best_lag`).
     """
     times_a, times_b = np.asarray(times_a, float), np.asarray(times_b, float)
     if len(times_a) < 3 or len(times_b) < 3:
         return NO_LAG
-    start, end = max(times_a[0], times_b[0]), min(times_a[-1], times_b[-1])
-    grid = np.arange(start, end, MOTION_GRID_S)
-    if len(grid) < 4:
+    max_lag = round(max_lag_s / MOTION_GRID_S)
+    start = max(times_a[0], times_b[0])
+    end = min(times_a[-1], times_b[-1] - max_lag * MOTION_GRID_S)
+    n = int(np.floor((end - start) / MOTION_GRID_S)) + 1
+    if n < 5:
         return NO_LAG
+    grid = start + np.arange(n + max_lag) * MOTION_GRID_S
     a = np.stack([np.interp(grid, times_a, col) for col in np.asarray(poses_a, float).T], axis=1)
     b = np.stack([np.interp(grid, times_b, col) for col in np.asarray(poses_b, float).T], axis=1)
-    va, vb = _smooth(np.diff(a, axis=0)), _smooth(np.diff(b, axis=0))
+    # both smoothed over the whole grid (the same edges), then a cut to its window
+    va, vb = _smooth(np.diff(a, axis=0))[: n - 1], _smooth(np.diff(b, axis=0))
     if np.abs(va).sum() < MIN_MOTION_RAD or np.abs(vb).sum() < MIN_MOTION_RAD:
         return NO_LAG
-    return _best_lag(va, vb, round(max_lag_s / MOTION_GRID_S), MOTION_GRID_S)
+    return _best_lag(va, vb, max_lag, MOTION_GRID_S)
 
 
 def envelope(
@@ -182,19 +195,28 @@ def sound_lag(
         heard: the same for the sound heard.
         heard_rate_hz: its sample rate (Hz).
         max_lag_s: longest lag considered (s).
+
+    The sound sent is compared where the sound heard covers it and the ``max_lag_s`` after it
+    (:func:`_best_lag`): at every lag, the same stretch of the voice against as much of the
+    microphones.
     """
     if not sent or not heard:
         return NO_LAG
-    start = min(sent[0][0], heard[0][0])
-    end = max(
-        t + len(s) / r for (t, s), r in ((sent[-1], sent_rate_hz), (heard[-1], heard_rate_hz))
+    max_lag = round(max_lag_s / ENVELOPE_S)
+    start = max(sent[0][0], heard[0][0])
+    end = min(
+        sent[-1][0] + len(sent[-1][1]) / sent_rate_hz,
+        heard[-1][0] + len(heard[-1][1]) / heard_rate_hz - max_lag * ENVELOPE_S,
     )
-    a = _smooth(envelope(sent, sent_rate_hz, start, end)[:, None])[:, 0]
-    b = _smooth(envelope(heard, heard_rate_hz, start, end)[:, None])[:, 0]
-    a, b = a - a.mean(), b - b.mean()
+    if end <= start:
+        return NO_LAG
+    longest = end + max_lag * ENVELOPE_S
+    a = _smooth(envelope(sent, sent_rate_hz, start, longest)[:, None])
+    b = _smooth(envelope(heard, heard_rate_hz, start, longest)[:, None])
+    a = a[: len(a) - max_lag]  # both smoothed over the same span (the same edges), a then cut
     if a.std() < MIN_SOUND_RMS or b.std() < MIN_SOUND_RMS:
         return NO_LAG
-    return _best_lag(a[:, None], b[:, None], round(max_lag_s / ENVELOPE_S), ENVELOPE_S)
+    return _best_lag(a, b, max_lag, ENVELOPE_S)
 
 
 class ChunkPairing:

@@ -6,9 +6,11 @@ at ``a + graph + execution``; its sound is heard from the loudspeakers at
 ``[-WINDOW_EARLY_S, WINDOW_LATE_S]`` = [-80 ms, +20 ms]: people notice sound ahead of the
 picture from about 45 ms and behind it from about 125 ms (ITU-R BT.1359), and a speaker's
 gesture starts with the stressed syllable or a little before it, seldom after. The voice is
-therefore delayed by ``graph + execution - loudspeaker + TARGET_LEAD_S`` (the motion 15 ms ahead
-of the sound, and up to 40 ms more while the loudspeaker has audio queued: about the middle of
-the window), never less than nothing.
+therefore delayed by ``graph + execution - loudspeaker + TARGET_LEAD_S`` (the motion 45 ms ahead
+of the sound), never less than nothing. The motion path's own lag wanders from one stretch of
+speech to the next, by some 20 ms earlier and 50 ms later than its median (measured at the
+simulated Pepper, ``audio2pose bench --voice``), so the aim leaves 35 ms to the early edge of
+the window and 65 ms to the late.
 
 The three parts are measured while the operator talks (:class:`SyncEstimator`):
 
@@ -22,12 +24,20 @@ The three parts are measured while the operator talks (:class:`SyncEstimator`):
   what was sent before it has played) the robot's microphones hear it
   (:func:`~audio2pose_ros.voice.lag.sound_lag`).
 
+The loudspeaker plays what it is given back to back, so a chunk sent late (a loaded machine)
+leaves every chunk after it waiting behind it, for as long as the voice goes on: that wait is
+part of the voice's delay. The delay line is therefore asked for the delay minus the last
+chunk's wait (:meth:`SyncEstimator.line_delay_s`), at once, not through the slow median of a
+measured part.
+
 A part not measured (no robot microphones, no measured joint states, too little speech or
 motion yet) uses its documented default (:data:`DEFAULTS_S`) and says so. Each estimate is the
-median of the recent measurements whose score passed its threshold. The delay follows the
-estimates by at most ``MAX_DELAY_STEP_S`` (20 ms) per update while the operator speaks, so
-the voice never jumps, and by up to ``MAX_PAUSE_STEP_S`` (100 ms) in a pause. This module
-does not import rclpy.
+median of the recent measurements whose score passed its threshold, once there are
+``MIN_MEASUREMENTS`` of them (one measurement taken while the motion filter starts is not the
+graph's latency); a part's median only takes measurements made since the last update, never the
+same one again. :attr:`SyncEstimator.delay_s` is the delay the estimates call for; the delay
+line moves the voice to it gradually (:class:`~audio2pose_ros.voice.delay.DelayLine`), so the
+voice never jumps. This module does not import rclpy.
 """
 
 from __future__ import annotations
@@ -41,8 +51,10 @@ import numpy as np
 from audio2pose_ros.voice.lag import ENVELOPE_RATE_HZ, ChunkPairing, loudness, motion_lag, sound_lag
 
 __all__ = [
+    "CALIBRATED_WITHIN_S",
     "DEFAULTS_S",
     "MAX_DELAY_S",
+    "MIN_MEASUREMENTS",
     "TARGET_LEAD_S",
     "WINDOW_EARLY_S",
     "WINDOW_LATE_S",
@@ -55,12 +67,11 @@ __all__ = [
 
 WINDOW_EARLY_S = 0.080  # the motion may reach the joints this long before the sound is heard
 WINDOW_LATE_S = 0.020  # ... and this long after it
-# Aimed at: the motion this long ahead of the sound; the loudspeaker's queue, kept under 40 ms
-# (delay.SpeakerQueue), adds to it, so the offset stays about mid-window.
-TARGET_LEAD_S = 0.015
+# Aimed at: the motion this long ahead of the sound (see the module text for why not the middle)
+TARGET_LEAD_S = 0.045
 MAX_DELAY_S = 1.0  # the voice is never held back longer
-MAX_DELAY_STEP_S = 0.02  # the delay changes by at most this much per update during speech ...
-MAX_PAUSE_STEP_S = 0.1  # ... and by at most this much during a pause, where no one hears it
+MIN_MEASUREMENTS = 3  # a part is measured once it has this many measurements (their median)
+CALIBRATED_WITHIN_S = 0.005  # calibrated: every part measured, the delay in force this close
 # Used while a part is not measured: the graph's own latency (chunk to command, with the motion
 # filter's smoothing, as `audio2pose bench --voice` measures it on the simulated Pepper), the
 # robot's execution latency (naoqi_driver's setAngles to a measured joint state) and the
@@ -71,7 +82,10 @@ SOUND_SCORE = 0.5  # a sound lag below this score is no measurement
 MAX_MOTION_LAG_S = 0.6  # longest lag searched between two trajectories (s)
 MAX_SOUND_LAG_S = 1.0  # longest loudspeaker lag searched (s)
 HISTORY_S = 6.0  # each measurement looks at this much of the recent past (s)
-KEPT = 15  # measurements kept per part (their median is the estimate)
+# Measurements kept per part, one a second at most: their median is the estimate. A long memory
+# keeps the delay steady: a short one chases the motion lag's wander, seconds late,
+# and so widens it; a lasting change (another robot, another network) is followed within ~20 s.
+KEPT = 40
 
 
 def voice_delay_s(graph_s: float, execution_s: float, loudspeaker_s: float) -> float:
@@ -88,13 +102,13 @@ class PartEstimate:
 
     @property
     def measured(self) -> bool:
-        """True once at least one measurement passed."""
-        return bool(self.measurements)
+        """True once ``MIN_MEASUREMENTS`` measurements passed."""
+        return len(self.measurements) >= MIN_MEASUREMENTS
 
     @property
     def value_s(self) -> float:
-        """The median measurement, or the part's default."""
-        if self.measurements:
+        """The median measurement once measured, or the part's default."""
+        if self.measured:
             return float(np.median(self.measurements))
         return DEFAULTS_S[self.name]
 
@@ -129,21 +143,22 @@ class SyncEstimator:
 
     Feed it what the voice node sees (each ``on_*`` method, times in seconds on one clock) and
     call :meth:`update` about once a second: it measures each part over the last ``HISTORY_S``
-    and moves :attr:`delay_s` towards :func:`voice_delay_s` of the estimates.
+    and sets :attr:`delay_s` to :func:`voice_delay_s` of the estimates (the delay line moves the
+    voice there gradually).
     """
 
     def __init__(self, output_rate_hz: int) -> None:
         self.output_rate_hz = output_rate_hz
         self.pairing = ChunkPairing()
         self.parts = {name: PartEstimate(name, deque(maxlen=KEPT)) for name in DEFAULTS_S}
-        self.filter_lag = PartEstimate("graph", deque(maxlen=KEPT))  # raw poses to commands
         self.raw = _Series()
         self.commanded = _Series()
         self.measured = _Series()
         self.sent: deque[tuple[float, np.ndarray]] = deque()
+        self.waited_s = 0.0  # how long the last chunk sent waits for the loudspeaker
         self.heard: deque[tuple[float, np.ndarray]] = deque()
         self.heard_rate_hz = 0
-        self.delay_s = voice_delay_s(*(p.value_s for p in self.parts.values()))
+        self.delay_s = self.target_delay_s()
 
     # --- what the node sees -------------------------------------------------------------------
 
@@ -164,13 +179,15 @@ class SyncEstimator:
         """Measured joint_states, in the same joint order."""
         self.measured.add(stamp_s, pose)
 
-    def on_sent(self, first_sample_s: float, mono: np.ndarray) -> None:
-        """Voice samples handed to the loudspeaker, the first at ``first_sample_s``.
+    def on_sent(self, first_sample_s: float, mono: np.ndarray, waited_s: float = 0.0) -> None:
+        """Voice samples handed to the loudspeaker, to start playing at ``first_sample_s``.
 
-        Kept as their loudness (:func:`~audio2pose_ros.voice.lag.loudness`), as are the
-        microphones'.
+        ``waited_s``: how long they wait there for what was sent before them (the loudspeaker's
+        queue when they were sent). Kept as their loudness
+        (:func:`~audio2pose_ros.voice.lag.loudness`), as are the microphones'.
         """
         self._keep(self.sent, *loudness(first_sample_s, mono, self.output_rate_hz))
+        self.waited_s = waited_s
 
     def on_heard(self, first_sample_s: float, mono: np.ndarray, rate_hz: int) -> None:
         """The robot's microphones (mean of channels), the first sample at ``first_sample_s``."""
@@ -186,12 +203,9 @@ class SyncEstimator:
     # --- estimates ------------------------------------------------------------------------------
 
     def graph_s(self) -> tuple[float, bool]:
-        """The graph's latency and whether both of its halves are measured."""
-        pairing = self.pairing.median_s()
-        measured = math.isfinite(pairing) and self.filter_lag.measured
-        if not measured:
-            return DEFAULTS_S["graph"], False
-        return pairing + self.filter_lag.value_s, True
+        """The graph's latency and whether it is measured."""
+        graph = self.parts["graph"]
+        return graph.value_s, graph.measured
 
     def update(self) -> None:
         """Measure each part over the recent past; move the delay towards its new value."""
@@ -207,36 +221,45 @@ class SyncEstimator:
             heard=list(self.heard) if self.heard_rate_hz else [],
         )
 
-    def apply(self, lags: dict[str, float], pause: bool = False) -> None:
-        """Keep the lags :func:`measure` found; move the delay by at most one step.
+    def apply(self, lags: dict[str, float]) -> None:
+        """Keep the lags :func:`measure` found (each once); set the delay they call for.
 
-        During a ``pause`` in the voice the step may be longer (``MAX_PAUSE_STEP_S``).
+        The graph's latency is measured when the filter's lag is: the chunk-to-pose pairing's
+        median then, plus that lag.
         """
-        if "filter" in lags:
-            self.filter_lag.measurements.append(lags["filter"])
-        graph, graph_measured = self.graph_s()
-        if graph_measured:
-            self.parts["graph"].measurements.append(graph)
+        pairing = self.pairing.median_s()
+        if "filter" in lags and math.isfinite(pairing):
+            self.parts["graph"].measurements.append(pairing + lags["filter"])
         for name in ("execution", "loudspeaker"):
             if name in lags:
                 self.parts[name].measurements.append(lags[name])
-        target = self.target_delay_s()
-        most = MAX_PAUSE_STEP_S if pause else MAX_DELAY_STEP_S
-        self.delay_s += min(max(target - self.delay_s, -most), most)
+        self.delay_s = self.target_delay_s()
+
+    def line_delay_s(self) -> float:
+        """What the delay line is asked for: the delay, less the loudspeaker's wait."""
+        return max(self.delay_s - self.waited_s, 0.0)
 
     def target_delay_s(self) -> float:
         """The delay the current estimates call for."""
         return voice_delay_s(*(p.value_s for p in self.parts.values()))
 
-    def expected_offset_s(self) -> float:
-        """``motion - heard`` with the delay in force (negative: the motion is ahead)."""
+    def expected_offset_s(self, in_force_s: float) -> float:
+        """``motion - heard`` with the voice held back ``in_force_s`` (negative: motion ahead).
+
+        ``in_force_s``: the delay line's delay and the loudspeaker's wait.
+        """
         parts = self.parts
         return (
             parts["graph"].value_s
             + parts["execution"].value_s
-            - self.delay_s
+            - in_force_s
             - parts["loudspeaker"].value_s
         )
+
+    def calibrated(self, in_force_s: float) -> bool:
+        """Every part measured and the voice held back ``in_force_s``, as they call for."""
+        measured = all(part.measured for part in self.parts.values())
+        return measured and abs(in_force_s - self.delay_s) <= CALIBRATED_WITHIN_S
 
 
 @dataclass(frozen=True)
@@ -254,7 +277,7 @@ def measure(snapshot: Snapshot) -> dict[str, float]:
     """The lags (s) that passed their score, by part.
 
     ``filter``: raw poses to commands; ``execution``: commands to measured joints;
-    ``loudspeaker``: voice sent to the microphones.
+    ``loudspeaker``: voice sent to the microphones (from when it should start playing).
     The heavy part of :meth:`SyncEstimator.update`; it touches nothing shared, so a node may
     run it on a thread of its own.
     """

@@ -29,7 +29,6 @@ the motion is not touched by it, nor by anything here.
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 
@@ -240,7 +239,7 @@ class VoiceOutNode(DiagnosedNode):
     def release(self) -> None:
         """Send the chunks whose delay is over."""
         now = _now_s(self)
-        for chunk in self.delay_line.due(now, self.sync.delay_s):
+        for chunk in self.delay_line.due(now, self.sync.line_delay_s()):
             start_s = self.speaker_queue.offer(now, chunk.samples)
             if start_s is None:
                 continue  # skipped: the loudspeaker's queue is too long (counted)
@@ -249,8 +248,9 @@ class VoiceOutNode(DiagnosedNode):
                 self.naoqi.send(chunk.samples)
             elif self.destination.kind == "topic":
                 self.out_pub.publish(AudioData(data=encode_pcm(chunk.samples, self.out_format)))
-            # the loudspeaker latency is measured from when the chunk should start playing
-            self.sync.on_sent(start_s, chunk.samples)
+            # the loudspeaker latency counts from when the chunk should start playing; its wait
+            # there is taken off the delay line's
+            self.sync.on_sent(start_s, chunk.samples, start_s - now)
 
     # --- the motion and the microphones -----------------------------------------------------------
 
@@ -306,8 +306,7 @@ class VoiceOutNode(DiagnosedNode):
         next call. One measurement at a time.
         """
         if self.measuring is not None and self.measuring.done():
-            pause = self.speaker_queue.last_quiet and not self.speaker_queue.backlog_s(_now_s(self))
-            self.sync.apply(self.measuring.result(), pause)  # a failure is raised here: guarded
+            self.sync.apply(self.measuring.result())  # a failure is raised here: guarded
             self.measuring = None
         if self.settings.calibrate and self.measuring is None:
             self.measuring = self.measurer.submit(measure, self.sync.snapshot())
@@ -324,19 +323,27 @@ class VoiceOutNode(DiagnosedNode):
                     f"NAOqi at {link.url} unreachable ({link.last_error or 'connecting'}); "
                     "retrying; the motion goes on without the voice"
                 )
-        offset = self.sync.expected_offset_s()
+        offset = self.sync.expected_offset_s(self.delay_in_force_s())
         if not -WINDOW_EARLY_S <= offset <= WINDOW_LATE_S:
             return DiagnosticStatus.WARN, (
                 f"voice to {where}: motion {offset * 1e3:+.0f} ms from the voice, outside "
                 f"[-{WINDOW_EARLY_S * 1e3:.0f}, +{WINDOW_LATE_S * 1e3:.0f}] ms"
-                + (" (calibrating)" if self.sync.delay_s != self.sync.target_delay_s() else "")
+                + ("" if self.sync.calibrated(self.delay_in_force_s()) else " (calibrating)")
             )
         muted = " (muted)" if self.settings.muted else ""
         return DiagnosticStatus.OK, f"voice to {where}{muted}, in step with the motion"
 
+    def delay_in_force_s(self) -> float:
+        """How long the voice is held back now: the delay line's delay and the loudspeaker's wait.
+
+        Before any voice, the delay called for.
+        """
+        in_force = self.delay_line.delay_s
+        return self.sync.delay_s if in_force is None else in_force + self.sync.waited_s
+
     def diagnostic_values(self) -> dict[str, object]:
         """The latencies, the delay, the offset and the link's counters."""
-        graph, graph_measured = self.sync.graph_s()
+        _, graph_measured = self.sync.graph_s()
         parts = self.sync.parts
         values: dict[str, object] = {
             "voice_out": self.destination.describe(),
@@ -344,16 +351,19 @@ class VoiceOutNode(DiagnosedNode):
             "graph_latency": parts["graph"].describe(),
             "execution_latency": parts["execution"].describe(),
             "loudspeaker_latency": parts["loudspeaker"].describe(),
-            "voice_delay_ms": f"{self.sync.delay_s * 1e3:.0f}",
-            "offset_ms": f"{self.sync.expected_offset_s() * 1e3:+.0f}",
+            "voice_delay_ms": f"{self.delay_in_force_s() * 1e3:.0f}",
+            "voice_delay_target_ms": f"{self.sync.delay_s * 1e3:.0f}",
+            "calibrated": self.sync.calibrated(self.delay_in_force_s()),
+            "offset_ms": f"{self.sync.expected_offset_s(self.delay_in_force_s()) * 1e3:+.0f}",
             "voice_released_s": f"{self.released_s:.2f}",
             "voice_muted_s": f"{self.muted_s:.2f}",
             "voice_dropped_in_delay_line_s": f"{self.delay_line.dropped_s:.2f}",
+            "voice_stretched_frames": self.delay_line.stretched_samples,
             "pauses_skipped_frames": self.speaker_queue.skipped_samples,
             "speech_skipped_frames": self.speaker_queue.speech_skipped_samples,
             "format": self.input.format or self.input.format_problem,
         }
-        if not math.isfinite(graph) or not graph_measured:
+        if not graph_measured:
             values["graph_latency_note"] = "needs raw_trajectory and commanded_joint_states"
         if self.naoqi is not None:
             link = self.naoqi.status()

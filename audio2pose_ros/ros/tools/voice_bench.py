@@ -2,12 +2,13 @@
 
 The graph runs with the simulated Pepper (emulated execution and loudspeaker latencies) and
 the voice node sending to its fake ALAudioDevice over NAOqi's real protocol. An observer
-(:class:`VoiceObserver`) plays speech into the graph as the console does (20 ms chunks), lets
-the voice node calibrate on the first ``calibrate_s``, then records ``duration_s`` of what the
-robot reports: the raw poses, the measured ``joint_states`` and the robot's microphones. The
-offset ``motion - heard`` is measured from those in 4 s windows
-(:func:`~audio2pose_ros.voice.offset.window_offsets`), independently of the voice node's own
-estimates, and summarised as p5 / p50 / p95.
+(:class:`VoiceObserver`) plays speech into the graph as the console does (20 ms chunks) while
+the voice node calibrates: at least ``calibrate_s``, and on until the node reports itself
+calibrated on /diagnostics (every latency measured, the voice's delay where they call for), at
+most ``MAX_CALIBRATION_S``. It then records ``duration_s`` of what the robot reports: the raw
+poses, the measured ``joint_states`` and the robot's microphones. The offset ``motion - heard``
+is measured from those in 2 s windows (:func:`~audio2pose_ros.voice.offset.window_offsets`),
+independently of the voice node's own estimates, and summarised as p5 / p50 / p95.
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ __all__ = [
 BENCH_EXECUTION_LATENCIES_S = (0.0, 0.15)  # the simulated robot's, measured by the bench
 CHUNK_BYTES = 640  # 20 ms of 16 kHz S16LE, as the console sends the operator's voice
 READY_TIMEOUT_S = 90.0  # the graph, the simulated robot and the NAOqi link come up within this
+MAX_CALIBRATION_S = 60.0  # speech played at most while the voice node calibrates
 
 
 @dataclass
@@ -67,6 +69,7 @@ class VoiceBenchResult:
     audio_s: float
     offsets_s: list[float]
     samples_published: int  # voice samples the observer published (warm-up included)
+    calibrated_after_s: float | None  # speech played until calibrated (None: it never was)
     voice_node: dict[str, str] = field(default_factory=dict)  # its last /diagnostics values
     robot: dict[str, str] = field(default_factory=dict)  # the simulated Pepper's
     restarts: int = 0
@@ -182,6 +185,25 @@ class VoiceObserver(Node):
         connected = values.get("naoqi_connected") == "True"
         return connected and not values.get("format", "no").startswith("no ")
 
+    def calibrated(self) -> bool:
+        """The voice node's last heartbeat says it is calibrated."""
+        return self.diagnostics.get(VOICE_NODE, {}).get("calibrated") == "True"
+
+    def calibrate(self, messages: list[BagMessage], at_least_s: float) -> float | None:
+        """Play ``messages`` at their pace: ``at_least_s``, then until :meth:`calibrated`.
+
+        Returns:
+            The seconds of speech played until calibrated, or None when all were played first.
+        """
+        start, first_ns = time.monotonic(), messages[0].timestamp_ns
+        for message in messages:
+            played_s = (message.timestamp_ns - first_ns) * 1e-9
+            spin_until(self, start + played_s)
+            self.publish(message)
+            if played_s >= at_least_s and self.calibrated():
+                return played_s
+        return None
+
 
 def speech_messages(speech: np.ndarray, seconds: float) -> list[BagMessage]:
     """``seconds`` of ``speech`` (looped) in 20 ms AudioData chunks with periodic AudioInfo."""
@@ -197,7 +219,7 @@ def measure_voice(
     execution_latency_s: float,
     loudspeaker_latency_s: float = 0.05,
     duration_s: float = 60.0,
-    calibrate_s: float = 15.0,
+    calibrate_s: float = 20.0,
     log_dir: Path | None = None,
     observe: Callable[[VoiceObserver], None] | None = None,
 ) -> VoiceBenchResult:
@@ -208,7 +230,7 @@ def measure_voice(
         execution_latency_s: the simulated Pepper's motion execution latency (s).
         loudspeaker_latency_s: its loudspeaker latency (s).
         duration_s: speech measured after calibration (s).
-        calibrate_s: speech the voice node calibrates on first (s).
+        calibrate_s: speech the voice node calibrates on first, at least (s).
         log_dir: the node logs (default: none kept).
         observe: called with the observer between calibration and measurement (tests).
 
@@ -218,7 +240,7 @@ def measure_voice(
     voice_nodes, sim_args = voice_out_processes(
         "naoqi", True, executable_command, (execution_latency_s, loudspeaker_latency_s)
     )
-    calibration = speech_messages(speech, calibrate_s)
+    calibration = speech_messages(speech, max(calibrate_s, MAX_CALIBRATION_S))
     measured = speech_messages(np.roll(speech, SAMPLE_RATE_HZ * 3), duration_s)
     graph_context = node_graph(log_dir=log_dir, sim=True, more_nodes=voice_nodes, sim_args=sim_args)
     with graph_context as graph, rclpy_session():
@@ -226,7 +248,7 @@ def measure_voice(
         observer.publish(calibration[0])  # the AudioInfo
         observer.wait(observer.voice_ready, READY_TIMEOUT_S, "the voice node did not connect")
         observer.warm_up()
-        observer.player.play(calibration, on_publish=observer.on_publish)
+        calibrated_after_s = observer.calibrate(calibration, calibrate_s)
         if observe is not None:
             observe(observer)
         observer.recording = True
@@ -240,6 +262,7 @@ def measure_voice(
             audio_s=duration_s,
             offsets_s=window_offsets(observer.record),
             samples_published=observer.samples_published,
+            calibrated_after_s=calibrated_after_s,
             voice_node=observer.diagnostics.get(VOICE_NODE, {}),
             robot=observer.diagnostics.get("pepper_sim_node", {}),
             restarts=sum(len(r) for r in graph.restarts.values()),
@@ -256,6 +279,7 @@ def voice_report(result: VoiceBenchResult) -> dict[str, object]:
         "execution_latency_ms": round(result.execution_latency_s * 1e3),
         "loudspeaker_latency_ms": round(result.loudspeaker_latency_s * 1e3),
         "audio_s": result.audio_s,
+        "calibrated_after_s": result.calibrated_after_s,
         "windows": len(result.offsets_s),
         "offset_p5_ms": p5,
         "offset_p50_ms": p50,
