@@ -67,6 +67,7 @@ CHUNK_SAMPLES = SAMPLES_PER_FRAME  # one 10 ms frame step per chunk (seed 003 se
 MATCH_TOLERANCE_RAD = 1e-5  # float32 /joint_angles against float64 raw poses
 STEADY_SKIP_S = 2.0  # steady-state CPU is read from this long after the stream starts
 SINGLE_FLOOR = "relays in one process"  # the floor's name for the graph in one process
+ROBOT_PERIOD_S = 0.02  # the bench's stand-in driver reports the pose at 50 Hz
 ANSWER_TIMEOUT_S = 60.0  # the graph must command and answer audio this soon after the start
 # Footprint targets: (figure, three-process target, single-process target, unit); at most.
 TARGETS = (
@@ -137,10 +138,23 @@ def _bench_params(directory: Path) -> Path:
 
 
 class _Player(Node):
-    """Plays audio through the shared player and stamps raw poses and commands on arrival."""
+    """Plays audio through the shared player and stamps raw poses and commands on arrival.
+
+    It also stands in for the robot's driver: it reports the robot's pose on joint_states
+    every :data:`ROBOT_PERIOD_S`, the neutral pose until a command comes, then the last
+    command (a robot that follows at once), so the filter starts from a measured pose as it
+    does beside naoqi_driver.
+    """
 
     def __init__(self) -> None:
         super().__init__("audio2pose_graph_bench")
+        robot = load_robot()
+        self.robot_names = list(robot.names)
+        self.robot_pose = [float(v) for v in robot.neutral_rad]
+        self.joint_states = self.create_publisher(
+            JointState, topics.absolute(topics.JOINT_STATES), 10
+        )
+        self.create_timer(ROBOT_PERIOD_S, self._report_pose)
         self.player = MessagePlayer(
             self,
             [
@@ -163,6 +177,13 @@ class _Player(Node):
 
     def _on_command(self, msg: JointAnglesWithSpeed) -> None:
         self.commands.append((time.monotonic(), np.asarray(msg.joint_angles, dtype=np.float64)))
+        if list(msg.joint_names) == self.robot_names:
+            self.robot_pose = [float(v) for v in msg.joint_angles]
+
+    def _report_pose(self) -> None:
+        msg = JointState(name=self.robot_names, position=self.robot_pose)
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self.joint_states.publish(msg)
 
 
 def _timed_out(what: str) -> GraphTimeoutError:
@@ -217,7 +238,6 @@ def measure_graph(
             _bench_params(Path(tmp)),
             log_dir=Path(tmp) / "logs",
             single_process=single_process,
-            no_robot=True,  # the bench takes the commands: no robot reports its pose
         ) as graph:
             player.player.publishers[topics.absolute(topics.AUDIO_INFO)].publish(
                 AudioInfo(**S16LE_MONO_16K.audio_info_fields())
