@@ -163,3 +163,32 @@ def test_when_naoqi_is_lost_and_restored_expect_the_motion_untouched_and_the_los
     counts = [int(((stamps >= a) & (stamps < b)).sum()) for a, b in itertools.pairwise(marks)]
     assert counts[1] >= 0.9 * counts[0], counts
     assert np.diff(stamps).min() > 0.0
+
+
+@pytest.mark.long  # two graphs with the simulated Pepper, 20 s of calibration each: make test-long
+@pytest.mark.slow
+@pytest.mark.ros
+def test_when_the_voice_bench_prints_json_expect_one_object_and_no_node_output():
+    """The nodes' output (libqi's log lines among it) goes to log files, not into the JSON."""
+    import json
+    import subprocess
+
+    from audio2pose_ros.ros.supervisor import executable_command
+
+    result = subprocess.run(
+        [
+            *executable_command("audio2pose"),
+            "bench",
+            "--skip-models",
+            "--voice",
+            "--voice-duration",
+            "10",
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    figures = json.loads(result.stdout)
+    assert [run["execution_latency_ms"] for run in figures["voice"]] == [0, 150]

@@ -18,9 +18,9 @@ from audio2pose_ros.timebase import FRAME_PERIOD_S, duration_s
 
 __all__ = ["BENCH_SCHEMA_VERSION", "command_bench", "register"]
 
-BENCH_SCHEMA_VERSION = (
-    6  # 1: unversioned; 2: graph modes; 3: floor; 4: floor executor; 5: paced; 6: voice
-)
+# 1: unversioned; 2: graph modes; 3: floor; 4: floor executor; 5: paced; 6: voice;
+# 7: the graph's first command beside a robot that reports its pose, the voice's calibration time
+BENCH_SCHEMA_VERSION = 7
 
 
 def _bench_live(args: argparse.Namespace, results: dict[str, object]) -> None:

@@ -210,9 +210,9 @@ class PepperSimNode(DiagnosedNode):
 
     def destroy_node(self) -> None:
         """Disconnect the simulation, end the camera and stop serving ALAudioDevice."""
-        self.camera.close()
-        self.voice.close()
-        self.sim.close()
+        for part in ("camera", "voice", "sim"):  # those made before a failed construction
+            if hasattr(self, part):
+                getattr(self, part).close()
         super().destroy_node()
 
 

@@ -13,8 +13,10 @@ independently of the voice node's own estimates, and summarised as p5 / p50 / p9
 
 from __future__ import annotations
 
+import tempfile
 import time
 from collections.abc import Callable
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,7 +43,7 @@ from audio2pose_ros.data.bag import (
 from audio2pose_ros.errors import Audio2PoseError
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.player import MessagePlayer, rclpy_session, silence_message, spin_until
-from audio2pose_ros.ros.supervisor import executable_command, node_graph
+from audio2pose_ros.ros.supervisor import NodeSupervisor, executable_command, node_graph
 from audio2pose_ros.ros.voice_graph import VOICE_NODE, voice_out_processes
 from audio2pose_ros.timebase import FRAME_PERIOD_S, SAMPLE_RATE_HZ
 from audio2pose_ros.voice.offset import VoiceMotionRecord, percentiles_ms, window_offsets
@@ -231,7 +233,8 @@ def measure_voice(
         loudspeaker_latency_s: its loudspeaker latency (s).
         duration_s: speech measured after calibration (s).
         calibrate_s: speech the voice node calibrates on first, at least (s).
-        log_dir: the node logs (default: none kept).
+        log_dir: where the node logs go (default: a temporary directory, so that the nodes'
+            output, libqi's included, stays out of the bench's own, such as its JSON).
         observe: called with the observer between calibration and measurement (tests).
 
     Raises:
@@ -242,8 +245,34 @@ def measure_voice(
     )
     calibration = speech_messages(speech, max(calibrate_s, MAX_CALIBRATION_S))
     measured = speech_messages(np.roll(speech, SAMPLE_RATE_HZ * 3), duration_s)
-    graph_context = node_graph(log_dir=log_dir, sim=True, more_nodes=voice_nodes, sim_args=sim_args)
-    with graph_context as graph, rclpy_session():
+    with ExitStack() as stack:
+        logs = log_dir or Path(stack.enter_context(tempfile.TemporaryDirectory()))
+        return _measure(
+            stack.enter_context(
+                node_graph(log_dir=logs, sim=True, more_nodes=voice_nodes, sim_args=sim_args)
+            ),
+            calibration,
+            measured,
+            execution_latency_s,
+            loudspeaker_latency_s,
+            duration_s,
+            calibrate_s,
+            observe,
+        )
+
+
+def _measure(
+    graph: NodeSupervisor,
+    calibration: list[BagMessage],
+    measured: list[BagMessage],
+    execution_latency_s: float,
+    loudspeaker_latency_s: float,
+    duration_s: float,
+    calibrate_s: float,
+    observe: Callable[[VoiceObserver], None] | None,
+) -> VoiceBenchResult:
+    """:func:`measure_voice` once the graph runs (its logs kept out of the bench's output)."""
+    with rclpy_session():
         observer = VoiceObserver()
         observer.publish(calibration[0])  # the AudioInfo
         observer.wait(observer.voice_ready, READY_TIMEOUT_S, "the voice node did not connect")
