@@ -27,6 +27,7 @@ from typing import IO
 import numpy as np
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
@@ -36,7 +37,13 @@ from audio2pose_ros.ros.messages import trajectory_msg
 from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.qos import STREAM_QOS
 from audio2pose_ros.ros.supervisor import executable_command
-from audio2pose_ros.topics import COMMANDED_JOINT_STATES, JOINT_STATES, RAW_TRAJECTORY, absolute
+from audio2pose_ros.topics import (
+    COMMANDED_JOINT_STATES,
+    DIAGNOSTICS,
+    JOINT_STATES,
+    RAW_TRAJECTORY,
+    absolute,
+)
 
 pytestmark = [pytest.mark.ros, pytest.mark.long]
 FLOODER = Path(__file__).with_name("flood_publisher.py")
@@ -62,12 +69,19 @@ class Operator(Node):
         self.create_subscription(
             JointState, absolute(COMMANDED_JOINT_STATES), self.on_command, 1000
         )
+        self.filter_values: dict[str, str] = {}  # the filter's last /diagnostics values
+        self.create_subscription(DiagnosticArray, DIAGNOSTICS, self.on_diagnostics, 10)
         self.start_s = 0.0
         self.sent_s: list[float] = []  # when each raw pose was sent (wall clock)
 
     def on_command(self, msg: JointState) -> None:
         stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         self.commands.append((stamp_s, np.array(msg.position)))
+
+    def on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if "motion_filter_node" in status.name:
+                self.filter_values = {kv.key: kv.value for kv in status.values}
 
     def pose(self, at_s: float) -> np.ndarray:
         pose = self.robot.neutral_rad.copy()
@@ -169,25 +183,28 @@ def test_when_another_input_floods_expect_commands_within_a_tenth_of_a_radian_of
     quiet = sorted(
         (phase_of(operator, s), p) for s, p in operator.commands if quiet_start <= s <= quiet_end
     )
-    flood = [
-        (phase_of(operator, s), p) for s, p in operator.commands if flood_start <= s <= flood_end
-    ]
+    flood_commands = [(s, p) for s, p in operator.commands if flood_start <= s <= flood_end]
+    flood = [(phase_of(operator, s), p) for s, p in flood_commands]
     assert quiet, "no commands recorded without the flood"
     assert flood, "no commands recorded during the flood"
     phases = np.array([ph for ph, _ in quiet])
     positions = np.array([p for _, p in quiet])
     moved = [robot.names.index(name) for name in JOINTS]
-    drift = 0.0
-    for phase, position in flood:
+    drift, worst_s = 0.0, 0.0
+    for (phase, position), (stamp_s, _) in zip(flood, flood_commands, strict=True):
         expected = [np.interp(phase, phases, positions[:, j], period=TRACK_PERIOD_S) for j in moved]
-        drift = max(drift, float(np.abs(position[moved] - expected).max()))
+        if (off := float(np.abs(position[moved] - expected).max())) > drift:
+            drift, worst_s = off, stamp_s - flood_start
     stamps = np.array(sorted(s for s, _ in operator.commands if flood_start <= s <= flood_end))
     sent_during = np.array([t for t in operator.sent_s if flood_start <= t <= flood_end])
+    values = operator.filter_values
     print(
         f"{kind}: flood of {sent[1]} messages; {len(flood)} commands in "
         f"{flood_end - flood_start:.1f} s (largest gap {np.diff(stamps).max() * 1e3:.0f} ms), "
         f"{len(quiet)} without; {len(sent_during)} raw poses sent (largest gap "
         f"{np.diff(sent_during).max() * 1e3:.0f} ms); largest distance from the quiet track "
-        f"{drift:.3f} rad"
+        f"{drift:.3f} rad, {worst_s:.2f} s into the flood; the filter's raw messages lost "
+        f"{values.get('raw_messages_lost')}, buffer underruns {values.get('buffer_underruns')}, "
+        f"poses skipped {values.get('poses_skipped_backlog')}"
     )
     assert drift < MAX_DRIFT_RAD
