@@ -1,7 +1,9 @@
 """motion_filter_node: raw poses in; smooth, limited commands for naoqi, ros2_control, viewers out.
 
 Subscriptions:
-    raw_trajectory (trajectory_msgs/JointTrajectory): poses from inference_node (any joint order).
+    raw_trajectory (trajectory_msgs/JointTrajectory): poses from inference_node (any joint order),
+        read best effort: a pose lost on the way (a flood on another input) holds back none
+        after it, and is counted (``raw_messages_lost``).
     voice_activity (std_msgs/Bool): from audio_features_node; silence -> glide to neutral.
     (In single-process mode those two nodes call this one directly instead of these two topics.)
     enable (std_msgs/Bool, latched): False -> glide to neutral and ignore generated motion.
