@@ -19,6 +19,7 @@ import time
 
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
@@ -177,6 +178,26 @@ def test_when_sequence_numbers_come_without_a_gid_expect_no_gap_counted():
     for sequence in (1, 5):
         gaps.observe({"publication_sequence_number": sequence, "publisher_gid": {"data": b"a"}})
     assert gaps.lost == 3
+
+
+def test_when_raw_messages_of_the_one_source_are_lost_expect_them_counted_and_a_warn(
+    tmp_path, monkeypatch
+):
+    """The raw reader is best effort: a gap in the one publisher's numbers (Jazzy: no gid)."""
+    node, other, executor = start_filter(tmp_path, monkeypatch)
+    try:
+        message = trajectory_msg(node.robot.names, node.robot.neutral_rad[None, :], 0.01)
+        for sequence in (1, 2, 5, 6):
+            node.on_raw(message, {"publication_sequence_number": sequence})
+        assert node.diagnostic_values()["raw_messages_lost"] == 2
+        level, text, _ = node.current_problems()["raw_lost"]
+        assert level == DiagnosticStatus.WARN
+        assert "2 raw_trajectory messages lost" in text
+    finally:
+        executor.shutdown()
+        other.destroy_node()
+        node.destroy_node()
+        rclpy.try_shutdown()
 
 
 def test_when_rclpy_event_handler_is_missing_expect_the_qos_event_classes(monkeypatch):

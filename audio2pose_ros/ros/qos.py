@@ -34,6 +34,17 @@ LATCHED_QOS = QoSProfile(
 STREAM_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE
 )
+# The motion filter's reader of raw poses: best effort, which matches the reliable publishers
+# (STREAM_QOS). A node's inputs share its DDS participant's receive path: a flood on another
+# input (/joint_states, stop: false) loses a raw pose there now and then. A reliable reader
+# repairs it only a heartbeat round later (0.4-0.9 s measured) and, delivering in order, holds
+# every later pose behind it: the commands glided to neutral and replayed the backlog, 0.5 rad
+# off their track. A pose that late is of no use to a 100 Hz track: best effort loses the one
+# pose (the filter bridges it; counted by sequence numbers where rclpy gives them) and delivers
+# the next on time.
+RAW_POSE_READER_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.BEST_EFFORT
+)
 
 
 def is_best_effort_volatile(qos: QoSProfile) -> bool:

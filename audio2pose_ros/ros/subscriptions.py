@@ -80,11 +80,14 @@ class SequenceGaps:
     between two numbers of one publisher is a message lost on the way (a best-effort queue that
     kept only the newest). Jazzy has the number without the gid and Humble neither: numbers of
     several publishers cannot be told apart there, so nothing is counted from them and only the
-    messages taken and replaced unserved count (:class:`LatestMessage`).
+    messages taken and replaced unserved count (:class:`LatestMessage`), unless the caller
+    observes only messages of the one publisher it takes them from (``one_source``: the motion
+    filter's raw poses, whose second publisher is refused by the graph where rclpy gives no gid).
     """
 
-    def __init__(self) -> None:
-        """No publisher heard yet."""
+    def __init__(self, one_source: bool = False) -> None:
+        """No publisher heard yet; ``one_source``: numbers without a gid are counted as one's."""
+        self.one_source = one_source
         self.last: dict[bytes, int] = {}  # publisher gid -> last sequence number seen
         self.lost = 0
 
@@ -94,9 +97,9 @@ class SequenceGaps:
             return
         sequence = info.get("publication_sequence_number")
         gid = info.get("publisher_gid")
-        if not isinstance(sequence, int) or not isinstance(gid, Mapping):
+        if not isinstance(sequence, int) or not (isinstance(gid, Mapping) or self.one_source):
             return
-        key = bytes(gid.get("data", b""))
+        key = bytes(gid.get("data", b"")) if isinstance(gid, Mapping) else b""
         last = self.last.pop(key, None)
         if last is not None and sequence > last + 1:
             self.lost += sequence - last - 1

@@ -1,7 +1,9 @@
 """motion_filter_node: raw poses in; smooth, limited commands for naoqi, ros2_control, viewers out.
 
 Subscriptions:
-    raw_trajectory (trajectory_msgs/JointTrajectory): poses from inference_node (any joint order).
+    raw_trajectory (trajectory_msgs/JointTrajectory): poses from inference_node (any joint order),
+        read best effort: a pose lost on the way (a flood on another input) holds back none
+        after it, and is counted (``raw_messages_lost``).
     voice_activity (std_msgs/Bool): from audio_features_node; silence -> glide to neutral.
     (In single-process mode those two nodes call this one directly instead of these two topics.)
     enable (std_msgs/Bool, latched): False -> glide to neutral and ignore generated motion.
@@ -119,9 +121,9 @@ from audio2pose_ros.ros.messages import (
     trajectory_msg,
 )
 from audio2pose_ros.ros.node_parameters import NodeParameters
-from audio2pose_ros.ros.qos import LATCHED_QOS, STREAM_QOS
+from audio2pose_ros.ros.qos import LATCHED_QOS, RAW_POSE_READER_QOS, STREAM_QOS
 from audio2pose_ros.ros.spin import run_node
-from audio2pose_ros.ros.subscriptions import MessageInfo
+from audio2pose_ros.ros.subscriptions import MessageInfo, SequenceGaps
 
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
 STARTUP_CHECK_S = 0.1  # while the start waits, it is decided again this often
@@ -181,6 +183,8 @@ class MotionFilterNode(DiagnosedNode):
             self.settings.max_stamp_age_s,
         )
         self.report = FilterReport(self.filter, time.monotonic())
+        # raw messages lost on the way (best-effort reader), by the one source's sequence numbers
+        self.raw_lost = SequenceGaps(one_source=True)
         self.faults_seen = 0
         self.ticks = 0  # filter ticks since start
         self.lead_outs_seen = 0
@@ -226,7 +230,7 @@ class MotionFilterNode(DiagnosedNode):
                 JointTrajectory,
                 topics.RAW_TRAJECTORY,
                 self.on_raw,
-                STREAM_QOS,
+                RAW_POSE_READER_QOS,  # best effort: a lost pose holds back none after it
                 lambda: trajectory_bytes_cap(
                     int(self.parameters["max_points_per_message"]), self.robot.n_joints
                 ),
@@ -488,6 +492,7 @@ class MotionFilterNode(DiagnosedNode):
         """
         refused = self._refused_source(info)
         if refused is None:
+            self._count_lost(info)
             refused = self.intake.joint_names(message.joint_names)
         if refused is not None:
             self._report(refused)
@@ -502,6 +507,24 @@ class MotionFilterNode(DiagnosedNode):
             self._report(self.intake.malformed(str(exc)))
             return
         self._queue(poses)
+
+    def _count_lost(self, info: MessageInfo | None) -> None:
+        """Count the raw messages of the source in use lost before this one: a WARN if any.
+
+        The reader is best effort (:data:`~audio2pose_ros.ros.qos.RAW_POSE_READER_QOS`): a
+        message lost on the way is gone, and the filter bridges the missing poses. Counted from
+        the publisher's sequence numbers where rclpy gives them (Jazzy, Kilted, the stock
+        executor); elsewhere ``buffer_underruns`` shows what it cost.
+        """
+        lost = self.raw_lost.lost
+        self.raw_lost.observe(info)
+        if self.raw_lost.lost > lost:
+            self.report_problem(
+                "raw_lost",
+                DiagnosticStatus.WARN,
+                f"{self.raw_lost.lost} raw_trajectory messages lost on the way since start (a "
+                "flood on another input, or a congested network): the filter bridged each gap",
+            )
 
     def _refused_source(self, info: MessageInfo | None) -> Problem | None:
         """Why a raw message is refused for its publisher (None: it may be used).
@@ -766,6 +789,7 @@ class MotionFilterNode(DiagnosedNode):
         return {
             "started_from": self.started_from or "waiting",
             **self.intake.values(),
+            "raw_messages_lost": self.raw_lost.lost,
             **self.report.values(now),
             "ticks": self.ticks,
             "last_command_age_ms": (
