@@ -13,6 +13,7 @@ from audio2pose_ros.console.room_feed import (
     ROOM_HEADER,
     SOUND_DEPTH,
     EchoCanceller,
+    FeedWatch,
     RoomItem,
     RoomOutbox,
     encode_room_message,
@@ -349,3 +350,25 @@ def test_when_someone_in_the_room_talks_before_the_echo_expect_them_passed_uncha
     print(f"before the echo: the person {level_dbfs(room[before]):.1f} dBFS, changed by "
           f"{level_dbfs(changed):.1f} dBFS")  # fmt: skip
     assert np.array_equal(sent[before], room[before].astype(np.float32))
+
+
+def test_when_a_camera_stops_sending_expect_it_reported_stopped_until_a_picture_comes() -> None:
+    watch = FeedWatch("/camera/front/image_raw", stale_after_s=3.0)
+    assert watch.problem(100.0) is None  # no picture yet: no camera, not a stopped one
+    assert watch.view(100.0)["age_s"] is None
+    for k in range(10):
+        watch.arrived(100.0 + 0.1 * k, 1_700_000_000.0 + 0.1 * k)
+    assert watch.problem(102.0) is None  # 1.1 s since the last picture
+    problem = watch.problem(104.5)
+    assert problem is not None
+    assert problem.startswith("no picture on /camera/front/image_raw for 3.6 s (since ")
+    view = watch.view(105.0)
+    assert view["stopped"] is True
+    assert view["frames"] == 10
+    assert view["last_s"] == pytest.approx(1_700_000_000.9)
+    assert watch.stops == 1  # one stop, however often it is asked about
+    watch.arrived(106.0, 1_700_000_006.0)
+    assert watch.problem(106.5) is None
+    assert watch.view(106.5)["stopped"] is False
+    assert watch.problem(110.0) is not None
+    assert watch.stops == 2

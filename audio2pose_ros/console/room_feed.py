@@ -41,11 +41,13 @@ from audio2pose_ros.errors import InputError
 from audio2pose_ros.timebase import SAMPLE_RATE_HZ
 
 __all__ = [
+    "CAMERA_STALE_S",
     "ECHO_TAPS",
     "MAX_ECHO_DELAY_S",
     "ROOM_HEADER",
     "SOUND_DEPTH",
     "EchoCanceller",
+    "FeedWatch",
     "RoomItem",
     "RoomOutbox",
     "encode_room_message",
@@ -77,6 +79,7 @@ SWITCH_COST = 64.0  # a change of echo path must explain this many noise samples
 NOISE_POWER_MIN = 1e-12  # noise power floor (below 16-bit quantisation), so a switch costs
 REFERENCE_RMS_MIN = 1e-4  # below this the operator is silent: nothing is subtracted
 SILENCE_DBFS = -120.0  # the level of digital silence (log of zero)
+CAMERA_STALE_S = 3.0  # no picture for this long: the camera has stopped (it sends 10 a second)
 
 
 @dataclass(frozen=True)
@@ -437,6 +440,65 @@ def _cheapest_path(errors: np.ndarray, switch: float) -> np.ndarray:
     for back in reversed(came):
         choice.append(back[choice[-1]])
     return np.array(choice[::-1], dtype=np.int16)
+
+
+class FeedWatch:
+    """When pictures last came from a camera topic, to tell that the camera has stopped.
+
+    A camera that sent pictures and has sent none for ``stale_after_s`` has stopped (its
+    process died, its driver hung, its topic went away): :meth:`problem` says so, naming the
+    topic and the last picture's age, until a picture comes again. A topic that never sent a
+    picture is no camera, not a stopped one.
+
+    Args:
+        topic: the camera topic, as named in the reports.
+        stale_after_s: how long without a picture means the camera has stopped (s).
+    """
+
+    def __init__(self, topic: str, stale_after_s: float = CAMERA_STALE_S) -> None:
+        self.topic = topic
+        self.stale_after_s = stale_after_s
+        self.frames = 0
+        self.stops = 0  # times the camera was found stopped
+        self._last_s = -math.inf  # monotonic time of the last picture
+        self._last_wall_s = math.nan  # wall-clock time of the last picture
+        self._stopped = False
+
+    def arrived(self, now_s: float, wall_s: float) -> None:
+        """A picture arrived at ``now_s`` (monotonic s), ``wall_s`` (wall-clock s)."""
+        self.frames += 1
+        self._last_s, self._last_wall_s = now_s, wall_s
+        self._stopped = False
+
+    def age_s(self, now_s: float) -> float | None:
+        """Seconds since the last picture; None before the first."""
+        return now_s - self._last_s if self.frames else None
+
+    def stopped(self, now_s: float) -> bool:
+        """Whether the camera sent pictures and has sent none for ``stale_after_s``."""
+        stale = self.frames > 0 and now_s - self._last_s > self.stale_after_s
+        if stale and not self._stopped:
+            self.stops += 1
+        self._stopped = stale
+        return stale
+
+    def problem(self, now_s: float) -> str | None:
+        """``no picture on TOPIC for N s (since HH:MM:SS UTC)`` while stopped, else None."""
+        if not self.stopped(now_s):
+            return None
+        since = time.strftime("%H:%M:%S", time.gmtime(self._last_wall_s))
+        return f"no picture on {self.topic} for {now_s - self._last_s:.1f} s (since {since} UTC)"
+
+    def view(self, now_s: float) -> dict[str, object]:
+        """For the pages: topic, pictures, last one's age (s) and wall-clock time, stopped."""
+        age = self.age_s(now_s)
+        return {
+            "topic": self.topic,
+            "frames": self.frames,
+            "age_s": None if age is None else round(age, 1),
+            "last_s": None if math.isnan(self._last_wall_s) else self._last_wall_s,
+            "stopped": self.stopped(now_s),
+        }
 
 
 class RoomOutbox:
