@@ -72,7 +72,7 @@ SAME_LAG = 2  # samples: lags this close are one echo path (its filter spans the
 KNOWN_MATCH = 0.95  # a segment this alike the voice at a lag known already takes it unsearched
 PIECE = 160  # samples (10 ms): the room's own level is that of its quietest piece this long
 MIN_RUN = 32  # samples: the shortest run of what is left searched for a missed echo path
-MISSED_DB = 20.0  # a run this far above the room's noise had a path missed: it is searched
+MISSED_DB = 12.0  # a run this far above the room's noise had a path missed: it is searched
 EXPLAINED_DB = 10.0  # a new lag must leave what it explains this much lower (else: a person)
 MAX_ROUNDS = 4  # fits and choices of paths per block at most (steps 2 to 5)
 SWITCH_COST = 64.0  # a change of echo path must explain this many noise samples' power
@@ -407,7 +407,11 @@ def _missed_run(left: np.ndarray, noise: float) -> tuple[int, int] | None:
     if left.size < PIECE:
         return None
     over = noise * 10.0 ** (MISSED_DB / 10.0)
-    power = np.convolve(np.square(left), np.ones(PIECE // 4) / (PIECE // 4), "same")
+    width = np.ones(PIECE // 4)
+    # mean power around each sample; at the block's edges over the samples there are
+    power = np.convolve(np.square(left), width, "same") / np.convolve(
+        np.ones(left.size), width, "same"
+    )
     peak = int(np.argmax(power))
     if power[peak] < over:
         return None
