@@ -157,6 +157,7 @@ def test_when_the_operator_talks_to_the_simulated_room_expect_its_picture_sound_
                 " && window.a2p.room.soundBlocks > 3 && window.a2p.room.watchers >= 1"
             )
             assert page.evaluate("window.a2p.room.playing") is True
+            assert page.evaluate("window.a2p.room.cameraStopped") is False  # pictures come
             assert page.locator("#room-watched").is_visible()
             ahead = _picture(page)
             silent = _levels(page, 8)
