@@ -244,7 +244,8 @@ class EchoCanceller:
         self._room_count = 0  # room samples processed so far
         self._end_s: float | None = None  # when the last chunk of the voice was published
         self._paths: dict[int, np.ndarray] = {}  # lag -> filter taps, that ended the last block
-        self._quietest: deque[float] = deque(maxlen=FLOOR_BLOCKS)  # power of each block's
+        # the power of each of the last blocks' quietest PIECE: the room's own sound
+        self._quietest: deque[float] = deque(maxlen=FLOOR_BLOCKS)
         self.delay_s = math.nan  # the echo's delay found last (voice published to room heard)
         self.blocks = 0
         self.cancelled_blocks = 0
@@ -281,14 +282,9 @@ class EchoCanceller:
         search = _Search(block, padded, first, self._voice_count - window.size)
         noise = max(min(self._quietest), NOISE_POWER_MIN)  # the room's own sound's power
         spans = self._segment_lags(search, noise)
-        out, last = block, None
-        kept: dict[int, np.ndarray] = {}
         searched: set[tuple[int, int]] = set()
         for _ in range(MAX_ROUNDS):
             paths = self._fit(search, spans)
-            if not paths:
-                out, kept, last = block, {}, None
-                break
             out, kept, last, taken_db = _cancel(search, paths, noise)
             # a new lag, found in one segment, that does not take most of what it explains:
             # someone in the room who sounded like the voice there
@@ -297,9 +293,9 @@ class EchoCanceller:
                 for k in kept
                 if k not in self._paths and len(spans[k]) < 2 and taken_db[k] < EXPLAINED_DB
             ]
+            for k in doubtful:
+                del spans[k]
             if doubtful:
-                for k in doubtful:
-                    del spans[k]
                 continue
             missed = _missed_run(out, noise)
             if missed is None or missed in searched:
@@ -309,6 +305,8 @@ class EchoCanceller:
             if lag is None or any(abs(k - lag) <= SAME_LAG for k in paths):
                 break
             spans.setdefault(lag, []).append(missed)
+        else:  # the rounds are used up: cancel with what the last one left of the lags
+            out, kept, last, _ = _cancel(search, self._fit(search, spans), noise)
         self._paths = kept
         if last is not None:
             self.cancelled_blocks += 1
@@ -373,6 +371,8 @@ def _cancel(
         the samples it explains.
     """
     block = search.room
+    if not paths:
+        return block, {}, None, {}
     lags = list(paths)
     shifted = [search.shifted(lag) for lag in lags]
     errors = np.stack(
