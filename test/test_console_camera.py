@@ -122,6 +122,8 @@ def page_camera(url: str, test: Callable[[dict[str, Any]], bool]) -> dict[str, A
             await ws.send_str(json.dumps({"type": "hello", "token": TOKEN, "name": "watcher"}))
             while True:
                 message = await ws.receive(timeout=WAIT_S)
+                if message.type == aiohttp.WSMsgType.BINARY:
+                    continue  # the room's pictures
                 assert message.type == aiohttp.WSMsgType.TEXT, message
                 data = json.loads(message.data)
                 if data["type"] == "status" and test(data["camera"]):
