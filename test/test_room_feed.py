@@ -410,3 +410,34 @@ def test_when_the_echo_delay_jumps_in_each_blocks_last_samples_expect_it_still_2
     suppression_db = level_dbfs(echo) - level_dbfs(residual)
     print(f"a jump in each block's last 150 samples: {suppression_db:.1f} dB lower")
     assert suppression_db >= 20.0
+
+
+def test_when_the_echo_goes_on_without_a_pause_for_seconds_expect_it_still_20_db_lower() -> None:
+    """The voice node skips the pauses: the echo can go on for seconds without a quiet 10 ms,
+    its delay jumping as chunks are skipped. The room's own level must not rise to the echo's,
+    or the echo at a new delay would go unsearched."""
+    block = 2731
+    blocks = 90  # 15 s of voice without a pause
+    voice = 0.05 * np.random.default_rng(10).standard_normal(blocks * block + 3 * RATE)
+    room16 = np.random.default_rng(11).normal(0.0, 0.002, blocks * block)
+    t = np.arange(room16.size)
+    delay = 12000 - CHUNK * (t // 20011)  # a chunk skipped every 1.25 s
+    echo16 = np.where(t >= delay, 0.5 * voice[np.maximum(t - delay, 0)], 0.0)
+    canceller = EchoCanceller(RATE)
+    published = 0
+    outputs, echoes = [], []
+    for k in range(blocks):
+        start = k * block
+        arrived_s = (start + block) / RATE
+        while (published + 1) * CHUNK / RATE <= arrived_s:
+            canceller.reference(voice[published * CHUNK : (published + 1) * CHUNK], arrived_s)
+            published += 1
+        mixed = room16[start : start + block] + echo16[start : start + block]
+        outputs.append(canceller.process(mixed, arrived_s) - room16[start : start + block])
+        echoes.append(echo16[start : start + block])
+    late = slice(-30, None)  # the last 5 s, after 10 s of echo without a pause
+    suppression_db = level_dbfs(np.concatenate(echoes[late])) - level_dbfs(
+        np.concatenate(outputs[late])
+    )
+    print(f"echo without a pause for 15 s: {suppression_db:.1f} dB lower")
+    assert suppression_db >= 20.0

@@ -66,7 +66,7 @@ MAX_ECHO_DELAY_S = 3.0  # voice hold-back + loudspeaker + microphone buffers + t
 SEGMENT = 320  # samples whose echo delay is searched on their own (the voice's 20 ms chunks)
 MIN_ECHO_CORRELATION = 0.5  # a segment less alike the voice at any lag has none (chance: 0.3)
 ECHO_TAPS = 8  # the echo filter's length (samples at 16 kHz) around the delay found
-FLOOR_BLOCKS = 20  # the room's own level is the quietest 10 ms of this many blocks (3.4 s)
+FLOOR_BLOCKS = 60  # the room's own level: the quietest 10 ms left of this many blocks (10 s)
 ABOVE_FLOOR_DB = 6.0  # a segment is searched for the voice only this far above that level
 SAME_LAG = 2  # samples: lags this close are one echo path (its filter spans the difference)
 KNOWN_MATCH = 0.95  # a segment this alike the voice at a lag known already takes it unsearched
@@ -210,8 +210,8 @@ class EchoCanceller:
        this block, where it matches (:data:`KNOWN_MATCH`), else where the voice best matches it
        (normalised cross-correlation by FFT over the last :data:`MAX_ECHO_DELAY_S` of the
        voice); a segment matching nowhere (:data:`MIN_ECHO_CORRELATION`) has none, and one no
-       louder than the room alone (:data:`ABOVE_FLOOR_DB` over the quietest :data:`PIECE` of
-       the last :data:`FLOOR_BLOCKS` blocks) is not searched: the room's noise matches some
+       louder than the room alone (:data:`ABOVE_FLOOR_DB` over its noise, below) is not
+       searched: the room's noise matches some
        lag by chance, and an echo under it is not heard;
     2. fits each lag's filter by least squares on the segments that found it (a lag carried
        from the previous block and found nowhere keeps its filter);
@@ -227,9 +227,10 @@ class EchoCanceller:
        a lag that no whole segment showed, in a block's last samples, say), searches that
        run's lag and goes back to 2; steps 2 to 5 are done at most :data:`MAX_ROUNDS` times.
 
-    The room's noise power is that of the quietest :data:`PIECE` of the last
-    :data:`FLOOR_BLOCKS` blocks. While no voice was published for :data:`MAX_ECHO_DELAY_S`, or
-    it was silent, the block passes unchanged.
+    The room's noise power is that of the quietest :data:`PIECE` of what the last
+    :data:`FLOOR_BLOCKS` blocks left (not of what they heard: while the voice node skips the
+    pauses, the echo can go on for seconds without one). While no voice was published for
+    :data:`MAX_ECHO_DELAY_S`, or it was silent, the block passes unchanged.
 
     Args:
         rate_hz: the sample rate of both signals.
@@ -244,7 +245,7 @@ class EchoCanceller:
         self._room_count = 0  # room samples processed so far
         self._end_s: float | None = None  # when the last chunk of the voice was published
         self._paths: dict[int, np.ndarray] = {}  # lag -> filter taps, that ended the last block
-        # the power of each of the last blocks' quietest PIECE: the room's own sound
+        # the power of the quietest PIECE each of the last blocks left: the room's own sound
         self._quietest: deque[float] = deque(maxlen=FLOOR_BLOCKS)
         self.delay_s = math.nan  # the echo's delay found last (voice published to room heard)
         self.blocks = 0
@@ -266,18 +267,25 @@ class EchoCanceller:
         n = block.size
         first = self._room_count  # the block's first room sample number
         self._room_count += n
-        if n >= PIECE:  # the quietest 10 ms of the last blocks: the room's own sound
-            pieces = block[: n - n % PIECE].reshape(-1, PIECE)
+        out = self._cancel_block(block, first, arrived_s)
+        if n >= PIECE:  # the quietest 10 ms of what the last blocks left: the room's own sound
+            pieces = out[: n - n % PIECE].reshape(-1, PIECE)
             self._quietest.append(float(np.min(np.mean(np.square(pieces), axis=1))))
+        return out.astype(np.float32)
+
+    def _cancel_block(self, block: np.ndarray, first: int, arrived_s: float) -> np.ndarray:
+        """:meth:`process` but for the room's noise level: the block without the voice."""
+        n = block.size
         silent_for_s = math.inf if self._end_s is None else arrived_s - self._end_s
         window = self._reference[-(n + self._max_delay + ECHO_TAPS) :]
         if (
             n < PIECE
             or silent_for_s > MAX_ECHO_DELAY_S + n / self.rate_hz  # the operator stopped
             or float(np.sqrt(np.mean(np.square(window)))) < REFERENCE_RMS_MIN
+            or not self._quietest  # the room's own level is not known yet
         ):
             self._paths = {}
-            return block.astype(np.float32)
+            return block
         padded = np.concatenate([window, np.zeros(ECHO_TAPS)])
         search = _Search(block, padded, first, self._voice_count - window.size)
         noise = max(min(self._quietest), NOISE_POWER_MIN)  # the room's own sound's power
@@ -312,7 +320,7 @@ class EchoCanceller:
             self.cancelled_blocks += 1
             # voice published after the block's last sample's echo: how late the echo is
             self.delay_s = (self._voice_count - 1 - (first + n - 1 + last)) / self.rate_hz
-        return out.astype(np.float32)
+        return out
 
     def _segment_lags(self, search: _Search, noise: float) -> dict[int, list[tuple[int, int]]]:
         """The segments of the block (``(start, stop)``) that each lag explains."""
