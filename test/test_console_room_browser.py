@@ -160,6 +160,7 @@ def test_when_the_operator_talks_to_the_simulated_room_expect_its_picture_sound_
             # the console counts this page; the badge is for the others, and there are none
             assert page.evaluate("window.a2p.room.othersWatching") == 0
             assert not page.locator("#room-watched").is_visible()
+            assert page.evaluate("window.a2p.room.cameraStopped") is False  # pictures come
             ahead = _picture(page)
             silent = _levels(page, 8)
 
@@ -199,7 +200,4 @@ def test_when_the_operator_talks_to_the_simulated_room_expect_its_picture_sound_
     suppression_db = 10.0 * math.log10(heard / left)
     print(f"room {10 * math.log10(floor):.1f} dBFS; voice heard {10 * math.log10(heard):.1f} "
           f"dBFS; sent {suppression_db:.1f} dB lower")  # fmt: skip
-    if suppression_db < MIN_SUPPRESSION_DB:
-        # Unfinished: through the real chain the linear canceller removed 18.7 to 90 dB in
-        # runs of this test on one machine; below the goal the run is reported, not passed.
-        pytest.xfail(f"the voice came back only {suppression_db:.1f} dB lower (goal 20 dB)")
+    assert suppression_db >= MIN_SUPPRESSION_DB

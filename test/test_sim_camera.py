@@ -58,3 +58,52 @@ def test_when_the_simulated_head_turns_expect_its_camera_image_to_follow(
     assert info_stamps & image_stamps  # each image has its camera info, stamped alike
     assert infos[0].k[2] == 160.0
     assert infos[0].k[5] == 120.0
+
+
+def _spawned(pid: int) -> list[int]:
+    """The processes ``pid`` started with multiprocessing's spawn (Linux: /proc)."""
+    tasks = Path(f"/proc/{pid}/task")
+    found: list[int] = []
+    for task in tasks.iterdir() if tasks.is_dir() else []:
+        children = task / "children"
+        for child in children.read_text().split() if children.is_file() else []:
+            command = Path(f"/proc/{child}/cmdline").read_bytes()
+            if b"spawn_main" in command and b"resource_tracker" not in command:
+                found.append(int(child))
+    return found
+
+
+def test_when_the_camera_process_is_killed_expect_it_reported_and_pictures_again(
+    tmp_path: Path, probe: Probe
+) -> None:
+    import os
+    import signal
+
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    images: list[Image] = []
+    warnings: list[str] = []
+    probe.create_subscription(Image, absolute(CAMERA_IMAGE), images.append, qos_profile_sensor_data)
+
+    def diagnostics(msg: DiagnosticArray) -> None:
+        warnings.extend(s.message for s in msg.status if s.name.endswith("/pepper_sim_node"))
+
+    probe.create_subscription(DiagnosticArray, "/diagnostics", diagnostics, 50)
+    supervisor = NodeSupervisor(
+        {"pepper_sim_node": executable_command("pepper_sim_node")}, tmp_path
+    )
+    supervisor.start()
+    try:
+        probe.wait_until(lambda: len(images) >= 2)
+        sim = supervisor.processes["pepper_sim_node"].pid
+        (camera,) = _spawned(sim)  # the head camera's process (no voice: no other)
+        os.kill(camera, signal.SIGKILL)
+        killed = len(images)
+        probe.wait_until(lambda: any("head camera's process died" in m for m in warnings))
+        probe.wait_until(lambda: len(images) >= killed + 3)
+    finally:
+        supervisor.stop()
+    died = next(m for m in warnings if "head camera's process died" in m)
+    assert "exit code -9" in died
+    stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in images]
+    assert stamps == sorted(stamps)  # pictures again, after the restart, in order

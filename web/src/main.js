@@ -32,11 +32,11 @@ const state = {
 };
 // What the page shows of the room (window.a2p.room): pictures drawn, the last one's age when
 // drawn (ms), the sound's level (dBFS) and as heard before the operator's own voice was removed,
-// blocks of sound received, whether it plays, pages watching (this one included) and other
-// pages watching (the badge).
+// blocks of sound received, whether it plays, pages watching (this one included), other pages
+// watching (the badge), and whether the camera has stopped.
 state.room = {
   framesDrawn: 0, frameAgeMs: null, levelDb: null, heardDb: null, soundBlocks: 0, playing: false,
-  watchers: 0, othersWatching: 0, sequence: 0,
+  watchers: 0, othersWatching: 0, sequence: 0, cameraStopped: false,
 };
 window.a2p = state;
 
@@ -224,6 +224,14 @@ async function drawPicture(jpeg, ageMs, received) {
 }
 
 function showPictureAge() {
+  const camera = state.status && state.status.camera; // the console's word: pictures stopped
+  state.room.cameraStopped = Boolean(camera && camera.stopped);
+  if (state.room.cameraStopped) {
+    const since = new Date(camera.last_s * 1000).toLocaleTimeString();
+    const age = Math.round(camera.age_s);
+    setText($('room-age'), `no picture since ${since} (${age} s): ${camera.topic} stopped`);
+    return;
+  }
   if (!state.room.framesDrawn) return;
   const age = room.ageAtDraw + (performance.now() - room.pictureAt);
   setText($('room-age'), `picture ${Math.round(age)} ms old (${state.room.framesDrawn} shown)`);

@@ -13,7 +13,11 @@ Publications:
     stop, enable (std_msgs/Bool, transient local): the page's stop button and enable switch, as
         motion_filter_node expects them.
     /diagnostics: heartbeat, operators, floor, audio published and refused, wrong tokens, who
-        holds the stop, latency, pages watching the room and what they were sent.
+        holds the stop, latency, pages watching the room and what they were sent; WARN while
+        the camera that sent pictures has sent none for
+        :data:`~audio2pose_ros.console.room_feed.CAMERA_STALE_S` (naming the topic and the last
+        picture's age, :class:`~audio2pose_ros.console.room_feed.FeedWatch`), OK again when
+        pictures come back.
 Subscriptions:
     joint_angles (naoqi_bridge_msgs/JointAnglesWithSpeed) and commanded_joint_states
         (sensor_msgs/JointState): the commanded pose for the 3D view, and the commands that end
@@ -71,7 +75,13 @@ from audio2pose_ros.audio.source import AudioInput, AudioInputSettings
 from audio2pose_ros.console.access import resolve_access
 from audio2pose_ros.console.latency import VoiceLatency
 from audio2pose_ros.console.protocol import AudioFrame
-from audio2pose_ros.console.room_feed import EchoCanceller, RoomItem, jpeg_from_image, level_dbfs
+from audio2pose_ros.console.room_feed import (
+    EchoCanceller,
+    FeedWatch,
+    RoomItem,
+    jpeg_from_image,
+    level_dbfs,
+)
 from audio2pose_ros.console.server import ConsoleServer
 from audio2pose_ros.console.server_thread import ServerThread
 from audio2pose_ros.console.settings import ConsoleSettings
@@ -158,6 +168,7 @@ class ConsoleNode(DiagnosedNode):
         self.talking = False
         self.microphones = AudioInput(AudioInputSettings(input_type="naoqi"))
         self.echo = EchoCanceller()
+        self.camera = FeedWatch(f"{self.get_namespace().rstrip('/')}/{topics.CAMERA_IMAGE}")
         self.room_sequence = 0
         self.picture_s = -1e9  # when the last picture was encoded (monotonic)
         self.room_level_dbfs = float("nan")
@@ -548,6 +559,8 @@ class ConsoleNode(DiagnosedNode):
     def on_camera(self, msg: Image) -> None:
         """The robot's camera: JPEG for the pages, at most MAX_PICTURES_PER_S a second."""
         now = time.monotonic()
+        with self._lock:
+            self.camera.arrived(now, time.time())
         if now - self.picture_s < 1.0 / MAX_PICTURES_PER_S or not self.server.sessions:
             return
         self.picture_s = now
@@ -613,23 +626,35 @@ class ConsoleNode(DiagnosedNode):
                 "health": health,
                 "latency": self.latency.summary(),
                 "voice": voice,
+                "camera": self.camera.view(now),
             }
 
     # --- own diagnostics ---------------------------------------------------------------------
 
     def diagnostic_summary(self) -> tuple[bytes, str]:
-        """Who holds the floor and how many operators are connected."""
+        """Who holds the floor, how many operators are connected; WARN: the camera stopped."""
         holder = self.server.floor.holder_name
         operators = len(self.server.sessions)
         talk = f"{holder} is talking" if holder else "nobody is talking"
         address = self.access.url(self.server.port).split("#")[0]
-        return DiagnosticStatus.OK, f"serving {address}: {operators} operator(s), {talk}"
+        summary = f"serving {address}: {operators} operator(s), {talk}"
+        with self._lock:
+            camera = self.camera.problem(time.monotonic())
+        if camera is not None:  # the robot's camera has stopped: the room's picture is frozen
+            return DiagnosticStatus.WARN, f"{summary}; {camera}"
+        return DiagnosticStatus.OK, summary
 
     def diagnostic_values(self) -> dict[str, object]:
         """Operators, audio published, refusals and the voice-to-command latency."""
         with self._lock:
             latency = self.latency.summary()
             chunks = self.chunks_published
+            age = self.camera.age_s(time.monotonic())
+            camera = {
+                "camera_frames": self.camera.frames,
+                "camera_stops": self.camera.stops,
+                "camera_frame_age_s": "none" if age is None else f"{age:.1f}",
+            }
         return {
             "operators": len(self.server.sessions),
             "floor": self.server.floor.holder_name or "free",
@@ -639,6 +664,7 @@ class ConsoleNode(DiagnosedNode):
             "room_watchers": self.server.watchers,
             "room_level_dbfs": f"{self.room_level_dbfs:.1f}",
             "echo_delay_s": f"{self.echo.delay_s:.3f}",
+            **camera,
             **self._room_counts(),
             **self._front_door_values(),
             **{f"latency_{key}": value for key, value in latency.items()},

@@ -10,14 +10,18 @@ pose and publishes what comes back:
   pose it shows, frame ``CameraTop_optical_frame``, as naoqi_driver publishes the front camera;
 - ``camera/front/camera_info`` (sensor_msgs/CameraInfo): the pinhole model with the same stamp.
 
-One pose is in flight at a time: a slow render gives fewer frames, never a queue.
+One pose is in flight at a time: a slow render gives fewer frames, never a queue. A camera
+process that dies (killed, out of memory) is reported on /diagnostics (WARN, with its exit code)
+and started again, at most once every :data:`RESTART_PERIOD_S`.
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import time
 from collections.abc import Callable
 
+from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -26,6 +30,7 @@ from audio2pose_ros.robot.head_camera import CameraModel, run_head_camera
 from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
 
 FRAME_ID = "CameraTop_optical_frame"
+RESTART_PERIOD_S = 5.0  # a camera process that died is started again at most this often (s)
 
 
 class SimCamera:
@@ -45,6 +50,8 @@ class SimCamera:
         self.pose = pose
         self.frames = 0
         self.refused = 0
+        self.restarts = 0
+        self.started_s = -RESTART_PERIOD_S  # when the camera's process was last started
         self.in_flight = False
         self.process: multiprocessing.process.BaseProcess | None = None
         if fps <= 0.0:
@@ -53,6 +60,11 @@ class SimCamera:
         self.info_pub = node.create_publisher(
             CameraInfo, topics.CAMERA_INFO, qos_profile_sensor_data
         )
+        self.start()
+        node.create_timer(1.0 / fps, node.guarded(self.on_tick))
+
+    def start(self) -> None:
+        """Start the camera's process (rendering) and connect to it."""
         context = multiprocessing.get_context("spawn")
         self.conn, child = context.Pipe()
         self.process = context.Process(
@@ -62,11 +74,17 @@ class SimCamera:
             daemon=True,
         )
         self.process.start()
+        self.started_s = time.monotonic()
+        self.in_flight = False
         child.close()
-        node.create_timer(1.0 / fps, node.guarded(self.on_tick))
 
     def on_tick(self) -> None:
         """Publish a rendered frame if one is back; ask for the next while someone watches."""
+        if self.process is None:
+            return
+        if not self.process.is_alive():
+            self.restart()
+            return
         if self.in_flight and self.conn.poll():
             stamp_s, image = self.conn.recv()
             self.in_flight = False
@@ -78,6 +96,25 @@ class SimCamera:
             now = self.node.get_clock().now().nanoseconds * 1e-9
             self.conn.send((now, self.pose()))
             self.in_flight = True
+
+    def restart(self) -> None:
+        """The camera's process died: report it, start another (at most every RESTART_PERIOD_S)."""
+        if self.process is None:
+            return
+        code = self.process.exitcode
+        self.node.report_problem(
+            "camera process died",
+            DiagnosticStatus.WARN,
+            f"the head camera's process died (exit code {code}): no pictures; started again "
+            f"({self.restarts} restarts so far)",
+            hold_s=RESTART_PERIOD_S,
+        )
+        if time.monotonic() - self.started_s < RESTART_PERIOD_S:
+            return
+        self.conn.close()
+        self.process.join(0.0)
+        self.restarts += 1
+        self.start()
 
     def publish(self, stamp_s: float, rgb: bytes) -> None:
         """The image and its camera info, as naoqi_driver publishes the front camera."""
@@ -103,8 +140,12 @@ class SimCamera:
         self.frames += 1
 
     def diagnostic_values(self) -> dict[str, object]:
-        """Frames published and poses the camera refused."""
-        return {"camera_frames": self.frames, "camera_refused": self.refused}
+        """Frames published, poses the camera refused, restarts of its process."""
+        return {
+            "camera_frames": self.frames,
+            "camera_refused": self.refused,
+            "camera_restarts": self.restarts,
+        }
 
     def close(self) -> None:
         """End the camera's process."""
