@@ -76,7 +76,9 @@ class FeaturesNodeSettings:
     model_path: str = dataclasses.field(
         default="",
         metadata=param(
-            "checkpoint whose feature specification is computed ('' = packaged default)",
+            "checkpoint the graph runs ('' = packaged default): audio_features_node computes "
+            "its features; inference_node runs it, and a checkpoint set on it live is blended "
+            "in over 1 s (one for other features is refused)",
             read_only=True,
         ),
     )
