@@ -144,7 +144,7 @@ def test_when_model_path_is_set_live_expect_bad_ones_refused_and_a_good_one_blen
                     reasons.append(result.reason)
                 assert "no such file" in reasons[0]
                 assert "not an audio2pose checkpoint" in reasons[1]
-                assert "not a checkpoint file" in reasons[2]
+                assert "a folder without style.yaml" in reasons[2]
                 for m in range(BEFORE, BEFORE + REFUSED):  # the poses go on, same model
                     feeder.send(frames[m * FRAMES : (m + 1) * FRAMES])
                 result = feeder.set_model_path(str(personal))

@@ -56,7 +56,7 @@ def test_when_a_checkpoint_cannot_replace_the_running_model_expect_the_reason(
 ):
     refusals = {
         "no such file": str(tmp_path / "missing.safetensors"),
-        "a folder, not a checkpoint file": str(tmp_path),
+        "a folder without style.yaml": str(tmp_path),
     }
     junk = tmp_path / "junk.safetensors"
     junk.write_bytes(b"\x00" * 64)
@@ -115,3 +115,18 @@ def test_when_a_blend_has_no_frames_expect_a_refusal():
         PoseBlend(0)
     weights = blend_weights(0, 5, 4)
     np.testing.assert_allclose(weights, [0.0, 0.15625, 0.5, 0.84375, 1.0])
+
+
+def test_when_given_a_personal_model_folder_expect_its_checkpoint_or_the_default(
+    tmp_path, personal
+):
+    from audio2pose_ros.checkpoints.switch import resolve_model_path
+
+    folder = tmp_path / "me"
+    folder.mkdir()
+    assert resolve_model_path(str(folder)) == folder  # no style: not a personal model
+    (folder / "style.yaml").write_text("name: me\n", encoding="utf-8")
+    assert resolve_model_path(str(folder)) == default_checkpoint_path()  # the style alone
+    (folder / "model.safetensors").write_bytes(personal.read_bytes())
+    assert resolve_model_path(str(folder)) == folder / "model.safetensors"
+    assert resolve_model_path("") == default_checkpoint_path()

@@ -18,18 +18,34 @@ from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot.description import RobotDescription
 
-__all__ = ["load_replacement", "resolve_model_path"]
+__all__ = ["CHECKPOINT_FILE", "STYLE_FILE", "load_replacement", "resolve_model_path"]
+
+# A personal model folder (``audio2pose enroll``, the console's "learn my style") holds its style
+# and, when enrolment fitted the arms' own noise, its checkpoint.
+STYLE_FILE = "style.yaml"
+CHECKPOINT_FILE = "model.safetensors"
 
 
 def resolve_model_path(model_path: str) -> Path:
-    """The checkpoint ``model_path`` names: the packaged default for ''."""
-    return Path(model_path) if model_path else default_checkpoint_path()
+    """The checkpoint ``model_path`` names.
+
+    '' is the packaged default. A personal model folder (it holds :data:`STYLE_FILE`) runs its
+    :data:`CHECKPOINT_FILE`, or the packaged default when enrolment wrote none (the person's
+    style alone, which the motion filter applies). Anything else is taken as a checkpoint file.
+    """
+    if not model_path:
+        return default_checkpoint_path()
+    path = Path(model_path)
+    if path.is_dir() and (path / STYLE_FILE).is_file():
+        own = path / CHECKPOINT_FILE
+        return own if own.is_file() else default_checkpoint_path()
+    return path
 
 
 def load_replacement(
     model_path: str, running: StreamingModel, robot: RobotDescription
 ) -> StreamingModel:
-    """The checkpoint of ``model_path`` ('' = the packaged default), checked to replace ``running``.
+    """The checkpoint ``model_path`` names (:func:`resolve_model_path`), fit to replace ``running``.
 
     Raises:
         ConfigurationError: the file is missing or not a file, fails the start-up checks, is
@@ -38,7 +54,11 @@ def load_replacement(
     """
     path = resolve_model_path(model_path)
     if not path.is_file():
-        what = "a folder, not a checkpoint file" if path.is_dir() else "no such file"
+        what = (
+            f"a folder without {STYLE_FILE}, neither a checkpoint nor a personal model"
+            if path.is_dir()
+            else "no such file"
+        )
         raise ConfigurationError(f"model_path {str(path)!r} refused: {what}")
     try:
         model = load_streaming_model(
