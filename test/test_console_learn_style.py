@@ -313,6 +313,7 @@ class Bridge:
         self.neutral = {"HeadYaw": 0.0}
         self.styles: list[dict[str, float] | None] = []
         self.models: list[str | None] = []
+        self.fallbacks: list[dict[str, float] | None] = []
         self.stopped = False
 
     def publish_audio(self, frame: Any, received_s: float) -> None:
@@ -333,8 +334,9 @@ class Bridge:
     def set_style(self, settings: dict[str, float] | None) -> None:
         self.styles.append(settings)
 
-    def set_model(self, folder: str | None) -> None:
+    def set_model(self, folder: str | None, fallback: Any = None) -> None:
         self.models.append(folder)
+        self.fallbacks.append(fallback)
 
     def pose(self) -> dict[str, Any]:
         return {"commanded": None, "measured": None}
@@ -407,6 +409,8 @@ def test_when_an_operator_uploads_a_recording_expect_the_style_applied_then_undo
             await until(ws, "status", lambda s: s["style"] == "personal")
             assert bridge.styles == [MODEL_SETTINGS, None, MODEL_SETTINGS]
             assert bridge.models == [folder, None, folder]  # back to the default model too
+            # should the node refuse the personal model: the style alone, for the packaged one
+            assert bridge.fallbacks == [SETTINGS, None, SETTINGS]
             bridge.stopped = True  # STOP latched (set outside the console): no change
             await ws.send_str('{"type":"style","use":"default"}')
             assert "the robot is stopped" in (await until(ws, "error"))["message"]

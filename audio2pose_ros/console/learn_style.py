@@ -60,8 +60,12 @@ class StyleBridge(Protocol):
     def set_style(self, settings: dict[str, float] | None) -> None:
         """Apply a learned style's settings to the graph (None: the style it started with)."""
 
-    def set_model(self, folder: str | None) -> None:
-        """Run a personal model folder on the inference node (None: the model it started with)."""
+    def set_model(self, folder: str | None, fallback: dict[str, float] | None = None) -> None:
+        """Run a personal model folder on the inference node (None: the model it started with).
+
+        ``fallback``: the style to apply instead if the node refuses the folder's model (the
+        style alone, fitted to the model that keeps running).
+        """
 
 
 class LearnMyStyle:
@@ -160,9 +164,13 @@ class LearnMyStyle:
             self.style_in_use = "personal"
 
     def _use_personal(self, result: Result) -> None:
-        """The personal model: its folder on the inference node, its style on the filter."""
-        self.bridge.set_model(str(result.folder))
+        """The personal model: its style on the filter, its folder on the inference node.
+
+        Should the node refuse the folder's model, the style alone (fitted to the packaged
+        model) replaces the style fitted to the personal one.
+        """
         self.bridge.set_style(result.model_settings or result.settings)
+        self.bridge.set_model(str(result.folder), fallback=result.settings)
 
     def on_control(self, session_id: int, name: str, control: Control) -> str | None:
         """``enroll`` (a ticket), ``style`` (which style) and ``style_set`` (single parameters).

@@ -367,12 +367,13 @@ class ConsoleNode(DiagnosedNode):
 
         self.get_client.call_async(request).add_done_callback(keep_then_set)
 
-    def set_model(self, folder: str | None) -> None:
+    def set_model(self, folder: str | None, fallback: dict[str, float] | None = None) -> None:
         """Set the inference node's ``model_path`` to ``folder``; None: restore its own.
 
         Before the first change its own ``model_path`` is read and kept, so that going back
         restores the model the graph was started with. The node checks the model and blends it
-        in; a refusal (its reason) is shown in the page.
+        in; a refusal (its reason) is shown in the page, and ``fallback``, when given, becomes
+        the filter's style (the style fitted to the model that keeps running).
         """
         if not (
             self.model_set_client.service_is_ready() and self.model_get_client.service_is_ready()
@@ -382,17 +383,19 @@ class ConsoleNode(DiagnosedNode):
                     f"{self.settings.inference_node}'s parameter service is not available: "
                     "the model was not changed"
                 )
+            if fallback is not None:
+                self.set_style(fallback)
             return
         if folder is None:
             with self._lock:
                 own, self.own_model = self.own_model, None
             if own is not None:
-                self._set_model_path(own)
+                self._set_model_path(own, None)
             return
         with self._lock:
             saved = self.own_model is not None
         if saved:
-            self._set_model_path(folder)
+            self._set_model_path(folder, fallback)
             return
 
         def keep_then_set(future: Future[Any]) -> None:
@@ -401,15 +404,17 @@ class ConsoleNode(DiagnosedNode):
                 with self._lock:
                     if self.own_model is None:
                         self.own_model = str(values[0].string_value)
-                self._set_model_path(folder)
+                self._set_model_path(folder, fallback)
             else:
                 with self._lock:
                     self.model_problem = "the inference node's model_path could not be read"
+                if fallback is not None:
+                    self.set_style(fallback)
 
         request = GetParameters.Request(names=["model_path"])
         self.model_get_client.call_async(request).add_done_callback(keep_then_set)
 
-    def _set_model_path(self, path: str) -> None:
+    def _set_model_path(self, path: str, fallback: dict[str, float] | None) -> None:
         request = SetParameters.Request()
         request.parameters = [
             Parameter(
@@ -426,6 +431,8 @@ class ConsoleNode(DiagnosedNode):
                 self.model_problem = "; ".join(refused)
             if refused:
                 self.get_logger().warning(f"model refused by the inference node: {refused[0]}")
+                if fallback is not None:
+                    self.set_style(fallback)
             self.refresh_model()
 
         self.model_set_client.call_async(request).add_done_callback(done)
