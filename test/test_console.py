@@ -360,6 +360,9 @@ class Bridge:
     def set_style(self, settings) -> None:
         self.calls.append(("style", settings))
 
+    def set_model(self, folder, fallback=None) -> None:
+        self.calls.append(("model", folder))
+
     def pose(self) -> dict[str, Any]:
         return {"commanded": {"HeadYaw": 0.1}, "measured": None}
 

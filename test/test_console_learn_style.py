@@ -36,7 +36,28 @@ from audio2pose_ros.data.importers.media import ffmpeg_executable
 from audio2pose_ros.resources import share_path
 
 TOKEN = "learn-style-token-0123456789"
-SETTINGS = {"head_gain": 0.5, "arms_tempo": 0.6}
+SETTINGS = {"head_gain": 0.5, "arms_tempo": 0.6}  # the style alone, against the packaged model
+MODEL_SETTINGS = {"head_gain": 0.5, "arms_tempo": 0.8}  # the style fitted to the personal model
+VERDICTS = [
+    {
+        "part": "head",
+        "learned": True,
+        "gain": 0.061,
+        "spread": 0.02,
+        "reason": "",
+        "line": "head: learned (style, 40% of the way from the default), expected to come "
+        "0.061 ± 0.020 closer to the person",
+    },
+    {
+        "part": "arms",
+        "learned": False,
+        "gain": 0.0,
+        "spread": 0.0,
+        "reason": "no learned fit came closer",
+        "line": "arms: kept the default (no learned fit came closer)",
+    },
+]
+MODEL_LINE = "PERSONAL_MODEL " + json.dumps({"settings": MODEL_SETTINGS, "verdicts": VERDICTS})
 
 
 def child(body: str) -> list[str]:
@@ -51,6 +72,7 @@ LEARNS = child(
     folder.mkdir(parents=True)
     (folder / "style.yaml").write_text("parts: {{}}")
     print("tracking face and body", flush=True)
+    print({MODEL_LINE!r}, flush=True)
     print("STYLE_SETTINGS " + json.dumps({SETTINGS!r}), flush=True)
     """
 )
@@ -179,25 +201,31 @@ def test_when_learning_succeeds_expect_the_settings_and_the_recording_deleted(tm
         "owner": "Ann",
         "message": "learned Ann's style",
         "personal": "style",
+        "verdicts": VERDICTS,
     }
 
 
-def test_when_enrolment_fits_the_arms_noise_expect_the_message_to_name_the_run_command(tmp_path):
-    """A personal checkpoint is not loaded live: the operator is told how to run it."""
+def test_when_enrolment_fits_the_arms_noise_expect_the_message_to_say_it_and_the_verdicts(
+    tmp_path,
+):
+    """The personal model, its own checkpoint included, runs live: no restart to ask for."""
     writes_a_model = child(
         f"""
         folder.mkdir(parents=True)
         (folder / "style.yaml").write_text("parts: {{}}")
         (folder / "model.safetensors").write_bytes(b"model")
+        print({MODEL_LINE!r}, flush=True)
         print("STYLE_SETTINGS " + json.dumps({SETTINGS!r}), flush=True)
         """
     )
     jobs = Enrollments(tmp_path, writes_a_model)
     _, result = _learn(jobs, keep=False)
-    assert result.settings == SETTINGS  # the style alone is still what the graph takes
+    assert result.settings == SETTINGS
+    assert result.model_settings == MODEL_SETTINGS
+    assert result.verdicts == VERDICTS
+    assert jobs.status()["verdicts"] == VERDICTS
     assert jobs.status()["message"] == (
-        f"learned Ann's style; its arms' own noise needs a restart: "
-        f"audio2pose run --model {result.folder}"
+        "learned Ann's style; with its arms' own noise (a model of its own)"
     )
 
 
@@ -229,6 +257,16 @@ def test_when_the_operator_keeps_the_recording_expect_it_beside_the_style(tmp_pa
         ('print("STYLE_SETTINGS [1, 2]")', "not finite"),
         ('print("STYLE_SETTINGS {")', "unreadable"),
         ('print("done, but no settings")', "without a result"),
+        (  # the personal model is part of the result
+            'print("STYLE_SETTINGS " + json.dumps({"head_gain": 1.0}))',
+            "without a result",
+        ),
+        ('print("PERSONAL_MODEL {")', "unreadable personal model"),
+        ('print("PERSONAL_MODEL " + json.dumps({"settings": {}}))', "without verdicts"),
+        (
+            'print("PERSONAL_MODEL " + json.dumps({"settings": {}, "verdicts": [3]}))',
+            "verdict that cannot be read",
+        ),
     ],
 )
 def test_when_learning_fails_expect_the_reason_and_nothing_left(tmp_path, body, match):
@@ -274,6 +312,9 @@ class Bridge:
         self.joint_names = ["HeadYaw"]
         self.neutral = {"HeadYaw": 0.0}
         self.styles: list[dict[str, float] | None] = []
+        self.models: list[str | None] = []
+        self.fallbacks: list[dict[str, float] | None] = []
+        self.stopped = False
 
     def publish_audio(self, frame: Any, received_s: float) -> None:
         pass
@@ -293,11 +334,15 @@ class Bridge:
     def set_style(self, settings: dict[str, float] | None) -> None:
         self.styles.append(settings)
 
+    def set_model(self, folder: str | None, fallback: Any = None) -> None:
+        self.models.append(folder)
+        self.fallbacks.append(fallback)
+
     def pose(self) -> dict[str, Any]:
         return {"commanded": None, "measured": None}
 
     def status(self) -> dict[str, Any]:
-        return {"stop": False}
+        return {"stop": self.stopped}
 
 
 @contextmanager
@@ -351,14 +396,25 @@ def test_when_an_operator_uploads_a_recording_expect_the_style_applied_then_undo
                 assert r.status == 202
             status = await until(ws, "status", lambda s: s["enrollment"]["state"] == "ready")
             assert status["style"] == "personal"
-            assert bridge.styles == [SETTINGS]
+            assert status["enrollment"]["verdicts"] == VERDICTS  # every page is told
+            # the personal model: its folder on the inference node, the style fitted to it
+            (folder,) = bridge.models
+            assert (Path(folder) / "style.yaml").is_file()
+            assert bridge.styles == [MODEL_SETTINGS]
             async with http.post(f"{base}/enroll/{ticket}", data=b"webm", headers=headers) as r:
                 assert r.status == 400  # single use
             await ws.send_str('{"type":"style","use":"default"}')
             await until(ws, "status", lambda s: s["style"] == "default")
             await ws.send_str('{"type":"style","use":"personal"}')
             await until(ws, "status", lambda s: s["style"] == "personal")
-            assert bridge.styles == [SETTINGS, None, SETTINGS]
+            assert bridge.styles == [MODEL_SETTINGS, None, MODEL_SETTINGS]
+            assert bridge.models == [folder, None, folder]  # back to the default model too
+            # should the node refuse the personal model: the style alone, for the packaged one
+            assert bridge.fallbacks == [SETTINGS, None, SETTINGS]
+            bridge.stopped = True  # STOP latched (set outside the console): no change
+            await ws.send_str('{"type":"style","use":"default"}')
+            assert "the robot is stopped" in (await until(ws, "error"))["message"]
+            assert bridge.models == [folder, None, folder]
 
     with serving(tmp_path, LEARNS) as (base, bridge):
         run(scenario(base, bridge))
@@ -389,6 +445,7 @@ def test_when_an_operator_picks_a_preset_or_moves_a_slider_expect_the_filter_sty
             await ws.send_str('{"type":"style","use":"default"}')
             await until(ws, "status", lambda s: s["style"] == "default")
             assert bridge.styles == [calm, {"arms_tempo": 0.5}, None]
+            assert bridge.models == [None, None]  # a preset is for the packaged model
 
     assert set(calm) == set(STYLE_FIELDS)
     assert calm["head_gain"] < 0.5
@@ -474,11 +531,13 @@ def test_when_the_stop_is_latched_expect_every_style_change_refused_until_its_re
             await learn(http, ann, base)  # learned again while stopped: not applied
             refusals.append((await until(ann, "error"))["message"])
             held = list(bridge.styles)
+            models = list(bridge.models)
             await bob.send_str('{"type":"stop","on":false}')
             await until(ann, "stop_holders", lambda m: not m["holders"])
             await ann.send_str(changes[0])
             await until(ann, "status", lambda s: s["style"] == "adjusted")
-            assert held == [SETTINGS]  # only the style learned before the stop
+            assert held == [MODEL_SETTINGS]  # only the style learned before the stop
+            assert len(models) == 1  # and its model: no model changed while stopped
             return refusals
 
     with serving(tmp_path, LEARNS) as (base, bridge):
@@ -486,4 +545,7 @@ def test_when_the_stop_is_latched_expect_every_style_change_refused_until_its_re
     assert len(refusals) == 5
     assert all("the robot is stopped (STOP held by Bob)" in r for r in refusals), refusals
     assert refusals[-1].startswith("your style is learned but not applied")
-    assert bridge.styles == [SETTINGS, {"head_gain": 2.0, "arms_gain": 2.0, "arms_tempo": 3.0}]
+    assert bridge.styles == [
+        MODEL_SETTINGS,
+        {"head_gain": 2.0, "arms_gain": 2.0, "arms_tempo": 3.0},
+    ]

@@ -2,14 +2,19 @@
 recording of a person talking (the bundled GRID clip, data/video/SOURCES.md), the console and the
 node graph as processes, the real learning worker (MediaPipe and the style fit).
 
-The page asks for consent, records, uploads; the console learns and sets the motion filter's
-style parameters, read back here over ROS; then the page goes back to the default style. Skipped
-where Chromium, Playwright or the built page is missing (as test_console_browser.py).
+The page asks for consent, records, uploads; the console learns and runs the personal model: the
+inference node's model_path is the personal folder (the node blends its model in, as its
+/diagnostics say) and the motion filter's style parameters are the style fitted to it, both read
+back here over ROS; the page lists, part by part, what learning expects (a gain with its spread,
+or the default kept and why). Then "Back to the default" gives both nodes back what they started
+with. Skipped where Chromium, Playwright or the built page is missing (as
+test_console_browser.py).
 """
 
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import tempfile
 import time
@@ -51,6 +56,35 @@ def _fake_media(folder: Path) -> tuple[Path, Path]:
     subprocess.run([*common, "-an", "-vf", "scale=640:480", "-q:v", "3", str(video)], check=True)
     subprocess.run([*common, "-vn", "-ac", "1", "-ar", "16000", str(audio)], check=True)
     return video, audio
+
+
+def _model_path(recorder: Recorder) -> str:
+    """The inference node's model_path, read over its parameter service."""
+    from rcl_interfaces.srv import GetParameters
+
+    client = recorder.node.create_client(GetParameters, "/inference_node/get_parameters")
+    try:
+        assert client.wait_for_service(timeout_sec=10.0)
+        future = client.call_async(GetParameters.Request(names=["model_path"]))
+        _wait(future.done, 10.0, "the inference node's model_path")
+        return str(future.result().values[0].string_value)
+    finally:
+        recorder.node.destroy_client(client)
+
+
+def _inference_reports(recorder: Recorder) -> list[dict[str, str]]:
+    """The inference node's /diagnostics values from now on (appended as they come)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    reports: list[dict[str, str]] = []
+
+    def on_diagnostics(msg) -> None:
+        for status in msg.status:
+            if status.name.endswith("inference_node"):
+                reports.append({kv.key: kv.value for kv in status.values})
+
+    recorder.node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 50)
+    return reports
 
 
 def _filter_style(recorder: Recorder) -> dict[str, float]:
@@ -106,8 +140,12 @@ def test_when_an_operator_learns_their_style_expect_the_robot_to_take_it_and_giv
 ):
     from playwright.sync_api import sync_playwright
 
+    from audio2pose_ros.checkpoints.switch import resolve_model_path
+
     url, recorder, ros_home, video, audio = setup
     before = _filter_style(recorder)
+    model_before = _model_path(recorder)
+    reports = _inference_reports(recorder)
     with tempfile.TemporaryDirectory() as profile, sync_playwright() as p:
         context = p.chromium.launch_persistent_context(
             profile,
@@ -146,9 +184,37 @@ def test_when_an_operator_learns_their_style_expect_the_robot_to_take_it_and_giv
             assert learned["head_gain"] != before["head_gain"]
             assert learned["arms_gain"] == before["arms_gain"]  # no arms seen: kept
             assert not list(styles[0].parent.glob("recording*"))  # not kept: deleted
-            page.click("#style-default")
+            # the personal model runs: the folder on the inference node, which blends in its
+            # checkpoint (the packaged one when no arms were seen to fit their own noise)
+            folder = str(styles[0])
+            _wait(lambda: _model_path(recorder) == folder, 10.0, "the personal model_path")
+            checkpoint = str(resolve_model_path(folder))
+            _wait(
+                lambda: any(
+                    r.get("model_file") == checkpoint
+                    or r.get("model_blend", "").endswith(checkpoint)
+                    for r in reports[-3:]
+                ),
+                10.0,
+                "the inference node running or blending in the personal model",
+            )
+            page.wait_for_function(f"window.a2p.enroll.model === {folder!r}", timeout=10000)
+            # each part's verdict, as cross-validation gave it, in the page
+            verdicts = page.evaluate("window.a2p.enroll.verdicts")
+            parts = {v["part"]: v for v in verdicts}
+            assert "head" in parts, verdicts
+            for verdict in verdicts:
+                if verdict["learned"]:
+                    assert re.search(r"expected -?\d\.\d{3} ± \d\.\d{3} closer", verdict["text"])
+                else:
+                    assert verdict["text"].startswith(f"{verdict['part']}: kept the default: ")
+            shown = page.inner_text("#style-verdicts")
+            assert all(v["text"] in shown for v in verdicts)
+            page.click("#style-default")  # "Back to the default"
             page.wait_for_function("window.a2p.enroll.style === 'default'", timeout=10000)
             _wait(lambda: _filter_style(recorder) == before, 10.0, "the graph's own style back")
+            _wait(lambda: _model_path(recorder) == model_before, 10.0, "its own model back")
+            page.wait_for_function(f"window.a2p.enroll.model === {model_before!r}", timeout=10000)
             shots = os.environ.get("AUDIO2POSE_CONSOLE_SHOTS")
             if shots:  # for a person to look at
                 page.screenshot(path=str(Path(shots) / "learn_my_style.png"))

@@ -52,6 +52,9 @@ class Bridge:
     def set_style(self, settings: Any) -> None:
         pass
 
+    def set_model(self, folder: str | None, fallback: Any = None) -> None:
+        pass
+
     def pose(self) -> dict[str, Any]:
         return {"commanded": None, "measured": None}
 

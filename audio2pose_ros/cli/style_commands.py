@@ -102,8 +102,9 @@ def graph_overrides(args: argparse.Namespace) -> list[str]:
 
 def command_enroll(args: argparse.Namespace) -> int:
     """Learn a person's style from a video or data set folder; write a personal model."""
+    from audio2pose_ros.checkpoints.switch import CHECKPOINT_FILE
     from audio2pose_ros.robot.description import load_robot
-    from audio2pose_ros.style.personal import CHECKPOINT_FILE, enroll, style_overrides
+    from audio2pose_ros.style.personal import enroll, style_overrides
 
     out = Path(args.output)
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:

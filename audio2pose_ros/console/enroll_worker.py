@@ -6,7 +6,10 @@ keeps the cores) and bounds its own data (heap and anonymous mappings, ``RLIMIT_
 :data:`~audio2pose_ros.console.enrollment.ENROLL_MEMORY_BYTES`, a bound its ffmpeg children
 inherit. It learns the style of the recording ``REC`` as ``audio2pose enroll`` does
 (:func:`~audio2pose_ros.style.personal.enroll`) into ``FOLDER``, prints one progress line per
-step and, last, the filter's style settings it resolves to, as one JSON line after
+step, then the personal model as one JSON line after
+:data:`~audio2pose_ros.console.enrollment.MODEL_PREFIX` (the style fitted to the folder's model
+and, per part, what cross-validation decided: :func:`model_line`) and, last, the filter's style
+settings the style alone resolves to against the packaged model, as one JSON line after
 :data:`~audio2pose_ros.console.enrollment.SETTINGS_PREFIX`. A recording it cannot learn from
 exits 1 with the reason as its last line, after
 :data:`~audio2pose_ros.console.enrollment.FAILED_PREFIX`: the importer's refusal, the memory
@@ -25,9 +28,13 @@ import sys
 import traceback
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from audio2pose_ros.console import enrollment
 from audio2pose_ros.errors import Audio2PoseError
+
+if TYPE_CHECKING:
+    from audio2pose_ros.style.personal import Enrollment
 
 
 def bound_memory(limit_bytes: int) -> None:
@@ -72,8 +79,33 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:  # the process's boundary: the console shows why, not a progress line
         traceback.print_exc()
         return failed(f"learning failed: {type(exc).__name__}: {exc}")
+    print(enrollment.MODEL_PREFIX + model_line(result), flush=True)
     print(enrollment.SETTINGS_PREFIX + json.dumps(dataclasses.asdict(result.settings)), flush=True)
     return 0
+
+
+def model_line(result: Enrollment) -> str:
+    """The personal model as JSON: its style settings and each part's verdict.
+
+    ``settings``: the style fitted to the folder's model (its checkpoint when enrolment wrote
+    one, else the packaged model); ``verdicts``: per part, ``part``, ``learned`` (False: the
+    default kept), ``gain`` and ``spread`` (the expected gain on unseen stretches and its
+    standard deviation over the folds), ``reason`` (why the default was kept) and ``line``
+    (the sentence that says it).
+    """
+    fitted = result.style.fitted[1] if result.style.fitted else result.settings
+    verdicts = [
+        {
+            "part": v.part,
+            "learned": not v.kept_default,
+            "gain": round(v.gain, 4),
+            "spread": round(v.spread, 4),
+            "reason": v.reason,
+            "line": v.line(),
+        }
+        for v in result.verdicts
+    ]
+    return json.dumps({"settings": dataclasses.asdict(fitted), "verdicts": verdicts})
 
 
 if __name__ == "__main__":

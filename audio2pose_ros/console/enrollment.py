@@ -21,12 +21,13 @@ The operator's page asks for consent, records camera and microphone for up to
    model, MediaPipe or torch) at low priority, with its data bounded to
    :data:`ENROLL_MEMORY_BYTES`, at most :data:`ENROLL_TIMEOUT_S`. Its progress lines are the
    status every page sees; when it fails, its reason (or how it ended) is.
-4. **The result**: the personal model folder (``style.yaml``, ``ENROLLMENT.md``) and the filter's
-   style settings it resolves to, which the console applies to the running graph (the filter's
-   live style parameters): no restart. The operator can go back to the style the graph started
-   with at any time. The arms' own sampling noise, when enrolment fitted one, is a checkpoint the
-   inference node loads at start, not live: the result's message says to run the folder with
-   ``audio2pose run --model`` (:func:`personal_model_note`).
+4. **The result**: the personal model folder (``style.yaml``, ``ENROLLMENT.md`` and, when
+   enrolment fitted the arms' own noise, ``model.safetensors``), the style settings fitted to
+   that model, and per part what cross-validation decided (:class:`Result`): the gain expected
+   on the person's other speech with its spread, or that the default was kept and why. The
+   console runs it without a restart: the inference node's ``model_path`` is set to the folder
+   (the node blends its checkpoint in) and the filter's live style parameters to the settings.
+   The operator can go back to the model and style the graph started with at any time.
 5. **The recording** is deleted when learning ends, whatever the outcome, unless the operator
    asked to keep it: it is then moved into the personal model folder, beside the style learned
    from it.
@@ -77,6 +78,8 @@ ENROLL_TIMEOUT_S = 300.0  # the child process is killed after this long
 # 0.8 GiB of it (0.6 GiB resident) with torch and MediaPipe loaded
 ENROLL_MEMORY_BYTES = 3 * 2**29  # 1.5 GiB
 SETTINGS_PREFIX = "STYLE_SETTINGS "  # the worker's last line: the resolved settings as JSON
+MODEL_PREFIX = "PERSONAL_MODEL "  # the worker's line before: the personal model as JSON
+MAX_VERDICT_CHARS = 400  # a verdict's sentence shown to the pages is cut to this length
 FAILED_PREFIX = "ENROLL_FAILED "  # the worker's last line when it fails: the reason
 MAX_PROGRESS_CHARS = 200  # a progress line shown to the pages is cut to this length
 RECORDING_NAME = "recording.webm"
@@ -105,11 +108,22 @@ class Ticket:
 
 @dataclass
 class Result:
-    """A finished enrollment: where the personal model is, and the settings it resolves to."""
+    """A finished enrollment.
+
+    Attributes:
+        folder: the personal model folder.
+        settings: the style alone against the packaged model (a graph that keeps its model).
+        kept_recording: where the recording was kept, or None (deleted).
+        model_settings: the style fitted to the folder's model (what runs with it).
+        verdicts: per part, ``part``, ``learned``, ``gain``, ``spread``, ``reason`` and
+            ``line`` (:func:`~audio2pose_ros.console.enroll_worker.model_line`).
+    """
 
     folder: Path
     settings: dict[str, float]
     kept_recording: Path | None
+    model_settings: dict[str, float] = field(default_factory=dict)
+    verdicts: list[dict[str, Any]] = field(default_factory=list)
 
 
 @dataclass
@@ -155,6 +169,7 @@ class Enrollments:
             "owner": self._state.owner,
             "message": self._state.message,
             "personal": str(self.result.folder.name) if self.result else "",
+            "verdicts": self.result.verdicts if self.result else [],
         }
 
     def _set(self, state: str, message: str, owner: str | None = None) -> None:
@@ -274,7 +289,7 @@ class Enrollments:
         folder = job / "style"
         self._set("learning", "learning the style (this takes up to two minutes)", ticket.owner)
         try:
-            settings = await self._child(recording, folder)
+            settings, model = await self._child(recording, folder)
         except BaseException as exc:
             self.failed += 1
             shutil.rmtree(job, ignore_errors=True)
@@ -288,12 +303,14 @@ class Enrollments:
             recording.unlink(missing_ok=True)
         (job / "learning.log").unlink(missing_ok=True)
         self.completed += 1
-        self.result = Result(folder, settings, kept)
+        self.result = Result(folder, settings, kept, *model)
         note = personal_model_note(folder)
         self._set("ready", f"learned {ticket.owner}'s style{note}", ticket.owner)
         return self.result
 
-    async def _child(self, recording: Path, folder: Path) -> dict[str, float]:
+    async def _child(
+        self, recording: Path, folder: Path
+    ) -> tuple[dict[str, float], tuple[dict[str, float], list[dict[str, Any]]]]:
         # the libraries' own chatter (MediaPipe, protobuf) goes to a log beside the recording,
         # deleted with it; the pages see the worker's progress lines only
         with open(recording.parent / "learning.log", "wb") as log:
@@ -306,6 +323,7 @@ class Enrollments:
                 stderr=log,
             )
         found: list[dict[str, float]] = []
+        models: list[tuple[dict[str, float], list[dict[str, Any]]]] = []
         failed: list[str] = []
 
         async def read() -> None:
@@ -314,6 +332,8 @@ class Enrollments:
                 line = raw.decode("utf-8", "replace").strip()
                 if line.startswith(SETTINGS_PREFIX):
                     found.append(_settings(line.removeprefix(SETTINGS_PREFIX)))
+                elif line.startswith(MODEL_PREFIX):
+                    models.append(_model(line.removeprefix(MODEL_PREFIX)))
                 elif line.startswith(FAILED_PREFIX):
                     failed.append(line.removeprefix(FAILED_PREFIX))
                 elif line:
@@ -336,11 +356,11 @@ class Enrollments:
                 f"the learning process was stopped by signal {-process.returncode} (a crash, "
                 f"or its memory bound of {ENROLL_MEMORY_BYTES / 2**30:g} GiB reached)"
             )
-        if process.returncode != 0 or not found:
+        if process.returncode != 0 or not found or not models:
             raise EnrollmentError(
                 f"the learning process ended (exit code {process.returncode}) without a result"
             )
-        return found[-1]
+        return found[-1], models[-1]
 
 
 def check_recording(path: Path) -> float:
@@ -372,17 +392,16 @@ def check_recording(path: Path) -> float:
 
 
 def personal_model_note(folder: Path) -> str:
-    """What the running graph does not take of a personal model folder ('' when nothing).
+    """What the personal model runs beyond the style ('' when nothing): the arms' own noise.
 
-    The console sets the filter's style parameters only (the style alone, fitted to the
-    packaged model); the arms' own sampling noise, when enrolment fitted it, is in the folder's
-    checkpoint, which the inference node loads at start: ``audio2pose run --model FOLDER``.
+    When enrolment fitted the arms' own sampling noise, the folder holds its checkpoint, which
+    the console has the inference node blend in (and ``audio2pose run --model FOLDER`` runs).
     """
-    from audio2pose_ros.style.personal import CHECKPOINT_FILE
+    from audio2pose_ros.checkpoints.switch import CHECKPOINT_FILE
 
     if not (folder / CHECKPOINT_FILE).is_file():
         return ""
-    return f"; its arms' own noise needs a restart: audio2pose run --model {folder}"
+    return "; with its arms' own noise (a model of its own)"
 
 
 def _private_dir(parent: Path, stem: str) -> str:
@@ -395,6 +414,37 @@ def _private_dir(parent: Path, stem: str) -> str:
             continue
         return str(candidate)
     raise EnrollmentError(f"{parent}: no free folder name for a recording")
+
+
+def _model(text: str) -> tuple[dict[str, float], list[dict[str, Any]]]:
+    """The worker's personal model line: its settings and its verdicts, checked."""
+    try:
+        values = json.loads(text)
+    except ValueError:
+        raise EnrollmentError("the learning process gave an unreadable personal model") from None
+    verdicts = values.get("verdicts") if isinstance(values, dict) else None
+    if not isinstance(verdicts, list):
+        raise EnrollmentError("the learning process gave a personal model without verdicts")
+    checked = []
+    for v in verdicts:
+        if not isinstance(v, dict) or not isinstance(v.get("line"), str):
+            raise EnrollmentError("the learning process gave a verdict that cannot be read")
+        numbers = [0.0, 0.0]  # a part kept for lack of data may have no finite spread
+        gain, spread = v.get("gain"), v.get("spread")
+        pair = [x for x in (gain, spread) if isinstance(x, int | float) and math.isfinite(x)]
+        if len(pair) == 2:
+            numbers = [float(x) for x in pair]
+        checked.append(
+            {
+                "part": str(v.get("part", ""))[:16],
+                "learned": bool(v.get("learned")),
+                "gain": float(numbers[0]),
+                "spread": float(numbers[1]),
+                "reason": str(v.get("reason", ""))[:MAX_VERDICT_CHARS],
+                "line": v["line"][:MAX_VERDICT_CHARS],
+            }
+        )
+    return _settings(json.dumps(values.get("settings"))), checked
 
 
 def _settings(text: str) -> dict[str, float]:

@@ -14,8 +14,16 @@ upload, learning in a child process); this module is its web side, which
   more than :data:`~audio2pose_ros.console.enrollment.MAX_RECORDING_BYTES` is refused (413)
   before it is read, and any refused upload (400) is counted in the console's summary of
   refusals, not logged one line each (a stream of guessed tickets is one line per summary);
-- the learned style is applied to the running graph when learning ends, if its operator is
-  still connected and may act on the robot's settings (the floor is free or theirs).
+- the personal model is applied to the running graph when learning ends, if its operator is
+  still connected and may act on the robot's settings (the floor is free or theirs) and the
+  stop is released: the inference node runs the folder (its ``model_path``, blended in without a
+  restart; the checkpoint of the arms' own noise when enrolment fitted one) and the filter the
+  style fitted to it. "Use my style" applies it again; "Back to the default" (``style`` with
+  ``default``) and a preset (whose settings are for the packaged model) give the inference node
+  back the model it started with, blended as well. The sliders change the style alone.
+- every page's status carries, per part, what cross-validation decided (``enrollment``'s
+  ``verdicts``): the gain expected on the person's other speech with its spread, or that the
+  default was kept and why.
 """
 
 from __future__ import annotations
@@ -33,6 +41,7 @@ from audio2pose_ros.console.enrollment import (
     MAX_RECORDING_BYTES,
     EnrollmentError,
     Enrollments,
+    Result,
     Ticket,
     personal_model_note,
 )
@@ -46,10 +55,17 @@ __all__ = ["LearnMyStyle", "StyleBridge"]
 
 
 class StyleBridge(Protocol):
-    """What learning a style needs of the robot's side: setting the filter's style."""
+    """What learning a style needs of the robot's side: the filter's style, the model run."""
 
     def set_style(self, settings: dict[str, float] | None) -> None:
         """Apply a learned style's settings to the graph (None: the style it started with)."""
+
+    def set_model(self, folder: str | None, fallback: dict[str, float] | None = None) -> None:
+        """Run a personal model folder on the inference node (None: the model it started with).
+
+        ``fallback``: the style to apply instead if the node refuses the folder's model (the
+        style alone, fitted to the model that keeps running).
+        """
 
 
 class LearnMyStyle:
@@ -139,11 +155,22 @@ class LearnMyStyle:
             self.log("warning", f"console: learning {ticket.owner!r}'s style failed: {exc}")
             return
         kept = f", recording kept in {result.kept_recording}" if result.kept_recording else ""
-        note = personal_model_note(result.folder)  # what the live graph does not take
+        note = personal_model_note(result.folder)
         self.log("info", f"console: learned {ticket.owner!r}'s style: {result.folder}{kept}{note}")
+        for verdict in result.verdicts:
+            self.log("info", f"console: {verdict['line']}")
         if self.may_apply(ticket.session):
-            self.bridge.set_style(result.settings)
+            self._use_personal(result)
             self.style_in_use = "personal"
+
+    def _use_personal(self, result: Result) -> None:
+        """The personal model: its style on the filter, its folder on the inference node.
+
+        Should the node refuse the folder's model, the style alone (fitted to the packaged
+        model) replaces the style fitted to the personal one.
+        """
+        self.bridge.set_style(result.model_settings or result.settings)
+        self.bridge.set_model(str(result.folder), fallback=result.settings)
 
     def on_control(self, session_id: int, name: str, control: Control) -> str | None:
         """``enroll`` (a ticket), ``style`` (which style) and ``style_set`` (single parameters).
@@ -170,14 +197,16 @@ class LearnMyStyle:
             result = self.enrollments.result
             if result is None:
                 raise ProtocolError("no style has been learned yet: press Learn my style")
-            self.bridge.set_style(result.settings)
+            self._use_personal(result)
         elif use == "default":
+            self.bridge.set_model(None)
             self.bridge.set_style(None)
         else:
             try:  # every parameter: what the preset does not set goes back to the identity
                 settings = dataclasses.asdict(packaged_preset(use))
             except StyleError as exc:
                 raise ProtocolError(str(exc)) from None
+            self.bridge.set_model(None)  # a preset's settings are for the packaged model
             self.bridge.set_style(settings)
         self.style_in_use = use
         return None

@@ -198,6 +198,12 @@ class GraphBridge(Protocol):
     def set_style(self, settings: dict[str, float] | None) -> None:
         """Set any of the filter's live style parameters; None restores the graph's own style."""
 
+    def set_model(self, folder: str | None, fallback: dict[str, float] | None = None) -> None:
+        """Run a personal model folder on the inference node; None restores its own model.
+
+        ``fallback``: the style applied instead when the node refuses the folder's model.
+        """
+
     def pose(self) -> dict[str, Any]:
         """The latest commanded and measured pose: name -> angle (rad), or None each."""
 

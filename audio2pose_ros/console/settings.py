@@ -121,6 +121,14 @@ class ConsoleSettings:
             read_only=True,
         ),
     )
+    inference_node: str = field(
+        default="inference_node",
+        metadata=param(
+            "inference node that runs a learned personal model (its model_path, set through "
+            "its set_parameters service)",
+            read_only=True,
+        ),
+    )
     voice_node: str = field(
         default="voice_out_node",
         metadata=param(

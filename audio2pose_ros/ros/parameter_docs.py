@@ -103,16 +103,34 @@ def _sections(
     return sections
 
 
-def _comment(spec: ParameterSpec) -> str:
-    live = "read-only" if spec.read_only else "live"
+def _live_on(name: str, nodes: Mapping[str, tuple[ParameterSpec, ...]]) -> list[str]:
+    """The nodes on which parameter ``name`` changes live (of those that declare it)."""
+    return [
+        node for node, specs in nodes.items() for s in specs if s.name == name and not s.read_only
+    ]
+
+
+def _live(spec: ParameterSpec, nodes: Mapping[str, tuple[ParameterSpec, ...]]) -> str | None:
+    """'all' when every node declaring ``spec`` changes it live, None when none, else whose."""
+    owners = [node for node, specs in nodes.items() if any(s.name == spec.name for s in specs)]
+    live = _live_on(spec.name, nodes)
+    if not live:
+        return None
+    return "all" if live == owners else ", ".join(live)
+
+
+def _comment(spec: ParameterSpec, nodes: Mapping[str, tuple[ParameterSpec, ...]]) -> str:
+    live = _live(spec, nodes)
+    where = "read-only" if live is None else "live" if live == "all" else f"live on {live}"
     unit = f" ({spec.unit})" if spec.unit else ""
-    return f"{spec.description}{unit}; {spec.allowed()}; {live}"
+    return f"{spec.description}{unit}; {spec.allowed()}; {where}"
 
 
 def parameters_yaml(nodes: Mapping[str, tuple[ParameterSpec, ...]] | None = None) -> str:
     """``config/pepper.yaml``: every parameter at its default, with its meaning as a comment."""
     lines = [YAML_HEADER.rstrip("\n")]
-    for section, specs in _sections(nodes or node_parameters()).items():
+    nodes = nodes or node_parameters()
+    for section, specs in _sections(nodes).items():
         lines.append(f"{section}:")
         if not specs:
             lines.append("  ros__parameters: {}")
@@ -122,7 +140,7 @@ def parameters_yaml(nodes: Mapping[str, tuple[ParameterSpec, ...]] | None = None
             value = yaml.safe_dump(spec.default, default_style=None).strip()
             value = value.removesuffix("\n...").removesuffix("...").strip()
             lines += textwrap.wrap(
-                _comment(spec), width=98, initial_indent="    # ", subsequent_indent="    # "
+                _comment(spec, nodes), width=98, initial_indent="    # ", subsequent_indent="    # "
             )
             lines.append(f"    {spec.name}: {value}")
     return "\n".join(lines) + "\n"
@@ -134,12 +152,14 @@ def parameters_markdown(nodes: Mapping[str, tuple[ParameterSpec, ...]] | None = 
         "| parameter | node | default | allowed | changes live | meaning |",
         "|---|---|---|---|---|---|",
     ]
-    for section, specs in _sections(nodes or node_parameters()).items():
+    nodes = nodes or node_parameters()
+    for section, specs in _sections(nodes).items():
         where = "all (`/**`)" if section == "/**" else section.removesuffix("_node")
         for spec in specs:
             default = f"`{spec.default!r}`" if isinstance(spec.default, str) else spec.default
             unit = f" ({spec.unit})" if spec.unit else ""
-            live = "no" if spec.read_only else "yes"
+            on = _live(spec, nodes)
+            live = "no" if on is None else "yes" if on == "all" else f"on {on}"
             rows.append(
                 f"| `{spec.name}` | {where} | {default} | {spec.allowed()} | {live} | "
                 f"{spec.description}{unit} |"

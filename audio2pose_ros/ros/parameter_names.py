@@ -31,6 +31,7 @@ NODE_PARAMETER_NAMES = frozenset(
         "hip_gain",
         "hip_tempo",
         "host",
+        "inference_node",
         "input_type",
         "joint_angles_rate_hz",
         "joint_angles_speed",

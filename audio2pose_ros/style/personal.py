@@ -48,6 +48,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from audio2pose_ros.checkpoints.switch import CHECKPOINT_FILE, STYLE_FILE
 from audio2pose_ros.data.dataset import Clip, ClipInfo, Dataset
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.motion.style import IDENTITY, StyleSettings, style_trajectory
@@ -87,8 +88,6 @@ if TYPE_CHECKING:
 
 MAX_ENROLL_S = 60.0  # at most this much of a recording is used
 ARMS_NOISE_FACTORS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)  # arm temperature factors tried
-STYLE_FILE = "style.yaml"
-CHECKPOINT_FILE = "model.safetensors"
 LICENCE = "the enrolled person's own recording (not redistributed)"
 
 
@@ -530,6 +529,9 @@ class Enrollment:
     elapsed_s: float
     arms_noise: float = 1.0  # the personal checkpoint's arm noise factor (1: none written)
     report: tuple[str, ...] = ()  # per part: the expected gain, or why it kept the default
+    # per observed part, what cross-validation decided for the personal model (its checkpoint,
+    # if written, with the style fitted to it)
+    verdicts: tuple[PartVerdict, ...] = ()
 
 
 def _first_seconds(clips: Iterable[Clip], seconds: float) -> list[Clip]:
@@ -646,7 +648,14 @@ def enroll(
     elapsed = time.monotonic() - start
     progress(f"wrote {folder / STYLE_FILE} in {elapsed:.0f} s")
     return Enrollment(
-        folder, style, personal.style_alone, seconds, elapsed, personal.arms_noise, report
+        folder,
+        style,
+        personal.style_alone,
+        seconds,
+        elapsed,
+        personal.arms_noise,
+        report,
+        tuple(personal.verdicts.values()),
     )
 
 

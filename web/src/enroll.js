@@ -1,13 +1,16 @@
 // "Learn my style": with the operator's consent, the page records camera and microphone for up
 // to 60 s, uploads the recording to the console (the robot's own computer: nothing leaves it)
 // under a single-use ticket, and shows the console's progress; the console learns the style and
-// applies it to the running robot, and either style can be chosen afterwards.
+// runs it on the robot (the personal model blended in, with the style fitted to it), and either
+// the personal model or the default can be chosen afterwards. Under the progress the page lists,
+// part by part, what learning expects: the gain on the person's other speech with its spread,
+// or that it kept the default and why (window.a2p.enroll.verdicts).
 const MAX_RECORDING_MS = 60000;
 const TICKET_WAIT_MS = 5000;
 const MIME_TYPES = ['video/webm;codecs=vp8,opus', 'video/webm;codecs=vp9,opus', 'video/webm'];
 
 export function createEnroll({ $, send, state, showError }) {
-  const enroll = { recording: false, uploads: 0, lastUpload: null };
+  const enroll = { recording: false, uploads: 0, lastUpload: null, verdicts: [], model: null };
   state.enroll = enroll;
   let recorder = null;
   let stream = null;
@@ -116,11 +119,36 @@ export function createEnroll({ $, send, state, showError }) {
     if (pendingBlob) upload();
   }
 
+  // One line per part; rebuilt only when the verdicts change (a new style learned).
+  let shownVerdicts = '';
+  function showVerdicts(verdicts) {
+    const key = JSON.stringify(verdicts);
+    if (key === shownVerdicts) return;
+    shownVerdicts = key;
+    enroll.verdicts = verdicts.map((v) => ({
+      part: v.part,
+      learned: v.learned,
+      text: v.learned
+        ? `${v.part}: learned, expected ${v.gain.toFixed(3)} \u00b1 ${v.spread.toFixed(3)} closer `
+          + 'to you than the default on speech it did not learn from'
+        : `${v.part}: kept the default: ${v.reason}`,
+    }));
+    const list = $('style-verdicts');
+    list.replaceChildren(...enroll.verdicts.map((v) => {
+      const item = document.createElement('li');
+      item.textContent = v.text;
+      item.className = v.learned ? 'learned' : 'kept';
+      return item;
+    }));
+  }
+
   function update(status) {
     const job = status.enrollment;
     if (!job) return;
     enroll.status = job;
     enroll.style = status.style;
+    enroll.model = status.model_path ?? null;
+    showVerdicts(job.verdicts || []);
     if (!enroll.recording) {
       const who = job.owner ? ` (${job.owner})` : '';
       const text = {
@@ -136,7 +164,7 @@ export function createEnroll({ $, send, state, showError }) {
     $('style-personal').disabled = !job.personal || status.style === 'personal';
     $('style-default').disabled = status.style === 'default';
     const inUse = {
-      personal: 'the learned style', default: 'the style it started with',
+      personal: 'your personal model and style', default: 'the model and style it started with',
       adjusted: 'the style set by hand',
     }[status.style] || `the preset ${String(status.style).replaceAll('_', ' ')}`;
     $('style-in-use').textContent = `The robot moves in ${inUse}.`;

@@ -52,6 +52,7 @@ from audio2pose_ros.audio.source import AudioInput, AudioInputSettings
 from audio2pose_ros.audio.streaming import StreamingFeatureExtractor
 from audio2pose_ros.audio.vad import EnergyVad
 from audio2pose_ros.checkpoints.format import feature_spec_of
+from audio2pose_ros.checkpoints.switch import resolve_model_path
 from audio2pose_ros.errors import InputError
 from audio2pose_ros.parameters import (
     ParameterValue,
@@ -61,7 +62,6 @@ from audio2pose_ros.parameters import (
     specs_of,
     validate_settings,
 )
-from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
 from audio2pose_ros.ros.messages import features_to_msg
 from audio2pose_ros.ros.node_parameters import NodeParameters
@@ -76,7 +76,9 @@ class FeaturesNodeSettings:
     model_path: str = dataclasses.field(
         default="",
         metadata=param(
-            "checkpoint whose feature specification is computed ('' = packaged default)",
+            "checkpoint the graph runs ('' = packaged default): audio_features_node computes "
+            "its features; inference_node runs it, and a checkpoint set on it live is blended "
+            "in over 1 s (one for other features is refused)",
             read_only=True,
         ),
     )
@@ -107,7 +109,7 @@ class AudioFeaturesNode(DiagnosedNode):
         super().__init__("audio_features_node")
         self.params = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
         settings = settings_from(FeaturesNodeSettings, self.params.values)
-        self.spec = feature_spec_of(settings.model_path or default_checkpoint_path())
+        self.spec = feature_spec_of(resolve_model_path(settings.model_path))
         self.label = self.spec.label
         self.input = AudioInput(
             settings_from(AudioInputSettings, self.params.values),

@@ -39,6 +39,10 @@ Services used:
         parameters (:data:`~audio2pose_ros.motion.style.STYLE_FIELDS`: size and tempo per part,
         the arms' rest and height) set from the page (sliders, a preset, the learned style),
         and read back.
+    <inference_node>/set_parameters, get_parameters: its ``model_path``, set to a learned
+        personal model folder (the node blends that model in, no restart) and back to the value
+        it had before the console's first change; read back every :data:`STYLE_REFRESH_S` for
+        the page (``model_path`` in the status), a refusal shown with its reason.
     <voice_node>/set_parameters, get_parameters: the voice node's ``muted``, the operator's
         choice in the page, set and read back every :data:`STYLE_REFRESH_S`; the console keeps
         the operator's last choice in force (a voice node restarted meanwhile is set again).
@@ -163,6 +167,10 @@ class ConsoleNode(DiagnosedNode):
         # the filter's style before the console applied a learned one (restored on request)
         self.own_style: dict[str, float] | None = None
         self.style_problem = ""
+        self.model_path: str | None = None  # the inference node's, as last read
+        # its model_path before the console first set one (restored on request)
+        self.own_model: str | None = None
+        self.model_problem = ""
         self.health: dict[str, tuple[int, str, float]] = {}
         self.chunks_published = 0
         self.talking = False
@@ -243,6 +251,14 @@ class ConsoleNode(DiagnosedNode):
             GetParameters, f"{filter_node}/get_parameters"
         )
         self.create_timer(STYLE_REFRESH_S, guarded(self.refresh_style))
+        inference = self.settings.inference_node
+        self.model_set_client: Client[Any, Any] = self.create_client(
+            SetParameters, f"{inference}/set_parameters"
+        )
+        self.model_get_client: Client[Any, Any] = self.create_client(
+            GetParameters, f"{inference}/get_parameters"
+        )
+        self.create_timer(STYLE_REFRESH_S, guarded(self.refresh_model))
         self.voice_set_client: Client[Any, Any] = self.create_client(
             SetParameters, f"{self.settings.voice_node}/set_parameters"
         )
@@ -361,6 +377,91 @@ class ConsoleNode(DiagnosedNode):
                     self.style_problem = "the filter's style parameters could not be read"
 
         self.get_client.call_async(request).add_done_callback(keep_then_set)
+
+    def set_model(self, folder: str | None, fallback: dict[str, float] | None = None) -> None:
+        """Set the inference node's ``model_path`` to ``folder``; None: restore its own.
+
+        Before the first change its own ``model_path`` is read and kept, so that going back
+        restores the model the graph was started with. The node checks the model and blends it
+        in; a refusal (its reason) is shown in the page, and ``fallback``, when given, becomes
+        the filter's style (the style fitted to the model that keeps running).
+        """
+        if not (
+            self.model_set_client.service_is_ready() and self.model_get_client.service_is_ready()
+        ):
+            with self._lock:
+                self.model_problem = (
+                    f"{self.settings.inference_node}'s parameter service is not available: "
+                    "the model was not changed"
+                )
+            if fallback is not None:
+                self.set_style(fallback)
+            return
+        if folder is None:
+            with self._lock:
+                own, self.own_model = self.own_model, None
+            if own is not None:
+                self._set_model_path(own, None)
+            return
+        with self._lock:
+            saved = self.own_model is not None
+        if saved:
+            self._set_model_path(folder, fallback)
+            return
+
+        def keep_then_set(future: Future[Any]) -> None:
+            values = getattr(future.result(), "values", [])
+            if len(values) == 1 and values[0].type == ParameterType.PARAMETER_STRING:
+                with self._lock:
+                    if self.own_model is None:
+                        self.own_model = str(values[0].string_value)
+                self._set_model_path(folder, fallback)
+            else:
+                with self._lock:
+                    self.model_problem = "the inference node's model_path could not be read"
+                if fallback is not None:
+                    self.set_style(fallback)
+
+        request = GetParameters.Request(names=["model_path"])
+        self.model_get_client.call_async(request).add_done_callback(keep_then_set)
+
+    def _set_model_path(self, path: str, fallback: dict[str, float] | None) -> None:
+        request = SetParameters.Request()
+        request.parameters = [
+            Parameter(
+                name="model_path",
+                value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=path),
+            )
+        ]
+
+        def done(future: Future[Any]) -> None:
+            refused = [
+                r.reason for r in getattr(future.result(), "results", []) if not r.successful
+            ]
+            with self._lock:
+                self.model_problem = "; ".join(refused)
+            if refused:
+                self.get_logger().warning(f"model refused by the inference node: {refused[0]}")
+                if fallback is not None:
+                    self.set_style(fallback)
+            self.refresh_model()
+
+        self.model_set_client.call_async(request).add_done_callback(done)
+
+    def refresh_model(self) -> None:
+        """Read the inference node's ``model_path`` back (the page shows what runs)."""
+        if not self.model_get_client.service_is_ready():
+            with self._lock:
+                self.model_path = None
+            return
+        request = GetParameters.Request(names=["model_path"])
+        self.model_get_client.call_async(request).add_done_callback(self._model_read)
+
+    def _model_read(self, future: Future[Any]) -> None:
+        values = getattr(future.result(), "values", [])
+        if len(values) == 1 and values[0].type == ParameterType.PARAMETER_STRING:
+            with self._lock:
+                self.model_path = str(values[0].string_value)
 
     def _set_style_parameters(self, values: dict[str, float]) -> None:
         self._set_filter_doubles(values, "style", self._style_problem)
@@ -622,7 +723,10 @@ class ConsoleNode(DiagnosedNode):
                 "stop": self.stop_state,
                 "enable": self.enable_state,
                 "style_values": self.style_values,
-                "style_problem": self.style_problem,
+                "style_problem": "; ".join(
+                    p for p in (self.style_problem, self.model_problem) if p
+                ),
+                "model_path": self.model_path,
                 "health": health,
                 "latency": self.latency.summary(),
                 "voice": voice,

@@ -9,8 +9,19 @@ Publications:
         message per features message, while something subscribes to it.
     /diagnostics (diagnostic_msgs/DiagnosticArray): heartbeat every 0.5 s (DiagnosedNode).
 
-Parameters: the fields of :class:`InferenceNodeSettings` (model_path, robot_description, seed
-read-only; feature_limit_sd live); ``ros2 param describe`` shows each one's range.
+Parameters: the fields of :class:`InferenceNodeSettings` (robot_description and seed read-only;
+model_path and feature_limit_sd live); ``ros2 param describe`` shows each one's range.
+
+``model_path`` set while the node runs switches the model without a restart. The parameter
+service's callback (never the features callback) loads and checks the checkpoint
+(:func:`~audio2pose_ros.checkpoints.switch.load_replacement`: the start-up checks, the running
+model's features, a numpy kernel); a checkpoint that fails them is refused with the reason and
+the running model goes on. An accepted one runs beside the old one from the next features
+message, their poses mixed over :data:`~audio2pose_ros.models.blend.BLEND_FRAMES` frames
+(:class:`~audio2pose_ros.models.blend.PoseBlend`), after which the old one stops: the output
+never jumps, and it is raw poses as before, limited and guarded by motion_filter_node. While a
+blend has begun, another switch is refused (try again when it is done); ``/diagnostics`` names
+the checkpoint running (``model_file``) and the blend under way (``model_blend``).
 
 Models with a numpy kernel (``mlp``, ``lstm``, ``live``, ``live_groups``: every streaming model
 this package trains) run without torch (:mod:`audio2pose_ros.checkpoints.numpy_runtime`; the
@@ -55,8 +66,14 @@ from std_msgs.msg import Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros import topics
-from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
-from audio2pose_ros.errors import InputError
+from audio2pose_ros.checkpoints.numpy_runtime import (
+    FramePredictor,
+    StreamingModel,
+    load_streaming_model,
+)
+from audio2pose_ros.checkpoints.switch import load_replacement, resolve_model_path
+from audio2pose_ros.errors import ConfigurationError, InputError
+from audio2pose_ros.models.blend import PoseBlend
 from audio2pose_ros.parameters import (
     ParameterValue,
     param,
@@ -65,7 +82,6 @@ from audio2pose_ros.parameters import (
     specs_of,
     validate_settings,
 )
-from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
 from audio2pose_ros.ros.messages import msg_to_features, trajectory_msg
@@ -96,8 +112,9 @@ class InferenceNodeSettings:
     model_path: str = field(
         default="",
         metadata=param(
-            "checkpoint to run ('' = packaged default); must be a streaming model",
-            read_only=True,
+            "checkpoint to run ('' = packaged default); must be a streaming model; set live, "
+            "the new model is blended in over 1 s (a checkpoint for other joints or features, "
+            "or without a numpy kernel, is refused and the running one goes on)",
         ),
     )
     robot_description: str = field(
@@ -176,11 +193,17 @@ class InferenceNode(DiagnosedNode):
         super().__init__("inference_node")
         self.parameters = NodeParameters(self, PARAMETERS, apply=self.apply_parameters)
         self.settings = settings_from(InferenceNodeSettings, self.parameters.values)
-        model_path = self.settings.model_path or default_checkpoint_path()
+        model_path = resolve_model_path(self.settings.model_path)
         self.robot = load_robot(self.settings.robot_description or None)
         self.joint_names = self.robot.names
         self.model = load_streaming_model(model_path, robot=self.robot)
         self.predictor = self.model.predictor(seed=self.settings.seed)
+        self.model_file = str(model_path)  # the checkpoint running
+        # a model set live, run beside the old one until the blend ends: (model, its
+        # predictor, its file), and the blend
+        self.incoming: tuple[StreamingModel, FramePredictor, str] | None = None
+        self.blend: PoseBlend | None = None
+        self.model_switches = 0  # blends finished
         spec = self.model.features
         self.expected_label = spec.label
         self.period_s = spec.step_s
@@ -210,8 +233,38 @@ class InferenceNode(DiagnosedNode):
         )
 
     def apply_parameters(self, changes: Mapping[str, ParameterValue]) -> None:
-        """Adopt a validated run-time change (only feature_limit_sd may change)."""
+        """Adopt a validated run-time change: feature_limit_sd, or model_path (a switch).
+
+        Raises:
+            ConfigurationError: the checkpoint of a new model_path is refused
+                (:func:`~audio2pose_ros.checkpoints.switch.load_replacement`), or a blend to
+                another model has begun; nothing changes then.
+        """
+        if "model_path" in changes:
+            if self.blend is not None and self.blend.done:
+                raise ConfigurationError(
+                    f"model_path not changed: the switch to {self.incoming_file()} is under way "
+                    f"({self.blend.done}/{self.blend.frames} frames blended); set it again "
+                    "when it is done"
+                )
+            path = str(changes["model_path"])
+            model = load_replacement(path, self.model, self.robot)
+            # a switch not begun yet (no frames since) is replaced: nothing of it was published
+            self.incoming = (
+                model,
+                model.predictor(seed=self.settings.seed),
+                str(resolve_model_path(path)),
+            )
+            self.blend = PoseBlend()
+            self.get_logger().info(
+                f"switching to {self.incoming[2]} ({model.name}): blended in over "
+                f"{self.blend.frames} frames from the next features"
+            )
         self.settings = settings_with(self.settings, changes)
+
+    def incoming_file(self) -> str:
+        """The checkpoint being blended in ('' when none)."""
+        return self.incoming[2] if self.incoming is not None else ""
 
     def on_features(self, msg: Float32MultiArray, info: MessageInfo | None = None) -> None:
         """Unpack a features message and run it (:meth:`on_frames`), unless it is too late.
@@ -299,11 +352,22 @@ class InferenceNode(DiagnosedNode):
                 f"feature values made safe: {replaced} non-finite replaced by the mean, "
                 f"{clamped} clamped to +-{self.settings.feature_limit_sd:g} sd",
             )
+        incoming = None
+        if self.incoming is not None:  # its own normalisation: checkpoints may differ in it
+            with np.errstate(invalid="ignore", over="ignore"):
+                normalized_new = self.incoming[0].normalizer.apply(frames)
+            incoming = sanitize_features(normalized_new, self.settings.feature_limit_sd)[0]
         poses = []
         for begin in range(0, len(safe), SLICE_FRAMES):  # the node's timers run between slices
-            poses.append(self.predictor.run(safe[begin : begin + SLICE_FRAMES]))
+            end = begin + SLICE_FRAMES
+            pose = self.robot.denormalize(self.predictor.run(safe[begin:end]))
+            if incoming is not None:
+                pose = self._blended(pose, incoming[begin:end])
+                if self.incoming is None:  # the blend ended: the new model runs alone
+                    safe, incoming = incoming, None
+            poses.append(pose)
             self.run_overdue_timers(time.monotonic())
-        angles = self.robot.denormalize(np.concatenate(poses))
+        angles = np.concatenate(poses)
         self.compute_s += time.perf_counter() - start
         self.frames_in += len(frames)
         stamp = self.get_clock().now()
@@ -314,11 +378,33 @@ class InferenceNode(DiagnosedNode):
         if self.pose_sink is not None:
             self.pose_sink(angles, stamp.nanoseconds * 1e-9)
 
+    def _blended(self, old: np.ndarray, features: np.ndarray) -> np.ndarray:
+        """The old model's poses mixed with the incoming one's; ends the blend when it is done."""
+        assert self.incoming is not None
+        assert self.blend is not None
+        model, predictor, file = self.incoming
+        new = self.robot.denormalize(predictor.run(features))
+        mixed = self.blend.mix(old, new)
+        if self.blend.finished:
+            self.model, self.predictor, self.model_file = model, predictor, file
+            self.incoming, self.blend = None, None
+            self.model_switches += 1
+            self.get_logger().info(f"now running {file} ({model.name}) alone")
+        return mixed
+
     def diagnostic_values(self) -> dict[str, object]:
-        """Frame and value counters and the mean compute time per frame."""
+        """Frame and value counters, the model running and the mean compute time per frame."""
         mean_us = 1e6 * self.compute_s / self.frames_in if self.frames_in else 0.0
+        blend = (
+            f"{self.blend.done}/{self.blend.frames} frames toward {self.incoming_file()}"
+            if self.blend is not None
+            else "none"
+        )
         return {
             "model": self.model.name,
+            "model_file": self.model_file,
+            "model_blend": blend,
+            "model_switches": self.model_switches,
             "runtime": self.model.runtime,
             "frames_in": self.frames_in,
             "frames_dropped": self.frames_dropped,
