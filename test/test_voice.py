@@ -249,15 +249,20 @@ def _voice_out(line: DelayLine, chunks: list[np.ndarray], targets: list[float]) 
         if tick % 20 == 0 and tick // 20 < len(chunks):
             line.push(chunks[k], now)
         for out in line.due(now, targets[k]):
-            assert abs(len(out.samples) - 320) <= round(SPEECH_STRETCH * 320)
+            quiet = not np.abs(out.samples).any()
+            assert abs(len(out.samples) - 320) <= round(
+                (PAUSE_STRETCH if quiet else SPEECH_STRETCH) * 320
+            )
             start = max(now, end)
             played.extend(start + np.arange(len(out.samples)) / line.rate_hz)
             end = start + len(out.samples) / line.rate_hz
     return played
 
 
-def test_when_the_delay_asked_for_changes_while_speaking_expect_no_gap_or_burst_in_the_voice():
-    speech = [0.3 * np.ones(320) for _ in range(200)]  # 4 s of speech, never a pause
+def test_when_the_delay_asked_for_changes_while_speaking_expect_it_moved_in_pauses_without_gap():
+    loud, quiet = 0.3 * np.ones(320), np.zeros(320)
+    # 4 s of speech with a 60 ms pause every second (as between phrases)
+    speech = [quiet if k % 50 in (47, 48, 49) else loud for k in range(200)]
     line = DelayLine(16000)
     targets = [0.1] * 25 + [0.12] * 75 + [0.09] * 100  # calibration: +20 ms, then -30 ms
     played = np.asarray(_voice_out(line, speech, targets))
@@ -266,13 +271,23 @@ def test_when_the_delay_asked_for_changes_while_speaking_expect_no_gap_or_burst_
     spacing = np.diff(played)
     assert spacing.max() < 1 / 16000 + 0.001
     assert spacing.min() > 0.0
-    # the delay moved gradually and reached each target: where the first and last samples
-    # play, and how much was played in all (no sample lost, the stretch added or removed)
+    # speech is never stretched (its pitch, and a pure delay for the echo canceller): only the
+    # pauses took the change, and the delay reached each target by the end
+    ends = np.cumsum([0] + [len(chunk) for chunk in speech])
     assert line.delay_s == pytest.approx(0.09, abs=1 / 16000)
     assert played[0] == pytest.approx(0.1, abs=0.0015)  # within the 1 ms serving period
     assert played[-1] - (199 * 0.02 + 319 / 16000) == pytest.approx(0.09, abs=0.0015)
-    assert line.released_samples == len(played) == 200 * 320 + line.stretched_samples
+    assert line.released_samples == len(played) == ends[-1] + line.stretched_samples
     assert line.stretched_samples == -round(0.01 * 16000)
+
+
+def test_when_the_operator_speaks_without_a_pause_expect_the_speech_never_stretched():
+    speech = [0.3 * np.ones(320) for _ in range(100)]
+    line = DelayLine(16000)
+    played = np.asarray(_voice_out(line, speech, [0.1] * 20 + [0.15] * 80))
+    assert line.stretched_samples == 0
+    assert line.delay_s == pytest.approx(0.1, abs=1 / 16000)  # waits for a pause
+    assert len(played) == 100 * 320
 
 
 def test_when_the_voice_pauses_expect_the_delay_to_move_faster_and_after_a_gap_at_once():
@@ -282,7 +297,7 @@ def test_when_the_voice_pauses_expect_the_delay_to_move_faster_and_after_a_gap_a
     assert [len(c.samples) for c in line.due(0.1, 0.1)] == [320]
     line.push(loud, 0.02)
     (speech,) = line.due(0.2, 0.3)
-    assert len(speech.samples) == 320 + round(SPEECH_STRETCH * 320)
+    assert len(speech.samples) == 320  # speech is not stretched
     line.push(quiet, 0.04)
     (pause,) = line.due(0.3, 0.3)
     assert len(pause.samples) == 320 + round(PAUSE_STRETCH * 320)
@@ -294,17 +309,19 @@ def test_when_the_voice_pauses_expect_the_delay_to_move_faster_and_after_a_gap_a
     assert line.delay_s == 0.005
 
 
-def test_when_the_node_is_held_up_once_expect_the_voice_back_on_its_delay_while_speaking():
+def test_when_the_node_is_held_up_once_expect_the_voice_back_on_its_delay_at_the_next_pause():
     # the node's 1 ms release ticks stop for 25 ms once (a loaded machine): the chunks due then
     # go out together and the loudspeaker, playing back to back, holds every later one 25 ms
-    # longer for as long as the operator talks; its wait is taken off the delay line's delay
+    # longer for as long as the operator talks; its wait is taken off the delay line's delay,
+    # which the pauses between phrases (60 ms a second) give back
     rate = 16000
     line, queue, sync = DelayLine(rate), SpeakerQueue(rate), SyncEstimator(rate)
     held_back: list[float] = []  # from each chunk's arrival to when it starts playing
     for tick in range(5000):
         now = 0.001 * tick
         if tick % 20 == 0 and tick < 4000:
-            line.push(0.3 * np.ones(320), now)
+            pause = (tick // 20) % 50 in (47, 48, 49)
+            line.push(np.zeros(320) if pause else 0.3 * np.ones(320), now)
         if 1000 <= tick < 1025:
             continue
         for chunk in line.due(now, sync.line_delay_s()):
@@ -314,7 +331,7 @@ def test_when_the_node_is_held_up_once_expect_the_voice_back_on_its_delay_while_
             held_back.append(start - chunk.arrival_s)
     assert held_back[40] == pytest.approx(sync.delay_s, abs=1e-6)
     assert max(held_back) > sync.delay_s + 0.015  # the chunk due in the stall, and those after
-    assert held_back[-1] == pytest.approx(sync.delay_s, abs=0.002)  # 25 ms in 1.25 s of speech
+    assert held_back[-1] == pytest.approx(sync.delay_s, abs=0.002)  # back after a pause
 
 
 # --- the robot double and the NAOqi link, over NAOqi's real protocol ---------------------------

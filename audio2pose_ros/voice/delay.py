@@ -6,10 +6,13 @@ released at ``arrival + delay in force``, never before a chunk that arrived earl
 voice keeps its order. The delay in force (:attr:`DelayLine.delay_s`) never jumps while the
 voice plays: a loudspeaker plays what it is given back to back, so a longer delay taken at once
 would be a gap in the voice and a shorter one a burst queued behind it. It moves towards the
-delay asked for by stretching or shrinking each chunk it releases (linear resampling): by at
-most ``SPEECH_STRETCH`` (2 %: 20 ms per second of speech, a third of a semitone while it lasts)
-in speech and ``PAUSE_STRETCH`` (50 %) in a pause (a chunk below ``QUIET_RMS``), so that each
-chunk ends where the next one starts. After a gap in the voice (no chunk for ``GAP_S``, the
+delay asked for by stretching or shrinking the pauses it releases (linear resampling of a chunk
+below ``QUIET_RMS``, by at most ``PAUSE_STRETCH``, 50 %), so that each chunk ends where the next
+one starts. Speech is never stretched (``SPEECH_STRETCH`` is 0): its pitch stays the operator's,
+and the robot's loudspeaker plays it as a pure delay of what the console published, which the
+console's echo canceller follows (it follows jumps of that delay, not a delay that slides under
+the words; a 2 % stretch in speech left 19 dB of suppression in the simulated chain, 34 dB
+without). After a gap in the voice (no chunk for ``GAP_S``, the
 operator stopped talking) it takes the delay asked for at once, shortening the silence by at
 most its length. The line holds at most ``max_s`` seconds of audio: beyond it the oldest chunks
 are dropped and counted (:attr:`DelayLine.dropped_s`), never silently. :class:`DelayedCommands`
@@ -49,7 +52,7 @@ __all__ = [
 T = TypeVar("T")
 
 QUIET_RMS = 0.01  # a chunk below this RMS (full scale 1, -40 dBFS) is a pause
-SPEECH_STRETCH = 0.02  # the delay in force moves by at most this fraction of a speech chunk ...
+SPEECH_STRETCH = 0.0  # the delay in force moves by at most this fraction of a speech chunk ...
 PAUSE_STRETCH = 0.5  # ... and of a pause
 GAP_S = 0.1  # no voice for this long: the delay asked for is taken at once
 
