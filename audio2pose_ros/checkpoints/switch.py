@@ -12,11 +12,14 @@ running model is not touched.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from audio2pose_ros.checkpoints.numpy_runtime import StreamingModel, load_streaming_model
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.resources import default_checkpoint_path
-from audio2pose_ros.robot.description import RobotDescription
+
+if TYPE_CHECKING:  # the features node resolves a path only: it loads no model (footprint)
+    from audio2pose_ros.checkpoints.numpy_runtime import StreamingModel
+    from audio2pose_ros.robot.description import RobotDescription
 
 __all__ = ["CHECKPOINT_FILE", "STYLE_FILE", "load_replacement", "resolve_model_path"]
 
@@ -52,6 +55,8 @@ def load_replacement(
             made for other joints (``robot``) or other features than ``running``'s, or has no
             numpy kernel. The message names the path and the reason.
     """
+    from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
+
     path = resolve_model_path(model_path)
     if not path.is_file():
         what = (
