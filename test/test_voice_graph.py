@@ -35,12 +35,7 @@ from audio2pose_ros.ros.tools.voice_bench import (
 from audio2pose_ros.ros.voice_graph import VOICE_NODE, free_local_url, voice_out_processes
 from audio2pose_ros.voice.offset import percentiles_ms
 from audio2pose_ros.voice.robot_double import FakeAudioDevice, RobotLoudspeaker, serve_audio_device
-from audio2pose_ros.voice.sync import (
-    CALIBRATED_WITHIN_S,
-    TARGET_LEAD_S,
-    WINDOW_EARLY_S,
-    WINDOW_LATE_S,
-)
+from audio2pose_ros.voice.sync import TARGET_LEAD_S, WINDOW_EARLY_S, WINDOW_LATE_S
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -79,12 +74,13 @@ def test_when_the_operator_talks_expect_the_voice_whole_and_held_back_by_the_mea
     assert 50 <= loudspeaker <= 50 + 100, voice
     # the voice held back by what they call for (each figure rounded to 1 ms); the delay in
     # force there (calibrated: within 5 ms, asserted above by calibrated_after_s), or waiting
-    # for the next pause to take a newer estimate: the medians move a few ms between pauses
+    # for the next pause to take a newer estimate: the window leaves 35 ms before the target
+    # and 65 ms after it, and a delay waiting for a pause stays well inside (20 ms)
     assert result.calibrated_after_s is not None
     target = _ms(voice["graph_latency"]) + execution - loudspeaker + TARGET_LEAD_S * 1e3
     assert abs(int(voice["voice_delay_target_ms"]) - max(target, 0.0)) <= 2
     in_force, asked = int(voice["voice_delay_ms"]), int(voice["voice_delay_target_ms"])
-    assert abs(in_force - asked) <= 2 * CALIBRATED_WITHIN_S * 1e3
+    assert abs(in_force - asked) <= 20
 
 
 @pytest.mark.long
