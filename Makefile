@@ -25,16 +25,16 @@ demo: setup
 # minutes. The soaks and campaigns marked long are left to test-long (pyproject's addopts).
 # TEST_WORKERS pytest-xdist processes share the tests: the DDS tests (marked ros) in one of
 # them, one at a time as in a serial run, while the others run the rest (test/conftest.py).
-# The browser tests (marked browser: Chromium, the console, the graph and the simulated Pepper
-# in real time, about ten processes) then run alone: beside CPU-bound workers on 2 cores they
-# were starved. Both runs go to the end; the status is the first failure's.
+# The real-time tests of many processes (marked alone: Chromium, the console, the graph, the
+# simulated Pepper, libqi) then run alone: beside CPU-bound workers on 2 cores they were
+# starved. Both runs go to the end; the status is the first failure's.
 TEST_WORKERS ?= 2
 test: setup
-	$(VENV_BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadgroup -m "not long and not browser"; \
+	$(VENV_BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadgroup -m "not long and not alone"; \
 	status=$$?; \
-	$(VENV_BIN)/python -m pytest -p no:xdist -m "browser and not long" --durations=5; \
-	browser=$$?; \
-	if [ $$status -ne 0 ]; then exit $$status; fi; exit $$browser
+	$(VENV_BIN)/python -m pytest -p no:xdist -m "alone and not long" --durations=5; \
+	alone=$$?; \
+	if [ $$status -ne 0 ]; then exit $$status; fi; exit $$alone
 
 # The long tests only: the memory soak, the fault campaign (minutes of audio through the live
 # graph) and the floods of node processes; run by hand (CI runs `make test` and `make test-jazzy`).

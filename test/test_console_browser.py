@@ -64,7 +64,7 @@ def _missing() -> str:
     return ""
 
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.browser]
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.alone]
 if _missing():
     pytestmark.append(pytest.mark.skip(reason=_missing()))
 

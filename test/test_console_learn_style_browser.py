@@ -41,7 +41,7 @@ CLIP = share_path("data", "video", "grid_bbaf2n.mpg")
 RECORD_S = 12.0  # longer than a part must be observed to be learned (the clip loops), with
 # room for the frames a recording on two loaded cores loses (8 s left under 5 s observed)
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.browser]
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.alone]
 if _missing():
     pytestmark.append(pytest.mark.skip(reason=_missing()))
 

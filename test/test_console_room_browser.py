@@ -30,7 +30,7 @@ TOKEN = "room-browser-token-0123456789"
 PAGE_WAIT_MS = 120_000  # a page rendering in software on two loaded cores; only a hung page
 MIN_SUPPRESSION_DB = 20.0
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.browser]
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.alone]
 if _missing():
     pytestmark.append(pytest.mark.skip(reason=_missing()))
 

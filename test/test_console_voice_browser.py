@@ -29,7 +29,7 @@ HUNG_S = 120.0  # waits for the graph's events: only a hung graph reaches this
 MUTED_HEARTBEATS = 6  # the simulated Pepper's heartbeats (0.5 s apart) watched while muted
 MIN_COMMANDS_MUTED = 50  # joint commands that must arrive meanwhile (100 a second)
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.browser]
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.alone]
 if _missing():
     pytestmark.append(pytest.mark.skip(reason=_missing()))
 

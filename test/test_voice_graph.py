@@ -45,6 +45,7 @@ def _ms(value: str) -> int:
     return int(value.split()[0])
 
 
+@pytest.mark.alone  # real time through the graph, the simulated Pepper and libqi: run alone
 @pytest.mark.parametrize("execution_latency_s", [0.0, 0.15])
 def test_when_the_operator_talks_expect_the_voice_whole_and_held_back_by_the_measured_latencies(
     tmp_path: Path, execution_latency_s: float
