@@ -23,6 +23,7 @@ from typing import Any
 
 import aiohttp
 import pytest
+from background_node import BackgroundNode
 from test_console_browser import _console_url
 
 TOKEN = "camera-test-token-0123456789"
@@ -44,27 +45,17 @@ rclpy.spin(node)
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
-class Diagnostics:
+class Diagnostics(BackgroundNode):
     """console_node's statuses on /diagnostics, as they arrive (level, message, values)."""
 
     def __init__(self) -> None:
-        import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.node import Node
 
-        self.context = Context()
-        rclpy.init(context=self.context)
-        self.node = Node("camera_test_diagnostics", context=self.context)
+        super().__init__("camera_test_diagnostics")
         self.seen: list[tuple[int, str, dict[str, str]]] = []
         self.lock = threading.Lock()
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on, 50)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.stopping = threading.Event()
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
+        self.start()
 
     def _on(self, msg: Any) -> None:
         for status in msg.status:
@@ -73,10 +64,6 @@ class Diagnostics:
                 values = {v.key: v.value for v in status.values}
                 with self.lock:
                     self.seen.append((level, status.message, values))
-
-    def _spin(self) -> None:
-        while not self.stopping.is_set():
-            self.executor.spin_once(timeout_sec=0.1)
 
     def wait_for(self, what: str, test: Callable[[int, str, dict[str, str]], bool]) -> str:
         """The message of the first status from now on that passes ``test``."""
@@ -91,15 +78,6 @@ class Diagnostics:
 
         _wait(seen, what)
         return found[0]
-
-    def close(self) -> None:
-        import rclpy
-
-        self.stopping.set()
-        self.thread.join(timeout=2.0)
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
 
 
 def _wait(condition: Callable[[], bool], what: str) -> None:

@@ -16,12 +16,12 @@ import io
 import math
 import os
 import tempfile
-import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+from background_node import BackgroundNode
 from test_console_browser import CHROMIUM, CHROMIUM_ARGS, _answers, _console_url, _missing, _wait
 
 from audio2pose_ros.resources import bundled_speech_path, share_path
@@ -35,30 +35,20 @@ if _missing():
     pytestmark.append(pytest.mark.skip(reason=_missing()))
 
 
-class HeadTurner:
+class HeadTurner(BackgroundNode):
     """Publishes a head_target (HeadYaw, a look-at) to the motion filter at 10 Hz."""
 
     def __init__(self) -> None:
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.node import Node
         from sensor_msgs.msg import JointState
 
-        self.context = Context()
-        rclpy.init(context=self.context)
-        self.node = Node("room_test_head", context=self.context)
+        super().__init__("room_test_head")
         self.pub = self.node.create_publisher(JointState, "/head_target", 10)
         self.message = JointState(name=["HeadYaw"], position=[0.0])
         self.yaw = 0.0
         self.node.create_timer(0.1, self._publish)
         self.head_yaw: list[float] = []  # the simulated robot's measured HeadYaw
         self.node.create_subscription(JointState, "/joint_states", self._measured, 10)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.stopping = threading.Event()
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
+        self.start()
 
     def _publish(self) -> None:
         if self.yaw:
@@ -69,19 +59,6 @@ class HeadTurner:
     def _measured(self, msg) -> None:
         if "HeadYaw" in msg.name:
             self.head_yaw.append(msg.position[list(msg.name).index("HeadYaw")])
-
-    def _spin(self) -> None:
-        while not self.stopping.is_set():
-            self.executor.spin_once(timeout_sec=0.1)
-
-    def close(self) -> None:
-        import rclpy
-
-        self.stopping.set()
-        self.thread.join(timeout=2.0)
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
 
 
 def _picture(page) -> np.ndarray:

@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import os
 import tempfile
-import threading
 from pathlib import Path
 
 import pytest
 import yaml
+from background_node import BackgroundNode
 from test_console_browser import CHROMIUM, CHROMIUM_ARGS, _answers, _console_url, _missing, _wait
 
 from audio2pose_ros.resources import bundled_speech_path, share_path
@@ -34,7 +34,7 @@ if _missing():
     pytestmark.append(pytest.mark.skip(reason=_missing()))
 
 
-class GraphWatch:
+class GraphWatch(BackgroundNode):
     """Counts /joint_angles and reads /diagnostics, in its own rclpy context and thread.
 
     ``frames``: the voice frames the fake ALAudioDevice had played, one entry per heartbeat of
@@ -43,27 +43,17 @@ class GraphWatch:
     """
 
     def __init__(self) -> None:
-        import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.node import Node
 
-        self.context = Context()
-        rclpy.init(context=self.context)
-        self.node = Node("voice_test_watch", context=self.context)
+        super().__init__("voice_test_watch")
         self.commands = 0
         self.frames: list[int] = []
         self.published = 0
         self.voice: list[dict[str, str]] = []
         self.node.create_subscription(JointAnglesWithSpeed, "/joint_angles", self._command, 100)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._diagnostics, 50)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.stopping = threading.Event()
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
+        self.start()
 
     def _command(self, _msg) -> None:
         self.commands += 1
@@ -78,24 +68,11 @@ class GraphWatch:
             elif status.name.endswith("/console_node"):
                 self.published = int(values.get("chunks_published", self.published))
 
-    def _spin(self) -> None:
-        while not self.stopping.is_set():
-            self.executor.spin_once(timeout_sec=0.1)
-
     def heartbeats_after(self, count: int) -> list[int]:
         """The frames played in the simulated Pepper's next ``count`` heartbeats."""
         start = len(self.frames)
         _wait(lambda: len(self.frames) >= start + count, HUNG_S, f"{count} heartbeats")
         return self.frames[start : start + count]
-
-    def close(self) -> None:
-        import rclpy
-
-        self.stopping.set()
-        self.thread.join(timeout=2.0)
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
 
 
 def _settled(watch: GraphWatch) -> int:
