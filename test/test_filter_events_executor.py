@@ -95,6 +95,14 @@ def test_when_a_backlog_of_raw_trajectories_waits_expect_ticks_between_its_messa
     while not publisher.get_subscription_count():
         assert time.monotonic() < deadline, "the filter never subscribed"
         time.sleep(0.01)
+    # Without message info (this executor) the filter refuses raw poses while the graph shows
+    # two publishers: a process an earlier test killed stays in the graph until its lease ends.
+    deadline = time.monotonic() + 60  # Fast DDS's lease: 20 s
+    while node.count_publishers(RAW_TRAJECTORY) != 1:
+        others = node.get_publishers_info_by_topic(absolute(RAW_TRAJECTORY))
+        names = [f"{other.node_namespace}/{other.node_name}" for other in others]
+        assert time.monotonic() < deadline, f"raw_trajectory publishers stayed: {names}"
+        time.sleep(0.1)
     ticks_at: list[int] = []  # the raw messages the node had taken at each tick
     on_tick = node.on_tick
     node.on_tick = lambda: (ticks_at.append(node.input_messages), on_tick())[1]

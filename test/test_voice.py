@@ -368,6 +368,30 @@ def test_when_the_voice_is_sent_expect_the_fake_audio_device_gets_every_frame_at
     assert np.abs(played - np.round(voice * 32767) / 32768).max() < 1e-6  # the same samples
 
 
+def test_when_the_voice_is_flushed_expect_nothing_more_heard_and_the_robot_queue_dropped(
+    robot_audio,
+):
+    device, speaker, url = robot_audio
+    voice = np.clip(_speechlike(3.0, 16000), -1, 1)
+    link = NaoqiVoiceOut(url, 16000, max_queue_s=5.0)
+    link.start()
+    try:
+        wait_for(lambda: link.status().connected)
+        link.send(voice)
+        wait_for(lambda: link.status().frames_sent == len(voice))  # queued at the robot
+        now = time.time()
+        assert np.abs(speaker.heard(now + 1.0, now + 2.0, 16000)).max() > 0.01  # still to play
+        link.flush()  # the operator mutes
+        wait_for(lambda: link.status().flushes == 1)
+        now = time.time()
+        assert np.abs(speaker.heard(now + 0.05, now + 3.0, 16000)).max() == 0.0
+        link.send(voice[:1600])  # unmuted: the voice plays again
+        wait_for(lambda: link.status().frames_sent == len(voice) + 1600)
+    finally:
+        link.stop()
+    assert device.flushes == 1
+
+
 def test_when_the_device_is_asked_wrong_expect_it_refuses_as_alaudiodevice_does(robot_audio):
     import qi
 
@@ -448,3 +472,29 @@ def test_when_commands_arrive_expect_them_taken_after_the_execution_latency_in_o
     assert delayed.due(1.149) == []
     assert delayed.due(1.15) == ["a"]
     assert delayed.due(2.0) == ["b"]
+
+
+@pytest.mark.ros
+def test_when_the_operator_mutes_expect_the_voice_node_to_flush_what_naoqi_queued(
+    robot_audio, tmp_path, monkeypatch
+):
+    from rclpy.parameter import Parameter
+
+    from audio2pose_ros.ros.nodes.voice_out_node import VoiceOutNode
+    from audio2pose_ros.ros.player import rclpy_session
+
+    device, _, url = robot_audio
+    monkeypatch.setenv("ROS_HOME", str(tmp_path))
+    with rclpy_session(["--ros-args", "-p", f"voice_out:=naoqi:{url}"]):
+        node = VoiceOutNode()
+        try:
+            wait_for(lambda: node.naoqi is not None and node.naoqi.status().connected)
+            assert node.set_parameters([Parameter("muted", value=True)])[0].successful
+            wait_for(lambda: device.flushes == 1)
+            # muted again (the console sets its choice again after a restart): nothing more
+            assert node.set_parameters([Parameter("muted", value=True)])[0].successful
+            assert node.set_parameters([Parameter("muted", value=False)])[0].successful
+            time.sleep(0.3)
+            assert node.naoqi.status().flushes == 1
+        finally:
+            node.destroy_node()

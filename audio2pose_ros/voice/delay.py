@@ -186,6 +186,10 @@ class SpeakerQueue:
         """Audio queued at the loudspeaker at ``now_s`` (s)."""
         return max(0.0, self.end_s - now_s)
 
+    def flushed(self) -> None:
+        """The loudspeaker dropped what it had queued (a mute): nothing is queued now."""
+        self.end_s = -np.inf
+
     def offer(self, now_s: float, samples: np.ndarray) -> float | None:
         """When the loudspeaker will start playing ``samples`` sent now, or None: skip them."""
         if not len(samples):

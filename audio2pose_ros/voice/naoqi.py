@@ -10,7 +10,9 @@ never waits for the robot:
 - a lost connection (a failed call, or the session found disconnected while idle) is reported
   in :meth:`NaoqiVoiceOut.status`, the audio queued meanwhile is dropped and counted (late
   voice would play out of step with the motion), and the thread connects again after a
-  back-off that doubles from ``retry_s`` up to ``MAX_RETRY_S``.
+  back-off that doubles from ``retry_s`` up to ``MAX_RETRY_S``;
+- :meth:`NaoqiVoiceOut.flush` (a mute) drops what is queued here and has the thread call
+  ALAudioDevice's ``flushAudioOutputs()``, which drops what the robot has queued and not played.
 
 This module does not import rclpy.
 """
@@ -89,7 +91,8 @@ class VoiceLinkStatus:
     calls: int  # sendRemoteBufferToOutput calls that returned
     frames_sent: int
     queued_s: float
-    dropped_s: float  # audio dropped: queue over its bound, or queued while disconnected
+    dropped_s: float  # audio dropped: queue over its bound, queued while disconnected, or flushed
+    flushes: int  # flushAudioOutputs calls that returned
     last_error: str
 
 
@@ -133,7 +136,8 @@ class NaoqiVoiceOut:
         self._cond = threading.Condition()
         self._stopping = False
         self._connected = False
-        self._connections = self._failures = self._calls = self._frames = 0
+        self._connections = self._failures = self._calls = self._frames = self._flushes = 0
+        self._flush_pending = False
         self._dropped = 0
         self._last_error = ""
         self._session: Any = None
@@ -154,6 +158,14 @@ class NaoqiVoiceOut:
                 self._drop(self._queue.popleft())
             self._cond.notify()
 
+    def flush(self) -> None:
+        """Drop the voice queued here and, on the thread, what the robot queued (never waits)."""
+        with self._cond:
+            while self._queue:
+                self._drop(self._queue.popleft())
+            self._flush_pending = True
+            self._cond.notify()
+
     def _drop(self, mono: np.ndarray) -> None:
         self._queued -= len(mono)
         self._dropped += len(mono)
@@ -170,6 +182,7 @@ class NaoqiVoiceOut:
                 frames_sent=self._frames,
                 queued_s=self._queued / self.rate_hz,
                 dropped_s=self._dropped / self.rate_hz,
+                flushes=self._flushes,
                 last_error=self._last_error,
             )
 
@@ -219,15 +232,23 @@ class NaoqiVoiceOut:
         """Send what is queued until stopped; raise when the connection is lost."""
         while True:
             with self._cond:
-                self._cond.wait_for(lambda: self._stopping or bool(self._queue), IDLE_CHECK_S)
+                self._cond.wait_for(
+                    lambda: self._stopping or self._flush_pending or bool(self._queue),
+                    IDLE_CHECK_S,
+                )
                 if self._stopping:
                     return
+                flush, self._flush_pending = self._flush_pending, False
                 mono = self._queue.popleft() if self._queue else None
                 if mono is not None:
                     self._queued -= len(mono)
                 session = self._session
+            if flush:
+                device.flushAudioOutputs()
+                with self._cond:
+                    self._flushes += 1
             if mono is None:
-                if session is not None and not session.isConnected():
+                if not flush and session is not None and not session.isConnected():
                     raise ConnectionError(f"the session to {self.url} was disconnected")
                 continue
             for nframes, buffer in stereo_blocks(mono):

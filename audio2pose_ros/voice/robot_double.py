@@ -94,7 +94,9 @@ class RobotLoudspeaker:
         """Drop what has not been heard yet (ALAudioDevice's flushAudioOutputs)."""
         with self._lock:
             now = self.clock()
-            self._played = deque((t, s) for t, s in self._played if t <= now)
+            self._played = deque(
+                (t, s[: int((now - t) * self.rate_hz)]) for t, s in self._played if t <= now
+            )
             self._end_s = now
 
     def heard(self, start_s: float, end_s: float, rate_hz: int) -> np.ndarray:
@@ -153,6 +155,7 @@ class FakeAudioDevice:
         self.rate_hz = 0
         self.refused = 0  # calls refused (bad rate, size or buffer)
         self.calls = 0
+        self.flushes = 0  # flushAudioOutputs calls
 
     def counts(self) -> dict[str, int]:
         """Calls taken and refused, the output rate and the frames played."""
@@ -190,6 +193,7 @@ class FakeAudioDevice:
     @qi.bind(qi.Void, [])  # type: ignore[untyped-decorator]
     def flushAudioOutputs(self) -> None:  # noqa: N802 (NAOqi's name)
         """Drop what is queued and not heard yet."""
+        self.flushes += 1
         self.speaker.flush()
 
 

@@ -22,8 +22,9 @@ retried. Every chunk is held back by the delay of :class:`~audio2pose_ros.voice.
 measured while the operator talks; pauses between words are skipped while the loudspeaker's
 queue is long, and any chunk while it is longer than the motion filter lets its own backlog be
 (:class:`~audio2pose_ros.voice.delay.SpeakerQueue`), so bursts do not leave the voice late; both
-are counted on /diagnostics. ``muted`` (the operator's choice, live) drops the voice;
-the motion is not touched by it, nor by anything here.
+are counted on /diagnostics. ``muted`` (the operator's choice, live) drops the voice, and what
+NAOqi has queued and not played yet (``flushAudioOutputs``); the motion is not touched by it, nor
+by anything here.
 """
 
 from __future__ import annotations
@@ -156,6 +157,7 @@ class VoiceOutNode(DiagnosedNode):
         self.joint_names: list[str] = []  # the commands' order, which the motion is compared in
         self.released_s = 0.0
         self.muted_s = 0.0
+        self.muted_now = self.settings.muted
         self.naoqi: NaoqiVoiceOut | None = None
         self.measurer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="voice-calibration")
         self.measuring: Future[dict[str, float]] | None = None
@@ -206,8 +208,14 @@ class VoiceOutNode(DiagnosedNode):
     def apply_parameters(self, changes: Mapping[str, ParameterValue]) -> None:
         """``muted`` and ``calibrate`` change live."""
         self.settings = dataclasses.replace(self.settings, **changes)  # type: ignore[arg-type]
-        if self.settings.muted:
+        if self.settings.muted and not self.muted_now:
+            # what waits here is dropped, and what NAOqi queued is flushed (audio_play's own
+            # queue, with ``voice_out: topic``, is out of reach: at most its buffer plays on)
             self.muted_s += self.delay_line.clear()
+            if self.naoqi is not None:
+                self.naoqi.flush()
+                self.speaker_queue.flushed()
+        self.muted_now = self.settings.muted
 
     # --- the voice ------------------------------------------------------------------------------
 
