@@ -15,19 +15,15 @@ from __future__ import annotations
 import io
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from background_node import BackgroundNode
-from test_console_browser import CHROMIUM, CHROMIUM_ARGS, _answers, _console_url, _missing, _wait
-
-from audio2pose_ros.resources import bundled_speech_path, share_path
+from sim_console import sim_console_page
+from test_console_browser import _missing
 
 TOKEN = "room-browser-token-0123456789"
-PAGE_WAIT_MS = 120_000  # a page rendering in software on two loaded cores; only a hung page
 MIN_SUPPRESSION_DB = 20.0
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.alone]
@@ -86,49 +82,10 @@ def _power(dbfs: np.ndarray) -> float:
 def test_when_the_operator_talks_to_the_simulated_room_expect_its_picture_sound_and_no_echo(
     tmp_path: Path,
 ) -> None:
-    from playwright.sync_api import sync_playwright
-
-    from audio2pose_ros.ros.console_runner import CONSOLE_NODE, console_command
-    from audio2pose_ros.ros.supervisor import executable_command, node_graph
-    from audio2pose_ros.ros.voice_graph import voice_out_processes
-
-    params = yaml.safe_load(share_path("config", "pepper.yaml").read_text(encoding="utf-8"))
-    params["motion_filter_node"]["ros__parameters"]["state_file"] = str(tmp_path / "state.json")
-    params_file = tmp_path / "params.yaml"
-    params_file.write_text(yaml.safe_dump(params), encoding="utf-8")
-    command = console_command(params_file, {"port": 0, "token": TOKEN}, tmp_path)
-    voice_nodes, sim_args = voice_out_processes("naoqi", True, executable_command)
-    logs = tmp_path / "logs"
-    with (
-        node_graph(
-            params_file,
-            log_dir=logs,
-            sim=True,
-            sim_args=sim_args,
-            more_nodes={CONSOLE_NODE: command, **voice_nodes},
-        ),
-        tempfile.TemporaryDirectory(prefix="audio2pose_chromium_") as profile,
-        sync_playwright() as p,
-    ):
+    autoplay = ["--autoplay-policy=no-user-gesture-required"]
+    with sim_console_page(tmp_path, TOKEN, 760, autoplay) as page:
         turner = HeadTurner()
         try:
-            url = _console_url(logs / f"{CONSOLE_NODE}.log")
-            _wait(lambda: _answers(url), 60.0, "the console's page")
-            browser = p.chromium.launch_persistent_context(
-                profile,
-                executable_path=str(CHROMIUM),
-                headless=True,
-                viewport={"width": 1100, "height": 760},
-                bypass_csp=True,
-                args=[
-                    *CHROMIUM_ARGS,
-                    "--autoplay-policy=no-user-gesture-required",
-                    f"--use-file-for-fake-audio-capture={bundled_speech_path()}",
-                ],
-            )
-            page = browser.new_page()
-            page.set_default_timeout(PAGE_WAIT_MS)
-            page.goto(f"{url}#token={TOKEN}")
             page.wait_for_function(
                 "window.a2p.connected && window.a2p.room.framesDrawn > 2"
                 " && window.a2p.room.soundBlocks > 3 && window.a2p.room.watchers >= 1"
@@ -158,7 +115,6 @@ def test_when_the_operator_talks_to_the_simulated_room_expect_its_picture_sound_
             if os.environ.get("AUDIO2POSE_CONSOLE_SHOTS"):  # the page, for the documentation
                 shot = Path(os.environ["AUDIO2POSE_CONSOLE_SHOTS"]) / "console_room.png"
                 page.screenshot(path=str(shot))
-            browser.close()
         finally:
             turner.close()
 

@@ -13,18 +13,14 @@ Playwright is missing (see test_console_browser.py).
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import pytest
-import yaml
 from background_node import BackgroundNode
-from test_console_browser import CHROMIUM, CHROMIUM_ARGS, _answers, _console_url, _missing, _wait
-
-from audio2pose_ros.resources import bundled_speech_path, share_path
+from sim_console import sim_console_page
+from test_console_browser import _missing, _wait
 
 TOKEN = "voice-browser-token-0123456789"
-PAGE_WAIT_MS = 120_000  # a page rendering in software on two loaded cores; only a hung page
 HUNG_S = 120.0  # waits for the graph's events: only a hung graph reaches this
 MUTED_HEARTBEATS = 6  # the simulated Pepper's heartbeats (0.5 s apart) watched while muted
 MIN_COMMANDS_MUTED = 50  # joint commands that must arrive meanwhile (100 a second)
@@ -86,45 +82,9 @@ def _settled(watch: GraphWatch) -> int:
 def test_when_the_operator_mutes_their_voice_expect_the_robot_silent_and_moving_until_unmuted(
     tmp_path: Path,
 ) -> None:
-    from playwright.sync_api import sync_playwright
-
-    from audio2pose_ros.ros.console_runner import CONSOLE_NODE, console_command
-    from audio2pose_ros.ros.supervisor import executable_command, node_graph
-    from audio2pose_ros.ros.voice_graph import voice_out_processes
-
-    params = yaml.safe_load(share_path("config", "pepper.yaml").read_text(encoding="utf-8"))
-    params["motion_filter_node"]["ros__parameters"]["state_file"] = str(tmp_path / "state.json")
-    params_file = tmp_path / "params.yaml"
-    params_file.write_text(yaml.safe_dump(params), encoding="utf-8")
-    command = console_command(params_file, {"port": 0, "token": TOKEN}, tmp_path)
-    voice_nodes, sim_args = voice_out_processes("naoqi", True, executable_command)
-    logs = tmp_path / "logs"
-    with (
-        node_graph(
-            params_file,
-            log_dir=logs,
-            sim=True,
-            sim_args=sim_args,
-            more_nodes={CONSOLE_NODE: command, **voice_nodes},
-        ),
-        tempfile.TemporaryDirectory(prefix="audio2pose_chromium_") as profile,
-        sync_playwright() as p,
-    ):
+    with sim_console_page(tmp_path, TOKEN, 900) as page:
         watch = GraphWatch()
         try:
-            url = _console_url(logs / f"{CONSOLE_NODE}.log")
-            _wait(lambda: _answers(url), 60.0, "the console's page")
-            browser = p.chromium.launch_persistent_context(
-                profile,
-                executable_path=str(CHROMIUM),
-                headless=True,
-                viewport={"width": 1100, "height": 900},
-                bypass_csp=True,
-                args=[*CHROMIUM_ARGS, f"--use-file-for-fake-audio-capture={bundled_speech_path()}"],
-            )
-            page = browser.new_page()
-            page.set_default_timeout(PAGE_WAIT_MS)
-            page.goto(f"{url}#token={TOKEN}")
             page.wait_for_function(
                 "window.a2p.connected && window.a2p.voice.available"
                 " && window.a2p.voice.muted === false"
@@ -160,7 +120,6 @@ def test_when_the_operator_mutes_their_voice_expect_the_robot_silent_and_moving_
             if os.environ.get("AUDIO2POSE_CONSOLE_SHOTS"):  # the page, for the documentation
                 shot = Path(os.environ["AUDIO2POSE_CONSOLE_SHOTS"]) / "console_voice.png"
                 page.locator("#voice").screenshot(path=str(shot))
-            browser.close()
         finally:
             watch.close()
 
