@@ -2,10 +2,12 @@
 
 The browser and console tests watch or drive the graph while the test's own thread waits on a
 page; this node answers meanwhile. Subclasses create their publishers, subscriptions and timers
-on ``self.node`` and then call :meth:`start`.
+on ``self.node`` and then call :meth:`start`. :class:`ParameterReader` is one: it reads another
+node's parameters over its get_parameters service.
 """
 
 import threading
+import time
 
 
 class BackgroundNode:
@@ -38,3 +40,28 @@ class BackgroundNode:
         self.executor.shutdown(timeout_sec=1.0)
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
+
+
+class ParameterReader(BackgroundNode):
+    """Reads another node's parameters through its get_parameters service."""
+
+    def __init__(self, node_name: str) -> None:
+        from rcl_interfaces.srv import GetParameters
+
+        super().__init__(f"parameter_reader_{node_name.strip('/').replace('/', '_')}")
+        self.request = GetParameters.Request
+        self.client = self.node.create_client(GetParameters, f"/{node_name}/get_parameters")
+        self.start()
+
+    def read(self, name: str) -> object:
+        """The parameter ``name`` as a Python value; None while the service does not answer."""
+        from rclpy.parameter import parameter_value_to_python
+
+        if not self.client.wait_for_service(timeout_sec=1.0):
+            return None
+        future = self.client.call_async(self.request(names=[name]))
+        deadline = time.monotonic() + 5.0
+        while not future.done() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        values = future.result().values if future.done() and future.result() else []
+        return parameter_value_to_python(values[0]) if values else None

@@ -3,7 +3,9 @@
 The real console, inference and motion filter nodes in one process, their services called over
 DDS: a personal folder is run (the inference node's model_path) and given back; a folder whose
 model the inference node refuses leaves the model running, the page is told why, and the filter
-gets the fallback style (the style alone, fitted to the model that keeps running).
+gets the fallback style (the style alone, fitted to the model that keeps running). With the graph
+as supervised processes, the learned model and style are set again on an inference node and a
+filter that crashed and were restarted with their start-up values.
 """
 
 from __future__ import annotations
@@ -12,6 +14,8 @@ import time
 from collections.abc import Callable
 
 import pytest
+from background_node import ParameterReader
+from personal_models import personal_folder
 from rclpy.executors import SingleThreadedExecutor
 
 from audio2pose_ros.ros.player import rclpy_session
@@ -26,10 +30,7 @@ def test_when_the_console_sets_a_personal_model_expect_it_run_or_refused_with_th
     from audio2pose_ros.ros.nodes.inference_node import InferenceNode
     from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
 
-    good, bad = tmp_path / "me", tmp_path / "broken"
-    for folder in (good, bad):
-        folder.mkdir()
-        (folder / "style.yaml").write_text("name: me\n", encoding="utf-8")
+    good, bad = personal_folder(tmp_path / "me"), personal_folder(tmp_path / "broken")
     (bad / "model.safetensors").write_bytes(b"\x00" * 64)  # not a checkpoint
     args = ["--ros-args", "-p", "port:=0", "-p", f"state_file:={tmp_path / 'filter.json'}"]
     with rclpy_session(args):
@@ -50,22 +51,15 @@ def test_when_the_console_sets_a_personal_model_expect_it_run_or_refused_with_th
 
         try:
             spin_until(
-                lambda: all(
-                    client.service_is_ready()
-                    for client in (
-                        console.model_set_client,
-                        console.model_get_client,
-                        console.set_client,
-                        console.get_client,
-                    )
-                ),
+                lambda: console.inference_model.ready() and console.filter_style.ready(),
                 "the services",
             )
             console.set_model(str(bad), fallback={"head_gain": 0.7})
             spin_until(lambda: "refused" in problem(), "the refusal shown")
             assert "not an audio2pose checkpoint" in problem()
             spin_until(
-                lambda: (console.style_values or {}).get("head_gain") == 0.7, "the fallback style"
+                lambda: (console.filter_style.values or {}).get("head_gain") == 0.7,
+                "the fallback style",
             )
             assert inference.parameters["model_path"] == ""  # the running model goes on
             assert inference.incoming is None
@@ -73,7 +67,7 @@ def test_when_the_console_sets_a_personal_model_expect_it_run_or_refused_with_th
             spin_until(lambda: console.status()["model_path"] == str(good), "the folder read back")
             assert inference.parameters["model_path"] == str(good)
             assert problem() == ""
-            assert console.style_values["head_gain"] == 0.7  # accepted: no fallback
+            assert console.status()["style_values"]["head_gain"] == 0.7  # accepted: no fallback
             console.set_model(None)  # back to the model it started with
             spin_until(lambda: console.status()["model_path"] == "", "its own model back")
             assert inference.parameters["model_path"] == ""
@@ -81,3 +75,75 @@ def test_when_the_console_sets_a_personal_model_expect_it_run_or_refused_with_th
             for node in (console, motion_filter, inference):
                 executor.remove_node(node)
                 node.destroy_node()
+
+
+@pytest.mark.slow
+def test_when_the_inference_node_and_filter_restart_expect_the_learned_model_and_style_set_again(
+    tmp_path, capfd
+):
+    import os
+    import signal
+    import threading
+
+    from test_console_browser import _wait
+
+    from audio2pose_ros.ros.nodes.console_node import ConsoleNode
+    from audio2pose_ros.ros.supervisor import node_graph
+
+    folder = str(personal_folder(tmp_path / "me"))
+    logs = tmp_path / "logs"
+    names = ("inference_node", "motion_filter_node")
+    with node_graph(log_dir=logs, no_robot=True) as graph:
+        model, style = ParameterReader(names[0]), ParameterReader(names[1])
+        try:
+            with rclpy_session(["--ros-args", "-p", "port:=0"]):
+                console = ConsoleNode()
+                executor = SingleThreadedExecutor()
+                executor.add_node(console)
+                stopping = threading.Event()
+
+                def spin() -> None:
+                    while not stopping.is_set():
+                        executor.spin_once(timeout_sec=0.1)
+
+                spinner = threading.Thread(target=spin, daemon=True)
+                spinner.start()
+                try:
+                    _wait(
+                        lambda: console.inference_model.ready() and console.filter_style.ready(),
+                        120.0,
+                        "the nodes' parameter services",
+                    )
+                    # what learning my style does: the style fitted to the model, then the model
+                    console.set_style({"head_gain": 0.7})
+                    console.set_model(folder, fallback={"head_gain": 0.5})
+                    _wait(lambda: model.read("model_path") == folder, 30.0, "the personal model")
+                    _wait(lambda: style.read("head_gain") == 0.7, 30.0, "the personal style")
+                    victims = {name: graph.processes[name] for name in names}
+                    for victim in victims.values():
+                        os.kill(victim.pid, signal.SIGKILL)
+                    _wait(
+                        lambda: all(graph.processes[n] is not v for n, v in victims.items()),
+                        120.0,
+                        "the restarts",
+                    )
+                    _wait(lambda: model.read("model_path") is not None, 120.0, "the new node")
+                    _wait(lambda: style.read("head_gain") is not None, 120.0, "the new filter")
+                    _wait(lambda: model.read("model_path") == folder, 30.0, "the model set again")
+                    _wait(lambda: style.read("head_gain") == 0.7, 30.0, "the style set again")
+                    _wait(lambda: console.status()["model_path"] == folder, 10.0, "the page told")
+                finally:
+                    stopping.set()
+                    spinner.join(timeout=5.0)
+                    executor.remove_node(console)
+                    console.destroy_node()
+        finally:
+            model.close()
+            style.close()
+    console_log = capfd.readouterr().err
+    assert f"inference_node's model_path is '', the operator chose {folder!r}: set again" in (
+        console_log
+    )
+    assert "the operator chose 0.7: set again" in console_log
+    inference_log = (logs / "inference_node.log").read_text(encoding="utf-8")
+    assert inference_log.count(f"model_path={folder!r}") >= 2  # each process ran the folder

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from background_node import ParameterReader
 
 from audio2pose_ros.console.protocol import ProtocolError, encode, parse_control
 from audio2pose_ros.console.voice_status import RobotSeen, part_view, voice_view
@@ -92,41 +93,6 @@ def test_when_a_mute_message_comes_expect_it_checked():
         parse_control('{"type": "mute", "on": 1}')
     with pytest.raises(ProtocolError, match="mute needs the field 'on'"):
         parse_control('{"type": "mute"}')
-
-
-class ParameterReader:
-    """Reads a node's parameter through its get_parameters service, in its own rclpy context."""
-
-    def __init__(self, node_name: str) -> None:
-        import rclpy
-        from rcl_interfaces.srv import GetParameters
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.node import Node
-
-        self.context = Context()
-        rclpy.init(context=self.context)
-        self.node = Node("voice_test_reader", context=self.context)
-        self.request = GetParameters.Request
-        self.client = self.node.create_client(GetParameters, f"/{node_name}/get_parameters")
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-
-    def read(self, name: str) -> bool | None:
-        """The boolean parameter ``name``, or None while the service does not answer."""
-        if not self.client.wait_for_service(timeout_sec=1.0):
-            return None
-        future = self.client.call_async(self.request(names=[name]))
-        self.executor.spin_until_future_complete(future, timeout_sec=5.0)
-        values = future.result().values if future.done() and future.result() else []
-        return bool(values[0].bool_value) if values else None
-
-    def close(self) -> None:
-        import rclpy
-
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
 
 
 @pytest.mark.ros

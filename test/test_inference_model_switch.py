@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from personal_models import arms_noise_checkpoint
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
@@ -29,14 +30,12 @@ from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.audio.features import extract_features
 from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
-from audio2pose_ros.checkpoints.torch_io import load_checkpoint, save_checkpoint
 from audio2pose_ros.models.blend import BLEND_FRAMES, PoseBlend, blend_step_bound
 from audio2pose_ros.ros.messages import features_to_msg
 from audio2pose_ros.ros.nodes.inference_node import SLICE_FRAMES
 from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.qos import STREAM_QOS
 from audio2pose_ros.ros.supervisor import executable_command
-from audio2pose_ros.style.personal import with_arms_noise
 from audio2pose_ros.topics import DIAGNOSTICS, FEATURES, RAW_TRAJECTORY, absolute
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -104,9 +103,7 @@ def test_when_model_path_is_set_live_expect_bad_ones_refused_and_a_good_one_blen
 ):
     from audio2pose_ros.resources import default_checkpoint_path
 
-    noisy = with_arms_noise(load_checkpoint(default_checkpoint_path(), robot=robot), 4.0)
-    assert noisy is not None
-    personal = save_checkpoint(tmp_path / "model.safetensors", noisy)
+    personal = arms_noise_checkpoint(tmp_path / "model.safetensors", robot)
     junk = tmp_path / "junk.safetensors"
     junk.write_bytes(b"\x00" * 64)
     old_model = load_streaming_model(default_checkpoint_path(), robot=robot)

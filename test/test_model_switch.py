@@ -6,17 +6,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from personal_models import arms_noise_checkpoint, personal_folder
 
 from audio2pose_ros.audio.features import FeatureSpec
 from audio2pose_ros.audio.normalize import FeatureNormalizer
 from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 from audio2pose_ros.checkpoints.switch import load_replacement
-from audio2pose_ros.checkpoints.torch_io import Checkpoint, load_checkpoint, save_checkpoint
+from audio2pose_ros.checkpoints.torch_io import Checkpoint, save_checkpoint
 from audio2pose_ros.errors import ConfigurationError
 from audio2pose_ros.models.blend import MAX_WEIGHT_SLOPE, PoseBlend, blend_step_bound, blend_weights
 from audio2pose_ros.models.mlp import FramewiseMLP, MLPConfig
 from audio2pose_ros.resources import default_checkpoint_path
-from audio2pose_ros.style.personal import with_arms_noise
 
 
 @pytest.fixture(scope="module")
@@ -27,9 +27,7 @@ def running(robot):
 @pytest.fixture(scope="module")
 def personal(tmp_path_factory, robot):
     """The packaged model with its arms sampling at 4 times their temperature (an enrolment's)."""
-    noisy = with_arms_noise(load_checkpoint(default_checkpoint_path(), robot=robot), 4.0)
-    assert noisy is not None
-    return save_checkpoint(tmp_path_factory.mktemp("personal") / "model.safetensors", noisy)
+    return arms_noise_checkpoint(tmp_path_factory.mktemp("personal") / "model.safetensors", robot)
 
 
 def _mlp(path, robot, features: FeatureSpec):
@@ -125,8 +123,8 @@ def test_when_given_a_personal_model_folder_expect_its_checkpoint_or_the_default
     folder = tmp_path / "me"
     folder.mkdir()
     assert resolve_model_path(str(folder)) == folder  # no style: not a personal model
-    (folder / "style.yaml").write_text("name: me\n", encoding="utf-8")
+    personal_folder(folder)
     assert resolve_model_path(str(folder)) == default_checkpoint_path()  # the style alone
-    (folder / "model.safetensors").write_bytes(personal.read_bytes())
+    personal_folder(folder, personal)
     assert resolve_model_path(str(folder)) == folder / "model.safetensors"
     assert resolve_model_path("") == default_checkpoint_path()

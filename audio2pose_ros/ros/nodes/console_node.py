@@ -37,15 +37,19 @@ Subscriptions:
 Services used:
     <filter_node>/set_parameters, get_parameters (rcl_interfaces): the filter's live style
         parameters (:data:`~audio2pose_ros.motion.style.STYLE_FIELDS`: size and tempo per part,
-        the arms' rest and height) set from the page (sliders, a preset, the learned style),
-        and read back.
+        the arms' rest and height) set from the page (sliders, a preset, the learned style)
+        and back to the values they had before the console's first change.
     <inference_node>/set_parameters, get_parameters: its ``model_path``, set to a learned
         personal model folder (the node blends that model in, no restart) and back to the value
-        it had before the console's first change; read back every :data:`STYLE_REFRESH_S` for
-        the page (``model_path`` in the status), a refusal shown with its reason.
+        it had before the console's first change; ``model_path`` in the status, a refusal
+        shown with its reason.
     <voice_node>/set_parameters, get_parameters: the voice node's ``muted``, the operator's
-        choice in the page, set and read back every :data:`STYLE_REFRESH_S`; the console keeps
-        the operator's last choice in force (a voice node restarted meanwhile is set again).
+        choice in the page.
+
+    Each is read back every :data:`~audio2pose_ros.ros.kept_parameters.READ_BACK_S` for the
+    page, and the console keeps the operator's last choice in force: a node restarted
+    meanwhile (it came back with its start-up values) is set again, with a warning in the log
+    (:class:`~audio2pose_ros.ros.kept_parameters.KeptParameters`).
 
 Parameters: :class:`~audio2pose_ros.console.settings.ConsoleSettings` (all read-only). A network
 bind without certificate, key or a long enough token, a certificate that does not load or an
@@ -57,18 +61,14 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 from audio_common_msgs.msg import AudioData, AudioInfo
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from naoqi_bridge_msgs.msg import AudioBuffer, JointAnglesWithSpeed
-from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-from rcl_interfaces.srv import GetParameters, SetParameters
-from rclpy.client import Client
+from rcl_interfaces.msg import ParameterType
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from rclpy.task import Future
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
@@ -95,6 +95,7 @@ from audio2pose_ros.parameters import settings_from, specs_of
 from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import STALE_AFTER_S, DiagnosedNode, status_name
+from audio2pose_ros.ros.kept_parameters import KeptParameters
 from audio2pose_ros.ros.node_parameters import NodeParameters
 from audio2pose_ros.ros.qos import LATCHED_QOS
 from audio2pose_ros.ros.spin import run_node
@@ -102,7 +103,6 @@ from audio2pose_ros.ros.supervisor_pipe import to_terminal
 
 PARAMETERS = specs_of(ConsoleSettings)
 AUDIO_INFO_PERIOD_S = 5.0  # audio_capture republishes its AudioInfo this often
-STYLE_REFRESH_S = 2.0  # the filter's style and the voice's mute are read back this often
 MEASURED_TIMEOUT_S = 2.0  # measured joint states older than this: no ghost robot
 MICROPHONES_TIMEOUT_S = 2.0  # the robot's microphones not heard for this long: none
 HEALTH_FORGET_S = 30.0  # a diagnostic status not heard for this long leaves the page
@@ -163,14 +163,6 @@ class ConsoleNode(DiagnosedNode):
         self.command_source = ""
         self.stop_state: bool | None = None
         self.enable_state: bool | None = None
-        self.style_values: dict[str, float] | None = None  # the filter's, as last read
-        # the filter's style before the console applied a learned one (restored on request)
-        self.own_style: dict[str, float] | None = None
-        self.style_problem = ""
-        self.model_path: str | None = None  # the inference node's, as last read
-        # its model_path before the console first set one (restored on request)
-        self.own_model: str | None = None
-        self.model_problem = ""
         self.health: dict[str, tuple[int, str, float]] = {}
         self.chunks_published = 0
         self.talking = False
@@ -187,10 +179,6 @@ class ConsoleNode(DiagnosedNode):
         self.voice_status_name = status_name(voice_node)
         self.voice_values: dict[str, str] | None = None  # the voice node's last /diagnostics
         self.voice_heard_s = -1e9
-        self.voice_muted: bool | None = None  # its `muted`, as last read back
-        self.voice_wanted: bool | None = None  # the operator's last choice (None: none made)
-        self.voice_problem = ""
-        self.voice_sets = 0  # sets of `muted` asked for: a read begun before one is not acted on
 
         self.audio_pub = self.create_publisher(AudioData, topics.AUDIO, AUDIO_PUBLISH_QOS)
         self.info_pub = self.create_publisher(AudioInfo, topics.AUDIO_INFO, LATCHED_QOS)
@@ -243,29 +231,34 @@ class ConsoleNode(DiagnosedNode):
         self.create_subscription(Bool, topics.STOP, guarded(self.on_stop), LATCHED_QOS)
         self.create_subscription(Bool, topics.ENABLE, guarded(self.on_enable), LATCHED_QOS)
 
-        filter_node = self.settings.filter_node
-        self.set_client: Client[Any, Any] = self.create_client(
-            SetParameters, f"{filter_node}/set_parameters"
+        filter_node, inference = self.settings.filter_node, self.settings.inference_node
+        self.filter_style = KeptParameters(
+            self,
+            filter_node,
+            STYLE_FIELDS,
+            ParameterType.PARAMETER_DOUBLE,
+            "style",
+            f"{filter_node}'s parameter service is not available",
+            keep_own=True,
         )
-        self.get_client: Client[Any, Any] = self.create_client(
-            GetParameters, f"{filter_node}/get_parameters"
+        self.inference_model = KeptParameters(
+            self,
+            inference,
+            ["model_path"],
+            ParameterType.PARAMETER_STRING,
+            "model",
+            f"{inference}'s parameter service is not available: the model was not changed",
+            keep_own=True,
         )
-        self.create_timer(STYLE_REFRESH_S, guarded(self.refresh_style))
-        inference = self.settings.inference_node
-        self.model_set_client: Client[Any, Any] = self.create_client(
-            SetParameters, f"{inference}/set_parameters"
+        self.voice_mute = KeptParameters(
+            self,
+            self.settings.voice_node,
+            ["muted"],
+            ParameterType.PARAMETER_BOOL,
+            "mute",
+            f"{self.settings.voice_node}'s parameter service is not available "
+            "(no voice out: start the console with --voice-out)",
         )
-        self.model_get_client: Client[Any, Any] = self.create_client(
-            GetParameters, f"{inference}/get_parameters"
-        )
-        self.create_timer(STYLE_REFRESH_S, guarded(self.refresh_model))
-        self.voice_set_client: Client[Any, Any] = self.create_client(
-            SetParameters, f"{self.settings.voice_node}/set_parameters"
-        )
-        self.voice_get_client: Client[Any, Any] = self.create_client(
-            GetParameters, f"{self.settings.voice_node}/get_parameters"
-        )
-        self.create_timer(STYLE_REFRESH_S, guarded(self.refresh_voice))
 
         self.server = ConsoleServer(
             self.settings,
@@ -341,242 +334,36 @@ class ConsoleNode(DiagnosedNode):
         """Set the filter's live style parameters named in ``settings``; None: restore.
 
         A learned style, a preset or the page's sliders (size and tempo per part, where the
-        hands rest and how high they go). Before the first change, the filter's own style
-        parameters are read and kept, so that going back restores the style the graph was
-        started with (a preset of the launch file, say), not the identity.
+        hands rest and how high they go), kept in force (:class:`KeptParameters`). Before the
+        first change, the filter's own style parameters are read and kept, so that going back
+        restores the style the graph was started with (a preset of the launch file, say), not
+        the identity.
         """
-        if not (self.set_client.service_is_ready() and self.get_client.service_is_ready()):
-            with self._lock:
-                self.style_problem = (
-                    f"{self.settings.filter_node}'s parameter service is not available"
-                )
-            return
         if settings is None:
-            with self._lock:
-                own, self.own_style = self.own_style, None
-            if own is not None:
-                self._set_style_parameters(own)
-            return
-        wanted = {name: float(settings[name]) for name in STYLE_FIELDS if name in settings}
-        with self._lock:
-            saved = self.own_style is not None
-        if saved:
-            self._set_style_parameters(wanted)
-            return
-        request = GetParameters.Request(names=list(STYLE_FIELDS))
-
-        def keep_then_set(future: Future[Any]) -> None:
-            values = [v.double_value for v in getattr(future.result(), "values", [])]
-            if len(values) == len(STYLE_FIELDS):
-                with self._lock:
-                    if self.own_style is None:
-                        self.own_style = dict(zip(STYLE_FIELDS, values, strict=True))
-                self._set_style_parameters(wanted)
-            else:
-                with self._lock:
-                    self.style_problem = "the filter's style parameters could not be read"
-
-        self.get_client.call_async(request).add_done_callback(keep_then_set)
+            self.filter_style.restore()
+        else:
+            self.filter_style.choose(
+                {name: float(settings[name]) for name in STYLE_FIELDS if name in settings}
+            )
 
     def set_model(self, folder: str | None, fallback: dict[str, float] | None = None) -> None:
         """Set the inference node's ``model_path`` to ``folder``; None: restore its own.
 
         Before the first change its own ``model_path`` is read and kept, so that going back
-        restores the model the graph was started with. The node checks the model and blends it
-        in; a refusal (its reason) is shown in the page, and ``fallback``, when given, becomes
-        the filter's style (the style fitted to the model that keeps running).
+        restores the model the graph was started with; the model chosen is kept in force (a
+        restarted inference node is set again). The node checks the model and blends it in; a
+        refusal (its reason) is shown in the page, and ``fallback``, when given, becomes the
+        filter's style (the style fitted to the model that keeps running).
         """
-        if not (
-            self.model_set_client.service_is_ready() and self.model_get_client.service_is_ready()
-        ):
-            with self._lock:
-                self.model_problem = (
-                    f"{self.settings.inference_node}'s parameter service is not available: "
-                    "the model was not changed"
-                )
-            if fallback is not None:
-                self.set_style(fallback)
-            return
         if folder is None:
-            with self._lock:
-                own, self.own_model = self.own_model, None
-            if own is not None:
-                self._set_model_path(own, None)
+            self.inference_model.restore()
             return
-        with self._lock:
-            saved = self.own_model is not None
-        if saved:
-            self._set_model_path(folder, fallback)
-            return
-
-        def keep_then_set(future: Future[Any]) -> None:
-            values = getattr(future.result(), "values", [])
-            if len(values) == 1 and values[0].type == ParameterType.PARAMETER_STRING:
-                with self._lock:
-                    if self.own_model is None:
-                        self.own_model = str(values[0].string_value)
-                self._set_model_path(folder, fallback)
-            else:
-                with self._lock:
-                    self.model_problem = "the inference node's model_path could not be read"
-                if fallback is not None:
-                    self.set_style(fallback)
-
-        request = GetParameters.Request(names=["model_path"])
-        self.model_get_client.call_async(request).add_done_callback(keep_then_set)
-
-    def _set_model_path(self, path: str, fallback: dict[str, float] | None) -> None:
-        request = SetParameters.Request()
-        request.parameters = [
-            Parameter(
-                name="model_path",
-                value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=path),
-            )
-        ]
-
-        def done(future: Future[Any]) -> None:
-            refused = [
-                r.reason for r in getattr(future.result(), "results", []) if not r.successful
-            ]
-            with self._lock:
-                self.model_problem = "; ".join(refused)
-            if refused:
-                self.get_logger().warning(f"model refused by the inference node: {refused[0]}")
-                if fallback is not None:
-                    self.set_style(fallback)
-            self.refresh_model()
-
-        self.model_set_client.call_async(request).add_done_callback(done)
-
-    def refresh_model(self) -> None:
-        """Read the inference node's ``model_path`` back (the page shows what runs)."""
-        if not self.model_get_client.service_is_ready():
-            with self._lock:
-                self.model_path = None
-            return
-        request = GetParameters.Request(names=["model_path"])
-        self.model_get_client.call_async(request).add_done_callback(self._model_read)
-
-    def _model_read(self, future: Future[Any]) -> None:
-        values = getattr(future.result(), "values", [])
-        if len(values) == 1 and values[0].type == ParameterType.PARAMETER_STRING:
-            with self._lock:
-                self.model_path = str(values[0].string_value)
-
-    def _set_style_parameters(self, values: dict[str, float]) -> None:
-        self._set_filter_doubles(values, "style", self._style_problem)
-
-    def _style_problem(self, text: str) -> None:
-        with self._lock:
-            self.style_problem = text
-
-    def _set_filter_doubles(
-        self, values: dict[str, float], what: str, record: Callable[[str], None]
-    ) -> None:
-        """Set double parameters of the filter; ``record`` gets its refusals ('' when none).
-
-        The values in force are read back after the answer (:meth:`refresh_style`).
-        """
-        request = SetParameters.Request()
-        request.parameters = [
-            Parameter(
-                name=name,
-                value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value),
-            )
-            for name, value in values.items()
-        ]
-
-        def done(future: Future[Any]) -> None:
-            results = getattr(future.result(), "results", [])
-            refused = [r.reason for r in results if not r.successful]
-            record("; ".join(refused))
-            if refused:
-                self.get_logger().warning(f"{what} refused by the filter: {'; '.join(refused)}")
-            self.refresh_style()
-
-        self.set_client.call_async(request).add_done_callback(done)
-
-    def refresh_style(self) -> None:
-        """Read the filter's style parameters back (the page shows what is in force)."""
-        if not self.get_client.service_is_ready():
-            return
-        request = GetParameters.Request(names=list(STYLE_FIELDS))
-        self.get_client.call_async(request).add_done_callback(self._style_read)
-
-    def _style_read(self, future: Future[Any]) -> None:
-        response = future.result()
-        values = [v.double_value for v in getattr(response, "values", [])]
-        if len(values) == len(STYLE_FIELDS):
-            with self._lock:
-                self.style_values = dict(zip(STYLE_FIELDS, values, strict=True))
+        otherwise = None if fallback is None else (lambda: self.set_style(fallback))
+        self.inference_model.choose({"model_path": folder}, otherwise)
 
     def set_voice_muted(self, on: bool) -> None:
-        """Set the voice node's ``muted`` to the operator's choice (kept and re-applied)."""
-        with self._lock:
-            self.voice_wanted = on
-        self._set_voice_muted(on)
-
-    def _set_voice_muted(self, on: bool) -> None:
-        if not self.voice_set_client.service_is_ready():
-            with self._lock:
-                self.voice_problem = (
-                    f"{self.settings.voice_node}'s parameter service is not available "
-                    "(no voice out: start the console with --voice-out)"
-                )
-            return
-        with self._lock:
-            self.voice_sets += 1
-        request = SetParameters.Request()
-        request.parameters = [
-            Parameter(
-                name="muted",
-                value=ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=on),
-            )
-        ]
-
-        def done(future: Future[Any]) -> None:
-            refused = [
-                r.reason for r in getattr(future.result(), "results", []) if not r.successful
-            ]
-            with self._lock:
-                self.voice_problem = "; ".join(refused)
-            if refused:
-                self.get_logger().warning(f"mute refused by the voice node: {'; '.join(refused)}")
-            self.refresh_voice()
-
-        self.voice_set_client.call_async(request).add_done_callback(done)
-
-    def refresh_voice(self) -> None:
-        """Read the voice node's ``muted`` back; set it again where it differs from the choice."""
-        if not self.voice_get_client.service_is_ready():
-            with self._lock:
-                self.voice_muted = None
-            return
-        with self._lock:
-            sets = self.voice_sets
-        request = GetParameters.Request(names=["muted"])
-        future = self.voice_get_client.call_async(request)
-        future.add_done_callback(lambda done: self._voice_read(done, sets))
-
-    def _voice_read(self, future: Future[Any], sets: int) -> None:
-        """Keep the value read, unless a set was asked for since the read began."""
-        values = getattr(future.result(), "values", [])
-        if len(values) != 1 or values[0].type != ParameterType.PARAMETER_BOOL:
-            return
-        muted = bool(values[0].bool_value)
-        with self._lock:
-            if sets != self.voice_sets:
-                return  # read before a set: the set's own read follows
-            self.voice_muted = muted
-            wanted = self.voice_wanted
-            if wanted is None or wanted == muted:
-                self.voice_problem = ""  # the choice is in force
-        if wanted is not None and wanted != muted:
-            self.get_logger().warning(
-                f"{self.settings.voice_node}'s muted is {muted}, the operator chose {wanted}: "
-                "set again"
-            )
-            self._set_voice_muted(wanted)
+        """Set the voice node's ``muted`` to the operator's choice (kept in force)."""
+        self.voice_mute.choose({"muted": on})
 
     # --- from the graph ---------------------------------------------------------------------------
 
@@ -695,6 +482,9 @@ class ConsoleNode(DiagnosedNode):
     def status(self) -> dict[str, Any]:
         """Stop, enable, the style parameters, health and latency for the pages."""
         now = time.monotonic()
+        muted = (self.voice_mute.values or {}).get("muted")
+        model_path = (self.inference_model.values or {}).get("model_path")
+        problems = (self.filter_style.problem, self.inference_model.problem)
         with self._lock:
             for name in [n for n, (_, _, t) in self.health.items() if now - t > HEALTH_FORGET_S]:
                 del self.health[name]
@@ -714,19 +504,17 @@ class ConsoleNode(DiagnosedNode):
             )
             voice = voice_view(
                 self.voice_values if voice_age_s <= HEALTH_FORGET_S else None,
-                self.voice_muted,
+                None if muted is None else bool(muted),
                 seen,
-                self.voice_problem,
+                self.voice_mute.problem,
                 voice_age_s,
             )
             return {
                 "stop": self.stop_state,
                 "enable": self.enable_state,
-                "style_values": self.style_values,
-                "style_problem": "; ".join(
-                    p for p in (self.style_problem, self.model_problem) if p
-                ),
-                "model_path": self.model_path,
+                "style_values": self.filter_style.values,
+                "style_problem": "; ".join(p for p in problems if p),
+                "model_path": None if model_path is None else str(model_path),
                 "health": health,
                 "latency": self.latency.summary(),
                 "voice": voice,
