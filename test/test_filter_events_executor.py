@@ -22,10 +22,11 @@ from audio2pose_ros.ros.messages import trajectory_msg
 from audio2pose_ros.ros.nodes import motion_filter_node, single_process
 from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
 from audio2pose_ros.ros.player import rclpy_session
-from audio2pose_ros.topics import RAW_TRAJECTORY, absolute
+from audio2pose_ros.topics import RAW_TRAJECTORY
 
 pytestmark = pytest.mark.ros
 BACKLOG = 100  # raw_trajectory messages waiting at once (the filter's queue holds 100)
+NAMESPACE = "/events_backlog"  # the filter's and the publisher's
 POINTS = 200  # poses per message: max_points_per_message, each message costs its decoding
 
 
@@ -76,6 +77,9 @@ def started_filter(tmp_path, monkeypatch):
     monkeypatch.setenv("ROS_HOME", str(tmp_path))
     monkeypatch.setenv(executors.EXECUTOR_ENV, executors.EVENTS)
     args = ["--ros-args", "-p", f"state_file:={tmp_path / 'state.json'}"]
+    # in a namespace of its own: a raw_trajectory publisher left in the graph by another test
+    # or process would make the filter refuse every raw pose (no message info here)
+    args += ["-r", f"__ns:={NAMESPACE}"]
     with rclpy_session([*args, "-p", "start_without_measured_pose:=true"]):  # no robot here
         node = MotionFilterNode()
         publisher_node = rclpy.create_node("backlog_publisher")
@@ -90,19 +94,13 @@ def test_when_a_backlog_of_raw_trajectories_waits_expect_ticks_between_its_messa
     events_available, started_filter, robot
 ):
     node, publisher_node = started_filter
-    publisher = publisher_node.create_publisher(JointTrajectory, absolute(RAW_TRAJECTORY), BACKLOG)
+    publisher = publisher_node.create_publisher(JointTrajectory, RAW_TRAJECTORY, BACKLOG)
     deadline = time.monotonic() + 30
     while not publisher.get_subscription_count():
         assert time.monotonic() < deadline, "the filter never subscribed"
         time.sleep(0.01)
-    # Without message info (this executor) the filter refuses raw poses while the graph shows
-    # two publishers: a process an earlier test killed stays in the graph until its lease ends.
-    deadline = time.monotonic() + 60  # Fast DDS's lease: 20 s
-    while node.count_publishers(RAW_TRAJECTORY) != 1:
-        others = node.get_publishers_info_by_topic(absolute(RAW_TRAJECTORY))
-        names = [f"{other.node_namespace}/{other.node_name}" for other in others]
-        assert time.monotonic() < deadline, f"raw_trajectory publishers stayed: {names}"
-        time.sleep(0.1)
+    others = node.get_publishers_info_by_topic(f"{NAMESPACE}/{RAW_TRAJECTORY}")
+    assert len(others) == 1, [f"{o.node_namespace}/{o.node_name}" for o in others]
     ticks_at: list[int] = []  # the raw messages the node had taken at each tick
     on_tick = node.on_tick
     node.on_tick = lambda: (ticks_at.append(node.input_messages), on_tick())[1]
