@@ -14,6 +14,7 @@ not). Kinds:
 - ``features``: 1 s messages (100 frames) of plausible features, numbered;
 - ``joint_states``: a robot's JointState of every joint at its neutral pose (sensor-data QoS);
 - ``stop_false``: ``stop: false`` on the latched stop topic;
+- ``enable_true``: ``enable: true`` on the latched enable topic;
 - ``set_parameters:<node>``: requests to set ``<node>``'s read-only ``command_input``, sent
   without waiting for the answers (taken when there).
 """
@@ -46,6 +47,7 @@ from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.topics import (
     AUDIO,
     AUDIO_INFO,
+    ENABLE,
     FEATURES,
     JOINT_ANGLES,
     JOINT_STATES,
@@ -106,10 +108,18 @@ def joint_states(node: Node) -> Flood:
     return _subscribed(publisher), send
 
 
-def stop_false(node: Node) -> Flood:
-    publisher = node.create_publisher(Bool, absolute(STOP), LATCHED_QOS)
-    msg = Bool(data=False)
+def _latched_bool(node: Node, topic: str, value: bool) -> Flood:
+    publisher = node.create_publisher(Bool, absolute(topic), LATCHED_QOS)
+    msg = Bool(data=value)
     return _subscribed(publisher), lambda i: publisher.publish(msg)
+
+
+def stop_false(node: Node) -> Flood:
+    return _latched_bool(node, STOP, False)
+
+
+def enable_true(node: Node) -> Flood:
+    return _latched_bool(node, ENABLE, True)
 
 
 def set_parameters(node: Node, target: str) -> Flood:
@@ -133,6 +143,7 @@ KINDS: dict[str, Callable[..., Flood]] = {
     "features": features,
     "joint_states": joint_states,
     "stop_false": stop_false,
+    "enable_true": enable_true,
     "set_parameters": set_parameters,
 }
 

@@ -14,7 +14,13 @@ disable); the node translates the messages and reports an ignored release.
 
 from __future__ import annotations
 
+import math
+from typing import TypeVar
+
 from audio2pose_ros.motion.state_file import FilterMemory
+
+K = TypeVar("K")
+V = TypeVar("V")
 
 
 class Hold:
@@ -75,3 +81,59 @@ class Hold:
             return False
         self.since_s = None
         return True
+
+
+MAX_REMEMBERED = 64  # holds taken and publishers' releases kept (the oldest forgotten first)
+
+
+class HoldDeliveries:
+    """The holds of one topic (``stop: true``, ``enable: false``) that two readers deliver.
+
+    The node reads each of the two topics with a latched reader of depth 1 (the newest value of
+    each publisher, also for a node that starts late) and, where the middleware filters content,
+    with a second reader of the holds alone, which no flood of releases can displace a hold from.
+    A hold delivered by both counts once, by its publisher and sequence number; and one its own
+    publisher has already released by a later message (the other reader was served first) stays
+    released. Releases of other publishers do not end a hold taken after them: only one that
+    comes after it does (:class:`Hold`). Without the publisher's identity (Jazzy, Humble, the
+    EventsExecutor) every delivery counts.
+
+    Attributes:
+        engaged: holds taken (each once).
+    """
+
+    def __init__(self) -> None:
+        """No hold taken, no release heard."""
+        self.taken: dict[tuple[bytes, int], None] = {}  # (publisher, sequence): insertion order
+        self.released_s: dict[bytes, float] = {}  # publisher -> its newest release's publication
+        self.engaged = 0
+
+    def take(self, publisher: bytes | None, sequence: int | None, published_s: float) -> bool:
+        """Whether a hold published at ``published_s`` engages (False: taken before or released).
+
+        ``publisher`` and ``sequence`` identify the message (None where rclpy does not say).
+        """
+        if publisher is not None:
+            if published_s < self.released_s.get(publisher, -math.inf):
+                return False
+            if sequence is not None:
+                key = (publisher, sequence)
+                if key in self.taken:
+                    return False
+                _remember(self.taken, key, None)
+        self.engaged += 1
+        return True
+
+    def released(self, publisher: bytes | None, published_s: float) -> None:
+        """A release of ``publisher`` published at ``published_s`` was taken."""
+        if publisher is not None:
+            newest = max(published_s, self.released_s.pop(publisher, -math.inf))
+            _remember(self.released_s, publisher, newest)
+
+
+def _remember(kept: dict[K, V], key: K, value: V) -> None:
+    """Keep ``key`` as the newest entry of ``kept``, forgetting the oldest beyond the bound."""
+    kept.pop(key, None)
+    if len(kept) >= MAX_REMEMBERED:
+        del kept[next(iter(kept))]
+    kept[key] = value

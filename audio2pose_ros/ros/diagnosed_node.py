@@ -349,6 +349,7 @@ class DiagnosedNode(Node):
         qos: QoSProfile | int,
         max_bytes: int | Callable[[], int],
         with_info: bool = False,
+        content_filter: Any | None = None,
     ) -> Subscription[Any]:
         """A guarded subscription that drops a message larger than ``max_bytes`` before decoding.
 
@@ -358,7 +359,9 @@ class DiagnosedNode(Node):
         (:func:`~audio2pose_ros.ros.subscriptions.bounded_receiver`). With ``with_info`` the
         callback also gets the message's info (publisher, source and reception timestamps), or
         None where rclpy gives none (Humble, the EventsExecutor:
-        :func:`~audio2pose_ros.ros.subscriptions.info_callback`).
+        :func:`~audio2pose_ros.ros.subscriptions.info_callback`). ``content_filter`` (from
+        :func:`~audio2pose_ros.ros.subscriptions.content_filter_options`, Kilted's rclpy only)
+        has the middleware deliver only the messages it matches, where it filters content.
         """
 
         def deliver(message: Any, info: MessageInfo | None) -> None:
@@ -371,8 +374,9 @@ class DiagnosedNode(Node):
             msg_type, max_bytes, deliver, lambda n, cap: self.drop_oversized(topic, n, cap)
         )
         receive.__name__ = getattr(callback, "__name__", "callback")
+        options = {} if content_filter is None else {"content_filter_options": content_filter}
         return self.create_subscription(
-            msg_type, topic, info_callback(self.guarded(receive)), qos, raw=True
+            msg_type, topic, info_callback(self.guarded(receive)), qos, raw=True, **options
         )
 
     def create_latest_subscription(

@@ -128,6 +128,15 @@ def publisher_of(info: MessageInfo | None) -> bytes | None:
     return bytes(gid.get("data", b""))
 
 
+def sequence_of(info: MessageInfo | None) -> int | None:
+    """A message's sequence number among its publisher's; None where rclpy does not say.
+
+    Jazzy's and Kilted's info carry it (with the publisher's gid only on Kilted's).
+    """
+    sequence = None if info is None else info.get("publication_sequence_number")
+    return sequence if isinstance(sequence, int) else None
+
+
 class RawTrajectory(NamedTuple):
     """What the motion filter reads of a JointTrajectory: stamp, names, positions per point."""
 

@@ -14,6 +14,12 @@ with one parameter and get ``None`` for the info (:func:`info_callback`); what e
 without it is said where it reads it (:func:`~audio2pose_ros.ros.messages.published_s`,
 :func:`~audio2pose_ros.ros.messages.publisher_of`).
 
+**Content filters.** Kilted's rclpy (9.1) takes ``content_filter_options`` (a
+``rclpy.subscription_content_filter_options.ContentFilterOptions``) when creating a
+subscription, and ``Subscription.is_cft_enabled`` says whether the middleware filters (Fast DDS
+does; Cyclone DDS does not); Jazzy's (7.1) and Humble's (3.3) have neither:
+:func:`content_filter_options` is None there.
+
 **QoS event handlers.** :func:`quiet_event_callbacks` leaves out rclpy's default handlers, from
 ``rclpy.event_handler`` (Jazzy, Kilted) or ``rclpy.qos_event`` (Humble).
 """
@@ -71,6 +77,18 @@ def quiet_event_callbacks(kind: str) -> Any:
     except ImportError:  # Humble
         module = importlib.import_module("rclpy.qos_event")
     return getattr(module, f"{kind}EventCallbacks")(use_default_callbacks=False)
+
+
+def content_filter_options(expression: str, parameters: list[str]) -> Any | None:
+    """Rclpy's options of a content-filtered subscription; None where rclpy has none.
+
+    ``expression`` is DDS's SQL filter (``"data = %0"``), ``parameters`` its values (``%0``...).
+    """
+    try:
+        module = importlib.import_module("rclpy.subscription_content_filter_options")
+    except ImportError:  # Jazzy, Humble
+        return None
+    return module.ContentFilterOptions(expression, parameters)
 
 
 class SequenceGaps:

@@ -8,6 +8,9 @@ Subscriptions:
     (In single-process mode those two nodes call this one directly instead of these two topics.)
     enable (std_msgs/Bool, latched): False -> glide to neutral and ignore generated motion.
     stop (std_msgs/Bool, latched): True -> emergency stop ('hold': brake and stay; 'neutral').
+        Each of the two is read twice where rclpy and the middleware filter content (Kilted's
+        rclpy, Fast DDS): by a latched reader of depth 1, and by one of the holds alone
+        (``stop: true``, ``enable: false``), from which no flood of releases displaces a hold.
     head_target (sensor_msgs/JointState): absolute HeadYaw/HeadPitch targets, e.g. a look-at.
     head_offset (sensor_msgs/JointState): HeadYaw/HeadPitch offsets added to the head motion.
     joint_states (sensor_msgs/JointState, parameter measured_joint_states_topic): the robot's
@@ -47,7 +50,14 @@ messages' source timestamps (:mod:`audio2pose_ros.motion.holds`: an older panel'
 ``stop: false`` never releases a stop). Where rclpy passes no source timestamp (Humble, the
 EventsExecutor) a release is timed by its arrival, and the first message of its topic cannot
 release a stop or a disable kept from before the restart (it may be such a latched value): the
-release is asked for again. A stop, a disable and the pose are saved when they
+release is asked for again. A hold is never lost to a flood of releases where its topic has a
+reader of holds alone: every hold the node takes engages (``stops_engaged``,
+``disables_engaged``), each once (:class:`~audio2pose_ros.motion.holds.HoldDeliveries`), and
+stays until a release published after it arrives (a release the other reader delivered first
+does not end it, unless its own publisher sent it). Without content filters (Jazzy, Humble,
+Cyclone DDS) the one latched reader keeps only the newest message: a hold followed by releases
+faster than the executor takes them can be replaced unseen (``holds_filtered``: false).
+A stop, a disable and the pose are saved when they
 change, at most every ``MIN_SAVE_SPACING_S``; a state that cannot be saved is an ERROR on
 /diagnostics (the stop stays in force in memory), reported again at every start. The state file
 is this node's alone: a second live node with the same file refuses to start (exit 78, naming
@@ -94,7 +104,7 @@ from audio2pose_ros.motion.body_guard import GuardStatus
 from audio2pose_ros.motion.filter import MotionFilter
 from audio2pose_ros.motion.filter_report import FilterReport
 from audio2pose_ros.motion.filter_settings import MotionFilterNodeSettings, MotionFilterSettings
-from audio2pose_ros.motion.holds import Hold
+from audio2pose_ros.motion.holds import Hold, HoldDeliveries
 from audio2pose_ros.motion.limits import LimitSettings
 from audio2pose_ros.motion.measured_states import MeasuredStates, start_held
 from audio2pose_ros.motion.pacing import OutputPacing, arrival_wait_s, next_timer_s
@@ -116,6 +126,7 @@ from audio2pose_ros.ros.messages import (
     RawTrajectory,
     published_s,
     publisher_of,
+    sequence_of,
     stamp_s,
     trajectory_bytes_cap,
     trajectory_msg,
@@ -123,7 +134,7 @@ from audio2pose_ros.ros.messages import (
 from audio2pose_ros.ros.node_parameters import NodeParameters
 from audio2pose_ros.ros.qos import LATCHED_QOS, RAW_POSE_READER_QOS, STREAM_QOS
 from audio2pose_ros.ros.spin import run_node
-from audio2pose_ros.ros.subscriptions import MessageInfo, SequenceGaps
+from audio2pose_ros.ros.subscriptions import MessageInfo, SequenceGaps, content_filter_options
 
 STALLED_PERIODS = 10  # no tick for this many periods while started: ERROR (commands stalled)
 STARTUP_CHECK_S = 0.1  # while the start waits, it is decided again this often
@@ -238,6 +249,17 @@ class MotionFilterNode(DiagnosedNode):
             )
             self.create_subscription(
                 Bool, topics.VOICE_ACTIVITY, guarded(self.on_voice), STREAM_QOS
+            )
+        # Holds (a stop, a disable) each taken once from either reader of their topic; the
+        # readers of holds alone first: served before the latched ones in a round, a hold is in
+        # force before the releases that came with it are judged against it
+        self.stop_deliveries, self.disable_deliveries = HoldDeliveries(), HoldDeliveries()
+        self.holds_filtered = self._hold_reader(topics.ENABLE, self.on_enable, "FALSE")
+        self.holds_filtered &= self._hold_reader(topics.STOP, self.on_stop, "TRUE")
+        if not self.holds_filtered:
+            self.get_logger().info(
+                "this rclpy or middleware filters no content: stop and enable are read by one "
+                "latched reader, from which a flood of releases can displace a hold unseen"
             )
         # with their MessageInfo (the publication time) under either executor
         bounded(Bool, topics.ENABLE, self.on_enable, LATCHED_QOS, MAX_BOOL_BYTES, with_info=True)
@@ -588,6 +610,40 @@ class MotionFilterNode(DiagnosedNode):
         """Voice activity (from voice_activity, or directly in single-process mode)."""
         self.filter.set_voice_active(active, time.monotonic())
 
+    def _hold_reader(
+        self, topic: str, callback: Callable[[Bool, MessageInfo | None], None], value: str
+    ) -> bool:
+        """Read ``topic``'s messages of ``value`` (its holds) alone; False where none filters.
+
+        A latched reader of depth 1 keeps one message of its topic: a hold followed by releases
+        faster than the executor takes them was replaced unseen, and the robot never stopped.
+        The middleware delivers only holds to this reader (DDS content filter), so releases,
+        however many, never displace one; the callback is the latched reader's, which takes a
+        hold delivered by both once. Where rclpy has no content filters (Jazzy, Humble) there
+        is no such reader; where the middleware does not filter (Cyclone DDS) it is destroyed
+        (it would be a second copy of every message).
+        """
+        options = content_filter_options("data = %0", [value])
+        if options is None:
+            return False
+        reader = self.create_bounded_subscription(
+            Bool,
+            topic,
+            callback,
+            LATCHED_QOS,
+            MAX_BOOL_BYTES,
+            with_info=True,
+            content_filter=options,
+        )
+        if reader.is_cft_enabled:
+            return True
+        self.destroy_subscription(reader)
+        return False
+
+    def _engages(self, deliveries: HoldDeliveries, info: MessageInfo | None, at_s: float) -> bool:
+        """Whether a hold published at ``at_s`` engages (not taken yet, nor since released)."""
+        return deliveries.take(publisher_of(info), sequence_of(info), at_s)
+
     def _released(
         self, hold: Hold, info: MessageInfo | None, topic: str, key: str, release: str, held: str
     ) -> bool:
@@ -598,6 +654,9 @@ class MotionFilterNode(DiagnosedNode):
         cannot end a hold kept from before the restart.
         """
         since_s, at_s = hold.since_s, published_s(info)
+        deliveries = self.stop_deliveries if topic == topics.STOP else self.disable_deliveries
+        if at_s is not None:
+            deliveries.released(publisher_of(info), at_s)
         first = topic not in self.held_topics_heard
         self.held_topics_heard.add(topic)
         if at_s is None:
@@ -636,7 +695,10 @@ class MotionFilterNode(DiagnosedNode):
     def on_enable(self, msg: Bool, info: MessageInfo | None) -> None:
         """Enable or disable generated motion (only a later enable ends a disable)."""
         if not msg.data:
-            self.disable_hold.engage(self._held_at_s(info, topics.ENABLE), time.time())
+            at_s = self._held_at_s(info, topics.ENABLE)
+            if not self._engages(self.disable_deliveries, info, at_s):
+                return
+            self.disable_hold.engage(at_s, time.time())
         elif not self._released(
             self.disable_hold, info, topics.ENABLE, "enable_ignored", "enable: true", "disable"
         ):
@@ -651,7 +713,10 @@ class MotionFilterNode(DiagnosedNode):
     def on_stop(self, msg: Bool, info: MessageInfo | None) -> None:
         """Emergency stop on / off (only a release published after the stop ends it)."""
         if msg.data:
-            self.stop_hold.engage(self._held_at_s(info, topics.STOP), time.time())
+            at_s = self._held_at_s(info, topics.STOP)
+            if not self._engages(self.stop_deliveries, info, at_s):
+                return
+            self.stop_hold.engage(at_s, time.time())
         elif not self._released(
             self.stop_hold, info, topics.STOP, "stop_release_ignored", "stop: false", "stop"
         ):
@@ -796,6 +861,9 @@ class MotionFilterNode(DiagnosedNode):
                 f"{(now - self.last_tick_s) * 1e3:.0f}" if self.started else "none"
             ),
             **self.measured.values(now, self.filter.position_rad),
+            "stops_engaged": self.stop_deliveries.engaged,
+            "disables_engaged": self.disable_deliveries.engaged,
+            "holds_filtered": self.holds_filtered,
         }
 
 
