@@ -15,6 +15,8 @@ What the console sends every identified page of what the robot sees and hears, R
   least-squares short filter of the voice at each segment's delay (:data:`ECHO_TAPS` taps: a
   delay between samples, the loudspeaker's gain) is subtracted. The level of what is left
   is sent with it, and the level heard before.
+- **Where**: console_node does the decoding, the cancelling and the JPEG encoding in a thread of
+  its own (:class:`~audio2pose_ros.console.room_worker.RoomWorker`), never in its executor.
 - **Load**: each page has a :class:`RoomOutbox`: the newest picture only (a newer one replaces
   the one not yet sent) and at most :data:`SOUND_DEPTH` blocks of sound (the oldest dropped).
   The server sends one message at a time per page, waiting until the connection has taken it,

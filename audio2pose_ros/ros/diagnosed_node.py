@@ -287,21 +287,10 @@ class DiagnosedNode(Node):
             try:
                 callback(*args)
             except InputError as exc:
-                self.input_messages_refused += 1
-                self.report_problem(
-                    f"bad input to {name}",
-                    DiagnosticStatus.WARN,
-                    f"{name}: input refused and dropped: {exc}",
-                )
+                self.report_failure(name, str(exc), refused=True)
             except Exception as exc:  # the boundary: a bug or bad input must not kill the node
-                self.callback_errors += 1
-                self.report_problem(
-                    f"exception in {name}",
-                    DiagnosticStatus.ERROR,
-                    f"{name} failed and was skipped: {type(exc).__name__}: {exc}",
-                )
-                if self.callback_errors <= MAX_LOGGED_TRACEBACKS:
-                    self.get_logger().error(traceback.format_exc())
+                message = f"{type(exc).__name__}: {exc}"
+                self.report_failure(name, message, refused=False, trace=traceback.format_exc())
             now = time.monotonic()
             late_s = now - self.last_heartbeat_s
             if late_s > HEARTBEAT_OVERDUE_S:
@@ -309,6 +298,30 @@ class DiagnosedNode(Node):
             self.run_overdue_timers(now)
 
         return boundary
+
+    def report_failure(self, name: str, message: str, refused: bool, trace: str = "") -> None:
+        """Count and report what the callback ``name`` met, as :meth:`guarded` does.
+
+        Bad input (``refused``): counted in ``input_messages_refused``, a WARN. Otherwise a bug:
+        counted in ``callback_errors``, an ERROR, its ``trace`` logged (the first few only).
+        Also for work a node does outside its executor's callbacks (a thread of its own).
+        """
+        if refused:
+            self.input_messages_refused += 1
+            self.report_problem(
+                f"bad input to {name}",
+                DiagnosticStatus.WARN,
+                f"{name}: input refused and dropped: {message}",
+            )
+            return
+        self.callback_errors += 1
+        self.report_problem(
+            f"exception in {name}",
+            DiagnosticStatus.ERROR,
+            f"{name} failed and was skipped: {message}",
+        )
+        if trace and self.callback_errors <= MAX_LOGGED_TRACEBACKS:
+            self.get_logger().error(trace)
 
     def _then_overdue_timers(self, serve: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Any]:
         """A service callback, counted, after which the overdue paced timers run."""

@@ -31,6 +31,11 @@ Subscriptions:
     audio (naoqi_bridge_msgs/AudioBuffer): the robot's microphones, 16 kHz mono to every
         identified page, the operator's own voice removed
         (:class:`~audio2pose_ros.console.room_feed.EchoCanceller`).
+
+    The pictures and the microphones are only handed to the room's own thread
+    (:class:`~audio2pose_ros.console.room_worker.RoomWorker`), which decodes, removes the echo
+    and encodes: the executor (the heartbeat, the latched stop) and the lock the pages'
+    snapshots take never wait on that work; what waits too long there is dropped and counted.
     /diagnostics: the health of every node, shown in the page; of the voice node
         (``voice_node``), its three latencies, the delay and the offset
         (:mod:`~audio2pose_ros.console.voice_status`).
@@ -58,6 +63,7 @@ address that cannot be bound is a configuration error: one line, exit status 78.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 import time
@@ -74,18 +80,12 @@ from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros import topics
-from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
-from audio2pose_ros.audio.source import AudioInput, AudioInputSettings
+from audio2pose_ros.audio.pcm import S16LE_MONO_16K
 from audio2pose_ros.console.access import resolve_access
 from audio2pose_ros.console.latency import VoiceLatency
 from audio2pose_ros.console.protocol import AudioFrame
-from audio2pose_ros.console.room_feed import (
-    EchoCanceller,
-    FeedWatch,
-    RoomItem,
-    jpeg_from_image,
-    level_dbfs,
-)
+from audio2pose_ros.console.room_feed import FeedWatch, RoomItem
+from audio2pose_ros.console.room_worker import MicrophoneBlock, Picture, RoomWorker
 from audio2pose_ros.console.server import ConsoleServer
 from audio2pose_ros.console.server_thread import ServerThread
 from audio2pose_ros.console.settings import ConsoleSettings
@@ -156,6 +156,9 @@ class ConsoleNode(DiagnosedNode):
         self.joint_names = list(robot.names)
         self.neutral = {n: float(a) for n, a in zip(robot.names, robot.neutral_rad, strict=True)}
         self._lock = threading.Lock()
+        # the room's decoding, echo cancelling and JPEG encoding: in a thread of its own, started
+        # with the server (the executor and this lock never wait on that work)
+        self.room = RoomWorker(self._to_pages, lambda: bool(self.server.sessions))
         self.latency = VoiceLatency()
         self.commanded: dict[str, float] | None = None
         self.measured: dict[str, float] | None = None
@@ -166,12 +169,8 @@ class ConsoleNode(DiagnosedNode):
         self.health: dict[str, tuple[int, str, float]] = {}
         self.chunks_published = 0
         self.talking = False
-        self.microphones = AudioInput(AudioInputSettings(input_type="naoqi"))
-        self.echo = EchoCanceller()
         self.camera = FeedWatch(f"{self.get_namespace().rstrip('/')}/{topics.CAMERA_IMAGE}")
-        self.room_sequence = 0
-        self.picture_s = -1e9  # when the last picture was encoded (monotonic)
-        self.room_level_dbfs = float("nan")
+        self.picture_s = -1e9  # when the last picture was handed over for encoding (monotonic)
         self.microphones_s = -1e9  # when the robot's microphones last arrived (monotonic)
         voice_node = self.settings.voice_node
         if not voice_node.startswith("/"):
@@ -270,6 +269,7 @@ class ConsoleNode(DiagnosedNode):
         )
         self.server_thread = ServerThread(self.server)
         port = self.server_thread.start()
+        self.room.start()
         if not self.server.built:
             self.get_logger().warning(
                 f"the console's front end is not built ({share_path('web', 'dist')} has no "
@@ -290,10 +290,20 @@ class ConsoleNode(DiagnosedNode):
             self.get_logger().info(message)
 
     def destroy_node(self) -> None:
-        """Stop the server (pages are told) before the node goes."""
+        """Stop the room's thread and the server (pages are told) before the node goes."""
+        room: RoomWorker | None = getattr(self, "room", None)  # a half-built node has none
+        if room is not None:
+            room.stop()
         if self.server_thread is not None:
             self.server_thread.stop()
         super().destroy_node()
+
+    def publish_diagnostics(self) -> None:
+        """The heartbeat, after the room's thread's bad input and failures are reported."""
+        for problem in self.room.take_problems():
+            name = f"on_{problem.what}"
+            self.report_failure(name, problem.message, problem.refused, problem.trace)
+        super().publish_diagnostics()
 
     # --- to the graph (called from the server's thread) ------------------------------------------
 
@@ -306,8 +316,8 @@ class ConsoleNode(DiagnosedNode):
         self.audio_pub.publish(AudioData(data=frame.pcm))
         published_s = time.time()
         voice = np.frombuffer(frame.pcm, dtype="<i2").astype(np.float32) / 32768.0
+        self.room.voice(voice, time.monotonic())  # for the echo canceller, in the room's thread
         with self._lock:
-            self.echo.reference(voice, time.monotonic())
             self.chunks_published += 1
             self.latency.chunk_published(frame.stamp_ms * 1e-3, received_s, published_s)
 
@@ -433,43 +443,47 @@ class ConsoleNode(DiagnosedNode):
                         now,
                     )
 
-    def _to_pages(
-        self, sound: bool, taken_s: float, payload: bytes, levels: tuple[float, float] = (0.0, 0.0)
-    ) -> None:
-        """Hand one picture or block of sound to the server's loop for every identified page."""
+    def _to_pages(self, item: RoomItem) -> None:
+        """Hand one picture or block of sound to the server's loop for every identified page.
+
+        Called in the room's thread.
+        """
         if self.server_thread is None:
             return
-        with self._lock:
-            self.room_sequence += 1
-            item = RoomItem(sound, self.room_sequence, taken_s, *levels, payload)
-        self.server_thread.loop.call_soon_threadsafe(self.server.offer_room, item)
+        with contextlib.suppress(RuntimeError):  # the loop closed: the node is going
+            self.server_thread.loop.call_soon_threadsafe(self.server.offer_room, item)
 
     def on_camera(self, msg: Image) -> None:
-        """The robot's camera: JPEG for the pages, at most MAX_PICTURES_PER_S a second."""
+        """The robot's camera: to the room's thread for JPEG, at most MAX_PICTURES_PER_S."""
         now = time.monotonic()
         with self._lock:
             self.camera.arrived(now, time.time())
         if now - self.picture_s < 1.0 / MAX_PICTURES_PER_S or not self.server.sessions:
             return
         self.picture_s = now
-        jpeg = jpeg_from_image(
-            int(msg.width), int(msg.height), str(msg.encoding), int(msg.step), bytes(msg.data)
+        self.room.picture(
+            Picture(
+                int(msg.width),
+                int(msg.height),
+                str(msg.encoding),
+                int(msg.step),
+                bytes(msg.data),
+                _taken_s(msg.header.stamp),
+            )
         )
-        self._to_pages(False, _taken_s(msg.header.stamp), jpeg)
 
     def on_microphones(self, msg: AudioBuffer) -> None:
-        """The robot's microphones, 16 kHz mono, the operator's echo removed, to the pages."""
-        samples, _ = self.microphones.decode_audio_buffer(
-            int(msg.frequency), list(msg.channel_map), msg.data
-        )
-        with self._lock:
-            room = self.echo.process(samples, time.monotonic())
-        level, heard = level_dbfs(room), level_dbfs(samples)
-        self.room_level_dbfs = level
+        """The robot's microphones: to the room's thread (16 kHz mono, echo removed, pages)."""
         self.microphones_s = time.monotonic()
-        if self.server.sessions and room.size:
-            pcm = encode_pcm(room, S16LE_MONO_16K)
-            self._to_pages(True, _taken_s(msg.header.stamp), pcm, (level, heard))
+        self.room.microphones(
+            MicrophoneBlock(
+                int(msg.frequency),
+                tuple(int(c) for c in msg.channel_map),
+                np.array(msg.data, dtype=np.int16),
+                _taken_s(msg.header.stamp),
+                self.microphones_s,
+            )
+        )
 
     # --- snapshots for the pages (called from the server's thread) -------------------------------
 
@@ -554,8 +568,13 @@ class ConsoleNode(DiagnosedNode):
             "refused_connections": self.server.refused_connections,
             "refused_frames": self.server.refused_frames,
             "room_watchers": self.server.watchers,
-            "room_level_dbfs": f"{self.room_level_dbfs:.1f}",
-            "echo_delay_s": f"{self.echo.delay_s:.3f}",
+            "room_level_dbfs": f"{self.room.level_dbfs:.1f}",
+            "echo_delay_s": f"{self.room.echo_delay_s:.3f}",
+            "room_sound_blocks": self.room.blocks,
+            "room_pictures_encoded": self.room.pictures,
+            "room_sounds_dropped_behind": self.room.sounds_dropped,
+            "room_pictures_dropped_behind": self.room.pictures_dropped,
+            "room_voice_dropped_behind": self.room.voice_dropped,
             **camera,
             **self._room_counts(),
             **self._front_door_values(),
