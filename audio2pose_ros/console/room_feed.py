@@ -219,8 +219,11 @@ class EchoCanceller:
        from the previous block and found nowhere keeps its filter);
     3. chooses, sample by sample, which path (or none: no voice heard there) explains the room's
        sound, as the least-squares choice through the block that pays :data:`SWITCH_COST` times
-       the room's noise power for every change of path (a Viterbi search): a jump is placed on
-       the sample where it happens, and noise does not make the choice wander;
+       the power of the room's own sound for every change of path (a Viterbi search): a jump
+       is placed on the sample where it happens, and noise does not make the choice wander.
+       That power is the block's own where it is louder than the room's noise (a person in the
+       room talking with the voice: the median 10 ms of what the first choice left), else the
+       noise; a switch priced at the noise alone let a talker's every syllable flip the choice;
     4. fits each path's filter again on the samples it explains and subtracts it there; a lag
        new in this block that one segment showed, and that leaves what it explains less than
        :data:`EXPLAINED_DB` lower, is someone in the room who sounded like the voice there:
@@ -296,6 +299,9 @@ class EchoCanceller:
         for _ in range(MAX_ROUNDS):
             paths = self._fit(search, spans)
             out, kept, last, taken_db = _cancel(search, paths, noise)
+            near = _near_power(out, noise)
+            if near > noise:
+                out, kept, last, taken_db = _cancel(search, paths, near)
             # a new lag, found in one segment, that does not take most of what it explains:
             # someone in the room who sounded like the voice there
             doubtful = [
@@ -307,7 +313,7 @@ class EchoCanceller:
                 del spans[k]
             if doubtful:
                 continue
-            missed = _missed_run(out, noise)
+            missed = _missed_run(out, near)
             if missed is None or missed in searched:
                 break
             searched.add(missed)
@@ -406,6 +412,15 @@ def _cancel(
     explained = np.flatnonzero(choice)
     last = lags[int(choice[explained[-1]]) - 1] if explained.size else None
     return out, kept, last, taken_db
+
+
+def _near_power(left: np.ndarray, noise: float) -> float:
+    """The power of the room's own sound in this block: the median 10 ms piece of ``left``."""
+    n = left.size - left.size % PIECE
+    if not n:
+        return noise
+    pieces = np.mean(np.square(left[:n].reshape(-1, PIECE)), axis=1)
+    return max(noise, float(np.median(pieces)))
 
 
 def _missed_run(left: np.ndarray, noise: float) -> tuple[int, int] | None:
