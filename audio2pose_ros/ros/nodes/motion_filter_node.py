@@ -256,11 +256,6 @@ class MotionFilterNode(DiagnosedNode):
         self.stop_deliveries, self.disable_deliveries = HoldDeliveries(), HoldDeliveries()
         self.holds_filtered = self._hold_reader(topics.ENABLE, self.on_enable, "FALSE")
         self.holds_filtered &= self._hold_reader(topics.STOP, self.on_stop, "TRUE")
-        if not self.holds_filtered:
-            self.get_logger().info(
-                "this rclpy or middleware filters no content: stop and enable are read by one "
-                "latched reader, from which a flood of releases can displace a hold unseen"
-            )
         # with their MessageInfo (the publication time) under either executor
         bounded(Bool, topics.ENABLE, self.on_enable, LATCHED_QOS, MAX_BOOL_BYTES, with_info=True)
         bounded(Bool, topics.STOP, self.on_stop, LATCHED_QOS, MAX_BOOL_BYTES, with_info=True)
@@ -312,6 +307,11 @@ class MotionFilterNode(DiagnosedNode):
                 else ", commanding nothing until it comes"
             )
         )
+        if not self.holds_filtered:  # said once the node is up (a refused parameter says only that)
+            self.get_logger().info(
+                "this rclpy or middleware filters no content: stop and enable are read by one "
+                "latched reader, from which a flood of releases can displace a hold unseen"
+            )
 
     def destroy_node(self) -> None:
         """Write the state still pending (the writer thread ends), then destroy the node.
