@@ -3,11 +3,42 @@
 The browser and console tests watch or drive the graph while the test's own thread waits on a
 page; this node answers meanwhile. Subclasses create their publishers, subscriptions and timers
 on ``self.node`` and then call :meth:`start`. :class:`ParameterReader` is one: it reads another
-node's parameters over its get_parameters service.
+node's parameters over its get_parameters service. :func:`spinning` serves a node of the test's
+own session (a console under test) the same way.
 """
 
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+
+@contextmanager
+def spinning(node: Any, executor: Any) -> Iterator[None]:
+    """Spin ``node`` with ``executor`` from a thread of its own; destroy it after.
+
+    Served as the node's process serves it (the project's ``spin_once``: overdue paced timers
+    run between callbacks), while the test's thread drives and waits.
+    """
+    from audio2pose_ros.ros.spin import spin_once
+
+    executor.add_node(node)
+    stopping = threading.Event()
+
+    def spin() -> None:
+        while not stopping.is_set():
+            spin_once(executor, [node], 0.05)
+
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stopping.set()
+        thread.join(timeout=10.0)
+        executor.remove_node(node)
+        node.destroy_node()
 
 
 class BackgroundNode:

@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable
 
 import pytest
-from background_node import ParameterReader
+from background_node import ParameterReader, spinning
 from personal_models import personal_folder
 from rclpy.executors import SingleThreadedExecutor
 
@@ -83,7 +83,6 @@ def test_when_the_inference_node_and_filter_restart_expect_the_learned_model_and
 ):
     import os
     import signal
-    import threading
 
     from test_console_browser import _wait
 
@@ -98,17 +97,7 @@ def test_when_the_inference_node_and_filter_restart_expect_the_learned_model_and
         try:
             with rclpy_session(["--ros-args", "-p", "port:=0"]):
                 console = ConsoleNode()
-                executor = SingleThreadedExecutor()
-                executor.add_node(console)
-                stopping = threading.Event()
-
-                def spin() -> None:
-                    while not stopping.is_set():
-                        executor.spin_once(timeout_sec=0.1)
-
-                spinner = threading.Thread(target=spin, daemon=True)
-                spinner.start()
-                try:
+                with spinning(console, SingleThreadedExecutor()):
                     _wait(
                         lambda: console.inference_model.ready() and console.filter_style.ready(),
                         120.0,
@@ -132,11 +121,6 @@ def test_when_the_inference_node_and_filter_restart_expect_the_learned_model_and
                     _wait(lambda: model.read("model_path") == folder, 30.0, "the model set again")
                     _wait(lambda: style.read("head_gain") == 0.7, 30.0, "the style set again")
                     _wait(lambda: console.status()["model_path"] == folder, 10.0, "the page told")
-                finally:
-                    stopping.set()
-                    spinner.join(timeout=5.0)
-                    executor.remove_node(console)
-                    console.destroy_node()
         finally:
             model.close()
             style.close()

@@ -23,7 +23,7 @@ from typing import Any
 import aiohttp
 import numpy as np
 import pytest
-from background_node import BackgroundNode
+from background_node import BackgroundNode, spinning
 from test_console_camera import WAIT_S, _wait
 
 from audio2pose_ros.console.protocol import audio_frame
@@ -92,7 +92,6 @@ def test_when_the_echo_canceller_holds_a_block_expect_heartbeats_the_stop_and_dr
     from audio2pose_ros.ros.executor import create_executor
     from audio2pose_ros.ros.nodes.console_node import ConsoleNode
     from audio2pose_ros.ros.player import rclpy_session
-    from audio2pose_ros.ros.spin import spin_once
 
     held: list[int] = []  # blocks the canceller was given
     release = threading.Event()
@@ -106,29 +105,16 @@ def test_when_the_echo_canceller_holds_a_block_expect_heartbeats_the_stop_and_dr
     monkeypatch.setattr(EchoCanceller, "process", gated)
     with rclpy_session(["--ros-args", "-p", "port:=0", "-p", f"token:={TOKEN}"]):
         console = ConsoleNode()
-        executor = create_executor()
-        executor.add_node(console)
-        spinning = threading.Event()
-
-        def spin() -> None:
-            while not spinning.is_set():
-                spin_once(executor, [console], 0.05)
-
-        spinner = threading.Thread(target=spin, daemon=True)
-        spinner.start()
-        graph = Graph()
-        base = console.access.url(console.server.port).split("#")[0].rstrip("/")
-        try:
-            statuses, stops_seen = asyncio.run(
-                asyncio.wait_for(_scenario(base, graph, held, release), 4 * WAIT_S)
-            )
-        finally:
-            release.set()
-            graph.close()
-            spinning.set()
-            spinner.join(10.0)
-            executor.remove_node(console)
-            console.destroy_node()
+        with spinning(console, create_executor()):
+            graph = Graph()
+            base = console.access.url(console.server.port).split("#")[0].rstrip("/")
+            try:
+                statuses, stops_seen = asyncio.run(
+                    asyncio.wait_for(_scenario(base, graph, held, release), 4 * WAIT_S)
+                )
+            finally:
+                release.set()
+                graph.close()
     assert stops_seen == 1
     assert statuses >= 2  # the page's status kept coming while the canceller held its block
 
