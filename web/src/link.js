@@ -9,6 +9,8 @@
 //            code}, {type: 'level', rms, sent, dropped} (the loudest chunk of the last 100 ms
 //            and the counts so far: the page shows a meter, it needs no 50 a second)
 
+import { ClockOffset } from './clock_offset.js';
+
 const MAGIC = [0x41, 0x32, 0x50, 0x41]; // "A2PA"
 const HEADER_BYTES = 16;
 const PING_PERIOD_MS = 2000;
@@ -24,17 +26,11 @@ let dropped = 0;
 let chunks = null; // the MessagePort the worklet posts its chunks to
 let level = 0; // the loudest chunk since the last level went to the page
 let levelSentAt = 0;
-const offsets = []; // console clock - this clock (ms), from pings
+const consoleClock = new ClockOffset(OFFSETS_KEPT); // console clock - this clock, from pings
 const poses = { newest: null, received: 0, asked: false };
 
 // One clock for stamps and pings: this worker's monotonic clock, in ms since the epoch.
 const clock = () => performance.timeOrigin + performance.now();
-
-function offset() {
-  if (!offsets.length) return 0;
-  const sorted = [...offsets].sort((a, b) => a - b);
-  return sorted[Math.floor(sorted.length / 2)];
-}
 
 function send(message) {
   if (ws && ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify(message));
@@ -45,8 +41,7 @@ function onConsoleMessage(text) {
   if (message.type === 'floor') you = message.you;
   if (message.type === 'welcome') send({ type: 'ping', t: clock() });
   if (message.type === 'pong') {
-    offsets.push(message.server - (message.t + clock()) / 2);
-    if (offsets.length > OFFSETS_KEPT) offsets.shift();
+    consoleClock.add(message.t, message.server, clock());
   }
   if (message.type === 'pose') {
     poses.newest = message;
@@ -95,7 +90,7 @@ function onChunk({ pcm, rms }) {
       MAGIC.forEach((byte, i) => header.setUint8(i, byte));
       header.setUint32(4, seq, true);
       seq = (seq + 1) >>> 0;
-      header.setFloat64(8, clock() + offset(), true);
+      header.setFloat64(8, clock() + consoleClock.value(), true);
       frame.set(new Uint8Array(pcm), HEADER_BYTES);
       ws.send(frame.buffer);
       sent += 1;
