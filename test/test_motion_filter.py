@@ -197,6 +197,39 @@ def test_when_backlog_stands_in_buffer_expect_it_drained_by_skipping(robot):
     assert filt.status.buffered <= 1  # the added latency is gone
 
 
+def test_when_two_messages_come_together_expect_the_newer_commanded_and_no_backlog(robot):
+    filt = MotionFilter(robot)
+    t = 0.0
+    for _ in range(100):  # a steady stream, a pose commanded at its arrival
+        t += PERIOD
+        filt.push(robot.neutral_rad[None, :], t)
+        filt.tick(t)
+    # one message late, the next on time: both wait for the next tick
+    t += PERIOD
+    filt.push(robot.neutral_rad[None, :], t + 0.2 * PERIOD)
+    filt.push(robot.neutral_rad[None, :], t + 0.4 * PERIOD)
+    filt.tick(t + 0.5 * PERIOD)
+    backlog = [filt.buffered]
+    for _ in range(10):  # the stream goes on as before
+        t += PERIOD
+        filt.push(robot.neutral_rad[None, :], t)
+        filt.tick(t)
+        backlog.append(filt.buffered)
+    assert backlog == [0] * 11  # no pose stands behind the commanded one: no added latency
+    assert filt.status.skipped == 1  # the late one, overtaken by the next
+
+
+def test_when_a_burst_arrives_expect_its_poses_played_one_a_period(robot):
+    filt = MotionFilter(robot, MotionFilterSettings(backlog_window_s=1.0))
+    filt.push(np.tile(robot.neutral_rad, (10, 1)), 0.0)  # a message of 10 poses
+    left = []
+    for tick in range(10):  # ticks up to half a period late: still one pose a tick
+        filt.tick(tick * PERIOD + 0.5 * PERIOD * (tick % 2))
+        left.append(filt.buffered)
+    assert left == list(range(9, -1, -1))
+    assert filt.status.skipped == 0
+
+
 def test_when_poses_arrive_in_chunks_expect_nothing_skipped(robot):
     filt = MotionFilter(robot, MotionFilterSettings(backlog_window_s=0.5))
     t = 0.0

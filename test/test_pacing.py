@@ -42,4 +42,4 @@ def test_when_a_pose_arrives_expect_a_tick_at_once_or_once_the_spacing_allows():
     wait = arrival_wait_s(last_tick_s=1.0, arrival_s=1.001, period_s=PERIOD)
     assert wait == pytest.approx(MIN_TICK_SPACING * PERIOD - 0.001)
     assert next_timer_s(PERIOD, queued=True) == PERIOD
-    assert next_timer_s(PERIOD, queued=False) == pytest.approx(1.5 * PERIOD)
+    assert next_timer_s(PERIOD, queued=False) == pytest.approx(2.0 * PERIOD)

@@ -2,7 +2,11 @@
 
 This is the ROS-free core of ``motion_filter_node``, the last stage before the robot. Raw poses
 arrive in bursts (one burst per audio chunk); :class:`MotionFilter` checks them, queues them in
-a short jitter buffer and, at every :meth:`MotionFilter.tick`, produces one command:
+a short jitter buffer and, at every :meth:`MotionFilter.tick`, produces one command. A message's
+poses fall due one period apart from its arrival; a tick takes the newest pose that is due and
+skips those it overtook (two messages that came together, a late tick), and a backlog that
+never empties for ``backlog_window_s`` is skipped too: the buffer smooths bursts, never adds
+standing latency.
 
 0. **Gate** (:class:`~audio2pose_ros.motion.gate.TrackGate`). At most
    ``max_points_per_message`` poses of a message are looked at (the rest are dropped and
@@ -90,7 +94,7 @@ class FilterStatus:
     truncated: int = 0  # poses beyond max_points_per_message
     dropped: int = 0  # buffer overflow, or generated while not tracking (stale)
     underruns: int = 0
-    skipped: int = 0
+    skipped: int = 0  # overdue poses (overtaken by the next due one) and standing backlogs
     buffered: int = 0
     external_rejected: int = 0  # head targets / offsets refused
     gaps: int = 0  # ticks more than GAP_PERIODS apart
@@ -168,7 +172,9 @@ class MotionFilter:
         # settings validated by request_settings, for take_requested_settings
         self._requested: tuple[MotionFilterSettings, LimitSettings, StyleSettings] | None = None
         self._apply_live_settings()
-        self._queue: deque[np.ndarray] = deque(
+        # the jitter buffer: (due time, pose); a message's poses fall due one period apart from
+        # its arrival
+        self._queue: deque[tuple[float, np.ndarray]] = deque(
             maxlen=max(1, round(self.settings.max_buffer_s * self.settings.rate_hz))
         )
         self._depths: deque[int] = deque(
@@ -350,10 +356,10 @@ class MotionFilter:
         self.status.rejected += counts.non_finite - before[0]
         self.status.out_of_range += counts.out_of_range - before[1]
         self.status.implausible += counts.implausible - before[2]
-        for pose in admitted:
+        for i, pose in enumerate(admitted):
             if len(self._queue) == self._queue.maxlen:
                 self.status.dropped += 1
-            self._queue.append(pose)
+            self._queue.append((now_s + i * self.period_s, pose))
         self.status.received += len(admitted)
         if len(admitted):
             self._last_input_s = now_s
@@ -451,15 +457,21 @@ class MotionFilter:
         fraction = minimum_jerk((now_s - start_s) / self.settings.neutral_glide_s)
         return start_pose + fraction * (self.neutral_rad - start_pose)
 
-    def _track(self) -> np.ndarray:
+    def _track(self, now_s: float) -> np.ndarray:
         if self._glide_start is not None:  # resuming: start smoothing from where the robot is
             self._glide_start = None
             if self._smoother is not None:
                 self._smoother.reset(self.position_rad)
             self._target = self.position_rad.copy()
             self.style.reset()
+        # A pose whose successor is due too is overdue: the ticks fell behind the stream (poses
+        # of two messages came together, a tick was late). It is skipped, so the newest due pose
+        # is commanded now and no backlog stands behind it.
+        while len(self._queue) > 1 and self._queue[1][0] <= now_s:
+            self._queue.popleft()
+            self.status.skipped += 1
         if self._queue:
-            self._target = self._queue.popleft()
+            self._target = self._queue.popleft()[1]
         else:
             self.status.underruns += 1
         self._depths.append(len(self._queue))
@@ -538,11 +550,11 @@ class MotionFilter:
             status.head_target_active = False
         elif self._tracking_allowed(now_s):
             if status.mode != "tracking":  # resuming: approach the track gently
-                ahead = self._queue[0] if self._queue else self._target
+                ahead = self._queue[0][1] if self._queue else self._target
                 self.approach.begin(
                     now_s, self.position_rad, ahead, self.limiter.max_velocity_rad_s
                 )
-            desired = self._compose_head(self.approach.blend(self._track(), now_s), now_s)
+            desired = self._compose_head(self.approach.blend(self._track(now_s), now_s), now_s)
             status.mode = "tracking"
         elif self._holding and status.enabled:
             self._glide_start = None

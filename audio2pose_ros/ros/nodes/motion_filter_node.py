@@ -70,15 +70,16 @@ gently). Where rclpy does not say which publisher sent a message (Jazzy, Humble,
 EventsExecutor), the graph does how many publish: while there are two or more, every raw pose
 is refused, with the same ERROR.
 
-Timing (:mod:`audio2pose_ros.motion.pacing`): the filter ticks at ``rate_hz``, at the latest
-one period after the previous tick and early when a pose arrives into an empty buffer (at most
-``MIN_TICK_SPACING`` periods after the previous tick), so a steady stream is commanded on
-arrival. The tick is a :class:`~audio2pose_ros.ros.diagnosed_node.PacedTimer` (re-programmed
-at each such arrival), run between two messages when a backlog of input holds it back. Each
-output is published at the tick nearest to its own period, never less than its period minus
-half a filter period after the previous one (its documented minimum spacing: 15 ms for 50 Hz at
-a 100 Hz filter clock). Header stamps are the time the command was computed for
-(the tick), not the publish time. An output nobody subscribes to is not built nor sent.
+Timing (:mod:`audio2pose_ros.motion.pacing`): the filter ticks when a pose arrives into an empty
+buffer (or ``MIN_TICK_SPACING`` periods after the previous tick, if later), so a steady stream is
+commanded on arrival; else at ``rate_hz``, and two periods after a tick made for an arrival, as the
+input then is missing, not a period late. The tick is a
+:class:`~audio2pose_ros.ros.diagnosed_node.PacedTimer` (re-programmed at each such arrival), run
+between two messages when a backlog of input holds it back. Each output is published at the tick
+nearest to its own period, never less than its period minus half a filter period after the previous
+one (its documented minimum spacing: 15 ms for 50 Hz at a 100 Hz filter clock). Header stamps are
+the time the command was computed for (the tick), not the publish time. An output nobody subscribes
+to is not built nor sent.
 """
 
 from __future__ import annotations
@@ -285,6 +286,7 @@ class MotionFilterNode(DiagnosedNode):
         # the state file is saved from the tick (no timer of its own wakes an idle node)
         self.next_save_s = time.monotonic() + self.settings.state_save_period_s
         self.last_tick_s = -math.inf
+        self.arrival_tick_due = False  # the tick timer's next run is for a pose that arrived
         self.tick_stamp = self.get_clock().now()
         self.publish_output = {
             "joint_angles": self.publish_joint_angles,
@@ -598,9 +600,16 @@ class MotionFilterNode(DiagnosedNode):
         # the clock follows the input (motion.pacing): at once, or when the spacing allows
         wait_s = arrival_wait_s(self.last_tick_s, arrival_s, self.filter.period_s)
         if wait_s <= 0:
-            self.on_tick()
-            wait_s = next_timer_s(self.filter.period_s, self.filter.buffered > 0)
-        self.tick_timer.schedule(wait_s)
+            self._tick_for_arrival()
+        else:
+            self.arrival_tick_due = True
+            self.tick_timer.schedule(wait_s)
+
+    def _tick_for_arrival(self) -> None:
+        """Tick for a pose that arrived; the timer then waits for the next (``next_timer_s``)."""
+        self.arrival_tick_due = False
+        self.on_tick()
+        self.tick_timer.schedule(next_timer_s(self.filter.period_s, self.filter.buffered > 0))
 
     def on_voice(self, msg: Bool) -> None:
         """Voice activity from the features node."""
@@ -758,11 +767,16 @@ class MotionFilterNode(DiagnosedNode):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def on_timer(self) -> None:
-        """The fallback clock (a paced timer at ``rate_hz``): tick, or take settings till start."""
-        if self.started:
-            self.on_tick()
-        else:
+        """The tick timer: a tick put off for an arrival, or the fallback tick.
+
+        Before the start, only the requested settings are taken.
+        """
+        if not self.started:
             self.filter.take_requested_settings()
+        elif self.arrival_tick_due:
+            self._tick_for_arrival()
+        else:
+            self.on_tick()
 
     def on_tick(self) -> None:
         """Advance the filter by one period and publish the outputs due at this tick."""
