@@ -37,6 +37,7 @@ from audio2pose_ros.ros.launch_support import CONTROLLER_TOPIC
 from audio2pose_ros.ros.player import MessagePlayer, spin_until, warm_up
 from audio2pose_ros.ros.supervisor import GraphTimeoutError
 
+QUIET_S = 0.3  # recording starts once no raw pose came for this long after the warm-up
 RECORD_FLUSH_PERIOD_S = 0.5  # a killed recording loses at most about this much (BagWriter.flush)
 RECORDED_TOPICS = {
     topics.absolute(topics.JOINT_ANGLES): (
@@ -109,9 +110,14 @@ class PlayerRecorder(Node):
     def warm_up(self, timeout_s: float) -> None:
         """Send silence until poses and every recorded command come back: each link has matched.
 
+        Then wait until no raw pose came for :data:`QUIET_S`: a busy graph may still be working
+        through the silence sent meanwhile, and its poses must not be recorded as the played
+        audio's.
+
         Raises:
             GraphTimeoutError: the graph did not answer within ``timeout_s``.
         """
+        deadline = time.monotonic() + timeout_s
         if not warm_up(
             self.player,
             AUDIO_TOPIC,
@@ -121,7 +127,10 @@ class PlayerRecorder(Node):
             raise GraphTimeoutError(
                 f"the node graph did not answer within {timeout_s} s (see the node logs)"
             )
-        spin_until(self, time.monotonic() + 0.3)
+        seen = -1
+        while self.poses_seen != seen and time.monotonic() < deadline:
+            seen = self.poses_seen
+            spin_until(self, time.monotonic() + QUIET_S)
 
 
 def audio_source(path: Path, chunking: Chunking | None = None) -> list[BagMessage]:
