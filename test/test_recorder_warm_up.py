@@ -10,16 +10,14 @@ were recorded as the audio's; a loaded `make test` recorded 25 extra poses of 30
 
 from __future__ import annotations
 
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
 from audio_common_msgs.msg import AudioData
+from background_node import BackgroundNode
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -34,13 +32,11 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 ANSWER_DELAY_S = 0.5
 
 
-class SlowGraph:
+class SlowGraph(BackgroundNode):
     """Answers each audio message ANSWER_DELAY_S late: a raw pose of 0 (silence) or 1 (sound)."""
 
     def __init__(self) -> None:
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node("slow_graph", context=self.context)
+        super().__init__("slow_graph")
         self.raw = self.node.create_publisher(
             JointTrajectory, topics.absolute(topics.RAW_TRAJECTORY), 100
         )
@@ -56,9 +52,7 @@ class SlowGraph:
         self.due: list[tuple[float, float]] = []  # (when, 0 or 1)
         self.node.create_subscription(AudioData, topics.absolute(topics.AUDIO), self.on_audio, 1000)
         self.node.create_timer(0.005, self.answer)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.start()
 
     def on_audio(self, msg: AudioData) -> None:
         sound = float(any(bytes(msg.data)))
@@ -72,22 +66,16 @@ class SlowGraph:
         self.commands[1].publish(JointTrajectory())
         self.commands[2].publish(JointState())
 
-    def __enter__(self) -> SlowGraph:
-        self.thread.start()
-        return self
-
-    def __exit__(self, *_: object) -> None:
-        self.executor.shutdown()
-        self.thread.join(timeout=10)
-        self.node.destroy_node()
-        rclpy.shutdown(context=self.context)
-
 
 def test_when_the_graph_answers_late_expect_none_of_the_warm_up_recorded(tmp_path: Path) -> None:
     sound = np.full(16000, 1000, dtype=np.int16)  # 1 s of sound in 100 ms chunks
     messages = audio_messages(sound, Chunking(min_bytes=3200, max_bytes=3200))
-    with SlowGraph(), rclpy_session():
-        result = play_and_record(messages, tmp_path / "bag", tail_s=ANSWER_DELAY_S + 0.5)
+    graph = SlowGraph()
+    try:
+        with rclpy_session():
+            result = play_and_record(messages, tmp_path / "bag", tail_s=ANSWER_DELAY_S + 0.5)
+    finally:
+        graph.close()
     raw = [
         p.positions[0]
         for m in read_messages(tmp_path / "bag", [topics.absolute(topics.RAW_TRAJECTORY)])
