@@ -18,7 +18,7 @@ from sensor_msgs.msg import JointState
 
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.audio.wav import read_wav
-from audio2pose_ros.motion.tracking import TRACKING_LAG_S, TRACKING_TOLERANCE_RAD
+from audio2pose_ros.motion.tracking import TRACKING_TOLERANCE_RAD, TrackingWatch
 from audio2pose_ros.robot.body import BodyModel
 from audio2pose_ros.ros.supervisor import node_graph
 from audio2pose_ros.topics import JOINT_STATES, absolute
@@ -61,19 +61,20 @@ def test_when_speech_plays_against_the_simulated_robot_expect_it_moves_and_track
     # still be on their way to it when it stops listening.
     seen = (stamps >= command_t[0]) & (stamps <= command_t[-1])
     assert seen.sum() > 0.8 * len(stamps)
-    # As motion_filter_node's tracking watch measures it: a measured angle against the range of
-    # angles commanded over the lag a robot may have (transport, its controller, a loaded CPU),
-    # off by how far it lies outside that range.
-    first = np.searchsorted(command_t, stamps[seen] - TRACKING_LAG_S, side="right") - 1
-    last = np.searchsorted(command_t, stamps[seen], side="right") - 1
-    off = np.zeros(int(seen.sum()))
-    for i, (a, b) in enumerate(zip(np.clip(first, 0, None), last, strict=True)):
-        recent = command_p[a : b + 1]
-        pose = positions[seen][i]
-        off[i] = np.maximum(recent.min(axis=0) - pose, pose - recent.max(axis=0)).clip(0).max()
+    # As motion_filter_node's tracking watch measures it (its own TrackingWatch, fed in time
+    # order): a measured angle against the range of angles commanded over the lag a robot may
+    # have (transport, its controller, a loaded CPU), off by how far it lies outside that range.
+    watch, k, off = TrackingWatch(), 0, []
+    for t, pose in zip(stamps[seen], positions[seen], strict=True):
+        while k < len(command_t) and command_t[k] <= t:
+            watch.command(command_p[k], command_t[k])
+            k += 1
+        watch.measure(pose, t)
+        off.append(watch.off_rad)
     # below what the tracking watch reports as a robot not following
     assert np.percentile(off, 95) < TRACKING_TOLERANCE_RAD, np.percentile(off, [50, 95, 100])
     # and most of the time close to the command in force: the lag is short
+    last = np.searchsorted(command_t, stamps[seen], side="right") - 1
     error = np.abs(positions[seen] - command_p[last]).max(axis=1)
     assert np.median(error) < TRACKING_TOLERANCE_RAD, np.percentile(error, [50, 95])
     assert BodyModel.load(robot).clearance(positions).min() >= 0.0
