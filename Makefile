@@ -76,10 +76,10 @@ LECTURE_VIDEO ?= ../shared/data/lecture_video/physicsworks.webm
 # Rebuild models/default/ from the shared talking-head clips and lecture video: import, train,
 # evaluate (head leave-one-source-out, arms on a held-out lecture stretch), model card; then the
 # head's temperature chosen over people with every head speaker held out (population.json, the
-# card's section; without --shipped-weights each held-out speaker gets a model of its own).
+# card's section): for each speaker the default is trained again without them.
 default-model: setup
 	nice -n 10 $(VENV_BIN)/audio2pose dataset build-default $(TALKING_HEADS) --lecture $(LECTURE_VIDEO) -o models/default --work-dir out/default-model-work
-	nice -n 10 $(VENV_BIN)/python -m audio2pose_ros.style.population --shipped-weights $(TALKING_HEADS) out/style-sources models/default
+	nice -n 10 $(VENV_BIN)/python -m audio2pose_ros.style.population --lecture $(LECTURE_VIDEO) $(TALKING_HEADS) out/default-model-work models/default
 	nice -n 10 $(VENV_BIN)/python -m audio2pose_ros.style.presets --resolve
 
 # The named style presets (config/styles/*.yaml), measured from the same shared sources with the

@@ -53,14 +53,14 @@ def clip_with_id(clip_id, split="train"):
 
 
 def test_when_choosing_validation_clips_expect_talking_heads_and_one_training_lecture_stretch():
-    from audio2pose_ros.learning.default_model import VALIDATION_CLIPS, _validation_ids
+    from audio2pose_ros.learning.default_model import VALIDATION_CLIPS, validation_ids
 
     clips = [
         clip_with_id(name)
         for name in ("lecture_016.01s", "lecture_048.68s", "lecture_060.94s", *VALIDATION_CLIPS)
     ]
     clips.append(clip_with_id("lecture_050.00s", split="test"))
-    assert _validation_ids(clips) == {*VALIDATION_CLIPS, "lecture_048.68s"}
+    assert validation_ids(clips) == {*VALIDATION_CLIPS, "lecture_048.68s"}
 
 
 def test_when_loading_the_packaged_default_expect_a_seeded_streaming_sampler_learned_from_people(

@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
 from audio2pose_ros.checkpoints.torch_io import load_checkpoint
 from audio2pose_ros.resources import default_checkpoint_path
@@ -44,26 +45,58 @@ def test_when_speakers_differ_expect_each_scored_at_the_style_chosen_without_the
     assert accel >= 0.0
 
 
-def test_when_a_speaker_is_held_out_expect_no_clip_of_theirs_in_training_or_early_stopping():
+def test_when_a_speaker_is_held_out_expect_the_build_split_without_any_clip_of_theirs():
+    """A fold trains as the shipped model does, less the held-out speaker's clips."""
+
     class Info:
-        def __init__(self, clip_id, speaker):
-            self.clip_id, self.speaker = clip_id, speaker
+        def __init__(self, clip_id, speaker, split="train"):
+            self.clip_id, self.speaker, self.split = clip_id, speaker, split
 
     class Item:
-        def __init__(self, clip_id, speaker):
-            self.info = Info(clip_id, speaker)
+        def __init__(self, *args):
+            self.info = Info(*args)
 
-    by_speaker = {
-        "grid1": [Item("g1", "grid1")],
-        "grid2": [Item("g2", "grid2")],
-        "obama": [Item("o1", "obama"), Item("o2", "obama")],
-    }
-    folds = population.head_folds(by_speaker)
-    assert [speaker for speaker, _, _ in folds] == list(by_speaker)
-    for speaker, training, validation in folds:
+    clips = [
+        Item("g1", "grid1"),
+        Item("g2", "grid2"),
+        Item("o1", "obama"),
+        Item("o2", "obama"),
+        Item("l1", "lecturer"),
+        Item("l2", "lecturer"),
+        Item("l3", "lecturer", "test"),
+    ]
+    stopping = {"g2", "o1", "l2"}
+    for speaker in ("grid1", "grid2", "obama"):
+        training, validation = population.speaker_fold(clips, stopping, speaker)
         seen = {c.info.speaker for c in training + validation}
         assert speaker not in seen
-        assert not set(map(id, training)) & set(map(id, validation))
+        assert "lecturer" in seen  # the arms' clips train as in the build
+        assert {c.info.clip_id for c in validation} <= stopping
+        assert not {c.info.clip_id for c in training} & stopping
+        assert "l3" not in {c.info.clip_id for c in training + validation}  # never trained on
+        others = {c.info.clip_id for c in clips if c.info.speaker != speaker} - {"l3"}
+        assert {c.info.clip_id for c in training + validation} == others
+
+
+def test_when_a_fold_is_sampled_expect_the_shipped_sampler_on_the_folds_weights(robot):
+    """A fold's model scores the sampler that ships (its settings), with the fold's weights."""
+    from dataclasses import replace
+
+    from audio2pose_ros.models.live_groups import SAMPLING_SETTINGS
+    from audio2pose_ros.models.registry import build_model
+
+    shipped = load_checkpoint(default_checkpoint_path(), robot=robot)
+    config = shipped.model.config_dict()
+    del config["velocity_limit"]  # as a fold trains: the configured sampler
+    fresh = build_model("live_groups", config)
+    fresh = fresh.with_sampling(first_temperature=1.0, first_burst=0.0, silence_temperature=0.3)
+    assert fresh.config.velocity_limit != shipped.model.config.velocity_limit
+    fold = replace(shipped, model=fresh)
+    sampled = population.with_sampling_of(fold, shipped)
+    for key in SAMPLING_SETTINGS:
+        assert getattr(sampled.model.config, key) == getattr(shipped.model.config, key), key
+    for name, tensor in sampled.model.state_dict().items():
+        assert torch.equal(tensor, fresh.state_dict()[name]), name
 
 
 @pytest.fixture(scope="module")

@@ -239,7 +239,7 @@ class LearnedBuildSettings:
         )
 
 
-def _validation_ids(clips: list[Clip]) -> set[str]:
+def validation_ids(clips: list[Clip]) -> set[str]:
     """Early-stopping clips: the usual talking-head pair and one training lecture stretch."""
     ids = set(VALIDATION_CLIPS)
     lecture = [
@@ -327,7 +327,7 @@ def describe_learned_data() -> dict[str, str]:
     }
 
 
-def _import_both(
+def import_both(
     clips_dir: Path,
     lecture_video: Path,
     work_dir: Path,
@@ -404,18 +404,16 @@ def build_learned_default_model(
     settings = settings or LearnedBuildSettings()
     shutil.rmtree(work_dir, ignore_errors=True)
     out_dir.mkdir(parents=True, exist_ok=True)
-    heads, lecture = _import_both(
+    heads, lecture = import_both(
         clips_dir, lecture_video, work_dir, robot, settings.workers, progress
     )
     head_clips = [heads.load(c.clip_id) for c in heads.clips]
     lecture_clips = [lecture.load(c.clip_id) for c in lecture.clips]
-    validation_ids = _validation_ids(
-        head_clips + [c for c in lecture_clips if c.info.split == "train"]
-    )
+    validation = validation_ids(head_clips + [c for c in lecture_clips if c.info.split == "train"])
     train_settings = settings.train_settings(settings.max_epochs)
     tasks = holdout_tasks(
         head_clips + lecture_clips,
-        validation_ids,
+        validation,
         robot,
         train_settings,
         settings.samples,

@@ -34,7 +34,7 @@ picklable call, so the folds run side by side (:func:`~audio2pose_ros.learning.p
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -201,6 +201,24 @@ class HoldoutTask:
         )
 
 
+def split_training(
+    clips: Sequence[Clip],
+    validation_ids: set[str],
+    held_out: Callable[[ClipInfo], bool] = lambda info: False,
+) -> tuple[tuple[Clip, ...], tuple[Clip, ...]]:
+    """(training, validation) of the build, without the clips ``held_out`` names.
+
+    The lecture's held-out stretch (split 'test') is never trained on; of the rest, the clips of
+    ``validation_ids`` stop the training early and the others train. A fold that holds out a
+    source or a speaker trains as the shipped model does on what is left.
+    """
+    usable = [c for c in clips if c.info.split != "test" and not held_out(c.info)]
+    return (
+        tuple(c for c in usable if c.info.clip_id not in validation_ids),
+        tuple(c for c in usable if c.info.clip_id in validation_ids),
+    )
+
+
 def holdout_tasks(
     clips: Sequence[Clip],
     validation_ids: set[str],
@@ -229,13 +247,11 @@ def holdout_tasks(
 
     """
     seen = learned_sources(start) if start is not None else frozenset()
-    usable = [c for c in clips if c.info.split != "test"]
     lecture_test = tuple(c for c in clips if c.info.split == "test")
     tasks = [
         HoldoutTask(
             SHIPPED,
-            tuple(c for c in usable if c.info.clip_id not in validation_ids),
-            tuple(c for c in usable if c.info.clip_id in validation_ids),
+            *split_training(clips, validation_ids),
             lecture_test,
             robot,
             settings,
@@ -245,12 +261,14 @@ def holdout_tasks(
         )
     ]
     for source in HEAD_SOURCES:
-        kept = [c for c in usable if recording_source(c.info) != source]
+
+        def of_source(info: ClipInfo, source: str = source) -> bool:
+            return recording_source(info) == source
+
         tasks.append(
             HoldoutTask(
                 source,
-                tuple(c for c in kept if c.info.clip_id not in validation_ids),
-                tuple(c for c in kept if c.info.clip_id in validation_ids),
+                *split_training(clips, validation_ids, of_source),
                 tuple(c for c in clips if recording_source(c.info) == source),
                 robot,
                 settings,
