@@ -269,7 +269,7 @@ def holdout_tasks(
             HoldoutTask(
                 source,
                 *split_training(clips, validation_ids, of_source),
-                tuple(c for c in clips if recording_source(c.info) == source),
+                tuple(c for c in clips if of_source(c.info)),
                 robot,
                 settings,
                 n_samples,

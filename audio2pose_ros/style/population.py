@@ -419,7 +419,8 @@ def run(
         lecture = Dataset.open(lecture_dir, robot)
         every += [lecture.load(c.clip_id) for c in lecture.clips]
     stopping = validation_ids([c for c in every if c.info.split == "train"])
-    settings = LearnedBuildSettings().train_settings(LearnedBuildSettings().max_epochs)
+    build = LearnedBuildSettings()
+    settings = build.train_settings(build.max_epochs)
     real: dict[str, list[Motion]] = {}
     generated: Generated = {}
     shipped_path = model_dir / "default.safetensors"
