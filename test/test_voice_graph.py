@@ -73,15 +73,20 @@ def test_when_the_operator_talks_expect_the_voice_whole_and_held_back_by_the_mea
     execution, loudspeaker = _ms(voice["execution_latency"]), _ms(voice["loudspeaker_latency"])
     assert execution_latency_s * 1e3 <= execution <= execution_latency_s * 1e3 + 100, voice
     assert 50 <= loudspeaker <= 50 + 100, voice
-    # the voice held back by what they call for (each figure rounded to 1 ms); the delay in
-    # force there (calibrated: within 5 ms, asserted above by calibrated_after_s), or waiting
-    # for the next pause to take a newer estimate: the window leaves 35 ms before the target
-    # and 65 ms after it, and a delay waiting for a pause stays well inside (20 ms)
+    # the voice held back by what they call for (each figure rounded to 1 ms)
     assert result.calibrated_after_s is not None
     target = _ms(voice["graph_latency"]) + execution - loudspeaker + TARGET_LEAD_S * 1e3
     assert abs(int(voice["voice_delay_target_ms"]) - max(target, 0.0)) <= 2
-    in_force, asked = int(voice["voice_delay_ms"]), int(voice["voice_delay_target_ms"])
-    assert abs(in_force - asked) <= 20
+    # the delay in force there while the voice plays (calibrated: within 5 ms), or waiting for
+    # the next pause to take a newer estimate: the window leaves 35 ms before the target and
+    # 65 ms after it, and a delay waiting for a pause stays well inside (20 ms). Judged at the
+    # voice node's heartbeats while the speech played, in most of them: the delay moves only
+    # with the voice, so an estimate that moved at the last heartbeats has no pause left to
+    # follow it, and after the speech none at all
+    delays = result.delays_while_playing_ms
+    assert len(delays) >= 10, delays  # 10 s of speech, a heartbeat every 0.5 s
+    within = [abs(in_force - asked) <= 20 for in_force, asked in delays]
+    assert sum(within) >= 0.8 * len(delays), delays
 
 
 @pytest.mark.long

@@ -73,6 +73,9 @@ class VoiceBenchResult:
     samples_published: int  # voice samples the observer published (warm-up included)
     calibrated_after_s: float | None  # speech played until calibrated (None: it never was)
     voice_node: dict[str, str] = field(default_factory=dict)  # its last /diagnostics values
+    # the voice node's delay in force and the delay asked for (ms), at each of its heartbeats
+    # while the measured speech played (the estimate may move later, with no voice to follow it)
+    delays_while_playing_ms: list[tuple[int, int]] = field(default_factory=list)
     robot: dict[str, str] = field(default_factory=dict)  # the simulated Pepper's
     restarts: int = 0
 
@@ -93,6 +96,7 @@ class VoiceObserver(Node):
         self.samples_published = 0
         self.raw_seen = 0
         self.diagnostics: dict[str, dict[str, str]] = {}
+        self.delays_while_recording_ms: list[tuple[int, int]] = []
         self.levels: dict[str, list[int]] = {}
         self.player = MessagePlayer(
             self, [(AUDIO_TOPIC, AUDIO_DATA_TYPE), (AUDIO_INFO_TOPIC, AUDIO_INFO_TYPE)]
@@ -148,7 +152,11 @@ class VoiceObserver(Node):
         """The last key-values and every level of each node."""
         for status in msg.status:
             name = status.name.rsplit("/", 1)[-1]
-            self.diagnostics[name] = {kv.key: kv.value for kv in status.values}
+            values = self.diagnostics[name] = {kv.key: kv.value for kv in status.values}
+            if self.recording and name == VOICE_NODE and "voice_delay_target_ms" in values:
+                self.delays_while_recording_ms.append(
+                    (int(values["voice_delay_ms"]), int(values["voice_delay_target_ms"]))
+                )
             self.levels.setdefault(name, []).append(int.from_bytes(status.level, "little"))
 
     def on_publish(self, message: BagMessage) -> None:
@@ -293,6 +301,7 @@ def _measure(
             samples_published=observer.samples_published,
             calibrated_after_s=calibrated_after_s,
             voice_node=observer.diagnostics.get(VOICE_NODE, {}),
+            delays_while_playing_ms=observer.delays_while_recording_ms,
             robot=observer.diagnostics.get("pepper_sim_node", {}),
             restarts=sum(len(r) for r in graph.restarts.values()),
         )
