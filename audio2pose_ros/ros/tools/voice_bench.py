@@ -96,7 +96,7 @@ class VoiceObserver(Node):
         self.samples_published = 0
         self.raw_seen = 0
         self.diagnostics: dict[str, dict[str, str]] = {}
-        self.delays_while_recording_ms: list[tuple[int, int]] = []
+        self.delays_while_playing_ms: list[tuple[int, int]] = []
         self.levels: dict[str, list[int]] = {}
         self.player = MessagePlayer(
             self, [(AUDIO_TOPIC, AUDIO_DATA_TYPE), (AUDIO_INFO_TOPIC, AUDIO_INFO_TYPE)]
@@ -154,7 +154,7 @@ class VoiceObserver(Node):
             name = status.name.rsplit("/", 1)[-1]
             values = self.diagnostics[name] = {kv.key: kv.value for kv in status.values}
             if self.recording and name == VOICE_NODE and "voice_delay_target_ms" in values:
-                self.delays_while_recording_ms.append(
+                self.delays_while_playing_ms.append(
                     (int(values["voice_delay_ms"]), int(values["voice_delay_target_ms"]))
                 )
             self.levels.setdefault(name, []).append(int.from_bytes(status.level, "little"))
@@ -301,7 +301,7 @@ def _measure(
             samples_published=observer.samples_published,
             calibrated_after_s=calibrated_after_s,
             voice_node=observer.diagnostics.get(VOICE_NODE, {}),
-            delays_while_playing_ms=observer.delays_while_recording_ms,
+            delays_while_playing_ms=observer.delays_while_playing_ms,
             robot=observer.diagnostics.get("pepper_sim_node", {}),
             restarts=sum(len(r) for r in graph.restarts.values()),
         )
