@@ -77,16 +77,22 @@ def test_when_the_operator_talks_expect_the_voice_whole_and_held_back_by_the_mea
     assert result.calibrated_after_s is not None
     target = _ms(voice["graph_latency"]) + execution - loudspeaker + TARGET_LEAD_S * 1e3
     assert abs(int(voice["voice_delay_target_ms"]) - max(target, 0.0)) <= 2
-    # the delay in force there while the voice plays (calibrated: within 5 ms), or waiting for
-    # the next pause to take a newer estimate: the window leaves 35 ms before the target and
-    # 65 ms after it, and a delay waiting for a pause stays well inside (20 ms). Judged at the
-    # voice node's heartbeats while the speech played, in most of them: the delay moves only
-    # with the voice, so an estimate that moved at the last heartbeats has no pause left to
-    # follow it, and after the speech none at all
+    # the delay in force follows the delay asked for while the voice plays, at the voice node's
+    # heartbeats then: it moves only in the voice's pauses (never under the words), and it holds
+    # the loudspeaker's wait for the last chunk sent, which the release timer's jitter moves from
+    # one chunk to the next. Typically within 20 ms (calibrated is within 5 ms), and p5 and p95
+    # inside the window as the long test judges the motion at the robot: the aim leaves 35 ms
+    # to the window's early edge (a delay that much longer) and 65 ms to its late edge (that
+    # much shorter)
     delays = result.delays_while_playing_ms
     assert len(delays) >= 10, delays  # 10 s of speech, a heartbeat every 0.5 s
-    within = [abs(in_force - asked) <= 20 for in_force, asked in delays]
-    assert sum(within) >= 0.8 * len(delays), delays
+    off_ms = np.array([in_force - asked for in_force, asked in delays], dtype=float)
+    shown = f"(in force, asked) ms: {delays}"
+    assert np.median(np.abs(off_ms)) <= 20, shown
+    early_room_ms = (WINDOW_EARLY_S - TARGET_LEAD_S) * 1e3
+    late_room_ms = (WINDOW_LATE_S + TARGET_LEAD_S) * 1e3
+    assert np.percentile(off_ms, 95) <= early_room_ms, shown
+    assert np.percentile(off_ms, 5) >= -late_room_ms, shown
 
 
 @pytest.mark.long

@@ -92,7 +92,8 @@ class VoiceObserver(Node):
         super().__init__("audio2pose_voice_observer")
         self.names = list(load_robot().names)
         self.record = VoiceMotionRecord()
-        self.recording = False
+        self.recording = False  # the motion, the voice and what was heard are kept
+        self.playing = False  # the measured speech is being published
         self.samples_published = 0
         self.raw_seen = 0
         self.diagnostics: dict[str, dict[str, str]] = {}
@@ -153,7 +154,7 @@ class VoiceObserver(Node):
         for status in msg.status:
             name = status.name.rsplit("/", 1)[-1]
             values = self.diagnostics[name] = {kv.key: kv.value for kv in status.values}
-            if self.recording and name == VOICE_NODE and "voice_delay_target_ms" in values:
+            if self.playing and name == VOICE_NODE and "voice_delay_target_ms" in values:
                 self.delays_while_playing_ms.append(
                     (int(values["voice_delay_ms"]), int(values["voice_delay_target_ms"]))
                 )
@@ -288,8 +289,9 @@ def _measure(
         calibrated_after_s = observer.calibrate(calibration, calibrate_s)
         if observe is not None:
             observe(observer)
-        observer.recording = True
+        observer.recording = observer.playing = True
         observer.player.play(measured, on_publish=observer.on_publish)
+        observer.playing = False
         spin_until(observer, time.monotonic() + 2.0)
         observer.recording = False
         spin_until(observer, time.monotonic() + 1.5)  # the last heartbeats
