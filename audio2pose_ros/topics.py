@@ -1,4 +1,4 @@
-"""Every topic name of the node graph, defined once.
+"""Every topic and service name of the node graph, defined once.
 
 Nodes create these names relative (no leading slash), so a namespace (``ros2 launch ...
 namespace:=pepper``) or a remap (``-r joint_angles:=/naoqi/joint_angles``) moves them, as ROS 2
@@ -19,6 +19,9 @@ Name (type): publisher -> subscriber
 - joint_states (sensor_msgs JointState, measured): naoqi_driver -> filter
 - head_target, head_offset (sensor_msgs JointState): perception -> filter
 - enable, stop (std_msgs Bool, latched): operator -> filter
+- emergency_stop, disable_motion (std_srvs Trigger, services of the filter): operator -> filter,
+  a stop or a disable and nothing else (no flood of ``stop: false`` on the topic can displace
+  it); released on the topics
 - audio_out, audio_out_info (audio_common_msgs AudioData, AudioInfo latched): voice_out_node
   -> audio_common's audio_play (the operator's voice, held back to be heard with the motion)
 - audio (naoqi_bridge_msgs AudioBuffer): the robot's microphones (naoqi_driver) -> voice_out_node,
@@ -42,9 +45,10 @@ HEAD_TARGET = "head_target"
 HEAD_OFFSET = "head_offset"
 ENABLE = "enable"
 STOP = "stop"
+EMERGENCY_STOP = "emergency_stop"
+DISABLE_MOTION = "disable_motion"
 AUDIO_OUT = "audio_out"
 AUDIO_OUT_INFO = "audio_out_info"
-ROBOT_MICROPHONES = "audio"
 DIAGNOSTICS = "/diagnostics"
 ROBOT_DESCRIPTION = "robot_description"
 TF = "tf"

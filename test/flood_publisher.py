@@ -1,13 +1,12 @@
 """A separate process that publishes one node input as fast as it can (the flood tests).
 
-Run as ``python flood_publisher.py <kind> <seconds>``: it waits until the input's node
-subscribes, writes ``ready`` on stdout, publishes for ``seconds`` and then writes
-``sent <n> <first wall-clock s> <last wall-clock s>`` (what the tests line the probe's windows
-up with). It runs at the tests' own CPU priority and competes with the node for the CPU, as a
-user's other work would: the tests judge what the node did with the CPU time it had, so the
-share it gets is no verdict, and a flooder as fast as the node builds the backlog that starves a
-node whose timers wait behind its messages (at the lowest priority, the set_parameters storm did
-not). Kinds:
+Run as ``python flood_publisher.py <kind> <seconds>`` (:func:`start`, from a test): it waits until
+the input's node subscribes, writes ``ready`` on stdout, publishes for ``seconds`` and then writes
+``sent <n> <first wall-clock s> <last wall-clock s>`` (what the tests line the probe's windows up
+with). It runs at the tests' own CPU priority and competes with the node for the CPU, as a user's
+other work would: the tests judge what the node did with the CPU time it had, so the share it gets
+is no verdict, and a flooder as fast as the node builds the backlog that starves a node whose timers
+wait behind its messages (at the lowest priority, the set_parameters storm did not). Kinds:
 
 - ``joint_angles``: naoqi_driver's JointAnglesWithSpeed, one joint, alternating targets;
 - ``audio_bytes``: 1-byte audio_common AudioData chunks after a 16 kHz mono S16LE AudioInfo;
@@ -21,9 +20,11 @@ not). Kinds:
 
 from __future__ import annotations
 
+import subprocess
 import sys
 import time
 from collections.abc import Callable
+from typing import IO
 
 import numpy as np
 from audio_common_msgs.msg import AudioData, AudioInfo
@@ -146,6 +147,16 @@ KINDS: dict[str, Callable[..., Flood]] = {
     "enable_true": enable_true,
     "set_parameters": set_parameters,
 }
+
+
+def start(kind: str, seconds: float, stderr: IO[str] | None = None) -> subprocess.Popen[str]:
+    """This script in a process of its own, flooding ``kind`` for ``seconds``; stdout as text."""
+    return subprocess.Popen(
+        [sys.executable, __file__, kind, str(seconds)],
+        stdout=subprocess.PIPE,
+        stderr=stderr,
+        text=True,
+    )
 
 
 def main(kind: str, seconds: float) -> None:

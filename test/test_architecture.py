@@ -54,6 +54,7 @@ ROS_MODULES = frozenset(
         "rcl_interfaces",
         "builtin_interfaces",
         "std_msgs",
+        "std_srvs",
         "sensor_msgs",
         "trajectory_msgs",
         "diagnostic_msgs",

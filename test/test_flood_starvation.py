@@ -24,11 +24,11 @@ beside them; the paced timers' own tests run in ``make test``.
 from __future__ import annotations
 
 import subprocess
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import flood_publisher
 import numpy as np
 import pytest
 import rclpy
@@ -52,7 +52,6 @@ from audio2pose_ros.topics import DIAGNOSTICS, JOINT_STATES, absolute
 pytestmark = pytest.mark.ros
 
 FLOOD_S = 5.0
-FLOODER = Path(__file__).with_name("flood_publisher.py")
 # While an output is due, the executor runs at most a quarter period and the callback running
 # then (executor_cpu.py): with room for callbacks several times slower than here, the bounds on
 # its CPU time meanwhile are (figures from 2 busy cores, the flooder at the tests' priority)
@@ -165,12 +164,7 @@ def flood(tmp_path: Path, executable: str, kind: str, *ros_args: str) -> Heard:
         flooder = None
         try:
             assert spin_until(probe, time.monotonic() + 60.0, lambda: bool(heard.beats)), "silent"
-            flooder = subprocess.Popen(
-                [sys.executable, str(FLOODER), kind, str(FLOOD_S)],
-                stdout=subprocess.PIPE,
-                stderr=log,
-                text=True,
-            )
+            flooder = flood_publisher.start(kind, FLOOD_S, log)
             assert flooder.stdout is not None
             assert flooder.stdout.readline().strip() == "ready"
             process_s = cpu_s(node_process.pid)

@@ -18,12 +18,11 @@ from __future__ import annotations
 
 import queue
 import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 from typing import IO
 
+import flood_publisher
 import numpy as np
 import pytest
 import rclpy
@@ -46,7 +45,6 @@ from audio2pose_ros.topics import (
 )
 
 pytestmark = [pytest.mark.ros, pytest.mark.long]
-FLOODER = Path(__file__).with_name("flood_publisher.py")
 PERIOD_S = 0.01  # one raw pose per 10 ms
 TRACK_PERIOD_S = 2.0  # the track repeats: a command is compared at its phase
 QUIET_PERIODS = 2
@@ -158,11 +156,7 @@ def test_when_another_input_floods_expect_commands_within_a_tenth_of_a_radian_of
             quiet_start = time.time()
             operator.play(QUIET_PERIODS * TRACK_PERIOD_S)
             quiet_end = time.time()
-            flooder = subprocess.Popen(
-                [sys.executable, str(FLOODER), kind, str(FLOOD_S)],
-                stdout=subprocess.PIPE,
-                text=True,
-            )
+            flooder = flood_publisher.start(kind, FLOOD_S)
             lines: queue.Queue[str] = queue.Queue()  # its stdout, read aside: the track plays on
             reader = threading.Thread(target=read_lines, args=(flooder.stdout, lines))
             reader.start()

@@ -173,6 +173,7 @@ def test_when_reading_package_xml_expect_format_3_with_message_dependencies():
         "rclpy",
         "builtin_interfaces",
         "std_msgs",
+        "std_srvs",
         "sensor_msgs",
         "trajectory_msgs",
         "diagnostic_msgs",

@@ -40,6 +40,8 @@ Subscriptions:
         (``voice_node``), its three latencies, the delay and the offset
         (:mod:`~audio2pose_ros.console.voice_status`).
 Services used:
+    emergency_stop (std_srvs/Trigger, motion_filter_node's): asked at every press of STOP,
+        beside the latched topic; its answers counted on /diagnostics.
     <filter_node>/set_parameters, get_parameters (rcl_interfaces): the filter's live style
         parameters (:data:`~audio2pose_ros.motion.style.STYLE_FIELDS`: size and tempo per part,
         the arms' rest and height) set from the page (sliders, a preset, the learned style)
@@ -74,9 +76,12 @@ from audio_common_msgs.msg import AudioData, AudioInfo
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from naoqi_bridge_msgs.msg import AudioBuffer, JointAnglesWithSpeed
 from rcl_interfaces.msg import ParameterType
+from rclpy.client import Client
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.task import Future
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros import topics
@@ -182,6 +187,9 @@ class ConsoleNode(DiagnosedNode):
         self.audio_pub = self.create_publisher(AudioData, topics.AUDIO, AUDIO_PUBLISH_QOS)
         self.info_pub = self.create_publisher(AudioInfo, topics.AUDIO_INFO, LATCHED_QOS)
         self.stop_pub = self.create_publisher(Bool, topics.STOP, LATCHED_QOS)
+        self.emergency_stop: Client[Any, Any] = self.create_client(Trigger, topics.EMERGENCY_STOP)
+        self.stops_confirmed = 0  # the filter's answers to the stops asked for
+        self.stops_unconfirmed = 0  # refused, or no filter served the service
         self.enable_pub = self.create_publisher(Bool, topics.ENABLE, LATCHED_QOS)
         self.publish_audio_info()
         self.create_timer(AUDIO_INFO_PERIOD_S, self.guarded(self.publish_audio_info))
@@ -333,8 +341,31 @@ class ConsoleNode(DiagnosedNode):
             self.talking = False
 
     def set_stop(self, on: bool) -> None:
-        """Publish the emergency stop (latched)."""
+        """Publish the emergency stop (latched); a stop is also asked for by the filter's service.
+
+        The latched topic keeps the stop for a filter that starts later and is shown by every
+        console; the service (``emergency_stop``) is a stop alone, which no flood of
+        ``stop: false`` on the topic can displace where the middleware filters no content
+        (Jazzy, Humble). Its answers are counted (``stops_confirmed``), as are presses that
+        found no filter serving it (``stops_unconfirmed``).
+        """
         self.stop_pub.publish(Bool(data=on))
+        if not on:
+            return
+        if not self.emergency_stop.service_is_ready():
+            with self._lock:
+                self.stops_unconfirmed += 1
+            return
+        self.emergency_stop.call_async(Trigger.Request()).add_done_callback(self._stop_answered)
+
+    def _stop_answered(self, future: Future[Any]) -> None:
+        """The filter's answer to a stop asked for: confirmed, or counted as not."""
+        response = future.result()
+        with self._lock:
+            if response is not None and response.success:
+                self.stops_confirmed += 1
+            else:
+                self.stops_unconfirmed += 1
 
     def set_enable(self, on: bool) -> None:
         """Publish enable (latched)."""
@@ -598,6 +629,8 @@ class ConsoleNode(DiagnosedNode):
         return {
             "wrong_tokens": self.server.tokens.wrong_tokens,
             "stop_held_by": ", ".join(holders) or "nobody",
+            "stops_confirmed": self.stops_confirmed,
+            "stops_unconfirmed": self.stops_unconfirmed,
         }
 
 

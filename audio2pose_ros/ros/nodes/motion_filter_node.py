@@ -97,6 +97,7 @@ from rclpy.exceptions import InvalidTopicNameException
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros import topics
@@ -260,6 +261,9 @@ class MotionFilterNode(DiagnosedNode):
         # with their MessageInfo (the publication time) under either executor
         bounded(Bool, topics.ENABLE, self.on_enable, LATCHED_QOS, MAX_BOOL_BYTES, with_info=True)
         bounded(Bool, topics.STOP, self.on_stop, LATCHED_QOS, MAX_BOOL_BYTES, with_info=True)
+        # and holds asked for by a service, which a topic's flood of releases cannot reach
+        self._hold_service(topics.EMERGENCY_STOP, self._stop, self.stop_hold, "stop: false")
+        self._hold_service(topics.DISABLE_MOTION, self._disable, self.disable_hold, "enable: true")
         bounded(JointState, topics.HEAD_TARGET, self.on_head_target, 10, MAX_JOINT_STATE_BYTES)
         bounded(JointState, topics.HEAD_OFFSET, self.on_head_offset, 10, MAX_JOINT_STATE_BYTES)
         try:
@@ -704,37 +708,73 @@ class MotionFilterNode(DiagnosedNode):
     def on_enable(self, msg: Bool, info: MessageInfo | None) -> None:
         """Enable or disable generated motion (only a later enable ends a disable)."""
         if not msg.data:
-            at_s = self._held_at_s(info, topics.ENABLE)
-            if not self._engages(self.disable_deliveries, info, at_s):
-                return
-            self.disable_hold.engage(at_s, time.time())
-        elif not self._released(
+            self._disable(self._held_at_s(info, topics.ENABLE), info)
+        elif self._released(
             self.disable_hold, info, topics.ENABLE, "enable_ignored", "enable: true", "disable"
         ):
-            return
-        changed = self.filter.status.enabled != msg.data
-        self.filter.set_enabled(msg.data)
-        if changed or not msg.data:  # a later disable moves the disable's time
+            self._set_enabled(True)
+
+    def _disable(self, at_s: float, info: MessageInfo | None) -> None:
+        """A disable published at ``at_s`` (wall clock): in force, unless taken before."""
+        if self._engages(self.disable_deliveries, info, at_s):
+            self.disable_hold.engage(at_s, time.time())
+            self._set_enabled(False)
+
+    def _set_enabled(self, on: bool) -> None:
+        changed = self.filter.status.enabled != on
+        self.filter.set_enabled(on)
+        if changed or not on:  # a later disable moves the disable's time
             self._save_now()
         if changed:
-            self.get_logger().info("enabled" if msg.data else "disabled: gliding to neutral")
+            self.get_logger().info("enabled" if on else "disabled: gliding to neutral")
+
+    def _hold_service(
+        self, name: str, hold: Callable[[float, None], None], in_force: Hold, release: str
+    ) -> None:
+        """Serve ``name`` (std_srvs/Trigger): a request puts ``hold`` in force at once.
+
+        A request is a hold and nothing else, read by a reader of its own: no flood of
+        releases on the hold's topic can displace it, on any rclpy and middleware (the topic's
+        reader of holds alone needs content filters). Its time is the node's when it serves the
+        request (a request carries no publication time): only a ``release`` published after
+        that ends it. The answer says whether the hold is in force (a failure: why, on
+        /diagnostics).
+        """
+        guarded = self.guarded(hold)
+
+        def serve(request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+            guarded(time.time(), None)
+            response.success = in_force.in_force
+            response.message = (
+                f"in force until {release} is published after now"
+                if response.success
+                else "not in force: see /diagnostics"
+            )
+            return response
+
+        self.create_service(Trigger, name, serve)
 
     def on_stop(self, msg: Bool, info: MessageInfo | None) -> None:
         """Emergency stop on / off (only a release published after the stop ends it)."""
         if msg.data:
-            at_s = self._held_at_s(info, topics.STOP)
-            if not self._engages(self.stop_deliveries, info, at_s):
-                return
-            self.stop_hold.engage(at_s, time.time())
-        elif not self._released(
+            self._stop(self._held_at_s(info, topics.STOP), info)
+        elif self._released(
             self.stop_hold, info, topics.STOP, "stop_release_ignored", "stop: false", "stop"
         ):
-            return
-        changed = self.filter.status.stopped != msg.data
-        self.filter.set_stop(msg.data)
-        if changed or msg.data:  # a later stop moves the stop's time
+            self._set_stop(False)
+
+    def _stop(self, at_s: float, info: MessageInfo | None) -> None:
+        """A stop published at ``at_s`` (wall clock): in force, unless taken before."""
+        if self._engages(self.stop_deliveries, info, at_s):
+            self.stop_hold.engage(at_s, time.time())
+            self._set_stop(True)
+
+    def _set_stop(self, on: bool) -> None:
+        changed = self.filter.status.stopped != on
+        self.filter.set_stop(on)
+        if changed or on:  # a later stop moves the stop's time
             self._save_now()
-        if changed and msg.data:
+        if changed and on:
             self.get_logger().warning(f"STOP ({self.filter.settings.stop_behaviour})")
         elif changed:
             self.get_logger().info("stop released")
