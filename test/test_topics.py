@@ -1,12 +1,18 @@
-"""The graph's topic names as integrators see them: naoqi_driver, audio_capture, ros2_control and
-diagnostic_aggregator expect exactly these in the root namespace."""
+"""The graph's topic and service names as integrators see them: naoqi_driver, audio_capture,
+ros2_control and diagnostic_aggregator expect exactly these in the root namespace."""
 
 import ast
 from pathlib import Path
 
 from audio2pose_ros import topics
 
-TOPIC_CALLS = ("create_publisher", "create_subscription", "create_bounded_subscription")
+TOPIC_CALLS = (
+    "create_publisher",
+    "create_subscription",
+    "create_bounded_subscription",
+    "create_service",
+    "create_client",
+)
 
 
 def test_topic_names_in_the_root_namespace_are_the_documented_interface():
@@ -28,6 +34,8 @@ def test_topic_names_in_the_root_namespace_are_the_documented_interface():
         "HEAD_OFFSET": "/head_offset",
         "ENABLE": "/enable",
         "STOP": "/stop",
+        "EMERGENCY_STOP": "/emergency_stop",
+        "DISABLE_MOTION": "/disable_motion",
         "AUDIO_OUT": "/audio_out",
         "AUDIO_OUT_INFO": "/audio_out_info",
         "ROBOT_MICROPHONES": "/audio",
@@ -46,7 +54,7 @@ def test_graph_topics_are_relative_so_namespaces_and_remaps_move_them():
 
 
 def literal_topics(source: str) -> list[str]:
-    """String literals passed as the topic of create_publisher / create_subscription calls."""
+    """String literals passed as the topic (service) name of the calls that create its ends."""
     found = []
     for node in ast.walk(ast.parse(source)):
         if (
@@ -61,7 +69,7 @@ def literal_topics(source: str) -> list[str]:
     return found
 
 
-def test_no_module_names_a_topic_with_a_string_literal():
+def test_no_module_names_a_topic_or_service_with_a_string_literal():
     package = Path(topics.__file__).parent
     found = {
         str(path.relative_to(package)): hits

@@ -29,6 +29,7 @@ from std_msgs.msg import Bool, Float32MultiArray
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from audio2pose_ros import topics
+from audio2pose_ros.offline.parameters_file import FILTER_NODE
 from audio2pose_ros.robot.description import RobotDescription
 from audio2pose_ros.ros.qos import LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.ros.supervisor import NodeSupervisor
@@ -119,7 +120,7 @@ class CampaignProbe(Node):
         self.audio_info = self.create_publisher(AudioInfo, topics.AUDIO_INFO, LATCHED_QOS)
         self.set_filter_parameters: Client[SetParameters.Request, SetParameters.Response]
         self.set_filter_parameters = self.create_client(
-            SetParameters, "motion_filter_node/set_parameters"
+            SetParameters, f"{FILTER_NODE}/set_parameters"
         )
         self.commands: list[tuple[float, np.ndarray]] = []
         self.features = 0
