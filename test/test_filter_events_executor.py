@@ -54,7 +54,7 @@ def test_when_started_with_default_settings_expect_the_stock_single_threaded_exe
     monkeypatch.setenv("ROS_HOME", str(tmp_path))
     spun: list[tuple[object, list[str]]] = []
 
-    def record(executor, nodes=()):
+    def record(executor, nodes=(), until=None):
         spun.append((executor, [node.get_name() for node in nodes]))
 
     monkeypatch.setattr(spin, "spin_executor", record)

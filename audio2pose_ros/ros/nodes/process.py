@@ -9,10 +9,11 @@ instant of the process:
   nodes are never left running as orphans; a process whose parent is already gone exits at once;
 - SIGTERM and Ctrl-C (SIGINT) end it quietly at any point of start-up: they are blocked from
   here until the nodes are built (:func:`~audio2pose_ros.ros.spin.run_nodes`), then
-  delivered to the main thread only, where rclpy's handlers shut the nodes down. Threads started
-  meanwhile (numpy's, the middleware's) inherit the block, so a signal never runs rclpy's
-  handler on another thread while the main one is creating nodes in the context that handler
-  shuts down (that race ended a node with a configuration error, and once with SIGABRT).
+  delivered to the main thread only, where :class:`~audio2pose_ros.ros.spin.Stop` ends the spin
+  and the nodes are destroyed before the context shuts down. Threads started meanwhile
+  (numpy's, the middleware's) inherit the block, so a signal never runs a handler on another
+  thread while the main one is creating nodes (rclpy's own handlers, which shut the context down
+  under them, ended a node with a configuration error, and once with SIGABRT).
 
 Then (:func:`lighten_node_imports`) it imports its node module
 
