@@ -81,5 +81,7 @@ def test_when_the_nodes_share_one_process_expect_the_same_raw_poses_and_commands
         assert (poses >= robot.lower_rad - 1e-6).all()
         assert (poses <= robot.upper_rad + 1e-6).all()
         assert np.ptp(poses, axis=0).max() > 0.05  # the speech moved the robot
-        rate_hz = (len(stamps_s) - 1) / (stamps_s[-1] - stamps_s[0])
-        assert 40.0 <= rate_hz <= 55.0
+        # at the commands' pace (50 Hz): their typical spacing, which a stall of the process on
+        # a loaded machine does not move as it moves their mean rate (34.7 Hz in one run)
+        rate_hz = 1.0 / float(np.median(np.diff(stamps_s)))
+        assert 40.0 <= rate_hz <= 55.0, rate_hz
