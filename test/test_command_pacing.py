@@ -83,11 +83,11 @@ def test_when_poses_arrive_in_bursts_expect_evenly_spaced_commands_stamped_for_t
     spacing = np.diff(stamps)
     assert len(stamps) >= 0.8 * RATE_HZ * 3.0, len(stamps)
     assert len(stamps) <= 1.1 * RATE_HZ * 3.0, len(stamps)
-    # the pacing keeps the period minus half a filter tick (15 ms) on the filter's monotonic
-    # tick clock; a stamp is read from the node's clock just after it, so a process preempted
-    # between the two readings (a loaded machine) moves a stamp by a few ms: p5 at that spacing,
-    # and never two commands within a filter period (a burst put them 1 ms apart); evenly spaced
-    # on average
-    assert np.percentile(spacing, 5) >= 1.0 / RATE_HZ - 0.5 * FILTER_PERIOD_S - 1e-3, spacing
-    assert spacing.min() >= FILTER_PERIOD_S - 1e-3, spacing.min()
+    # the pacing keeps at least the period minus a filter tick (10 ms) on the filter's monotonic
+    # tick clock, where it makes up for a late tick; a stamp is read from the node's clock just
+    # after it, so a process preempted between the two readings (a loaded machine) moves a stamp
+    # by a few ms: p5 at that spacing, and never two commands within half a filter period (a
+    # burst put them 1 ms apart); evenly spaced on average
+    assert np.percentile(spacing, 5) >= 1.0 / RATE_HZ - FILTER_PERIOD_S - 1e-3, spacing
+    assert spacing.min() >= 0.5 * FILTER_PERIOD_S, spacing.min()
     assert abs(np.median(spacing) - 1.0 / RATE_HZ) < 2e-3, np.median(spacing)

@@ -1,5 +1,6 @@
 """When the motion filter ticks and publishes each output (motion.pacing), without ROS."""
 
+import numpy as np
 import pytest
 
 from audio2pose_ros.errors import ConfigurationError
@@ -17,7 +18,7 @@ def test_when_ticking_at_100_hz_expect_a_50_hz_output_every_other_tick_and_off_n
     pacing = OutputPacing(
         {"joint_angles": 50.0, "joint_states": 100.0, "joint_trajectory": 0.0}, 100.0
     )
-    assert pacing.spacing_s["joint_angles"] == pytest.approx(0.015)  # documented minimum
+    assert pacing.spacing_s["joint_angles"] == pytest.approx(0.010)  # documented minimum
     due = [pacing.due(k * PERIOD) for k in range(6)]
     assert [("joint_angles" in d) for d in due] == [True, False, True, False, True, False]
     assert all("joint_states" in d for d in due)
@@ -27,9 +28,28 @@ def test_when_ticking_at_100_hz_expect_a_50_hz_output_every_other_tick_and_off_n
 def test_when_ticks_come_late_expect_the_output_at_the_tick_nearest_its_period():
     pacing = OutputPacing({"joint_angles": 50.0}, 100.0)
     assert pacing.due(0.0) == ["joint_angles"]
-    assert pacing.due(0.014) == []  # under period minus half a filter period
-    assert pacing.due(0.016) == ["joint_angles"]  # a late tick: published, counted from there
-    assert pacing.due(0.030) == []
+    assert pacing.due(0.014) == []  # over half a filter period before it is due (0.020)
+    assert pacing.due(0.026) == ["joint_angles"]  # a late tick: published; next due 0.040
+    assert pacing.due(0.034) == []
+    assert pacing.due(0.036) == ["joint_angles"]  # its phase kept: 10 ms after the late one
+    assert pacing.due(0.045) == []  # never closer than the period less a filter period
+
+
+def test_when_every_tick_is_late_expect_the_output_rate_kept_on_average():
+    """Ticks every 13 ms (a loaded machine): 50 Hz on average, not every other tick (38 Hz)."""
+    pacing = OutputPacing({"joint_angles": 50.0}, 100.0)
+    published = [k * 0.013 for k in range(800) if pacing.due(k * 0.013)]
+    spacing = np.diff(published)
+    assert np.mean(spacing) == pytest.approx(0.020, abs=0.0005)
+    assert spacing.min() >= 0.010 - 1e-9
+
+
+def test_when_the_ticks_stall_expect_no_burst_to_catch_up():
+    pacing = OutputPacing({"joint_angles": 50.0}, 100.0)
+    assert pacing.due(0.0) == ["joint_angles"]
+    assert pacing.due(0.100) == ["joint_angles"]  # after a 100 ms stall
+    ticks = [0.110, 0.120, 0.130, 0.140]
+    assert [bool(pacing.due(t)) for t in ticks] == [False, True, False, True]
 
 
 def test_when_an_output_is_faster_than_the_filter_expect_refused_naming_the_parameter():

@@ -75,9 +75,10 @@ buffer (or ``MIN_TICK_SPACING`` periods after the previous tick, if later), so a
 commanded on arrival; else at ``rate_hz``, and two periods after a tick made for an arrival, as the
 input then is missing, not a period late. The tick is a
 :class:`~audio2pose_ros.ros.diagnosed_node.PacedTimer` (re-programmed at each such arrival), run
-between two messages when a backlog of input holds it back. Each output is published at the tick
-nearest to its own period, never less than its period minus half a filter period after the previous
-one (its documented minimum spacing: 15 ms for 50 Hz at a 100 Hz filter clock). Header stamps are
+between two messages when a backlog of input holds it back. Each output keeps its own rate on
+average, its due times one period apart, published at the first tick at most half a filter period
+before one, and never less than its period minus a filter period after the previous one (its
+documented minimum spacing: 10 ms for 50 Hz at a 100 Hz filter clock). Header stamps are
 the time the command was computed for (the tick), not the publish time. An output nobody subscribes
 to is not built nor sent.
 """
