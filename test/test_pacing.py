@@ -25,7 +25,7 @@ def test_when_ticking_at_100_hz_expect_a_50_hz_output_every_other_tick_and_off_n
     assert not any("joint_trajectory" in d for d in due)
 
 
-def test_when_ticks_come_late_expect_the_output_at_the_tick_nearest_its_period():
+def test_when_ticks_come_late_expect_the_output_at_the_first_tick_near_its_due_time():
     pacing = OutputPacing({"joint_angles": 50.0}, 100.0)
     assert pacing.due(0.0) == ["joint_angles"]
     assert pacing.due(0.014) == []  # over half a filter period before it is due (0.020)

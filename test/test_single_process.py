@@ -21,6 +21,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.data.bag import Chunking, audio_messages, read_messages
 from audio2pose_ros.robot.description import RobotDescription, load_robot
+from audio2pose_ros.ros.messages import stamp_s
 from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.recorder import play_and_record
 from audio2pose_ros.ros.supervisor import SINGLE_PROCESS, node_graph
@@ -28,11 +29,6 @@ from audio2pose_ros.topics import JOINT_ANGLES, RAW_TRAJECTORY, absolute
 
 SPEECH_S = 3.0
 STALL_S = 0.05  # a spacing of 2.5 command periods: the filter process stalled
-
-
-def _stamp_s(command: JointAnglesWithSpeed) -> float:
-    """The time a command is meant for (its header stamp, from the filter's tick) in seconds."""
-    return command.header.stamp.sec + command.header.stamp.nanosec * 1e-9
 
 
 def _run(
@@ -83,7 +79,7 @@ def test_when_the_nodes_share_one_process_expect_the_same_raw_poses_and_commands
     np.testing.assert_array_equal(np.array(single["raw"][:n]), np.array(three["raw"][:n]))
     for run in (three, single):
         poses = np.array([command.joint_angles for command in run["commands"]])
-        stamps_s = np.array([_stamp_s(command) for command in run["commands"]])
+        stamps_s = np.array([stamp_s(command.header.stamp) for command in run["commands"]])
         assert (poses >= robot.lower_rad - 1e-6).all()
         assert (poses <= robot.upper_rad + 1e-6).all()
         assert np.ptp(poses, axis=0).max() > 0.05  # the speech moved the robot
