@@ -241,7 +241,7 @@ class SimulatedChain:
     The console publishes the voice in 20 ms chunks (late now and then: a loaded page, then a
     burst); the voice node's :class:`~audio2pose_ros.voice.delay.DelayLine` holds each chunk
     back (the delay changes once, as after a calibration) and its
-    :class:`~audio2pose_ros.voice.delay.SpeakerQueue` skips pauses and chunks while the
+    :class:`~audio2pose_ros.voice.delay.SpeakerQueue` cuts pauses and skips chunks while the
     loudspeaker's queue is long; the node stalls now and then (a loaded machine: the
     loudspeaker runs dry, then gets a burst). The simulated Pepper's
     :class:`~audio2pose_ros.voice.robot_double.RobotLoudspeaker` plays it and its
@@ -301,8 +301,9 @@ class SimulatedChain:
                 if self.rng.random() < self.stalls:  # the voice node stalls (a loaded machine)
                     stalled_until = self.now + self.rng.uniform(0.05, 0.2)
                 for item in self.delay_line.due(self.now, delay_s):
-                    if self.queue.offer(self.now, item.samples) is not None:
-                        self.speaker.play(item.samples, RATE)
+                    queued = self.queue.offer(self.now, item.samples)
+                    if queued is not None:
+                        self.speaker.play(queued.samples, RATE)
             heard = self.microphones.due(self.now)
             alone = self.room_only.due(self.now)
             for (_, pcm), (_, pcm_room) in zip(heard, alone, strict=True):

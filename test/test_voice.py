@@ -95,18 +95,33 @@ def test_when_the_line_overflows_expect_the_oldest_dropped_and_counted():
     assert [c.arrival_s for c in line.due(100.0, 0.0)] == [3.0, 4.0]  # the newest 40 ms
 
 
-def test_when_the_loudspeaker_queue_grows_expect_pauses_skipped_first_then_any_chunk():
+def test_when_the_loudspeaker_queue_grows_expect_pauses_cut_first_then_any_chunk_skipped():
     queue = SpeakerQueue(16000, max_backlog_s=0.04, max_speech_backlog_s=0.15)
     loud, quiet = 0.3 * np.ones(320), np.zeros(320)
-    starts = [queue.offer(10.0, loud) for _ in range(5)]  # 100 ms arrive at once
+
+    def start(now_s: float, samples: np.ndarray) -> float | None:
+        queued = queue.offer(now_s, samples)
+        return None if queued is None else queued.start_s
+
+    starts = [start(10.0, loud) for _ in range(5)]  # 100 ms arrive at once
     assert starts == pytest.approx([10.0, 10.02, 10.04, 10.06, 10.08])  # played back to back
-    assert queue.offer(10.0, quiet) is None  # a pause while 100 ms wait: skipped
-    assert queue.offer(10.0, loud) == pytest.approx(10.1)  # speech is still played
-    later = [queue.offer(10.0, loud) for _ in range(4)]  # beyond 150 ms: skipped too
-    assert [start is None for start in later] == [False, False, True, True]
+    assert start(10.0, quiet) is None  # a pause while 100 ms wait: skipped
+    assert start(10.0, loud) == pytest.approx(10.1)  # speech is still played
+    later = [start(10.0, loud) for _ in range(4)]  # beyond 150 ms: skipped too
+    assert [s is None for s in later] == [False, False, True, True]
     assert queue.skipped_samples == 320
     assert queue.speech_skipped_samples == 640
-    assert queue.offer(11.0, quiet) == 11.0  # the queue has drained: nothing is skipped
+    assert start(11.0, quiet) == 11.0  # the queue has drained: nothing is skipped
+    # 50 ms queued: a pause is cut by the 10 ms beyond 40 ms, and the queue holds 40 ms again
+    queue = SpeakerQueue(16000, max_backlog_s=0.04)
+    for samples in (loud, loud, loud[:160]):
+        queue.offer(20.0, samples)
+    cut = queue.offer(20.0, quiet)
+    assert cut is not None
+    assert len(cut.samples) == 320 - 160
+    assert queue.skipped_samples == 160
+    assert queue.backlog_s(20.0 + 0.05) == pytest.approx(0.01)  # what was queued, then its rest
+    assert queue.standing_s(20.0) == pytest.approx(0.04)
 
 
 # --- lags -------------------------------------------------------------------------------------
@@ -324,14 +339,49 @@ def test_when_the_node_is_held_up_once_expect_the_voice_back_on_its_delay_at_the
             line.push(np.zeros(320) if pause else 0.3 * np.ones(320), now)
         if 1000 <= tick < 1025:
             continue
-        for chunk in line.due(now, sync.line_delay_s()):
-            start = queue.offer(now, chunk.samples)
-            assert start is not None
-            sync.on_sent(start, chunk.samples, start - now)
-            held_back.append(start - chunk.arrival_s)
+        for chunk in line.due(now, sync.line_delay_s(queue.standing_s(now))):
+            queued = queue.offer(now, chunk.samples)
+            assert queued is not None
+            sync.on_sent(queued.start_s, queued.samples, queued.start_s - now)
+            held_back.append(queued.start_s - chunk.arrival_s)
     assert held_back[40] == pytest.approx(sync.delay_s, abs=1e-6)
     assert max(held_back) > sync.delay_s + 0.015  # the chunk due in the stall, and those after
     assert held_back[-1] == pytest.approx(sync.delay_s, abs=0.002)  # back after a pause
+
+
+@pytest.mark.parametrize("held_up_ms", [60, 150, 400])
+def test_when_the_node_is_held_up_with_the_voice_arriving_after_expect_it_late_never_early(
+    held_up_ms: int,
+):
+    # the node stops altogether (its release ticks and its voice callback): the chunks spoken
+    # meanwhile all arrive when it resumes, as if after a pause. They are the voice coming late:
+    # the loudspeaker's queue holds them and sheds pauses until the voice is back on its delay,
+    # never ahead of it (a voice ahead of the motion is the error people notice first)
+    rate = 16000
+    line, queue, sync = DelayLine(rate), SpeakerQueue(rate), SyncEstimator(rate)
+    spoken: list[tuple[float, np.ndarray]] = []  # when each chunk was spoken
+    for k in range(250):
+        pause = k % 50 in (47, 48, 49) or k % 17 == 16
+        spoken.append((0.02 * k, np.zeros(320) if pause else 0.3 * np.ones(320)))
+    held_back: list[float] = []  # from when each chunk was spoken to when it starts playing
+    out = 0  # chunks out of the line, played or skipped
+    waiting = list(spoken)
+    for tick in range(6000):
+        now = 0.001 * tick
+        if 1500 <= tick < 1500 + held_up_ms:
+            continue
+        while waiting and waiting[0][0] <= now:
+            line.push(waiting.pop(0)[1], now)
+        for chunk in line.due(now, sync.line_delay_s(queue.standing_s(now))):
+            queued = queue.offer(now, chunk.samples)
+            if queued is not None:
+                sync.on_sent(queued.start_s, queued.samples, queued.start_s - now)
+                held_back.append(queued.start_s - spoken[out][0])
+            out += 1
+    assert out == len(spoken)
+    assert max(held_back) >= sync.delay_s + 0.8 * held_up_ms * 1e-3  # late after the hold-up
+    assert min(held_back) >= sync.delay_s - 0.002  # never early (1 ms ticks)
+    assert held_back[-1] == pytest.approx(sync.delay_s, abs=0.002)  # back on its delay
 
 
 # --- the robot double and the NAOqi link, over NAOqi's real protocol ---------------------------

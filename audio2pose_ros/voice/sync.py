@@ -26,9 +26,9 @@ The three parts are measured while the operator talks (:class:`SyncEstimator`):
 
 The loudspeaker plays what it is given back to back, so a chunk sent late (a loaded machine)
 leaves every chunk after it waiting behind it, for as long as the voice goes on: that wait is
-part of the voice's delay. The delay line is therefore asked for the delay minus the last
-chunk's wait (:meth:`SyncEstimator.line_delay_s`), at once, not through the slow median of a
-measured part.
+part of the voice's delay. The delay line is therefore asked for the delay minus what stands in
+the loudspeaker's queue when it releases (:meth:`SyncEstimator.line_delay_s`), at once, not
+through the slow median of a measured part.
 
 A part not measured (no robot microphones, no measured joint states, too little speech or
 motion yet) uses its documented default (:data:`DEFAULTS_S`) and says so. Each estimate is the
@@ -235,9 +235,15 @@ class SyncEstimator:
                 self.parts[name].measurements.append(lags[name])
         self.delay_s = self.target_delay_s()
 
-    def line_delay_s(self) -> float:
-        """What the delay line is asked for: the delay, less the loudspeaker's wait."""
-        return max(self.delay_s - self.waited_s, 0.0)
+    def line_delay_s(self, queued_s: float) -> float:
+        """What the delay line is asked for: the delay, less what the loudspeaker has queued.
+
+        ``queued_s``: what stands in the loudspeaker's queue now
+        (:meth:`~audio2pose_ros.voice.delay.SpeakerQueue.standing_s`). Not the wait of the last
+        chunk sent: pauses skipped since then have shortened the queue, and a delay line asked
+        for less by what is no longer queued would leave the voice early.
+        """
+        return max(self.delay_s - queued_s, 0.0)
 
     def target_delay_s(self) -> float:
         """The delay the current estimates call for."""

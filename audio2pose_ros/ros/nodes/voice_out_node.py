@@ -19,10 +19,10 @@ NAOqi's ALAudioDevice (:class:`~audio2pose_ros.voice.naoqi.NaoqiVoiceOut`, a thr
 with a bounded queue: a robot that does not answer never holds this node, and the motion graph
 does not depend on this node at all). A lost connection is reported as ERROR on /diagnostics and
 retried. Every chunk is held back by the delay of :class:`~audio2pose_ros.voice.sync.SyncEstimator`,
-measured while the operator talks; pauses between words are skipped while the loudspeaker's
-queue is long, and any chunk while it is longer than the motion filter lets its own backlog be
-(:class:`~audio2pose_ros.voice.delay.SpeakerQueue`), so bursts do not leave the voice late; both
-are counted on /diagnostics. ``muted`` (the operator's choice, live) drops the voice, and what
+measured while the operator talks; pauses between words are cut while the loudspeaker's queue
+is long, and any chunk is skipped while it is longer than the motion filter lets its own backlog
+be (:class:`~audio2pose_ros.voice.delay.SpeakerQueue`), so bursts do not leave the voice late;
+both are counted on /diagnostics. ``muted`` (the operator's choice, live) drops the voice, and what
 NAOqi has queued and not played yet (``flushAudioOutputs``); the motion is not touched by it, nor
 by anything here.
 """
@@ -247,18 +247,19 @@ class VoiceOutNode(DiagnosedNode):
     def release(self) -> None:
         """Send the chunks whose delay is over."""
         now = _now_s(self)
-        for chunk in self.delay_line.due(now, self.sync.line_delay_s()):
-            start_s = self.speaker_queue.offer(now, chunk.samples)
-            if start_s is None:
+        asked_s = self.sync.line_delay_s(self.speaker_queue.standing_s(now))
+        for chunk in self.delay_line.due(now, asked_s):
+            queued = self.speaker_queue.offer(now, chunk.samples)
+            if queued is None:
                 continue  # skipped: the loudspeaker's queue is too long (counted)
-            self.released_s += len(chunk.samples) / self.rate_hz
+            self.released_s += len(queued.samples) / self.rate_hz
             if self.naoqi is not None:
-                self.naoqi.send(chunk.samples)
+                self.naoqi.send(queued.samples)
             elif self.destination.kind == "topic":
-                self.out_pub.publish(AudioData(data=encode_pcm(chunk.samples, self.out_format)))
+                self.out_pub.publish(AudioData(data=encode_pcm(queued.samples, self.out_format)))
             # the loudspeaker latency counts from when the chunk should start playing; its wait
             # there is taken off the delay line's
-            self.sync.on_sent(start_s, chunk.samples, start_s - now)
+            self.sync.on_sent(queued.start_s, queued.samples, queued.start_s - now)
 
     # --- the motion and the microphones -----------------------------------------------------------
 
@@ -361,6 +362,7 @@ class VoiceOutNode(DiagnosedNode):
             "loudspeaker_latency": parts["loudspeaker"].describe(),
             "voice_delay_ms": f"{self.delay_in_force_s() * 1e3:.0f}",
             "voice_delay_target_ms": f"{self.sync.delay_s * 1e3:.0f}",
+            "loudspeaker_queue_ms": f"{self.sync.waited_s * 1e3:.0f}",
             "calibrated": self.sync.calibrated(self.delay_in_force_s()),
             "offset_ms": f"{self.sync.expected_offset_s(self.delay_in_force_s()) * 1e3:+.0f}",
             "voice_released_s": f"{self.released_s:.2f}",

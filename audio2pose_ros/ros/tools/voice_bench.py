@@ -73,9 +73,10 @@ class VoiceBenchResult:
     samples_published: int  # voice samples the observer published (warm-up included)
     calibrated_after_s: float | None  # speech played until calibrated (None: it never was)
     voice_node: dict[str, str] = field(default_factory=dict)  # its last /diagnostics values
-    # the voice node's delay in force and the delay asked for (ms), at each of its heartbeats
-    # while the measured speech played (the estimate may move later, with no voice to follow it)
-    delays_while_playing_ms: list[tuple[int, int]] = field(default_factory=list)
+    # the voice node's delay in force, the delay asked for and the loudspeaker's queue (ms), at
+    # each of its heartbeats while the measured speech played (the estimate may move later, with
+    # no voice to follow it)
+    delays_while_playing_ms: list[tuple[int, int, int]] = field(default_factory=list)
     robot: dict[str, str] = field(default_factory=dict)  # the simulated Pepper's
     restarts: int = 0
 
@@ -97,7 +98,7 @@ class VoiceObserver(Node):
         self.samples_published = 0
         self.raw_seen = 0
         self.diagnostics: dict[str, dict[str, str]] = {}
-        self.delays_while_playing_ms: list[tuple[int, int]] = []
+        self.delays_while_playing_ms: list[tuple[int, int, int]] = []
         self.levels: dict[str, list[int]] = {}
         self.player = MessagePlayer(
             self, [(AUDIO_TOPIC, AUDIO_DATA_TYPE), (AUDIO_INFO_TOPIC, AUDIO_INFO_TYPE)]
@@ -156,7 +157,11 @@ class VoiceObserver(Node):
             values = self.diagnostics[name] = {kv.key: kv.value for kv in status.values}
             if self.playing and name == VOICE_NODE and "voice_delay_target_ms" in values:
                 self.delays_while_playing_ms.append(
-                    (int(values["voice_delay_ms"]), int(values["voice_delay_target_ms"]))
+                    (
+                        int(values["voice_delay_ms"]),
+                        int(values["voice_delay_target_ms"]),
+                        int(values["loudspeaker_queue_ms"]),
+                    )
                 )
             self.levels.setdefault(name, []).append(int.from_bytes(status.level, "little"))
 
