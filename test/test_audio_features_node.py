@@ -25,7 +25,7 @@ from audio2pose_ros.audio.features import FeatureSpec
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmDecoder, PcmFormat, encode_pcm
 from audio2pose_ros.audio.streaming import StreamingFeatureExtractor
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR
-from audio2pose_ros.ros.messages import msg_to_features
+from audio2pose_ros.ros.messages import msg_to_features, stamp_s
 from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS
 from audio2pose_ros.ros.tools.process_stats import rss_mb
@@ -64,7 +64,7 @@ class Peer(Node):
         for status in msg.status:
             if status.name.endswith(NODE):
                 self.statuses.append((time.monotonic(), status))
-                self.stamps.append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
+                self.stamps.append(stamp_s(msg.header.stamp))
 
     def spin_for(self, seconds: float) -> None:
         end = time.monotonic() + seconds

@@ -18,7 +18,7 @@ from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.ros.messages import trajectory_msg
+from audio2pose_ros.ros.messages import stamp_s, trajectory_msg
 from audio2pose_ros.ros.nodes.motion_filter_node import PARAMETERS
 from audio2pose_ros.ros.supervisor import executable_command
 from audio2pose_ros.topics import JOINT_ANGLES, RAW_TRAJECTORY, absolute
@@ -38,7 +38,7 @@ class Listener(Node):
         )
 
     def on_command(self, msg: JointAnglesWithSpeed) -> None:
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        stamp = stamp_s(msg.header.stamp)
         self.commands.append((time.monotonic(), stamp))
 
 

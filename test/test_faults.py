@@ -18,7 +18,7 @@ from graph_probe import Probe, diagnostics_of
 from rclpy_features import PUBLISHER_GIDS
 
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, PcmFormat, encode_pcm
-from audio2pose_ros.ros.messages import trajectory_msg
+from audio2pose_ros.ros.messages import stamp_s, trajectory_msg
 from audio2pose_ros.ros.player import spin_until
 from audio2pose_ros.ros.supervisor import node_graph
 from audio2pose_ros.ros.tools.process_stats import rss_mb
@@ -222,11 +222,7 @@ def test_when_a_node_is_killed_expect_it_restarted_and_the_graph_recovers(
             probe.audio.publish(AudioData(data=payload[offset : offset + 3200]))
             offset = (offset + 3200) % len(payload)
             probe.spin_for(0.1)
-            arrived = [
-                m
-                for m in probe.received["raw"]
-                if m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 > 0
-            ]
+            arrived = [m for m in probe.received["raw"] if stamp_s(m.header.stamp) > 0]
             return graph.processes["inference_node"] is not victim and len(arrived) > 0
 
         probe.received["raw"].clear()

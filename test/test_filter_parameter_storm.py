@@ -31,7 +31,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.ros.executor import EXECUTOR_ENV, create_executor
-from audio2pose_ros.ros.messages import trajectory_msg
+from audio2pose_ros.ros.messages import stamp_s, trajectory_msg
 from audio2pose_ros.ros.nodes.motion_filter_node import MotionFilterNode
 from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.spin import spin_once
@@ -61,15 +61,14 @@ class Operator(Node):
         self.create_subscription(DiagnosticArray, DIAGNOSTICS, self.on_diagnostics, 100)
 
     def on_command(self, msg: JointState) -> None:
-        stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        self.commands.append((stamp_s, np.array(msg.position)))
+        self.commands.append((stamp_s(msg.header.stamp), np.array(msg.position)))
 
     def on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
             if status.name.endswith("motion_filter_node"):
                 values = {kv.key: kv.value for kv in status.values}
                 values["message"] = status.message
-                values["stamp_s"] = str(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
+                values["stamp_s"] = str(stamp_s(msg.header.stamp))
                 self.diagnostics.append(values)
 
     def stream(self, pose: np.ndarray) -> None:

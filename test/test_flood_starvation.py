@@ -41,6 +41,7 @@ from sensor_msgs.msg import JointState
 
 from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_PERIOD_S, DiagnosedNode
+from audio2pose_ros.ros.messages import stamp_s
 from audio2pose_ros.ros.nodes.audio_features_node import AudioFeaturesNode
 from audio2pose_ros.ros.nodes.pepper_sim_node import STATE_PERIOD_S
 from audio2pose_ros.ros.paced_timer import PacedTimer
@@ -58,10 +59,6 @@ FLOOD_S = 5.0
 STATE_LATE_CPU_S = 0.04  # joint_states (20 ms): here at most 7 ms; starving: 16-540 ms
 # and BEAT_LATE_CPU_S (0.25 s) for the heartbeat (0.5 s)
 WINDOW_S = 1.0  # for the printed figure: the fewest joint_states in a 1 s window
-
-
-def _stamp_s(msg: DiagnosticArray | JointState) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
 @dataclass
@@ -152,14 +149,17 @@ def flood(tmp_path: Path, executable: str, kind: str, *ros_args: str) -> Heard:
     node_process = subprocess.Popen(command, stdout=log, stderr=log)
 
     def on_diagnostics(array: DiagnosticArray) -> None:
-        stamp = _stamp_s(array)
+        stamp = stamp_s(array.header.stamp)
         heard.beats.extend((stamp, s) for s in array.status if s.name.endswith(executable))
 
     with rclpy_session():
         probe = Node("flood_probe")
         probe.create_subscription(DiagnosticArray, DIAGNOSTICS, on_diagnostics, 1000)
         probe.create_subscription(
-            JointState, absolute(JOINT_STATES), lambda m: heard.states.append(_stamp_s(m)), 1000
+            JointState,
+            absolute(JOINT_STATES),
+            lambda m: heard.states.append(stamp_s(m.header.stamp)),
+            1000,
         )
         flooder = None
         try:

@@ -32,7 +32,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
-from audio2pose_ros.ros.messages import trajectory_msg
+from audio2pose_ros.ros.messages import stamp_s, trajectory_msg
 from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.qos import STREAM_QOS
 from audio2pose_ros.ros.supervisor import executable_command
@@ -73,8 +73,7 @@ class Operator(Node):
         self.sent_s: list[float] = []  # when each raw pose was sent (wall clock)
 
     def on_command(self, msg: JointState) -> None:
-        stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        self.commands.append((stamp_s, np.array(msg.position)))
+        self.commands.append((stamp_s(msg.header.stamp), np.array(msg.position)))
 
     def on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -185,10 +184,10 @@ def test_when_another_input_floods_expect_commands_within_a_tenth_of_a_radian_of
     positions = np.array([p for _, p in quiet])
     moved = [robot.names.index(name) for name in JOINTS]
     drift, worst_s = 0.0, 0.0
-    for (phase, position), (stamp_s, _) in zip(flood, flood_commands, strict=True):
+    for (phase, position), (stamp, _) in zip(flood, flood_commands, strict=True):
         expected = [np.interp(phase, phases, positions[:, j], period=TRACK_PERIOD_S) for j in moved]
         if (off := float(np.abs(position[moved] - expected).max())) > drift:
-            drift, worst_s = off, stamp_s - flood_start
+            drift, worst_s = off, stamp - flood_start
     stamps = np.array(sorted(s for s, _ in operator.commands if flood_start <= s <= flood_end))
     sent_during = np.array([t for t in operator.sent_s if flood_start <= t <= flood_end])
     values = operator.filter_values

@@ -28,7 +28,7 @@ from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.checkpoints.numpy_runtime import load_streaming_model
 from audio2pose_ros.resources import default_checkpoint_path
 from audio2pose_ros.ros.diagnosed_node import HEARTBEAT_OVERDUE_S, HEARTBEAT_PERIOD_S, DiagnosedNode
-from audio2pose_ros.ros.messages import features_to_msg
+from audio2pose_ros.ros.messages import features_to_msg, stamp_s
 from audio2pose_ros.ros.player import rclpy_session, spin_until
 from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.ros.supervisor import executable_command
@@ -146,8 +146,8 @@ def test_when_a_node_is_flooded_expect_heartbeats_throughout(
     executor = ExecutorCpu(process.pid)
 
     def on_diagnostics(array: DiagnosticArray) -> None:
-        stamp_s = array.header.stamp.sec + array.header.stamp.nanosec * 1e-9
-        beats.extend((stamp_s, s) for s in array.status if s.name.endswith(executable))
+        stamp = stamp_s(array.header.stamp)
+        beats.extend((stamp, s) for s in array.status if s.name.endswith(executable))
 
     with rclpy_session():
         probe = Node("flood_probe")

@@ -25,7 +25,7 @@ from std_msgs.msg import Bool
 from trajectory_msgs.msg import JointTrajectory
 
 from audio2pose_ros.errors import EXIT_CONFIGURATION_ERROR
-from audio2pose_ros.ros.messages import trajectory_msg
+from audio2pose_ros.ros.messages import stamp_s, trajectory_msg
 from audio2pose_ros.ros.player import rclpy_session
 from audio2pose_ros.ros.qos import LATCHED_QOS
 from audio2pose_ros.ros.supervisor import executable_command
@@ -64,8 +64,7 @@ class Driver(Node):
 
     def on_state(self, msg: JointState) -> None:
         self.states.append((time.monotonic(), np.array(msg.position)))
-        stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        self.stamped.append((stamp_s, np.array(msg.position)))
+        self.stamped.append((stamp_s(msg.header.stamp), np.array(msg.position)))
 
     def on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:

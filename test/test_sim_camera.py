@@ -11,6 +11,7 @@ from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 
+from audio2pose_ros.ros.messages import stamp_s
 from audio2pose_ros.ros.supervisor import NodeSupervisor, executable_command
 from audio2pose_ros.topics import CAMERA_IMAGE, CAMERA_INFO, JOINT_ANGLES, absolute
 
@@ -50,7 +51,7 @@ def test_when_the_simulated_head_turns_expect_its_camera_image_to_follow(
     first = images[0]
     assert (first.encoding, first.width, first.height, first.step) == ("rgb8", 320, 240, 960)
     assert first.header.frame_id == "CameraTop_optical_frame"
-    stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in images]
+    stamps = [stamp_s(m.header.stamp) for m in images]
     assert stamps == sorted(stamps)
     assert len(set(stamps)) == len(stamps)
     info_stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in infos}
@@ -105,5 +106,5 @@ def test_when_the_camera_process_is_killed_expect_it_reported_and_pictures_again
         supervisor.stop()
     died = next(m for m in warnings if "head camera's process died" in m)
     assert "exit code -9" in died
-    stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in images]
+    stamps = [stamp_s(m.header.stamp) for m in images]
     assert stamps == sorted(stamps)  # pictures again, after the restart, in order

@@ -20,6 +20,7 @@ from audio2pose_ros.audio.pcm import S16LE_MONO_16K, encode_pcm
 from audio2pose_ros.audio.wav import read_wav
 from audio2pose_ros.motion.tracking import TRACKING_TOLERANCE_RAD, TrackingWatch
 from audio2pose_ros.robot.body import BodyModel
+from audio2pose_ros.ros.messages import stamp_s
 from audio2pose_ros.ros.supervisor import node_graph
 from audio2pose_ros.topics import JOINT_STATES, absolute
 
@@ -33,7 +34,7 @@ def test_when_speech_plays_against_the_simulated_robot_expect_it_moves_and_track
 
     def on_state(msg: JointState) -> None:
         index = {name: i for i, name in enumerate(msg.name)}
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        stamp = stamp_s(msg.header.stamp)
         measured.append((stamp, np.array([msg.position[index[n]] for n in robot.names])))
 
     probe.create_subscription(JointState, absolute(JOINT_STATES), on_state, 1000)
@@ -55,7 +56,7 @@ def test_when_speech_plays_against_the_simulated_robot_expect_it_moves_and_track
     positions = np.array([p for _, p in measured])
     assert positions.std(axis=0).max() > 0.02  # the simulated robot moved with the speech
     commands = probe.received["angles"]
-    command_t = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in commands])
+    command_t = np.array([stamp_s(m.header.stamp) for m in commands])
     command_p = np.array([m.joint_angles for m in commands])
     # Only the states whose commands in force the probe has all seen: the newest commands may
     # still be on their way to it when it stops listening.

@@ -23,6 +23,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from naoqi_bridge_msgs.msg import JointAnglesWithSpeed
 
 from audio2pose_ros import topics
+from audio2pose_ros.ros.messages import stamp_s
 from audio2pose_ros.ros.player import rclpy_session, spin_until
 from audio2pose_ros.ros.supervisor import executable_command, node_graph
 from audio2pose_ros.ros.tools.graph_bench import bundled_speech
@@ -140,7 +141,7 @@ def test_when_naoqi_is_lost_and_restored_expect_the_motion_untouched_and_the_los
             observer.create_subscription(
                 JointAnglesWithSpeed,
                 topics.absolute(topics.JOINT_ANGLES),
-                lambda m: commands.append(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9),
+                lambda m: commands.append(stamp_s(m.header.stamp)),
                 1000,
             )
             observer.create_subscription(

@@ -101,6 +101,7 @@ from audio2pose_ros.resources import share_path
 from audio2pose_ros.robot.description import load_robot
 from audio2pose_ros.ros.diagnosed_node import STALE_AFTER_S, DiagnosedNode, status_name
 from audio2pose_ros.ros.kept_parameters import KeptParameters
+from audio2pose_ros.ros.messages import stamp_s
 from audio2pose_ros.ros.node_parameters import NodeParameters
 from audio2pose_ros.ros.qos import LATCHED_QOS
 from audio2pose_ros.ros.spin import run_node
@@ -134,7 +135,7 @@ AUDIO_PUBLISH_QOS = QoSProfile(
 def _taken_s(stamp: Any) -> float:
     """A header stamp as wall-clock seconds; now when it is unset or in the future."""
     now = time.time()
-    taken = stamp.sec + stamp.nanosec * 1e-9
+    taken = stamp_s(stamp)
     return taken if 0.0 < taken <= now else now
 
 
@@ -421,7 +422,7 @@ class ConsoleNode(DiagnosedNode):
             if source == "joint_angles" or self.command_source != "joint_angles":
                 self.commanded, self.command_source = pose, source
             if source == self.command_source:
-                self.latency.command_arrived(stamp.sec + stamp.nanosec * 1e-9, now)
+                self.latency.command_arrived(stamp_s(stamp), now)
 
     def on_joint_angles(self, msg: JointAnglesWithSpeed) -> None:
         """A command to naoqi_driver: the pose shown and the end of a latency."""

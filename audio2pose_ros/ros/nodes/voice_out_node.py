@@ -52,7 +52,7 @@ from audio2pose_ros.parameters import (
     validate_settings,
 )
 from audio2pose_ros.ros.diagnosed_node import DiagnosedNode
-from audio2pose_ros.ros.messages import trajectory_bytes_cap
+from audio2pose_ros.ros.messages import stamp_s, trajectory_bytes_cap
 from audio2pose_ros.ros.node_parameters import NodeParameters
 from audio2pose_ros.ros.qos import AUDIO_QOS, LATCHED_QOS
 from audio2pose_ros.ros.spin import run_node
@@ -130,10 +130,6 @@ PARAMETERS = specs_of(VoiceOutSettings)
 
 def _now_s(node: DiagnosedNode) -> float:
     return float(node.get_clock().now().nanoseconds) * 1e-9
-
-
-def _stamp_s(stamp: object) -> float:
-    return float(stamp.sec) + float(stamp.nanosec) * 1e-9  # type: ignore[attr-defined]
 
 
 class VoiceOutNode(DiagnosedNode):
@@ -276,11 +272,11 @@ class VoiceOutNode(DiagnosedNode):
         """Pose messages: paired with the chunk they answer; their poses as the model made them."""
         now = _now_s(self)
         names = list(msg.joint_names)
-        stamp_s = _stamp_s(msg.header.stamp)
+        stamp = stamp_s(msg.header.stamp)
         for i, point in enumerate(msg.points):
             row = self._order(names, np.asarray(point.positions, dtype=np.float64))
             if row is not None:
-                self.sync.raw.add(stamp_s + i * FRAME_PERIOD_S, row)
+                self.sync.raw.add(stamp + i * FRAME_PERIOD_S, row)
         self.sync.pairing.poses(now)
 
     def on_commanded(self, msg: JointState) -> None:
@@ -289,13 +285,13 @@ class VoiceOutNode(DiagnosedNode):
             self.joint_names = list(msg.name)
         row = self._order(list(msg.name), list(msg.position))
         if row is not None:
-            self.sync.on_commanded(_stamp_s(msg.header.stamp), row)
+            self.sync.on_commanded(stamp_s(msg.header.stamp), row)
 
     def on_measured(self, msg: JointState) -> None:
         """The robot's measured joint states."""
         row = self._order(list(msg.name), list(msg.position))
         if row is not None:
-            self.sync.on_measured(_stamp_s(msg.header.stamp), row)
+            self.sync.on_measured(stamp_s(msg.header.stamp), row)
 
     def on_microphones(self, msg: AudioBuffer) -> None:
         """The robot's microphones (stamped with their last sample), averaged to mono."""
@@ -304,7 +300,7 @@ class VoiceOutNode(DiagnosedNode):
         if not msg.frequency or len(data) % channels:
             raise InputError(f"AudioBuffer of {len(data)} samples for {channels} channels")
         mono = data.reshape(-1, channels).mean(axis=1) / 32768.0
-        first_s = _stamp_s(msg.header.stamp) - (len(mono) - 1) / msg.frequency
+        first_s = stamp_s(msg.header.stamp) - (len(mono) - 1) / msg.frequency
         self.sync.on_heard(first_s, mono, int(msg.frequency))
 
     def calibrate(self) -> None:

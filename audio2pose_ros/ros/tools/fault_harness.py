@@ -31,6 +31,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from audio2pose_ros import topics
 from audio2pose_ros.offline.parameters_file import FILTER_NODE
 from audio2pose_ros.robot.description import RobotDescription
+from audio2pose_ros.ros.messages import stamp_s
 from audio2pose_ros.ros.qos import LATCHED_QOS, STREAM_QOS
 from audio2pose_ros.ros.supervisor import NodeSupervisor
 
@@ -142,7 +143,7 @@ class CampaignProbe(Node):
             [msg.joint_angles[index[n]] if n in index else math.nan for n in self.robot.names]
         )
         stamp = msg.header.stamp
-        self.commands.append((stamp.sec + stamp.nanosec * 1e-9, values))
+        self.commands.append((stamp_s(stamp), values))
         if np.isfinite(values).all():
             self.robot_pose = values  # a perfect robot: it is where it was last commanded
 

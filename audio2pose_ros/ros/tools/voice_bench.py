@@ -42,6 +42,7 @@ from audio2pose_ros.data.bag import (
 )
 from audio2pose_ros.errors import Audio2PoseError
 from audio2pose_ros.robot.description import load_robot
+from audio2pose_ros.ros.messages import stamp_s
 from audio2pose_ros.ros.player import MessagePlayer, rclpy_session, silence_message, spin_until
 from audio2pose_ros.ros.supervisor import NodeSupervisor, executable_command, node_graph
 from audio2pose_ros.ros.voice_graph import VOICE_NODE, voice_out_processes
@@ -127,7 +128,7 @@ class VoiceObserver(Node):
         if not self.recording:
             return
         self.record.raw_arrivals.append(time.time())
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        stamp = stamp_s(msg.header.stamp)
         for i, point in enumerate(msg.points):
             row = self._row(list(msg.joint_names), list(point.positions))
             if row is not None:
@@ -137,7 +138,7 @@ class VoiceObserver(Node):
         """The robot's measured joint states."""
         row = self._row(list(msg.name), list(msg.position))
         if self.recording and row is not None:
-            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            stamp = stamp_s(msg.header.stamp)
             self.record.measured.append((stamp, row))
 
     def on_heard(self, msg: AudioBuffer) -> None:
@@ -146,7 +147,7 @@ class VoiceObserver(Node):
             return
         channels = max(1, len(msg.channel_map))
         mono = np.asarray(msg.data, dtype=np.int16).reshape(-1, channels).mean(axis=1) / 32768
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        stamp = stamp_s(msg.header.stamp)
         self.record.heard_rate_hz = int(msg.frequency)
         self.record.heard.append((stamp - (len(mono) - 1) / msg.frequency, mono))
 
