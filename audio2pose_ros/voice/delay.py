@@ -223,7 +223,7 @@ class SpeakerQueue:
         return max(0.0, self.end_s - now_s)
 
     def standing_s(self, now_s: float) -> float:
-        """The part of the queue that skipping pauses leaves (s): up to ``max_backlog_s``.
+        """The part of the queue that cutting pauses leaves (s): up to ``max_backlog_s``.
 
         What the delay line takes off its own delay. Beyond it the queue itself sheds pauses: a
         delay line that also shortened its delay for that part would correct the same lateness
